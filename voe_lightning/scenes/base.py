@@ -1,0 +1,514 @@
+"""What every concept's scene shares: an MjSpec scene builder with named, mask-labelled objects,
+a per-process renderer that reuses one GL context, a simulation that renders frames and masks
+and can fork at a hidden manipulation, and packing into spec'd TensorDict records."""
+
+from __future__ import annotations
+
+import copy
+import importlib
+import os
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import mujoco
+import numpy as np
+import torch
+from tensordict import TensorDict
+
+from voe_lightning import specs
+
+SHAPES = {
+    "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
+    "box": mujoco.mjtGeom.mjGEOM_BOX,
+    "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
+    "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
+    "ellipsoid": mujoco.mjtGeom.mjGEOM_ELLIPSOID,
+}
+
+#: Distinct, saturated object colours (the paper's figures use such colours on a plain floor).
+PALETTE: dict[str, tuple[float, float, float]] = {
+    "red": (0.90, 0.15, 0.15),
+    "green": (0.15, 0.75, 0.20),
+    "blue": (0.15, 0.35, 0.95),
+    "yellow": (0.95, 0.85, 0.10),
+    "magenta": (0.90, 0.20, 0.85),
+    "cyan": (0.10, 0.85, 0.90),
+    "orange": (0.98, 0.55, 0.10),
+    "purple": (0.55, 0.25, 0.85),
+    "white": (0.95, 0.95, 0.95),
+    "pink": (0.98, 0.60, 0.70),
+}
+COLOR_NAMES: tuple[str, ...] = tuple(PALETTE)
+
+#: Floor textures shared by every model, so one GPU context serves all scenes (see Renderer).
+_FLOOR_TEXTURES = ("checker", "gradient", "flat")
+
+
+@dataclass(frozen=True)
+class VideoOptions:
+    """Geometry and timing of a rendered video (paper: 15 frames, 64x64, about 3 s)."""
+
+    num_frames: int = specs.NUM_FRAMES
+    height: int = specs.HEIGHT
+    width: int = specs.WIDTH
+    duration: float = 3.0
+    timestep: float = 0.01
+
+    def __post_init__(self) -> None:
+        for name in ("num_frames", "height", "width"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if not 0 < self.timestep <= self.duration / self.num_frames:
+            raise ValueError(
+                f"timestep {self.timestep} must be in (0, duration/num_frames="
+                f"{self.duration / self.num_frames:g}]"
+            )
+
+    @property
+    def steps_per_frame(self) -> int:
+        return max(1, round(self.duration / self.num_frames / self.timestep))
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """A free camera looking at ``lookat`` from ``distance`` at ``azimuth``/``elevation`` (deg)."""
+
+    lookat: tuple[float, float, float] = (0.0, 0.0, 0.4)
+    distance: float = 4.0
+    azimuth: float = 90.0
+    elevation: float = -20.0
+
+    def as_array(self) -> np.ndarray:
+        return np.array([*self.lookat, self.distance, self.azimuth, self.elevation], np.float32)
+
+
+@dataclass
+class Geom:
+    """One primitive of an object, placed relative to its body."""
+
+    shape: str
+    size: Sequence[float]
+    pos: Sequence[float] = (0.0, 0.0, 0.0)
+    quat: Sequence[float] = (1.0, 0.0, 0.0, 0.0)
+
+
+@dataclass
+class SceneObject:
+    """A named object of a scene and the mask id its pixels carry."""
+
+    name: str
+    mask_id: int
+    free: bool
+    mocap: bool
+    geom_names: list[str] = field(default_factory=list)
+
+
+def rgba(color: str | Sequence[float], alpha: float = 1.0) -> list[float]:
+    """An RGBA list from a palette name or an RGB triple."""
+    rgb = PALETTE[color] if isinstance(color, str) else color
+    return [*rgb, alpha]
+
+
+def yaw_quat(angle: float) -> list[float]:
+    """Quaternion of a rotation by ``angle`` radians about the vertical axis."""
+    return [float(np.cos(angle / 2)), 0.0, 0.0, float(np.sin(angle / 2))]
+
+
+def random_quat(rng: np.random.Generator) -> list[float]:
+    """A uniformly random orientation."""
+    q = rng.normal(size=4)
+    return list(q / np.linalg.norm(q))
+
+
+class SceneBuilder:
+    """Builds one episode with MjSpec: floor, light, camera and named objects, each object
+    labelled with its own mask id (1, 2, ... in the order added)."""
+
+    def __init__(
+        self,
+        rng: np.random.Generator,
+        video: VideoOptions,
+        camera: CameraPose,
+        floor_pattern: str | None = None,
+    ):
+        self.rng = rng
+        self.video = video
+        self.camera = camera
+        self.objects: dict[str, SceneObject] = {}
+        self.spec = spec = mujoco.MjSpec()
+        spec.option.timestep = video.timestep
+        spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+        spec.visual.quality.shadowsize = 0  # 4096 shadows cost ~14 ms a frame under software EGL
+        spec.visual.quality.offsamples = 0
+        spec.visual.global_.offwidth = max(video.width, 64)
+        spec.visual.global_.offheight = max(video.height, 64)
+        spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
+        spec.visual.headlight.diffuse = [0.45, 0.45, 0.45]
+        spec.stat.extent = 6.0
+        for name in _FLOOR_TEXTURES:
+            builtin = {
+                "checker": mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
+                "gradient": mujoco.mjtBuiltin.mjBUILTIN_GRADIENT,
+                "flat": mujoco.mjtBuiltin.mjBUILTIN_FLAT,
+            }[name]
+            spec.add_texture(
+                name=name,
+                type=mujoco.mjtTexture.mjTEXTURE_2D,
+                builtin=builtin,
+                width=64,
+                height=64,
+                rgb1=[0.55, 0.55, 0.55],
+                rgb2=[0.40, 0.40, 0.40],
+            )
+        pattern = floor_pattern or _FLOOR_TEXTURES[rng.integers(len(_FLOOR_TEXTURES))]
+        tint = 0.75 + 0.25 * rng.random(3)
+        material = spec.add_material(name="floor", rgba=[*tint, 1.0])
+        material.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = pattern
+        repeat = float(rng.uniform(3, 8))
+        material.texrepeat = [repeat, repeat]
+        spec.worldbody.add_light(pos=[0, -1.0, 6.0], dir=[0, 0.15, -1], diffuse=[0.6, 0.6, 0.6])
+        spec.worldbody.add_geom(
+            name="floor",
+            type=mujoco.mjtGeom.mjGEOM_PLANE,
+            size=[20, 20, 2.0],
+            material="floor",
+            friction=[0.8, 0.005, 0.0001],
+        )
+
+    def add(
+        self,
+        name: str,
+        geoms: Sequence[Geom],
+        pos: Sequence[float],
+        color: str | Sequence[float],
+        quat: Sequence[float] = (1.0, 0.0, 0.0, 0.0),
+        free: bool = True,
+        mocap: bool = False,
+        density: float = 500.0,
+        friction: float = 0.8,
+    ) -> SceneObject:
+        """Add an object made of ``geoms``; ``free`` bodies fall and collide, ``mocap`` bodies
+        are moved by the script (screens, rods), others are fixed (pillars, walls)."""
+        if name in self.objects:
+            raise ValueError(f"object {name!r} already exists")
+        obj = SceneObject(name, len(self.objects) + 1, free, mocap)
+        if obj.mask_id > specs.MAX_OBJECT_ID:
+            raise ValueError(f"a scene may hold at most {specs.MAX_OBJECT_ID} objects")
+        body = self.spec.worldbody.add_body(name=name, pos=list(pos), quat=list(quat), mocap=mocap)
+        if free:
+            body.add_freejoint(name=f"{name}_joint")
+        for index, geom in enumerate(geoms):
+            geom_name = f"{name}_{index}"
+            body.add_geom(
+                name=geom_name,
+                type=SHAPES[geom.shape],
+                size=list(geom.size) + [0.0] * (3 - len(geom.size)),
+                pos=list(geom.pos),
+                quat=list(geom.quat),
+                rgba=rgba(color),
+                density=density,
+                friction=[friction, 0.005, 0.0001],
+            )
+            obj.geom_names.append(geom_name)
+        self.objects[name] = obj
+        return obj
+
+    def add_primitive(
+        self, name: str, shape: str, size: Sequence[float], pos: Sequence[float], color, **kwargs
+    ) -> SceneObject:
+        """Add an object of one primitive geom."""
+        return self.add(name, [Geom(shape, size)], pos, color, **kwargs)
+
+    def build(self) -> "Simulation":
+        """Compile the scene into a simulation at time 0."""
+        model = self.spec.compile()
+        return Simulation(model, self.objects, self.video, self.camera)
+
+
+class Renderer:
+    """Renders RGB frames and geom-id images for any model built by SceneBuilder, reusing one
+    GL context, one MjrContext and one MjvScene (a new mujoco.Renderer costs ~70-100 ms).
+    Valid because every such model carries the same textures and only primitive geoms."""
+
+    def __init__(self, height: int, width: int):
+        template = SceneBuilder(
+            np.random.default_rng(0), VideoOptions(height=height, width=width), CameraPose()
+        ).spec.compile()
+        self.height, self.width = height, width
+        # Choose the backend from MUJOCO_GL now, not from whatever it was when mujoco was imported.
+        backend = os.environ.get("MUJOCO_GL", "egl")
+        gl_context_class = importlib.import_module(f"mujoco.{backend}").GLContext
+        self._gl_context = gl_context_class(max(width, 64), max(height, 64))
+        self._gl_context.make_current()
+        self._context = mujoco.MjrContext(template, mujoco.mjtFontScale.mjFONTSCALE_150.value)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN.value, self._context)
+        self._scene = mujoco.MjvScene(template, maxgeom=500)
+        self._option = mujoco.MjvOption()
+        self._camera = mujoco.MjvCamera()
+        self._camera.type = mujoco.mjtCamera.mjCAMERA_FREE
+        self._rect = mujoco.MjrRect(0, 0, width, height)
+        self._rgb = np.empty((height, width, 3), np.uint8)
+
+    def render(
+        self, model: mujoco.MjModel, data: mujoco.MjData, camera: CameraPose
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """RGB uint8 [H, W, 3] and the id of the geom seen at each pixel (-1: none) [H, W]."""
+        self._gl_context.make_current()
+        self._camera.lookat[:] = camera.lookat
+        self._camera.distance = camera.distance
+        self._camera.azimuth = camera.azimuth
+        self._camera.elevation = camera.elevation
+        mujoco.mjv_updateScene(
+            model, data, self._option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene
+        )
+        mujoco.mjr_render(self._rect, self._scene, self._context)
+        mujoco.mjr_readPixels(self._rgb, None, self._rect, self._context)
+        rgb = np.flipud(self._rgb).copy()
+
+        self._scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
+        self._scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
+        try:
+            mujoco.mjr_render(self._rect, self._scene, self._context)
+            mujoco.mjr_readPixels(self._rgb, None, self._rect, self._context)
+        finally:
+            self._scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = False
+            self._scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = False
+        seg = np.flipud(self._rgb).astype(np.int64)
+        segid = seg[..., 0] + (seg[..., 1] << 8) + (seg[..., 2] << 16)
+        lookup = np.full(self._scene.ngeom + 1, -1, np.int64)
+        for index in range(self._scene.ngeom):
+            geom = self._scene.geoms[index]
+            if geom.segid != -1 and geom.objtype == mujoco.mjtObj.mjOBJ_GEOM:
+                lookup[geom.segid + 1] = geom.objid
+        return rgb, lookup[np.clip(segid, 0, self._scene.ngeom)]
+
+
+_RENDERERS: dict[tuple[int, int, int], Renderer] = {}
+
+
+def get_renderer(height: int, width: int) -> Renderer:
+    """The renderer of this process for this frame size (made once per worker process)."""
+    key = (os.getpid(), height, width)
+    if key not in _RENDERERS:
+        _RENDERERS[key] = Renderer(height, width)
+    return _RENDERERS[key]
+
+
+class Simulation:
+    """A compiled scene stepping through time, rendering frames and object-id masks."""
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        objects: dict[str, SceneObject],
+        video: VideoOptions,
+        camera: CameraPose,
+    ):
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.objects = objects
+        self.video = video
+        self.camera = camera
+        self.geom_mask_id = np.zeros(model.ngeom + 1, np.uint8)  # index -1 -> background
+        for obj in objects.values():
+            for geom_name in obj.geom_names:
+                self.geom_mask_id[model.geom(geom_name).id] = obj.mask_id
+        mujoco.mj_forward(model, self.data)
+
+    # --- state manipulation (used by scripts and by hidden "magic") ---------------------------
+    def mask_id(self, name: str) -> int:
+        return self.objects[name].mask_id
+
+    def position(self, name: str) -> np.ndarray:
+        return self.data.body(name).xpos.copy()
+
+    def move(self, name: str, pos: Sequence[float], quat: Sequence[float] | None = None) -> None:
+        """Place a free body (velocity zeroed) or a mocap body at ``pos``."""
+        obj = self.objects[name]
+        if obj.mocap:
+            mocap_id = self.model.body(name).mocapid[0]
+            self.data.mocap_pos[mocap_id] = pos
+            if quat is not None:
+                self.data.mocap_quat[mocap_id] = quat
+        elif obj.free:
+            joint = self.model.joint(f"{name}_joint")
+            qpos, qvel = joint.qposadr[0], joint.dofadr[0]
+            self.data.qpos[qpos : qpos + 3] = pos
+            if quat is not None:
+                self.data.qpos[qpos + 3 : qpos + 7] = quat
+            self.data.qvel[qvel : qvel + 6] = 0.0
+        else:
+            raise ValueError(f"object {name!r} is fixed and cannot be moved")
+        mujoco.mj_forward(self.model, self.data)
+
+    def set_velocity(self, name: str, linear: Sequence[float], angular=(0.0, 0.0, 0.0)) -> None:
+        joint = self.model.joint(f"{name}_joint")
+        dof = joint.dofadr[0]
+        self.data.qvel[dof : dof + 3] = linear
+        self.data.qvel[dof + 3 : dof + 6] = angular
+
+    def remove(self, name: str) -> None:
+        """Make an object vanish: park it far outside the view, where it touches nothing."""
+        obj = self.objects[name]
+        self.move(name, (60.0 + 4.0 * obj.mask_id, 60.0, 1.0))
+        if obj.free:
+            for geom_name in obj.geom_names:
+                self.model.geom(geom_name).contype = 0
+                self.model.geom(geom_name).conaffinity = 0
+            self.model.body_gravcomp[self.model.body(name).id] = 1.0
+
+    def set_color(self, name: str, color: str | Sequence[float]) -> None:
+        for geom_name in self.objects[name].geom_names:
+            self.model.geom(geom_name).rgba = rgba(color)
+
+    def step(self, num_steps: int = 1) -> None:
+        mujoco.mj_step(self.model, self.data, num_steps)
+
+    def fork(self) -> "Simulation":
+        """An independent copy (model included) in the same state, for the inconsistent branch."""
+        twin = Simulation.__new__(Simulation)
+        twin.model = copy.copy(self.model)
+        twin.data = mujoco.MjData(twin.model)
+        state_kind = mujoco.mjtState.mjSTATE_INTEGRATION
+        state = np.empty(mujoco.mj_stateSize(self.model, state_kind))
+        mujoco.mj_getState(self.model, self.data, state, state_kind)
+        mujoco.mj_setState(twin.model, twin.data, state, state_kind)
+        mujoco.mj_forward(twin.model, twin.data)
+        twin.objects, twin.video, twin.camera = self.objects, self.video, self.camera
+        twin.geom_mask_id = self.geom_mask_id
+        return twin
+
+    # --- rendering ------------------------------------------------------------------------------
+    def render(self) -> tuple[np.ndarray, np.ndarray]:
+        """The current RGB frame and its object-id mask (0 = background and fixed scenery)."""
+        renderer = get_renderer(self.video.height, self.video.width)
+        rgb, geom_ids = renderer.render(self.model, self.data, self.camera)
+        return rgb, self.geom_mask_id[geom_ids]
+
+    def record(
+        self,
+        num_frames: int,
+        script: Callable[["Simulation", int], None] | None = None,
+        first_frame: int = 0,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Render ``num_frames`` frames, stepping one frame interval after each.
+        ``script(sim, frame_index)`` runs before each frame is rendered (scripted motion)."""
+        frames = np.empty((num_frames, self.video.height, self.video.width, 3), np.uint8)
+        masks = np.empty((num_frames, self.video.height, self.video.width), np.uint8)
+        for offset in range(num_frames):
+            if script is not None:
+                script(self, first_frame + offset)
+            frames[offset], masks[offset] = self.render()
+            self.step(self.video.steps_per_frame)
+        return frames, masks
+
+
+def visible_ids(mask: np.ndarray) -> set[int]:
+    """Mask ids with at least one pixel in ``mask``."""
+    return set(np.unique(mask).tolist()) - {0}
+
+
+def rng_for(seed: int, *salt: str) -> np.random.Generator:
+    """A generator determined by ``seed`` and names (concept, kind or variant), so that the
+    same seed in different concepts or kinds gives independent draws."""
+    if seed < 0:
+        raise ValueError(f"seed must be non-negative, got {seed}")
+    words = [int.from_bytes(s.encode()[:8].ljust(8, b"\0"), "little") for s in salt]
+    return np.random.default_rng([seed, *words, len(salt)])
+
+
+class RejectedSample(Exception):
+    """A random draw that does not satisfy a probe's constraints; the caller draws again."""
+
+
+def draw_until_valid(
+    make: Callable[[np.random.Generator], TensorDict], rng: np.random.Generator, attempts: int = 50
+) -> TensorDict:
+    """Call ``make(rng)`` until it does not raise RejectedSample (deterministic for one rng)."""
+    last = None
+    for _ in range(attempts):
+        try:
+            return make(rng)
+        except RejectedSample as error:
+            last = error
+    raise RuntimeError(f"no valid scene after {attempts} draws; last rejection: {last}")
+
+
+def clip_record(
+    concept: str, kind: str, seed: int, frames: np.ndarray, masks: np.ndarray, camera: CameraPose
+) -> TensorDict:
+    """Pack a rendered clip as a TensorDict matching ``specs.clip_spec``."""
+    num_frames = frames.shape[0]
+    return TensorDict(
+        {
+            "frames": torch.from_numpy(frames),
+            "mask": torch.from_numpy(masks),
+            "camera": torch.from_numpy(np.tile(camera.as_array(), (num_frames, 1))),
+            "concept": torch.tensor(specs.CONCEPTS.index(concept)),
+            "kind": torch.tensor(specs.CLIP_KINDS.index(kind)),
+            "seed": torch.tensor(seed, dtype=torch.int64),
+        },
+        batch_size=[],
+    )
+
+
+def probe_record(
+    concept: str,
+    variant: str,
+    seed: int,
+    consistent: tuple[np.ndarray, np.ndarray],
+    inconsistent: tuple[np.ndarray, np.ndarray],
+    camera: CameraPose,
+    manipulation_frame: int,
+    manipulated_ids: Sequence[int],
+) -> TensorDict:
+    """Pack a probe pair as a TensorDict matching ``specs.probe_spec``."""
+    num_frames = consistent[0].shape[0]
+    ids = list(manipulated_ids)
+    if not 1 <= len(ids) <= 4:
+        raise ValueError(f"a probe must name 1 to 4 manipulated ids, got {ids}")
+    return TensorDict(
+        {
+            "consistent": {
+                "frames": torch.from_numpy(consistent[0]),
+                "mask": torch.from_numpy(consistent[1]),
+            },
+            "inconsistent": {
+                "frames": torch.from_numpy(inconsistent[0]),
+                "mask": torch.from_numpy(inconsistent[1]),
+            },
+            "camera": torch.from_numpy(np.tile(camera.as_array(), (num_frames, 1))),
+            "concept": torch.tensor(specs.CONCEPTS.index(concept)),
+            "variant": torch.tensor(specs.VARIANTS.index(variant)),
+            "manipulation_frame": torch.tensor(manipulation_frame, dtype=torch.int64),
+            "manipulated_ids": torch.tensor(ids + [0] * (4 - len(ids)), dtype=torch.int64),
+            "seed": torch.tensor(seed, dtype=torch.int64),
+        },
+        batch_size=[],
+    )
+
+
+def record_pair(
+    sim: Simulation,
+    manipulation_frame: int,
+    manipulate: Callable[[Simulation], None],
+    script: Callable[[Simulation, int], None] | None = None,
+    script_inconsistent: Callable[[Simulation, int], None] | None = None,
+) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """Render a probe pair from one simulation: frames before ``manipulation_frame`` are
+    rendered once and shared; then the simulation forks, ``manipulate`` applies the hidden
+    change to the inconsistent branch, and both branches run to the end."""
+    total = sim.video.num_frames
+    if not 0 < manipulation_frame < total:
+        raise ValueError(f"manipulation_frame must be in [1, {total - 1}], got {manipulation_frame}")
+    prefix = sim.record(manipulation_frame, script)
+    twin = sim.fork()
+    manipulate(twin)
+    rest = total - manipulation_frame
+    consistent_rest = sim.record(rest, script, first_frame=manipulation_frame)
+    inconsistent_rest = twin.record(
+        rest, script_inconsistent or script, first_frame=manipulation_frame
+    )
+    consistent = tuple(np.concatenate([a, b]) for a, b in zip(prefix, consistent_rest))
+    inconsistent = tuple(np.concatenate([a, b]) for a, b in zip(prefix, inconsistent_rest))
+    return consistent, inconsistent

@@ -1,0 +1,143 @@
+"""The data contract: names of concepts, clip kinds and probe variants, and the torchrl specs
+of every record (DESIGN.md §3). Generators, the store, DataModules and tests all use these."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+
+CONCEPTS: tuple[str, ...] = (
+    "object_persistence",
+    "unchangeableness",
+    "continuity",
+    "solidity",
+    "containment",
+)
+
+#: Training clip kinds per concept: the consistent ``example`` and every control of the paper (§3).
+CLIP_KINDS_BY_CONCEPT: dict[str, tuple[str, ...]] = {
+    "object_persistence": ("example", "plank_beside_object", "plank_on_empty_floor"),
+    "unchangeableness": ("example", "objects_only", "screen_only"),
+    "continuity": ("example", "gap_block"),
+    "solidity": ("example", "no_object", "object_behind_container"),
+    "containment": ("example", "cube_behind_container", "cube_random_position"),
+}
+
+#: Probe variants per concept used for validation and test (paper §3).
+STANDARD_VARIANTS: dict[str, tuple[str, ...]] = {
+    "object_persistence": ("standard", "counterbalanced"),
+    "unchangeableness": ("position", "color", "shape"),
+    "continuity": ("standard",),
+    "solidity": ("standard",),
+    "containment": ("standard",),
+}
+
+#: Generalization probe variants (paper §5): a third pillar; one or two more objects than training.
+GENERALIZATION_VARIANTS: dict[str, tuple[str, ...]] = {
+    "object_persistence": (),
+    "unchangeableness": tuple(
+        f"{change}_plus{extra}" for change in ("position", "color", "shape") for extra in (1, 2)
+    ),
+    "continuity": ("three_pillars",),
+    "solidity": (),
+    "containment": (),
+}
+
+PROBE_VARIANTS: dict[str, tuple[str, ...]] = {
+    concept: STANDARD_VARIANTS[concept] + GENERALIZATION_VARIANTS[concept] for concept in CONCEPTS
+}
+
+#: Flat, ordered vocabularies: records store the index into these (``Categorical`` specs).
+CLIP_KINDS: tuple[str, ...] = tuple(
+    dict.fromkeys(kind for kinds in CLIP_KINDS_BY_CONCEPT.values() for kind in kinds)
+)
+VARIANTS: tuple[str, ...] = tuple(
+    dict.fromkeys(variant for variants in PROBE_VARIANTS.values() for variant in variants)
+)
+
+#: Default video geometry (paper: 15 frames of 64x64 RGB, about 3 s of simulated time).
+NUM_FRAMES = 15
+HEIGHT = 64
+WIDTH = 64
+#: Largest number of distinct object ids a mask may carry (0 is the background).
+MAX_OBJECT_ID = 32
+
+
+def _check_name(kind: str, name: str, valid: tuple[str, ...]) -> None:
+    if name not in valid:
+        raise ValueError(f"unknown {kind} {name!r}; valid {kind}s are: {', '.join(valid)}")
+
+
+def check_concept(concept: str) -> None:
+    """Raise a ValueError listing the valid concepts if ``concept`` is not one of them."""
+    _check_name("concept", concept, CONCEPTS)
+
+
+def check_kind(concept: str, kind: str) -> None:
+    """Raise a ValueError listing the valid clip kinds of ``concept``."""
+    check_concept(concept)
+    _check_name(f"clip kind for {concept}", kind, CLIP_KINDS_BY_CONCEPT[concept])
+
+
+def check_variant(concept: str, variant: str) -> None:
+    """Raise a ValueError listing the valid probe variants of ``concept``."""
+    check_concept(concept)
+    _check_name(f"probe variant for {concept}", variant, PROBE_VARIANTS[concept])
+
+
+def _video_spec(num_frames: int, height: int, width: int) -> dict:
+    return {
+        "frames": Bounded(0, 255, shape=(num_frames, height, width, 3), dtype=torch.uint8),
+        "mask": Bounded(0, MAX_OBJECT_ID, shape=(num_frames, height, width), dtype=torch.uint8),
+    }
+
+
+def _camera_spec(num_frames: int) -> Unbounded:
+    """Per-frame camera pose: lookat x, y, z, distance, azimuth (deg), elevation (deg)."""
+    return Unbounded(shape=(num_frames, 6), dtype=torch.float32)
+
+
+def clip_spec(num_frames: int = NUM_FRAMES, height: int = HEIGHT, width: int = WIDTH) -> Composite:
+    """Spec of a training clip (an example or a control)."""
+    return Composite(
+        **_video_spec(num_frames, height, width),
+        camera=_camera_spec(num_frames),
+        concept=Categorical(len(CONCEPTS), shape=(), dtype=torch.int64),
+        kind=Categorical(len(CLIP_KINDS), shape=(), dtype=torch.int64),
+        seed=Unbounded(shape=(), dtype=torch.int64),
+    )
+
+
+def probe_spec(num_frames: int = NUM_FRAMES, height: int = HEIGHT, width: int = WIDTH) -> Composite:
+    """Spec of a probe pair: a consistent and an inconsistent video that differ only after
+    ``manipulation_frame``; ``manipulated_ids`` holds the mask ids the hidden change touched
+    (padded with 0)."""
+    return Composite(
+        consistent=Composite(**_video_spec(num_frames, height, width)),
+        inconsistent=Composite(**_video_spec(num_frames, height, width)),
+        camera=_camera_spec(num_frames),
+        concept=Categorical(len(CONCEPTS), shape=(), dtype=torch.int64),
+        variant=Categorical(len(VARIANTS), shape=(), dtype=torch.int64),
+        manipulation_frame=Bounded(0, num_frames - 1, shape=(), dtype=torch.int64),
+        manipulated_ids=Bounded(0, MAX_OBJECT_ID, shape=(4,), dtype=torch.int64),
+        seed=Unbounded(shape=(), dtype=torch.int64),
+    )
+
+
+def to_model_input(frames: torch.Tensor) -> torch.Tensor:
+    """The one conversion from stored frames to model input: uint8 [..., T, H, W, 3] ->
+    float [..., T, 3, H, W] in [0, 1]."""
+    if frames.dtype != torch.uint8:
+        raise TypeError(f"frames must be uint8 as stored, got {frames.dtype}")
+    return frames.movedim(-1, -3).float().div_(255.0)
+
+
+def concept_name(record: TensorDictBase) -> str:
+    """The concept name of a single (unbatched) record."""
+    return CONCEPTS[int(record["concept"])]
+
+
+def variant_name(record: TensorDictBase) -> str:
+    """The variant name of a single (unbatched) probe record."""
+    return VARIANTS[int(record["variant"])]
