@@ -309,6 +309,9 @@ class Simulation:
         self.objects = objects
         self.video = video
         self.camera = camera
+        #: Optional ``controller(sim)`` run before every physics step, for smooth scripted motion
+        #: of mocap bodies (screens, rods); ``sim.data.time`` gives the time.
+        self.controller: Callable[["Simulation"], None] | None = None
         self.geom_mask_id = np.zeros(model.ngeom + 1, np.uint8)  # index -1 -> background
         for obj in objects.values():
             for geom_name in obj.geom_names:
@@ -362,7 +365,12 @@ class Simulation:
             self.model.geom(geom_name).rgba = rgba(color)
 
     def step(self, num_steps: int = 1) -> None:
-        mujoco.mj_step(self.model, self.data, num_steps)
+        if self.controller is None:
+            mujoco.mj_step(self.model, self.data, num_steps)
+            return
+        for _ in range(num_steps):
+            self.controller(self)
+            mujoco.mj_step(self.model, self.data)
 
     def fork(self) -> "Simulation":
         """An independent copy (model included) in the same state, for the inconsistent branch."""
@@ -375,7 +383,7 @@ class Simulation:
         mujoco.mj_setState(twin.model, twin.data, state, state_kind)
         mujoco.mj_forward(twin.model, twin.data)
         twin.objects, twin.video, twin.camera = self.objects, self.video, self.camera
-        twin.geom_mask_id = self.geom_mask_id
+        twin.geom_mask_id, twin.controller = self.geom_mask_id, self.controller
         return twin
 
     # --- rendering ------------------------------------------------------------------------------
