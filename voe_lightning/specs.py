@@ -3,17 +3,16 @@ of every record (DESIGN.md §3). Generators, the store, DataModules and tests al
 
 from __future__ import annotations
 
+from typing import Literal, get_args
+
 import torch
 from tensordict import TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 
-CONCEPTS: tuple[str, ...] = (
-    "object_persistence",
-    "unchangeableness",
-    "continuity",
-    "solidity",
-    "containment",
-)
+#: The five concepts of the paper (§3). A Literal so that configs naming another are refused
+#: by LightningCLI before any work starts, with the valid names listed.
+Concept = Literal["object_persistence", "unchangeableness", "continuity", "solidity", "containment"]
+CONCEPTS: tuple[str, ...] = get_args(Concept)
 
 #: Training clip kinds per concept: the consistent ``example`` and every control of the paper (§3).
 CLIP_KINDS_BY_CONCEPT: dict[str, tuple[str, ...]] = {
