@@ -1,0 +1,171 @@
+"""Unchangeableness scenes (paper §3, §5): what each probe set changes behind the screen, the
+extra objects of the generalization probes, and how examples and controls differ."""
+
+import numpy as np
+import pytest
+
+from voe_lightning import specs
+from voe_lightning.scenes import base, generate_clip, generate_probe
+from voe_lightning.scenes import unchangeableness as scene
+
+SEEDS = range(3)
+
+
+def ids_at(mask, frame):
+    return base.visible_ids(mask[frame].numpy())
+
+
+def mean_color(record_video, frame, mask_id):
+    pixels = record_video["frames"][frame].numpy()[record_video["mask"][frame].numpy() == mask_id]
+    assert len(pixels), f"id {mask_id} is not visible at frame {frame}"
+    return pixels.reshape(-1, 3).astype(float).mean(0)
+
+
+def changed(record):
+    return [i for i in record["manipulated_ids"].tolist() if i]
+
+
+def row_ids(record):
+    """Ids of the row's objects: all that show before the screen comes down (no screen yet)."""
+    return ids_at(record["consistent"]["mask"], 0)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_position_probe_moves_objects_but_keeps_their_look(seed):
+    record = generate_probe("unchangeableness", "position", seed)
+    m, ids = int(record["manipulation_frame"]), changed(record)
+    consistent, inconsistent = record["consistent"], record["inconsistent"]
+    assert 2 <= len(ids) <= 4 and set(ids) <= row_ids(record)
+    # The screen hides the whole row at the manipulation, in both videos.
+    assert not (ids_at(consistent["mask"], m) | ids_at(inconsistent["mask"], m)) & row_ids(record)
+    last = -1
+    assert ids_at(consistent["mask"], last) == ids_at(inconsistent["mask"], last) == row_ids(record)
+    for mask_id in ids:
+        where = lambda video: np.argwhere(video["mask"][last].numpy() == mask_id).mean(0)
+        assert abs(where(consistent)[1] - where(inconsistent)[1]) > 3, "object did not move"
+        assert np.abs(mean_color(consistent, last, mask_id) - mean_color(inconsistent, last, mask_id)).max() < 40
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_color_probe_changes_colour_only(seed):
+    record = generate_probe("unchangeableness", "color", seed)
+    consistent, inconsistent = record["consistent"], record["inconsistent"]
+    # Same geometry throughout: the masks of the two videos are identical.
+    assert (consistent["mask"] == inconsistent["mask"]).all()
+    for mask_id in changed(record):
+        before = mean_color(consistent, 0, mask_id)
+        assert np.abs(mean_color(consistent, -1, mask_id) - before).max() < 20
+        assert np.abs(mean_color(inconsistent, -1, mask_id) - before).max() > 40
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_shape_probe_swaps_in_a_same_coloured_twin(seed):
+    record = generate_probe("unchangeableness", "shape", seed)
+    consistent, inconsistent = record["consistent"], record["inconsistent"]
+    ids = changed(record)
+    assert len(ids) % 2 == 0, "each reshaped object names its original and its twin"
+    originals, twins = ids[: len(ids) // 2], ids[len(ids) // 2 :]
+    assert set(originals) <= row_ids(record) and not set(twins) & row_ids(record)
+    seen_in_consistent = set().union(*(ids_at(consistent["mask"], t) for t in range(15)))
+    assert not set(twins) & seen_in_consistent, "the twin never shows in the consistent video"
+    end_inconsistent = ids_at(inconsistent["mask"], -1)
+    assert set(twins) <= end_inconsistent and not set(originals) & end_inconsistent
+    for original, twin in zip(originals, twins):
+        colour = mean_color(consistent, 0, original)
+        assert np.abs(mean_color(inconsistent, -1, twin) - colour).max() < 40, "colour kept"
+        # A different shape covers a different set of pixels where the original stood.
+        assert (
+            (consistent["mask"][-1] == original) != (inconsistent["mask"][-1] == twin)
+        ).sum() >= 2
+
+
+@pytest.mark.parametrize("change", scene.CHANGES)
+def test_generalization_probes_have_one_or_two_more_objects_than_training(change):
+    counts = {
+        extra: {len(row_ids(generate_probe("unchangeableness", variant, s))) for s in SEEDS}
+        for extra, variant in ((0, change), (1, f"{change}_plus1"), (2, f"{change}_plus2"))
+    }
+    assert counts[0] <= set(range(scene.MIN_OBJECTS, scene.MAX_OBJECTS + 1))
+    assert counts[1] == {scene.MAX_OBJECTS + 1} and counts[2] == {scene.MAX_OBJECTS + 2}
+    record = generate_probe("unchangeableness", f"{change}_plus2", 5)
+    assert 1 <= len(changed(record)) <= 4
+
+
+def test_training_clips_never_exceed_the_probe_object_count():
+    for seed in range(4):
+        clip = generate_clip("unchangeableness", "objects_only", seed)
+        count = len(base.visible_ids(clip["mask"].numpy()))
+        assert scene.MIN_OBJECTS <= count <= scene.MAX_OBJECTS
+
+
+def screen_rows(mask, screen_id):
+    """Lowest image row the screen covers in each frame (-1 where it is out of view)."""
+    rows = []
+    for frame in mask.numpy():
+        hit = np.nonzero((frame == screen_id).any(1))[0]
+        rows.append(int(hit.max()) if len(hit) else -1)
+    return np.array(rows)
+
+
+def test_controls_omit_the_screen_or_the_objects():
+    objects_only = generate_clip("unchangeableness", "objects_only", 1)
+    frames = objects_only["frames"]
+    assert (frames == frames[0]).all(), "without a screen nothing moves"
+    screen_only = generate_clip("unchangeableness", "screen_only", 1)
+    ids = base.visible_ids(screen_only["mask"].numpy())
+    assert len(ids) == 1, "only the screen"
+    rows = screen_rows(screen_only["mask"], ids.pop())
+    lowest = int(rows.argmax())
+    assert rows[lowest] > rows[0] and rows[lowest] > rows[-1], "lowered, then raised"
+
+
+def test_examples_scatter_objects_and_occlude_only_some():
+    """Examples vary so much that the screen hides some objects, for a while, and not others."""
+    hidden_some_time, always_visible = 0, 0
+    for seed in range(6):
+        clip = generate_clip("unchangeableness", "example", seed)
+        mask = clip["mask"].numpy()
+        ids = sorted(base.visible_ids(mask))
+        screen_id, objects = ids[-1], ids[:-1]
+        assert scene.MIN_OBJECTS <= len(objects) <= scene.MAX_OBJECTS
+        rows = screen_rows(clip["mask"], screen_id)
+        assert rows.max() > max(rows[0], rows[-1]), f"seed {seed}: the screen goes down and up"
+        for mask_id in objects:
+            shown = [mask_id in base.visible_ids(frame) for frame in mask]
+            hidden_some_time += shown[0] and not all(shown)
+            always_visible += all(shown)
+    assert hidden_some_time and always_visible
+
+
+def test_probes_align_objects_in_a_row():
+    record = generate_probe("unchangeableness", "color", 2)
+    mask = record["consistent"]["mask"][0].numpy()
+    rows = [np.argwhere(mask == i)[:, 0].max() for i in sorted(row_ids(record))]
+    assert max(rows) - min(rows) <= 4, "objects stand side by side at one depth"
+
+
+def test_projection_matches_the_renderer():
+    camera = base.CameraPose(lookat=(0.2, 0.3, 0.1), distance=3.0, azimuth=80, elevation=-30)
+    for point in [(0.5, 1.0, 0.1), (-0.8, -0.3, 0.1)]:
+        builder = base.SceneBuilder(np.random.default_rng(0), base.VideoOptions(), camera)
+        builder.add_primitive("ball", "sphere", [0.08], point, "red", free=False)
+        _, mask = builder.build().render()
+        ys, xs = np.nonzero(mask == 1)
+        u, v = (xs.mean() + 0.5) / 32 - 1, 1 - (ys.mean() + 0.5) / 32
+        assert np.allclose(scene.project(camera, point), (u, v), atol=0.03)
+        back = scene.floor_point(camera, u, v, point[2])
+        assert np.allclose(back[:2], point[:2], atol=0.08)
+
+
+def test_other_video_geometry():
+    record = generate_probe("unchangeableness", "shape", 0, num_frames=10, height=32, width=48)
+    assert specs.probe_spec(10, 32, 48).is_in(record)
+    m = int(record["manipulation_frame"])
+    assert (record["consistent"]["frames"][:m] == record["inconsistent"]["frames"][:m]).all()
+
+
+def test_bad_names_list_the_valid_ones():
+    with pytest.raises(ValueError, match="valid variants"):
+        scene.probe("size", 0, base.VideoOptions())
+    with pytest.raises(ValueError, match="valid kinds"):
+        scene.clip("screen", 0, base.VideoOptions())

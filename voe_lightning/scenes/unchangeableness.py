@@ -1,0 +1,436 @@
+"""Unchangeableness (paper §3): static objects keep their position, colour and shape while a
+screen is lowered in front of them and raised again. Probes line 2-4 objects up in the
+foreground and change one or more of them behind the screen (``position``, ``color``, ``shape``);
+``<change>_plus1``/``_plus2`` do the same with one or two more objects than training ever shows
+(paper §5). Examples scatter the objects anywhere and drop a screen of any size at any depth;
+the controls omit the screen (``objects_only``) or the objects (``screen_only``)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from tensordict import TensorDict
+
+from voe_lightning.scenes import base
+from voe_lightning.scenes.base import CameraPose, Geom, RejectedSample, SceneBuilder, VideoOptions
+
+CONCEPT = "unchangeableness"
+#: Objects in training clips and standard probes; generalization probes add one or two more.
+MIN_OBJECTS, MAX_OBJECTS = 2, 4
+OBJECT_SHAPES = ("sphere", "box", "cylinder", "capsule")
+CHANGES = ("position", "color", "shape")
+#: Widest row of probe objects (m): the camera must see all of them, plus1/plus2 included.
+ROW_MAX_WIDTH = 1.8
+#: Vertical field of view of MuJoCo's free camera (model default, degrees).
+FOVY = 45.0
+SCREEN_THICKNESS = 0.04
+#: The screen's lowest point when down: just above the floor, so nothing shows beneath it.
+SCREEN_FLOOR_GAP = 0.002
+#: Wooden screen tone; each screen scales it a little so it never matches an object colour.
+SCREEN_COLOR = (0.52, 0.38, 0.24)
+#: Manipulated ids a probe record can carry (probe_record pads to this many).
+MAX_MANIPULATED_IDS = 4
+
+
+# --- objects -------------------------------------------------------------------------------------
+@dataclass
+class ObjectDraw:
+    """One static object: its primitive shape, footprint half-width, height factor and colour."""
+
+    shape: str
+    radius: float
+    height_factor: float
+    yaw: float
+    color: str
+
+    def geoms(self) -> tuple[list[Geom], float]:
+        """The object's geoms and the height of its body centre when it rests on the floor."""
+        r = self.radius
+        if self.shape == "sphere":
+            return [Geom("sphere", [r])], r
+        if self.shape == "box":
+            half_height = 0.5 * r * (1.2 + 0.8 * self.height_factor)
+            return [Geom("box", [0.78 * r, 0.78 * r, half_height])], half_height
+        if self.shape == "cylinder":
+            half_height = 0.5 * r * (1.5 + 1.0 * self.height_factor)
+            return [Geom("cylinder", [r, half_height])], half_height
+        if self.shape == "capsule":  # lying on its side: a pill, unlike the upright cylinder
+            thickness = r * (0.5 + 0.15 * self.height_factor)
+            lying = [math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0]
+            return [Geom("capsule", [thickness, r - thickness], quat=lying)], thickness
+        raise ValueError(f"unknown shape {self.shape!r}; valid shapes are: {OBJECT_SHAPES}")
+
+    @property
+    def height(self) -> float:
+        return 2.0 * self.geoms()[1]
+
+    @property
+    def reach(self) -> float:
+        """Largest horizontal distance of the object's surface from its centre (yawed box corners)."""
+        return self.radius * (0.78 * math.sqrt(2.0) if self.shape == "box" else 1.0)
+
+
+def draw_object(rng: np.random.Generator, radius: float, color: str) -> ObjectDraw:
+    """A random primitive of footprint half-width ``radius`` and palette colour ``color``."""
+    shape = OBJECT_SHAPES[rng.integers(len(OBJECT_SHAPES))]
+    return ObjectDraw(shape, radius, float(rng.random()), float(rng.uniform(-0.6, 0.6)), color)
+
+
+def add_object(builder: SceneBuilder, name: str, draw: ObjectDraw, x: float, y: float):
+    """Add a static object resting on the floor at (x, y); a mocap body, so the hidden change
+    can move it with sim.move."""
+    geoms, z = draw.geoms()
+    return builder.add(
+        name, geoms, (x, y, z), draw.color, quat=base.yaw_quat(draw.yaw), free=False, mocap=True
+    )
+
+
+def resting_position(draw: ObjectDraw, x: float, y: float) -> tuple[float, float, float]:
+    return (x, y, draw.geoms()[1])
+
+
+# --- camera geometry -----------------------------------------------------------------------------
+def _camera_axes(camera: CameraPose) -> tuple[np.ndarray, ...]:
+    """Position, forward, up and right unit vectors of MuJoCo's free camera."""
+    az, el = math.radians(camera.azimuth), math.radians(camera.elevation)
+    forward = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    up = np.array([-math.sin(el) * math.cos(az), -math.sin(el) * math.sin(az), math.cos(el)])
+    position = np.asarray(camera.lookat) - camera.distance * forward
+    return position, forward, up, np.cross(forward, up)
+
+
+def project(camera: CameraPose, point, aspect: float = 1.0) -> tuple[float, float]:
+    """Normalised image coordinates of a world point: (-1..1 left to right, -1..1 bottom to top)."""
+    position, forward, up, right = _camera_axes(camera)
+    offset = np.asarray(point, float) - position
+    depth = offset @ forward
+    if depth <= 0:
+        return math.inf, math.inf
+    tan_half = math.tan(math.radians(FOVY) / 2)
+    return float(offset @ right / (depth * tan_half * aspect)), float(offset @ up / (depth * tan_half))
+
+
+def floor_point(camera: CameraPose, u: float, v: float, height: float, aspect: float = 1.0):
+    """The point at ``height`` above the floor seen at image coordinates (u, v), or None when
+    that pixel looks above the horizon."""
+    position, forward, up, right = _camera_axes(camera)
+    tan_half = math.tan(math.radians(FOVY) / 2)
+    ray = forward + u * tan_half * aspect * right + v * tan_half * up
+    if ray[2] >= 0:
+        return None
+    return position + ray * (height - position[2]) / ray[2]
+
+
+def height_above_view(camera: CameraPose, x: float, y: float) -> float:
+    """The height at (x, y) above which the camera sees nothing (the top edge of the image)."""
+    position, forward, up, _ = _camera_axes(camera)
+    tan_half = math.tan(math.radians(FOVY) / 2)
+    offset = np.array([x, y, 0.0]) - position
+    # up-component = tan_half * forward-component, linear in the height z.
+    denominator = up[2] - tan_half * forward[2]
+    return float((tan_half * (offset @ forward) - offset @ up) / denominator)
+
+
+# --- the screen ----------------------------------------------------------------------------------
+@dataclass
+class ScreenMotion:
+    """A screen lowered from ``top`` (its bottom edge's height) to ``bottom`` over frames
+    [start, down], held, and raised back over [up, end] with smooth cosine easing."""
+
+    top: float
+    bottom: float
+    start: float
+    down: float
+    up: float
+    end: float
+
+    def bottom_height(self, frame: float) -> float:
+        if frame <= self.start or frame >= self.end:
+            progress = 0.0
+        elif frame < self.down:
+            progress = 0.5 - 0.5 * math.cos(math.pi * (frame - self.start) / (self.down - self.start))
+        elif frame <= self.up:
+            progress = 1.0
+        else:
+            progress = 0.5 + 0.5 * math.cos(math.pi * (frame - self.up) / (self.end - self.up))
+        return self.top + (self.bottom - self.top) * progress
+
+    def hidden_frames(self) -> list[int]:
+        """Frames f with the screen fully down at f - 1 and f: when a hidden change can happen."""
+        return [f for f in range(1, math.floor(self.up) + 1) if f - 1 >= self.down]
+
+
+def draw_motion(rng: np.random.Generator, video: VideoOptions, top: float, bottom: float):
+    """Random timing of the lowering and raising, scaled to the video's length."""
+    scale = video.num_frames / 15.0
+    start = rng.uniform(0.3, 2.0) * scale
+    down = start + rng.uniform(3.5, 4.5) * scale
+    up = down + rng.uniform(2.0, 3.0) * scale
+    end = up + rng.uniform(3.5, 4.5) * scale
+    return ScreenMotion(top, bottom, start, down, up, end)
+
+
+@dataclass
+class Screen:
+    """A large thin box (mocap) spanning ``width`` x ``height`` at (x, y), moved per frame."""
+
+    x: float
+    y: float
+    width: float
+    height: float
+    color: tuple[float, float, float]
+    motion: ScreenMotion
+
+    def add_to(self, builder: SceneBuilder) -> None:
+        size = [self.width / 2, SCREEN_THICKNESS / 2, self.height / 2]
+        builder.add_primitive(
+            "screen", "box", size, self.position(0), self.color, free=False, mocap=True
+        )
+
+    def position(self, frame: float) -> tuple[float, float, float]:
+        return (self.x, self.y, self.motion.bottom_height(frame) + self.height / 2)
+
+    def script(self, sim: base.Simulation, frame: int) -> None:
+        """Per-frame script for Simulation.record / record_pair: place the screen."""
+        sim.move("screen", self.position(frame))
+
+
+def draw_screen_color(rng: np.random.Generator) -> tuple[float, float, float]:
+    return tuple(float(c) for c in np.clip(np.array(SCREEN_COLOR) * rng.uniform(0.8, 1.25), 0, 1))
+
+
+# --- probes --------------------------------------------------------------------------------------
+def parse_variant(variant: str) -> tuple[str, int]:
+    """(change, extra objects) of a probe variant, e.g. ``shape_plus2`` -> (``shape``, 2)."""
+    change, _, extra = variant.partition("_plus")
+    if change not in CHANGES or extra not in ("", "1", "2"):
+        valid = [c + s for c in CHANGES for s in ("", "_plus1", "_plus2")]
+        raise ValueError(f"unknown unchangeableness variant {variant!r}; valid variants: {valid}")
+    return change, int(extra or 0)
+
+
+def probe_camera(rng: np.random.Generator, row_y: float) -> CameraPose:
+    return CameraPose(
+        lookat=(float(rng.uniform(-0.1, 0.1)), row_y + float(rng.uniform(0.0, 0.3)), 0.1),
+        distance=float(rng.uniform(2.6, 3.0)),
+        azimuth=float(rng.uniform(86.0, 94.0)),
+        elevation=float(rng.uniform(-36.0, -28.0)),
+    )
+
+
+def _changed_count(rng: np.random.Generator, most: int) -> int:
+    """How many objects change: one most often, more with decreasing probability."""
+    weights = 0.5 ** np.arange(most)
+    return int(rng.choice(np.arange(1, most + 1), p=weights / weights.sum()))
+
+
+def _make_probe(
+    change: str, extra: int, variant: str, seed: int, video: VideoOptions, rng: np.random.Generator
+) -> TensorDict:
+    count = int(rng.integers(MIN_OBJECTS, MAX_OBJECTS + 1)) if extra == 0 else MAX_OBJECTS + extra
+    slot = min(float(rng.uniform(0.5, 0.7)), ROW_MAX_WIDTH / count)
+    row_y = float(rng.uniform(-0.4, 0.0))
+    row_x = float(rng.uniform(-0.1, 0.1))
+    xs = row_x + slot * (np.arange(count) - (count - 1) / 2)
+    colors = [base.COLOR_NAMES[i] for i in rng.permutation(len(base.COLOR_NAMES))]
+    scene_colors, spare_colors = colors[:count], colors[count:]
+    draws = [
+        draw_object(rng, float(rng.uniform(0.6, 0.85)) * slot / 2, color) for color in scene_colors
+    ]
+    camera = probe_camera(rng, row_y)
+    aspect = video.width / video.height
+    for x, draw in ((xs[0] - slot / 2, draws[0]), (xs[-1] + slot / 2, draws[-1])):
+        if abs(project(camera, (x, row_y, draw.height), aspect)[0]) > 0.92:
+            raise RejectedSample("the row does not fit in the view")
+
+    largest = max(d.reach for d in draws)
+    tallest = max(d.height for d in draws)
+    screen_y = row_y - largest - float(rng.uniform(0.12, 0.3))
+    margin = float(rng.uniform(0.25, 0.45))
+    screen_height = tallest + float(rng.uniform(0.35, 0.55))
+    top = height_above_view(camera, row_x, screen_y) + 0.05
+    screen = Screen(
+        row_x,
+        screen_y,
+        count * slot + 2 * margin,
+        screen_height,
+        draw_screen_color(rng),
+        draw_motion(rng, video, top, SCREEN_FLOOR_GAP),
+    )
+    hidden = screen.motion.hidden_frames()
+    if not hidden:
+        raise RejectedSample("the screen is never down for two frames in a row")
+    manipulation_frame = int(rng.choice(hidden))
+
+    builder = SceneBuilder(rng, video, camera)
+    names = [f"object{i}" for i in range(count)]
+    for name, draw, x in zip(names, draws, xs):
+        add_object(builder, name, draw, float(x), row_y)
+    screen.add_to(builder)
+
+    if change == "position":
+        # Move 2-4 objects to one another's places (a derangement: every chosen one moves).
+        moved = int(rng.integers(2, min(count, MAX_MANIPULATED_IDS) + 1))
+        chosen = rng.choice(count, moved, replace=False)
+        shift = int(rng.integers(1, moved))
+        targets = np.roll(chosen, shift)
+        manipulated = [builder.objects[names[i]].mask_id for i in chosen]
+
+        def manipulate(sim: base.Simulation) -> None:
+            for source, target in zip(chosen, targets):
+                sim.move(names[source], resting_position(draws[source], float(xs[target]), row_y))
+
+    elif change == "color":
+        recoloured = rng.choice(count, _changed_count(rng, min(count, 3)), replace=False)
+        new_colors = [spare_colors[k] for k in range(len(recoloured))]
+        manipulated = [builder.objects[names[i]].mask_id for i in recoloured]
+
+        def manipulate(sim: base.Simulation) -> None:
+            for index, color in zip(recoloured, new_colors):
+                sim.set_color(names[index], color)
+
+    else:  # shape: each changed object swaps with a same-coloured twin of another shape.
+        reshaped = rng.choice(count, _changed_count(rng, MAX_MANIPULATED_IDS // 2), replace=False)
+        twins = []
+        for index in reshaped:
+            original = draws[index]
+            others = [s for s in OBJECT_SHAPES if s != original.shape]
+            twin = ObjectDraw(
+                others[rng.integers(len(others))],
+                original.radius,
+                float(rng.random()),
+                original.yaw,
+                original.color,
+            )
+            twins.append((f"twin{index}", twin))
+            add_object(builder, f"twin{index}", twin, float(xs[index]), row_y)
+        manipulated = [builder.objects[names[i]].mask_id for i in reshaped]
+        manipulated += [builder.objects[name].mask_id for name, _ in twins]
+
+        def manipulate(sim: base.Simulation) -> None:
+            for index, (twin_name, twin) in zip(reshaped, twins):
+                sim.remove(names[index])
+                sim.move(twin_name, resting_position(twin, float(xs[index]), row_y))
+
+    sim = builder.build()
+    if change == "shape":
+        for twin_name, _ in twins:
+            sim.remove(twin_name)
+    consistent, inconsistent = base.record_pair(
+        sim, manipulation_frame, manipulate, script=screen.script
+    )
+    _check_probe(consistent, inconsistent, manipulation_frame, manipulated, count)
+    return base.probe_record(
+        CONCEPT, variant, seed, consistent, inconsistent, camera, manipulation_frame, manipulated
+    )
+
+
+def _check_probe(consistent, inconsistent, manipulation_frame, manipulated, count) -> None:
+    """Reject draws where the objects do not all show first, the screen does not hide the row at
+    the manipulation, or the change is not revealed at the end."""
+    objects = set(range(1, count + 1))
+    if base.visible_ids(consistent[1][0]) & objects != objects:
+        raise RejectedSample("not every object is visible before the screen comes down")
+    for _, masks in (consistent, inconsistent):
+        if base.visible_ids(masks[manipulation_frame]) & (objects | set(manipulated)):
+            raise RejectedSample("the screen does not hide the row at the manipulation")
+    shown = base.visible_ids(consistent[1][-1]) | base.visible_ids(inconsistent[1][-1])
+    changed_pixels = (consistent[0][-1] != inconsistent[0][-1]).any(axis=-1).sum()
+    if not set(manipulated) & shown or changed_pixels < 4:
+        raise RejectedSample("the change is not revealed when the screen rises")
+
+
+def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
+    """A consistent/inconsistent probe pair: objects in a row, screen down and up; in the
+    inconsistent video some objects changed ``variant``'s property behind the screen."""
+    change, extra = parse_variant(variant)
+    # Separate salt words: rng_for reads only the first 8 bytes of each word.
+    rng = base.rng_for(seed, CONCEPT, change, f"plus{extra}")
+    return base.draw_until_valid(
+        lambda r: _make_probe(change, extra, variant, seed, video, r), rng
+    )
+
+
+# --- training clips ------------------------------------------------------------------------------
+def example_camera(rng: np.random.Generator) -> CameraPose:
+    return CameraPose(
+        lookat=(float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.3, 0.5)), 0.1),
+        distance=float(rng.uniform(2.6, 3.6)),
+        azimuth=float(rng.uniform(80.0, 100.0)),
+        elevation=float(rng.uniform(-38.0, -24.0)),
+    )
+
+
+def draw_example_screen(rng: np.random.Generator, camera: CameraPose, video: VideoOptions):
+    """A screen of any size at any depth from the foreground to the background; it may stop
+    above the floor, so objects are hidden partly, wholly or not at all, at different times."""
+    x = float(camera.lookat[0] + rng.uniform(-1.2, 1.2))
+    y = float(camera.lookat[1] + rng.uniform(-1.0, 1.4))
+    width = float(rng.uniform(0.5, 2.8))
+    height = float(rng.uniform(0.3, 1.2))
+    bottom = SCREEN_FLOOR_GAP if rng.random() < 0.7 else float(rng.uniform(0.05, 0.4))
+    top = min(height_above_view(camera, x, y), 4.0) + float(rng.uniform(0.0, 0.3))
+    motion = draw_motion(rng, video, top, bottom)
+    return Screen(x, y, width, height, draw_screen_color(rng), motion)
+
+
+def _clear_of_screen(screen: Screen | None, draw: ObjectDraw, x: float, y: float) -> bool:
+    if screen is None:
+        return True
+    return (
+        abs(x - screen.x) > screen.width / 2 + draw.reach + 0.05
+        or abs(y - screen.y) > SCREEN_THICKNESS / 2 + draw.reach + 0.05
+    )
+
+
+def scatter_objects(
+    builder: SceneBuilder, rng: np.random.Generator, camera: CameraPose, screen: Screen | None
+) -> None:
+    """Place 2-4 static objects anywhere in view (uniformly over the image, up to 2.5 m past
+    the point the camera looks at), apart from one another and the screen."""
+    count = int(rng.integers(MIN_OBJECTS, MAX_OBJECTS + 1))
+    colors = rng.choice(base.COLOR_NAMES, count, replace=False)
+    placed: list[tuple[float, float, float]] = []
+    aspect = builder.video.width / builder.video.height
+    for index, color in enumerate(colors):
+        draw = draw_object(rng, float(rng.uniform(0.11, 0.25)), str(color))
+        for _ in range(100):
+            u, v = rng.uniform(-0.85, 0.85, size=2)
+            point = floor_point(camera, u, v, draw.height / 2, aspect)
+            if point is None:
+                continue
+            x, y = float(point[0]), float(point[1])
+            if (
+                math.dist((x, y), camera.lookat[:2]) < 2.5
+                and _clear_of_screen(screen, draw, x, y)
+                and all(math.hypot(x - px, y - py) > draw.reach + pr + 0.08 for px, py, pr in placed)
+            ):
+                break
+        else:
+            raise RejectedSample("no free place in view for an object")
+        placed.append((x, y, draw.reach))
+        add_object(builder, f"object{index}", draw, x, y)
+
+
+def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
+    """A training clip: ``example`` (scattered objects and a screen going down and up),
+    ``objects_only`` (no screen) or ``screen_only`` (no objects)."""
+    kinds = ("example", "objects_only", "screen_only")
+    if kind not in kinds:
+        raise ValueError(f"unknown unchangeableness clip kind {kind!r}; valid kinds: {kinds}")
+
+    def make(rng: np.random.Generator) -> TensorDict:
+        camera = example_camera(rng)
+        builder = SceneBuilder(rng, video, camera)
+        screen = draw_example_screen(rng, camera, video) if kind != "objects_only" else None
+        if kind != "screen_only":
+            scatter_objects(builder, rng, camera, screen)
+        if screen is not None:
+            screen.add_to(builder)
+        sim = builder.build()
+        frames, masks = sim.record(video.num_frames, screen.script if screen else None)
+        return base.clip_record(CONCEPT, kind, seed, frames, masks, camera)
+
+    return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, kind))
