@@ -1,0 +1,197 @@
+"""Dataset generation: the shard plan (disjoint seeds, 1:1 controls, slices that cover the work
+once), resuming, repairing corrupt shards, refusing other settings, bad input, and a real
+two-worker run of the MuJoCo scenes."""
+
+import json
+
+import pytest
+import torch
+from test_store import fake_clip, fake_probe
+
+from voe_lightning import generate, scenes, specs, store
+
+SMALL = dict(
+    train_examples=4,
+    val_pairs_per_variant=2,
+    test_pairs_per_variant=3,
+    generalization_pairs_per_variant=1,
+    shard_size=3,
+    num_frames=6,
+    height=24,
+    width=24,
+    workers=1,
+    progress=False,
+)
+CONCEPTS = ("unchangeableness", "continuity")
+
+
+@pytest.fixture
+def calls(monkeypatch):
+    """Replace the MuJoCo scenes with fast structured fakes and record every call."""
+    made = []
+
+    def clip(concept, kind, seed, **options):
+        made.append((concept, "clip", kind, seed))
+        return fake_clip(concept, kind, seed, **options)
+
+    def probe(concept, variant, seed, **options):
+        made.append((concept, "probe", variant, seed))
+        return fake_probe(concept, variant, seed, **options)
+
+    monkeypatch.setattr(generate, "generate_clip", clip)
+    monkeypatch.setattr(generate, "generate_probe", probe)
+    return made
+
+
+def _plan(**overrides):
+    counts = dict(train_examples=10, train_controls=None, val_pairs_per_variant=3,
+                  test_pairs_per_variant=4, generalization_pairs_per_variant=2)  # fmt: skip
+    counts.update(overrides)
+    if counts["train_controls"] is None:
+        counts["train_controls"] = counts["train_examples"]
+    per_concept = {c: generate.split_counts(c, **counts) for c in specs.CONCEPTS}
+    return generate.plan_shards(per_concept, shard_size=4)
+
+
+def test_plan_matches_controls_one_to_one_and_keeps_splits_disjoint():
+    tasks = _plan(train_examples=10)
+    train = [item for t in tasks if t.concept == "object_persistence" and t.split == "train" for item in t.items]
+    kinds = [kind for kind, _ in train]
+    assert kinds.count("example") == 10
+    assert kinds.count("plank_beside_object") == kinds.count("plank_on_empty_floor") == 5
+    assert set(kinds[:4]) == set(specs.CLIP_KINDS_BY_CONCEPT["object_persistence"])  # interleaved
+    for concept in specs.CONCEPTS:
+        seeds = {
+            split: {seed for t in tasks if t.concept == concept and t.split == split for seed in t.seeds}
+            for split in store.SPLITS
+        }
+        for split, own in seeds.items():
+            start = generate.SEED_STARTS[split]
+            assert all(start <= seed < start + generate.SEED_RANGE for seed in own)
+            assert all(not own & other for name, other in seeds.items() if name != split)
+    unchangeableness = [t for t in tasks if t.concept == "unchangeableness"]
+    variants = {v for t in unchangeableness if t.split == "generalization" for v, _ in t.items}
+    assert variants == set(specs.GENERALIZATION_VARIANTS["unchangeableness"])
+    assert not [t for t in tasks if t.concept == "solidity" and t.split == "generalization"]
+
+
+def test_slices_cover_every_shard_exactly_once(tmp_path, calls):
+    full = [(t.concept, t.split, t.index) for t in _plan()]
+    sliced = [(t.concept, t.split, t.index) for k in range(3) for t in _plan()[k::3]]
+    assert sorted(sliced) == sorted(full) and len(set(sliced)) == len(full)
+    summaries = [
+        generate.generate_dataset(tmp_path, CONCEPTS, shard_index=k, num_shards=3, **SMALL)
+        for k in range(3)
+    ]
+    assert sum(s.shards_generated for s in summaries) == summaries[0].shards_planned + summaries[1].shards_planned + summaries[2].shards_planned
+    assert len(calls) == len(set(calls))  # no record rendered twice
+    assert store.verify(tmp_path) == []
+    assert generate.generate_dataset(tmp_path, CONCEPTS, **SMALL).shards_generated == 0
+    with pytest.raises(ValueError, match=r"shard_index must be in \[0, 2\], got 3"):
+        generate.generate_dataset(tmp_path, CONCEPTS, shard_index=3, num_shards=3, **SMALL)
+
+
+def test_round_trip_resume_and_repair(tmp_path, calls):
+    first = generate.generate_dataset(tmp_path, CONCEPTS, **SMALL)
+    assert first.shards_generated == first.shards_planned and first.records_generated == len(calls)
+    train = store.open_split(tmp_path, "continuity", "train")
+    assert len(train) == 8
+    for index in range(len(train)):
+        record = train[index]
+        kind = specs.CLIP_KINDS[int(record["kind"])]
+        expected = fake_clip("continuity", kind, int(record["seed"]), num_frames=6, height=24, width=24)
+        assert all(torch.equal(record[k], expected[k]) for k in expected.keys(True, True))
+    test = store.open_split(tmp_path, "unchangeableness", "test")
+    assert len(test) == 9 and test.spec.is_in(test[4])
+    assert {specs.VARIANTS[int(test[i]["variant"])] for i in range(9)} == {"position", "color", "shape"}
+    before = test[6]
+
+    calls.clear()  # rerun: nothing to do
+    assert generate.generate_dataset(tmp_path, CONCEPTS, **SMALL).shards_skipped == first.shards_planned
+    assert calls == []
+    assert generate.ensure_dataset(tmp_path, concepts=CONCEPTS, **SMALL) is None
+
+    missing = store.shard_path(tmp_path, "continuity", "train", 1)
+    missing.unlink()
+    corrupt = store.shard_path(tmp_path, "unchangeableness", "test", 2)
+    data = bytearray(corrupt.read_bytes())
+    data[20] ^= 0x01
+    corrupt.write_bytes(bytes(data))
+    with pytest.raises(store.CorruptShardError, match=str(corrupt)):
+        store.open_split(tmp_path, "unchangeableness", "test")[6]  # first record of shard 2
+    assert sorted(store.verify(tmp_path)) == sorted([corrupt, missing])
+    repaired = generate.generate_dataset(tmp_path, CONCEPTS, **SMALL)
+    assert repaired.shards_generated == 2 and repaired.records_generated == len(calls) == 3 + 3
+    assert store.verify(tmp_path) == []
+    assert torch.equal(
+        store.open_split(tmp_path, "unchangeableness", "test")[6]["inconsistent", "frames"],
+        before["inconsistent", "frames"],
+    )
+
+
+def test_ensure_dataset_generates_only_what_is_missing(tmp_path, calls):
+    generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
+    made = len(calls)
+    assert made == 8 + 2 + 3 + 1
+    store.shard_path(tmp_path, "continuity", "val", 0).unlink()
+    summary = generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
+    assert summary.shards_generated == 1 and len(calls) == made + 2
+    # Another concept joins the same root; the first is left alone.
+    generate.ensure_dataset(tmp_path, concepts=("solidity",), **SMALL)
+    assert set(json.loads((tmp_path / "manifest.json").read_text())["concepts"]) == {"continuity", "solidity"}
+    with pytest.raises(TypeError, match="frames_per_video"):
+        generate.ensure_dataset(tmp_path, frames_per_video=3)
+
+
+def test_other_settings_are_refused_unless_overwritten(tmp_path, calls):
+    generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    with pytest.raises(generate.ManifestMismatchError, match=r"video.height: stored 24, asked 32"):
+        generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32})
+    with pytest.raises(generate.ManifestMismatchError, match=r"kinds.example: stored 4, asked 5"):
+        generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "train_examples": 5})
+    summary = generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32, "overwrite": True})
+    assert summary.shards_skipped == 0 and store.verify(tmp_path) == []
+    assert store.open_split(tmp_path, "continuity", "train")[0]["frames"].shape == (6, 32, 24, 3)
+
+
+def test_bad_input_names_the_value_and_the_choices(tmp_path, calls, capsys):
+    with pytest.raises(ValueError, match="unknown concept 'gravity'; valid concepts are: object_persistence, unchangeableness, continuity, solidity, containment"):
+        generate.generate_dataset(tmp_path, ("continuity", "gravity"), **SMALL)
+    with pytest.raises(ValueError, match="train_examples must be a non-negative integer, got -1"):
+        generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "train_examples": -1})
+    with pytest.raises(SystemExit):
+        generate.main(["--root", str(tmp_path), "--concepts", "gravity"])
+    assert "valid concepts are" in capsys.readouterr().err
+    not_a_folder = tmp_path / "file"
+    not_a_folder.write_text("")
+    with pytest.raises(OSError, match=str(not_a_folder / "data")):
+        generate.generate_dataset(not_a_folder / "data", ("continuity",), **SMALL)
+
+
+def test_full_disk_names_the_shard(tmp_path, calls, monkeypatch):
+    def full_disk(file, data):
+        raise OSError(28, "No space left on device")
+
+    generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    lost = store.shard_path(tmp_path, "continuity", "test", 0)
+    lost.unlink()
+    monkeypatch.setattr(store, "_write_bytes", full_disk)
+    with pytest.raises(OSError, match=f"cannot write {lost}: No space left on device"):
+        generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    assert sorted(p.name for p in lost.parent.iterdir()) == []  # no temporary left behind
+
+
+def test_command_line_generates_with_real_scenes_in_two_workers(tmp_path):
+    """End to end with MuJoCo in two spawned worker processes (tiny videos)."""
+    root = tmp_path / "data"
+    argv = ["--root", str(root), "--concepts", "continuity", "--train-examples", "2",
+            "--val-pairs", "1", "--test-pairs", "1", "--generalization-pairs", "1",
+            "--shard-size", "1", "--workers", "2", "--height", "32",
+            "--width", "32", "--no-progress"]  # fmt: skip
+    summary = generate.main(argv)
+    assert summary.shards_generated == summary.shards_planned == 7
+    assert store.verify(root) == []
+    val = store.open_split(root, "continuity", "val")[0]
+    expected = scenes.generate_probe("continuity", "standard", generate.SEED_STARTS["val"], height=32, width=32)
+    assert torch.equal(val["inconsistent", "frames"], expected["inconsistent", "frames"])
+    assert generate.main(argv).shards_generated == 0

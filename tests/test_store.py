@@ -1,0 +1,181 @@
+"""The record store: lossless round trip of clips and probes, random access from DataLoader
+workers, compression of structured videos, and corrupt or truncated shards named on read."""
+
+import pickle
+
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+from torch.utils.data import DataLoader
+
+from voe_lightning import specs, store
+
+
+def _video(rng: np.random.Generator, num_frames: int, height: int, width: int):
+    """A textured floor with a square sliding over it: compresses like a rendered video."""
+    yy, xx = np.mgrid[0:height, 0:width]
+    checker = ((xx // 8 + yy // 8) % 2) * 40 + rng.integers(90, 140)
+    floor = np.stack([checker, checker + yy, checker + xx // 2], -1).astype(np.uint8)
+    frames = np.repeat(floor[None], num_frames, 0)
+    mask = np.zeros((num_frames, height, width), np.uint8)
+    size = max(2, height // 6)
+    x, y = rng.integers(0, width - size), rng.integers(0, height - size)
+    color = rng.integers(0, 256, 3, dtype=np.uint8)
+    for t in range(num_frames):
+        left = (x + 2 * t) % (width - size)
+        frames[t, y : y + size, left : left + size] = color
+        mask[t, y : y + size, left : left + size] = 1
+    return frames, mask
+
+
+def fake_clip(concept, kind, seed, num_frames=15, height=64, width=64, **_):
+    """A clip record satisfying specs.clip_spec, determined by its arguments."""
+    rng = np.random.default_rng([seed, specs.CLIP_KINDS.index(kind)])
+    frames, mask = _video(rng, num_frames, height, width)
+    return TensorDict(
+        frames=torch.from_numpy(frames),
+        mask=torch.from_numpy(mask),
+        camera=torch.from_numpy(rng.normal(size=(num_frames, 6)).astype(np.float32)),
+        concept=torch.tensor(specs.CONCEPTS.index(concept)),
+        kind=torch.tensor(specs.CLIP_KINDS.index(kind)),
+        seed=torch.tensor(seed, dtype=torch.int64),
+        batch_size=[],
+    )
+
+
+def fake_probe(concept, variant, seed, num_frames=15, height=64, width=64, **_):
+    """A probe record satisfying specs.probe_spec: the square vanishes in the inconsistent
+    video from the manipulation frame on."""
+    rng = np.random.default_rng([seed, specs.VARIANTS.index(variant)])
+    frames, mask = _video(rng, num_frames, height, width)
+    manipulation = num_frames // 2
+    gone_frames, gone_mask = frames.copy(), mask.copy()
+    gone_frames[manipulation:] = frames[0, :1, :1]
+    gone_mask[manipulation:] = 0
+    return TensorDict(
+        consistent={"frames": torch.from_numpy(frames), "mask": torch.from_numpy(mask)},
+        inconsistent={"frames": torch.from_numpy(gone_frames), "mask": torch.from_numpy(gone_mask)},
+        camera=torch.zeros(num_frames, 6),
+        concept=torch.tensor(specs.CONCEPTS.index(concept)),
+        variant=torch.tensor(specs.VARIANTS.index(variant)),
+        manipulation_frame=torch.tensor(manipulation),
+        manipulated_ids=torch.tensor([1, 0, 0, 0]),
+        seed=torch.tensor(seed, dtype=torch.int64),
+        batch_size=[],
+    )
+
+
+def _equal(a: TensorDict, b: TensorDict) -> bool:
+    keys = sorted(a.keys(True, True), key=str)
+    return keys == sorted(b.keys(True, True), key=str) and all(
+        a[k].dtype == b[k].dtype and torch.equal(a[k], b[k]) for k in keys
+    )
+
+
+def test_round_trip_is_lossless_for_random_clips_and_probes(tmp_path):
+    torch.manual_seed(0)
+    clips = [specs.clip_spec(5, 12, 10).rand() for _ in range(4)]  # odd sizes, random bytes
+    probes = [specs.probe_spec().rand() for _ in range(3)]
+    store.write_shard(tmp_path / "clips.voe", clips)
+    store.write_shard(tmp_path / "probes.voe", probes, {"note": "kept"})
+    clip_reader, probe_reader = store.ShardReader(tmp_path / "clips.voe"), store.ShardReader(tmp_path / "probes.voe")
+    assert len(clip_reader) == 4 and len(probe_reader) == 3
+    for i in (2, 0, 3, 1):  # random order
+        assert _equal(clip_reader[i], clips[i])
+        assert specs.clip_spec(5, 12, 10).is_in(clip_reader[i])
+    for i in range(3):
+        assert _equal(probe_reader[i], probes[i]) and specs.probe_spec().is_in(probe_reader[i])
+    assert probe_reader.index.meta["note"] == "kept"
+    assert probe_reader.index.seeds == [int(p["seed"]) for p in probes]
+    with pytest.raises(IndexError, match="out of range"):
+        clip_reader[4]
+
+
+def test_structured_videos_compress_well_below_40_kb(tmp_path):
+    clips = [fake_clip("solidity", "example", seed) for seed in range(8)]
+    probes = [fake_probe("solidity", "standard", seed) for seed in range(8)]
+    clip_bytes = store.write_shard(tmp_path / "c.voe", clips)
+    probe_bytes = store.write_shard(tmp_path / "p.voe", probes)
+    raw = 15 * 64 * 64 * 4  # frames and mask of one video
+    assert clip_bytes / 8 < raw / 10
+    # The inconsistent video is stored as its difference from the consistent one.
+    assert probe_bytes / 16 < clip_bytes / 8
+
+
+def _split_root(tmp_path, count=10, shard_size=4, concept="continuity"):
+    manifest = {
+        "shard_size": shard_size,
+        "video": {"num_frames": 15, "height": 64, "width": 64},
+        "concepts": {concept: {"splits": {s: {"record_type": store.SPLIT_RECORD_TYPE[s], "count": 0} for s in store.SPLITS}}},
+    }
+    manifest["concepts"][concept]["splits"]["train"]["count"] = count
+    clips = [fake_clip(concept, "example", seed) for seed in range(count)]
+    for index, start in enumerate(range(0, count, shard_size)):
+        store.write_shard(store.shard_path(tmp_path, concept, "train", index), clips[start : start + shard_size])
+    store.write_manifest(tmp_path, manifest)
+    return clips
+
+
+def test_open_split_reads_every_record_from_dataloader_workers(tmp_path):
+    clips = _split_root(tmp_path)
+    dataset = store.open_split(tmp_path, "continuity", "train")
+    assert len(dataset) == 10 and dataset.spec.is_in(dataset[-1])
+    assert _equal(dataset[5], clips[5])
+    # fork keeps the test fast (torchrl makes spawn the default); spawn pickles the dataset
+    # after use, which must drop the open files and reopen them in the worker.
+    clone = pickle.loads(pickle.dumps(dataset))
+    assert clone._readers == {} and _equal(clone[9], clips[9])
+    loader = DataLoader(
+        dataset, batch_size=3, num_workers=2, collate_fn=store.collate, multiprocessing_context="fork"
+    )
+    batches = list(loader)
+    assert batches[0].batch_size == torch.Size([3])
+    seeds = torch.cat([batch["seed"] for batch in batches]).tolist()
+    assert seeds == list(range(10))
+    assert torch.equal(torch.cat([b["frames"] for b in batches]), torch.stack([c["frames"] for c in clips]))
+    assert len(store.open_split(tmp_path, "continuity", "generalization")) == 0
+
+
+def test_corrupt_and_truncated_shards_are_named(tmp_path):
+    _split_root(tmp_path)
+    assert store.verify(tmp_path) == []
+    corrupt = store.shard_path(tmp_path, "continuity", "train", 1)
+    data = bytearray(corrupt.read_bytes())
+    data[100] ^= 0xFF  # inside the first record's blob
+    corrupt.write_bytes(bytes(data))
+    truncated = store.shard_path(tmp_path, "continuity", "train", 2)
+    truncated.write_bytes(truncated.read_bytes()[:-10])
+    dataset = store.open_split(tmp_path, "continuity", "train")
+    with pytest.raises(store.CorruptShardError, match=str(corrupt)):
+        dataset[4]
+    with pytest.raises(store.CorruptShardError, match=str(truncated)):
+        dataset[8]
+    assert _equal(dataset[5], fake_clip("continuity", "example", 5))  # other records still readable
+    assert store.verify(tmp_path) == [corrupt, truncated]
+    store.shard_path(tmp_path, "continuity", "train", 0).unlink()
+    assert store.verify(tmp_path)[0] == store.shard_path(tmp_path, "continuity", "train", 0)
+
+
+def test_failed_write_names_the_path_and_leaves_no_temporary(tmp_path, monkeypatch):
+    def full_disk(file, data):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(store, "_write_bytes", full_disk)
+    path = tmp_path / "concept" / "train" / "shard-00000.voe"
+    with pytest.raises(OSError, match=str(path)) as error:
+        store.write_shard(path, [fake_clip("solidity", "example", 0)])
+    assert error.value.errno == 28
+    assert list(path.parent.iterdir()) == []
+
+
+def test_open_split_rejects_bad_names(tmp_path):
+    _split_root(tmp_path)
+    with pytest.raises(ValueError, match="valid concepts are: object_persistence, unchangeableness"):
+        store.open_split(tmp_path, "gravity", "train")
+    with pytest.raises(ValueError, match="valid splits are: train, val, test, generalization"):
+        store.open_split(tmp_path, "continuity", "training")
+    with pytest.raises(ValueError, match="not generated .* holds: continuity"):
+        store.open_split(tmp_path, "solidity", "train")
+    with pytest.raises(FileNotFoundError, match="manifest.json"):
+        store.open_split(tmp_path / "nothing", "solidity", "train")
