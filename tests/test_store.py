@@ -179,3 +179,8 @@ def test_open_split_rejects_bad_names(tmp_path):
         store.open_split(tmp_path, "solidity", "train")
     with pytest.raises(FileNotFoundError, match="manifest.json"):
         store.open_split(tmp_path / "nothing", "solidity", "train")
+    manifest = store.read_manifest(tmp_path)
+    manifest["vocabulary"] = {**store.vocabulary(), "variants": ["standard"]}
+    store.write_manifest(tmp_path, manifest)
+    with pytest.raises(ValueError, match="other concept/kind/variant names"):
+        store.open_split(tmp_path, "continuity", "train")

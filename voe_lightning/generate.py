@@ -169,10 +169,11 @@ def _settings(video: VideoOptions, shard_size: int) -> dict:
         "video": dataclasses.asdict(video),
         "shard_size": shard_size,
         "seed_starts": SEED_STARTS,
+        "vocabulary": store.vocabulary(),
     }
 
 
-_SETTING_KEYS = ("format", "video", "shard_size", "seed_starts")
+_SETTING_KEYS = ("format", "video", "shard_size", "seed_starts", "vocabulary")
 
 
 def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
@@ -224,11 +225,6 @@ def _reconcile_manifest(
         "spec": {
             "clip": _describe_spec(specs.clip_spec(video.num_frames, video.height, video.width)),
             "probe": _describe_spec(specs.probe_spec(video.num_frames, video.height, video.width)),
-        },
-        "vocabulary": {
-            "concepts": list(specs.CONCEPTS),
-            "clip_kinds": list(specs.CLIP_KINDS),
-            "variants": list(specs.VARIANTS),
         },
         "concepts": merged,
     }

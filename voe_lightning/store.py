@@ -477,12 +477,27 @@ def _manifest_or_error(root: str | os.PathLike) -> dict:
     return manifest
 
 
+def vocabulary() -> dict[str, list[str]]:
+    """The names that records' ``concept``, ``kind`` and ``variant`` indices decode to."""
+    return {
+        "concepts": list(specs.CONCEPTS),
+        "clip_kinds": list(specs.CLIP_KINDS),
+        "variants": list(specs.VARIANTS),
+    }
+
+
 def open_split(root: str | os.PathLike, concept: str, split: str) -> SplitDataset:
     """The records of ``concept``'s ``split`` (train, val, test or generalization) in the store
-    at ``root``, as a torch Dataset of TensorDicts."""
+    at ``root``, as a torch Dataset of TensorDicts (batch them with ``collate_fn=collate``)."""
     specs.check_concept(concept)
     check_split(split)
     manifest = _manifest_or_error(root)
+    if manifest.get("vocabulary", vocabulary()) != vocabulary():
+        raise ValueError(
+            f"the store at {root} was written by voe_lightning {manifest.get('package_version')} "
+            "with other concept/kind/variant names, so its indices would decode wrongly; "
+            "regenerate it (generate --overwrite)"
+        )
     stored = manifest["concepts"]
     if concept not in stored:
         raise ValueError(
