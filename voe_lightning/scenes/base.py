@@ -520,3 +520,47 @@ def record_pair(
     consistent = tuple(np.concatenate([a, b]) for a, b in zip(prefix, consistent_rest))
     inconsistent = tuple(np.concatenate([a, b]) for a, b in zip(prefix, inconsistent_rest))
     return consistent, inconsistent
+
+
+def record_pair_when(
+    sim: Simulation,
+    manipulate: Callable[[Simulation], bool | None],
+    ready: Callable[[Simulation, int], bool],
+    hidden_ids: Sequence[int] = (),
+    script: Callable[[Simulation, int], None] | None = None,
+) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray], int]:
+    """Render a probe pair whose hidden change happens at the first frame where it can, for
+    events whose timing only the physics knows (a plank landing, a block entering a box).
+    Before each frame t >= 1 with ``ready(sim, t)``, a twin is forked and ``manipulate``d (it
+    may return False to decline this frame); t becomes the manipulation frame if none of
+    ``hidden_ids`` shows in either video's frame t. Returns (consistent, inconsistent, t);
+    raises RejectedSample if no frame qualifies."""
+    video = sim.video
+    hidden = set(hidden_ids)
+    frames = np.empty((video.num_frames, video.height, video.width, 3), np.uint8)
+    masks = np.empty((video.num_frames, video.height, video.width), np.uint8)
+    for t in range(video.num_frames):
+        if script is not None:
+            script(sim, t)
+        frames[t], masks[t] = sim.render()
+        if t >= 1 and not visible_ids(masks[t]) & hidden and ready(sim, t):
+            twin = sim.fork()
+            if manipulate(twin) is not False:
+                twin_frame, twin_mask = twin.render()
+                if not visible_ids(twin_mask) & hidden:
+                    rest = video.num_frames - t - 1
+                    sim.step(video.steps_per_frame)
+                    twin.step(video.steps_per_frame)
+                    consistent_rest = sim.record(rest, script, first_frame=t + 1)
+                    inconsistent_rest = twin.record(rest, script, first_frame=t + 1)
+                    consistent = (
+                        np.concatenate([frames[: t + 1], consistent_rest[0]]),
+                        np.concatenate([masks[: t + 1], consistent_rest[1]]),
+                    )
+                    inconsistent = (
+                        np.concatenate([frames[:t], twin_frame[None], inconsistent_rest[0]]),
+                        np.concatenate([masks[:t], twin_mask[None], inconsistent_rest[1]]),
+                    )
+                    return consistent, inconsistent, t
+        sim.step(video.steps_per_frame)
+    raise RejectedSample("no frame where the hidden change could happen unseen")
