@@ -5,6 +5,7 @@ and can fork at a hidden manipulation, and packing into spec'd TensorDict record
 from __future__ import annotations
 
 import copy
+import hashlib
 import importlib
 import os
 from dataclasses import dataclass, field
@@ -421,7 +422,10 @@ def rng_for(seed: int, *salt: str) -> np.random.Generator:
     same seed in different concepts or kinds gives independent draws."""
     if seed < 0:
         raise ValueError(f"seed must be non-negative, got {seed}")
-    words = [int.from_bytes(s.encode()[:8].ljust(8, b"\0"), "little") for s in salt]
+    words = [
+        int.from_bytes(hashlib.blake2b(word.encode(), digest_size=8).digest(), "little")
+        for word in salt
+    ]
     return np.random.default_rng([seed, *words, len(salt)])
 
 
