@@ -1,0 +1,219 @@
+"""The VOE statistics against scipy: one-shot paired test, degenerate inputs, and the streaming
+metric's exactness when states from several processes are merged (simulated DDP)."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy import stats
+from sklearn.metrics import roc_auc_score
+
+from voe_lightning.statistics import (
+    PairedSurpriseStats,
+    PairedTestResult,
+    effect_size_interval,
+    paired_test,
+)
+
+
+def _surprise(n, effect, seed):
+    rng = np.random.default_rng(seed)
+    consistent = rng.gamma(2.0, 5.0, size=n)
+    return consistent + rng.normal(effect, 2.0, size=n), consistent
+
+
+@pytest.mark.parametrize(
+    "n, effect, seed", [(2, 0.5, 0), (7, -0.4, 1), (50, 0.3, 2), (3000, 0.1, 3)]
+)
+def test_paired_test_agrees_with_scipy(n, effect, seed):
+    inconsistent, consistent = _surprise(n, effect, seed)
+    result = paired_test(inconsistent, consistent, bootstrap=200)
+    reference = stats.ttest_rel(inconsistent, consistent, alternative="greater")
+    d = inconsistent - consistent
+    assert result.n == n and result.df == n - 1
+    assert result.t == pytest.approx(reference.statistic, rel=1e-9, abs=1e-12)
+    assert result.p_value == pytest.approx(reference.pvalue, rel=1e-9, abs=1e-300)
+    assert result.relative_surprise == pytest.approx(d.mean(), rel=1e-12)
+    assert result.sd == pytest.approx(d.std(ddof=1), rel=1e-12)
+    assert result.d_z == pytest.approx(d.mean() / d.std(ddof=1), rel=1e-12)
+    assert result.significant == (reference.pvalue < 0.05)
+    assert result.accuracy == np.mean(d > 0)
+    labels = np.r_[np.ones(n), np.zeros(n)]
+    reference_auroc = roc_auc_score(labels, np.r_[inconsistent, consistent])
+    assert result.auroc == pytest.approx(reference_auroc, abs=1e-6)
+    assert result.note == ""
+
+
+def test_tensors_and_lists_are_accepted_and_dict_is_flat():
+    inconsistent, consistent = _surprise(20, 0.5, 4)
+    from_numpy = paired_test(inconsistent, consistent, bootstrap=100)
+    from_torch = paired_test(torch.tensor(inconsistent, dtype=torch.float64),
+                             torch.tensor(consistent, dtype=torch.float64), bootstrap=100)
+    from_list = paired_test(list(inconsistent), list(consistent), bootstrap=100)
+    assert from_numpy == from_torch == from_list
+    row = from_numpy.as_dict()
+    assert list(row) == [f.name for f in PairedTestResult.__dataclass_fields__.values()]
+    with pytest.raises(AttributeError):
+        from_numpy.t = 0.0  # frozen
+
+
+def test_effect_size_interval_is_the_noncentral_t_interval():
+    inconsistent, consistent = _surprise(40, 0.8, 5)
+    result = paired_test(inconsistent, consistent, bootstrap=0)
+    n, root_n = result.n, math.sqrt(result.n)
+    # At the bounds the observed t is the 97.5% / 2.5% quantile of the noncentral t.
+    low_tail = stats.nct.cdf(result.t, n - 1, result.d_z_ci_low * root_n)
+    high_tail = stats.nct.cdf(result.t, n - 1, result.d_z_ci_high * root_n)
+    assert low_tail == pytest.approx(0.975, abs=1e-8)
+    assert high_tail == pytest.approx(0.025, abs=1e-8)
+    assert result.d_z_ci_low < result.d_z < result.d_z_ci_high
+    # Large t with few degrees of freedom still brackets; the paper-scale case stays finite.
+    low, high = effect_size_interval(300.0, 11)
+    assert low < 300 / math.sqrt(11) < high
+    low, high = effect_size_interval(136.25, 8000)
+    assert low < 136.25 / math.sqrt(8000) < high
+
+
+def test_bootstrap_interval_is_seeded_and_covers_the_mean():
+    inconsistent, consistent = _surprise(200, 0.4, 6)
+    first = paired_test(inconsistent, consistent, bootstrap=500, seed=1)
+    again = paired_test(inconsistent, consistent, bootstrap=500, seed=1)
+    other = paired_test(inconsistent, consistent, bootstrap=500, seed=2)
+    assert first == again
+    assert first.relative_surprise_ci_low != other.relative_surprise_ci_low
+    low, high = first.relative_surprise_ci_low, first.relative_surprise_ci_high
+    assert low < first.relative_surprise < high
+    # Its width matches the t-interval of the mean to within bootstrap noise.
+    half_t = stats.t.ppf(0.975, 199) * first.sd / math.sqrt(200)
+    width = first.relative_surprise_ci_high - first.relative_surprise_ci_low
+    assert width == pytest.approx(2 * half_t, rel=0.2)
+
+
+def test_no_bootstrap_gives_nan_bounds_with_a_note():
+    result = paired_test([1.0, 2.5, 3.0], [0.5, 2.0, 3.5], bootstrap=0)
+    assert math.isnan(result.relative_surprise_ci_low) and "bootstrap=0" in result.note
+
+
+def test_fewer_than_two_pairs_is_refused():
+    with pytest.raises(ValueError, match="at least 2 probe pairs, got n=1"):
+        paired_test([1.0], [0.0])
+    with pytest.raises(ValueError, match="n=0"):
+        paired_test([], [])
+
+
+def test_nan_surprise_is_refused_naming_how_many():
+    inconsistent = np.array([1.0, np.nan, 2.0, np.nan, np.inf])
+    with pytest.raises(ValueError, match=r"3 non-finite value\(s\) out of 5 \(2 NaN, 1 infinite\)"):
+        paired_test(inconsistent, np.zeros(5))
+    with pytest.raises(ValueError, match="consistent surprise has 1 non-finite"):
+        paired_test(np.zeros(3), [0.0, np.nan, 1.0])
+
+
+def test_mismatched_or_per_frame_input_is_refused():
+    with pytest.raises(ValueError, match="3 inconsistent and 2 consistent"):
+        paired_test([1.0, 2.0, 3.0], [1.0, 2.0])
+    with pytest.raises(ValueError, match=r"shape \[n\]; got shape \(2, 15\)"):
+        paired_test(np.zeros((2, 15)), np.zeros((2, 15)))
+    with pytest.raises(ValueError, match="alpha"):
+        paired_test([1.0, 2.0], [0.0, 0.0], alpha=5)
+
+
+def test_zero_variance_positive_difference():
+    consistent = np.array([1.0, 4.0, 2.5, 7.0])
+    result = paired_test(consistent + 0.1, consistent, bootstrap=100)
+    assert result.t == math.inf and result.p_value == 0.0 and result.significant
+    assert result.d_z == math.inf and result.d_z_ci_low == math.inf
+    assert result.relative_surprise == pytest.approx(0.1)
+    assert result.relative_surprise_ci_low == result.relative_surprise_ci_high == pytest.approx(0.1)
+    assert "t = +inf, p = 0" in result.note
+
+
+def test_zero_variance_negative_difference():
+    result = paired_test([0.0, 1.0, 2.0], [0.5, 1.5, 2.5], bootstrap=100)
+    assert result.t == -math.inf and result.p_value == 1.0 and not result.significant
+    assert result.accuracy == 0.0 and "t = -inf, p = 1" in result.note
+
+
+def test_identical_surprise_is_not_significant_and_says_why():
+    surprise = [3.0, 1.0, 2.0]
+    result = paired_test(surprise, surprise, bootstrap=100)
+    assert math.isnan(result.t) and math.isnan(result.d_z)
+    assert result.p_value == 1.0 and not result.significant
+    assert result.relative_surprise == 0.0 and result.accuracy == 0.0 and result.auroc == 0.5
+    assert "every d = 0" in result.note
+
+
+def _stream(inconsistent, consistent, batch):
+    metric = PairedSurpriseStats()
+    for start in range(0, len(inconsistent), batch):
+        metric.update(torch.tensor(inconsistent[start:start + batch]),
+                      torch.tensor(consistent[start:start + batch]))
+    return metric
+
+
+def _assert_matches_scipy(values, inconsistent, consistent):
+    reference = stats.ttest_rel(inconsistent, consistent, alternative="greater")
+    d = inconsistent - consistent
+    assert values["n"].item() == len(d)
+    assert values["relative_surprise"].item() == pytest.approx(d.mean(), rel=1e-12)
+    assert values["t"].item() == pytest.approx(reference.statistic, rel=1e-9)
+    assert values["p_value"].item() == pytest.approx(reference.pvalue, rel=1e-9)
+    assert values["accuracy"].item() == np.mean(d > 0)
+
+
+def test_streaming_metric_agrees_with_scipy_and_one_shot():
+    inconsistent, consistent = _surprise(333, 0.2, 7)
+    values = _stream(inconsistent, consistent, batch=10).compute()
+    assert all(value.dtype == torch.float64 for value in values.values())
+    _assert_matches_scipy(values, inconsistent, consistent)
+    one_shot = paired_test(inconsistent, consistent, bootstrap=0)
+    assert values["t"].item() == pytest.approx(one_shot.t, rel=1e-9)
+    assert values["p_value"].item() == pytest.approx(one_shot.p_value, rel=1e-9)
+
+
+@pytest.mark.filterwarnings("ignore:The ``compute`` method")  # merged states, no own update
+def test_streaming_states_merge_exactly_like_ddp():
+    inconsistent, consistent = _surprise(250, 0.3, 8)
+    whole = _stream(inconsistent, consistent, batch=250)
+    # Three "ranks" with uneven shards; float32 input is upcast to the float64 states.
+    shards = [slice(0, 90), slice(90, 91), slice(91, 250)]
+    ranks = [_stream(inconsistent[s], consistent[s], batch=17) for s in shards]
+    merged = PairedSurpriseStats()
+    for rank in ranks:
+        merged.merge_state(rank)
+    summed = PairedSurpriseStats()
+    summed.merge_state({name: sum(getattr(r, name) for r in ranks)
+                        for name in ("n", "sum_d", "sum_d_squared", "positive")})
+    for metric in (merged, summed):
+        assert metric.n.item() == whole.n.item() == 250
+        assert metric.positive.item() == whole.positive.item()
+        assert metric.sum_d.item() == pytest.approx(whole.sum_d.item(), rel=1e-14)
+        values = metric.compute()
+        _assert_matches_scipy(values, inconsistent, consistent)
+    assert all(state.dtype == torch.float64 for state in (merged.n, merged.sum_d,
+                                                           merged.sum_d_squared, merged.positive))
+
+
+def test_streaming_states_survive_dtype_casts_and_reset():
+    metric = PairedSurpriseStats().half()  # Lightning's precision casts must not touch states
+    metric.update(torch.tensor([1.0, 2.0, 4.0]), torch.tensor([0.5, 2.5, 1.0]))
+    assert metric.sum_d.dtype == torch.float64
+    metric.reset()
+    assert metric.n.item() == 0.0
+
+
+def test_streaming_degenerate_inputs():
+    metric = PairedSurpriseStats()
+    metric.update(torch.tensor([1.0]), torch.tensor([0.0]))
+    with pytest.raises(ValueError, match="at least 2 probe pairs, got n=1"):
+        metric.compute()
+    with pytest.raises(ValueError, match="2 of 3 probe pairs in this batch have non-finite"):
+        metric.update(torch.tensor([1.0, float("nan"), float("inf")]), torch.zeros(3))
+    with pytest.raises(ValueError, match=r"shape \[B\]"):
+        metric.update(torch.zeros(2, 15), torch.zeros(2, 15))
+    equal = PairedSurpriseStats()
+    equal.update(torch.tensor([1.1, 2.1, 3.1], dtype=torch.float64),
+                 torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
+    values = equal.compute()  # d = 0.1 up to rounding: exactly the zero-variance rule
+    assert values["t"].item() == math.inf and values["p_value"].item() == 0.0
