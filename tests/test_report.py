@@ -1,0 +1,262 @@
+"""The VOE report: schema of every file, statistics equal to paired_test per group, pairs.csv
+round trip, every figure written, degenerate groups explained, and VOEReportCallback in a real
+Trainer.test with a small frame-persistence model."""
+
+import csv
+import json
+import math
+
+import lightning as L
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+from tensordict import TensorDict
+from torch.utils.data import DataLoader
+
+from voe_lightning import specs
+from voe_lightning.report import (
+    SUMMARY_COLUMNS,
+    PairResults,
+    PredictionExample,
+    VOEReportCallback,
+    write_report,
+)
+from voe_lightning.statistics import paired_test
+
+T, H, W = 6, 16, 16
+
+
+def synthetic_results(seed=0):
+    """Three tested groups (one zero-variance) and one group with a single pair."""
+    rng = np.random.default_rng(seed)
+    groups = [("object_persistence", "standard", 10, 1.0),
+              ("object_persistence", "counterbalanced", 9, 0.0),
+              ("continuity", "standard", 1, 1.0), ("solidity", "standard", 4, None)]
+    columns = {k: [] for k in ("concept", "variant", "seed", "manipulation_frame",
+                               "surprise_consistent", "surprise_inconsistent")}
+    for concept, variant, n, effect in groups:
+        for i in range(n):
+            manipulation = int(rng.integers(2, 4))
+            consistent = rng.gamma(2.0, 1.0, T)
+            inconsistent = consistent.copy()
+            if effect is None:  # every pair differs by exactly 0.5 at the manipulation
+                inconsistent[manipulation] += 0.5
+            else:
+                inconsistent[manipulation:] += rng.normal(effect, 0.5, T - manipulation)
+            for key, value in zip(columns, (concept, variant, 100 + i, manipulation,
+                                            consistent, inconsistent)):
+                columns[key].append(value)
+    # Listed out of specs order on purpose: groups come back in specs order.
+    order = np.r_[np.arange(19, 24), np.arange(0, 19)]
+    return PairResults(**{k: [v[i] for i in order] for k, v in columns.items()})
+
+
+def _png_ok(path, min_width=300):
+    with Image.open(path) as image:
+        assert image.format == "PNG" and image.size[0] >= min_width and image.size[1] >= 150
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    results = synthetic_results()
+    rng = np.random.default_rng(1)
+    frames = np.zeros((T, H, W, 3), np.uint8)
+    frames[:, 4:10, 4:10] = [255, 0, 255]
+    predictions = [PredictionExample("object_persistence", "standard", 100, 3, frames,
+                                     rng.random((T, 3, H, W)))]
+    trajectories = {video: {"prior": rng.normal(size=(2, T, 8)),
+                            "memory": rng.normal(size=(2, T, 3, 4))}
+                    for video in ("consistent", "inconsistent")}
+    rows = write_report(results, out, predictions, trajectories, bootstrap=200, echo=False)
+    return out / "voe_report", results, rows
+
+
+def test_summary_rows_are_paired_tests_in_specs_order(report):
+    directory, results, rows = report
+    assert [(r["concept"], r["variant"]) for r in rows] == [
+        ("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
+        ("continuity", "standard"), ("solidity", "standard")]
+    for row, (_, _, pairs) in zip(rows, results.groups()):
+        if row["n"] < 2:
+            continue
+        expected = paired_test(pairs.total_inconsistent, pairs.total_consistent, bootstrap=200)
+        assert {k: row[k] for k in expected.as_dict()} == expected.as_dict()
+    assert rows[0]["significant"] and not rows[1]["significant"]
+
+
+def test_summary_files_schema(report):
+    directory, results, rows = report
+    with open(directory / "summary.csv", newline="") as handle:
+        reader = csv.DictReader(handle)
+        assert tuple(reader.fieldnames) == SUMMARY_COLUMNS
+        table = list(reader)
+    assert len(table) == 4
+    assert float(table[0]["t"]) == pytest.approx(rows[0]["t"], rel=1e-12)
+
+    def refuse(constant):
+        raise AssertionError(f"non-standard JSON constant {constant}")
+
+    document = json.loads((directory / "summary.json").read_text(), parse_constant=refuse)
+    assert document["num_pairs"] == len(results) == 24 and document["num_frames"] == T
+    assert [list(r) for r in document["rows"]] == [list(SUMMARY_COLUMNS)] * 4
+    assert document["rows"][0]["p_value"] == rows[0]["p_value"]
+    markdown = (directory / "summary.md").read_text()
+    lines = [line for line in markdown.splitlines() if line.startswith("|")]
+    assert len(lines) == 2 + 4 and "t(9) = " in markdown and "| M [95% CI] |" in lines[0]
+
+
+def test_degenerate_groups_are_explained_not_nan(report):
+    directory, _, rows = report
+    single, constant = rows[2], rows[3]
+    assert single["n"] == 1 and single["t"] is None and "no test" in single["note"]
+    assert constant["t"] == math.inf and constant["p_value"] == 0.0
+    assert "zero variance" in constant["note"]
+    markdown = (directory / "summary.md").read_text()
+    assert "nan" not in markdown.lower()
+    assert "| continuity | standard [1] | 1 | n/a |" in markdown and "t(3) = +inf" in markdown
+    assert "[2] zero variance" in markdown
+    document = json.loads((directory / "summary.json").read_text())
+    assert document["rows"][3]["t"] == "inf" and document["rows"][2]["t"] is None
+
+
+def test_pairs_csv_round_trips_exactly(report):
+    directory, results, _ = report
+    with open(directory / "pairs.csv", newline="") as handle:
+        header = next(csv.reader(handle))
+    assert header[:7] == ["concept", "variant", "seed", "manipulation_frame", "surprise_consistent",
+                          "surprise_inconsistent", "relative_surprise"]
+    assert len(header) == 7 + 2 * T and header[-1] == f"surprise_inconsistent_t{T - 1:02d}"
+    again = PairResults.from_csv(directory / "pairs.csv")
+    assert again.concept == results.concept and again.variant == results.variant
+    np.testing.assert_array_equal(again.seed, results.seed)
+    np.testing.assert_array_equal(again.manipulation_frame, results.manipulation_frame)
+    np.testing.assert_array_equal(again.surprise_consistent, results.surprise_consistent)
+    np.testing.assert_array_equal(again.surprise_inconsistent, results.surprise_inconsistent)
+
+
+def test_every_figure_is_written(report):
+    directory, _, _ = report
+    for name in ("histograms.png", "surprise_per_frame.png", "predictions_object_persistence.png",
+                 "tsne_object_persistence.png"):
+        _png_ok(directory / name)
+
+
+def test_bad_results_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="no probe results"):
+        PairResults.from_probe_outputs([])
+    output = {"concept": torch.tensor([0, 7]), "variant": torch.tensor([0, 0]),
+              "seed": torch.tensor([1, 2]), "manipulation_frame": torch.tensor([3, 3]),
+              "surprise_consistent": torch.zeros(2, T), "surprise_inconsistent": torch.ones(2, T)}
+    with pytest.raises(ValueError, match=r"concept indices \[7\] are outside the 5 concept names"):
+        PairResults.from_probe_outputs([output])
+    with pytest.raises(KeyError, match="lacks \\['seed'\\]"):
+        PairResults.from_probe_outputs([{k: v for k, v in output.items() if k != "seed"}])
+    with pytest.raises(ValueError, match="disagree with 2 pairs"):
+        PairResults(["a", "b"], ["v", "v"], [1, 2], [3], np.zeros((2, T)), np.zeros((2, T)))
+
+
+# ----------------------------------------------------------------------------- the callback
+
+
+def _probe(concept, variant, seed):
+    """A square that drops, then rests; in the inconsistent video it vanishes at the
+    manipulation frame."""
+    rng = np.random.default_rng(seed)
+    manipulation = int(rng.integers(3, T))  # after the square came to rest
+    frames = np.full((T, H, W, 3), 90, np.uint8)
+    color = rng.integers(160, 256, 3)
+    x = int(rng.integers(0, W - 6))
+    for t in range(T):
+        top = 2 + 3 * min(t, 2)
+        frames[t, top:top + 5, x:x + 5] = color
+    inconsistent = frames.copy()
+    inconsistent[manipulation:] = 90
+    mask = torch.zeros(T, H, W, dtype=torch.uint8)
+    record = TensorDict({
+        "consistent": {"frames": torch.from_numpy(frames), "mask": mask},
+        "inconsistent": {"frames": torch.from_numpy(inconsistent), "mask": mask.clone()},
+        "camera": torch.zeros(T, 6), "concept": torch.tensor(specs.CONCEPTS.index(concept)),
+        "variant": torch.tensor(specs.VARIANTS.index(variant)),
+        "manipulation_frame": torch.tensor(manipulation),
+        "manipulated_ids": torch.zeros(4, dtype=torch.int64), "seed": torch.tensor(seed),
+    }, batch_size=[])
+    assert specs.probe_spec(T, H, W).is_in(record)
+    return record
+
+
+class ProbeData(L.LightningDataModule):
+    def __init__(self, cases, with_names=True):
+        super().__init__()
+        self.records = [_probe(c, v, 10 * i + j)
+                        for i, (c, v) in enumerate(cases) for j in range(5)]
+        if with_names:
+            self.concept_names, self.variant_names = specs.CONCEPTS, specs.VARIANTS
+
+    def test_dataloader(self):
+        return DataLoader(self.records, batch_size=4, collate_fn=torch.stack)
+
+
+class PersistenceModel(L.LightningModule):
+    """Expects each frame to repeat the previous one; surprise is the squared error of that."""
+
+    def __init__(self, return_outputs=True):
+        super().__init__()
+        self.return_outputs = return_outputs
+        self.scale = torch.nn.Parameter(torch.tensor(100.0))
+
+    def expected_frames(self, frames):
+        x = specs.to_model_input(frames)
+        return torch.cat([torch.full_like(x[:, :1], 0.5), x[:, :-1]], dim=1)
+
+    def surprise(self, frames):
+        x = specs.to_model_input(frames)
+        return self.scale * (x - self.expected_frames(frames)).pow(2).mean(dim=(2, 3, 4))
+
+    def trajectories(self, frames):
+        x = specs.to_model_input(frames).flatten(2)
+        return {"prior": self.expected_frames(frames).flatten(2),
+                "memory": x.cumsum(1) / torch.arange(1, x.shape[1] + 1)[:, None]}
+
+    def test_step(self, batch, batch_idx):
+        output = {key: batch[key] for key in ("concept", "variant", "seed", "manipulation_frame")}
+        output["surprise_consistent"] = self.surprise(batch["consistent", "frames"])
+        output["surprise_inconsistent"] = self.surprise(batch["inconsistent", "frames"])
+        return output if self.return_outputs else None
+
+
+def _trainer(tmp_path, callback):
+    return L.Trainer(default_root_dir=tmp_path, callbacks=[callback], logger=False,
+                     enable_progress_bar=False, enable_model_summary=False, accelerator="cpu")
+
+
+CASES = [("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
+         ("unchangeableness", "color")]
+
+
+def test_callback_writes_the_report_of_a_test_run(tmp_path):
+    callback = VOEReportCallback(out_dir=str(tmp_path / "run"), bootstrap=100)
+    _trainer(tmp_path, callback).test(PersistenceModel(), datamodule=ProbeData(CASES))
+    directory = tmp_path / "run" / "voe_report"
+    assert callback.report_dir == directory
+    groups = [(r["concept"], r["variant"], r["n"]) for r in callback.summary]
+    assert groups == [case + (5,) for case in CASES]
+    assert all(r["significant"] and r["accuracy"] == 1.0 for r in callback.summary)
+    for name in ("summary.json", "summary.csv", "summary.md", "pairs.csv", "histograms.png",
+                 "surprise_per_frame.png", "predictions_object_persistence.png",
+                 "predictions_unchangeableness.png", "tsne_object_persistence.png"):
+        assert (directory / name).is_file(), name
+    pairs = PairResults.from_csv(directory / "pairs.csv")
+    assert len(pairs) == 15 and set(pairs.seed) == {10 * i + j for i in range(3) for j in range(5)}
+
+
+def test_callback_refuses_missing_outputs_names_and_probes(tmp_path):
+    with pytest.raises(TypeError, match="test_step to return the probe_step dict"):
+        _trainer(tmp_path, VOEReportCallback()).test(PersistenceModel(return_outputs=False),
+                                                     datamodule=ProbeData(CASES[:1]))
+    with pytest.raises(AttributeError, match="concept_names and .variant_names"):
+        unnamed = ProbeData(CASES[:1], with_names=False)
+        _trainer(tmp_path, VOEReportCallback()).test(PersistenceModel(), datamodule=unnamed)
+    with pytest.raises(RuntimeError, match="collected no probe results"):
+        _trainer(tmp_path, VOEReportCallback()).test(PersistenceModel(), datamodule=ProbeData([]))
