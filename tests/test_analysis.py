@@ -1,0 +1,222 @@
+"""Analyses over runs: curves from real TensorBoard event files, the size sweep (statistics,
+plot, and the driver's orchestration with a stand-in CLI), the ``analyze`` command line, and
+the report notebook executed on a tiny synthetic run directory."""
+
+import json
+import types
+from pathlib import Path
+
+import nbformat
+import numpy as np
+import pytest
+from nbclient import NotebookClient
+from PIL import Image
+from torch.utils.tensorboard import SummaryWriter
+
+from voe_lightning import analysis
+from voe_lightning.report import PairResults, VOEReportCallback, write_report
+from voe_lightning.statistics import paired_test
+
+NOTEBOOK = Path(__file__).parent.parent / "notebooks" / "voe_report.ipynb"
+T = 5
+
+
+def write_events(run_dir, curves, steps=range(0, 500, 100), other_tags=True):
+    """TensorBoard scalars voe/<concept>/<variant>/relative_surprise = curve(step)."""
+    writer = SummaryWriter(str(run_dir))
+    for step in steps:
+        for (concept, variant), curve in curves.items():
+            writer.add_scalar(f"voe/{concept}/{variant}/relative_surprise", curve(step), step)
+            if other_tags:
+                writer.add_scalar(f"voe/{concept}/{variant}/t", 2 * curve(step), step)
+        if other_tags:
+            writer.add_scalar("train/loss", 1.0 / (step + 1), step)
+    writer.close()
+
+
+def pair_results(groups, seed=0):
+    """n pairs per (concept, variant) with relative surprise ~ N(effect, 1) at one frame."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for (concept, variant), (n, effect) in groups.items():
+        for i in range(n):
+            consistent = rng.gamma(2.0, 1.0, T)
+            inconsistent = consistent.copy()
+            inconsistent[2] += rng.normal(effect, 1.0)
+            rows.append((concept, variant, 1000 - i, 2, consistent, inconsistent))
+    return PairResults(*map(list, zip(*rows)))
+
+
+def test_read_scalars_filters_tags_and_merges_resumed_runs(tmp_path):
+    write_events(tmp_path / "version_0", {("solidity", "standard"): lambda s: s / 100.0})
+    # A resumed run writes more events (one repeated step) into a second file of the same run.
+    write_events(tmp_path / "version_0", {("solidity", "standard"): lambda s: -1.0},
+                 steps=[400, 500])
+    scalars = analysis.read_scalars(tmp_path)
+    assert list(scalars) == ["voe/solidity/standard/relative_surprise"]
+    steps, values = scalars["voe/solidity/standard/relative_surprise"]
+    np.testing.assert_array_equal(steps, [0, 100, 200, 300, 400, 500])
+    np.testing.assert_allclose(values, [0, 1, 2, 3, -1, -1])
+    loss = analysis.read_scalars(tmp_path, r"^train/loss$")["train/loss"]
+    assert loss[1][0] == pytest.approx(1.0)
+    curves = analysis.read_relative_surprise(tmp_path)
+    assert list(curves) == [("solidity", "standard")]
+
+
+def test_missing_runs_and_tags_are_named(tmp_path):
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        analysis.read_scalars(tmp_path / "nope")
+    with pytest.raises(FileNotFoundError, match="no TensorBoard event files"):
+        analysis.read_scalars(tmp_path)
+    write_events(tmp_path / "run", {}, other_tags=True)
+    with pytest.raises(ValueError, match="has no voe/<concept>/<variant>/relative_surprise"):
+        analysis.relative_surprise_curves_figure([("joint", tmp_path / "run")])
+    write_events(tmp_path / "ok", {("solidity", "standard"): lambda s: 1.0})
+    with pytest.raises(ValueError, match="unknown run labels"):
+        analysis.relative_surprise_curves_figure([("joint", tmp_path / "ok")], {"separate": 0.5})
+
+
+def _curve_runs(root):
+    concepts = {("object_persistence", "standard"): 0.5,
+                ("object_persistence", "counterbalanced"): 0.3,
+                ("unchangeableness", "color"): 0.8}
+    write_events(root / "joint",
+                 {k: (lambda s, a=a: a * np.log1p(s / 50)) for k, a in concepts.items()})
+    for (concept, variant), a in concepts.items():
+        write_events(root / f"separate_{concept}",
+                     {(concept, variant): (lambda s, a=a: 0.6 * a * np.log1p(s / 50))})
+    return [("joint", root / "joint")] + [("separate", root / f"separate_{c}")
+                                         for c in ("object_persistence", "unchangeableness")]
+
+
+def test_curves_figure_draws_every_run_and_variant(tmp_path):
+    runs = _curve_runs(tmp_path)
+    figure = analysis.relative_surprise_curves_figure(runs, {"joint": 0.2})
+    visible = [ax for ax in figure.axes if ax.get_visible()]
+    assert [ax.get_title() for ax in visible] == ["object_persistence", "unchangeableness"]
+    lines = {line.get_label(): line for line in visible[0].get_lines()
+             if not line.get_label().startswith("_")}
+    assert set(lines) == {"standard (joint)", "standard (separate)", "counterbalanced (joint)",
+                          "counterbalanced (separate)"}
+    assert lines["standard (joint)"].get_linestyle() == "-"
+    assert lines["standard (separate)"].get_linestyle() == "--"
+    np.testing.assert_allclose(lines["standard (joint)"].get_xdata(), np.arange(0, 500, 100) * 0.2)
+    assert lines["standard (joint)"].get_color() == lines["standard (separate)"].get_color()
+
+
+def test_sweep_rows_are_disjoint_evaluation_sets(tmp_path):
+    results = pair_results({("object_persistence", "standard"): (30, 1.0),
+                            ("continuity", "standard"): (31, 0.0)})
+    rows = analysis.sweep_rows(results, train_size=100, eval_sets=3)
+    assert len(rows) == 6 and {r["train_size"] for r in rows} == {100}
+    persistence = [r for r in rows if r["concept"] == "object_persistence"]
+    assert [r["eval_set"] for r in persistence] == [0, 1, 2]
+    assert [r["n"] for r in persistence] == [10] * 3
+    assert sum(r["n"] for r in rows if r["concept"] == "continuity") == 31
+    (_, _, pairs), _ = results.groups()
+    first = pairs.select(np.argsort(pairs.seed)[:10])  # the 10 lowest seeds form set 0
+    expected = paired_test(first.total_inconsistent, first.total_consistent, bootstrap=0)
+    assert persistence[0]["t"] == expected.t and persistence[0]["p_value"] == expected.p_value
+    with pytest.raises(ValueError, match="too few for 20 evaluation sets"):
+        analysis.sweep_rows(results, 100, eval_sets=20)
+
+
+def test_size_sweep_figure_marks_significant_points_green():
+    rows = [{"train_size": size, "eval_set": i, "concept": "object_persistence",
+             "variant": "standard", "relative_surprise": effect, "significant": effect > 0.5}
+            for size, effect in ((100, 0.1), (1000, 0.6), (10000, 0.9)) for i in range(2)]
+    figure = analysis.size_sweep_figure(rows)
+    ax = figure.axes[0]
+    assert ax.get_xscale() == "log"
+    colors = {points.get_label(): points.get_facecolor()[0][:3] for points in ax.collections}
+    tab_green = (0.172, 0.627, 0.172)
+    assert np.allclose(colors["significant (p < .05)"], tab_green, atol=0.01)
+    assert len(ax.collections[0].get_offsets()) == 4
+
+
+def test_run_size_sweep_drives_fit_then_test(tmp_path):
+    calls = []
+
+    def fake_cli(args):
+        """Stands in for voe_lightning.cli.main: 'fit' returns a checkpoint, 'test' a report."""
+        calls.append(args)
+        size = int(args[args.index("--data.train_examples") + 1])
+        checkpoint = types.SimpleNamespace(last_model_path=f"/ckpt/{size}.ckpt", best_model_path="")
+        callback = VOEReportCallback()
+        if args[0] == "test":
+            pairs = int(args[args.index("--data.test_pairs") + 1])
+            write_report(pair_results({("solidity", "standard"): (pairs, size / 100)}, seed=size),
+                         tmp_path / f"test_{size}", bootstrap=0, echo=False)
+            callback.report_dir = tmp_path / f"test_{size}" / "voe_report"
+        return types.SimpleNamespace(trainer=types.SimpleNamespace(
+            checkpoint_callback=checkpoint, callbacks=[callback]))
+
+    out = tmp_path / "sweep" / "sweep.json"
+    rows = analysis.run_size_sweep("configs/x.yaml", [10, 300], eval_sets=2, pairs_per_set=6,
+                                   out=out, fit_args=["--data.root=data/sweep_{size}"],
+                                   cli_main=fake_cli)
+    assert calls[0] == ["fit", "--config", "configs/x.yaml", "--data.train_examples", "10",
+                        "--data.root=data/sweep_10"]
+    assert calls[1][:5] == ["test", "--config", "configs/x.yaml", "--ckpt_path", "/ckpt/10.ckpt"]
+    assert calls[1][calls[1].index("--data.test_pairs") + 1] == "12" and calls[3][0] == "test"
+    assert [(r["train_size"], r["eval_set"], r["n"]) for r in rows] == [(10, 0, 6), (10, 1, 6),
+                                                                         (300, 0, 6), (300, 1, 6)]
+    assert json.loads(out.read_text()) == rows
+
+
+def test_run_size_sweep_names_a_missing_report_callback(tmp_path):
+    def no_report(args):
+        checkpoint = types.SimpleNamespace(last_model_path="/ckpt/x.ckpt", best_model_path="")
+        return types.SimpleNamespace(trainer=types.SimpleNamespace(checkpoint_callback=checkpoint,
+                                                                   callbacks=[]))
+
+    with pytest.raises(RuntimeError, match="add voe_lightning.report.VOEReportCallback"):
+        analysis.run_size_sweep("c.yaml", [5], out=tmp_path / "s.json", cli_main=no_report)
+
+
+def test_command_line_writes_the_figures(tmp_path, capsys):
+    runs = _curve_runs(tmp_path)
+    curves_png = tmp_path / "figs" / "curves.png"
+    analysis.main(["curves", "--runs", *[f"{label}={path}" for label, path in runs],
+                   "--step-scale", "joint=0.2", "--out", str(curves_png)])
+    for size, effect in ((100, 0.1), (1000, 1.0)):
+        write_report(pair_results({("solidity", "standard"): (40, effect)}, seed=size),
+                     tmp_path / f"run_{size}" / "version_0", bootstrap=0, echo=False)
+    sweep_png = tmp_path / "figs" / "sweep.png"
+    analysis.main(["sweep-plot", "--runs", f"100={tmp_path / 'run_100'}",
+                   f"1000={tmp_path / 'run_1000'}", "--eval-sets", "4", "--out", str(sweep_png)])
+    rows = [{"train_size": 10, "eval_set": 0, "concept": "c", "variant": "v",
+             "relative_surprise": 1.0, "significant": True}]
+    (tmp_path / "sweep.json").write_text(json.dumps(rows))
+    analysis.main(["sweep-plot", "--results", str(tmp_path / "sweep.json"),
+                   "--out", str(tmp_path / "s2.png")])
+    for path in (curves_png, sweep_png, tmp_path / "s2.png"):
+        with Image.open(path) as image:
+            assert image.format == "PNG" and image.size[0] > 400
+    assert "wrote" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        analysis.main(["curves", "--runs", "x"])  # --out missing: argparse names it
+
+
+def test_notebook_reproduces_the_figures_of_a_run_directory(tmp_path, monkeypatch):
+    run = tmp_path / "lightning_logs" / "version_0"
+    results = pair_results({("object_persistence", "standard"): (12, 1.0),
+                            ("continuity", "standard"): (12, 0.0)})
+    write_report(results, run, bootstrap=100, echo=False)
+    write_events(run, {("object_persistence", "standard"): lambda s: s / 400,
+                       ("continuity", "standard"): lambda s: 0.0})
+    sweep = analysis.sweep_rows(results, 100, 2)
+    (tmp_path / "sweep.json").write_text(json.dumps(sweep))
+    monkeypatch.setenv("VOE_RUN_DIR", str(tmp_path))
+    monkeypatch.setenv("VOE_SWEEP_RESULTS", str(tmp_path / "sweep.json"))
+    notebook = nbformat.read(NOTEBOOK, as_version=4)
+    NotebookClient(notebook, timeout=120, kernel_name="python3",
+                   resources={"metadata": {"path": str(tmp_path)}}).execute()
+    outputs = [output for cell in notebook.cells if cell.cell_type == "code"
+               for output in cell.outputs]
+    images = [output for output in outputs if "image/png" in output.get("data", {})]
+    assert len(images) >= 4  # histograms, per-frame, curves, sweep
+    text = "".join(output.get("text", "") for output in outputs)
+    assert "24 probe pairs of 5 frames" in text
+    markdown = "".join(output.get("data", {}).get("text/markdown", "") for output in outputs)
+    assert "| object_persistence | standard | 12 |" in markdown

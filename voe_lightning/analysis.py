@@ -1,0 +1,331 @@
+"""Analyses across runs: relative surprise over training read from TensorBoard event files,
+separate vs joint runs on one figure (paper Figure 6), and the training-set-size sweep with
+its reliability plot (paper Figure 3). ``python -m voe_lightning analyze curves|sweep|sweep-plot``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import textwrap
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from voe_lightning.report import PairResults, VOEReportCallback, panel_grid
+from voe_lightning.statistics import paired_test
+
+__all__ = [
+    "RELATIVE_SURPRISE_TAG",
+    "main",
+    "read_relative_surprise",
+    "read_scalars",
+    "relative_surprise_curves_figure",
+    "run_size_sweep",
+    "size_sweep_figure",
+    "sweep_rows",
+]
+
+#: TensorBoard tags the training callback logs, one per concept/variant.
+RELATIVE_SURPRISE_TAG = re.compile(r"^voe/(?P<concept>[^/]+)/(?P<variant>[^/]+)/relative_surprise$")
+#: Line styles of the paper's Figure 6; other run labels cycle through the rest.
+PAPER_LINESTYLES = {"joint": "-", "separate": "--"}
+_OTHER_LINESTYLES = (":", "-.")
+
+
+def _event_dirs(run_dir: Path) -> list[Path]:
+    return sorted({path.parent for path in run_dir.rglob("events.out.tfevents.*")})
+
+
+def read_scalars(run_dir: str | Path, pattern: re.Pattern | str = RELATIVE_SURPRISE_TAG,
+                 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Scalars whose tag matches ``pattern`` from every event file under ``run_dir``, as
+    tag -> (steps, values) sorted by step (a later event wins on a repeated step, as when a
+    run is resumed)."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    run_dir = Path(run_dir)
+    if not run_dir.exists():
+        raise FileNotFoundError(f"run directory {run_dir} does not exist")
+    directories = _event_dirs(run_dir)
+    if not directories:
+        raise FileNotFoundError(
+            f"no TensorBoard event files (events.out.tfevents.*) under {run_dir}")
+    pattern = re.compile(pattern) if isinstance(pattern, str) else pattern
+    collected: dict[str, dict[int, tuple[float, float]]] = {}
+    for directory in directories:
+        accumulator = EventAccumulator(str(directory), size_guidance={"scalars": 0})
+        accumulator.Reload()
+        for tag in accumulator.Tags()["scalars"]:
+            if pattern.match(tag):
+                by_step = collected.setdefault(tag, {})
+                for event in accumulator.Scalars(tag):
+                    if event.step not in by_step or event.wall_time >= by_step[event.step][0]:
+                        by_step[event.step] = (event.wall_time, event.value)
+    return {tag: (np.array(sorted(by_step)), np.array([by_step[s][1] for s in sorted(by_step)]))
+            for tag, by_step in sorted(collected.items())}
+
+
+def read_relative_surprise(
+    run_dir: str | Path,
+) -> dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]:
+    """(concept, variant) -> (steps, relative surprise) of one run."""
+    curves = {}
+    for tag, curve in read_scalars(run_dir).items():
+        match = RELATIVE_SURPRISE_TAG.match(tag)
+        curves[(match["concept"], match["variant"])] = curve
+    return curves
+
+
+def _linestyles(labels: Sequence[str]) -> dict[str, Any]:
+    others = iter(_OTHER_LINESTYLES * (1 + len(labels)))
+    return {label: PAPER_LINESTYLES.get(label) or next(others) for label in labels}
+
+
+def relative_surprise_curves_figure(
+    runs: Sequence[tuple[str, str | Path]],
+    step_scale: Mapping[str, float] | None = None,
+) -> Figure:
+    """Relative surprise over training per concept (paper Figure 6): one panel per concept,
+    a colour per variant, a line style per run label ('joint' solid, 'separate' dashed).
+    ``runs`` is a list of (label, run directory); several directories may share a label (the
+    separately trained models, one per concept). ``step_scale`` multiplies a label's steps,
+    e.g. to compare joint and separate runs at equal examples per concept."""
+    if not runs:
+        raise ValueError("no runs given: pass at least one (label, run directory)")
+    step_scale = dict(step_scale or {})
+    unknown = set(step_scale) - {label for label, _ in runs}
+    if unknown:
+        raise ValueError(f"step_scale names unknown run labels {sorted(unknown)}")
+    curves: dict[str, dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]] = {}
+    for label, run_dir in runs:
+        found = read_relative_surprise(run_dir)
+        if not found:
+            raise ValueError(f"{run_dir} has no voe/<concept>/<variant>/relative_surprise scalars "
+                             "(was the VOE probe callback enabled during fit?)")
+        curves.setdefault(label, {}).update(found)
+    labels = list(curves)
+    styles = _linestyles(labels)
+    concepts = list(dict.fromkeys(c for label in labels for c, _ in curves[label]))
+    figure, axes = panel_grid(len(concepts), 5.0, 3.6, max_cols=3)
+    colors = {}
+    for ax, concept in zip(axes, concepts):
+        variants = list(dict.fromkeys(
+            v for label in labels for c, v in curves[label] if c == concept))
+        for variant_index, variant in enumerate(variants):
+            color = colors.setdefault((concept, variant), f"C{variant_index}")
+            for label in labels:
+                if (concept, variant) in curves[label]:
+                    steps, values = curves[label][(concept, variant)]
+                    ax.plot(steps * step_scale.get(label, 1.0), values, color=color,
+                            linestyle=styles[label], marker="o", markersize=2.5,
+                            label=f"{variant} ({label})")
+        ax.axhline(0.0, color="black", linewidth=0.8)
+        ax.set_title(concept, fontsize=10)
+        ax.set_xlabel("training step" + (" (scaled)" if step_scale else ""))
+        ax.set_ylabel("relative surprise")
+        ax.legend(fontsize=7)
+    names = {"-": "solid", "--": "dashed", ":": "dotted", "-.": "dash-dot"}
+    legend = ", ".join(f"{label}: {names.get(styles[label], 'dash-dot-dot')}"
+                       for label in labels if isinstance(styles[label], str))
+    figure.suptitle(f"Relative surprise over training ({legend})", fontsize=10)
+    return figure
+
+
+# ----------------------------------------------------------------------------- size sweep
+
+
+def sweep_rows(results: PairResults, train_size: int, eval_sets: int,
+               alpha: float = 0.05) -> list[dict[str, Any]]:
+    """Split each concept/variant's test pairs (ordered by seed) into ``eval_sets`` disjoint
+    evaluation sets and test each: one row per (concept, variant, evaluation set)."""
+    if eval_sets < 1:
+        raise ValueError(f"eval_sets must be at least 1, got {eval_sets}")
+    rows = []
+    for concept, variant, pairs in results.groups():
+        if len(pairs) < 2 * eval_sets:
+            raise ValueError(f"{concept}/{variant} has {len(pairs)} test pairs, too few for "
+                             f"{eval_sets} evaluation sets of at least 2 pairs")
+        order = np.argsort(pairs.seed, kind="stable")
+        for index, chunk in enumerate(np.array_split(order, eval_sets)):
+            subset = pairs.select(chunk)
+            test = paired_test(subset.total_inconsistent, subset.total_consistent,
+                               alpha=alpha, bootstrap=0)
+            rows.append({"train_size": int(train_size), "eval_set": index, "concept": concept,
+                         "variant": variant, "n": test.n,
+                         "relative_surprise": test.relative_surprise, "t": test.t,
+                         "p_value": test.p_value, "significant": test.significant})
+    return rows
+
+
+def size_sweep_figure(rows: Sequence[Mapping[str, Any]]) -> Figure:
+    """Reliability of relative surprise vs training-set size (paper Figure 3): a point per
+    evaluation set, green when significant; one panel per concept/variant."""
+    if not rows:
+        raise ValueError("no sweep rows to plot")
+    keys = list(dict.fromkeys((row["concept"], row["variant"]) for row in rows))
+    figure, axes = panel_grid(len(keys), 4.6, 3.6, max_cols=3)
+    sizes = sorted({row["train_size"] for row in rows})
+    logarithmic = len(sizes) > 1 and sizes[0] > 0 and sizes[-1] / sizes[0] >= 10
+    for ax, (concept, variant) in zip(axes, keys):
+        mine = [row for row in rows if (row["concept"], row["variant"]) == (concept, variant)]
+        for significant, color, label in ((True, "tab:green", "significant (p < .05)"),
+                                          (False, "tab:gray", "not significant")):
+            chosen = [row for row in mine if bool(row["significant"]) == significant]
+            if chosen:
+                ax.scatter([row["train_size"] for row in chosen],
+                           [row["relative_surprise"] for row in chosen],
+                           color=color, edgecolor="black", linewidth=0.4, s=30, label=label,
+                           zorder=3)
+        ax.axhline(0.0, color="black", linewidth=0.8)
+        if logarithmic:
+            ax.set_xscale("log")
+        ax.set_xticks(sizes, [str(size) for size in sizes])
+        ax.margins(x=0.15)
+        ax.set_title(f"{concept} / {variant}", fontsize=10)
+        ax.set_xlabel("training set size (examples per concept)")
+        ax.set_ylabel("relative surprise")
+        ax.legend(fontsize=7)
+    title = "Reliability of relative surprise: each point is an independent evaluation set"
+    figure.suptitle(textwrap.fill(title, width=int(14 * figure.get_figwidth())), fontsize=10)
+    return figure
+
+
+def _report_dir(cli: Any) -> Path:
+    trainer = getattr(cli, "trainer", None)
+    for callback in getattr(trainer, "callbacks", []):
+        if isinstance(callback, VOEReportCallback) and callback.report_dir is not None:
+            return callback.report_dir
+    raise RuntimeError("the test run wrote no VOE report: add voe_lightning.report."
+                       "VOEReportCallback to the config's trainer.callbacks")
+
+
+def _checkpoint(cli: Any) -> str:
+    callback = getattr(getattr(cli, "trainer", None), "checkpoint_callback", None)
+    path = callback and (callback.last_model_path or callback.best_model_path)
+    if not path:
+        raise RuntimeError("the fit run saved no checkpoint (is checkpointing enabled?)")
+    return path
+
+
+def run_size_sweep(
+    config_path: str | Path,
+    sizes: Sequence[int],
+    eval_sets: int = 5,
+    pairs_per_set: int = 100,
+    out: str | Path = "runs/size_sweep/sweep.json",
+    fit_args: Sequence[str] = (),
+    test_args: Sequence[str] = (),
+    cli_main: Callable[[list[str]], Any] | None = None,
+) -> list[dict[str, Any]]:
+    """Train one model per training-set size with ``python -m voe_lightning fit`` and test it
+    on ``eval_sets`` x ``pairs_per_set`` test pairs, split into disjoint evaluation sets
+    (``sweep_rows``). ``fit_args``/``test_args`` are extra CLI arguments in which ``{size}`` is
+    replaced by the size (e.g. ``--data.root=data/sweep_{size}``). Writes the rows to ``out``
+    after each size and returns them; the plot is ``size_sweep_figure(rows)``."""
+    if cli_main is None:
+        from voe_lightning.cli import main as cli_main
+    if not sizes or any(size < 1 for size in sizes):
+        raise ValueError(f"sizes must be positive training-set sizes, got {list(sizes)}")
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rows: list[dict[str, Any]] = []
+    for size in sizes:
+        extra = [arg.format(size=size) for arg in fit_args]
+        fit = cli_main(["fit", "--config", str(config_path), "--data.train_examples", str(size),
+                        *extra])
+        extra = [arg.format(size=size) for arg in test_args]
+        test = cli_main(["test", "--config", str(config_path), "--ckpt_path", _checkpoint(fit),
+                         "--data.train_examples", str(size),
+                         "--data.test_pairs", str(eval_sets * pairs_per_set), *extra])
+        results = PairResults.from_csv(_report_dir(test) / "pairs.csv")
+        rows.extend(sweep_rows(results, size, eval_sets))
+        out.write_text(json.dumps(rows, indent=2) + "\n")
+    return rows
+
+
+# ----------------------------------------------------------------------------- command line
+
+
+def _label_and_value(text: str, what: str) -> tuple[str, str]:
+    if "=" not in text:
+        raise argparse.ArgumentTypeError(f"expected LABEL=VALUE for {what}, got {text!r}")
+    label, value = text.split("=", 1)
+    return label, value
+
+
+def _run(text: str) -> tuple[str, str]:
+    """LABEL=DIR, or DIR (labelled by its name)."""
+    if "=" in text:
+        return _label_and_value(text, "--runs")
+    return Path(text).name, text
+
+
+def main(argv: Sequence[str] | None = None) -> Any:
+    """``analyze curves --runs [LABEL=]DIR ... --out PNG``: relative surprise over training;
+    ``analyze sweep --config YAML --sizes N ... --out JSON``: train and test per size;
+    ``analyze sweep-plot (--results JSON | --runs SIZE=RUN_DIR ...) --out PNG``: Figure 3."""
+    parser = argparse.ArgumentParser(prog="python -m voe_lightning analyze", description=__doc__)
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    curves = commands.add_parser("curves", help="relative surprise over training (Figure 6)")
+    curves.add_argument("--runs", nargs="+", type=_run, required=True, metavar="[LABEL=]DIR",
+                        help="run directories; label joint runs 'joint' (solid) and separate "
+                             "runs 'separate' (dashed); a label may repeat")
+    curves.add_argument("--step-scale", nargs="*", default=[], metavar="LABEL=FACTOR",
+                        type=lambda t: _label_and_value(t, "--step-scale"),
+                        help="multiply a label's steps, e.g. joint=0.2 for examples per concept")
+    curves.add_argument("--out", required=True, help="PNG to write")
+
+    sweep = commands.add_parser("sweep", help="train and test per training-set size")
+    sweep.add_argument("--config", required=True)
+    sweep.add_argument("--sizes", nargs="+", type=int, required=True)
+    sweep.add_argument("--eval-sets", type=int, default=5)
+    sweep.add_argument("--pairs-per-set", type=int, default=100)
+    sweep.add_argument("--fit-args", nargs="*", default=[], help="extra fit arguments ({size})")
+    sweep.add_argument("--test-args", nargs="*", default=[], help="extra test arguments ({size})")
+    sweep.add_argument("--out", default="runs/size_sweep/sweep.json")
+    sweep.add_argument("--plot", help="also write the Figure 3 PNG here")
+
+    plot = commands.add_parser("sweep-plot", help="reliability vs training-set size (Figure 3)")
+    source = plot.add_mutually_exclusive_group(required=True)
+    source.add_argument("--results", help="sweep.json written by 'analyze sweep'")
+    source.add_argument("--runs", nargs="+", metavar="SIZE=RUN_DIR",
+                        type=lambda t: _label_and_value(t, "--runs"),
+                        help="tested runs (with voe_report/pairs.csv) and their training size")
+    plot.add_argument("--eval-sets", type=int, default=5, help="with --runs: sets per run")
+    plot.add_argument("--out", required=True, help="PNG to write")
+
+    args = parser.parse_args(argv)
+    if args.command == "curves":
+        figure = relative_surprise_curves_figure(
+            args.runs, {label: float(value) for label, value in args.step_scale})
+        return _write(figure, args.out)
+    if args.command == "sweep":
+        rows = run_size_sweep(args.config, args.sizes, args.eval_sets, args.pairs_per_set,
+                              args.out, args.fit_args, args.test_args)
+        if args.plot:
+            _write(size_sweep_figure(rows), args.plot)
+        return rows
+    if args.results:
+        rows = json.loads(Path(args.results).read_text())
+    else:
+        rows = []
+        for size, run_dir in args.runs:
+            pairs = sorted(Path(run_dir).rglob("voe_report/pairs.csv"))
+            if not pairs:
+                raise FileNotFoundError(f"no voe_report/pairs.csv under {run_dir} (run test first)")
+            rows.extend(sweep_rows(PairResults.from_csv(pairs[-1]), int(size), args.eval_sets))
+    return _write(size_sweep_figure(rows), args.out)
+
+
+def _write(figure: Figure, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=110)
+    print(f"wrote {path}")
+    return path
