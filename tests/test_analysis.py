@@ -153,12 +153,14 @@ def test_run_size_sweep_drives_fit_then_test(tmp_path):
 
     out = tmp_path / "sweep" / "sweep.json"
     rows = analysis.run_size_sweep("configs/x.yaml", [10, 300], eval_sets=2, pairs_per_set=6,
-                                   out=out, fit_args=["--data.root=data/sweep_{size}"],
-                                   cli_main=fake_cli)
+                                   out=out, extra_args=["--data.root=data/sweep_{size}"],
+                                   test_args=["--data.generalization=true"], cli_main=fake_cli)
     assert calls[0] == ["fit", "--config", "configs/x.yaml", "--data.train_examples", "10",
                         "--data.root=data/sweep_10"]
-    assert calls[1][:5] == ["test", "--config", "configs/x.yaml", "--ckpt_path", "/ckpt/10.ckpt"]
-    assert calls[1][calls[1].index("--data.test_pairs") + 1] == "12" and calls[3][0] == "test"
+    assert calls[1] == ["test", "--config", "configs/x.yaml", "--data.train_examples", "10",
+                        "--data.root=data/sweep_10", "--ckpt_path", "/ckpt/10.ckpt",
+                        "--data.test_pairs", "12", "--data.generalization=true"]
+    assert calls[3][0] == "test" and "--data.root=data/sweep_300" in calls[3]
     assert [(r["train_size"], r["eval_set"], r["n"]) for r in rows] == [(10, 0, 6), (10, 1, 6),
                                                                          (300, 0, 6), (300, 1, 6)]
     assert json.loads(out.read_text()) == rows

@@ -218,15 +218,17 @@ def run_size_sweep(
     eval_sets: int = 5,
     pairs_per_set: int = 100,
     out: str | Path = "runs/size_sweep/sweep.json",
-    fit_args: Sequence[str] = (),
+    extra_args: Sequence[str] = (),
     test_args: Sequence[str] = (),
     cli_main: Callable[[list[str]], Any] | None = None,
 ) -> list[dict[str, Any]]:
     """Train one model per training-set size with ``python -m voe_lightning fit`` and test it
     on ``eval_sets`` x ``pairs_per_set`` test pairs, split into disjoint evaluation sets
-    (``sweep_rows``). ``fit_args``/``test_args`` are extra CLI arguments in which ``{size}`` is
-    replaced by the size (e.g. ``--data.root=data/sweep_{size}``). Writes the rows to ``out``
-    after each size and returns them; the plot is ``size_sweep_figure(rows)``."""
+    (``sweep_rows``). ``extra_args`` go to both commands, ``test_args`` to ``test`` only; in
+    both ``{size}`` is replaced by the size (e.g. ``--data.root=data/sweep_{size}`` to keep
+    each size's dataset apart). Needs ``VOEReportCallback`` in the config's callbacks. Writes
+    the rows to ``out`` after each size and returns them; plot them with
+    ``size_sweep_figure(rows)``."""
     if cli_main is None:
         from voe_lightning.cli import main as cli_main
     if not sizes or any(size < 1 for size in sizes):
@@ -235,13 +237,12 @@ def run_size_sweep(
     out.parent.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     for size in sizes:
-        extra = [arg.format(size=size) for arg in fit_args]
-        fit = cli_main(["fit", "--config", str(config_path), "--data.train_examples", str(size),
-                        *extra])
-        extra = [arg.format(size=size) for arg in test_args]
-        test = cli_main(["test", "--config", str(config_path), "--ckpt_path", _checkpoint(fit),
-                         "--data.train_examples", str(size),
-                         "--data.test_pairs", str(eval_sets * pairs_per_set), *extra])
+        common = ["--config", str(config_path), "--data.train_examples", str(size),
+                  *(arg.format(size=size) for arg in extra_args)]
+        fit = cli_main(["fit", *common])
+        test = cli_main(["test", *common, "--ckpt_path", _checkpoint(fit),
+                         "--data.test_pairs", str(eval_sets * pairs_per_set),
+                         *(arg.format(size=size) for arg in test_args)])
         results = PairResults.from_csv(_report_dir(test) / "pairs.csv")
         rows.extend(sweep_rows(results, size, eval_sets))
         out.write_text(json.dumps(rows, indent=2) + "\n")
@@ -286,8 +287,9 @@ def main(argv: Sequence[str] | None = None) -> Any:
     sweep.add_argument("--sizes", nargs="+", type=int, required=True)
     sweep.add_argument("--eval-sets", type=int, default=5)
     sweep.add_argument("--pairs-per-set", type=int, default=100)
-    sweep.add_argument("--fit-args", nargs="*", default=[], help="extra fit arguments ({size})")
-    sweep.add_argument("--test-args", nargs="*", default=[], help="extra test arguments ({size})")
+    sweep.add_argument("--extra-args", nargs="*", default=[],
+                       help="extra fit and test arguments; {size} is replaced by the size")
+    sweep.add_argument("--test-args", nargs="*", default=[], help="extra test arguments")
     sweep.add_argument("--out", default="runs/size_sweep/sweep.json")
     sweep.add_argument("--plot", help="also write the Figure 3 PNG here")
 
@@ -307,7 +309,7 @@ def main(argv: Sequence[str] | None = None) -> Any:
         return _write(figure, args.out)
     if args.command == "sweep":
         rows = run_size_sweep(args.config, args.sizes, args.eval_sets, args.pairs_per_set,
-                              args.out, args.fit_args, args.test_args)
+                              args.out, args.extra_args, args.test_args)
         if args.plot:
             _write(size_sweep_figure(rows), args.plot)
         return rows
