@@ -1,0 +1,334 @@
+"""Shared machinery of the external-benchmark readers (IntPhys, DeepMind Physical Concepts):
+frame sampling and resizing, recovering possible/impossible pairs from where two videos first
+diverge, packing our clip/probe records, counting skipped input, and a decoded-record cache in
+the package's own shard format (``voe_lightning.store``) so epochs never re-decode the source."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+from collections import Counter
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from PIL import Image
+from scipy.optimize import linear_sum_assignment
+from tensordict import TensorDict, TensorDictBase
+from torch.utils.data import Dataset
+from torchrl.data import Categorical, Composite
+
+from voe_lightning import specs
+from voe_lightning.store import ShardReader, write_shard
+
+#: Bumped whenever the cached record layout changes, so stale caches are rebuilt.
+CACHE_FORMAT = "voe_lightning.benchmark_cache/1"
+CACHE_META = "cache.json"
+
+
+class BenchmarkDataError(ValueError):
+    """Malformed benchmark input; the message names the file and what was expected, and
+    ``reason`` is a short tag under which ``lenient=True`` loading counts the skipped item."""
+
+    def __init__(self, message: str, reason: str = "bad_input"):
+        super().__init__(message)
+        self.reason = reason
+
+    def __reduce__(self):  # keep the reason when raised in a DataLoader worker
+        return type(self), (str(self), self.reason)
+
+
+# --- skipped input ------------------------------------------------------------------------------
+class SkipLog:
+    """Items skipped under ``lenient=True``, counted per reason. DataLoader workers are separate
+    processes, so each process appends ``reason<TAB>item`` lines to its own file in
+    ``directory``; counts are over unique lines (an item skipped again next epoch counts once)."""
+
+    def __init__(self, directory: str | os.PathLike | None = None):
+        self.directory = Path(directory or tempfile.mkdtemp(prefix="voe_skipped_"))
+        self.directory.mkdir(parents=True, exist_ok=True)
+
+    def add(self, reason: str, item: str) -> None:
+        line = f"{reason}\t{item}".replace("\n", " ")
+        with open(self.directory / f"skipped-{os.getpid()}.tsv", "a", encoding="utf-8") as file:
+            file.write(line + "\n")
+
+    def entries(self) -> list[tuple[str, str]]:
+        """Every distinct (reason, item) skipped so far, sorted."""
+        lines = set()
+        for path in self.directory.glob("skipped-*.tsv"):
+            lines.update(path.read_text(encoding="utf-8").splitlines())
+        return sorted(tuple(line.split("\t", 1)) for line in lines if "\t" in line)
+
+    def counts(self) -> dict[str, int]:
+        return dict(Counter(reason for reason, _ in self.entries()))
+
+
+def merge_counts(*counts: dict[str, int]) -> dict[str, int]:
+    total: Counter = Counter()
+    for count in counts:
+        total.update(count)
+    return dict(sorted(total.items()))
+
+
+# --- frames -------------------------------------------------------------------------------------
+def frame_indices(
+    available: int, num_frames: int, stride: int | None = None, first: int = 0
+) -> np.ndarray:
+    """Which of a movie's ``available`` frames make the model's ``num_frames``: every
+    ``stride``-th from ``first`` if ``stride`` is given, else spread evenly over the movie."""
+    if num_frames < 1:
+        raise ValueError(f"num_frames must be at least 1, got {num_frames}")
+    if stride is None:
+        if num_frames > available - first:
+            raise ValueError(
+                f"cannot take {num_frames} frames from movies of {available} frames "
+                f"starting at frame {first}"
+            )
+        return np.round(np.linspace(first, available - 1, num_frames)).astype(np.int64)
+    if stride < 1:
+        raise ValueError(f"frame_stride must be at least 1, got {stride}")
+    last = first + stride * (num_frames - 1)
+    if first < 0 or last >= available:
+        raise ValueError(
+            f"{num_frames} frames every {stride} from frame {first} need frame {last}, "
+            f"but movies have {available} frames (0 to {available - 1})"
+        )
+    return first + stride * np.arange(num_frames, dtype=np.int64)
+
+
+def resize_frames(frames: np.ndarray, height: int, width: int) -> np.ndarray:
+    """uint8 [T, h, w, 3] -> [T, height, width, 3] with PIL's antialiased bilinear filter."""
+    if frames.shape[1:3] == (height, width):
+        return np.ascontiguousarray(frames)
+    return np.stack(
+        [
+            np.asarray(Image.fromarray(frame).resize((width, height), Image.Resampling.BILINEAR))
+            for frame in frames
+        ]
+    )
+
+
+def resize_masks(masks: np.ndarray, height: int, width: int) -> np.ndarray:
+    """uint8 [T, h, w] object ids -> [T, height, width] (nearest: ids must not blend)."""
+    if masks.shape[1:3] == (height, width):
+        return np.ascontiguousarray(masks)
+    return np.stack(
+        [
+            np.asarray(Image.fromarray(mask).resize((width, height), Image.Resampling.NEAREST))
+            for mask in masks
+        ]
+    )
+
+
+# --- pairing ------------------------------------------------------------------------------------
+def first_divergence(a: np.ndarray, b: np.ndarray, level: int = 10, fraction: float = 0.001) -> int:
+    """Index of the first frame where videos ``a`` and ``b`` (uint8 [T, H, W, 3]) differ: more
+    than ``fraction`` of its pixels differ by more than ``level`` grey levels in some channel
+    (tolerating renderer noise). Returns T when they never do."""
+    if a.shape != b.shape:
+        raise ValueError(f"videos to compare must have the same shape, got {a.shape} and {b.shape}")
+    changed = (np.abs(a.astype(np.int16) - b.astype(np.int16)) > level).any(axis=-1)
+    differs = changed.reshape(len(a), -1).mean(axis=1) > fraction
+    hits = np.flatnonzero(differs)
+    return int(hits[0]) if hits.size else len(a)
+
+
+def match_pairs(
+    possible: Sequence[np.ndarray],
+    impossible: Sequence[np.ndarray],
+    level: int = 10,
+    fraction: float = 0.001,
+) -> tuple[list[tuple[int, int, int]], bool]:
+    """Pair each possible video with the impossible one it shares the longest prefix with
+    (one-to-one, maximizing the summed prefix lengths). Returns ([(possible index, impossible
+    index, first diverging frame)], ambiguous) where ``ambiguous`` says another pairing has
+    the same total, so the videos alone do not decide it."""
+    if len(possible) != len(impossible) or not possible:
+        raise ValueError(
+            f"pairing needs as many possible as impossible videos, got {len(possible)} and "
+            f"{len(impossible)}"
+        )
+    prefix = np.array(
+        [[first_divergence(p, i, level, fraction) for i in impossible] for p in possible]
+    )
+    rows, columns = linear_sum_assignment(prefix, maximize=True)
+    best = prefix[rows, columns].sum()
+    ambiguous = False
+    if len(possible) == 2:  # the only other assignment swaps the partners
+        ambiguous = bool(prefix[0, 1] + prefix[1, 0] == best and prefix[0, 0] + prefix[1, 1] == best)
+    return [(int(r), int(c), int(prefix[r, c])) for r, c in zip(rows, columns)], ambiguous
+
+
+# --- records ------------------------------------------------------------------------------------
+def probe_record(
+    consistent: tuple[np.ndarray, np.ndarray],
+    inconsistent: tuple[np.ndarray, np.ndarray],
+    camera: np.ndarray,
+    concept: int,
+    variant: int,
+    manipulation_frame: int,
+    quadruplet_index: int,
+    pair_in_quadruplet: int,
+) -> TensorDict:
+    """A probe record (``specs.probe_spec`` keys) from a matched possible (consistent) and
+    impossible (inconsistent) video, each (frames, mask). ``seed`` and ``pair_index`` are
+    ``2 * quadruplet_index + pair_in_quadruplet``, so the pairs of one quadruplet can be
+    regrouped from ``seed // 2`` (``quadruplet_index``) after evaluation. The manipulated ids are
+    unknown for external videos: zeros, which the spec allows."""
+    pair_index = 2 * quadruplet_index + pair_in_quadruplet
+    return TensorDict(
+        {
+            "consistent": {
+                "frames": torch.from_numpy(np.ascontiguousarray(consistent[0])),
+                "mask": torch.from_numpy(np.ascontiguousarray(consistent[1])),
+            },
+            "inconsistent": {
+                "frames": torch.from_numpy(np.ascontiguousarray(inconsistent[0])),
+                "mask": torch.from_numpy(np.ascontiguousarray(inconsistent[1])),
+            },
+            "camera": torch.as_tensor(np.asarray(camera, dtype=np.float32)),
+            "concept": torch.tensor(concept, dtype=torch.int64),
+            "variant": torch.tensor(variant, dtype=torch.int64),
+            "manipulation_frame": torch.tensor(manipulation_frame, dtype=torch.int64),
+            "manipulated_ids": torch.zeros(4, dtype=torch.int64),
+            "seed": torch.tensor(pair_index, dtype=torch.int64),
+            "pair_index": torch.tensor(pair_index, dtype=torch.int64),
+            "quadruplet_index": torch.tensor(quadruplet_index, dtype=torch.int64),
+        },
+        batch_size=[],
+    )
+
+
+def clip_record(
+    frames: np.ndarray, mask: np.ndarray, camera: np.ndarray, concept: int, kind: int, seed: int
+) -> TensorDict:
+    """A clip record (``specs.clip_spec`` keys)."""
+    return TensorDict(
+        {
+            "frames": torch.from_numpy(np.ascontiguousarray(frames)),
+            "mask": torch.from_numpy(np.ascontiguousarray(mask)),
+            "camera": torch.as_tensor(np.asarray(camera, dtype=np.float32)),
+            "concept": torch.tensor(concept, dtype=torch.int64),
+            "kind": torch.tensor(kind, dtype=torch.int64),
+            "seed": torch.tensor(seed, dtype=torch.int64),
+        },
+        batch_size=[],
+    )
+
+
+def benchmark_spec(
+    base: Composite, num_concepts: int, num_variants: int | None = None
+) -> Composite:
+    """``base`` (specs.clip_spec or probe_spec) with ``concept`` (and ``variant``) over a
+    benchmark's own vocabularies instead of ours."""
+    spec = base.clone()
+    spec["concept"] = Categorical(num_concepts, shape=(), dtype=torch.int64)
+    if num_variants is not None:
+        spec["variant"] = Categorical(num_variants, shape=(), dtype=torch.int64)
+    return spec
+
+
+def stack_records(records: list[TensorDictBase]) -> TensorDictBase:
+    """Collate records into one batch TensorDict."""
+    return torch.stack(records)
+
+
+class RecordList(Dataset):
+    """Records held in memory as a map-style Dataset."""
+
+    def __init__(self, records: Sequence[TensorDictBase]):
+        self.records = list(records)
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+    def __getitem__(self, index: int) -> TensorDictBase:
+        return self.records[index]
+
+
+# --- cache --------------------------------------------------------------------------------------
+def fingerprint(settings: dict[str, Any], sources: Iterable[str | os.PathLike]) -> str:
+    """A short hash of the decoding settings and the source files' names, sizes and mtimes."""
+    digest = hashlib.sha256(json.dumps(settings, sort_keys=True, default=str).encode())
+    for source in sources:
+        stat = os.stat(source)
+        digest.update(f"{os.fspath(source)}:{stat.st_size}:{stat.st_mtime_ns};".encode())
+    return digest.hexdigest()[:16]
+
+
+class CachedRecords(Dataset):
+    """The records of a finished cache directory: map-style random access over its shards."""
+
+    def __init__(self, directory: str | os.PathLike, meta: dict[str, Any]):
+        self.directory = Path(directory)
+        self.meta = meta
+        self.readers = [ShardReader(self.directory / name) for name in meta["shards"]]
+        self._starts = np.cumsum([0] + list(meta["shard_sizes"]))
+
+    def __len__(self) -> int:
+        return int(self._starts[-1])
+
+    def __getitem__(self, index: int) -> TensorDictBase:
+        index = int(index)
+        if not 0 <= index < len(self):
+            raise IndexError(f"index {index} out of range for {len(self)} cached records")
+        shard = int(np.searchsorted(self._starts, index, side="right") - 1)
+        return self.readers[shard][index - int(self._starts[shard])]
+
+
+def open_cache(directory: str | os.PathLike) -> CachedRecords | None:
+    """The cache at ``directory`` if it was completely written in the current format."""
+    path = Path(directory) / CACHE_META
+    if not path.is_file():
+        return None
+    meta = json.loads(path.read_text())
+    if meta.get("format") != CACHE_FORMAT:
+        return None
+    return CachedRecords(directory, meta)
+
+
+def write_cache(
+    directory: str | os.PathLike,
+    records: Iterable[TensorDictBase],
+    meta: dict[str, Any] | None = None,
+    shard_size: int = 256,
+) -> CachedRecords:
+    """Write ``records`` as store shards of ``shard_size`` under ``directory``, then the meta
+    file last: a cache without it is incomplete and is rebuilt. Written into a temporary sibling
+    and renamed, so a concurrent or interrupted writer never leaves a half cache in place.
+    ``meta`` is read after ``records`` is exhausted, so a generator may fill it in (counts of
+    skipped input, side tables)."""
+    directory = Path(directory)
+    directory.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
+    try:
+        names, sizes, buffer = [], [], []
+
+        def flush() -> None:
+            name = f"shard-{len(names):05d}.voe"
+            write_shard(staging / name, buffer)
+            names.append(name)
+            sizes.append(len(buffer))
+            buffer.clear()
+
+        for record in records:
+            buffer.append(record)
+            if len(buffer) == shard_size:
+                flush()
+        if buffer:
+            flush()
+        full_meta = {"format": CACHE_FORMAT, **(meta or {}), "shards": names, "shard_sizes": sizes}
+        (staging / CACHE_META).write_text(json.dumps(full_meta, indent=1, sort_keys=True))
+        if directory.exists():  # an older or incomplete cache
+            shutil.rmtree(directory)
+        os.replace(staging, directory)
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging, ignore_errors=True)
+    return CachedRecords(directory, json.loads((directory / CACHE_META).read_text()))

@@ -1,0 +1,187 @@
+"""The DataModule behind the per-concept and joint regimes: it generates any missing data in
+``prepare_data``, trains on examples + controls interleaved with equal counts per concept, and
+serves validation (during ``fit``) and test probe pairs (for ``test``) from the store."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator, Sequence
+
+import lightning as L
+import numpy as np
+from torch.utils.data import ConcatDataset, DataLoader, Dataset, Sampler
+
+from voe_lightning import specs
+from voe_lightning.generate import ensure_dataset
+from voe_lightning.store import collate, open_split
+
+
+class InterleavedSampler(Sampler[int]):
+    """Indices into a ConcatDataset that alternate between its parts, the same number from each
+    part per epoch (the shortest part's length), shuffled per part with a seed and the epoch."""
+
+    def __init__(self, lengths: Sequence[int], shuffle: bool = True, seed: int = 0):
+        if not lengths or min(lengths) == 0:
+            raise ValueError(f"every part needs at least one record, got lengths {list(lengths)}")
+        self.lengths, self.shuffle, self.seed, self.epoch = list(lengths), shuffle, seed, 0
+        self.offsets = np.cumsum([0] + self.lengths[:-1])
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return min(self.lengths) * len(self.lengths)
+
+    def __iter__(self) -> Iterator[int]:
+        rng = np.random.default_rng([self.seed, self.epoch])
+        per_part = min(self.lengths)
+        columns = []
+        for length, offset in zip(self.lengths, self.offsets):
+            order = rng.permutation(length) if self.shuffle else np.arange(length)
+            columns.append(order[:per_part] + offset)
+        interleaved = np.stack(columns, axis=1)  # [per_part, parts]: row i = one of each part
+        if self.shuffle:  # vary which concept comes first within each round
+            interleaved = rng.permuted(interleaved, axis=1)
+        self.epoch += 1
+        return iter(interleaved.reshape(-1).tolist())
+
+
+class VOEDataModule(L.LightningDataModule):
+    """Examples + controls of ``concepts`` for training (equal counts per concept, interleaved),
+    their validation probe pairs for ``fit`` and test probe pairs (plus the generalization probes
+    if ``generalization``) for ``test``. Missing data is generated under ``root`` on first use.
+
+    Args:
+        concepts: which of the five concepts to use.
+        root: dataset directory (created and filled by ``prepare_data`` if incomplete).
+        train_examples: consistent training examples per concept.
+        train_controls: controls per concept, split evenly over the control kinds (default:
+            as many as examples, the paper's 1:1).
+        val_pairs: validation probe pairs per concept and variant.
+        test_pairs: test probe pairs per concept and variant.
+        generalization_pairs: generalization probe pairs per concept and variant.
+        generalization: also test on the generalization probes (paper §5).
+        batch_size: clips per training batch (the paper used 10).
+        probe_batch_size: probe pairs per evaluation batch.
+        num_workers: DataLoader worker processes.
+        generate_workers: processes rendering missing data (default: all cores).
+        num_frames, height, width: video geometry (paper: 15 frames of 64x64).
+        seed: seed of the training order.
+    """
+
+    def __init__(
+        self,
+        concepts: list[specs.Concept] = list(specs.CONCEPTS),
+        root: str = "data/voe",
+        train_examples: int = 1000,
+        train_controls: int | None = None,
+        val_pairs: int = 32,
+        test_pairs: int = 128,
+        generalization_pairs: int = 64,
+        generalization: bool = False,
+        batch_size: int = 10,
+        probe_batch_size: int = 32,
+        num_workers: int = 0,
+        generate_workers: int | None = None,
+        num_frames: int = specs.NUM_FRAMES,
+        height: int = specs.HEIGHT,
+        width: int = specs.WIDTH,
+        seed: int = 0,
+    ):
+        super().__init__()
+        if not concepts:
+            raise ValueError(f"concepts must name at least one of: {', '.join(specs.CONCEPTS)}")
+        for concept in concepts:
+            specs.check_concept(concept)
+        for name, value in [("train_examples", train_examples), ("batch_size", batch_size)]:
+            if value < 1:
+                raise ValueError(f"{name} must be at least 1, got {value}")
+        self.save_hyperparameters()
+        self.concepts = list(dict.fromkeys(concepts))
+        self.concept_names, self.variant_names = specs.CONCEPTS, specs.VARIANTS
+        self._datasets: dict[str, Dataset] = {}
+
+    # --- data on disk --------------------------------------------------------------------------
+    def _generation_arguments(self) -> dict:
+        h = self.hparams
+        return dict(
+            concepts=self.concepts,
+            train_examples=h.train_examples,
+            train_controls=h.train_examples if h.train_controls is None else h.train_controls,
+            val_pairs_per_variant=h.val_pairs,
+            test_pairs_per_variant=h.test_pairs,
+            generalization_pairs_per_variant=h.generalization_pairs,
+            workers=h.generate_workers or os.cpu_count() or 1,
+            num_frames=h.num_frames,
+            height=h.height,
+            width=h.width,
+        )
+
+    def prepare_data(self) -> None:
+        """Generate whatever part of the dataset is missing (a no-op when complete)."""
+        ensure_dataset(self.hparams.root, **self._generation_arguments())
+
+    def setup(self, stage: str | None = None) -> None:
+        splits = {"fit": ["train", "val"], "validate": ["val"], "test": ["test"]}.get(
+            stage, ["train", "val", "test"]
+        )
+        if stage == "test" and self.hparams.generalization:
+            splits.append("generalization")
+        for split in splits:
+            if split in self._datasets:
+                continue
+            parts = [
+                open_split(self.hparams.root, concept, split)
+                for concept in self.concepts
+                if split != "generalization" or specs.GENERALIZATION_VARIANTS[concept]
+            ]
+            self._datasets[split] = ConcatDataset(parts) if parts else None
+
+    def probe_cases(self, split: str = "val") -> list[tuple[str, str]]:
+        """The (concept, variant) pairs whose probes ``split`` holds."""
+        variants = (
+            specs.GENERALIZATION_VARIANTS if split == "generalization" else specs.STANDARD_VARIANTS
+        )
+        return [(c, v) for c in self.concepts for v in variants[c]]
+
+    # --- loaders --------------------------------------------------------------------------------
+    def _loader(self, dataset: Dataset, batch_size: int, **kwargs) -> DataLoader:
+        workers = self.hparams.num_workers
+        return DataLoader(
+            dataset,
+            batch_size=batch_size,
+            num_workers=workers,
+            collate_fn=collate,
+            persistent_workers=workers > 0,
+            **kwargs,
+        )
+
+    def train_dataloader(self) -> DataLoader:
+        dataset = self._datasets["train"]
+        sampler = InterleavedSampler(
+            [len(part) for part in dataset.datasets], shuffle=True, seed=self.hparams.seed
+        )
+        return self._loader(dataset, self.hparams.batch_size, sampler=sampler, drop_last=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader(self._datasets["val"], self.hparams.probe_batch_size)
+
+    def test_dataloader(self) -> DataLoader | list[DataLoader]:
+        loaders = [self._loader(self._datasets["test"], self.hparams.probe_batch_size)]
+        if self.hparams.generalization and self._datasets.get("generalization") is not None:
+            loaders.append(
+                self._loader(self._datasets["generalization"], self.hparams.probe_batch_size)
+            )
+        return loaders if len(loaders) > 1 else loaders[0]
+
+
+class ConceptDataModule(VOEDataModule):
+    """One concept: the paper's separately trained models."""
+
+    def __init__(self, concept: specs.Concept = "object_persistence", **kwargs):
+        specs.check_concept(concept)
+        super().__init__(concepts=[concept], **kwargs)
+
+
+class JointDataModule(VOEDataModule):
+    """All five concepts interleaved with equal counts: the paper's jointly trained model."""

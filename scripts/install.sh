@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Install everything voe_lightning needs on a fresh Debian/Ubuntu machine: the EGL libraries for
+# headless MuJoCo rendering, a CPU build of PyTorch (unless one is installed), then the package.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+if ! { ldconfig -p 2>/dev/null | grep -q libEGL_mesa && compgen -G "/usr/lib/*/dri/swrast_dri.so" >/dev/null; }; then
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends \
+    libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libopengl0 libglvnd0 >/dev/null
+fi
+
+# torch first, pinned, so pip does not pull a multi-GB CUDA build as a dependency.
+# (On a machine without a local wheel, add: --index-url https://download.pytorch.org/whl/cpu)
+if ! python3 -c "import torch" 2>/dev/null; then
+  python3 -m pip install -q "torch==2.13.0"
+fi
+python3 -m pip install -q -e ".[test]"
+python3 -c "import voe_lightning, mujoco, torch; print('voe_lightning', voe_lightning.__version__, '| mujoco', mujoco.__version__, '| torch', torch.__version__)"

@@ -1,0 +1,77 @@
+"""The joint regime's sampler (equal counts per concept, interleaved, reproducible) and the
+DataModules' argument checks and loading from a small generated store."""
+
+from collections import Counter
+
+import pytest
+import torch
+
+from datamodules import ConceptDataModule, JointDataModule
+from datamodules.voe import InterleavedSampler
+from voe_lightning import specs
+
+
+def test_interleaved_sampler_takes_equal_counts_per_part_and_alternates():
+    lengths = [5, 8, 6]
+    sampler = InterleavedSampler(lengths, shuffle=True, seed=3)
+    indices = list(sampler)
+    assert len(indices) == len(sampler) == 15
+    part_of = lambda i: 0 if i < 5 else (1 if i < 13 else 2)  # noqa: E731
+    assert Counter(map(part_of, indices)) == {0: 5, 1: 5, 2: 5}
+    # every consecutive round of three holds one index of each part
+    for start in range(0, 15, 3):
+        assert sorted(map(part_of, indices[start : start + 3])) == [0, 1, 2]
+    assert len(set(indices)) == 15
+
+
+def test_interleaved_sampler_is_reproducible_and_changes_per_epoch():
+    first = InterleavedSampler([10, 10], seed=1)
+    second = InterleavedSampler([10, 10], seed=1)
+    assert list(first) == list(second)
+    first.set_epoch(5)
+    assert list(first) != list(InterleavedSampler([10, 10], seed=1))
+
+
+def test_interleaved_sampler_rejects_an_empty_part():
+    with pytest.raises(ValueError, match="at least one record"):
+        InterleavedSampler([3, 0])
+
+
+def test_unknown_concept_is_refused_with_the_valid_names():
+    with pytest.raises(ValueError, match="valid concepts are: object_persistence"):
+        ConceptDataModule(concept="gravity")
+    with pytest.raises(ValueError, match="valid concepts are"):
+        JointDataModule(concepts=["continuity", "magnetism"])
+
+
+def test_datamodule_generates_and_serves_spec_batches(tmp_path):
+    datamodule = ConceptDataModule(
+        concept="continuity",
+        root=str(tmp_path / "data"),
+        train_examples=4,
+        val_pairs=2,
+        test_pairs=2,
+        generalization_pairs=2,
+        generalization=True,
+        batch_size=4,
+        probe_batch_size=2,
+        generate_workers=1,
+        num_frames=6,
+        height=32,
+        width=32,
+    )
+    datamodule.prepare_data()
+    datamodule.setup("fit")
+    batch = next(iter(datamodule.train_dataloader()))
+    assert specs.clip_spec(6, 32, 32).expand(4).is_in(batch)
+    kinds = {specs.CLIP_KINDS[k] for k in batch["kind"].tolist()}
+    assert kinds <= set(specs.CLIP_KINDS_BY_CONCEPT["continuity"])
+    probes = next(iter(datamodule.val_dataloader()))
+    assert specs.probe_spec(6, 32, 32).expand(2).is_in(probes)
+    datamodule.setup("test")
+    test_loaders = datamodule.test_dataloader()
+    assert len(test_loaders) == 2  # test probes and the three-pillar generalization probes
+    generalization = next(iter(test_loaders[1]))
+    assert {specs.VARIANTS[v] for v in generalization["variant"].tolist()} == {"three_pillars"}
+    assert datamodule.probe_cases("val") == [("continuity", "standard")]
+    assert torch.all(generalization["concept"] == specs.CONCEPTS.index("continuity"))

@@ -1,0 +1,58 @@
+"""The command line: ``fit``/``validate``/``test`` through LightningCLI, and ``generate``
+(render the datasets) and ``analyze`` (figures over runs) through their own parsers."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+from lightning.pytorch.cli import LightningCLI
+
+from voe_lightning.model import VOEModel
+
+_COMMANDS_OUTSIDE_LIGHTNING = {
+    "generate": "voe_lightning.generate",
+    "analyze": "voe_lightning.analysis",
+}
+
+
+class VOECLI(LightningCLI):
+    """LightningCLI that works in the run directory of ``--ckpt_path``: a resumed ``fit``
+    continues its TensorBoard curves there, and ``test`` writes its report beside the
+    checkpoints it evaluates. A missing checkpoint is refused before any work starts."""
+
+    def before_instantiate_classes(self) -> None:
+        config = self.config.get(self.subcommand, {})
+        ckpt_path = config.get("ckpt_path") if config else None
+        if not ckpt_path or ckpt_path in ("last", "best", "hpc", "registry"):
+            return
+        checkpoint = Path(ckpt_path)
+        if not checkpoint.is_file():
+            raise FileNotFoundError(f"--ckpt_path {ckpt_path!r} does not exist")
+        logger = config["trainer"].get("logger")
+        run_dir = checkpoint.parent.parent  # <save_dir>/<name>/<version>/checkpoints/x.ckpt
+        if (
+            isinstance(logger, dict)
+            and logger.get("init_args", {}).get("version") is None
+            and checkpoint.parent.name == "checkpoints"
+        ):
+            logger.setdefault("init_args", {})["version"] = run_dir.name
+
+
+def main(args: list[str] | None = None) -> Any:
+    """Entry point of ``python -m voe_lightning``; tests call ``main([...])``."""
+    args = sys.argv[1:] if args is None else list(args)
+    if args and args[0] in _COMMANDS_OUTSIDE_LIGHTNING:
+        module = __import__(_COMMANDS_OUTSIDE_LIGHTNING[args[0]], fromlist=["main"])
+        return module.main(args[1:])
+    return VOECLI(
+        model_class=VOEModel,
+        datamodule_class=L.LightningDataModule,
+        subclass_mode_model=True,
+        subclass_mode_data=True,
+        seed_everything_default=0,
+        save_config_kwargs={"overwrite": True},
+        args=args,
+    )
