@@ -33,12 +33,14 @@ class VOECLI(LightningCLI):
             raise FileNotFoundError(f"--ckpt_path {ckpt_path!r} does not exist")
         logger = config["trainer"].get("logger")
         run_dir = checkpoint.parent.parent  # <save_dir>/<name>/<version>/checkpoints/x.ckpt
+        init_args = getattr(logger, "init_args", None)
         if (
-            isinstance(logger, dict)
-            and logger.get("init_args", {}).get("version") is None
-            and checkpoint.parent.name == "checkpoints"
+            checkpoint.parent.name == "checkpoints"
+            and init_args is not None
+            and "version" in init_args
+            and init_args.get("version") is None
         ):
-            logger.setdefault("init_args", {})["version"] = run_dir.name
+            init_args["version"] = run_dir.name
 
 
 def main(args: list[str] | None = None) -> Any:

@@ -1,0 +1,94 @@
+"""`python -m voe_lightning fit|test` end to end through main([...]) with a tiny config, and the
+refusals that must happen before any work starts."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from voe_lightning.cli import main
+
+CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
+
+
+@pytest.fixture()
+def workdir(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def _scalar_tags(run_dir: Path) -> set[str]:
+    accumulator = EventAccumulator(str(run_dir))
+    accumulator.Reload()
+    return set(accumulator.Tags()["scalars"])
+
+
+def test_fit_then_test_writes_curves_checkpoint_and_report(workdir):
+    main(["fit", "--config", CONFIG])
+    run = workdir / "runs" / "tiny" / "version_0"
+    assert (run / "checkpoints" / "last.ckpt").is_file()
+    tags = _scalar_tags(run)
+    for statistic in ("relative_surprise", "t", "p_value", "accuracy"):
+        assert f"voe/object_persistence/standard/{statistic}" in tags
+        assert f"voe/object_persistence/counterbalanced/{statistic}" in tags
+    assert {"train/loss", "train/reconstruction", "train/kl", "train/prior_regularizer"} <= tags
+
+    main(["test", "--config", CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
+    report = run / "voe_report"  # beside the checkpoint's run, not in a new version
+    summary = json.loads((report / "summary.json").read_text())["rows"]
+    cases = {(row["concept"], row["variant"]) for row in summary}
+    assert cases == {("object_persistence", "standard"), ("object_persistence", "counterbalanced")}
+    assert all(row["n"] == 3 for row in summary)
+    for name in ("pairs.csv", "summary.md", "histograms.png", "surprise_per_frame.png"):
+        assert (report / name).is_file(), name
+
+
+def test_fast_dev_run_of_the_joint_datamodule(workdir):
+    main(
+        [
+            "fit",
+            "--config",
+            CONFIG,
+            "--data",
+            "datamodules.JointDataModule",
+            "--data.concepts",
+            "[continuity, solidity]",
+            "--trainer.fast_dev_run",
+            "1",
+        ]
+    )
+
+
+def test_resume_continues_in_the_same_run(workdir):
+    main(["fit", "--config", CONFIG])
+    checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
+    cli = main(["fit", "--config", CONFIG, "--trainer.max_steps", "4", "--ckpt_path", str(checkpoint)])
+    assert cli.trainer.global_step == 4
+    assert not (workdir / "runs" / "tiny" / "version_1").exists()
+
+
+@pytest.mark.parametrize(
+    "arguments,message",
+    [
+        (["--data.concept", "gravity"], "object_persistence"),
+        (["--data.init_args.no_such_key", "1"], "no_such_key"),
+        (["--ckpt_path", "missing.ckpt"], "missing.ckpt"),
+    ],
+)
+def test_bad_configs_are_refused_before_any_work(workdir, capsys, arguments, message):
+    with pytest.raises((SystemExit, FileNotFoundError)) as raised:
+        main(["fit", "--config", CONFIG, *arguments])
+    captured = capsys.readouterr()
+    assert message in captured.err + captured.out + str(raised.value)
+    assert not (workdir / "data").exists(), "no data may be generated for a refused config"
+
+
+def test_module_entry_point_lists_the_subcommands():
+    result = subprocess.run(
+        [sys.executable, "-m", "voe_lightning", "--help"], capture_output=True, text=True, check=True
+    )
+    for subcommand in ("fit", "validate", "test"):
+        assert subcommand in result.stdout
