@@ -1,0 +1,269 @@
+"""The external benchmarks' published metrics, computed from model surprise (DESIGN.md §6).
+
+IntPhys (Riochet et al. 2018, arXiv:1803.07616, eqs. 1-2, and the challenge's scoring program)
+scores a plausibility P(x) per movie, in quadruplets of two possible and two impossible movies:
+
+- relative error rate: share of quadruplets where the possible movies' summed plausibility is
+  below the impossible movies' (ties count half, as the challenge scores a constant submission
+  0.5 since its 2020-01-27 fix). With surprise S as implausibility: error when
+  sum S(possible) > sum S(impossible).
+- absolute error rate: 1 - AUC of telling possible from impossible movies by plausibility,
+  over all movies of a block (threshold-free). Here ``auroc`` is that AUC, computed as the AUC
+  of surprise for detecting impossible movies (the same number).
+
+The DeepMind Physical Concepts probes come in the same 2 + 2 quadruplets and get the same
+metrics per concept. Matched possible/impossible pairs also get our one-tailed paired t-test
+(``voe_lightning.statistics.paired_test``, inconsistent = impossible).
+
+Submissions: ``answer.txt`` holds one ``<movie path> <plausibility>`` line per movie, paths
+relative to the test folder (``O1/0001/1 0.9751``), 0 <= P <= 1. ``plausibility_from_surprise``
+maps surprise to P by a decreasing affine map over the whole submission, which preserves every
+comparison both metrics make (each quadruplet sums two movies per side), so the official scores
+of the file equal the ones computed here from surprise.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from collections import defaultdict
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from sklearn.metrics import roc_auc_score
+
+from voe_lightning.statistics import paired_test
+
+#: A movie path in an IntPhys answer file: <block>/<scene>/<movie 1-4>.
+ANSWER_PATH = re.compile(r"^(O[123])/([^/\s]+)/([1-4])$")
+
+
+def relative_error_rate(surprise_possible: Any, surprise_impossible: Any) -> float:
+    """IntPhys relative error rate over quadruplets: ``surprise_possible`` and
+    ``surprise_impossible`` are [Q, k] (each row: one quadruplet's possible / impossible movies'
+    surprise). A quadruplet is an error when its possible movies' summed surprise exceeds the
+    impossible ones', half an error on a tie."""
+    possible = np.atleast_2d(np.asarray(surprise_possible, dtype=np.float64)).sum(axis=1)
+    impossible = np.atleast_2d(np.asarray(surprise_impossible, dtype=np.float64)).sum(axis=1)
+    if possible.shape != impossible.shape or possible.size == 0:
+        raise ValueError(
+            f"need the same number (>0) of quadruplets on both sides, got {possible.size} "
+            f"possible and {impossible.size} impossible rows"
+        )
+    errors = (possible > impossible) + 0.5 * (possible == impossible)
+    return float(errors.mean())
+
+
+def auroc(surprise: Any, is_possible: Any) -> float:
+    """Area under the ROC curve of surprise for telling impossible movies (positive) from
+    possible ones; ties count half. Equals the IntPhys AUC of plausibility for possible."""
+    surprise = np.asarray(surprise, dtype=np.float64).ravel()
+    labels = np.asarray(is_possible, dtype=bool).ravel()
+    if surprise.shape != labels.shape:
+        raise ValueError(f"{surprise.size} surprise values for {labels.size} labels")
+    if labels.all() or not labels.any():
+        raise ValueError("AUROC needs both possible and impossible movies")
+    return float(roc_auc_score(~labels, surprise))
+
+
+def absolute_error_rate(surprise: Any, is_possible: Any) -> float:
+    """IntPhys absolute error rate: 1 - AUC over all movies (threshold-free)."""
+    return 1.0 - auroc(surprise, is_possible)
+
+
+def quadruplet_metrics(
+    quadruplet: Sequence[int],
+    surprise_possible: Any,
+    surprise_impossible: Any,
+    alpha: float = 0.05,
+    bootstrap: int = 2000,
+) -> dict[str, Any]:
+    """Metrics of matched pairs (one row per pair: its quadruplet id, the possible movie's and
+    the impossible movie's total surprise): relative and absolute error rate, AUROC, and the
+    paired t-test of S(impossible) - S(possible) over pairs."""
+    quadruplet = np.asarray(quadruplet).ravel()
+    possible = np.asarray(surprise_possible, dtype=np.float64).ravel()
+    impossible = np.asarray(surprise_impossible, dtype=np.float64).ravel()
+    if not quadruplet.size == possible.size == impossible.size:
+        raise ValueError(
+            f"one quadruplet id per pair: got {quadruplet.size} ids, {possible.size} possible "
+            f"and {impossible.size} impossible surprises"
+        )
+    if quadruplet.size == 0:
+        raise ValueError("no pairs to score")
+    sums = defaultdict(lambda: [0.0, 0.0])
+    for key, p, i in zip(quadruplet.tolist(), possible, impossible):
+        sums[key][0] += p
+        sums[key][1] += i
+    per_quadruplet = np.array(list(sums.values()))
+    movies = np.concatenate([possible, impossible])
+    labels = np.concatenate([np.ones(possible.size, bool), np.zeros(impossible.size, bool)])
+    area = auroc(movies, labels)
+    result: dict[str, Any] = {
+        "n_quadruplets": len(sums),
+        "n_pairs": int(possible.size),
+        "relative_error_rate": relative_error_rate(per_quadruplet[:, :1], per_quadruplet[:, 1:]),
+        "absolute_error_rate": 1.0 - area,
+        "auroc": area,
+    }
+    if possible.size >= 2:
+        result["paired_test"] = paired_test(
+            impossible, possible, alpha=alpha, bootstrap=bootstrap
+        ).as_dict()
+    else:
+        result["paired_test"] = {"n": int(possible.size), "note": "a paired t-test needs 2 pairs"}
+    return result
+
+
+def grouped_metrics(
+    groups: Sequence[str],
+    quadruplet: Sequence[int],
+    surprise_possible: Any,
+    surprise_impossible: Any,
+    subgroups: Sequence[str] | None = None,
+    **options: Any,
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """``quadruplet_metrics`` per group (IntPhys block, Physical Concepts concept) under
+    ``all``, and per subgroup (e.g. IntPhys visible / occluded) under its name."""
+    groups = list(groups)
+    quadruplet = np.asarray(quadruplet).ravel()
+    possible = np.asarray(surprise_possible, dtype=np.float64).ravel()
+    impossible = np.asarray(surprise_impossible, dtype=np.float64).ravel()
+    subgroups = list(subgroups) if subgroups is not None else [None] * len(groups)
+    if not len(groups) == len(subgroups) == quadruplet.size == possible.size == impossible.size:
+        raise ValueError("groups, subgroups, quadruplet ids and surprises need one entry per pair")
+    result: dict[str, dict[str, dict[str, Any]]] = {}
+    for group in sorted(set(groups)):
+        rows = np.array([g == group for g in groups])
+        result[group] = {
+            "all": quadruplet_metrics(quadruplet[rows], possible[rows], impossible[rows], **options)
+        }
+        for subgroup in sorted({s for s, r in zip(subgroups, rows) if r and s is not None}):
+            sub = rows & np.array([s == subgroup for s in subgroups])
+            result[group][subgroup] = quadruplet_metrics(
+                quadruplet[sub], possible[sub], impossible[sub], **options
+            )
+    return result
+
+
+# --- answer files -------------------------------------------------------------------------------
+def plausibility_from_surprise(surprise: Any) -> np.ndarray:
+    """Plausibility in [0, 1] from surprise by the decreasing affine map min -> 1, max -> 0 over
+    all given movies (0.5 for all when every surprise is equal): IntPhys' relative and
+    absolute errors of the result equal those of the surprise."""
+    surprise = np.asarray(surprise, dtype=np.float64)
+    if not np.isfinite(surprise).all():
+        raise ValueError("surprise must be finite to be written as plausibility")
+    low, high = surprise.min(initial=np.inf), surprise.max(initial=-np.inf)
+    if surprise.size == 0 or high == low:
+        return np.full(surprise.shape, 0.5)
+    return (high - surprise) / (high - low)
+
+
+def _check_movie_path(path: str, where: str) -> re.Match:
+    match = ANSWER_PATH.match(path)
+    if match is None:
+        raise ValueError(
+            f"{where}: movie path {path!r} is not <block>/<scene>/<movie>, e.g. O1/0001/1 "
+            "(block O1, O2 or O3; movie 1 to 4)"
+        )
+    return match
+
+
+def _check_complete(scenes: Mapping[str, set[str]], where: str) -> None:
+    for scene, movies in sorted(scenes.items()):
+        if movies != {"1", "2", "3", "4"}:
+            raise ValueError(
+                f"{where}: scene {scene} has movies {sorted(movies)}; every scene needs 1, 2, 3 and 4"
+            )
+
+
+def write_answer_file(path: str | os.PathLike, surprise: Mapping[str, float]) -> Path:
+    """Write an IntPhys ``answer.txt`` from each movie's total surprise (keys: movie paths
+    relative to the split folder, ``O1/0001/1``): one ``<path> <plausibility>`` line per movie,
+    sorted, plausibility from ``plausibility_from_surprise``. Every scene must have its 4 movies."""
+    path = Path(path)
+    movies = sorted(surprise)
+    scenes: dict[str, set[str]] = defaultdict(set)
+    for movie in movies:
+        match = _check_movie_path(movie, str(path))
+        scenes[f"{match[1]}/{match[2]}"].add(match[3])
+    _check_complete(scenes, str(path))
+    plausibility = plausibility_from_surprise([surprise[m] for m in movies])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("".join(f"{m} {p:.6f}\n" for m, p in zip(movies, plausibility)))
+    return path
+
+
+def read_answer_file(path: str | os.PathLike) -> dict[str, float]:
+    """Read and validate an IntPhys ``answer.txt``: {movie path: plausibility}."""
+    path = Path(path)
+    answers: dict[str, float] = {}
+    scenes: dict[str, set[str]] = defaultdict(set)
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        fields = line.split()
+        where = f"{path}, line {number}"
+        if len(fields) != 2:
+            raise ValueError(f"{where}: expected '<movie path> <plausibility>', got {line!r}")
+        match = _check_movie_path(fields[0], where)
+        try:
+            value = float(fields[1])
+        except ValueError:
+            raise ValueError(f"{where}: plausibility {fields[1]!r} is not a number") from None
+        if not 0.0 <= value <= 1.0 or math.isnan(value):
+            raise ValueError(f"{where}: plausibility {value} is outside [0, 1]")
+        if fields[0] in answers:
+            raise ValueError(f"{where}: movie {fields[0]} appears twice")
+        answers[fields[0]] = value
+        scenes[f"{match[1]}/{match[2]}"].add(match[3])
+    _check_complete(scenes, str(path))
+    return answers
+
+
+def score_answers(
+    plausibility: Mapping[str, float], is_possible: Mapping[str, bool]
+) -> dict[str, dict[str, dict[str, float]]]:
+    """IntPhys scores of an answer (movie path -> plausibility) against labels (movie path ->
+    possible), as the challenge computes them: per block, for ``all`` scenes and for the
+    ``visible`` / ``occluded`` ones when scene names carry that condition."""
+    if set(plausibility) != set(is_possible):
+        missing = sorted(set(is_possible) - set(plausibility))[:3]
+        extra = sorted(set(plausibility) - set(is_possible))[:3]
+        raise ValueError(
+            f"answer and labels name different movies (missing {missing}, extra {extra})"
+        )
+    scenes: dict[str, list[str]] = defaultdict(list)
+    for movie in plausibility:
+        scenes[movie.rsplit("/", 1)[0]].append(movie)
+    result: dict[str, dict[str, dict[str, float]]] = {}
+    for block in sorted({scene.split("/", 1)[0] for scene in scenes}):
+        result[block] = {}
+        for condition in ("all", "visible", "occluded"):
+            chosen = [
+                s
+                for s in scenes
+                if s.startswith(block + "/") and (condition == "all" or condition in s)
+            ]
+            if not chosen:
+                continue
+            movies = [m for s in chosen for m in scenes[s]]
+            # plausibility is the opposite of surprise: negate to reuse the surprise forms
+            rows = [
+                (
+                    [-plausibility[m] for m in scenes[s] if is_possible[m]],
+                    [-plausibility[m] for m in scenes[s] if not is_possible[m]],
+                )
+                for s in chosen
+            ]
+            result[block][condition] = {
+                "relative_error_rate": relative_error_rate(
+                    [[sum(p)] for p, _ in rows], [[sum(i)] for _, i in rows]
+                ),
+                "absolute_error_rate": absolute_error_rate(
+                    [-plausibility[m] for m in movies], [is_possible[m] for m in movies]
+                ),
+            }
+    return result
