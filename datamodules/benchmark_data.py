@@ -10,21 +10,24 @@ import json
 import os
 import shutil
 import tempfile
+import uuid
 from collections import Counter
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import lightning as L
 import numpy as np
 import torch
 from PIL import Image
 from scipy.optimize import linear_sum_assignment
 from tensordict import TensorDict, TensorDictBase
-from torch.utils.data import Dataset
+from torch.utils.data import DataLoader, Dataset
 from torchrl.data import Categorical, Composite
 
 from voe_lightning import specs
-from voe_lightning.store import ShardReader, write_shard
+from voe_lightning.store import ShardReader, collate, write_shard
 
 #: Bumped whenever the cached record layout changes, so stale caches are rebuilt.
 CACHE_FORMAT = "voe_lightning.benchmark_cache/1"
@@ -50,10 +53,11 @@ class SkipLog:
     ``directory``; counts are over unique lines (an item skipped again next epoch counts once)."""
 
     def __init__(self, directory: str | os.PathLike | None = None):
-        self.directory = Path(directory or tempfile.mkdtemp(prefix="voe_skipped_"))
-        self.directory.mkdir(parents=True, exist_ok=True)
+        default = Path(tempfile.gettempdir()) / f"voe_skipped_{uuid.uuid4().hex}"
+        self.directory = Path(directory) if directory is not None else default
 
     def add(self, reason: str, item: str) -> None:
+        self.directory.mkdir(parents=True, exist_ok=True)
         line = f"{reason}\t{item}".replace("\n", " ")
         with open(self.directory / f"skipped-{os.getpid()}.tsv", "a", encoding="utf-8") as file:
             file.write(line + "\n")
@@ -126,6 +130,24 @@ def resize_masks(masks: np.ndarray, height: int, width: int) -> np.ndarray:
     )
 
 
+@dataclass(frozen=True)
+class VideoOptions:
+    """How a benchmark's videos become model input (which source frames, what size) and when
+    two frames count as different (see ``first_divergence``)."""
+
+    indices: tuple[int, ...]
+    height: int
+    width: int
+    divergence_level: int = 10
+    divergence_fraction: float = 0.001
+
+    def resize(self, frames: np.ndarray) -> np.ndarray:
+        return resize_frames(frames, self.height, self.width)
+
+    def resize_masks(self, masks: np.ndarray) -> np.ndarray:
+        return resize_masks(masks, self.height, self.width)
+
+
 # --- pairing ------------------------------------------------------------------------------------
 def first_divergence(a: np.ndarray, b: np.ndarray, level: int = 10, fraction: float = 0.001) -> int:
     """Index of the first frame where videos ``a`` and ``b`` (uint8 [T, H, W, 3]) differ: more
@@ -161,7 +183,9 @@ def match_pairs(
     best = prefix[rows, columns].sum()
     ambiguous = False
     if len(possible) == 2:  # the only other assignment swaps the partners
-        ambiguous = bool(prefix[0, 1] + prefix[1, 0] == best and prefix[0, 0] + prefix[1, 1] == best)
+        ambiguous = bool(
+            prefix[0, 1] + prefix[1, 0] == best and prefix[0, 0] + prefix[1, 1] == best
+        )
     return [(int(r), int(c), int(prefix[r, c])) for r, c in zip(rows, columns)], ambiguous
 
 
@@ -234,11 +258,6 @@ def benchmark_spec(
     return spec
 
 
-def stack_records(records: list[TensorDictBase]) -> TensorDictBase:
-    """Collate records into one batch TensorDict."""
-    return torch.stack(records)
-
-
 class RecordList(Dataset):
     """Records held in memory as a map-style Dataset."""
 
@@ -250,6 +269,49 @@ class RecordList(Dataset):
 
     def __getitem__(self, index: int) -> TensorDictBase:
         return self.records[index]
+
+
+class BenchmarkDataModule(L.LightningDataModule):
+    """What the benchmark DataModules share: their record specs (over their own concept and
+    variant vocabularies), the counts of skipped input, and the loader settings. Subclasses
+    set ``concept_names``/``variant_names`` and save hyperparameters num_frames, height, width,
+    num_workers."""
+
+    concept_names: tuple[str, ...] = ()
+    variant_names: tuple[str, ...] = ()
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._skips: dict[str, SkipLog] = {}
+        self._cached_skips: dict[str, dict[str, int]] = {}
+
+    def probe_spec(self) -> Composite:
+        h = self.hparams
+        base = specs.probe_spec(h.num_frames, h.height, h.width)
+        return benchmark_spec(base, len(self.concept_names), len(self.variant_names))
+
+    def clip_spec(self) -> Composite:
+        h = self.hparams
+        return benchmark_spec(
+            specs.clip_spec(h.num_frames, h.height, h.width), len(self.concept_names)
+        )
+
+    @property
+    def skipped(self) -> dict[str, int]:
+        """Items left out under ``lenient=True``, per reason (this run's and cached builds')."""
+        logs = (log.counts() for log in self._skips.values())
+        return merge_counts(*logs, *self._cached_skips.values())
+
+    def _loader(self, dataset: Dataset, batch_size: int, **kwargs: Any) -> DataLoader:
+        workers = self.hparams.num_workers
+        return DataLoader(
+            dataset,
+            batch_size=batch_size,
+            num_workers=workers,
+            collate_fn=collate,
+            persistent_workers=workers > 0,
+            **kwargs,
+        )
 
 
 # --- cache --------------------------------------------------------------------------------------

@@ -23,28 +23,25 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import lightning as L
 import numpy as np
 import torch
 from PIL import Image
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDict
 from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
 from datamodules.benchmark_data import (
     BenchmarkDataError,
+    BenchmarkDataModule,
     RecordList,
     SkipLog,
-    benchmark_spec,
+    VideoOptions,
     clip_record,
     fingerprint,
     frame_indices,
     match_pairs,
-    merge_counts,
     open_cache,
     probe_record,
-    resize_frames,
-    stack_records,
     write_cache,
 )
 from voe_lightning import specs
@@ -99,10 +96,13 @@ def frame_file(movie: Path, number: int) -> Path:
 def check_frames(movie: Path, frames_per_movie: int) -> None:
     """Raise unless ``movie/scene/`` holds exactly scene_001.png ... scene_<N>.png."""
     folder = movie / "scene"
-    expected_range = f"scene_001.png to scene_{frames_per_movie:03d}.png (frames_per_movie={frames_per_movie})"
+    expected_range = (
+        f"scene_001.png to scene_{frames_per_movie:03d}.png (frames_per_movie={frames_per_movie})"
+    )
     if not folder.is_dir():
         raise BenchmarkDataError(
-            f"movie {movie} has no scene/ folder; expected its frames {expected_range}", "missing_frame"
+            f"movie {movie} has no scene/ folder; expected its frames {expected_range}",
+            "missing_frame",
         )
     present = {p.name for p in folder.iterdir() if p.name.endswith(".png")}
     expected = {frame_file(movie, i).name for i in range(1, frames_per_movie + 1)}
@@ -223,7 +223,9 @@ def scan_quadruplets(
     return quadruplets
 
 
-def _scan_scene(scene: Path, block: str, index: int, frames_per_movie: int, labelled: bool) -> Quadruplet:
+def _scan_scene(
+    scene: Path, block: str, index: int, frames_per_movie: int, labelled: bool
+) -> Quadruplet:
     names = [p.name for p in _subfolders(scene)]
     if sorted(names) != list(MOVIES):
         raise BenchmarkDataError(
@@ -247,7 +249,10 @@ def _scan_scene(scene: Path, block: str, index: int, frames_per_movie: int, labe
 
 
 def scan_train(
-    root: str | os.PathLike, frames_per_movie: int, lenient: bool = False, skips: SkipLog | None = None
+    root: str | os.PathLike,
+    frames_per_movie: int,
+    lenient: bool = False,
+    skips: SkipLog | None = None,
 ) -> list[Path]:
     """The training movie folders (``train/<scene>/scene/...``) whose frames are complete."""
     movies = []
@@ -263,17 +268,6 @@ def scan_train(
 
 
 # --- datasets ------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class VideoOptions:
-    """How movies become model input, and when two frames count as different."""
-
-    indices: tuple[int, ...]
-    height: int
-    width: int
-    divergence_level: int = 10
-    divergence_fraction: float = 0.001
-
-
 class QuadrupletDataset(Dataset):
     """Item q: (the two probe records of quadruplet q, its pairing table entry). With
     ``lenient``, a quadruplet that fails to decode or pair is logged and yields no records."""
@@ -281,7 +275,12 @@ class QuadrupletDataset(Dataset):
     def __init__(
         self, quadruplets: Sequence[Quadruplet], video: VideoOptions, lenient: bool, skips: SkipLog
     ):
-        self.quadruplets, self.video, self.lenient, self.skips = list(quadruplets), video, lenient, skips
+        self.quadruplets, self.video, self.lenient, self.skips = (
+            list(quadruplets),
+            video,
+            lenient,
+            skips,
+        )
 
     def __len__(self) -> int:
         return len(self.quadruplets)
@@ -328,8 +327,8 @@ class QuadrupletDataset(Dataset):
                 )
             records.append(
                 probe_record(
-                    (resize_frames(full[possible[p].name], video.height, video.width), zeros_mask),
-                    (resize_frames(full[impossible[i].name], video.height, video.width), zeros_mask),
+                    (video.resize(full[possible[p].name]), zeros_mask),
+                    (video.resize(full[impossible[i].name]), zeros_mask),
                     camera,
                     concept=BLOCKS.index(quadruplet.block),
                     variant=VARIANT_NAMES.index(quadruplet.variant),
@@ -367,10 +366,12 @@ class MovieDataset(Dataset):
         return len(self.movies)
 
     def __getitem__(self, index: int) -> TensorDict:
-        frames = read_movie(self.movies[index].path, self.video.indices)
-        frames = resize_frames(frames, self.video.height, self.video.width)
+        frames = self.video.resize(read_movie(self.movies[index].path, self.video.indices))
         return TensorDict(
-            {"frames": torch.from_numpy(frames), "movie_index": torch.tensor(index, dtype=torch.int64)},
+            {
+                "frames": torch.from_numpy(frames),
+                "movie_index": torch.tensor(index, dtype=torch.int64),
+            },
             batch_size=[],
         )
 
@@ -396,7 +397,7 @@ class TrainClipDataset(Dataset):
 
     def clip(self, index: int) -> TensorDict:
         video = self.video
-        frames = resize_frames(read_movie(self.movies[index], video.indices), video.height, video.width)
+        frames = video.resize(read_movie(self.movies[index], video.indices))
         num_frames = len(video.indices)
         return clip_record(
             frames,
@@ -418,7 +419,9 @@ class TrainClipDataset(Dataset):
                 self.skips.add(error.reason, f"{self.movies[current]}: {error}")
                 if not self.substitute:
                     return None
-        raise BenchmarkDataError(f"no readable training movie among {len(self.movies)}", "unreadable_png")
+        raise BenchmarkDataError(
+            f"no readable training movie among {len(self.movies)}", "unreadable_png"
+        )
 
 
 def _identity(item: Any) -> Any:
@@ -426,7 +429,7 @@ def _identity(item: Any) -> Any:
 
 
 # --- the DataModule -----------------------------------------------------------------------------
-class IntPhysDataModule(L.LightningDataModule):
+class IntPhysDataModule(BenchmarkDataModule):
     """IntPhys for ``fit`` (training movies of ``train/`` as clips, dev probes for validation),
     ``validate``/``test`` (probe pairs of ``eval_split``, default the labelled dev set) and
     ``predict`` (single movies of ``predict_split``, default the unlabelled test set; see
@@ -450,6 +453,8 @@ class IntPhysDataModule(L.LightningDataModule):
         seed: seed of the training order.
     """
 
+    concept_names, variant_names = CONCEPT_NAMES, VARIANT_NAMES
+
     def __init__(
         self,
         root: str = "data/intphys",
@@ -471,8 +476,12 @@ class IntPhysDataModule(L.LightningDataModule):
         seed: int = 0,
     ):
         super().__init__()
-        for name, value in [("batch_size", batch_size), ("probe_batch_size", probe_batch_size),
-                            ("height", height), ("width", width)]:
+        for name, value in [
+            ("batch_size", batch_size),
+            ("probe_batch_size", probe_batch_size),
+            ("height", height),
+            ("width", width),
+        ]:
             if value < 1:
                 raise ValueError(f"{name} must be at least 1, got {value}")
         for name, split in [("eval_split", eval_split), ("predict_split", predict_split)]:
@@ -481,7 +490,6 @@ class IntPhysDataModule(L.LightningDataModule):
         if eval_split == "test":
             raise ValueError("eval_split='test' has no labels to pair movies by; use 'dev'")
         self.save_hyperparameters()
-        self.concept_names, self.variant_names = CONCEPT_NAMES, VARIANT_NAMES
         self.video = VideoOptions(
             tuple(frame_indices(frames_per_movie, num_frames, frame_stride, first_frame).tolist()),
             height,
@@ -489,26 +497,10 @@ class IntPhysDataModule(L.LightningDataModule):
             divergence_level,
             divergence_fraction,
         )
-        self._skips: dict[str, SkipLog] = {}
-        self._cached_skips: dict[str, dict[str, int]] = {}
         self._probes: dict[str, Dataset] = {}
         self._tables: dict[str, dict[int, dict[str, Any]]] = {}
         self._train: Dataset | None = None
         self._movies: dict[str, list[Movie]] = {}
-
-    # --- specs and names ---------------------------------------------------------------------
-    def probe_spec(self):
-        h = self.hparams
-        return benchmark_spec(specs.probe_spec(h.num_frames, h.height, h.width), len(CONCEPT_NAMES), len(VARIANT_NAMES))
-
-    def clip_spec(self):
-        h = self.hparams
-        return benchmark_spec(specs.clip_spec(h.num_frames, h.height, h.width), len(CONCEPT_NAMES))
-
-    @property
-    def skipped(self) -> dict[str, int]:
-        """Items left out under ``lenient=True``, per reason (this run's and cached builds')."""
-        return merge_counts(*(log.counts() for log in self._skips.values()), *self._cached_skips.values())
 
     # --- building --------------------------------------------------------------------------------
     def setup(self, stage: str | None = None) -> None:
@@ -522,7 +514,12 @@ class IntPhysDataModule(L.LightningDataModule):
 
     def _settings(self, what: str) -> dict[str, Any]:
         h = self.hparams
-        return {"what": what, "video": self.video.__dict__, "frames_per_movie": h.frames_per_movie, "lenient": h.lenient}
+        return {
+            "what": what,
+            "video": self.video.__dict__,
+            "frames_per_movie": h.frames_per_movie,
+            "lenient": h.lenient,
+        }
 
     def _cache_folder(self, what: str, sources: list[Path]) -> Path | None:
         if self.hparams.cache_dir is None:
@@ -537,7 +534,12 @@ class IntPhysDataModule(L.LightningDataModule):
         h = self.hparams
         skips = self._skips[split] = SkipLog()
         quadruplets = scan_quadruplets(h.root, split, h.frames_per_movie, True, h.lenient, skips)
-        sources = [p for q in quadruplets for m in q.movies for p in (m.path / "scene", m.path / "status.json")]
+        sources = [
+            p
+            for q in quadruplets
+            for m in q.movies
+            for p in (m.path / "scene", m.path / "status.json")
+        ]
         folder = self._cache_folder(split, sources)
         cached = open_cache(folder) if folder is not None else None
         if cached is not None:  # its counts already include this scan's skips
@@ -547,16 +549,26 @@ class IntPhysDataModule(L.LightningDataModule):
             self._probes[split] = cached
             return cached
         meta: dict[str, Any] = {"table": {}}
-        records = self._decode(QuadrupletDataset(quadruplets, self.video, h.lenient, skips), meta, skips, split)
-        self._probes[split] = RecordList(list(records)) if folder is None else write_cache(folder, records, meta)
+        records = self._decode(
+            QuadrupletDataset(quadruplets, self.video, h.lenient, skips), meta, skips, split
+        )
+        self._probes[split] = (
+            RecordList(list(records)) if folder is None else write_cache(folder, records, meta)
+        )
         self._tables[split] = meta["table"]
         return self._probes[split]
 
-    def _decode(self, dataset: QuadrupletDataset, meta: dict, skips: SkipLog, split: str) -> Iterator[TensorDict]:
+    def _decode(
+        self, dataset: QuadrupletDataset, meta: dict, skips: SkipLog, split: str
+    ) -> Iterator[TensorDict]:
         """The probe records, decoded by worker processes; fills ``meta`` (quadruplet table,
         skipped counts) as it goes, complete once exhausted."""
-        loader = DataLoader(dataset, batch_size=None, num_workers=self.hparams.num_workers, collate_fn=_identity)
-        for records, entry in tqdm(loader, desc=f"decoding IntPhys {split}", unit="scene", leave=False):
+        loader = DataLoader(
+            dataset, batch_size=None, num_workers=self.hparams.num_workers, collate_fn=_identity
+        )
+        for records, entry in tqdm(
+            loader, desc=f"decoding IntPhys {split}", unit="scene", leave=False
+        ):
             if entry is not None:
                 meta["table"][records[0]["quadruplet_index"].item()] = entry
             yield from records
@@ -587,8 +599,12 @@ class IntPhysDataModule(L.LightningDataModule):
         self._cached_skips["train"] = cached.meta.get("skipped", {})
         self._train = cached
 
-    def _convert(self, dataset: TrainClipDataset, meta: dict, skips: SkipLog) -> Iterator[TensorDict]:
-        loader = DataLoader(dataset, batch_size=None, num_workers=self.hparams.num_workers, collate_fn=_identity)
+    def _convert(
+        self, dataset: TrainClipDataset, meta: dict, skips: SkipLog
+    ) -> Iterator[TensorDict]:
+        loader = DataLoader(
+            dataset, batch_size=None, num_workers=self.hparams.num_workers, collate_fn=_identity
+        )
         for record in tqdm(loader, desc="caching IntPhys train", unit="movie", leave=False):
             if record is not None:
                 yield record
@@ -599,26 +615,25 @@ class IntPhysDataModule(L.LightningDataModule):
         if split not in self._movies:
             h = self.hparams
             quadruplets = scan_quadruplets(h.root, split, h.frames_per_movie, split == "dev")
-            self._movies[split] = sorted((m for q in quadruplets for m in q.movies), key=lambda m: m.name)
+            self._movies[split] = sorted(
+                (m for q in quadruplets for m in q.movies), key=lambda m: m.name
+            )
         return self._movies[split]
 
     def probe_cases(self, split: str = "val") -> list[tuple[str, str]]:
         """The (concept, variant) names present among the evaluation probes."""
         table = self.quadruplets(self.hparams.eval_split)
-        return sorted({(CONCEPT_NAMES[BLOCKS.index(e["block"])], e["variant"]) for e in table.values()})
-
-    # --- loaders ---------------------------------------------------------------------------------
-    def _loader(self, dataset: Dataset, batch_size: int, **kwargs) -> DataLoader:
-        workers = self.hparams.num_workers
-        return DataLoader(
-            dataset, batch_size=batch_size, num_workers=workers, collate_fn=stack_records,
-            persistent_workers=workers > 0, **kwargs,
+        return sorted(
+            {(CONCEPT_NAMES[BLOCKS.index(e["block"])], e["variant"]) for e in table.values()}
         )
 
+    # --- loaders ---------------------------------------------------------------------------------
     def train_dataloader(self) -> DataLoader:
         self._setup_train()
         generator = torch.Generator().manual_seed(self.hparams.seed)
-        return self._loader(self._train, self.hparams.batch_size, shuffle=True, drop_last=True, generator=generator)
+        return self._loader(
+            self._train, self.hparams.batch_size, shuffle=True, drop_last=True, generator=generator
+        )
 
     def val_dataloader(self) -> DataLoader:
         return self._loader(self.probes(self.hparams.eval_split), self.hparams.probe_batch_size)
@@ -631,7 +646,9 @@ class IntPhysDataModule(L.LightningDataModule):
         return self._loader(dataset, self.hparams.probe_batch_size)
 
     # --- evaluation ------------------------------------------------------------------------------
-    def _pair_rows(self, outputs: dict[str, Any]) -> tuple[np.ndarray, list[dict[str, Any]], list[dict[str, Any]]]:
+    def _pair_rows(
+        self, outputs: dict[str, Any]
+    ) -> tuple[np.ndarray, list[dict[str, Any]], list[dict[str, Any]]]:
         table = self.quadruplets(self.hparams.eval_split)
         seeds = np.asarray(torch.as_tensor(outputs["seed"]).cpu()).ravel()
         entries, pairs = [], []
@@ -649,17 +666,25 @@ class IntPhysDataModule(L.LightningDataModule):
         ``benchmark_metrics.quadruplet_metrics`` (alpha, bootstrap)."""
         seeds, entries, _ = self._pair_rows(outputs)
         possible = torch.as_tensor(outputs["surprise_consistent"]).double().sum(-1).cpu().numpy()
-        impossible = torch.as_tensor(outputs["surprise_inconsistent"]).double().sum(-1).cpu().numpy()
+        impossible = (
+            torch.as_tensor(outputs["surprise_inconsistent"]).double().sum(-1).cpu().numpy()
+        )
         groups = [CONCEPT_NAMES[BLOCKS.index(e["block"])] for e in entries]
-        visibility = [e["variant"].split("_")[0] if e["variant"] != "unspecified" else None for e in entries]
+        visibility = [
+            e["variant"].split("_")[0] if e["variant"] != "unspecified" else None for e in entries
+        ]
         quadruplet = seeds // 2
         counts = np.bincount(quadruplet)
         return {
             "benchmark": "IntPhys",
             "split": self.hparams.eval_split,
-            "metrics": grouped_metrics(groups, quadruplet, possible, impossible, visibility, **options),
+            "metrics": grouped_metrics(
+                groups, quadruplet, possible, impossible, visibility, **options
+            ),
             "incomplete_quadruplets": len({int(q) for q in quadruplet if counts[q] != 2}),
-            "ambiguous_pairings": len({int(q) for q, e in zip(quadruplet, entries) if e["ambiguous_pairing"]}),
+            "ambiguous_pairings": len(
+                {int(q) for q, e in zip(quadruplet, entries) if e["ambiguous_pairing"]}
+            ),
             "skipped": self.skipped,
         }
 

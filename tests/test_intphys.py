@@ -1,0 +1,363 @@
+"""IntPhys reader on a tiny fixture in the released layout: loading, shapes, pairing by
+divergence, metrics through the DataModule, answer.txt, the cache, and every bad-input error."""
+
+import json
+import re
+import shutil
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+import datamodules.intphys as intphys
+from datamodules.benchmark_data import BenchmarkDataError
+from datamodules.intphys import IntPhysDataModule, read_png
+from voe_lightning.benchmark_metrics import read_answer_file, score_answers
+
+FRAMES, SIZE = 20, 32
+#: num_frames=5 of 20 samples source frames [0, 5, 10, 14, 19].
+SAMPLED = [0, 5, 10, 14, 19]
+#: scene -> (A->B switch frame, B->A switch frame, folder of [possible A, possible B,
+#: impossible A->B, impossible B->A]); switch frames are source frames.
+SCENES = {
+    "O1/0001_O1_test_visible_static_nobj1": (7, 12, ["1", "4", "3", "2"]),
+    "O1/0002_O1_test_occluded_dynamic_1_nobj2": (3, 16, ["2", "3", "1", "4"]),
+    "O2/0003": (11, 5, ["4", "1", "2", "3"]),
+}
+
+
+def first_sampled_at_or_after(frame: int) -> int:
+    return next(k for k, source in enumerate(SAMPLED) if source >= frame)
+
+
+def world_frame(scene_seed: int, world: str, t: int) -> np.ndarray:
+    """A background shared by the scene, a time marker, and the world's object."""
+    image = np.random.default_rng(scene_seed).integers(0, 120, (SIZE, SIZE, 3), dtype=np.uint8)
+    image[t % SIZE, :, 1] = 250
+    if world == "A":
+        image[4:12, 4:12] = (255, 0, 0)
+    else:
+        image[18:28, 18:28] = (0, 0, 255)
+    return image
+
+
+def movie_worlds(kind: str, switch: int) -> list[str]:
+    start, end = {"pA": "AA", "pB": "BB", "iAB": "AB", "iBA": "BA"}[kind]
+    return [start if t < switch else end for t in range(FRAMES)]
+
+
+def write_movie(folder, frames, label=None):
+    (folder / "scene").mkdir(parents=True)
+    for number, frame in enumerate(frames, 1):
+        Image.fromarray(frame).save(folder / "scene" / f"scene_{number:03d}.png")
+    if label is not None:
+        header = {"block_name": "O1", "block_type": "test", "is_possible": label}
+        (folder / "status.json").write_text(json.dumps({"header": header, "frames": []}))
+
+
+def make_intphys(root, split="dev", labelled=True):
+    for seed, (scene, (switch_ab, switch_ba, folders)) in enumerate(SCENES.items()):
+        kinds = {
+            "pA": (folders[0], True, switch_ab),
+            "pB": (folders[1], True, switch_ab),
+            "iAB": (folders[2], False, switch_ab),
+            "iBA": (folders[3], False, switch_ba),
+        }
+        for kind, (folder, possible, switch) in kinds.items():
+            frames = [world_frame(seed, w, t) for t, w in enumerate(movie_worlds(kind, switch))]
+            write_movie(root / split / scene / folder, frames, possible if labelled else None)
+    return root
+
+
+def make_train(root, movies=3):
+    for index in range(movies):
+        frames = [world_frame(100 + index, "A", t) for t in range(FRAMES)]
+        write_movie(root / "train" / f"{index:05d}", frames)
+
+
+def datamodule(root, **options):
+    settings = dict(
+        root=str(root),
+        num_frames=5,
+        height=16,
+        width=16,
+        frames_per_movie=FRAMES,
+        batch_size=2,
+        probe_batch_size=4,
+    )
+    settings.update(options)
+    return IntPhysDataModule(**settings)
+
+
+@pytest.fixture(scope="module")
+def dataset_root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("intphys")
+    make_intphys(root, "dev", labelled=True)
+    make_intphys(root, "test", labelled=False)
+    make_train(root)
+    return root
+
+
+def fresh_copy(dataset_root, tmp_path):
+    target = tmp_path / "intphys"
+    shutil.copytree(dataset_root, target)
+    return target
+
+
+def test_dev_probes_load_with_spec_shapes_and_pairs_recovered_from_divergence(dataset_root):
+    dm = datamodule(dataset_root)
+    dm.setup("test")
+    batches = list(dm.test_dataloader())
+    records = torch.cat(batches)
+    assert records.batch_size == torch.Size([6])  # 3 scenes x 2 pairs
+    spec = dm.probe_spec()
+    for record in records:
+        assert spec.is_in(record)
+    assert records["consistent", "frames"].shape == (6, 5, 16, 16, 3)
+    table = dm.quadruplets("dev")
+    for q, (scene, (switch_ab, switch_ba, folders)) in enumerate(SCENES.items()):
+        entry = table[q]
+        assert entry["scene"] == scene and not entry["ambiguous_pairing"]
+        found = {(p["possible"], p["impossible"]): p["divergence_frame"] for p in entry["pairs"]}
+        assert found == {
+            (f"{scene}/{folders[0]}", f"{scene}/{folders[2]}"): first_sampled_at_or_after(
+                switch_ab
+            ),
+            (f"{scene}/{folders[1]}", f"{scene}/{folders[3]}"): first_sampled_at_or_after(
+                switch_ba
+            ),
+        }
+    for record in records:
+        entry = table[int(record["seed"]) // 2]
+        pair = entry["pairs"][int(record["seed"]) % 2]
+        m = int(record["manipulation_frame"])
+        assert m == pair["divergence_frame"]
+        con, inc = record["consistent", "frames"], record["inconsistent", "frames"]
+        assert torch.equal(con[:m], inc[:m]) and not torch.equal(con[m], inc[m])
+        assert dm.concept_names[int(record["concept"])].startswith(entry["block"])
+        assert dm.variant_names[int(record["variant"])] == entry["variant"]
+        # the consistent video is the possible movie, sampled and resized with PIL
+        movie = dataset_root / "dev" / pair["possible"]
+        expected = np.asarray(
+            Image.fromarray(read_png(movie / "scene" / f"scene_{SAMPLED[2] + 1:03d}.png")).resize(
+                (16, 16), Image.Resampling.BILINEAR
+            )
+        )
+        assert np.array_equal(con[2].numpy(), expected)
+    assert dm.variant_names[int(records[0]["variant"])] == "visible_static"
+    assert dm.variant_names[int(records[4]["variant"])] == "unspecified"
+    assert sorted(dm.probe_cases()) == [
+        ("O1_object_permanence", "occluded_dynamic_1"),
+        ("O1_object_permanence", "visible_static"),
+        ("O2_shape_constancy", "unspecified"),
+    ]
+    assert dm.skipped == {}
+
+
+def fake_outputs(dm, surprise_of_movie):
+    """probe_step-like outputs whose per-frame surprise sums to the given movie totals."""
+    records = torch.cat(list(dm.test_dataloader()))
+    table = dm.quadruplets("dev")
+    pairs = [table[int(s) // 2]["pairs"][int(s) % 2] for s in records["seed"]]
+
+    def frames_of(totals):
+        return torch.tensor(totals, dtype=torch.float64)[:, None].expand(-1, 5) / 5
+
+    return {
+        "concept": records["concept"],
+        "variant": records["variant"],
+        "seed": records["seed"],
+        "manipulation_frame": records["manipulation_frame"],
+        "surprise_consistent": frames_of([surprise_of_movie[p["possible"]] for p in pairs]),
+        "surprise_inconsistent": frames_of([surprise_of_movie[p["impossible"]] for p in pairs]),
+    }
+
+
+def test_benchmark_metrics_per_block_match_hand_computed_values(dataset_root):
+    dm = datamodule(dataset_root)
+    dm.setup("test")
+    s1, s2, s3 = SCENES
+    f1, f2, f3 = (SCENES[s][2] for s in SCENES)
+    surprise = {
+        # scene 1: possible 1 + 2 = 3 < impossible 3 + 4 = 7 (correct)
+        f"{s1}/{f1[0]}": 1.0,
+        f"{s1}/{f1[1]}": 2.0,
+        f"{s1}/{f1[2]}": 3.0,
+        f"{s1}/{f1[3]}": 4.0,
+        # scene 2: possible 5 + 1 = 6 > impossible 2 + 3 = 5 (error)
+        f"{s2}/{f2[0]}": 5.0,
+        f"{s2}/{f2[1]}": 1.0,
+        f"{s2}/{f2[2]}": 2.0,
+        f"{s2}/{f2[3]}": 3.0,
+        # scene 3 (O2): a tie, half an error
+        f"{s3}/{f3[0]}": 2.0,
+        f"{s3}/{f3[1]}": 2.0,
+        f"{s3}/{f3[2]}": 1.0,
+        f"{s3}/{f3[3]}": 3.0,
+    }
+    report = dm.benchmark_metrics(fake_outputs(dm, surprise), bootstrap=0)
+    o1 = report["metrics"]["O1_object_permanence"]
+    assert o1["all"]["relative_error_rate"] == pytest.approx(0.5)
+    # impossible {3, 4, 2, 3} vs possible {1, 2, 5, 1}: 11.5 of 16 pairs ranked right
+    assert o1["all"]["auroc"] == pytest.approx(11.5 / 16)
+    assert o1["all"]["absolute_error_rate"] == pytest.approx(4.5 / 16)
+    assert (
+        o1["visible"]["relative_error_rate"] == 0.0 and o1["occluded"]["relative_error_rate"] == 1.0
+    )
+    assert o1["all"]["paired_test"]["n"] == 4
+    o2 = report["metrics"]["O2_shape_constancy"]["all"]
+    assert o2["relative_error_rate"] == 0.5
+    assert o2["auroc"] == pytest.approx(0.5)  # impossible {1, 3} vs possible {2, 2}
+    assert report["incomplete_quadruplets"] == 0 and report["skipped"] == {}
+    assert dm.movie_surprise(fake_outputs(dm, surprise)) == surprise
+
+
+class MeanIntensityModel:
+    """Stands in for VOEModel: per-frame 'surprise' = mean pixel intensity."""
+
+    device = "cpu"
+
+    def surprise(self, frames):
+        return frames.float().mean(dim=(-1, -2, -3))
+
+
+def test_answer_file_for_the_unlabelled_test_set(dataset_root, tmp_path):
+    dm = datamodule(dataset_root)
+    dm.setup("predict")
+    batch = next(iter(dm.predict_dataloader()))
+    assert batch["frames"].shape == (4, 5, 16, 16, 3)
+    path = dm.write_answer(MeanIntensityModel(), tmp_path / "answer.txt")
+    lines = path.read_text().splitlines()
+    assert len(lines) == 12 and lines == sorted(lines)
+    assert all(re.fullmatch(r"O[12]/[^ /]+/[1-4] [01]\.\d{6}", line) for line in lines)
+    assert lines[0].startswith("O1/0001_O1_test_visible_static_nobj1/1 ")
+    scores = dm.score_movies(MeanIntensityModel(), "test")
+    answers = read_answer_file(path)
+    assert set(answers) == set(scores)
+    lowest, highest = min(scores, key=scores.get), max(scores, key=scores.get)
+    assert answers[lowest] == 1.0 and answers[highest] == 0.0
+
+
+def test_answer_file_scores_equal_the_surprise_metrics_on_dev(dataset_root, tmp_path):
+    dm = datamodule(dataset_root)
+    dm.setup("test")
+    model = MeanIntensityModel()
+    surprise = dm.score_movies(model, "dev")
+    from_surprise = dm.benchmark_metrics(fake_outputs(dm, surprise), bootstrap=0)["metrics"]
+    answers = read_answer_file(dm.write_answer(model, tmp_path / "answer.txt", split="dev"))
+    labels = {m.name: m.is_possible for m in dm.movies("dev")}
+    official = score_answers(answers, labels)
+    for block, concept in [("O1", "O1_object_permanence"), ("O2", "O2_shape_constancy")]:
+        for condition, values in official[block].items():
+            for metric in ("relative_error_rate", "absolute_error_rate"):
+                assert values[metric] == pytest.approx(from_surprise[concept][condition][metric])
+
+
+def test_training_movies_become_clips(dataset_root):
+    dm = datamodule(dataset_root)
+    dm.setup("fit")
+    batch = next(iter(dm.train_dataloader()))
+    assert batch["frames"].shape == (2, 5, 16, 16, 3)
+    for record in batch:
+        assert dm.clip_spec().is_in(record)
+    assert dm.concept_names[int(batch["concept"][0])] == "train"
+
+
+def test_cache_is_reused_without_decoding_pngs(dataset_root, tmp_path, monkeypatch):
+    first = datamodule(dataset_root, cache_dir=str(tmp_path / "cache"))
+    first.setup("fit")
+    expected_probes = torch.cat(list(first.test_dataloader()))
+    expected_clips = torch.stack([first._train[i] for i in range(len(first._train))])
+
+    def refuse(path):
+        raise AssertionError(f"decoded {path} although the cache is complete")
+
+    monkeypatch.setattr(intphys, "read_png", refuse)
+    second = datamodule(dataset_root, cache_dir=str(tmp_path / "cache"))
+    second.setup("fit")
+    probes = torch.cat(list(second.test_dataloader()))
+    assert (probes == expected_probes).all()
+    assert second.quadruplets("dev") == first.quadruplets("dev")
+    clips = torch.stack([second._train[i] for i in range(len(second._train))])
+    assert (clips == expected_clips).all()
+
+
+def break_missing_frame(root):
+    (root / "dev" / "O1/0002_O1_test_occluded_dynamic_1_nobj2/3/scene/scene_007.png").unlink()
+    return (
+        r"missing frame .*0002_O1_test_occluded_dynamic_1_nobj2/3/scene/scene_007\.png.*scene_020\.png",
+        "missing_frame",
+    )
+
+
+def break_movie_count(root):
+    shutil.rmtree(root / "dev" / "O2/0003/4")
+    return (
+        r"scene .*O2/0003 holds movies \['1', '2', '3'\]; expected exactly the 4 movies",
+        "wrong_movie_count",
+    )
+
+
+def break_png(root):
+    (root / "dev" / "O1/0001_O1_test_visible_static_nobj1/2/scene/scene_011.png").write_bytes(
+        b"\x89PNG broken"
+    )
+    return (
+        r"unreadable PNG .*0001_O1_test_visible_static_nobj1/2/scene/scene_011\.png",
+        "unreadable_png",
+    )
+
+
+def break_label(root):
+    (root / "dev" / "O2/0003/1/status.json").unlink()
+    return r"missing .*O2/0003/1/status\.json: .*header\.is_possible", "missing_label"
+
+
+def break_label_count(root):
+    path = root / "dev" / "O1/0001_O1_test_visible_static_nobj1/3/status.json"
+    path.write_text(json.dumps({"header": {"is_possible": True}}))
+    return (
+        r"0001_O1_test_visible_static_nobj1 has 3 possible and 1 impossible movies.*expected 2 and 2",
+        "wrong_label_count",
+    )
+
+
+@pytest.mark.parametrize(
+    "breakage", [break_missing_frame, break_movie_count, break_png, break_label, break_label_count]
+)
+def test_bad_input_raises_naming_the_file_or_is_skipped_and_counted_when_lenient(
+    dataset_root, tmp_path, breakage
+):
+    root = fresh_copy(dataset_root, tmp_path)
+    message, reason = breakage(root)
+    with pytest.raises(BenchmarkDataError, match=message):
+        datamodule(root).setup("test")
+    lenient = datamodule(root, lenient=True)
+    lenient.setup("test")
+    assert len(lenient.probes("dev")) == 4  # the two intact scenes
+    assert lenient.skipped == {reason: 1}
+    outputs = {
+        "seed": torch.cat(list(lenient.test_dataloader()))["seed"],
+        "surprise_consistent": torch.zeros(4, 5),
+        "surprise_inconsistent": torch.ones(4, 5),
+    }
+    assert lenient.benchmark_metrics(outputs, bootstrap=0)["skipped"] == {reason: 1}
+
+
+def test_pairs_that_never_differ_in_the_sampled_frames_are_refused(dataset_root, tmp_path):
+    root = fresh_copy(dataset_root, tmp_path)
+    # scene 2's B->A switch happens at frame 16: sampling only frames 0..12 never sees it
+    with pytest.raises(
+        BenchmarkDataError, match=r"do not differ in any of the 4 sampled frames \[0, 4, 8, 12\]"
+    ):
+        datamodule(root, num_frames=4, frame_stride=4).setup("test")
+
+
+def test_missing_split_and_bad_arguments_name_the_valid_choices(tmp_path):
+    with pytest.raises(FileNotFoundError, match=r"no IntPhys dev set at .*dev; expected"):
+        datamodule(tmp_path).setup("test")
+    with pytest.raises(ValueError, match="eval_split must be 'dev' or 'test'"):
+        datamodule(tmp_path, eval_split="train")
+    with pytest.raises(ValueError, match="need frame 24, but movies have 20 frames"):
+        datamodule(tmp_path, num_frames=5, frame_stride=6)
