@@ -31,7 +31,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import lightning as L
 import numpy as np
 import torch
 from google.protobuf.message import DecodeError
@@ -50,18 +49,15 @@ from tqdm import tqdm
 
 from datamodules.benchmark_data import (
     BenchmarkDataError,
+    BenchmarkDataModule,
     SkipLog,
-    benchmark_spec,
+    VideoOptions,
     clip_record,
     fingerprint,
     frame_indices,
     match_pairs,
-    merge_counts,
     open_cache,
     probe_record,
-    resize_frames,
-    resize_masks,
-    stack_records,
     write_cache,
 )
 from voe_lightning import specs
@@ -146,12 +142,16 @@ def read_records(
             number += 1
 
 
-def shard_files(folder: str | Path, skip: Callable[[BenchmarkDataError], None] | None = None) -> list[Path]:
+def shard_files(
+    folder: str | Path, skip: Callable[[BenchmarkDataError], None] | None = None
+) -> list[Path]:
     """The ``data.tfrecord-XXXXX-of-YYYYY`` files of ``folder`` in shard order; a missing shard
     raises (or, with ``skip``, is reported there)."""
     folder = Path(folder)
     if not folder.is_dir():
-        raise FileNotFoundError(f"no folder {folder}; expected data.tfrecord-XXXXX-of-YYYYY shards there")
+        raise FileNotFoundError(
+            f"no folder {folder}; expected data.tfrecord-XXXXX-of-YYYYY shards there"
+        )
     found = {}
     for path in folder.iterdir():
         match = SHARD_NAME.match(path.name)
@@ -161,7 +161,9 @@ def shard_files(folder: str | Path, skip: Callable[[BenchmarkDataError], None] |
         raise FileNotFoundError(f"no data.tfrecord-XXXXX-of-YYYYY shards in {folder}")
     totals = sorted({total for _, total in found.values()})
     if len(totals) > 1:
-        raise BenchmarkDataError(f"{folder} mixes shards of {totals} files; expected one set", "missing_shard")
+        raise BenchmarkDataError(
+            f"{folder} mixes shards of {totals} files; expected one set", "missing_shard"
+        )
     total = totals[0]
     for index in sorted(set(range(total)) - set(found)):
         error = BenchmarkDataError(
@@ -181,14 +183,18 @@ def parse_example(payload: bytes, where: str) -> Any:
     try:
         example.ParseFromString(payload)
     except DecodeError as error:
-        raise BenchmarkDataError(f"{where}: not a tf.train.Example ({error})", "bad_record") from None
+        raise BenchmarkDataError(
+            f"{where}: not a tf.train.Example ({error})", "bad_record"
+        ) from None
     return example.features.feature
 
 
 def raw_array(features: Any, key: str, shape: tuple[int, ...], where: str) -> np.ndarray:
     """A raw-bytes uint8 feature reshaped to ``shape``, its byte count checked."""
     if key not in features:
-        raise BenchmarkDataError(f"{where}: no feature {key!r}; expected uint8 bytes of {list(shape)}", "bad_record")
+        raise BenchmarkDataError(
+            f"{where}: no feature {key!r}; expected uint8 bytes of {list(shape)}", "bad_record"
+        )
     values = features[key].bytes_list.value
     expected = math.prod(shape)
     if len(values) != 1 or len(values[0]) != expected:
@@ -203,7 +209,9 @@ def raw_array(features: Any, key: str, shape: tuple[int, ...], where: str) -> np
 def float_array(features: Any, key: str, shape: tuple[int, ...], where: str) -> np.ndarray:
     """A float feature reshaped to ``shape``, its length checked."""
     if key not in features:
-        raise BenchmarkDataError(f"{where}: no feature {key!r}; expected float32 {list(shape)}", "bad_record")
+        raise BenchmarkDataError(
+            f"{where}: no feature {key!r}; expected float32 {list(shape)}", "bad_record"
+        )
     values = features[key].float_list.value
     if len(values) != math.prod(shape):
         raise BenchmarkDataError(
@@ -230,43 +238,35 @@ def decode_probe(payload: bytes, where: str) -> dict[str, np.ndarray]:
     features = parse_example(payload, where)
     result = {}
     for side in ("possible", "impossible"):
-        result[f"{side}_image"] = raw_array(features, f"{side}_image", (2, NUM_FRAMES, HEIGHT, WIDTH, 3), where)
-        result[f"{side}_mask"] = raw_array(features, f"{side}_mask", (2, NUM_FRAMES, HEIGHT, WIDTH), where)
-        result[f"{side}_camera_pose"] = float_array(features, f"{side}_camera_pose", (2, NUM_FRAMES, 6), where)
+        result[f"{side}_image"] = raw_array(
+            features, f"{side}_image", (2, NUM_FRAMES, HEIGHT, WIDTH, 3), where
+        )
+        result[f"{side}_mask"] = raw_array(
+            features, f"{side}_mask", (2, NUM_FRAMES, HEIGHT, WIDTH), where
+        )
+        result[f"{side}_camera_pose"] = float_array(
+            features, f"{side}_camera_pose", (2, NUM_FRAMES, 6), where
+        )
     return result
 
 
 # --- records -------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class VideoOptions:
-    """How the dataset's 15-frame 64x64 videos become model input."""
-
-    indices: tuple[int, ...]
-    height: int
-    width: int
-    divergence_level: int = 10
-    divergence_fraction: float = 0.001
-
-    def frames(self, video: np.ndarray) -> np.ndarray:
-        return resize_frames(video[list(self.indices)], self.height, self.width)
-
-    def masks(self, mask: np.ndarray) -> np.ndarray:
-        return resize_masks(mask[list(self.indices)], self.height, self.width)
-
-
 def freeform_clip(payload: bytes, where: str, video: VideoOptions, seed: int) -> TensorDict:
     row = decode_freeform(payload, where)
+    indices = list(video.indices)
     return clip_record(
-        video.frames(row["image"]),
-        video.masks(row["mask"]),
-        row["camera_pose"][list(video.indices)],
+        video.resize(row["image"][indices]),
+        video.resize_masks(row["mask"][indices]),
+        row["camera_pose"][indices],
         concept=CONCEPT_NAMES.index("freeform"),
         kind=0,
         seed=seed,
     )
 
 
-def probe_pairs(payload: bytes, where: str, video: VideoOptions, concept: int, quadruplet_index: int) -> list[TensorDict]:
+def probe_pairs(
+    payload: bytes, where: str, video: VideoOptions, concept: int, quadruplet_index: int
+) -> list[TensorDict]:
     """The two probe records of a probe quadruplet, pairs recovered from where they diverge."""
     row = decode_probe(payload, where)
     indices = list(video.indices)
@@ -284,8 +284,11 @@ def probe_pairs(payload: bytes, where: str, video: VideoOptions, concept: int, q
             )
         records.append(
             probe_record(
-                (video.frames(row["possible_image"][p]), video.masks(row["possible_mask"][p])),
-                (video.frames(row["impossible_image"][i]), video.masks(row["impossible_mask"][i])),
+                (video.resize(possible[p]), video.resize_masks(row["possible_mask"][p][indices])),
+                (
+                    video.resize(impossible[i]),
+                    video.resize_masks(row["impossible_mask"][i][indices]),
+                ),
                 row["possible_camera_pose"][p][indices],
                 concept=concept,
                 variant=0,
@@ -369,14 +372,22 @@ class RecordStream(IterableDataset):
         records = (
             record
             for source in mine
-            for record in source_records(source, self.video, self.lenient, self.skips, self.limit_per_source)
+            for record in source_records(
+                source, self.video, self.lenient, self.skips, self.limit_per_source
+            )
         )
         if self.shuffle and self.shuffle_buffer > 1:
-            records = _buffer_shuffle(records, self.shuffle_buffer, np.random.default_rng([self.seed, epoch_seed, worker, rank]))
+            records = _buffer_shuffle(
+                records,
+                self.shuffle_buffer,
+                np.random.default_rng([self.seed, epoch_seed, worker, rank]),
+            )
         yield from records
 
 
-def _buffer_shuffle(records: Iterator[TensorDict], size: int, rng: np.random.Generator) -> Iterator[TensorDict]:
+def _buffer_shuffle(
+    records: Iterator[TensorDict], size: int, rng: np.random.Generator
+) -> Iterator[TensorDict]:
     buffer: list[TensorDict] = []
     for record in records:
         if len(buffer) < size:
@@ -394,7 +405,7 @@ def _identity(item: Any) -> Any:
 
 
 # --- the DataModule -----------------------------------------------------------------------------
-class PhysicalConceptsDataModule(L.LightningDataModule):
+class PhysicalConceptsDataModule(BenchmarkDataModule):
     """Trains on ``freeform/train`` clips and probes ``probes/<concept>`` for every concept in
     ``concepts``, so ``fit`` and ``test`` work as on our own data. The release has one probe set
     per concept: validation during ``fit`` uses the first ``val_quadruplets_per_concept``
@@ -419,6 +430,8 @@ class PhysicalConceptsDataModule(L.LightningDataModule):
             epoch reads them instead of the TFRecords (map-style, fully shuffled).
         seed: seed of the training order.
     """
+
+    concept_names, variant_names = CONCEPT_NAMES, VARIANT_NAMES
 
     def __init__(
         self,
@@ -446,14 +459,17 @@ class PhysicalConceptsDataModule(L.LightningDataModule):
             raise ValueError(
                 f"unknown or no probe concepts {unknown}; valid concepts are: {', '.join(PROBE_CONCEPTS)}"
             )
-        for name, value in [("batch_size", batch_size), ("probe_batch_size", probe_batch_size),
-                            ("height", height), ("width", width),
-                            ("val_quadruplets_per_concept", val_quadruplets_per_concept)]:
+        for name, value in [
+            ("batch_size", batch_size),
+            ("probe_batch_size", probe_batch_size),
+            ("height", height),
+            ("width", width),
+            ("val_quadruplets_per_concept", val_quadruplets_per_concept),
+        ]:
             if value < 1:
                 raise ValueError(f"{name} must be at least 1, got {value}")
         self.save_hyperparameters()
         self.concepts = list(dict.fromkeys(concepts))
-        self.concept_names, self.variant_names = CONCEPT_NAMES, VARIANT_NAMES
         self.video = VideoOptions(
             tuple(frame_indices(NUM_FRAMES, num_frames, frame_stride, first_frame).tolist()),
             height,
@@ -461,22 +477,7 @@ class PhysicalConceptsDataModule(L.LightningDataModule):
             divergence_level,
             divergence_fraction,
         )
-        self._skips: dict[str, SkipLog] = {}
-        self._cached_skips: dict[str, dict[str, int]] = {}
         self._datasets: dict[str, Dataset] = {}
-
-    def probe_spec(self):
-        h = self.hparams
-        return benchmark_spec(specs.probe_spec(h.num_frames, h.height, h.width), len(CONCEPT_NAMES), len(VARIANT_NAMES))
-
-    def clip_spec(self):
-        h = self.hparams
-        return benchmark_spec(specs.clip_spec(h.num_frames, h.height, h.width), len(CONCEPT_NAMES))
-
-    @property
-    def skipped(self) -> dict[str, int]:
-        """Items left out under ``lenient=True``, per reason (this run's and cached builds')."""
-        return merge_counts(*(log.counts() for log in self._skips.values()), *self._cached_skips.values())
 
     # --- building --------------------------------------------------------------------------------
     def _sources(self, part: str) -> list[Source]:
@@ -488,9 +489,15 @@ class PhysicalConceptsDataModule(L.LightningDataModule):
         if part.startswith("probes/"):
             concept = part.split("/", 1)[1]
             paths = shard_files(root / "probes" / concept, skip)
-            return [Source(p, int(SHARD_NAME.match(p.name)[1]), CONCEPT_NAMES.index(concept), "probe") for p in paths]
+            return [
+                Source(p, int(SHARD_NAME.match(p.name)[1]), CONCEPT_NAMES.index(concept), "probe")
+                for p in paths
+            ]
         paths = shard_files(root / "freeform" / part, skip)
-        return [Source(p, int(SHARD_NAME.match(p.name)[1]), CONCEPT_NAMES.index("freeform"), "freeform") for p in paths]
+        return [
+            Source(p, int(SHARD_NAME.match(p.name)[1]), CONCEPT_NAMES.index("freeform"), "freeform")
+            for p in paths
+        ]
 
     def _dataset(self, part: str, shuffle: bool = False) -> Dataset:
         """All records of ``part``: from the cache (built on first use) if ``cache_dir`` is
@@ -503,12 +510,22 @@ class PhysicalConceptsDataModule(L.LightningDataModule):
         skips = self._skips[part]
         if h.cache_dir is None:
             dataset = RecordStream(
-                sources, self.video, h.lenient, skips, shuffle=shuffle,
-                shuffle_buffer=h.shuffle_buffer if shuffle else 0, seed=h.seed,
+                sources,
+                self.video,
+                h.lenient,
+                skips,
+                shuffle=shuffle,
+                shuffle_buffer=h.shuffle_buffer if shuffle else 0,
+                seed=h.seed,
             )
         else:
             settings = {"part": part, "video": self.video.__dict__, "lenient": h.lenient}
-            folder = Path(h.cache_dir) / "physical_concepts" / part / fingerprint(settings, [s.path for s in sources])
+            folder = (
+                Path(h.cache_dir)
+                / "physical_concepts"
+                / part
+                / fingerprint(settings, [s.path for s in sources])
+            )
             dataset = open_cache(folder)
             if dataset is None:
                 meta: dict[str, Any] = {}
@@ -518,10 +535,16 @@ class PhysicalConceptsDataModule(L.LightningDataModule):
         self._datasets[key] = dataset
         return dataset
 
-    def _convert(self, sources: list[Source], meta: dict, skips: SkipLog, part: str) -> Iterator[TensorDict]:
+    def _convert(
+        self, sources: list[Source], meta: dict, skips: SkipLog, part: str
+    ) -> Iterator[TensorDict]:
         stream = RecordStream(sources, self.video, self.hparams.lenient, skips)
-        loader = DataLoader(stream, batch_size=None, num_workers=self.hparams.num_workers, collate_fn=_identity)
-        yield from tqdm(loader, desc=f"caching Physical Concepts {part}", unit="record", leave=False)
+        loader = DataLoader(
+            stream, batch_size=None, num_workers=self.hparams.num_workers, collate_fn=_identity
+        )
+        yield from tqdm(
+            loader, desc=f"caching Physical Concepts {part}", unit="record", leave=False
+        )
         meta["skipped"] = skips.counts()
 
     def _validation_set(self, concept: str) -> Dataset:
@@ -532,7 +555,9 @@ class PhysicalConceptsDataModule(L.LightningDataModule):
             return Subset(dataset, range(min(len(dataset), 2 * limit)))
         part = f"probes/{concept}"
         sources = self._sources(part)[:1]
-        return RecordStream(sources, self.video, h.lenient, self._skips[part], limit_per_source=limit)
+        return RecordStream(
+            sources, self.video, h.lenient, self._skips[part], limit_per_source=limit
+        )
 
     def setup(self, stage: str | None = None) -> None:
         if stage in ("fit", None):
@@ -548,26 +573,25 @@ class PhysicalConceptsDataModule(L.LightningDataModule):
         return [(concept, VARIANT_NAMES[0]) for concept in self.concepts]
 
     # --- loaders ---------------------------------------------------------------------------------
-    def _loader(self, datasets: list[Dataset], batch_size: int, **kwargs) -> DataLoader:
-        dataset = datasets[0] if len(datasets) == 1 else _chain(datasets)
-        workers = self.hparams.num_workers
-        return DataLoader(
-            dataset, batch_size=batch_size, num_workers=workers, collate_fn=stack_records,
-            persistent_workers=workers > 0, **kwargs,
-        )
-
     def train_dataloader(self) -> DataLoader:
         dataset = self._dataset("train", shuffle=True)
         if isinstance(dataset, IterableDataset):
-            return self._loader([dataset], self.hparams.batch_size, drop_last=True)
+            return self._loader(dataset, self.hparams.batch_size, drop_last=True)
         generator = torch.Generator().manual_seed(self.hparams.seed)
-        return self._loader([dataset], self.hparams.batch_size, shuffle=True, drop_last=True, generator=generator)
+        return self._loader(
+            dataset, self.hparams.batch_size, shuffle=True, drop_last=True, generator=generator
+        )
 
     def val_dataloader(self) -> DataLoader:
-        return self._loader([self._validation_set(c) for c in self.concepts], self.hparams.probe_batch_size)
+        return self._loader(
+            _chain([self._validation_set(c) for c in self.concepts]), self.hparams.probe_batch_size
+        )
 
     def test_dataloader(self) -> DataLoader:
-        return self._loader([self._dataset(f"probes/{c}") for c in self.concepts], self.hparams.probe_batch_size)
+        return self._loader(
+            _chain([self._dataset(f"probes/{c}") for c in self.concepts]),
+            self.hparams.probe_batch_size,
+        )
 
     # --- evaluation ------------------------------------------------------------------------------
     def benchmark_metrics(self, outputs: dict[str, Any], **options: Any) -> dict[str, Any]:
@@ -577,7 +601,9 @@ class PhysicalConceptsDataModule(L.LightningDataModule):
         seeds = torch.as_tensor(outputs["seed"]).cpu().numpy().ravel()
         concepts = [CONCEPT_NAMES[c] for c in torch.as_tensor(outputs["concept"]).tolist()]
         possible = torch.as_tensor(outputs["surprise_consistent"]).double().sum(-1).cpu().numpy()
-        impossible = torch.as_tensor(outputs["surprise_inconsistent"]).double().sum(-1).cpu().numpy()
+        impossible = (
+            torch.as_tensor(outputs["surprise_inconsistent"]).double().sum(-1).cpu().numpy()
+        )
         quadruplet = seeds // 2
         sizes = Counter(zip(concepts, quadruplet.tolist()))
         return {
@@ -590,6 +616,8 @@ class PhysicalConceptsDataModule(L.LightningDataModule):
 
 def _chain(datasets: list[Dataset]) -> Dataset:
     """Concatenate map-style datasets, or chain iterable ones (one loader over all concepts)."""
+    if len(datasets) == 1:
+        return datasets[0]
     if all(isinstance(d, IterableDataset) for d in datasets):
         return _ChainedStreams(datasets)
     return ConcatDataset(datasets)

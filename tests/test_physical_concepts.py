@@ -1,0 +1,317 @@
+"""DeepMind Physical Concepts reader on GZIP TFRecord shards written with the tfrecord
+package in the released feature layout: CRC checks, decoding, pairing by divergence, the
+DataModule's loaders and metrics, the cache, and every bad-input error."""
+
+import gzip
+import struct
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from tfrecord.writer import TFRecordWriter
+
+import datamodules.physical_concepts as physical_concepts
+from datamodules.benchmark_data import BenchmarkDataError
+from datamodules.physical_concepts import PhysicalConceptsDataModule, read_records
+
+T, H, W = 15, 64, 64
+#: num_frames=5 of 15 samples frames [0, 4, 7, 10, 14].
+SAMPLED = [0, 4, 7, 10, 14]
+CONCEPTS = ["continuity", "solidity"]
+
+
+def world_video(seed: int, world: str, switch: int | None = None, then: str | None = None):
+    """[15, 64, 64, 3] frames and [15, 64, 64] masks of a world's object; from ``switch`` on,
+    the other world's."""
+    background = np.random.default_rng(seed).integers(0, 100, (H, W, 3), dtype=np.uint8)
+    frames, masks = [], []
+    for t in range(T):
+        current = then if switch is not None and t >= switch else world
+        frame, mask = background.copy(), np.zeros((H, W), np.uint8)
+        frame[t, :, 1] = 250
+        if current == "A":
+            frame[10:20, 10:20], mask[10:20, 10:20] = (255, 0, 0), 1
+        else:
+            frame[40:55, 40:55], mask[40:55, 40:55] = (0, 0, 255), 2
+        frames.append(frame)
+        masks.append(mask)
+    return np.stack(frames), np.stack(masks)
+
+
+def probe_example(seed: int, switch_ab: int, switch_ba: int):
+    """possible = [A, B]; impossible = [B->A, A->B] (partners swapped, so pairing must be
+    recovered); camera of possible video k at frame t = 100 k + t."""
+    pa, pb = world_video(seed, "A"), world_video(seed, "B")
+    iba, iab = world_video(seed, "B", switch_ba, "A"), world_video(seed, "A", switch_ab, "B")
+    camera = np.stack(
+        [np.full((T, 6), 100 * k, np.float32) + np.arange(T)[:, None] for k in range(2)]
+    )
+    return {
+        "possible_image": (np.stack([pa[0], pb[0]]).tobytes(), "byte"),
+        "possible_mask": (np.stack([pa[1], pb[1]]).tobytes(), "byte"),
+        "possible_camera_pose": (camera.ravel().tolist(), "float"),
+        "impossible_image": (np.stack([iba[0], iab[0]]).tobytes(), "byte"),
+        "impossible_mask": (np.stack([iba[1], iab[1]]).tobytes(), "byte"),
+        "impossible_camera_pose": ((camera + 0.5).ravel().tolist(), "float"),
+    }
+
+
+def freeform_example(seed: int):
+    frames, masks = world_video(seed, "A")
+    camera = np.full((T, 6), seed, np.float32) + np.arange(T)[:, None]
+    return {
+        "image": (frames.tobytes(), "byte"),
+        "mask": (masks.tobytes(), "byte"),
+        "camera_pose": (camera.ravel().tolist(), "float"),
+    }
+
+
+def write_shard(
+    path: Path, examples, corrupt_record: int | None = None, truncate: int | None = None
+):
+    """A GZIP-compressed TFRecord file written with the tfrecord package's writer."""
+    with tempfile.TemporaryDirectory() as scratch:
+        plain = Path(scratch) / "plain.tfrecord"
+        writer = TFRecordWriter(str(plain))
+        for example in examples:
+            writer.write(example)
+        writer.close()
+        data = bytearray(plain.read_bytes())
+    if corrupt_record is not None:  # flip a payload byte of that record
+        offset = 0
+        for _ in range(corrupt_record):
+            offset += 16 + struct.unpack("<Q", data[offset : offset + 8])[0]
+        data[offset + 12 + 20] ^= 0xFF
+    compressed = gzip.compress(bytes(data))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(compressed[:truncate] if truncate else compressed)
+
+
+#: (A->B switch, B->A switch) per probe record, per concept shard.
+SWITCHES = [(6, 9), (3, 12)]
+
+
+def make_dataset(root: Path) -> Path:
+    for shard in range(2):
+        write_shard(
+            root / "freeform" / "train" / f"data.tfrecord-{shard:05d}-of-00002",
+            [freeform_example(10 * shard + k) for k in range(3)],
+        )
+    write_shard(root / "freeform" / "test" / "data.tfrecord-00000-of-00001", [freeform_example(99)])
+    for concept in CONCEPTS:
+        for shard in range(2):
+            write_shard(
+                root / "probes" / concept / f"data.tfrecord-{shard:05d}-of-00002",
+                [probe_example(20 * shard + k, *SWITCHES[k]) for k in range(2)],
+            )
+    return root
+
+
+@pytest.fixture(scope="module")
+def dataset_root(tmp_path_factory):
+    return make_dataset(tmp_path_factory.mktemp("physical_concepts"))
+
+
+def datamodule(root, **options):
+    settings = dict(
+        root=str(root),
+        concepts=CONCEPTS,
+        num_frames=5,
+        height=32,
+        width=32,
+        batch_size=2,
+        probe_batch_size=4,
+        val_quadruplets_per_concept=1,
+        shuffle_buffer=4,
+    )
+    settings.update(options)
+    return PhysicalConceptsDataModule(**settings)
+
+
+def first_sampled_at_or_after(frame: int) -> int:
+    return next(k for k, source in enumerate(SAMPLED) if source >= frame)
+
+
+def test_records_are_read_with_both_checksums_verified(tmp_path):
+    path = tmp_path / "data.tfrecord-00000-of-00001"
+    write_shard(path, [freeform_example(k) for k in range(3)])
+    assert len(list(read_records(path))) == 3
+    write_shard(path, [freeform_example(k) for k in range(3)], corrupt_record=1)
+    with pytest.raises(
+        BenchmarkDataError,
+        match=r"data\.tfrecord-00000-of-00001: record 1: payload checksum mismatch",
+    ):
+        list(read_records(path))
+    skipped = []
+    assert len(list(read_records(path, skip=skipped.append))) == 2
+    assert [e.reason for e in skipped] == ["bad_crc"]
+    write_shard(path, [freeform_example(k) for k in range(3)], truncate=-200)
+    with pytest.raises(BenchmarkDataError, match=r"data\.tfrecord-00000-of-00001: truncated"):
+        list(read_records(path))
+
+
+def test_freeform_training_clips_stream_with_spec_shapes(dataset_root):
+    dm = datamodule(dataset_root)
+    dm.setup("fit")
+    clips = torch.cat(list(dm.train_dataloader()))
+    assert clips.batch_size == torch.Size([6])  # 2 shards x 3 records, batches of 2
+    assert sorted(clips["seed"].tolist()) == [0, 1, 2, 1_000_000, 1_000_001, 1_000_002]
+    for clip in clips:
+        assert dm.clip_spec().is_in(clip)
+        assert dm.concept_names[int(clip["concept"])] == "freeform"
+    assert clips["frames"].shape == (6, 5, 32, 32, 3) and clips["mask"].shape == (6, 5, 32, 32)
+    seed = int(clips["seed"][0])
+    source = 10 * (seed // 1_000_000) + seed % 1_000_000
+    assert clips["camera"][0, :, 0].tolist() == [source + t for t in SAMPLED]
+    assert set(clips["mask"].unique().tolist()) == {0, 1}  # nearest resizing keeps ids
+
+
+def test_probe_quadruplets_become_pairs_recovered_from_divergence(dataset_root):
+    dm = datamodule(dataset_root)
+    dm.setup("test")
+    probes = torch.cat(list(dm.test_dataloader()))
+    assert probes.batch_size == torch.Size([16])  # 2 concepts x 2 shards x 2 records x 2 pairs
+    assert probes["consistent", "frames"].shape == (16, 5, 32, 32, 3)
+    for probe in probes:
+        assert dm.probe_spec().is_in(probe)
+        record = int(probe["seed"]) // 2 % 1_000_000
+        pair = int(probe["seed"]) % 2
+        switch_ab, switch_ba = SWITCHES[record]
+        # pair 0: possible A with impossible A->B; pair 1: possible B with impossible B->A
+        expected = first_sampled_at_or_after(switch_ab if pair == 0 else switch_ba)
+        m = int(probe["manipulation_frame"])
+        assert m == expected
+        con, inc = probe["consistent", "frames"], probe["inconsistent", "frames"]
+        assert torch.equal(con[:m], inc[:m]) and not torch.equal(con[m], inc[m])
+        assert probe["camera"][:, 0].tolist() == [100 * pair + t for t in SAMPLED]
+        assert set(probe["consistent", "mask"].unique().tolist()) == {0, 1 + pair}
+    assert [dm.concept_names[c] for c in probes["concept"].unique().tolist()] == CONCEPTS
+    assert dm.probe_cases() == [("continuity", "standard"), ("solidity", "standard")]
+    validation = torch.cat(list(dm.val_dataloader()))
+    assert validation.batch_size == torch.Size([4])  # 1 quadruplet per concept
+
+
+def test_benchmark_metrics_per_concept_from_probe_outputs(dataset_root):
+    dm = datamodule(dataset_root)
+    dm.setup("test")
+    probes = torch.cat(list(dm.test_dataloader()))
+    solidity = probes["concept"] == 1
+    # continuity: impossible always more surprising; solidity: possible more surprising
+    impossible = torch.where(solidity, 1.0, 3.0)[:, None].expand(-1, 5)
+    outputs = {
+        "concept": probes["concept"],
+        "seed": probes["seed"],
+        "surprise_consistent": torch.full((16, 5), 2.0),
+        "surprise_inconsistent": impossible,
+    }
+    metrics = dm.benchmark_metrics(outputs, bootstrap=0)
+    assert metrics["metrics"]["continuity"]["all"]["relative_error_rate"] == 0.0
+    assert metrics["metrics"]["continuity"]["all"]["auroc"] == 1.0
+    assert metrics["metrics"]["continuity"]["all"]["n_quadruplets"] == 4
+    assert metrics["metrics"]["solidity"]["all"]["relative_error_rate"] == 1.0
+    assert metrics["metrics"]["solidity"]["all"]["absolute_error_rate"] == 1.0
+    assert metrics["incomplete_quadruplets"] == 0 and metrics["skipped"] == {}
+
+
+def test_cache_serves_the_same_records_without_reading_tfrecords(
+    dataset_root, tmp_path, monkeypatch
+):
+    first = datamodule(dataset_root, cache_dir=str(tmp_path / "cache"))
+    first.setup("fit")
+    first.setup("test")
+    expected = torch.cat(list(first.test_dataloader()))
+    streamed = torch.cat(list(datamodule(dataset_root).test_dataloader()))
+    assert (expected == streamed).all()
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("read a TFRecord although the cache is complete")
+
+    monkeypatch.setattr(physical_concepts, "read_records", refuse)
+    second = datamodule(dataset_root, cache_dir=str(tmp_path / "cache"))
+    second.setup("fit")
+    second.setup("test")
+    assert (torch.cat(list(second.test_dataloader())) == expected).all()
+    clips = torch.cat(list(second.train_dataloader()))
+    assert sorted(clips["seed"].tolist()) == [0, 1, 2, 1_000_000, 1_000_001, 1_000_002]
+    assert torch.cat(list(second.val_dataloader())).batch_size == torch.Size([4])
+
+
+def corrupt_crc(root):
+    path = root / "probes" / "solidity" / "data.tfrecord-00001-of-00002"
+    write_shard(path, [probe_example(20 + k, *SWITCHES[k]) for k in range(2)], corrupt_record=0)
+    return (
+        r"solidity/data\.tfrecord-00001-of-00002: record 0: payload checksum mismatch",
+        "bad_crc",
+        14,
+    )
+
+
+def truncate_shard(root):
+    path = root / "probes" / "continuity" / "data.tfrecord-00000-of-00002"
+    write_shard(path, [probe_example(k, *SWITCHES[k]) for k in range(2)], truncate=-5000)
+    return r"continuity/data\.tfrecord-00000-of-00002: truncated", "truncated", 14
+
+
+def wrong_byte_count(root):
+    example = probe_example(20, *SWITCHES[0])
+    example["possible_image"] = (example["possible_image"][0][:-64], "byte")
+    path = root / "probes" / "continuity" / "data.tfrecord-00001-of-00002"
+    write_shard(path, [example, probe_example(21, *SWITCHES[1])])
+    return (
+        r"continuity/data\.tfrecord-00001-of-00002, record 0: feature 'possible_image' holds 368576 "
+        r"bytes, expected 368640 bytes \(uint8 \[2, 15, 64, 64, 3\]\)",
+        "wrong_byte_count",
+        14,
+    )
+
+
+def missing_shard(root):
+    (root / "probes" / "solidity" / "data.tfrecord-00000-of-00002").unlink()
+    return (
+        r"missing shard .*solidity/data\.tfrecord-00000-of-00002; expected 2 shards",
+        "missing_shard",
+        12,
+    )
+
+
+@pytest.mark.parametrize("breakage", [corrupt_crc, truncate_shard, wrong_byte_count, missing_shard])
+def test_bad_input_raises_naming_the_file_or_is_skipped_and_counted_when_lenient(
+    dataset_root, tmp_path, breakage
+):
+    import shutil
+
+    root = tmp_path / "data"
+    shutil.copytree(dataset_root, root)
+    message, reason, remaining = breakage(root)
+    with pytest.raises(BenchmarkDataError, match=message):
+        dm = datamodule(root)
+        dm.setup("test")
+        list(dm.test_dataloader())
+    lenient = datamodule(root, lenient=True)
+    lenient.setup("test")
+    assert len(torch.cat(list(lenient.test_dataloader()))) == remaining
+    assert lenient.skipped == {reason: 1}
+
+
+def test_lenient_counts_survive_in_the_cache(dataset_root, tmp_path):
+    import shutil
+
+    root = tmp_path / "data"
+    shutil.copytree(dataset_root, root)
+    corrupt_crc(root)
+    for _ in range(2):  # build, then reuse
+        dm = datamodule(root, lenient=True, cache_dir=str(tmp_path / "cache"))
+        dm.setup("test")
+        assert len(torch.cat(list(dm.test_dataloader()))) == 14
+        assert dm.skipped == {"bad_crc": 1}
+
+
+def test_bad_arguments_name_the_valid_choices(tmp_path):
+    with pytest.raises(ValueError, match="valid concepts are: continuity, solidity"):
+        datamodule(tmp_path, concepts=["gravity"])
+    with pytest.raises(ValueError, match="cannot take 20 frames from movies of 15 frames"):
+        datamodule(tmp_path, num_frames=20)
+    with pytest.raises(FileNotFoundError, match="no folder .*probes/continuity"):
+        datamodule(tmp_path).setup("test")
