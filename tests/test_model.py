@@ -1,0 +1,244 @@
+"""The VRNN-LRU model: shapes, gradients, the analytic KL, deterministic surprise, learning on a
+tiny batch, the NaN guard, the probe interface, and bf16 autocast (all at 32x32, T=4-5)."""
+
+import pytest
+import torch
+from lightning.pytorch import Trainer
+from tensordict import TensorDict
+from torch.distributions import Independent, Normal, kl_divergence
+from torch.utils.data import DataLoader
+
+from voe_lightning import specs
+from voe_lightning.model import Decoder, Encoder, VOEModel, gaussian_kl, standard_normal_kl
+
+B, T, H, W = 2, 4, 32, 32
+TINY = dict(
+    image_size=(H, W),
+    latent_size=8,
+    mlp_sizes=(16, 16),
+    memory_slots=5,
+    memory_slot_size=6,
+    memory_read_heads=2,
+    controller_size=12,
+    encoder_blocks=3,
+    encoder_channels=(4, 4, 8),
+    encoder_mlp_size=20,
+)
+
+
+def tiny_model(**overrides) -> VOEModel:
+    torch.manual_seed(0)
+    return VOEModel(**{**TINY, **overrides})
+
+
+def frames(batch=B, steps=T, seed=0) -> torch.Tensor:
+    generator = torch.Generator().manual_seed(seed)
+    return torch.randint(0, 256, (batch, steps, H, W, 3), dtype=torch.uint8, generator=generator)
+
+
+def test_encoder_decoder_shapes_fold_time():
+    encoder = Encoder((H, W), num_blocks=3, channels=(4, 4, 8), mlp_size=20)
+    decoder = Decoder(8, (H, W), num_blocks=3, channels=(4, 4, 8), mlp_size=20)
+    assert encoder(torch.rand(B, T, 3, H, W)).shape == (B, T, 20)
+    assert decoder(torch.randn(B, T, 8)).shape == (B, T, 3, H, W)
+    assert Encoder((64, 48), num_blocks=4, channels=(4, 4, 8), mlp_size=5)(
+        torch.rand(7, 3, 64, 48)
+    ).shape == (7, 5)
+    with pytest.raises(ValueError, match="divisible by 2\\*\\*num_blocks = 64"):
+        Encoder((32, 32), num_blocks=6)
+
+
+def test_encoder_feeds_contiguous_frames_to_its_convolutions():
+    # Guards the workaround for a oneDNN segfault on channels-last 3-channel input (networks.py).
+    encoder = Encoder((H, W), num_blocks=3, channels=(4, 4, 8), mlp_size=20)
+    seen = []
+    encoder.blocks[0].register_forward_pre_hook(lambda _, args: seen.append(args[0].is_contiguous()))
+    encoder(specs.to_model_input(frames()))
+    assert seen == [True]
+
+
+def test_forward_shapes_and_memory_trajectory():
+    model = tiny_model()
+    x = specs.to_model_input(frames())
+    output, logits = model(x)
+    assert logits.shape == (B, T, 3, H, W)
+    for name in ("prior_mean", "prior_log_std", "posterior_mean", "posterior_log_std", "z"):
+        assert getattr(output, name).shape == (B, T, 8), name
+    assert output.kl.shape == (B, T)
+    assert output.memory.shape == (B, T, 5 * 6)
+    assert output.reads.shape == (B, T, 6)
+    assert output.prior_log_std.abs().max() <= 10
+    # The first step reads an empty memory, so its prior is the same for every video.
+    torch.testing.assert_close(output.prior_mean[0, 0], output.prior_mean[1, 0])
+
+
+def test_gradients_reach_every_parameter():
+    model = tiny_model()
+    terms = model._step(TensorDict(frames=frames(), batch_size=[B]))
+    terms["loss"].backward()
+    for name, parameter in model.named_parameters():
+        assert parameter.grad is not None, name
+        assert parameter.grad.abs().sum() > 0, name
+
+
+def test_kl_matches_torch_distributions_and_is_non_negative():
+    generator = torch.Generator().manual_seed(3)
+    mean_q, log_std_q, mean_p, log_std_p = torch.randn(4, 3, 7, generator=generator)
+    q = Independent(Normal(mean_q, log_std_q.exp()), 1)
+    p = Independent(Normal(mean_p, log_std_p.exp()), 1)
+    torch.testing.assert_close(gaussian_kl(mean_q, log_std_q, mean_p, log_std_p), kl_divergence(q, p))
+    standard = Independent(Normal(torch.zeros(3, 7), torch.ones(3, 7)), 1)
+    torch.testing.assert_close(standard_normal_kl(mean_p, log_std_p), kl_divergence(p, standard))
+    torch.testing.assert_close(gaussian_kl(mean_q, log_std_q, mean_q, log_std_q), torch.zeros(3))
+    output, _ = tiny_model()(specs.to_model_input(frames()))
+    assert (output.kl >= 0).all()
+    expected = kl_divergence(
+        Independent(Normal(output.posterior_mean, output.posterior_log_std.exp()), 1),
+        Independent(Normal(output.prior_mean, output.prior_log_std.exp()), 1),
+    )
+    torch.testing.assert_close(output.kl, expected)
+
+
+def test_surprise_is_deterministic_per_frame_kl():
+    model = tiny_model()
+    video = frames()
+    surprise = model.surprise(video)
+    assert surprise.shape == (B, T) and surprise.dtype == torch.float32
+    assert not surprise.requires_grad
+    torch.testing.assert_close(model.surprise(video), surprise, rtol=0, atol=0)
+    # A row's surprise does not depend on the rest of the batch.
+    torch.testing.assert_close(model.surprise(video[1:]), surprise[1:], rtol=1e-5, atol=1e-5)
+    # Deterministic mode equals a rollout fed with posterior means.
+    expected = model.rollout(specs.to_model_input(video), deterministic=True).kl
+    torch.testing.assert_close(surprise, expected)
+    # Sampled surprise differs, and is reproducible with a seeded generator.
+    sampled = model.surprise(video, deterministic=False, generator=torch.Generator().manual_seed(5))
+    again = model.surprise(video, deterministic=False, generator=torch.Generator().manual_seed(5))
+    torch.testing.assert_close(sampled, again, rtol=0, atol=0)
+    assert not torch.allclose(sampled, surprise)
+
+
+def test_loss_decreases_on_a_fixed_batch():
+    model = tiny_model(learning_rate=3e-3)
+    # Simple structured frames: a bright square moving right on a dark floor.
+    video = torch.zeros(B, T, H, W, 3, dtype=torch.uint8)
+    for t in range(T):
+        video[:, t, 10:18, 4 + 5 * t : 12 + 5 * t] = 255
+    batch = TensorDict(frames=video, batch_size=[B])
+    optimizer = model.configure_optimizers()
+    torch.manual_seed(1)
+    losses = []
+    for _ in range(25):
+        optimizer.zero_grad()
+        loss = model._step(batch)["loss"]
+        loss.backward()
+        optimizer.step()
+        losses.append(loss.item())
+    assert sum(losses[-5:]) / 5 < 0.7 * sum(losses[:5]) / 5, losses
+
+
+class _Clips(torch.utils.data.Dataset):
+    def __init__(self, count: int):
+        self.records = [TensorDict(frames=frames(1, seed=i)[0], batch_size=[]) for i in range(count)]
+
+    def __len__(self):
+        return len(self.records)
+
+    def __getitem__(self, index):
+        return self.records[index]
+
+
+def test_nan_loss_stops_training_naming_step_and_term(tmp_path):
+    model = tiny_model()
+    with torch.no_grad():
+        model.decoder.logits[0].bias.fill_(float("nan"))  # only the reconstruction term breaks
+    loader = DataLoader(_Clips(4), batch_size=2, collate_fn=torch.stack)
+    trainer = Trainer(
+        max_steps=2, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+        enable_model_summary=False, default_root_dir=tmp_path, accelerator="cpu",
+    )
+    with pytest.raises(FloatingPointError, match="global step 0: reconstruction=nan \\(") as error:
+        trainer.fit(model, loader)
+    assert "kl=nan" not in str(error.value)
+
+
+def test_training_logs_loss_terms(tmp_path):
+    model = tiny_model()
+    loader = DataLoader(_Clips(4), batch_size=2, collate_fn=torch.stack)
+    trainer = Trainer(
+        max_steps=2, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+        enable_model_summary=False, default_root_dir=tmp_path, accelerator="cpu",
+    )
+    trainer.fit(model, loader)
+    logged = trainer.callback_metrics
+    for name in ("train/loss", "train/reconstruction", "train/kl", "train/prior_regularizer"):
+        assert torch.isfinite(logged[name]), name
+    torch.testing.assert_close(
+        logged["train/loss"],
+        logged["train/reconstruction"] + logged["train/kl"] + logged["train/prior_regularizer"],
+    )
+
+
+def test_probe_step_on_a_spec_batch():
+    model = tiny_model()
+    torch.manual_seed(4)
+    batch = specs.probe_spec(T, H, W).expand(3).rand()
+    result = model.probe_step(batch)
+    assert set(result) == {
+        "concept", "variant", "seed", "manipulation_frame",
+        "surprise_consistent", "surprise_inconsistent",
+    }
+    for key in ("concept", "variant", "seed", "manipulation_frame"):
+        assert torch.equal(result[key], batch[key])
+    assert result["surprise_consistent"].shape == (3, T)
+    assert result["surprise_inconsistent"].shape == (3, T)
+    torch.testing.assert_close(
+        result["surprise_inconsistent"], model.surprise(batch["inconsistent", "frames"])
+    )
+    test_result = model.test_step(batch, 0)
+    torch.testing.assert_close(test_result["surprise_consistent"], result["surprise_consistent"])
+
+
+def test_expected_frames_and_trajectories():
+    model = tiny_model()
+    video = frames()
+    expected = model.expected_frames(video)
+    assert expected.shape == (B, T, 3, H, W)
+    assert (expected >= 0).all() and (expected <= 1).all()
+    # The first expectation precedes any observation: identical for every video.
+    torch.testing.assert_close(expected[0, 0], expected[1, 0])
+    trajectories = model.trajectories(video)
+    assert trajectories["prior"].shape == (B, T, 16)
+    assert trajectories["memory"].shape == (B, T, 30)
+
+
+def test_bf16_autocast_keeps_kl_in_float32():
+    model = tiny_model()
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        terms = model._step(TensorDict(frames=frames(), batch_size=[B]))
+        surprise = model.surprise(frames())
+    assert surprise.dtype == torch.float32 and torch.isfinite(surprise).all()
+    assert all(torch.isfinite(value) and value.dtype == torch.float32 for value in terms.values())
+    terms["loss"].backward()
+
+
+def test_bad_input_is_refused_clearly():
+    model = tiny_model()
+    with pytest.raises(ValueError, match="\\[B, T, 32, 32, 3\\].*\\(2, 4, 16, 16, 3\\)"):
+        model.surprise(torch.zeros(2, 4, 16, 16, 3, dtype=torch.uint8))
+    with pytest.raises(TypeError, match="uint8"):
+        model.surprise(torch.zeros(2, 4, 32, 32, 3))
+    with pytest.raises(ValueError, match="head_mixing 'max'"):
+        tiny_model(head_mixing="max")
+    with pytest.raises(ValueError, match="learning_rate"):
+        tiny_model(learning_rate=0.0)
+
+
+def test_hyperparameters_are_saved():
+    model = tiny_model(learning_rate=1e-3)
+    assert model.hparams.learning_rate == 1e-3
+    assert model.hparams.latent_size == 8
+    defaults = VOEModel()
+    assert defaults.hparams.learning_rate == 5e-6
+    assert defaults.core.latent_size == 256
+    assert defaults.core.memory.num_slots == 15 and defaults.core.memory.slot_size == 100

@@ -1,0 +1,246 @@
+"""The VRNN-LRU video model as a LightningModule: training loss (DESIGN.md §5), surprise as
+per-frame KL(posterior || prior) (§6), and the probe, expectation and trajectory views the
+callbacks, reports and notebooks use."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+import torch.nn.functional as F
+from lightning.pytorch import LightningModule
+from tensordict import TensorDictBase
+
+from voe_lightning import specs
+from voe_lightning.model.memory import LRUMemory
+from voe_lightning.model.networks import Decoder, Encoder
+from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, standard_normal_kl
+
+LOSS_TERMS = ("reconstruction", "kl", "prior_regularizer")
+
+
+class VOEModel(LightningModule):
+    """VRNN with an LRU external memory (Piloto et al. 2018 §4, Gemici et al. 2017).
+
+    Defaults are the paper's sizes; ``configs/quickstart.yaml`` shrinks them for a CPU.
+
+    Args:
+        image_size: (H, W) of the frames; both divisible by ``2**encoder_blocks``.
+        latent_size: Gaussian latents per frame (paper: 256).
+        mlp_sizes: hidden layers of the prior and posterior maps (paper: 512, 512).
+        memory_slots, memory_slot_size, memory_read_heads, controller_size: LRU memory (paper:
+            15 slots x 100 units, 3 read heads, 128-unit LSTM controller).
+        usage_decay: gamma of the LRU usage (0.95).
+        head_mixing, write_content, controller_sees_read: the memory's open choices, see
+            :class:`~voe_lightning.model.memory.LRUMemory`.
+        encoder_blocks, encoder_channels, encoder_mlp_size: encoder (and mirrored decoder):
+            stride-2 bottleneck blocks (paper: 6 of 64, 64, 128 channels) and MLP (paper: 500).
+        prior_regularizer_weight: weight of sum_t KL(prior_t || N(0, I)) (paper: 1e-4).
+        learning_rate, adam_betas: Adam (paper: lr 5e-6).
+        compile_model: ``torch.compile`` the encoder, decoder and recurrent core in place.
+    """
+
+    def __init__(
+        self,
+        image_size: tuple[int, int] = (specs.HEIGHT, specs.WIDTH),
+        latent_size: int = 256,
+        mlp_sizes: Sequence[int] = (512, 512),
+        memory_slots: int = 15,
+        memory_slot_size: int = 100,
+        memory_read_heads: int = 3,
+        controller_size: int = 128,
+        usage_decay: float = 0.95,
+        head_mixing: str = "controller",
+        write_content: str = "projection",
+        controller_sees_read: bool = True,
+        encoder_blocks: int = 6,
+        encoder_channels: Sequence[int] = (64, 64, 128),
+        encoder_mlp_size: int = 500,
+        prior_regularizer_weight: float = 1e-4,
+        learning_rate: float = 5e-6,
+        adam_betas: tuple[float, float] = (0.9, 0.999),
+        compile_model: bool = False,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        if learning_rate <= 0:
+            raise ValueError(f"learning_rate must be positive, got {learning_rate}")
+        if prior_regularizer_weight < 0:
+            raise ValueError(
+                f"prior_regularizer_weight must be non-negative, got {prior_regularizer_weight}"
+            )
+        self.image_size = (int(image_size[0]), int(image_size[1]))
+        self.encoder = Encoder(self.image_size, encoder_blocks, encoder_channels, encoder_mlp_size)
+        self.decoder = Decoder(
+            latent_size, self.image_size, encoder_blocks, encoder_channels, encoder_mlp_size
+        )
+        memory = LRUMemory(
+            latent_size,
+            num_slots=memory_slots,
+            slot_size=memory_slot_size,
+            num_read_heads=memory_read_heads,
+            controller_size=controller_size,
+            gamma=usage_decay,
+            head_mixing=head_mixing,
+            write_content=write_content,
+            controller_sees_read=controller_sees_read,
+        )
+        self.core = VRNNCore(self.encoder.output_size, latent_size, memory, mlp_sizes)
+        if compile_model:
+            for network in (self.encoder, self.decoder, self.core):
+                network.compile()
+
+    # ----------------------------------------------------------------------------- inputs
+    def _model_input(self, frames: torch.Tensor) -> torch.Tensor:
+        """uint8 [B, T, H, W, 3] -> float [B, T, 3, H, W] on this module's device."""
+        if not isinstance(frames, torch.Tensor):
+            raise TypeError(f"frames must be a uint8 tensor [B, T, H, W, 3], got {type(frames)}")
+        expected = (*self.image_size, 3)
+        if frames.dim() != 5 or tuple(frames.shape[-3:]) != expected:
+            raise ValueError(
+                f"frames must be shaped [B, T, {expected[0]}, {expected[1]}, 3] for this model "
+                f"(image_size={self.image_size}), got {tuple(frames.shape)}"
+            )
+        return specs.to_model_input(frames.to(self.device))
+
+    @staticmethod
+    def _frames_of(batch: TensorDictBase | dict) -> torch.Tensor:
+        if "frames" not in batch.keys():
+            raise KeyError(f"a training batch needs 'frames' (uint8 [B,T,H,W,3]); got keys {list(batch.keys())}")
+        return batch["frames"]
+
+    # ----------------------------------------------------------------------------- model
+    def rollout(
+        self, x: torch.Tensor, deterministic: bool = False, generator: torch.Generator | None = None
+    ) -> VRNNOutput:
+        """Encode all frames at once, then step the recurrent core through time."""
+        return self.core(self.encoder(x), deterministic=deterministic, generator=generator)
+
+    def forward(
+        self, x: torch.Tensor, deterministic: bool = False, generator: torch.Generator | None = None
+    ) -> tuple[VRNNOutput, torch.Tensor]:
+        """Model input [B, T, 3, H, W] in [0, 1] -> (rollout, Bernoulli logits [B, T, 3, H, W])."""
+        output = self.rollout(x, deterministic=deterministic, generator=generator)
+        return output, self.decoder(output.z)
+
+    def loss_terms(self, x: torch.Tensor, output: VRNNOutput, logits: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Per-sequence loss terms averaged over the batch (float32): reconstruction =
+        sum_t,pixels BCE; kl = sum_t KL(post || prior); prior_regularizer = weight *
+        sum_t KL(prior || N(0, I)); loss = their sum."""
+        batch = x.shape[0]
+        reconstruction = (
+            F.binary_cross_entropy_with_logits(logits.float(), x.float(), reduction="sum") / batch
+        )
+        kl = output.kl.sum(dim=1).mean()
+        prior_regularizer = self.hparams.prior_regularizer_weight * (
+            standard_normal_kl(output.prior_mean, output.prior_log_std).sum(dim=1).mean()
+        )
+        return {
+            "loss": reconstruction + kl + prior_regularizer,
+            "reconstruction": reconstruction,
+            "kl": kl,
+            "prior_regularizer": prior_regularizer,
+        }
+
+    def _step(self, batch: TensorDictBase | dict) -> dict[str, torch.Tensor]:
+        x = self._model_input(self._frames_of(batch))
+        output, logits = self(x)
+        terms = self.loss_terms(x, output, logits)
+        self._check_finite(terms)
+        return terms
+
+    def _check_finite(self, terms: dict[str, torch.Tensor]) -> None:
+        """Stop training on a NaN/inf loss, naming the step and the offending term(s)."""
+        values = torch.stack([terms[name].detach() for name in LOSS_TERMS])
+        if not bool(torch.isfinite(values).all()):
+            bad = ", ".join(
+                f"{name}={value:.4g}"
+                for name, value in zip(LOSS_TERMS, values.tolist())
+                if not math.isfinite(value)
+            )
+            raise FloatingPointError(
+                f"non-finite loss at global step {self.global_step}: {bad} "
+                f"(all terms: {dict(zip(LOSS_TERMS, values.tolist()))}); stopping before a "
+                "garbage checkpoint is written. Try a lower learning_rate or float32 precision."
+            )
+
+    def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
+        terms = self._step(batch)
+        batch_size = self._frames_of(batch).shape[0]
+        self.log("train/loss", terms["loss"], prog_bar=True, batch_size=batch_size)
+        for name in LOSS_TERMS:
+            self.log(f"train/{name}", terms[name], batch_size=batch_size)
+        return terms["loss"]
+
+    # ----------------------------------------------------------------------------- surprise
+    @torch.no_grad()
+    def surprise(
+        self,
+        frames: torch.Tensor,
+        deterministic: bool = True,
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
+        """Per-frame surprise KL(posterior_t || prior_t) [B, T] (float32) of uint8 videos
+        [B, T, H, W, 3]; deterministic (posterior means fed back) unless asked otherwise."""
+        x = self._model_input(frames)
+        return self.rollout(x, deterministic=deterministic, generator=generator).kl
+
+    def probe_step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """Surprise of both videos of each probe pair (one pass: rows never interact)."""
+        consistent = batch["consistent", "frames"]
+        inconsistent = batch["inconsistent", "frames"]
+        surprise = self.surprise(torch.cat([consistent, inconsistent], dim=0))
+        surprise_consistent, surprise_inconsistent = surprise.split(consistent.shape[0], dim=0)
+        return {
+            "concept": batch["concept"],
+            "variant": batch["variant"],
+            "seed": batch["seed"],
+            "manipulation_frame": batch["manipulation_frame"],
+            "surprise_consistent": surprise_consistent,
+            "surprise_inconsistent": surprise_inconsistent,
+        }
+
+    def validation_step(
+        self, batch: TensorDictBase, batch_idx: int, dataloader_idx: int = 0
+    ) -> dict[str, torch.Tensor]:
+        """Probe surprise for the callbacks; logs ``val/kl``, the mean per-video surprise of
+        the consistent probes (a plain held-out number to monitor)."""
+        result = self.probe_step(batch)
+        consistent = result["surprise_consistent"]
+        self.log(
+            "val/kl",
+            consistent.sum(dim=1).mean(),
+            batch_size=consistent.shape[0],
+            add_dataloader_idx=False,
+        )
+        return result
+
+    def test_step(
+        self, batch: TensorDictBase, batch_idx: int, dataloader_idx: int = 0
+    ) -> dict[str, torch.Tensor]:
+        """Probe surprise for the callbacks (logs nothing itself)."""
+        return self.probe_step(batch)
+
+    @torch.no_grad()
+    def expected_frames(self, frames: torch.Tensor) -> torch.Tensor:
+        """What the model expected each frame to be given the previous ones (paper Figure 5):
+        sigmoid(decoder(prior mean)) [B, T, 3, H, W], deterministic rollout."""
+        output = self.rollout(self._model_input(frames), deterministic=True)
+        return torch.sigmoid(self.decoder(output.prior_mean).float())
+
+    @torch.no_grad()
+    def trajectories(self, frames: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Time courses for t-SNE (paper Appendix B): ``prior`` [B, T, 2Z] (mean then log-std)
+        and ``memory`` [B, T, slots * units] after each step's write, deterministic rollout."""
+        output = self.rollout(self._model_input(frames), deterministic=True)
+        return {
+            "prior": torch.cat([output.prior_mean, output.prior_log_std], dim=-1),
+            "memory": output.memory,
+        }
+
+    # ----------------------------------------------------------------------------- optimizer
+    def configure_optimizers(self) -> torch.optim.Optimizer:
+        return torch.optim.Adam(
+            self.parameters(), lr=self.hparams.learning_rate, betas=tuple(self.hparams.adam_betas)
+        )

@@ -1,0 +1,160 @@
+"""The recurrent core of the VRNN-LRU (paper §4, DESIGN.md §5): per time step a controller read
+of the LRU memory, a prior map from the read, a posterior map that corrects the prior with the
+encoded frame, a latent sample, and a memory write. Only this core loops over time."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from voe_lightning.model.memory import LRUMemory
+
+#: Log standard deviations are clipped to this range (paper §4).
+LOG_STD_LIMIT = 10.0
+
+
+def gaussian_kl(
+    mean_q: torch.Tensor, log_std_q: torch.Tensor, mean_p: torch.Tensor, log_std_p: torch.Tensor
+) -> torch.Tensor:
+    """Analytic KL(q || p) of diagonal Gaussians, summed over the last dim, in float32."""
+    mean_q, log_std_q, mean_p, log_std_p = (
+        x.float() for x in (mean_q, log_std_q, mean_p, log_std_p)
+    )
+    variance_ratio = torch.exp(2.0 * (log_std_q - log_std_p))
+    mahalanobis = (mean_q - mean_p).square() * torch.exp(-2.0 * log_std_p)
+    return (log_std_p - log_std_q + 0.5 * (variance_ratio + mahalanobis - 1.0)).sum(-1)
+
+
+def standard_normal_kl(mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
+    """Analytic KL(N(mean, exp(log_std)^2) || N(0, I)) summed over the last dim, in float32."""
+    mean, log_std = mean.float(), log_std.float()
+    return (-log_std + 0.5 * (torch.exp(2.0 * log_std) + mean.square() - 1.0)).sum(-1)
+
+
+def mlp(input_size: int, hidden_sizes: Sequence[int], output_size: int) -> nn.Sequential:
+    """Linear layers with tanh between them (the paper's prior and posterior maps)."""
+    layers: list[nn.Module] = []
+    previous = input_size
+    for size in hidden_sizes:
+        layers += [nn.Linear(previous, size), nn.Tanh()]
+        previous = size
+    layers.append(nn.Linear(previous, output_size))
+    return nn.Sequential(*layers)
+
+
+@dataclass
+class VRNNOutput:
+    """Per-step results of a rollout, all batch-first [B, T, ...] (distributions in float32).
+
+    kl is KL(posterior_t || prior_t) summed over latents: the per-frame surprise. memory is the
+    memory matrix after step t's write, flattened (for t-SNE); reads are r_t."""
+
+    prior_mean: torch.Tensor
+    prior_log_std: torch.Tensor
+    posterior_mean: torch.Tensor
+    posterior_log_std: torch.Tensor
+    z: torch.Tensor
+    kl: torch.Tensor
+    memory: torch.Tensor
+    reads: torch.Tensor
+
+
+class VRNNCore(nn.Module):
+    """Steps the VRNN through time given encoded frames [B, T, embedding_size].
+
+    Args:
+        embedding_size: size of the encoder's output.
+        latent_size: Gaussian latents (paper: 256).
+        mlp_sizes: hidden layers of the prior and posterior maps (paper: 512, 512; tanh).
+        memory: the LRU memory (owns the controller); its ``input_size`` must be ``latent_size``.
+    """
+
+    def __init__(
+        self,
+        embedding_size: int,
+        latent_size: int,
+        memory: LRUMemory,
+        mlp_sizes: Sequence[int] = (512, 512),
+    ) -> None:
+        super().__init__()
+        if memory.input_size != latent_size:
+            raise ValueError(
+                f"memory.input_size ({memory.input_size}) must equal latent_size ({latent_size})"
+            )
+        if not mlp_sizes:
+            raise ValueError("mlp_sizes needs at least one hidden layer")
+        self.embedding_size = embedding_size
+        self.latent_size = latent_size
+        self.memory = memory
+        self.prior = mlp(memory.read_size, mlp_sizes, 2 * latent_size)
+        # Posterior correction from [enc(x_t), r_t, prior_t]; the enc(x_t) part of the first
+        # layer is applied to all frames at once before the time loop.
+        self.posterior = mlp(embedding_size + memory.read_size + 2 * latent_size, mlp_sizes, 2 * latent_size)
+
+    def _split(self, stats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        mean, log_std = stats.float().chunk(2, dim=-1)
+        return mean, log_std
+
+    def forward(
+        self,
+        embeddings: torch.Tensor,
+        deterministic: bool = False,
+        generator: torch.Generator | None = None,
+    ) -> VRNNOutput:
+        """Roll out over T steps from ``z_0 = 0`` and an empty memory. ``deterministic`` uses the
+        posterior mean as z_t (for surprise); otherwise z_t is a reparameterized sample (noise
+        from ``generator`` when given)."""
+        batch, steps, _ = embeddings.shape
+        device = embeddings.device
+        first = self.posterior[0]
+        frame_part = F.linear(embeddings, first.weight[:, : self.embedding_size], first.bias)
+        state = self.memory.initial_state(batch, device=device)
+        z = torch.zeros(batch, self.latent_size, device=device)
+        outputs: dict[str, list[torch.Tensor]] = {
+            name: [] for name in ("prior_mean", "prior_log_std", "posterior_mean",
+                                  "posterior_log_std", "z", "memory", "reads")
+        }
+        for t in range(steps):
+            read = self.memory.read(state, z)
+            prior_stats = self.prior(read.read)
+            prior_mean, prior_log_std = self._split(prior_stats)
+            prior_log_std = prior_log_std.clamp(-LOG_STD_LIMIT, LOG_STD_LIMIT)
+            hidden = frame_part[:, t] + F.linear(
+                torch.cat([read.read, prior_mean, prior_log_std], dim=-1).to(frame_part.dtype),
+                first.weight[:, self.embedding_size :],
+            )
+            correction_mean, correction_log_std = self._split(self.posterior[1:](hidden))
+            posterior_mean = prior_mean + correction_mean
+            posterior_log_std = (prior_log_std + correction_log_std).clamp(
+                -LOG_STD_LIMIT, LOG_STD_LIMIT
+            )
+            if deterministic:
+                z = posterior_mean
+            else:
+                noise = torch.randn(
+                    posterior_mean.shape, generator=generator, device=device, dtype=posterior_mean.dtype
+                )
+                z = posterior_mean + torch.exp(posterior_log_std) * noise
+            state = self.memory.write(state, read, z)
+            for name, value in (
+                ("prior_mean", prior_mean),
+                ("prior_log_std", prior_log_std),
+                ("posterior_mean", posterior_mean),
+                ("posterior_log_std", posterior_log_std),
+                ("z", z),
+                ("memory", LRUMemory.flat_memory(state)),
+                ("reads", read.read),
+            ):
+                outputs[name].append(value)
+        stacked = {name: torch.stack(values, dim=1) for name, values in outputs.items()}
+        kl = gaussian_kl(
+            stacked["posterior_mean"],
+            stacked["posterior_log_std"],
+            stacked["prior_mean"],
+            stacked["prior_log_std"],
+        )
+        return VRNNOutput(kl=kl, **stacked)
