@@ -532,39 +532,60 @@ def record_pair_when(
     ready: Callable[[Simulation, int], bool],
     hidden_ids: Sequence[int] = (),
     script: Callable[[Simulation, int], None] | None = None,
+    checks_per_frame: int = 1,
 ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray], int]:
-    """Render a probe pair whose hidden change happens at the first frame where it can, for
-    events whose timing only the physics knows (a plank landing, a block entering a box).
-    Before each frame t >= 1 with ``ready(sim, t)``, a twin is forked and ``manipulate``d (it
-    may return False to decline this frame); t becomes the manipulation frame if none of
-    ``hidden_ids`` shows in either video's frame t. Returns (consistent, inconsistent, t);
-    raises RejectedSample if no frame qualifies."""
+    """Render a probe pair whose hidden change happens as soon as it can, for events whose
+    timing only the physics knows (a plank landing, a block entering a box). At each check
+    (every frame, and ``checks_per_frame - 1`` more times between frames, for brief windows)
+    where ``ready(sim, next_frame)`` holds, a twin is forked and ``manipulate``d (it may return
+    False to decline); the change is kept if none of ``hidden_ids`` shows in either simulation
+    then. The manipulation frame is the first frame rendered after it; ``hidden_ids`` must be
+    unseen there too. Returns (consistent, inconsistent, manipulation_frame); raises
+    RejectedSample if no check succeeds or the change shows at the manipulation frame."""
     video = sim.video
     hidden = set(hidden_ids)
-    frames = np.empty((video.num_frames, video.height, video.width, 3), np.uint8)
-    masks = np.empty((video.num_frames, video.height, video.width), np.uint8)
+    shape = (video.num_frames, video.height, video.width)
+    frames = [np.empty((*shape, 3), np.uint8), np.empty((*shape, 3), np.uint8)]
+    masks = [np.empty(shape, np.uint8), np.empty(shape, np.uint8)]
+    chunks = [len(c) for c in np.array_split(np.arange(video.steps_per_frame), checks_per_frame)]
+    twin: Simulation | None = None
+    manipulation_frame = -1
+
+    def unseen(mask: np.ndarray) -> bool:
+        return not visible_ids(mask) & hidden
+
+    def try_change(next_frame: int, mask: np.ndarray | None) -> Simulation | None:
+        """The manipulated twin, if the change can happen unseen now (``mask``: sim's view)."""
+        if next_frame >= video.num_frames or not ready(sim, next_frame):
+            return None
+        if not unseen(sim.render()[1] if mask is None else mask):
+            return None
+        candidate = sim.fork()
+        if manipulate(candidate) is False or not unseen(candidate.render()[1]):
+            return None
+        return candidate
+
     for t in range(video.num_frames):
-        if script is not None:
-            script(sim, t)
-        frames[t], masks[t] = sim.render()
-        if t >= 1 and not visible_ids(masks[t]) & hidden and ready(sim, t):
-            twin = sim.fork()
-            if manipulate(twin) is not False:
-                twin_frame, twin_mask = twin.render()
-                if not visible_ids(twin_mask) & hidden:
-                    rest = video.num_frames - t - 1
-                    sim.step(video.steps_per_frame)
-                    twin.step(video.steps_per_frame)
-                    consistent_rest = sim.record(rest, script, first_frame=t + 1)
-                    inconsistent_rest = twin.record(rest, script, first_frame=t + 1)
-                    consistent = (
-                        np.concatenate([frames[: t + 1], consistent_rest[0]]),
-                        np.concatenate([masks[: t + 1], consistent_rest[1]]),
-                    )
-                    inconsistent = (
-                        np.concatenate([frames[:t], twin_frame[None], inconsistent_rest[0]]),
-                        np.concatenate([masks[:t], twin_mask[None], inconsistent_rest[1]]),
-                    )
-                    return consistent, inconsistent, t
-        sim.step(video.steps_per_frame)
-    raise RejectedSample("no frame where the hidden change could happen unseen")
+        for branch in (sim, twin):
+            if branch is not None and script is not None:
+                script(branch, t)
+        frames[0][t], masks[0][t] = sim.render()
+        if twin is None and t >= 1:
+            twin = try_change(t, masks[0][t])
+            manipulation_frame = t if twin is not None else -1
+        if twin is None:
+            frames[1][t], masks[1][t] = frames[0][t], masks[0][t]
+        else:
+            frames[1][t], masks[1][t] = twin.render()
+        if t == manipulation_frame and not (unseen(masks[0][t]) and unseen(masks[1][t])):
+            raise RejectedSample("the hidden change shows at the manipulation frame")
+        for index, steps in enumerate(chunks):
+            sim.step(steps)
+            if twin is not None:
+                twin.step(steps)
+            elif index < len(chunks) - 1:
+                twin = try_change(t + 1, None)
+                manipulation_frame = t + 1 if twin is not None else -1
+    if twin is None:
+        raise RejectedSample("no moment where the hidden change could happen unseen")
+    return (frames[0], masks[0]), (frames[1], masks[1]), manipulation_frame

@@ -1,0 +1,278 @@
+"""Object persistence (paper §3, after Baillargeon 1985): a rigid plank falls on an object.
+Consistent probes end with the plank propped up on the object it hides; inconsistent ones end
+with the plank flat, the object removed while the plank hid it. Counterbalanced probes start
+empty: the plank falls flat (consistent) or ends propped on an object that appeared under it
+while hidden (inconsistent). Examples vary object, plank and poses freely; controls drop the
+plank on open floor beside a visible object, or on an empty floor."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+from tensordict import TensorDict
+
+from voe_lightning.scenes import base
+from voe_lightning.scenes.base import CameraPose, RejectedSample, SceneBuilder, VideoOptions
+
+CONCEPT = "object_persistence"
+#: Where an object waits, out of view and touching nothing but the floor, until it appears.
+PARKED_XY = (40.0, 40.0)
+
+
+def _quat(axis: tuple[float, float, float], angle: float) -> np.ndarray:
+    quat = np.empty(4)
+    mujoco.mju_axisAngle2Quat(quat, np.asarray(axis, float), angle)
+    return quat
+
+
+def _compose(*quats: np.ndarray) -> np.ndarray:
+    """The rotation applying the last quaternion first (q1 * q2 * ...)."""
+    result = np.array([1.0, 0.0, 0.0, 0.0])
+    for quat in quats:
+        mujoco.mju_mulQuat(result, result.copy(), quat)
+    return result
+
+
+def _rotate(quat: np.ndarray, vector) -> np.ndarray:
+    out = np.empty(3)
+    mujoco.mju_rotVecQuat(out, np.asarray(vector, float), quat)
+    return out
+
+
+def _draw_object(rng: np.random.Generator, sizes: tuple[float, float]) -> dict:
+    """A sphere (radius) or cube (half side) of random size and yaw."""
+    shape = "sphere" if rng.random() < 0.5 else "box"
+    half = float(rng.uniform(*sizes))
+    return {"shape": shape, "half": half, "yaw": float(rng.uniform(0, np.pi / 2))}
+
+
+def _add_object(builder: SceneBuilder, obj: dict, xy, color: str) -> None:
+    size = [obj["half"]] if obj["shape"] == "sphere" else [obj["half"]] * 3
+    builder.add_primitive(
+        "object",
+        obj["shape"],
+        size,
+        [xy[0], xy[1], obj["half"]],
+        color,
+        quat=base.yaw_quat(obj["yaw"]),
+        density=1500.0,
+        friction=1.5,
+    )
+    if obj["shape"] == "sphere":  # rolling resistance: a propped sphere creeps less
+        geom = builder.spec.geom("object_0")
+        geom.condim = 6
+        geom.friction = [1.5, 0.005, 0.02]
+
+
+def _add_plank(builder: SceneBuilder, half_sizes, center, quat, color: str) -> None:
+    builder.add_primitive(
+        "plank", "box", list(half_sizes), list(center), color, quat=list(quat), friction=2.0
+    )
+
+
+def _colors(rng: np.random.Generator) -> tuple[str, str]:
+    plank, obj = rng.choice(len(base.COLOR_NAMES), size=2, replace=False)
+    return base.COLOR_NAMES[plank], base.COLOR_NAMES[obj]
+
+
+def _plank_lowest_point(sim: base.Simulation) -> float:
+    """Height of the plank's lowest corner above the floor."""
+    geom = sim.data.geom("plank_0")
+    half = sim.model.geom("plank_0").size
+    rotation = geom.xmat.reshape(3, 3)
+    return float(geom.xpos[2] - np.abs(rotation[2]) @ half)
+
+
+def _touching(sim: base.Simulation, first: str, second: str, depth: float = 0.0) -> bool:
+    """Whether geoms ``first`` and ``second`` are in contact (penetrating deeper than ``depth``)."""
+    ids = {sim.model.geom(first).id, sim.model.geom(second).id}
+    contacts = sim.data.contact[: sim.data.ncon]
+    return any({c.geom1, c.geom2} == ids and c.dist < -depth for c in contacts)
+
+
+# --- probes --------------------------------------------------------------------------------------
+
+
+def _probe_layout(rng: np.random.Generator) -> dict:
+    """A probe's geometry: the plank, pitched front-down and facing the camera, drops so that its
+    front edge lands in front of the object and it pivots back to rest on the object, which its
+    sloped underside then hides (the camera looks along the plank from a low elevation). At the
+    start it hangs high enough for the camera to see the object under it."""
+    obj = _draw_object(rng, (0.22, 0.36))
+    if obj["shape"] == "box":
+        obj["half"] *= 0.85
+    half = obj["half"]
+    # The plank covers the object's footprint: corners of a yawed cube reach half * sqrt(2).
+    reach = half * (np.sqrt(2) if obj["shape"] == "box" else 1.0)
+    # Contact at u = ratio * half length from the front edge: behind the plank's middle, so the
+    # plank stays propped, with enough plank beyond it to cover the object.
+    ratio = float(rng.uniform(1.12, 1.35))
+    shortest = max(0.8, (1.6 * reach + 0.1) / (2 - ratio))
+    half_length = float(rng.uniform(shortest, shortest + 0.35))
+    contact = ratio * half_length
+    obj_xy = (float(rng.uniform(-0.4, 0.4)), float(rng.uniform(-0.1, 0.4)))
+    if obj["shape"] == "sphere":
+        front_y = obj_xy[1] - contact
+        rest_pitch = 2 * np.arctan(half / contact)
+    else:
+        front_y = obj_xy[1] - reach - np.sqrt(contact**2 - (2 * half) ** 2)
+        rest_pitch = np.arcsin(2 * half / contact)
+    half_width = float(rng.uniform(reach + 0.3, max(reach + 0.3, 1.0)))
+    half_thickness = float(rng.uniform(0.02, 0.05))
+    pitch = rest_pitch + np.deg2rad(rng.uniform(12, 30))
+    quat = _compose(
+        _quat((0, 0, 1), np.deg2rad(rng.uniform(-3, 3))),
+        _quat((1, 0, 0), pitch),
+    )
+    elevation = float(rng.uniform(22, 32))
+    # High enough that the line of sight to the object's top passes under the front edge.
+    clearance = (obj_xy[1] - reach - front_y) * np.tan(np.deg2rad(elevation))
+    front_height = 2 * half + clearance + rng.uniform(0.1, 0.35)
+    front = np.array([obj_xy[0] + rng.uniform(-0.04, 0.04), front_y, front_height])
+    center = front - _rotate(quat, (0.0, -half_length, -half_thickness))
+    camera = CameraPose(
+        lookat=(float(obj_xy[0] * 0.5), float(obj_xy[1] - 0.5), 0.45),
+        distance=float(rng.uniform(3.5, 4.1)),
+        azimuth=float(90 + rng.uniform(-6, 6)),
+        elevation=-elevation,
+    )
+    return {
+        "object": obj,
+        "object_xy": obj_xy,
+        "plank_half": (half_width, half_length, half_thickness),
+        "plank_center": center,
+        "plank_quat": quat,
+        "camera": camera,
+    }
+
+
+def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
+    """A probe pair of ``variant``: ``standard`` (the object vanishes under the plank) or
+    ``counterbalanced`` (an object appears under the plank in an empty scene)."""
+    if variant not in ("standard", "counterbalanced"):
+        raise ValueError(
+            f"unknown {CONCEPT} probe variant {variant!r}; valid: standard, counterbalanced"
+        )
+    rng = base.rng_for(seed, CONCEPT, variant)
+
+    def make(rng: np.random.Generator) -> TensorDict:
+        layout = _probe_layout(rng)
+        plank_color, object_color = _colors(rng)
+        builder = SceneBuilder(rng, video, layout["camera"])
+        obj, obj_xy = layout["object"], layout["object_xy"]
+        counterbalanced = variant == "counterbalanced"
+        _add_object(builder, obj, PARKED_XY if counterbalanced else obj_xy, object_color)
+        _add_plank(
+            builder, layout["plank_half"], layout["plank_center"], layout["plank_quat"], plank_color
+        )
+        sim = builder.build()
+        object_id = sim.mask_id("object")
+        rest_pos = (obj_xy[0], obj_xy[1], obj["half"])
+
+        def landed(sim: base.Simulation, frame: int) -> bool:
+            return frame <= video.num_frames - 3 and _plank_lowest_point(sim) < 0.02
+
+        if counterbalanced:
+
+            def manipulate(twin: base.Simulation) -> bool:
+                twin.move("object", rest_pos, base.yaw_quat(obj["yaw"]))
+                # Appear only in the free space under the still-falling plank.
+                return not _touching(twin, "object_0", "plank_0", depth=0.002)
+
+        else:
+
+            def manipulate(twin: base.Simulation) -> None:
+                twin.remove("object")
+
+        # The object may appear only in the brief moment between the plank's front edge
+        # landing and the plank coming down: look for it between frames too.
+        consistent, inconsistent, frame = base.record_pair_when(
+            sim, manipulate, landed, [object_id], checks_per_frame=4 if counterbalanced else 1
+        )
+        if not counterbalanced and object_id not in base.visible_ids(consistent[1][0]):
+            raise RejectedSample("the object is hidden before the plank falls")
+        propped = inconsistent if counterbalanced else consistent
+        if any(object_id in base.visible_ids(mask) for mask in propped[1][frame:]):
+            raise RejectedSample("the object shows from under the propped plank")
+        return base.probe_record(
+            CONCEPT, variant, seed, consistent, inconsistent, layout["camera"], frame, [object_id]
+        )
+
+    return base.draw_until_valid(make, rng)
+
+
+# --- training clips --------------------------------------------------------------------------
+
+
+def _clip_camera(rng: np.random.Generator, lookat_xy) -> CameraPose:
+    """A camera that varies between clips (static within one), around the probes' viewpoint."""
+    return CameraPose(
+        lookat=(float(lookat_xy[0]), float(lookat_xy[1] - 0.3), 0.4),
+        distance=float(rng.uniform(3.6, 4.8)),
+        azimuth=float(90 + rng.uniform(-35, 35)),
+        elevation=float(-rng.uniform(20, 38)),
+    )
+
+
+def _random_plank(rng: np.random.Generator, above: float) -> tuple:
+    """Plank half sizes (width, length and thickness vary greatly) and a random pose whose
+    lowest corner starts ``above`` metres over the floor; centred at the origin in xy."""
+    half = np.array([rng.uniform(0.3, 1.1), rng.uniform(0.3, 1.3), rng.uniform(0.02, 0.06)])
+    quat = _compose(
+        _quat((0, 0, 1), rng.uniform(-np.pi, np.pi)),
+        _quat((0, 1, 0), np.deg2rad(rng.uniform(-30, 30))),
+        _quat((1, 0, 0), np.deg2rad(rng.uniform(-50, 50))),
+    )
+    rotation = np.empty(9)
+    mujoco.mju_quat2Mat(rotation, quat)
+    depth = float(np.abs(rotation.reshape(3, 3)[2]) @ half)
+    return half, quat, np.array([0.0, 0.0, above + depth]), float(np.hypot(half[0], half[1]))
+
+
+def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
+    """A training clip: ``example`` (the plank falls on a sphere or cube; poses, sizes and
+    camera vary), ``plank_beside_object`` (it lands on open floor beside a visible object) or
+    ``plank_on_empty_floor`` (no object at all)."""
+    kinds = ("example", "plank_beside_object", "plank_on_empty_floor")
+    if kind not in kinds:
+        raise ValueError(f"unknown {CONCEPT} clip kind {kind!r}; valid: {', '.join(kinds)}")
+    rng = base.rng_for(seed, CONCEPT, kind)
+
+    def make(rng: np.random.Generator) -> TensorDict:
+        plank_color, object_color = _colors(rng)
+        obj = _draw_object(rng, (0.15, 0.4))
+        obj_xy = np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.3, 0.5)])
+        plank_half, plank_quat, plank_center, plank_radius = _random_plank(
+            rng, above=(2 * obj["half"] if kind == "example" else 0.0) + rng.uniform(0.2, 1.1)
+        )
+        if kind == "example":
+            # Somewhere over the object, so that the plank hits it.
+            offset = rng.uniform(-0.5, 0.5, size=2) * plank_half[:2]
+            plank_center[:2] = obj_xy + _rotate(plank_quat, (*offset, 0.0))[:2]
+            lookat = obj_xy
+        else:
+            # Open floor beside the object: beyond the plank's reach (draws where it still
+            # touches the object are rejected below).
+            angle = rng.uniform(-np.pi, np.pi)
+            distance = plank_radius + obj["half"] * np.sqrt(2) + rng.uniform(0.15, 0.5)
+            plank_center[:2] = obj_xy + distance * np.array([np.cos(angle), np.sin(angle)])
+            beside = kind == "plank_beside_object"
+            lookat = (obj_xy + plank_center[:2]) / 2 if beside else plank_center[:2]
+        camera = _clip_camera(rng, lookat)
+        builder = SceneBuilder(rng, video, camera)
+        if kind != "plank_on_empty_floor":
+            _add_object(builder, obj, obj_xy, object_color)
+        _add_plank(builder, plank_half, plank_center, plank_quat, plank_color)
+        sim = builder.build()
+        frames, masks = sim.record(video.num_frames)
+        if kind == "plank_beside_object":
+            pushed = np.linalg.norm(sim.position("object")[:2] - obj_xy) > 0.005
+            if pushed or _touching(sim, "object_0", "plank_0"):
+                raise RejectedSample("the plank touched the object")
+            if sim.mask_id("object") not in base.visible_ids(masks[-1]):
+                raise RejectedSample("the plank hid the object")
+        if sim.mask_id("plank") not in base.visible_ids(masks[-1]):
+            raise RejectedSample("the plank landed out of view")
+        return base.clip_record(CONCEPT, kind, seed, frames, masks, camera)
+
+    return base.draw_until_valid(make, rng)
