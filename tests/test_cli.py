@@ -92,3 +92,34 @@ def test_module_entry_point_lists_the_subcommands():
     )
     for subcommand in ("fit", "validate", "test"):
         assert subcommand in result.stdout
+
+
+def test_test_on_intphys_dev_reports_the_benchmark_metrics(workdir):
+    from test_intphys import FRAMES, make_intphys
+
+    make_intphys(workdir / "intphys", "dev", labelled=True)
+    main(
+        [
+            "test",
+            "--config",
+            CONFIG,
+            "--data",
+            "datamodules.IntPhysDataModule",
+            "--data.root",
+            str(workdir / "intphys"),
+            "--data.num_frames",
+            "5",
+            "--data.height",
+            "32",
+            "--data.width",
+            "32",
+            "--data.frames_per_movie",
+            str(FRAMES),
+        ]
+    )
+    report = workdir / "runs" / "tiny" / "version_0" / "voe_report"
+    metrics = json.loads((report / "benchmark_metrics.json").read_text())
+    assert metrics, "the IntPhys metrics must be reported"
+    assert "relative_error_rate" in json.dumps(metrics)
+    summary = json.loads((report / "summary.json").read_text())["rows"]
+    assert {row["concept"] for row in summary} <= {"O1_object_permanence", "O2_shape_constancy"}

@@ -739,6 +739,18 @@ class VOEReportCallback(Callback):
                                     trajectory_labels=labels, alpha=self.alpha,
                                     bootstrap=self.bootstrap, seed=self.seed)
         self.report_dir = Path(out_dir) / "voe_report"
+        self._write_benchmark_metrics(trainer.datamodule, outputs)
+
+    def _write_benchmark_metrics(self, datamodule: Any, outputs: list[dict[str, Any]]) -> None:
+        """External benchmarks (IntPhys, Physical Concepts) add their own published metrics."""
+        if not hasattr(datamodule, "benchmark_metrics"):
+            return
+        merged = {key: np.concatenate([output[key] for output in outputs])
+                  for key in PROBE_OUTPUT_KEYS}
+        metrics = datamodule.benchmark_metrics(merged, alpha=self.alpha, bootstrap=self.bootstrap)
+        path = self.report_dir / "benchmark_metrics.json"
+        path.write_text(json.dumps(metrics, indent=2, default=lambda v: v.item()) + "\n")
+        print(f"benchmark metrics written to {path}")
 
     def _predictions(self, pl_module: LightningModule,
                      examples: list[dict[str, Any]]) -> list[PredictionExample]:
