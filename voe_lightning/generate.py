@@ -13,6 +13,8 @@ import os
 import shutil
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Sequence
@@ -396,32 +398,38 @@ def generate_dataset(
         dynamic_ncols=True,
     )
     with bar:
-        jobs = [(root, task, video) for task in todo]
-        if workers == 1 or len(todo) <= 1:
-            results = map(_generate_shard_star, jobs)
-            pool = None
-        else:
-            # spawn: a fresh interpreter per worker, safe with EGL contexts and torch threads.
-            context = multiprocessing.get_context("spawn")
-            pool = context.Pool(min(workers, len(todo)), initializer=_init_worker)
-            results = pool.imap_unordered(_generate_shard_star, jobs)
-        try:
-            for videos, count, size in results:
-                records += count
-                written += size
-                bar.update(videos)
-        except BaseException:
-            if pool is not None:
-                pool.terminate()  # on an error or Ctrl-C: finished shards stay, the rest resume
-            raise
-        finally:
-            if pool is not None:
-                pool.close()
-                pool.join()
+        for videos, count, size in _run(root, todo, video, workers):
+            records += count
+            written += size
+            bar.update(videos)
     return GenerationSummary(
         root, len(tasks), len(tasks) - len(todo), len(todo), records, written,
         time.perf_counter() - started,
     )  # fmt: skip
+
+
+def _run(root: Path, todo: list[ShardTask], video: VideoOptions, workers: int):
+    """Generate the shards of ``todo``, yielding (videos, records, bytes) as each is written:
+    in this process for one worker, else in a pool of spawned processes (a fresh interpreter
+    each: safe with EGL contexts and torch threads). A worker that dies raises an error
+    instead of hanging; on any error the shards already written stay and a rerun resumes."""
+    if workers == 1 or len(todo) <= 1:
+        yield from (_generate_shard_star((root, task, video)) for task in todo)
+        return
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(min(workers, len(todo)), context, initializer=_init_worker) as pool:
+        futures = [pool.submit(_generate_shard_star, (root, task, video)) for task in todo]
+        try:
+            for future in as_completed(futures):
+                yield future.result()
+        except BrokenProcessPool as error:
+            raise RuntimeError(
+                f"a generation worker process died while writing {root} (its error is printed "
+                "above); finished shards are kept: run generate again to resume"
+            ) from error
+        finally:
+            for future in futures:
+                future.cancel()  # shards not started are dropped; running ones finish
 
 
 def _init_worker() -> None:
