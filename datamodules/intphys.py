@@ -724,3 +724,36 @@ class IntPhysDataModule(BenchmarkDataModule):
         """Score every movie of ``split`` (default ``predict_split``) and write the challenge's
         answer.txt (``<movie path> <plausibility>`` lines) to ``path``."""
         return write_answer_file(path, self.score_movies(model, split))
+
+
+def answer_main(argv: list[str] | None = None) -> Path:
+    """``python -m voe_lightning intphys-answer --ckpt_path CKPT --root DIR [--out answer.txt]``:
+    score the unlabelled IntPhys test movies with a trained model into the challenge's file."""
+    import argparse
+
+    from voe_lightning.model import VOEModel
+
+    parser = argparse.ArgumentParser(
+        prog="python -m voe_lightning intphys-answer", description=answer_main.__doc__
+    )
+    parser.add_argument("--ckpt_path", required=True, help="checkpoint of a trained VOEModel")
+    parser.add_argument("--root", default="data/intphys", help="IntPhys folder holding test/")
+    parser.add_argument("--out", default="answer.txt", help="submission file to write")
+    parser.add_argument("--num-frames", type=int, default=specs.NUM_FRAMES)
+    parser.add_argument("--frames-per-movie", type=int, default=100)
+    parser.add_argument("--split", choices=("dev", "test"), default="test")
+    arguments = parser.parse_args(argv)
+    if not Path(arguments.ckpt_path).is_file():
+        parser.error(f"--ckpt_path {arguments.ckpt_path!r} does not exist")
+    model = VOEModel.load_from_checkpoint(arguments.ckpt_path, map_location="cpu").eval()
+    height, width = model.image_size
+    datamodule = IntPhysDataModule(
+        root=arguments.root,
+        num_frames=arguments.num_frames,
+        frames_per_movie=arguments.frames_per_movie,
+        height=height,
+        width=width,
+    )
+    path = datamodule.write_answer(model, arguments.out, split=arguments.split)
+    print(f"wrote {path}")
+    return path

@@ -123,3 +123,30 @@ def test_test_on_intphys_dev_reports_the_benchmark_metrics(workdir):
     assert "relative_error_rate" in json.dumps(metrics)
     summary = json.loads((report / "summary.json").read_text())["rows"]
     assert {row["concept"] for row in summary} <= {"O1_object_permanence", "O2_shape_constancy"}
+
+
+def test_intphys_answer_command_scores_every_test_movie(workdir):
+    from test_intphys import FRAMES, make_intphys
+
+    make_intphys(workdir / "intphys", "test", labelled=False)
+    main(["fit", "--config", CONFIG, "--trainer.max_steps", "1"])
+    checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
+    answer = main(
+        [
+            "intphys-answer",
+            "--ckpt_path",
+            str(checkpoint),
+            "--root",
+            str(workdir / "intphys"),
+            "--num-frames",
+            "5",
+            "--frames-per-movie",
+            str(FRAMES),
+            "--out",
+            str(workdir / "answer.txt"),
+        ]
+    )
+    lines = answer.read_text().splitlines()
+    assert len(lines) == 3 * 4  # three scenes of four movies
+    path, score = lines[0].split()
+    assert path.startswith("O1/") and 0.0 <= float(score) <= 1.0

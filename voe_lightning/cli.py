@@ -1,8 +1,10 @@
 """The command line: ``fit``/``validate``/``test`` through LightningCLI, and ``generate``
-(render the datasets) and ``analyze`` (figures over runs) through their own parsers."""
+(render the datasets), ``analyze`` (figures over runs) and ``intphys-answer`` (the IntPhys
+challenge's submission file) through their own parsers."""
 
 from __future__ import annotations
 
+import importlib
 import sys
 from pathlib import Path
 from typing import Any
@@ -12,9 +14,11 @@ from lightning.pytorch.cli import LightningCLI
 
 from voe_lightning.model import VOEModel
 
+#: subcommand -> (module, function taking the remaining arguments)
 _COMMANDS_OUTSIDE_LIGHTNING = {
-    "generate": "voe_lightning.generate",
-    "analyze": "voe_lightning.analysis",
+    "generate": ("voe_lightning.generate", "main"),
+    "analyze": ("voe_lightning.analysis", "main"),
+    "intphys-answer": ("datamodules.intphys", "answer_main"),
 }
 
 
@@ -45,10 +49,10 @@ class VOECLI(LightningCLI):
 
 def main(args: list[str] | None = None) -> Any:
     """Entry point of ``python -m voe_lightning``; tests call ``main([...])``."""
-    args = sys.argv[1:] if args is None else list(args)
-    if args and args[0] in _COMMANDS_OUTSIDE_LIGHTNING:
-        module = __import__(_COMMANDS_OUTSIDE_LIGHTNING[args[0]], fromlist=["main"])
-        return module.main(args[1:])
+    words = sys.argv[1:] if args is None else list(args)
+    if words and words[0] in _COMMANDS_OUTSIDE_LIGHTNING:
+        module_name, function = _COMMANDS_OUTSIDE_LIGHTNING[words[0]]
+        return getattr(importlib.import_module(module_name), function)(words[1:])
     return VOECLI(
         model_class=VOEModel,
         datamodule_class=L.LightningDataModule,
