@@ -27,7 +27,7 @@ from torch.utils.data import DataLoader, Dataset
 from torchrl.data import Categorical, Composite
 
 from voe_lightning import specs
-from voe_lightning.store import ShardReader, collate, write_shard
+from voe_lightning.store import ShardReader, record_loader, write_shard
 
 #: Bumped whenever the cached record layout changes, so stale caches are rebuilt.
 CACHE_FORMAT = "voe_lightning.benchmark_cache/1"
@@ -302,16 +302,8 @@ class BenchmarkDataModule(L.LightningDataModule):
         logs = (log.counts() for log in self._skips.values())
         return merge_counts(*logs, *self._cached_skips.values())
 
-    def _loader(self, dataset: Dataset, batch_size: int, **kwargs: Any) -> DataLoader:
-        workers = self.hparams.num_workers
-        return DataLoader(
-            dataset,
-            batch_size=batch_size,
-            num_workers=workers,
-            collate_fn=collate,
-            persistent_workers=workers > 0,
-            **kwargs,
-        )
+    def _loader(self, dataset: Dataset, batch_size: int, **kwargs) -> DataLoader:
+        return record_loader(dataset, batch_size, self.hparams.num_workers, **kwargs)
 
 
 # --- cache --------------------------------------------------------------------------------------

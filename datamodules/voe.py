@@ -13,7 +13,7 @@ from torch.utils.data import ConcatDataset, DataLoader, Dataset, Sampler
 
 from voe_lightning import specs
 from voe_lightning.generate import ensure_dataset
-from voe_lightning.store import collate, open_split
+from voe_lightning.store import open_split, record_loader
 
 
 class InterleavedSampler(Sampler[int]):
@@ -146,15 +146,7 @@ class VOEDataModule(L.LightningDataModule):
 
     # --- loaders --------------------------------------------------------------------------------
     def _loader(self, dataset: Dataset, batch_size: int, **kwargs) -> DataLoader:
-        workers = self.hparams.num_workers
-        return DataLoader(
-            dataset,
-            batch_size=batch_size,
-            num_workers=workers,
-            collate_fn=collate,
-            persistent_workers=workers > 0,
-            **kwargs,
-        )
+        return record_loader(dataset, batch_size, self.hparams.num_workers, **kwargs)
 
     def train_dataloader(self) -> DataLoader:
         dataset = self._datasets["train"]

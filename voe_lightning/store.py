@@ -25,7 +25,7 @@ import numpy as np
 import torch
 import zstandard
 from tensordict import TensorDict, TensorDictBase
-from torch.utils.data import Dataset
+from torch.utils.data import DataLoader, Dataset
 
 from voe_lightning import specs
 
@@ -448,6 +448,19 @@ def collate(records: Sequence[TensorDictBase]) -> TensorDictBase:
     """DataLoader ``collate_fn`` for store records: stack them to batch_size [B] (torch's
     default collate does not know TensorDicts)."""
     return torch.stack(list(records))
+
+
+def record_loader(dataset: Dataset, batch_size: int, num_workers: int = 0, **kwargs) -> DataLoader:
+    """A DataLoader of TensorDict record batches, as every DataModule serves them. Workers are
+    persistent: torchrl makes multiprocessing spawn, and a spawned worker starts slowly."""
+    return DataLoader(
+        dataset,
+        batch_size=batch_size,
+        num_workers=num_workers,
+        collate_fn=collate,
+        persistent_workers=num_workers > 0,
+        **kwargs,
+    )
 
 
 # --- manifest -----------------------------------------------------------------------------------
