@@ -20,21 +20,22 @@ def workdir(tmp_path, monkeypatch):
     return tmp_path
 
 
-def _scalar_tags(run_dir: Path) -> set[str]:
+def _tags(run_dir: Path, kind: str = "scalars") -> set[str]:
     accumulator = EventAccumulator(str(run_dir))
     accumulator.Reload()
-    return set(accumulator.Tags()["scalars"])
+    return set(accumulator.Tags()[kind])
 
 
 def test_fit_then_test_writes_curves_checkpoint_and_report(workdir):
     main(["fit", "--config", CONFIG])
     run = workdir / "runs" / "tiny" / "version_0"
     assert (run / "checkpoints" / "last.ckpt").is_file()
-    tags = _scalar_tags(run)
+    tags = _tags(run)
     for statistic in ("relative_surprise", "t", "p_value", "accuracy"):
         assert f"voe/object_persistence/standard/{statistic}" in tags
         assert f"voe/object_persistence/counterbalanced/{statistic}" in tags
     assert {"train/loss", "train/reconstruction", "train/kl", "train/prior_regularizer"} <= tags
+    assert "expected/object_persistence" in _tags(run, "images")  # input above expectation
 
     main(["test", "--config", CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
     report = run / "voe_report"  # beside the checkpoint's run, not in a new version
