@@ -82,7 +82,11 @@ class VOEProbeCallback(L.Callback):
 
     def on_fit_end(self, trainer, pl_module) -> None:
         if self.print_table and self.last and trainer.is_global_zero:
-            Console().print(voe_table(self.last, title=f"VOE on validation probes, step {trainer.global_step}"))
+            console = Console()
+            if not console.is_terminal:  # logs and pipes: do not cut the table at 80 columns
+                console.width = 120
+            title = f"VOE on validation probes, step {trainer.global_step}"
+            console.print(voe_table(self.last, title=title))
 
 
 def voe_table(results: dict[tuple[str, str], dict[str, float]], title: str) -> Table:
