@@ -155,11 +155,12 @@ def test_run_size_sweep_drives_fit_then_test(tmp_path):
     rows = analysis.run_size_sweep("configs/x.yaml", [10, 300], eval_sets=2, pairs_per_set=6,
                                    out=out, extra_args=["--data.root=data/sweep_{size}"],
                                    test_args=["--data.generalization=true"], cli_main=fake_cli)
+    # fit generates the store, so it must ask for the same number of test pairs as test
     assert calls[0] == ["fit", "--config", "configs/x.yaml", "--data.train_examples", "10",
-                        "--data.root=data/sweep_10"]
+                        "--data.test_pairs", "12", "--data.root=data/sweep_10"]
     assert calls[1] == ["test", "--config", "configs/x.yaml", "--data.train_examples", "10",
-                        "--data.root=data/sweep_10", "--ckpt_path", "/ckpt/10.ckpt",
-                        "--data.test_pairs", "12", "--data.generalization=true"]
+                        "--data.test_pairs", "12", "--data.root=data/sweep_10",
+                        "--ckpt_path", "/ckpt/10.ckpt", "--data.generalization=true"]
     assert calls[3][0] == "test" and "--data.root=data/sweep_300" in calls[3]
     assert [(r["train_size"], r["eval_set"], r["n"]) for r in rows] == [(10, 0, 6), (10, 1, 6),
                                                                          (300, 0, 6), (300, 1, 6)]

@@ -151,3 +151,31 @@ def test_intphys_answer_command_scores_every_test_movie(workdir):
     assert len(lines) == 3 * 4  # three scenes of four movies
     path, score = lines[0].split()
     assert path.startswith("O1/") and 0.0 <= float(score) <= 1.0
+
+
+def test_size_sweep_trains_and_tests_through_the_real_cli(workdir):
+    rows = main(
+        [
+            "analyze",
+            "sweep",
+            "--config",
+            CONFIG,
+            "--sizes",
+            "4",
+            "8",
+            "--eval-sets",
+            "2",
+            "--pairs-per-set",
+            "3",
+            "--extra-args=--data.root=data/size{size}",
+            "--out",
+            "sweep.json",
+            "--plot",
+            "sweep.png",
+        ]
+    )
+    assert {row["train_size"] for row in rows} == {4, 8}
+    assert {row["eval_set"] for row in rows} == {0, 1}
+    assert all(row["n"] == 3 for row in rows)
+    assert (workdir / "sweep.png").stat().st_size > 0
+    assert (workdir / "data" / "size4").is_dir() and (workdir / "data" / "size8").is_dir()

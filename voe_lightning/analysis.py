@@ -237,11 +237,12 @@ def run_size_sweep(
     out.parent.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     for size in sizes:
+        # test_pairs goes to fit too: fit generates the store, test must find the same one.
         common = ["--config", str(config_path), "--data.train_examples", str(size),
+                  "--data.test_pairs", str(eval_sets * pairs_per_set),
                   *(arg.format(size=size) for arg in extra_args)]
         fit = cli_main(["fit", *common])
         test = cli_main(["test", *common, "--ckpt_path", _checkpoint(fit),
-                         "--data.test_pairs", str(eval_sets * pairs_per_set),
                          *(arg.format(size=size) for arg in test_args)])
         results = PairResults.from_csv(_report_dir(test) / "pairs.csv")
         rows.extend(sweep_rows(results, size, eval_sets))
