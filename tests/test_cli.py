@@ -6,7 +6,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+import nbformat
 import pytest
+from nbclient import NotebookClient
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from voe_lightning.cli import main
@@ -45,6 +47,17 @@ def test_fit_then_test_writes_curves_checkpoint_and_report(workdir):
     assert all(row["n"] == 3 for row in summary)
     for name in ("pairs.csv", "summary.md", "histograms.png", "surprise_per_frame.png"):
         assert (report / name).is_file(), name
+
+    # The notebook reproduces the figures from this real run's directory.
+    notebook = nbformat.read(Path(__file__).parents[1] / "notebooks" / "voe_report.ipynb", 4)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("VOE_RUN_DIR", str(run))
+        patch.delenv("VOE_SWEEP_RESULTS", raising=False)
+        NotebookClient(notebook, timeout=180, kernel_name="python3").execute()
+    outputs = [out for cell in notebook.cells if cell.cell_type == "code" for out in cell.outputs]
+    assert sum("image/png" in out.get("data", {}) for out in outputs) >= 3  # hist, frames, curves
+    markdown = "".join(out.get("data", {}).get("text/markdown", "") for out in outputs)
+    assert "| object_persistence | standard | 3 |" in markdown
 
 
 def test_fast_dev_run_of_the_joint_datamodule(workdir):
