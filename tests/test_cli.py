@@ -12,6 +12,7 @@ from nbclient import NotebookClient
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from voe_lightning.cli import main
+from voe_lightning.model import VOEModel
 
 CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
 
@@ -192,3 +193,20 @@ def test_size_sweep_trains_and_tests_through_the_real_cli(workdir):
     assert all(row["n"] == 3 for row in rows)
     assert (workdir / "sweep.png").stat().st_size > 0
     assert (workdir / "data" / "size4").is_dir() and (workdir / "data" / "size8").is_dir()
+
+
+def test_a_checkpoint_of_another_architecture_is_refused_naming_the_difference(workdir):
+    # The CLI takes the model's arguments from --ckpt_path; code that builds its own model and
+    # restores a checkpoint into it must get a clear error, not a state_dict size mismatch.
+    cli = main(["fit", "--config", CONFIG, "--trainer.max_steps", "1"])
+    checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
+    arguments = {k: v for k, v in cli.model.hparams.items() if not k.startswith("_")}
+    other = VOEModel(**{**arguments, "latent_size": 12})
+    with pytest.raises(ValueError, match=r"latent_size: checkpoint 8, config 12"):
+        cli.trainer.validate(other, datamodule=cli.datamodule, ckpt_path=str(checkpoint))
+
+
+def test_validate_reports_the_voe_statistics(workdir):
+    cli = main(["validate", "--config", CONFIG])
+    metrics = cli.trainer.callback_metrics
+    assert "voe/object_persistence/standard/relative_surprise" in metrics

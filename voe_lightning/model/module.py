@@ -18,6 +18,22 @@ from voe_lightning.model.networks import Decoder, Encoder
 from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, standard_normal_kl
 
 LOSS_TERMS = ("reconstruction", "kl", "prior_regularizer")
+#: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
+ARCHITECTURE = (
+    "image_size",
+    "latent_size",
+    "mlp_sizes",
+    "memory_slots",
+    "memory_slot_size",
+    "memory_read_heads",
+    "controller_size",
+    "head_mixing",
+    "write_content",
+    "controller_sees_read",
+    "encoder_blocks",
+    "encoder_channels",
+    "encoder_mlp_size",
+)
 
 
 class VOEModel(LightningModule):
@@ -238,6 +254,26 @@ class VOEModel(LightningModule):
             "prior": torch.cat([output.prior_mean, output.prior_log_std], dim=-1),
             "memory": output.memory,
         }
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        """Refuse, naming the differences, a checkpoint trained with another architecture
+        (Lightning calls this before loading the weights, which would fail obscurely)."""
+        trained = checkpoint.get("hyper_parameters", {})
+
+        def normal(value):
+            return list(value) if isinstance(value, (list, tuple)) else value
+
+        differences = [
+            f"{name}: checkpoint {normal(trained[name])!r}, config {normal(self.hparams[name])!r}"
+            for name in ARCHITECTURE
+            if name in trained and normal(trained[name]) != normal(self.hparams[name])
+        ]
+        if differences:
+            raise ValueError(
+                "the checkpoint was trained with another model architecture than the config "
+                "gives (" + "; ".join(differences) + "). Give the checkpoint's training config "
+                "(e.g. --config configs/quickstart.yaml) or its run's config.yaml first."
+            )
 
     # ----------------------------------------------------------------------------- optimizer
     def configure_optimizers(self) -> torch.optim.Optimizer:
