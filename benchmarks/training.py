@@ -15,28 +15,29 @@ from __future__ import annotations
 import argparse
 import contextlib
 import time
+from pathlib import Path
 
 import torch
+import yaml
 from tensordict import TensorDict
 from torch.utils.flop_counter import FlopCounterMode
 
 from voe_lightning.model import VOEModel
 
-#: The sizes ``configs/quickstart.yaml`` uses (a model that trains on a laptop CPU).
-QUICKSTART = dict(
-    latent_size=32,
-    mlp_sizes=(128, 128),
-    memory_slots=15,
-    memory_slot_size=32,
-    memory_read_heads=3,
-    controller_size=64,
-    encoder_blocks=4,
-    encoder_channels=(16, 16, 32),
-    encoder_mlp_size=128,
-)
-#: The paper's sizes are VOEModel's defaults.
-PAPER: dict = {}
-SIZES = {"quickstart": (QUICKSTART, 8), "paper": (PAPER, 10)}
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+def config_sizes(name: str) -> tuple[dict, int]:
+    """Model arguments (optimizer settings left out) and batch size of ``configs/<name>.yaml``,
+    so the benchmark measures exactly the model the config trains."""
+    config = yaml.safe_load((CONFIGS / f"{name}.yaml").read_text())
+    arguments = dict(config["model"].get("init_args") or {})
+    for optimizer_setting in ("learning_rate", "adam_betas"):
+        arguments.pop(optimizer_setting, None)
+    return arguments, config["data"]["init_args"]["batch_size"]
+
+
+SIZES = {name: config_sizes(name) for name in ("quickstart", "paper")}
 #: 2M steps x batch 10 (paper §4.1).
 PAPER_SEQUENCES = 2_000_000 * 10
 
