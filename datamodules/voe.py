@@ -9,6 +9,7 @@ from collections.abc import Iterator, Sequence
 
 import lightning as L
 import numpy as np
+import torch
 from torch.utils.data import ConcatDataset, DataLoader, Dataset, Sampler
 
 from voe_lightning import specs
@@ -155,15 +156,20 @@ class VOEDataModule(L.LightningDataModule):
         )
         return self._loader(dataset, self.hparams.batch_size, sampler=sampler, drop_last=True)
 
+    def _probe_loader(self, split: str) -> DataLoader:
+        # Its own generator: a loader's iterator draws a seed, and drawing it from the global
+        # RNG would make training depend on how often validation runs.
+        generator = torch.Generator().manual_seed(self.hparams.seed)
+        batch_size = self.hparams.probe_batch_size
+        return self._loader(self._datasets[split], batch_size, generator=generator)
+
     def val_dataloader(self) -> DataLoader:
-        return self._loader(self._datasets["val"], self.hparams.probe_batch_size)
+        return self._probe_loader("val")
 
     def test_dataloader(self) -> DataLoader | list[DataLoader]:
-        loaders = [self._loader(self._datasets["test"], self.hparams.probe_batch_size)]
+        loaders = [self._probe_loader("test")]
         if self.hparams.generalization and self._datasets.get("generalization") is not None:
-            loaders.append(
-                self._loader(self._datasets["generalization"], self.hparams.probe_batch_size)
-            )
+            loaders.append(self._probe_loader("generalization"))
         return loaders if len(loaders) > 1 else loaders[0]
 
 

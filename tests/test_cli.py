@@ -8,6 +8,7 @@ from pathlib import Path
 
 import nbformat
 import pytest
+import torch
 from nbclient import NotebookClient
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -210,3 +211,14 @@ def test_validate_reports_the_voe_statistics(workdir):
     cli = main(["validate", "--config", CONFIG])
     metrics = cli.trainer.callback_metrics
     assert "voe/object_persistence/standard/relative_surprise" in metrics
+
+
+def test_training_does_not_depend_on_how_often_validation_runs(workdir):
+    def weights(name, interval):
+        cli = main(["fit", "--config", CONFIG, "--trainer.max_steps", "6",
+                    "--trainer.val_check_interval", str(interval),
+                    "--trainer.logger.init_args.name", name])
+        return cli.model.state_dict()
+
+    every_two, every_three = weights("a", 2), weights("b", 3)
+    assert all(torch.equal(every_two[key], every_three[key]) for key in every_two)
