@@ -106,28 +106,23 @@ def frame_indices(
     return first + stride * np.arange(num_frames, dtype=np.int64)
 
 
+def _resize(images: np.ndarray, height: int, width: int, resample: Image.Resampling) -> np.ndarray:
+    """Resize each image of a uint8 stack [T, h, w(, 3)] to [T, height, width(, 3)] with PIL."""
+    if images.shape[1:3] == (height, width):
+        return np.ascontiguousarray(images)
+    return np.stack(
+        [np.asarray(Image.fromarray(image).resize((width, height), resample)) for image in images]
+    )
+
+
 def resize_frames(frames: np.ndarray, height: int, width: int) -> np.ndarray:
     """uint8 [T, h, w, 3] -> [T, height, width, 3] with PIL's antialiased bilinear filter."""
-    if frames.shape[1:3] == (height, width):
-        return np.ascontiguousarray(frames)
-    return np.stack(
-        [
-            np.asarray(Image.fromarray(frame).resize((width, height), Image.Resampling.BILINEAR))
-            for frame in frames
-        ]
-    )
+    return _resize(frames, height, width, Image.Resampling.BILINEAR)
 
 
 def resize_masks(masks: np.ndarray, height: int, width: int) -> np.ndarray:
     """uint8 [T, h, w] object ids -> [T, height, width] (nearest: ids must not blend)."""
-    if masks.shape[1:3] == (height, width):
-        return np.ascontiguousarray(masks)
-    return np.stack(
-        [
-            np.asarray(Image.fromarray(mask).resize((width, height), Image.Resampling.NEAREST))
-            for mask in masks
-        ]
-    )
+    return _resize(masks, height, width, Image.Resampling.NEAREST)
 
 
 @dataclass(frozen=True)
