@@ -1,14 +1,19 @@
-"""DESIGN.md §4 validity, for every concept and probe variant over several seeds: shared prefix,
-hidden manipulation, a real difference afterwards, determinism, and records matching the specs.
-Set VOE_VALIDITY_SEEDS to check more seeds (CI uses a few; run with 50 before changing a scene)."""
+"""DESIGN.md §4 validity, for every concept and probe variant over several seeds: frames
+identical through the manipulation frame, hidden manipulation, a real difference afterwards,
+determinism, records matching the specs, one camera distribution per concept, and no
+physics-blind cue in any concept's balanced pool of probes. Set VOE_VALIDITY_SEEDS to check
+more seeds (CI uses a few; run with 50 before changing a scene) and VOE_FAIRNESS_PAIRS for
+more pairs in the cue test."""
 
+import importlib
 import os
 
 import numpy as np
 import pytest
 import torch
+from scipy import stats
 
-from voe_lightning import specs
+from voe_lightning import cues, specs
 from voe_lightning.scenes import (
     CLIP_KINDS_BY_CONCEPT,
     CONCEPTS,
@@ -18,6 +23,8 @@ from voe_lightning.scenes import (
 )
 
 NUM_SEEDS = int(os.environ.get("VOE_VALIDITY_SEEDS", "3"))
+FAIRNESS_PAIRS = int(os.environ.get("VOE_FAIRNESS_PAIRS", "50"))
+CAMERA_CLIPS = int(os.environ.get("VOE_CAMERA_CLIPS", "30"))
 PROBE_CASES = [(c, v) for c in CONCEPTS for v in PROBE_VARIANTS[c]]
 CLIP_CASES = [(c, k) for c in CONCEPTS for k in CLIP_KINDS_BY_CONCEPT[c]]
 
@@ -31,9 +38,10 @@ def test_probe_pairs_are_valid(concept, variant):
         assert specs.concept_name(record) == concept and specs.variant_name(record) == variant
         m = int(record["manipulation_frame"])
         consistent, inconsistent = record["consistent"], record["inconsistent"]
-        assert torch.equal(consistent["frames"][:m], inconsistent["frames"][:m]), (
-            f"{concept}/{variant} seed {seed}: frames differ before manipulation frame {m}"
-        )
+        for key in ("frames", "mask"):
+            assert torch.equal(consistent[key][: m + 1], inconsistent[key][: m + 1]), (
+                f"{concept}/{variant} seed {seed}: {key} differ up to manipulation frame {m}"
+            )
         ids = [i for i in record["manipulated_ids"].tolist() if i]
         assert ids, "a probe must name the manipulated object ids"
         if concept == "solidity":
@@ -95,3 +103,70 @@ def test_different_concepts_use_independent_randomness():
     a = generate_clip("solidity", "example", 11)["frames"].numpy()
     b = generate_clip("solidity", "example", 12)["frames"].numpy()
     assert not np.array_equal(a, b)
+
+
+#: The frame-local cues: scores a viewer without memory beyond the last two frames could use.
+FRAME_LOCAL_CUES = ("foreground_pixels", "motion_energy", "copy_last_error",
+                    "linear_extrapolation_error")
+#: Each concept's balanced pools: the counterbalanced pair pooled, or each variant on its own.
+BALANCED_POOLS = [
+    (concept, ("standard", "counterbalanced")) if concept in specs.POOLED_CONCEPTS
+    else (concept, (variant,))
+    for concept in CONCEPTS
+    for variant in specs.STANDARD_VARIANTS[concept][: 1 if concept in specs.POOLED_CONCEPTS else None]
+]
+
+
+@pytest.mark.parametrize("concept,variants", BALANCED_POOLS)
+def test_balanced_pools_have_no_frame_local_cue(concept, variants):
+    """A physics-blind score must not tell inconsistent from consistent videos in a pool:
+    |d_z| <= 0.25 and accuracy (ties half) in [0.3, 0.7] for every frame-local cue."""
+    per_variant = max(2, FAIRNESS_PAIRS // len(variants))
+    records = [
+        generate_probe(concept, variant, seed)
+        for variant in variants
+        for seed in range(900_000, 900_000 + per_variant)
+    ]
+    audit = cues.audit_records(records)
+    pool = "pooled" if len(variants) > 1 else variants[0]
+    rows = {row["cue"]: row for row in audit.rows() if row["variant"] == pool}
+    for cue in FRAME_LOCAL_CUES:
+        row = rows[cue]
+        d_z = 0.0 if np.isnan(row["d_z"]) else row["d_z"]  # NaN: every pair tied
+        assert abs(d_z) <= 0.25 and 0.3 <= row["accuracy"] <= 0.7, (
+            f"{concept} {pool}: {cue} separates the pairs (d_z={d_z:+.2f}, "
+            f"accuracy={row['accuracy']:.2f}, n={row['n']})"
+        )
+
+
+def _cameras(records) -> np.ndarray:
+    return np.stack([record["camera"][0].numpy() for record in records]).astype(np.float64)
+
+
+@pytest.mark.parametrize("concept", CONCEPTS)
+def test_one_camera_distribution_per_concept(concept):
+    """Examples, every control and the probes draw the camera from the concept's CAMERA range;
+    each control's cameras are distributed as the examples' (two-sample KS per parameter)."""
+    camera_range = importlib.import_module(f"voe_lightning.scenes.{concept}").CAMERA
+    kinds = CLIP_KINDS_BY_CONCEPT[concept]
+    cameras = {
+        kind: _cameras([generate_clip(concept, kind, seed) for seed in range(CAMERA_CLIPS)])
+        for kind in kinds
+    }
+    for variant in PROBE_VARIANTS[concept]:
+        cameras[f"probe {variant}"] = _cameras(
+            [generate_probe(concept, variant, seed) for seed in range(max(NUM_SEEDS, 5))]
+        )
+    for name, poses in cameras.items():
+        for pose in poses:
+            assert camera_range.contains(pose), (
+                f"{concept} {name}: camera {np.round(pose, 3).tolist()} outside the concept's "
+                f"camera range {camera_range.ranges()}"
+            )
+    for kind in kinds[1:]:
+        for index, parameter in enumerate(camera_range.ranges()):
+            a, b = cameras["example"][:, index], cameras[kind][:, index]
+            if np.ptp(np.concatenate([a, b])) == 0:
+                continue
+            p = stats.ks_2samp(a, b).pvalue
+            assert p > 1e-3, f"{concept} {kind}: camera {parameter} not distributed as examples'"

@@ -83,6 +83,56 @@ class CameraPose:
         return np.array([*self.lookat, self.distance, self.azimuth, self.elevation], np.float32)
 
 
+@dataclass(frozen=True)
+class CameraRange:
+    """One concept's camera distribution: each pose parameter uniform in its (low, high).
+    Examples, every control and the probes of a concept draw from it (DESIGN.md §4, "one
+    world"); probes may draw from a narrower range that lies inside it (``narrow``)."""
+
+    lookat_x: tuple[float, float]
+    lookat_y: tuple[float, float]
+    lookat_z: tuple[float, float]
+    distance: tuple[float, float]
+    azimuth: tuple[float, float]
+    elevation: tuple[float, float]
+
+    def __post_init__(self) -> None:
+        for name, (low, high) in self.ranges().items():
+            if not low <= high:
+                raise ValueError(f"camera range {name} must have low <= high, got ({low}, {high})")
+
+    def ranges(self) -> dict[str, tuple[float, float]]:
+        """The (low, high) of each parameter, in the order of ``CameraPose.as_array``."""
+        return {name: getattr(self, name) for name in CAMERA_PARAMETERS}
+
+    def sample(self, rng: np.random.Generator) -> CameraPose:
+        x, y, z, distance, azimuth, elevation = (
+            float(rng.uniform(low, high)) for low, high in self.ranges().values()
+        )
+        return CameraPose((x, y, z), distance, azimuth, elevation)
+
+    def contains(self, camera: CameraPose | np.ndarray, tolerance: float = 1e-4) -> bool:
+        """Whether a pose (or a ``[..., 6]`` array of poses) lies inside every range."""
+        values = np.asarray(camera.as_array() if isinstance(camera, CameraPose) else camera)
+        low, high = np.array(list(self.ranges().values()), np.float64).T
+        return bool(((values >= low - tolerance) & (values <= high + tolerance)).all())
+
+    def narrow(self, **ranges: tuple[float, float]) -> "CameraRange":
+        """A sub-range for probes; refuses a range that leaves this one."""
+        for name, (low, high) in ranges.items():
+            outer_low, outer_high = self.ranges()[name]
+            if low < outer_low or high > outer_high:
+                raise ValueError(
+                    f"probe camera {name} range ({low}, {high}) leaves the training range "
+                    f"({outer_low}, {outer_high})"
+                )
+        return CameraRange(**{**self.ranges(), **ranges})
+
+
+#: Names of the six camera parameters, in the order of ``CameraPose.as_array``.
+CAMERA_PARAMETERS = ("lookat_x", "lookat_y", "lookat_z", "distance", "azimuth", "elevation")
+
+
 @dataclass
 class Geom:
     """One primitive of an object, placed relative to its body."""
@@ -389,7 +439,10 @@ class Simulation:
 
     # --- rendering ------------------------------------------------------------------------------
     def render(self) -> tuple[np.ndarray, np.ndarray]:
-        """The current RGB frame and its object-id mask (0 = background and fixed scenery)."""
+        """The current RGB frame and its object-id mask (0 = background and fixed scenery).
+        Poses are refreshed first: after ``mj_step`` the drawn poses are one step old, while a
+        forked twin's are current, which would make a probe pair differ at the fork."""
+        mujoco.mj_forward(self.model, self.data)
         renderer = get_renderer(self.video.height, self.video.width)
         rgb, geom_ids = renderer.render(self.model, self.data, self.camera)
         return rgb, self.geom_mask_id[geom_ids]
