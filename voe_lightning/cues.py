@@ -1,148 +1,437 @@
-"""The cue audit (DESIGN.md §4): physics-blind scores of each probe video, tested with the same
-paired statistics as a model's surprise. A score that tells inconsistent from consistent videos
-of a concept's pooled pairs is a low-level cue in the stimuli, not evidence of physics, so these
-rows stand beside every model result.
+"""The cue audit (DESIGN.md §4, §6): physics-blind scores of each probe video, tested with the
+same paired statistics as a model's surprise. A score that tells inconsistent from consistent
+videos of a concept's pooled pairs is a low-level cue in the stimuli, not evidence of physics,
+so these rows stand beside every model result (``test`` writes them to ``voe_report/cues.*``)
+and ``python -m voe_lightning audit --root DIR`` runs them on any probe split of a store.
 
 Every score is computed on the frames after ``manipulation_frame`` (the two videos of a pair are
-identical up to and including it), per video:
+identical up to and including it), per video, with frames x_t in [0, 1]:
 
 - ``foreground_pixels``: visible object pixels (mask id > 0), summed over frames;
 - ``motion_energy``: mean absolute difference of consecutive frames, summed;
 - ``copy_last_error``: mean squared error of predicting each frame by the one before;
-- ``linear_extrapolation_error``: mean squared error of predicting x_t by 2 x_{t-1} - x_{t-2};
-- ``pixel_novelty``: per pixel, the distance of its colour to the nearest colour seen at that
+- ``linear_extrapolation_error``: mean squared error of predicting x_t by
+  clip(2 x_{t-1} - x_{t-2}, 0, 1);
+- ``pixel_novelty``: per pixel, the L1 distance of its colour to the nearest colour seen at that
   place in any earlier frame, summed (something new appearing where it never was).
 
+A pair whose masks are all zero in both videos (benchmarks without masks, e.g. IntPhys) has no
+``foreground_pixels`` score; its rows say so instead of testing zeros.
+
 ``accuracy`` here counts a tied pair as half (scores that cannot differ, such as visible pixels
-under a pure colour change, sit at 0.5 = chance rather than 0)."""
+under a pure colour change, sit at 0.5 = chance rather than 0); ``p_two_sided`` flags a cue
+that separates the pairs in either direction."""
 
 from __future__ import annotations
 
+import argparse
+import csv
+import json
+import math
+import sys
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Mapping
+from pathlib import Path
+from typing import Any
 
 import numpy as np
+import torch
+from scipy import stats
 
 from voe_lightning import specs, statistics
 
-__all__ = ["CUES", "CueAudit", "audit_records", "cue_scores"]
+__all__ = [
+    "CUES",
+    "CUE_COLUMNS",
+    "CueAudit",
+    "audit_records",
+    "audit_split",
+    "cue_table",
+    "format_markdown",
+    "main",
+    "score_videos",
+    "write_audit",
+]
+
+#: The physics-blind scorers, in table order; ``MASK_CUES`` need object masks.
+CUES: tuple[str, ...] = ("foreground_pixels", "motion_energy", "copy_last_error",
+                         "linear_extrapolation_error", "pixel_novelty")
+MASK_CUES: tuple[str, ...] = ("foreground_pixels",)
+#: Short column titles of the compact tables.
+CUE_TITLES = {"foreground_pixels": "foreground", "motion_energy": "motion",
+              "copy_last_error": "copy-last", "linear_extrapolation_error": "lin. extrap.",
+              "pixel_novelty": "novelty"}
+SIDES = ("consistent", "inconsistent")
+#: Columns of cues.csv, in order (``None`` cells mean "no test", explained in ``note``).
+CUE_COLUMNS = (("concept", "variant", "cue")
+               + tuple(f for f in statistics.PairedTestResult.__dataclass_fields__ if f != "note")
+               + ("p_two_sided", "note"))
 
 
-def _frames(frames: Any) -> np.ndarray:
-    array = frames.numpy() if hasattr(frames, "numpy") else np.asarray(frames)
-    return array.astype(np.float32) / 255.0
+def score_videos(
+    frames: torch.Tensor, mask: torch.Tensor | None, manipulation_frame: torch.Tensor
+) -> dict[str, torch.Tensor]:
+    """Every cue's score of a batch of videos: uint8 frames [B, T, H, W, 3], mask [B, T, H, W]
+    (or None: no ``foreground_pixels``, NaN), manipulation frame [B]; float64 [B] per cue.
+    Runs on the frames' device; each score sums per-frame values over the frames t > m."""
+    if frames.ndim != 5 or frames.shape[-1] != 3:
+        raise ValueError(f"frames must be [B, T, H, W, 3], got {tuple(frames.shape)}")
+    batch, num_frames = frames.shape[:2]
+    m = torch.as_tensor(manipulation_frame, device=frames.device).reshape(-1).long()
+    if m.numel() != batch or bool(((m < 0) | (m >= num_frames)).any()):
+        raise ValueError(f"manipulation_frame must hold {batch} values in [0, {num_frames - 1}], "
+                         f"got {m.tolist()}")
+    x = specs.to_model_input(frames).contiguous()  # [B, T, 3, H, W]: ~10x faster than NHWC
+    after = (torch.arange(num_frames, device=frames.device)[None] > m[:, None]).double()
+
+    def total(per_frame: torch.Tensor, first: int) -> torch.Tensor:
+        """Sum of per-frame values [B, T - first] (frame first, ...) over frames after m."""
+        return (per_frame.double() * after[:, first:]).sum(dim=1)
+
+    difference = x[:, 1:] - x[:, :-1]
+    predicted = (2.0 * x[:, 1:-1] - x[:, :-2]).clamp_(0.0, 1.0)
+    novelty = torch.zeros(batch, num_frames, dtype=torch.float64, device=frames.device)
+    for t in range(int(m.min()) + 1, num_frames):
+        nearest = (x[:, 0] - x[:, t]).abs_().sum(dim=1)  # [B, H, W], L1 over channels
+        for s in range(1, t):
+            nearest = torch.minimum(nearest, (x[:, s] - x[:, t]).abs_().sum(dim=1))
+        novelty[:, t] = nearest.sum(dim=(1, 2)).double()
+    scores = {
+        "motion_energy": total(difference.abs().mean(dim=(2, 3, 4)), 1),
+        "copy_last_error": total(difference.square().mean(dim=(2, 3, 4)), 1),
+        "linear_extrapolation_error": total((x[:, 2:] - predicted).square().mean(dim=(2, 3, 4)), 2),
+        "pixel_novelty": total(novelty, 0),
+    }
+    if mask is None:
+        scores["foreground_pixels"] = torch.full((batch,), math.nan, dtype=torch.float64,
+                                                 device=frames.device)
+    else:
+        scores["foreground_pixels"] = total((mask > 0).sum(dim=(2, 3)), 0)
+    return {cue: scores[cue] for cue in CUES}
 
 
-def _foreground_pixels(frames: np.ndarray, mask: np.ndarray, m: int) -> float:
-    return float((mask[m + 1 :] > 0).sum())
+def _mask(video: Any) -> torch.Tensor | None:
+    return video["mask"] if "mask" in video.keys() else None
 
 
-def _motion_energy(frames: np.ndarray, mask: np.ndarray, m: int) -> float:
-    return float(np.abs(np.diff(frames[m:], axis=0)).mean(axis=(1, 2, 3)).sum())
-
-
-def _copy_last_error(frames: np.ndarray, mask: np.ndarray, m: int) -> float:
-    return float(np.square(np.diff(frames[m:], axis=0)).mean(axis=(1, 2, 3)).sum())
-
-
-def _linear_extrapolation_error(frames: np.ndarray, mask: np.ndarray, m: int) -> float:
-    start = max(m + 1, 2)
-    if start >= len(frames):
-        return 0.0
-    predicted = np.clip(2.0 * frames[start - 1 : -1] - frames[start - 2 : -2], 0.0, 1.0)
-    return float(np.square(frames[start:] - predicted).mean(axis=(1, 2, 3)).sum())
-
-
-def _pixel_novelty(frames: np.ndarray, mask: np.ndarray, m: int) -> float:
-    total = 0.0
-    for t in range(m + 1, len(frames)):
-        distance = np.abs(frames[:t] - frames[t]).sum(axis=-1)  # [t, H, W], L1 over channels
-        total += float(distance.min(axis=0).sum())
-    return total
-
-
-#: The physics-blind scorers, each ``score(frames float [T,H,W,3] in [0,1], mask [T,H,W], m)``.
-CUES: dict[str, Callable[[np.ndarray, np.ndarray, int], float]] = {
-    "foreground_pixels": _foreground_pixels,
-    "motion_energy": _motion_energy,
-    "copy_last_error": _copy_last_error,
-    "linear_extrapolation_error": _linear_extrapolation_error,
-    "pixel_novelty": _pixel_novelty,
-}
-
-
-def cue_scores(frames: Any, mask: Any, manipulation_frame: int) -> dict[str, float]:
-    """Every cue's score of one video (uint8 frames [T, H, W, 3], mask [T, H, W])."""
-    array = _frames(frames)
-    mask = mask.numpy() if hasattr(mask, "numpy") else np.asarray(mask)
-    m = int(manipulation_frame)
-    if not 0 <= m < len(array):
-        raise ValueError(f"manipulation_frame must be in [0, {len(array) - 1}], got {m}")
-    return {name: score(array, mask, m) for name, score in CUES.items()}
-
-
-@dataclass
+@dataclass(frozen=True, eq=False)
 class CueAudit:
-    """Per-pair cue scores of a probe split: ``scores[side][cue]`` float arrays over pairs
-    (side is ``consistent`` or ``inconsistent``), with each pair's concept and variant."""
+    """Per-pair cue scores of probe pairs: ``scores[side][cue]`` float64 arrays over pairs
+    (side is ``consistent`` or ``inconsistent``; NaN where a cue cannot be scored), with each
+    pair's concept and variant name."""
 
     concepts: np.ndarray
     variants: np.ndarray
     scores: dict[str, dict[str, np.ndarray]]
 
+    def __len__(self) -> int:
+        return len(self.concepts)
+
+    @classmethod
+    def score_batch(
+        cls,
+        batch: Any,
+        concept_names: Sequence[str] = specs.CONCEPTS,
+        variant_names: Sequence[str] = specs.VARIANTS,
+    ) -> CueAudit:
+        """Score a batch of probe pairs (a stacked probe TensorDict, as loaders yield them);
+        ``concept``/``variant`` indices decode with the given name tuples. A pair whose masks
+        are all zero in both videos gets NaN ``foreground_pixels`` (no masks to count)."""
+        m = batch["manipulation_frame"]
+        scores = {side: score_videos(batch[side]["frames"], _mask(batch[side]), m)
+                  for side in SIDES}
+        masks = [_mask(batch[side]) for side in SIDES]
+        if all(mask is not None for mask in masks):
+            unmasked = ~torch.stack([(mask != 0).flatten(1).any(dim=1) for mask in masks]).any(dim=0)
+            for side in SIDES:
+                for cue in MASK_CUES:
+                    scores[side][cue][unmasked] = math.nan
+        return cls(
+            np.array([concept_names[int(i)] for i in batch["concept"].reshape(-1)], dtype=object),
+            np.array([variant_names[int(i)] for i in batch["variant"].reshape(-1)], dtype=object),
+            {side: {cue: values.cpu().numpy() for cue, values in by_cue.items()}
+             for side, by_cue in scores.items()},
+        )
+
+    @classmethod
+    def concatenate(cls, audits: Iterable[CueAudit]) -> CueAudit:
+        """One audit of all the pairs of ``audits``, in order."""
+        audits = list(audits)
+        if not audits:
+            raise ValueError("no cue scores to concatenate (no probe pairs were scored)")
+        return cls(
+            np.concatenate([a.concepts for a in audits]),
+            np.concatenate([a.variants for a in audits]),
+            {side: {cue: np.concatenate([a.scores[side][cue] for a in audits]) for cue in CUES}
+             for side in SIDES},
+        )
+
     def groups(self) -> list[tuple[str, str, np.ndarray]]:
         """(concept, variant, row selector) for every variant, and a ``pooled`` group for each
-        concept with a counterbalanced pair (the union of its standard variants' pairs)."""
-        groups = []
-        for concept in dict.fromkeys(self.concepts.tolist()):
-            in_concept = self.concepts == concept
-            present = set(self.variants[in_concept].tolist())
-            for variant in specs.PROBE_VARIANTS[concept]:
-                if variant in present:
-                    groups.append((concept, variant, in_concept & (self.variants == variant)))
-            if "counterbalanced" in present and "standard" in present:
-                pooled = in_concept & np.isin(self.variants, ["standard", "counterbalanced"])
-                groups.append((concept, "pooled", pooled))
-        return groups
+        concept with a counterbalanced pair (``statistics.pair_groups``)."""
+        return statistics.pair_groups(self.concepts, self.variants)
 
-    def rows(self, bootstrap: int = 0) -> list[dict[str, Any]]:
-        """One row per (concept, variant or pooled, cue): the paired test of
-        score(inconsistent) - score(consistent), with ``accuracy`` counting ties as half."""
+    def rows(self, alpha: float = 0.05, bootstrap: int = 0) -> list[dict[str, Any]]:
+        """One row per (concept, variant or pooled, cue), columns ``CUE_COLUMNS``: the paired
+        test of score(inconsistent) - score(consistent), ``accuracy`` counting ties as half."""
         rows = []
         for concept, variant, selected in self.groups():
             for cue in CUES:
                 inconsistent = self.scores["inconsistent"][cue][selected]
                 consistent = self.scores["consistent"][cue][selected]
-                row = {"concept": concept, "variant": variant, "cue": cue}
-                if len(inconsistent) < 2:
-                    row.update(n=len(inconsistent), note="fewer than 2 pairs")
+                row: dict[str, Any] = dict.fromkeys(CUE_COLUMNS)
+                row.update(concept=concept, variant=variant, cue=cue, n=int(selected.sum()))
+                unscored = int(np.isnan(inconsistent).sum() + np.isnan(consistent).sum())
+                if unscored:
+                    row["note"] = (f"{cue} skipped: {unscored} of {2 * row['n']} videos have no "
+                                   "object mask (all zero or absent)")
+                elif row["n"] < 2:
+                    row["note"] = f"only {row['n']} pair: no test (needs at least 2)"
                 else:
-                    result = statistics.paired_test(inconsistent, consistent, bootstrap=bootstrap)
+                    result = statistics.paired_test(inconsistent, consistent, alpha=alpha,
+                                                    bootstrap=bootstrap)
                     row.update(result.as_dict())
                     d = inconsistent - consistent
                     row["accuracy"] = float(np.mean(d > 0) + 0.5 * np.mean(d == 0))
+                    row["p_two_sided"] = _two_sided(result.t, result.df)
                 rows.append(row)
         return rows
 
 
-def audit_records(records: Iterable[Mapping[str, Any]], progress: bool = False) -> CueAudit:
-    """Score every probe pair (unbatched probe records as in ``specs.probe_spec``)."""
-    concepts, variants = [], []
-    scores = {side: {cue: [] for cue in CUES} for side in ("consistent", "inconsistent")}
+def _two_sided(t: float, df: int) -> float:
+    """Two-sided p of a paired t statistic (inf: 0; undefined, every d = 0: 1)."""
+    if math.isnan(t):
+        return 1.0
+    return 0.0 if math.isinf(t) else float(2.0 * stats.t.sf(abs(t), df))
+
+
+def _batches(records: Iterable[Any], batch_size: int) -> Iterable[Any]:
+    chunk = []
+    for record in records:
+        chunk.append(record)
+        if len(chunk) == batch_size:
+            yield torch.stack(chunk)
+            chunk = []
+    if chunk:
+        yield torch.stack(chunk)
+
+
+def audit_records(
+    records: Iterable[Any], batch_size: int = 64, progress: bool = False, total: int | None = None
+) -> CueAudit:
+    """Score probe pairs: unbatched probe records as in ``specs.probe_spec`` (stacked
+    ``batch_size`` at a time) or, when ``batch_size`` is 0, batches a loader already made."""
+    if batch_size < 0:
+        raise ValueError(f"batch_size must be >= 0 (0: records are batches already), got {batch_size}")
+    batches = records if batch_size == 0 else _batches(records, batch_size)
     if progress:
         from tqdm.auto import tqdm
 
-        records = tqdm(records, desc="cue audit", unit="pair")
-    for record in records:
-        concepts.append(specs.concept_name(record))
-        variants.append(specs.variant_name(record))
-        m = int(record["manipulation_frame"])
-        for side in scores:
-            video_scores = cue_scores(record[side]["frames"], record[side]["mask"], m)
-            for cue, value in video_scores.items():
-                scores[side][cue].append(value)
-    return CueAudit(
-        np.array(concepts, dtype=object),
-        np.array(variants, dtype=object),
-        {side: {cue: np.array(v, np.float64) for cue, v in s.items()} for side, s in scores.items()},
-    )
+        batches = tqdm(batches, desc="cue audit", unit="batch", total=total)
+    return CueAudit.concatenate(CueAudit.score_batch(batch) for batch in batches)
+
+
+def audit_split(
+    root: str | Path,
+    split: str = "test",
+    concepts: Sequence[str] | None = None,
+    batch_size: int = 64,
+    num_workers: int = 0,
+    progress: bool = False,
+) -> CueAudit:
+    """Score every probe pair of ``split`` (val, test or generalization) of the store at
+    ``root`` for ``concepts`` (default: every concept the store holds)."""
+    from torch.utils.data import ConcatDataset
+
+    from voe_lightning import store
+
+    if store.SPLIT_RECORD_TYPE.get(split) != "probe":
+        probe_splits = [s for s, kind in store.SPLIT_RECORD_TYPE.items() if kind == "probe"]
+        raise ValueError(f"split {split!r} holds no probe pairs; probe splits are: "
+                         f"{', '.join(probe_splits)}")
+    manifest = store.read_manifest(root)
+    if manifest is None:
+        raise FileNotFoundError(f"no dataset at {root} (create one with `python -m voe_lightning "
+                                f"generate --root {root}`)")
+    concepts = list(dict.fromkeys(concepts or manifest["concepts"]))
+    parts = [store.open_split(root, concept, split) for concept in concepts]
+    dataset = ConcatDataset([part for part in parts if len(part)])
+    if not len(dataset):
+        raise ValueError(f"the {split} split of {root} holds no probe pairs for "
+                         f"{', '.join(concepts)}")
+    loader = store.record_loader(dataset, batch_size, num_workers)
+    return audit_records(loader, batch_size=0, progress=progress, total=len(loader))
+
+
+# ----------------------------------------------------------------------------- tables and files
+
+
+def _cell(row: Mapping[str, Any] | None) -> tuple[str, bool]:
+    """'acc% / d_z' of a row, and whether it separates the pairs (p_two_sided or p < alpha)."""
+    if row is None or row.get("accuracy") is None:
+        return "n/a", False
+    d_z = row["d_z"]
+    effect = ("undefined" if math.isnan(d_z) else ("+inf" if d_z > 0 else "-inf")
+              if math.isinf(d_z) else f"{d_z:+.2f}")
+    separates = row["p_two_sided"] < row["alpha"] if "p_two_sided" in row else row["significant"]
+    return f"{100 * row['accuracy']:.0f}% / {effect}", bool(separates)
+
+
+def _table_cells(
+    cue_rows: Sequence[Mapping[str, Any]], model_rows: Sequence[Mapping[str, Any]] | None
+) -> list[tuple[str, str, int, list[tuple[str, bool]]]]:
+    """(concept, variant, n, cells) per group: the model's cell first when given, then one
+    cell per cue."""
+    by_key = {(r["concept"], r["variant"], r["cue"]): r for r in cue_rows}
+    models = {(r["concept"], r["variant"]): r for r in model_rows or ()}
+    table = []
+    for concept, variant in dict.fromkeys((r["concept"], r["variant"]) for r in cue_rows):
+        cells = [_cell(models.get((concept, variant)))] if model_rows is not None else []
+        cells += [_cell(by_key.get((concept, variant, cue))) for cue in CUES]
+        n = by_key[(concept, variant, CUES[0])]["n"]
+        table.append((concept, variant, n, cells))
+    return table
+
+
+def format_markdown(
+    cue_rows: Sequence[Mapping[str, Any]],
+    model_rows: Sequence[Mapping[str, Any]] | None = None,
+    title: str = "Cue audit",
+) -> str:
+    """The compact cue table as Markdown: per concept/variant (and pooled), accuracy / d_z of
+    each cue, beside the model's when ``model_rows`` (report summary rows) are given. Cue
+    cells that separate the pairs (two-sided p < alpha) are bold; model cells with one-tailed
+    p < alpha carry *. Notes (skipped cues, degenerate tests) follow the table."""
+    model = model_rows is not None
+    header = (["concept", "variant", "n"] + (["model (surprise)"] if model else [])
+              + [CUE_TITLES[cue] for cue in CUES])
+    lines = [f"## {title}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for concept, variant, n, cells in _table_cells(cue_rows, model_rows):
+        texts = []
+        for index, (text, separates) in enumerate(cells):
+            if model and index == 0:
+                texts.append(text + (" *" if separates else ""))
+            else:
+                texts.append(f"**{text}**" if separates else text)
+        name = f"**{variant}**" if variant == statistics.POOLED else variant
+        lines.append(f"| {concept} | {name} | {n} | " + " | ".join(texts) + " |")
+    alpha = next((r["alpha"] for r in cue_rows if r.get("alpha") is not None), 0.05)
+    lines += ["", "Each cell: accuracy / d_z of d = score(inconsistent) - score(consistent) on "
+              "the same pairs (cue accuracy counts ties as half: 50% is chance). Cues are "
+              "physics-blind: " + ", ".join(f"{CUE_TITLES[c]} = {c}" for c in CUES) + ". "
+              f"**Bold**: the cue separates the pairs (two-sided p < {alpha:g}), so a model "
+              "could do as well without physics."
+              + (" Model: accuracy / d_z of surprise, * one-tailed p < alpha." if model else "")
+              + " Full statistics in cues.csv."]
+    notes = sorted({f"{r['concept']}/{r['variant']}: {r['note']}" for r in cue_rows
+                    if r.get("note") and "bootstrap" not in r["note"]})
+    lines += [f"- {note}" for note in notes]
+    return "\n".join(lines) + "\n"
+
+
+def cue_table(
+    cue_rows: Sequence[Mapping[str, Any]],
+    model_rows: Sequence[Mapping[str, Any]] | None = None,
+    title: str = "Cue audit",
+):
+    """The compact cue table as a rich Table (separating cue cells red, pooled rows bold)."""
+    from rich.table import Table
+
+    table = Table(title=title, caption="accuracy (ties half) / d_z; red: the cue separates the "
+                  "pairs (two-sided p < alpha)")
+    for column in ["concept", "variant", "n"] + (["model"] if model_rows is not None else []) + [
+            CUE_TITLES[cue] for cue in CUES]:
+        table.add_column(column, justify="left" if column in ("concept", "variant") else "right")
+    groups = _table_cells(cue_rows, model_rows)
+    for index, (concept, variant, n, cells) in enumerate(groups):
+        styled = []
+        for column, (text, separates) in enumerate(cells):
+            is_model = model_rows is not None and column == 0
+            styled.append(text + " *" if is_model and separates
+                          else f"[red]{text}[/red]" if separates else text)
+        last = index + 1 == len(groups) or groups[index + 1][0] != concept
+        table.add_row(concept, variant, str(n), *styled,
+                      style="bold" if variant == statistics.POOLED else None, end_section=last)
+    return table
+
+
+def _json_value(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    return value
+
+
+def write_audit(
+    cue_rows: Sequence[Mapping[str, Any]],
+    out_dir: str | Path,
+    model_rows: Sequence[Mapping[str, Any]] | None = None,
+    title: str = "Cue audit",
+    **metadata: Any,
+) -> Path:
+    """Write ``out_dir/cues.md`` (the compact table, beside the model's rows when given),
+    ``cues.csv`` (every column of every row) and ``cues.json`` (rows and ``metadata``)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "cues.md").write_text(format_markdown(cue_rows, model_rows, title))
+    with open(out / "cues.csv", "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=CUE_COLUMNS)
+        writer.writeheader()
+        writer.writerows(cue_rows)
+    document = {**metadata, "cues": list(CUES),
+                "rows": [{k: _json_value(v) for k, v in row.items()} for row in cue_rows]}
+    (out / "cues.json").write_text(json.dumps(document, indent=2) + "\n")
+    return out
+
+
+# ----------------------------------------------------------------------------- command line
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m voe_lightning audit",
+        description="Cue audit: physics-blind scores (" + ", ".join(CUES) + ") of a probe split, "
+        "with the model's paired statistics (M, t, p, d_z, accuracy) and pooled rows; prints the "
+        "table and writes cues.md, cues.csv and cues.json.")
+    parser.add_argument("--root", required=True, type=Path, help="dataset folder (a generated store)")
+    parser.add_argument("--split", default="test", choices=["val", "test", "generalization"],
+                        help="probe split to audit (default: test)")
+    parser.add_argument("--concepts", nargs="+", default=None, metavar="CONCEPT",
+                        help="concepts to audit (default: every concept in the store)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="output folder (default: ROOT/cue_audit/SPLIT)")
+    parser.add_argument("--alpha", type=float, default=0.05, help="significance level")
+    parser.add_argument("--batch-size", type=int, default=64, help="pairs scored at once")
+    parser.add_argument("--workers", type=int, default=0, help="data loader worker processes")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
+    """``python -m voe_lightning audit ...``: returns the rows it wrote."""
+    from rich.console import Console
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    for concept in args.concepts or ():
+        if concept not in specs.CONCEPTS:
+            parser.error(f"unknown concept {concept!r}; valid concepts are: {', '.join(specs.CONCEPTS)}")
+    if not 0.0 < args.alpha < 1.0 or args.batch_size < 1:
+        parser.error(f"--alpha must be in (0, 1) and --batch-size >= 1, got {args.alpha} and "
+                     f"{args.batch_size}")
+    try:
+        audit = audit_split(args.root, args.split, args.concepts, args.batch_size, args.workers,
+                            progress=not args.no_progress)
+    except (ValueError, OSError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        raise SystemExit(2) from error
+    rows = audit.rows(alpha=args.alpha)
+    title = f"Cue audit of {args.root} ({args.split} split, {len(audit)} pairs)"
+    out = write_audit(rows, args.out or args.root / "cue_audit" / args.split, title=title,
+                      root=str(args.root), split=args.split, alpha=args.alpha,
+                      num_pairs=len(audit))
+    console = Console()
+    if not console.is_terminal:  # logs and pipes: do not cut the table at 80 columns
+        console.width = 140
+    console.print(cue_table(rows, title=title))
+    print(f"cue audit written to {out} (cues.md, cues.csv, cues.json)")
+    return rows

@@ -18,6 +18,7 @@ Degenerate inputs, decided once here:
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -27,16 +28,27 @@ from scipy import optimize, stats
 from torchmetrics import Metric
 from torchmetrics.functional.classification import binary_auroc
 
+from voe_lightning import specs
+
 __all__ = [
+    "POOLED",
+    "POOLED_VARIANTS",
     "PairedSurpriseStats",
     "PairedTestResult",
     "TTest",
+    "Verdict",
     "as_float64",
+    "concept_verdicts",
     "effect_size_interval",
     "paired_test",
+    "pair_groups",
     "relative_surprise",
     "t_test_from_moments",
 ]
+
+#: The row name of a concept's pooled test, and the variants it pools (DESIGN.md §4, §6).
+POOLED = "pooled"
+POOLED_VARIANTS: tuple[str, str] = ("standard", "counterbalanced")
 
 #: A variance below this fraction of the mean square is treated as exactly zero (the streaming
 #: form computes it from sums, where equal differences leave rounding residue of about 1e-16).
@@ -315,3 +327,94 @@ class PairedSurpriseStats(Metric):
         }
         return {key: torch.tensor(value, dtype=torch.float64) for key, value in values.items()}
 
+
+
+# ----------------------------------------------------------------------------- groups and verdicts
+
+
+def pair_groups(
+    concepts: Sequence[str], variants: Sequence[str], pooled: bool = True
+) -> list[tuple[str, str, np.ndarray]]:
+    """(concept, variant, boolean row selector) for every concept/variant among the pairs, in
+    ``specs`` order where known (others after, in order of first appearance). With ``pooled``,
+    a concept holding both ``standard`` and ``counterbalanced`` pairs gets a ``pooled`` group
+    (the union of the two) right after its variants."""
+    concepts = np.asarray(concepts, dtype=object)
+    variants = np.asarray(variants, dtype=object)
+    keys = list(dict.fromkeys(zip(concepts.tolist(), variants.tolist())))
+
+    def order(key: tuple[str, str]) -> tuple[int, int, int]:
+        concept, variant = key
+        return (specs.CONCEPTS.index(concept) if concept in specs.CONCEPTS else len(specs.CONCEPTS),
+                specs.VARIANTS.index(variant) if variant in specs.VARIANTS else len(specs.VARIANTS),
+                keys.index(key))
+
+    groups = []
+    ordered = sorted(keys, key=order)
+    for concept in dict.fromkeys(concept for concept, _ in ordered):
+        in_concept = concepts == concept
+        present = [variant for c, variant in ordered if c == concept]
+        groups.extend((concept, variant, in_concept & (variants == variant)) for variant in present)
+        if pooled and set(POOLED_VARIANTS) <= set(present):
+            groups.append((concept, POOLED, in_concept & np.isin(variants, POOLED_VARIANTS)))
+    return groups
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Whether a concept shows VOE by the rule of DESIGN.md §4: ``voe`` is True or False, or
+    None when the pairs needed to decide are missing; ``reason`` names what failed."""
+
+    concept: str
+    voe: bool | None
+    rule: str
+    reason: str
+
+    def text(self) -> str:
+        if self.voe:
+            return "VOE"
+        return ("undecided: " if self.voe is None else "no VOE: ") + self.reason
+
+
+def _p(p: float) -> str:
+    return f"{p:.3f}".lstrip("0") if p >= 0.001 else "< .001"
+
+
+def concept_verdicts(
+    results: Mapping[tuple[str, str], Mapping[str, Any]] | Sequence[Mapping[str, Any]],
+    alpha: float = 0.05,
+) -> list[Verdict]:
+    """Per concept, in the order first seen: VOE only when the pooled test is significant
+    (p < alpha) and both pooled variants have M > 0, for a concept with a counterbalanced
+    pair; otherwise (unchangeableness' position/color/shape, a benchmark's own variants) only
+    when every one of its probe variants is significant. Generalization variants do not
+    enter. ``results`` maps (concept, variant) to a dict with ``p_value`` and
+    ``relative_surprise`` (None when untested), or is a list of rows that carry both names."""
+    if not isinstance(results, Mapping):
+        results = {(row["concept"], row["variant"]): row for row in results}
+    verdicts = []
+    for concept in dict.fromkeys(concept for concept, _ in results):
+        present = [v for c, v in results if c == concept and v != POOLED]
+        required = list(specs.STANDARD_VARIANTS.get(concept, present))
+        if set(POOLED_VARIANTS) <= set(required):
+            rule = "pooled p < alpha and M > 0 in both standard and counterbalanced"
+            needed = [(concept, variant) for variant in POOLED_VARIANTS] + [(concept, POOLED)]
+        else:
+            rule = f"p < alpha in every variant ({', '.join(required)})"
+            needed = [(concept, variant) for variant in required]
+        untested = [variant for _, variant in needed
+                    if results.get((concept, variant), {}).get("p_value") is None]
+        if untested:
+            verdicts.append(Verdict(concept, None, rule,
+                                    f"no test of {', '.join(untested)} (needs >= 2 pairs each)"))
+            continue
+        failed = []
+        for _, variant in needed:
+            values = results[(concept, variant)]
+            if variant in POOLED_VARIANTS and rule.startswith("pooled"):
+                if not values["relative_surprise"] > 0:
+                    failed.append(f"{variant} M = {values['relative_surprise']:.3g} <= 0")
+            elif not values["p_value"] < alpha:
+                failed.append(f"{variant} p = {_p(values['p_value'])} >= {alpha:g}")
+        verdicts.append(Verdict(concept, not failed, rule, "; ".join(failed)))
+    return verdicts
