@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
+from scipy import stats
 from tensordict import TensorDict
 from torch.utils.data import DataLoader
 
@@ -77,13 +78,43 @@ def test_summary_rows_are_paired_tests_in_specs_order(report):
     directory, results, rows = report
     assert [(r["concept"], r["variant"]) for r in rows] == [
         ("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
-        ("continuity", "standard"), ("solidity", "standard")]
-    for row, (_, _, pairs) in zip(rows, results.groups()):
+        ("object_persistence", "pooled"), ("continuity", "standard"), ("solidity", "standard")]
+    for row, (_, _, pairs) in zip(rows, results.groups(pooled=True)):
         if row["n"] < 2:
             continue
         expected = paired_test(pairs.total_inconsistent, pairs.total_consistent, bootstrap=200)
         assert {k: row[k] for k in expected.as_dict()} == expected.as_dict()
     assert rows[0]["significant"] and not rows[1]["significant"]
+
+
+def test_pooled_row_is_the_test_over_both_variants_pairs(report):
+    _, results, rows = report
+    persistence = [(pairs.total_inconsistent, pairs.total_consistent)
+                   for concept, variant, pairs in results.groups()
+                   if concept == "object_persistence"]
+    inconsistent = np.concatenate([inc for inc, _ in persistence])
+    consistent = np.concatenate([con for _, con in persistence])
+    pooled = rows[2]
+    assert pooled["n"] == 10 + 9 == inconsistent.size
+    reference = stats.ttest_rel(inconsistent, consistent, alternative="greater")
+    assert pooled["t"] == pytest.approx(reference.statistic, rel=1e-12)
+    assert pooled["p_value"] == pytest.approx(reference.pvalue, rel=1e-9)
+
+
+def test_summary_states_each_concepts_verdict(report):
+    directory, _, rows = report
+    document = json.loads((directory / "summary.json").read_text())
+    verdicts = {v["concept"]: v for v in document["verdicts"]}
+    assert list(verdicts) == ["object_persistence", "continuity", "solidity"]
+    counterbalanced_mean = rows[1]["relative_surprise"]
+    assert verdicts["object_persistence"]["voe"] is (
+        rows[2]["p_value"] < 0.05 and rows[0]["relative_surprise"] > 0 < counterbalanced_mean)
+    # continuity and solidity lack their counterbalanced pairs: no pooled test, no verdict.
+    assert verdicts["continuity"]["voe"] is None and "counterbalanced" in verdicts["continuity"]["verdict"]
+    markdown = (directory / "summary.md").read_text()
+    assert f"- object_persistence: {'**VOE**' if verdicts['object_persistence']['voe'] else 'no VOE'}" \
+        in markdown
+    assert "- solidity: undecided: no test of counterbalanced, pooled" in markdown
 
 
 def test_summary_files_schema(report):
@@ -92,7 +123,7 @@ def test_summary_files_schema(report):
         reader = csv.DictReader(handle)
         assert tuple(reader.fieldnames) == SUMMARY_COLUMNS
         table = list(reader)
-    assert len(table) == 4
+    assert len(table) == 5
     assert float(table[0]["t"]) == pytest.approx(rows[0]["t"], rel=1e-12)
 
     def refuse(constant):
@@ -100,16 +131,16 @@ def test_summary_files_schema(report):
 
     document = json.loads((directory / "summary.json").read_text(), parse_constant=refuse)
     assert document["num_pairs"] == len(results) == 24 and document["num_frames"] == T
-    assert [list(r) for r in document["rows"]] == [list(SUMMARY_COLUMNS)] * 4
+    assert [list(r) for r in document["rows"]] == [list(SUMMARY_COLUMNS)] * 5
     assert document["rows"][0]["p_value"] == rows[0]["p_value"]
     markdown = (directory / "summary.md").read_text()
     lines = [line for line in markdown.splitlines() if line.startswith("|")]
-    assert len(lines) == 2 + 4 and "t(9) = " in markdown and "| M [95% CI] |" in lines[0]
+    assert len(lines) == 2 + 5 and "t(9) = " in markdown and "| M [95% CI] |" in lines[0]
 
 
 def test_degenerate_groups_are_explained_not_nan(report):
     directory, _, rows = report
-    single, constant = rows[2], rows[3]
+    single, constant = rows[3], rows[4]
     assert single["n"] == 1 and single["t"] is None and "no test" in single["note"]
     assert constant["t"] == math.inf and constant["p_value"] == 0.0
     assert "zero variance" in constant["note"]
@@ -118,7 +149,7 @@ def test_degenerate_groups_are_explained_not_nan(report):
     assert "| continuity | standard [1] | 1 | n/a |" in markdown and "t(3) = +inf" in markdown
     assert "[2] zero variance" in markdown
     document = json.loads((directory / "summary.json").read_text())
-    assert document["rows"][3]["t"] == "inf" and document["rows"][2]["t"] is None
+    assert document["rows"][4]["t"] == "inf" and document["rows"][3]["t"] is None
 
 
 def test_pairs_csv_round_trips_exactly(report):
@@ -241,8 +272,20 @@ def test_callback_writes_the_report_of_a_test_run(tmp_path):
     directory = tmp_path / "run" / "voe_report"
     assert callback.report_dir == directory
     groups = [(r["concept"], r["variant"], r["n"]) for r in callback.summary]
-    assert groups == [case + (5,) for case in CASES]
+    assert groups == [CASES[0] + (5,), CASES[1] + (5,), ("object_persistence", "pooled", 10),
+                      CASES[2] + (5,)]
     assert all(r["significant"] and r["accuracy"] == 1.0 for r in callback.summary)
+    # The cue audit scored the very pairs the model was tested on: same groups, same n.
+    with open(directory / "cues.csv", newline="") as handle:
+        cue_rows = list(csv.DictReader(handle))
+    assert {(r["concept"], r["variant"], int(r["n"])) for r in cue_rows} == set(groups)
+    motion = {r["variant"]: r for r in cue_rows if r["cue"] == "motion_energy"}
+    # These probes change at m itself and are static after it: cues see only t > m, so tied.
+    assert float(motion["standard"]["accuracy"]) == 0.5 and "every d = 0" in motion["standard"]["note"]
+    foreground = [r for r in cue_rows if r["cue"] == "foreground_pixels"]
+    assert all(r["t"] == "" and "no object mask" in r["note"] for r in foreground)  # zero masks
+    cue_markdown = (directory / "cues.md").read_text()
+    assert "| object_persistence | **pooled** | 10 | 100% / +" in cue_markdown  # model cell first
     for name in ("summary.json", "summary.csv", "summary.md", "pairs.csv", "histograms.png",
                  "surprise_per_frame.png", "predictions_object_persistence.png",
                  "predictions_unchangeableness.png", "tsne_object_persistence.png"):

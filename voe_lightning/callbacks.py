@@ -11,7 +11,13 @@ from rich.console import Console
 from rich.table import Table
 
 from voe_lightning import specs
-from voe_lightning.statistics import PairedSurpriseStats
+from voe_lightning.statistics import (
+    POOLED,
+    POOLED_VARIANTS,
+    PairedSurpriseStats,
+    concept_verdicts,
+    pair_groups,
+)
 
 
 def _names(trainer: L.Trainer) -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -26,21 +32,28 @@ class VOEProbeCallback(L.Callback):
     """Every validation run (set its frequency with ``trainer.val_check_interval``, in training
     steps) streams each probe pair's relative surprise into one PairedSurpriseStats per
     concept/variant, then logs ``voe/<concept>/<variant>/{relative_surprise,t,p_value,accuracy}``.
-    The sums are float64 torchmetrics states, so the result is exact under DDP. At the end of
-    ``fit`` it prints the last table."""
+    A concept with a standard and a counterbalanced variant also streams every one of their
+    pairs into a third metric, logged as ``voe/<concept>/pooled/...``: the test over the union
+    of both variants' pairs. The sums are float64 torchmetrics states, so the result is exact
+    under DDP. At the end of ``fit`` it prints the last table with each concept's verdict."""
 
     STATISTICS = ("relative_surprise", "t", "p_value", "accuracy")
 
-    def __init__(self, print_table: bool = True):
+    def __init__(self, print_table: bool = True, alpha: float = 0.05):
         super().__init__()
+        if not 0.0 < alpha < 1.0:
+            raise ValueError(f"alpha must be in (0, 1), got {alpha}")
         self.print_table = print_table
+        self.alpha = alpha
         self.metrics: dict[tuple[str, str], PairedSurpriseStats] = {}
         self.last: dict[tuple[str, str], dict[str, float]] = {}
 
     def on_validation_epoch_start(self, trainer, pl_module) -> None:
         cases = getattr(trainer.datamodule, "probe_cases", lambda split="val": [])("val")
+        concepts, variants = zip(*cases) if cases else ((), ())
+        pooled = [(c, v) for c, v, _ in pair_groups(concepts, variants) if v == POOLED]
         # Create every metric up front so all DDP ranks hold the same states.
-        for case in cases:
+        for case in list(cases) + pooled:
             self._metric(case, pl_module.device)
         for metric in self.metrics.values():
             metric.reset()
@@ -61,15 +74,24 @@ class VOEProbeCallback(L.Callback):
         groups = defaultdict(list)
         for index, (c, v) in enumerate(zip(outputs["concept"].tolist(), outputs["variant"].tolist())):
             groups[(concept_names[c], variant_names[v])].append(index)
-        for case, rows in groups.items():
+        for (concept, variant), rows in groups.items():
             rows = torch.tensor(rows, device=inconsistent.device)
-            self._metric(case, pl_module.device).update(inconsistent[rows], consistent[rows])
+            cases = [(concept, variant)]
+            if variant in POOLED_VARIANTS:
+                cases.append((concept, POOLED))  # the union: its states sum both variants'
+            for case in cases:
+                self._metric(case, pl_module.device).update(inconsistent[rows], consistent[rows])
 
     def on_validation_epoch_end(self, trainer, pl_module) -> None:
         if trainer.sanity_checking:
             return
         self.last = {}
-        for (concept, variant), metric in sorted(self.metrics.items()):
+        concepts, variants = zip(*self.metrics) if self.metrics else ((), ())
+        order = [(c, v) for c, v, _ in pair_groups(concepts, variants, pooled=False)]
+        for concept, variant in order:
+            metric = self.metrics[(concept, variant)]
+            if variant == POOLED and not all((concept, v) in self.metrics for v in POOLED_VARIANTS):
+                continue  # one variant alone: nothing to pool
             try:  # called on every rank alike: compute() syncs the states under DDP
                 values = {k: float(v) for k, v in metric.compute().items()}
             except ValueError:  # fewer than two pairs of this case so far
@@ -86,24 +108,40 @@ class VOEProbeCallback(L.Callback):
             if not console.is_terminal:  # logs and pipes: do not cut the table at 80 columns
                 console.width = 120
             title = f"VOE on validation probes, step {trainer.global_step}"
-            console.print(voe_table(self.last, title=title))
+            console.print(voe_table(self.last, title=title, alpha=self.alpha))
 
 
-def voe_table(results: dict[tuple[str, str], dict[str, float]], title: str) -> Table:
-    """A rich table of relative surprise, t, p and accuracy per concept/variant."""
+def voe_table(
+    results: dict[tuple[str, str], dict[str, float]], title: str, alpha: float = 0.05
+) -> Table:
+    """A rich table of relative surprise, t, p and accuracy per concept/variant (pooled rows
+    bold), with each concept's verdict (``statistics.concept_verdicts``) on its first row."""
+    verdicts = {v.concept: v for v in concept_verdicts(results, alpha)}
     table = Table(title=title)
-    for column in ("concept", "variant", "n", "relative surprise", "t", "p (one-tailed)", "accuracy"):
-        table.add_column(column, justify="left" if column in ("concept", "variant") else "right")
-    for (concept, variant), values in results.items():
-        marker = "*" if values["p_value"] < 0.05 else ""
+    for column in ("concept", "variant", "n", "relative surprise", "t", "p (one-tailed)",
+                   "accuracy", "verdict"):
+        justify = "left" if column in ("concept", "variant", "verdict") else "right"
+        table.add_column(column, justify=justify, overflow="fold")
+    keys = list(results)
+    for index, ((concept, variant), values) in enumerate(results.items()):
+        marker = "*" if values["p_value"] < alpha else ""
+        first = index == 0 or keys[index - 1][0] != concept
+        last = index + 1 == len(keys) or keys[index + 1][0] != concept
+        verdict = verdicts[concept]
+        text = verdict.text() if first else ""
+        if first and verdict.voe is not None:
+            text = f"[green]{text}[/green]" if verdict.voe else f"[red]{text}[/red]"
         table.add_row(
-            concept,
+            concept if first else "",
             variant,
             f"{values['n']:.0f}",
             f"{values['relative_surprise']:.3f}",
             f"{values['t']:.2f}",
             f"{values['p_value']:.3g}{marker}",
             f"{values['accuracy']:.2f}",
+            text,
+            style="bold" if variant == POOLED else None,
+            end_section=last,
         )
     return table
 

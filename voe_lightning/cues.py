@@ -323,8 +323,8 @@ def format_markdown(
               "could do as well without physics."
               + (" Model: accuracy / d_z of surprise, * one-tailed p < alpha." if model else "")
               + " Full statistics in cues.csv."]
-    notes = sorted({f"{r['concept']}/{r['variant']}: {r['note']}" for r in cue_rows
-                    if r.get("note") and "bootstrap" not in r["note"]})
+    notes = [f"{r['concept']}/{r['variant']}, {CUE_TITLES[r['cue']]}: {r['note']}"
+             for r in cue_rows if r.get("note") and "bootstrap" not in r["note"]]
     lines += [f"- {note}" for note in notes]
     return "\n".join(lines) + "\n"
 

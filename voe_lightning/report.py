@@ -2,10 +2,12 @@
 concept/variant paired tests, per-pair surprise, and the figures, written to
 ``<run dir>/voe_report/`` by ``write_report`` or, during ``test``, by ``VOEReportCallback``.
 
-Files: ``summary.json``/``summary.csv``/``summary.md`` (one row per concept/variant),
+Files: ``summary.json``/``summary.csv``/``summary.md`` (one row per concept/variant, a
+``pooled`` row per concept with a counterbalanced pair, and each concept's VOE verdict),
 ``pairs.csv`` (one row per probe pair, with per-frame surprise, so anyone can redo the
-statistics), ``histograms.png``, ``surprise_per_frame.png``, ``predictions_<concept>.png`` and
-``tsne_object_persistence.png``.
+statistics), ``cues.md``/``cues.csv``/``cues.json`` (the cue audit on the same pairs, beside the
+model's rows; see ``voe_lightning.cues``), ``histograms.png``, ``surprise_per_frame.png``,
+``predictions_<concept>.png`` and ``tsne_object_persistence.png``.
 """
 
 from __future__ import annotations
@@ -26,8 +28,14 @@ from lightning.pytorch.utilities import rank_zero_warn
 from matplotlib.figure import Figure
 from scipy import stats
 
+from voe_lightning import cues
 from voe_lightning.specs import CONCEPTS, VARIANTS
-from voe_lightning.statistics import PairedTestResult, paired_test
+from voe_lightning.statistics import (
+    PairedTestResult,
+    concept_verdicts,
+    pair_groups,
+    paired_test,
+)
 
 __all__ = [
     "PROBE_OUTPUT_KEYS",
@@ -158,20 +166,12 @@ class PairResults:
             surprise_inconsistent=self.surprise_inconsistent[index],
         )
 
-    def groups(self) -> list[tuple[str, str, PairResults]]:
+    def groups(self, pooled: bool = False) -> list[tuple[str, str, PairResults]]:
         """(concept, variant, pairs) per concept/variant: concepts and variants in the order
-        of ``specs`` where known, others after them in order of first appearance."""
-        keys = list(dict.fromkeys(zip(self.concept, self.variant)))
-
-        def order(key: tuple[str, str]) -> tuple[int, int, int]:
-            concept, variant = key
-            return (CONCEPTS.index(concept) if concept in CONCEPTS else len(CONCEPTS),
-                    VARIANTS.index(variant) if variant in VARIANTS else len(VARIANTS),
-                    keys.index(key))
-
-        pairs = np.array(list(zip(self.concept, self.variant)), dtype=object).reshape(-1, 2)
-        return [(c, v, self.select((pairs[:, 0] == c) & (pairs[:, 1] == v)))
-                for c, v in sorted(keys, key=order)]
+        of ``specs`` where known, others after them in order of first appearance; with
+        ``pooled``, also each concept's ``pooled`` group (standard + counterbalanced)."""
+        return [(concept, variant, self.select(rows)) for concept, variant, rows
+                in pair_groups(self.concept, self.variant, pooled=pooled)]
 
     def csv_columns(self) -> list[str]:
         frames = [f"t{t:02d}" for t in range(self.num_frames)]
@@ -236,10 +236,12 @@ class PredictionExample:
 def summarize(
     results: PairResults, alpha: float = 0.05, bootstrap: int = 2000, seed: int = 0
 ) -> list[dict[str, Any]]:
-    """One row per concept/variant: the paired test of summed surprise. A group with fewer
-    than two pairs gets ``None`` statistics and a note instead of failing the report."""
+    """One row per concept/variant, and a ``pooled`` row per concept with a counterbalanced
+    pair (the test over the union of both variants' pairs): the paired test of summed
+    surprise. A group with fewer than two pairs gets ``None`` statistics and a note instead
+    of failing the report."""
     rows = []
-    for concept, variant, pairs in results.groups():
+    for concept, variant, pairs in results.groups(pooled=True):
         row: dict[str, Any] = {"concept": concept, "variant": variant}
         if len(pairs) < 2:
             row.update({key: None for key in SUMMARY_COLUMNS[2:]})
@@ -286,8 +288,19 @@ def _interval(value: Any, low: Any, high: Any, spec: str) -> str:
     return f"{_number(value, spec)} [{_number(low, spec)}, {_number(high, spec)}]"
 
 
+def format_verdicts(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """Markdown lines of each concept's VOE verdict (``statistics.concept_verdicts``)."""
+    alpha = next((row["alpha"] for row in rows if row.get("alpha") is not None), 0.05)
+    lines = []
+    for verdict in concept_verdicts(rows, alpha):
+        text = "**VOE**" if verdict.voe else verdict.text()
+        lines.append(f"- {verdict.concept}: {text} (rule: {verdict.rule})")
+    return lines
+
+
 def format_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
-    """The summary as a Markdown table (paper notation), notes as footnotes below it."""
+    """The summary as a Markdown table (paper notation), notes as footnotes below it, then
+    each concept's VOE verdict."""
     header = ("| concept | variant | n | M [95% CI] | t(df) | p | sig. | d_z [95% CI] "
               "| accuracy | AUROC |")
     lines = [header, "|" + "---|" * (header.count("|") - 1)]
@@ -310,8 +323,14 @@ def format_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
     lines.append("")
     lines.append("M: mean relative surprise d = S(inconsistent) - S(consistent), S = sum over "
                  "frames of KL(posterior || prior); one-tailed paired t-test, H1: M > 0; "
-                 "sig.: p < alpha (* as in the paper); accuracy: share of pairs with d > 0.")
+                 "sig.: p < alpha (* as in the paper); accuracy: share of pairs with d > 0; "
+                 "pooled: the test over the union of a concept's standard and counterbalanced "
+                 "pairs.")
     lines.extend(f"[{i}] {note}" for i, note in enumerate(notes, start=1))
+    lines += ["", "Verdicts: a concept shows VOE only when its pooled test is significant and "
+              "both variants point the right way (M > 0); without a counterbalanced pair, when "
+              "every probe variant is significant. Generalization variants do not enter.", ""]
+    lines += format_verdicts(rows)
     return "\n".join(lines) + "\n"
 
 
@@ -549,6 +568,7 @@ def write_report(
     trajectories: Mapping[str, Any] | None = None,
     *,
     trajectory_labels: Sequence[str] | None = None,
+    cue_audit: cues.CueAudit | None = None,
     alpha: float = 0.05,
     bootstrap: int = 2000,
     seed: int = 0,
@@ -556,7 +576,8 @@ def write_report(
 ) -> list[dict[str, Any]]:
     """Write ``out_dir/voe_report/`` (module docstring) and return the summary rows.
     ``predictions`` give predictions_<concept>.png, ``trajectories`` (see ``tsne_figure``)
-    give tsne_object_persistence.png; ``echo`` prints the Markdown table."""
+    give tsne_object_persistence.png, ``cue_audit`` (scores of the same pairs) gives
+    cues.md/csv/json; ``echo`` prints the Markdown tables."""
     if len(results) == 0:
         raise ValueError("no probe results to report")
     report_dir = Path(out_dir) / "voe_report"
@@ -566,7 +587,9 @@ def write_report(
     document = {"alpha": alpha, "bootstrap_resamples": bootstrap, "num_pairs": len(results),
                 "num_frames": results.num_frames,
                 "video_surprise": "sum over frames of KL(posterior || prior)",
-                "rows": [{k: _json_value(v) for k, v in row.items()} for row in rows]}
+                "rows": [{k: _json_value(v) for k, v in row.items()} for row in rows],
+                "verdicts": [{"concept": v.concept, "voe": v.voe, "verdict": v.text(),
+                              "rule": v.rule} for v in concept_verdicts(rows, alpha)]}
     (report_dir / "summary.json").write_text(json.dumps(document, indent=2) + "\n")
     with open(report_dir / "summary.csv", "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=SUMMARY_COLUMNS)
@@ -575,6 +598,15 @@ def write_report(
     markdown = format_markdown(rows)
     (report_dir / "summary.md").write_text(markdown)
     results.to_csv(report_dir / "pairs.csv")
+    if cue_audit is not None:
+        if len(cue_audit) != len(results):
+            raise ValueError(f"the cue audit scored {len(cue_audit)} pairs, the model "
+                             f"{len(results)}: they must be the same pairs")
+        cue_rows = cue_audit.rows(alpha=alpha)
+        title = "Cue audit on the model's test pairs"
+        cues.write_audit(cue_rows, report_dir, model_rows=rows, title=title, alpha=alpha,
+                         num_pairs=len(cue_audit))
+        markdown += "\n" + cues.format_markdown(cue_rows, rows, title)
 
     _save(histogram_figure(results, rows), report_dir / "histograms.png")
     _save(per_frame_figure(results), report_dir / "surprise_per_frame.png")
@@ -623,9 +655,11 @@ class VOEReportCallback(Callback):
     up to ``max_prediction_examples`` inconsistent probes per concept/variant for
     predictions_<concept>.png (``pl_module.expected_frames``) and ``tsne_pairs``
     object-persistence pairs, standard and counterbalanced alternately, for the t-SNE figure
-    (``pl_module.trajectories``). Names are decoded with ``trainer.datamodule.concept_names``
-    / ``variant_names``. After the test, ``summary`` holds the rows and ``report_dir`` the
-    directory written."""
+    (``pl_module.trajectories``). With ``cue_audit`` it scores the physics-blind cues of every
+    test batch's pairs (``voe_lightning.cues``, on the batch's device), so the cue rows of
+    cues.md/cues.csv share the model's pairs and n. Names are decoded with
+    ``trainer.datamodule.concept_names`` / ``variant_names``. After the test, ``summary``
+    holds the rows and ``report_dir`` the directory written."""
 
     def __init__(
         self,
@@ -635,6 +669,7 @@ class VOEReportCallback(Callback):
         alpha: float = 0.05,
         bootstrap: int = 2000,
         seed: int = 0,
+        cue_audit: bool = True,
     ) -> None:
         if max_prediction_examples < 0 or tsne_pairs < 0:
             raise ValueError("max_prediction_examples and tsne_pairs must be >= 0, got "
@@ -643,6 +678,7 @@ class VOEReportCallback(Callback):
         self.max_prediction_examples = max_prediction_examples
         self.tsne_pairs = tsne_pairs
         self.alpha, self.bootstrap, self.seed = alpha, bootstrap, seed
+        self.cue_audit = cue_audit
         self.summary: list[dict[str, Any]] | None = None
         self.report_dir: Path | None = None
         self._failed = False
@@ -650,6 +686,7 @@ class VOEReportCallback(Callback):
 
     def _reset(self) -> None:
         self._outputs: list[dict[str, np.ndarray]] = []
+        self._cues: list[cues.CueAudit] = []
         self._examples: dict[tuple[int, int], list[dict[str, Any]]] = {}
         self._tsne: dict[int, list[dict[str, Any]]] = {}
 
@@ -697,6 +734,9 @@ class VOEReportCallback(Callback):
             raise KeyError(f"test_step output lacks {missing} (needs {list(PROBE_OUTPUT_KEYS)})")
         stored = {key: _numpy(outputs[key], None) for key in PROBE_OUTPUT_KEYS}
         self._outputs.append(stored)
+        if self.cue_audit:
+            self._cues.append(cues.CueAudit.score_batch(batch, self._concept_names,
+                                                        self._variant_names))
         self._keep_examples(stored, batch)
 
     def _keep_examples(self, stored: Mapping[str, np.ndarray], batch: Any) -> None:
@@ -716,7 +756,7 @@ class VOEReportCallback(Callback):
                                         batch["consistent", "frames"][i].cpu().clone()})
 
     def on_test_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
-        gathered = _gather((self._outputs, self._examples, self._tsne))
+        gathered = _gather((self._outputs, self._examples, self._tsne, self._cues))
         if not trainer.is_global_zero:
             return
         outputs = [output for rank in gathered for output in rank[0]]
@@ -726,6 +766,8 @@ class VOEReportCallback(Callback):
                                                  self._variant_names)
         examples = [e for rank in gathered for kept in rank[1].values() for e in kept]
         tsne = [e for rank in gathered for kept in rank[2].values() for e in kept]
+        cue_audit = (cues.CueAudit.concatenate(a for rank in gathered for a in rank[3])
+                     if self.cue_audit else None)
         was_training = pl_module.training
         pl_module.eval()
         try:
@@ -736,7 +778,8 @@ class VOEReportCallback(Callback):
             pl_module.train(was_training)
         out_dir = self.out_dir or trainer.log_dir or trainer.default_root_dir
         self.summary = write_report(results, out_dir, predictions, trajectories,
-                                    trajectory_labels=labels, alpha=self.alpha,
+                                    trajectory_labels=labels, cue_audit=cue_audit,
+                                    alpha=self.alpha,
                                     bootstrap=self.bootstrap, seed=self.seed)
         self.report_dir = Path(out_dir) / "voe_report"
         self._write_benchmark_metrics(trainer.datamodule, outputs)
