@@ -1,6 +1,7 @@
 """The command line: ``fit``/``validate``/``test`` through LightningCLI, and ``generate``
-(render the datasets), ``analyze`` (figures over runs) and ``intphys-answer`` (the IntPhys
-challenge's submission file) through their own parsers."""
+(render the datasets), ``audit`` (physics-blind cue scores of a probe split), ``analyze``
+(figures over runs) and ``intphys-answer`` (the IntPhys challenge's submission file) through
+their own parsers, listed in ``--help``."""
 
 from __future__ import annotations
 
@@ -14,12 +15,17 @@ from lightning.pytorch.cli import LightningCLI
 
 from voe_lightning.model import VOEModel
 
-#: subcommand -> (module, function taking the remaining arguments)
+#: subcommand -> (module, function taking the remaining arguments, what it does for --help)
 _COMMANDS_OUTSIDE_LIGHTNING = {
-    "generate": ("voe_lightning.generate", "main"),
-    "analyze": ("voe_lightning.analysis", "main"),
-    "intphys-answer": ("datamodules.intphys", "answer_main"),
+    "generate": ("voe_lightning.generate", "main", "render the datasets"),
+    "audit": ("voe_lightning.cues", "main",
+              "physics-blind cue scores of a probe split, with the model's paired statistics"),
+    "analyze": ("voe_lightning.analysis", "main", "figures over runs: curves, size sweep"),
+    "intphys-answer": ("datamodules.intphys", "answer_main", "the IntPhys submission file"),
 }
+_EPILOG = "other subcommands: " + "; ".join(
+    f"{name} ({summary})" for name, (_, _, summary) in _COMMANDS_OUTSIDE_LIGHTNING.items()
+) + ". Run `python -m voe_lightning SUBCOMMAND --help` for their options."
 
 
 class VOECLI(LightningCLI):
@@ -51,7 +57,7 @@ def main(args: list[str] | None = None) -> Any:
     """Entry point of ``python -m voe_lightning``; tests call ``main([...])``."""
     words = sys.argv[1:] if args is None else list(args)
     if words and words[0] in _COMMANDS_OUTSIDE_LIGHTNING:
-        module_name, function = _COMMANDS_OUTSIDE_LIGHTNING[words[0]]
+        module_name, function, _ = _COMMANDS_OUTSIDE_LIGHTNING[words[0]]
         return getattr(importlib.import_module(module_name), function)(words[1:])
     return VOECLI(
         model_class=VOEModel,
@@ -60,5 +66,6 @@ def main(args: list[str] | None = None) -> Any:
         subclass_mode_data=True,
         seed_everything_default=0,
         save_config_kwargs={"overwrite": True},
+        parser_kwargs={"prog": "python -m voe_lightning", "epilog": _EPILOG},
         args=args,
     )

@@ -1,0 +1,170 @@
+"""The cue audit: each physics-blind scorer on hand-built videos with known answers, rows equal
+to scipy's paired t-test on the cue scores, pooled rows over the union of both variants, ties
+counted half, mask-less pairs skipped with a note, and ``python -m voe_lightning audit`` on a
+tiny generated store."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import torch
+from scipy import stats
+from tensordict import TensorDict
+
+from voe_lightning import cues, specs
+from voe_lightning.cli import main
+from voe_lightning.generate import generate_dataset
+
+T, H, W = 6, 16, 16
+
+
+def _score(frames, mask=None, m=2):
+    frames = torch.as_tensor(np.asarray(frames, np.uint8))[None]
+    mask = None if mask is None else torch.as_tensor(np.asarray(mask, np.uint8))[None]
+    return {cue: float(value[0]) for cue, value in cues.score_videos(frames, mask, torch.tensor([m])).items()}
+
+
+def _square_appears(at):
+    """Grey background; a white 4x4 square (mask id 1) from frame ``at`` on."""
+    frames = np.full((T, H, W, 3), 100, np.uint8)
+    mask = np.zeros((T, H, W), np.uint8)
+    frames[at:, 4:8, 4:8] = 255
+    mask[at:, 4:8, 4:8] = 1
+    return frames, mask
+
+
+def test_a_square_appearing_after_m_raises_foreground_and_novelty():
+    empty = _score(*_square_appears(T))  # never appears
+    appears = _score(*_square_appears(4))
+    assert empty == {cue: 0.0 for cue in cues.CUES}
+    assert appears["foreground_pixels"] == 16 * (T - 4)  # frames 4 and 5
+    # New at frame 4 only: L1 over RGB of (255 - 100) / 255 on 16 pixels; frame 5 saw it at 4.
+    assert appears["pixel_novelty"] == pytest.approx(16 * 3 * 155 / 255, rel=1e-6)
+    assert appears["motion_energy"] > 0 and appears["copy_last_error"] > 0
+
+
+def test_nothing_at_or_before_the_manipulation_frame_counts():
+    scores = _score(*_square_appears(2), m=2)  # appears at m: the same in both videos of a pair
+    assert scores["motion_energy"] == scores["copy_last_error"] == scores["pixel_novelty"] == 0.0
+    assert scores["foreground_pixels"] == 16 * (T - 3)  # frames after m only
+
+
+def test_static_video_has_no_motion_and_linear_change_no_extrapolation_error():
+    static = _score(np.full((T, H, W, 3), 77, np.uint8))
+    assert static["motion_energy"] == static["copy_last_error"] == 0.0
+    assert static["linear_extrapolation_error"] == static["pixel_novelty"] == 0.0
+    ramp = np.broadcast_to((20 + 30 * np.arange(T))[:, None, None, None], (T, H, W, 3))
+    linear = _score(ramp.astype(np.uint8), m=1)
+    step = 30 / 255
+    assert linear["copy_last_error"] == pytest.approx((T - 2) * step**2, rel=1e-5)
+    assert linear["motion_energy"] == pytest.approx((T - 2) * step, rel=1e-5)
+    assert linear["linear_extrapolation_error"] == pytest.approx(0.0, abs=1e-10)
+
+
+def test_score_videos_refuses_bad_shapes_and_frames():
+    with pytest.raises(ValueError, match=r"\[B, T, H, W, 3\]"):
+        cues.score_videos(torch.zeros(T, H, W, 3, dtype=torch.uint8), None, torch.tensor([1]))
+    with pytest.raises(ValueError, match=r"in \[0, 5\], got \[6\]"):
+        cues.score_videos(torch.zeros(1, T, H, W, 3, dtype=torch.uint8), None, torch.tensor([6]))
+
+
+def _pair(concept, variant, seed, masks=True):
+    """Consistent: the square appears at frame 3; inconsistent: at frame 3 + seed % 4 (6 is
+    never), with noise so no two pairs are alike."""
+    rng = np.random.default_rng(seed)
+    consistent, mask = _square_appears(3)
+    inconsistent, inconsistent_mask = _square_appears(3 + seed % 4)
+    inconsistent = np.clip(inconsistent + rng.integers(0, 3, inconsistent.shape), 0, 255)
+    if not masks:
+        mask, inconsistent_mask = np.zeros_like(mask), np.zeros_like(mask)
+    video = lambda f, k: {"frames": torch.from_numpy(f.astype(np.uint8)), "mask": torch.from_numpy(k)}
+    return TensorDict({
+        "consistent": video(consistent, mask), "inconsistent": video(inconsistent, inconsistent_mask),
+        "concept": torch.tensor(specs.CONCEPTS.index(concept)),
+        "variant": torch.tensor(specs.VARIANTS.index(variant)),
+        "manipulation_frame": torch.tensor(2), "seed": torch.tensor(seed),
+    }, batch_size=[])
+
+
+@pytest.fixture(scope="module")
+def audit():
+    records = [_pair("object_persistence", v, 10 * i + s)
+               for i, v in enumerate(["standard", "counterbalanced"]) for s in range(6)]
+    records += [_pair("unchangeableness", "color", 100 + s, masks=False) for s in range(5)]
+    return cues.audit_records(records, batch_size=4)
+
+
+def test_rows_agree_with_scipy_and_pool_the_union_of_both_variants(audit):
+    rows = {(r["concept"], r["variant"], r["cue"]): r for r in audit.rows()}
+    assert [(c, v) for c, v, _ in audit.groups()] == [
+        ("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
+        ("object_persistence", "pooled"), ("unchangeableness", "color")]
+    persistence = audit.concepts == "object_persistence"
+    for variant, selected in [("standard", persistence & (audit.variants == "standard")),
+                              ("counterbalanced", persistence & (audit.variants == "counterbalanced")),
+                              ("pooled", persistence)]:
+        for cue in ("motion_energy", "pixel_novelty"):
+            inconsistent = audit.scores["inconsistent"][cue][selected]
+            consistent = audit.scores["consistent"][cue][selected]
+            reference = stats.ttest_rel(inconsistent, consistent, alternative="greater")
+            row = rows[("object_persistence", variant, cue)]
+            assert row["n"] == selected.sum() == (12 if variant == "pooled" else 6)
+            assert row["t"] == pytest.approx(reference.statistic, rel=1e-10)
+            assert row["p_value"] == pytest.approx(reference.pvalue, rel=1e-8)
+            two_sided = stats.ttest_rel(inconsistent, consistent).pvalue
+            assert row["p_two_sided"] == pytest.approx(two_sided, rel=1e-8)
+
+
+def test_accuracy_counts_ties_half(audit):
+    rows = {(r["concept"], r["variant"], r["cue"]): r for r in audit.rows()}
+    d = (audit.scores["inconsistent"]["foreground_pixels"]
+         - audit.scores["consistent"]["foreground_pixels"])[audit.variants == "standard"]
+    assert (d == 0).any() and (d < 0).any()  # some pairs tie: the square appears at 3 in both
+    expected = np.mean(d > 0) + 0.5 * np.mean(d == 0)
+    assert rows[("object_persistence", "standard", "foreground_pixels")]["accuracy"] == expected
+
+
+def test_pairs_without_masks_skip_the_mask_cue_with_a_note(audit, tmp_path):
+    rows = [r for r in audit.rows() if r["concept"] == "unchangeableness"]
+    skipped = {r["cue"]: r for r in rows}["foreground_pixels"]
+    assert skipped["t"] is None and "no object mask" in skipped["note"] and skipped["n"] == 5
+    assert all(r["t"] is not None for r in rows if r["cue"] != "foreground_pixels")
+    cues.write_audit(audit.rows(), tmp_path)
+    markdown = (tmp_path / "cues.md").read_text()
+    assert "| unchangeableness | color | 5 | n/a |" in markdown
+    assert "unchangeableness/color, foreground: foreground_pixels skipped" in markdown
+
+
+def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
+    root = tmp_path / "store"
+    # 2 test pairs per variant: unchangeableness' scene sampler gives up on test seed 8 (shape).
+    generate_dataset(root, concepts=["object_persistence", "unchangeableness"], train_examples=0,
+                     val_pairs_per_variant=4, test_pairs_per_variant=2,
+                     generalization_pairs_per_variant=0, workers=1, num_frames=6, height=32,
+                     width=32, progress=False)
+    capsys.readouterr()
+    out = tmp_path / "out"
+    rows = main(["audit", "--root", str(root), "--split", "val", "--no-progress", "--out", str(out)])
+    printed = capsys.readouterr().out
+    assert "Cue audit of" in printed and "pooled" in printed and "novelty" in printed
+    groups = list(dict.fromkeys((r["concept"], r["variant"], r["n"]) for r in rows))
+    assert groups == [("object_persistence", "standard", 4), ("object_persistence", "counterbalanced", 4),
+                      ("object_persistence", "pooled", 8), ("unchangeableness", "position", 4),
+                      ("unchangeableness", "color", 4), ("unchangeableness", "shape", 4)]
+    with open(out / "cues.csv", newline="") as handle:
+        table = list(csv.DictReader(handle))
+    assert len(table) == 6 * len(cues.CUES) and tuple(table[0]) == cues.CUE_COLUMNS
+    document = json.loads((out / "cues.json").read_text())
+    assert document["split"] == "val" and document["num_pairs"] == 20
+    assert "| object_persistence | **pooled** | 8 |" in (out / "cues.md").read_text()
+
+    only = main(["audit", "--root", str(root), "--concepts", "unchangeableness", "--no-progress"])
+    assert {(r["concept"], r["n"]) for r in only} == {("unchangeableness", 2)}  # test split
+    assert (root / "cue_audit" / "test" / "cues.md").is_file()  # the default --out
+    with pytest.raises(SystemExit):
+        main(["audit", "--root", str(root), "--split", "train"])
+    assert "invalid choice: 'train'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["audit", "--root", str(tmp_path / "nowhere"), "--no-progress"])
+    assert "no dataset at" in capsys.readouterr().err
