@@ -1,6 +1,7 @@
 """`python -m voe_lightning fit|test` end to end through main([...]) with a tiny config, and the
 refusals that must happen before any work starts."""
 
+import csv
 import json
 import subprocess
 import sys
@@ -38,17 +39,25 @@ def test_fit_then_test_writes_curves_checkpoint_and_report(workdir):
     for statistic in ("relative_surprise", "t", "p_value", "accuracy"):
         assert f"voe/object_persistence/standard/{statistic}" in tags
         assert f"voe/object_persistence/counterbalanced/{statistic}" in tags
+        assert f"voe/object_persistence/pooled/{statistic}" in tags
     assert {"train/loss", "train/reconstruction", "train/kl", "train/prior_regularizer"} <= tags
     assert "expected/object_persistence" in _tags(run, "images")  # input above expectation
 
     main(["test", "--config", CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
     report = run / "voe_report"  # beside the checkpoint's run, not in a new version
     summary = json.loads((report / "summary.json").read_text())["rows"]
-    cases = {(row["concept"], row["variant"]) for row in summary}
-    assert cases == {("object_persistence", "standard"), ("object_persistence", "counterbalanced")}
-    assert all(row["n"] == 3 for row in summary)
+    cases = {(row["concept"], row["variant"], row["n"]) for row in summary}
+    assert cases == {("object_persistence", "standard", 3),
+                     ("object_persistence", "counterbalanced", 3),
+                     ("object_persistence", "pooled", 6)}
     for name in ("pairs.csv", "summary.md", "histograms.png", "surprise_per_frame.png"):
         assert (report / name).is_file(), name
+    # The cue audit of the same test pairs, beside the model's rows.
+    with open(report / "cues.csv", newline="") as handle:
+        cue_cases = {(r["concept"], r["variant"], int(r["n"])) for r in csv.DictReader(handle)}
+    assert cue_cases == cases
+    assert "| object_persistence | **pooled** | 6 |" in (report / "cues.md").read_text()
+    assert "- object_persistence: " in (report / "summary.md").read_text()  # the verdict
 
     # The notebook reproduces the figures from this real run's directory.
     notebook = nbformat.read(Path(__file__).parents[1] / "notebooks" / "voe_report.ipynb", 4)
@@ -106,7 +115,7 @@ def test_module_entry_point_lists_the_subcommands():
     result = subprocess.run(
         [sys.executable, "-m", "voe_lightning", "--help"], capture_output=True, text=True, check=True
     )
-    for subcommand in ("fit", "validate", "test"):
+    for subcommand in ("fit", "validate", "test", "generate", "audit", "analyze"):
         assert subcommand in result.stdout
 
 
@@ -139,6 +148,8 @@ def test_test_on_intphys_dev_reports_the_benchmark_metrics(workdir):
     assert "relative_error_rate" in json.dumps(metrics)
     summary = json.loads((report / "summary.json").read_text())["rows"]
     assert {row["concept"] for row in summary} <= {"O1_object_permanence", "O2_shape_constancy"}
+    # IntPhys has no masks: the cue audit skips foreground_pixels with a note, not a failure.
+    assert "foreground_pixels skipped" in (report / "cues.md").read_text()
 
 
 def test_intphys_answer_command_scores_every_test_movie(workdir):

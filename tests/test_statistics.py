@@ -217,3 +217,40 @@ def test_streaming_degenerate_inputs():
                  torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
     values = equal.compute()  # d = 0.1 up to rounding: exactly the zero-variance rule
     assert values["t"].item() == math.inf and values["p_value"].item() == 0.0
+
+
+# ----------------------------------------------------------------------------- verdicts
+
+
+def _result(p, mean):
+    return {"p_value": p, "relative_surprise": mean}
+
+
+def test_pooled_verdict_needs_a_significant_pool_and_both_variants_positive():
+    from voe_lightning.statistics import concept_verdicts
+
+    def verdict(standard, counterbalanced, pooled):
+        results = {("continuity", "standard"): standard,
+                   ("continuity", "counterbalanced"): counterbalanced,
+                   ("continuity", "pooled"): pooled}
+        return concept_verdicts(results)[0]
+
+    assert verdict(_result(0.01, 2.0), _result(0.3, 0.1), _result(0.02, 1.0)).voe is True
+    failed = verdict(_result(0.001, 5.0), _result(0.9, -0.5), _result(0.01, 2.0))
+    assert failed.voe is False and failed.text() == "no VOE: counterbalanced M = -0.5 <= 0"
+    weak = verdict(_result(0.2, 1.0), _result(0.3, 0.5), _result(0.06, 0.7))
+    assert weak.text() == "no VOE: pooled p = .060 >= 0.05"
+    missing = concept_verdicts({("continuity", "standard"): _result(0.001, 3.0)})[0]
+    assert missing.voe is None and "counterbalanced, pooled" in missing.text()
+
+
+def test_unchangeableness_verdict_needs_every_variant_significant():
+    from voe_lightning.statistics import concept_verdicts
+
+    results = {("unchangeableness", v): _result(0.01, 1.0) for v in ("position", "color", "shape")}
+    results[("unchangeableness", "color_plus1")] = _result(0.9, -1.0)  # generalization: ignored
+    assert concept_verdicts(results)[0].voe is True
+    results[("unchangeableness", "shape")] = _result(0.2, 0.4)
+    assert concept_verdicts(results)[0].text() == "no VOE: shape p = .200 >= 0.05"
+    results[("unchangeableness", "color")] = {"p_value": None, "relative_surprise": None}
+    assert concept_verdicts(results)[0].voe is None

@@ -1,0 +1,67 @@
+"""VOEProbeCallback: per concept/variant streaming tests plus the pooled test over the union of
+a counterbalanced concept's pairs, logged as voe/<concept>/pooled/*, and the printed verdict."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+from rich.console import Console
+from scipy import stats
+
+from voe_lightning import specs
+from voe_lightning.callbacks import VOEProbeCallback, voe_table
+
+CASES = [("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
+         ("unchangeableness", "color")]
+
+
+class _Module:
+    device = torch.device("cpu")
+
+    def __init__(self):
+        self.logged = {}
+
+    def log(self, name, value, **kwargs):
+        self.logged[name] = value
+
+
+def test_probe_callback_logs_the_pooled_test_over_both_variants():
+    rng = np.random.default_rng(0)
+    datamodule = SimpleNamespace(probe_cases=lambda split="val": CASES,
+                                 concept_names=specs.CONCEPTS, variant_names=specs.VARIANTS)
+    trainer = SimpleNamespace(datamodule=datamodule, sanity_checking=False)
+    callback, module = VOEProbeCallback(print_table=False), _Module()
+    callback.on_validation_epoch_start(trainer, module)
+    pairs = {case: ([], []) for case in CASES}
+    for batch in range(3):  # mixed batches of all three cases
+        index = rng.integers(0, 3, 8)
+        consistent = rng.gamma(2.0, 1.0, (8, 5))
+        inconsistent = consistent + rng.normal(0.3, 1.0, (8, 5))
+        outputs = {
+            "concept": torch.tensor([specs.CONCEPTS.index(CASES[i][0]) for i in index]),
+            "variant": torch.tensor([specs.VARIANTS.index(CASES[i][1]) for i in index]),
+            "surprise_consistent": torch.from_numpy(consistent),
+            "surprise_inconsistent": torch.from_numpy(inconsistent),
+        }
+        callback.on_validation_batch_end(trainer, module, outputs, None, batch)
+        for row, i in enumerate(index):
+            pairs[CASES[i]][0].append(inconsistent[row].sum())
+            pairs[CASES[i]][1].append(consistent[row].sum())
+    callback.on_validation_epoch_end(trainer, module)
+
+    union = [pairs[CASES[0]][k] + pairs[CASES[1]][k] for k in (0, 1)]
+    reference = stats.ttest_rel(*union, alternative="greater")
+    assert module.logged["voe/object_persistence/pooled/t"] == pytest.approx(reference.statistic)
+    assert module.logged["voe/object_persistence/pooled/p_value"] == pytest.approx(reference.pvalue)
+    assert callback.last[("object_persistence", "pooled")]["n"] == len(union[0])
+    for statistic in VOEProbeCallback.STATISTICS:
+        assert f"voe/object_persistence/pooled/{statistic}" in module.logged
+    assert not any(name.startswith("voe/unchangeableness/pooled") for name in module.logged)
+    assert list(callback.last) == [CASES[0], CASES[1], ("object_persistence", "pooled"), CASES[2]]
+
+    console = Console(width=200, record=True)
+    console.print(voe_table(callback.last, title="VOE"))
+    text = console.export_text()
+    assert "verdict" in text and "pooled" in text
+    assert "undecided: no test of position, shape" in text  # unchangeableness lacks two variants
