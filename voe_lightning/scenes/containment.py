@@ -306,7 +306,9 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
         else:
             layout, frame = sample_layout(rng, video, BEHIND_RANGES)
             drop_behind(rng, layout)
-            target = inside_point(rng, layout)
+            # The cube reappears (unseen) close to the front wall, which hides it best.
+            target_x, _ = inside_point(rng, layout)
+            target = (target_x, layout.container_xy[1] - layout.half_y + 1.5 * layout.cube_half)
             sim = build(rng, video, camera, layout)
             twins: list[Simulation] = []
 
