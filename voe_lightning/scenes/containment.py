@@ -237,7 +237,8 @@ def sample_layout(
     def draw(name: str) -> float:
         return float(rng.uniform(*getattr(ranges, name)))
 
-    half_x, half_y, height, cube_half = draw("half_x"), draw("half_y"), draw("height"), draw("cube_half")
+    half_x, half_y = draw("half_x"), draw("half_y")
+    height, cube_half = draw("height"), draw("cube_half")
     shift = float(rng.choice([-1.0, 1.0])) * draw("shift")
     x0, y0 = -shift / 2 + draw("offset_x"), draw("y")
     layout = Layout(
@@ -271,14 +272,16 @@ def drop_behind(rng: np.random.Generator, layout: Layout) -> None:
     x0, y0 = layout.container_xy
     behind = layout.half_y + WALL + layout.cube_half * 1.5 + float(rng.uniform(0.0, 0.08))
     room_x = layout.half_x - layout.cube_half
-    layout.cube_start = (x0 + float(rng.uniform(-room_x, room_x)), y0 + behind, layout.cube_start[2])
+    x = x0 + float(rng.uniform(-room_x, room_x))
+    layout.cube_start = (x, y0 + behind, layout.cube_start[2])
 
 
 def check_hidden_and_carried(
     sim: Simulation, layout: Layout, frame: int, videos, start: tuple[float, float]
 ) -> None:
-    """Reject a probe whose cube shows at the manipulation frame in either video, or which the
-    consistent-or-twin ``sim`` failed to carry along with the container from ``start``."""
+    """Reject a probe whose cube shows at the manipulation frame in either of its ``videos``,
+    or whose cube ``sim`` (the branch where it rides in the container, run to the end) did not
+    carry along with the container from ``start``."""
     cube = sim.mask_id("cube")
     for _, masks in videos:
         if cube in base.visible_ids(masks[frame]):
@@ -302,7 +305,8 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
             layout, frame = sample_layout(rng, video, PROBE_RANGES)
             sim = build(rng, video, camera, layout)
             consistent, inconsistent = base.record_pair(sim, frame, release_cube)
-            check_hidden_and_carried(sim, layout, frame, (consistent, inconsistent), layout.cube_start)
+            start = layout.cube_start
+            check_hidden_and_carried(sim, layout, frame, (consistent, inconsistent), start)
         else:
             layout, frame = sample_layout(rng, video, BEHIND_RANGES)
             drop_behind(rng, layout)
@@ -313,7 +317,7 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
             twins: list[Simulation] = []
 
             def pass_into_container(twin: Simulation) -> None:
-                """The hidden 'magic': the cube moves through the back wall onto the bottom."""
+                """The hidden 'magic': the cube passes through the back wall onto the bottom."""
                 quat = twin.data.body("cube").xquat.copy()
                 twin.move("cube", (*target, WALL + layout.cube_half + 1e-3), quat)
                 twins.append(twin)
