@@ -1,10 +1,16 @@
 """Containment (paper §3, after Hespos & Baillargeon 2001): a cube falls into an open container,
 a rod descends and slides the container sideways. Consistent: the cube travels inside it.
-Inconsistent: the container slides away and reveals the cube where it fell."""
+Inconsistent: the container slides away and reveals the cube where it fell.
+
+Counterbalanced variant (ours): the cube falls behind the container (the
+``cube_behind_container`` control). Consistent: the sliding container reveals it where it fell.
+Inconsistent: it passed through the back wall while hidden and travels away inside the
+container, never revealed. Its inconsistent video shows the cube that the standard one hides,
+so pooling both variants cancels visible-object and motion cues."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 
 import mujoco
 import numpy as np
@@ -14,6 +20,7 @@ from voe_lightning import specs
 from voe_lightning.scenes import base
 from voe_lightning.scenes.base import (
     CameraPose,
+    CameraRange,
     Geom,
     RejectedSample,
     SceneBuilder,
@@ -22,8 +29,15 @@ from voe_lightning.scenes.base import (
 )
 
 CONCEPT = "containment"
-#: Probes use one static camera looking down on the container just enough to see its rim.
-PROBE_CAMERA = CameraPose(lookat=(0.0, 0.2, 0.35), distance=3.0, azimuth=90.0, elevation=-27.0)
+#: The one (static per clip) camera distribution of examples, every control and the probes.
+CAMERA = CameraRange(
+    lookat_x=(-0.2, 0.2),
+    lookat_y=(0.0, 0.4),
+    lookat_z=(0.3, 0.4),
+    distance=(3.0, 3.8),
+    azimuth=(75.0, 105.0),
+    elevation=(-32.0, -22.0),
+)
 WALL = 0.03  # wall and bottom thickness of the container
 ROD_RADIUS = 0.035
 ROD_HALF_LENGTH = 0.8
@@ -157,101 +171,179 @@ def timeline(rng: np.random.Generator, video: VideoOptions) -> tuple[int, float,
     return frame, move_start, move_end, rod_down
 
 
-def probe_layout(rng: np.random.Generator, video: VideoOptions) -> tuple[Layout, int]:
-    """A container tall enough to hide the cube lying on its bottom; the cube dropped into it."""
+@dataclass(frozen=True)
+class LayoutRanges:
+    """Uniform (low, high) ranges of a scene's free parameters: the container's inner
+    half-sizes and wall height, the cube's half-size, the container's offset from the centre of
+    its slide (``offset_x``, so the slide stays in view) and its depth ``y``, the slide's length
+    (either direction) and how far above the rim the cube is dropped."""
+
+    half_x: tuple[float, float]
+    half_y: tuple[float, float]
+    height: tuple[float, float]
+    cube_half: tuple[float, float]
+    offset_x: tuple[float, float]
+    y: tuple[float, float]
+    shift: tuple[float, float]
+    drop: tuple[float, float]
+
+    def contains(self, other: "LayoutRanges") -> bool:
+        """Whether every range of ``other`` lies inside this one's."""
+        return all(
+            getattr(self, f.name)[0] <= getattr(other, f.name)[0]
+            and getattr(other, f.name)[1] <= getattr(self, f.name)[1]
+            for f in fields(self)
+        )
+
+
+#: Probes (and the ``cube_behind_container`` control, which needs the same occlusion): a
+#: container tall and wide enough to hide the cube lying on its bottom or just behind it.
+PROBE_RANGES = LayoutRanges(
+    half_x=(0.26, 0.36),
+    half_y=(0.2, 0.28),
+    height=(0.42, 0.55),
+    cube_half=(0.08, 0.11),
+    offset_x=(-0.15, 0.15),
+    y=(-0.1, 0.2),
+    shift=(0.8, 1.1),
+    drop=(0.35, 0.8),
+)
+#: The cube falls behind the container (``counterbalanced`` probes and the
+#: ``cube_behind_container`` control). Revealed farther from the camera and later (the whole
+#: container must pass it), such a cube would show ~30% fewer pixels than the standard probe's
+#: cube left in place; a container nearer the camera and a slightly larger cube even that out.
+BEHIND_RANGES = replace(PROBE_RANGES, y=(-0.35, -0.05), cube_half=(0.09, 0.12))
+#: Examples (and ``cube_random_position``): "like probes, but container position and size are
+#: not constrained to occlude the cube" (paper §3); every probe range lies well inside.
+EXAMPLE_RANGES = LayoutRanges(
+    half_x=(0.18, 0.45),
+    half_y=(0.15, 0.4),
+    height=(0.12, 0.7),
+    cube_half=(0.06, 0.16),
+    offset_x=(-0.45, 0.45),
+    y=(-0.5, 0.6),
+    shift=(0.7, 1.2),
+    drop=(0.3, 0.9),
+)
+
+
+def sample_layout(
+    rng: np.random.Generator, video: VideoOptions, ranges: LayoutRanges
+) -> tuple[Layout, int]:
+    """A layout drawn from ``ranges`` with the cube dropped into the container, and the
+    manipulation frame (the last frame before the container slides)."""
     frame, move_start, move_end, rod_down = timeline(rng, video)
-    half_x, half_y = float(rng.uniform(0.26, 0.36)), float(rng.uniform(0.2, 0.28))
-    cube_half = float(rng.uniform(0.08, 0.11))
-    height = float(rng.uniform(0.42, 0.55))
-    shift = float(rng.choice([-1.0, 1.0])) * float(rng.uniform(0.8, 1.1))
-    x0 = -shift / 2 + float(rng.uniform(-0.15, 0.15))
-    y0 = float(rng.uniform(-0.1, 0.2))
-    room_x, room_y = half_x - cube_half * 1.5, half_y - cube_half * 1.5
-    cube_start = (
-        x0 + float(rng.uniform(-room_x, room_x)),
-        y0 + float(rng.uniform(-room_y, room_y)),
-        height + float(rng.uniform(0.35, 0.8)),
-    )
+
+    def draw(name: str) -> float:
+        return float(rng.uniform(*getattr(ranges, name)))
+
+    half_x, half_y = draw("half_x"), draw("half_y")
+    height, cube_half = draw("height"), draw("cube_half")
+    shift = float(rng.choice([-1.0, 1.0])) * draw("shift")
+    x0, y0 = -shift / 2 + draw("offset_x"), draw("y")
     layout = Layout(
         container_xy=(x0, y0),
         half_x=half_x,
         half_y=half_y,
         height=height,
         cube_half=cube_half,
-        cube_start=cube_start,
+        cube_start=(x0, y0, height + draw("drop")),
         cube_yaw=float(rng.uniform(0, np.pi / 2)),
         shift=shift,
         rod_down=rod_down,
         move_start=move_start,
         move_end=move_end,
     )
+    layout.cube_start = (*inside_point(rng, layout), layout.cube_start[2])
     return layout, frame
 
 
+def inside_point(rng: np.random.Generator, layout: Layout) -> tuple[float, float]:
+    """A random (x, y) where the cube (any yaw) fits inside the container without touching
+    its walls."""
+    x0, y0 = layout.container_xy
+    room_x = max(layout.half_x - layout.cube_half * 1.5, 0.0)
+    room_y = max(layout.half_y - layout.cube_half * 1.5, 0.0)
+    return x0 + float(rng.uniform(-room_x, room_x)), y0 + float(rng.uniform(-room_y, room_y))
+
+
+def drop_behind(rng: np.random.Generator, layout: Layout) -> None:
+    """Move the cube's drop point to just behind the container's back wall (from the camera)."""
+    x0, y0 = layout.container_xy
+    behind = layout.half_y + WALL + layout.cube_half * 1.5 + float(rng.uniform(0.0, 0.08))
+    room_x = layout.half_x - layout.cube_half
+    x = x0 + float(rng.uniform(-room_x, room_x))
+    layout.cube_start = (x, y0 + behind, layout.cube_start[2])
+
+
+def check_hidden_and_carried(
+    sim: Simulation, layout: Layout, frame: int, videos, start: tuple[float, float]
+) -> None:
+    """Reject a probe whose cube shows at the manipulation frame in either of its ``videos``,
+    or whose cube ``sim`` (the branch where it rides in the container, run to the end) did not
+    carry along with the container from ``start``."""
+    cube = sim.mask_id("cube")
+    for _, masks in videos:
+        if cube in base.visible_ids(masks[frame]):
+            raise RejectedSample("the cube shows at the manipulation frame")
+    carried = sim.position("cube")[0] - start[0]
+    if abs(carried - layout.shift) > 0.6 * layout.half_x:
+        raise RejectedSample(f"the cube moved {carried:.2f}, its container {layout.shift:.2f}")
+
+
 def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
-    """A consistent/inconsistent pair (variant ``standard``): both share the frames up to the
-    one just before the container slides, where the cube lies hidden by its walls; from there
-    the inconsistent twin's container no longer touches the cube."""
+    """A consistent/inconsistent pair sharing every frame through the last one before the
+    container slides, where the cube lies hidden. ``standard``: the cube lies inside the
+    container, and the inconsistent container no longer touches it (left behind, revealed).
+    ``counterbalanced``: the cube lies behind the container, and the inconsistent cube is
+    moved inside it (carried away, never revealed)."""
     specs.check_variant(CONCEPT, variant)
 
     def make(rng: np.random.Generator) -> TensorDict:
-        layout, frame = probe_layout(rng, video)
-        sim = build(rng, video, PROBE_CAMERA, layout)
-        consistent, inconsistent = base.record_pair(sim, frame, release_cube)
-        cube = sim.mask_id("cube")
-        for _, masks in (consistent, inconsistent):
-            if cube in base.visible_ids(masks[frame]):
-                raise RejectedSample("the cube shows over the container's walls")
-        carried = sim.position("cube")[0] - layout.cube_start[0]
-        if abs(carried - layout.shift) > 0.6 * layout.half_x:
-            raise RejectedSample(f"the cube moved {carried:.2f}, its container {layout.shift:.2f}")
+        camera = CAMERA.sample(rng)
+        if variant == "standard":
+            layout, frame = sample_layout(rng, video, PROBE_RANGES)
+            sim = build(rng, video, camera, layout)
+            consistent, inconsistent = base.record_pair(sim, frame, release_cube)
+            start = layout.cube_start
+            check_hidden_and_carried(sim, layout, frame, (consistent, inconsistent), start)
+        else:
+            layout, frame = sample_layout(rng, video, BEHIND_RANGES)
+            drop_behind(rng, layout)
+            # The cube reappears (unseen) close to the front wall, which hides it best.
+            target_x, _ = inside_point(rng, layout)
+            target = (target_x, layout.container_xy[1] - layout.half_y + 1.5 * layout.cube_half)
+            sim = build(rng, video, camera, layout)
+            twins: list[Simulation] = []
+
+            def pass_into_container(twin: Simulation) -> None:
+                """The hidden 'magic': the cube passes through the back wall onto the bottom."""
+                quat = twin.data.body("cube").xquat.copy()
+                twin.move("cube", (*target, WALL + layout.cube_half + 1e-3), quat)
+                twins.append(twin)
+
+            consistent, inconsistent = base.record_pair(sim, frame, pass_into_container)
+            check_hidden_and_carried(twins[0], layout, frame, (consistent, inconsistent), target)
         return base.probe_record(
-            CONCEPT, variant, seed, consistent, inconsistent, PROBE_CAMERA, frame, [cube]
+            CONCEPT, variant, seed, consistent, inconsistent, camera, frame, [sim.mask_id("cube")]
         )
 
     return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, variant))
-
-
-def example_camera(rng: np.random.Generator) -> CameraPose:
-    """Training clips vary the (static) camera from video to video."""
-    return CameraPose(
-        lookat=(float(rng.uniform(-0.2, 0.2)), float(rng.uniform(0.0, 0.4)), 0.3),
-        distance=float(rng.uniform(3.0, 3.8)),
-        azimuth=float(rng.uniform(75.0, 105.0)),
-        elevation=float(rng.uniform(-36.0, -24.0)),
-    )
 
 
 def clip_layout(
     kind: str, rng: np.random.Generator, video: VideoOptions
 ) -> tuple[Layout, CameraPose, int]:
     """Layout, camera and the frame just before the container slides, for a training clip."""
-    layout, frame = probe_layout(rng, video)
-    x0, y0 = layout.container_xy
-    camera = PROBE_CAMERA
+    camera = CAMERA.sample(rng)
     if kind == "example":  # container size and place unconstrained: the cube may show
-        camera = example_camera(rng)
-        layout.half_x, layout.half_y = float(rng.uniform(0.18, 0.45)), float(rng.uniform(0.15, 0.4))
-        layout.height = float(rng.uniform(0.12, 0.55))
-        layout.cube_half = float(rng.uniform(0.06, 0.16))
-        x0, y0 = x0 + float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.5, 0.6))
-        layout.container_xy = (x0, y0)
-        room_x = max(layout.half_x - layout.cube_half * 1.5, 0.0)
-        room_y = max(layout.half_y - layout.cube_half * 1.5, 0.0)
-        layout.cube_start = (
-            x0 + float(rng.uniform(-room_x, room_x)),
-            y0 + float(rng.uniform(-room_y, room_y)),
-            layout.height + float(rng.uniform(0.35, 0.8)),
-        )
-    elif kind == "cube_behind_container":  # lands just behind the back wall
-        behind = layout.half_y + WALL + layout.cube_half * 1.5 + float(rng.uniform(0.0, 0.15))
-        room_x = layout.half_x - layout.cube_half
-        layout.cube_start = (
-            x0 + float(rng.uniform(-room_x, room_x)),
-            y0 + behind,
-            layout.cube_start[2],
-        )
+        layout, frame = sample_layout(rng, video, EXAMPLE_RANGES)
+    elif kind == "cube_behind_container":  # lands just behind the back wall, hidden by it
+        layout, frame = sample_layout(rng, video, BEHIND_RANGES)
+        drop_behind(rng, layout)
     else:  # cube_random_position: anywhere in view, off the container's path, not behind it
+        layout, frame = sample_layout(rng, video, EXAMPLE_RANGES)
+        x0, y0 = layout.container_xy
         clear_x = layout.half_x + WALL + 2 * layout.cube_half + 0.1
         clear_y = layout.half_y + WALL + 2 * layout.cube_half + 0.1
         swept = (min(x0, x0 + layout.shift) - clear_x, max(x0, x0 + layout.shift) + clear_x)
