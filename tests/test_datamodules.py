@@ -8,7 +8,9 @@ import torch
 
 from datamodules import ConceptDataModule, JointDataModule
 from datamodules.voe import InterleavedSampler
-from voe_lightning import specs
+from test_store import fake_clip, fake_probe
+
+from voe_lightning import generate, specs, store
 
 
 def test_interleaved_sampler_takes_equal_counts_per_part_and_alternates():
@@ -75,3 +77,25 @@ def test_datamodule_generates_and_serves_spec_batches(tmp_path):
     assert {specs.VARIANTS[v] for v in generalization["variant"].tolist()} == {"three_pillars"}
     assert datamodule.probe_cases("val") == [("continuity", "standard"), ("continuity", "counterbalanced")]
     assert torch.all(generalization["concept"] == specs.CONCEPTS.index("continuity"))
+
+
+def test_prepare_data_regenerates_a_checksum_corrupt_shard(tmp_path, monkeypatch):
+    """Issue 10 case 4: rerunning fit repairs a corrupt record instead of failing again."""
+    monkeypatch.setattr(generate, "generate_clip", fake_clip)
+    monkeypatch.setattr(generate, "generate_probe", fake_probe)
+    datamodule = ConceptDataModule(
+        concept="continuity", root=str(tmp_path), train_examples=4, val_pairs=1, test_pairs=1,
+        generalization_pairs=1, generate_workers=1, num_frames=4, height=16, width=16,
+    )  # fmt: skip
+    datamodule.prepare_data()
+    shard = store.shard_path(tmp_path, "continuity", "train", 0)
+    data = bytearray(shard.read_bytes())
+    data[len(store._MAGIC) + 10] ^= 0xFF  # inside the first record
+    shard.write_bytes(bytes(data))
+    assert store.verify(tmp_path) == [shard]
+    with pytest.warns(UserWarning, match=rf"{shard}: record 0 checksum mismatch"):
+        datamodule.prepare_data()
+    assert store.verify(tmp_path) == []
+    first = store.open_split(tmp_path, "continuity", "train")[0]
+    expected = fake_clip("continuity", specs.CLIP_KINDS[int(first["kind"])], 0, num_frames=4, height=16, width=16)
+    assert torch.equal(first["frames"], expected["frames"])

@@ -195,3 +195,38 @@ def test_command_line_generates_with_real_scenes_in_two_workers(tmp_path):
     expected = scenes.generate_probe("continuity", "standard", generate.SEED_STARTS["val"], height=32, width=32)
     assert torch.equal(val["inconsistent", "frames"], expected["inconsistent", "frames"])
     assert generate.main(argv).shards_generated == 0
+
+
+def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch):
+    """Issue 10 case 1: seeds alone do not make a shard the planned one."""
+    generate.generate_dataset(tmp_path, CONCEPTS, **SMALL)
+    planned = len(generate.plan_shards({"continuity": generate.split_counts("continuity", 4, 4, 2, 3, 1)}, 3))
+    # Record spec: same seeds, other video size, manifest lost.
+    (tmp_path / "manifest.json").unlink()
+    with pytest.warns(UserWarning, match=r"frames is uint8\[6, 24, 24, 3\], expected uint8\[6, 32, 24, 3\]"):
+        summary = generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32})
+    assert summary.shards_generated == planned and summary.shards_skipped == 0
+    assert store.open_split(tmp_path, "continuity", "train")[0]["frames"].shape == (6, 32, 24, 3)
+    assert store.verify(tmp_path) == []
+    # Kinds per record: same seeds, other kind counts.
+    (tmp_path / "manifest.json").unlink()
+    with pytest.warns(UserWarning, match=r"train/shard-00000.voe: does not belong here: its names is"):
+        generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6})
+    kinds = [specs.CLIP_KINDS[int(r["kind"])] for r in store.open_split(tmp_path, "continuity", "train")]
+    assert kinds.count("example") == 2
+    # Concept: a shard of another concept copied in its place.
+    generate.generate_dataset(tmp_path, ("solidity",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6})
+    foreign = store.shard_path(tmp_path, "continuity", "test", 0)
+    foreign.write_bytes(store.shard_path(tmp_path, "solidity", "test", 0).read_bytes())
+    assert store.verify(tmp_path) == [foreign]
+    with pytest.warns(UserWarning, match=r"its concept is 'solidity', expected 'continuity'"):
+        assert generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6}).shards_generated == 1
+    assert specs.concept_name(store.open_split(tmp_path, "continuity", "test")[0]) == "continuity"
+    # Generator version: a scene change makes every shard stale.
+    monkeypatch.setattr(generate, "GENERATOR_VERSION", generate.GENERATOR_VERSION + 1)
+    assert len(store.verify(tmp_path)) == len(generate.manifest_plan(store.read_manifest(tmp_path))[0])
+    options = {**SMALL, "height": 32, "train_examples": 2, "train_controls": 6}
+    with pytest.warns(UserWarning, match="its generator_version is 2, expected 3"):
+        summary = generate.ensure_dataset(tmp_path, concepts=("continuity", "solidity"), **options)
+    assert summary.shards_skipped == 0 and store.verify(tmp_path) == []
+    assert store.read_manifest(tmp_path)["generator_version"] == generate.GENERATOR_VERSION
