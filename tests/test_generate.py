@@ -3,6 +3,12 @@ once), resuming, repairing corrupt shards, refusing other settings, bad input, a
 two-worker run of the MuJoCo scenes."""
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 import torch
@@ -230,3 +236,51 @@ def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch)
         summary = generate.ensure_dataset(tmp_path, concepts=("continuity", "solidity"), **options)
     assert summary.shards_skipped == 0 and store.verify(tmp_path) == []
     assert store.read_manifest(tmp_path)["generator_version"] == generate.GENERATOR_VERSION
+
+
+def _children(pid: int) -> list[int]:
+    """Process ids whose parent is ``pid`` (from /proc)."""
+    found = []
+    for stat_file in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat_file.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat_file.parent.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc to find the workers")
+def test_workers_die_with_a_killed_parent(tmp_path):
+    """Issue 10 case 2: kill -9 of generate leaves no worker (nor resource tracker) rendering.
+    Shards of 40 records take seconds each, so an orphan would outlive the 1.5 s allowed."""
+    root = tmp_path / "data"
+    command = [sys.executable, "-m", "voe_lightning", "generate", "--root", str(root),
+               "--concepts", "continuity", "--train-examples", "200", "--val-pairs", "0",
+               "--test-pairs", "0", "--generalization-pairs", "0", "--shard-size", "40",
+               "--workers", "2", "--num-frames", "3", "--height", "16", "--width", "16", "--no-progress"]  # fmt: skip
+    parent = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    children = []
+    try:
+        deadline = time.monotonic() + 120
+        while not list(root.glob("continuity/train/shard-*.voe")):  # the workers are rendering
+            assert parent.poll() is None and time.monotonic() < deadline, "generate never wrote a shard"
+            time.sleep(0.1)
+        children = _children(parent.pid)
+        assert len(children) >= 2  # two workers (and the resource tracker)
+        parent.kill()
+        parent.wait()
+        time.sleep(1.5)
+        assert [pid for pid in children if _alive(pid)] == []
+    finally:
+        parent.kill()
+        for pid in filter(_alive, children):
+            os.kill(pid, signal.SIGKILL)
