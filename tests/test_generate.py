@@ -284,3 +284,30 @@ def test_workers_die_with_a_killed_parent(tmp_path):
         parent.kill()
         for pid in filter(_alive, children):
             os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [("{}", r"bad video \(missing\), shard_size \(missing\), concepts \(missing\)"),
+     ("[]", "holds a JSON list"), ("null", "holds a JSON null"),
+     ('{"video": {"num_frames": 6', r"unreadable manifest .* \(truncated\?\)"),
+     ('{"video": {}, "shard_size": "3", "concepts": {}}', r"bad shard_size \(a str\)")],
+)  # fmt: skip
+def test_a_malformed_manifest_is_named_and_overwritten_on_request(tmp_path, calls, text, message):
+    """Issue 10 case 5: wrong-shape, null or truncated manifests raise a named error, and
+    --overwrite replaces them."""
+    generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    manifest = tmp_path / "manifest.json"
+    manifest.write_text(text)
+    path = str(manifest)
+    with pytest.raises(store.ManifestError, match=message) as error:
+        generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    assert path in str(error.value)
+    with pytest.raises(store.ManifestError, match="--overwrite"):
+        store.open_split(tmp_path, "continuity", "train")
+    with pytest.raises(store.ManifestError, match=path):
+        store.verify(tmp_path)
+    calls.clear()
+    summary = generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "overwrite": True})
+    assert summary.shards_skipped == summary.shards_planned and calls == []  # the shards still belong
+    assert store.verify(tmp_path) == [] and store.read_manifest(tmp_path)["shard_size"] == 3

@@ -194,13 +194,19 @@ def manifest_plan(manifest: dict) -> tuple[list[ShardTask], VideoOptions]:
                 order = [n for n in canonical[split] if n in stored] + sorted(set(stored) - set(canonical[split]))
                 concept_counts[concept][split] = {name: stored[name] for name in order}
         return plan_shards(concept_counts, manifest["shard_size"]), video
-    except (KeyError, TypeError, AttributeError) as error:
-        raise ValueError(f"manifest describes no valid plan ({type(error).__name__}: {error})") from error
+    except (KeyError, TypeError, AttributeError, ValueError) as error:
+        raise store.ManifestError(
+            f"the manifest describes no valid plan ({type(error).__name__}: {error}); "
+            "regenerate with generate --overwrite"
+        ) from error
 
 
 def bad_shards(root: str | os.PathLike, manifest: dict) -> list[tuple[Path, str]]:
     """(path, reason) of every shard of the manifest's plan that is missing, corrupt or foreign."""
-    tasks, video = manifest_plan(manifest)
+    try:
+        tasks, video = manifest_plan(manifest)
+    except store.ManifestError as error:
+        raise store.ManifestError(f"{Path(root) / store.MANIFEST_NAME}: {error}") from error
     layouts = record_layouts(video)
     bad = []
     for task in tasks:
@@ -269,7 +275,12 @@ def _reconcile_manifest(
     Refuses other settings for what is stored unless ``overwrite``, which deletes the data
     they invalidate (every concept if the video or shard settings changed)."""
     settings = _settings(video, shard_size)
-    old = store.read_manifest(root)
+    try:
+        old = store.read_manifest(root)
+    except store.ManifestError:
+        if not overwrite:
+            raise
+        old = None  # replaced; the shards are checked against the new plan one by one
     if old is not None:
         setting_changes = _differences({k: old.get(k) for k in _SETTING_KEYS}, settings)
         changed = {

@@ -520,15 +520,39 @@ def record_loader(dataset: Dataset, batch_size: int, num_workers: int = 0, **kwa
 
 
 # --- manifest -----------------------------------------------------------------------------------
+class ManifestError(ValueError):
+    """A manifest that is unreadable or not a store's manifest; the message names the file."""
+
+
+#: Top-level manifest entries every reader relies on, and their JSON types.
+_MANIFEST_KEYS = {"video": dict, "shard_size": int, "concepts": dict}
+
+
 def read_manifest(root: str | os.PathLike) -> dict | None:
-    """The root's manifest, or None if there is none yet."""
+    """The root's manifest, or None if there is none yet. Raises ManifestError naming the
+    file when it is truncated, not JSON, or JSON of another shape."""
     path = Path(root) / MANIFEST_NAME
+    fix = "delete it, or regenerate with generate --overwrite"
     try:
-        return json.loads(path.read_text())
+        manifest = json.loads(path.read_text())
     except FileNotFoundError:
         return None
-    except ValueError as error:
-        raise ValueError(f"unreadable manifest {path}: {error}") from error
+    except (ValueError, UnicodeDecodeError) as error:
+        raise ManifestError(f"unreadable manifest {path} (truncated?): {error}; {fix}") from error
+    if not isinstance(manifest, dict):
+        raise ManifestError(
+            f"{path} holds a JSON {type(manifest).__name__ if manifest is not None else 'null'}, "
+            f"not a voe_lightning manifest (an object); {fix}"
+        )
+    wrong = [
+        f"{key} (missing)" if key not in manifest else f"{key} (a {type(manifest[key]).__name__})"
+        for key, kind in _MANIFEST_KEYS.items()
+        if not isinstance(manifest.get(key), kind)
+    ]
+    if wrong:
+        expected = ", ".join(f"{key}: {kind.__name__}" for key, kind in _MANIFEST_KEYS.items())
+        raise ManifestError(f"{path} is not a voe_lightning manifest: bad {', '.join(wrong)}; expected {expected}; {fix}")
+    return manifest
 
 
 def write_manifest(root: str | os.PathLike, manifest: dict) -> None:
