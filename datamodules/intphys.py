@@ -753,7 +753,7 @@ def answer_main(argv: list[str] | None = None) -> Path:
     arguments = parser.parse_args(argv)
     if not Path(arguments.ckpt_path).is_file():
         parser.error(f"--ckpt_path {arguments.ckpt_path!r} does not exist")
-    model = VOEModel.load_from_checkpoint(arguments.ckpt_path, map_location="cpu").eval()
+    model = VOEModel.load_from_checkpoint(arguments.ckpt_path, map_location="cpu", weights_only=True).eval()
     height, width = model.image_size
     datamodule = IntPhysDataModule(
         root=arguments.root,
