@@ -114,6 +114,12 @@ def read_records(
         while True:
             try:
                 header = _read_exact(stream, 12, path, number, at_boundary=True)
+                if header is None and number == 0:
+                    raise BenchmarkDataError(
+                        f"{path}: empty ({path.stat().st_size} bytes, no records); expected a "
+                        "GZIP-compressed TFRecord file of at least one record",
+                        "empty",
+                    )
                 if header is None:
                     return
                 if masked_crc(header[:8]) != header[8:]:
