@@ -30,6 +30,7 @@ from tensordict import TensorDict
 from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
+from datamodules.arguments import check_at_least, check_fraction
 from datamodules.benchmark_data import (
     BenchmarkDataError,
     BenchmarkDataModule,
@@ -476,14 +477,21 @@ class IntPhysDataModule(BenchmarkDataModule):
         seed: int = 0,
     ):
         super().__init__()
-        for name, value in [
-            ("batch_size", batch_size),
-            ("probe_batch_size", probe_batch_size),
-            ("height", height),
-            ("width", width),
-        ]:
-            if value < 1:
-                raise ValueError(f"{name} must be at least 1, got {value}")
+        check_at_least(
+            {
+                "batch_size": (batch_size, 1),
+                "probe_batch_size": (probe_batch_size, 1),
+                "height": (height, 1),
+                "width": (width, 1),
+                "num_workers": (num_workers, 0),
+                "num_frames": (num_frames, 1),
+                "frames_per_movie": (frames_per_movie, 1),
+                "frame_stride": (frame_stride, 1),
+                "first_frame": (first_frame, 0),
+                "divergence_level": (divergence_level, 0),
+            }
+        )
+        check_fraction("divergence_fraction", divergence_fraction)
         for name, split in [("eval_split", eval_split), ("predict_split", predict_split)]:
             if split not in ("dev", "test"):
                 raise ValueError(f"{name} must be 'dev' or 'test', got {split!r}")
@@ -745,7 +753,7 @@ def answer_main(argv: list[str] | None = None) -> Path:
     arguments = parser.parse_args(argv)
     if not Path(arguments.ckpt_path).is_file():
         parser.error(f"--ckpt_path {arguments.ckpt_path!r} does not exist")
-    model = VOEModel.load_from_checkpoint(arguments.ckpt_path, map_location="cpu").eval()
+    model = VOEModel.load_from_checkpoint(arguments.ckpt_path, map_location="cpu", weights_only=True).eval()
     height, width = model.image_size
     datamodule = IntPhysDataModule(
         root=arguments.root,

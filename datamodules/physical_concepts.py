@@ -47,6 +47,7 @@ from torch.utils.data import (
 )
 from tqdm import tqdm
 
+from datamodules.arguments import check_at_least, check_fraction
 from datamodules.benchmark_data import (
     BenchmarkDataError,
     BenchmarkDataModule,
@@ -113,6 +114,12 @@ def read_records(
         while True:
             try:
                 header = _read_exact(stream, 12, path, number, at_boundary=True)
+                if header is None and number == 0:
+                    raise BenchmarkDataError(
+                        f"{path}: empty ({path.stat().st_size} bytes, no records); expected a "
+                        "GZIP-compressed TFRecord file of at least one record",
+                        "empty",
+                    )
                 if header is None:
                     return
                 if masked_crc(header[:8]) != header[8:]:
@@ -459,15 +466,22 @@ class PhysicalConceptsDataModule(BenchmarkDataModule):
             raise ValueError(
                 f"unknown or no probe concepts {unknown}; valid concepts are: {', '.join(PROBE_CONCEPTS)}"
             )
-        for name, value in [
-            ("batch_size", batch_size),
-            ("probe_batch_size", probe_batch_size),
-            ("height", height),
-            ("width", width),
-            ("val_quadruplets_per_concept", val_quadruplets_per_concept),
-        ]:
-            if value < 1:
-                raise ValueError(f"{name} must be at least 1, got {value}")
+        check_at_least(
+            {
+                "batch_size": (batch_size, 1),
+                "probe_batch_size": (probe_batch_size, 1),
+                "height": (height, 1),
+                "width": (width, 1),
+                "val_quadruplets_per_concept": (val_quadruplets_per_concept, 1),
+                "num_workers": (num_workers, 0),
+                "num_frames": (num_frames, 1),
+                "frame_stride": (frame_stride, 1),
+                "first_frame": (first_frame, 0),
+                "divergence_level": (divergence_level, 0),
+                "shuffle_buffer": (shuffle_buffer, 0),
+            }
+        )
+        check_fraction("divergence_fraction", divergence_fraction)
         self.save_hyperparameters()
         self.concepts = list(dict.fromkeys(concepts))
         self.video = VideoOptions(

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 from torch.utils.data import ConcatDataset, DataLoader, Dataset, Sampler
 
+from datamodules.arguments import check_at_least
 from voe_lightning import specs
 from voe_lightning.generate import ensure_dataset
 from voe_lightning.store import open_split, record_loader
@@ -94,9 +95,23 @@ class VOEDataModule(L.LightningDataModule):
             raise ValueError(f"concepts must name at least one of: {', '.join(specs.CONCEPTS)}")
         for concept in concepts:
             specs.check_concept(concept)
-        for name, value in [("train_examples", train_examples), ("batch_size", batch_size)]:
-            if value < 1:
-                raise ValueError(f"{name} must be at least 1, got {value}")
+        check_at_least(
+            {
+                "train_examples": (train_examples, 1),
+                "train_controls": (train_controls, 0),
+                "val_pairs": (val_pairs, 1),
+                "test_pairs": (test_pairs, 1),
+                "generalization_pairs": (generalization_pairs, 1 if generalization else 0),
+                "batch_size": (batch_size, 1),
+                "probe_batch_size": (probe_batch_size, 1),
+                "num_workers": (num_workers, 0),
+                "generate_workers": (generate_workers, 1),
+                "num_frames": (num_frames, 2),
+                "height": (height, 1),
+                "width": (width, 1),
+                "seed": (seed, 0),
+            }
+        )
         self.save_hyperparameters()
         self.concepts = list(dict.fromkeys(concepts))
         self.concept_names, self.variant_names = specs.CONCEPTS, specs.VARIANTS

@@ -233,3 +233,25 @@ def test_training_does_not_depend_on_how_often_validation_runs(workdir):
 
     every_two, every_three = weights("a", 2), weights("b", 3)
     assert all(torch.equal(every_two[key], every_three[key]) for key in every_two)
+
+
+@pytest.mark.parametrize("command", ["test", "intphys-answer"])
+def test_checkpoints_are_read_with_weights_only(workdir, monkeypatch, command):
+    """Issue 10 case 13: every read of a checkpoint (LightningCLI's, the trainer's, our own)
+    passes weights_only=True instead of relying on torch's default (False before torch 2.6)."""
+    calls = []
+
+    def spy(*args, **kwargs):
+        calls.append(kwargs.get("weights_only"))
+        return {}  # an empty checkpoint: loading stops soon after
+
+    monkeypatch.setattr(torch, "load", spy)
+    checkpoint = workdir / "model.ckpt"
+    checkpoint.write_bytes(b"not read")
+    if command == "test":
+        arguments = ["test", "--config", CONFIG, "--ckpt_path", str(checkpoint)]
+    else:
+        arguments = ["intphys-answer", "--ckpt_path", str(checkpoint)]
+    with pytest.raises(Exception):
+        main(arguments)
+    assert len(calls) >= (2 if command == "test" else 1) and all(value is True for value in calls), calls

@@ -6,9 +6,11 @@ from collections import Counter
 import pytest
 import torch
 
-from datamodules import ConceptDataModule, JointDataModule
+from datamodules import ConceptDataModule, IntPhysDataModule, JointDataModule, PhysicalConceptsDataModule
 from datamodules.voe import InterleavedSampler
-from voe_lightning import specs
+from test_store import fake_clip, fake_probe
+
+from voe_lightning import generate, specs, store
 
 
 def test_interleaved_sampler_takes_equal_counts_per_part_and_alternates():
@@ -73,5 +75,49 @@ def test_datamodule_generates_and_serves_spec_batches(tmp_path):
     assert len(test_loaders) == 2  # test probes and the three-pillar generalization probes
     generalization = next(iter(test_loaders[1]))
     assert {specs.VARIANTS[v] for v in generalization["variant"].tolist()} == {"three_pillars"}
-    assert datamodule.probe_cases("val") == [("continuity", "standard")]
+    assert datamodule.probe_cases("val") == [("continuity", "standard"), ("continuity", "counterbalanced")]
     assert torch.all(generalization["concept"] == specs.CONCEPTS.index("continuity"))
+
+
+def test_prepare_data_regenerates_a_checksum_corrupt_shard(tmp_path, monkeypatch):
+    """Issue 10 case 4: rerunning fit repairs a corrupt record instead of failing again."""
+    monkeypatch.setattr(generate, "generate_clip", fake_clip)
+    monkeypatch.setattr(generate, "generate_probe", fake_probe)
+    datamodule = ConceptDataModule(
+        concept="continuity", root=str(tmp_path), train_examples=4, val_pairs=1, test_pairs=1,
+        generalization_pairs=1, generate_workers=1, num_frames=4, height=16, width=16,
+    )  # fmt: skip
+    datamodule.prepare_data()
+    shard = store.shard_path(tmp_path, "continuity", "train", 0)
+    data = bytearray(shard.read_bytes())
+    data[len(store._MAGIC) + 10] ^= 0xFF  # inside the first record
+    shard.write_bytes(bytes(data))
+    assert store.verify(tmp_path) == [shard]
+    with pytest.warns(UserWarning, match=rf"{shard}: record 0 checksum mismatch"):
+        datamodule.prepare_data()
+    assert store.verify(tmp_path) == []
+    first = store.open_split(tmp_path, "continuity", "train")[0]
+    expected = fake_clip("continuity", specs.CLIP_KINDS[int(first["kind"])], 0, num_frames=4, height=16, width=16)
+    assert torch.equal(first["frames"], expected["frames"])
+
+
+@pytest.mark.parametrize(
+    "module, argument, value",
+    [(ConceptDataModule, "val_pairs", -1), (ConceptDataModule, "test_pairs", 0),
+     (ConceptDataModule, "probe_batch_size", 0), (ConceptDataModule, "num_workers", -2),
+     (ConceptDataModule, "generate_workers", 0), (ConceptDataModule, "train_controls", -3),
+     (ConceptDataModule, "num_frames", 1), (JointDataModule, "height", 0),
+     (IntPhysDataModule, "num_workers", -1), (IntPhysDataModule, "frame_stride", 0),
+     (PhysicalConceptsDataModule, "first_frame", -1), (PhysicalConceptsDataModule, "shuffle_buffer", -1)],
+)  # fmt: skip
+def test_constructors_refuse_bad_arguments_by_name(module, argument, value):
+    """Issue 10 case 11: caught when the DataModule is built, naming the argument."""
+    with pytest.raises(ValueError, match=rf"^{argument} must be an integer of at least \d+, got {value}$"):
+        module(**{argument: value})
+
+
+def test_constructors_refuse_a_bad_fraction_and_missing_generalization_pairs():
+    with pytest.raises(ValueError, match=r"divergence_fraction must be a number in \[0, 1\], got 2"):
+        IntPhysDataModule(divergence_fraction=2)
+    with pytest.raises(ValueError, match="generalization_pairs must be an integer of at least 1, got 0"):
+        ConceptDataModule(generalization=True, generalization_pairs=0)

@@ -3,6 +3,12 @@ once), resuming, repairing corrupt shards, refusing other settings, bad input, a
 two-worker run of the MuJoCo scenes."""
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 import torch
@@ -132,10 +138,10 @@ def test_round_trip_resume_and_repair(tmp_path, calls):
 def test_ensure_dataset_generates_only_what_is_missing(tmp_path, calls):
     generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
     made = len(calls)
-    assert made == 8 + 2 + 3 + 1
+    assert made == 8 + 2 * 2 + 2 * 3 + 1  # two standard variants, one generalization
     store.shard_path(tmp_path, "continuity", "val", 0).unlink()
     summary = generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
-    assert summary.shards_generated == 1 and len(calls) == made + 2
+    assert summary.shards_generated == 1 and len(calls) == made + 3
     # Another concept joins the same root; the first is left alone.
     generate.ensure_dataset(tmp_path, concepts=("solidity",), **SMALL)
     assert set(json.loads((tmp_path / "manifest.json").read_text())["concepts"]) == {"continuity", "solidity"}
@@ -178,7 +184,7 @@ def test_full_disk_names_the_shard(tmp_path, calls, monkeypatch):
     monkeypatch.setattr(store, "_write_bytes", full_disk)
     with pytest.raises(OSError, match=f"cannot write {lost}: No space left on device"):
         generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
-    assert sorted(p.name for p in lost.parent.iterdir()) == []  # no temporary left behind
+    assert not list(lost.parent.glob("*.tmp"))  # no temporary left behind
 
 
 def test_command_line_generates_with_real_scenes_in_two_workers(tmp_path):
@@ -189,9 +195,119 @@ def test_command_line_generates_with_real_scenes_in_two_workers(tmp_path):
             "--shard-size", "1", "--workers", "2", "--height", "32",
             "--width", "32", "--no-progress"]  # fmt: skip
     summary = generate.main(argv)
-    assert summary.shards_generated == summary.shards_planned == 7
+    assert summary.shards_generated == summary.shards_planned == 9
     assert store.verify(root) == []
     val = store.open_split(root, "continuity", "val")[0]
     expected = scenes.generate_probe("continuity", "standard", generate.SEED_STARTS["val"], height=32, width=32)
     assert torch.equal(val["inconsistent", "frames"], expected["inconsistent", "frames"])
     assert generate.main(argv).shards_generated == 0
+
+
+def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch):
+    """Issue 10 case 1: seeds alone do not make a shard the planned one."""
+    generate.generate_dataset(tmp_path, CONCEPTS, **SMALL)
+    planned = len(generate.plan_shards({"continuity": generate.split_counts("continuity", 4, 4, 2, 3, 1)}, 3))
+    # Record spec: same seeds, other video size, manifest lost.
+    (tmp_path / "manifest.json").unlink()
+    with pytest.warns(UserWarning, match=r"frames is uint8\[6, 24, 24, 3\], expected uint8\[6, 32, 24, 3\]"):
+        summary = generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32})
+    assert summary.shards_generated == planned and summary.shards_skipped == 0
+    assert store.open_split(tmp_path, "continuity", "train")[0]["frames"].shape == (6, 32, 24, 3)
+    assert store.verify(tmp_path) == []
+    # Kinds per record: same seeds, other kind counts.
+    (tmp_path / "manifest.json").unlink()
+    with pytest.warns(UserWarning, match=r"train/shard-00000.voe: does not belong here: its names is"):
+        generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6})
+    kinds = [specs.CLIP_KINDS[int(r["kind"])] for r in store.open_split(tmp_path, "continuity", "train")]
+    assert kinds.count("example") == 2
+    # Concept: a shard of another concept copied in its place.
+    generate.generate_dataset(tmp_path, ("solidity",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6})
+    foreign = store.shard_path(tmp_path, "continuity", "test", 0)
+    foreign.write_bytes(store.shard_path(tmp_path, "solidity", "test", 0).read_bytes())
+    assert store.verify(tmp_path) == [foreign]
+    with pytest.warns(UserWarning, match=r"its concept is 'solidity', expected 'continuity'"):
+        assert generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6}).shards_generated == 1
+    assert specs.concept_name(store.open_split(tmp_path, "continuity", "test")[0]) == "continuity"
+    # Generator version: a scene change makes every shard stale.
+    monkeypatch.setattr(generate, "GENERATOR_VERSION", generate.GENERATOR_VERSION + 1)
+    assert len(store.verify(tmp_path)) == len(generate.manifest_plan(store.read_manifest(tmp_path))[0])
+    options = {**SMALL, "height": 32, "train_examples": 2, "train_controls": 6}
+    with pytest.warns(UserWarning, match="its generator_version is 2, expected 3"):
+        summary = generate.ensure_dataset(tmp_path, concepts=("continuity", "solidity"), **options)
+    assert summary.shards_skipped == 0 and store.verify(tmp_path) == []
+    assert store.read_manifest(tmp_path)["generator_version"] == generate.GENERATOR_VERSION
+
+
+def _children(pid: int) -> list[int]:
+    """Process ids whose parent is ``pid`` (from /proc)."""
+    found = []
+    for stat_file in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat_file.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat_file.parent.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc to find the workers")
+def test_workers_die_with_a_killed_parent(tmp_path):
+    """Issue 10 case 2: kill -9 of generate leaves no worker (nor resource tracker) rendering.
+    Shards of 40 records take seconds each, so an orphan would outlive the 1.5 s allowed."""
+    root = tmp_path / "data"
+    command = [sys.executable, "-m", "voe_lightning", "generate", "--root", str(root),
+               "--concepts", "continuity", "--train-examples", "200", "--val-pairs", "0",
+               "--test-pairs", "0", "--generalization-pairs", "0", "--shard-size", "40",
+               "--workers", "2", "--num-frames", "3", "--height", "16", "--width", "16", "--no-progress"]  # fmt: skip
+    parent = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    children = []
+    try:
+        deadline = time.monotonic() + 120
+        while not list(root.glob("continuity/train/shard-*.voe")):  # the workers are rendering
+            assert parent.poll() is None and time.monotonic() < deadline, "generate never wrote a shard"
+            time.sleep(0.1)
+        children = _children(parent.pid)
+        assert len(children) >= 2  # two workers (and the resource tracker)
+        parent.kill()
+        parent.wait()
+        time.sleep(1.5)
+        assert [pid for pid in children if _alive(pid)] == []
+    finally:
+        parent.kill()
+        for pid in filter(_alive, children):
+            os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [("{}", r"bad video \(missing\), shard_size \(missing\), concepts \(missing\)"),
+     ("[]", "holds a JSON list"), ("null", "holds a JSON null"),
+     ('{"video": {"num_frames": 6', r"unreadable manifest .* \(truncated\?\)"),
+     ('{"video": {}, "shard_size": "3", "concepts": {}}', r"bad shard_size \(a str\)")],
+)  # fmt: skip
+def test_a_malformed_manifest_is_named_and_overwritten_on_request(tmp_path, calls, text, message):
+    """Issue 10 case 5: wrong-shape, null or truncated manifests raise a named error, and
+    --overwrite replaces them."""
+    generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    manifest = tmp_path / "manifest.json"
+    manifest.write_text(text)
+    path = str(manifest)
+    with pytest.raises(store.ManifestError, match=message) as error:
+        generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    assert path in str(error.value)
+    with pytest.raises(store.ManifestError, match="--overwrite"):
+        store.open_split(tmp_path, "continuity", "train")
+    with pytest.raises(store.ManifestError, match=path):
+        store.verify(tmp_path)
+    calls.clear()
+    summary = generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "overwrite": True})
+    assert summary.shards_skipped == summary.shards_planned and calls == []  # the shards still belong
+    assert store.verify(tmp_path) == [] and store.read_manifest(tmp_path)["shard_size"] == 3

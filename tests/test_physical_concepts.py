@@ -315,3 +315,15 @@ def test_bad_arguments_name_the_valid_choices(tmp_path):
         datamodule(tmp_path, num_frames=20)
     with pytest.raises(FileNotFoundError, match="no folder .*probes/continuity"):
         datamodule(tmp_path).setup("test")
+
+
+@pytest.mark.parametrize("content", [b"", gzip.compress(b"")], ids=["zero_bytes", "gzip_of_nothing"])
+def test_an_empty_shard_is_an_error_or_a_counted_skip(tmp_path, content):
+    """Issue 10 case 6: an empty file is not a shard of zero records."""
+    path = tmp_path / "data.tfrecord-00000-of-00001"
+    path.write_bytes(content)
+    with pytest.raises(BenchmarkDataError, match=rf"{path}: empty \({len(content)} bytes, no records\)"):
+        list(read_records(path))
+    skipped = []
+    assert list(read_records(path, skip=skipped.append)) == []
+    assert [error.reason for error in skipped] == ["empty"]

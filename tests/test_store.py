@@ -1,7 +1,9 @@
 """The record store: lossless round trip of clips and probes, random access from DataLoader
 workers, compression of structured videos, and corrupt or truncated shards named on read."""
 
+import os
 import pickle
+import stat
 
 import numpy as np
 import pytest
@@ -9,7 +11,7 @@ import torch
 from tensordict import TensorDict
 from torch.utils.data import DataLoader
 
-from voe_lightning import specs, store
+from voe_lightning import generate, specs, store
 
 
 def _video(rng: np.random.Generator, num_frames: int, height: int, width: int):
@@ -137,9 +139,14 @@ def test_open_split_reads_every_record_from_dataloader_workers(tmp_path):
     assert len(store.open_split(tmp_path, "continuity", "generalization")) == 0
 
 
-def test_corrupt_and_truncated_shards_are_named(tmp_path):
-    _split_root(tmp_path)
+def test_corrupt_and_truncated_shards_are_named(tmp_path, monkeypatch):
+    monkeypatch.setattr(generate, "generate_clip", fake_clip)
+    generate.generate_dataset(
+        tmp_path, ("continuity",), train_examples=5, val_pairs_per_variant=0, test_pairs_per_variant=0,
+        generalization_pairs_per_variant=0, shard_size=4, workers=1, progress=False,
+    )  # fmt: skip
     assert store.verify(tmp_path) == []
+    fifth = store.open_split(tmp_path, "continuity", "train")[5]
     corrupt = store.shard_path(tmp_path, "continuity", "train", 1)
     data = bytearray(corrupt.read_bytes())
     data[100] ^= 0xFF  # inside the first record's blob
@@ -151,7 +158,7 @@ def test_corrupt_and_truncated_shards_are_named(tmp_path):
         dataset[4]
     with pytest.raises(store.CorruptShardError, match=str(truncated)):
         dataset[8]
-    assert _equal(dataset[5], fake_clip("continuity", "example", 5))  # other records still readable
+    assert _equal(dataset[5], fifth)  # other records still readable
     assert store.verify(tmp_path) == [corrupt, truncated]
     store.shard_path(tmp_path, "continuity", "train", 0).unlink()
     assert store.verify(tmp_path)[0] == store.shard_path(tmp_path, "continuity", "train", 0)
@@ -184,3 +191,16 @@ def test_open_split_rejects_bad_names(tmp_path):
     store.write_manifest(tmp_path, manifest)
     with pytest.raises(ValueError, match="other concept/kind/variant names"):
         store.open_split(tmp_path, "continuity", "train")
+
+
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o027, 0o640), (0o002, 0o664)])
+def test_written_files_respect_the_umask(tmp_path, umask, mode):
+    """Issue 10 case 3: a dataset made for a lab is readable as the umask allows, not 0600."""
+    previous = os.umask(umask)
+    try:
+        store.write_shard(tmp_path / "a.voe", [fake_clip("continuity", "example", 0)])
+        store.write_manifest(tmp_path, {"format": store.FORMAT})
+    finally:
+        os.umask(previous)
+    assert stat.S_IMODE((tmp_path / "a.voe").stat().st_mode) == mode
+    assert stat.S_IMODE((tmp_path / "manifest.json").stat().st_mode) == mode

@@ -35,6 +35,8 @@ class VOECLI(LightningCLI):
 
     def before_instantiate_classes(self) -> None:
         config = self.config.get(self.subcommand, {})
+        if config and "weights_only" in config and config.get("weights_only") is None:
+            config["weights_only"] = True  # torch>=2.4 may default to unpickling anything
         ckpt_path = config.get("ckpt_path") if config else None
         if not ckpt_path or ckpt_path in ("last", "best", "hpc", "registry"):
             return

@@ -61,7 +61,10 @@ class CorruptShardError(OSError):
         super().__init__(errno.EIO, f"corrupt shard {self.path}: {reason}", str(self.path))
 
     def __str__(self) -> str:
-        return f"corrupt shard {self.path}: {self.reason} (run generate again to repair it)"
+        return (
+            f"corrupt shard {self.path}: {self.reason} (rerun generate with this store's settings, "
+            "or the fit/test using it, whose prepare_data regenerates bad shards)"
+        )
 
     def __reduce__(self):  # keep both arguments when sent back from a worker process
         return (type(self), (str(self.path), self.reason))
@@ -195,14 +198,31 @@ def _write_bytes(file, data: bytes) -> None:
     file.write(data)
 
 
+def _umask() -> int:
+    """This process's umask, read without changing it (``os.umask`` would, for every thread)."""
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except OSError:
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def atomic_write(path: str | os.PathLike, chunks: Iterable[bytes]) -> int:
     """Write ``chunks`` to ``path`` atomically (temporary file in the same folder, fsync,
-    rename); returns the bytes written. OSErrors (no space, no permission) name ``path``."""
+    rename); returns the bytes written. The file gets the mode ``open`` would give it (0666
+    less the umask; ``mkstemp`` alone makes it 0600, unreadable to a lab's other users).
+    OSErrors (no space, no permission) name ``path``."""
     path = Path(path)
     temporary = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        os.fchmod(handle, 0o666 & ~_umask())
         size = 0
         with os.fdopen(handle, "wb") as file:
             for chunk in chunks:
@@ -269,6 +289,20 @@ class ShardIndex:
     def seeds(self) -> list[int]:
         return self.table["seed"].tolist()
 
+    @property
+    def layout(self) -> dict[str, tuple[str, tuple[int, ...]]]:
+        """Per record leaf ("a/b" key): its dtype and shape, as :func:`spec_layout` gives them."""
+        return {"/".join(leaf.key): (leaf.dtype, leaf.shape) for leaf in self.schema}
+
+
+def spec_layout(spec) -> dict[str, tuple[str, tuple[int, ...]]]:
+    """Per leaf of a record spec ("a/b" key): the numpy dtype name and shape a shard stores."""
+    layout = {}
+    for key, leaf in spec.items(include_nested=True, leaves_only=True):
+        key = key if isinstance(key, str) else "/".join(key)
+        layout[key] = (str(torch.empty((), dtype=leaf.dtype).numpy().dtype), tuple(leaf.shape))
+    return layout
+
 
 def _read_index(fd: int, path: Path) -> ShardIndex:
     size = os.fstat(fd).st_size
@@ -315,11 +349,17 @@ def read_index(path: str | os.PathLike) -> ShardIndex:
 
 
 def check_shard(
-    path: str | os.PathLike, expected_seeds: Sequence[int] | None = None, full: bool = True
+    path: str | os.PathLike,
+    expected_seeds: Sequence[int] | None = None,
+    full: bool = True,
+    expected_meta: dict[str, Any] | None = None,
+    expected_layout: dict[str, tuple[str, tuple[int, ...]]] | None = None,
 ) -> ShardIndex:
-    """Raise CorruptShardError naming ``path`` unless the shard is complete: its index is
-    intact, it holds ``expected_seeds`` (if given) and, when ``full``, every record's checksum
-    matches. Returns its index."""
+    """Raise CorruptShardError naming ``path`` and the first difference unless the shard is
+    complete and belongs where it lies: its index is intact, it holds ``expected_seeds``, its
+    metadata has the values of ``expected_meta`` and its records the leaves, dtypes and shapes
+    of ``expected_layout`` (each if given) and, when ``full``, every record's checksum matches.
+    Returns its index."""
     path = Path(path)
     fd = _open(path)
     try:
@@ -327,6 +367,18 @@ def check_shard(
         if expected_seeds is not None and index.seeds != [int(s) for s in expected_seeds]:
             raise CorruptShardError(
                 path, f"holds {len(index)} records with other seeds than the {len(expected_seeds)} planned"
+            )
+        for key, value in (expected_meta or {}).items():
+            if index.meta.get(key) != value:
+                stored = repr(index.meta[key]) if key in index.meta else "missing"
+                raise CorruptShardError(path, f"does not belong here: its {key} is {stored}, expected {value!r}")
+        if expected_layout is not None and index.layout != expected_layout:
+            stored, expected = index.layout, expected_layout
+            first = sorted(k for k in set(stored) | set(expected) if stored.get(k) != expected.get(k))[0]
+            raise CorruptShardError(
+                path,
+                f"does not belong here: its records' {first} is {_describe_leaf(stored.get(first))}, "
+                f"expected {_describe_leaf(expected.get(first))}",
             )
         if full and len(index):
             start = int(index.table["offset"].min())
@@ -337,6 +389,10 @@ def check_shard(
         return index
     finally:
         os.close(fd)
+
+
+def _describe_leaf(leaf: tuple[str, tuple[int, ...]] | None) -> str:
+    return "missing" if leaf is None else f"{leaf[0]}{list(leaf[1])}"
 
 
 class ShardReader:
@@ -464,15 +520,39 @@ def record_loader(dataset: Dataset, batch_size: int, num_workers: int = 0, **kwa
 
 
 # --- manifest -----------------------------------------------------------------------------------
+class ManifestError(ValueError):
+    """A manifest that is unreadable or not a store's manifest; the message names the file."""
+
+
+#: Top-level manifest entries every reader relies on, and their JSON types.
+_MANIFEST_KEYS = {"video": dict, "shard_size": int, "concepts": dict}
+
+
 def read_manifest(root: str | os.PathLike) -> dict | None:
-    """The root's manifest, or None if there is none yet."""
+    """The root's manifest, or None if there is none yet. Raises ManifestError naming the
+    file when it is truncated, not JSON, or JSON of another shape."""
     path = Path(root) / MANIFEST_NAME
+    fix = "delete it, or regenerate with generate --overwrite"
     try:
-        return json.loads(path.read_text())
+        manifest = json.loads(path.read_text())
     except FileNotFoundError:
         return None
-    except ValueError as error:
-        raise ValueError(f"unreadable manifest {path}: {error}") from error
+    except (ValueError, UnicodeDecodeError) as error:
+        raise ManifestError(f"unreadable manifest {path} (truncated?): {error}; {fix}") from error
+    if not isinstance(manifest, dict):
+        raise ManifestError(
+            f"{path} holds a JSON {type(manifest).__name__ if manifest is not None else 'null'}, "
+            f"not a voe_lightning manifest (an object); {fix}"
+        )
+    wrong = [
+        f"{key} (missing)" if key not in manifest else f"{key} (a {type(manifest[key]).__name__})"
+        for key, kind in _MANIFEST_KEYS.items()
+        if not isinstance(manifest.get(key), kind)
+    ]
+    if wrong:
+        expected = ", ".join(f"{key}: {kind.__name__}" for key, kind in _MANIFEST_KEYS.items())
+        raise ManifestError(f"{path} is not a voe_lightning manifest: bad {', '.join(wrong)}; expected {expected}; {fix}")
+    return manifest
 
 
 def write_manifest(root: str | os.PathLike, manifest: dict) -> None:
@@ -520,30 +600,11 @@ def open_split(root: str | os.PathLike, concept: str, split: str) -> SplitDatase
     return SplitDataset(root, concept, split, manifest)
 
 
-def planned_shards(root: str | os.PathLike, manifest: dict) -> list[Path]:
-    """Every shard path the manifest describes."""
-    paths = []
-    for concept, entry in manifest["concepts"].items():
-        for split in SPLITS:
-            count = entry["splits"][split]["count"]
-            for index in range(len(shard_counts(count, manifest["shard_size"]))):
-                paths.append(shard_path(root, concept, split, index))
-    return paths
-
-
 def verify(root: str | os.PathLike) -> list[Path]:
-    """Check every shard the manifest of ``root`` describes (index, record count, checksums);
-    returns the paths of the missing or corrupt ones (empty when the store is intact)."""
-    manifest = _manifest_or_error(root)
-    bad = []
-    for concept, entry in manifest["concepts"].items():
-        for split in SPLITS:
-            sizes = shard_counts(entry["splits"][split]["count"], manifest["shard_size"])
-            for index, size in enumerate(sizes):
-                path = shard_path(root, concept, split, index)
-                try:
-                    if len(check_shard(path)) != size:
-                        bad.append(path)
-                except CorruptShardError:
-                    bad.append(path)
-    return bad
+    """Check every shard the manifest of ``root`` plans: intact index, the planned concept,
+    split, kinds or variants and seeds per record, the record spec's shapes and dtypes, the
+    current generator version and every record's checksum. Returns the paths of the missing,
+    corrupt or foreign ones (empty when the store is intact); ``generate`` regenerates them."""
+    from voe_lightning import generate  # the plan is generate's; it imports this module
+
+    return [path for path, _ in generate.bad_shards(root, _manifest_or_error(root))]
