@@ -2,12 +2,13 @@
 the object or flat on the floor, the counterbalanced probe starts empty, and the controls show
 what the paper says (a visible object the plank does not touch; an empty floor)."""
 
+import mujoco
 import numpy as np
 import pytest
 import torch
 
 from voe_lightning.scenes import VideoOptions, generate_clip, generate_probe
-from voe_lightning.scenes import object_persistence
+from voe_lightning.scenes import base, object_persistence
 
 CONCEPT = "object_persistence"
 
@@ -83,14 +84,77 @@ def test_examples_vary_objects_and_cameras():
 def test_probe_layout_props_the_plank_behind_its_middle():
     """By construction the object meets the plank behind the plank's centre of mass (so the
     plank stays propped) and the plank is wide enough to hide the object."""
-    for seed in range(20):
-        layout = object_persistence._probe_layout(np.random.default_rng(seed))
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        layout = object_persistence.probe_layout(rng)
         half_width, half_length, _ = layout["plank_half"]
         center_y = layout["plank_center"][1]
         obj_y = layout["object_xy"][1]
         assert center_y < obj_y < center_y + 2 * half_length
         assert half_width > layout["object"]["half"] + 0.25
-        assert abs(layout["camera"].azimuth - 90) <= 6
+        assert object_persistence.PROBE_CAMERA.contains(layout["camera"])
+
+
+def _tilt_degrees(quat) -> float:
+    """Angle between the plank's face normal and the vertical."""
+    rotation = np.empty(9)
+    mujoco.mju_quat2Mat(rotation, np.asarray(quat, float))
+    return float(np.degrees(np.arccos(abs(rotation[8]))))
+
+
+def _parameters(layout: dict) -> dict[str, float]:
+    half = layout["plank_half"]
+    return {
+        "object_half": layout["object"]["half"],
+        "plank_short_half": min(half[0], half[1]),
+        "plank_long_half": max(half[0], half[1]),
+        "plank_half_thickness": half[2],
+        "plank_tilt": _tilt_degrees(layout["plank_quat"]),
+        "drop_height": layout["drop"],
+        **dict(zip(base.CAMERA_PARAMETERS, layout["camera"].as_array().tolist())),
+        # Where the object stands relative to where the camera looks.
+        "object_dx": layout["object_xy"][0] - layout["camera"].lookat[0],
+        "object_dy": layout["object_xy"][1] - layout["camera"].lookat[1],
+    }
+
+
+def _draw(sampler, count: int) -> dict[str, np.ndarray]:
+    rng, draws = np.random.default_rng(1), []
+    while len(draws) < count:
+        try:
+            draws.append(_parameters(sampler(rng)))
+        except base.RejectedSample:
+            continue
+    return {name: np.array([d[name] for d in draws]) for name in draws[0]}
+
+
+def test_probe_parameters_lie_inside_the_examples_with_real_mass():
+    """Examples are like probes but not constrained: every probe parameter (object, plank,
+    drop, camera, object placement) lies inside the examples' range, and at least a tenth of
+    the examples fall inside the probes' range."""
+    examples = _draw(lambda rng: object_persistence.clip_layout(rng, "example"), 1500)
+    probes = _draw(object_persistence.probe_layout, 1500)
+    for name, values in probes.items():
+        low, high = examples[name].min(), examples[name].max()
+        slack = 0.01 * (high - low)  # both sample the same bound: allow sampling noise there
+        assert low - slack <= values.min() and values.max() <= high + slack, (
+            f"probe {name} [{values.min():.3f}, {values.max():.3f}] leaves the examples' "
+            f"[{low:.3f}, {high:.3f}]"
+        )
+        inside = (examples[name] >= values.min()) & (examples[name] <= values.max())
+        assert inside.mean() >= 0.1, f"only {inside.mean():.2f} of examples near probe {name}"
+
+
+@pytest.mark.parametrize("variant", ["standard", "counterbalanced"])
+def test_change_happens_on_a_frame_while_hidden(variant):
+    """The change is made at a frame (not between frames), so the pair is byte-identical through
+    the manipulation frame, and before the plank settles (several frames remain to show it)."""
+    for seed in range(4):
+        record = generate_probe(CONCEPT, variant, seed)
+        m = int(record["manipulation_frame"])
+        for key in ("frames", "mask"):
+            assert torch.equal(record["consistent", key][: m + 1], record["inconsistent", key][: m + 1])
+        assert 1 <= m <= record["consistent", "mask"].shape[0] - 3
 
 
 @pytest.mark.parametrize(

@@ -169,3 +169,97 @@ def test_bad_names_list_the_valid_ones():
         scene.probe("size", 0, base.VideoOptions())
     with pytest.raises(ValueError, match="valid kinds"):
         scene.clip("screen", 0, base.VideoOptions())
+
+
+def _screen_parameters(screen: scene.Screen, camera: base.CameraPose) -> dict[str, float]:
+    motion = screen.motion
+    return {
+        "screen_dx": screen.x - camera.lookat[0],
+        "screen_dy": screen.y - camera.lookat[1],
+        "screen_width": screen.width,
+        "screen_height": screen.height,
+        "screen_bottom": motion.bottom,
+        "screen_start_above_view": motion.top - scene.height_above_view(camera, screen.x, screen.y),
+        "screen_start": motion.start,
+        "screen_lowering": motion.down - motion.start,
+        "screen_held_down": motion.up - motion.down,
+        "screen_raising": motion.end - motion.up,
+        **dict(zip(base.CAMERA_PARAMETERS, camera.as_array().tolist())),
+    }
+
+
+def _object_parameters(draw: scene.ObjectDraw, x: float, y: float, camera) -> dict[str, float]:
+    return {
+        "object_radius": draw.radius,
+        "object_height": draw.height,
+        "object_dx": x - camera.lookat[0],
+        "object_dy": y - camera.lookat[1],
+    }
+
+
+def _stack(draws: list[dict]) -> dict[str, np.ndarray]:
+    return {name: np.array([d[name] for d in draws]) for name in draws[0]}
+
+
+def _example_draws(count: int) -> tuple[dict, dict]:
+    rng, video, screens, objects = np.random.default_rng(1), base.VideoOptions(), [], []
+    while len(screens) < count:
+        camera = scene.CAMERA.sample(rng)
+        screen = scene.draw_example_screen(rng, camera, video)
+        try:
+            placed = scene.scatter_objects(rng, camera, screen, 1.0)
+        except base.RejectedSample:
+            continue
+        screens.append(_screen_parameters(screen, camera))
+        objects += [_object_parameters(draw, x, y, camera) for draw, x, y in placed]
+    return _stack(screens), _stack(objects)
+
+
+def _probe_draws(count: int, counts) -> tuple[dict, dict]:
+    rng, video, screens, objects = np.random.default_rng(2), base.VideoOptions(), [], []
+    while len(screens) < count:
+        try:
+            layout = scene.probe_layout(rng, int(rng.choice(counts)), video)
+        except base.RejectedSample:
+            continue
+        screens.append(_screen_parameters(layout.screen, layout.camera))
+        objects += [
+            _object_parameters(draw, x, layout.row_y, layout.camera)
+            for draw, x in zip(layout.draws, layout.xs)
+        ]
+    return _stack(screens), _stack(objects)
+
+
+@pytest.mark.parametrize(
+    "counts", [(2, 3, 4), (scene.MAX_OBJECTS + 1, scene.MAX_OBJECTS + 2)], ids=["standard", "plus"]
+)
+def test_probe_parameters_lie_inside_the_examples_with_real_mass(counts):
+    """Examples are like probes but not constrained: every probe screen (size, depth, timing),
+    object (size, place relative to the camera) and camera parameter lies inside the examples'
+    range, and 5% of the examples fall inside the probes' range."""
+    example_screens, example_objects = _example_draws(1500)
+    probe_screens, probe_objects = _probe_draws(1000, counts)
+    for examples, probes in ((example_screens, probe_screens), (example_objects, probe_objects)):
+        for name, values in probes.items():
+            low, high = examples[name].min(), examples[name].max()
+            slack = 0.01 * (high - low) + 1e-9  # both may sample one bound: sampling noise
+            assert low - slack <= values.min() and values.max() <= high + slack, (
+                f"probe {name} [{values.min():.3f}, {values.max():.3f}] leaves the examples' "
+                f"[{low:.3f}, {high:.3f}]"
+            )
+            if high > low:
+                inside = (examples[name] >= values.min()) & (examples[name] <= values.max())
+                assert inside.mean() >= 0.05, f"only {inside.mean():.2f} of examples near probe {name}"
+
+
+def test_example_screens_are_often_placed_and_sized_like_the_probes():
+    """Jointly, 5% of the example screens are placed and sized like the standard probes' (the
+    probes' screen is no extreme of training)."""
+    example_screens, _ = _example_draws(1500)
+    probe_screens, _ = _probe_draws(1000, (2, 3, 4))
+    like_probes = np.ones(len(example_screens["screen_dx"]), bool)
+    for name in ("screen_dx", "screen_dy", "screen_width", "screen_height"):
+        values = probe_screens[name]
+        like_probes &= (example_screens[name] >= values.min()) & (example_screens[name] <= values.max())
+    assert like_probes.mean() >= 0.05, f"only {like_probes.mean():.2f} of example screens like probes'"
+

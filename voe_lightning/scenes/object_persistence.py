@@ -3,7 +3,9 @@ Consistent probes end with the plank propped up on the object it hides; inconsis
 with the plank flat, the object removed while the plank hid it. Counterbalanced probes start
 empty: the plank falls flat (consistent) or ends propped on an object that appeared under it
 while hidden (inconsistent). Examples vary object, plank and poses freely; controls drop the
-plank on open floor beside a visible object, or on an empty floor."""
+plank on open floor beside a visible object, or on an empty floor. Every clip starts at a random
+phase of the first frame interval, so that a probe can place its hidden change exactly at a
+frame (frames identical through the manipulation) without starting unlike the examples."""
 
 from __future__ import annotations
 
@@ -12,9 +14,36 @@ import numpy as np
 from tensordict import TensorDict
 
 from voe_lightning.scenes import base
-from voe_lightning.scenes.base import CameraPose, RejectedSample, SceneBuilder, VideoOptions
+from voe_lightning.scenes.base import (
+    CameraPose,
+    CameraRange,
+    RejectedSample,
+    SceneBuilder,
+    VideoOptions,
+)
 
 CONCEPT = "object_persistence"
+#: One camera distribution for examples, controls and probes (DESIGN.md §4, "one world"); the
+#: scene is placed relative to where the camera looks (``_anchor``).
+CAMERA = CameraRange(
+    lookat_x=(-0.4, 0.4),
+    lookat_y=(-0.6, 0.4),
+    lookat_z=(0.35, 0.5),
+    distance=(3.5, 4.8),
+    azimuth=(55.0, 125.0),
+    elevation=(-38.0, -20.0),
+)
+#: Probes look along the plank (it must face the camera to hide what is under it): a
+#: controlled view inside CAMERA.
+PROBE_CAMERA = CAMERA.narrow(azimuth=(84.0, 96.0), elevation=(-32.0, -22.0))
+#: Where the object stands relative to the camera's look-at point (x, y ranges): examples and
+#: controls anywhere in this box, probes in the middle of it.
+ANCHOR_OFFSET = ((-0.25, 0.25), (0.2, 0.6))
+PROBE_ANCHOR_OFFSET = ((-0.2, 0.2), (0.4, 0.55))
+#: Longest plank half side and drop height (lowest point above the object's top, or above the
+#: floor in controls) of training clips; probes draw inside these.
+PLANK_HALF_LENGTH = (0.3, 1.6)
+DROP_HEIGHT = (0.2, 1.4)
 #: Where an object waits, out of view and touching nothing but the floor, until it appears.
 PARKED_XY = (40.0, 40.0)
 
@@ -70,6 +99,12 @@ def _add_plank(builder: SceneBuilder, half_sizes, center, quat, color: str) -> N
     )
 
 
+def _anchor(rng: np.random.Generator, camera: CameraPose, offset) -> np.ndarray:
+    """The floor point (x, y) the scene is built around, drawn relative to the camera."""
+    (x_low, x_high), (y_low, y_high) = offset
+    return np.array(camera.lookat[:2]) + (rng.uniform(x_low, x_high), rng.uniform(y_low, y_high))
+
+
 def _colors(rng: np.random.Generator) -> tuple[str, str]:
     plank, obj = rng.choice(len(base.COLOR_NAMES), size=2, replace=False)
     return base.COLOR_NAMES[plank], base.COLOR_NAMES[obj]
@@ -93,11 +128,12 @@ def _touching(sim: base.Simulation, first: str, second: str, depth: float = 0.0)
 # --- probes --------------------------------------------------------------------------------------
 
 
-def _probe_layout(rng: np.random.Generator) -> dict:
+def probe_layout(rng: np.random.Generator) -> dict:
     """A probe's geometry: the plank, pitched front-down and facing the camera, drops so that its
     front edge lands in front of the object and it pivots back to rest on the object, which its
     sloped underside then hides (the camera looks along the plank from a low elevation). At the
     start it hangs high enough for the camera to see the object under it."""
+    camera = PROBE_CAMERA.sample(rng)
     obj = _draw_object(rng, (0.22, 0.36))
     if obj["shape"] == "box":
         obj["half"] *= 0.85
@@ -108,9 +144,9 @@ def _probe_layout(rng: np.random.Generator) -> dict:
     # plank stays propped, with enough plank beyond it to cover the object.
     ratio = float(rng.uniform(1.12, 1.35))
     shortest = max(0.8, (1.6 * reach + 0.1) / (2 - ratio))
-    half_length = float(rng.uniform(shortest, shortest + 0.35))
+    half_length = float(rng.uniform(shortest, min(shortest + 0.35, PLANK_HALF_LENGTH[1])))
     contact = ratio * half_length
-    obj_xy = (float(rng.uniform(-0.4, 0.4)), float(rng.uniform(-0.1, 0.4)))
+    obj_xy = _anchor(rng, camera, PROBE_ANCHOR_OFFSET)
     if obj["shape"] == "sphere":
         front_y = obj_xy[1] - contact
         rest_pitch = 2 * np.arctan(half / contact)
@@ -119,36 +155,62 @@ def _probe_layout(rng: np.random.Generator) -> dict:
         rest_pitch = np.arcsin(2 * half / contact)
     half_width = float(rng.uniform(reach + 0.3, max(reach + 0.3, 1.0)))
     half_thickness = float(rng.uniform(0.02, 0.05))
-    pitch = rest_pitch + np.deg2rad(rng.uniform(12, 30))
+    pitch = rest_pitch + np.deg2rad(rng.uniform(12, 24))
     quat = _compose(
         _quat((0, 0, 1), np.deg2rad(rng.uniform(-3, 3))),
         _quat((1, 0, 0), pitch),
     )
-    elevation = float(rng.uniform(22, 32))
     # High enough that the line of sight to the object's top passes under the front edge.
-    clearance = (obj_xy[1] - reach - front_y) * np.tan(np.deg2rad(elevation))
-    front_height = 2 * half + clearance + rng.uniform(0.1, 0.35)
-    front = np.array([obj_xy[0] + rng.uniform(-0.04, 0.04), front_y, front_height])
+    clearance = (obj_xy[1] - reach - front_y) * np.tan(np.deg2rad(-camera.elevation))
+    drop = clearance + rng.uniform(0.1, 0.3)
+    if not DROP_HEIGHT[0] <= drop <= DROP_HEIGHT[1]:
+        raise RejectedSample(f"the plank would start {drop:.2f} m above the object")
+    front = np.array([obj_xy[0] + rng.uniform(-0.04, 0.04), front_y, 2 * half + drop])
     center = front - _rotate(quat, (0.0, -half_length, -half_thickness))
-    camera = CameraPose(
-        lookat=(float(obj_xy[0] * 0.5), float(obj_xy[1] - 0.5), 0.45),
-        distance=float(rng.uniform(3.5, 4.1)),
-        azimuth=float(90 + rng.uniform(-6, 6)),
-        elevation=-elevation,
-    )
     return {
         "object": obj,
         "object_xy": obj_xy,
         "plank_half": (half_width, half_length, half_thickness),
         "plank_center": center,
         "plank_quat": quat,
+        "drop": float(drop),
         "camera": camera,
     }
 
 
+def _change_step(
+    sim: base.Simulation, rest_pos, quat, rng: np.random.Generator, last_frame: int
+) -> int:
+    """A physics step after which the object can appear or vanish unseen, drawn at random from
+    all such steps: the plank's front edge has landed, the plank does not touch the object's
+    place yet (so the plank moves the same with and without the object) and hides it. Found on
+    a copy holding the object in place; raises RejectedSample when there is none."""
+    dry = sim.fork()
+    dry.move("object", rest_pos, quat)
+    plank, obj = sim.model.geom("plank_0").id, sim.model.geom("object_0").id
+    spf = sim.video.steps_per_frame
+    fromto = np.empty(6)
+    candidates = []
+    for step in range(1, (last_frame + 1) * spf):
+        dry.step(1)
+        mujoco.mj_forward(dry.model, dry.data)
+        if step < spf or _plank_lowest_point(dry) >= 0.02:
+            continue
+        if mujoco.mj_geomDistance(dry.model, dry.data, plank, obj, 0.01, fromto) < 0.004:
+            break  # the plank reaches the object: the two branches would differ from here on
+        candidates.append((step, dry.fork()))
+    for index in rng.permutation(len(candidates)):
+        step, state = candidates[index]
+        if sim.mask_id("object") not in base.visible_ids(state.render()[1]):
+            return step
+    raise RejectedSample("no moment where the plank hides the object's place before touching it")
+
+
 def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
     """A probe pair of ``variant``: ``standard`` (the object vanishes under the plank) or
-    ``counterbalanced`` (an object appears under the plank in an empty scene)."""
+    ``counterbalanced`` (an object appears under the plank in an empty scene). Both make the
+    change at a frame, in the same window (landed, not yet touching, hidden), so that the two
+    variants mirror each other."""
     if variant not in ("standard", "counterbalanced"):
         raise ValueError(
             f"unknown {CONCEPT} probe variant {variant!r}; valid: standard, counterbalanced"
@@ -156,7 +218,7 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
     rng = base.rng_for(seed, CONCEPT, variant)
 
     def make(rng: np.random.Generator) -> TensorDict:
-        layout = _probe_layout(rng)
+        layout = probe_layout(rng)
         plank_color, object_color = _colors(rng)
         builder = SceneBuilder(rng, video, layout["camera"])
         obj, obj_xy = layout["object"], layout["object_xy"]
@@ -167,28 +229,26 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
         )
         sim = builder.build()
         object_id = sim.mask_id("object")
-        rest_pos = (obj_xy[0], obj_xy[1], obj["half"])
+        rest_pos, rest_quat = (obj_xy[0], obj_xy[1], obj["half"]), base.yaw_quat(obj["yaw"])
+        # The change happens at physics step ``step``: start the video that many steps into a
+        # frame interval (as every clip starts at a random phase) so that it falls on a frame.
+        step = _change_step(sim, rest_pos, rest_quat, rng, last_frame=video.num_frames - 3)
+        frame, phase = divmod(step, video.steps_per_frame)
+        sim.step(phase)
 
-        def landed(sim: base.Simulation, frame: int) -> bool:
-            return frame <= video.num_frames - 3 and _plank_lowest_point(sim) < 0.02
-
-        if counterbalanced:
-
-            def manipulate(twin: base.Simulation) -> bool:
-                twin.move("object", rest_pos, base.yaw_quat(obj["yaw"]))
-                # Appear only in the free space under the still-falling plank.
-                return not _touching(twin, "object_0", "plank_0", depth=0.002)
-
-        else:
-
-            def manipulate(twin: base.Simulation) -> None:
+        def manipulate(twin: base.Simulation) -> None:
+            if not counterbalanced:
                 twin.remove("object")
+                return
+            twin.move("object", rest_pos, rest_quat)
+            if _touching(twin, "object_0", "plank_0"):
+                raise RejectedSample("the object would appear touching the plank")
 
-        # The object may appear only in the brief moment between the plank's front edge
-        # landing and the plank coming down: look for it between frames too.
-        consistent, inconsistent, frame = base.record_pair_when(
-            sim, manipulate, landed, [object_id], checks_per_frame=4 if counterbalanced else 1
-        )
+        consistent, inconsistent = base.record_pair(sim, frame, manipulate)
+        if object_id in base.visible_ids(consistent[1][frame]) | base.visible_ids(
+            inconsistent[1][frame]
+        ):
+            raise RejectedSample("the object shows at the manipulation frame")
         if not counterbalanced and object_id not in base.visible_ids(consistent[1][0]):
             raise RejectedSample("the object is hidden before the plank falls")
         propped = inconsistent if counterbalanced else consistent
@@ -204,29 +264,57 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
 # --- training clips --------------------------------------------------------------------------
 
 
-def _clip_camera(rng: np.random.Generator, lookat_xy) -> CameraPose:
-    """A camera that varies between clips (static within one), around the probes' viewpoint."""
-    return CameraPose(
-        lookat=(float(lookat_xy[0]), float(lookat_xy[1] - 0.3), 0.4),
-        distance=float(rng.uniform(3.6, 4.8)),
-        azimuth=float(90 + rng.uniform(-35, 35)),
-        elevation=float(-rng.uniform(20, 38)),
-    )
-
-
 def _random_plank(rng: np.random.Generator, above: float) -> tuple:
     """Plank half sizes (width, length and thickness vary greatly) and a random pose whose
     lowest corner starts ``above`` metres over the floor; centred at the origin in xy."""
-    half = np.array([rng.uniform(0.3, 1.1), rng.uniform(0.3, 1.3), rng.uniform(0.02, 0.06)])
+    half = np.array(
+        [rng.uniform(0.3, 1.1), rng.uniform(*PLANK_HALF_LENGTH), rng.uniform(0.02, 0.06)]
+    )
     quat = _compose(
         _quat((0, 0, 1), rng.uniform(-np.pi, np.pi)),
         _quat((0, 1, 0), np.deg2rad(rng.uniform(-30, 30))),
-        _quat((1, 0, 0), np.deg2rad(rng.uniform(-50, 50))),
+        _quat((1, 0, 0), np.deg2rad(rng.uniform(-70, 70))),
     )
     rotation = np.empty(9)
     mujoco.mju_quat2Mat(rotation, quat)
     depth = float(np.abs(rotation.reshape(3, 3)[2]) @ half)
     return half, quat, np.array([0.0, 0.0, above + depth]), float(np.hypot(half[0], half[1]))
+
+
+def clip_layout(rng: np.random.Generator, kind: str) -> dict:
+    """A training clip's geometry (the keys of ``probe_layout``): camera from CAMERA, object and
+    plank around a point drawn relative to it; the plank over the object (``example``) or on
+    open floor beside it (controls)."""
+    camera = CAMERA.sample(rng)
+    obj = _draw_object(rng, (0.15, 0.4))
+    anchor = _anchor(rng, camera, ANCHOR_OFFSET)
+    drop = float(rng.uniform(*DROP_HEIGHT))
+    plank_half, plank_quat, plank_center, plank_radius = _random_plank(
+        rng, above=(2 * obj["half"] if kind == "example" else 0.0) + drop
+    )
+    if kind == "example":
+        # Somewhere over the object, so that the plank hits it.
+        obj_xy = anchor
+        offset = rng.uniform(-0.5, 0.5, size=2) * plank_half[:2]
+        plank_center[:2] = obj_xy + _rotate(plank_quat, (*offset, 0.0))[:2]
+    else:
+        # Open floor beside the object: beyond the plank's reach (draws where it still touches
+        # the object are rejected by ``clip``); the pair (or the plank alone) around the anchor.
+        angle = rng.uniform(-np.pi, np.pi)
+        distance = plank_radius + obj["half"] * np.sqrt(2) + rng.uniform(0.15, 0.5)
+        step = distance * np.array([np.cos(angle), np.sin(angle)])
+        beside = kind == "plank_beside_object"
+        obj_xy = anchor - step / 2 if beside else anchor - step
+        plank_center[:2] = obj_xy + step
+    return {
+        "object": obj,
+        "object_xy": obj_xy,
+        "plank_half": tuple(plank_half),
+        "plank_center": plank_center,
+        "plank_quat": plank_quat,
+        "drop": drop,
+        "camera": camera,
+    }
 
 
 def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
@@ -240,30 +328,16 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
 
     def make(rng: np.random.Generator) -> TensorDict:
         plank_color, object_color = _colors(rng)
-        obj = _draw_object(rng, (0.15, 0.4))
-        obj_xy = np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.3, 0.5)])
-        plank_half, plank_quat, plank_center, plank_radius = _random_plank(
-            rng, above=(2 * obj["half"] if kind == "example" else 0.0) + rng.uniform(0.2, 1.1)
-        )
-        if kind == "example":
-            # Somewhere over the object, so that the plank hits it.
-            offset = rng.uniform(-0.5, 0.5, size=2) * plank_half[:2]
-            plank_center[:2] = obj_xy + _rotate(plank_quat, (*offset, 0.0))[:2]
-            lookat = obj_xy
-        else:
-            # Open floor beside the object: beyond the plank's reach (draws where it still
-            # touches the object are rejected below).
-            angle = rng.uniform(-np.pi, np.pi)
-            distance = plank_radius + obj["half"] * np.sqrt(2) + rng.uniform(0.15, 0.5)
-            plank_center[:2] = obj_xy + distance * np.array([np.cos(angle), np.sin(angle)])
-            beside = kind == "plank_beside_object"
-            lookat = (obj_xy + plank_center[:2]) / 2 if beside else plank_center[:2]
-        camera = _clip_camera(rng, lookat)
+        layout = clip_layout(rng, kind)
+        obj, obj_xy, camera = layout["object"], layout["object_xy"], layout["camera"]
         builder = SceneBuilder(rng, video, camera)
         if kind != "plank_on_empty_floor":
             _add_object(builder, obj, obj_xy, object_color)
-        _add_plank(builder, plank_half, plank_center, plank_quat, plank_color)
+        _add_plank(
+            builder, layout["plank_half"], layout["plank_center"], layout["plank_quat"], plank_color
+        )
         sim = builder.build()
+        sim.step(int(rng.integers(video.steps_per_frame)))  # a random phase, as probes have
         frames, masks = sim.record(video.num_frames)
         if kind == "plank_beside_object":
             pushed = np.linalg.norm(sim.position("object")[:2] - obj_xy) > 0.005

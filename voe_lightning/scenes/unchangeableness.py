@@ -2,8 +2,10 @@
 screen is lowered in front of them and raised again. Probes line 2-4 objects up in the
 foreground and change one or more of them behind the screen (``position``, ``color``, ``shape``);
 ``<change>_plus1``/``_plus2`` do the same with one or two more objects than training ever shows
-(paper §5). Examples scatter the objects anywhere and drop a screen of any size at any depth;
-the controls omit the screen (``objects_only``) or the objects (``screen_only``)."""
+(paper §5). Examples scatter the objects anywhere and drop a screen of any size at any depth
+(half of them in the foreground, wide, as the probes' screen); the controls omit the screen
+(``objects_only``) or the objects (``screen_only``). Examples, controls and probes share one
+camera distribution, object sizes and screen motion (DESIGN.md §4, "one world")."""
 
 from __future__ import annotations
 
@@ -14,7 +16,14 @@ import numpy as np
 from tensordict import TensorDict
 
 from voe_lightning.scenes import base
-from voe_lightning.scenes.base import CameraPose, Geom, RejectedSample, SceneBuilder, VideoOptions
+from voe_lightning.scenes.base import (
+    CameraPose,
+    CameraRange,
+    Geom,
+    RejectedSample,
+    SceneBuilder,
+    VideoOptions,
+)
 
 CONCEPT = "unchangeableness"
 #: Objects in training clips and standard probes; generalization probes add one or two more.
@@ -32,6 +41,24 @@ SCREEN_FLOOR_GAP = 0.002
 SCREEN_COLOR = (0.52, 0.38, 0.24)
 #: Manipulated ids a probe record can carry (probe_record pads to this many).
 MAX_MANIPULATED_IDS = 4
+#: One camera distribution for examples, both controls and probes.
+CAMERA = CameraRange(
+    lookat_x=(-0.3, 0.3),
+    lookat_y=(-0.3, 0.5),
+    lookat_z=(0.1, 0.1),
+    distance=(2.6, 3.6),
+    azimuth=(80.0, 100.0),
+    elevation=(-38.0, -24.0),
+)
+#: Footprint half-width of every object (probe rows shrink the top of it to fit their slots).
+OBJECT_RADIUS = (0.11, 0.25)
+#: Example screens (relative to the camera's look-at point, metres): anywhere, or in the
+#: foreground across the middle, where probes put theirs; widths and heights of both kinds.
+SCREEN_ANYWHERE = {"dx": (-1.2, 1.2), "dy": (-1.0, 1.4), "width": (0.5, 2.8)}
+SCREEN_FOREGROUND = {"dx": (-0.2, 0.2), "dy": (-0.95, -0.15), "width": (1.4, 2.8)}
+SCREEN_HEIGHT = (0.3, 1.2)
+#: Share of example screens drawn in the foreground.
+FOREGROUND_SHARE = 0.5
 
 
 # --- objects -------------------------------------------------------------------------------------
@@ -201,6 +228,21 @@ def draw_screen_color(rng: np.random.Generator) -> tuple[float, float, float]:
     return tuple(float(c) for c in np.clip(np.array(SCREEN_COLOR) * rng.uniform(0.8, 1.25), 0, 1))
 
 
+def draw_screen(
+    rng: np.random.Generator,
+    camera: CameraPose,
+    video: VideoOptions,
+    x: float,
+    y: float,
+    width: float,
+    height: float,
+    bottom: float,
+) -> Screen:
+    """A screen at (x, y) that starts just out of view above and is lowered to ``bottom``."""
+    top = min(height_above_view(camera, x, y), 4.0) + float(rng.uniform(0.05, 0.3))
+    return Screen(x, y, width, height, draw_screen_color(rng), draw_motion(rng, video, top, bottom))
+
+
 # --- probes --------------------------------------------------------------------------------------
 def parse_variant(variant: str) -> tuple[str, int]:
     """(change, extra objects) of a probe variant, e.g. ``shape_plus2`` -> (``shape``, 2)."""
@@ -211,54 +253,68 @@ def parse_variant(variant: str) -> tuple[str, int]:
     return change, int(extra or 0)
 
 
-def probe_camera(rng: np.random.Generator, row_y: float) -> CameraPose:
-    return CameraPose(
-        lookat=(float(rng.uniform(-0.1, 0.1)), row_y + float(rng.uniform(0.0, 0.3)), 0.1),
-        distance=float(rng.uniform(2.6, 3.0)),
-        azimuth=float(rng.uniform(86.0, 94.0)),
-        elevation=float(rng.uniform(-36.0, -28.0)),
-    )
-
-
 def _changed_count(rng: np.random.Generator, most: int) -> int:
     """How many objects change: one most often, more with decreasing probability."""
     weights = 0.5 ** np.arange(most)
     return int(rng.choice(np.arange(1, most + 1), p=weights / weights.sum()))
 
 
-def _make_probe(
-    change: str, extra: int, variant: str, seed: int, video: VideoOptions, rng: np.random.Generator
-) -> TensorDict:
-    count = int(rng.integers(MIN_OBJECTS, MAX_OBJECTS + 1)) if extra == 0 else MAX_OBJECTS + extra
+@dataclass
+class ProbeLayout:
+    """A probe's geometry: the camera, ``len(draws)`` objects in a row at ``xs`` (depth
+    ``row_y``) and the screen in front of them."""
+
+    camera: CameraPose
+    draws: list[ObjectDraw]
+    xs: np.ndarray
+    row_y: float
+    screen: Screen
+    spare_colors: list[str]
+
+
+def probe_layout(rng: np.random.Generator, count: int, video: VideoOptions) -> ProbeLayout:
+    """Draw a probe's camera (from CAMERA), a row of ``count`` objects (sizes from the examples'
+    range, shrunk to fit their slots) near where the camera looks, and a screen tall and wide
+    enough to hide the row, just in front of it; RejectedSample if the row leaves the view."""
+    camera = CAMERA.sample(rng)
     slot = min(float(rng.uniform(0.5, 0.7)), ROW_MAX_WIDTH / count)
-    row_y = float(rng.uniform(-0.4, 0.0))
-    row_x = float(rng.uniform(-0.1, 0.1))
+    row_x = camera.lookat[0] + float(rng.uniform(-0.1, 0.1))
+    row_y = camera.lookat[1] - float(rng.uniform(0.0, 0.3))
     xs = row_x + slot * (np.arange(count) - (count - 1) / 2)
     colors = [base.COLOR_NAMES[i] for i in rng.permutation(len(base.COLOR_NAMES))]
-    scene_colors, spare_colors = colors[:count], colors[count:]
+    largest_radius = min(OBJECT_RADIUS[1], 0.425 * slot)
     draws = [
-        draw_object(rng, float(rng.uniform(0.6, 0.85)) * slot / 2, color) for color in scene_colors
+        draw_object(rng, float(rng.uniform(OBJECT_RADIUS[0], largest_radius)), color)
+        for color in colors[:count]
     ]
-    camera = probe_camera(rng, row_y)
     aspect = video.width / video.height
     for x, draw in ((xs[0] - slot / 2, draws[0]), (xs[-1] + slot / 2, draws[-1])):
         if abs(project(camera, (x, row_y, draw.height), aspect)[0]) > 0.92:
             raise RejectedSample("the row does not fit in the view")
-
     largest = max(d.reach for d in draws)
     tallest = max(d.height for d in draws)
     screen_y = row_y - largest - float(rng.uniform(0.12, 0.3))
     margin = float(rng.uniform(0.25, 0.45))
-    screen_height = tallest + float(rng.uniform(0.35, 0.55))
-    top = height_above_view(camera, row_x, screen_y) + 0.05
-    screen = Screen(
+    screen = draw_screen(
+        rng,
+        camera,
+        video,
         row_x,
         screen_y,
         count * slot + 2 * margin,
-        screen_height,
-        draw_screen_color(rng),
-        draw_motion(rng, video, top, SCREEN_FLOOR_GAP),
+        tallest + float(rng.uniform(0.35, 0.55)),
+        SCREEN_FLOOR_GAP,
     )
+    return ProbeLayout(camera, draws, xs, row_y, screen, colors[count:])
+
+
+def _make_probe(
+    change: str, extra: int, variant: str, seed: int, video: VideoOptions, rng: np.random.Generator
+) -> TensorDict:
+    count = int(rng.integers(MIN_OBJECTS, MAX_OBJECTS + 1)) if extra == 0 else MAX_OBJECTS + extra
+    layout = probe_layout(rng, count, video)
+    camera, draws, xs, row_y = layout.camera, layout.draws, layout.xs, layout.row_y
+    screen, spare_colors = layout.screen, layout.spare_colors
     hidden = screen.motion.hidden_frames()
     if not hidden:
         raise RejectedSample("the screen is never down for two frames in a row")
@@ -354,26 +410,17 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
 
 
 # --- training clips ------------------------------------------------------------------------------
-def example_camera(rng: np.random.Generator) -> CameraPose:
-    return CameraPose(
-        lookat=(float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.3, 0.5)), 0.1),
-        distance=float(rng.uniform(2.6, 3.6)),
-        azimuth=float(rng.uniform(80.0, 100.0)),
-        elevation=float(rng.uniform(-38.0, -24.0)),
-    )
-
-
 def draw_example_screen(rng: np.random.Generator, camera: CameraPose, video: VideoOptions):
-    """A screen of any size at any depth from the foreground to the background; it may stop
-    above the floor, so objects are hidden partly, wholly or not at all, at different times."""
-    x = float(camera.lookat[0] + rng.uniform(-1.2, 1.2))
-    y = float(camera.lookat[1] + rng.uniform(-1.0, 1.4))
-    width = float(rng.uniform(0.5, 2.8))
-    height = float(rng.uniform(0.3, 1.2))
+    """A screen of any size at any depth from the foreground to the background, or (half of
+    them) wide across the foreground as in probes; it may stop above the floor, so objects are
+    hidden partly, wholly or not at all, at different times."""
+    ranges = SCREEN_FOREGROUND if rng.random() < FOREGROUND_SHARE else SCREEN_ANYWHERE
+    x = float(camera.lookat[0] + rng.uniform(*ranges["dx"]))
+    y = float(camera.lookat[1] + rng.uniform(*ranges["dy"]))
+    width = float(rng.uniform(*ranges["width"]))
+    height = float(rng.uniform(*SCREEN_HEIGHT))
     bottom = SCREEN_FLOOR_GAP if rng.random() < 0.7 else float(rng.uniform(0.05, 0.4))
-    top = min(height_above_view(camera, x, y), 4.0) + float(rng.uniform(0.0, 0.3))
-    motion = draw_motion(rng, video, top, bottom)
-    return Screen(x, y, width, height, draw_screen_color(rng), motion)
+    return draw_screen(rng, camera, video, x, y, width, height, bottom)
 
 
 def _clear_of_screen(screen: Screen | None, draw: ObjectDraw, x: float, y: float) -> bool:
@@ -386,16 +433,16 @@ def _clear_of_screen(screen: Screen | None, draw: ObjectDraw, x: float, y: float
 
 
 def scatter_objects(
-    builder: SceneBuilder, rng: np.random.Generator, camera: CameraPose, screen: Screen | None
-) -> None:
-    """Place 2-4 static objects anywhere in view (uniformly over the image, up to 2.5 m past
-    the point the camera looks at), apart from one another and the screen."""
+    rng: np.random.Generator, camera: CameraPose, screen: Screen | None, aspect: float
+) -> list[tuple[ObjectDraw, float, float]]:
+    """2-4 static objects (draw, x, y) anywhere in view (uniformly over the image, up to 2.5 m
+    past the point the camera looks at), apart from one another and the screen."""
     count = int(rng.integers(MIN_OBJECTS, MAX_OBJECTS + 1))
     colors = rng.choice(base.COLOR_NAMES, count, replace=False)
     placed: list[tuple[float, float, float]] = []
-    aspect = builder.video.width / builder.video.height
-    for index, color in enumerate(colors):
-        draw = draw_object(rng, float(rng.uniform(0.11, 0.25)), str(color))
+    objects = []
+    for color in colors:
+        draw = draw_object(rng, float(rng.uniform(*OBJECT_RADIUS)), str(color))
         for _ in range(100):
             u, v = rng.uniform(-0.85, 0.85, size=2)
             point = floor_point(camera, u, v, draw.height / 2, aspect)
@@ -411,7 +458,8 @@ def scatter_objects(
         else:
             raise RejectedSample("no free place in view for an object")
         placed.append((x, y, draw.reach))
-        add_object(builder, f"object{index}", draw, x, y)
+        objects.append((draw, x, y))
+    return objects
 
 
 def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
@@ -422,11 +470,13 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
         raise ValueError(f"unknown unchangeableness clip kind {kind!r}; valid kinds: {kinds}")
 
     def make(rng: np.random.Generator) -> TensorDict:
-        camera = example_camera(rng)
+        camera = CAMERA.sample(rng)
+        aspect = video.width / video.height
         builder = SceneBuilder(rng, video, camera)
         screen = draw_example_screen(rng, camera, video) if kind != "objects_only" else None
         if kind != "screen_only":
-            scatter_objects(builder, rng, camera, screen)
+            for index, (draw, x, y) in enumerate(scatter_objects(rng, camera, screen, aspect)):
+                add_object(builder, f"object{index}", draw, x, y)
         if screen is not None:
             screen.add_to(builder)
         sim = builder.build()
