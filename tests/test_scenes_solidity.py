@@ -3,6 +3,7 @@ inside the top of the container, never its bottom), probe parameters inside the 
 ranges, the standard and counterbalanced pairs showing what they should, and the controls
 being what the paper says."""
 
+import mujoco
 import numpy as np
 import pytest
 import torch
@@ -170,8 +171,6 @@ def test_camera_position_matches_mujoco():
     camera = solidity.CAMERA.sample(np.random.default_rng(3))
     builder = SceneBuilder(np.random.default_rng(3), VideoOptions(), camera)
     sim = builder.build()
-    import mujoco
-
     free = mujoco.MjvCamera()
     free.type = mujoco.mjtCamera.mjCAMERA_FREE
     free.lookat[:], free.distance = camera.lookat, camera.distance

@@ -91,8 +91,9 @@ def _add_container(builder: SceneBuilder, box: dict, color: str) -> None:
 def camera_position(camera: CameraPose) -> np.ndarray:
     """Where MuJoCo's free camera sits for ``camera`` (its eye, in world coordinates)."""
     azimuth, elevation = np.deg2rad(camera.azimuth), np.deg2rad(camera.elevation)
+    horizontal = np.cos(elevation)
     forward = np.array(
-        [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)]
+        [horizontal * np.cos(azimuth), horizontal * np.sin(azimuth), np.sin(elevation)]
     )
     return np.asarray(camera.lookat, float) - camera.distance * forward
 
@@ -112,7 +113,9 @@ def sees_top_not_bottom(camera: CameraPose, box: dict) -> bool:
         return False
     floor, depth = 2 * box["wall"], _depth(box)
     low, high = (box["height"] - f * depth for f in reversed(HIDDEN_BACK_WALL))
-    heights = [_hidden_height(eye, box, x, box["inner_y"]) for x in (-box["inner_x"], 0.0, box["inner_x"])]
+    heights = [
+        _hidden_height(eye, box, x, box["inner_y"]) for x in (-box["inner_x"], 0.0, box["inner_x"])
+    ]
     return floor < low <= min(heights) and max(heights) <= high
 
 
@@ -155,13 +158,17 @@ def draw_example(rng: np.random.Generator) -> dict:
     }
 
 
-def draw_probe(variant: str, rng: np.random.Generator, video: VideoOptions = VideoOptions()) -> dict:
+def draw_probe(
+    variant: str, rng: np.random.Generator, video: VideoOptions = VideoOptions()
+) -> dict:
     """The parameters of a probe pair, each inside the examples' range: a container seen from
     the controlled perspective; a block that, resting on the container's floor, protrudes
     into view (standard) or hides below the sight line over the front rim (counterbalanced),
     which then also gets the height of the hidden support (``support``: its top)."""
     if variant not in VARIANTS:
-        raise ValueError(f"unknown {CONCEPT} probe variant {variant!r}; valid: {', '.join(VARIANTS)}")
+        raise ValueError(
+            f"unknown {CONCEPT} probe variant {variant!r}; valid: {', '.join(VARIANTS)}"
+        )
     for _ in range(1000):
         box, camera = _draw_container(rng), PROBE_CAMERA.sample(rng)
         if not sees_top_not_bottom(camera, box):
@@ -171,9 +178,9 @@ def draw_probe(variant: str, rng: np.random.Generator, video: VideoOptions = Vid
         corners = _footprint(block, block["offset"])
         hidden = [_hidden_height(eye, box, x, y) for x, y in corners]
         top = 2 * box["wall"] + 2 * block["half"][2]
-        params = {"box": box, "block": block, "camera": camera, "drop": float(rng.uniform(*PROBE_DROP))}
+        params = {"box": box, "block": block, "camera": camera}
         if variant == "standard" and top > max(hidden) + PROTRUSION:
-            return params
+            return {**params, "drop": float(rng.uniform(*PROBE_DROP))}
         if variant == "counterbalanced" and top < min(hidden) - MARGIN:
             # The support hides just below the sight line; on it the block protrudes. The drop
             # is timed so that at the first frame the block is just above the support: landing
@@ -251,7 +258,9 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
     out of view) or ``counterbalanced`` (a short block sinks out of view, or stays protruding
     on a hidden support; the support, never visible, is the manipulated object)."""
     if variant not in VARIANTS:
-        raise ValueError(f"unknown {CONCEPT} probe variant {variant!r}; valid: {', '.join(VARIANTS)}")
+        raise ValueError(
+            f"unknown {CONCEPT} probe variant {variant!r}; valid: {', '.join(VARIANTS)}"
+        )
     rng = base.rng_for(seed, CONCEPT, variant)
 
     def make(rng: np.random.Generator) -> TensorDict:
@@ -277,7 +286,8 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
             # The last frame before the block's free fall reaches the support.
             speed = float(sim.data.qvel[sim.model.joint("block_joint").dofadr[0] + 2])
             next_bottom = bottom + speed * step - GRAVITY * step**2 / 2
-            return bottom > params["support"] + 0.005 and (bottom < rim or next_bottom < params["support"] + 0.02)
+            support = params["support"]
+            return bottom > support + 0.005 and (bottom < rim or next_bottom < support + 0.02)
 
         manipulate = _fall_through if variant == "standard" else _make_solid
         consistent, inconsistent, frame = base.record_pair_when(sim, manipulate, ready)
@@ -294,9 +304,9 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
                 raise RejectedSample("the hidden support shows")
             shown, gone = inconsistent[1][-1], consistent[1][-1]
         if (shown == block_id).sum() < 6:
-            raise RejectedSample("the protruding block is hidden: the probe would show no difference")
+            raise RejectedSample("the protruding block is hidden: the pair would not differ")
         if block_id in base.visible_ids(gone):
-            raise RejectedSample("the block that should be out of view is still in view at the end")
+            raise RejectedSample("the block that should be out of view is seen at the end")
         return base.probe_record(
             CONCEPT, variant, seed, consistent, inconsistent, camera, frame, [manipulated]
         )
@@ -324,11 +334,14 @@ def _outer_gap(box: dict, xy) -> float:
     return float(np.hypot(max(abs(xy[0]) - outer_x, 0.0), max(abs(xy[1]) - outer_y, 0.0)))
 
 
-def _hidden_by_container(eye: np.ndarray, box: dict, points: np.ndarray, margin: float = 0.03) -> bool:
+def _hidden_by_container(
+    eye: np.ndarray, box: dict, points: np.ndarray, margin: float = 0.03
+) -> bool:
     """Whether the segment from ``eye`` to every point [N, 3] passes through the container's
     outer box (shrunk by ``margin``): an open box hides what lies behind it like a solid one."""
     half = np.array([box["inner_x"] + 2 * box["wall"], box["inner_y"] + 2 * box["wall"]]) - margin
-    low, high = np.array([-half[0], -half[1], 0.0]), np.array([half[0], half[1], box["height"] - margin])
+    low = np.array([-half[0], -half[1], 0.0])
+    high = np.array([half[0], half[1], box["height"] - margin])
     for point in points:
         direction = point - eye
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -364,7 +377,9 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             for _ in range(200):
                 xy = _behind_container(rng, box, block, camera)
                 corners = _footprint(block, xy)
-                points = np.array([[x, y, z] for x, y in corners for z in (0.0, 2 * block["half"][2])])
+                points = np.array(
+                    [[x, y, z] for x, y in corners for z in (0.0, 2 * block["half"][2])]
+                )
                 if _hidden_by_container(eye, box, points):
                     break
                 block = _draw_block(rng, box, EXAMPLE_HEIGHTS)
@@ -375,8 +390,10 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
         frames, masks = sim.record(video.num_frames)
         if kind != "no_object" and sim.mask_id("block") not in base.visible_ids(masks[0]):
             raise RejectedSample("the block is not seen before it falls")
-        if kind == "object_behind_container" and sim.mask_id("block") in base.visible_ids(masks[-1]):
-            raise RejectedSample("the block behind the container is still in view at the end")
+        if kind == "object_behind_container" and sim.mask_id("block") in base.visible_ids(
+            masks[-1]
+        ):
+            raise RejectedSample("the block behind the container is still seen at the end")
         return base.clip_record(CONCEPT, kind, seed, frames, masks, camera)
 
     return base.draw_until_valid(make, rng)
