@@ -1,7 +1,9 @@
 """Solidity scenes, beyond the shared validity test: perspective control (the probe camera sees
-inside the top of the container, never its bottom), the block rests visibly in the consistent
-probe and vanishes in the inconsistent one, and the controls are what the paper says."""
+inside the top of the container, never its bottom), probe parameters inside the examples'
+ranges, the standard and counterbalanced pairs showing what they should, and the controls
+being what the paper says."""
 
+import mujoco
 import numpy as np
 import pytest
 import torch
@@ -10,19 +12,20 @@ from voe_lightning.scenes import VideoOptions, generate_clip, generate_probe, so
 from voe_lightning.scenes.base import Geom, SceneBuilder, visible_ids
 
 CONCEPT = "solidity"
-CONTAINER, BLOCK = 1, 2  # mask ids: the container is added first
+CONTAINER, BLOCK, SUPPORT = 1, 2, 3  # mask ids, in the order the objects are added
 
 
 def ids_in(mask: torch.Tensor) -> set[int]:
     return set(mask.unique().tolist()) - {0}
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_probe_camera_sees_into_the_top_but_not_the_bottom(seed):
-    rng = np.random.default_rng(seed)
-    box = solidity._draw_container(rng)
-    camera = solidity._probe_camera(rng, box)
-    builder = SceneBuilder(rng, VideoOptions(height=128, width=128), camera)
+@pytest.mark.parametrize("variant", solidity.VARIANTS)
+@pytest.mark.parametrize("seed", range(4))
+def test_probe_camera_sees_into_the_top_but_not_the_bottom(variant, seed):
+    params = solidity.draw_probe(variant, np.random.default_rng(seed))
+    box, camera = params["box"], params["camera"]
+    assert solidity.PROBE_CAMERA.contains(camera) and solidity.CAMERA.contains(camera)
+    builder = SceneBuilder(np.random.default_rng(seed), VideoOptions(height=128, width=128), camera)
     solidity._add_container(builder, box, "red")
     ix, iy, w, h = box["inner_x"], box["inner_y"], box["wall"], box["height"]
     # Thin markers: one covering the inner bottom, one on the back wall's inner face near the rim.
@@ -37,8 +40,53 @@ def test_probe_camera_sees_into_the_top_but_not_the_bottom(seed):
     assert bottom.mask_id not in visible_ids(mask), "the camera must not see the bottom"
 
 
+def _block_ratio(params: dict) -> float:
+    """The block's height as a multiple of the container's inner depth."""
+    return 2 * params["block"]["half"][2] / solidity._depth(params["box"])
+
+
+#: Probe parameters that must lie inside the examples' range, with examples' mass there.
+PARAMETERS = {
+    "block height / depth": _block_ratio,
+    "block half x": lambda p: p["block"]["half"][0],
+    "block half y": lambda p: p["block"]["half"][1],
+    "drop above the rim": lambda p: p["drop"],
+    "container height": lambda p: p["box"]["height"],
+    "container inner y": lambda p: p["box"]["inner_y"],
+    **{
+        f"camera {name}": (lambda i: lambda p: float(p["camera"].as_array()[i]))(index)
+        for index, name in enumerate(solidity.CAMERA.ranges())
+    },
+}
+
+
+@pytest.mark.parametrize("variant", solidity.VARIANTS)
+def test_probe_parameters_lie_inside_the_examples_range_with_mass_there(variant):
+    """Examples are like probes but not constrained: every probe parameter falls inside the
+    range the examples cover, and at least 5% of examples fall inside the probes' range."""
+    rng = np.random.default_rng(0)
+    examples = [solidity.draw_example(rng) for _ in range(2000)]
+    probes = [solidity.draw_probe(variant, rng) for _ in range(300)]
+    for name, value in PARAMETERS.items():
+        seen = np.array([value(p) for p in examples])
+        probed = np.array([value(p) for p in probes])
+        low, high = probed.min(), probed.max()
+        slack = 0.02 * np.ptp(seen)  # sampled extremes of a uniform draw fall just short of it
+        assert seen.min() - slack <= low and high <= seen.max() + slack, (
+            f"{variant} probe {name} in [{low:.3f}, {high:.3f}] leaves the examples' "
+            f"[{seen.min():.3f}, {seen.max():.3f}]"
+        )
+        if high > low:
+            mass = np.mean((seen >= low) & (seen <= high))
+            assert mass >= 0.05, f"{variant} probe {name}: only {mass:.1%} of examples there"
+    assert (
+        solidity.EXAMPLE_HEIGHTS[0] <= solidity.PROBE_HEIGHTS[variant][0]
+        and solidity.PROBE_HEIGHTS[variant][1] <= solidity.EXAMPLE_HEIGHTS[1]
+    )
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_probe_block_rests_visibly_or_falls_out_of_view(seed):
+def test_standard_block_rests_visibly_or_falls_out_of_view(seed):
     record = generate_probe(CONCEPT, "standard", seed)
     assert record["manipulated_ids"].tolist() == [BLOCK, 0, 0, 0]
     m = int(record["manipulation_frame"])
@@ -54,31 +102,58 @@ def test_probe_block_rests_visibly_or_falls_out_of_view(seed):
     assert lost.flatten(1).sum(1).max() <= solidity.PENETRATION_TOLERANCE
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_counterbalanced_block_sinks_out_of_view_or_stays_on_a_hidden_support(seed):
+    """The mirror of standard: the short block disappears into the container (consistent) or
+    lands on a support that is never seen and stays protruding (inconsistent)."""
+    record = generate_probe(CONCEPT, "counterbalanced", seed)
+    assert record["manipulated_ids"].tolist() == [SUPPORT, 0, 0, 0]
+    m = int(record["manipulation_frame"])
+    consistent, inconsistent = record["consistent", "mask"], record["inconsistent", "mask"]
+    for video in (consistent, inconsistent):
+        assert SUPPORT not in ids_in(video.flatten()), "the hidden support shows"
+    assert BLOCK in ids_in(consistent[0]) and BLOCK in ids_in(consistent[m])
+    assert BLOCK not in ids_in(consistent[-1]), "the short block ends out of view"
+    stays = (inconsistent[m + 1 :] == BLOCK).flatten(1).sum(1)
+    assert (stays >= 6).all(), "the supported block protrudes to the end"
+    assert (stays[1:] - stays[:-1]).abs().max() <= 2, "and rests there, unmoving"
+    # The inconsistent video shows more of the block and moves less: standard's mirror image.
+    shown = [(video[m + 1 :] == BLOCK).sum() for video in (consistent, inconsistent)]
+    assert shown[1] > shown[0]
+    frames = [record[side, "frames"][m:].float() for side in ("consistent", "inconsistent")]
+    motion = [frame.diff(dim=0).abs().mean() for frame in frames]
+    assert motion[1] < motion[0]
+
+
+def test_counterbalanced_events_occur_in_training():
+    """Its consistent event, a seen block sinking out of view in the container, is an example
+    event; its inconsistent end state, a block protruding from the container, is one too."""
+    finals = []
+    for seed in range(30):
+        mask = generate_clip(CONCEPT, "example", seed)["mask"]
+        assert BLOCK in ids_in(mask[0])
+        finals.append(BLOCK in ids_in(mask[-1]))
+    assert 0 < sum(finals) < len(finals), "examples both hide and show the resting block"
+
+
 def test_no_object_control_shows_only_the_container():
     for seed in range(3):
         record = generate_clip(CONCEPT, "no_object", seed)
         assert all(ids_in(frame) == {CONTAINER} for frame in record["mask"])
 
 
-def test_object_behind_container_is_occluded_by_it_from_behind():
-    for seed in range(3):
+def test_object_behind_container_ends_hidden_by_it():
+    for seed in range(20):
         mask = generate_clip(CONCEPT, "object_behind_container", seed)["mask"]
-        assert BLOCK in ids_in(mask[0])
-        final_block, container = mask[-1] == BLOCK, mask[-1] == CONTAINER
-        # Resting behind the container on the floor: its lowest visible pixel is higher in
-        # the picture than the container's lowest (front) edge.
-        if final_block.any():
-            lowest = lambda m: int(torch.nonzero(m.any(dim=1)).max())  # noqa: E731
-            assert lowest(final_block) < lowest(container)
+        assert BLOCK in ids_in(mask[0]), "the block is seen before it falls"
+        assert BLOCK not in ids_in(mask[-1]), f"seed {seed}: the block is still seen at the end"
 
 
-def test_examples_include_hidden_and_protruding_blocks_and_vary_the_camera():
+def test_examples_vary_the_camera_over_the_whole_range():
     records = [generate_clip(CONCEPT, "example", seed) for seed in range(8)]
-    final_visible = [BLOCK in ids_in(record["mask"][-1]) for record in records]
-    assert all(BLOCK in ids_in(record["mask"][0]) for record in records)
     elevations = torch.stack([record["camera"][0, 5] for record in records])
     assert elevations.max() - elevations.min() > 10, "perspective is not controlled in examples"
-    assert any(final_visible), "some blocks protrude above the rim"
+    assert all(solidity.CAMERA.contains(record["camera"][0].numpy()) for record in records)
 
 
 def test_block_fits_inside_the_container():
@@ -92,11 +167,28 @@ def test_block_fits_inside_the_container():
         assert abs(block["offset"][1]) + half_x * sin + half_y * cos < box["inner_y"]
 
 
+def test_camera_position_matches_mujoco():
+    camera = solidity.CAMERA.sample(np.random.default_rng(3))
+    builder = SceneBuilder(np.random.default_rng(3), VideoOptions(), camera)
+    sim = builder.build()
+    free = mujoco.MjvCamera()
+    free.type = mujoco.mjtCamera.mjCAMERA_FREE
+    free.lookat[:], free.distance = camera.lookat, camera.distance
+    free.azimuth, free.elevation = camera.azimuth, camera.elevation
+    scene = mujoco.MjvScene(sim.model, maxgeom=10)
+    mujoco.mjv_updateScene(
+        sim.model, sim.data, mujoco.MjvOption(), None, free, mujoco.mjtCatBit.mjCAT_ALL, scene
+    )
+    eye = (np.asarray(scene.camera[0].pos) + np.asarray(scene.camera[1].pos)) / 2
+    np.testing.assert_allclose(solidity.camera_position(camera), eye, atol=1e-4)
+
+
 @pytest.mark.parametrize(
     "call,match",
     [
         (lambda: solidity.clip("example_behind", 0, VideoOptions()), "valid: example"),
-        (lambda: solidity.probe("counterbalanced", 0, VideoOptions()), "valid: standard"),
+        (lambda: solidity.probe("bogus", 0, VideoOptions()), "valid: standard, counterbalanced"),
+        (lambda: solidity.draw_probe("bogus", np.random.default_rng(0)), "valid: standard"),
     ],
 )
 def test_bad_names_list_valid_ones(call, match):

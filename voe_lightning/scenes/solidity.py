@@ -1,9 +1,11 @@
 """Solidity (paper §3, after Hespos & Baillargeon 2001): a rectangular block is dropped into an
-open container. In probes the camera sees inside the top of the container but not its bottom;
-the consistent block comes to rest inside, the inconsistent one falls through the container
-and the floor (its collisions switched off once inside), the penetration hidden by the front
-face. Examples vary sizes and perspective freely; controls show the container alone, or the
-block falling behind it."""
+open container. In probes the camera sees inside the top of the container but not its bottom.
+``standard``: a tall block comes to rest protruding (consistent) or falls through the container
+and the floor, its collisions switched off once inside, the penetration hidden by the front face
+(inconsistent). ``counterbalanced`` mirrors it: a short block sinks out of sight (consistent) or
+lands on a hidden support high in the container and stays protruding (inconsistent). Examples
+vary heights and perspective freely; controls show the container alone, or the block falling
+behind it and ending hidden by it."""
 
 from __future__ import annotations
 
@@ -11,11 +13,51 @@ import numpy as np
 from tensordict import TensorDict
 
 from voe_lightning.scenes import base
-from voe_lightning.scenes.base import CameraPose, Geom, RejectedSample, SceneBuilder, VideoOptions
+from voe_lightning.scenes.base import (
+    CameraPose,
+    CameraRange,
+    Geom,
+    RejectedSample,
+    SceneBuilder,
+    VideoOptions,
+)
 
 CONCEPT = "solidity"
+VARIANTS = ("standard", "counterbalanced")
+CLIP_KINDS = ("example", "no_object", "object_behind_container")
 #: Pixels of the block that the inconsistent video may show beyond the consistent one (edges).
 PENETRATION_TOLERANCE = 2
+
+#: The one camera distribution of the concept: examples and every control draw from it.
+CAMERA = CameraRange(
+    lookat_x=(0.0, 0.0),
+    lookat_y=(0.0, 0.0),
+    lookat_z=(0.2, 0.75),
+    distance=(2.4, 3.6),
+    azimuth=(50.0, 130.0),
+    elevation=(-55.0, -12.0),
+)
+#: Probes' controlled perspective (paper: the camera sees inside the top, not the bottom): a
+#: frontal sub-range of CAMERA, further held to ``sees_top_not_bottom`` for each container.
+PROBE_CAMERA = CAMERA.narrow(
+    lookat_z=(0.4, 0.75), distance=(2.4, 3.0), azimuth=(85.0, 95.0), elevation=(-40.0, -12.0)
+)
+#: Block height as a multiple of the container's inner depth: examples range from fully hidden
+#: to protruding; standard probes protrude, counterbalanced probes hide when resting.
+EXAMPLE_HEIGHTS = (0.2, 1.5)
+PROBE_HEIGHTS = {"standard": (1.0, 1.45), "counterbalanced": (0.2, 0.7)}
+#: Height of the block's bottom above the rim when it is released.
+EXAMPLE_DROP = (0.05, 0.6)
+PROBE_DROP = (0.05, 0.35)
+#: Of the back wall's inner face, the probe camera hides at least/at most this fraction.
+HIDDEN_BACK_WALL = (0.3, 0.9)
+#: How far a probe's resting block must rise above the sight line over the front rim to show,
+#: and how far below it anything hidden must stay.
+PROTRUSION = 0.04
+MARGIN = 0.03
+#: Counterbalanced probes: how far above the hidden support the block is at the first frame.
+CLEARANCE = (0.02, 0.12)
+GRAVITY = 9.81  # MuJoCo's default, which the scenes keep
 
 
 def _draw_container(rng: np.random.Generator) -> dict:
@@ -26,6 +68,11 @@ def _draw_container(rng: np.random.Generator) -> dict:
         "wall": float(rng.uniform(0.025, 0.04)),
         "height": float(rng.uniform(0.55, 0.8)),
     }
+
+
+def _depth(box: dict) -> float:
+    """Inner depth: from the top of the container's bottom to its rim."""
+    return box["height"] - 2 * box["wall"]
 
 
 def _add_container(builder: SceneBuilder, box: dict, color: str) -> None:
@@ -41,17 +88,48 @@ def _add_container(builder: SceneBuilder, box: dict, color: str) -> None:
     builder.add("container", geoms, (0.0, 0.0, 0.0), color, free=False)
 
 
-def _clear_of_container(box: dict, xy, radius: float) -> bool:
-    """Whether a disc of ``radius`` at ``xy`` lies outside the container's outer walls."""
-    outer_x, outer_y = box["inner_x"] + 2 * box["wall"], box["inner_y"] + 2 * box["wall"]
-    gap = np.hypot(max(abs(xy[0]) - outer_x, 0.0), max(abs(xy[1]) - outer_y, 0.0))
-    return bool(gap > radius)
+def camera_position(camera: CameraPose) -> np.ndarray:
+    """Where MuJoCo's free camera sits for ``camera`` (its eye, in world coordinates)."""
+    azimuth, elevation = np.deg2rad(camera.azimuth), np.deg2rad(camera.elevation)
+    horizontal = np.cos(elevation)
+    forward = np.array(
+        [horizontal * np.cos(azimuth), horizontal * np.sin(azimuth), np.sin(elevation)]
+    )
+    return np.asarray(camera.lookat, float) - camera.distance * forward
+
+
+def _hidden_height(eye: np.ndarray, box: dict, x: float, y: float) -> float:
+    """The highest point above (x, y) inside the container that the front wall hides from
+    ``eye``: the sight line over the front rim (y = -inner_y, z = height) meets it there."""
+    reach = (-box["inner_y"] - eye[1]) / (y - eye[1])  # fraction of the way at the front face
+    return float(eye[2] + (box["height"] - eye[2]) / reach)
+
+
+def sees_top_not_bottom(camera: CameraPose, box: dict) -> bool:
+    """The probe perspective: from in front of and above the container, the sight line over
+    the front rim meets the back wall's inner face between HIDDEN_BACK_WALL of its depth."""
+    eye = camera_position(camera)
+    if eye[1] >= -(box["inner_y"] + 2 * box["wall"]) or eye[2] <= box["height"]:
+        return False
+    floor, depth = 2 * box["wall"], _depth(box)
+    low, high = (box["height"] - f * depth for f in reversed(HIDDEN_BACK_WALL))
+    heights = [
+        _hidden_height(eye, box, x, box["inner_y"]) for x in (-box["inner_x"], 0.0, box["inner_x"])
+    ]
+    return floor < low <= min(heights) and max(heights) <= high
+
+
+def _footprint(block: dict, xy) -> np.ndarray:
+    """The four corners (x, y) of the block's yawed footprint centred at ``xy``, [4, 2]."""
+    half_x, half_y, _ = block["half"]
+    cos, sin = np.cos(block["yaw"]), np.sin(block["yaw"])
+    local = np.array([[sx * half_x, sy * half_y] for sx in (-1, 1) for sy in (-1, 1)])
+    return np.asarray(xy, float) + local @ np.array([[cos, sin], [-sin, cos]])
 
 
 def _draw_block(rng: np.random.Generator, box: dict, heights: tuple[float, float]) -> dict:
     """A block that fits inside the container upright, its height a random multiple (in
     ``heights``) of the container's inner depth, with a small random yaw."""
-    depth = box["height"] - 2 * box["wall"]
     yaw = float(np.deg2rad(rng.uniform(-12, 12)))
     cos, sin = abs(np.cos(yaw)), abs(np.sin(yaw))
     while True:
@@ -65,8 +143,56 @@ def _draw_block(rng: np.random.Generator, box: dict, heights: tuple[float, float
         float(rng.uniform(-1, 1) * (box["inner_x"] - 0.04 - reach_x)),
         float(rng.uniform(-1, 1) * (box["inner_y"] - 0.04 - reach_y)),
     )
-    half_z = float(rng.uniform(*heights) * depth / 2)
+    half_z = float(rng.uniform(*heights) * _depth(box) / 2)
     return {"half": (half_x, half_y, half_z), "yaw": yaw, "offset": offset}
+
+
+def draw_example(rng: np.random.Generator) -> dict:
+    """The parameters of a training clip: container, block, camera and drop height."""
+    box = _draw_container(rng)
+    return {
+        "box": box,
+        "block": _draw_block(rng, box, EXAMPLE_HEIGHTS),
+        "camera": CAMERA.sample(rng),
+        "drop": float(rng.uniform(*EXAMPLE_DROP)),
+    }
+
+
+def draw_probe(
+    variant: str, rng: np.random.Generator, video: VideoOptions = VideoOptions()
+) -> dict:
+    """The parameters of a probe pair, each inside the examples' range: a container seen from
+    the controlled perspective; a block that, resting on the container's floor, protrudes
+    into view (standard) or hides below the sight line over the front rim (counterbalanced),
+    which then also gets the height of the hidden support (``support``: its top)."""
+    if variant not in VARIANTS:
+        raise ValueError(
+            f"unknown {CONCEPT} probe variant {variant!r}; valid: {', '.join(VARIANTS)}"
+        )
+    for _ in range(1000):
+        box, camera = _draw_container(rng), PROBE_CAMERA.sample(rng)
+        if not sees_top_not_bottom(camera, box):
+            continue
+        block = _draw_block(rng, box, PROBE_HEIGHTS[variant])
+        eye = camera_position(camera)
+        corners = _footprint(block, block["offset"])
+        hidden = [_hidden_height(eye, box, x, y) for x, y in corners]
+        top = 2 * box["wall"] + 2 * block["half"][2]
+        params = {"box": box, "block": block, "camera": camera}
+        if variant == "standard" and top > max(hidden) + PROTRUSION:
+            return {**params, "drop": float(rng.uniform(*PROBE_DROP))}
+        if variant == "counterbalanced" and top < min(hidden) - MARGIN:
+            # The support hides just below the sight line; on it the block protrudes. The drop
+            # is timed so that at the first frame the block is just above the support: landing
+            # on it moves the block little, as the standard's landing on the floor does.
+            support = min(hidden) - MARGIN
+            fall = GRAVITY * (video.steps_per_frame * video.timestep) ** 2 / 2
+            drop = support + rng.uniform(*CLEARANCE) + fall - box["height"]
+            if support + 2 * block["half"][2] > max(hidden) + PROTRUSION and (
+                PROBE_DROP[0] <= drop <= PROBE_DROP[1]
+            ):
+                return {**params, "support": support, "drop": float(drop)}
+    raise RuntimeError(f"no {CONCEPT} {variant} probe parameters in 1000 draws")
 
 
 def _add_block(builder: SceneBuilder, block: dict, xy, bottom: float, color: str) -> None:
@@ -78,6 +204,26 @@ def _add_block(builder: SceneBuilder, block: dict, xy, bottom: float, color: str
         color,
         quat=base.yaw_quat(block["yaw"]),
     )
+
+
+def _add_support(builder: SceneBuilder, box: dict, block: dict, top: float, color: str) -> None:
+    """The hidden support of the counterbalanced probe: a pedestal under the block's footprint
+    from the container's floor up to ``top`` (solid, so a fast block cannot tunnel through it),
+    colliding with nothing until the manipulation."""
+    half_x, half_y, _ = block["half"]
+    x, y = block["offset"]
+    floor = 2 * box["wall"]
+    support = builder.add(
+        "support",
+        [Geom("box", (half_x, half_y, (top - floor) / 2))],
+        (x, y, (top + floor) / 2),
+        color,
+        quat=base.yaw_quat(block["yaw"]),
+        free=False,
+    )
+    for geom_name in support.geom_names:
+        builder.spec.geom(geom_name).contype = 0
+        builder.spec.geom(geom_name).conaffinity = 0
 
 
 def _colors(rng: np.random.Generator) -> tuple[str, str]:
@@ -96,97 +242,158 @@ def _fall_through(twin: base.Simulation) -> None:
         twin.model.geom(geom_name).conaffinity = 0
 
 
-def _probe_camera(rng: np.random.Generator, box: dict) -> CameraPose:
-    """Perspective control: the line of sight over the front rim meets the back wall well above
-    the inner bottom, so the camera sees inside the top of the container but never its bottom."""
-    depth = box["height"] - 2 * box["wall"]
-    steepest = np.rad2deg(np.arctan(0.6 * depth / (2 * box["inner_y"] + 2 * box["wall"])))
-    return CameraPose(
-        lookat=(0.0, 0.0, float(box["height"] * rng.uniform(0.8, 1.1))),
-        distance=float(rng.uniform(2.4, 2.9)),
-        azimuth=float(90 + rng.uniform(-5, 5)),
-        elevation=-float(rng.uniform(min(12.0, steepest - 2), steepest)),
-    )
+def _make_solid(twin: base.Simulation) -> None:
+    """The magic: the hidden support starts colliding, so the block lands on it (the body's
+    collision bits, which MuJoCo checks before its geoms', switch on too)."""
+    for geom_name in twin.objects["support"].geom_names:
+        twin.model.geom(geom_name).contype = 1
+        twin.model.geom(geom_name).conaffinity = 1
+    body = twin.model.body("support").id
+    twin.model.body_contype[body] = 1
+    twin.model.body_conaffinity[body] = 1
 
 
 def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
-    """The ``standard`` probe pair: the block rests in the container, or falls through it."""
-    if variant != "standard":
-        raise ValueError(f"unknown {CONCEPT} probe variant {variant!r}; valid: standard")
+    """A probe pair: ``standard`` (a tall block rests protruding, or falls through the container
+    out of view) or ``counterbalanced`` (a short block sinks out of view, or stays protruding
+    on a hidden support; the support, never visible, is the manipulated object)."""
+    if variant not in VARIANTS:
+        raise ValueError(
+            f"unknown {CONCEPT} probe variant {variant!r}; valid: {', '.join(VARIANTS)}"
+        )
     rng = base.rng_for(seed, CONCEPT, variant)
 
     def make(rng: np.random.Generator) -> TensorDict:
-        box = _draw_container(rng)
-        block = _draw_block(rng, box, heights=(0.9, 1.7))
-        camera = _probe_camera(rng, box)
+        params = draw_probe(variant, rng, video)
+        box, block, camera = params["box"], params["block"], params["camera"]
         container_color, block_color = _colors(rng)
         builder = SceneBuilder(rng, video, camera)
         _add_container(builder, box, container_color)
-        drop = box["height"] + rng.uniform(0.05, 0.3)
-        _add_block(builder, block, block["offset"], drop, block_color)
+        _add_block(builder, block, block["offset"], box["height"] + params["drop"], block_color)
+        if variant == "counterbalanced":
+            _add_support(builder, box, block, params["support"], container_color)
         sim = builder.build()
         block_id = sim.mask_id("block")
         rim = box["height"] - 0.02
+        step = video.steps_per_frame * video.timestep
 
-        def inside(sim: base.Simulation, frame: int) -> bool:
-            return frame <= video.num_frames - 3 and _block_bottom(sim) < rim
+        def ready(sim: base.Simulation, frame: int) -> bool:
+            if frame > video.num_frames - 3:
+                return False
+            bottom = _block_bottom(sim)
+            if variant == "standard":
+                return bottom < rim
+            # The last frame before the block's free fall reaches the support.
+            speed = float(sim.data.qvel[sim.model.joint("block_joint").dofadr[0] + 2])
+            next_bottom = bottom + speed * step - GRAVITY * step**2 / 2
+            support = params["support"]
+            return bottom > support + 0.005 and (bottom < rim or next_bottom < support + 0.02)
 
-        consistent, inconsistent, frame = base.record_pair_when(sim, _fall_through, inside)
-        for t in range(frame, video.num_frames):
-            extra = (inconsistent[1][t] == block_id) & (consistent[1][t] != block_id)
-            if extra.sum() > PENETRATION_TOLERANCE:
-                raise RejectedSample("the block's fall through the container shows")
-        if (consistent[1][-1] == block_id).sum() < 6:
-            raise RejectedSample("the resting block is hidden: the probe would show no difference")
-        if block_id in base.visible_ids(inconsistent[1][-1]):
-            raise RejectedSample("the falling block is still in view at the end")
+        manipulate = _fall_through if variant == "standard" else _make_solid
+        consistent, inconsistent, frame = base.record_pair_when(sim, manipulate, ready)
+        if variant == "standard":
+            manipulated = block_id
+            for t in range(frame, video.num_frames):
+                extra = (inconsistent[1][t] == block_id) & (consistent[1][t] != block_id)
+                if extra.sum() > PENETRATION_TOLERANCE:
+                    raise RejectedSample("the block's fall through the container shows")
+            shown, gone = consistent[1][-1], inconsistent[1][-1]
+        else:
+            manipulated = sim.mask_id("support")
+            if (consistent[1] == manipulated).any() or (inconsistent[1] == manipulated).any():
+                raise RejectedSample("the hidden support shows")
+            shown, gone = inconsistent[1][-1], consistent[1][-1]
+        if (shown == block_id).sum() < 6:
+            raise RejectedSample("the protruding block is hidden: the pair would not differ")
+        if block_id in base.visible_ids(gone):
+            raise RejectedSample("the block that should be out of view is seen at the end")
         return base.probe_record(
-            CONCEPT, variant, seed, consistent, inconsistent, camera, frame, [block_id]
+            CONCEPT, variant, seed, consistent, inconsistent, camera, frame, [manipulated]
         )
 
     return base.draw_until_valid(make, rng)
 
 
+def _behind_container(rng: np.random.Generator, box: dict, block: dict, camera: CameraPose):
+    """A floor position for ``block`` behind the container as the camera sees it: along the
+    line of sight, just past where the block's footprint clears the container."""
+    view = np.deg2rad(camera.azimuth)
+    along = np.array([np.cos(view), np.sin(view)])
+    across = np.array([-along[1], along[0]])
+    start = along * box["inner_y"] + across * rng.uniform(-0.5, 0.5) * box["inner_x"]
+    radius = float(np.hypot(*block["half"][:2]))
+    behind = 0.0
+    while _outer_gap(box, start + behind * along) <= radius:
+        behind += 0.02
+    return start + (behind + rng.uniform(0.03, 0.15)) * along
+
+
+def _outer_gap(box: dict, xy) -> float:
+    """Distance from ``xy`` to the container's outer footprint (0 inside it)."""
+    outer_x, outer_y = box["inner_x"] + 2 * box["wall"], box["inner_y"] + 2 * box["wall"]
+    return float(np.hypot(max(abs(xy[0]) - outer_x, 0.0), max(abs(xy[1]) - outer_y, 0.0)))
+
+
+def _hidden_by_container(
+    eye: np.ndarray, box: dict, points: np.ndarray, margin: float = 0.03
+) -> bool:
+    """Whether the segment from ``eye`` to every point [N, 3] passes through the container's
+    outer box (shrunk by ``margin``): an open box hides what lies behind it like a solid one."""
+    half = np.array([box["inner_x"] + 2 * box["wall"], box["inner_y"] + 2 * box["wall"]]) - margin
+    low = np.array([-half[0], -half[1], 0.0])
+    high = np.array([half[0], half[1], box["height"] - margin])
+    for point in points:
+        direction = point - eye
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = (low - eye) / direction, (high - eye) / direction
+        near = np.nanmax(np.minimum(t1, t2))
+        far = np.nanmin(np.maximum(t1, t2))
+        if not (near <= far and 0.0 < far and near < 1.0):
+            return False
+    return True
+
+
 def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
     """A training clip: ``example`` (a block of any height drops into the container, seen from
-    any perspective), ``no_object`` (the container alone) or ``object_behind_container``."""
-    kinds = ("example", "no_object", "object_behind_container")
-    if kind not in kinds:
-        raise ValueError(f"unknown {CONCEPT} clip kind {kind!r}; valid: {', '.join(kinds)}")
+    any perspective), ``no_object`` (the container alone) or ``object_behind_container`` (the
+    block falls behind the container and ends hidden by it)."""
+    if kind not in CLIP_KINDS:
+        raise ValueError(f"unknown {CONCEPT} clip kind {kind!r}; valid: {', '.join(CLIP_KINDS)}")
     rng = base.rng_for(seed, CONCEPT, kind)
 
     def make(rng: np.random.Generator) -> TensorDict:
-        box = _draw_container(rng)
-        block = _draw_block(rng, box, heights=(0.2, 1.5))
-        camera = CameraPose(
-            lookat=(0.0, 0.0, float(box["height"] * rng.uniform(0.4, 0.9))),
-            distance=float(rng.uniform(2.4, 3.6)),
-            azimuth=float(90 + rng.uniform(-40, 40)),
-            elevation=-float(rng.uniform(12, 55)),
-        )
+        params = draw_example(rng)
+        box, block, camera = params["box"], params["block"], params["camera"]
         container_color, block_color = _colors(rng)
         builder = SceneBuilder(rng, video, camera)
         _add_container(builder, box, container_color)
-        drop = box["height"] + rng.uniform(0.1, 0.6)
+        drop = box["height"] + params["drop"]
         if kind == "example":
             _add_block(builder, block, block["offset"], drop, block_color)
         elif kind == "object_behind_container":
-            # Behind the container as the camera sees it: along the line of sight, just past
-            # where the block's footprint clears the container.
-            view = np.deg2rad(camera.azimuth)
-            along = np.array([np.cos(view), np.sin(view)])
-            across = np.array([-along[1], along[0]])
-            start = along * box["inner_y"] + across * rng.uniform(-0.5, 0.5) * box["inner_x"]
-            radius = float(np.hypot(*block["half"][:2]))
-            behind = 0.0
-            while not _clear_of_container(box, start + behind * along, radius):
-                behind += 0.02
-            xy = start + (behind + rng.uniform(0.05, 0.4)) * along
+            # Redraw the block (camera kept, so the control's cameras are the examples') until,
+            # resting behind the container, it is hidden by it.
+            eye = camera_position(camera)
+            for _ in range(200):
+                xy = _behind_container(rng, box, block, camera)
+                corners = _footprint(block, xy)
+                points = np.array(
+                    [[x, y, z] for x, y in corners for z in (0.0, 2 * block["half"][2])]
+                )
+                if _hidden_by_container(eye, box, points):
+                    break
+                block = _draw_block(rng, box, EXAMPLE_HEIGHTS)
+            else:
+                raise RejectedSample("no block hides behind the container from this camera")
             _add_block(builder, block, xy, drop, block_color)
         sim = builder.build()
         frames, masks = sim.record(video.num_frames)
         if kind != "no_object" and sim.mask_id("block") not in base.visible_ids(masks[0]):
             raise RejectedSample("the block is not seen before it falls")
+        if kind == "object_behind_container" and sim.mask_id("block") in base.visible_ids(
+            masks[-1]
+        ):
+            raise RejectedSample("the block behind the container is still seen at the end")
         return base.clip_record(CONCEPT, kind, seed, frames, masks, camera)
 
     return base.draw_until_valid(make, rng)
