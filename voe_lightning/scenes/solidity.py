@@ -45,7 +45,7 @@ PROBE_CAMERA = CAMERA.narrow(
 #: Block height as a multiple of the container's inner depth: examples range from fully hidden
 #: to protruding; standard probes protrude, counterbalanced probes hide when resting.
 EXAMPLE_HEIGHTS = (0.2, 1.5)
-PROBE_HEIGHTS = {"standard": (1.0, 1.45), "counterbalanced": (0.2, 0.7)}
+PROBE_HEIGHTS = {"standard": (1.0, 1.4), "counterbalanced": (0.2, 0.7)}
 #: Height of the block's bottom above the rim when it is released.
 EXAMPLE_DROP = (0.05, 0.6)
 PROBE_DROP = (0.05, 0.35)
@@ -56,7 +56,7 @@ HIDDEN_BACK_WALL = (0.3, 0.9)
 PROTRUSION = 0.04
 MARGIN = 0.03
 #: Counterbalanced probes: how far above the hidden support the block is at the first frame.
-CLEARANCE = (0.02, 0.12)
+CLEARANCE = (0.01, 0.05)
 GRAVITY = 9.81  # MuJoCo's default, which the scenes keep
 
 
