@@ -32,12 +32,12 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
 def config_sizes(name: str) -> tuple[dict, int]:
-    """Model arguments (optimizer settings left out) and batch size of ``configs/<name>.yaml``,
-    so the benchmark measures exactly the model the config trains."""
+    """Model arguments (optimizer and fast-path settings left out: the benchmark sets those)
+    and batch size of ``configs/<name>.yaml``, so it measures the model the config trains."""
     config = yaml.safe_load((CONFIGS / f"{name}.yaml").read_text())
     arguments = dict(config["model"].get("init_args") or {})
-    for optimizer_setting in ("learning_rate", "adam_betas"):
-        arguments.pop(optimizer_setting, None)
+    for setting in ("learning_rate", "adam_betas", "compile_model", "channels_last", "precision"):
+        arguments.pop(setting, None)
     return arguments, config["data"]["init_args"]["batch_size"]
 
 
