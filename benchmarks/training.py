@@ -1,19 +1,23 @@
-"""Training throughput of the VRNN-LRU (DESIGN.md §7): sequences per second and achieved FLOP/s
-for the quickstart-size and paper-size models, beside the machine's measured matmul rate.
+"""Training throughput of the VRNN-LRU (DESIGN.md §7): the float32 NCHW baseline beside the
+fast path (the model's defaults: channels-last, bf16 autocast where the device supports it;
+``torch.compile`` on a GPU or with --compile), as sequences per second and their ratio, for the
+quickstart-size and paper-size models of ``configs/quickstart.yaml`` and ``configs/paper.yaml``.
 
-FLOPs of one training step (forward + backward) are counted with
-``torch.utils.flop_counter.FlopCounterMode`` (matmuls and convolutions; elementwise work is not
-counted, so achieved FLOP/s is a lower bound on the arithmetic done). Runs on the CPU always and
-on CUDA (bf16 autocast) when a GPU is present.
+The two paths are measured interleaved in one process (alternating rounds of timed steps, the
+order swapped every round), so load from other processes hits both alike; the table gives each
+path's median rate and the median of the per-round ratios. FLOPs of one training step (forward
++ backward) are counted with ``torch.utils.flop_counter.FlopCounterMode`` (matmuls and
+convolutions only, so achieved FLOP/s is a lower bound). Runs on the CPU always and on CUDA when
+a GPU is present.
 
-    python benchmarks/training.py                 # CPU (and GPU if any), both sizes
-    python benchmarks/training.py --device cuda --steps 50 --compile
+    python benchmarks/training.py --device cpu --threads 2 --rounds 7
+    python benchmarks/training.py --device cuda              # GPU: fast path bf16 + compile
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
+import statistics
 import time
 from pathlib import Path
 
@@ -28,12 +32,12 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
 def config_sizes(name: str) -> tuple[dict, int]:
-    """Model arguments (optimizer settings left out) and batch size of ``configs/<name>.yaml``,
-    so the benchmark measures exactly the model the config trains."""
+    """Model arguments (optimizer and fast-path settings left out: the benchmark sets those)
+    and batch size of ``configs/<name>.yaml``, so it measures the model the config trains."""
     config = yaml.safe_load((CONFIGS / f"{name}.yaml").read_text())
     arguments = dict(config["model"].get("init_args") or {})
-    for optimizer_setting in ("learning_rate", "adam_betas"):
-        arguments.pop(optimizer_setting, None)
+    for setting in ("learning_rate", "adam_betas", "compile_model", "channels_last", "precision"):
+        arguments.pop(setting, None)
     return arguments, config["data"]["init_args"]["batch_size"]
 
 
@@ -60,60 +64,85 @@ def matmul_flops_per_second(device: torch.device, dtype: torch.dtype, size: int,
     return 2 * size**3 * repeats / (time.perf_counter() - start)
 
 
-def autocast(device: torch.device) -> contextlib.AbstractContextManager:
-    if device.type == "cuda":
-        return torch.autocast("cuda", dtype=torch.bfloat16)
-    return contextlib.nullcontext()
-
-
-def training_step(model: VOEModel, optimizer: torch.optim.Optimizer, batch: TensorDict, device) -> None:
+def training_step(model: VOEModel, optimizer: torch.optim.Optimizer, batch: TensorDict) -> None:
     optimizer.zero_grad(set_to_none=True)
-    with autocast(device):
-        loss = model._step(batch)["loss"]
-    loss.backward()
+    model._step(batch)["loss"].backward()
     optimizer.step()
 
 
-def benchmark(name: str, device: torch.device, steps: int, frames: int, compile_model: bool) -> dict:
+def make_path(name: str, device: torch.device, fast: bool, compile_model: bool, frames: int):
+    """A model, its optimizer and a random batch for the baseline (``fast=False``: float32,
+    NCHW) or the fast path (the model's defaults), with the same initial weights."""
     sizes, batch_size = SIZES[name]
     torch.manual_seed(0)
-    model = VOEModel(**sizes, learning_rate=1e-4, compile_model=compile_model).to(device)
-    optimizer = model.configure_optimizers()
+    switches = {} if fast else {"channels_last": False, "precision": "float32"}
+    model = VOEModel(**sizes, learning_rate=1e-4, compile_model=fast and compile_model, **switches)
+    model = model.to(device)
     height, width = model.image_size
     batch = TensorDict(
         frames=torch.randint(0, 256, (batch_size, frames, height, width, 3), dtype=torch.uint8),
         batch_size=[batch_size],
     ).to(device)
+    return model, model.configure_optimizers(), batch
 
-    # The counted step also warms up the CPU path (allocator, oneDNN primitives).
+
+def count_flops(model: VOEModel, batch: TensorDict) -> float:
+    """FLOPs of one forward + backward (this also warms up allocator and oneDNN primitives)."""
     counter = FlopCounterMode(display=False)
-    optimizer.zero_grad(set_to_none=True)
     with counter:
-        with autocast(device):
-            loss = model._step(batch)["loss"]
-        loss.backward()
-    flops = counter.get_total_flops()
+        model._step(batch)["loss"].backward()
+    model.zero_grad(set_to_none=True)
+    return counter.get_total_flops()
 
-    if compile_model or device.type == "cuda":
-        training_step(model, optimizer, batch, device)  # warm up (compile, cuDNN autotune)
+
+def timed_steps(path, steps: int, device: torch.device) -> float:
+    """Seconds per training step over ``steps`` consecutive steps."""
     synchronize(device)
     start = time.perf_counter()
     for _ in range(steps):
-        training_step(model, optimizer, batch, device)
+        training_step(*path)
     synchronize(device)
-    seconds = (time.perf_counter() - start) / steps
-    return {
-        "model": name,
-        "device": device.type,
-        "precision": "bf16-autocast" if device.type == "cuda" else "float32",
-        "batch": batch_size,
-        "parameters": sum(p.numel() for p in model.parameters()),
-        "gflop_per_step": flops / 1e9,
-        "step_ms": seconds * 1e3,
-        "sequences_per_s": batch_size / seconds,
-        "achieved_gflops": flops / seconds / 1e9,
-        "paper_run_hours": PAPER_SEQUENCES / (batch_size / seconds) / 3600,
+    return (time.perf_counter() - start) / steps
+
+
+def benchmark(name: str, device: torch.device, steps: int, rounds: int, frames: int,
+              compile_model: bool) -> list[dict]:
+    """Baseline and fast-path rows for one model size, measured in interleaved rounds."""
+    paths = {
+        "baseline": make_path(name, device, False, compile_model, frames),
+        "fast": make_path(name, device, True, compile_model, frames),
     }
+    flops = count_flops(paths["baseline"][0], paths["baseline"][2])
+    for path in paths.values():
+        training_step(*path)  # warm up (compile, oneDNN primitives, cuDNN autotune)
+    seconds = {key: [] for key in paths}
+    for round_index in range(rounds):
+        order = list(paths) if round_index % 2 == 0 else list(reversed(paths))
+        for key in order:
+            seconds[key].append(timed_steps(paths[key], steps, device))
+    ratios = [base / fast for base, fast in zip(seconds["baseline"], seconds["fast"])]
+    batch_size = paths["fast"][2].batch_size[0]
+    rows = []
+    for key, (model, _, _) in paths.items():
+        step = statistics.median(seconds[key])
+        rows.append({
+            "model": name,
+            "device": device.type,
+            "path": key,
+            "layout": "NHWC" if model.hparams.channels_last else "NCHW",
+            "precision": "bf16-autocast" if model.uses_bf16 else "float32",
+            "compiled": bool(model.hparams.compile_model),
+            "batch": batch_size,
+            "parameters": sum(p.numel() for p in model.parameters()),
+            "gflop_per_step": flops / 1e9,
+            "step_ms": step * 1e3,
+            "sequences_per_s": batch_size / step,
+            "ratio": statistics.median(ratios) if key == "fast" else 1.0,
+            "ratio_range": (min(ratios), max(ratios)),
+            "achieved_gflops": flops / step / 1e9,
+            "paper_run_hours": PAPER_SEQUENCES / (batch_size / step) / 3600,
+        })
+    return rows
 
 
 def main() -> None:
@@ -121,12 +150,17 @@ def main() -> None:
     parser.add_argument("--device", choices=("all", "cpu", "cuda"), default="all")
     parser.add_argument("--models", nargs="+", choices=tuple(SIZES), default=list(SIZES))
     parser.add_argument("--steps", type=int, default=None,
-                        help="timed steps per model (default: 5 quickstart / 1 paper on CPU, 50 on GPU)")
+                        help="timed steps per path and round (default: 3 quickstart / 1 paper on "
+                        "CPU, 20 on GPU)")
+    parser.add_argument("--rounds", type=int, default=5,
+                        help="interleaved rounds (baseline, fast, fast, baseline, ...) per model")
     parser.add_argument("--threads", type=int, default=None,
                         help="CPU threads (torch.set_num_threads); on a shared, busy machine 1 is "
                         "much faster than several spin-waiting OpenMP threads")
     parser.add_argument("--frames", type=int, default=15, help="frames per sequence (paper: 15)")
-    parser.add_argument("--compile", action="store_true", help="torch.compile the networks")
+    parser.add_argument("--compile", action="store_true",
+                        help="torch.compile the fast path on the CPU too (always done on a GPU; "
+                        "compiling takes minutes on a CPU)")
     args = parser.parse_args()
     if args.threads is not None:
         torch.set_num_threads(args.threads)
@@ -156,22 +190,27 @@ def main() -> None:
         print(f"\n{name}: measured matmul " + ", ".join(f"{k} {v / 1e9:,.0f} GFLOP/s" for k, v in peaks.items()))
         peak = peaks["bfloat16"] if device.type == "cuda" else peaks["float32"]
         for model_name in args.models:
-            steps = args.steps or (50 if device.type == "cuda" else (5 if model_name == "quickstart" else 1))
-            row = benchmark(model_name, device, steps, args.frames, args.compile)
-            row["of_matmul_peak"] = row["achieved_gflops"] * 1e9 / peak
-            rows.append(row)
+            steps = args.steps or (20 if device.type == "cuda" else (3 if model_name == "quickstart" else 1))
+            compile_model = args.compile or device.type == "cuda"
+            for row in benchmark(model_name, device, steps, args.rounds, args.frames, compile_model):
+                row["of_matmul_peak"] = row["achieved_gflops"] * 1e9 / peak
+                rows.append(row)
 
-    header = (f"{'model':<11}{'device':<7}{'precision':<15}{'batch':>6}{'params':>11}"
-              f"{'GFLOP/step':>12}{'ms/step':>10}{'seq/s':>9}{'GFLOP/s':>10}{'of peak':>9}"
-              f"{'20M seq (h)':>13}")
+    header = (f"{'model':<11}{'device':<7}{'path':<9}{'layout':<7}{'precision':<15}{'compiled':<9}"
+              f"{'batch':>6}{'params':>11}{'GFLOP/step':>12}{'ms/step':>10}{'seq/s':>9}"
+              f"{'ratio':>7}{'(range)':>13}{'GFLOP/s':>10}{'of peak':>9}{'20M seq (h)':>13}")
     print("\n" + header + "\n" + "-" * len(header))
     for r in rows:
-        print(f"{r['model']:<11}{r['device']:<7}{r['precision']:<15}{r['batch']:>6}"
-              f"{r['parameters']:>11,}{r['gflop_per_step']:>12.2f}{r['step_ms']:>10.1f}"
-              f"{r['sequences_per_s']:>9.1f}{r['achieved_gflops']:>10.1f}"
+        spread = f"{r['ratio_range'][0]:.2f}-{r['ratio_range'][1]:.2f}" if r["path"] == "fast" else ""
+        print(f"{r['model']:<11}{r['device']:<7}{r['path']:<9}{r['layout']:<7}{r['precision']:<15}"
+              f"{'yes' if r['compiled'] else 'no':<9}{r['batch']:>6}{r['parameters']:>11,}"
+              f"{r['gflop_per_step']:>12.2f}{r['step_ms']:>10.1f}{r['sequences_per_s']:>9.1f}"
+              f"{r['ratio']:>6.2f}x{spread:>13}{r['achieved_gflops']:>10.1f}"
               f"{r['of_matmul_peak']:>9.1%}{r['paper_run_hours']:>13.1f}")
-    print(f"\nT={args.frames} frames of 64x64; FLOPs of forward+backward counted by FlopCounterMode; "
-          "'20M seq (h)' = hours for the paper's 2M steps x batch 10 at this rate.")
+    print(f"\nT={args.frames} frames of 64x64; {args.rounds} interleaved rounds per model; seq/s is "
+          "each path's median, ratio the median of the per-round fast/baseline ratios (range: "
+          "min-max); FLOPs of forward+backward counted by FlopCounterMode; '20M seq (h)' = hours "
+          "for the paper's 2M steps x batch 10 at this rate.")
 
 
 if __name__ == "__main__":

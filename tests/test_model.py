@@ -48,15 +48,6 @@ def test_encoder_decoder_shapes_fold_time():
         Encoder((32, 32), num_blocks=6)
 
 
-def test_encoder_feeds_contiguous_frames_to_its_convolutions():
-    # Guards the workaround for a oneDNN segfault on channels-last 3-channel input (networks.py).
-    encoder = Encoder((H, W), num_blocks=3, channels=(4, 4, 8), mlp_size=20)
-    seen = []
-    encoder.blocks[0].register_forward_pre_hook(lambda _, args: seen.append(args[0].is_contiguous()))
-    encoder(specs.to_model_input(frames()))
-    assert seen == [True]
-
-
 def test_forward_shapes_and_memory_trajectory():
     model = tiny_model()
     x = specs.to_model_input(frames())

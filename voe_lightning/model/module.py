@@ -4,6 +4,7 @@ callbacks, reports and notebooks use."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Sequence
 
@@ -34,6 +35,17 @@ ARCHITECTURE = (
     "encoder_channels",
     "encoder_mlp_size",
 )
+PRECISIONS = ("auto", "bf16", "float32")
+
+
+def bf16_is_fast(device: torch.device) -> bool:
+    """Whether ``device`` runs bf16 convolutions natively: a CUDA GPU that supports bf16, or a
+    CPU with AVX512-BF16 or AMX (elsewhere oneDNN emulates bf16, several times slower)."""
+    if device.type == "cuda":
+        return torch.cuda.is_bf16_supported()
+    if device.type == "cpu":
+        return torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported()
+    return False
 
 
 class VOEModel(LightningModule):
@@ -54,7 +66,15 @@ class VOEModel(LightningModule):
             stride-2 bottleneck blocks (paper: 6 of 64, 64, 128 channels) and MLP (paper: 500).
         prior_regularizer_weight: weight of sum_t KL(prior_t || N(0, I)) (paper: 1e-4).
         learning_rate, adam_betas: Adam (paper: lr 5e-6).
-        compile_model: ``torch.compile`` the encoder, decoder and recurrent core in place.
+        compile_model: ``torch.compile`` the encoder, decoder and recurrent core in place
+            (opt-in: compiling takes minutes on a CPU).
+        channels_last: keep the encoder and decoder in NHWC layout, the fast layout of oneDNN
+            and cuDNN (same float32 numbers up to summation order). False is the NCHW reference.
+        precision: ``"auto"`` (default) runs the encoder and decoder under bf16 autocast where
+            :func:`bf16_is_fast` says the device supports it, else leaves precision to the
+            Trainer; ``"bf16"`` always does; ``"float32"`` disables autocast for the whole model
+            (the reference numerics, also under a bf16 Trainer). The recurrent core, surprise
+            and every loss term are float32 in all three.
     """
 
     def __init__(
@@ -77,9 +97,13 @@ class VOEModel(LightningModule):
         learning_rate: float = 5e-6,
         adam_betas: tuple[float, float] = (0.9, 0.999),
         compile_model: bool = False,
+        channels_last: bool = True,
+        precision: str = "auto",
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
+        if precision not in PRECISIONS:
+            raise ValueError(f"unknown precision {precision!r}; valid choices are: {', '.join(PRECISIONS)}")
         if learning_rate <= 0:
             raise ValueError(f"learning_rate must be positive, got {learning_rate}")
         if prior_regularizer_weight < 0:
@@ -87,9 +111,13 @@ class VOEModel(LightningModule):
                 f"prior_regularizer_weight must be non-negative, got {prior_regularizer_weight}"
             )
         self.image_size = (int(image_size[0]), int(image_size[1]))
-        self.encoder = Encoder(self.image_size, encoder_blocks, encoder_channels, encoder_mlp_size)
+        self.encoder = Encoder(
+            self.image_size, encoder_blocks, encoder_channels, encoder_mlp_size,
+            channels_last=channels_last,
+        )
         self.decoder = Decoder(
-            latent_size, self.image_size, encoder_blocks, encoder_channels, encoder_mlp_size
+            latent_size, self.image_size, encoder_blocks, encoder_channels, encoder_mlp_size,
+            channels_last=channels_last,
         )
         memory = LRUMemory(
             latent_size,
@@ -127,18 +155,40 @@ class VOEModel(LightningModule):
         return batch["frames"]
 
     # ----------------------------------------------------------------------------- model
+    @property
+    def uses_bf16(self) -> bool:
+        """Whether the encoder and decoder run under bf16 autocast on the current device."""
+        precision = self.hparams.precision
+        return precision == "bf16" or (precision == "auto" and bf16_is_fast(self.device))
+
+    def _autocast(self, networks: bool) -> contextlib.AbstractContextManager:
+        """The precision context of the convolutional ``networks`` or of the recurrent core."""
+        if self.hparams.precision == "float32":
+            return torch.autocast(self.device.type, enabled=False)
+        if networks and self.uses_bf16:
+            return torch.autocast(self.device.type, dtype=torch.bfloat16)
+        return contextlib.nullcontext()
+
+    def decode(self, z: torch.Tensor) -> torch.Tensor:
+        """Latents [B, T, latent_size] -> Bernoulli logits [B, T, 3, H, W] (bf16 on the fast path)."""
+        with self._autocast(networks=True):
+            return self.decoder(z)
+
     def rollout(
         self, x: torch.Tensor, deterministic: bool = False, generator: torch.Generator | None = None
     ) -> VRNNOutput:
         """Encode all frames at once, then step the recurrent core through time."""
-        return self.core(self.encoder(x), deterministic=deterministic, generator=generator)
+        with self._autocast(networks=True):
+            embeddings = self.encoder(x)
+        with self._autocast(networks=False):
+            return self.core(embeddings.float(), deterministic=deterministic, generator=generator)
 
     def forward(
         self, x: torch.Tensor, deterministic: bool = False, generator: torch.Generator | None = None
     ) -> tuple[VRNNOutput, torch.Tensor]:
         """Model input [B, T, 3, H, W] in [0, 1] -> (rollout, Bernoulli logits [B, T, 3, H, W])."""
         output = self.rollout(x, deterministic=deterministic, generator=generator)
-        return output, self.decoder(output.z)
+        return output, self.decode(output.z)
 
     def loss_terms(self, x: torch.Tensor, output: VRNNOutput, logits: torch.Tensor) -> dict[str, torch.Tensor]:
         """Per-sequence loss terms averaged over the batch (float32): reconstruction =
@@ -243,7 +293,7 @@ class VOEModel(LightningModule):
         """What the model expected each frame to be given the previous ones (paper Figure 5):
         sigmoid(decoder(prior mean)) [B, T, 3, H, W], deterministic rollout."""
         output = self.rollout(self._model_input(frames), deterministic=True)
-        return torch.sigmoid(self.decoder(output.prior_mean).float())
+        return torch.sigmoid(self.decode(output.prior_mean).float())
 
     @torch.no_grad()
     def trajectories(self, frames: torch.Tensor) -> dict[str, torch.Tensor]:

@@ -30,9 +30,33 @@ def feature_map_size(height: int, width: int, num_blocks: int) -> tuple[int, int
     return height // factor, width // factor
 
 
+def _memory_format(module: nn.Module, channels_last: bool) -> torch.memory_format:
+    """Put ``module``'s convolution weights in the chosen layout and return that layout."""
+    memory_format = torch.channels_last if channels_last else torch.contiguous_format
+    module.to(memory_format=memory_format)
+    return memory_format
+
+
+class PixelShuffle(nn.PixelShuffle):
+    """``nn.PixelShuffle`` that keeps a channels-last input channels-last, as one permuted copy
+    (aten's kernel takes about twice as long on that layout)."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if not x.is_contiguous(memory_format=torch.channels_last) or x.is_contiguous():
+            return super().forward(x)
+        r = self.upscale_factor
+        n, c, h, w = x.shape
+        nhwc = x.permute(0, 2, 3, 1).reshape(n, h, w, c // r**2, r, r).permute(0, 1, 4, 2, 5, 3)
+        return nhwc.reshape(n, h * r, w * r, c // r**2).permute(0, 3, 1, 2)
+
+
 class Bottleneck(nn.Module):
     """1x1 -> 3x3 -> 1x1 convolutions with a ReLU only after the block (paper Appendix A) and a
-    1x1 shortcut projection (identity when shapes agree). ``stride`` 2 halves the size."""
+    1x1 shortcut projection (identity when shapes agree). ``stride`` 2 halves the size.
+
+    The strided shortcut subsamples, then applies a stride-1 1x1 convolution: the same map and
+    parameters as a stride-2 1x1 convolution, without torch 2.13's CPU (oneDNN) kernel whose
+    backward crashes on channels-last input with 3 channels."""
 
     def __init__(self, in_channels: int, channels: Sequence[int], stride: int = 1) -> None:
         super().__init__()
@@ -45,11 +69,13 @@ class Bottleneck(nn.Module):
         self.shortcut = (
             nn.Identity()
             if stride == 1 and in_channels == out
-            else nn.Conv2d(in_channels, out, kernel_size=1, stride=stride)
+            else nn.Conv2d(in_channels, out, kernel_size=1)
         )
+        self.stride = stride
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return torch.relu(self.convs(x) + self.shortcut(x))
+        shortcut = self.shortcut(x[..., :: self.stride, :: self.stride] if self.stride > 1 else x)
+        return torch.relu(self.convs(x) + shortcut)
 
 
 class Encoder(nn.Module):
@@ -57,7 +83,8 @@ class Encoder(nn.Module):
 
     ``num_blocks`` stride-2 bottleneck blocks (channels 1x1, 3x3, 1x1; paper: 6 blocks of 64, 64,
     128), then a ReLU MLP layer of ``mlp_size`` units (paper: 500). H and W must be divisible by
-    ``2**num_blocks``.
+    ``2**num_blocks``. ``channels_last`` keeps weights and activations in NHWC layout (the fast
+    layout of oneDNN and cuDNN; same numbers as NCHW up to summation order).
     """
 
     def __init__(
@@ -67,6 +94,7 @@ class Encoder(nn.Module):
         channels: Sequence[int] = (64, 64, 128),
         mlp_size: int = 500,
         in_channels: int = 3,
+        channels_last: bool = False,
     ) -> None:
         super().__init__()
         height, width = image_size
@@ -81,13 +109,12 @@ class Encoder(nn.Module):
         self.blocks = nn.Sequential(*blocks)
         flat = channels[-1] * self.map_size[0] * self.map_size[1]
         self.mlp = nn.Sequential(nn.Flatten(), nn.Linear(flat, mlp_size), nn.ReLU())
+        self.memory_format = _memory_format(self, channels_last)
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         leading = frames.shape[:-3]
-        # Contiguous (NCHW) on purpose: specs.to_model_input returns a channels-last view, and
-        # torch 2.13's CPU (oneDNN) backward of the 3-channel 1x1 stride-2 shortcut segfaults on
-        # channels-last input at 64x64 with 128 output channels.
-        frames = frames.reshape(-1, *frames.shape[-3:]).contiguous()
+        # specs.to_model_input already gives a channels-last view: no copy on the fast path.
+        frames = frames.reshape(-1, *frames.shape[-3:]).contiguous(memory_format=self.memory_format)
         features = self.mlp(self.blocks(frames))
         return features.reshape(*leading, self.output_size)
 
@@ -102,7 +129,7 @@ class Decoder(nn.Module):
     convolution (Shi et al. 2016): a size-preserving 3x3 convolution to ``3 * 4`` logit channels
     and a pixel shuffle. It can express everything nearest upsampling followed by a 3x3
     convolution can, without materialising a full-resolution feature map (on a CPU that map
-    cost about half the training step).
+    cost about half the training step). ``channels_last`` as for :class:`Encoder`.
     """
 
     def __init__(
@@ -113,6 +140,7 @@ class Decoder(nn.Module):
         channels: Sequence[int] = (64, 64, 128),
         mlp_size: int = 500,
         out_channels: int = 3,
+        channels_last: bool = False,
     ) -> None:
         super().__init__()
         height, width = image_size
@@ -133,12 +161,15 @@ class Decoder(nn.Module):
                 layers.append(nn.Upsample(scale_factor=2.0))
         self.blocks = nn.Sequential(*layers)
         self.logits = nn.Sequential(
-            nn.Conv2d(channels[-1], out_channels * 4, kernel_size=3, padding=1), nn.PixelShuffle(2)
+            nn.Conv2d(channels[-1], out_channels * 4, kernel_size=3, padding=1), PixelShuffle(2)
         )
+        self.memory_format = _memory_format(self, channels_last)
 
     def forward(self, latents: torch.Tensor) -> torch.Tensor:
         leading = latents.shape[:-1]
         features = self.mlp(latents.reshape(-1, latents.shape[-1]))
-        features = features.view(-1, self.map_channels, *self.map_size)
+        features = features.view(-1, self.map_channels, *self.map_size).contiguous(
+            memory_format=self.memory_format
+        )
         logits = self.logits(self.blocks(features))
         return logits.reshape(*leading, self.out_channels, *self.image_size)
