@@ -54,8 +54,8 @@ PROBE_BALL_DEPTH = (0.35, 0.6)  # behind the pillars
 EXAMPLE_BALL_DEPTH = (-0.9, 1.0)  # in front of or behind them
 PROBE_SPEED = (0.65, 1.0)
 STOPPING_SPEED = (0.7, 1.1)  # counterbalanced: the launch speed of a ball that then stops
-EXAMPLE_SPEED = (0.4, 1.4)
-REAPPEAR_SPEED = (1.1, 1.4)  # counterbalanced: the inconsistent ball's speed when put back
+EXAMPLE_SPEED = (0.4, 1.5)
+REAPPEAR_SPEED = (1.2, 1.5)  # counterbalanced: the inconsistent ball's speed when put back
 STOP_TIME = (1.0, 1.8)  # counterbalanced: seconds from launch to standstill
 #: MuJoCo rolling friction (a length, contact dimension 6): 0 rolls freely; probes that stop
 #: derive theirs from STOP_TIME and speed, always inside the examples' range.
