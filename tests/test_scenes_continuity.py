@@ -130,7 +130,11 @@ def test_probe_parameters_lie_inside_the_examples_ranges(variant):
     examples = _parameters(lambda rng: continuity.example_layout(rng, VIDEO.duration), 3000)
 
     def probe_sampler(rng):
-        return continuity.probe_layout(rng, variant, continuity.CAMERA.sample(rng), VIDEO)
+        while True:  # as draw_until_valid: a layout needing a speed outside the range is redrawn
+            try:
+                return continuity.probe_layout(rng, variant, continuity.CAMERA.sample(rng), VIDEO)
+            except base.RejectedSample:
+                pass
 
     probes = _parameters(probe_sampler, 500)
     for name, values in probes.items():
@@ -200,7 +204,7 @@ def test_gap_block_draws_its_camera_like_the_examples():
 
 
 def test_ball_keeps_rolling_across_the_view():
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(2)
     camera = continuity.CAMERA.sample(rng)
     layout = continuity.probe_layout(rng, "standard", camera, VIDEO)
     sim = continuity.build(rng, VIDEO, camera, layout)

@@ -52,7 +52,7 @@ PROBE_BALL_RADIUS = (0.17, 0.21)
 EXAMPLE_BALL_RADIUS = (0.13, 0.24)
 PROBE_BALL_DEPTH = (0.35, 0.6)  # behind the pillars
 EXAMPLE_BALL_DEPTH = (-0.9, 1.0)  # in front of or behind them
-PROBE_SPEED = (0.65, 1.0)
+PROBE_SPEED = (0.55, 1.2)
 STOPPING_SPEED = (0.7, 1.1)  # counterbalanced: the launch speed of a ball that then stops
 EXAMPLE_SPEED = (0.4, 1.5)
 REAPPEAR_SPEED = (1.2, 1.5)  # counterbalanced: the inconsistent ball's speed when put back
@@ -265,7 +265,8 @@ def probe_layout(
     video: VideoOptions,
 ) -> Layout:
     """Pillars a little upstream of the view's centre and a ball rolling behind them. ``standard``
-    and ``three_pillars``: free rolling at constant speed, ending in view past the last pillar;
+    and ``three_pillars``: free rolling at constant speed from the frame edge or nearer, ending in
+    view past the last pillar (RejectedSample if that needs a speed outside PROBE_SPEED);
     ``counterbalanced``: launched to slow down and stop in STOP_TIME (its start is aimed later,
     see ``aim_to_stop``)."""
     centres, widths = _pillars(rng, 3 if variant == "three_pillars" else 2)
@@ -273,7 +274,9 @@ def probe_layout(
     depth = float(rng.uniform(*PROBE_BALL_DEPTH))
     direction = float(rng.choice([-1.0, 1.0]))
     middle = x_at_column(camera, video, video.width / 2, 0.0, radius)
-    shift = middle - direction * float(rng.uniform(0.1, 0.3))
+    # Upstream of the view's centre, leaving room to roll on (or reappear) past the last pillar.
+    offset = rng.uniform(0.0, 0.25) if variant != "counterbalanced" else rng.uniform(0.1, 0.3)
+    shift = middle - direction * float(offset)
     pillars = [(c + shift, w) for c, w in zip(centres, widths)]
     height = float(rng.uniform(*PROBE_PILLAR_HEIGHT))
     if variant == "counterbalanced":
@@ -282,12 +285,26 @@ def probe_layout(
         # A rolling ball: torque mu*N over the effective mass m(1 + 2/5) at lever r.
         friction = deceleration * 1.4 * radius / GRAVITY
         return Layout(pillars, height, radius, (shift, depth, radius), (direction * speed, 0.0), friction)
-    speed = float(rng.uniform(*PROBE_SPEED))
-    last_x, last_w = pillars[-1] if direction > 0 else pillars[0]
-    end = last_x + direction * (last_w / 2 + radius + float(rng.uniform(0.1, 0.45)))
-    travel = speed * (video.num_frames - 1) * video.duration / video.num_frames
-    start = end - direction * travel
+    ordered = sorted(pillars, key=lambda pillar: direction * pillar[0])
+    (first_x, first_w), (last_x, last_w) = ordered[0], ordered[-1]
+    upstream, downstream = view_edges(camera, video, depth, radius)[:: int(direction)]
+    # Start anywhere from half in view at the edge to just before the first pillar; end wholly
+    # in view past the last one; the speed follows.
+    before = first_x - direction * (first_w / 2 + radius + 0.05)
+    past, inside = last_x + direction * (last_w / 2 + radius + 0.1), downstream - 1.2 * direction * radius
+    if direction * (before - upstream) < 0 or direction * (inside - past) < 0:
+        raise RejectedSample("the pillars leave no room in view before or after them")
+    start = upstream + float(rng.random()) * (before - upstream)
+    end = past + float(rng.random()) * (inside - past)
+    speed = direction * (end - start) / ((video.num_frames - 1) * video.duration / video.num_frames)
+    if not PROBE_SPEED[0] <= speed <= PROBE_SPEED[1]:
+        raise RejectedSample(f"the ball would roll at {speed:.2f} m/s, outside {PROBE_SPEED}")
     return Layout(pillars, height, radius, (start, depth, radius), (direction * speed, 0.0))
+
+
+def view_edges(camera: CameraPose, video: VideoOptions, y: float, z: float) -> tuple[float, float]:
+    """The world x of the left and right frame edges on the line (·, y, z)."""
+    return x_at_column(camera, video, 0.0, y, z), x_at_column(camera, video, video.width, y, z)
 
 
 def example_layout(rng: np.random.Generator, duration: float) -> Layout:
@@ -439,13 +456,13 @@ def _counterbalanced(rng: np.random.Generator, video: VideoOptions, camera: Came
     full = full_ball_pixels(sim, layout.ball_radius, layout.ball_start[1])
     if not (pixels[:vanish] >= VISIBLE_SHARE * full).any():
         raise RejectedSample("the ball is not seen before the first pillar")
-    low, high = REAPPEAR_BEFORE_END
-    back = max(vanish + 1, video.num_frames - int(rng.integers(low, high + 1)))
     _, depth, height = layout.ball_start
     last_x, _ = layout.pillars[last]
     behind = x_behind(camera, video, last_x, depth, height)
     speed = float(rng.uniform(*REAPPEAR_SPEED))
     direction = float(np.sign(layout.ball_velocity[0]))
+    low, high = REAPPEAR_BEFORE_END
+    back = max(vanish + 1, video.num_frames - int(rng.integers(low, high + 1)))
 
     def put_back(twin: Simulation, frame: int) -> None:
         if frame == back:
