@@ -438,6 +438,23 @@ def _standard(rng: np.random.Generator, variant: str, video: VideoOptions, camer
 REAPPEAR_BEFORE_END = (5, 8)
 
 
+def rolls_on_in_view(
+    layout: Layout, camera: CameraPose, video: VideoOptions, start: float, speed: float, frames: int
+) -> bool:
+    """Whether a ball put back at ``start`` with ``speed`` ``frames`` frames before the end is
+    may still be in view at the end (its centre; rolling friction's nominal deceleration; a cheap check
+    before rendering, the rendered masks have the last word)."""
+    direction = float(np.sign(layout.ball_velocity[0]))
+    deceleration = layout.rolling_friction * GRAVITY / (1.4 * layout.ball_radius)
+    time = (frames - 1) * video.duration / video.num_frames
+    if speed < deceleration * time:
+        rolled = speed**2 / (2 * deceleration)
+    else:
+        rolled = speed * time - deceleration * time**2 / 2
+    edge = view_edges(camera, video, layout.ball_start[1], layout.ball_radius)[int(direction > 0)]
+    return direction * (edge - start) - rolled >= 0.0
+
+
 def _counterbalanced(rng: np.random.Generator, video: VideoOptions, camera: CameraPose):
     """The mirror pair: a ball slows and stops behind the first pillar (consistent); in the
     inconsistent video it is parked when hidden there and put back behind the second pillar,
@@ -445,24 +462,26 @@ def _counterbalanced(rng: np.random.Generator, video: VideoOptions, camera: Came
     layout = probe_layout(rng, "counterbalanced", camera, video)
     sim = build(rng, video, camera, layout)
     aim_to_stop(sim, layout, rng)
+    first, last = path_pillars(layout)[0], path_pillars(layout)[-1]
+    _, depth, height = layout.ball_start
+    last_x, _ = layout.pillars[last]
+    behind = x_behind(camera, video, last_x, depth, height)
+    speed = float(rng.uniform(*REAPPEAR_SPEED))
+    direction = float(np.sign(layout.ball_velocity[0]))
+    before_end = int(rng.integers(REAPPEAR_BEFORE_END[0], REAPPEAR_BEFORE_END[1] + 1))
+    if not rolls_on_in_view(layout, camera, video, behind, speed, before_end):
+        raise RejectedSample("the reappearing ball would roll out of view")
     frames, masks, states, positions = record_tracking_ball(sim)
     ball = sim.mask_id("ball")
     pixels = ball_pixels(masks, ball)
     seen = what_hides_ball(sim, masks, positions)
-    first, last = path_pillars(layout)[0], path_pillars(layout)[-1]
     vanish = first_hidden(seen, pixels, sim.mask_id(f"pillar{first}"), 1)
     if pixels[vanish:].any():
         raise RejectedSample("the slowing ball shows again after the first pillar hid it")
     full = full_ball_pixels(sim, layout.ball_radius, layout.ball_start[1])
     if not (pixels[:vanish] >= VISIBLE_SHARE * full).any():
         raise RejectedSample("the ball is not seen before the first pillar")
-    _, depth, height = layout.ball_start
-    last_x, _ = layout.pillars[last]
-    behind = x_behind(camera, video, last_x, depth, height)
-    speed = float(rng.uniform(*REAPPEAR_SPEED))
-    direction = float(np.sign(layout.ball_velocity[0]))
-    low, high = REAPPEAR_BEFORE_END
-    back = max(vanish + 1, video.num_frames - int(rng.integers(low, high + 1)))
+    back = max(vanish + 1, video.num_frames - before_end)
 
     def put_back(twin: Simulation, frame: int) -> None:
         if frame == back:
