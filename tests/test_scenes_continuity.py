@@ -1,5 +1,7 @@
-"""Continuity scenes: the ball's hidden disappearance and on-course return, the extra pillar of
-the generalization probe, the gap_block control's visibility pattern, unconstrained examples."""
+"""Continuity scenes: the ball's hidden disappearance and on-course return, the counterbalanced
+ball that stops behind the first pillar or reappears after the second, the extra pillar of the
+generalization probe, the gap_block control's visibility pattern and camera, probe parameters
+inside the examples' ranges, examples with balls that slow and stop."""
 
 import numpy as np
 import pytest
@@ -16,8 +18,17 @@ def probe_record(request):
     return request.param, generate_probe("continuity", request.param, 5)
 
 
+@pytest.fixture(scope="module")
+def counterbalanced_records():
+    return [generate_probe("continuity", "counterbalanced", seed) for seed in range(4)]
+
+
 def ball_visible(mask: torch.Tensor, ball: int) -> np.ndarray:
     return (mask == ball).flatten(1).any(1).numpy()
+
+
+def ball_area(mask: torch.Tensor, ball: int) -> np.ndarray:
+    return (mask == ball).flatten(1).sum(1).numpy()
 
 
 def test_ball_vanishes_behind_first_pillar_and_returns_on_course(probe_record):
@@ -40,6 +51,64 @@ def test_ball_vanishes_behind_first_pillar_and_returns_on_course(probe_record):
     assert not (differs & (consistent["mask"][m:back] != ball)).any()
 
 
+@pytest.mark.parametrize("variant", ["standard", "three_pillars", "counterbalanced"])
+def test_ball_is_large_and_in_view_at_the_end(variant):
+    """At 64x64 the ball is about 8 px across (it was 4-6) and the probes end with it in view
+    (it used to leave the frame in 42% of pairs); counterbalanced: the reappearing ball."""
+    for seed in range(3):
+        record = generate_probe("continuity", variant, seed)
+        ball = int(record["manipulated_ids"][0])
+        area = ball_area(record["consistent", "mask"], ball)
+        assert area.max() >= 30, f"seed {seed}: the ball covers at most {area.max()} px"
+        last = ball_area(record["inconsistent", "mask"], ball)[-1]
+        assert last >= 0.5 * area.max(), f"seed {seed}: the ball is not in view at the end"
+
+
+def test_counterbalanced_ball_stops_behind_first_pillar_or_reappears_after_second(
+    counterbalanced_records,
+):
+    for record in counterbalanced_records:
+        m = int(record["manipulation_frame"])
+        ball = int(record["manipulated_ids"][0])
+        consistent, inconsistent = record["consistent"], record["inconsistent"]
+        seen_consistent = ball_visible(consistent["mask"], ball)
+        seen_inconsistent = ball_visible(inconsistent["mask"], ball)
+        assert seen_consistent[:m].any(), "the ball is seen rolling in before it stops"
+        assert not seen_consistent[m:].any(), "the consistent ball stays at rest behind the pillar"
+        back = m + int(np.argmax(seen_inconsistent[m:]))
+        assert seen_inconsistent[back:].all(), "the inconsistent ball reappears and stays in view"
+        # It reappears beyond the second pillar: on the far side of where it vanished.
+        columns = torch.nonzero(consistent["mask"][:m] == ball)[:, 2].float()
+        before = columns[-10:].mean() if len(columns) else None
+        reappeared = torch.nonzero(inconsistent["mask"][back] == ball)[:, 1].float().mean()
+        entered = torch.nonzero(consistent["mask"][:m] == ball)[:, 0]
+        first_columns = torch.nonzero(consistent["mask"][int(entered.min())] == ball)[:, 1]
+        direction = np.sign(float(before) - float(first_columns.float().mean()))
+        assert direction * (float(reappeared) - float(before)) > 10, "reappears past the gap"
+        # The videos differ only where the inconsistent ball is.
+        differs = (consistent["frames"][m:] != inconsistent["frames"][m:]).any(-1)
+        assert not (differs & (inconsistent["mask"][m:] != ball)).any()
+
+
+def test_counterbalanced_mirrors_the_standard_cue():
+    """The counterbalanced inconsistent video shows more ball than its consistent one, the
+    standard inconsistent video less: pooled, visible ball pixels do not tell them apart."""
+    gaps = {}
+    for variant in ("standard", "counterbalanced"):
+        gaps[variant] = []
+        for seed in range(3):
+            record = generate_probe("continuity", variant, seed)
+            m = int(record["manipulation_frame"])
+            ball = int(record["manipulated_ids"][0])
+            shown = [ball_area(record[side, "mask"][m:], ball).sum()
+                     for side in ("consistent", "inconsistent")]
+            gaps[variant].append(shown[1] - shown[0])
+    assert all(gap < 0 for gap in gaps["standard"])
+    assert all(gap > 0 for gap in gaps["counterbalanced"])
+    ratio = np.mean(gaps["counterbalanced"]) / -np.mean(gaps["standard"])
+    assert 0.5 < ratio < 2.0, f"counterbalanced/standard visible-ball difference ratio {ratio:.2f}"
+
+
 def test_three_pillars_has_an_extra_pillar(probe_record):
     variant, record = probe_record
     pillars = 3 if variant == "three_pillars" else 2
@@ -47,6 +116,57 @@ def test_three_pillars_has_an_extra_pillar(probe_record):
     assert ball == pillars + 1, "pillars get ids 1..n, the ball the next one"
     first = record["consistent", "mask"][0]
     assert set(range(1, pillars + 1)) <= set(first.unique().tolist())
+
+
+def _parameters(sampler, draws: int) -> dict[str, np.ndarray]:
+    rows = [sampler(base.rng_for(seed, "parameters")).parameters() for seed in range(draws)]
+    return {name: np.array([row[name] for row in rows]) for name in rows[0]}
+
+
+@pytest.mark.parametrize("variant", ["standard", "counterbalanced", "three_pillars"])
+def test_probe_parameters_lie_inside_the_examples_ranges(variant):
+    """Examples are like probes but unconstrained: every probe parameter falls inside the
+    examples' range, and a real share of examples falls inside the probes' range."""
+    examples = _parameters(lambda rng: continuity.example_layout(rng, VIDEO.duration), 3000)
+
+    def probe_sampler(rng):
+        while True:  # as draw_until_valid: a layout needing a speed outside the range is redrawn
+            try:
+                return continuity.probe_layout(rng, variant, continuity.CAMERA.sample(rng), VIDEO)
+            except base.RejectedSample:
+                pass
+
+    probes = _parameters(probe_sampler, 500)
+    for name, values in probes.items():
+        low, high = examples[name].min(), examples[name].max()
+        slack = 0.01 * (high - low)  # the examples' extremes of a finite sample
+        assert low - slack <= values.min() and values.max() <= high + slack, (
+            f"{variant} {name} in [{values.min():.3f}, {values.max():.3f}] leaves the examples' "
+            f"[{low:.3f}, {high:.3f}]"
+        )
+        inside = np.mean((examples[name] >= values.min()) & (examples[name] <= values.max()))
+        assert inside >= 0.05, f"only {inside:.1%} of examples have a {variant}-like {name}"
+    # The counterbalanced inconsistent ball's speed when put back is an example speed too.
+    low, high = continuity.REAPPEAR_SPEED
+    speeds = examples["speed"]
+    assert speeds.min() <= low and high <= speeds.max() + 0.01 * np.ptp(speeds)
+    assert np.mean((speeds >= low) & (speeds <= high)) >= 0.05
+
+
+def test_examples_have_balls_that_slow_and_stop():
+    """The counterbalanced consistent event (a ball that slows and stops) occurs in training."""
+    stopped = rolled_on = 0
+    for seed in range(12):
+        rng = base.rng_for(seed, "stopping")
+        layout = continuity.example_layout(rng, VIDEO.duration)
+        sim = continuity.build(rng, VIDEO, continuity.CAMERA.sample(rng), layout)
+        sim.step(VIDEO.steps_per_frame * VIDEO.num_frames)
+        speed = np.linalg.norm(sim.data.body("ball").cvel[3:5])
+        if layout.rolling_friction > 0 and speed < 0.05:
+            stopped += 1
+        elif layout.rolling_friction == 0 and speed > 0.3:
+            rolled_on += 1
+    assert stopped >= 2 and rolled_on >= 2, f"{stopped} stopped, {rolled_on} rolled on"
 
 
 def test_examples_never_have_three_pillars_and_paths_are_unconstrained():
@@ -75,10 +195,19 @@ def test_gap_block_shows_the_ball_only_before_and_after_the_pillars():
     assert np.diff(visible_frames).max() >= 3, f"the ball shows at frames {visible_frames}"
 
 
+def test_gap_block_draws_its_camera_like_the_examples():
+    """No fixed probe camera for the control (it used to be the probes' one)."""
+    cameras = np.stack([generate_clip("continuity", "gap_block", seed)["camera"][0].numpy()
+                        for seed in range(4)])
+    assert all(continuity.CAMERA.contains(camera) for camera in cameras)
+    assert len(np.unique(cameras[:, 3])) == len(cameras), "the camera distance varies"
+
+
 def test_ball_keeps_rolling_across_the_view():
-    rng = np.random.default_rng(0)
-    layout = continuity.probe_layout(rng, 2, VIDEO.duration)
-    sim = continuity.build(rng, VIDEO, continuity.PROBE_CAMERA, layout)
+    rng = np.random.default_rng(2)
+    camera = continuity.CAMERA.sample(rng)
+    layout = continuity.probe_layout(rng, "standard", camera, VIDEO)
+    sim = continuity.build(rng, VIDEO, camera, layout)
     start = sim.position("ball")
     sim.step(VIDEO.steps_per_frame * VIDEO.num_frames)
     travelled = sim.position("ball") - start
@@ -87,21 +216,45 @@ def test_ball_keeps_rolling_across_the_view():
     assert abs(travelled[1]) < 0.01 and abs(travelled[2]) < 0.01
 
 
+def test_slowing_ball_is_aimed_to_rest_behind_the_first_pillar():
+    rng = np.random.default_rng(3)
+    camera = continuity.CAMERA.sample(rng)
+    layout = continuity.probe_layout(rng, "counterbalanced", camera, VIDEO)
+    sim = continuity.build(rng, VIDEO, camera, layout)
+    continuity.aim_to_stop(sim, layout, rng)
+    sim.step(VIDEO.steps_per_frame * VIDEO.num_frames)
+    first_x, width = layout.pillars[continuity.path_pillars(layout)[0]]
+    rest = sim.position("ball")
+    behind = continuity.x_behind(camera, VIDEO, first_x, rest[1], rest[2])
+    assert np.linalg.norm(sim.data.body("ball").cvel[3:]) < 1e-2, "the ball has stopped"
+    assert abs(rest[0] - behind) < width / 2 - layout.ball_radius / 2
+
+
+def test_x_at_column_inverts_the_projection():
+    camera = continuity.CAMERA.sample(np.random.default_rng(2))
+    for x in (-0.8, 0.0, 0.7):
+        column = continuity.project(camera, VIDEO, (x, 0.5, 0.2))[1]
+        found = continuity.x_at_column(camera, VIDEO, column + 0.5, 0.5, 0.2)
+        assert continuity.project(camera, VIDEO, (found, 0.5, 0.2))[1] == column
+
+
 def test_projection_lands_on_the_rendered_ball():
     rng = np.random.default_rng(1)
-    layout = continuity.probe_layout(rng, 2, VIDEO.duration)
-    sim = continuity.build(rng, VIDEO, continuity.PROBE_CAMERA, layout)
+    camera = continuity.CAMERA.sample(rng)
+    layout = continuity.probe_layout(rng, "standard", camera, VIDEO)
+    sim = continuity.build(rng, VIDEO, camera, layout)
     frames, masks, states, positions = continuity.record_tracking_ball(sim)
     seen = continuity.what_hides_ball(sim, masks, positions)
     ball = sim.mask_id("ball")
-    visible_in_frame = (continuity.ball_pixels(masks, ball) > 10) & (seen != -1)
-    assert visible_in_frame.sum() >= 5
+    pixels = continuity.ball_pixels(masks, ball)
+    visible_in_frame = (pixels >= 0.9 * pixels.max()) & (seen != -1)
+    assert visible_in_frame.sum() >= 3
     assert (seen[visible_in_frame] == ball).all(), "the projected centre lies on the ball"
     assert len(states) == VIDEO.num_frames
 
 
 def test_bad_variant_names_the_valid_ones():
-    with pytest.raises(ValueError, match="three_pillars"):
+    with pytest.raises(ValueError, match="counterbalanced"):
         continuity.probe("four_pillars", 0, VIDEO)
     with pytest.raises(ValueError, match="gap_block"):
         continuity.clip("cube_random_position", 0, VIDEO)

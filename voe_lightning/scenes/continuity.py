@@ -1,6 +1,10 @@
-"""Continuity (paper §3, after Aguilar & Baillargeon 1999): a ball rolls behind pillars. In the
-inconsistent probe it vanishes behind the first pillar and reappears behind the last one without
-ever crossing the gap; the ``gap_block`` control shows the same visibility pattern physically."""
+"""Continuity (paper §3, after Aguilar & Baillargeon 1999): a ball rolls behind two pillars. In
+the ``standard`` inconsistent probe it vanishes behind the first pillar and reappears behind the
+last one without ever crossing the gap; the ``gap_block`` control shows the same visibility
+pattern physically. The ``counterbalanced`` pair mirrors its cues: a ball that slows and stops
+behind the first pillar (consistent) against the same ball reappearing after the second pillar
+(inconsistent), so the inconsistent video shows more ball and motion where the standard one
+shows less. Examples roll free or slowing balls on unconstrained paths past the same pillars."""
 
 from __future__ import annotations
 
@@ -14,6 +18,7 @@ from voe_lightning import specs
 from voe_lightning.scenes import base
 from voe_lightning.scenes.base import (
     CameraPose,
+    CameraRange,
     RejectedSample,
     SceneBuilder,
     Simulation,
@@ -21,29 +26,81 @@ from voe_lightning.scenes.base import (
 )
 
 CONCEPT = "continuity"
-#: Probes use one static camera looking down on the pillars (mostly floor in view).
-PROBE_CAMERA = CameraPose(lookat=(0.0, 0.3, 0.3), distance=3.8, azimuth=90.0, elevation=-26.0)
+#: The one camera distribution of the concept: examples, the gap_block control and every probe
+#: draw from it. Close enough that the ball is 8-12 px across at 64x64.
+CAMERA = CameraRange(
+    lookat_x=(-0.1, 0.1),
+    lookat_y=(0.2, 0.45),
+    lookat_z=(0.25, 0.35),
+    distance=(3.1, 3.5),
+    azimuth=(87.0, 93.0),
+    elevation=(-24.0, -16.0),
+)
 PILLAR_DEPTH = 0.12
-#: A ball counts as seen in a gap when at least this share of its largest visible area shows.
+#: A ball counts as seen when at least this share of its largest visible area shows.
 VISIBLE_SHARE = 0.5
+GRAVITY = 9.81
+
+#: Parameter ranges (uniform). Probes draw inside the examples' ranges (DESIGN.md §4).
+PILLAR_WIDTH = (0.42, 0.55)
+GAP = (0.45, 0.9)
+THREE_PILLAR_GAP = (0.8, 0.9)  # the outer pair as in training, from the wide end of GAP
+MIDDLE_PILLAR_WIDTH = (0.2, 0.26)  # the generalization probe's extra pillar (never in training)
+PROBE_PILLAR_HEIGHT = (0.75, 1.0)
+EXAMPLE_PILLAR_HEIGHT = (0.5, 1.2)
+PROBE_BALL_RADIUS = (0.17, 0.21)
+EXAMPLE_BALL_RADIUS = (0.13, 0.24)
+PROBE_BALL_DEPTH = (0.35, 0.6)  # behind the pillars
+EXAMPLE_BALL_DEPTH = (-0.9, 1.0)  # in front of or behind them
+PROBE_SPEED = (0.55, 1.2)
+STOPPING_SPEED = (0.7, 1.1)  # counterbalanced: the launch speed of a ball that then stops
+EXAMPLE_SPEED = (0.4, 1.5)
+REAPPEAR_SPEED = (1.2, 1.5)  # counterbalanced: the inconsistent ball's speed when put back
+STOP_TIME = (1.0, 1.8)  # counterbalanced: seconds from launch to standstill
+#: MuJoCo rolling friction (a length, contact dimension 6): 0 rolls freely; probes that stop
+#: derive theirs from STOP_TIME and speed, always inside the examples' range.
+EXAMPLE_ROLLING_FRICTION = (0.005, 0.045)
+EXAMPLE_SLOWING_SHARE = 0.5  # share of examples whose ball slows down (and often stops)
 
 
 @dataclass
 class Layout:
     """One continuity scene: pillars (centre x, width) in the plane y = 0, an optional block
-    filling the gap between the outer two, and a ball launched rolling from ``ball_start``."""
+    filling the gap between the outer two, and a ball launched rolling from ``ball_start`` with
+    ``rolling_friction`` (0: it rolls on at constant speed; more: it slows and stops)."""
 
     pillars: list[tuple[float, float]]
     pillar_height: float
     ball_radius: float
     ball_start: tuple[float, float, float]
     ball_velocity: tuple[float, float]
+    rolling_friction: float = 0.0
     gap_block_height: float | None = None
+
+    def outer_pillars(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """(centre x, width) of the leftmost and rightmost pillars."""
+        ordered = sorted(self.pillars)
+        return ordered[0], ordered[-1]
 
     def gap_edges(self) -> tuple[float, float]:
         """x of the inner faces of the outermost pillars (the gap a block fills)."""
-        (left_x, left_w), *_, (right_x, right_w) = sorted(self.pillars)
+        (left_x, left_w), (right_x, right_w) = self.outer_pillars()
         return left_x + left_w / 2, right_x - right_w / 2
+
+    def parameters(self) -> dict[str, float]:
+        """The scalar parameters probes must share with examples (pillar width of the outer
+        pair; the gap between them; the ball's depth behind the pillar plane and speed)."""
+        (_, left_w), _ = self.outer_pillars()
+        low, high = self.gap_edges()
+        return {
+            "pillar_width": left_w,
+            "gap": high - low,
+            "pillar_height": self.pillar_height,
+            "ball_radius": self.ball_radius,
+            "ball_depth": self.ball_start[1],
+            "speed": float(np.hypot(*self.ball_velocity)),
+            "rolling_friction": self.rolling_friction,
+        }
 
 
 def camera_axes(camera: CameraPose) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -57,15 +114,35 @@ def camera_axes(camera: CameraPose) -> tuple[np.ndarray, np.ndarray, np.ndarray,
     return position, np.cross(forward, up), up, forward
 
 
-def project(camera: CameraPose, video: VideoOptions, point, fovy: float = 45.0) -> tuple[int, int]:
+def focal_length(video: VideoOptions, fovy: float = 45.0) -> float:
+    """Focal length in pixels of MuJoCo's free camera (vertical field of view ``fovy``)."""
+    return (video.height / 2) / np.tan(np.radians(fovy) / 2)
+
+
+def project(camera: CameraPose, video: VideoOptions, point) -> tuple[int, int]:
     """Pixel (row, column) where the world ``point`` appears in a frame (may lie outside it)."""
     position, right, up, forward = camera_axes(camera)
     offset = np.asarray(point, float) - position
     depth = offset @ forward
-    focal = (video.height / 2) / np.tan(np.radians(fovy) / 2)
+    focal = focal_length(video)
     column = video.width / 2 + focal * (offset @ right) / depth
     row = video.height / 2 - focal * (offset @ up) / depth
     return int(np.floor(row)), int(np.floor(column))
+
+
+def x_at_column(camera: CameraPose, video: VideoOptions, column: float, y: float, z: float) -> float:
+    """The world x where the line (·, y, z) crosses image column ``column`` (the camera's right
+    axis is horizontal, so this is the root of a linear equation)."""
+    position, right, _, forward = camera_axes(camera)
+    k = (column - video.width / 2) / focal_length(video)
+    along = (y - position[1]) * right[1]
+    ahead = (y - position[1]) * forward[1] + (z - position[2]) * forward[2]
+    return float(position[0] + (k * ahead - along) / (right[0] - k * forward[0]))
+
+
+def x_behind(camera: CameraPose, video: VideoOptions, pillar_x: float, y: float, z: float) -> float:
+    """The x on the ball's line (·, y, z) that the camera sees right behind a pillar's centre."""
+    return x_at_column(camera, video, project(camera, video, (pillar_x, 0.0, z))[1] + 0.5, y, z)
 
 
 def build(
@@ -97,10 +174,21 @@ def build(
         )
     radius = layout.ball_radius
     builder.add_primitive("ball", "sphere", (radius,), layout.ball_start, ball_color, density=300.0)
+    if layout.rolling_friction > 0:
+        ball = builder.spec.geom("ball_0")
+        ball.condim = 6  # sliding, torsional and rolling friction
+        ball.friction = [0.8, 0.005, layout.rolling_friction]
     sim = builder.build()
-    vx, vy = layout.ball_velocity
-    sim.set_velocity("ball", (vx, vy, 0.0), (-vy / radius, vx / radius, 0.0))
+    launch(sim, layout.ball_start, layout.ball_velocity)
     return sim
+
+
+def launch(sim: Simulation, start, velocity) -> None:
+    """Place the ball at ``start`` rolling with horizontal ``velocity`` (spin without slip)."""
+    radius = float(sim.model.geom("ball_0").size[0])
+    vx, vy = velocity
+    sim.move("ball", start)
+    sim.set_velocity("ball", (vx, vy, 0.0), (-vy / radius, vx / radius, 0.0))
 
 
 def get_state(sim: Simulation) -> np.ndarray:
@@ -151,67 +239,129 @@ def column(sim: Simulation, point) -> int:
     return project(sim.camera, sim.video, point)[1]
 
 
-def probe_layout(rng: np.random.Generator, num_pillars: int, duration: float) -> Layout:
-    """Pillars around the centre and a ball rolling behind them, fast enough to be seen before,
-    between and after them; with three pillars the third stands in a wider gap."""
-    width = float(rng.uniform(0.4, 0.55))
+def full_ball_pixels(sim: Simulation, radius: float, y: float) -> float:
+    """Roughly how many pixels a whole ball of ``radius`` at depth ``y`` covers."""
+    position, _, _, forward = camera_axes(sim.camera)
+    depth = (np.array([position[0], y, radius]) - position) @ forward
+    return float(np.pi * (focal_length(sim.video) * radius / depth) ** 2)
+
+
+def _pillars(rng: np.random.Generator, num_pillars: int) -> tuple[list[float], list[float]]:
+    """Pillar centres (around 0) and widths: a pair, or the three-pillar probe's pair from the
+    wide end of the training gaps with a narrow pillar in the middle."""
+    width = float(rng.uniform(*PILLAR_WIDTH))
     if num_pillars == 2:
-        gap = float(rng.uniform(0.5, 0.9))
-        centres = [-(gap + width) / 2, (gap + width) / 2]
-        widths = [width, width]
-    else:  # the outer pair as in training (a gap from the wide end), a narrow pillar between
-        gap = float(rng.uniform(0.8, 0.9))
-        middle = float(rng.uniform(0.2, 0.26))
-        centres = [-(gap + width) / 2, 0.0, (gap + width) / 2]
-        widths = [width, middle, width]
-    shift = float(rng.uniform(-0.15, 0.15))
-    pillars = [(c + shift, w) for c, w in zip(centres, widths)]
-    radius = float(rng.uniform(0.13, 0.17))
-    depth = float(rng.uniform(0.3, 0.7))
+        gap = float(rng.uniform(*GAP))
+        return [-(gap + width) / 2, (gap + width) / 2], [width, width]
+    gap = float(rng.uniform(*THREE_PILLAR_GAP))
+    middle = float(rng.uniform(*MIDDLE_PILLAR_WIDTH))
+    return [-(gap + width) / 2, 0.0, (gap + width) / 2], [width, middle, width]
+
+
+def probe_layout(
+    rng: np.random.Generator,
+    variant: str,
+    camera: CameraPose,
+    video: VideoOptions,
+) -> Layout:
+    """Pillars a little upstream of the view's centre and a ball rolling behind them. ``standard``
+    and ``three_pillars``: free rolling at constant speed from the frame edge or nearer, ending in
+    view past the last pillar (RejectedSample if that needs a speed outside PROBE_SPEED);
+    ``counterbalanced``: launched to slow down and stop in STOP_TIME (its start is aimed later,
+    see ``aim_to_stop``)."""
+    centres, widths = _pillars(rng, 3 if variant == "three_pillars" else 2)
+    radius = float(rng.uniform(*PROBE_BALL_RADIUS))
+    depth = float(rng.uniform(*PROBE_BALL_DEPTH))
     direction = float(rng.choice([-1.0, 1.0]))
-    span = (centres[-1] + widths[-1] / 2) - (centres[0] - widths[0] / 2)
-    lead_in, lead_out = float(rng.uniform(0.25, 0.5)), float(rng.uniform(0.25, 0.5))
-    distance = span + lead_in + lead_out + 2 * radius
-    speed = distance / (duration * float(rng.uniform(0.85, 0.95)))
-    start_x = shift - direction * (span / 2 + lead_in + radius)
-    return Layout(
-        pillars=pillars,
-        pillar_height=float(rng.uniform(0.75, 1.0)),
-        ball_radius=radius,
-        ball_start=(start_x, depth, radius),
-        ball_velocity=(direction * speed, 0.0),
-    )
+    middle = x_at_column(camera, video, video.width / 2, 0.0, radius)
+    # Upstream of the view's centre, leaving room to roll on (or reappear) past the last pillar.
+    offset = rng.uniform(0.0, 0.25) if variant != "counterbalanced" else rng.uniform(0.1, 0.3)
+    shift = middle - direction * float(offset)
+    pillars = [(c + shift, w) for c, w in zip(centres, widths)]
+    height = float(rng.uniform(*PROBE_PILLAR_HEIGHT))
+    if variant == "counterbalanced":
+        speed = float(rng.uniform(*STOPPING_SPEED))
+        deceleration = speed / float(rng.uniform(*STOP_TIME))
+        # A rolling ball: torque mu*N over the effective mass m(1 + 2/5) at lever r.
+        friction = deceleration * 1.4 * radius / GRAVITY
+        return Layout(pillars, height, radius, (shift, depth, radius), (direction * speed, 0.0), friction)
+    ordered = sorted(pillars, key=lambda pillar: direction * pillar[0])
+    (first_x, first_w), (last_x, last_w) = ordered[0], ordered[-1]
+    upstream, downstream = view_edges(camera, video, depth, radius)[:: int(direction)]
+    # Start anywhere from half in view at the edge to just before the first pillar; end wholly
+    # in view past the last one; the speed follows.
+    before = first_x - direction * (first_w / 2 + radius + 0.05)
+    past, inside = last_x + direction * (last_w / 2 + radius + 0.1), downstream - 1.2 * direction * radius
+    if direction * (before - upstream) < 0 or direction * (inside - past) < 0:
+        raise RejectedSample("the pillars leave no room in view before or after them")
+    start = upstream + float(rng.random()) * (before - upstream)
+    end = past + float(rng.random()) * (inside - past)
+    speed = direction * (end - start) / ((video.num_frames - 1) * video.duration / video.num_frames)
+    if not PROBE_SPEED[0] <= speed <= PROBE_SPEED[1]:
+        raise RejectedSample(f"the ball would roll at {speed:.2f} m/s, outside {PROBE_SPEED}")
+    return Layout(pillars, height, radius, (start, depth, radius), (direction * speed, 0.0))
+
+
+def view_edges(camera: CameraPose, video: VideoOptions, y: float, z: float) -> tuple[float, float]:
+    """The world x of the left and right frame edges on the line (·, y, z)."""
+    return x_at_column(camera, video, 0.0, y, z), x_at_column(camera, video, video.width, y, z)
 
 
 def example_layout(rng: np.random.Generator, duration: float) -> Layout:
     """Two pillars and a ball whose path is unconstrained: in front of or behind the pillars,
-    any speed, either direction, slanted, and sometimes dropped from a little height."""
-    layout = probe_layout(rng, 2, duration)
-    radius = float(rng.uniform(0.08, 0.2))
+    any speed, either direction, slanted, sometimes dropped from a little height, and in half
+    the clips slowing down under rolling friction (often to a standstill, as in the
+    counterbalanced probes)."""
+    centres, widths = _pillars(rng, 2)
+    shift = float(rng.uniform(-0.5, 0.5))
+    radius = float(rng.uniform(*EXAMPLE_BALL_RADIUS))
     angle = float(rng.uniform(-0.35, 0.35))
-    speed = float(rng.uniform(0.4, 1.4))
+    speed = float(rng.uniform(*EXAMPLE_SPEED))
     direction = float(rng.choice([-1.0, 1.0]))
     drop = float(rng.uniform(0.0, 0.5)) if rng.random() < 0.3 else 0.0
     start = (
         float(-direction * rng.uniform(0.3, 1.5)),
-        float(rng.uniform(-0.9, 1.0)),
+        float(rng.uniform(*EXAMPLE_BALL_DEPTH)),
         radius + drop,
     )
-    layout.ball_radius = radius
-    layout.ball_start = start
-    layout.ball_velocity = (direction * speed * np.cos(angle), speed * np.sin(angle))
-    layout.pillar_height = float(rng.uniform(0.5, 1.2))
-    return layout
-
-
-def example_camera(rng: np.random.Generator) -> CameraPose:
-    """Training clips vary the (static) camera from video to video."""
-    return CameraPose(
-        lookat=(float(rng.uniform(-0.3, 0.3)), float(rng.uniform(0.2, 0.6)), 0.3),
-        distance=float(rng.uniform(3.6, 4.4)),
-        azimuth=float(rng.uniform(80.0, 100.0)),
-        elevation=float(rng.uniform(-32.0, -23.0)),
+    slowing = rng.random() < EXAMPLE_SLOWING_SHARE
+    friction = float(rng.uniform(*EXAMPLE_ROLLING_FRICTION)) if slowing else 0.0
+    return Layout(
+        pillars=[(c + shift, w) for c, w in zip(centres, widths)],
+        pillar_height=float(rng.uniform(*EXAMPLE_PILLAR_HEIGHT)),
+        ball_radius=radius,
+        ball_start=start,
+        ball_velocity=(direction * speed * np.cos(angle), speed * np.sin(angle)),
+        rolling_friction=friction,
     )
+
+
+def path_pillars(layout: Layout) -> list[int]:
+    """Pillar indices in the order the ball passes them."""
+    order = sorted(range(len(layout.pillars)), key=lambda i: layout.pillars[i][0])
+    return order[::-1] if layout.ball_velocity[0] < 0 else order
+
+
+def aim_to_stop(sim: Simulation, layout: Layout, rng: np.random.Generator) -> None:
+    """Shift the slowing ball's start along its path so it comes to rest behind the first
+    pillar (a random spot off its centre): a dry run measures how far it rolls (the floor is uniform, so the distance does not
+    depend on where it starts)."""
+    video = sim.video
+    trial = sim.fork()
+    start = trial.position("ball")
+    steps = round(max(STOP_TIME) * 1.5 / video.timestep)
+    trial.step(steps)
+    if np.linalg.norm(trial.data.body("ball").cvel[3:]) > 1e-2:
+        raise RejectedSample("the slowing ball does not stop in time")
+    travel = trial.position("ball")[0] - start[0]
+    first_x, first_w = layout.pillars[path_pillars(layout)[0]]
+    _, depth, height = start
+    behind = x_behind(sim.camera, video, first_x, depth, height)
+    slack = max(0.0, first_w * 1.1 - 2 * layout.ball_radius) / 2  # how far off centre it may rest
+    rest = behind + float(rng.uniform(-0.4, 0.4)) * slack
+    new_start = (rest - travel, depth, height)
+    layout.ball_start = new_start
+    launch(sim, new_start, layout.ball_velocity)
 
 
 def vanish_and_reappear(
@@ -219,28 +369,20 @@ def vanish_and_reappear(
 ) -> tuple[int, int]:
     """The first frame the ball is wholly hidden by the first pillar on its path and the first
     after that it is wholly hidden by the last one; rejects scenes where the ball is not seen
-    well before, in every gap between, and after the pillars."""
+    well before, in every gap between, and after the pillars, or not wholly in the last frame."""
     ball = sim.mask_id("ball")
     pixels = ball_pixels(masks, ball)
     seen = what_hides_ball(sim, masks, positions)
-    order = sorted(range(len(layout.pillars)), key=lambda i: layout.pillars[i][0])
-    if layout.ball_velocity[0] < 0:
-        order.reverse()
+    order = path_pillars(layout)
     first, last = (sim.mask_id(f"pillar{i}") for i in (order[0], order[-1]))
-    behind_first = np.flatnonzero((seen == first) & (pixels == 0))
-    if not len(behind_first):
-        raise RejectedSample("the ball is never hidden by the first pillar")
-    vanish = int(behind_first[0])
-    behind_last = np.flatnonzero((seen == last) & (pixels == 0))
-    behind_last = behind_last[behind_last > vanish]
-    if not len(behind_last):
-        raise RejectedSample("the ball is never hidden by the last pillar")
-    reappear = int(behind_last[0])
-    well_seen = pixels >= VISIBLE_SHARE * pixels.max()
+    vanish = first_hidden(seen, pixels, first, 1)
+    reappear = first_hidden(seen, pixels, last, vanish + 1)
+    full = full_ball_pixels(sim, layout.ball_radius, layout.ball_start[1])
+    well_seen = pixels >= VISIBLE_SHARE * full
     if not well_seen[:vanish].any():
         raise RejectedSample("the ball is not seen before the first pillar")
-    if not well_seen[reappear:].any():
-        raise RejectedSample("the ball is not seen after the last pillar")
+    if not well_seen[-1]:
+        raise RejectedSample("the ball is not seen whole in the last frame")
     ball_columns = np.array([column(sim, position) for position in positions])
     pillar_columns = [column(sim, (layout.pillars[i][0], 0.0, 0.0)) for i in order]
     for one, other in zip(pillar_columns, pillar_columns[1:]):
@@ -251,60 +393,146 @@ def vanish_and_reappear(
     return vanish, reappear
 
 
-def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
-    """A consistent/inconsistent pair: ``standard`` (two pillars) or ``three_pillars``. The
-    consistent video is rendered whole; the inconsistent one forks from it at the frame the
-    ball is hidden by the first pillar, parks the ball, and restores the consistent state
-    (ball on course) at the frame it is hidden by the last pillar."""
-    specs.check_variant(CONCEPT, variant)
-    num_pillars = 3 if variant == "three_pillars" else 2
-
-    def make(rng: np.random.Generator) -> TensorDict:
-        layout = probe_layout(rng, num_pillars, video.duration)
-        sim = build(rng, video, PROBE_CAMERA, layout)
-        frames, masks, states, positions = record_tracking_ball(sim)
-        vanish, reappear = vanish_and_reappear(sim, layout, masks, positions)
-        twin = sim.fork()
-        set_state(twin, states[vanish])
-        twin.remove("ball")
-
-        def reappear_on_course(twin: Simulation, frame: int) -> None:
-            if frame == reappear:
-                restore_ball(twin, sim, states[reappear])
-
-        rest = twin.record(video.num_frames - vanish, reappear_on_course, first_frame=vanish)
-        inconsistent = tuple(np.concatenate([a[:vanish], b]) for a, b in zip((frames, masks), rest))
-        ball = sim.mask_id("ball")
-        return base.probe_record(
-            CONCEPT, variant, seed, (frames, masks), inconsistent, PROBE_CAMERA, vanish, [ball]
-        )
-
-    return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, variant))
+def first_hidden(seen: np.ndarray, pixels: np.ndarray, occluder: int, after: int) -> int:
+    """The first frame from ``after`` on where ``occluder`` wholly hides the ball."""
+    hidden = np.flatnonzero((seen == occluder) & (pixels == 0))
+    hidden = hidden[hidden >= after]
+    if not len(hidden):
+        raise RejectedSample(f"the ball is never wholly hidden by occluder {occluder}")
+    return int(hidden[0])
 
 
-def restore_ball(twin: Simulation, original: Simulation, state: np.ndarray) -> None:
-    """Undo ``twin.remove('ball')``: collisions and gravity as in ``original``, and the whole
-    state (the ball's position and velocity included) as ``original`` had it at that frame."""
+def unhide_ball(twin: Simulation, original: Simulation) -> None:
+    """Undo ``twin.remove('ball')``: collisions and gravity as in ``original``."""
     for geom_name in twin.objects["ball"].geom_names:
         twin.model.geom(geom_name).contype = original.model.geom(geom_name).contype
         twin.model.geom(geom_name).conaffinity = original.model.geom(geom_name).conaffinity
     body = twin.model.body("ball").id
     twin.model.body_gravcomp[body] = original.model.body_gravcomp[body]
-    set_state(twin, state)
+
+
+def _standard(rng: np.random.Generator, variant: str, video: VideoOptions, camera: CameraPose):
+    """The paper's pair: the consistent video rendered whole; the inconsistent one forks at the
+    frame the ball is hidden by the first pillar, parks the ball, and restores the consistent
+    state (ball on course) at the frame it is hidden by the last pillar."""
+    layout = probe_layout(rng, variant, camera, video)
+    sim = build(rng, video, camera, layout)
+    frames, masks, states, positions = record_tracking_ball(sim)
+    vanish, reappear = vanish_and_reappear(sim, layout, masks, positions)
+    twin = sim.fork()
+    set_state(twin, states[vanish])
+    twin.remove("ball")
+
+    def reappear_on_course(twin: Simulation, frame: int) -> None:
+        if frame == reappear:
+            unhide_ball(twin, sim)
+            set_state(twin, states[reappear])
+
+    rest = twin.record(video.num_frames - vanish, reappear_on_course, first_frame=vanish)
+    inconsistent = tuple(np.concatenate([a[:vanish], b]) for a, b in zip((frames, masks), rest))
+    return sim, (frames, masks), inconsistent, vanish
+
+
+#: Counterbalanced: frames before the end at which the inconsistent ball is put back behind the
+#: second pillar (integers, uniform), so it shows for about as long as the standard ball in the gap.
+REAPPEAR_BEFORE_END = (5, 8)
+
+
+def rolls_on_in_view(
+    layout: Layout, camera: CameraPose, video: VideoOptions, start: float, speed: float, frames: int
+) -> bool:
+    """Whether a ball put back at ``start`` with ``speed`` ``frames`` frames before the end is
+    may still be in view at the end (its centre; rolling friction's nominal deceleration; a cheap check
+    before rendering, the rendered masks have the last word)."""
+    direction = float(np.sign(layout.ball_velocity[0]))
+    deceleration = layout.rolling_friction * GRAVITY / (1.4 * layout.ball_radius)
+    time = (frames - 1) * video.duration / video.num_frames
+    if speed < deceleration * time:
+        rolled = speed**2 / (2 * deceleration)
+    else:
+        rolled = speed * time - deceleration * time**2 / 2
+    edge = view_edges(camera, video, layout.ball_start[1], layout.ball_radius)[int(direction > 0)]
+    return direction * (edge - start) - rolled >= 0.0
+
+
+def _counterbalanced(rng: np.random.Generator, video: VideoOptions, camera: CameraPose):
+    """The mirror pair: a ball slows and stops behind the first pillar (consistent); in the
+    inconsistent video it is parked when hidden there and put back behind the second pillar,
+    rolling on with the same friction, so it reappears after it without crossing the gap."""
+    layout = probe_layout(rng, "counterbalanced", camera, video)
+    sim = build(rng, video, camera, layout)
+    aim_to_stop(sim, layout, rng)
+    first, last = path_pillars(layout)[0], path_pillars(layout)[-1]
+    _, depth, height = layout.ball_start
+    last_x, _ = layout.pillars[last]
+    behind = x_behind(camera, video, last_x, depth, height)
+    speed = float(rng.uniform(*REAPPEAR_SPEED))
+    direction = float(np.sign(layout.ball_velocity[0]))
+    before_end = int(rng.integers(REAPPEAR_BEFORE_END[0], REAPPEAR_BEFORE_END[1] + 1))
+    if not rolls_on_in_view(layout, camera, video, behind, speed, before_end):
+        raise RejectedSample("the reappearing ball would roll out of view")
+    frames, masks, states, positions = record_tracking_ball(sim)
+    ball = sim.mask_id("ball")
+    pixels = ball_pixels(masks, ball)
+    seen = what_hides_ball(sim, masks, positions)
+    vanish = first_hidden(seen, pixels, sim.mask_id(f"pillar{first}"), 1)
+    if pixels[vanish:].any():
+        raise RejectedSample("the slowing ball shows again after the first pillar hid it")
+    full = full_ball_pixels(sim, layout.ball_radius, layout.ball_start[1])
+    if not (pixels[:vanish] >= VISIBLE_SHARE * full).any():
+        raise RejectedSample("the ball is not seen before the first pillar")
+    back = max(vanish + 1, video.num_frames - before_end)
+
+    def put_back(twin: Simulation, frame: int) -> None:
+        if frame == back:
+            unhide_ball(twin, sim)
+            launch(twin, (behind, depth, height), (direction * speed, 0.0))
+
+    twin = sim.fork()
+    set_state(twin, states[vanish])
+    twin.remove("ball")
+    rest = twin.record(video.num_frames - vanish, put_back, first_frame=vanish)
+    inconsistent = tuple(np.concatenate([a[:vanish], b]) for a, b in zip((frames, masks), rest))
+    shown = ball_pixels(inconsistent[1], ball)
+    if shown[back]:
+        raise RejectedSample("the ball shows where it is put back behind the second pillar")
+    if shown[-1] < VISIBLE_SHARE * full:
+        raise RejectedSample("the reappearing ball is not seen whole in the last frame")
+    return sim, (frames, masks), inconsistent, vanish
+
+
+def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
+    """A consistent/inconsistent pair: ``standard`` (two pillars, the paper's), ``three_pillars``
+    (the generalization probe) or ``counterbalanced`` (the slowing ball, see module doc); the
+    camera is drawn from CAMERA like every training clip's."""
+    specs.check_variant(CONCEPT, variant)
+
+    def make(rng: np.random.Generator) -> TensorDict:
+        camera = CAMERA.sample(rng)
+        if variant == "counterbalanced":
+            sim, consistent, inconsistent, vanish = _counterbalanced(rng, video, camera)
+        else:
+            sim, consistent, inconsistent, vanish = _standard(rng, variant, video, camera)
+        ball = sim.mask_id("ball")
+        return base.probe_record(
+            CONCEPT, variant, seed, consistent, inconsistent, camera, vanish, [ball]
+        )
+
+    return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, variant))
 
 
 def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
     """A training clip: an ``example`` with an unconstrained ball path, or the ``gap_block``
-    control where a block fills the gap so the ball shows only before and after the pillars."""
+    control where a block fills the gap so the ball shows only before and after the pillars
+    (the standard probe's path and ball). Both draw the camera from CAMERA."""
     specs.check_kind(CONCEPT, kind)
 
     def make(rng: np.random.Generator) -> TensorDict:
+        camera = CAMERA.sample(rng)
         if kind == "example":
-            camera = example_camera(rng)
             layout = example_layout(rng, video.duration)
         else:
-            camera = PROBE_CAMERA
-            layout = probe_layout(rng, 2, video.duration)
+            layout = probe_layout(rng, "standard", camera, video)
             layout.gap_block_height = layout.pillar_height * float(rng.uniform(0.75, 1.0))
         sim = build(rng, video, camera, layout)
         frames, masks, _, positions = record_tracking_ball(sim)
