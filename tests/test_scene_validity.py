@@ -23,7 +23,7 @@ from voe_lightning.scenes import (
 )
 
 NUM_SEEDS = int(os.environ.get("VOE_VALIDITY_SEEDS", "3"))
-FAIRNESS_PAIRS = int(os.environ.get("VOE_FAIRNESS_PAIRS", "50"))
+FAIRNESS_PAIRS = int(os.environ.get("VOE_FAIRNESS_PAIRS", "150"))
 CAMERA_CLIPS = int(os.environ.get("VOE_CAMERA_CLIPS", "30"))
 PROBE_CASES = [(c, v) for c in CONCEPTS for v in PROBE_VARIANTS[c]]
 CLIP_CASES = [(c, k) for c in CONCEPTS for k in CLIP_KINDS_BY_CONCEPT[c]]
