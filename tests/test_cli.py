@@ -81,6 +81,8 @@ def test_fast_dev_run_of_the_joint_datamodule(workdir):
             "datamodules.JointDataModule",
             "--data.concepts",
             "[continuity, solidity]",
+            "--data.init_args.num_frames",
+            "10",  # solidity's counterbalanced probes need frames at most ~0.48 s apart
             "--trainer.fast_dev_run",
             "1",
         ]

@@ -194,3 +194,10 @@ def test_camera_position_matches_mujoco():
 def test_bad_names_list_valid_ones(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+def test_counterbalanced_probe_refuses_too_long_frame_intervals():
+    """With 6 frames over 3 s the block falls past the hidden support before frame 1: a clear
+    error names the interval and the frame count that works, instead of 1,000 failed draws."""
+    with pytest.raises(ValueError, match=r"at most 0\.48 s apart.*got 0\.50 s.*num_frames >= 7"):
+        generate_probe("solidity", "counterbalanced", 0, num_frames=6, height=32, width=32)

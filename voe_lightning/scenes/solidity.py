@@ -58,6 +58,8 @@ MARGIN = 0.03
 #: Counterbalanced probes: how far above the hidden support the block is at the first frame.
 CLEARANCE = (0.01, 0.05)
 GRAVITY = 9.81  # MuJoCo's default, which the scenes keep
+#: Outer height of the container.
+CONTAINER_HEIGHT = (0.55, 0.8)
 
 
 def _draw_container(rng: np.random.Generator) -> dict:
@@ -66,7 +68,7 @@ def _draw_container(rng: np.random.Generator) -> dict:
         "inner_x": float(rng.uniform(0.35, 0.6)),
         "inner_y": float(rng.uniform(0.25, 0.4)),
         "wall": float(rng.uniform(0.025, 0.04)),
-        "height": float(rng.uniform(0.55, 0.8)),
+        "height": float(rng.uniform(*CONTAINER_HEIGHT)),
     }
 
 
@@ -168,6 +170,16 @@ def draw_probe(
     if variant not in VARIANTS:
         raise ValueError(
             f"unknown {CONCEPT} probe variant {variant!r}; valid: {', '.join(VARIANTS)}"
+        )
+    frame_time = video.steps_per_frame * video.timestep
+    longest_fall = CONTAINER_HEIGHT[1] + PROBE_DROP[1]
+    if variant == "counterbalanced" and GRAVITY * frame_time**2 / 2 > longest_fall:
+        longest = float(np.sqrt(2 * longest_fall / GRAVITY))
+        raise ValueError(
+            f"{CONCEPT} counterbalanced probes need frames at most {longest:.2f} s apart (the block "
+            f"must still be above the hidden support at frame 1), got {frame_time:.2f} s "
+            f"({video.num_frames} frames over {video.duration:g} s); use num_frames >= "
+            f"{int(np.ceil(video.duration / longest))}"
         )
     for _ in range(1000):
         box, camera = _draw_container(rng), PROBE_CAMERA.sample(rng)
