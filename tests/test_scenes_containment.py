@@ -240,3 +240,18 @@ def test_bad_names_list_the_valid_ones():
         containment.probe("three_pillars", 0, VIDEO)
     with pytest.raises(ValueError, match="cube_behind_container"):
         containment.clip("gap_block", 0, VIDEO)
+
+
+def test_no_room_off_the_slide_is_a_rejection_not_a_hang():
+    """A container whose slide sweeps the whole view leaves the randomly placed cube nowhere to
+    land: the draw is rejected (and redrawn by draw_until_valid) instead of looping forever,
+    which hung generation of 1,000+ containment controls."""
+    rng = np.random.default_rng(0)
+    layout, _ = containment.sample_layout(rng, base.VideoOptions(), containment.EXAMPLE_RANGES)
+    layout.container_xy, layout.shift, layout.half_y = (-1.0, 0.0), 2.0, 1.0
+    with pytest.raises(base.RejectedSample, match="no place for the cube off the container's slide"):
+        containment.place_off_path(rng, layout)
+    layout.shift, layout.half_y = 0.2, 0.1  # a small container: room to spare
+    containment.place_off_path(rng, layout)
+    assert -0.75 <= layout.cube_start[0] <= 0.75
+

@@ -343,18 +343,26 @@ def clip_layout(
         drop_behind(rng, layout)
     else:  # cube_random_position: anywhere in view, off the container's path, not behind it
         layout, frame = sample_layout(rng, video, EXAMPLE_RANGES)
-        x0, y0 = layout.container_xy
-        clear_x = layout.half_x + WALL + 2 * layout.cube_half + 0.1
-        clear_y = layout.half_y + WALL + 2 * layout.cube_half + 0.1
-        swept = (min(x0, x0 + layout.shift) - clear_x, max(x0, x0 + layout.shift) + clear_x)
-        while True:
-            cx, cy = float(rng.uniform(-0.75, 0.75)), float(rng.uniform(-0.9, 0.8))
-            in_path = abs(cy - y0) < clear_y and swept[0] < cx < swept[1]
-            behind_it = cy > y0 and abs(cx - x0) < clear_x
-            if not (in_path or behind_it):
-                break
-        layout.cube_start = (cx, cy, float(rng.uniform(0.5, 1.2)))
+        place_off_path(rng, layout)
     return layout, camera, frame
+
+
+def place_off_path(rng: np.random.Generator, layout: Layout, draws: int = 100) -> None:
+    """Drop the cube anywhere in view but off the container's slide and not behind it; a
+    RejectedSample when ``draws`` positions all fall there (a wide container on a long slide
+    can leave no room at all)."""
+    x0, y0 = layout.container_xy
+    clear_x = layout.half_x + WALL + 2 * layout.cube_half + 0.1
+    clear_y = layout.half_y + WALL + 2 * layout.cube_half + 0.1
+    swept = (min(x0, x0 + layout.shift) - clear_x, max(x0, x0 + layout.shift) + clear_x)
+    for _ in range(draws):
+        cx, cy = float(rng.uniform(-0.75, 0.75)), float(rng.uniform(-0.9, 0.8))
+        in_path = abs(cy - y0) < clear_y and swept[0] < cx < swept[1]
+        behind_it = cy > y0 and abs(cx - x0) < clear_x
+        if not (in_path or behind_it):
+            layout.cube_start = (cx, cy, float(rng.uniform(0.5, 1.2)))
+            return
+    raise RejectedSample(f"no place for the cube off the container's slide in {draws} draws")
 
 
 def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
