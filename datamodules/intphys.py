@@ -154,6 +154,12 @@ def read_png(path: Path) -> np.ndarray:
             return np.asarray(image.convert("RGB"))
     except FileNotFoundError:
         raise BenchmarkDataError(f"missing frame {path}", "missing_frame") from None
+    except Image.DecompressionBombError as error:
+        raise BenchmarkDataError(
+            f"unreadable PNG {path}: its header claims a frame too large to decode safely "
+            f"({error}); expected an RGB PNG frame",
+            "unreadable_png",
+        ) from None
     except (OSError, SyntaxError, ValueError) as error:
         raise BenchmarkDataError(
             f"unreadable PNG {path} ({error}); expected an RGB PNG frame", "unreadable_png"

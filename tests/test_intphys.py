@@ -4,6 +4,8 @@ divergence, metrics through the DataModule, answer.txt, the cache, and every bad
 import json
 import re
 import shutil
+import struct
+import zlib
 
 import numpy as np
 import pytest
@@ -309,6 +311,21 @@ def break_png(root):
     )
 
 
+def break_png_bomb(root):
+    """Issue 10 case 7: a PNG whose header claims 30000x30000 pixels, past PIL's bomb limit."""
+    path = root / "dev" / "O1/0001_O1_test_visible_static_nobj1/2/scene/scene_011.png"
+    data = bytearray(path.read_bytes())
+    ihdr = 8 + 8  # after the signature, the IHDR chunk's length and type
+    data[ihdr : ihdr + 8] = struct.pack(">II", 30000, 30000)
+    data[ihdr + 13 : ihdr + 17] = struct.pack(">I", zlib.crc32(bytes(data[ihdr - 4 : ihdr + 13])))
+    path.write_bytes(bytes(data))
+    return (
+        r"unreadable PNG .*0001_O1_test_visible_static_nobj1/2/scene/scene_011\.png: its header "
+        r"claims a frame too large to decode safely \(Image size \(900000000 pixels\)",
+        "unreadable_png",
+    )
+
+
 def break_label(root):
     (root / "dev" / "O2/0003/1/status.json").unlink()
     return r"missing .*O2/0003/1/status\.json: .*header\.is_possible", "missing_label"
@@ -324,7 +341,8 @@ def break_label_count(root):
 
 
 @pytest.mark.parametrize(
-    "breakage", [break_missing_frame, break_movie_count, break_png, break_label, break_label_count]
+    "breakage",
+    [break_missing_frame, break_movie_count, break_png, break_png_bomb, break_label, break_label_count],
 )
 def test_bad_input_raises_naming_the_file_or_is_skipped_and_counted_when_lenient(
     dataset_root, tmp_path, breakage
