@@ -11,6 +11,7 @@ import os
 import shutil
 import tempfile
 import uuid
+import warnings
 from collections import Counter
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -27,7 +28,13 @@ from torch.utils.data import DataLoader, Dataset
 from torchrl.data import Categorical, Composite
 
 from voe_lightning import specs
-from voe_lightning.store import ShardReader, record_loader, write_shard
+from voe_lightning.store import (
+    CorruptShardError,
+    ShardReader,
+    check_shard,
+    record_loader,
+    write_shard,
+)
 
 #: Bumped whenever the cached record layout changes, so stale caches are rebuilt.
 CACHE_FORMAT = "voe_lightning.benchmark_cache/1"
@@ -312,7 +319,9 @@ def fingerprint(settings: dict[str, Any], sources: Iterable[str | os.PathLike]) 
 
 
 class CachedRecords(Dataset):
-    """The records of a finished cache directory: map-style random access over its shards."""
+    """The records of a finished cache directory: map-style random access over its shards. A
+    shard that goes bad while in use raises an OSError naming the cache (the next run's
+    ``open_cache`` finds it bad and the DataModule rebuilds it)."""
 
     def __init__(self, directory: str | os.PathLike, meta: dict[str, Any]):
         self.directory = Path(directory)
@@ -328,16 +337,70 @@ class CachedRecords(Dataset):
         if not 0 <= index < len(self):
             raise IndexError(f"index {index} out of range for {len(self)} cached records")
         shard = int(np.searchsorted(self._starts, index, side="right") - 1)
-        return self.readers[shard][index - int(self._starts[shard])]
+        try:
+            return self.readers[shard][index - int(self._starts[shard])]
+        except CorruptShardError as error:
+            raise OSError(
+                f"benchmark cache {self.directory} went bad while in use ({error.path}: "
+                f"{error.reason}); the next run finds it bad and rebuilds it from the source "
+                "dataset"
+            ) from None
 
 
-def open_cache(directory: str | os.PathLike) -> CachedRecords | None:
-    """The cache at ``directory`` if it was completely written in the current format."""
-    path = Path(directory) / CACHE_META
-    if not path.is_file():
-        return None
-    meta = json.loads(path.read_text())
+#: Entries of every cache's meta file and their JSON types.
+_CACHE_META_TYPES = {"shards": list, "shard_sizes": list}
+
+
+def _cache_problem(directory: Path, required: dict[str, type]) -> tuple[str, dict | None]:
+    """What is wrong with the cache at ``directory`` ("" if nothing), and its meta."""
+    path = directory / CACHE_META
+    try:
+        meta = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as error:
+        return f"{path}: unreadable JSON ({error})", None
+    if not isinstance(meta, dict):
+        return f"{path}: a JSON {type(meta).__name__}, expected an object", None
     if meta.get("format") != CACHE_FORMAT:
+        return "", meta  # an older layout: stale, not bad
+    for key, kind in {**_CACHE_META_TYPES, **required}.items():
+        if key not in meta:
+            return f"{path}: {key} is missing", meta
+        if not isinstance(meta[key], kind):
+            found = type(meta[key]).__name__
+            return f"{path}: {key} is a {found}, expected a {kind.__name__}", meta
+    names, sizes = meta["shards"], meta["shard_sizes"]
+    named = all(isinstance(name, str) and name == Path(name).name for name in names)
+    counted = all(isinstance(size, int) and size >= 0 for size in sizes)
+    if not (named and counted and len(names) == len(sizes)):
+        return f"{path}: shards and shard_sizes are not a file name and a count per shard", meta
+    for name, size in zip(names, sizes):
+        try:
+            index = check_shard(directory / name)
+        except CorruptShardError as error:
+            return f"{error.path}: {error.reason}", meta
+        if len(index) != size:
+            return f"{directory / name}: holds {len(index)} records, {path} says {size}", meta
+    return "", meta
+
+
+def open_cache(
+    directory: str | os.PathLike, required: dict[str, type] | None = None
+) -> CachedRecords | None:
+    """The cache at ``directory`` if it was completely written in the current format and is
+    intact: its meta file parses, has the entries of ``required`` (name -> JSON type) and one
+    size per shard, and every shard is present with all its checksums. A bad cache warns,
+    naming the bad file, and counts as none, so the caller rebuilds it from the source."""
+    directory = Path(directory)
+    if not (directory / CACHE_META).is_file():
+        return None
+    problem, meta = _cache_problem(directory, required or {})
+    if problem:
+        warnings.warn(
+            f"ignoring the bad benchmark cache {problem}; rebuilding it from the source dataset",
+            stacklevel=2,
+        )
+        return None
+    if meta["format"] != CACHE_FORMAT:
         return None
     return CachedRecords(directory, meta)
 

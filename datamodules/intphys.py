@@ -555,7 +555,8 @@ class IntPhysDataModule(BenchmarkDataModule):
             for p in (m.path / "scene", m.path / "status.json")
         ]
         folder = self._cache_folder(split, sources)
-        cached = open_cache(folder) if folder is not None else None
+        required = {"table": dict, "skipped": dict}
+        cached = open_cache(folder, required) if folder is not None else None
         if cached is not None:  # its counts already include this scan's skips
             self._skips[split] = SkipLog()
             self._cached_skips[split] = cached.meta.get("skipped", {})
@@ -604,7 +605,7 @@ class IntPhysDataModule(BenchmarkDataModule):
         if folder is None:
             self._train = TrainClipDataset(movies, self.video, h.lenient, skips, substitute=True)
             return
-        cached = open_cache(folder)
+        cached = open_cache(folder, {"skipped": dict})
         if cached is None:
             converting = TrainClipDataset(movies, self.video, h.lenient, skips, substitute=False)
             meta: dict[str, Any] = {}

@@ -540,7 +540,7 @@ class PhysicalConceptsDataModule(BenchmarkDataModule):
                 / part
                 / fingerprint(settings, [s.path for s in sources])
             )
-            dataset = open_cache(folder)
+            dataset = open_cache(folder, {"skipped": dict})
             if dataset is None:
                 meta: dict[str, Any] = {}
                 dataset = write_cache(folder, self._convert(sources, meta, skips, part), meta)

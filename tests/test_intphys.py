@@ -5,6 +5,7 @@ import json
 import re
 import shutil
 import struct
+import warnings
 import zlib
 
 import numpy as np
@@ -283,6 +284,78 @@ def test_cache_is_reused_without_decoding_pngs(dataset_root, tmp_path, monkeypat
     assert second.quadruplets("dev") == first.quadruplets("dev")
     clips = torch.stack([second._train[i] for i in range(len(second._train))])
     assert (clips == expected_clips).all()
+
+
+def cache_json_not_json(folder):
+    (folder / "cache.json").write_text('{"format": "voe_lightning.benchmark_cache/1", "shar')
+    return rf"{re.escape(str(folder / 'cache.json'))}: unreadable JSON"
+
+
+def cache_json_of_wrong_shape(folder):
+    meta = json.loads((folder / "cache.json").read_text())
+    meta["shard_sizes"] = "6"
+    (folder / "cache.json").write_text(json.dumps(meta))
+    return rf"{re.escape(str(folder / 'cache.json'))}: shard_sizes is a str"
+
+
+def cache_json_without_the_table(folder):
+    meta = json.loads((folder / "cache.json").read_text())
+    del meta["table"]
+    (folder / "cache.json").write_text(json.dumps(meta))
+    return rf"{re.escape(str(folder / 'cache.json'))}: table is missing"
+
+
+def cache_shard_with_a_flipped_byte(folder):
+    shard = folder / "shard-00000.voe"
+    data = bytearray(shard.read_bytes())
+    data[20] ^= 0xFF  # inside the first record
+    shard.write_bytes(bytes(data))
+    return rf"{re.escape(str(shard))}: record 0 checksum mismatch"
+
+
+def cache_shard_missing(folder):
+    (folder / "shard-00000.voe").unlink()
+    return rf"{re.escape(str(folder / 'shard-00000.voe'))}: missing"
+
+
+@pytest.mark.parametrize(
+    "breakage",
+    [
+        cache_json_not_json,
+        cache_json_of_wrong_shape,
+        cache_json_without_the_table,
+        cache_shard_with_a_flipped_byte,
+        cache_shard_missing,
+    ],
+)
+def test_a_bad_cache_warns_naming_it_and_is_rebuilt_from_the_source(
+    dataset_root, tmp_path, breakage
+):
+    """Issue 10 case 8: a bad cache is no cache; it is rebuilt, not blamed on generate."""
+    cache = str(tmp_path / "cache")
+    first = datamodule(dataset_root, cache_dir=cache)
+    expected = torch.cat(list(first.test_dataloader()))
+    (folder,) = (tmp_path / "cache" / "intphys" / "dev").iterdir()
+    where = breakage(folder)
+    second = datamodule(dataset_root, cache_dir=cache)
+    with pytest.warns(UserWarning, match=rf"bad benchmark cache {where}.*rebuilding it") as caught:
+        probes = torch.cat(list(second.test_dataloader()))
+    assert not any("generate" in str(w.message) for w in caught)
+    assert (probes == expected).all()
+    assert second.quadruplets("dev") == first.quadruplets("dev")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the rebuilt cache is intact
+        assert len(datamodule(dataset_root, cache_dir=cache).probes("dev")) == 6
+
+
+def test_a_cache_shard_that_goes_bad_in_use_names_the_cache_and_the_fix(dataset_root, tmp_path):
+    probes = datamodule(dataset_root, cache_dir=str(tmp_path / "cache")).probes("dev")
+    (folder,) = (tmp_path / "cache" / "intphys" / "dev").iterdir()
+    cache_shard_with_a_flipped_byte(folder)
+    message = rf"benchmark cache {re.escape(str(folder))}.*rebuilds it"
+    with pytest.raises(OSError, match=message) as error:
+        probes[0]
+    assert "generate" not in str(error.value)
 
 
 def break_missing_frame(root):
