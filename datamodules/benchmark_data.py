@@ -332,6 +332,11 @@ class CachedRecords(Dataset):
     def __len__(self) -> int:
         return int(self._starts[-1])
 
+    def seeds(self) -> np.ndarray:
+        """Every record's seed in order, from the shard indexes (no record is decoded)."""
+        tables = [reader.index.table["seed"] for reader in self.readers]
+        return np.concatenate(tables) if tables else np.zeros(0, np.int64)
+
     def __getitem__(self, index: int) -> TensorDictBase:
         index = int(index)
         if not 0 <= index < len(self):

@@ -238,6 +238,23 @@ def test_cache_serves_the_same_records_without_reading_tfrecords(
     assert torch.cat(list(second.val_dataloader())).batch_size == torch.Size([4])
 
 
+def test_cached_validation_takes_whole_quadruplets_of_the_first_shard(dataset_root, tmp_path):
+    """Issue 10 case 16: two workers write shard 0's and shard 1's probe pairs interleaved into
+    the cache; validation still takes the first quadruplets of the first shard, both pairs of
+    each, as streaming does."""
+    options = dict(concepts=["continuity"], val_quadruplets_per_concept=1)
+    dm = datamodule(dataset_root, cache_dir=str(tmp_path / "cache"), num_workers=2, **options)
+    dm.setup("validate")
+    cached = dm._dataset("probes/continuity")
+    # quadruplet_index = shard * 1_000_000 + record, seed = 2 * quadruplet_index + pair
+    assert [int(cached[i]["seed"]) for i in range(2)] == [0, 2_000_000]
+    validation = dm._validation_set("continuity")
+    seeds = sorted(int(validation[i]["seed"]) for i in range(len(validation)))
+    assert seeds == [0, 1]
+    streamed = torch.cat(list(datamodule(dataset_root, **options).val_dataloader()))["seed"]
+    assert sorted(streamed.tolist()) == seeds
+
+
 def corrupt_crc(root):
     path = root / "probes" / "solidity" / "data.tfrecord-00001-of-00002"
     write_shard(path, [probe_example(20 + k, *SWITCHES[k]) for k in range(2)], corrupt_record=0)
