@@ -7,11 +7,14 @@ from __future__ import annotations
 
 import hashlib
 import json
+import multiprocessing
 import os
+import select
 import shutil
 import tempfile
-import uuid
+import threading
 import warnings
+import weakref
 from collections import Counter
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -54,30 +57,64 @@ class BenchmarkDataError(ValueError):
 
 
 # --- skipped input ------------------------------------------------------------------------------
-class SkipLog:
-    """Items skipped under ``lenient=True``, counted per reason. DataLoader workers are separate
-    processes, so each process appends ``reason<TAB>item`` lines to its own file in
-    ``directory``; counts are over unique lines (an item skipped again next epoch counts once)."""
+#: Longest skip line a worker sends: a pipe write of at most PIPE_BUF bytes (with the 4-byte
+#: length header) is atomic, so lines from several workers never interleave.
+_SKIP_LINE_BYTES = select.PIPE_BUF - 4
 
-    def __init__(self, directory: str | os.PathLike | None = None):
-        default = Path(tempfile.gettempdir()) / f"voe_skipped_{uuid.uuid4().hex}"
-        self.directory = Path(directory) if directory is not None else default
+
+class SkipLog:
+    """Items skipped under ``lenient=True``, counted per reason; an item skipped again (next
+    epoch) counts once. Kept in memory, nothing is written to disk: DataLoader worker processes
+    (fork or spawn) send their lines through a pipe that a thread of the owning process reads."""
+
+    def __init__(self) -> None:
+        self._owner = os.getpid()
+        self._lines: set[str] = set()
+        self._lock = threading.Lock()
+        self._reader, self._writer = multiprocessing.Pipe(duplex=False)
+        threading.Thread(
+            target=_read_skips, args=(self._reader, self._lines, self._lock), daemon=True
+        ).start()
+        weakref.finalize(self, self._writer.close)  # the reading thread then ends
+
+    def __getstate__(self) -> dict:  # a worker gets only the pipe's writing end
+        return {"_owner": self._owner, "_writer": self._writer}
 
     def add(self, reason: str, item: str) -> None:
-        self.directory.mkdir(parents=True, exist_ok=True)
-        line = f"{reason}\t{item}".replace("\n", " ")
-        with open(self.directory / f"skipped-{os.getpid()}.tsv", "a", encoding="utf-8") as file:
-            file.write(line + "\n")
+        line = f"{reason}\t{item}".replace("\n", " ").encode()[:_SKIP_LINE_BYTES]
+        if os.getpid() == self._owner:
+            with self._lock:
+                self._lines.add(line.decode(errors="ignore"))
+        else:
+            self._writer.send_bytes(line)
 
     def entries(self) -> list[tuple[str, str]]:
-        """Every distinct (reason, item) skipped so far, sorted."""
-        lines = set()
-        for path in self.directory.glob("skipped-*.tsv"):
-            lines.update(path.read_text(encoding="utf-8").splitlines())
+        """Every distinct (reason, item) skipped so far, sorted (workers' lines included: a
+        worker sends a line before it hands on its next record)."""
+        with self._lock:
+            _take_skips(self._reader, self._lines)
+            lines = list(self._lines)
         return sorted(tuple(line.split("\t", 1)) for line in lines if "\t" in line)
 
     def counts(self) -> dict[str, int]:
         return dict(Counter(reason for reason, _ in self.entries()))
+
+
+def _take_skips(reader: Any, lines: set[str]) -> None:
+    """Move the lines waiting in the pipe into ``lines`` (the caller holds the lock)."""
+    while reader.poll():
+        lines.add(reader.recv_bytes().decode(errors="ignore"))
+
+
+def _read_skips(reader: Any, lines: set[str], lock: threading.Lock) -> None:
+    """Keep the pipe drained, so workers never block on it; ends when every writer closed."""
+    try:
+        while True:
+            reader.poll(None)  # wait without taking, so ``entries`` never waits on this thread
+            with lock:
+                _take_skips(reader, lines)
+    except (EOFError, OSError):
+        reader.close()
 
 
 def merge_counts(*counts: dict[str, int]) -> dict[str, int]:

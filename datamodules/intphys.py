@@ -226,7 +226,8 @@ def scan_quadruplets(
             except BenchmarkDataError as error:
                 if not lenient:
                     raise
-                (skips or SkipLog()).add(error.reason, f"{scene}: {error}")
+                if skips is not None:
+                    skips.add(error.reason, f"{scene}: {error}")
     return quadruplets
 
 
@@ -270,7 +271,8 @@ def scan_train(
         except BenchmarkDataError as error:
             if not lenient:
                 raise
-            (skips or SkipLog()).add(error.reason, f"{movie}: {error}")
+            if skips is not None:
+                skips.add(error.reason, f"{movie}: {error}")
     return movies
 
 

@@ -5,6 +5,7 @@ import json
 import re
 import shutil
 import struct
+import tempfile
 import warnings
 import zlib
 
@@ -434,6 +435,23 @@ def test_bad_input_raises_naming_the_file_or_is_skipped_and_counted_when_lenient
         "surprise_inconsistent": torch.ones(4, 5),
     }
     assert lenient.benchmark_metrics(outputs, bootstrap=0)["skipped"] == {reason: 1}
+
+
+def test_lenient_loading_writes_nothing_to_the_temp_directory(
+    dataset_root, tmp_path, monkeypatch
+):
+    """Issue 10 case 12: skips are counted without voe_skipped_<uuid> folders in the temp dir."""
+    root = fresh_copy(dataset_root, tmp_path)
+    break_png(root)
+    shutil.rmtree(root / "train" / "00001" / "scene")
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    dm = datamodule(root, lenient=True)
+    dm.setup("fit")
+    assert len(dm.probes("dev")) == 4
+    assert dm.skipped == {"missing_frame": 1, "unreadable_png": 1}
+    assert list(scratch.iterdir()) == []
 
 
 def test_pairs_that_never_differ_in_the_sampled_frames_are_refused(dataset_root, tmp_path):

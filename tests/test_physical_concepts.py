@@ -2,6 +2,7 @@
 package in the released feature layout: CRC checks, decoding, pairing by divergence, the
 DataModule's loaders and metrics, the cache, and every bad-input error."""
 
+import gc
 import gzip
 import struct
 import tempfile
@@ -310,6 +311,31 @@ def test_bad_input_raises_naming_the_file_or_is_skipped_and_counted_when_lenient
     lenient.setup("test")
     assert len(torch.cat(list(lenient.test_dataloader()))) == remaining
     assert lenient.skipped == {reason: 1}
+
+
+def test_skips_in_worker_processes_are_counted_once_without_temp_files(
+    dataset_root, tmp_path, monkeypatch
+):
+    """Issue 10 case 12: two spawned DataLoader workers report their skips to the DataModule
+    without writing to the temp directory; a record skipped again next epoch counts once."""
+    import shutil
+
+    root = tmp_path / "data"
+    shutil.copytree(dataset_root, root)
+    corrupt_crc(root)
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    monkeypatch.setenv("TMPDIR", str(scratch))  # the workers' temp directory too
+    dm = datamodule(root, lenient=True, num_workers=2)
+    dm.setup("test")
+    loader = dm.test_dataloader()
+    for _ in range(2):
+        assert len(torch.cat(list(loader))) == 14
+    assert dm.skipped == {"bad_crc": 1}
+    del loader  # its workers exit, removing the pymp-* folders multiprocessing made there
+    gc.collect()
+    assert list(scratch.iterdir()) == []
 
 
 def test_lenient_counts_survive_in_the_cache(dataset_root, tmp_path):
