@@ -7,10 +7,14 @@ from __future__ import annotations
 
 import hashlib
 import json
+import multiprocessing
 import os
+import select
 import shutil
 import tempfile
-import uuid
+import threading
+import warnings
+import weakref
 from collections import Counter
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -27,7 +31,13 @@ from torch.utils.data import DataLoader, Dataset
 from torchrl.data import Categorical, Composite
 
 from voe_lightning import specs
-from voe_lightning.store import ShardReader, record_loader, write_shard
+from voe_lightning.store import (
+    CorruptShardError,
+    ShardReader,
+    check_shard,
+    record_loader,
+    write_shard,
+)
 
 #: Bumped whenever the cached record layout changes, so stale caches are rebuilt.
 CACHE_FORMAT = "voe_lightning.benchmark_cache/1"
@@ -47,30 +57,64 @@ class BenchmarkDataError(ValueError):
 
 
 # --- skipped input ------------------------------------------------------------------------------
-class SkipLog:
-    """Items skipped under ``lenient=True``, counted per reason. DataLoader workers are separate
-    processes, so each process appends ``reason<TAB>item`` lines to its own file in
-    ``directory``; counts are over unique lines (an item skipped again next epoch counts once)."""
+#: Longest skip line a worker sends: a pipe write of at most PIPE_BUF bytes (with the 4-byte
+#: length header) is atomic, so lines from several workers never interleave.
+_SKIP_LINE_BYTES = select.PIPE_BUF - 4
 
-    def __init__(self, directory: str | os.PathLike | None = None):
-        default = Path(tempfile.gettempdir()) / f"voe_skipped_{uuid.uuid4().hex}"
-        self.directory = Path(directory) if directory is not None else default
+
+class SkipLog:
+    """Items skipped under ``lenient=True``, counted per reason; an item skipped again (next
+    epoch) counts once. Kept in memory, nothing is written to disk: DataLoader worker processes
+    (fork or spawn) send their lines through a pipe that a thread of the owning process reads."""
+
+    def __init__(self) -> None:
+        self._owner = os.getpid()
+        self._lines: set[str] = set()
+        self._lock = threading.Lock()
+        self._reader, self._writer = multiprocessing.Pipe(duplex=False)
+        threading.Thread(
+            target=_read_skips, args=(self._reader, self._lines, self._lock), daemon=True
+        ).start()
+        weakref.finalize(self, self._writer.close)  # the reading thread then ends
+
+    def __getstate__(self) -> dict:  # a worker gets only the pipe's writing end
+        return {"_owner": self._owner, "_writer": self._writer}
 
     def add(self, reason: str, item: str) -> None:
-        self.directory.mkdir(parents=True, exist_ok=True)
-        line = f"{reason}\t{item}".replace("\n", " ")
-        with open(self.directory / f"skipped-{os.getpid()}.tsv", "a", encoding="utf-8") as file:
-            file.write(line + "\n")
+        line = f"{reason}\t{item}".replace("\n", " ").encode()[:_SKIP_LINE_BYTES]
+        if os.getpid() == self._owner:
+            with self._lock:
+                self._lines.add(line.decode(errors="ignore"))
+        else:
+            self._writer.send_bytes(line)
 
     def entries(self) -> list[tuple[str, str]]:
-        """Every distinct (reason, item) skipped so far, sorted."""
-        lines = set()
-        for path in self.directory.glob("skipped-*.tsv"):
-            lines.update(path.read_text(encoding="utf-8").splitlines())
+        """Every distinct (reason, item) skipped so far, sorted (workers' lines included: a
+        worker sends a line before it hands on its next record)."""
+        with self._lock:
+            _take_skips(self._reader, self._lines)
+            lines = list(self._lines)
         return sorted(tuple(line.split("\t", 1)) for line in lines if "\t" in line)
 
     def counts(self) -> dict[str, int]:
         return dict(Counter(reason for reason, _ in self.entries()))
+
+
+def _take_skips(reader: Any, lines: set[str]) -> None:
+    """Move the lines waiting in the pipe into ``lines`` (the caller holds the lock)."""
+    while reader.poll():
+        lines.add(reader.recv_bytes().decode(errors="ignore"))
+
+
+def _read_skips(reader: Any, lines: set[str], lock: threading.Lock) -> None:
+    """Keep the pipe drained, so workers never block on it; ends when every writer closed."""
+    try:
+        while True:
+            reader.poll(None)  # wait without taking, so ``entries`` never waits on this thread
+            with lock:
+                _take_skips(reader, lines)
+    except (EOFError, OSError):
+        reader.close()
 
 
 def merge_counts(*counts: dict[str, int]) -> dict[str, int]:
@@ -312,7 +356,9 @@ def fingerprint(settings: dict[str, Any], sources: Iterable[str | os.PathLike]) 
 
 
 class CachedRecords(Dataset):
-    """The records of a finished cache directory: map-style random access over its shards."""
+    """The records of a finished cache directory: map-style random access over its shards. A
+    shard that goes bad while in use raises an OSError naming the cache (the next run's
+    ``open_cache`` finds it bad and the DataModule rebuilds it)."""
 
     def __init__(self, directory: str | os.PathLike, meta: dict[str, Any]):
         self.directory = Path(directory)
@@ -323,21 +369,80 @@ class CachedRecords(Dataset):
     def __len__(self) -> int:
         return int(self._starts[-1])
 
+    def seeds(self) -> np.ndarray:
+        """Every record's seed in order, from the shard indexes (no record is decoded)."""
+        tables = [reader.index.table["seed"] for reader in self.readers]
+        return np.concatenate(tables) if tables else np.zeros(0, np.int64)
+
     def __getitem__(self, index: int) -> TensorDictBase:
         index = int(index)
         if not 0 <= index < len(self):
             raise IndexError(f"index {index} out of range for {len(self)} cached records")
         shard = int(np.searchsorted(self._starts, index, side="right") - 1)
-        return self.readers[shard][index - int(self._starts[shard])]
+        try:
+            return self.readers[shard][index - int(self._starts[shard])]
+        except CorruptShardError as error:
+            raise OSError(
+                f"benchmark cache {self.directory} went bad while in use ({error.path}: "
+                f"{error.reason}); the next run finds it bad and rebuilds it from the source "
+                "dataset"
+            ) from None
 
 
-def open_cache(directory: str | os.PathLike) -> CachedRecords | None:
-    """The cache at ``directory`` if it was completely written in the current format."""
-    path = Path(directory) / CACHE_META
-    if not path.is_file():
-        return None
-    meta = json.loads(path.read_text())
+#: Entries of every cache's meta file and their JSON types.
+_CACHE_META_TYPES = {"shards": list, "shard_sizes": list}
+
+
+def _cache_problem(directory: Path, required: dict[str, type]) -> tuple[str, dict | None]:
+    """What is wrong with the cache at ``directory`` ("" if nothing), and its meta."""
+    path = directory / CACHE_META
+    try:
+        meta = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as error:
+        return f"{path}: unreadable JSON ({error})", None
+    if not isinstance(meta, dict):
+        return f"{path}: a JSON {type(meta).__name__}, expected an object", None
     if meta.get("format") != CACHE_FORMAT:
+        return "", meta  # an older layout: stale, not bad
+    for key, kind in {**_CACHE_META_TYPES, **required}.items():
+        if key not in meta:
+            return f"{path}: {key} is missing", meta
+        if not isinstance(meta[key], kind):
+            found = type(meta[key]).__name__
+            return f"{path}: {key} is a {found}, expected a {kind.__name__}", meta
+    names, sizes = meta["shards"], meta["shard_sizes"]
+    named = all(isinstance(name, str) and name == Path(name).name for name in names)
+    counted = all(isinstance(size, int) and size >= 0 for size in sizes)
+    if not (named and counted and len(names) == len(sizes)):
+        return f"{path}: shards and shard_sizes are not a file name and a count per shard", meta
+    for name, size in zip(names, sizes):
+        try:
+            index = check_shard(directory / name)
+        except CorruptShardError as error:
+            return f"{error.path}: {error.reason}", meta
+        if len(index) != size:
+            return f"{directory / name}: holds {len(index)} records, {path} says {size}", meta
+    return "", meta
+
+
+def open_cache(
+    directory: str | os.PathLike, required: dict[str, type] | None = None
+) -> CachedRecords | None:
+    """The cache at ``directory`` if it was completely written in the current format and is
+    intact: its meta file parses, has the entries of ``required`` (name -> JSON type) and one
+    size per shard, and every shard is present with all its checksums. A bad cache warns,
+    naming the bad file, and counts as none, so the caller rebuilds it from the source."""
+    directory = Path(directory)
+    if not (directory / CACHE_META).is_file():
+        return None
+    problem, meta = _cache_problem(directory, required or {})
+    if problem:
+        warnings.warn(
+            f"ignoring the bad benchmark cache {problem}; rebuilding it from the source dataset",
+            stacklevel=2,
+        )
+        return None
+    if meta["format"] != CACHE_FORMAT:
         return None
     return CachedRecords(directory, meta)
 

@@ -154,6 +154,12 @@ def read_png(path: Path) -> np.ndarray:
             return np.asarray(image.convert("RGB"))
     except FileNotFoundError:
         raise BenchmarkDataError(f"missing frame {path}", "missing_frame") from None
+    except Image.DecompressionBombError as error:
+        raise BenchmarkDataError(
+            f"unreadable PNG {path}: its header claims a frame too large to decode safely "
+            f"({error}); expected an RGB PNG frame",
+            "unreadable_png",
+        ) from None
     except (OSError, SyntaxError, ValueError) as error:
         raise BenchmarkDataError(
             f"unreadable PNG {path} ({error}); expected an RGB PNG frame", "unreadable_png"
@@ -220,7 +226,8 @@ def scan_quadruplets(
             except BenchmarkDataError as error:
                 if not lenient:
                     raise
-                (skips or SkipLog()).add(error.reason, f"{scene}: {error}")
+                if skips is not None:
+                    skips.add(error.reason, f"{scene}: {error}")
     return quadruplets
 
 
@@ -264,7 +271,8 @@ def scan_train(
         except BenchmarkDataError as error:
             if not lenient:
                 raise
-            (skips or SkipLog()).add(error.reason, f"{movie}: {error}")
+            if skips is not None:
+                skips.add(error.reason, f"{movie}: {error}")
     return movies
 
 
@@ -549,7 +557,8 @@ class IntPhysDataModule(BenchmarkDataModule):
             for p in (m.path / "scene", m.path / "status.json")
         ]
         folder = self._cache_folder(split, sources)
-        cached = open_cache(folder) if folder is not None else None
+        required = {"table": dict, "skipped": dict}
+        cached = open_cache(folder, required) if folder is not None else None
         if cached is not None:  # its counts already include this scan's skips
             self._skips[split] = SkipLog()
             self._cached_skips[split] = cached.meta.get("skipped", {})
@@ -598,7 +607,7 @@ class IntPhysDataModule(BenchmarkDataModule):
         if folder is None:
             self._train = TrainClipDataset(movies, self.video, h.lenient, skips, substitute=True)
             return
-        cached = open_cache(folder)
+        cached = open_cache(folder, {"skipped": dict})
         if cached is None:
             converting = TrainClipDataset(movies, self.video, h.lenient, skips, substitute=False)
             meta: dict[str, Any] = {}

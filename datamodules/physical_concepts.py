@@ -416,7 +416,8 @@ class PhysicalConceptsDataModule(BenchmarkDataModule):
     """Trains on ``freeform/train`` clips and probes ``probes/<concept>`` for every concept in
     ``concepts``, so ``fit`` and ``test`` work as on our own data. The release has one probe set
     per concept: validation during ``fit`` uses the first ``val_quadruplets_per_concept``
-    quadruplets of each concept's first shard (for monitoring; the test uses all of them).
+    quadruplets of each concept's first shard, both pairs of each, streamed or cached (for
+    monitoring; the test uses all of them).
 
     Args:
         root: folder holding ``freeform/`` and ``probes/``.
@@ -540,7 +541,7 @@ class PhysicalConceptsDataModule(BenchmarkDataModule):
                 / part
                 / fingerprint(settings, [s.path for s in sources])
             )
-            dataset = open_cache(folder)
+            dataset = open_cache(folder, {"skipped": dict})
             if dataset is None:
                 meta: dict[str, Any] = {}
                 dataset = write_cache(folder, self._convert(sources, meta, skips, part), meta)
@@ -564,9 +565,11 @@ class PhysicalConceptsDataModule(BenchmarkDataModule):
     def _validation_set(self, concept: str) -> Dataset:
         h = self.hparams
         limit = h.val_quadruplets_per_concept
-        if h.cache_dir is not None:
+        if h.cache_dir is not None:  # worker processes interleave shards: select by seed
             dataset = self._dataset(f"probes/{concept}")
-            return Subset(dataset, range(min(len(dataset), 2 * limit)))
+            shard, record = np.divmod(dataset.seeds() // 2, SHARD_STRIDE)
+            first = shard.min(initial=np.iinfo(np.int64).max)
+            return Subset(dataset, np.flatnonzero((shard == first) & (record < limit)).tolist())
         part = f"probes/{concept}"
         sources = self._sources(part)[:1]
         return RecordStream(

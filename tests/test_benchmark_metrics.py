@@ -18,13 +18,42 @@ from voe_lightning.benchmark_metrics import (
 )
 
 
-def test_relative_error_rate_counts_quadruplets_whose_possible_movies_are_more_surprising():
-    possible = [[1, 2], [5, 1], [2, 2], [0, 0]]
+def test_relative_error_counts_only_strictly_more_surprising_possible_movies_and_ties_half_beside():
+    """Issue 10 case 14: the challenge's score.py counts a quadruplet as an error only when its
+    possible movies' summed plausibility is strictly lower than the impossible movies' (with
+    surprise, higher = less plausible: strictly higher); a tie is no error. The tie-as-half
+    value is reported beside it under its own name."""
+    possible = [[1, 2], [5, 1], [2, 2], [0.5, 0.5]]
     impossible = [[3, 4], [2, 3], [1, 3], [0, 1]]
-    # sums: 3<7 right, 6>5 error, 4=4 half, 0<1 right
-    assert relative_error_rate(possible, impossible) == pytest.approx(1.5 / 4)
+    # surprise sums: 3 < 7 right, 6 > 5 error, 4 = 4 tie, 1 = 1 tie
+    assert relative_error_rate(possible, impossible) == 1 / 4
+    assert relative_error_rate(possible, impossible, tie_weight=0.5) == 2 / 4
     with pytest.raises(ValueError, match="same number"):
         relative_error_rate([[1, 2]], [[1, 2], [3, 4]])
+    pairs = quadruplet_metrics(
+        [0, 0, 1, 1, 2, 2, 3, 3], np.ravel(possible), np.ravel(impossible), bootstrap=0
+    )
+    assert pairs["relative_error_rate"] == 1 / 4
+    assert pairs["relative_error_rate_ties_half"] == 2 / 4
+
+
+def test_official_answer_scores_count_ties_as_no_error_and_report_ties_half_beside():
+    plausibility = {
+        # O1/a: possible 0.9 + 0.8 > impossible 0.1 + 0.2: right
+        **{"O1/a/1": 0.9, "O1/a/2": 0.8, "O1/a/3": 0.1, "O1/a/4": 0.2},
+        # O1/b: possible 0.3 + 0.3 < impossible 0.4 + 0.4: an error
+        **{"O1/b/1": 0.3, "O1/b/2": 0.3, "O1/b/3": 0.4, "O1/b/4": 0.4},
+        # O1/c: possible 0.5 + 0.5 = impossible 0.25 + 0.75: a tie, no error
+        **{"O1/c/1": 0.5, "O1/c/2": 0.5, "O1/c/3": 0.25, "O1/c/4": 0.75},
+    }
+    labels = {movie: movie.endswith(("/1", "/2")) for movie in plausibility}
+    scores = score_answers(plausibility, labels)["O1"]["all"]
+    assert scores["relative_error_rate"] == pytest.approx(1 / 3)
+    assert scores["relative_error_rate_ties_half"] == pytest.approx(1.5 / 3)
+    # a constant submission ties everywhere: perfect under the official rule, chance with ties half
+    constant = score_answers({movie: 0.5 for movie in plausibility}, labels)["O1"]["all"]
+    assert constant["relative_error_rate"] == 0.0
+    assert constant["relative_error_rate_ties_half"] == 0.5
 
 
 def test_auroc_and_absolute_error_rate_by_hand():
@@ -72,7 +101,9 @@ def test_grouped_metrics_split_by_group_and_subgroup():
     assert result["O1"]["all"]["relative_error_rate"] == 0.5
     assert result["O1"]["visible"]["relative_error_rate"] == 0.0
     assert result["O1"]["occluded"]["relative_error_rate"] == 1.0
-    assert result["O2"]["all"]["relative_error_rate"] == 0.5
+    # O2's quadruplet ties (2 + 2 = 1 + 3): no error, half of one with ties half
+    assert result["O2"]["all"]["relative_error_rate"] == 0.0
+    assert result["O2"]["all"]["relative_error_rate_ties_half"] == 0.5
     assert result["O2"]["all"]["paired_test"]["n"] == 2
 
 

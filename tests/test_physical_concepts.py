@@ -2,6 +2,7 @@
 package in the released feature layout: CRC checks, decoding, pairing by divergence, the
 DataModule's loaders and metrics, the cache, and every bad-input error."""
 
+import gc
 import gzip
 import struct
 import tempfile
@@ -238,6 +239,23 @@ def test_cache_serves_the_same_records_without_reading_tfrecords(
     assert torch.cat(list(second.val_dataloader())).batch_size == torch.Size([4])
 
 
+def test_cached_validation_takes_whole_quadruplets_of_the_first_shard(dataset_root, tmp_path):
+    """Issue 10 case 16: two workers write shard 0's and shard 1's probe pairs interleaved into
+    the cache; validation still takes the first quadruplets of the first shard, both pairs of
+    each, as streaming does."""
+    options = dict(concepts=["continuity"], val_quadruplets_per_concept=1)
+    dm = datamodule(dataset_root, cache_dir=str(tmp_path / "cache"), num_workers=2, **options)
+    dm.setup("validate")
+    cached = dm._dataset("probes/continuity")
+    # quadruplet_index = shard * 1_000_000 + record, seed = 2 * quadruplet_index + pair
+    assert [int(cached[i]["seed"]) for i in range(2)] == [0, 2_000_000]
+    validation = dm._validation_set("continuity")
+    seeds = sorted(int(validation[i]["seed"]) for i in range(len(validation)))
+    assert seeds == [0, 1]
+    streamed = torch.cat(list(datamodule(dataset_root, **options).val_dataloader()))["seed"]
+    assert sorted(streamed.tolist()) == seeds
+
+
 def corrupt_crc(root):
     path = root / "probes" / "solidity" / "data.tfrecord-00001-of-00002"
     write_shard(path, [probe_example(20 + k, *SWITCHES[k]) for k in range(2)], corrupt_record=0)
@@ -293,6 +311,31 @@ def test_bad_input_raises_naming_the_file_or_is_skipped_and_counted_when_lenient
     lenient.setup("test")
     assert len(torch.cat(list(lenient.test_dataloader()))) == remaining
     assert lenient.skipped == {reason: 1}
+
+
+def test_skips_in_worker_processes_are_counted_once_without_temp_files(
+    dataset_root, tmp_path, monkeypatch
+):
+    """Issue 10 case 12: two spawned DataLoader workers report their skips to the DataModule
+    without writing to the temp directory; a record skipped again next epoch counts once."""
+    import shutil
+
+    root = tmp_path / "data"
+    shutil.copytree(dataset_root, root)
+    corrupt_crc(root)
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    monkeypatch.setenv("TMPDIR", str(scratch))  # the workers' temp directory too
+    dm = datamodule(root, lenient=True, num_workers=2)
+    dm.setup("test")
+    loader = dm.test_dataloader()
+    for _ in range(2):
+        assert len(torch.cat(list(loader))) == 14
+    assert dm.skipped == {"bad_crc": 1}
+    del loader  # its workers exit, removing the pymp-* folders multiprocessing made there
+    gc.collect()
+    assert list(scratch.iterdir()) == []
 
 
 def test_lenient_counts_survive_in_the_cache(dataset_root, tmp_path):

@@ -3,10 +3,13 @@
 IntPhys (Riochet et al. 2018, arXiv:1803.07616, eqs. 1-2, and the challenge's scoring program)
 scores a plausibility P(x) per movie, in quadruplets of two possible and two impossible movies:
 
-- relative error rate: share of quadruplets where the possible movies' summed plausibility is
-  below the impossible movies' (ties count half, as the challenge scores a constant submission
-  0.5 since its 2020-01-27 fix). With surprise S as implausibility: error when
-  sum S(possible) > sum S(impossible).
+- relative error rate (``relative_error_rate``): share of quadruplets where the possible movies'
+  summed plausibility is strictly below the impossible movies', as the challenge's scoring
+  program (score.py) counts it; a tie is no error. With surprise S as implausibility: error when
+  sum S(possible) > sum S(impossible). Impossible movies are made of the possible movies'
+  frames, so any score summed frame by frame ties every quadruplet and scores a perfect 0 by
+  this rule; ``relative_error_rate_ties_half`` counts a tie as half an error instead (chance is
+  0.5), and is reported beside it.
 - absolute error rate: 1 - AUC of telling possible from impossible movies by plausibility,
   over all movies of a block (threshold-free). Here ``auroc`` is that AUC, computed as the AUC
   of surprise for detecting impossible movies (the same number).
@@ -41,11 +44,14 @@ from voe_lightning.statistics import paired_test
 ANSWER_PATH = re.compile(r"^(O[123])/([^/\s]+)/([1-4])$")
 
 
-def relative_error_rate(surprise_possible: Any, surprise_impossible: Any) -> float:
+def relative_error_rate(
+    surprise_possible: Any, surprise_impossible: Any, tie_weight: float = 0.0
+) -> float:
     """IntPhys relative error rate over quadruplets: ``surprise_possible`` and
     ``surprise_impossible`` are [Q, k] (each row: one quadruplet's possible / impossible movies'
-    surprise). A quadruplet is an error when its possible movies' summed surprise exceeds the
-    impossible ones', half an error on a tie."""
+    surprise). A quadruplet is an error when its possible movies' summed surprise strictly
+    exceeds the impossible ones' (the challenge's rule); a tie counts ``tie_weight`` of an error
+    (0.5 for ``relative_error_rate_ties_half``)."""
     possible = np.atleast_2d(np.asarray(surprise_possible, dtype=np.float64)).sum(axis=1)
     impossible = np.atleast_2d(np.asarray(surprise_impossible, dtype=np.float64)).sum(axis=1)
     if possible.shape != impossible.shape or possible.size == 0:
@@ -53,7 +59,7 @@ def relative_error_rate(surprise_possible: Any, surprise_impossible: Any) -> flo
             f"need the same number (>0) of quadruplets on both sides, got {possible.size} "
             f"possible and {impossible.size} impossible rows"
         )
-    errors = (possible > impossible) + 0.5 * (possible == impossible)
+    errors = (possible > impossible) + tie_weight * (possible == impossible)
     return float(errors.mean())
 
 
@@ -82,8 +88,9 @@ def quadruplet_metrics(
     bootstrap: int = 2000,
 ) -> dict[str, Any]:
     """Metrics of matched pairs (one row per pair: its quadruplet id, the possible movie's and
-    the impossible movie's total surprise): relative and absolute error rate, AUROC, and the
-    paired t-test of S(impossible) - S(possible) over pairs."""
+    the impossible movie's total surprise): relative error rate (the challenge's rule, and with
+    ties counted half), absolute error rate, AUROC, and the paired t-test of
+    S(impossible) - S(possible) over pairs."""
     quadruplet = np.asarray(quadruplet).ravel()
     possible = np.asarray(surprise_possible, dtype=np.float64).ravel()
     impossible = np.asarray(surprise_impossible, dtype=np.float64).ravel()
@@ -106,6 +113,9 @@ def quadruplet_metrics(
         "n_quadruplets": len(sums),
         "n_pairs": int(possible.size),
         "relative_error_rate": relative_error_rate(per_quadruplet[:, :1], per_quadruplet[:, 1:]),
+        "relative_error_rate_ties_half": relative_error_rate(
+            per_quadruplet[:, :1], per_quadruplet[:, 1:], tie_weight=0.5
+        ),
         "absolute_error_rate": 1.0 - area,
         "auroc": area,
     }
@@ -227,7 +237,7 @@ def score_answers(
     plausibility: Mapping[str, float], is_possible: Mapping[str, bool]
 ) -> dict[str, dict[str, dict[str, float]]]:
     """IntPhys scores of an answer (movie path -> plausibility) against labels (movie path ->
-    possible), as the challenge computes them: per block, for ``all`` scenes and for the
+    possible), as the challenge computes them (plus ``relative_error_rate_ties_half``): per block, for ``all`` scenes and for the
     ``visible`` / ``occluded`` ones when scene names carry that condition."""
     if set(plausibility) != set(is_possible):
         missing = sorted(set(is_possible) - set(plausibility))[:3]
@@ -258,10 +268,10 @@ def score_answers(
                 )
                 for s in chosen
             ]
+            sums = ([[sum(p)] for p, _ in rows], [[sum(i)] for _, i in rows])
             result[block][condition] = {
-                "relative_error_rate": relative_error_rate(
-                    [[sum(p)] for p, _ in rows], [[sum(i)] for _, i in rows]
-                ),
+                "relative_error_rate": relative_error_rate(*sums),
+                "relative_error_rate_ties_half": relative_error_rate(*sums, tie_weight=0.5),
                 "absolute_error_rate": absolute_error_rate(
                     [-plausibility[m] for m in movies], [is_possible[m] for m in movies]
                 ),
