@@ -3,6 +3,7 @@ refusals that must happen before any work starts."""
 
 import csv
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -257,3 +258,45 @@ def test_checkpoints_are_read_with_weights_only(workdir, monkeypatch, command):
     with pytest.raises(Exception):
         main(arguments)
     assert len(calls) >= (2 if command == "test" else 1) and all(value is True for value in calls), calls
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """A one-step fit under runs/trained (not the config's logger name): its run directory."""
+    folder = tmp_path_factory.mktemp("trained")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(folder)
+        main(["fit", "--config", CONFIG, "--trainer.max_steps", "1",
+              "--trainer.logger.init_args.name", "trained"])
+    return folder / "runs" / "trained" / "version_0"
+
+
+def copy_of(run: Path, workdir: Path) -> Path:
+    """``run`` copied to ``workdir``/runs/trained/version_0 (tests write into it)."""
+    target = workdir / "runs" / "trained" / "version_0"
+    shutil.copytree(run, target)
+    return target
+
+
+@pytest.mark.parametrize("subcommand, split", [("test", "test"), ("validate", "val")])
+def test_evaluation_generates_only_the_probes_it_needs_and_says_so(workdir, capsys, subcommand,
+                                                                    split):
+    """Issue 10 case 9: a mistyped --data.init_args.root must not render a whole dataset."""
+    main([subcommand, "--config", CONFIG, "--data.init_args.root", "data/tpyo",
+          "--trainer.fast_dev_run", "1"])
+    generated = {path.name for path in (workdir / "data" / "tpyo" / "object_persistence").iterdir()}
+    assert generated == {split}
+    assert f"generating the {split} split of object_persistence under data/tpyo" in (
+        capsys.readouterr().out)
+
+
+def test_test_of_a_checkpoint_writes_its_report_beside_it(workdir, trained):
+    """Issue 10 case 9: the report of `test --ckpt_path X` goes into X's run, whatever the
+    config's logger name, and the run's training config.yaml is kept."""
+    run = copy_of(trained, workdir)
+    training_config = (run / "config.yaml").read_text()
+    main(["test", "--config", CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
+    assert (run / "voe_report" / "summary.json").is_file()
+    assert not (workdir / "runs" / "tiny").exists()
+    assert (run / "config.yaml").read_text() == training_config
+    assert "last.ckpt" in (run / "test_config.yaml").read_text()  # the test's own config

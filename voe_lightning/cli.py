@@ -29,30 +29,52 @@ _EPILOG = "other subcommands: " + "; ".join(
 
 
 class VOECLI(LightningCLI):
-    """LightningCLI that works in the run directory of ``--ckpt_path``: a resumed ``fit``
-    continues its TensorBoard curves there, and ``test`` writes its report beside the
-    checkpoints it evaluates. A missing checkpoint is refused before any work starts."""
+    """LightningCLI that works in the run directory of ``--ckpt_path``
+    (``<save_dir>/<name>/<version>/checkpoints/x.ckpt``), whatever logger name the config
+    gives: a resumed ``fit`` continues its TensorBoard curves and checkpoints there, and
+    ``validate``/``test`` write their logs and report beside the checkpoint (an external
+    benchmark's in a sub-directory named after the config's logger name, so it does not
+    replace the report on the package's probes). ``validate``/``test`` save their config as
+    ``<subcommand>_config.yaml``, keeping the run's training ``config.yaml``. A missing
+    checkpoint is refused before any work starts."""
 
     def before_instantiate_classes(self) -> None:
         config = self.config.get(self.subcommand, {})
         if config and "weights_only" in config and config.get("weights_only") is None:
             config["weights_only"] = True  # torch>=2.4 may default to unpickling anything
+        if self.subcommand != "fit":
+            self.save_config_kwargs = {**self.save_config_kwargs,
+                                       "config_filename": f"{self.subcommand}_config.yaml"}
         ckpt_path = config.get("ckpt_path") if config else None
         if not ckpt_path or ckpt_path in ("last", "best", "hpc", "registry"):
             return
         checkpoint = Path(ckpt_path)
         if not checkpoint.is_file():
             raise FileNotFoundError(f"--ckpt_path {ckpt_path!r} does not exist")
-        logger = config["trainer"].get("logger")
-        run_dir = checkpoint.parent.parent  # <save_dir>/<name>/<version>/checkpoints/x.ckpt
-        init_args = getattr(logger, "init_args", None)
-        if (
-            checkpoint.parent.name == "checkpoints"
-            and init_args is not None
-            and "version" in init_args
-            and init_args.get("version") is None
-        ):
-            init_args["version"] = run_dir.name
+        if checkpoint.parent.name == "checkpoints":
+            self._log_into_run(config, run_dir=checkpoint.parent.parent)
+
+    def _log_into_run(self, config: Any, run_dir: Path) -> None:
+        """Point a logger with save_dir/name/version (TensorBoard, CSV) at ``run_dir``."""
+        init_args = getattr(config["trainer"].get("logger"), "init_args", None)
+        if init_args is None or not all(key in init_args for key in ("save_dir", "name", "version")):
+            return
+        version = run_dir.name
+        data_class = _class_of(config.get("data"))
+        if self.subcommand != "fit" and hasattr(data_class, "benchmark_metrics"):
+            version = f"{version}/{init_args.get('name') or data_class.__name__}"
+        init_args["save_dir"] = str(run_dir.parent.parent)
+        init_args["name"] = run_dir.parent.name
+        init_args["version"] = version
+
+
+def _class_of(component: Any) -> type | None:
+    """The class a ``class_path`` config section names (None without one)."""
+    class_path = getattr(component, "class_path", None)
+    if not class_path:
+        return None
+    module_name, _, name = class_path.rpartition(".")
+    return getattr(importlib.import_module(module_name), name)
 
 
 def main(args: list[str] | None = None) -> Any:
