@@ -217,7 +217,7 @@ def test_a_checkpoint_of_another_architecture_is_refused_naming_the_difference(w
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
     arguments = {k: v for k, v in cli.model.hparams.items() if not k.startswith("_")}
     other = VOEModel(**{**arguments, "latent_size": 12})
-    with pytest.raises(ValueError, match=r"latent_size: checkpoint 8, config 12"):
+    with pytest.raises(ValueError, match=rf"{checkpoint} was .*\(latent_size: checkpoint 8, config 12\)"):
         cli.trainer.validate(other, datamodule=cli.datamodule, ckpt_path=str(checkpoint))
 
 
@@ -300,3 +300,41 @@ def test_test_of_a_checkpoint_writes_its_report_beside_it(workdir, trained):
     assert not (workdir / "runs" / "tiny").exists()
     assert (run / "config.yaml").read_text() == training_config
     assert "last.ckpt" in (run / "test_config.yaml").read_text()  # the test's own config
+
+
+def test_model_arguments_that_differ_from_the_checkpoint_are_refused(workdir, trained):
+    """Issue 10 case 10: LightningCLI takes the model's arguments from --ckpt_path, so one the
+    user gives that differs would be ignored; it is refused, naming the file and both values."""
+    checkpoint = trained / "checkpoints" / "last.ckpt"
+    with pytest.raises(ValueError) as raised:
+        main(["test", "--config", CONFIG, "--ckpt_path", str(checkpoint),
+              "--model.init_args.latent_size", "16"])
+    assert str(checkpoint) in str(raised.value)
+    assert "latent_size: config 16, checkpoint 8" in str(raised.value)
+    assert not (workdir / "data").exists(), "refused before any work"
+
+
+def test_a_checkpoint_without_hyperparameters_that_does_not_fit_is_named(workdir, trained):
+    """Issue 10 case 10: no hyper_parameters means the config builds the model; weights that do
+    not fit it are refused naming the file and what is missing, not torch's mismatch list."""
+    checkpoint = torch.load(trained / "checkpoints" / "last.ckpt", weights_only=True)
+    del checkpoint["hyper_parameters"]
+    stripped = workdir / "stripped.ckpt"
+    torch.save(checkpoint, stripped)
+    with pytest.raises(ValueError) as raised:
+        main(["test", "--config", CONFIG, "--ckpt_path", str(stripped),
+              "--model.init_args.latent_size", "16"])
+    message = str(raised.value)
+    assert str(stripped) in message and "no hyper_parameters" in message
+    assert "size mismatch" not in message
+
+
+@pytest.mark.parametrize("kept", [0.02, 0.5])  # torch: `OSError: [Errno 22]`, a zip RuntimeError
+def test_a_truncated_checkpoint_is_named(workdir, trained, kept):
+    """Issue 10 case 10: torch's errors for a truncated file name no path."""
+    data = (trained / "checkpoints" / "last.ckpt").read_bytes()
+    truncated = workdir / "truncated.ckpt"
+    truncated.write_bytes(data[: int(len(data) * kept)])
+    with pytest.raises(ValueError, match=rf"{truncated}.* truncated or corrupt"):
+        main(["test", "--config", CONFIG, "--ckpt_path", str(truncated)])
+    assert not (workdir / "data").exists(), "refused before any work"

@@ -306,9 +306,14 @@ class VOEModel(LightningModule):
         }
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
-        """Refuse, naming the differences, a checkpoint trained with another architecture
+        """Refuse, naming the file, a checkpoint trained with another architecture (naming the
+        differences) or one without hyperparameters whose weights do not fit this model
         (Lightning calls this before loading the weights, which would fail obscurely)."""
-        trained = checkpoint.get("hyper_parameters", {})
+        source = getattr(self._trainer, "ckpt_path", None) or "the checkpoint"
+        trained = checkpoint.get("hyper_parameters")
+        if not trained:
+            self._refuse_unfitting_weights(checkpoint.get("state_dict", {}), source)
+            return
 
         def normal(value):
             return list(value) if isinstance(value, (list, tuple)) else value
@@ -320,9 +325,27 @@ class VOEModel(LightningModule):
         ]
         if differences:
             raise ValueError(
-                "the checkpoint was trained with another model architecture than the config "
-                "gives (" + "; ".join(differences) + "). Give the checkpoint's training config "
-                "(e.g. --config configs/quickstart.yaml) or its run's config.yaml first."
+                f"{source} was trained with another model architecture than this model's ("
+                + "; ".join(differences) + "). Build the model with the checkpoint's arguments "
+                "(VOEModel.load_from_checkpoint, or its run's config.yaml)."
+            )
+
+    def _refuse_unfitting_weights(self, state_dict: dict, source: str) -> None:
+        """Without hyperparameters the model was built from the config's arguments alone: say
+        so, naming the first tensor that does not fit, instead of torch's mismatch list."""
+        ours = {name: list(tensor.shape) for name, tensor in self.state_dict().items()}
+        theirs = {name: list(tensor.shape) for name, tensor in state_dict.items()}
+        differences = [
+            f"{name}: checkpoint {theirs.get(name, 'missing')}, model {ours.get(name, 'missing')}"
+            for name in sorted(ours.keys() | theirs.keys())
+            if ours.get(name) != theirs.get(name)
+        ]
+        if differences:
+            raise ValueError(
+                f"{source} has no hyper_parameters, so the model was built from the config's "
+                f"arguments, and its weights do not fit them ({len(differences)} tensors differ, "
+                f"e.g. {differences[0]}). Give the model arguments it was trained with (its "
+                "run's config.yaml)."
             )
 
     # ----------------------------------------------------------------------------- optimizer
