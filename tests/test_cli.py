@@ -338,3 +338,21 @@ def test_a_truncated_checkpoint_is_named(workdir, trained, kept):
     with pytest.raises(ValueError, match=rf"{truncated}.* truncated or corrupt"):
         main(["test", "--config", CONFIG, "--ckpt_path", str(truncated)])
     assert not (workdir / "data").exists(), "refused before any work"
+
+
+def test_intphys_test_of_a_checkpoint_writes_beside_it_in_the_models_geometry(workdir, trained):
+    """Issue 10 case 15: configs/intphys_dev.yaml tests any checkpoint: the report goes into a
+    sub-directory of the checkpoint's run (two checkpoints never share one), and the frames
+    are sampled and resized as the checkpoint's model was trained (6 frames of 32x32)."""
+    from test_intphys import FRAMES, make_intphys
+
+    make_intphys(workdir / "intphys", "dev", labelled=True)
+    run = copy_of(trained, workdir)
+    config = str(Path(__file__).parents[1] / "configs" / "intphys_dev.yaml")
+    cli = main(["test", "--config", config, "--ckpt_path", str(run / "checkpoints" / "last.ckpt"),
+                "--data.root", str(workdir / "intphys"), "--data.frames_per_movie", str(FRAMES),
+                "--data.num_workers", "0", "--data.cache_dir", "null"])
+    assert (run / "intphys_dev" / "voe_report" / "benchmark_metrics.json").is_file()
+    assert not (run / "voe_report").exists() and not (workdir / "runs" / "intphys_dev").exists()
+    video = cli.datamodule.video
+    assert (len(video.indices), video.height, video.width) == (6, 32, 32)

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 import torch
 import torch.nn.functional as F
 from lightning.pytorch import LightningModule
+from lightning.pytorch.utilities import rank_zero_warn
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
@@ -75,6 +76,8 @@ class VOEModel(LightningModule):
             Trainer; ``"bf16"`` always does; ``"float32"`` disables autocast for the whole model
             (the reference numerics, also under a bf16 Trainer). The recurrent core, surprise
             and every loss term are float32 in all three.
+        training_frames: frames per training clip, recorded from the training batches (leave it
+            out); checkpoints carry it, so the benchmark DataModules sample as many frames.
     """
 
     def __init__(
@@ -99,6 +102,7 @@ class VOEModel(LightningModule):
         compile_model: bool = False,
         channels_last: bool = True,
         precision: str = "auto",
+        training_frames: int | None = None,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -230,6 +234,17 @@ class VOEModel(LightningModule):
                 f"(all terms: {dict(zip(LOSS_TERMS, values.tolist()))}); stopping before a "
                 "garbage checkpoint is written. Try a lower learning_rate or float32 precision."
             )
+
+    def on_train_batch_start(self, batch: TensorDictBase, batch_idx: int) -> None:
+        """Record the training clips' frame count in ``training_frames`` (saved in
+        checkpoints), warning when it replaces another one (a checkpoint's, or a value given)."""
+        frames = self._frames_of(batch).shape[1]
+        recorded = self.hparams.training_frames
+        if recorded != frames:
+            if recorded is not None:
+                rank_zero_warn(f"training_frames was {recorded}, the training clips have "
+                               f"{frames}: recording {frames}")
+            self.hparams.training_frames = frames
 
     def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
         terms = self._step(batch)
