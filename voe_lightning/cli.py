@@ -44,6 +44,8 @@ class VOECLI(LightningCLI):
     config's model arguments with the checkpoint's, so they would be ignored)."""
 
     def parse_arguments(self, parser: Any, args: Any) -> None:
+        """Parse, then read --ckpt_path (naming it if unreadable) and compare the model
+        arguments given explicitly (a re-parse without defaults) with its hyperparameters."""
         super().parse_arguments(parser, args)
         subcommand = self.config.get("subcommand")
         ckpt_path = self.config[subcommand].get("ckpt_path") if subcommand else None
