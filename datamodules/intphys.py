@@ -39,7 +39,6 @@ from datamodules.benchmark_data import (
     VideoOptions,
     clip_record,
     fingerprint,
-    frame_indices,
     match_pairs,
     open_cache,
     probe_record,
@@ -450,6 +449,8 @@ class IntPhysDataModule(BenchmarkDataModule):
         probe_batch_size: probe pairs (or movies) per evaluation batch.
         num_workers: DataLoader worker processes (also used to decode the probes in ``setup``).
         num_frames, height, width: model input geometry; frames are resized with PIL.
+            None (default): the model's, resolved in ``setup`` (its ``training_frames`` and
+            ``image_size`` hyperparameters, from the checkpoint under ``test --ckpt_path``).
         frames_per_movie: frames in every movie folder (IntPhys: 100).
         frame_stride, first_frame: sample every ``frame_stride``-th frame from ``first_frame``;
             by default ``num_frames`` frames spread evenly over the whole movie.
@@ -470,9 +471,9 @@ class IntPhysDataModule(BenchmarkDataModule):
         batch_size: int = 10,
         probe_batch_size: int = 32,
         num_workers: int = 0,
-        num_frames: int = specs.NUM_FRAMES,
-        height: int = specs.HEIGHT,
-        width: int = specs.WIDTH,
+        num_frames: int | None = None,
+        height: int | None = None,
+        width: int | None = None,
         frames_per_movie: int = 100,
         frame_stride: int | None = None,
         first_frame: int = 0,
@@ -506,13 +507,8 @@ class IntPhysDataModule(BenchmarkDataModule):
         if eval_split == "test":
             raise ValueError("eval_split='test' has no labels to pair movies by; use 'dev'")
         self.save_hyperparameters()
-        self.video = VideoOptions(
-            tuple(frame_indices(frames_per_movie, num_frames, frame_stride, first_frame).tolist()),
-            height,
-            width,
-            divergence_level,
-            divergence_fraction,
-        )
+        self.source_frames = frames_per_movie
+        self._resolve_video(required=False)
         self._probes: dict[str, Dataset] = {}
         self._tables: dict[str, dict[int, dict[str, Any]]] = {}
         self._train: Dataset | None = None
@@ -520,6 +516,7 @@ class IntPhysDataModule(BenchmarkDataModule):
 
     # --- building --------------------------------------------------------------------------------
     def setup(self, stage: str | None = None) -> None:
+        self._resolve_video()
         h = self.hparams
         if stage in ("fit", None):
             self._setup_train()

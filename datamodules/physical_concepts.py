@@ -55,13 +55,11 @@ from datamodules.benchmark_data import (
     VideoOptions,
     clip_record,
     fingerprint,
-    frame_indices,
     match_pairs,
     open_cache,
     probe_record,
     write_cache,
 )
-from voe_lightning import specs
 from voe_lightning.benchmark_metrics import grouped_metrics
 
 #: The five probe concepts of the release, in the order of our concept index.
@@ -427,6 +425,8 @@ class PhysicalConceptsDataModule(BenchmarkDataModule):
         probe_batch_size: probe pairs per evaluation batch.
         num_workers: DataLoader worker processes (shards are split between them).
         num_frames, height, width: model input geometry (the release is 15 x 64 x 64).
+            None (default): the model's, resolved in ``setup`` (its ``training_frames`` and
+            ``image_size`` hyperparameters, from the checkpoint under ``test --ckpt_path``).
         frame_stride, first_frame: sample every ``frame_stride``-th frame from ``first_frame``;
             by default ``num_frames`` frames spread evenly over the 15.
         divergence_level, divergence_fraction: a frame differs when more than this fraction of
@@ -440,6 +440,7 @@ class PhysicalConceptsDataModule(BenchmarkDataModule):
     """
 
     concept_names, variant_names = CONCEPT_NAMES, VARIANT_NAMES
+    source_frames = NUM_FRAMES
 
     def __init__(
         self,
@@ -448,9 +449,9 @@ class PhysicalConceptsDataModule(BenchmarkDataModule):
         batch_size: int = 10,
         probe_batch_size: int = 32,
         num_workers: int = 0,
-        num_frames: int = specs.NUM_FRAMES,
-        height: int = specs.HEIGHT,
-        width: int = specs.WIDTH,
+        num_frames: int | None = None,
+        height: int | None = None,
+        width: int | None = None,
         frame_stride: int | None = None,
         first_frame: int = 0,
         divergence_level: int = 10,
@@ -485,13 +486,7 @@ class PhysicalConceptsDataModule(BenchmarkDataModule):
         check_fraction("divergence_fraction", divergence_fraction)
         self.save_hyperparameters()
         self.concepts = list(dict.fromkeys(concepts))
-        self.video = VideoOptions(
-            tuple(frame_indices(NUM_FRAMES, num_frames, frame_stride, first_frame).tolist()),
-            height,
-            width,
-            divergence_level,
-            divergence_fraction,
-        )
+        self._resolve_video(required=False)
         self._datasets: dict[str, Dataset] = {}
 
     # --- building --------------------------------------------------------------------------------
@@ -577,6 +572,7 @@ class PhysicalConceptsDataModule(BenchmarkDataModule):
         )
 
     def setup(self, stage: str | None = None) -> None:
+        self._resolve_video()
         if stage in ("fit", None):
             self._dataset("train", shuffle=True)
         if stage in ("fit", "validate", None):

@@ -13,7 +13,7 @@ import torch
 from torch.utils.data import ConcatDataset, DataLoader, Dataset, Sampler
 
 from datamodules.arguments import check_at_least
-from voe_lightning import specs
+from voe_lightning import specs, store
 from voe_lightning.generate import ensure_dataset
 from voe_lightning.store import open_split, record_loader
 
@@ -133,16 +133,25 @@ class VOEDataModule(L.LightningDataModule):
             width=h.width,
         )
 
-    def prepare_data(self) -> None:
-        """Generate whatever part of the dataset is missing (a no-op when complete)."""
-        ensure_dataset(self.hparams.root, **self._generation_arguments())
-
-    def setup(self, stage: str | None = None) -> None:
-        splits = {"fit": ["train", "val"], "validate": ["val"], "test": ["test"]}.get(
-            stage, ["train", "val", "test"]
-        )
+    def _probe_splits(self, stage: str | None) -> list[str] | None:
+        """The probe splits ``validate`` or ``test`` reads (None for other stages)."""
+        splits = {"validate": ["val"], "test": ["test"]}.get(stage)
         if stage == "test" and self.hparams.generalization:
             splits.append("generalization")
+        return splits
+
+    def prepare_data(self) -> None:
+        """Generate whatever part of the dataset is missing (a no-op when complete): under a
+        ``validate`` or ``test`` only its probe splits, so a mistyped root costs no train split."""
+        trainer = self.trainer
+        stage = trainer.state.fn.value if trainer is not None and trainer.state.fn else None
+        splits = self._probe_splits(stage) or store.SPLITS
+        ensure_dataset(self.hparams.root, splits=splits, **self._generation_arguments())
+
+    def setup(self, stage: str | None = None) -> None:
+        splits = self._probe_splits(stage) or (
+            ["train", "val"] if stage == "fit" else ["train", "val", "test"]
+        )
         for split in splits:
             if split in self._datasets:
                 continue

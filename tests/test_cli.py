@@ -3,6 +3,7 @@ refusals that must happen before any work starts."""
 
 import csv
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -216,7 +217,7 @@ def test_a_checkpoint_of_another_architecture_is_refused_naming_the_difference(w
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
     arguments = {k: v for k, v in cli.model.hparams.items() if not k.startswith("_")}
     other = VOEModel(**{**arguments, "latent_size": 12})
-    with pytest.raises(ValueError, match=r"latent_size: checkpoint 8, config 12"):
+    with pytest.raises(ValueError, match=rf"{checkpoint} was .*\(latent_size: checkpoint 8, config 12\)"):
         cli.trainer.validate(other, datamodule=cli.datamodule, ckpt_path=str(checkpoint))
 
 
@@ -257,3 +258,101 @@ def test_checkpoints_are_read_with_weights_only(workdir, monkeypatch, command):
     with pytest.raises(Exception):
         main(arguments)
     assert len(calls) >= (2 if command == "test" else 1) and all(value is True for value in calls), calls
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """A one-step fit under runs/trained (not the config's logger name): its run directory."""
+    folder = tmp_path_factory.mktemp("trained")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(folder)
+        main(["fit", "--config", CONFIG, "--trainer.max_steps", "1",
+              "--trainer.logger.init_args.name", "trained"])
+    return folder / "runs" / "trained" / "version_0"
+
+
+def copy_of(run: Path, workdir: Path) -> Path:
+    """``run`` copied to ``workdir``/runs/trained/version_0 (tests write into it)."""
+    target = workdir / "runs" / "trained" / "version_0"
+    shutil.copytree(run, target)
+    return target
+
+
+@pytest.mark.parametrize("subcommand, split", [("test", "test"), ("validate", "val")])
+def test_evaluation_generates_only_the_probes_it_needs_and_says_so(workdir, capsys, subcommand,
+                                                                    split):
+    """Issue 10 case 9: a mistyped --data.init_args.root must not render a whole dataset."""
+    main([subcommand, "--config", CONFIG, "--data.init_args.root", "data/tpyo",
+          "--trainer.fast_dev_run", "1"])
+    generated = {path.name for path in (workdir / "data" / "tpyo" / "object_persistence").iterdir()}
+    assert generated == {split}
+    assert f"generating the {split} split of object_persistence under data/tpyo" in (
+        capsys.readouterr().out)
+
+
+def test_test_of_a_checkpoint_writes_its_report_beside_it(workdir, trained):
+    """Issue 10 case 9: the report of `test --ckpt_path X` goes into X's run, whatever the
+    config's logger name, and the run's training config.yaml is kept."""
+    run = copy_of(trained, workdir)
+    training_config = (run / "config.yaml").read_text()
+    main(["test", "--config", CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
+    assert (run / "voe_report" / "summary.json").is_file()
+    assert not (workdir / "runs" / "tiny").exists()
+    assert (run / "config.yaml").read_text() == training_config
+    assert "last.ckpt" in (run / "test_config.yaml").read_text()  # the test's own config
+
+
+def test_model_arguments_that_differ_from_the_checkpoint_are_refused(workdir, trained):
+    """Issue 10 case 10: LightningCLI takes the model's arguments from --ckpt_path, so one the
+    user gives that differs would be ignored; it is refused, naming the file and both values."""
+    checkpoint = trained / "checkpoints" / "last.ckpt"
+    with pytest.raises(ValueError) as raised:
+        main(["test", "--config", CONFIG, "--ckpt_path", str(checkpoint),
+              "--model.init_args.latent_size", "16"])
+    assert str(checkpoint) in str(raised.value)
+    assert "latent_size: config 16, checkpoint 8" in str(raised.value)
+    assert not (workdir / "data").exists(), "refused before any work"
+
+
+def test_a_checkpoint_without_hyperparameters_that_does_not_fit_is_named(workdir, trained):
+    """Issue 10 case 10: no hyper_parameters means the config builds the model; weights that do
+    not fit it are refused naming the file and what is missing, not torch's mismatch list."""
+    checkpoint = torch.load(trained / "checkpoints" / "last.ckpt", weights_only=True)
+    del checkpoint["hyper_parameters"]
+    stripped = workdir / "stripped.ckpt"
+    torch.save(checkpoint, stripped)
+    with pytest.raises(ValueError) as raised:
+        main(["test", "--config", CONFIG, "--ckpt_path", str(stripped),
+              "--model.init_args.latent_size", "16"])
+    message = str(raised.value)
+    assert str(stripped) in message and "no hyper_parameters" in message
+    assert "size mismatch" not in message
+
+
+@pytest.mark.parametrize("kept", [0.02, 0.5])  # torch: `OSError: [Errno 22]`, a zip RuntimeError
+def test_a_truncated_checkpoint_is_named(workdir, trained, kept):
+    """Issue 10 case 10: torch's errors for a truncated file name no path."""
+    data = (trained / "checkpoints" / "last.ckpt").read_bytes()
+    truncated = workdir / "truncated.ckpt"
+    truncated.write_bytes(data[: int(len(data) * kept)])
+    with pytest.raises(ValueError, match=rf"{truncated}.* truncated or corrupt"):
+        main(["test", "--config", CONFIG, "--ckpt_path", str(truncated)])
+    assert not (workdir / "data").exists(), "refused before any work"
+
+
+def test_intphys_test_of_a_checkpoint_writes_beside_it_in_the_models_geometry(workdir, trained):
+    """Issue 10 case 15: configs/intphys_dev.yaml tests any checkpoint: the report goes into a
+    sub-directory of the checkpoint's run (two checkpoints never share one), and the frames
+    are sampled and resized as the checkpoint's model was trained (6 frames of 32x32)."""
+    from test_intphys import FRAMES, make_intphys
+
+    make_intphys(workdir / "intphys", "dev", labelled=True)
+    run = copy_of(trained, workdir)
+    config = str(Path(__file__).parents[1] / "configs" / "intphys_dev.yaml")
+    cli = main(["test", "--config", config, "--ckpt_path", str(run / "checkpoints" / "last.ckpt"),
+                "--data.root", str(workdir / "intphys"), "--data.frames_per_movie", str(FRAMES),
+                "--data.num_workers", "0", "--data.cache_dir", "null"])
+    assert (run / "intphys_dev" / "voe_report" / "benchmark_metrics.json").is_file()
+    assert not (run / "voe_report").exists() and not (workdir / "runs" / "intphys_dev").exists()
+    video = cli.datamodule.video
+    assert (len(video.indices), video.height, video.width) == (6, 32, 32)

@@ -2,6 +2,7 @@
 DataModules' argument checks and loading from a small generated store."""
 
 from collections import Counter
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -121,3 +122,31 @@ def test_constructors_refuse_a_bad_fraction_and_missing_generalization_pairs():
         IntPhysDataModule(divergence_fraction=2)
     with pytest.raises(ValueError, match="generalization_pairs must be an integer of at least 1, got 0"):
         ConceptDataModule(generalization=True, generalization_pairs=0)
+
+
+@pytest.mark.parametrize("module", [IntPhysDataModule, PhysicalConceptsDataModule])
+def test_benchmark_geometry_left_out_is_the_models_or_is_asked_for(module, tmp_path):
+    """Issue 10 case 15: num_frames, height and width default to the model's, resolved in
+    setup from trainer.lightning_module's hyperparameters; neither given is an error."""
+    datamodule = module(root=str(tmp_path))
+    with pytest.raises(ValueError, match=r"num_frames, height, width not given and there is no "
+                       r"model to take them from; give --data.init_args.num_frames, "):
+        datamodule.setup("test")
+    model = SimpleNamespace(hparams={"image_size": [16, 24]})  # a checkpoint from before
+    datamodule.trainer = SimpleNamespace(lightning_module=model)
+    with pytest.raises(ValueError, match=r"num_frames not given and the model's hyperparameters "
+                       r"have no training_frames to take them from; give --data.init_args.num_"):
+        datamodule.setup("test")
+
+
+def test_intphys_takes_the_models_geometry_in_setup(tmp_path):
+    from test_intphys import FRAMES, make_intphys
+
+    datamodule = IntPhysDataModule(root=str(make_intphys(tmp_path, "dev", labelled=True)),
+                                   frames_per_movie=FRAMES, height=8)
+    model = SimpleNamespace(hparams={"image_size": [16, 24], "training_frames": 4})
+    datamodule.trainer = SimpleNamespace(lightning_module=model)
+    datamodule.setup("test")
+    batch = next(iter(datamodule.test_dataloader()))
+    assert batch["consistent", "frames"].shape[1:] == (4, 8, 24, 3)  # height as given
+    assert datamodule.probe_spec().is_in(batch[0])

@@ -149,6 +149,19 @@ def test_ensure_dataset_generates_only_what_is_missing(tmp_path, calls):
         generate.ensure_dataset(tmp_path, frames_per_video=3)
 
 
+def test_ensure_dataset_of_some_splits_leaves_the_rest_to_a_later_run(tmp_path, calls):
+    """Issue 10 case 9: a test run makes only its probes; a later fit completes the store."""
+    generate.ensure_dataset(tmp_path, concepts=("continuity",), splits=("test",), **SMALL)
+    assert {kind for _, kind, _, seed in calls} == {"probe"} and len(calls) == 2 * 3
+    assert {path.name for path in (tmp_path / "continuity").iterdir()} == {"test"}
+    assert generate.ensure_dataset(tmp_path, concepts=("continuity",), splits=("test",),
+                                   **SMALL) is None
+    generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
+    assert len(calls) == 8 + 2 * 2 + 2 * 3 + 1 and store.verify(tmp_path) == []
+    with pytest.raises(ValueError, match="unknown split 'tests'; valid splits are: train"):
+        generate.ensure_dataset(tmp_path, concepts=("continuity",), splits=("tests",), **SMALL)
+
+
 def test_other_settings_are_refused_unless_overwritten(tmp_path, calls):
     generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
     with pytest.raises(generate.ManifestMismatchError, match=r"video.height: stored 24, asked 32"):

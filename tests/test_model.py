@@ -233,3 +233,15 @@ def test_hyperparameters_are_saved():
     assert defaults.hparams.learning_rate == 5e-6
     assert defaults.core.latent_size == 256
     assert defaults.core.memory.num_slots == 15 and defaults.core.memory.slot_size == 100
+
+
+def test_the_training_frame_count_is_recorded_for_the_benchmark_datamodules():
+    """Issue 10 case 15: checkpoints carry training_frames, which IntPhys/Physical Concepts
+    sample when not told otherwise; training on other clips than recorded says so."""
+    model = tiny_model()
+    assert model.hparams.training_frames is None
+    model.on_train_batch_start({"frames": frames(steps=T)}, 0)
+    assert model.hparams.training_frames == T
+    with pytest.warns(UserWarning, match=rf"training_frames was {T}, the training clips have {T + 1}"):
+        model.on_train_batch_start({"frames": frames(steps=T + 1)}, 0)
+    assert model.hparams.training_frames == T + 1

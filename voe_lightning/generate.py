@@ -434,13 +434,16 @@ def generate_dataset(
     num_shards: int = 1,
     overwrite: bool = False,
     progress: bool = True,
+    splits: Iterable[str] = store.SPLITS,
 ) -> GenerationSummary:
     """Generate (or complete, or repair) the store at ``root``. ``train_controls`` defaults to
     ``train_examples`` (1:1 as in the paper), split evenly over the concept's control kinds.
     Shards that exist and verify are kept; missing or corrupt ones are (re)rendered by
     ``workers`` processes (default: all cores). With ``num_shards`` > 1 only the shards
     ``shard_index, shard_index + num_shards, ...`` of the plan are made (a job array's slice).
-    A root generated with other settings is refused unless ``overwrite``."""
+    Only the shards of ``splits`` are made (the manifest still plans every split, so a later
+    run with all splits completes the store). A root generated with other settings is refused
+    unless ``overwrite``."""
     if not isinstance(num_shards, int) or num_shards < 1:
         raise ValueError(f"num_shards must be a positive integer, got {num_shards!r}")
     if not isinstance(shard_index, int) or not 0 <= shard_index < num_shards:
@@ -448,6 +451,7 @@ def generate_dataset(
     workers = default_workers() if workers is None else workers
     if not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    splits = _checked_splits(splits)
     request = _prepare(
         root, concepts, train_examples, train_controls, val_pairs_per_variant,
         test_pairs_per_variant, generalization_pairs_per_variant, shard_size,
@@ -458,7 +462,7 @@ def generate_dataset(
     if root.exists() and not root.is_dir():
         raise NotADirectoryError(f"dataset root {root} exists and is not a directory")
     _reconcile_manifest(root, video, shard_size, request.entries, overwrite)
-    tasks = plan_shards(request.concept_counts, shard_size)[shard_index::num_shards]
+    tasks = _planned(request, splits)[shard_index::num_shards]
     layouts = record_layouts(video)
     todo, replaced = [], []
     for task in tasks:
@@ -556,19 +560,37 @@ def _die_with_parent(parent: int) -> None:
 
 def ensure_dataset(root: str | os.PathLike, **options) -> GenerationSummary | None:
     """Make sure the store at ``root`` holds the dataset ``options`` (generate_dataset's
-    arguments) describe: returns None at once when the manifest matches and every shard is
-    present with an intact index, else generates what is missing. For DataModule.prepare_data."""
+    arguments) describe: returns None at once when the manifest matches and every shard of
+    ``splits`` is present with an intact index, else says which splits it generates where and
+    generates what is missing. For DataModule.prepare_data."""
     bound = inspect.signature(generate_dataset).bind(root, **options)
     bound.apply_defaults()
     request = _prepare(**{k: bound.arguments[k] for k in inspect.signature(_prepare).parameters})
-    if _is_complete(request):
+    splits = _checked_splits(bound.arguments["splits"])
+    if _is_complete(request, splits):
         return None
+    print(f"generating the {', '.join(splits)} split{'s' if len(splits) > 1 else ''} of "
+          f"{', '.join(request.concept_counts)} under {root} (missing or incomplete there)")
     return generate_dataset(root, **options)
 
 
-def _is_complete(request: "_Request") -> bool:
-    """Whether the store holds every planned shard, intact (checksums included: a corrupt
-    record must be repaired before training, not met in the middle of it)."""
+def _checked_splits(splits: Iterable[str]) -> list[str]:
+    """``splits`` in the store's order, each checked (the error names the valid ones)."""
+    wanted = set(splits)
+    for split in sorted(wanted):
+        store.check_split(split)
+    return [split for split in store.SPLITS if split in wanted]
+
+
+def _planned(request: "_Request", splits: Sequence[str]) -> list[ShardTask]:
+    """The planned shards of ``splits``."""
+    return [task for task in plan_shards(request.concept_counts, request.shard_size)
+            if task.split in splits]
+
+
+def _is_complete(request: "_Request", splits: Sequence[str]) -> bool:
+    """Whether the store holds every planned shard of ``splits``, intact (checksums included:
+    a corrupt record must be repaired before training, not met in the middle of it)."""
     manifest = store.read_manifest(request.root)
     if manifest is None or manifest.get("generator_version") != GENERATOR_VERSION:
         return False
@@ -578,7 +600,7 @@ def _is_complete(request: "_Request") -> bool:
     if any(manifest["concepts"].get(c) != e for c, e in request.entries.items()):
         return False
     layouts = record_layouts(request.video)
-    for task in plan_shards(request.concept_counts, request.shard_size):
+    for task in _planned(request, splits):
         try:
             check_task(request.root, task, layouts)
         except store.CorruptShardError:

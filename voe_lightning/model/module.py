@@ -11,6 +11,7 @@ from collections.abc import Sequence
 import torch
 import torch.nn.functional as F
 from lightning.pytorch import LightningModule
+from lightning.pytorch.utilities import rank_zero_warn
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
@@ -75,6 +76,8 @@ class VOEModel(LightningModule):
             Trainer; ``"bf16"`` always does; ``"float32"`` disables autocast for the whole model
             (the reference numerics, also under a bf16 Trainer). The recurrent core, surprise
             and every loss term are float32 in all three.
+        training_frames: frames per training clip, recorded from the training batches (leave it
+            out); checkpoints carry it, so the benchmark DataModules sample as many frames.
     """
 
     def __init__(
@@ -99,6 +102,7 @@ class VOEModel(LightningModule):
         compile_model: bool = False,
         channels_last: bool = True,
         precision: str = "auto",
+        training_frames: int | None = None,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -231,6 +235,17 @@ class VOEModel(LightningModule):
                 "garbage checkpoint is written. Try a lower learning_rate or float32 precision."
             )
 
+    def on_train_batch_start(self, batch: TensorDictBase, batch_idx: int) -> None:
+        """Record the training clips' frame count in ``training_frames`` (saved in
+        checkpoints), warning when it replaces another one (a checkpoint's, or a value given)."""
+        frames = self._frames_of(batch).shape[1]
+        recorded = self.hparams.training_frames
+        if recorded != frames:
+            if recorded is not None:
+                rank_zero_warn(f"training_frames was {recorded}, the training clips have "
+                               f"{frames}: recording {frames}")
+            self.hparams.training_frames = frames
+
     def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
         terms = self._step(batch)
         batch_size = self._frames_of(batch).shape[0]
@@ -306,9 +321,14 @@ class VOEModel(LightningModule):
         }
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
-        """Refuse, naming the differences, a checkpoint trained with another architecture
+        """Refuse, naming the file, a checkpoint trained with another architecture (naming the
+        differences) or one without hyperparameters whose weights do not fit this model
         (Lightning calls this before loading the weights, which would fail obscurely)."""
-        trained = checkpoint.get("hyper_parameters", {})
+        source = getattr(self._trainer, "ckpt_path", None) or "the checkpoint"
+        trained = checkpoint.get("hyper_parameters")
+        if not trained:
+            self._refuse_unfitting_weights(checkpoint.get("state_dict", {}), source)
+            return
 
         def normal(value):
             return list(value) if isinstance(value, (list, tuple)) else value
@@ -320,9 +340,27 @@ class VOEModel(LightningModule):
         ]
         if differences:
             raise ValueError(
-                "the checkpoint was trained with another model architecture than the config "
-                "gives (" + "; ".join(differences) + "). Give the checkpoint's training config "
-                "(e.g. --config configs/quickstart.yaml) or its run's config.yaml first."
+                f"{source} was trained with another model architecture than this model's ("
+                + "; ".join(differences) + "). Build the model with the checkpoint's arguments "
+                "(VOEModel.load_from_checkpoint, or its run's config.yaml)."
+            )
+
+    def _refuse_unfitting_weights(self, state_dict: dict, source: str) -> None:
+        """Without hyperparameters the model was built from the config's arguments alone: say
+        so, naming the first tensor that does not fit, instead of torch's mismatch list."""
+        ours = {name: list(tensor.shape) for name, tensor in self.state_dict().items()}
+        theirs = {name: list(tensor.shape) for name, tensor in state_dict.items()}
+        differences = [
+            f"{name}: checkpoint {theirs.get(name, 'missing')}, model {ours.get(name, 'missing')}"
+            for name in sorted(ours.keys() | theirs.keys())
+            if ours.get(name) != theirs.get(name)
+        ]
+        if differences:
+            raise ValueError(
+                f"{source} has no hyper_parameters, so the model was built from the config's "
+                f"arguments, and its weights do not fit them ({len(differences)} tensors differ, "
+                f"e.g. {differences[0]}). Give the model arguments it was trained with (its "
+                "run's config.yaml)."
             )
 
     # ----------------------------------------------------------------------------- optimizer
