@@ -46,6 +46,7 @@ from datamodules.benchmark_data import (
 )
 from voe_lightning import specs
 from voe_lightning.benchmark_metrics import grouped_metrics, write_answer_file
+from voe_lightning.store import probe_sampler
 
 BLOCKS: tuple[str, ...] = ("O1", "O2", "O3")
 #: Concept vocabulary of IntPhys records: the three test blocks, then the training movies.
@@ -650,14 +651,16 @@ class IntPhysDataModule(BenchmarkDataModule):
         )
 
     def val_dataloader(self) -> DataLoader:
-        return self._loader(self.probes(self.hparams.eval_split), self.hparams.probe_batch_size)
+        probes = self.probes(self.hparams.eval_split)
+        return self._loader(probes, self.hparams.probe_batch_size, sampler=probe_sampler(probes))
 
     def test_dataloader(self) -> DataLoader:
         return self.val_dataloader()
 
     def predict_dataloader(self) -> DataLoader:
         dataset = MovieDataset(self.movies(self.hparams.predict_split), self.video)
-        return self._loader(dataset, self.hparams.probe_batch_size)
+        return self._loader(dataset, self.hparams.probe_batch_size,
+                            sampler=probe_sampler(dataset))
 
     # --- evaluation ------------------------------------------------------------------------------
     def _pair_rows(

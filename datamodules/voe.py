@@ -15,7 +15,7 @@ from torch.utils.data import ConcatDataset, DataLoader, Dataset, Sampler
 from datamodules.arguments import check_at_least
 from voe_lightning import specs, store
 from voe_lightning.generate import ensure_dataset
-from voe_lightning.store import open_split, record_loader
+from voe_lightning.store import open_split, probe_sampler, record_loader
 
 
 class InterleavedSampler(Sampler[int]):
@@ -185,7 +185,9 @@ class VOEDataModule(L.LightningDataModule):
         # RNG would make training depend on how often validation runs.
         generator = torch.Generator().manual_seed(self.hparams.seed)
         batch_size = self.hparams.probe_batch_size
-        return self._loader(self._datasets[split], batch_size, generator=generator)
+        dataset = self._datasets[split]
+        return self._loader(dataset, batch_size, generator=generator,
+                            sampler=probe_sampler(dataset))
 
     def val_dataloader(self) -> DataLoader:
         return self._probe_loader("val")

@@ -681,7 +681,7 @@ class VOEReportCallback(Callback):
         self.cue_audit = cue_audit
         self.summary: list[dict[str, Any]] | None = None
         self.report_dir: Path | None = None
-        self._failed = False
+        self._failed = self._ended = False
         self._reset()
 
     def _reset(self) -> None:
@@ -703,7 +703,7 @@ class VOEReportCallback(Callback):
         return tuple(datamodule.concept_names), tuple(datamodule.variant_names)
 
     def setup(self, trainer: Trainer, pl_module: LightningModule, stage: str) -> None:
-        self.summary, self.report_dir, self._failed = None, None, False
+        self.summary, self.report_dir, self._failed, self._ended = None, None, False, False
 
     def on_exception(self, trainer: Trainer, pl_module: LightningModule, exception: BaseException
                      ) -> None:
@@ -711,7 +711,7 @@ class VOEReportCallback(Callback):
 
     def teardown(self, trainer: Trainer, pl_module: LightningModule, stage: str) -> None:
         # Lightning skips the whole test loop (and on_test_end) when the loaders are empty.
-        if stage == "test" and self.report_dir is None and not self._failed:
+        if stage == "test" and not self._ended and not self._failed:
             self._no_results()
 
     @staticmethod
@@ -757,6 +757,9 @@ class VOEReportCallback(Callback):
 
     def on_test_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
         gathered = _gather((self._outputs, self._examples, self._tsne, self._cues))
+        self._ended = True  # on every rank; only rank zero writes the report
+        # trainer.log_dir broadcasts under DDP: every rank must ask for it.
+        out_dir = self.out_dir or trainer.log_dir or trainer.default_root_dir
         if not trainer.is_global_zero:
             return
         outputs = [output for rank in gathered for output in rank[0]]
@@ -776,7 +779,6 @@ class VOEReportCallback(Callback):
                 trajectories, labels = self._trajectories(pl_module, tsne)
         finally:
             pl_module.train(was_training)
-        out_dir = self.out_dir or trainer.log_dir or trainer.default_root_dir
         self.summary = write_report(results, out_dir, predictions, trajectories,
                                     trajectory_labels=labels, cue_audit=cue_audit,
                                     alpha=self.alpha,

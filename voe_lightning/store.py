@@ -25,7 +25,7 @@ import numpy as np
 import torch
 import zstandard
 from tensordict import TensorDict, TensorDictBase
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader, Dataset, Sampler
 
 from voe_lightning import specs
 
@@ -517,6 +517,18 @@ def record_loader(dataset: Dataset, batch_size: int, num_workers: int = 0, **kwa
         persistent_workers=num_workers > 0,
         **kwargs,
     )
+
+
+def probe_sampler(dataset: Dataset) -> Sampler | None:
+    """Under DDP, each probe pair on exactly one rank, in order (Lightning's default
+    DistributedSampler repeats pairs to even out the ranks, which would count them twice in
+    the paired test); None (sequential) in a single process."""
+    if not (torch.distributed.is_available() and torch.distributed.is_initialized()):
+        return None
+    # Imported here: generation workers import this module and need no Lightning.
+    from lightning.pytorch.overrides.distributed import UnrepeatedDistributedSampler
+
+    return UnrepeatedDistributedSampler(dataset, shuffle=False)
 
 
 # --- manifest -----------------------------------------------------------------------------------
