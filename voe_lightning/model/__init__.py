@@ -6,11 +6,13 @@ from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model.memory import LRUMemory, MemoryState, Read
 from voe_lightning.model.module import VOEModel
 from voe_lightning.model.networks import Decoder, Encoder
+from voe_lightning.model.object_centric import ObjectCentricModel
 from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, gaussian_kl, standard_normal_kl
 
 __all__ = [
     "SurpriseModel",
     "VOEModel",
+    "ObjectCentricModel",
     "LRUMemory",
     "MemoryState",
     "Read",
