@@ -171,3 +171,16 @@ def test_fit_both_stages_then_test_through_the_cli(tmp_path, monkeypatch, object
         ("object_persistence", "standard", 3), ("object_persistence", "counterbalanced", 3),
         ("object_persistence", "pooled", 6)}
     assert (run / "voe_report" / "predictions_object_persistence.png").is_file()
+
+
+def test_configs_build_models_of_matching_size():
+    import yaml
+
+    root = Path(__file__).parents[1] / "configs"
+    counts = {}
+    for name in ("object_centric", "object_free", "physical_concepts_object_centric"):
+        model = yaml.safe_load((root / f"{name}.yaml").read_text())["model"]
+        assert model["class_path"] == "voe_lightning.model.ObjectCentricModel"
+        built = ObjectCentricModel(**model["init_args"])
+        counts[name] = sum(p.numel() for p in built.parameters())
+    assert abs(counts["object_free"] - counts["object_centric"]) <= 0.1 * counts["object_centric"]

@@ -68,7 +68,8 @@ class SurpriseModel(LightningModule):
     @staticmethod
     def _frames_of(batch: TensorDictBase | dict) -> torch.Tensor:
         if "frames" not in batch.keys():
-            raise KeyError(f"a training batch needs 'frames' (uint8 [B,T,H,W,3]); got keys {list(batch.keys())}")
+            raise KeyError("a training batch needs 'frames' (uint8 [B,T,H,W,3]); got keys "
+                           f"{list(batch.keys())}")
         return batch["frames"]
 
     # ----------------------------------------------------------------------------- training

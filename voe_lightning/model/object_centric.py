@@ -152,8 +152,9 @@ class ObjectCentricModel(SurpriseModel):
 
     def perception_terms(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """Perception loss per clip (mean over the batch), on ``perception_frames`` of its
-        frames: reconstruction = sum over frames and pixels of the squared error of the composed frame; mask = cross-entropy of the
-        composition weights against the true slot masks; kl = kl_weight * KL to N(0, I)."""
+        frames: reconstruction = sum over frames and pixels of the squared error of the
+        composed frame; mask = cross-entropy of the composition weights against the true slot
+        masks; kl = kl_weight * KL of the present slots' codes to N(0, I) (VAE only)."""
         frames, mask = self._frames_of(batch), video_inputs(batch).get("mask")
         chosen = self.hparams.perception_frames
         if chosen is not None and chosen < frames.shape[1]:
@@ -162,8 +163,9 @@ class ObjectCentricModel(SurpriseModel):
         x = self._model_input(frames, self.image_size)
         slots = self.slots(frames, mask, _seeds(batch))
         mean, log_std = self.perceive(x, slots)
-        codes = mean + log_std.exp() * torch.randn_like(mean) if self.hparams.variational \
-            else mean
+        codes = mean
+        if self.hparams.variational:
+            codes = mean + log_std.exp() * torch.randn_like(mean)
         composed, log_weights = self.render(codes, slots.present)
         clips = x.shape[0]
         reconstruction = (composed - x).pow(2).sum() / clips
@@ -171,8 +173,9 @@ class ObjectCentricModel(SurpriseModel):
         mask = -torch.where(seen, log_weights, torch.zeros_like(log_weights)).sum() / clips
         present = slots.present[:, None, :, None].float()
         kl = 0.5 * (mean.pow(2) + (2 * log_std).exp() - 1 - 2 * log_std) * present
-        kl = self.hparams.kl_weight * kl.sum() / clips if self.hparams.variational \
-            else torch.zeros((), device=self.device)
+        kl = self.hparams.kl_weight * kl.sum() / clips
+        if not self.hparams.variational:
+            kl = torch.zeros_like(kl)
         mask = self.hparams.mask_loss_weight * mask
         return {"loss": reconstruction + mask + kl, "reconstruction": reconstruction,
                 "mask": mask, "kl": kl}
