@@ -718,7 +718,7 @@ class IntPhysDataModule(BenchmarkDataModule):
     @torch.no_grad()
     def score_movies(self, model: Any, split: str | None = None) -> dict[str, float]:
         """Total surprise of every movie of ``split`` under ``model.surprise`` (movie path ->
-        float), in evaluation mode."""
+        float), in evaluation mode; the batch's ``mask`` goes along when the movies have one."""
         split = split or self.hparams.predict_split
         movies = self.movies(split)
         loader = self._loader(MovieDataset(movies, self.video), self.hparams.probe_batch_size)
@@ -729,7 +729,9 @@ class IntPhysDataModule(BenchmarkDataModule):
         scores = {}
         try:
             for batch in tqdm(loader, desc=f"scoring IntPhys {split}", unit="batch", leave=False):
-                surprise = model.surprise(batch["frames"].to(device)).double().sum(-1).cpu()
+                masks = {"mask": batch["mask"].to(device)} if "mask" in batch.keys() else {}
+                surprise = model.surprise(batch["frames"].to(device), **masks)
+                surprise = surprise.double().sum(-1).cpu()
                 for index, value in zip(batch["movie_index"].tolist(), surprise.tolist()):
                     scores[movies[index].name] = value
         finally:

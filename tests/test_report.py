@@ -16,6 +16,7 @@ from tensordict import TensorDict
 from torch.utils.data import DataLoader
 
 from voe_lightning import specs
+from voe_lightning.model.base import SurpriseModel
 from voe_lightning.report import (
     SUMMARY_COLUMNS,
     PairResults,
@@ -229,7 +230,7 @@ class ProbeData(L.LightningDataModule):
         return DataLoader(self.records, batch_size=4, collate_fn=torch.stack)
 
 
-class PersistenceModel(L.LightningModule):
+class PersistenceModel(SurpriseModel):
     """Expects each frame to repeat the previous one; surprise is the squared error of that."""
 
     def __init__(self, return_outputs=True):
@@ -237,15 +238,15 @@ class PersistenceModel(L.LightningModule):
         self.return_outputs = return_outputs
         self.scale = torch.nn.Parameter(torch.tensor(100.0))
 
-    def expected_frames(self, frames):
+    def expected_frames(self, frames, mask=None, camera=None):
         x = specs.to_model_input(frames)
         return torch.cat([torch.full_like(x[:, :1], 0.5), x[:, :-1]], dim=1)
 
-    def surprise(self, frames):
+    def surprise(self, frames, mask=None, camera=None):
         x = specs.to_model_input(frames)
         return self.scale * (x - self.expected_frames(frames)).pow(2).mean(dim=(2, 3, 4))
 
-    def trajectories(self, frames):
+    def trajectories(self, frames, mask=None, camera=None):
         x = specs.to_model_input(frames).flatten(2)
         return {"prior": self.expected_frames(frames).flatten(2),
                 "memory": x.cumsum(1) / torch.arange(1, x.shape[1] + 1)[:, None]}

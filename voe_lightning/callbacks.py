@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from voe_lightning import specs
+from voe_lightning.model.base import video_inputs
 from voe_lightning.statistics import (
     POOLED,
     POOLED_VARIANTS,
@@ -148,8 +149,8 @@ def voe_table(
 
 class ExpectationImages(L.Callback):
     """At each validation run, logs to TensorBoard, for one fixed inconsistent validation probe
-    per concept, the input frames above the decoded prior means: what the model expected to see
-    given the previous frames (the paper's Figure 5)."""
+    per concept, the input frames above ``expected_frames`` (given the probe's mask and camera):
+    what the model expected to see given the previous frames (the paper's Figure 5)."""
 
     def __init__(self, max_frames: int = 15):
         super().__init__()
@@ -161,10 +162,14 @@ class ExpectationImages(L.Callback):
     ) -> None:
         concept_names, _ = _names(trainer)
         frames = batch["inconsistent", "frames"]
+        inputs = video_inputs(batch, "inconsistent")
         for index, concept in enumerate(batch["concept"].tolist()):
             name = concept_names[concept]
             if name not in self.examples:  # the first probe of each concept, fixed over training
-                self.examples[name] = frames[index].detach().cpu()
+                self.examples[name] = {
+                    key: value[index].detach().cpu()
+                    for key, value in {"frames": frames, **inputs}.items()
+                }
 
     def on_validation_epoch_end(self, trainer, pl_module) -> None:
         if trainer.sanity_checking or not trainer.is_global_zero or not self.examples:
@@ -172,10 +177,12 @@ class ExpectationImages(L.Callback):
         experiment = getattr(trainer.logger, "experiment", None)
         if experiment is None or not hasattr(experiment, "add_image"):
             return
-        for concept, frames in self.examples.items():
-            frames = frames[: self.max_frames]
+        for concept, example in self.examples.items():
+            video = {key: value[: self.max_frames][None].to(pl_module.device)
+                     for key, value in example.items()}
+            frames = example["frames"][: self.max_frames]
             with torch.no_grad():
-                expected = pl_module.expected_frames(frames[None].to(pl_module.device))[0]
+                expected = pl_module.expected_frames(video.pop("frames"), **video)[0]
             strip = torch.cat([specs.to_model_input(frames), expected.float().cpu().clamp(0, 1)], dim=-2)
             # [T, 3, 2H, W] -> [3, 2H, T*W]: input row above expectation row.
             image = strip.permute(1, 2, 0, 3).reshape(3, strip.shape[-2], -1)

@@ -16,7 +16,7 @@ import torch
 from jsonargparse import Namespace
 from lightning.pytorch.cli import LightningCLI
 
-from voe_lightning.model import VOEModel
+from voe_lightning.model import SurpriseModel
 
 #: subcommand -> (module, function taking the remaining arguments, what it does for --help)
 _COMMANDS_OUTSIDE_LIGHTNING = {
@@ -143,7 +143,7 @@ def main(args: list[str] | None = None) -> Any:
         module_name, function, _ = _COMMANDS_OUTSIDE_LIGHTNING[words[0]]
         return getattr(importlib.import_module(module_name), function)(words[1:])
     return VOECLI(
-        model_class=VOEModel,
+        model_class=SurpriseModel,
         datamodule_class=L.LightningDataModule,
         subclass_mode_model=True,
         subclass_mode_data=True,

@@ -29,6 +29,7 @@ from matplotlib.figure import Figure
 from scipy import stats
 
 from voe_lightning import cues
+from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.specs import CONCEPTS, VARIANTS
 from voe_lightning.statistics import (
     PairedTestResult,
@@ -497,6 +498,8 @@ def _arrowhead(ax: Any, curve: np.ndarray, color: str) -> None:
                                     shrinkA=0, shrinkB=0))
 
 
+#: Panel titles of the t-SNE figure by trajectory kind (others: the kind, capitalised).
+TSNE_TITLES = {"prior": "Priors", "memory": "Memory"}
 #: Appendix B colours: pair i's consistent and inconsistent curve.
 TSNE_CONSISTENT_COLORS = ("cyan", "blue", "teal", "navy")
 TSNE_INCONSISTENT_COLORS = ("red", "magenta", "darkred", "purple")
@@ -507,20 +510,21 @@ def tsne_figure(
     labels: Sequence[str] | None = None,
     seed: int = 0,
 ) -> Figure:
-    """t-SNE of prior and memory time courses (paper Appendix B). ``trajectories`` maps
-    "consistent" and "inconsistent" to dict(prior [N, T, D], memory [N, T, ...]) for N probe
-    pairs; pair i is drawn cyan/red, blue/magenta, ... (consistent/inconsistent), each curve
-    from a dot (first frame) to an arrowhead (last frame)."""
+    """t-SNE of the model's time courses (paper Appendix B: prior and memory), one panel per
+    kind. ``trajectories`` maps "consistent" and "inconsistent" to dict(kind -> [N, T, ...])
+    for N probe pairs, both with the same kinds; pair i is drawn cyan/red, blue/magenta, ...
+    (consistent/inconsistent), each curve from a dot (first frame) to an arrowhead (last)."""
     from sklearn.manifold import TSNE
 
-    missing = [f"{video}/{kind}" for video in ("consistent", "inconsistent")
-               for kind in ("prior", "memory") if kind not in trajectories.get(video, {})]
-    if missing:
-        raise KeyError(f"trajectories lack {missing}; expected dict(consistent=dict(prior, "
-                       "memory), inconsistent=dict(prior, memory))")
-    figure = Figure(figsize=(11, 5), layout="constrained")
-    axes = figure.subplots(1, 2)
-    for ax, kind, title in zip(axes, ("prior", "memory"), ("Priors", "Memory")):
+    kinds = list(trajectories.get("consistent", {}))
+    if not kinds or kinds != list(trajectories.get("inconsistent", {})):
+        raise KeyError("trajectories need the same kinds for both videos, e.g. "
+                       "dict(consistent=dict(prior, memory), inconsistent=dict(prior, memory)); "
+                       f"got {({video: list(v) for video, v in trajectories.items()})}")
+    figure = Figure(figsize=(5.5 * len(kinds), 5), layout="constrained")
+    axes = np.atleast_1d(figure.subplots(1, len(kinds)))
+    for ax, kind in zip(axes, kinds):
+        title = TSNE_TITLES.get(kind, kind.capitalize())
         consistent = _numpy(trajectories["consistent"][kind], np.float64)
         inconsistent = _numpy(trajectories["inconsistent"][kind], np.float64)
         n, frames = consistent.shape[:2]
@@ -547,7 +551,7 @@ def tsne_figure(
         ax.set_title(f"{title} (t-SNE; dot = first frame, arrow = last)", fontsize=10)
         ax.set_xticks([])
         ax.set_yticks([])
-    axes[1].legend(fontsize=8, loc="best")
+    axes[-1].legend(fontsize=8, loc="best")
     figure.suptitle("Object persistence probes: consistent blue/cyan, inconsistent red/magenta",
                     fontsize=10)
     return figure
@@ -638,6 +642,12 @@ def _print_markdown(markdown: str, report_dir: Path) -> None:
 # ----------------------------------------------------------------------------- callback
 
 
+def _stacked(videos: list[dict[str, torch.Tensor]], device: torch.device
+             ) -> dict[str, torch.Tensor]:
+    """Kept videos (frames and, where the batch had them, mask and camera) as one batch."""
+    return {key: torch.stack([video[key] for video in videos]).to(device) for key in videos[0]}
+
+
 def _gather(value: Any) -> list[Any]:
     """All ranks' values under torch.distributed (DDP test), else [value]."""
     import torch.distributed as dist
@@ -703,6 +713,10 @@ class VOEReportCallback(Callback):
         return tuple(datamodule.concept_names), tuple(datamodule.variant_names)
 
     def setup(self, trainer: Trainer, pl_module: LightningModule, stage: str) -> None:
+        if not isinstance(pl_module, SurpriseModel):
+            raise TypeError(f"VOEReportCallback needs a SurpriseModel (surprise, expected_frames "
+                            f"and trajectories, voe_lightning.model.base); got "
+                            f"{type(pl_module).__name__}")
         self.summary, self.report_dir, self._failed, self._ended = None, None, False, False
 
     def on_exception(self, trainer: Trainer, pl_module: LightningModule, exception: BaseException
@@ -747,13 +761,15 @@ class VOEReportCallback(Callback):
             meta = {"concept": concept, "variant": variant, "seed": int(stored["seed"][i]),
                     "manipulation_frame": int(stored["manipulation_frame"][i])}
             kept = self._examples.setdefault((concept, variant), [])
+            videos = {side: {"frames": batch[side, "frames"][i].cpu().clone()}
+                      | {name: value[i].cpu().clone()
+                         for name, value in video_inputs(batch, side).items()}
+                      for side in ("consistent", "inconsistent")}
             if len(kept) < self.max_prediction_examples:
-                kept.append(meta | {"frames": batch["inconsistent", "frames"][i].cpu().clone()})
+                kept.append(meta | {"inconsistent": videos["inconsistent"]})
             tsne = self._tsne.setdefault(variant, []) if concept == persistence else None
             if tsne is not None and len(tsne) < self.tsne_pairs:
-                tsne.append(meta | {"frames": batch["inconsistent", "frames"][i].cpu().clone(),
-                                    "consistent_frames":
-                                        batch["consistent", "frames"][i].cpu().clone()})
+                tsne.append(meta | videos)
 
     def on_test_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
         gathered = _gather((self._outputs, self._examples, self._tsne, self._cues))
@@ -801,16 +817,13 @@ class VOEReportCallback(Callback):
                      examples: list[dict[str, Any]]) -> list[PredictionExample]:
         if not examples:
             return []
-        if not hasattr(pl_module, "expected_frames"):
-            rank_zero_warn(f"{type(pl_module).__name__} has no expected_frames(); "
-                           "predictions_<concept>.png not written")
-            return []
-        frames = torch.stack([e["frames"] for e in examples]).to(pl_module.device)
-        expected = pl_module.expected_frames(frames).float().cpu().numpy()
+        video = _stacked([e["inconsistent"] for e in examples], pl_module.device)
+        expected = pl_module.expected_frames(**video).float().cpu().numpy()
         return [PredictionExample(
             concept=self._concept_names[e["concept"]], variant=self._variant_names[e["variant"]],
             seed=e["seed"], manipulation_frame=e["manipulation_frame"],
-            frames=e["frames"].numpy(), expected=expected[i]) for i, e in enumerate(examples)]
+            frames=e["inconsistent"]["frames"].numpy(), expected=expected[i])
+            for i, e in enumerate(examples)]
 
     def _trajectories(self, pl_module: LightningModule, tsne: list[dict[str, Any]]):
         # Interleave variants (standard, counterbalanced, standard, ...) up to tsne_pairs.
@@ -825,15 +838,10 @@ class VOEReportCallback(Callback):
                 rank_zero_warn("fewer than 2 object-persistence probe pairs in the test set; "
                                "tsne_object_persistence.png not written")
             return None, None
-        if not hasattr(pl_module, "trajectories"):
-            rank_zero_warn(f"{type(pl_module).__name__} has no trajectories(); "
-                           "tsne_object_persistence.png not written")
-            return None, None
         trajectories = {}
-        for video, key in (("consistent", "consistent_frames"), ("inconsistent", "frames")):
-            frames = torch.stack([e[key] for e in chosen]).to(pl_module.device)
-            courses = pl_module.trajectories(frames)
-            trajectories[video] = {k: courses[k].float().cpu().numpy()
-                                   for k in ("prior", "memory")}
+        for video in ("consistent", "inconsistent"):
+            courses = pl_module.trajectories(**_stacked([e[video] for e in chosen],
+                                                        pl_module.device))
+            trajectories[video] = {k: v.float().cpu().numpy() for k, v in courses.items()}
         labels = [f"{self._variant_names[e['variant']]} (seed {e['seed']})" for e in chosen]
         return trajectories, labels

@@ -5,16 +5,14 @@ callbacks, reports and notebooks use."""
 from __future__ import annotations
 
 import contextlib
-import math
 from collections.abc import Sequence
 
 import torch
 import torch.nn.functional as F
-from lightning.pytorch import LightningModule
-from lightning.pytorch.utilities import rank_zero_warn
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
+from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model.memory import LRUMemory
 from voe_lightning.model.networks import Decoder, Encoder
 from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, standard_normal_kl
@@ -49,7 +47,7 @@ def bf16_is_fast(device: torch.device) -> bool:
     return False
 
 
-class VOEModel(LightningModule):
+class VOEModel(SurpriseModel):
     """VRNN with an LRU external memory (Piloto et al. 2018 §4, Gemici et al. 2017).
 
     Defaults are the paper's sizes; ``configs/quickstart.yaml`` shrinks them for a CPU.
@@ -79,6 +77,9 @@ class VOEModel(LightningModule):
         training_frames: frames per training clip, recorded from the training batches (leave it
             out); checkpoints carry it, so the benchmark DataModules sample as many frames.
     """
+
+    ARCHITECTURE = ARCHITECTURE
+    VALIDATION_METRIC = "val/kl"
 
     def __init__(
         self,
@@ -142,21 +143,7 @@ class VOEModel(LightningModule):
     # ----------------------------------------------------------------------------- inputs
     def _model_input(self, frames: torch.Tensor) -> torch.Tensor:
         """uint8 [B, T, H, W, 3] -> float [B, T, 3, H, W] on this module's device."""
-        if not isinstance(frames, torch.Tensor):
-            raise TypeError(f"frames must be a uint8 tensor [B, T, H, W, 3], got {type(frames)}")
-        expected = (*self.image_size, 3)
-        if frames.dim() != 5 or tuple(frames.shape[-3:]) != expected:
-            raise ValueError(
-                f"frames must be shaped [B, T, {expected[0]}, {expected[1]}, 3] for this model "
-                f"(image_size={self.image_size}), got {tuple(frames.shape)}"
-            )
-        return specs.to_model_input(frames.to(self.device))
-
-    @staticmethod
-    def _frames_of(batch: TensorDictBase | dict) -> torch.Tensor:
-        if "frames" not in batch.keys():
-            raise KeyError(f"a training batch needs 'frames' (uint8 [B,T,H,W,3]); got keys {list(batch.keys())}")
-        return batch["frames"]
+        return super()._model_input(frames, self.image_size)
 
     # ----------------------------------------------------------------------------- model
     @property
@@ -220,32 +207,6 @@ class VOEModel(LightningModule):
         self._check_finite(terms)
         return terms
 
-    def _check_finite(self, terms: dict[str, torch.Tensor]) -> None:
-        """Stop training on a NaN/inf loss, naming the step and the offending term(s)."""
-        values = torch.stack([terms[name].detach() for name in LOSS_TERMS])
-        if not bool(torch.isfinite(values).all()):
-            bad = ", ".join(
-                f"{name}={value:.4g}"
-                for name, value in zip(LOSS_TERMS, values.tolist())
-                if not math.isfinite(value)
-            )
-            raise FloatingPointError(
-                f"non-finite loss at global step {self.global_step}: {bad} "
-                f"(all terms: {dict(zip(LOSS_TERMS, values.tolist()))}); stopping before a "
-                "garbage checkpoint is written. Try a lower learning_rate or float32 precision."
-            )
-
-    def on_train_batch_start(self, batch: TensorDictBase, batch_idx: int) -> None:
-        """Record the training clips' frame count in ``training_frames`` (saved in
-        checkpoints), warning when it replaces another one (a checkpoint's, or a value given)."""
-        frames = self._frames_of(batch).shape[1]
-        recorded = self.hparams.training_frames
-        if recorded != frames:
-            if recorded is not None:
-                rank_zero_warn(f"training_frames was {recorded}, the training clips have "
-                               f"{frames}: recording {frames}")
-            self.hparams.training_frames = frames
-
     def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
         terms = self._step(batch)
         batch_size = self._frames_of(batch).shape[0]
@@ -259,109 +220,40 @@ class VOEModel(LightningModule):
     def surprise(
         self,
         frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
         deterministic: bool = True,
         generator: torch.Generator | None = None,
     ) -> torch.Tensor:
         """Per-frame surprise KL(posterior_t || prior_t) [B, T] (float32) of uint8 videos
-        [B, T, H, W, 3]; deterministic (posterior means fed back) unless asked otherwise."""
+        [B, T, H, W, 3]; deterministic (posterior means fed back) unless asked otherwise.
+        Pixels alone: ``mask`` and ``camera`` are ignored."""
         x = self._model_input(frames)
         return self.rollout(x, deterministic=deterministic, generator=generator).kl
 
-    def probe_step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-        """Surprise of both videos of each probe pair (one pass: rows never interact)."""
-        consistent = batch["consistent", "frames"]
-        inconsistent = batch["inconsistent", "frames"]
-        surprise = self.surprise(torch.cat([consistent, inconsistent], dim=0))
-        surprise_consistent, surprise_inconsistent = surprise.split(consistent.shape[0], dim=0)
-        return {
-            "concept": batch["concept"],
-            "variant": batch["variant"],
-            "seed": batch["seed"],
-            "manipulation_frame": batch["manipulation_frame"],
-            "surprise_consistent": surprise_consistent,
-            "surprise_inconsistent": surprise_inconsistent,
-        }
-
-    def validation_step(
-        self, batch: TensorDictBase, batch_idx: int, dataloader_idx: int = 0
-    ) -> dict[str, torch.Tensor]:
-        """Probe surprise for the callbacks; logs ``val/kl``, the mean per-video surprise of
-        the consistent probes (a plain held-out number to monitor)."""
-        result = self.probe_step(batch)
-        consistent = result["surprise_consistent"]
-        self.log(
-            "val/kl",
-            consistent.sum(dim=1).mean(),
-            batch_size=consistent.shape[0],
-            add_dataloader_idx=False,
-        )
-        return result
-
-    def test_step(
-        self, batch: TensorDictBase, batch_idx: int, dataloader_idx: int = 0
-    ) -> dict[str, torch.Tensor]:
-        """Probe surprise for the callbacks (logs nothing itself)."""
-        return self.probe_step(batch)
-
     @torch.no_grad()
-    def expected_frames(self, frames: torch.Tensor) -> torch.Tensor:
+    def expected_frames(
+        self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         """What the model expected each frame to be given the previous ones (paper Figure 5):
-        sigmoid(decoder(prior mean)) [B, T, 3, H, W], deterministic rollout."""
+        sigmoid(decoder(prior mean)) [B, T, 3, H, W], deterministic rollout (pixels alone)."""
         output = self.rollout(self._model_input(frames), deterministic=True)
         return torch.sigmoid(self.decode(output.prior_mean).float())
 
     @torch.no_grad()
-    def trajectories(self, frames: torch.Tensor) -> dict[str, torch.Tensor]:
+    def trajectories(
+        self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+    ) -> dict[str, torch.Tensor]:
         """Time courses for t-SNE (paper Appendix B): ``prior`` [B, T, 2Z] (mean then log-std)
-        and ``memory`` [B, T, slots * units] after each step's write, deterministic rollout."""
+        and ``memory`` [B, T, slots * units] after each step's write, deterministic rollout
+        (pixels alone)."""
         output = self.rollout(self._model_input(frames), deterministic=True)
         return {
             "prior": torch.cat([output.prior_mean, output.prior_log_std], dim=-1),
             "memory": output.memory,
         }
-
-    def on_load_checkpoint(self, checkpoint: dict) -> None:
-        """Refuse, naming the file, a checkpoint trained with another architecture (naming the
-        differences) or one without hyperparameters whose weights do not fit this model
-        (Lightning calls this before loading the weights, which would fail obscurely)."""
-        source = getattr(self._trainer, "ckpt_path", None) or "the checkpoint"
-        trained = checkpoint.get("hyper_parameters")
-        if not trained:
-            self._refuse_unfitting_weights(checkpoint.get("state_dict", {}), source)
-            return
-
-        def normal(value):
-            return list(value) if isinstance(value, (list, tuple)) else value
-
-        differences = [
-            f"{name}: checkpoint {normal(trained[name])!r}, config {normal(self.hparams[name])!r}"
-            for name in ARCHITECTURE
-            if name in trained and normal(trained[name]) != normal(self.hparams[name])
-        ]
-        if differences:
-            raise ValueError(
-                f"{source} was trained with another model architecture than this model's ("
-                + "; ".join(differences) + "). Build the model with the checkpoint's arguments "
-                "(VOEModel.load_from_checkpoint, or its run's config.yaml)."
-            )
-
-    def _refuse_unfitting_weights(self, state_dict: dict, source: str) -> None:
-        """Without hyperparameters the model was built from the config's arguments alone: say
-        so, naming the first tensor that does not fit, instead of torch's mismatch list."""
-        ours = {name: list(tensor.shape) for name, tensor in self.state_dict().items()}
-        theirs = {name: list(tensor.shape) for name, tensor in state_dict.items()}
-        differences = [
-            f"{name}: checkpoint {theirs.get(name, 'missing')}, model {ours.get(name, 'missing')}"
-            for name in sorted(ours.keys() | theirs.keys())
-            if ours.get(name) != theirs.get(name)
-        ]
-        if differences:
-            raise ValueError(
-                f"{source} has no hyper_parameters, so the model was built from the config's "
-                f"arguments, and its weights do not fit them ({len(differences)} tensors differ, "
-                f"e.g. {differences[0]}). Give the model arguments it was trained with (its "
-                "run's config.yaml)."
-            )
 
     # ----------------------------------------------------------------------------- optimizer
     def configure_optimizers(self) -> torch.optim.Optimizer:

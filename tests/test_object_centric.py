@@ -1,0 +1,186 @@
+"""The object-centric model after PLATO and its object-free twin: slots from masks, the two
+training stages, slot symmetry, padding, refusals, parameter parity, and fit + test by CLI."""
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from tensordict import TensorDict
+
+from voe_lightning.cli import main
+from voe_lightning.model import ObjectCentricModel, SurpriseModel
+from voe_lightning.model.slots import object_slots
+
+CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
+TINY = dict(image_size=(32, 32), num_slots=4, code_size=8, encoder_channels=(8, 8),
+            state_size=16, relation_sizes=(16,), node_sizes=(16,), relation_size=16)
+B, T = 2, 5
+
+
+def _model(**overrides) -> ObjectCentricModel:
+    torch.manual_seed(0)
+    return ObjectCentricModel(**{**TINY, **overrides}).eval()
+
+
+def _video(ids=(3, 5), seed=0):
+    """Random frames and a mask with a square per id, object 5 hidden in frame 2."""
+    generator = torch.Generator().manual_seed(seed)
+    frames = torch.randint(0, 256, (B, T, 32, 32, 3), dtype=torch.uint8, generator=generator)
+    mask = torch.zeros(B, T, 32, 32, dtype=torch.uint8)
+    for number, object_id in enumerate(ids):
+        mask[:, :, 6 * number: 6 * number + 5, 2 + number: 12 + number] = object_id
+    mask[:, 2][mask[:, 2] == 5] = 0
+    camera = torch.randn(B, T, 6, generator=generator)
+    return frames, mask, camera
+
+
+def _batch(frames, mask, camera):
+    return TensorDict(frames=frames, mask=mask, camera=camera, seed=torch.tensor([11, 12]),
+                      batch_size=[B])
+
+
+def test_slots_follow_ids_and_keep_an_occluded_object():
+    _, mask, _ = _video()
+    slots = object_slots(mask, num_slots=4)
+    assert slots.ids[0].tolist() == [0, 3, 5, 0, 0]
+    assert slots.present[0].tolist() == [True, True, True, False, False]
+    assert slots.masks[0, 2, 2].sum() == 0 and slots.masks[0, 1, 2].sum() > 0  # hidden, kept
+    assert torch.equal(slots.masks.sum(2), torch.ones(B, T, 32, 32))  # a partition of pixels
+
+
+def test_shapes_and_each_stage_trains_only_its_networks():
+    model = _model(perception_steps=1).train()
+    frames, mask, camera = _video()
+    assert model.surprise(frames, mask, camera).shape == (B, T)
+    expected = model.expected_frames(frames, mask, camera)
+    assert expected.shape == (B, T, 3, 32, 32) and 0 <= expected.min() <= expected.max() <= 1
+    courses = model.trajectories(frames, mask, camera)
+    assert {k: tuple(v.shape) for k, v in courses.items()} == {"codes": (B, T, 40),
+                                                               "predicted": (B, T, 40)}
+    batch = _batch(frames, mask, camera)
+    # Without a trainer global_step is 0: perception_steps 1 is stage one, 0 is stage two.
+    for steps, trained, frozen in ((1, model.perception, model.dynamics),
+                                   (0, model.dynamics, model.perception)):
+        model.zero_grad(set_to_none=True)
+        model.hparams.perception_steps = steps
+        model.training_step(batch, 0).backward()
+        assert all(p.grad is not None for p in trained.parameters()), steps
+        assert any(p.grad.abs().sum() > 0 for p in trained.parameters()), steps
+        assert all(p.grad is None for p in frozen.parameters()), steps
+    assert not model.perception.training  # frozen in eval mode in the dynamics stage
+
+
+def _permuted(model, frames, mask, camera, order):
+    """Predicted codes and surprise with the object ids relabelled so slots take ``order``."""
+    relabel = torch.arange(256, dtype=torch.uint8)
+    old = [3, 5, 7]
+    for slot, target in enumerate(order):
+        relabel[old[target]] = old[slot]
+    relabeled = relabel[mask.long()]
+    out = model._predict(frames, relabeled, camera)
+    return out["predicted"], model.surprise(frames, relabeled, camera)
+
+
+def test_permuting_the_object_slots_permutes_predictions_and_keeps_surprise():
+    model = _model()
+    frames, mask, camera = _video(ids=(3, 5, 7))
+    predicted, surprise = _permuted(model, frames, mask, camera, [0, 1, 2])
+    swapped, swapped_surprise = _permuted(model, frames, mask, camera, [2, 0, 1])
+    # Slot 1 + k holds the object that held slot 1 + order[k] before.
+    torch.testing.assert_close(swapped[:, :, 1:4], predicted[:, :, [3, 1, 2]], atol=1e-5,
+                               rtol=1e-5)
+    torch.testing.assert_close(swapped_surprise, surprise, atol=1e-4, rtol=1e-5)
+    assert surprise[:, 1:].gt(0).all() and surprise[:, 0].eq(0).all()
+
+
+def test_padding_slots_change_nothing():
+    frames, mask, camera = _video()
+    few, many = _model(num_slots=2), _model(num_slots=6)
+    many.load_state_dict(few.state_dict())  # the same weights: slots are not parameters
+    out_few = few._predict(frames, mask, camera)
+    out_many = many._predict(frames, mask, camera)
+    torch.testing.assert_close(out_many["predicted"][:, :, :3], out_few["predicted"], atol=1e-5,
+                               rtol=1e-5)
+    torch.testing.assert_close(many.surprise(frames, mask, camera),
+                               few.surprise(frames, mask, camera), atol=1e-4, rtol=1e-5)
+
+
+def test_bad_inputs_are_refused_naming_the_video():
+    model = _model(num_slots=1)
+    frames, mask, camera = _video()
+    batch = _batch(frames, mask, camera)
+    with pytest.raises(ValueError, match=r"video 0 of the batch \(seed 11\) shows 2 objects "
+                                         r"\(mask ids \[3, 5\]\), more than num_slots=1"):
+        model.training_step(batch, 0)
+    del batch["mask"]
+    with pytest.raises(ValueError, match=r"needs each video's object-id mask .*seed 11"):
+        model.training_step(batch, 0)
+    with pytest.raises(ValueError, match="needs each video's object-id mask"):
+        model.surprise(frames, None, camera)
+    with pytest.raises(ValueError, match="no video of the batch shows an object"):
+        _model().surprise(frames, torch.zeros_like(mask), camera)
+    with pytest.raises(ValueError, match="use_camera is set but no camera pose"):
+        _model().surprise(frames, mask)
+    probes = TensorDict(consistent=TensorDict(frames=frames, mask=mask, batch_size=[B]),
+                        inconsistent=TensorDict(frames=frames, batch_size=[B]),
+                        camera=camera, seed=torch.tensor([21, 22]), concept=torch.zeros(B),
+                        variant=torch.zeros(B), manipulation_frame=torch.ones(B),
+                        batch_size=[B])
+    with pytest.raises(ValueError, match=r"seed 21"):
+        _model().probe_step(probes)
+
+
+def test_object_free_twin_needs_no_mask_and_matches_the_parameter_count():
+    sizes = dict(image_size=(64, 64), num_slots=10, code_size=32,
+                 encoder_channels=(16, 32, 32, 64), state_size=64, relation_sizes=(64,),
+                 node_sizes=(64,), relation_size=64)
+    objects, twin = _model(**sizes), _model(**sizes, object_free=True)
+    count = [sum(p.numel() for p in m.parameters()) for m in (objects, twin)]
+    assert abs(count[1] - count[0]) <= 0.1 * count[0], count
+    assert twin.code_size > objects.code_size  # no interaction network: a larger code
+    frames, _, camera = _video()
+    assert _model(object_free=True).surprise(frames, None, camera).shape == (B, T)
+
+
+def test_checkpoint_of_the_twin_is_refused_naming_the_difference():
+    model, twin = _model(), _model(object_free=True)
+    checkpoint = {"hyper_parameters": dict(twin.hparams), "state_dict": twin.state_dict()}
+    with pytest.raises(ValueError, match="object_free: checkpoint True, config False"):
+        model.on_load_checkpoint(checkpoint)
+    assert isinstance(model, SurpriseModel)
+
+
+@pytest.mark.parametrize("object_free", [False, True])
+def test_fit_both_stages_then_test_through_the_cli(tmp_path, monkeypatch, object_free):
+    monkeypatch.chdir(tmp_path)
+    model = ["--model", "voe_lightning.model.ObjectCentricModel", "--model.image_size=[32, 32]",
+             "--model.num_slots=4", "--model.code_size=8", "--model.encoder_channels=[8, 8]",
+             "--model.state_size=16", "--model.relation_sizes=[16]", "--model.node_sizes=[16]",
+             "--model.relation_size=16", "--model.perception_steps=1",
+             f"--model.object_free={object_free}"]
+    main(["fit", "--config", CONFIG, *model, "--trainer.logger.init_args.name=oc"])
+    run = tmp_path / "runs" / "oc" / "version_0"
+    checkpoint = torch.load(run / "checkpoints" / "last.ckpt", weights_only=True)
+    assert checkpoint["global_step"] == 2  # one perception step, one dynamics step
+    assert checkpoint["hyper_parameters"]["training_frames"] == 6
+    main(["test", "--config", CONFIG, *model, "--trainer.logger.init_args.name=oc",
+          "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
+    rows = json.loads((run / "voe_report" / "summary.json").read_text())["rows"]
+    assert {(r["concept"], r["variant"], r["n"]) for r in rows} == {
+        ("object_persistence", "standard", 3), ("object_persistence", "counterbalanced", 3),
+        ("object_persistence", "pooled", 6)}
+    assert (run / "voe_report" / "predictions_object_persistence.png").is_file()
+
+
+def test_configs_build_models_of_matching_size():
+    import yaml
+
+    root = Path(__file__).parents[1] / "configs"
+    counts = {}
+    for name in ("object_centric", "object_free", "physical_concepts_object_centric"):
+        model = yaml.safe_load((root / f"{name}.yaml").read_text())["model"]
+        assert model["class_path"] == "voe_lightning.model.ObjectCentricModel"
+        built = ObjectCentricModel(**model["init_args"])
+        counts[name] = sum(p.numel() for p in built.parameters())
+    assert abs(counts["object_free"] - counts["object_centric"]) <= 0.1 * counts["object_centric"]

@@ -1,0 +1,201 @@
+"""The model protocol every video model implements (DESIGN.md §5): per-frame surprise, the
+expected frames and the trajectories, so callbacks, reports and the cue audit treat every model
+alike; plus what they share: probe steps, frame-count recording and checkpoint safety."""
+
+from __future__ import annotations
+
+import math
+from abc import abstractmethod
+from typing import Any
+
+import torch
+from lightning.pytorch import LightningModule
+from lightning.pytorch.utilities import rank_zero_warn
+from tensordict import TensorDictBase
+
+from voe_lightning import specs
+
+def video_inputs(batch: Any, video: str | None = None) -> dict[str, torch.Tensor]:
+    """``mask`` of a clip batch (``video=None``) or of one side of a probe batch, and the
+    batch's ``camera``, each when the batch has it: keyword arguments of the protocol."""
+    nested = isinstance(batch, TensorDictBase)
+    keys = set(batch.keys(include_nested=True) if nested else batch.keys())
+    inputs = {}
+    key = "mask" if video is None else (video, "mask")
+    if key in keys:
+        inputs["mask"] = batch[key]
+    if "camera" in keys:
+        inputs["camera"] = batch["camera"]
+    return inputs
+
+
+class SurpriseModel(LightningModule):
+    """Base of the package's video models. Subclasses implement ``surprise``,
+    ``expected_frames`` and ``trajectories`` of uint8 videos ``frames`` [B, T, H, W, 3], given
+    optionally their object-id ``mask`` uint8 [B, T, H, W] (0 = background) and ``camera``
+    poses float [B, T, 6]; a model that needs neither accepts and ignores them. ``ARCHITECTURE``
+    names the constructor arguments that shape the parameters, which a checkpoint must share."""
+
+    ARCHITECTURE: tuple[str, ...] = ()
+
+    # ----------------------------------------------------------------------------- protocol
+    @abstractmethod
+    def surprise(
+        self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Per-frame surprise [B, T] (float32); a video's surprise is its sum over frames."""
+        raise NotImplementedError
+
+    @abstractmethod
+    def expected_frames(
+        self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """What the model expected each frame to be given the previous ones [B, T, 3, H, W]
+        in [0, 1]."""
+        raise NotImplementedError
+
+    @abstractmethod
+    def trajectories(
+        self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+    ) -> dict[str, torch.Tensor]:
+        """Named time courses [B, T, D] of the model's state (the t-SNE figure draws them)."""
+        raise NotImplementedError
+
+    # ----------------------------------------------------------------------------- inputs
+    @staticmethod
+    def _frames_of(batch: TensorDictBase | dict) -> torch.Tensor:
+        if "frames" not in batch.keys():
+            raise KeyError("a training batch needs 'frames' (uint8 [B,T,H,W,3]); got keys "
+                           f"{list(batch.keys())}")
+        return batch["frames"]
+
+    # ----------------------------------------------------------------------------- training
+    def _check_finite(self, terms: dict[str, torch.Tensor]) -> None:
+        """Stop training on a NaN/inf loss, naming the step and the offending term(s)."""
+        names = [name for name in terms if name != "loss"] or list(terms)
+        values = torch.stack([terms[name].detach().float() for name in names])
+        if not bool(torch.isfinite(values).all()):
+            bad = ", ".join(
+                f"{name}={value:.4g}"
+                for name, value in zip(names, values.tolist())
+                if not math.isfinite(value)
+            )
+            raise FloatingPointError(
+                f"non-finite loss at global step {self.global_step}: {bad} "
+                f"(all terms: {dict(zip(names, values.tolist()))}); stopping before a "
+                "garbage checkpoint is written. Try a lower learning_rate or float32 precision."
+            )
+
+    def on_train_batch_start(self, batch: TensorDictBase, batch_idx: int) -> None:
+        """Record the training clips' frame count in ``training_frames`` (saved in
+        checkpoints), warning when it replaces another one (a checkpoint's, or a value given)."""
+        frames = self._frames_of(batch).shape[1]
+        recorded = self.hparams.get("training_frames")
+        if recorded != frames:
+            if recorded is not None:
+                rank_zero_warn(f"training_frames was {recorded}, the training clips have "
+                               f"{frames}: recording {frames}")
+            self.hparams.training_frames = frames
+
+    # ----------------------------------------------------------------------------- probes
+    def probe_step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """Surprise of both videos of each probe pair (one pass: rows never interact); each
+        video's mask and the pair's camera go to the model when the batch has them."""
+        consistent = batch["consistent", "frames"]
+        inconsistent = batch["inconsistent", "frames"]
+        sides = [video_inputs(batch, "consistent"), video_inputs(batch, "inconsistent")]
+        inputs = {name: torch.cat([side[name] for side in sides], dim=0)
+                  for name in sides[0] if all(name in side for side in sides)}
+        surprise = self.surprise(torch.cat([consistent, inconsistent], dim=0), **inputs)
+        surprise_consistent, surprise_inconsistent = surprise.split(consistent.shape[0], dim=0)
+        return {
+            "concept": batch["concept"],
+            "variant": batch["variant"],
+            "seed": batch["seed"],
+            "manipulation_frame": batch["manipulation_frame"],
+            "surprise_consistent": surprise_consistent,
+            "surprise_inconsistent": surprise_inconsistent,
+        }
+
+    #: Name under which ``validation_step`` logs the consistent probes' mean video surprise.
+    VALIDATION_METRIC = "val/surprise"
+
+    def validation_step(
+        self, batch: TensorDictBase, batch_idx: int, dataloader_idx: int = 0
+    ) -> dict[str, torch.Tensor]:
+        """Probe surprise for the callbacks; logs ``VALIDATION_METRIC``, the mean per-video
+        surprise of the consistent probes (a plain held-out number to monitor)."""
+        result = self.probe_step(batch)
+        consistent = result["surprise_consistent"]
+        self.log(
+            self.VALIDATION_METRIC,
+            consistent.sum(dim=1).mean(),
+            batch_size=consistent.shape[0],
+            add_dataloader_idx=False,
+        )
+        return result
+
+    def test_step(
+        self, batch: TensorDictBase, batch_idx: int, dataloader_idx: int = 0
+    ) -> dict[str, torch.Tensor]:
+        """Probe surprise for the callbacks (logs nothing itself)."""
+        return self.probe_step(batch)
+
+    # ----------------------------------------------------------------------------- checkpoints
+    def _model_input(self, frames: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
+        """uint8 [B, T, H, W, 3] -> float [B, T, 3, H, W] on this module's device."""
+        if not isinstance(frames, torch.Tensor):
+            raise TypeError(f"frames must be a uint8 tensor [B, T, H, W, 3], got {type(frames)}")
+        expected = (*image_size, 3)
+        if frames.dim() != 5 or tuple(frames.shape[-3:]) != expected:
+            raise ValueError(
+                f"frames must be shaped [B, T, {expected[0]}, {expected[1]}, 3] for this model "
+                f"(image_size={image_size}), got {tuple(frames.shape)}"
+            )
+        return specs.to_model_input(frames.to(self.device))
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        """Refuse, naming the file, a checkpoint trained with another architecture (naming the
+        differences) or one without hyperparameters whose weights do not fit this model
+        (Lightning calls this before loading the weights, which would fail obscurely)."""
+        source = getattr(self._trainer, "ckpt_path", None) or "the checkpoint"
+        trained = checkpoint.get("hyper_parameters")
+        if not trained:
+            self._refuse_unfitting_weights(checkpoint.get("state_dict", {}), source)
+            return
+
+        def normal(value):
+            return list(value) if isinstance(value, (list, tuple)) else value
+
+        differences = [
+            f"{name}: checkpoint {normal(trained[name])!r}, config {normal(self.hparams[name])!r}"
+            for name in self.ARCHITECTURE
+            if name in trained and normal(trained[name]) != normal(self.hparams[name])
+        ]
+        if differences:
+            raise ValueError(
+                f"{source} was trained with another model architecture than this model's ("
+                + "; ".join(differences) + f"). Build the model with the checkpoint's arguments "
+                f"({type(self).__name__}.load_from_checkpoint, or its run's config.yaml)."
+            )
+
+    def _refuse_unfitting_weights(self, state_dict: dict, source: str) -> None:
+        """Without hyperparameters the model was built from the config's arguments alone: say
+        so, naming the first tensor that does not fit, instead of torch's mismatch list."""
+        ours = {name: list(tensor.shape) for name, tensor in self.state_dict().items()}
+        theirs = {name: list(tensor.shape) for name, tensor in state_dict.items()}
+        differences = [
+            f"{name}: checkpoint {theirs.get(name, 'missing')}, model {ours.get(name, 'missing')}"
+            for name in sorted(ours.keys() | theirs.keys())
+            if ours.get(name) != theirs.get(name)
+        ]
+        if differences:
+            raise ValueError(
+                f"{source} has no hyper_parameters, so the model was built from the config's "
+                f"arguments, and its weights do not fit them ({len(differences)} tensors differ, "
+                f"e.g. {differences[0]}). Give the model arguments it was trained with (its "
+                "run's config.yaml)."
+            )

@@ -1,0 +1,297 @@
+"""The object-centric model after PLATO (Piloto et al. 2022, Figure 3) as a LightningModule:
+per-object codes from segmentation masks (perception), slot dynamics with an interaction network
+(prediction), trained in two stages of one run, and its object-free twin."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+
+from voe_lightning import specs
+from voe_lightning.model.base import SurpriseModel, video_inputs
+from voe_lightning.model.dynamics import SlotDynamics
+from voe_lightning.model.perception import Perception, compose
+from voe_lightning.model.slots import Slots, object_slots, require_mask, whole_frame_slot
+
+#: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
+ARCHITECTURE = (
+    "image_size", "num_slots", "code_size", "encoder_channels", "variational", "state_size",
+    "relation_sizes", "node_sizes", "relation_size", "use_camera", "object_free",
+    "object_free_code_size",
+)
+
+
+class ObjectCentricModel(SurpriseModel):
+    """PLATO-style model: object slots from the masks (``slots.object_slots``: slot 0 the
+    background, then up to ``num_slots`` object ids), a shared per-object autoencoder
+    (``perception.Perception``) and a slotted LSTM fed by an interaction network
+    (``dynamics.SlotDynamics``) that predicts each slot's next code.
+
+    Training runs two stages in one run: for the first ``perception_steps`` global steps only
+    perception trains (reconstruction of the composed frame, the slots' masks and, for a VAE,
+    the KL); after, perception is frozen in eval mode, its codes (posterior means) detached,
+    and only the dynamics train (squared error of the predicted codes). Parameters of the
+    inactive stage get no gradient, so Adam leaves them untouched.
+
+    Surprise at frame t: the squared error, summed over the present slots, between the code
+    predicted from frames < t and the code perceived at t (frame 0: 0), plus
+    ``pixel_surprise_weight`` times the squared pixel error of the decoded prediction.
+
+    Args:
+        image_size: (H, W) of the frames, divisible by ``2 ** len(encoder_channels)``.
+        num_slots: object slots (besides the background slot); a video with more object ids
+            is refused.
+        code_size: size of an object's code.
+        encoder_channels: channels of the perception encoder's stride-2 convolutions.
+        variational: VAE perception (KL weighted by ``kl_weight``) or a plain autoencoder.
+        kl_weight: weight of the codes' KL to N(0, I) (a beta-VAE's beta).
+        mask_loss_weight: weight of the cross-entropy between the composition weights and the
+            true slot masks (the masks are given, so perception learns to segment by them).
+        state_size, relation_sizes, node_sizes, relation_size: slotted LSTM state and the
+            interaction network's MLPs (see ``SlotDynamics``).
+        use_camera: the dynamics see the camera pose of the predicted frame (batch ``camera``).
+        perception_steps: global steps of the perception stage; the dynamics train after it.
+        perception_frames: frames per clip, drawn at random, that the perception stage trains
+            on (perception sees single frames, so a few per clip suffice and cost a fraction
+            of all); None trains on all.
+        pixel_surprise_weight: weight of the pixel error of the decoded prediction in surprise.
+        object_free: the twin without objects: a single slot whose code is of the whole frame
+            (mask all ones, no masks needed, no interactions).
+        object_free_code_size: the twin's code size; None sizes it so its parameter count is
+            closest to the object-centric model's at the same arguments.
+        learning_rate: Adam.
+        channels_last: NHWC convolutions.
+        training_frames: frames per training clip, recorded from the training batches.
+    """
+
+    ARCHITECTURE = ARCHITECTURE
+
+    def __init__(
+        self,
+        image_size: tuple[int, int] = (specs.HEIGHT, specs.WIDTH),
+        num_slots: int = 8,
+        code_size: int = 32,
+        encoder_channels: Sequence[int] = (32, 32, 64, 64),
+        variational: bool = True,
+        kl_weight: float = 1.0,
+        mask_loss_weight: float = 1.0,
+        state_size: int = 128,
+        relation_sizes: Sequence[int] = (128,),
+        node_sizes: Sequence[int] = (128,),
+        relation_size: int = 128,
+        use_camera: bool = True,
+        perception_steps: int = 1000,
+        perception_frames: int | None = 4,
+        pixel_surprise_weight: float = 0.0,
+        object_free: bool = False,
+        object_free_code_size: int | None = None,
+        learning_rate: float = 1e-3,
+        channels_last: bool = True,
+        training_frames: int | None = None,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        if num_slots < 1 or code_size < 1:
+            raise ValueError(f"num_slots and code_size must be >= 1, got {num_slots}, {code_size}")
+        if perception_frames is not None and perception_frames < 1:
+            raise ValueError(f"perception_frames must be >= 1 or None, got {perception_frames}")
+        if perception_steps < 0 or learning_rate <= 0:
+            raise ValueError(f"perception_steps must be >= 0 and learning_rate > 0, got "
+                             f"{perception_steps}, {learning_rate}")
+        self.image_size = (int(image_size[0]), int(image_size[1]))
+        if object_free and object_free_code_size is None:
+            object_free_code_size = matching_code_size(self.hparams)
+        self.code_size = object_free_code_size if object_free else code_size
+        self.perception, self.dynamics = build_networks(self.hparams, self.code_size)
+
+    # ----------------------------------------------------------------------------- slots
+    def slots(self, frames: torch.Tensor, mask: torch.Tensor | None,
+              seeds: torch.Tensor | None = None) -> Slots:
+        """The slots of uint8 videos [B, T, H, W, 3] (see ``slots.object_slots``)."""
+        if self.hparams.object_free:
+            return whole_frame_slot(frames.to(self.device))
+        mask = require_mask(mask, frames, seeds).to(self.device)
+        return object_slots(mask, self.hparams.num_slots, seeds)
+
+    def perceive(self, x: torch.Tensor, slots: Slots) -> tuple[torch.Tensor, torch.Tensor]:
+        """Model input [B, T, 3, H, W] -> code mean and log-std [B, T, S, C]."""
+        batch, steps = x.shape[:2]
+        mean, log_std = self.perception.encode(x.flatten(0, 1), slots.masks.flatten(0, 1))
+        return mean.unflatten(0, (batch, steps)), log_std.unflatten(0, (batch, steps))
+
+    def render(self, codes: torch.Tensor, present: torch.Tensor
+               ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Codes [B, T, S, C] -> composed frames [B, T, 3, H, W] and log composition weights
+        [B, T, S, H, W]."""
+        batch, steps, slots = codes.shape[:3]
+        rgb, logits = self.perception.decode(codes.flatten(0, 1))
+        frame, log_weights = compose(rgb, logits, present.repeat_interleave(steps, dim=0))
+        return (frame.view(batch, steps, *frame.shape[1:]),
+                log_weights.view(batch, steps, slots, *log_weights.shape[2:]))
+
+    def _predict(self, frames: torch.Tensor, mask: torch.Tensor | None,
+                 camera: torch.Tensor | None) -> dict[str, torch.Tensor]:
+        """Deterministic pass: perceived codes, predicted codes aligned with them (index t is
+        the code expected at t from frames < t; index 0 is the perceived code) and slots."""
+        x = self._model_input(frames, self.image_size)
+        slots = self.slots(frames, mask)
+        codes, _ = self.perceive(x, slots)
+        camera = camera.to(self.device) if camera is not None else None
+        predicted = self.dynamics(codes, slots.present, camera)
+        aligned = torch.cat([codes[:, :1], predicted[:, :-1]], dim=1)
+        return {"x": x, "codes": codes, "predicted": aligned, "present": slots.present}
+
+    # ----------------------------------------------------------------------------- training
+    @property
+    def perception_stage(self) -> bool:
+        """Whether training is in its first stage (perception only)."""
+        return self.global_step < self.hparams.perception_steps
+
+    def perception_terms(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """Perception loss per clip (mean over the batch), on ``perception_frames`` of its
+        frames: reconstruction = sum over frames and pixels of the squared error of the
+        composed frame; mask = cross-entropy of the composition weights against the true slot
+        masks; kl = kl_weight * KL of the present slots' codes to N(0, I) (VAE only)."""
+        frames, mask = self._frames_of(batch), video_inputs(batch).get("mask")
+        chosen = self.hparams.perception_frames
+        if chosen is not None and chosen < frames.shape[1]:
+            steps = torch.randperm(frames.shape[1])[:chosen].sort().values
+            frames, mask = frames[:, steps], (mask[:, steps] if mask is not None else None)
+        x = self._model_input(frames, self.image_size)
+        slots = self.slots(frames, mask, _seeds(batch))
+        mean, log_std = self.perceive(x, slots)
+        codes = mean
+        if self.hparams.variational:
+            codes = mean + log_std.exp() * torch.randn_like(mean)
+        composed, log_weights = self.render(codes, slots.present)
+        clips = x.shape[0]
+        reconstruction = (composed - x).pow(2).sum() / clips
+        seen = slots.masks > 0
+        mask = -torch.where(seen, log_weights, torch.zeros_like(log_weights)).sum() / clips
+        present = slots.present[:, None, :, None].float()
+        kl = 0.5 * (mean.pow(2) + (2 * log_std).exp() - 1 - 2 * log_std) * present
+        kl = self.hparams.kl_weight * kl.sum() / clips
+        if not self.hparams.variational:
+            kl = torch.zeros_like(kl)
+        mask = self.hparams.mask_loss_weight * mask
+        return {"loss": reconstruction + mask + kl, "reconstruction": reconstruction,
+                "mask": mask, "kl": kl}
+
+    def dynamics_terms(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """Dynamics loss per clip: squared error of the predicted codes (frames 1..T-1) against
+        the frozen perception's codes, summed over present slots (mean over the batch)."""
+        frames = self._frames_of(batch)
+        inputs = video_inputs(batch)
+        x = self._model_input(frames, self.image_size)
+        slots = self.slots(frames, inputs.get("mask"), _seeds(batch))
+        with torch.no_grad():
+            codes, _ = self.perceive(x, slots)
+        camera = inputs["camera"].to(self.device) if "camera" in inputs else None
+        predicted = self.dynamics(codes, slots.present, camera)
+        error = (predicted[:, :-1] - codes[:, 1:]).pow(2).sum(-1) * slots.present[:, None]
+        prediction = error.sum() / x.shape[0]
+        return {"loss": prediction, "prediction": prediction}
+
+    def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
+        stage = "perception" if self.perception_stage else "dynamics"
+        if stage == "perception":
+            terms = self.perception_terms(batch)
+        else:
+            self.perception.eval()
+            terms = self.dynamics_terms(batch)
+        self._check_finite(terms)
+        batch_size = self._frames_of(batch).shape[0]
+        self.log("train/loss", terms["loss"], prog_bar=True, batch_size=batch_size)
+        for name, value in terms.items():
+            if name != "loss":
+                self.log(f"train/{stage}/{name}", value, batch_size=batch_size)
+        return terms["loss"]
+
+    def configure_optimizers(self) -> torch.optim.Optimizer:
+        return torch.optim.Adam(self.parameters(), lr=self.hparams.learning_rate)
+
+    # ----------------------------------------------------------------------------- protocol
+    def probe_step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """The shared probe step, after refusing, naming the pair's seed, a probe video
+        without a mask or with more objects than slots."""
+        if not self.hparams.object_free:
+            for side in ("consistent", "inconsistent"):
+                frames, seeds = batch[side, "frames"], _seeds(batch)
+                mask = require_mask(video_inputs(batch, side).get("mask"), frames, seeds)
+                object_slots(mask, self.hparams.num_slots, seeds)
+        return super().probe_step(batch)
+
+    @torch.no_grad()
+    def surprise(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+                 camera: torch.Tensor | None = None) -> torch.Tensor:
+        """Per-frame surprise [B, T] (float32), see the class docstring."""
+        out = self._predict(frames, mask, camera)
+        error = (out["predicted"] - out["codes"]).pow(2).sum(-1) * out["present"][:, None]
+        surprise = error.sum(-1)
+        if self.hparams.pixel_surprise_weight:
+            expected, _ = self.render(out["predicted"], out["present"])
+            pixels = (expected - out["x"]).pow(2).sum(dim=(2, 3, 4))
+            surprise = surprise + self.hparams.pixel_surprise_weight * pixels
+        surprise[:, 0] = 0.0
+        return surprise.float()
+
+    @torch.no_grad()
+    def expected_frames(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+                        camera: torch.Tensor | None = None) -> torch.Tensor:
+        """The decoded, composed predicted codes [B, T, 3, H, W] in [0, 1] (frame 0: the
+        reconstruction of the first frame)."""
+        out = self._predict(frames, mask, camera)
+        return self.render(out["predicted"], out["present"])[0]
+
+    @torch.no_grad()
+    def trajectories(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+                     camera: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """``codes`` (perceived) and ``predicted`` [B, T, S * C], the slots' codes flattened
+        per frame (padding slots zeroed)."""
+        out = self._predict(frames, mask, camera)
+        keep = out["present"][:, None, :, None].float()
+        return {"codes": (out["codes"] * keep).flatten(2),
+                "predicted": (out["predicted"] * keep).flatten(2)}
+
+
+def _seeds(batch: TensorDictBase | dict) -> torch.Tensor | None:
+    """The batch's seeds, which errors name, when it has them."""
+    return batch["seed"] if "seed" in batch.keys() else None
+
+
+def build_networks(hparams: dict, code_size: int) -> tuple[Perception, SlotDynamics]:
+    """The perception and dynamics networks for the model's arguments and ``code_size``."""
+    perception = Perception(hparams["image_size"], code_size, hparams["encoder_channels"],
+                            hparams["variational"], hparams["channels_last"])
+    dynamics = SlotDynamics(code_size, hparams["state_size"], hparams["relation_sizes"],
+                            hparams["node_sizes"], hparams["relation_size"],
+                            interactions=not hparams["object_free"],
+                            use_camera=hparams["use_camera"])
+    return perception, dynamics
+
+
+def parameter_count(modules: Sequence[nn.Module]) -> int:
+    """Number of parameters of ``modules``."""
+    return sum(p.numel() for module in modules for p in module.parameters())
+
+
+def matching_code_size(hparams: dict) -> int:
+    """The object-free twin's code size whose parameter count is closest to that of the
+    object-centric model with the same arguments (built on the meta device: no memory)."""
+    with torch.device("meta"):
+        target = parameter_count(build_networks({**hparams, "object_free": False},
+                                                hparams["code_size"]))
+
+        def count(size: int) -> int:
+            return parameter_count(build_networks(hparams, size))
+
+        low, high = 1, 2 * hparams["code_size"]
+        while count(high) < target:
+            high *= 2
+        while high - low > 1:  # the count grows with the code size
+            middle = (low + high) // 2
+            low, high = (middle, high) if count(middle) < target else (low, middle)
+        return min((low, high), key=lambda size: abs(count(size) - target))

@@ -1,0 +1,83 @@
+"""Object slots from segmentation masks (PLATO's perception input): which object ids a video
+holds, in which slot each one goes, and each slot's binary mask per frame."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+
+@dataclass
+class Slots:
+    """Slot 0 is the background (mask id 0, always present); slots 1..K hold the object ids
+    present anywhere in the video in increasing order, then padding (id 0, not present)."""
+
+    ids: torch.Tensor  # int64 [B, K + 1]
+    present: torch.Tensor  # bool [B, K + 1]
+    masks: torch.Tensor  # float32 [B, T, K + 1, H, W], 1 where the slot's object is seen
+
+
+def video_name(index: int, seeds: torch.Tensor | None) -> str:
+    """How errors name a video of a batch: its seed when the batch has seeds."""
+    if seeds is None:
+        return f"video {index} of the batch"
+    return f"video {index} of the batch (seed {int(seeds.reshape(-1)[index])})"
+
+
+def require_mask(
+    mask: torch.Tensor | None, frames: torch.Tensor, seeds: torch.Tensor | None = None
+) -> torch.Tensor:
+    """The mask of ``frames`` [B, T, H, W, 3], refusing a missing or misshapen one clearly."""
+    expected = tuple(frames.shape[:-1])
+    if mask is None:
+        raise ValueError(
+            f"the object-centric model needs each video's object-id mask uint8 {list(expected)} "
+            f"(batch key 'mask', 0 = background), but {video_name(0, seeds)} came without "
+            "one; use records with masks, or the object-free twin (object_free: true)"
+        )
+    if tuple(mask.shape) != expected:
+        raise ValueError(f"mask must be shaped {list(expected)} like the frames, got "
+                         f"{list(mask.shape)} ({video_name(0, seeds)})")
+    return mask
+
+
+def object_slots(mask: torch.Tensor, num_slots: int, seeds: torch.Tensor | None = None) -> Slots:
+    """Assign the ids of ``mask`` uint8 [B, T, H, W] to ``num_slots`` object slots plus the
+    background slot. An id keeps its slot for the whole video: an object that vanishes (say,
+    behind an occluder) and reappears has an empty mask while hidden, never a new slot. More
+    ids than slots, or a batch with no object at all, is refused naming the video."""
+    batch = mask.shape[0]
+    ids = torch.zeros(batch, num_slots + 1, dtype=torch.int64, device=mask.device)
+    present = torch.zeros(batch, num_slots + 1, dtype=torch.bool, device=mask.device)
+    present[:, 0] = True
+    for index in range(batch):
+        found = torch.unique(mask[index])
+        found = found[found != 0]
+        if found.numel() > num_slots:
+            raise ValueError(
+                f"{video_name(index, seeds)} shows {found.numel()} objects (mask ids "
+                f"{found.tolist()}), more than num_slots={num_slots}; raise num_slots"
+            )
+        ids[index, 1 : 1 + found.numel()] = found.long()
+        present[index, 1 : 1 + found.numel()] = True
+    if not bool(present[:, 1:].any()):
+        raise ValueError(
+            f"no video of the batch shows an object (every mask is 0, e.g. "
+            f"{video_name(0, seeds)}): the object-centric model needs segmentation masks "
+            "(IntPhys records carry zero masks); use the object-free twin (object_free: true)"
+        )
+    masks = mask.long()[:, :, None] == ids[:, None, :, None, None]  # [B, T, K + 1, H, W]
+    masks[:, :, 1:] &= present[:, None, 1:, None, None]  # padding slots see nothing
+    return Slots(ids=ids, present=present, masks=masks.float())
+
+
+def whole_frame_slot(frames: torch.Tensor) -> Slots:
+    """The object-free twin's single slot: the whole frame, always present."""
+    batch, steps, height, width = frames.shape[:4]
+    device = frames.device
+    return Slots(
+        ids=torch.zeros(batch, 1, dtype=torch.int64, device=device),
+        present=torch.ones(batch, 1, dtype=torch.bool, device=device),
+        masks=torch.ones(batch, steps, 1, height, width, device=device),
+    )
