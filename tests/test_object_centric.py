@@ -166,7 +166,10 @@ def test_fit_both_stages_then_test_through_the_cli(tmp_path, monkeypatch, object
     assert checkpoint["hyper_parameters"]["training_frames"] == 6
     main(["test", "--config", CONFIG, *model, "--trainer.logger.init_args.name=oc",
           "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
-    rows = json.loads((run / "voe_report" / "summary.json").read_text())["rows"]
+    summary = json.loads((run / "voe_report" / "summary.json").read_text())
+    assert summary["video_surprise"] == f"sum over frames of {ObjectCentricModel.SURPRISE}"
+    assert "predicted object codes" in (run / "voe_report" / "summary.md").read_text()
+    rows = summary["rows"]
     assert {(r["concept"], r["variant"], r["n"]) for r in rows} == {
         ("object_persistence", "standard", 3), ("object_persistence", "counterbalanced", 3),
         ("object_persistence", "pooled", 6)}

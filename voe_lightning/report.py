@@ -30,6 +30,7 @@ from scipy import stats
 
 from voe_lightning import cues
 from voe_lightning.model.base import SurpriseModel, video_inputs
+from voe_lightning.model.module import VOEModel
 from voe_lightning.specs import CONCEPTS, VARIANTS
 from voe_lightning.statistics import (
     PairedTestResult,
@@ -299,9 +300,13 @@ def format_verdicts(rows: Sequence[Mapping[str, Any]]) -> list[str]:
     return lines
 
 
-def format_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
+#: What a frame's surprise is unless told otherwise: the paper's (the VRNN-LRU's).
+VRNN_SURPRISE = VOEModel.SURPRISE
+
+
+def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURPRISE) -> str:
     """The summary as a Markdown table (paper notation), notes as footnotes below it, then
-    each concept's VOE verdict."""
+    each concept's VOE verdict; ``surprise`` names what a frame's surprise is."""
     header = ("| concept | variant | n | M [95% CI] | t(df) | p | sig. | d_z [95% CI] "
               "| accuracy | AUROC |")
     lines = [header, "|" + "---|" * (header.count("|") - 1)]
@@ -323,7 +328,7 @@ def format_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
             f"| {accuracy} | {_number(row['auroc'], '.3f')} |")
     lines.append("")
     lines.append("M: mean relative surprise d = S(inconsistent) - S(consistent), S = sum over "
-                 "frames of KL(posterior || prior); one-tailed paired t-test, H1: M > 0; "
+                 f"frames of {surprise}; one-tailed paired t-test, H1: M > 0; "
                  "sig.: p < alpha (* as in the paper); accuracy: share of pairs with d > 0; "
                  "pooled: the test over the union of a concept's standard and counterbalanced "
                  "pairs.")
@@ -577,11 +582,13 @@ def write_report(
     bootstrap: int = 2000,
     seed: int = 0,
     echo: bool = True,
+    surprise: str = VRNN_SURPRISE,
 ) -> list[dict[str, Any]]:
     """Write ``out_dir/voe_report/`` (module docstring) and return the summary rows.
     ``predictions`` give predictions_<concept>.png, ``trajectories`` (see ``tsne_figure``)
     give tsne_object_persistence.png, ``cue_audit`` (scores of the same pairs) gives
-    cues.md/csv/json; ``echo`` prints the Markdown tables."""
+    cues.md/csv/json; ``echo`` prints the Markdown tables; ``surprise`` names what a frame's
+    surprise is (the model's ``SURPRISE``)."""
     if len(results) == 0:
         raise ValueError("no probe results to report")
     report_dir = Path(out_dir) / "voe_report"
@@ -590,7 +597,7 @@ def write_report(
 
     document = {"alpha": alpha, "bootstrap_resamples": bootstrap, "num_pairs": len(results),
                 "num_frames": results.num_frames,
-                "video_surprise": "sum over frames of KL(posterior || prior)",
+                "video_surprise": f"sum over frames of {surprise}",
                 "rows": [{k: _json_value(v) for k, v in row.items()} for row in rows],
                 "verdicts": [{"concept": v.concept, "voe": v.voe, "verdict": v.text(),
                               "rule": v.rule} for v in concept_verdicts(rows, alpha)]}
@@ -599,7 +606,7 @@ def write_report(
         writer = csv.DictWriter(handle, fieldnames=SUMMARY_COLUMNS)
         writer.writeheader()
         writer.writerows(rows)
-    markdown = format_markdown(rows)
+    markdown = format_markdown(rows, surprise)
     (report_dir / "summary.md").write_text(markdown)
     results.to_csv(report_dir / "pairs.csv")
     if cue_audit is not None:
@@ -797,8 +804,8 @@ class VOEReportCallback(Callback):
             pl_module.train(was_training)
         self.summary = write_report(results, out_dir, predictions, trajectories,
                                     trajectory_labels=labels, cue_audit=cue_audit,
-                                    alpha=self.alpha,
-                                    bootstrap=self.bootstrap, seed=self.seed)
+                                    alpha=self.alpha, bootstrap=self.bootstrap,
+                                    seed=self.seed, surprise=pl_module.SURPRISE)
         self.report_dir = Path(out_dir) / "voe_report"
         self._write_benchmark_metrics(trainer.datamodule, outputs)
 

@@ -122,6 +122,8 @@ class SurpriseModel(LightningModule):
 
     #: Name under which ``validation_step`` logs the consistent probes' mean video surprise.
     VALIDATION_METRIC = "val/surprise"
+    #: What a frame's surprise is, for reports.
+    SURPRISE = "the model's surprise"
 
     def validation_step(
         self, batch: TensorDictBase, batch_idx: int, dataloader_idx: int = 0

@@ -80,6 +80,7 @@ class VOEModel(SurpriseModel):
 
     ARCHITECTURE = ARCHITECTURE
     VALIDATION_METRIC = "val/kl"
+    SURPRISE = "KL(posterior || prior)"
 
     def __init__(
         self,

@@ -68,6 +68,7 @@ class ObjectCentricModel(SurpriseModel):
     """
 
     ARCHITECTURE = ARCHITECTURE
+    SURPRISE = "the squared error of the predicted object codes (summed over present slots)"
 
     def __init__(
         self,
