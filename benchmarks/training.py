@@ -83,7 +83,7 @@ def make_path(name: str, device: torch.device, fast: bool, compile_model: bool, 
         frames=torch.randint(0, 256, (batch_size, frames, height, width, 3), dtype=torch.uint8),
         batch_size=[batch_size],
     ).to(device)
-    return model, model.configure_optimizers(), batch
+    return model, model.configure_optimizers()["optimizer"], batch
 
 
 def count_flops(model: VOEModel, batch: TensorDict) -> float:

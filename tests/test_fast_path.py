@@ -132,7 +132,7 @@ def test_bf16_training_losses_follow_float32():
     reference, fast = pair(FAST_BF16, learning_rate=1e-3)
     losses = {"reference": [], "fast": []}
     for name, model in (("reference", reference), ("fast", fast)):
-        optimizer = model.configure_optimizers()
+        optimizer = model.configure_optimizers()["optimizer"]
         for step in range(200):
             batch = TensorDict(frames=moving_squares(2, step % 10, frames=3), batch_size=[2])
             torch.manual_seed(step)  # the same latent noise for both paths

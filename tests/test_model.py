@@ -116,7 +116,7 @@ def test_loss_decreases_on_a_fixed_batch():
     for t in range(T):
         video[:, t, 10:18, 4 + 5 * t : 12 + 5 * t] = 255
     batch = TensorDict(frames=video, batch_size=[B])
-    optimizer = model.configure_optimizers()
+    optimizer = model.configure_optimizers()["optimizer"]
     torch.manual_seed(1)
     losses = []
     for _ in range(25):

@@ -5,6 +5,7 @@ callbacks, reports and notebooks use."""
 from __future__ import annotations
 
 import contextlib
+import math
 from collections.abc import Sequence
 
 import torch
@@ -35,6 +36,7 @@ ARCHITECTURE = (
     "encoder_mlp_size",
 )
 PRECISIONS = ("auto", "bf16", "float32")
+LR_SCHEDULES = ("constant", "cosine")
 
 
 def bf16_is_fast(device: torch.device) -> bool:
@@ -65,6 +67,10 @@ class VOEModel(SurpriseModel):
             stride-2 bottleneck blocks (paper: 6 of 64, 64, 128 channels) and MLP (paper: 500).
         prior_regularizer_weight: weight of sum_t KL(prior_t || N(0, I)) (paper: 1e-4).
         learning_rate, adam_betas: Adam (paper: lr 5e-6).
+        lr_schedule: ``"constant"`` (the paper's) or ``"cosine"``: the learning rate decays
+            per step along a half cosine to 0 at the Trainer's ``max_steps``.
+        kl_warmup_steps: scale KL(posterior || prior) in the training loss from 0 up to 1 over
+            this many steps (0, the paper's: no warm-up). Surprise is never scaled.
         compile_model: ``torch.compile`` the encoder, decoder and recurrent core in place
             (opt-in: compiling takes minutes on a CPU).
         channels_last: keep the encoder and decoder in NHWC layout, the fast layout of oneDNN
@@ -101,6 +107,8 @@ class VOEModel(SurpriseModel):
         prior_regularizer_weight: float = 1e-4,
         learning_rate: float = 5e-6,
         adam_betas: tuple[float, float] = (0.9, 0.999),
+        lr_schedule: str = "constant",
+        kl_warmup_steps: int = 0,
         compile_model: bool = False,
         channels_last: bool = True,
         precision: str = "auto",
@@ -112,6 +120,11 @@ class VOEModel(SurpriseModel):
             raise ValueError(f"unknown precision {precision!r}; valid choices are: {', '.join(PRECISIONS)}")
         if learning_rate <= 0:
             raise ValueError(f"learning_rate must be positive, got {learning_rate}")
+        if lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"unknown lr_schedule {lr_schedule!r}; valid choices are: "
+                             f"{', '.join(LR_SCHEDULES)}")
+        if kl_warmup_steps < 0:
+            raise ValueError(f"kl_warmup_steps must be >= 0, got {kl_warmup_steps}")
         if prior_regularizer_weight < 0:
             raise ValueError(
                 f"prior_regularizer_weight must be non-negative, got {prior_regularizer_weight}"
@@ -185,7 +198,7 @@ class VOEModel(SurpriseModel):
     def loss_terms(self, x: torch.Tensor, output: VRNNOutput, logits: torch.Tensor) -> dict[str, torch.Tensor]:
         """Per-sequence loss terms averaged over the batch (float32): reconstruction =
         sum_t,pixels BCE; kl = sum_t KL(post || prior); prior_regularizer = weight *
-        sum_t KL(prior || N(0, I)); loss = their sum."""
+        sum_t KL(prior || N(0, I)); loss = their sum, kl times ``kl_weight``."""
         batch = x.shape[0]
         reconstruction = (
             F.binary_cross_entropy_with_logits(logits.float(), x.float(), reduction="sum") / batch
@@ -195,7 +208,7 @@ class VOEModel(SurpriseModel):
             standard_normal_kl(output.prior_mean, output.prior_log_std).sum(dim=1).mean()
         )
         return {
-            "loss": reconstruction + kl + prior_regularizer,
+            "loss": reconstruction + self.kl_weight * kl + prior_regularizer,
             "reconstruction": reconstruction,
             "kl": kl,
             "prior_regularizer": prior_regularizer,
@@ -256,8 +269,25 @@ class VOEModel(SurpriseModel):
             "memory": output.memory,
         }
 
+    @property
+    def kl_weight(self) -> float:
+        """Weight of the KL term in the training loss: 1, or the warm-up's ramp (0 -> 1)."""
+        warmup = self.hparams.kl_warmup_steps
+        return min(1.0, (self.global_step + 1) / warmup) if warmup else 1.0
+
     # ----------------------------------------------------------------------------- optimizer
-    def configure_optimizers(self) -> torch.optim.Optimizer:
-        return torch.optim.Adam(
+    def configure_optimizers(self) -> dict:
+        optimizer = torch.optim.Adam(
             self.parameters(), lr=self.hparams.learning_rate, betas=tuple(self.hparams.adam_betas)
         )
+        if self.hparams.lr_schedule == "constant":
+            return {"optimizer": optimizer}
+        total = self.trainer.max_steps
+        if total is None or total < 1:
+            raise ValueError("lr_schedule 'cosine' decays to 0 at trainer.max_steps; set it "
+                             f"(got max_steps={total})")
+        schedule = torch.optim.lr_scheduler.LambdaLR(
+            optimizer, lambda step: 0.5 * (1 + math.cos(math.pi * min(step, total) / total))
+        )
+        return {"optimizer": optimizer,
+                "lr_scheduler": {"scheduler": schedule, "interval": "step"}}

@@ -135,8 +135,10 @@ class VRNNCore(nn.Module):
             if deterministic:
                 z = posterior_mean
             else:
-                noise = torch.randn(
-                    posterior_mean.shape, generator=generator, device=device, dtype=posterior_mean.dtype
+                noise = (  # randn_like: torch.compile cannot trace randn of a dynamic shape
+                    torch.randn_like(posterior_mean) if generator is None else torch.randn(
+                        posterior_mean.shape, generator=generator, device=device,
+                        dtype=posterior_mean.dtype)
                 )
                 z = posterior_mean + torch.exp(posterior_log_std) * noise
             state = self.memory.write(state, read, z)
