@@ -245,3 +245,51 @@ def test_the_training_frame_count_is_recorded_for_the_benchmark_datamodules():
     with pytest.warns(UserWarning, match=rf"training_frames was {T}, the training clips have {T + 1}"):
         model.on_train_batch_start({"frames": frames(steps=T + 1)}, 0)
     assert model.hparams.training_frames == T + 1
+
+
+def test_kl_warmup_scales_only_the_training_kl(tmp_path):
+    """With kl_warmup_steps=4 the loss of step s weighs KL by (s + 1) / 4; logged kl and
+    surprise are never scaled."""
+    model = tiny_model(kl_warmup_steps=4)
+    assert model.kl_weight == pytest.approx(0.25)  # global step 0
+    loader = DataLoader(_Clips(4), batch_size=2, collate_fn=torch.stack)
+    trainer = Trainer(
+        max_steps=2, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+        enable_model_summary=False, default_root_dir=tmp_path, accelerator="cpu",
+    )
+    trainer.fit(model, loader)
+    logged = trainer.callback_metrics  # the last step's terms: global step 1, weight 2 / 4
+    torch.testing.assert_close(
+        logged["train/loss"],
+        logged["train/reconstruction"] + 0.5 * logged["train/kl"]
+        + logged["train/prior_regularizer"],
+    )
+    assert tiny_model(kl_warmup_steps=0).kl_weight == 1.0
+    model.eval()
+    surprise = model.surprise(frames())
+    model.hparams.kl_warmup_steps = 0
+    torch.testing.assert_close(model.surprise(frames()), surprise)
+
+
+def test_cosine_schedule_decays_to_zero_at_max_steps(tmp_path):
+    model = tiny_model(lr_schedule="cosine", learning_rate=1e-3)
+    loader = DataLoader(_Clips(4), batch_size=2, collate_fn=torch.stack)
+    trainer = Trainer(
+        max_steps=4, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+        enable_model_summary=False, default_root_dir=tmp_path, accelerator="cpu",
+    )
+    trainer.fit(model, loader)
+    schedule = trainer.lr_scheduler_configs[0]
+    assert schedule.interval == "step"
+    assert schedule.scheduler.get_last_lr()[0] == pytest.approx(0.0, abs=1e-12)  # step 4 of 4
+    assert schedule.scheduler.lr_lambdas[0](2) == pytest.approx(0.5)  # half way: half the lr
+    assert tiny_model().configure_optimizers().keys() == {"optimizer"}  # constant: no schedule
+
+
+@pytest.mark.parametrize("argument,value,message", [
+    ("lr_schedule", "linear", "constant, cosine"),
+    ("kl_warmup_steps", -1, "kl_warmup_steps must be >= 0"),
+])
+def test_bad_recipe_arguments_are_refused(argument, value, message):
+    with pytest.raises(ValueError, match=message):
+        tiny_model(**{argument: value})

@@ -222,7 +222,8 @@ class PairResults:
 @dataclass(frozen=True, eq=False)
 class PredictionExample:
     """An inconsistent probe (input frames uint8 [T, H, W, 3]) and what the model expected
-    (decoded prior means, float [T, 3, H, W] in [0, 1])."""
+    (its ``expected_frames``, e.g. the VRNN's decoded prior means; float [T, 3, H, W] in
+    [0, 1])."""
 
     concept: str
     variant: str
@@ -487,7 +488,7 @@ def predictions_figure(examples: Sequence[PredictionExample], max_frames: int = 
         axes[0, 0].set_ylabel("input", fontsize=9)
         axes[1, 0].set_ylabel("expected", fontsize=9)
         title = (f"{example.concept} / {example.variant}, seed {example.seed}: inconsistent "
-                 "probe (top) and what the model expected, its prior mean (bottom); red: "
+                 "probe (top) and what the model expected from the frames before (bottom); red: "
                  "manipulation frame")
         subfigure.suptitle(textwrap.fill(title, width=int(14 * figure.get_figwidth())),
                            fontsize=9)
