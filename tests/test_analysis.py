@@ -223,3 +223,33 @@ def test_notebook_reproduces_the_figures_of_a_run_directory(tmp_path, monkeypatc
     assert "24 probe pairs of 5 frames" in text
     markdown = "".join(output.get("data", {}).get("text/markdown", "") for output in outputs)
     assert "| object_persistence | standard | 12 |" in markdown
+
+
+def test_compare_reads_each_verdicts_rows_beside_the_cue_audit(tmp_path, capsys):
+    """`analyze compare`: a pooled concept contributes its pooled row, unchangeableness its
+    three variants (never the generalization ones); effects and verdicts match the reports."""
+    groups = {("solidity", "standard"): (40, 2.0), ("solidity", "counterbalanced"): (40, 2.0),
+              ("unchangeableness", "position"): (30, 0.0),
+              ("unchangeableness", "color"): (30, 0.0), ("unchangeableness", "shape"): (30, 0.0),
+              ("unchangeableness", "shape_plus1"): (30, 3.0)}
+    write_report(pair_results(groups, seed=1), tmp_path / "a", bootstrap=0, echo=False)
+    write_report(pair_results({("solidity", "standard"): (40, 2.0),
+                               ("solidity", "counterbalanced"): (40, -2.0)}, seed=2),
+                 tmp_path / "b", bootstrap=0, echo=False)
+    rows = analysis.comparison_rows([("a", tmp_path / "a"), ("b", tmp_path / "b")])
+    assert [(r["run"], r["concept"], r["variant"], r["n"]) for r in rows] == [
+        ("a", "unchangeableness", "position", 30), ("a", "unchangeableness", "color", 30),
+        ("a", "unchangeableness", "shape", 30), ("a", "solidity", "pooled", 80),
+        ("b", "solidity", "pooled", 80)]
+    solidity_a, solidity_b = rows[3], rows[4]
+    assert solidity_a["voe"] is True and solidity_b["voe"] is False  # b: a variant M < 0
+    assert solidity_a["p_value"] < 1e-6 and solidity_a["cue_accuracy_min"] is None  # no audit
+
+    out = tmp_path / "compare.md"
+    analysis.main(["compare", "--runs", f"a={tmp_path / 'a'}", f"b={tmp_path / 'b'}",
+                   "--out", str(out)])
+    table = out.read_text()
+    assert table == capsys.readouterr().out
+    assert "| a | solidity | pooled | 80 |" in table and table.count("**yes**") == 1
+    with pytest.raises(FileNotFoundError, match="run test first"):
+        analysis.comparison_rows([("missing", tmp_path / "missing")])

@@ -1,11 +1,13 @@
 """Analyses across runs: relative surprise over training read from TensorBoard event files,
-separate vs joint runs on one figure (paper Figure 6), and the training-set-size sweep with
-its reliability plot (paper Figure 3). ``python -m voe_lightning analyze curves|sweep|sweep-plot``.
+separate vs joint runs on one figure (paper Figure 6), the training-set-size sweep with its
+reliability plot (paper Figure 3), and the per-concept verdicts of tested runs side by side.
+``python -m voe_lightning analyze curves|sweep|sweep-plot|compare``.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import re
 import textwrap
@@ -16,11 +18,15 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from voe_lightning.report import PairResults, VOEReportCallback, panel_grid
+from voe_lightning.report import PairResults, VOEReportCallback, format_p, panel_grid
+from voe_lightning.specs import GENERALIZATION_VARIANTS
 from voe_lightning.statistics import paired_test
 
 __all__ = [
+    "FRAME_LOCAL_CUES",
     "RELATIVE_SURPRISE_TAG",
+    "comparison_markdown",
+    "comparison_rows",
     "main",
     "read_relative_surprise",
     "read_scalars",
@@ -253,6 +259,70 @@ def run_size_sweep(
 # ----------------------------------------------------------------------------- command line
 
 
+#: Generalization probe variants (paper §5), which no verdict reads.
+GENERALIZATION = {v for variants in GENERALIZATION_VARIANTS.values() for v in variants}
+#: The cues the fairness gate holds at chance on every pooled row (novelty needs memory).
+FRAME_LOCAL_CUES = ("foreground_pixels", "motion_energy", "copy_last_error",
+                    "linear_extrapolation_error")
+
+
+def _latest_report(run_dir: str | Path) -> Path:
+    reports = sorted(Path(run_dir).rglob("voe_report/summary.json"),
+                     key=lambda path: path.stat().st_mtime)
+    if not reports:
+        raise FileNotFoundError(f"no voe_report/summary.json under {run_dir} (run test first)")
+    return reports[-1].parent
+
+
+def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, Any]]:
+    """Per run and concept, the rows its verdict reads (the pooled row of a counterbalanced
+    concept, else every variant), each with its verdict and the accuracy range of the
+    frame-local cues on the same pairs (from the report's cues.csv, where written)."""
+    rows = []
+    for label, run_dir in runs:
+        report = _latest_report(run_dir)
+        summary = json.loads((report / "summary.json").read_text())
+        cue_accuracy: dict[tuple[str, str], list[float]] = {}
+        if (report / "cues.csv").is_file():
+            with open(report / "cues.csv", newline="") as handle:
+                for cue in csv.DictReader(handle):
+                    if cue["cue"] in FRAME_LOCAL_CUES and cue["accuracy"] not in ("", "None"):
+                        key = (cue["concept"], cue["variant"])
+                        cue_accuracy.setdefault(key, []).append(float(cue["accuracy"]))
+        by_concept: dict[str, list[dict]] = {}
+        for row in summary["rows"]:
+            by_concept.setdefault(row["concept"], []).append(row)
+        for verdict in summary["verdicts"]:
+            concept_rows = by_concept[verdict["concept"]]
+            pooled = [row for row in concept_rows if row["variant"] == "pooled"]
+            standard = [row for row in concept_rows if row["variant"] not in GENERALIZATION]
+            for row in pooled or standard:  # generalization variants do not enter verdicts
+                accuracies = cue_accuracy.get((row["concept"], row["variant"]), [])
+                rows.append({"run": label, "report": str(report), **row,
+                             "voe": verdict["voe"], "verdict": verdict["verdict"],
+                             "cue_accuracy_min": min(accuracies, default=None),
+                             "cue_accuracy_max": max(accuracies, default=None)})
+    return rows
+
+
+def comparison_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
+    """The comparison as a Markdown table, one line per run, concept and verdict row."""
+    lines = ["| run | concept | variant | n | M | t(df) | p | accuracy | frame-local cues: "
+             "accuracy | VOE |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        if row["t"] is None:
+            statistics = "| n/a | n/a | n/a | n/a "
+        else:
+            statistics = (f"| {row['relative_surprise']:.3g} | t({row['df']}) = {row['t']:.2f} "
+                          f"| {format_p(row['p_value'])} | {100 * row['accuracy']:.0f}% ")
+        cues = ("n/a" if row["cue_accuracy_min"] is None else
+                f"{100 * row['cue_accuracy_min']:.0f}–{100 * row['cue_accuracy_max']:.0f}%")
+        voe = "n/a" if row["voe"] is None else ("**yes**" if row["voe"] else "no")
+        lines.append(f"| {row['run']} | {row['concept']} | {row['variant']} | {row['n']} "
+                     f"{statistics}| {cues} | {voe} |")
+    return "\n".join(lines) + "\n"
+
+
 def _label_and_value(text: str, what: str) -> tuple[str, str]:
     if "=" not in text:
         raise argparse.ArgumentTypeError(f"expected LABEL=VALUE for {what}, got {text!r}")
@@ -270,7 +340,8 @@ def _run(text: str) -> tuple[str, str]:
 def main(argv: Sequence[str] | None = None) -> Any:
     """``analyze curves --runs [LABEL=]DIR ... --out PNG``: relative surprise over training;
     ``analyze sweep --config YAML --sizes N ... --out JSON``: train and test per size;
-    ``analyze sweep-plot (--results JSON | --runs SIZE=RUN_DIR ...) --out PNG``: Figure 3."""
+    ``analyze sweep-plot (--results JSON | --runs SIZE=RUN_DIR ...) --out PNG``: Figure 3;
+    ``analyze compare --runs [LABEL=]DIR ... [--out MD]``: per-concept verdicts side by side."""
     parser = argparse.ArgumentParser(prog="python -m voe_lightning analyze", description=__doc__)
     commands = parser.add_subparsers(dest="command", required=True)
 
@@ -303,7 +374,18 @@ def main(argv: Sequence[str] | None = None) -> Any:
     plot.add_argument("--eval-sets", type=int, default=5, help="with --runs: sets per run")
     plot.add_argument("--out", required=True, help="PNG to write")
 
+    compare = commands.add_parser("compare", help="per-concept verdicts of tested runs")
+    compare.add_argument("--runs", nargs="+", type=_run, required=True, metavar="[LABEL=]DIR",
+                         help="tested run directories (their latest voe_report is read)")
+    compare.add_argument("--out", help="also write the Markdown table here")
+
     args = parser.parse_args(argv)
+    if args.command == "compare":
+        table = comparison_markdown(comparison_rows(args.runs))
+        print(table, end="")
+        if args.out:
+            Path(args.out).write_text(table)
+        return table
     if args.command == "curves":
         figure = relative_surprise_curves_figure(
             args.runs, {label: float(value) for label, value in args.step_scale})
