@@ -220,3 +220,12 @@ def test_fit_and_test_on_physical_concepts_freeform_and_probes(tmp_path, monkeyp
     assert {row["n"] for row in rows} == {8}  # 2 shards x 2 quadruplets x 2 pairs a concept
     metrics = json.loads((report / "benchmark_metrics.json").read_text())["metrics"]
     assert {"absolute_error_rate", "auroc"} <= metrics["solidity"]["all"].keys()
+
+
+def test_a_model_missing_part_of_the_contract_cannot_be_built():
+    class Incomplete(SurpriseModel):
+        def surprise(self, frames, mask=None, camera=None):
+            return frames.new_zeros(frames.shape[:2], dtype=torch.float32)
+
+    with pytest.raises(TypeError, match="expected_frames"):
+        Incomplete()

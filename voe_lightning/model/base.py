@@ -5,7 +5,7 @@ alike; plus what they share: probe steps, frame-count recording and checkpoint s
 from __future__ import annotations
 
 import math
-from abc import abstractmethod
+from abc import ABCMeta, abstractmethod
 from typing import Any
 
 import torch
@@ -14,6 +14,7 @@ from lightning.pytorch.utilities import rank_zero_warn
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
+
 
 def video_inputs(batch: Any, video: str | None = None) -> dict[str, torch.Tensor]:
     """``mask`` of a clip batch (``video=None``) or of one side of a probe batch, and the
@@ -29,11 +30,12 @@ def video_inputs(batch: Any, video: str | None = None) -> dict[str, torch.Tensor
     return inputs
 
 
-class SurpriseModel(LightningModule):
+class SurpriseModel(LightningModule, metaclass=ABCMeta):
     """Base of the package's video models. Subclasses implement ``surprise``,
     ``expected_frames`` and ``trajectories`` of uint8 videos ``frames`` [B, T, H, W, 3], given
     optionally their object-id ``mask`` uint8 [B, T, H, W] (0 = background) and ``camera``
-    poses float [B, T, 6]; a model that needs neither accepts and ignores them. ``ARCHITECTURE``
+    poses float [B, T, 6]; a model that needs neither accepts and ignores them (a subclass
+    missing one of the three cannot be built: ABCMeta). ``ARCHITECTURE``
     names the constructor arguments that shape the parameters, which a checkpoint must share."""
 
     ARCHITECTURE: tuple[str, ...] = ()
@@ -45,7 +47,6 @@ class SurpriseModel(LightningModule):
         camera: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Per-frame surprise [B, T] (float32); a video's surprise is its sum over frames."""
-        raise NotImplementedError
 
     @abstractmethod
     def expected_frames(
@@ -54,7 +55,6 @@ class SurpriseModel(LightningModule):
     ) -> torch.Tensor:
         """What the model expected each frame to be given the previous ones [B, T, 3, H, W]
         in [0, 1]."""
-        raise NotImplementedError
 
     @abstractmethod
     def trajectories(
@@ -62,7 +62,6 @@ class SurpriseModel(LightningModule):
         camera: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """Named time courses [B, T, D] of the model's state (the t-SNE figure draws them)."""
-        raise NotImplementedError
 
     # ----------------------------------------------------------------------------- inputs
     @staticmethod
