@@ -4,6 +4,7 @@ alike; plus what they share: probe steps, frame-count recording and checkpoint s
 
 from __future__ import annotations
 
+import atexit
 import math
 from abc import ABCMeta, abstractmethod
 from typing import Any
@@ -14,6 +15,11 @@ from lightning.pytorch.utilities import rank_zero_warn
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
+
+
+def _destroy_process_group() -> None:
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        torch.distributed.destroy_process_group()
 
 
 def video_inputs(batch: Any, video: str | None = None) -> dict[str, torch.Tensor]:
@@ -62,6 +68,14 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
         camera: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """Named time courses [B, T, D] of the model's state (the t-SNE figure draws them)."""
+
+    def setup(self, stage: str) -> None:
+        # Lightning destroys only NCCL process groups at exit. A gloo group (CPU DDP) left
+        # alive aborts its process about half the time as it exits ("terminate called
+        # without an active exception", pytorch#190489), so every rank destroys it then.
+        if torch.distributed.is_available() and torch.distributed.is_initialized():
+            atexit.unregister(_destroy_process_group)
+            atexit.register(_destroy_process_group)
 
     # ----------------------------------------------------------------------------- inputs
     @staticmethod
