@@ -11,10 +11,20 @@ if ! { ldconfig -p 2>/dev/null | grep -q libEGL_mesa && compgen -G "/usr/lib/*/d
     libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libopengl0 libglvnd0 >/dev/null
 fi
 
-# torch first, pinned, so pip does not pull a multi-GB CUDA build as a dependency.
-# (On a machine without a local wheel, add: --index-url https://download.pytorch.org/whl/cpu)
+# torch first, pinned, and the CPU build from PyTorch's own index, so pip does not pull the
+# multi-GB CUDA build from the default index as a dependency. A torch already installed is kept.
+# Where that index cannot be reached (a machine without internet), pip's configured index is
+# used instead: there it must offer a CPU wheel (as this project's machines do, locally).
+TORCH="torch==2.13.0"
+CPU_INDEX="https://download.pytorch.org/whl/cpu"
 if ! python3 -c "import torch" 2>/dev/null; then
-  python3 -m pip install -q "torch==2.13.0"
+  if python3 -c "import sys, urllib.request; urllib.request.urlopen(sys.argv[1], timeout=15)" \
+      "$CPU_INDEX/" 2>/dev/null; then
+    python3 -m pip install -q "$TORCH" --index-url "$CPU_INDEX"
+  else
+    echo "install.sh: $CPU_INDEX cannot be reached; installing $TORCH from pip's configured index" >&2
+    python3 -m pip install -q "$TORCH"
+  fi
 fi
 python3 -m pip install -q -e ".[test]"
 python3 -c "import voe_lightning, mujoco, torch; print('voe_lightning', voe_lightning.__version__, '| mujoco', mujoco.__version__, '| torch', torch.__version__)"

@@ -152,13 +152,16 @@ def test_run_size_sweep_drives_fit_then_test(tmp_path):
             checkpoint_callback=checkpoint, callbacks=[callback]))
 
     out = tmp_path / "sweep" / "sweep.json"
-    rows = analysis.run_size_sweep("configs/x.yaml", [10, 300], eval_sets=2, pairs_per_set=6,
-                                   out=out, extra_args=["--data.root=data/sweep_{size}"],
+    rows = analysis.run_size_sweep(["configs/base.yaml", "configs/x.yaml"], [10, 300],
+                                   eval_sets=2, pairs_per_set=6, out=out,
+                                   extra_args=["--data.root=data/sweep_{size}"],
                                    test_args=["--data.generalization=true"], cli_main=fake_cli)
     # fit generates the store, so it must ask for the same number of test pairs as test
-    assert calls[0] == ["fit", "--config", "configs/x.yaml", "--data.train_examples", "10",
+    assert calls[0] == ["fit", "--config", "configs/base.yaml", "--config", "configs/x.yaml",
+                        "--data.train_examples", "10",
                         "--data.test_pairs", "12", "--data.root=data/sweep_10"]
-    assert calls[1] == ["test", "--config", "configs/x.yaml", "--data.train_examples", "10",
+    assert calls[1] == ["test", "--config", "configs/base.yaml", "--config", "configs/x.yaml",
+                        "--data.train_examples", "10",
                         "--data.test_pairs", "12", "--data.root=data/sweep_10",
                         "--ckpt_path", "/ckpt/10.ckpt", "--data.generalization=true"]
     assert calls[3][0] == "test" and "--data.root=data/sweep_300" in calls[3]
@@ -174,7 +177,7 @@ def test_run_size_sweep_names_a_missing_report_callback(tmp_path):
                                                                    callbacks=[]))
 
     with pytest.raises(RuntimeError, match="add voe_lightning.report.VOEReportCallback"):
-        analysis.run_size_sweep("c.yaml", [5], out=tmp_path / "s.json", cli_main=no_report)
+        analysis.run_size_sweep(["c.yaml"], [5], out=tmp_path / "s.json", cli_main=no_report)
 
 
 def test_command_line_writes_the_figures(tmp_path, capsys):

@@ -1,5 +1,6 @@
 """LRU memory invariants (DESIGN.md §5): read weights are distributions, usage decays by gamma,
-a closed write gate writes to the least-used slot, batch rows are independent, gradients flow."""
+a closed write gate writes to the least-used slot(s), batch rows are independent, gradients
+flow, and the controller sees the last read only when asked."""
 
 import pytest
 import torch
@@ -104,6 +105,45 @@ def test_closed_write_gate_writes_to_least_used_slot():
         torch.testing.assert_close(new.memory[row, others], state.memory[row, others])
 
 
+@pytest.mark.parametrize("least_used_slots", [1, 2, SLOTS])
+def test_least_used_weights_mark_n_slots_and_clear_only_the_least_used(least_used_slots):
+    """Santoro et al.'s w^lu marks the n slots of smallest usage: a closed write gate writes the
+    content into all n; only the single least-used slot is cleared first."""
+    memory = make_memory(least_used_slots=least_used_slots)
+    with torch.no_grad():
+        memory.write_gate.weight.zero_()
+        memory.write_gate.bias.fill_(-1e4)  # sigmoid(alpha) == 0: w^w = w^lu
+    state = random_state(memory)
+    by_usage = state.usage.argsort(-1)
+    read = memory.read(state, torch.randn(3, LATENT))
+    weights, cleared = memory.write_weights(state, read.hidden)
+    assert weights.shape == cleared.shape == (3, SLOTS)
+    assert (weights.sum(-1) == least_used_slots).all()
+    for row in range(3):
+        marked = set(by_usage[row, :least_used_slots].tolist())
+        assert set(weights[row].nonzero().flatten().tolist()) == marked
+    torch.testing.assert_close(cleared, torch.nn.functional.one_hot(by_usage[:, 0], SLOTS).float())
+    latent = torch.randn(3, LATENT)
+    new = memory.write(state, read, latent)
+    content = memory.write_projection(torch.cat([read.hidden, latent], -1))
+    for row in range(3):
+        least, *others = by_usage[row, :least_used_slots].tolist()
+        torch.testing.assert_close(new.memory[row, least], content[row])
+        for slot in others:  # marked but not cleared: the content is added
+            torch.testing.assert_close(new.memory[row, slot], state.memory[row, slot] + content[row])
+
+
+def test_least_used_slot_ties_go_to_the_lowest_index():
+    memory = make_memory(least_used_slots=2)
+    state = memory.initial_state(1)._replace(usage=torch.tensor([[1.0, 0.5, 0.5, 0.5, 2.0]]))
+    read = memory.read(state, torch.zeros(1, LATENT))
+    with torch.no_grad():
+        memory.write_gate.bias.fill_(-1e4)
+    weights, cleared = memory.write_weights(state, read.hidden)
+    torch.testing.assert_close(weights.round(), torch.tensor([[0.0, 1.0, 1.0, 0.0, 0.0]]))
+    torch.testing.assert_close(cleared, torch.tensor([[0.0, 1.0, 0.0, 0.0, 0.0]]))
+
+
 def test_open_write_gate_writes_to_previously_read_slots():
     memory = make_memory()
     with torch.no_grad():
@@ -129,9 +169,12 @@ def test_batch_rows_do_not_interact():
         torch.testing.assert_close(alone[0], batched[row], rtol=1e-5, atol=1e-6)
 
 
-@pytest.mark.parametrize("head_mixing", HEAD_MIXINGS)
-def test_gradients_reach_every_parameter(head_mixing):
-    memory = make_memory(head_mixing=head_mixing)
+@pytest.mark.parametrize("options", [
+    *({"head_mixing": mixing} for mixing in HEAD_MIXINGS),
+    {"controller_sees_read": False, "least_used_slots": HEADS},  # the paper's reading
+])
+def test_gradients_reach_every_parameter(options):
+    memory = make_memory(**options)
     latents = torch.randn(2, 4, LATENT, requires_grad=True)
     reads = rollout(memory, latents)
     torch.stack(reads).square().sum().backward()
@@ -155,6 +198,13 @@ def test_controller_without_read_input():
     memory = make_memory(controller_sees_read=False)
     assert memory.controller.input_size == LATENT
     assert make_memory().controller.input_size == LATENT + UNITS
+    # Without the read input, the controller's step (and so the read) ignores r_{t-1}.
+    state = random_state(memory)
+    latent = torch.randn(3, LATENT)
+    other_read = state._replace(read=torch.randn_like(state.read))
+    torch.testing.assert_close(memory.read(state, latent).hidden, memory.read(other_read, latent).hidden)
+    seeing = make_memory()
+    assert not torch.allclose(seeing.read(state, latent).hidden, seeing.read(other_read, latent).hidden)
 
 
 def test_bad_choices_are_refused_naming_valid_ones():
@@ -168,3 +218,9 @@ def test_bad_choices_are_refused_naming_valid_ones():
         make_memory(gamma=1.5)
     with pytest.raises(ValueError, match="num_slots"):
         make_memory(num_slots=0)
+    for bad in (0, SLOTS + 1, 1.5, True):
+        with pytest.raises(ValueError, match=f"least_used_slots must be an integer from 1 to the "
+                                             f"number of memory slots \\({SLOTS}\\)"):
+            make_memory(least_used_slots=bad)
+    with pytest.raises(TypeError, match="controller_sees_read must be True or False"):
+        make_memory(controller_sees_read="no")

@@ -72,6 +72,24 @@ def test_gradients_reach_every_parameter():
         assert parameter.grad.abs().sum() > 0, name
 
 
+def test_paper_memory_options_reach_the_memory_and_train():
+    """configs/paper.yaml's reading: the controller sees z_{t-1} and its own state only, and
+    w^lu marks as many least-used slots as there are read heads; shapes and gradients hold."""
+    default, paper = tiny_model(), tiny_model(controller_sees_read=False, least_used_slots=2)
+    assert default.core.memory.controller.input_size == 8 + 6  # z and the last read
+    assert paper.core.memory.controller.input_size == 8  # z alone
+    assert (default.core.memory.least_used_slots, paper.core.memory.least_used_slots) == (1, 2)
+    assert paper.hparams.controller_sees_read is False and paper.hparams.least_used_slots == 2
+    output, logits = paper(specs.to_model_input(frames()))
+    assert output.kl.shape == (B, T) and logits.shape == (B, T, 3, H, W)
+    paper._step(TensorDict(frames=frames(), batch_size=[B]))["loss"].backward()
+    for name, parameter in paper.named_parameters():
+        assert parameter.grad is not None and parameter.grad.abs().sum() > 0, name
+    with pytest.raises(ValueError, match="least_used_slots must be an integer from 1 to the "
+                                         "number of memory slots \\(5\\), got 6"):
+        tiny_model(least_used_slots=6)
+
+
 def test_kl_matches_torch_distributions_and_is_non_negative():
     generator = torch.Generator().manual_seed(3)
     mean_q, log_std_q, mean_p, log_std_p = torch.randn(4, 3, 7, generator=generator)

@@ -176,13 +176,18 @@ def test_fit_both_stages_then_test_through_the_cli(tmp_path, monkeypatch, object
     assert (run / "voe_report" / "predictions_object_persistence.png").is_file()
 
 
-def test_configs_build_models_of_matching_size():
-    import yaml
+def test_configs_build_models_of_matching_size(monkeypatch):
+    from test_configs import ROOT, compose
 
-    root = Path(__file__).parents[1] / "configs"
+    monkeypatch.chdir(ROOT)
     counts = {}
-    for name in ("object_centric", "object_free", "physical_concepts_object_centric"):
-        model = yaml.safe_load((root / f"{name}.yaml").read_text())["model"]
+    for name, configs in (
+        ("object_centric", ("base", "object_centric")),
+        ("object_free", ("base", "object_centric", "object_free")),
+        ("physical_concepts_object_centric",
+         ("base", "physical_concepts", "physical_concepts_object_centric")),
+    ):
+        model = compose(*configs)["model"]
         assert model["class_path"] == "voe_lightning.model.ObjectCentricModel"
         built = ObjectCentricModel(**model["init_args"])
         counts[name] = sum(p.numel() for p in built.parameters())
@@ -197,9 +202,10 @@ def test_fit_and_test_on_physical_concepts_freeform_and_probes(tmp_path, monkeyp
 
     monkeypatch.chdir(tmp_path)
     root = make_dataset(tmp_path / "physical_concepts")
+    configs = Path(__file__).parents[1] / "configs"
     arguments = [
-        "--config", str(Path(__file__).parents[1] / "configs"
-                        / "physical_concepts_object_centric.yaml"),
+        *(word for name in ("base", "physical_concepts", "physical_concepts_object_centric")
+          for word in ("--config", str(configs / f"{name}.yaml"))),
         "--trainer.max_steps=2", "--trainer.val_check_interval=2",
         "--trainer.logger.init_args.name=pc",
         "--model.image_size=[32, 32]", "--model.num_slots=4", "--model.code_size=8",

@@ -219,7 +219,7 @@ def _checkpoint(cli: Any) -> str:
 
 
 def run_size_sweep(
-    config_path: str | Path,
+    configs: Sequence[str | Path],
     sizes: Sequence[int],
     eval_sets: int = 5,
     pairs_per_set: int = 100,
@@ -228,7 +228,8 @@ def run_size_sweep(
     test_args: Sequence[str] = (),
     cli_main: Callable[[list[str]], Any] | None = None,
 ) -> list[dict[str, Any]]:
-    """Train one model per training-set size with ``python -m voe_lightning fit`` and test it
+    """Train one model per training-set size with ``python -m voe_lightning fit`` (with each of
+    ``configs`` in order, e.g. ``configs/base.yaml`` then ``configs/quickstart.yaml``) and test it
     on ``eval_sets`` x ``pairs_per_set`` test pairs, split into disjoint evaluation sets
     (``sweep_rows``). ``extra_args`` go to both commands, ``test_args`` to ``test`` only; in
     both ``{size}`` is replaced by the size (e.g. ``--data.root=data/sweep_{size}`` to keep
@@ -244,7 +245,8 @@ def run_size_sweep(
     rows: list[dict[str, Any]] = []
     for size in sizes:
         # test_pairs goes to fit too: fit generates the store, test must find the same one.
-        common = ["--config", str(config_path), "--data.train_examples", str(size),
+        common = [*(word for config in configs for word in ("--config", str(config))),
+                  "--data.train_examples", str(size),
                   "--data.test_pairs", str(eval_sets * pairs_per_set),
                   *(arg.format(size=size) for arg in extra_args)]
         fit = cli_main(["fit", *common])
@@ -339,7 +341,8 @@ def _run(text: str) -> tuple[str, str]:
 
 def main(argv: Sequence[str] | None = None) -> Any:
     """``analyze curves --runs [LABEL=]DIR ... --out PNG``: relative surprise over training;
-    ``analyze sweep --config YAML --sizes N ... --out JSON``: train and test per size;
+    ``analyze sweep --config YAML [--config YAML ...] --sizes N ... --out JSON``: train and
+    test per size;
     ``analyze sweep-plot (--results JSON | --runs SIZE=RUN_DIR ...) --out PNG``: Figure 3;
     ``analyze compare --runs [LABEL=]DIR ... [--out MD]``: per-concept verdicts side by side."""
     parser = argparse.ArgumentParser(prog="python -m voe_lightning analyze", description=__doc__)
@@ -355,7 +358,8 @@ def main(argv: Sequence[str] | None = None) -> Any:
     curves.add_argument("--out", required=True, help="PNG to write")
 
     sweep = commands.add_parser("sweep", help="train and test per training-set size")
-    sweep.add_argument("--config", required=True)
+    sweep.add_argument("--config", required=True, action="append", dest="configs",
+                       help="repeat for each config, in order: configs/base.yaml, then a study's")
     sweep.add_argument("--sizes", nargs="+", type=int, required=True)
     sweep.add_argument("--eval-sets", type=int, default=5)
     sweep.add_argument("--pairs-per-set", type=int, default=100)
@@ -391,7 +395,7 @@ def main(argv: Sequence[str] | None = None) -> Any:
             args.runs, {label: float(value) for label, value in args.step_scale})
         return _write(figure, args.out)
     if args.command == "sweep":
-        rows = run_size_sweep(args.config, args.sizes, args.eval_sets, args.pairs_per_set,
+        rows = run_size_sweep(args.configs, args.sizes, args.eval_sets, args.pairs_per_set,
                               args.out, args.extra_args, args.test_args)
         if args.plot:
             _write(size_sweep_figure(rows), args.plot)

@@ -60,7 +60,8 @@ class LRUMemory(nn.Module):
     content-based (cosine, softmax with strength beta) weights per head; :meth:`write` clears the
     least-used slot and writes ``a_t`` with ``w^w_t = sigmoid(alpha) w^r_{t-1} +
     (1 - sigmoid(alpha)) w^lu_{t-1}``, then updates usage ``w^u_t = gamma w^u_{t-1} + w^r_t + w^w_t``
-    (``w^r_t`` summed over heads). ``w^r_{t-1}`` is the previous step's read weights mixed over
+    (``w^r_t`` summed over heads). ``w^lu_{t-1}`` is 1 on the ``least_used_slots`` slots of
+    smallest usage (Santoro et al.'s n), 0 elsewhere. ``w^r_{t-1}`` is the previous step's read weights mixed over
     heads the same way the read output is, so a single write vector per step is written.
 
     Args:
@@ -78,7 +79,12 @@ class LRUMemory(nn.Module):
             ``[h_t, z_t]`` to ``slot_size``; ``"latent"`` ``z_t`` itself (needs
             ``input_size == slot_size``).
         controller_sees_read: whether the controller's input includes ``r_{t-1}`` besides
-            ``z_{t-1}`` (default True, as in Gemici et al.'s LRU model).
+            ``z_{t-1}`` (default True, as in Gemici et al.'s LRU model; the paper's controller
+            sees ``z_{t-1}`` and its own state only: False).
+        least_used_slots: how many slots the least-used weights ``w^lu`` mark (Santoro et al.'s
+            n, which they set to the number of reads; default 1). Ties go to the lowest slot
+            index, so the choice is deterministic. Whatever n, only the single least-used slot
+            is cleared before the write, as in Santoro et al.
         cosine_eps: added to norms in the cosine similarity so an empty slot has
             similarity 0 instead of NaN.
     """
@@ -94,6 +100,7 @@ class LRUMemory(nn.Module):
         head_mixing: str = "controller",
         write_content: str = "projection",
         controller_sees_read: bool = True,
+        least_used_slots: int = 1,
         cosine_eps: float = 1e-6,
     ) -> None:
         super().__init__()
@@ -108,6 +115,14 @@ class LRUMemory(nn.Module):
         ):
             if value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value}")
+        if not isinstance(controller_sees_read, bool):
+            raise TypeError(f"controller_sees_read must be True or False, got {controller_sees_read!r}")
+        if (not isinstance(least_used_slots, int) or isinstance(least_used_slots, bool)
+                or not 1 <= least_used_slots <= num_slots):
+            raise ValueError(
+                f"least_used_slots must be an integer from 1 to the number of memory slots "
+                f"({num_slots}), got {least_used_slots!r}"
+            )
         if not 0.0 <= gamma <= 1.0:
             raise ValueError(f"gamma (usage decay) must be in [0, 1], got {gamma}")
         if write_content == "latent" and input_size != slot_size:
@@ -124,6 +139,7 @@ class LRUMemory(nn.Module):
         self.head_mixing = head_mixing
         self.write_content = write_content
         self.controller_sees_read = controller_sees_read
+        self.least_used_slots = least_used_slots
         self.eps = cosine_eps
         self.read_size = slot_size * (num_read_heads if head_mixing == "concat" else 1)
 
@@ -140,11 +156,6 @@ class LRUMemory(nn.Module):
             if write_content == "projection"
             else None
         )
-
-    @property
-    def state_size(self) -> int:
-        """Size of the flattened memory matrix (what :meth:`flat_memory` returns per row)."""
-        return self.num_slots * self.slot_size
 
     def initial_state(
         self, batch_size: int, device: torch.device | None = None, dtype: torch.dtype = torch.float32
@@ -194,22 +205,27 @@ class LRUMemory(nn.Module):
         return Read(read=read, weights=weights, mixed_weights=mixed_weights, hidden=hidden, cell=cell)
 
     def write_weights(self, state: MemoryState, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(w^w_t, w^lu_{t-1})``: the write weights and the one-hot least-used slot (the
-        lowest-index slot among ties, so the choice is deterministic)."""
-        least_used = F.one_hot(state.usage.argmin(dim=-1), self.num_slots).to(state.usage.dtype)
+        """``(w^w_t, c_{t-1})``: the write weights, and the one-hot least-used slot ``c_{t-1}``
+        that the write clears. ``w^lu_{t-1}`` marks the ``least_used_slots`` slots of smallest
+        usage; ties go to the lowest index (a stable sort), so the choice is deterministic."""
+        by_usage = state.usage.argsort(dim=-1, stable=True)
+        least_used = torch.zeros_like(state.usage).scatter_(
+            -1, by_usage[:, : self.least_used_slots], 1.0
+        )
+        cleared = F.one_hot(by_usage[:, 0], self.num_slots).to(state.usage.dtype)
         gate = torch.sigmoid(self.write_gate(hidden).float())  # [B, 1]
         weights = gate * state.mixed_read_weights + (1.0 - gate) * least_used
-        return weights, least_used
+        return weights, cleared
 
     def write(self, state: MemoryState, read: Read, latent: torch.Tensor) -> MemoryState:
         """Clear the least-used slot, write ``a_t`` (from ``z_t``), update usage."""
-        weights, least_used = self.write_weights(state, read.hidden)
+        weights, cleared = self.write_weights(state, read.hidden)
         if self.write_projection is not None:
             content = self.write_projection(torch.cat([read.hidden, latent.to(read.hidden.dtype)], -1))
         else:
             content = latent
         content = content.float()
-        memory = state.memory * (1.0 - least_used).unsqueeze(-1) + weights.unsqueeze(
+        memory = state.memory * (1.0 - cleared).unsqueeze(-1) + weights.unsqueeze(
             -1
         ) * content.unsqueeze(1)
         usage = self.gamma * state.usage + read.weights.sum(dim=1) + weights

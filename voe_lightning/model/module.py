@@ -61,8 +61,11 @@ class VOEModel(SurpriseModel):
         memory_slots, memory_slot_size, memory_read_heads, controller_size: LRU memory (paper:
             15 slots x 100 units, 3 read heads, 128-unit LSTM controller).
         usage_decay: gamma of the LRU usage (0.95).
-        head_mixing, write_content, controller_sees_read: the memory's open choices, see
-            :class:`~voe_lightning.model.memory.LRUMemory`.
+        head_mixing, write_content, controller_sees_read, least_used_slots: the memory's open
+            choices, see :class:`~voe_lightning.model.memory.LRUMemory`. The paper's reading
+            (``configs/paper.yaml``): ``controller_sees_read=False`` (its LSTM sees the previous
+            latent and its own state) and ``least_used_slots`` = the read heads (Santoro et
+            al.'s n); the defaults (True, 1) keep earlier configs and checkpoints unchanged.
         encoder_blocks, encoder_channels, encoder_mlp_size: encoder (and mirrored decoder):
             stride-2 bottleneck blocks (paper: 6 of 64, 64, 128 channels) and MLP (paper: 500).
         prior_regularizer_weight: weight of sum_t KL(prior_t || N(0, I)) (paper: 1e-4).
@@ -101,6 +104,7 @@ class VOEModel(SurpriseModel):
         head_mixing: str = "controller",
         write_content: str = "projection",
         controller_sees_read: bool = True,
+        least_used_slots: int = 1,
         encoder_blocks: int = 6,
         encoder_channels: Sequence[int] = (64, 64, 128),
         encoder_mlp_size: int = 500,
@@ -148,6 +152,7 @@ class VOEModel(SurpriseModel):
             head_mixing=head_mixing,
             write_content=write_content,
             controller_sees_read=controller_sees_read,
+            least_used_slots=least_used_slots,
         )
         self.core = VRNNCore(self.encoder.output_size, latent_size, memory, mlp_sizes)
         if compile_model:

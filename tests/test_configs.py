@@ -1,0 +1,133 @@
+"""The shipped configs compose as documented: every `fit`/`validate`/`test`/`predict` command
+written in the README, docs/ or a config's own header parses (``--print_config``: no data, no
+training), every config file is used by one, the lists merge as intended (a later
+``callbacks+:`` appends to base.yaml's callbacks) and a study config alone is refused."""
+
+import contextlib
+import importlib
+import io
+import re
+import shlex
+import sys
+from functools import cache
+from pathlib import Path
+
+import pytest
+import yaml
+
+from voe_lightning.cli import main
+
+ROOT = Path(__file__).parents[1]
+CONFIGS = ROOT / "configs"
+COMMAND = re.compile(r"\b(fit|validate|test|predict)\s+--config\b")
+
+
+def documented_commands() -> list[tuple[str, ...]]:
+    """Each documented command as its arguments after ``python -m voe_lightning``, without
+    ``--ckpt_path`` (the checkpoint is not there), in order of first appearance."""
+    sources = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    texts = [path.read_text() for path in sources]
+    texts += ["\n".join(re.sub(r"^#\s?", "", line) for line in path.read_text().splitlines()
+                        if line.startswith("#")) for path in sorted(CONFIGS.glob("*.yaml"))]
+    commands: dict[tuple[str, ...], None] = {}
+    for text in texts:
+        for line in re.sub(r"\\\n\s*", " ", text).splitlines():
+            for match in COMMAND.finditer(line):
+                words = shlex.split(re.split(r"[`|#]", line[match.start():])[0])
+                while "--ckpt_path" in words:
+                    index = words.index("--ckpt_path")
+                    del words[index:index + 2]
+                commands[tuple(words)] = None
+    return list(commands)
+
+
+@cache
+def parsed(*arguments: str) -> dict:
+    """The full config that ``python -m voe_lightning ARGUMENTS`` would run, as a dict."""
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed), pytest.raises(SystemExit) as exit_:
+        main([*arguments, "--print_config"])
+    assert exit_.value.code in (None, 0), f"{' '.join(arguments)} does not parse"
+    return yaml.safe_load(printed.getvalue())
+
+
+def compose(*names: str, subcommand: str = "fit") -> dict:
+    """The parsed config of ``--config configs/NAME.yaml`` for each name, in order."""
+    return parsed(subcommand, *(word for name in names for word in ("--config", f"configs/{name}.yaml")))
+
+
+def imported(class_path: str) -> type:
+    module, _, name = class_path.rpartition(".")
+    return getattr(importlib.import_module(module), name)
+
+
+def callbacks(config: dict) -> dict[str, dict]:
+    """The trainer's callbacks by class name (each must appear once)."""
+    names = [callback["class_path"].rsplit(".", 1)[1] for callback in config["trainer"]["callbacks"]]
+    assert len(names) == len(set(names)), names
+    return {name: callback.get("init_args") or {}
+            for name, callback in zip(names, config["trainer"]["callbacks"])}
+
+
+@pytest.fixture(autouse=True)
+def in_repository(monkeypatch):
+    monkeypatch.chdir(ROOT)  # the documented paths are relative to the repository root
+    monkeypatch.setattr(sys, "argv", ["python -m voe_lightning"])  # not pytest's arguments
+
+
+def test_every_config_is_in_a_documented_command():
+    used = {Path(word).name for command in documented_commands() for word in command
+            if word.startswith("configs/")}
+    assert used == {path.name for path in CONFIGS.glob("*.yaml")}
+
+
+@pytest.mark.parametrize("command", documented_commands(), ids=" ".join)
+def test_documented_command_parses_into_a_complete_run(command):
+    config = parsed(*command)
+    model_class, _ = (imported(config[section]["class_path"]) for section in ("model", "data"))
+    assert config["trainer"]["logger"]["init_args"]["name"]
+    present = callbacks(config)
+    assert "VOEReportCallback" in present
+    if command[0] == "fit":  # trains: probes while training, checkpoints at each validation
+        assert {"VOEProbeCallback", "ExpectationImages", "TQDMProgressBar"} <= present.keys()
+        checkpoint = present["ModelCheckpoint"]
+        assert checkpoint["save_last"]
+        assert config["trainer"]["val_check_interval"] % checkpoint["every_n_train_steps"] == 0
+        model_class(**config["model"]["init_args"])  # the constructor takes the composed values
+
+
+def test_later_configs_append_to_or_override_base():
+    base = callbacks(compose("base", "joint"))
+    cpu = compose("base", "cpu")
+    assert callbacks(cpu).keys() == base.keys() | {"LearningRateMonitor"}  # callbacks+: appends
+    assert callbacks(cpu)["ModelCheckpoint"]["every_n_train_steps"] == 2000
+    assert callbacks(compose("base", "quickstart"))["ModelCheckpoint"]["every_n_train_steps"] == 250
+    assert cpu["trainer"]["gradient_clip_val"] == 10.0  # base.yaml's
+    separate = compose("base", "joint", "solidity")
+    assert separate["data"]["class_path"] == "datamodules.ConceptDataModule"
+    assert separate["data"]["init_args"]["concept"] == "solidity"
+    assert separate["data"]["init_args"]["root"] == "data/voe_10k"  # joint.yaml's, kept
+    assert separate["data"]["init_args"]["train_examples"] == 10000
+    assert separate["trainer"]["max_steps"] == 100000
+    assert separate["trainer"]["logger"]["init_args"] == {
+        **compose("base", "joint")["trainer"]["logger"]["init_args"], "name": "solidity"}
+    assert separate["model"]["init_args"]["learning_rate"] == 5e-5
+
+
+def test_paper_config_reads_the_memory_as_the_paper_does():
+    paper = compose("base", "paper")
+    arguments = paper["model"]["init_args"]
+    assert arguments["controller_sees_read"] is False
+    assert arguments["least_used_slots"] == arguments["memory_read_heads"] == 3
+    assert arguments["learning_rate"] == 5e-6 and paper["data"]["init_args"]["batch_size"] == 10
+    assert paper["trainer"]["gradient_clip_val"] is None  # the paper names no clipping
+    joint = compose("base", "joint")["model"]["init_args"]
+    assert (joint["controller_sees_read"], joint["least_used_slots"]) == (True, 1)  # defaults
+
+
+def test_a_study_config_without_base_is_refused(capsys):
+    """A study file's logger and model sections are partial (no class_path): alone, they
+    cannot run without base.yaml's callbacks, and are refused before any work."""
+    with pytest.raises(SystemExit) as exit_:
+        main(["fit", "--config", "configs/quickstart.yaml", "--print_config"])
+    assert exit_.value.code not in (None, 0)
