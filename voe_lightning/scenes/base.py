@@ -191,12 +191,6 @@ def yaw_quat(angle: float) -> list[float]:
     return [float(np.cos(angle / 2)), 0.0, 0.0, float(np.sin(angle / 2))]
 
 
-def random_quat(rng: np.random.Generator) -> list[float]:
-    """A uniformly random orientation."""
-    q = rng.normal(size=4)
-    return list(q / np.linalg.norm(q))
-
-
 class SceneBuilder:
     """Builds one episode with MjSpec: floor, light, camera and named objects, each object
     labelled with its own mask id (1, 2, ... in the order added)."""
