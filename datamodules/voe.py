@@ -7,7 +7,6 @@ from __future__ import annotations
 import os
 from collections.abc import Iterator, Sequence
 
-import lightning as L
 import numpy as np
 import torch
 from torch.utils.data import ConcatDataset, DataLoader, Dataset, Sampler
@@ -15,6 +14,7 @@ from torch.utils.data import ConcatDataset, DataLoader, Dataset, Sampler
 from datamodules.arguments import check_at_least
 from voe_lightning import specs, store
 from voe_lightning.generate import ensure_dataset
+from voe_lightning.probe_datamodule import ProbeDataModule
 from voe_lightning.store import open_split, probe_sampler, record_loader
 
 
@@ -48,7 +48,7 @@ class InterleavedSampler(Sampler[int]):
         return iter(interleaved.reshape(-1).tolist())
 
 
-class VOEDataModule(L.LightningDataModule):
+class VOEDataModule(ProbeDataModule):
     """Examples + controls of ``concepts`` for training (equal counts per concept, interleaved),
     their validation probe pairs for ``fit`` and test probe pairs (plus the generalization probes
     if ``generalization``) for ``test``. Missing data is generated under ``root`` on first use.
@@ -70,6 +70,8 @@ class VOEDataModule(L.LightningDataModule):
         num_frames, height, width: video geometry (paper: 15 frames of 64x64).
         seed: seed of the training order.
     """
+
+    concept_names, variant_names = specs.CONCEPTS, specs.VARIANTS
 
     def __init__(
         self,
@@ -114,7 +116,6 @@ class VOEDataModule(L.LightningDataModule):
         )
         self.save_hyperparameters()
         self.concepts = list(dict.fromkeys(concepts))
-        self.concept_names, self.variant_names = specs.CONCEPTS, specs.VARIANTS
         self._datasets: dict[str, Dataset] = {}
 
     # --- data on disk --------------------------------------------------------------------------

@@ -14,7 +14,9 @@ from PIL import Image
 from torch.utils.tensorboard import SummaryWriter
 
 from voe_lightning import analysis
-from voe_lightning.report import PairResults, VOEReportCallback, write_report
+from voe_lightning.callbacks import VOEReportCallback
+from voe_lightning.report import write_report
+from voe_lightning.report.results import PairResults
 from voe_lightning.statistics import paired_test
 
 NOTEBOOK = Path(__file__).parent.parent / "notebooks" / "voe_report.ipynb"
@@ -176,7 +178,7 @@ def test_run_size_sweep_names_a_missing_report_callback(tmp_path):
         return types.SimpleNamespace(trainer=types.SimpleNamespace(checkpoint_callback=checkpoint,
                                                                    callbacks=[]))
 
-    with pytest.raises(RuntimeError, match="add voe_lightning.report.VOEReportCallback"):
+    with pytest.raises(RuntimeError, match="add voe_lightning.callbacks.VOEReportCallback"):
         analysis.run_size_sweep(["c.yaml"], [5], out=tmp_path / "s.json", cli_main=no_report)
 
 

@@ -11,9 +11,17 @@ from scipy import stats
 
 from voe_lightning import specs
 from voe_lightning.callbacks import VOEProbeCallback, voe_table
+from voe_lightning.probe_datamodule import ProbeDataModule
 
 CASES = [("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
          ("unchangeableness", "color")]
+
+
+class _Probes(ProbeDataModule):
+    concept_names, variant_names = specs.CONCEPTS, specs.VARIANTS
+
+    def probe_cases(self, split="val"):
+        return CASES
 
 
 class _Module:
@@ -28,9 +36,7 @@ class _Module:
 
 def test_probe_callback_logs_the_pooled_test_over_both_variants():
     rng = np.random.default_rng(0)
-    datamodule = SimpleNamespace(probe_cases=lambda split="val": CASES,
-                                 concept_names=specs.CONCEPTS, variant_names=specs.VARIANTS)
-    trainer = SimpleNamespace(datamodule=datamodule, sanity_checking=False)
+    trainer = SimpleNamespace(datamodule=_Probes(), sanity_checking=False)
     callback, module = VOEProbeCallback(print_table=False), _Module()
     callback.on_validation_epoch_start(trainer, module)
     pairs = {case: ([], []) for case in CASES}
@@ -65,3 +71,9 @@ def test_probe_callback_logs_the_pooled_test_over_both_variants():
     text = console.export_text()
     assert "verdict" in text and "pooled" in text
     assert "undecided: no test of position, shape" in text  # unchangeableness lacks two variants
+
+
+def test_probe_callback_refuses_a_datamodule_without_names():
+    trainer = SimpleNamespace(datamodule=SimpleNamespace(probe_cases=lambda split="val": CASES))
+    with pytest.raises(TypeError, match="VOEProbeCallback .* needs a ProbeDataModule"):
+        VOEProbeCallback().on_validation_epoch_start(trainer, _Module())

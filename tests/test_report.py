@@ -17,13 +17,11 @@ from torch.utils.data import DataLoader
 
 from voe_lightning import specs
 from voe_lightning.model.base import SurpriseModel
-from voe_lightning.report import (
-    SUMMARY_COLUMNS,
-    PairResults,
-    PredictionExample,
-    VOEReportCallback,
-    write_report,
-)
+from voe_lightning.callbacks import VOEReportCallback
+from voe_lightning.probe_datamodule import ProbeDataModule
+from voe_lightning.report import write_report
+from voe_lightning.report.figures import PredictionExample
+from voe_lightning.report.results import SUMMARY_COLUMNS, PairResults
 from voe_lightning.statistics import paired_test
 
 T, H, W = 6, 16, 16
@@ -218,16 +216,24 @@ def _probe(concept, variant, seed):
     return record
 
 
-class ProbeData(L.LightningDataModule):
-    def __init__(self, cases, with_names=True):
+class UnnamedProbeData(L.LightningDataModule):
+    """Five probe pairs per case, without the names that decode their indices."""
+
+    def __init__(self, cases):
         super().__init__()
+        self.cases = cases
         self.records = [_probe(c, v, 10 * i + j)
                         for i, (c, v) in enumerate(cases) for j in range(5)]
-        if with_names:
-            self.concept_names, self.variant_names = specs.CONCEPTS, specs.VARIANTS
 
     def test_dataloader(self):
         return DataLoader(self.records, batch_size=4, collate_fn=torch.stack)
+
+
+class ProbeData(UnnamedProbeData, ProbeDataModule):
+    concept_names, variant_names = specs.CONCEPTS, specs.VARIANTS
+
+    def probe_cases(self, split="val"):
+        return self.cases
 
 
 class PersistenceModel(SurpriseModel):
@@ -299,8 +305,8 @@ def test_callback_refuses_missing_outputs_names_and_probes(tmp_path):
     with pytest.raises(TypeError, match="test_step to return the probe_step dict"):
         _trainer(tmp_path, VOEReportCallback()).test(PersistenceModel(return_outputs=False),
                                                      datamodule=ProbeData(CASES[:1]))
-    with pytest.raises(AttributeError, match="concept_names and .variant_names"):
-        unnamed = ProbeData(CASES[:1], with_names=False)
+    with pytest.raises(TypeError, match="needs a ProbeDataModule .* got UnnamedProbeData"):
+        unnamed = UnnamedProbeData(CASES[:1])
         _trainer(tmp_path, VOEReportCallback()).test(PersistenceModel(), datamodule=unnamed)
     with pytest.raises(RuntimeError, match="collected no probe results"):
         _trainer(tmp_path, VOEReportCallback()).test(PersistenceModel(), datamodule=ProbeData([]))

@@ -18,7 +18,9 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from voe_lightning.report import PairResults, VOEReportCallback, format_p, panel_grid
+from voe_lightning.callbacks import VOEReportCallback
+from voe_lightning.report.figures import panel_grid
+from voe_lightning.report.results import PairResults, format_p
 from voe_lightning.specs import GENERALIZATION_VARIANTS
 from voe_lightning.statistics import paired_test
 
@@ -206,7 +208,7 @@ def _report_dir(cli: Any) -> Path:
     for callback in getattr(trainer, "callbacks", []):
         if isinstance(callback, VOEReportCallback) and callback.report_dir is not None:
             return callback.report_dir
-    raise RuntimeError("the test run wrote no VOE report: add voe_lightning.report."
+    raise RuntimeError("the test run wrote no VOE report: add voe_lightning.callbacks."
                        "VOEReportCallback to the config's trainer.callbacks")
 
 

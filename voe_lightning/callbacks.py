@@ -1,17 +1,27 @@
-"""Training-time callbacks, one concern each: VOE statistics of the validation probes over
-training, and image strips of what the model expected to see."""
+"""Callbacks, one concern each: VOE statistics of the validation probes over training, image
+strips of what the model expected to see, and the VOE report of a ``test`` run."""
 
 from __future__ import annotations
 
+import json
 from collections import defaultdict
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
 
 import lightning as L
+import numpy as np
 import torch
+from lightning.pytorch.utilities import rank_zero_warn
 from rich.console import Console
 from rich.table import Table
 
-from voe_lightning import specs
-from voe_lightning.model.base import video_inputs
+from voe_lightning import cues, specs
+from voe_lightning.model.base import SurpriseModel, video_inputs
+from voe_lightning.probe_datamodule import probe_datamodule
+from voe_lightning.report import write_report
+from voe_lightning.report.figures import PredictionExample
+from voe_lightning.report.results import PROBE_OUTPUT_KEYS, PairResults, as_numpy
 from voe_lightning.statistics import (
     POOLED,
     POOLED_VARIANTS,
@@ -21,12 +31,10 @@ from voe_lightning.statistics import (
 )
 
 
-def _names(trainer: L.Trainer) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    datamodule = trainer.datamodule
-    return (
-        getattr(datamodule, "concept_names", specs.CONCEPTS),
-        getattr(datamodule, "variant_names", specs.VARIANTS),
-    )
+def _names(trainer: L.Trainer, user: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The DataModule's concept and variant names (refused unless it is a ProbeDataModule)."""
+    datamodule = probe_datamodule(trainer, user)
+    return tuple(datamodule.concept_names), tuple(datamodule.variant_names)
 
 
 class VOEProbeCallback(L.Callback):
@@ -50,7 +58,7 @@ class VOEProbeCallback(L.Callback):
         self.last: dict[tuple[str, str], dict[str, float]] = {}
 
     def on_validation_epoch_start(self, trainer, pl_module) -> None:
-        cases = getattr(trainer.datamodule, "probe_cases", lambda split="val": [])("val")
+        cases = probe_datamodule(trainer, type(self).__name__).probe_cases("val")
         concepts, variants = zip(*cases) if cases else ((), ())
         pooled = [(c, v) for c, v, _ in pair_groups(concepts, variants) if v == POOLED]
         # Create every metric up front so all DDP ranks hold the same states.
@@ -69,7 +77,7 @@ class VOEProbeCallback(L.Callback):
     ) -> None:
         if not outputs:
             return
-        concept_names, variant_names = _names(trainer)
+        concept_names, variant_names = _names(trainer, type(self).__name__)
         inconsistent = outputs["surprise_inconsistent"].sum(-1)
         consistent = outputs["surprise_consistent"].sum(-1)
         groups = defaultdict(list)
@@ -160,7 +168,7 @@ class ExpectationImages(L.Callback):
     def on_validation_batch_end(
         self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0
     ) -> None:
-        concept_names, _ = _names(trainer)
+        concept_names, _ = _names(trainer, type(self).__name__)
         frames = batch["inconsistent", "frames"]
         inputs = video_inputs(batch, "inconsistent")
         for index, concept in enumerate(batch["concept"].tolist()):
@@ -187,3 +195,200 @@ class ExpectationImages(L.Callback):
             # [T, 3, 2H, W] -> [3, 2H, T*W]: input row above expectation row.
             image = strip.permute(1, 2, 0, 3).reshape(3, strip.shape[-2], -1)
             experiment.add_image(f"expected/{concept}", image, global_step=trainer.global_step)
+
+
+# ----------------------------------------------------------------------------- report
+
+
+def _stacked(videos: list[dict[str, torch.Tensor]], device: torch.device
+             ) -> dict[str, torch.Tensor]:
+    """Kept videos (frames and, where the batch had them, mask and camera) as one batch."""
+    return {key: torch.stack([video[key] for video in videos]).to(device) for key in videos[0]}
+
+
+def _gather(value: Any) -> list[Any]:
+    """All ranks' values under torch.distributed (DDP test), else [value]."""
+    import torch.distributed as dist
+
+    if dist.is_available() and dist.is_initialized() and dist.get_world_size() > 1:
+        gathered: list[Any] = [None] * dist.get_world_size()
+        dist.all_gather_object(gathered, value)
+        return gathered
+    return [value]
+
+
+class VOEReportCallback(L.Callback):
+    """Collects ``test_step`` outputs (the ``probe_step`` dict) and, at the end of ``test``,
+    writes the VOE report into ``out_dir`` or the run directory (``trainer.log_dir``). Keeps
+    up to ``max_prediction_examples`` inconsistent probes per concept/variant for
+    predictions_<concept>.png (``pl_module.expected_frames``) and ``tsne_pairs``
+    object-persistence pairs, standard and counterbalanced alternately, for the t-SNE figure
+    (``pl_module.trajectories``). With ``cue_audit`` it scores the physics-blind cues of every
+    test batch's pairs (``voe_lightning.cues``, on the batch's device), so the cue rows of
+    cues.md/cues.csv share the model's pairs and n. Names are decoded with the
+    ProbeDataModule's ``concept_names`` / ``variant_names``. After the test, ``summary``
+    holds the rows and ``report_dir`` the directory written."""
+
+    def __init__(
+        self,
+        out_dir: str | None = None,
+        max_prediction_examples: int = 1,
+        tsne_pairs: int = 2,
+        alpha: float = 0.05,
+        bootstrap: int = 2000,
+        seed: int = 0,
+        cue_audit: bool = True,
+    ) -> None:
+        if max_prediction_examples < 0 or tsne_pairs < 0:
+            raise ValueError("max_prediction_examples and tsne_pairs must be >= 0, got "
+                             f"{max_prediction_examples} and {tsne_pairs}")
+        self.out_dir = out_dir
+        self.max_prediction_examples = max_prediction_examples
+        self.tsne_pairs = tsne_pairs
+        self.alpha, self.bootstrap, self.seed = alpha, bootstrap, seed
+        self.cue_audit = cue_audit
+        self.summary: list[dict[str, Any]] | None = None
+        self.report_dir: Path | None = None
+        self._failed = self._ended = False
+        self._reset()
+
+    def _reset(self) -> None:
+        self._outputs: list[dict[str, np.ndarray]] = []
+        self._cues: list[cues.CueAudit] = []
+        self._examples: dict[tuple[int, int], list[dict[str, Any]]] = {}
+        self._tsne: dict[int, list[dict[str, Any]]] = {}
+
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        if not isinstance(pl_module, SurpriseModel):
+            raise TypeError(f"VOEReportCallback needs a SurpriseModel (surprise, expected_frames "
+                            f"and trajectories, voe_lightning.model.base); got "
+                            f"{type(pl_module).__name__}")
+        self.summary, self.report_dir, self._failed, self._ended = None, None, False, False
+
+    def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule,
+                     exception: BaseException) -> None:
+        self._failed = True
+
+    def teardown(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        # Lightning skips the whole test loop (and on_test_end) when the loaders are empty.
+        if stage == "test" and not self._ended and not self._failed:
+            self._no_results()
+
+    @staticmethod
+    def _no_results() -> None:
+        raise RuntimeError(
+            "VOEReportCallback collected no probe results: the test dataloaders yielded no "
+            "probe pairs (does the DataModule have test probes for its concepts?)")
+
+    def on_test_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._reset()
+        self._concept_names, self._variant_names = _names(trainer, type(self).__name__)
+
+    def on_test_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs: Any,
+                          batch: Any, batch_idx: int, dataloader_idx: int = 0) -> None:
+        if not isinstance(outputs, Mapping):
+            raise TypeError(f"VOEReportCallback needs test_step to return the probe_step dict "
+                            f"with {list(PROBE_OUTPUT_KEYS)}; got {type(outputs).__name__}")
+        missing = [key for key in PROBE_OUTPUT_KEYS if key not in outputs]
+        if missing:
+            raise KeyError(f"test_step output lacks {missing} (needs {list(PROBE_OUTPUT_KEYS)})")
+        stored = {key: as_numpy(outputs[key], None) for key in PROBE_OUTPUT_KEYS}
+        self._outputs.append(stored)
+        if self.cue_audit:
+            self._cues.append(cues.CueAudit.score_batch(batch, self._concept_names,
+                                                        self._variant_names))
+        self._keep_examples(stored, batch)
+
+    def _keep_examples(self, stored: Mapping[str, np.ndarray], batch: Any) -> None:
+        persistence = (self._concept_names.index("object_persistence")
+                       if "object_persistence" in self._concept_names else None)
+        for i, (concept, variant) in enumerate(zip(stored["concept"], stored["variant"])):
+            concept, variant = int(concept), int(variant)
+            meta = {"concept": concept, "variant": variant, "seed": int(stored["seed"][i]),
+                    "manipulation_frame": int(stored["manipulation_frame"][i])}
+            kept = self._examples.setdefault((concept, variant), [])
+            videos = {side: {"frames": batch[side, "frames"][i].cpu().clone()}
+                      | {name: value[i].cpu().clone()
+                         for name, value in video_inputs(batch, side).items()}
+                      for side in ("consistent", "inconsistent")}
+            if len(kept) < self.max_prediction_examples:
+                kept.append(meta | {"inconsistent": videos["inconsistent"]})
+            tsne = self._tsne.setdefault(variant, []) if concept == persistence else None
+            if tsne is not None and len(tsne) < self.tsne_pairs:
+                tsne.append(meta | videos)
+
+    def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        gathered = _gather((self._outputs, self._examples, self._tsne, self._cues))
+        self._ended = True  # on every rank; only rank zero writes the report
+        # trainer.log_dir broadcasts under DDP: every rank must ask for it.
+        out_dir = self.out_dir or trainer.log_dir or trainer.default_root_dir
+        if not trainer.is_global_zero:
+            return
+        outputs = [output for rank in gathered for output in rank[0]]
+        if not outputs:
+            self._no_results()
+        results = PairResults.from_probe_outputs(outputs, self._concept_names,
+                                                 self._variant_names)
+        examples = [e for rank in gathered for kept in rank[1].values() for e in kept]
+        tsne = [e for rank in gathered for kept in rank[2].values() for e in kept]
+        cue_audit = (cues.CueAudit.concatenate(a for rank in gathered for a in rank[3])
+                     if self.cue_audit else None)
+        was_training = pl_module.training
+        pl_module.eval()
+        try:
+            with torch.no_grad():
+                predictions = self._predictions(pl_module, examples)
+                trajectories, labels = self._trajectories(pl_module, tsne)
+        finally:
+            pl_module.train(was_training)
+        self.summary = write_report(results, out_dir, predictions, trajectories,
+                                    trajectory_labels=labels, cue_audit=cue_audit,
+                                    alpha=self.alpha, bootstrap=self.bootstrap,
+                                    seed=self.seed, surprise=pl_module.SURPRISE)
+        self.report_dir = Path(out_dir) / "voe_report"
+        self._write_benchmark_metrics(trainer, outputs)
+
+    def _write_benchmark_metrics(self, trainer: L.Trainer, outputs: list[dict[str, Any]]) -> None:
+        """External benchmarks (IntPhys, Physical Concepts) add their own published metrics."""
+        datamodule = probe_datamodule(trainer, type(self).__name__)
+        merged = {key: np.concatenate([output[key] for output in outputs])
+                  for key in PROBE_OUTPUT_KEYS}
+        metrics = datamodule.benchmark_metrics(merged, alpha=self.alpha, bootstrap=self.bootstrap)
+        if metrics is None:
+            return
+        path = self.report_dir / "benchmark_metrics.json"
+        path.write_text(json.dumps(metrics, indent=2, default=lambda v: v.item()) + "\n")
+        print(f"benchmark metrics written to {path}")
+
+    def _predictions(self, pl_module: L.LightningModule,
+                     examples: list[dict[str, Any]]) -> list[PredictionExample]:
+        if not examples:
+            return []
+        video = _stacked([e["inconsistent"] for e in examples], pl_module.device)
+        expected = pl_module.expected_frames(**video).float().cpu().numpy()
+        return [PredictionExample(
+            concept=self._concept_names[e["concept"]], variant=self._variant_names[e["variant"]],
+            seed=e["seed"], manipulation_frame=e["manipulation_frame"],
+            frames=e["inconsistent"]["frames"].numpy(), expected=expected[i])
+            for i, e in enumerate(examples)]
+
+    def _trajectories(self, pl_module: L.LightningModule, tsne: list[dict[str, Any]]):
+        # Interleave variants (standard, counterbalanced, standard, ...) up to tsne_pairs.
+        by_variant: dict[int, list[dict[str, Any]]] = {}
+        for e in tsne:
+            by_variant.setdefault(e["variant"], []).append(e)
+        order = sorted(by_variant, key=lambda v: self._variant_names[v] != "standard")
+        chosen = [by_variant[v][i] for i in range(self.tsne_pairs) for v in order
+                  if i < len(by_variant[v])][: self.tsne_pairs]
+        if len(chosen) < 2:
+            if self.tsne_pairs:
+                rank_zero_warn("fewer than 2 object-persistence probe pairs in the test set; "
+                               "tsne_object_persistence.png not written")
+            return None, None
+        trajectories = {}
+        for video in ("consistent", "inconsistent"):
+            courses = pl_module.trajectories(**_stacked([e[video] for e in chosen],
+                                                        pl_module.device))
+            trajectories[video] = {k: v.float().cpu().numpy() for k, v in courses.items()}
+        labels = [f"{self._variant_names[e['variant']]} (seed {e['seed']})" for e in chosen]
+        return trajectories, labels

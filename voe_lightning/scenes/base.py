@@ -7,6 +7,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import importlib
+import math
 import os
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
@@ -132,6 +133,26 @@ class CameraRange:
 #: Names of the six camera parameters, in the order of ``CameraPose.as_array``.
 CAMERA_PARAMETERS = ("lookat_x", "lookat_y", "lookat_z", "distance", "azimuth", "elevation")
 
+#: Vertical field of view of MuJoCo's free camera (model default, degrees).
+FOVY = 45.0
+
+
+def camera_axes(camera: CameraPose) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Position, right, up and forward unit vectors of MuJoCo's free camera at ``camera``."""
+    az, el = math.radians(camera.azimuth), math.radians(camera.elevation)
+    forward = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    up = np.array([-math.sin(el) * math.cos(az), -math.sin(el) * math.sin(az), math.cos(el)])
+    position = np.asarray(camera.lookat) - camera.distance * forward
+    return position, np.cross(forward, up), up, forward
+
+
+def camera_coordinates(camera: CameraPose, point) -> tuple[float, float, float]:
+    """The world ``point`` in the camera's frame: its offsets along right, up and forward
+    (depth); every projection of a point into the image starts here."""
+    position, right, up, forward = camera_axes(camera)
+    offset = np.asarray(point, float) - position
+    return offset @ right, offset @ up, offset @ forward
+
 
 @dataclass
 class Geom:
@@ -160,15 +181,14 @@ def rgba(color: str | Sequence[float], alpha: float = 1.0) -> list[float]:
     return [*rgb, alpha]
 
 
+def distinct_colors(rng: np.random.Generator, count: int) -> tuple[str, ...]:
+    """``count`` different palette colour names, drawn at random."""
+    return tuple(COLOR_NAMES[i] for i in rng.choice(len(COLOR_NAMES), size=count, replace=False))
+
+
 def yaw_quat(angle: float) -> list[float]:
     """Quaternion of a rotation by ``angle`` radians about the vertical axis."""
     return [float(np.cos(angle / 2)), 0.0, 0.0, float(np.sin(angle / 2))]
-
-
-def random_quat(rng: np.random.Generator) -> list[float]:
-    """A uniformly random orientation."""
-    q = rng.normal(size=4)
-    return list(q / np.linalg.norm(q))
 
 
 class SceneBuilder:
@@ -345,6 +365,10 @@ def get_renderer(height: int, width: int) -> Renderer:
     return _RENDERERS[key]
 
 
+#: What ``Simulation.get_state`` saves: everything the integrator needs to continue alike.
+STATE_KIND = mujoco.mjtState.mjSTATE_INTEGRATION
+
+
 class Simulation:
     """A compiled scene stepping through time, rendering frames and object-id masks."""
 
@@ -423,16 +447,23 @@ class Simulation:
             self.controller(self)
             mujoco.mj_step(self.model, self.data)
 
+    def get_state(self) -> np.ndarray:
+        """The full integration state (positions, velocities, mocap, warm start)."""
+        state = np.empty(mujoco.mj_stateSize(self.model, STATE_KIND))
+        mujoco.mj_getState(self.model, self.data, state, STATE_KIND)
+        return state
+
+    def set_state(self, state: np.ndarray) -> None:
+        """Put the simulation into a state saved by ``get_state`` (derived quantities too)."""
+        mujoco.mj_setState(self.model, self.data, state, STATE_KIND)
+        mujoco.mj_forward(self.model, self.data)
+
     def fork(self) -> "Simulation":
         """An independent copy (model included) in the same state, for the inconsistent branch."""
         twin = Simulation.__new__(Simulation)
         twin.model = copy.copy(self.model)
         twin.data = mujoco.MjData(twin.model)
-        state_kind = mujoco.mjtState.mjSTATE_INTEGRATION
-        state = np.empty(mujoco.mj_stateSize(self.model, state_kind))
-        mujoco.mj_getState(self.model, self.data, state, state_kind)
-        mujoco.mj_setState(twin.model, twin.data, state, state_kind)
-        mujoco.mj_forward(twin.model, twin.data)
+        twin.set_state(self.get_state())
         twin.objects, twin.video, twin.camera = self.objects, self.video, self.camera
         twin.geom_mask_id, twin.controller = self.geom_mask_id, self.controller
         return twin

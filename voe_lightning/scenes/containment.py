@@ -94,7 +94,7 @@ def build(
     a per-step controller prescribes, so its walls and bottom carry the cube by contact and
     friction; the rod (a mocap body) comes down onto its trailing wall and rides along."""
     builder = SceneBuilder(rng, video, camera)
-    container_color, cube_color, rod_color = rng.choice(base.COLOR_NAMES, size=3, replace=False)
+    container_color, cube_color, rod_color = base.distinct_colors(rng, 3)
     x0, y0 = layout.container_xy
     builder.add(
         "container",

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import mujoco
 import numpy as np
 from tensordict import TensorDict
 
@@ -103,37 +102,24 @@ class Layout:
         }
 
 
-def camera_axes(camera: CameraPose) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Position, right, up and forward unit vectors of MuJoCo's free camera at ``camera``."""
-    azimuth, elevation = np.radians(camera.azimuth), np.radians(camera.elevation)
-    horizontal = np.array([np.cos(azimuth), np.sin(azimuth), 0.0])
-    vertical = np.array([0.0, 0.0, 1.0])
-    forward = np.cos(elevation) * horizontal + np.sin(elevation) * vertical
-    up = -np.sin(elevation) * horizontal + np.cos(elevation) * vertical
-    position = np.asarray(camera.lookat) - camera.distance * forward
-    return position, np.cross(forward, up), up, forward
-
-
-def focal_length(video: VideoOptions, fovy: float = 45.0) -> float:
-    """Focal length in pixels of MuJoCo's free camera (vertical field of view ``fovy``)."""
-    return (video.height / 2) / np.tan(np.radians(fovy) / 2)
+def focal_length(video: VideoOptions) -> float:
+    """Focal length in pixels of MuJoCo's free camera."""
+    return (video.height / 2) / np.tan(np.radians(base.FOVY) / 2)
 
 
 def project(camera: CameraPose, video: VideoOptions, point) -> tuple[int, int]:
     """Pixel (row, column) where the world ``point`` appears in a frame (may lie outside it)."""
-    position, right, up, forward = camera_axes(camera)
-    offset = np.asarray(point, float) - position
-    depth = offset @ forward
+    right, up, depth = base.camera_coordinates(camera, point)
     focal = focal_length(video)
-    column = video.width / 2 + focal * (offset @ right) / depth
-    row = video.height / 2 - focal * (offset @ up) / depth
+    column = video.width / 2 + focal * right / depth
+    row = video.height / 2 - focal * up / depth
     return int(np.floor(row)), int(np.floor(column))
 
 
 def x_at_column(camera: CameraPose, video: VideoOptions, column: float, y: float, z: float) -> float:
     """The world x where the line (·, y, z) crosses image column ``column`` (the camera's right
     axis is horizontal, so this is the root of a linear equation)."""
-    position, right, _, forward = camera_axes(camera)
+    position, right, _, forward = base.camera_axes(camera)
     k = (column - video.width / 2) / focal_length(video)
     along = (y - position[1]) * right[1]
     ahead = (y - position[1]) * forward[1] + (z - position[2]) * forward[2]
@@ -150,7 +136,7 @@ def build(
 ) -> Simulation:
     """Compile the scene and launch the ball rolling (spin matched to its speed, no slip)."""
     builder = SceneBuilder(rng, video, camera)
-    pillar_color, block_color, ball_color = rng.choice(base.COLOR_NAMES, size=3, replace=False)
+    pillar_color, block_color, ball_color = base.distinct_colors(rng, 3)
     height = layout.pillar_height
     for index, (x, width) in enumerate(layout.pillars):
         builder.add_primitive(
@@ -191,26 +177,12 @@ def launch(sim: Simulation, start, velocity) -> None:
     sim.set_velocity("ball", (vx, vy, 0.0), (-vy / radius, vx / radius, 0.0))
 
 
-def get_state(sim: Simulation) -> np.ndarray:
-    """The full integration state (positions, velocities, mocap, warm start) of ``sim``."""
-    kind = mujoco.mjtState.mjSTATE_INTEGRATION
-    state = np.empty(mujoco.mj_stateSize(sim.model, kind))
-    mujoco.mj_getState(sim.model, sim.data, state, kind)
-    return state
-
-
-def set_state(sim: Simulation, state: np.ndarray) -> None:
-    """Put ``sim`` into a state saved by ``get_state``."""
-    mujoco.mj_setState(sim.model, sim.data, state, mujoco.mjtState.mjSTATE_INTEGRATION)
-    mujoco.mj_forward(sim.model, sim.data)
-
-
 def record_tracking_ball(sim: Simulation) -> tuple[np.ndarray, np.ndarray, list, np.ndarray]:
     """Render the whole video, keeping the state and ball position at every frame."""
     states, positions = [], []
 
     def keep(sim: Simulation, frame: int) -> None:
-        states.append(get_state(sim))
+        states.append(sim.get_state())
         positions.append(sim.position("ball"))
 
     frames, masks = sim.record(sim.video.num_frames, keep)
@@ -241,7 +213,7 @@ def column(sim: Simulation, point) -> int:
 
 def full_ball_pixels(sim: Simulation, radius: float, y: float) -> float:
     """Roughly how many pixels a whole ball of ``radius`` at depth ``y`` covers."""
-    position, _, _, forward = camera_axes(sim.camera)
+    position, _, _, forward = base.camera_axes(sim.camera)
     depth = (np.array([position[0], y, radius]) - position) @ forward
     return float(np.pi * (focal_length(sim.video) * radius / depth) ** 2)
 
@@ -420,13 +392,13 @@ def _standard(rng: np.random.Generator, variant: str, video: VideoOptions, camer
     frames, masks, states, positions = record_tracking_ball(sim)
     vanish, reappear = vanish_and_reappear(sim, layout, masks, positions)
     twin = sim.fork()
-    set_state(twin, states[vanish])
+    twin.set_state(states[vanish])
     twin.remove("ball")
 
     def reappear_on_course(twin: Simulation, frame: int) -> None:
         if frame == reappear:
             unhide_ball(twin, sim)
-            set_state(twin, states[reappear])
+            twin.set_state(states[reappear])
 
     rest = twin.record(video.num_frames - vanish, reappear_on_course, first_frame=vanish)
     inconsistent = tuple(np.concatenate([a[:vanish], b]) for a, b in zip((frames, masks), rest))
@@ -489,7 +461,7 @@ def _counterbalanced(rng: np.random.Generator, video: VideoOptions, camera: Came
             launch(twin, (behind, depth, height), (direction * speed, 0.0))
 
     twin = sim.fork()
-    set_state(twin, states[vanish])
+    twin.set_state(states[vanish])
     twin.remove("ball")
     rest = twin.record(video.num_frames - vanish, put_back, first_frame=vanish)
     inconsistent = tuple(np.concatenate([a[:vanish], b]) for a, b in zip((frames, masks), rest))

@@ -105,11 +105,6 @@ def _anchor(rng: np.random.Generator, camera: CameraPose, offset) -> np.ndarray:
     return np.array(camera.lookat[:2]) + (rng.uniform(x_low, x_high), rng.uniform(y_low, y_high))
 
 
-def _colors(rng: np.random.Generator) -> tuple[str, str]:
-    plank, obj = rng.choice(len(base.COLOR_NAMES), size=2, replace=False)
-    return base.COLOR_NAMES[plank], base.COLOR_NAMES[obj]
-
-
 def _plank_lowest_point(sim: base.Simulation) -> float:
     """Height of the plank's lowest corner above the floor."""
     geom = sim.data.geom("plank_0")
@@ -219,7 +214,7 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
 
     def make(rng: np.random.Generator) -> TensorDict:
         layout = probe_layout(rng)
-        plank_color, object_color = _colors(rng)
+        plank_color, object_color = base.distinct_colors(rng, 2)
         builder = SceneBuilder(rng, video, layout["camera"])
         obj, obj_xy = layout["object"], layout["object_xy"]
         counterbalanced = variant == "counterbalanced"
@@ -327,7 +322,7 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
     rng = base.rng_for(seed, CONCEPT, kind)
 
     def make(rng: np.random.Generator) -> TensorDict:
-        plank_color, object_color = _colors(rng)
+        plank_color, object_color = base.distinct_colors(rng, 2)
         layout = clip_layout(rng, kind)
         obj, obj_xy, camera = layout["object"], layout["object_xy"], layout["camera"]
         builder = SceneBuilder(rng, video, camera)

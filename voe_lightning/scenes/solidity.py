@@ -238,11 +238,6 @@ def _add_support(builder: SceneBuilder, box: dict, block: dict, top: float, colo
         builder.spec.geom(geom_name).conaffinity = 0
 
 
-def _colors(rng: np.random.Generator) -> tuple[str, str]:
-    container, block = rng.choice(len(base.COLOR_NAMES), size=2, replace=False)
-    return base.COLOR_NAMES[container], base.COLOR_NAMES[block]
-
-
 def _block_bottom(sim: base.Simulation) -> float:
     return float(sim.position("block")[2] - sim.model.geom("block_0").size[2])
 
@@ -278,7 +273,7 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
     def make(rng: np.random.Generator) -> TensorDict:
         params = draw_probe(variant, rng, video)
         box, block, camera = params["box"], params["block"], params["camera"]
-        container_color, block_color = _colors(rng)
+        container_color, block_color = base.distinct_colors(rng, 2)
         builder = SceneBuilder(rng, video, camera)
         _add_container(builder, box, container_color)
         _add_block(builder, block, block["offset"], box["height"] + params["drop"], block_color)
@@ -376,7 +371,7 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
     def make(rng: np.random.Generator) -> TensorDict:
         params = draw_example(rng)
         box, block, camera = params["box"], params["block"], params["camera"]
-        container_color, block_color = _colors(rng)
+        container_color, block_color = base.distinct_colors(rng, 2)
         builder = SceneBuilder(rng, video, camera)
         _add_container(builder, box, container_color)
         drop = box["height"] + params["drop"]

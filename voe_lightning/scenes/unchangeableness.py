@@ -32,8 +32,6 @@ OBJECT_SHAPES = ("sphere", "box", "cylinder", "capsule")
 CHANGES = ("position", "color", "shape")
 #: Widest row of probe objects (m): the camera must see all of them, plus1/plus2 included.
 ROW_MAX_WIDTH = 1.8
-#: Vertical field of view of MuJoCo's free camera (model default, degrees).
-FOVY = 45.0
 SCREEN_THICKNESS = 0.04
 #: The screen's lowest point when down: just above the floor, so nothing shows beneath it.
 SCREEN_FLOOR_GAP = 0.002
@@ -119,31 +117,20 @@ def resting_position(draw: ObjectDraw, x: float, y: float) -> tuple[float, float
 
 
 # --- camera geometry -----------------------------------------------------------------------------
-def _camera_axes(camera: CameraPose) -> tuple[np.ndarray, ...]:
-    """Position, forward, up and right unit vectors of MuJoCo's free camera."""
-    az, el = math.radians(camera.azimuth), math.radians(camera.elevation)
-    forward = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
-    up = np.array([-math.sin(el) * math.cos(az), -math.sin(el) * math.sin(az), math.cos(el)])
-    position = np.asarray(camera.lookat) - camera.distance * forward
-    return position, forward, up, np.cross(forward, up)
-
-
 def project(camera: CameraPose, point, aspect: float = 1.0) -> tuple[float, float]:
     """Normalised image coordinates of a world point: (-1..1 left to right, -1..1 bottom to top)."""
-    position, forward, up, right = _camera_axes(camera)
-    offset = np.asarray(point, float) - position
-    depth = offset @ forward
+    right, up, depth = base.camera_coordinates(camera, point)
     if depth <= 0:
         return math.inf, math.inf
-    tan_half = math.tan(math.radians(FOVY) / 2)
-    return float(offset @ right / (depth * tan_half * aspect)), float(offset @ up / (depth * tan_half))
+    tan_half = math.tan(math.radians(base.FOVY) / 2)
+    return float(right / (depth * tan_half * aspect)), float(up / (depth * tan_half))
 
 
 def floor_point(camera: CameraPose, u: float, v: float, height: float, aspect: float = 1.0):
     """The point at ``height`` above the floor seen at image coordinates (u, v), or None when
     that pixel looks above the horizon."""
-    position, forward, up, right = _camera_axes(camera)
-    tan_half = math.tan(math.radians(FOVY) / 2)
+    position, right, up, forward = base.camera_axes(camera)
+    tan_half = math.tan(math.radians(base.FOVY) / 2)
     ray = forward + u * tan_half * aspect * right + v * tan_half * up
     if ray[2] >= 0:
         return None
@@ -152,8 +139,8 @@ def floor_point(camera: CameraPose, u: float, v: float, height: float, aspect: f
 
 def height_above_view(camera: CameraPose, x: float, y: float) -> float:
     """The height at (x, y) above which the camera sees nothing (the top edge of the image)."""
-    position, forward, up, _ = _camera_axes(camera)
-    tan_half = math.tan(math.radians(FOVY) / 2)
+    position, _, up, forward = base.camera_axes(camera)
+    tan_half = math.tan(math.radians(base.FOVY) / 2)
     offset = np.array([x, y, 0.0]) - position
     # up-component = tan_half * forward-component, linear in the height z.
     denominator = up[2] - tan_half * forward[2]
@@ -438,7 +425,7 @@ def scatter_objects(
     """2-4 static objects (draw, x, y) anywhere in view (uniformly over the image, up to 2.5 m
     past the point the camera looks at), apart from one another and the screen."""
     count = int(rng.integers(MIN_OBJECTS, MAX_OBJECTS + 1))
-    colors = rng.choice(base.COLOR_NAMES, count, replace=False)
+    colors = base.distinct_colors(rng, count)
     placed: list[tuple[float, float, float]] = []
     objects = []
     for color in colors:

@@ -1,0 +1,76 @@
+"""The paper's Results section for one run (paper §5, Figures 4-5, Appendices B-C), written to
+``<run dir>/voe_report/`` by ``write_report`` or, during ``test``, by
+``voe_lightning.callbacks.VOEReportCallback``; the numbers are in ``results``, the figures in
+``figures``.
+
+Files: ``summary.json``/``summary.csv``/``summary.md`` (one row per concept/variant, a
+``pooled`` row per concept with a counterbalanced pair, and each concept's VOE verdict),
+``pairs.csv`` (one row per probe pair, with per-frame surprise, so anyone can redo the
+statistics), ``cues.md``/``cues.csv``/``cues.json`` (the cue audit on the same pairs, beside the
+model's rows; see ``voe_lightning.cues``), ``histograms.png``, ``surprise_per_frame.png``,
+``predictions_<concept>.png`` and ``tsne_object_persistence.png``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from voe_lightning import cues
+from voe_lightning.report.figures import PredictionExample, write_figures
+from voe_lightning.report.results import VRNN_SURPRISE, PairResults, summarize, write_summary
+
+
+def write_report(
+    results: PairResults,
+    out_dir: str | Path,
+    predictions: Sequence[PredictionExample] | None = None,
+    trajectories: Mapping[str, Any] | None = None,
+    *,
+    trajectory_labels: Sequence[str] | None = None,
+    cue_audit: cues.CueAudit | None = None,
+    alpha: float = 0.05,
+    bootstrap: int = 2000,
+    seed: int = 0,
+    echo: bool = True,
+    surprise: str = VRNN_SURPRISE,
+) -> list[dict[str, Any]]:
+    """Write ``out_dir/voe_report/`` (module docstring) and return the summary rows.
+    ``predictions`` give predictions_<concept>.png, ``trajectories`` (see ``tsne_figure``)
+    give tsne_object_persistence.png, ``cue_audit`` (scores of the same pairs) gives
+    cues.md/csv/json; ``echo`` prints the Markdown tables; ``surprise`` names what a frame's
+    surprise is (the model's ``SURPRISE``)."""
+    if len(results) == 0:
+        raise ValueError("no probe results to report")
+    report_dir = Path(out_dir) / "voe_report"
+    report_dir.mkdir(parents=True, exist_ok=True)
+    rows = summarize(results, alpha=alpha, bootstrap=bootstrap, seed=seed)
+    markdown = write_summary(results, rows, report_dir, alpha=alpha, bootstrap=bootstrap,
+                             surprise=surprise)
+    if cue_audit is not None:
+        if len(cue_audit) != len(results):
+            raise ValueError(f"the cue audit scored {len(cue_audit)} pairs, the model "
+                             f"{len(results)}: they must be the same pairs")
+        cue_rows = cue_audit.rows(alpha=alpha)
+        title = "Cue audit on the model's test pairs"
+        cues.write_audit(cue_rows, report_dir, model_rows=rows, title=title, alpha=alpha,
+                         num_pairs=len(cue_audit))
+        markdown += "\n" + cues.format_markdown(cue_rows, rows, title)
+    write_figures(results, rows, report_dir, predictions, trajectories, trajectory_labels,
+                  seed=seed)
+    if echo:
+        _print_markdown(markdown, report_dir)
+    return rows
+
+
+def _print_markdown(markdown: str, report_dir: Path) -> None:
+    from rich.console import Console
+    from rich.markdown import Markdown
+
+    console = Console()
+    if console.is_terminal:
+        console.print(Markdown(markdown))
+    else:
+        print(markdown, end="")
+    print(f"VOE report written to {report_dir}")

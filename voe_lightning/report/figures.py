@@ -1,0 +1,279 @@
+"""The report's figures (paper Figures 4-5, Appendices B-C): d histograms, per-frame surprise
+around the manipulation, the model's expected frames and the t-SNE of its time courses."""
+
+from __future__ import annotations
+
+import math
+import textwrap
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+from scipy import stats
+
+from voe_lightning.report.results import (
+    PairResults,
+    as_numpy,
+    format_number,
+    format_p_phrase,
+)
+
+#: Histograms hide pairs whose d lies beyond this many SD from the mean (display only).
+OUTLIER_SD = 3.0
+CONSISTENT_COLOR, INCONSISTENT_COLOR = "tab:blue", "tab:red"
+
+
+@dataclass(frozen=True, eq=False)
+class PredictionExample:
+    """An inconsistent probe (input frames uint8 [T, H, W, 3]) and what the model expected
+    (its ``expected_frames``, e.g. the VRNN's decoded prior means; float [T, 3, H, W] in
+    [0, 1])."""
+
+    concept: str
+    variant: str
+    seed: int
+    manipulation_frame: int
+    frames: np.ndarray
+    expected: np.ndarray
+
+
+def panel_grid(count: int, width: float, height: float, max_cols: int = 4):
+    """A constrained-layout figure with ``count`` visible panels of width x height inches in
+    rows of at most ``max_cols``: (figure, axes [count])."""
+    cols = max(1, min(max_cols, count))
+    rows = math.ceil(count / cols)
+    figure = Figure(figsize=(width * cols, height * rows), layout="constrained")
+    axes = figure.subplots(rows, cols, squeeze=False).ravel()
+    for ax in axes[count:]:
+        ax.set_visible(False)
+    return figure, axes[:count]
+
+
+def _stats_text(row: Mapping[str, Any]) -> str:
+    if row["t"] is None:
+        return f"n = {row['n']}: no test"
+    star = " *" if row["significant"] else ""
+    return (f"M = {format_number(row['relative_surprise'])}\n"
+            f"t({row['df']}) = {format_number(row['t'], '.2f')}, "
+            f"{format_p_phrase(row['p_value'])}{star}\n"
+            f"d_z = {format_number(row['d_z'], '.2f')}, acc. = {100 * row['accuracy']:.0f}%")
+
+
+def histogram_figure(results: PairResults, rows: Sequence[Mapping[str, Any]]) -> Figure:
+    """Distribution of d per concept/variant with the test result printed on each panel
+    (paper Figure 4); pairs beyond 3 SD of the mean are hidden for display only."""
+    groups = results.groups()
+    figure, axes = panel_grid(len(groups), 4.2, 3.2)
+    by_key = {(row["concept"], row["variant"]): row for row in rows}
+    for ax, (concept, variant, pairs) in zip(axes, groups):
+        d = pairs.total_inconsistent - pairs.total_consistent
+        sd = d.std(ddof=1) if d.size > 1 else 0.0
+        shown = d[np.abs(d - d.mean()) <= OUTLIER_SD * sd] if sd > 0 else d
+        row = by_key[(concept, variant)]
+        color = "tab:green" if row.get("significant") else "tab:gray"
+        counts, _, _ = ax.hist(shown, bins=max(5, min(40, int(np.sqrt(shown.size)) * 2)),
+                               color=color, alpha=0.75, edgecolor="white")
+        ax.set_ylim(0, max(counts.max(), 1) * 1.75)  # headroom for the statistics box
+        ax.axvline(0.0, color="black", linewidth=1)
+        ax.axvline(d.mean(), color="black", linewidth=1, linestyle="--")
+        ax.set_title(f"{concept} / {variant}", fontsize=10)
+        ax.set_xlabel("d = S(inconsistent) - S(consistent)")
+        ax.set_ylabel("probe pairs")
+        hidden = d.size - shown.size
+        ax.text(0.98, 0.97, _stats_text(row) + f"\n{hidden} of {d.size} beyond 3 SD hidden",
+                transform=ax.transAxes, ha="right", va="top", fontsize=8,
+                bbox=dict(boxstyle="round", facecolor="white", alpha=0.85, edgecolor="0.7"))
+    title = ("Relative surprise per probe pair (dashed: mean of all pairs). Outliers > 3 SD "
+             "removed for display only; tests use all pairs; * p < .05 one-tailed")
+    figure.suptitle(textwrap.fill(title, width=int(14 * figure.get_figwidth())), fontsize=10)
+    return figure
+
+
+def _aligned(surprise: np.ndarray, manipulation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame surprise [N, T] re-indexed by frame - manipulation_frame: (offsets, [N, L]
+    with NaN where a pair has no such frame)."""
+    n, frames = surprise.shape
+    first = -int(manipulation.max())
+    last = frames - 1 - int(manipulation.min())
+    offsets = np.arange(first, last + 1)
+    aligned = np.full((n, offsets.size), np.nan)
+    for i in range(n):
+        start = -int(manipulation[i]) - first
+        aligned[i, start:start + frames] = surprise[i]
+    return offsets, aligned
+
+
+def _mean_and_band(aligned: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    count = np.sum(~np.isnan(aligned), axis=0)
+    mean = np.nanmean(np.where(count > 0, aligned, 0.0), axis=0)
+    half = np.full(mean.shape, np.nan)
+    ok = count >= 2
+    if ok.any():
+        sd = np.nanstd(aligned[:, ok], axis=0, ddof=1)
+        half[ok] = stats.t.ppf(0.975, count[ok] - 1) * sd / np.sqrt(count[ok])
+    return mean, half
+
+
+def per_frame_figure(results: PairResults) -> Figure:
+    """Mean per-frame surprise of consistent vs inconsistent probes per concept/variant,
+    aligned at the manipulation frame, with 95% t confidence bands."""
+    groups = results.groups()
+    figure, axes = panel_grid(len(groups), 4.2, 3.0)
+    for ax, (concept, variant, pairs) in zip(axes, groups):
+        for label, surprise, color in (
+            ("consistent", pairs.surprise_consistent, CONSISTENT_COLOR),
+            ("inconsistent", pairs.surprise_inconsistent, INCONSISTENT_COLOR),
+        ):
+            offsets, aligned = _aligned(surprise, pairs.manipulation_frame)
+            mean, half = _mean_and_band(aligned)
+            ax.plot(offsets, mean, color=color, marker="o", markersize=3, label=label)
+            ax.fill_between(offsets, mean - half, mean + half, color=color, alpha=0.2,
+                            linewidth=0)
+        ax.axvline(0, color="black", linestyle="--", linewidth=1)
+        ax.set_title(f"{concept} / {variant} (n = {len(pairs)})", fontsize=10)
+        ax.set_xlabel("frame relative to manipulation (dashed)")
+        ax.set_ylabel("surprise KL(post || prior)")
+        ax.legend(fontsize=8, loc="upper left")
+    figure.suptitle("Mean per-frame surprise with 95% confidence bands", fontsize=10)
+    return figure
+
+
+def _frame_indices(num_frames: int, max_frames: int) -> np.ndarray:
+    if num_frames <= max_frames:
+        return np.arange(num_frames)
+    return np.unique(np.linspace(0, num_frames - 1, max_frames).round().astype(int))
+
+
+def predictions_figure(examples: Sequence[PredictionExample], max_frames: int = 15) -> Figure:
+    """Input frames of inconsistent probes above the model's expected frames (decoded prior
+    means), as in the paper's Figure 5 and Appendix C; the manipulation frame is framed red."""
+    if not examples:
+        raise ValueError("predictions_figure needs at least one PredictionExample")
+    indices = _frame_indices(examples[0].frames.shape[0], max_frames)
+    figure = Figure(figsize=(0.9 * len(indices) + 0.6, 2.1 * len(examples)), layout="constrained")
+    figure.get_layout_engine().set(w_pad=0.01, h_pad=0.01, wspace=0.01, hspace=0.01)
+    subfigures = np.atleast_1d(figure.subfigures(len(examples), 1))
+    for subfigure, example in zip(subfigures, examples):
+        frames = as_numpy(example.frames, np.uint8)
+        expected = np.clip(as_numpy(example.expected, np.float32), 0.0, 1.0).transpose(0, 2, 3, 1)
+        if frames.shape[:3] != expected.shape[:3]:
+            raise ValueError(f"frames {frames.shape} and expected {expected.shape} disagree")
+        axes = subfigure.subplots(2, len(indices), squeeze=False)
+        for column, t in enumerate(indices):
+            for row, image in enumerate((frames[t], expected[t])):
+                ax = axes[row, column]
+                ax.imshow(image, interpolation="nearest")
+                ax.set_xticks([])
+                ax.set_yticks([])
+                if t == example.manipulation_frame:
+                    for spine in ax.spines.values():
+                        spine.set_edgecolor("red")
+                        spine.set_linewidth(2.5)
+            axes[0, column].set_title(f"t={t}", fontsize=8,
+                                      color="red" if t == example.manipulation_frame else "black")
+        axes[0, 0].set_ylabel("input", fontsize=9)
+        axes[1, 0].set_ylabel("expected", fontsize=9)
+        title = (f"{example.concept} / {example.variant}, seed {example.seed}: inconsistent "
+                 "probe (top) and what the model expected from the frames before (bottom); red: "
+                 "manipulation frame")
+        subfigure.suptitle(textwrap.fill(title, width=int(14 * figure.get_figwidth())),
+                           fontsize=9)
+    return figure
+
+
+def _arrowhead(ax: Any, curve: np.ndarray, color: str) -> None:
+    """An arrowhead at the curve's last point, pointing along its last non-zero step."""
+    moved = np.flatnonzero(np.any(curve[:-1] != curve[-1], axis=1))
+    if moved.size:
+        ax.annotate("", xy=curve[-1], xytext=curve[moved[-1]],
+                    arrowprops=dict(arrowstyle="-|>", color=color, lw=1.5, mutation_scale=20,
+                                    shrinkA=0, shrinkB=0))
+
+
+#: Panel titles of the t-SNE figure by trajectory kind (others: the kind, capitalised).
+TSNE_TITLES = {"prior": "Priors", "memory": "Memory"}
+#: Appendix B colours: pair i's consistent and inconsistent curve.
+TSNE_CONSISTENT_COLORS = ("cyan", "blue", "teal", "navy")
+TSNE_INCONSISTENT_COLORS = ("red", "magenta", "darkred", "purple")
+
+
+def tsne_figure(
+    trajectories: Mapping[str, Mapping[str, Any]],
+    labels: Sequence[str] | None = None,
+    seed: int = 0,
+) -> Figure:
+    """t-SNE of the model's time courses (paper Appendix B: prior and memory), one panel per
+    kind. ``trajectories`` maps "consistent" and "inconsistent" to dict(kind -> [N, T, ...])
+    for N probe pairs, both with the same kinds; pair i is drawn cyan/red, blue/magenta, ...
+    (consistent/inconsistent), each curve from a dot (first frame) to an arrowhead (last)."""
+    from sklearn.manifold import TSNE
+
+    kinds = list(trajectories.get("consistent", {}))
+    if not kinds or kinds != list(trajectories.get("inconsistent", {})):
+        raise KeyError("trajectories need the same kinds for both videos, e.g. "
+                       "dict(consistent=dict(prior, memory), inconsistent=dict(prior, memory)); "
+                       f"got {({video: list(v) for video, v in trajectories.items()})}")
+    figure = Figure(figsize=(5.5 * len(kinds), 5), layout="constrained")
+    axes = np.atleast_1d(figure.subplots(1, len(kinds)))
+    for ax, kind in zip(axes, kinds):
+        title = TSNE_TITLES.get(kind, kind.capitalize())
+        consistent = as_numpy(trajectories["consistent"][kind], np.float64)
+        inconsistent = as_numpy(trajectories["inconsistent"][kind], np.float64)
+        n, frames = consistent.shape[:2]
+        if inconsistent.shape != consistent.shape:
+            raise ValueError(f"{kind}: consistent {consistent.shape} and inconsistent "
+                             f"{inconsistent.shape} trajectories disagree")
+        points = np.concatenate([consistent, inconsistent]).reshape(2 * n * frames, -1)
+        perplexity = min(30.0, (points.shape[0] - 1) / 3.0)
+        method = "exact" if points.shape[0] <= 2000 else "barnes_hut"  # exact: faster when small
+        embedded = TSNE(n_components=2, perplexity=perplexity, init="pca", method=method,
+                        random_state=seed).fit_transform(points).reshape(2, n, frames, 2)
+        # Consistent curves wide and pale underneath, so a shared stretch shows both colours.
+        for video, palette, name, width, alpha in (
+                (0, TSNE_CONSISTENT_COLORS, "consistent", 5.0, 0.45),
+                (1, TSNE_INCONSISTENT_COLORS, "inconsistent", 1.6, 1.0)):
+            for i in range(n):
+                color = palette[i % len(palette)]
+                curve = embedded[video, i]
+                label = f"{labels[i] if labels else f'pair {i + 1}'} {name}"
+                ax.plot(curve[:, 0], curve[:, 1], color=color, linewidth=width, alpha=alpha,
+                        label=label, solid_capstyle="round")
+                ax.plot(*curve[0], "o", color=color, markersize=6)
+                _arrowhead(ax, curve, color)
+        ax.set_title(f"{title} (t-SNE; dot = first frame, arrow = last)", fontsize=10)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    axes[-1].legend(fontsize=8, loc="best")
+    figure.suptitle("Object persistence probes: consistent blue/cyan, inconsistent red/magenta",
+                    fontsize=10)
+    return figure
+
+
+def _save(figure: Figure, path: Path) -> None:
+    figure.savefig(path, dpi=110)
+
+
+def write_figures(
+    results: PairResults,
+    rows: Sequence[Mapping[str, Any]],
+    report_dir: Path,
+    predictions: Sequence[PredictionExample] | None = None,
+    trajectories: Mapping[str, Any] | None = None,
+    trajectory_labels: Sequence[str] | None = None,
+    seed: int = 0,
+) -> None:
+    """Write histograms.png and surprise_per_frame.png into ``report_dir``, and from
+    ``predictions`` predictions_<concept>.png, from ``trajectories`` tsne_object_persistence.png."""
+    _save(histogram_figure(results, rows), report_dir / "histograms.png")
+    _save(per_frame_figure(results), report_dir / "surprise_per_frame.png")
+    by_concept: dict[str, list[PredictionExample]] = {}
+    for example in predictions or ():
+        by_concept.setdefault(example.concept, []).append(example)
+    for concept, examples in by_concept.items():
+        _save(predictions_figure(examples), report_dir / f"predictions_{concept}.png")
+    if trajectories is not None:
+        _save(tsne_figure(trajectories, trajectory_labels, seed=seed),
+              report_dir / "tsne_object_persistence.png")

@@ -1,0 +1,321 @@
+"""The report's numbers: per-pair probe results (``PairResults``, pairs.csv), the paired test per
+concept/variant (``summarize``) and the summary tables (summary.json, summary.csv, summary.md)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from voe_lightning.model.module import VOEModel
+from voe_lightning.specs import CONCEPTS, VARIANTS
+from voe_lightning.statistics import (
+    PairedTestResult,
+    concept_verdicts,
+    pair_groups,
+    paired_test,
+)
+
+#: Keys of the dict that ``VOEModel.probe_step`` (and so ``test_step``) returns.
+PROBE_OUTPUT_KEYS = ("concept", "variant", "seed", "manipulation_frame",
+                     "surprise_consistent", "surprise_inconsistent")
+#: Columns of summary.csv, in order (``None`` cells mean "no test", explained in ``note``).
+SUMMARY_COLUMNS = ("concept", "variant") + tuple(PairedTestResult.__dataclass_fields__)
+
+
+def as_numpy(values: Any, dtype: Any) -> np.ndarray:
+    """A tensor (detached, on the CPU) or array-like as a numpy array of ``dtype``."""
+    if isinstance(values, torch.Tensor):
+        values = values.detach().cpu().numpy()
+    return np.asarray(values, dtype=dtype)
+
+
+@dataclass(frozen=True, eq=False)
+class PairResults:
+    """Per-pair probe results of a run: names, seeds, manipulation frames and per-frame
+    surprise [N, T] of both videos. A video's surprise is the sum over its frames (§6)."""
+
+    concept: tuple[str, ...]
+    variant: tuple[str, ...]
+    seed: np.ndarray
+    manipulation_frame: np.ndarray
+    surprise_consistent: np.ndarray
+    surprise_inconsistent: np.ndarray
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "concept", tuple(str(c) for c in self.concept))
+        set_(self, "variant", tuple(str(v) for v in self.variant))
+        for name, dtype in (("seed", np.int64), ("manipulation_frame", np.int64),
+                            ("surprise_consistent", np.float64),
+                            ("surprise_inconsistent", np.float64)):
+            set_(self, name, as_numpy(getattr(self, name), dtype))
+        n = len(self.concept)
+        if self.surprise_consistent.ndim != 2 or self.surprise_consistent.shape[0] != n:
+            raise ValueError(f"surprise_consistent must be [N={n}, T]; got "
+                             f"{self.surprise_consistent.shape}")
+        shapes = {"variant": (len(self.variant),), "seed": self.seed.shape,
+                  "manipulation_frame": self.manipulation_frame.shape,
+                  "surprise_inconsistent": self.surprise_inconsistent.shape}
+        expected = {"variant": (n,), "seed": (n,), "manipulation_frame": (n,),
+                    "surprise_inconsistent": self.surprise_consistent.shape}
+        wrong = {k: v for k, v in shapes.items() if v != expected[k]}
+        if wrong:
+            raise ValueError(f"per-pair fields disagree with {n} pairs of "
+                             f"{self.num_frames} frames: {wrong} (expected {expected})")
+
+    @property
+    def num_frames(self) -> int:
+        return self.surprise_consistent.shape[1]
+
+    def __len__(self) -> int:
+        return len(self.concept)
+
+    @property
+    def total_consistent(self) -> np.ndarray:
+        """Per-video surprise of the consistent videos: sum over frames, [N]."""
+        return self.surprise_consistent.sum(axis=1)
+
+    @property
+    def total_inconsistent(self) -> np.ndarray:
+        return self.surprise_inconsistent.sum(axis=1)
+
+    @classmethod
+    def from_probe_outputs(
+        cls,
+        outputs: Sequence[Mapping[str, Any]],
+        concept_names: Sequence[str] = CONCEPTS,
+        variant_names: Sequence[str] = VARIANTS,
+    ) -> PairResults:
+        """From the dicts ``VOEModel.probe_step`` returns (one per batch), decoding the
+        ``concept``/``variant`` indices with the DataModule's name tuples."""
+        if not outputs:
+            raise ValueError("no probe results: the list of probe_step outputs is empty")
+        columns: dict[str, list[np.ndarray]] = {key: [] for key in PROBE_OUTPUT_KEYS}
+        for index, output in enumerate(outputs):
+            missing = [key for key in PROBE_OUTPUT_KEYS if key not in output]
+            if missing:
+                raise KeyError(f"probe output {index} lacks {missing}; probe_step must return "
+                               f"{list(PROBE_OUTPUT_KEYS)}")
+            for key in PROBE_OUTPUT_KEYS:
+                columns[key].append(as_numpy(output[key], None))
+        merged = {key: np.concatenate(values) for key, values in columns.items()}
+
+        def decode(indices: np.ndarray, names: Sequence[str], what: str) -> tuple[str, ...]:
+            bad = sorted({int(i) for i in indices if not 0 <= int(i) < len(names)})
+            if bad:
+                raise ValueError(f"{what} indices {bad} are outside the {len(names)} "
+                                 f"{what} names {tuple(names)}")
+            return tuple(names[int(i)] for i in indices)
+
+        return cls(
+            concept=decode(merged["concept"], concept_names, "concept"),
+            variant=decode(merged["variant"], variant_names, "variant"),
+            seed=merged["seed"],
+            manipulation_frame=merged["manipulation_frame"],
+            surprise_consistent=merged["surprise_consistent"],
+            surprise_inconsistent=merged["surprise_inconsistent"],
+        )
+
+    def select(self, rows: np.ndarray) -> PairResults:
+        """The pairs at the given boolean mask or indices."""
+        index = np.flatnonzero(rows) if np.asarray(rows).dtype == bool else np.asarray(rows)
+        return PairResults(
+            concept=tuple(self.concept[i] for i in index),
+            variant=tuple(self.variant[i] for i in index),
+            seed=self.seed[index],
+            manipulation_frame=self.manipulation_frame[index],
+            surprise_consistent=self.surprise_consistent[index],
+            surprise_inconsistent=self.surprise_inconsistent[index],
+        )
+
+    def groups(self, pooled: bool = False) -> list[tuple[str, str, PairResults]]:
+        """(concept, variant, pairs) per concept/variant: concepts and variants in the order
+        of ``specs`` where known, others after them in order of first appearance; with
+        ``pooled``, also each concept's ``pooled`` group (standard + counterbalanced)."""
+        return [(concept, variant, self.select(rows)) for concept, variant, rows
+                in pair_groups(self.concept, self.variant, pooled=pooled)]
+
+    def csv_columns(self) -> list[str]:
+        frames = [f"t{t:02d}" for t in range(self.num_frames)]
+        return (["concept", "variant", "seed", "manipulation_frame", "surprise_consistent",
+                 "surprise_inconsistent", "relative_surprise"]
+                + [f"surprise_consistent_{f}" for f in frames]
+                + [f"surprise_inconsistent_{f}" for f in frames])
+
+    def to_csv(self, path: str | Path) -> None:
+        """pairs.csv: one row per pair; floats written with full precision (repr)."""
+        with open(path, "w", newline="") as handle:
+            writer = csv.writer(handle)
+            writer.writerow(self.csv_columns())
+            totals = zip(self.total_consistent, self.total_inconsistent)
+            for i, (con, inc) in enumerate(totals):
+                writer.writerow(
+                    [self.concept[i], self.variant[i], int(self.seed[i]),
+                     int(self.manipulation_frame[i]), repr(float(con)), repr(float(inc)),
+                     repr(float(inc - con))]
+                    + [repr(float(x)) for x in self.surprise_consistent[i]]
+                    + [repr(float(x)) for x in self.surprise_inconsistent[i]])
+
+    @classmethod
+    def from_csv(cls, path: str | Path) -> PairResults:
+        """Read pairs.csv back (per-frame surprise columns define the results)."""
+        with open(path, newline="") as handle:
+            rows = list(csv.DictReader(handle))
+        if not rows:
+            raise ValueError(f"{path} holds no probe pairs")
+        columns = list(rows[0])
+        con_cols = [c for c in columns if c.startswith("surprise_consistent_t")]
+        inc_cols = [c for c in columns if c.startswith("surprise_inconsistent_t")]
+        if not con_cols or len(con_cols) != len(inc_cols):
+            raise ValueError(f"{path} lacks per-frame surprise columns "
+                             "surprise_consistent_tNN / surprise_inconsistent_tNN")
+        return cls(
+            concept=[r["concept"] for r in rows],
+            variant=[r["variant"] for r in rows],
+            seed=[int(r["seed"]) for r in rows],
+            manipulation_frame=[int(r["manipulation_frame"]) for r in rows],
+            surprise_consistent=[[float(r[c]) for c in con_cols] for r in rows],
+            surprise_inconsistent=[[float(r[c]) for c in inc_cols] for r in rows],
+        )
+
+
+def summarize(
+    results: PairResults, alpha: float = 0.05, bootstrap: int = 2000, seed: int = 0
+) -> list[dict[str, Any]]:
+    """One row per concept/variant, and a ``pooled`` row per concept with a counterbalanced
+    pair (the test over the union of both variants' pairs): the paired test of summed
+    surprise. A group with fewer than two pairs gets ``None`` statistics and a note instead
+    of failing the report."""
+    rows = []
+    for concept, variant, pairs in results.groups(pooled=True):
+        row: dict[str, Any] = {"concept": concept, "variant": variant}
+        if len(pairs) < 2:
+            row.update({key: None for key in SUMMARY_COLUMNS[2:]})
+            row.update(n=len(pairs), note=f"only {len(pairs)} pair: no test (needs at least 2)")
+        else:
+            row.update(paired_test(pairs.total_inconsistent, pairs.total_consistent,
+                                   alpha=alpha, bootstrap=bootstrap, seed=seed).as_dict())
+        rows.append(row)
+    return rows
+
+
+def format_number(value: Any, spec: str = ".3g") -> str:
+    if value is None:
+        return "n/a"
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "undefined"
+        if math.isinf(value):
+            return "+inf" if value > 0 else "-inf"
+    return format(value, spec)
+
+
+def format_p(p: float | None) -> str:
+    """APA-style p value for a table cell: '< .001', '.034', '1'."""
+    if p is None:
+        return "n/a"
+    if p < 0.001:
+        return "< .001"
+    return f"{p:.3f}".lstrip("0") if p < 1 else "1"
+
+
+def format_p_phrase(p: float) -> str:
+    """'p < .001' or 'p = .034', as in the paper's text."""
+    return f"p {format_p(p)}" if p < 0.001 else f"p = {format_p(p)}"
+
+
+def _interval(value: Any, low: Any, high: Any, spec: str) -> str:
+    if value is None:
+        return "n/a"
+    if low is None or (isinstance(low, float) and math.isnan(low) and not math.isnan(value)):
+        return format_number(value, spec)
+    if low == high == value:
+        return format_number(value, spec)
+    return f"{format_number(value, spec)} [{format_number(low, spec)}, {format_number(high, spec)}]"
+
+
+def format_verdicts(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """Markdown lines of each concept's VOE verdict (``statistics.concept_verdicts``)."""
+    alpha = next((row["alpha"] for row in rows if row.get("alpha") is not None), 0.05)
+    lines = []
+    for verdict in concept_verdicts(rows, alpha):
+        text = "**VOE**" if verdict.voe else verdict.text()
+        lines.append(f"- {verdict.concept}: {text} (rule: {verdict.rule})")
+    return lines
+
+
+#: What a frame's surprise is unless told otherwise: the paper's (the VRNN-LRU's).
+VRNN_SURPRISE = VOEModel.SURPRISE
+
+
+def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURPRISE) -> str:
+    """The summary as a Markdown table (paper notation), notes as footnotes below it, then
+    each concept's VOE verdict; ``surprise`` names what a frame's surprise is."""
+    header = ("| concept | variant | n | M [95% CI] | t(df) | p | sig. | d_z [95% CI] "
+              "| accuracy | AUROC |")
+    lines = [header, "|" + "---|" * (header.count("|") - 1)]
+    notes = []
+    for row in rows:
+        marker = ""
+        if row.get("note"):
+            notes.append(row["note"])
+            marker = f" [{len(notes)}]"
+        t = "n/a" if row["t"] is None else f"t({row['df']}) = {format_number(row['t'], '.2f')}"
+        sig = "n/a" if row["significant"] is None else ("yes *" if row["significant"] else "no")
+        accuracy = "n/a" if row["accuracy"] is None else f"{100 * row['accuracy']:.1f}%"
+        mean = _interval(row["relative_surprise"], row["relative_surprise_ci_low"],
+                         row["relative_surprise_ci_high"], ".3g")
+        lines.append(
+            f"| {row['concept']} | {row['variant']}{marker} | {row['n']} | {mean} "
+            f"| {t} | {format_p(row['p_value'])} | {sig} "
+            f"| {_interval(row['d_z'], row['d_z_ci_low'], row['d_z_ci_high'], '.2f')} "
+            f"| {accuracy} | {format_number(row['auroc'], '.3f')} |")
+    lines.append("")
+    lines.append("M: mean relative surprise d = S(inconsistent) - S(consistent), S = sum over "
+                 f"frames of {surprise}; one-tailed paired t-test, H1: M > 0; "
+                 "sig.: p < alpha (* as in the paper); accuracy: share of pairs with d > 0; "
+                 "pooled: the test over the union of a concept's standard and counterbalanced "
+                 "pairs.")
+    lines.extend(f"[{i}] {note}" for i, note in enumerate(notes, start=1))
+    lines += ["", "Verdicts: a concept shows VOE only when its pooled test is significant and "
+              "both variants point the right way (M > 0); without a counterbalanced pair, when "
+              "every probe variant is significant. Generalization variants do not enter.", ""]
+    lines += format_verdicts(rows)
+    return "\n".join(lines) + "\n"
+
+
+def _json_value(value: Any) -> Any:
+    """Strict JSON: non-finite floats become the strings 'inf', '-inf', 'nan' (float() reads
+    them back); the row's note says why."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    return value
+
+
+def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], report_dir: Path, *,
+                  alpha: float, bootstrap: int, surprise: str) -> str:
+    """Write summary.json, summary.csv, summary.md (of ``summarize``'s ``rows``) and pairs.csv
+    into ``report_dir``; return the Markdown summary."""
+    document = {"alpha": alpha, "bootstrap_resamples": bootstrap, "num_pairs": len(results),
+                "num_frames": results.num_frames,
+                "video_surprise": f"sum over frames of {surprise}",
+                "rows": [{k: _json_value(v) for k, v in row.items()} for row in rows],
+                "verdicts": [{"concept": v.concept, "voe": v.voe, "verdict": v.text(),
+                              "rule": v.rule} for v in concept_verdicts(rows, alpha)]}
+    (report_dir / "summary.json").write_text(json.dumps(document, indent=2) + "\n")
+    with open(report_dir / "summary.csv", "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=SUMMARY_COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+    markdown = format_markdown(rows, surprise)
+    (report_dir / "summary.md").write_text(markdown)
+    results.to_csv(report_dir / "pairs.csv")
+    return markdown
