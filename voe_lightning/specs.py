@@ -140,8 +140,7 @@ def _video(frames: np.ndarray, mask: np.ndarray) -> dict[str, torch.Tensor]:
 
 def _camera(camera: np.ndarray, num_frames: int) -> torch.Tensor:
     """Poses [T, 6] float32 from per-frame poses [T, 6] or one pose [6] for every frame."""
-    poses = np.broadcast_to(np.asarray(camera, dtype=np.float32), (num_frames, 6))
-    return torch.from_numpy(np.ascontiguousarray(poses))
+    return torch.from_numpy(np.array(np.broadcast_to(camera, (num_frames, 6)), dtype=np.float32))
 
 
 def clip_record(
