@@ -276,6 +276,18 @@ def test_answer_file_scores_equal_the_surprise_metrics_on_dev(dataset_root, tmp_
                 assert values[metric] == pytest.approx(from_surprise[concept][condition][metric])
 
 
+def test_predict_under_ddp_scores_each_movie_once_and_writes_the_same_answer(dataset_root, tmp_path):
+    """Two CPU processes (ddp_spawn over gloo) split the movies unevenly in batches (6 each,
+    batches of 5 + 1); the writer gathers them into the answer one process writes."""
+    predict(datamodule(dataset_root), tmp_path / "single.txt")
+    trainer = L.Trainer(accelerator="cpu", devices=2, strategy="ddp_spawn", logger=False,
+                        enable_progress_bar=False, enable_model_summary=False,
+                        callbacks=[IntPhysAnswerWriter(tmp_path / "ddp.txt")])
+    trainer.predict(MeanIntensityModel(), datamodule=datamodule(dataset_root, probe_batch_size=5),
+                    return_predictions=False)
+    assert (tmp_path / "ddp.txt").read_text() == (tmp_path / "single.txt").read_text()
+
+
 def test_training_movies_become_clips(dataset_root):
     dm = datamodule(dataset_root)
     dm.setup("fit")
