@@ -155,28 +155,19 @@ def test_test_on_intphys_dev_reports_the_benchmark_metrics(workdir):
     assert "foreground_pixels skipped" in (report / "cues.md").read_text()
 
 
-def test_intphys_answer_command_scores_every_test_movie(workdir):
+def test_predict_with_the_intphys_test_config_writes_the_answer_file(workdir):
     from test_intphys import FRAMES, make_intphys
 
     make_intphys(workdir / "intphys", "test", labelled=False)
     main(["fit", "--config", CONFIG, "--trainer.max_steps", "1"])
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
-    answer = main(
-        [
-            "intphys-answer",
-            "--ckpt_path",
-            str(checkpoint),
-            "--root",
-            str(workdir / "intphys"),
-            "--num-frames",
-            "5",
-            "--frames-per-movie",
-            str(FRAMES),
-            "--out",
-            str(workdir / "answer.txt"),
-        ]
-    )
-    lines = answer.read_text().splitlines()
+    configs = Path(__file__).parents[1] / "configs"
+    main(["predict", "--config", str(configs / "intphys_dev.yaml"),
+          "--config", str(configs / "intphys_test.yaml"), "--ckpt_path", str(checkpoint),
+          "--data.init_args.root", str(workdir / "intphys"), "--data.init_args.num_frames", "5",
+          "--data.init_args.frames_per_movie", str(FRAMES), "--data.init_args.num_workers", "0",
+          "--data.init_args.cache_dir", "null"])
+    lines = (workdir / "answer.txt").read_text().splitlines()
     assert len(lines) == 3 * 4  # three scenes of four movies
     path, score = lines[0].split()
     assert path.startswith("O1/") and 0.0 <= float(score) <= 1.0
@@ -238,7 +229,7 @@ def test_training_does_not_depend_on_how_often_validation_runs(workdir):
     assert all(torch.equal(every_two[key], every_three[key]) for key in every_two)
 
 
-@pytest.mark.parametrize("command", ["test", "intphys-answer"])
+@pytest.mark.parametrize("command", ["test", "predict"])
 def test_checkpoints_are_read_with_weights_only(workdir, monkeypatch, command):
     """Issue 10 case 13: every read of a checkpoint (LightningCLI's, the trainer's, our own)
     passes weights_only=True instead of relying on torch's default (False before torch 2.6)."""
@@ -251,13 +242,9 @@ def test_checkpoints_are_read_with_weights_only(workdir, monkeypatch, command):
     monkeypatch.setattr(torch, "load", spy)
     checkpoint = workdir / "model.ckpt"
     checkpoint.write_bytes(b"not read")
-    if command == "test":
-        arguments = ["test", "--config", CONFIG, "--ckpt_path", str(checkpoint)]
-    else:
-        arguments = ["intphys-answer", "--ckpt_path", str(checkpoint)]
     with pytest.raises(Exception):
-        main(arguments)
-    assert len(calls) >= (2 if command == "test" else 1) and all(value is True for value in calls), calls
+        main([command, "--config", CONFIG, "--ckpt_path", str(checkpoint)])
+    assert len(calls) >= 2 and all(value is True for value in calls), calls
 
 
 @pytest.fixture(scope="module")

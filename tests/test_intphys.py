@@ -1,5 +1,6 @@
 """IntPhys reader on a tiny fixture in the released layout: loading, shapes, pairing by
-divergence, metrics through the DataModule, answer.txt, the cache, and every bad-input error."""
+divergence, metrics through the DataModule, answer.txt through predict, the cache, and every
+bad-input error."""
 
 import json
 import re
@@ -9,15 +10,20 @@ import tempfile
 import warnings
 import zlib
 
+import lightning as L
 import numpy as np
 import pytest
 import torch
 from PIL import Image
 
-import datamodules.intphys as intphys
-from datamodules.benchmark_data import BenchmarkDataError
-from datamodules.intphys import IntPhysDataModule, read_png
+import voe_lightning.benchmarks.intphys as intphys
+from datamodules.intphys import IntPhysDataModule
+from voe_lightning import specs
 from voe_lightning.benchmark_metrics import read_answer_file, score_answers
+from voe_lightning.benchmarks.base import BenchmarkDataError
+from voe_lightning.benchmarks.intphys import read_png
+from voe_lightning.model import SurpriseModel
+from voe_lightning.prediction_writer import IntPhysAnswerWriter
 
 FRAMES, SIZE = 20, 32
 #: num_frames=5 of 20 samples source frames [0, 5, 10, 14, 19].
@@ -214,16 +220,30 @@ def test_benchmark_metrics_per_block_match_hand_computed_values(dataset_root):
     assert o2["relative_error_rate"] == 0.0 and o2["relative_error_rate_ties_half"] == 0.5
     assert o2["auroc"] == pytest.approx(0.5)  # impossible {1, 3} vs possible {2, 2}
     assert report["incomplete_quadruplets"] == 0 and report["skipped"] == {}
-    assert dm.movie_surprise(fake_outputs(dm, surprise)) == surprise
 
 
-class MeanIntensityModel:
+class MeanIntensityModel(SurpriseModel):
     """Stands in for VOEModel: per-frame 'surprise' = mean pixel intensity."""
 
-    device = "cpu"
-
-    def surprise(self, frames):
+    def surprise(self, frames, mask=None, camera=None):
         return frames.float().mean(dim=(-1, -2, -3))
+
+    def expected_frames(self, frames, mask=None, camera=None):
+        return specs.to_model_input(frames)
+
+    def trajectories(self, frames, mask=None, camera=None):
+        return {}
+
+
+def predict(dm, path):
+    """``predict`` of ``dm``'s predict split with the answer writer at ``path``: movie path ->
+    total surprise, as predict_step returned it."""
+    trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, callbacks=[IntPhysAnswerWriter(path)])
+    batches = trainer.predict(MeanIntensityModel(), datamodule=dm)
+    movies = dm.movies(dm.hparams.predict_split)
+    return {movies[index].name: value for batch in batches
+            for index, value in zip(batch["index"].tolist(), batch["surprise"].tolist())}
 
 
 def test_answer_file_for_the_unlabelled_test_set(dataset_root, tmp_path):
@@ -231,12 +251,12 @@ def test_answer_file_for_the_unlabelled_test_set(dataset_root, tmp_path):
     dm.setup("predict")
     batch = next(iter(dm.predict_dataloader()))
     assert batch["frames"].shape == (4, 5, 16, 16, 3)
-    path = dm.write_answer(MeanIntensityModel(), tmp_path / "answer.txt")
+    path = tmp_path / "answer.txt"
+    scores = predict(dm, path)
     lines = path.read_text().splitlines()
     assert len(lines) == 12 and lines == sorted(lines)
     assert all(re.fullmatch(r"O[12]/[^ /]+/[1-4] [01]\.\d{6}", line) for line in lines)
     assert lines[0].startswith("O1/0001_O1_test_visible_static_nobj1/1 ")
-    scores = dm.score_movies(MeanIntensityModel(), "test")
     answers = read_answer_file(path)
     assert set(answers) == set(scores)
     lowest, highest = min(scores, key=scores.get), max(scores, key=scores.get)
@@ -244,18 +264,28 @@ def test_answer_file_for_the_unlabelled_test_set(dataset_root, tmp_path):
 
 
 def test_answer_file_scores_equal_the_surprise_metrics_on_dev(dataset_root, tmp_path):
-    dm = datamodule(dataset_root)
-    dm.setup("test")
-    model = MeanIntensityModel()
-    surprise = dm.score_movies(model, "dev")
+    dm = datamodule(dataset_root, predict_split="dev")
+    surprise = predict(dm, tmp_path / "answer.txt")
     from_surprise = dm.benchmark_metrics(fake_outputs(dm, surprise), bootstrap=0)["metrics"]
-    answers = read_answer_file(dm.write_answer(model, tmp_path / "answer.txt", split="dev"))
+    answers = read_answer_file(tmp_path / "answer.txt")
     labels = {m.name: m.is_possible for m in dm.movies("dev")}
     official = score_answers(answers, labels)
     for block, concept in [("O1", "O1_object_permanence"), ("O2", "O2_shape_constancy")]:
         for condition, values in official[block].items():
             for metric in values:
                 assert values[metric] == pytest.approx(from_surprise[concept][condition][metric])
+
+
+def test_predict_under_ddp_scores_each_movie_once_and_writes_the_same_answer(dataset_root, tmp_path):
+    """Two CPU processes (ddp_spawn over gloo) split the movies unevenly in batches (6 each,
+    batches of 5 + 1); the writer gathers them into the answer one process writes."""
+    predict(datamodule(dataset_root), tmp_path / "single.txt")
+    trainer = L.Trainer(accelerator="cpu", devices=2, strategy="ddp_spawn", logger=False,
+                        enable_progress_bar=False, enable_model_summary=False,
+                        callbacks=[IntPhysAnswerWriter(tmp_path / "ddp.txt")])
+    trainer.predict(MeanIntensityModel(), datamodule=datamodule(dataset_root, probe_batch_size=5),
+                    return_predictions=False)
+    assert (tmp_path / "ddp.txt").read_text() == (tmp_path / "single.txt").read_text()
 
 
 def test_training_movies_become_clips(dataset_root):
@@ -287,27 +317,31 @@ def test_cache_is_reused_without_decoding_pngs(dataset_root, tmp_path, monkeypat
     assert (clips == expected_clips).all()
 
 
-def cache_json_not_json(folder):
-    (folder / "cache.json").write_text('{"format": "voe_lightning.benchmark_cache/1", "shar')
-    return rf"{re.escape(str(folder / 'cache.json'))}: unreadable JSON"
+def cache_manifest_not_json(folder):
+    (folder / "manifest.json").write_text('{"format": "voe_lightning.store/1", "shar')
+    return rf"{re.escape(str(folder / 'manifest.json'))}: unreadable JSON"
 
 
-def cache_json_of_wrong_shape(folder):
-    meta = json.loads((folder / "cache.json").read_text())
-    meta["shard_sizes"] = "6"
-    (folder / "cache.json").write_text(json.dumps(meta))
-    return rf"{re.escape(str(folder / 'cache.json'))}: shard_sizes is a str"
+def cache_manifest_of_wrong_shape(folder):
+    meta = json.loads((folder / "manifest.json").read_text())
+    meta["shard_size"] = "6"
+    (folder / "manifest.json").write_text(json.dumps(meta))
+    return rf"{re.escape(str(folder / 'manifest.json'))}: shard_size is a str"
 
 
-def cache_json_without_the_table(folder):
-    meta = json.loads((folder / "cache.json").read_text())
+def cache_manifest_without_the_table(folder):
+    meta = json.loads((folder / "manifest.json").read_text())
     del meta["table"]
-    (folder / "cache.json").write_text(json.dumps(meta))
-    return rf"{re.escape(str(folder / 'cache.json'))}: table is missing"
+    (folder / "manifest.json").write_text(json.dumps(meta))
+    return rf"{re.escape(str(folder / 'manifest.json'))}: table is missing"
+
+
+def cache_shard(folder):
+    return folder / "benchmark" / "records" / "shard-00000.voe"
 
 
 def cache_shard_with_a_flipped_byte(folder):
-    shard = folder / "shard-00000.voe"
+    shard = cache_shard(folder)
     data = bytearray(shard.read_bytes())
     data[20] ^= 0xFF  # inside the first record
     shard.write_bytes(bytes(data))
@@ -315,16 +349,16 @@ def cache_shard_with_a_flipped_byte(folder):
 
 
 def cache_shard_missing(folder):
-    (folder / "shard-00000.voe").unlink()
-    return rf"{re.escape(str(folder / 'shard-00000.voe'))}: missing"
+    cache_shard(folder).unlink()
+    return rf"{re.escape(str(cache_shard(folder)))}: missing"
 
 
 @pytest.mark.parametrize(
     "breakage",
     [
-        cache_json_not_json,
-        cache_json_of_wrong_shape,
-        cache_json_without_the_table,
+        cache_manifest_not_json,
+        cache_manifest_of_wrong_shape,
+        cache_manifest_without_the_table,
         cache_shard_with_a_flipped_byte,
         cache_shard_missing,
     ],

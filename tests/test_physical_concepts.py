@@ -13,9 +13,10 @@ import pytest
 import torch
 from tfrecord.writer import TFRecordWriter
 
-import datamodules.physical_concepts as physical_concepts
-from datamodules.benchmark_data import BenchmarkDataError
-from datamodules.physical_concepts import PhysicalConceptsDataModule, read_records
+import voe_lightning.benchmarks.physical_concepts as physical_concepts
+from datamodules.physical_concepts import PhysicalConceptsDataModule
+from voe_lightning.benchmarks.base import BenchmarkDataError
+from voe_lightning.benchmarks.physical_concepts import read_records
 
 T, H, W = 15, 64, 64
 #: num_frames=5 of 15 samples frames [0, 4, 7, 10, 14].

@@ -30,15 +30,15 @@ from __future__ import annotations
 import math
 import os
 import re
-from collections import defaultdict
-from collections.abc import Mapping, Sequence
+from collections import Counter, defaultdict
+from collections.abc import Hashable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from sklearn.metrics import roc_auc_score
+import torch
 
-from voe_lightning.statistics import paired_test
+from voe_lightning.statistics import paired_test, ranked_auroc
 
 #: A movie path in an IntPhys answer file: <block>/<scene>/<movie 1-4>.
 ANSWER_PATH = re.compile(r"^(O[123])/([^/\s]+)/([1-4])$")
@@ -72,7 +72,7 @@ def auroc(surprise: Any, is_possible: Any) -> float:
         raise ValueError(f"{surprise.size} surprise values for {labels.size} labels")
     if labels.all() or not labels.any():
         raise ValueError("AUROC needs both possible and impossible movies")
-    return float(roc_auc_score(~labels, surprise))
+    return ranked_auroc(surprise[~labels], surprise[labels])
 
 
 def absolute_error_rate(surprise: Any, is_possible: Any) -> float:
@@ -126,6 +126,21 @@ def quadruplet_metrics(
     else:
         result["paired_test"] = {"n": int(possible.size), "note": "a paired t-test needs 2 pairs"}
     return result
+
+
+def pair_surprise(outputs: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each pair's seed (its quadruplet is ``seed // 2``) and its possible (consistent) and
+    impossible (inconsistent) video's total surprise, from collected ``probe_step`` outputs
+    (seed, surprise_consistent, surprise_inconsistent [N, T])."""
+    seeds = torch.as_tensor(outputs["seed"]).cpu().numpy().ravel()
+    possible = torch.as_tensor(outputs["surprise_consistent"]).double().sum(-1).cpu().numpy()
+    impossible = torch.as_tensor(outputs["surprise_inconsistent"]).double().sum(-1).cpu().numpy()
+    return seeds, possible, impossible
+
+
+def incomplete_quadruplets(quadruplets: Iterable[Hashable]) -> int:
+    """How many quadruplets (one key per scored pair) lack one of their two pairs."""
+    return sum(1 for pairs in Counter(quadruplets).values() if pairs != 2)
 
 
 def grouped_metrics(

@@ -24,7 +24,6 @@ _COMMANDS_OUTSIDE_LIGHTNING = {
     "audit": ("voe_lightning.cues", "main",
               "physics-blind cue scores of a probe split, with the model's paired statistics"),
     "analyze": ("voe_lightning.analysis", "main", "figures over runs: curves, size sweep"),
-    "intphys-answer": ("datamodules.intphys", "answer_main", "the IntPhys submission file"),
 }
 _EPILOG = "other subcommands: " + "; ".join(
     f"{name} ({summary})" for name, (_, _, summary) in _COMMANDS_OUTSIDE_LIGHTNING.items()

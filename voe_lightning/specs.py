@@ -3,10 +3,11 @@ of every record (DESIGN.md §3). Generators, the store, DataModules and tests al
 
 from __future__ import annotations
 
-from typing import Literal, get_args
+from typing import Literal, Sequence, get_args
 
+import numpy as np
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 
 #: The five concepts of the paper (§3). A Literal so that configs naming another are refused
@@ -127,6 +128,67 @@ def probe_spec(num_frames: int = NUM_FRAMES, height: int = HEIGHT, width: int = 
         manipulation_frame=Bounded(0, num_frames - 1, shape=(), dtype=torch.int64),
         manipulated_ids=Bounded(0, MAX_OBJECT_ID, shape=(4,), dtype=torch.int64),
         seed=Unbounded(shape=(), dtype=torch.int64),
+    )
+
+
+def _video(frames: np.ndarray, mask: np.ndarray) -> dict[str, torch.Tensor]:
+    return {
+        "frames": torch.from_numpy(np.ascontiguousarray(frames)),
+        "mask": torch.from_numpy(np.ascontiguousarray(mask)),
+    }
+
+
+def _camera(camera: np.ndarray, num_frames: int) -> torch.Tensor:
+    """Poses [T, 6] float32 from per-frame poses [T, 6] or one pose [6] for every frame."""
+    return torch.from_numpy(np.array(np.broadcast_to(camera, (num_frames, 6)), dtype=np.float32))
+
+
+def clip_record(
+    frames: np.ndarray, mask: np.ndarray, camera: np.ndarray, concept: int, kind: int, seed: int
+) -> TensorDict:
+    """A clip record (``clip_spec`` keys) from uint8 frames [T, H, W, 3] and mask [T, H, W],
+    camera poses [T, 6] (or one [6] for all frames) and vocabulary indices (ours, or a
+    benchmark's own)."""
+    return TensorDict(
+        {
+            **_video(frames, mask),
+            "camera": _camera(camera, len(frames)),
+            "concept": torch.tensor(concept, dtype=torch.int64),
+            "kind": torch.tensor(kind, dtype=torch.int64),
+            "seed": torch.tensor(seed, dtype=torch.int64),
+        },
+        batch_size=[],
+    )
+
+
+def probe_record(
+    consistent: tuple[np.ndarray, np.ndarray],
+    inconsistent: tuple[np.ndarray, np.ndarray],
+    camera: np.ndarray,
+    concept: int,
+    variant: int,
+    manipulation_frame: int,
+    seed: int,
+    manipulated_ids: Sequence[int] = (),
+) -> TensorDict:
+    """A probe record (``probe_spec`` keys) from the (frames, mask) of its consistent and
+    inconsistent video, camera as in ``clip_record`` and vocabulary indices;
+    ``manipulated_ids`` (at most 4) are padded with 0, which also stands for unknown."""
+    ids = [int(i) for i in manipulated_ids]
+    if len(ids) > 4:
+        raise ValueError(f"a probe names at most 4 manipulated ids, got {ids}")
+    return TensorDict(
+        {
+            "consistent": _video(*consistent),
+            "inconsistent": _video(*inconsistent),
+            "camera": _camera(camera, len(consistent[0])),
+            "concept": torch.tensor(concept, dtype=torch.int64),
+            "variant": torch.tensor(variant, dtype=torch.int64),
+            "manipulation_frame": torch.tensor(manipulation_frame, dtype=torch.int64),
+            "manipulated_ids": torch.tensor(ids + [0] * (4 - len(ids)), dtype=torch.int64),
+            "seed": torch.tensor(seed, dtype=torch.int64),
+        },
+        batch_size=[],
     )
 
 

@@ -188,13 +188,14 @@ class PairedTestResult:
         return asdict(self)
 
 
-def _auroc(inconsistent: np.ndarray, consistent: np.ndarray) -> float:
-    """torchmetrics' binary AUROC of surprise, inconsistent = positive class. Surprise is fed
-    as ranks scaled into (0, 1]: torchmetrics treats scores outside [0, 1] as logits and
-    squashes them with a sigmoid, which would tie large surprises; ranks keep the order."""
-    scores = np.concatenate([inconsistent, consistent])
+def ranked_auroc(positive: np.ndarray, negative: np.ndarray) -> float:
+    """torchmetrics' binary AUROC of scores (e.g. surprise, inconsistent = positive), ties
+    counting half. Scores are fed as ranks scaled into (0, 1]: torchmetrics treats scores
+    outside [0, 1] as logits and squashes them with a sigmoid, which would tie large ones;
+    ranks keep the order."""
+    scores = np.concatenate([positive, negative])
     ranks = stats.rankdata(scores) / scores.size
-    target = torch.cat([torch.ones(inconsistent.size), torch.zeros(consistent.size)]).long()
+    target = torch.cat([torch.ones(positive.size), torch.zeros(negative.size)]).long()
     return float(binary_auroc(torch.from_numpy(ranks), target))
 
 
@@ -258,7 +259,7 @@ def paired_test(
         d_z_ci_low=d_z_low,
         d_z_ci_high=d_z_high,
         accuracy=float(np.mean(d > 0)),
-        auroc=_auroc(inc, con),
+        auroc=ranked_auroc(inc, con),
         relative_surprise_ci_low=mean_low,
         relative_surprise_ci_high=mean_high,
         note="; ".join(notes),

@@ -537,7 +537,7 @@ class ManifestError(ValueError):
 
 
 #: Top-level manifest entries every reader relies on, and their JSON types.
-_MANIFEST_KEYS = {"video": dict, "shard_size": int, "concepts": dict}
+MANIFEST_KEYS = {"video": dict, "shard_size": int, "concepts": dict}
 
 
 def read_manifest(root: str | os.PathLike) -> dict | None:
@@ -558,11 +558,11 @@ def read_manifest(root: str | os.PathLike) -> dict | None:
         )
     wrong = [
         f"{key} (missing)" if key not in manifest else f"{key} (a {type(manifest[key]).__name__})"
-        for key, kind in _MANIFEST_KEYS.items()
+        for key, kind in MANIFEST_KEYS.items()
         if not isinstance(manifest.get(key), kind)
     ]
     if wrong:
-        expected = ", ".join(f"{key}: {kind.__name__}" for key, kind in _MANIFEST_KEYS.items())
+        expected = ", ".join(f"{key}: {kind.__name__}" for key, kind in MANIFEST_KEYS.items())
         raise ManifestError(f"{path} is not a voe_lightning manifest: bad {', '.join(wrong)}; expected {expected}; {fix}")
     return manifest
 

@@ -159,6 +159,14 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
         """Probe surprise for the callbacks (logs nothing itself)."""
         return self.probe_step(batch)
 
+    def predict_step(
+        self, batch: TensorDictBase, batch_idx: int, dataloader_idx: int = 0
+    ) -> dict[str, torch.Tensor]:
+        """Each video's surprise (its sum over frames, float64) with its ``index`` in the predict
+        dataset, for a prediction writer; its mask and camera go along when the batch has them."""
+        surprise = self.surprise(self._frames_of(batch), **video_inputs(batch))
+        return {"index": batch["index"], "surprise": surprise.double().sum(-1)}
+
     # ----------------------------------------------------------------------------- checkpoints
     def _model_input(self, frames: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
         """uint8 [B, T, H, W, 3] -> float [B, T, 3, H, W] on this module's device."""

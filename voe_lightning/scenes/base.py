@@ -1,6 +1,6 @@
 """What every concept's scene shares: an MjSpec scene builder with named, mask-labelled objects,
 a per-process renderer that reuses one GL context, a simulation that renders frames and masks
-and can fork at a hidden manipulation, and packing into spec'd TensorDict records."""
+and can fork at a hidden manipulation."""
 
 from __future__ import annotations
 
@@ -14,7 +14,6 @@ from typing import Callable, Sequence
 
 import mujoco
 import numpy as np
-import torch
 from tensordict import TensorDict
 
 from voe_lightning import specs
@@ -528,60 +527,6 @@ def draw_until_valid(
         except RejectedSample as error:
             last = error
     raise RuntimeError(f"no valid scene after {attempts} draws; last rejection: {last}")
-
-
-def clip_record(
-    concept: str, kind: str, seed: int, frames: np.ndarray, masks: np.ndarray, camera: CameraPose
-) -> TensorDict:
-    """Pack a rendered clip as a TensorDict matching ``specs.clip_spec``."""
-    num_frames = frames.shape[0]
-    return TensorDict(
-        {
-            "frames": torch.from_numpy(frames),
-            "mask": torch.from_numpy(masks),
-            "camera": torch.from_numpy(np.tile(camera.as_array(), (num_frames, 1))),
-            "concept": torch.tensor(specs.CONCEPTS.index(concept)),
-            "kind": torch.tensor(specs.CLIP_KINDS.index(kind)),
-            "seed": torch.tensor(seed, dtype=torch.int64),
-        },
-        batch_size=[],
-    )
-
-
-def probe_record(
-    concept: str,
-    variant: str,
-    seed: int,
-    consistent: tuple[np.ndarray, np.ndarray],
-    inconsistent: tuple[np.ndarray, np.ndarray],
-    camera: CameraPose,
-    manipulation_frame: int,
-    manipulated_ids: Sequence[int],
-) -> TensorDict:
-    """Pack a probe pair as a TensorDict matching ``specs.probe_spec``."""
-    num_frames = consistent[0].shape[0]
-    ids = list(manipulated_ids)
-    if not 1 <= len(ids) <= 4:
-        raise ValueError(f"a probe must name 1 to 4 manipulated ids, got {ids}")
-    return TensorDict(
-        {
-            "consistent": {
-                "frames": torch.from_numpy(consistent[0]),
-                "mask": torch.from_numpy(consistent[1]),
-            },
-            "inconsistent": {
-                "frames": torch.from_numpy(inconsistent[0]),
-                "mask": torch.from_numpy(inconsistent[1]),
-            },
-            "camera": torch.from_numpy(np.tile(camera.as_array(), (num_frames, 1))),
-            "concept": torch.tensor(specs.CONCEPTS.index(concept)),
-            "variant": torch.tensor(specs.VARIANTS.index(variant)),
-            "manipulation_frame": torch.tensor(manipulation_frame, dtype=torch.int64),
-            "manipulated_ids": torch.tensor(ids + [0] * (4 - len(ids)), dtype=torch.int64),
-            "seed": torch.tensor(seed, dtype=torch.int64),
-        },
-        batch_size=[],
-    )
 
 
 def record_pair(

@@ -324,8 +324,9 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
 
             consistent, inconsistent = base.record_pair(sim, frame, pass_into_container)
             check_hidden_and_carried(twins[0], layout, frame, (consistent, inconsistent), target)
-        return base.probe_record(
-            CONCEPT, variant, seed, consistent, inconsistent, camera, frame, [sim.mask_id("cube")]
+        return specs.probe_record(
+            consistent, inconsistent, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
+            specs.VARIANTS.index(variant), frame, seed, [sim.mask_id("cube")],
         )
 
     return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, variant))
@@ -381,6 +382,9 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
         enough = MIN_VISIBLE_PIXELS * video.height * video.width / 4096
         if kind == "cube_random_position" and (masks[frame] == cube).sum() < enough:
             raise RejectedSample("the randomly placed cube is hidden or out of view")
-        return base.clip_record(CONCEPT, kind, seed, frames, masks, camera)
+        return specs.clip_record(
+            frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
+            specs.CLIP_KINDS.index(kind), seed,
+        )
 
     return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, kind))

@@ -486,8 +486,9 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
         else:
             sim, consistent, inconsistent, vanish = _standard(rng, variant, video, camera)
         ball = sim.mask_id("ball")
-        return base.probe_record(
-            CONCEPT, variant, seed, consistent, inconsistent, camera, vanish, [ball]
+        return specs.probe_record(
+            consistent, inconsistent, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
+            specs.VARIANTS.index(variant), vanish, seed, [ball],
         )
 
     return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, variant))
@@ -519,6 +520,9 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             for t, position in enumerate(positions):
                 if low < column(sim, position) < high and pixels[t]:
                     raise RejectedSample("the ball shows above the gap block")
-        return base.clip_record(CONCEPT, kind, seed, frames, masks, camera)
+        return specs.clip_record(
+            frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
+            specs.CLIP_KINDS.index(kind), seed,
+        )
 
     return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, kind))

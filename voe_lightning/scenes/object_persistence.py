@@ -13,6 +13,7 @@ import mujoco
 import numpy as np
 from tensordict import TensorDict
 
+from voe_lightning import specs
 from voe_lightning.scenes import base
 from voe_lightning.scenes.base import (
     CameraPose,
@@ -249,8 +250,9 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
         propped = inconsistent if counterbalanced else consistent
         if any(object_id in base.visible_ids(mask) for mask in propped[1][frame:]):
             raise RejectedSample("the object shows from under the propped plank")
-        return base.probe_record(
-            CONCEPT, variant, seed, consistent, inconsistent, layout["camera"], frame, [object_id]
+        return specs.probe_record(
+            consistent, inconsistent, layout["camera"].as_array(), specs.CONCEPTS.index(CONCEPT),
+            specs.VARIANTS.index(variant), frame, seed, [object_id],
         )
 
     return base.draw_until_valid(make, rng)
@@ -342,6 +344,9 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
                 raise RejectedSample("the plank hid the object")
         if sim.mask_id("plank") not in base.visible_ids(masks[-1]):
             raise RejectedSample("the plank landed out of view")
-        return base.clip_record(CONCEPT, kind, seed, frames, masks, camera)
+        return specs.clip_record(
+            frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
+            specs.CLIP_KINDS.index(kind), seed,
+        )
 
     return base.draw_until_valid(make, rng)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from tensordict import TensorDict
 
+from voe_lightning import specs
 from voe_lightning.scenes import base
 from voe_lightning.scenes.base import (
     CameraPose,
@@ -314,8 +315,9 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
             raise RejectedSample("the protruding block is hidden: the pair would not differ")
         if block_id in base.visible_ids(gone):
             raise RejectedSample("the block that should be out of view is seen at the end")
-        return base.probe_record(
-            CONCEPT, variant, seed, consistent, inconsistent, camera, frame, [manipulated]
+        return specs.probe_record(
+            consistent, inconsistent, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
+            specs.VARIANTS.index(variant), frame, seed, [manipulated],
         )
 
     return base.draw_until_valid(make, rng)
@@ -401,6 +403,9 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             masks[-1]
         ):
             raise RejectedSample("the block behind the container is still seen at the end")
-        return base.clip_record(CONCEPT, kind, seed, frames, masks, camera)
+        return specs.clip_record(
+            frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
+            specs.CLIP_KINDS.index(kind), seed,
+        )
 
     return base.draw_until_valid(make, rng)

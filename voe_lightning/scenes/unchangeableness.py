@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from tensordict import TensorDict
 
+from voe_lightning import specs
 from voe_lightning.scenes import base
 from voe_lightning.scenes.base import (
     CameraPose,
@@ -365,8 +366,9 @@ def _make_probe(
         sim, manipulation_frame, manipulate, script=screen.script
     )
     _check_probe(consistent, inconsistent, manipulation_frame, manipulated, count)
-    return base.probe_record(
-        CONCEPT, variant, seed, consistent, inconsistent, camera, manipulation_frame, manipulated
+    return specs.probe_record(
+        consistent, inconsistent, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
+        specs.VARIANTS.index(variant), manipulation_frame, seed, manipulated,
     )
 
 
@@ -468,6 +470,9 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             screen.add_to(builder)
         sim = builder.build()
         frames, masks = sim.record(video.num_frames, screen.script if screen else None)
-        return base.clip_record(CONCEPT, kind, seed, frames, masks, camera)
+        return specs.clip_record(
+            frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
+            specs.CLIP_KINDS.index(kind), seed,
+        )
 
     return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, kind))

@@ -1,0 +1,96 @@
+"""What the benchmark DataModules share: record specs over the benchmark's own vocabularies,
+skipped-input counts, loader settings and the model input geometry."""
+
+from __future__ import annotations
+
+from torch.utils.data import DataLoader, Dataset
+from torchrl.data import Composite
+
+from voe_lightning import specs
+from voe_lightning.benchmarks.base import (
+    FrameSampling,
+    SkipLog,
+    benchmark_spec,
+    frame_indices,
+    merge_counts,
+)
+from voe_lightning.probe_datamodule import ProbeDataModule
+from voe_lightning.store import record_loader
+
+
+class BenchmarkDataModule(ProbeDataModule):
+    """What the benchmark DataModules share: their record specs (over their own concept and
+    variant vocabularies), the counts of skipped input, the loader settings, and the model
+    input geometry (``video``): num_frames, height and width as given, or, left None, the
+    model's (its ``training_frames`` and ``image_size`` hyperparameters), resolved in ``setup``.
+    Subclasses set ``concept_names``/``variant_names`` and ``source_frames`` (frames of every
+    source video), save hyperparameters num_frames, height, width, frame_stride, first_frame,
+    divergence_level, divergence_fraction, num_workers, and call ``_resolve_video(False)`` at
+    the end of ``__init__`` (given values are checked at once) and ``_resolve_video()`` at the
+    start of ``setup``."""
+
+    source_frames: int
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._skips: dict[str, SkipLog] = {}
+        self._cached_skips: dict[str, dict[str, int]] = {}
+        self._video: FrameSampling | None = None
+
+    @property
+    def video(self) -> FrameSampling:
+        """Which source frames become the model's input, at what size."""
+        if self._video is None:
+            raise RuntimeError(
+                f"{type(self).__name__}: num_frames, height or width is left to the model; call "
+                "setup() under a trainer with the model, or give them")
+        return self._video
+
+    def _resolve_video(self, required: bool = True) -> None:
+        """Build ``video`` from num_frames, height and width, taking those left None from the
+        trainer's model; ``required`` (in ``setup``) refuses what neither gives, naming it."""
+        h = self.hparams
+        given = {"num_frames": h.num_frames, "height": h.height, "width": h.width}
+        model = getattr(self.trainer, "lightning_module", None)
+        model_hparams = getattr(model, "hparams", {})
+        height, width = model_hparams.get("image_size") or (None, None)
+        from_model = {"num_frames": model_hparams.get("training_frames"), "height": height,
+                      "width": width}
+        geometry = {name: from_model[name] if value is None else value
+                    for name, value in given.items()}
+        unresolved = [name for name, value in geometry.items() if value is None]
+        if unresolved and required:
+            wanted = {"num_frames": "training_frames", "height": "image_size",
+                      "width": "image_size"}
+            source = "there is no model" if model is None else (
+                "the model's hyperparameters have no "
+                + " or ".join(dict.fromkeys(wanted[name] for name in unresolved)))
+            raise ValueError(
+                f"{type(self).__name__}: {', '.join(unresolved)} not given and {source} to "
+                "take them from; give " + ", ".join(f"--data.init_args.{n}" for n in unresolved))
+        if not unresolved:
+            indices = frame_indices(
+                self.source_frames, geometry["num_frames"], h.frame_stride, h.first_frame)
+            self._video = FrameSampling(tuple(indices.tolist()), geometry["height"],
+                                       geometry["width"], h.divergence_level,
+                                       h.divergence_fraction)
+
+    def probe_spec(self) -> Composite:
+        v = self.video
+        base = specs.probe_spec(len(v.indices), v.height, v.width)
+        return benchmark_spec(base, len(self.concept_names), len(self.variant_names))
+
+    def clip_spec(self) -> Composite:
+        v = self.video
+        return benchmark_spec(
+            specs.clip_spec(len(v.indices), v.height, v.width), len(self.concept_names)
+        )
+
+    @property
+    def skipped(self) -> dict[str, int]:
+        """Items left out under ``lenient=True``, per reason (this run's and cached builds')."""
+        logs = (log.counts() for log in self._skips.values())
+        return merge_counts(*logs, *self._cached_skips.values())
+
+    def _loader(self, dataset: Dataset, batch_size: int, **kwargs) -> DataLoader:
+        return record_loader(dataset, batch_size, self.hparams.num_workers, **kwargs)
