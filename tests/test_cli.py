@@ -73,24 +73,6 @@ def test_fit_then_test_writes_curves_checkpoint_and_report(workdir):
     assert "| object_persistence | standard | 3 |" in markdown
 
 
-def test_fast_dev_run_of_the_joint_datamodule(workdir):
-    main(
-        [
-            "fit",
-            "--config",
-            CONFIG,
-            "--data",
-            "datamodules.JointDataModule",
-            "--data.concepts",
-            "[continuity, solidity]",
-            "--data.init_args.num_frames",
-            "10",  # solidity's counterbalanced probes need frames at most ~0.48 s apart
-            "--trainer.fast_dev_run",
-            "1",
-        ]
-    )
-
-
 def test_resume_continues_in_the_same_run(workdir):
     main(["fit", "--config", CONFIG])
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
