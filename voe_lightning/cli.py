@@ -19,6 +19,7 @@ from lightning.pytorch.cli import LightningCLI
 
 from voe_lightning import analysis, cues, generate
 from voe_lightning.model import SurpriseModel
+from voe_lightning.probe_datamodule import ProbeDataModule
 
 #: The subcommands beside Lightning's: name -> the function it calls, or a dict of its own
 #: subcommands (as jsonargparse's ``auto_cli`` takes them, ``_help`` being the summary).
@@ -111,7 +112,9 @@ class VOECLI(LightningCLI):
             return
         version = run_dir.name
         data_class = _import(config["data"].class_path) if config.get("data") else None
-        if self.subcommand != "fit" and hasattr(data_class, "benchmark_metrics"):
+        # An external benchmark's DataModule has metrics of its own; ProbeDataModule's are none.
+        metrics = getattr(data_class, "benchmark_metrics", ProbeDataModule.benchmark_metrics)
+        if self.subcommand != "fit" and metrics is not ProbeDataModule.benchmark_metrics:
             version = f"{version}/{init_args.get('name') or data_class.__name__}"
         init_args["save_dir"] = str(run_dir.parent.parent)
         init_args["name"] = run_dir.parent.name
