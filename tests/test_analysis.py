@@ -15,6 +15,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from voe_lightning import analysis
 from voe_lightning.callbacks import VOEReportCallback
+from voe_lightning.cli import main
 from voe_lightning.report import write_report
 from voe_lightning.report.results import PairResults
 from voe_lightning.statistics import paired_test
@@ -185,25 +186,30 @@ def test_run_size_sweep_names_a_missing_report_callback(tmp_path):
 def test_command_line_writes_the_figures(tmp_path, capsys):
     runs = _curve_runs(tmp_path)
     curves_png = tmp_path / "figs" / "curves.png"
-    analysis.main(["curves", "--runs", *[f"{label}={path}" for label, path in runs],
-                   "--step-scale", "joint=0.2", "--out", str(curves_png)])
+    main(["analyze", "curves", "--runs", json.dumps([f"{label}={path}" for label, path in runs]),
+          "--step_scale", "{joint: 0.2}", "--out", str(curves_png)])
     for size, effect in ((100, 0.1), (1000, 1.0)):
         write_report(pair_results({("solidity", "standard"): (40, effect)}, seed=size),
                      tmp_path / f"run_{size}" / "version_0", bootstrap=0, echo=False)
     sweep_png = tmp_path / "figs" / "sweep.png"
-    analysis.main(["sweep-plot", "--runs", f"100={tmp_path / 'run_100'}",
-                   f"1000={tmp_path / 'run_1000'}", "--eval-sets", "4", "--out", str(sweep_png)])
+    main(["analyze", "sweep-plot", "--runs.100", str(tmp_path / "run_100"),
+          "--runs.1000", str(tmp_path / "run_1000"), "--eval_sets", "4", "--out", str(sweep_png)])
     rows = [{"train_size": 10, "eval_set": 0, "concept": "c", "variant": "v",
              "relative_surprise": 1.0, "significant": True}]
     (tmp_path / "sweep.json").write_text(json.dumps(rows))
-    analysis.main(["sweep-plot", "--results", str(tmp_path / "sweep.json"),
-                   "--out", str(tmp_path / "s2.png")])
+    main(["analyze", "sweep-plot", "--results", str(tmp_path / "sweep.json"),
+          "--out", str(tmp_path / "s2.png")])
     for path in (curves_png, sweep_png, tmp_path / "s2.png"):
         with Image.open(path) as image:
             assert image.format == "PNG" and image.size[0] > 400
     assert "wrote" in capsys.readouterr().out
+    capsys.readouterr()
     with pytest.raises(SystemExit):
-        analysis.main(["curves", "--runs", "x"])  # --out missing: argparse names it
+        main(["analyze", "curves", "--runs", "[x]"])
+    assert "required: analyze.curves.out" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["analyze", "sweep-plot", "--out", str(tmp_path / "s3.png")])
+    assert "either results" in capsys.readouterr().err
 
 
 def test_notebook_reproduces_the_figures_of_a_run_directory(tmp_path, monkeypatch):
@@ -251,8 +257,8 @@ def test_compare_reads_each_verdicts_rows_beside_the_cue_audit(tmp_path, capsys)
     assert solidity_a["p_value"] < 1e-6 and solidity_a["cue_accuracy_min"] is None  # no audit
 
     out = tmp_path / "compare.md"
-    analysis.main(["compare", "--runs", f"a={tmp_path / 'a'}", f"b={tmp_path / 'b'}",
-                   "--out", str(out)])
+    main(["analyze", "compare", "--runs+", f"a={tmp_path / 'a'}", "--runs+", f"b={tmp_path / 'b'}",
+          "--out", str(out)])
     table = out.read_text()
     assert table == capsys.readouterr().out
     assert "| a | solidity | pooled | 80 |" in table and table.count("**yes**") == 1

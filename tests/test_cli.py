@@ -3,6 +3,7 @@ refusals that must happen before any work starts."""
 
 import csv
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -72,24 +73,6 @@ def test_fit_then_test_writes_curves_checkpoint_and_report(workdir):
     assert "| object_persistence | standard | 3 |" in markdown
 
 
-def test_fast_dev_run_of_the_joint_datamodule(workdir):
-    main(
-        [
-            "fit",
-            "--config",
-            CONFIG,
-            "--data",
-            "datamodules.JointDataModule",
-            "--data.concepts",
-            "[continuity, solidity]",
-            "--data.init_args.num_frames",
-            "10",  # solidity's counterbalanced probes need frames at most ~0.48 s apart
-            "--trainer.fast_dev_run",
-            "1",
-        ]
-    )
-
-
 def test_resume_continues_in_the_same_run(workdir):
     main(["fit", "--config", CONFIG])
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
@@ -114,12 +97,27 @@ def test_bad_configs_are_refused_before_any_work(workdir, capsys, arguments, mes
     assert not (workdir / "data").exists(), "no data may be generated for a refused config"
 
 
-def test_module_entry_point_lists_the_subcommands():
+def test_module_entry_point_lists_every_subcommand_with_its_summary():
     result = subprocess.run(
         [sys.executable, "-m", "voe_lightning", "--help"], capture_output=True, text=True, check=True
     )
-    for subcommand in ("fit", "validate", "test", "generate", "audit", "analyze"):
-        assert subcommand in result.stdout
+    for subcommand in ("fit", "validate", "test", "predict", "generate", "audit", "analyze"):
+        assert re.search(rf"^ +{subcommand} +[A-Z]", result.stdout, re.MULTILINE), subcommand
+
+
+@pytest.mark.parametrize(
+    "command,summary",
+    [(["generate"], "sharded store"), (["audit"], "Physics-blind cue scores"),
+     (["analyze"], "curves, sweep, sweep-plot, compare"), (["analyze", "curves"], "Figure 6"),
+     (["analyze", "sweep"], "per training-set size"), (["analyze", "sweep-plot"], "Figure 3"),
+     (["analyze", "compare"], "verdicts")],
+)
+def test_each_command_has_a_help_with_its_summary_and_config(capsys, command, summary):
+    with pytest.raises(SystemExit) as raised:
+        main([*command, "--help"])
+    assert raised.value.code == 0
+    printed = capsys.readouterr().out
+    assert summary in printed and "--config CONFIG" in printed
 
 
 def test_test_on_intphys_dev_reports_the_benchmark_metrics(workdir):
@@ -178,16 +176,16 @@ def test_size_sweep_trains_and_tests_through_the_real_cli(workdir):
         [
             "analyze",
             "sweep",
-            "--config",
-            CONFIG,
+            "--lightning_configs",
+            json.dumps([CONFIG]),
             "--sizes",
-            "4",
-            "8",
-            "--eval-sets",
+            "[4, 8]",
+            "--eval_sets",
             "2",
-            "--pairs-per-set",
+            "--pairs_per_set",
             "3",
-            "--extra-args=--data.root=data/size{size}",
+            "--extra_args",
+            '["--data.root=data/size{size}"]',
             "--out",
             "sweep.json",
             "--plot",

@@ -1,6 +1,7 @@
 """The shipped configs compose as documented: every `fit`/`validate`/`test`/`predict` command
 written in the README, docs/ or a config's own header parses (``--print_config``: no data, no
-training), every config file is used by one, the lists merge as intended (a later
+training), and so does every documented `generate`/`audit`/`analyze` command; every config file
+is used by one, the lists merge as intended (a later
 ``callbacks+:`` appends to base.yaml's callbacks) and a study config alone is refused."""
 
 import contextlib
@@ -20,10 +21,11 @@ from voe_lightning.cli import main
 ROOT = Path(__file__).parents[1]
 CONFIGS = ROOT / "configs"
 COMMAND = re.compile(r"\b(fit|validate|test|predict)\s+--config\b")
+PACKAGE_COMMAND = re.compile(r"voe_lightning\s+(generate|audit|analyze)\b")
 
 
-def documented_commands() -> list[tuple[str, ...]]:
-    """Each documented command as its arguments after ``python -m voe_lightning``, without
+def documented_commands(command: re.Pattern = COMMAND) -> list[tuple[str, ...]]:
+    """Each documented ``command`` as its arguments after ``python -m voe_lightning``, without
     ``--ckpt_path`` (the checkpoint is not there), in order of first appearance."""
     sources = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
     texts = [path.read_text() for path in sources]
@@ -32,8 +34,8 @@ def documented_commands() -> list[tuple[str, ...]]:
     commands: dict[tuple[str, ...], None] = {}
     for text in texts:
         for line in re.sub(r"\\\n\s*", " ", text).splitlines():
-            for match in COMMAND.finditer(line):
-                words = shlex.split(re.split(r"[`|#]", line[match.start():])[0])
+            for match in command.finditer(line):
+                words = shlex.split(re.split(r"[`|#]", line[match.start(1):])[0])
                 while "--ckpt_path" in words:
                     index = words.index("--ckpt_path")
                     del words[index:index + 2]
@@ -94,6 +96,11 @@ def test_documented_command_parses_into_a_complete_run(command):
         assert checkpoint["save_last"]
         assert config["trainer"]["val_check_interval"] % checkpoint["every_n_train_steps"] == 0
         model_class(**config["model"]["init_args"])  # the constructor takes the composed values
+
+
+@pytest.mark.parametrize("command", documented_commands(PACKAGE_COMMAND), ids=" ".join)
+def test_documented_package_command_parses(command):
+    parsed(*command)
 
 
 def test_later_configs_append_to_or_override_base():

@@ -146,7 +146,8 @@ def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
                      width=32, progress=False)
     capsys.readouterr()
     out = tmp_path / "out"
-    rows = main(["audit", "--root", str(root), "--split", "val", "--no-progress", "--out", str(out)])
+    rows = main(["audit", "--root", str(root), "--split", "val", "--progress", "false",
+                 "--out", str(out)])
     printed = capsys.readouterr().out
     assert "Cue audit of" in printed and "pooled" in printed and "novelty" in printed
     groups = list(dict.fromkeys((r["concept"], r["variant"], r["n"]) for r in rows))
@@ -160,12 +161,18 @@ def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
     assert document["split"] == "val" and document["num_pairs"] == 20
     assert "| object_persistence | **pooled** | 8 |" in (out / "cues.md").read_text()
 
-    only = main(["audit", "--root", str(root), "--concepts", "unchangeableness", "--no-progress"])
+    config = tmp_path / "audit.yaml"  # --config: the same arguments from a file
+    config.write_text(f"root: {root}\nconcepts: [unchangeableness]\nprogress: false\n")
+    only = main(["audit", "--config", str(config)])
     assert {(r["concept"], r["n"]) for r in only} == {("unchangeableness", 2)}  # test split
     assert (root / "cue_audit" / "test" / "cues.md").is_file()  # the default --out
+    capsys.readouterr()
     with pytest.raises(SystemExit):
         main(["audit", "--root", str(root), "--split", "train"])
-    assert "invalid choice: 'train'" in capsys.readouterr().err
+    assert "Got value: train" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        main(["audit", "--root", str(tmp_path / "nowhere"), "--no-progress"])
+        main(["audit", "--root", str(root), "--alpha", "1.5"])
+    assert "alpha must be in (0, 1)" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["audit", "--root", str(tmp_path / "nowhere"), "--progress", "false"])
     assert "no dataset at" in capsys.readouterr().err

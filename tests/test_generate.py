@@ -15,6 +15,7 @@ import torch
 from test_store import fake_clip, fake_probe
 
 from voe_lightning import generate, scenes, specs, store
+from voe_lightning.cli import main
 
 SMALL = dict(
     train_examples=4,
@@ -179,8 +180,13 @@ def test_bad_input_names_the_value_and_the_choices(tmp_path, calls, capsys):
     with pytest.raises(ValueError, match="train_examples must be a non-negative integer, got -1"):
         generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "train_examples": -1})
     with pytest.raises(SystemExit):
-        generate.main(["--root", str(tmp_path), "--concepts", "gravity"])
-    assert "valid concepts are" in capsys.readouterr().err
+        main(["generate", "--root", str(tmp_path), "--concepts", "[continuity, gravity]"])
+    assert "Got value: gravity" in capsys.readouterr().err  # refused with the valid names
+    with pytest.raises(SystemExit):
+        main(["generate", "--root", str(tmp_path), "--concepts", "[continuity]",
+              "--train_examples", "-1"])
+    assert "error: train_examples must be a non-negative integer, got -1" in capsys.readouterr().err
+    assert not (tmp_path / "manifest.json").exists()
     not_a_folder = tmp_path / "file"
     not_a_folder.write_text("")
     with pytest.raises(OSError, match=str(not_a_folder / "data")):
@@ -203,17 +209,17 @@ def test_full_disk_names_the_shard(tmp_path, calls, monkeypatch):
 def test_command_line_generates_with_real_scenes_in_two_workers(tmp_path):
     """End to end with MuJoCo in two spawned worker processes (tiny videos)."""
     root = tmp_path / "data"
-    argv = ["--root", str(root), "--concepts", "continuity", "--train-examples", "2",
-            "--val-pairs", "1", "--test-pairs", "1", "--generalization-pairs", "1",
-            "--shard-size", "1", "--workers", "2", "--height", "32",
-            "--width", "32", "--no-progress"]  # fmt: skip
-    summary = generate.main(argv)
+    argv = ["generate", "--root", str(root), "--concepts", "[continuity]",
+            "--train_examples", "2", "--val_pairs", "1", "--test_pairs", "1",
+            "--generalization_pairs", "1", "--shard_size", "1", "--workers", "2",
+            "--height", "32", "--width", "32", "--progress", "false"]  # fmt: skip
+    summary = main(argv)
     assert summary.shards_generated == summary.shards_planned == 9
     assert store.verify(root) == []
     val = store.open_split(root, "continuity", "val")[0]
     expected = scenes.generate_probe("continuity", "standard", generate.SEED_STARTS["val"], height=32, width=32)
     assert torch.equal(val["inconsistent", "frames"], expected["inconsistent", "frames"])
-    assert generate.main(argv).shards_generated == 0
+    assert main(argv).shards_generated == 0
 
 
 def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch):
@@ -277,9 +283,10 @@ def test_workers_die_with_a_killed_parent(tmp_path):
     Shards of 40 records take seconds each, so an orphan would outlive the 1.5 s allowed."""
     root = tmp_path / "data"
     command = [sys.executable, "-m", "voe_lightning", "generate", "--root", str(root),
-               "--concepts", "continuity", "--train-examples", "200", "--val-pairs", "0",
-               "--test-pairs", "0", "--generalization-pairs", "0", "--shard-size", "40",
-               "--workers", "2", "--num-frames", "3", "--height", "16", "--width", "16", "--no-progress"]  # fmt: skip
+               "--concepts", "[continuity]", "--train_examples", "200", "--val_pairs", "0",
+               "--test_pairs", "0", "--generalization_pairs", "0", "--shard_size", "40",
+               "--workers", "2", "--num_frames", "3", "--height", "16", "--width", "16",
+               "--progress", "false"]  # fmt: skip
     parent = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     children = []
     try:

@@ -99,7 +99,7 @@ def test_unknown_names_list_the_valid_ones(call, match):
         call()
 
 
-def test_different_concepts_use_independent_randomness():
+def test_different_seeds_render_different_clips():
     a = generate_clip("solidity", "example", 11)["frames"].numpy()
     b = generate_clip("solidity", "example", 12)["frames"].numpy()
     assert not np.array_equal(a, b)

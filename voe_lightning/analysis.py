@@ -6,7 +6,6 @@ reliability plot (paper Figure 3), and the per-concept verdicts of tested runs s
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import re
@@ -25,11 +24,11 @@ from voe_lightning.specs import GENERALIZATION_VARIANTS
 from voe_lightning.statistics import paired_test
 
 __all__ = [
+    "COMMANDS",
     "FRAME_LOCAL_CUES",
     "RELATIVE_SURPRISE_TAG",
     "comparison_markdown",
     "comparison_rows",
-    "main",
     "read_relative_surprise",
     "read_scalars",
     "relative_surprise_curves_figure",
@@ -260,7 +259,7 @@ def run_size_sweep(
     return rows
 
 
-# ----------------------------------------------------------------------------- command line
+# ----------------------------------------------------------------------------- comparison
 
 
 #: Generalization probe variants (paper §5), which no verdict reads.
@@ -327,91 +326,101 @@ def comparison_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _label_and_value(text: str, what: str) -> tuple[str, str]:
-    if "=" not in text:
-        raise argparse.ArgumentTypeError(f"expected LABEL=VALUE for {what}, got {text!r}")
-    label, value = text.split("=", 1)
-    return label, value
+# ----------------------------------------------------------------------------- command line
 
 
-def _run(text: str) -> tuple[str, str]:
-    """LABEL=DIR, or DIR (labelled by its name)."""
-    if "=" in text:
-        return _label_and_value(text, "--runs")
-    return Path(text).name, text
+def _labelled(run: str) -> tuple[str, str]:
+    """``LABEL=DIR`` as (LABEL, DIR); a bare DIR is labelled by its name."""
+    label, equals, directory = run.partition("=")
+    return (label, directory) if equals else (Path(run).name, run)
 
 
-def main(argv: Sequence[str] | None = None) -> Any:
-    """``analyze curves --runs [LABEL=]DIR ... --out PNG``: relative surprise over training;
-    ``analyze sweep --config YAML [--config YAML ...] --sizes N ... --out JSON``: train and
-    test per size;
-    ``analyze sweep-plot (--results JSON | --runs SIZE=RUN_DIR ...) --out PNG``: Figure 3;
-    ``analyze compare --runs [LABEL=]DIR ... [--out MD]``: per-concept verdicts side by side."""
-    parser = argparse.ArgumentParser(prog="python -m voe_lightning analyze", description=__doc__)
-    commands = parser.add_subparsers(dest="command", required=True)
+def curves(runs: list[str], out: Path, step_scale: dict[str, float] | None = None) -> Path:
+    """Relative surprise over training per concept and run (paper Figure 6), as a PNG.
 
-    curves = commands.add_parser("curves", help="relative surprise over training (Figure 6)")
-    curves.add_argument("--runs", nargs="+", type=_run, required=True, metavar="[LABEL=]DIR",
-                        help="run directories; label joint runs 'joint' (solid) and separate "
-                             "runs 'separate' (dashed); a label may repeat")
-    curves.add_argument("--step-scale", nargs="*", default=[], metavar="LABEL=FACTOR",
-                        type=lambda t: _label_and_value(t, "--step-scale"),
-                        help="multiply a label's steps, e.g. joint=0.2 for examples per concept")
-    curves.add_argument("--out", required=True, help="PNG to write")
+    Args:
+        runs: run directories as [LABEL=]DIR; label joint runs 'joint' (solid) and separate
+            runs 'separate' (dashed); a label may repeat.
+        out: PNG to write.
+        step_scale: a factor per label multiplying its steps, e.g. {joint: 0.2} for examples
+            per concept.
+    """
+    return _write(relative_surprise_curves_figure([_labelled(run) for run in runs], step_scale),
+                  out)
 
-    sweep = commands.add_parser("sweep", help="train and test per training-set size")
-    sweep.add_argument("--config", required=True, action="append", dest="configs",
-                       help="repeat for each config, in order: configs/base.yaml, then a study's")
-    sweep.add_argument("--sizes", nargs="+", type=int, required=True)
-    sweep.add_argument("--eval-sets", type=int, default=5)
-    sweep.add_argument("--pairs-per-set", type=int, default=100)
-    sweep.add_argument("--extra-args", nargs="*", default=[],
-                       help="extra fit and test arguments; {size} is replaced by the size")
-    sweep.add_argument("--test-args", nargs="*", default=[], help="extra test arguments")
-    sweep.add_argument("--out", default="runs/size_sweep/sweep.json")
-    sweep.add_argument("--plot", help="also write the Figure 3 PNG here")
 
-    plot = commands.add_parser("sweep-plot", help="reliability vs training-set size (Figure 3)")
-    source = plot.add_mutually_exclusive_group(required=True)
-    source.add_argument("--results", help="sweep.json written by 'analyze sweep'")
-    source.add_argument("--runs", nargs="+", metavar="SIZE=RUN_DIR",
-                        type=lambda t: _label_and_value(t, "--runs"),
-                        help="tested runs (with voe_report/pairs.csv) and their training size")
-    plot.add_argument("--eval-sets", type=int, default=5, help="with --runs: sets per run")
-    plot.add_argument("--out", required=True, help="PNG to write")
+def sweep(
+    lightning_configs: list[Path],
+    sizes: list[int],
+    eval_sets: int = 5,
+    pairs_per_set: int = 100,
+    out: Path = Path("runs/size_sweep/sweep.json"),
+    extra_args: Sequence[str] = (),
+    test_args: Sequence[str] = (),
+    plot: Path | None = None,
+) -> list[dict[str, Any]]:
+    """Train and test one model per training-set size, writing the rows to sweep.json.
 
-    compare = commands.add_parser("compare", help="per-concept verdicts of tested runs")
-    compare.add_argument("--runs", nargs="+", type=_run, required=True, metavar="[LABEL=]DIR",
-                         help="tested run directories (their latest voe_report is read)")
-    compare.add_argument("--out", help="also write the Markdown table here")
+    Args:
+        lightning_configs: the fit and test configs, in order (e.g. configs/base.yaml, then a
+            study's), with VOEReportCallback in the callbacks.
+        sizes: training-set sizes (examples per concept).
+        eval_sets: disjoint evaluation sets per size.
+        pairs_per_set: test pairs per evaluation set.
+        out: JSON to write the rows to.
+        extra_args: extra fit and test arguments; {size} is replaced by the size.
+        test_args: extra test arguments; {size} is replaced by the size.
+        plot: also write the Figure 3 PNG here.
+    """
+    rows = run_size_sweep(lightning_configs, sizes, eval_sets, pairs_per_set, out, extra_args,
+                          test_args)
+    if plot:
+        _write(size_sweep_figure(rows), plot)
+    return rows
 
-    args = parser.parse_args(argv)
-    if args.command == "compare":
-        table = comparison_markdown(comparison_rows(args.runs))
-        print(table, end="")
-        if args.out:
-            Path(args.out).write_text(table)
-        return table
-    if args.command == "curves":
-        figure = relative_surprise_curves_figure(
-            args.runs, {label: float(value) for label, value in args.step_scale})
-        return _write(figure, args.out)
-    if args.command == "sweep":
-        rows = run_size_sweep(args.configs, args.sizes, args.eval_sets, args.pairs_per_set,
-                              args.out, args.extra_args, args.test_args)
-        if args.plot:
-            _write(size_sweep_figure(rows), args.plot)
-        return rows
-    if args.results:
-        rows = json.loads(Path(args.results).read_text())
+
+def sweep_plot(out: Path, results: Path | None = None, runs: dict[int, Path] | None = None,
+               eval_sets: int = 5) -> Path:
+    """Reliability of relative surprise vs training-set size (paper Figure 3), as a PNG.
+
+    Args:
+        out: PNG to write.
+        results: sweep.json written by analyze sweep.
+        runs: instead of results, tested runs (with voe_report/pairs.csv) by training-set
+            size, e.g. {100: runs/size_100, 1000: runs/size_1000}.
+        eval_sets: with runs, evaluation sets per run.
+    """
+    if (results is None) == (runs is None):
+        raise ValueError("give either results (a sweep.json) or runs (SIZE: RUN_DIR), not both")
+    if results is not None:
+        rows = json.loads(Path(results).read_text())
     else:
         rows = []
-        for size, run_dir in args.runs:
+        for size, run_dir in runs.items():
             pairs = sorted(Path(run_dir).rglob("voe_report/pairs.csv"))
             if not pairs:
                 raise FileNotFoundError(f"no voe_report/pairs.csv under {run_dir} (run test first)")
-            rows.extend(sweep_rows(PairResults.from_csv(pairs[-1]), int(size), args.eval_sets))
-    return _write(size_sweep_figure(rows), args.out)
+            rows.extend(sweep_rows(PairResults.from_csv(pairs[-1]), size, eval_sets))
+    return _write(size_sweep_figure(rows), out)
+
+
+def compare(runs: list[str], out: Path | None = None) -> str:
+    """Per-concept verdicts of tested runs side by side, as a Markdown table.
+
+    Args:
+        runs: tested run directories as [LABEL=]DIR (their latest voe_report is read).
+        out: also write the table here.
+    """
+    table = comparison_markdown(comparison_rows([_labelled(run) for run in runs]))
+    print(table, end="")
+    if out:
+        Path(out).write_text(table)
+    return table
+
+
+#: ``analyze``'s subcommands, as jsonargparse's ``auto_cli`` takes them (``_help``: the summary).
+COMMANDS = {"_help": "Figures and tables over runs: curves, sweep, sweep-plot, compare.",
+            "curves": curves, "sweep": sweep, "sweep-plot": sweep_plot, "compare": compare}
 
 
 def _write(figure: Figure, path: str | Path) -> Path:

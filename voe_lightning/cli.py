@@ -1,11 +1,12 @@
-"""The command line: ``fit``/``validate``/``test`` through LightningCLI, and ``generate``
-(render the datasets), ``audit`` (physics-blind cue scores of a probe split), ``analyze``
-(figures over runs) and ``intphys-answer`` (the IntPhys challenge's submission file) through
-their own parsers, listed in ``--help``."""
+"""The command line: ``fit``/``validate``/``test``/``predict`` through LightningCLI and the
+package's own subcommands (``generate``, ``audit``, ``analyze``) in the same parser, built by
+jsonargparse from their functions' signatures and docstrings: one flag style, ``--config``
+for every command, all listed in ``--help``."""
 
 from __future__ import annotations
 
 import importlib
+import inspect
 import pickle
 import sys
 from pathlib import Path
@@ -13,21 +14,20 @@ from typing import Any
 
 import lightning as L
 import torch
-from jsonargparse import Namespace
+from jsonargparse import ActionConfigFile, ArgumentParser, Namespace
 from lightning.pytorch.cli import LightningCLI
 
+from voe_lightning import analysis, cues, generate
 from voe_lightning.model import SurpriseModel
+from voe_lightning.probe_datamodule import ProbeDataModule
 
-#: subcommand -> (module, function taking the remaining arguments, what it does for --help)
-_COMMANDS_OUTSIDE_LIGHTNING = {
-    "generate": ("voe_lightning.generate", "main", "render the datasets"),
-    "audit": ("voe_lightning.cues", "main",
-              "physics-blind cue scores of a probe split, with the model's paired statistics"),
-    "analyze": ("voe_lightning.analysis", "main", "figures over runs: curves, size sweep"),
+#: The subcommands beside Lightning's: name -> the function it calls, or a dict of its own
+#: subcommands (as jsonargparse's ``auto_cli`` takes them, ``_help`` being the summary).
+COMMANDS: dict[str, Any] = {
+    "generate": generate.generate,
+    "audit": cues.audit,
+    "analyze": analysis.COMMANDS,
 }
-_EPILOG = "other subcommands: " + "; ".join(
-    f"{name} ({summary})" for name, (_, _, summary) in _COMMANDS_OUTSIDE_LIGHTNING.items()
-) + ". Run `python -m voe_lightning SUBCOMMAND --help` for their options."
 
 
 class VOECLI(LightningCLI):
@@ -40,7 +40,33 @@ class VOECLI(LightningCLI):
     ``<subcommand>_config.yaml``, keeping the run's training ``config.yaml``. A missing
     checkpoint is refused before any work starts, and so are a truncated or corrupt one and
     model arguments the user gives that differ from the checkpoint's (LightningCLI replaces the
-    config's model arguments with the checkpoint's, so they would be ignored)."""
+    config's model arguments with the checkpoint's, so they would be ignored). The subcommands
+    of ``COMMANDS`` call their function instead, with no model, data or trainer."""
+
+    def _add_subcommands(self, parser: Any, **kwargs: Any) -> None:
+        """Lightning's subcommands, then those of ``COMMANDS``, each listed with its summary."""
+        super()._add_subcommands(parser, **kwargs)
+        for name, command in COMMANDS.items():
+            _add_command(parser._subcommands_action, name, command)
+
+    def _set_seed(self) -> None:
+        if self.subcommand not in COMMANDS:  # those have no seed_everything
+            super()._set_seed()
+
+    def instantiate_classes(self) -> None:
+        if self.subcommand not in COMMANDS:
+            super().instantiate_classes()
+
+    def _run_subcommand(self, subcommand: str) -> None:
+        """Run the Trainer's method, or call a ``COMMANDS`` function (its return value in
+        ``self.result``), printing a ValueError or OSError (a bad value) as an error, exit 2."""
+        if subcommand not in COMMANDS:
+            return super()._run_subcommand(subcommand)
+        try:
+            self.result = _call(COMMANDS[subcommand], self.config[subcommand])
+        except (ValueError, OSError) as error:
+            print(f"error: {error}", file=sys.stderr)
+            raise SystemExit(2) from error
 
     def parse_arguments(self, parser: Any, args: Any) -> None:
         """Parse, then read --ckpt_path (naming it if unreadable) and compare the model
@@ -86,7 +112,9 @@ class VOECLI(LightningCLI):
             return
         version = run_dir.name
         data_class = _import(config["data"].class_path) if config.get("data") else None
-        if self.subcommand != "fit" and hasattr(data_class, "benchmark_metrics"):
+        # An external benchmark's DataModule has metrics of its own; ProbeDataModule's are none.
+        metrics = getattr(data_class, "benchmark_metrics", ProbeDataModule.benchmark_metrics)
+        if self.subcommand != "fit" and metrics is not ProbeDataModule.benchmark_metrics:
             version = f"{version}/{init_args.get('name') or data_class.__name__}"
         init_args["save_dir"] = str(run_dir.parent.parent)
         init_args["name"] = run_dir.parent.name
@@ -135,19 +163,47 @@ def _import(class_path: str) -> Any:
     return getattr(importlib.import_module(module_name), name)
 
 
+def _add_command(subcommands: Any, name: str, command: Any) -> None:
+    """Add a ``COMMANDS`` entry as subcommand ``name``: its flags from the function's signature
+    with their help from its docstring's Args, or a dict's functions as its own subcommands."""
+    nested = isinstance(command, dict)
+    description = command["_help"] if nested else inspect.getdoc(command).split("\n\nArgs:")[0]
+    parser = ArgumentParser(description=description)
+    parser.add_argument("--config", action=ActionConfigFile,
+                        help="a YAML file of these arguments (see --print_config)")
+    subcommands.add_subcommand(name, parser, help=description.splitlines()[0])
+    if not nested:
+        parser.add_function_arguments(command, as_group=False, sub_configs=True)
+        return
+    inner = parser.add_subcommands()
+    for inner_name, function in command.items():
+        if inner_name != "_help":
+            _add_command(inner, inner_name, function)
+
+
+def _call(command: Any, arguments: Namespace) -> Any:
+    """Call the function of a ``COMMANDS`` entry that its parsed ``arguments`` select."""
+    arguments = arguments.clone()
+    arguments.pop("config", None)
+    if isinstance(command, dict):
+        name = arguments.pop("subcommand")
+        return _call(command[name], arguments[name])
+    return command(**arguments)
+
+
 def main(args: list[str] | None = None) -> Any:
-    """Entry point of ``python -m voe_lightning``; tests call ``main([...])``."""
-    words = sys.argv[1:] if args is None else list(args)
-    if words and words[0] in _COMMANDS_OUTSIDE_LIGHTNING:
-        module_name, function, _ = _COMMANDS_OUTSIDE_LIGHTNING[words[0]]
-        return getattr(importlib.import_module(module_name), function)(words[1:])
-    return VOECLI(
+    """Entry point of ``python -m voe_lightning``; tests call ``main([...])``. Returns the CLI,
+    or for a subcommand of ``COMMANDS`` its function's return value."""
+    cli = VOECLI(
         model_class=SurpriseModel,
         datamodule_class=L.LightningDataModule,
         subclass_mode_model=True,
         subclass_mode_data=True,
         seed_everything_default=0,
         save_config_kwargs={"overwrite": True},
-        parser_kwargs={"prog": "python -m voe_lightning", "epilog": _EPILOG},
+        parser_kwargs={"prog": "python -m voe_lightning",
+                       "description": "Probe video models' intuitive physics by violation of "
+                       "expectation: generate the data, train and test, audit cues, analyze runs."},
         args=args,
     )
+    return cli.result if cli.subcommand in COMMANDS else cli

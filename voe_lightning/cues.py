@@ -24,15 +24,13 @@ that separates the pairs in either direction."""
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import math
-import sys
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -44,11 +42,11 @@ __all__ = [
     "CUES",
     "CUE_COLUMNS",
     "CueAudit",
+    "audit",
     "audit_records",
     "audit_split",
     "cue_table",
     "format_markdown",
-    "main",
     "score_videos",
     "write_audit",
 ]
@@ -386,49 +384,40 @@ def write_audit(
 # ----------------------------------------------------------------------------- command line
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m voe_lightning audit",
-        description="Cue audit: physics-blind scores (" + ", ".join(CUES) + ") of a probe split, "
-        "with the model's paired statistics (M, t, p, d_z, accuracy) and pooled rows; prints the "
-        "table and writes cues.md, cues.csv and cues.json.")
-    parser.add_argument("--root", required=True, type=Path, help="dataset folder (a generated store)")
-    parser.add_argument("--split", default="test", choices=["val", "test", "generalization"],
-                        help="probe split to audit (default: test)")
-    parser.add_argument("--concepts", nargs="+", default=None, metavar="CONCEPT",
-                        help="concepts to audit (default: every concept in the store)")
-    parser.add_argument("--out", type=Path, default=None,
-                        help="output folder (default: ROOT/cue_audit/SPLIT)")
-    parser.add_argument("--alpha", type=float, default=0.05, help="significance level")
-    parser.add_argument("--batch-size", type=int, default=64, help="pairs scored at once")
-    parser.add_argument("--workers", type=int, default=0, help="data loader worker processes")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    return parser
+def audit(
+    root: Path,
+    split: Literal["val", "test", "generalization"] = "test",
+    concepts: list[specs.Concept] | None = None,
+    out: Path | None = None,
+    alpha: float = 0.05,
+    batch_size: int = 64,
+    num_workers: int = 0,
+    progress: bool = True,
+) -> list[dict[str, Any]]:
+    """Physics-blind cue scores of a probe split, with the model's paired statistics.
 
+    Prints the table (M, t, p, d_z, accuracy and pooled rows per cue) and writes cues.md,
+    cues.csv and cues.json; returns the rows.
 
-def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
-    """``python -m voe_lightning audit ...``: returns the rows it wrote."""
+    Args:
+        root: dataset folder (a generated store).
+        split: probe split to audit.
+        concepts: concepts to audit (default: every concept in the store).
+        out: output folder (default: ROOT/cue_audit/SPLIT).
+        alpha: significance level.
+        batch_size: pairs scored at once.
+        num_workers: data loader worker processes.
+        progress: show a progress bar.
+    """
     from rich.console import Console
 
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    for concept in args.concepts or ():
-        if concept not in specs.CONCEPTS:
-            parser.error(f"unknown concept {concept!r}; valid concepts are: {', '.join(specs.CONCEPTS)}")
-    if not 0.0 < args.alpha < 1.0 or args.batch_size < 1:
-        parser.error(f"--alpha must be in (0, 1) and --batch-size >= 1, got {args.alpha} and "
-                     f"{args.batch_size}")
-    try:
-        audit = audit_split(args.root, args.split, args.concepts, args.batch_size, args.workers,
-                            progress=not args.no_progress)
-    except (ValueError, OSError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        raise SystemExit(2) from error
-    rows = audit.rows(alpha=args.alpha)
-    title = f"Cue audit of {args.root} ({args.split} split, {len(audit)} pairs)"
-    out = write_audit(rows, args.out or args.root / "cue_audit" / args.split, title=title,
-                      root=str(args.root), split=args.split, alpha=args.alpha,
-                      num_pairs=len(audit))
+    if not 0.0 < alpha < 1.0 or batch_size < 1:
+        raise ValueError(f"alpha must be in (0, 1) and batch_size >= 1, got {alpha} and {batch_size}")
+    scores = audit_split(root, split, concepts, batch_size, num_workers, progress=progress)
+    rows = scores.rows(alpha=alpha)
+    title = f"Cue audit of {root} ({split} split, {len(scores)} pairs)"
+    out = write_audit(rows, out or Path(root) / "cue_audit" / split, title=title, root=str(root),
+                      split=split, alpha=alpha, num_pairs=len(scores))
     console = Console()
     if not console.is_terminal:  # logs and pipes: do not cut the table at 80 columns
         console.width = 140

@@ -1,11 +1,10 @@
 """Generate the dataset store: per concept a train split of examples and controls and
 validation, test and generalization probe splits from disjoint seed ranges, planned as a
 deterministic list of shards that parallel worker processes render, resumably and in slices
-(``--shard-index/--num-shards``) for cluster job arrays. ``python -m voe_lightning generate``."""
+(``--shard_index/--num_shards``) for cluster job arrays. ``python -m voe_lightning generate``."""
 
 from __future__ import annotations
 
-import argparse
 import ctypes
 import ctypes.util
 import dataclasses
@@ -609,90 +608,66 @@ def _is_complete(request: "_Request", splits: Sequence[str]) -> bool:
 
 
 # --- command line -------------------------------------------------------------------------------
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m voe_lightning generate",
-        description="Render the five concepts' training clips and probe pairs into a sharded store "
-        "(resumable; repairs missing or corrupt shards; --shard-index/--num-shards for job arrays).",
-    )
-    parser.add_argument("--root", required=True, type=Path, help="dataset folder")
-    parser.add_argument(
-        "--concepts", nargs="+", default=list(specs.CONCEPTS), metavar="CONCEPT",
-        help=f"concepts to generate (default: all of {', '.join(specs.CONCEPTS)})",
-    )  # fmt: skip
-    parser.add_argument("--train-examples", type=int, default=DEFAULT_TRAIN_EXAMPLES)
-    parser.add_argument(
-        "--train-controls", type=int, default=None,
-        help="controls per concept, split evenly over its control kinds (default: = examples)",
-    )  # fmt: skip
-    parser.add_argument("--val-pairs", type=int, default=DEFAULT_VAL_PAIRS, help="per probe variant")
-    parser.add_argument("--test-pairs", type=int, default=DEFAULT_TEST_PAIRS, help="per probe variant")
-    parser.add_argument(
-        "--generalization-pairs", type=int, default=DEFAULT_GENERALIZATION_PAIRS,
-        help="per generalization probe variant",
-    )  # fmt: skip
-    parser.add_argument("--shard-size", type=int, default=DEFAULT_SHARD_SIZE, help="records per shard")
-    parser.add_argument("--workers", type=int, default=default_workers(), help="worker processes")
-    parser.add_argument("--shard-index", type=int, default=0, help="this job's slice of the shards")
-    parser.add_argument("--num-shards", type=int, default=1, help="number of slices (job array size)")
-    parser.add_argument("--num-frames", type=int, default=specs.NUM_FRAMES)
-    parser.add_argument("--height", type=int, default=specs.HEIGHT)
-    parser.add_argument("--width", type=int, default=specs.WIDTH)
-    parser.add_argument(
-        "--overwrite", action="store_true",
-        help="delete data generated with other settings instead of refusing",
-    )  # fmt: skip
-    parser.add_argument(
-        "--contact-sheets", action="store_true",
-        help="write ROOT/contact_sheets/<concept>.png from the store at the end",
-    )  # fmt: skip
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    return parser
+def generate(
+    root: Path,
+    concepts: list[specs.Concept] = list(specs.CONCEPTS),
+    train_examples: int = DEFAULT_TRAIN_EXAMPLES,
+    train_controls: int | None = None,
+    val_pairs: int = DEFAULT_VAL_PAIRS,
+    test_pairs: int = DEFAULT_TEST_PAIRS,
+    generalization_pairs: int = DEFAULT_GENERALIZATION_PAIRS,
+    shard_size: int = DEFAULT_SHARD_SIZE,
+    workers: int | None = None,
+    shard_index: int = 0,
+    num_shards: int = 1,
+    num_frames: int = specs.NUM_FRAMES,
+    height: int = specs.HEIGHT,
+    width: int = specs.WIDTH,
+    overwrite: bool = False,
+    contact_sheets: bool = False,
+    progress: bool = True,
+) -> GenerationSummary:
+    """Render the concepts' training clips and probe pairs into a sharded store.
 
+    Resumable: shards that exist and verify are kept, missing or corrupt ones are rendered
+    again. generate_dataset with the DataModules' argument names, printing what it did.
 
-def main(argv: list[str] | None = None) -> GenerationSummary:
-    """``python -m voe_lightning generate ...``"""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    for concept in args.concepts:
-        if concept not in specs.CONCEPTS:
-            parser.error(f"unknown concept {concept!r}; valid concepts are: {', '.join(specs.CONCEPTS)}")
-    try:
-        summary = generate_dataset(
-            args.root,
-            concepts=args.concepts,
-            train_examples=args.train_examples,
-            train_controls=args.train_controls,
-            val_pairs_per_variant=args.val_pairs,
-            test_pairs_per_variant=args.test_pairs,
-            generalization_pairs_per_variant=args.generalization_pairs,
-            shard_size=args.shard_size,
-            workers=args.workers,
-            num_frames=args.num_frames,
-            height=args.height,
-            width=args.width,
-            shard_index=args.shard_index,
-            num_shards=args.num_shards,
-            overwrite=args.overwrite,
-            progress=not args.no_progress,
-        )
-    except (ValueError, OSError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        raise SystemExit(2) from error
+    Args:
+        root: dataset folder.
+        concepts: concepts to generate.
+        train_examples: training examples per concept.
+        train_controls: training controls per concept, split evenly over its control kinds
+            (default: as many as examples).
+        val_pairs: validation probe pairs per concept and variant.
+        test_pairs: test probe pairs per concept and variant.
+        generalization_pairs: generalization probe pairs per concept and variant.
+        shard_size: records per shard.
+        workers: rendering processes (default: all cores).
+        shard_index: this job's slice of the shards (cluster job arrays).
+        num_shards: number of slices (the job array's size).
+        num_frames: frames per video.
+        height: frame height.
+        width: frame width.
+        overwrite: delete data generated with other settings instead of refusing.
+        contact_sheets: write ROOT/contact_sheets/<concept>.png from the store at the end.
+        progress: show a progress bar.
+    """
+    summary = generate_dataset(
+        root, concepts, train_examples, train_controls, val_pairs_per_variant=val_pairs,
+        test_pairs_per_variant=test_pairs, generalization_pairs_per_variant=generalization_pairs,
+        shard_size=shard_size, workers=workers, num_frames=num_frames, height=height, width=width,
+        shard_index=shard_index, num_shards=num_shards, overwrite=overwrite, progress=progress,
+    )  # fmt: skip
     print(
         f"{summary.root}: {summary.shards_generated} shards generated "
         f"({summary.records_generated} records, {summary.bytes_written / 1e6:.1f} MB), "
         f"{summary.shards_skipped} already complete, {summary.seconds:.1f} s"
     )
-    if args.contact_sheets:
+    if contact_sheets:
         from voe_lightning.contact_sheet import write_store_sheet
 
-        for concept in dict.fromkeys(args.concepts):
-            path = args.root / "contact_sheets" / f"{concept}.png"
-            write_store_sheet(args.root, concept, path)
+        for concept in dict.fromkeys(concepts):
+            path = Path(root) / "contact_sheets" / f"{concept}.png"
+            write_store_sheet(root, concept, path)
             print(f"wrote {path}")
     return summary
-
-
-if __name__ == "__main__":
-    main()
