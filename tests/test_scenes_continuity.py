@@ -233,9 +233,9 @@ def test_slowing_ball_is_aimed_to_rest_behind_the_first_pillar():
 def test_x_at_column_inverts_the_projection():
     camera = continuity.CAMERA.sample(np.random.default_rng(2))
     for x in (-0.8, 0.0, 0.7):
-        column = continuity.project(camera, VIDEO, (x, 0.5, 0.2))[1]
+        column = continuity.pixel_of(camera, VIDEO, (x, 0.5, 0.2))[1]
         found = continuity.x_at_column(camera, VIDEO, column + 0.5, 0.5, 0.2)
-        assert continuity.project(camera, VIDEO, (found, 0.5, 0.2))[1] == column
+        assert continuity.pixel_of(camera, VIDEO, (found, 0.5, 0.2))[1] == column
 
 
 def test_projection_lands_on_the_rendered_ball():

@@ -152,7 +152,7 @@ def test_projection_matches_the_renderer():
         _, mask = builder.build().render()
         ys, xs = np.nonzero(mask == 1)
         u, v = (xs.mean() + 0.5) / 32 - 1, 1 - (ys.mean() + 0.5) / 32
-        assert np.allclose(scene.project(camera, point), (u, v), atol=0.03)
+        assert np.allclose(scene.image_point(camera, point), (u, v), atol=0.03)
         back = scene.floor_point(camera, u, v, point[2])
         assert np.allclose(back[:2], point[:2], atol=0.08)
 

@@ -230,7 +230,7 @@ def run_size_sweep(
     cli_main: Callable[[list[str]], Any] | None = None,
 ) -> list[dict[str, Any]]:
     """Train one model per training-set size with ``python -m voe_lightning fit`` (with each of
-    ``configs`` in order, e.g. ``configs/base.yaml`` then ``configs/quickstart.yaml``) and test it
+    ``configs`` in order, e.g. ``configs/quickstart.yaml``; base.yaml is read first) and test it
     on ``eval_sets`` x ``pairs_per_set`` test pairs, split into disjoint evaluation sets
     (``sweep_rows``). ``extra_args`` go to both commands, ``test_args`` to ``test`` only; in
     both ``{size}`` is replaced by the size (e.g. ``--data.root=data/sweep_{size}`` to keep
@@ -362,7 +362,7 @@ def sweep(
     """Train and test one model per training-set size, writing the rows to sweep.json.
 
     Args:
-        lightning_configs: the fit and test configs, in order (e.g. configs/base.yaml, then a
+        lightning_configs: the fit and test configs, in order, after base.yaml (e.g. a
             study's), with VOEReportCallback in the callbacks.
         sizes: training-set sizes (examples per concept).
         eval_sets: disjoint evaluation sets per size.

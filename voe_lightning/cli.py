@@ -12,7 +12,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import lightning as L
 import torch
 from jsonargparse import ActionConfigFile, ArgumentParser, Namespace
 from lightning.pytorch.cli import LightningCLI
@@ -20,6 +19,11 @@ from lightning.pytorch.cli import LightningCLI
 from voe_lightning import analysis, cues, generate
 from voe_lightning.model import SurpriseModel
 from voe_lightning.probe_datamodule import ProbeDataModule
+
+#: Trainer, logger, callbacks and model class every fit/validate/test/predict starts from, so
+#: ``--config configs/joint.yaml`` alone is a whole run; later ``--config`` files override it.
+BASE_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "base.yaml"
+LIGHTNING_SUBCOMMANDS = ("fit", "validate", "test", "predict")
 
 #: The subcommands beside Lightning's: name -> the function it calls, or a dict of its own
 #: subcommands (as jsonargparse's ``auto_cli`` takes them, ``_help`` being the summary).
@@ -113,8 +117,8 @@ class VOECLI(LightningCLI):
         version = run_dir.name
         data_class = _import(config["data"].class_path) if config.get("data") else None
         # An external benchmark's DataModule has metrics of its own; ProbeDataModule's are none.
-        metrics = getattr(data_class, "benchmark_metrics", ProbeDataModule.benchmark_metrics)
-        if self.subcommand != "fit" and metrics is not ProbeDataModule.benchmark_metrics:
+        if (self.subcommand != "fit" and data_class is not None
+                and data_class.benchmark_metrics is not ProbeDataModule.benchmark_metrics):
             version = f"{version}/{init_args.get('name') or data_class.__name__}"
         init_args["save_dir"] = str(run_dir.parent.parent)
         init_args["name"] = run_dir.parent.name
@@ -196,14 +200,16 @@ def main(args: list[str] | None = None) -> Any:
     or for a subcommand of ``COMMANDS`` its function's return value."""
     cli = VOECLI(
         model_class=SurpriseModel,
-        datamodule_class=L.LightningDataModule,
+        datamodule_class=ProbeDataModule,
         subclass_mode_model=True,
         subclass_mode_data=True,
         seed_everything_default=0,
         save_config_kwargs={"overwrite": True},
         parser_kwargs={"prog": "python -m voe_lightning",
                        "description": "Probe video models' intuitive physics by violation of "
-                       "expectation: generate the data, train and test, audit cues, analyze runs."},
+                       "expectation: generate the data, train and test, audit cues, analyze runs.",
+                       **{name: {"default_config_files": [str(BASE_CONFIG)]}
+                          for name in LIGHTNING_SUBCOMMANDS}},
         args=args,
     )
     return cli.result if cli.subcommand in COMMANDS else cli

@@ -107,7 +107,7 @@ def focal_length(video: VideoOptions) -> float:
     return (video.height / 2) / np.tan(np.radians(base.FOVY) / 2)
 
 
-def project(camera: CameraPose, video: VideoOptions, point) -> tuple[int, int]:
+def pixel_of(camera: CameraPose, video: VideoOptions, point) -> tuple[int, int]:
     """Pixel (row, column) where the world ``point`` appears in a frame (may lie outside it)."""
     right, up, depth = base.camera_coordinates(camera, point)
     focal = focal_length(video)
@@ -128,7 +128,7 @@ def x_at_column(camera: CameraPose, video: VideoOptions, column: float, y: float
 
 def x_behind(camera: CameraPose, video: VideoOptions, pillar_x: float, y: float, z: float) -> float:
     """The x on the ball's line (·, y, z) that the camera sees right behind a pillar's centre."""
-    return x_at_column(camera, video, project(camera, video, (pillar_x, 0.0, z))[1] + 0.5, y, z)
+    return x_at_column(camera, video, pixel_of(camera, video, (pillar_x, 0.0, z))[1] + 0.5, y, z)
 
 
 def build(
@@ -200,7 +200,7 @@ def what_hides_ball(sim: Simulation, masks: np.ndarray, positions: np.ndarray) -
     video = sim.video
     seen = np.full(len(masks), -1)
     for t, position in enumerate(positions):
-        row, column = project(sim.camera, video, position)
+        row, column = pixel_of(sim.camera, video, position)
         if 0 <= row < video.height and 0 <= column < video.width:
             seen[t] = masks[t, row, column]
     return seen
@@ -208,7 +208,7 @@ def what_hides_ball(sim: Simulation, masks: np.ndarray, positions: np.ndarray) -
 
 def column(sim: Simulation, point) -> int:
     """Image column of the world ``point``."""
-    return project(sim.camera, sim.video, point)[1]
+    return pixel_of(sim.camera, sim.video, point)[1]
 
 
 def full_ball_pixels(sim: Simulation, radius: float, y: float) -> float:

@@ -118,7 +118,7 @@ def resting_position(draw: ObjectDraw, x: float, y: float) -> tuple[float, float
 
 
 # --- camera geometry -----------------------------------------------------------------------------
-def project(camera: CameraPose, point, aspect: float = 1.0) -> tuple[float, float]:
+def image_point(camera: CameraPose, point, aspect: float = 1.0) -> tuple[float, float]:
     """Normalised image coordinates of a world point: (-1..1 left to right, -1..1 bottom to top)."""
     right, up, depth = base.camera_coordinates(camera, point)
     if depth <= 0:
@@ -277,7 +277,7 @@ def probe_layout(rng: np.random.Generator, count: int, video: VideoOptions) -> P
     ]
     aspect = video.width / video.height
     for x, draw in ((xs[0] - slot / 2, draws[0]), (xs[-1] + slot / 2, draws[-1])):
-        if abs(project(camera, (x, row_y, draw.height), aspect)[0]) > 0.92:
+        if abs(image_point(camera, (x, row_y, draw.height), aspect)[0]) > 0.92:
             raise RejectedSample("the row does not fit in the view")
     largest = max(d.reach for d in draws)
     tallest = max(d.height for d in draws)
