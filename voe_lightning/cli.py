@@ -23,7 +23,13 @@ from voe_lightning.probe_datamodule import ProbeDataModule
 #: Trainer, logger, callbacks and model class every fit/validate/test/predict starts from, so
 #: ``--config configs/joint.yaml`` alone is a whole run; later ``--config`` files override it.
 BASE_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "base.yaml"
-LIGHTNING_SUBCOMMANDS = ("fit", "validate", "test", "predict")
+#: ``--help``'s summary of Lightning's subcommands (their docstrings' first lines stop mid-sentence).
+LIGHTNING_SUBCOMMANDS = {
+    "fit": "Train a model, logging the VOE statistics of the validation probes.",
+    "validate": "The VOE statistics of a checkpoint on the validation probes.",
+    "test": "The VOE report of a checkpoint on the test probes.",
+    "predict": "Per-video surprise of a checkpoint, e.g. IntPhys' answer.txt.",
+}
 
 #: The subcommands beside Lightning's: name -> the function it calls, or a dict of its own
 #: subcommands (as jsonargparse's ``auto_cli`` takes them, ``_help`` being the summary).
@@ -50,6 +56,8 @@ class VOECLI(LightningCLI):
     def _add_subcommands(self, parser: Any, **kwargs: Any) -> None:
         """Lightning's subcommands, then those of ``COMMANDS``, each listed with its summary."""
         super()._add_subcommands(parser, **kwargs)
+        for action in parser._subcommands_action._choices_actions:
+            action.help = LIGHTNING_SUBCOMMANDS.get(action.dest, action.help)
         for name, command in COMMANDS.items():
             _add_command(parser._subcommands_action, name, command)
 
