@@ -11,6 +11,7 @@ from pathlib import Path
 
 import nbformat
 import pytest
+import yaml
 import torch
 from nbclient import NotebookClient
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -297,6 +298,24 @@ def test_model_arguments_that_differ_from_the_checkpoint_are_refused(workdir, tr
     assert str(checkpoint) in str(raised.value)
     assert "latent_size: config 16, checkpoint 8" in str(raised.value)
     assert not (workdir / "data").exists(), "refused before any work"
+
+
+def test_a_study_config_on_top_of_base_tests_a_checkpoint(workdir, trained):
+    """A study config as in configs/ (logger and model sections without class_path, callbacks
+    from base.yaml, which the CLI reads first) tests a checkpoint, and a model argument that
+    differs from the checkpoint's is still refused."""
+    study = yaml.safe_load(Path(CONFIG).read_text())
+    study["trainer"].pop("callbacks")
+    study["trainer"]["logger"] = {"init_args": {"name": "study"}}
+    study["model"] = {"init_args": {"latent_size": 8}}
+    Path("study.yaml").write_text(yaml.safe_dump(study))
+    run = copy_of(trained, workdir)
+    checkpoint = str(run / "checkpoints" / "last.ckpt")
+    with pytest.raises(ValueError, match="latent_size: config 16, checkpoint 8"):
+        main(["test", "--config", "study.yaml", "--ckpt_path", checkpoint,
+              "--model.init_args.latent_size", "16"])
+    main(["test", "--config", "study.yaml", "--ckpt_path", checkpoint])
+    assert (run / "voe_report" / "summary.json").is_file()
 
 
 def test_a_checkpoint_without_hyperparameters_that_does_not_fit_is_named(workdir, trained):

@@ -92,7 +92,16 @@ class VOECLI(LightningCLI):
         if isinstance(args, (dict, Namespace)):
             explicit = parser.parse_object(args, defaults=False)
         else:
-            explicit = parser.parse_args(args, defaults=False)
+            # Without defaults, base.yaml (a default config file) is missing too, and a study
+            # config's partial sections would not parse: read it first, explicitly, with the
+            # checkpoint's model class (base.yaml gives a class_path only), as the run will.
+            words = list(sys.argv[1:] if args is None else args)
+            at = words.index(subcommand) + 1
+            if trained.get("_class_path"):
+                words[at:at] = ["--model", trained["_class_path"]]
+            if BASE_CONFIG.is_file():
+                words[at:at] = ["--config", str(BASE_CONFIG)]
+            explicit = parser.parse_args(words, defaults=False)
         conflicts = _conflicts(explicit[subcommand].get("model"), trained)
         if conflicts:
             raise ValueError(
