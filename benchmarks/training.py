@@ -1,7 +1,7 @@
 """Training throughput of the VRNN-LRU (DESIGN.md §7): the float32 NCHW baseline beside the
 fast path (the model's defaults: channels-last, bf16 autocast where the device supports it;
-``torch.compile`` on a GPU or with --compile), as sequences per second and their ratio, for the
-quickstart-size and paper-size models of ``configs/quickstart.yaml`` and ``configs/paper.yaml``.
+``torch.compile`` on a GPU unless ``--compile off``), as sequences per second and their ratio,
+for the quickstart-size and paper-size models of ``configs/quickstart.yaml`` and ``configs/paper.yaml``.
 
 The two paths are measured interleaved in one process (alternating rounds of timed steps, the
 order swapped every round), so load from other processes hits both alike; the table gives each
@@ -12,6 +12,7 @@ a GPU is present.
 
     python benchmarks/training.py --device cpu --threads 2 --rounds 7
     python benchmarks/training.py --device cuda              # GPU: fast path bf16 + compile
+    python benchmarks/training.py --device cuda --compile off  # GPU: bf16 alone
 """
 
 from __future__ import annotations
@@ -77,10 +78,13 @@ def training_step(model: VOEModel, optimizer: torch.optim.Optimizer, batch: Tens
     optimizer.step()
 
 
-def make_path(name: str, device: torch.device, fast: bool, compile_model: bool, frames: int):
-    """A model, its optimizer and a random batch for the baseline (``fast=False``: float32,
-    NCHW) or the fast path (the model's defaults), with the same initial weights."""
-    sizes, batch_size = SIZES[name]
+def make_path(name: str, device: torch.device, fast: bool, compile_model: bool, frames: int,
+              batch_size: int | None = None):
+    """A model, its optimizer and a random batch (the config's batch size unless given) for the
+    baseline (``fast=False``: float32, NCHW) or the fast path (the model's defaults), with the
+    same initial weights."""
+    sizes, config_batch_size = SIZES[name]
+    batch_size = batch_size or config_batch_size
     torch.manual_seed(0)
     switches = {} if fast else {"channels_last": False, "precision": "float32"}
     model = VOEModel(**sizes, learning_rate=1e-4, compile_model=fast and compile_model, **switches)
@@ -113,11 +117,11 @@ def timed_steps(path, steps: int, device: torch.device) -> float:
 
 
 def benchmark(name: str, device: torch.device, steps: int, rounds: int, frames: int,
-              compile_model: bool) -> list[dict]:
+              compile_model: bool, batch_size: int | None = None) -> list[dict]:
     """Baseline and fast-path rows for one model size, measured in interleaved rounds."""
     paths = {
-        "baseline": make_path(name, device, False, compile_model, frames),
-        "fast": make_path(name, device, True, compile_model, frames),
+        "baseline": make_path(name, device, False, compile_model, frames, batch_size),
+        "fast": make_path(name, device, True, compile_model, frames, batch_size),
     }
     flops = count_flops(paths["baseline"][0], paths["baseline"][2])
     for path in paths.values():
@@ -164,10 +168,13 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=None,
                         help="CPU threads (torch.set_num_threads); on a shared, busy machine 1 is "
                         "much faster than several spin-waiting OpenMP threads")
+    parser.add_argument("--batch-size", type=int, default=None,
+                        help="sequences per step (default: the config's, 8 quickstart / 10 paper); "
+                        "a GPU is better measured at a batch that fills it, e.g. 64")
     parser.add_argument("--frames", type=int, default=15, help="frames per sequence (paper: 15)")
-    parser.add_argument("--compile", action="store_true",
-                        help="torch.compile the fast path on the CPU too (always done on a GPU; "
-                        "compiling takes minutes on a CPU)")
+    parser.add_argument("--compile", choices=("auto", "on", "off"), default="auto",
+                        help="torch.compile the fast path: auto = on a GPU only (compiling takes "
+                        "minutes on a CPU); off gives the GPU column of bf16 alone")
     args = parser.parse_args()
     if args.threads is not None:
         torch.set_num_threads(args.threads)
@@ -198,8 +205,9 @@ def main() -> None:
         peak = peaks["bfloat16"] if device.type == "cuda" else peaks["float32"]
         for model_name in args.models:
             steps = args.steps or (20 if device.type == "cuda" else (3 if model_name == "quickstart" else 1))
-            compile_model = args.compile or device.type == "cuda"
-            for row in benchmark(model_name, device, steps, args.rounds, args.frames, compile_model):
+            compile_model = args.compile == "on" or (args.compile == "auto" and device.type == "cuda")
+            for row in benchmark(model_name, device, steps, args.rounds, args.frames, compile_model,
+                                 args.batch_size):
                 row["of_matmul_peak"] = row["achieved_gflops"] * 1e9 / peak
                 rows.append(row)
 

@@ -1,6 +1,7 @@
 """The VOE statistics against scipy: one-shot paired test, degenerate inputs, and the streaming
 metric's exactness when states from several processes are merged (simulated DDP)."""
 
+import json
 import math
 
 import numpy as np
@@ -9,6 +10,7 @@ import torch
 from scipy import stats
 from sklearn.metrics import roc_auc_score
 
+from voe_lightning import statistics
 from voe_lightning.statistics import (
     PairedSurpriseStats,
     PairedTestResult,
@@ -254,3 +256,12 @@ def test_unchangeableness_verdict_needs_every_variant_significant():
     assert concept_verdicts(results)[0].text() == "no VOE: shape p = .200 >= 0.05"
     results[("unchangeableness", "color")] = {"p_value": None, "relative_surprise": None}
     assert concept_verdicts(results)[0].voe is None
+
+
+def test_json_row_writes_non_finite_values_as_strings_float_reads_back():
+    row = {"concept": "solidity", "t": float("inf"), "d_z": float("-inf"), "p": float("nan"),
+           "n": 3, "M": 0.5}
+    encoded = json.loads(json.dumps(statistics.json_row(row), allow_nan=False))
+    assert encoded == {"concept": "solidity", "t": "inf", "d_z": "-inf", "p": "nan", "n": 3,
+                       "M": 0.5}
+    assert float(encoded["t"]) == math.inf and math.isnan(float(encoded["p"]))

@@ -353,12 +353,6 @@ def cue_table(
     return table
 
 
-def _json_value(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
-    return value
-
-
 def write_audit(
     cue_rows: Sequence[Mapping[str, Any]],
     out_dir: str | Path,
@@ -376,7 +370,7 @@ def write_audit(
         writer.writeheader()
         writer.writerows(cue_rows)
     document = {**metadata, "cues": list(CUES),
-                "rows": [{k: _json_value(v) for k, v in row.items()} for row in cue_rows]}
+                "rows": [statistics.json_row(row) for row in cue_rows]}
     (out / "cues.json").write_text(json.dumps(document, indent=2) + "\n")
     return out
 

@@ -419,3 +419,13 @@ def concept_verdicts(
                 failed.append(f"{variant} p = {_p(values['p_value'])} >= {alpha:g}")
         verdicts.append(Verdict(concept, not failed, rule, "; ".join(failed)))
     return verdicts
+
+
+def json_row(row: Mapping[str, Any]) -> dict[str, Any]:
+    """A statistics row as strict JSON: non-finite floats become the strings 'inf', '-inf' and
+    'nan' (``float()`` reads them back; the row's note says why they are not finite)."""
+    def value(v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")
+        return v
+    return {key: value(v) for key, v in row.items()}

@@ -19,6 +19,7 @@ from voe_lightning.specs import CONCEPTS, VARIANTS
 from voe_lightning.statistics import (
     PairedTestResult,
     concept_verdicts,
+    json_row,
     pair_groups,
     paired_test,
 )
@@ -292,14 +293,6 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURP
     return "\n".join(lines) + "\n"
 
 
-def _json_value(value: Any) -> Any:
-    """Strict JSON: non-finite floats become the strings 'inf', '-inf', 'nan' (float() reads
-    them back); the row's note says why."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
-    return value
-
-
 def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], report_dir: Path, *,
                   alpha: float, bootstrap: int, surprise: str) -> str:
     """Write summary.json, summary.csv, summary.md (of ``summarize``'s ``rows``) and pairs.csv
@@ -307,7 +300,7 @@ def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], repor
     document = {"alpha": alpha, "bootstrap_resamples": bootstrap, "num_pairs": len(results),
                 "num_frames": results.num_frames,
                 "video_surprise": f"sum over frames of {surprise}",
-                "rows": [{k: _json_value(v) for k, v in row.items()} for row in rows],
+                "rows": [json_row(row) for row in rows],
                 "verdicts": [{"concept": v.concept, "voe": v.voe, "verdict": v.text(),
                               "rule": v.rule} for v in concept_verdicts(rows, alpha)]}
     (report_dir / "summary.json").write_text(json.dumps(document, indent=2) + "\n")
