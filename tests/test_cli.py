@@ -300,6 +300,21 @@ def test_model_arguments_that_differ_from_the_checkpoint_are_refused(workdir, tr
     assert not (workdir / "data").exists(), "refused before any work"
 
 
+def test_training_only_arguments_may_differ_when_testing_a_checkpoint(workdir, trained):
+    """A run fitted with --model.init_args.lr_schedule cosine (say) is tested with its config,
+    which says constant: the optimizer's arguments change nothing `test` computes, so they are
+    no conflict there (the checkpoint's are used), while `fit` of the checkpoint refuses them."""
+    run = copy_of(trained, workdir)
+    checkpoint = str(run / "checkpoints" / "last.ckpt")
+    training_only = ["--model.init_args.learning_rate", "0.5", "--model.init_args.lr_schedule",
+                     "cosine", "--model.init_args.kl_warmup_steps", "7"]
+    with pytest.raises(ValueError, match="lr_schedule: config 'cosine', checkpoint 'constant'"):
+        main(["fit", "--config", CONFIG, "--ckpt_path", checkpoint, *training_only])
+    main(["test", "--config", CONFIG, "--ckpt_path", checkpoint, *training_only])
+    assert (run / "voe_report" / "summary.json").is_file()
+    assert "lr_schedule: constant" in (run / "hparams.yaml").read_text()
+
+
 def test_a_study_config_on_top_of_base_tests_a_checkpoint(workdir, trained):
     """A study config as in configs/ (logger and model sections without class_path, callbacks
     from base.yaml, which the CLI reads first) tests a checkpoint, and a model argument that

@@ -102,7 +102,11 @@ class VOECLI(LightningCLI):
             if BASE_CONFIG.is_file():
                 words[at:at] = ["--config", str(BASE_CONFIG)]
             explicit = parser.parse_args(words, defaults=False)
-        conflicts = _conflicts(explicit[subcommand].get("model"), trained)
+        # Evaluating a checkpoint, its training-only arguments change nothing: no conflict.
+        model_class = _import(trained["_class_path"]) if trained.get("_class_path") else None
+        training_only = (model_class.TRAINING_ONLY if subcommand != "fit" and model_class
+                         and issubclass(model_class, SurpriseModel) else ())
+        conflicts = _conflicts(explicit[subcommand].get("model"), trained, training_only)
         if conflicts:
             raise ValueError(
                 f"{ckpt_path} was trained with other model arguments than given here, and the "
@@ -155,9 +159,10 @@ def read_checkpoint(path: str | Path) -> dict:
                          f"({reason})") from error
 
 
-def _conflicts(given: Any, trained: dict) -> list[str]:
+def _conflicts(given: Any, trained: dict, ignored: tuple[str, ...] = ()) -> list[str]:
     """'name: config X, checkpoint Y' for each model argument in ``given`` (the explicitly
-    given model section) that the checkpoint's hyperparameters ``trained`` hold otherwise."""
+    given model section), except those ``ignored``, that the checkpoint's hyperparameters
+    ``trained`` hold otherwise."""
     if not isinstance(given, Namespace) or not trained:
         return []
     arguments = given.get("init_args")
@@ -165,7 +170,7 @@ def _conflicts(given: Any, trained: dict) -> list[str]:
     conflicts = [
         f"{name}: config {value!r}, checkpoint {trained[name]!r}"
         for name, value in arguments.items()
-        if name in trained and _plain(value) != _plain(trained[name])
+        if name in trained and name not in ignored and _plain(value) != _plain(trained[name])
     ]
     class_path, trained_class_path = given.get("class_path"), trained.get("_class_path")
     if class_path and trained_class_path and _import(class_path) is not _import(trained_class_path):

@@ -42,9 +42,12 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
     optionally their object-id ``mask`` uint8 [B, T, H, W] (0 = background) and ``camera``
     poses float [B, T, 6]; a model that needs neither accepts and ignores them (a subclass
     missing one of the three cannot be built: ABCMeta). ``ARCHITECTURE``
-    names the constructor arguments that shape the parameters, which a checkpoint must share."""
+    names the constructor arguments that shape the parameters, which a checkpoint must share;
+    ``TRAINING_ONLY`` those that change only how it trains (optimizer, schedules), which
+    evaluating a checkpoint may give otherwise: they change nothing it computes."""
 
     ARCHITECTURE: tuple[str, ...] = ()
+    TRAINING_ONLY: tuple[str, ...] = ()
 
     # ----------------------------------------------------------------------------- protocol
     @abstractmethod

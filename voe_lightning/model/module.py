@@ -88,6 +88,7 @@ class VOEModel(SurpriseModel):
     """
 
     ARCHITECTURE = ARCHITECTURE
+    TRAINING_ONLY = ("learning_rate", "adam_betas", "lr_schedule", "kl_warmup_steps")
     VALIDATION_METRIC = "val/kl"
     SURPRISE = "KL(posterior || prior)"
 

@@ -68,6 +68,7 @@ class ObjectCentricModel(SurpriseModel):
     """
 
     ARCHITECTURE = ARCHITECTURE
+    TRAINING_ONLY = ("learning_rate", "perception_steps")
     SURPRISE = "the squared error of the predicted object codes (summed over present slots)"
 
     def __init__(
