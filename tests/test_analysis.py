@@ -107,6 +107,22 @@ def test_curves_figure_draws_every_run_and_variant(tmp_path):
     assert lines["standard (joint)"].get_color() == lines["standard (separate)"].get_color()
 
 
+def test_curves_of_three_runs_are_told_apart_by_style_and_marker(tmp_path):
+    """Three runs not named joint/separate (e.g. three model families) each get a line style
+    and a marker of their own, named in the title (the third once reused the first's)."""
+    labels = ["VRNN-LRU", "object-centric", "object-free"]
+    for index, label in enumerate(labels):
+        write_events(tmp_path / label, {("solidity", "standard"):
+                                        (lambda s, a=index: a + np.log1p(s / 50))})
+    figure = analysis.relative_surprise_curves_figure([(label, tmp_path / label) for label in labels])
+    lines = [line for line in figure.axes[0].get_lines() if not line.get_label().startswith("_")]
+    styles = {(str(line.get_linestyle()), line.get_marker()) for line in lines}
+    assert len(lines) == 3 and len(styles) == 3
+    assert len({line.get_linestyle() for line in lines}) == 3
+    title = figure._suptitle.get_text()
+    assert "VRNN-LRU: solid, circles" in title and "object-free: dotted, triangles" in title
+
+
 def test_sweep_rows_are_disjoint_evaluation_sets(tmp_path):
     results = pair_results({("object_persistence", "standard"): (30, 1.0),
                             ("continuity", "standard"): (31, 0.0)})

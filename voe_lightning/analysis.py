@@ -41,7 +41,11 @@ __all__ = [
 RELATIVE_SURPRISE_TAG = re.compile(r"^voe/(?P<concept>[^/]+)/(?P<variant>[^/]+)/relative_surprise$")
 #: Line styles of the paper's Figure 6; other run labels cycle through the rest.
 PAPER_LINESTYLES = {"joint": "-", "separate": "--"}
-_OTHER_LINESTYLES = (":", "-.")
+#: Line styles and markers of the other runs, in order; each run of a figure gets its own.
+_LINESTYLES = (("-", "solid"), ("--", "dashed"), (":", "dotted"), ("-.", "dash-dot"),
+               ((0, (5, 1, 1, 1, 1, 1)), "dash-dot-dot"), ((0, (8, 3)), "long-dashed"))
+_MARKERS = (("o", "circles"), ("s", "squares"), ("^", "triangles"), ("D", "diamonds"),
+            ("v", "down-triangles"), ("P", "pluses"), ("X", "crosses"), ("*", "stars"))
 
 
 def _event_dirs(run_dir: Path) -> list[Path]:
@@ -88,9 +92,22 @@ def read_relative_surprise(
     return curves
 
 
-def _linestyles(labels: Sequence[str]) -> dict[str, Any]:
-    others = iter(_OTHER_LINESTYLES * (1 + len(labels)))
-    return {label: PAPER_LINESTYLES.get(label) or next(others) for label in labels}
+def _run_styles(labels: Sequence[str]) -> dict[str, tuple[Any, str, str]]:
+    """(line style, marker, its description) per run label: 'joint' solid and 'separate' dashed
+    as in the paper, the other labels each a style and a marker no other run of the figure has."""
+    paper = {PAPER_LINESTYLES[label] for label in labels if label in PAPER_LINESTYLES}
+    free = [style for style in _LINESTYLES if style[0] not in paper]
+    names = dict(_LINESTYLES)
+    styles, others = {}, 0
+    for index, label in enumerate(labels):
+        marker, marker_name = _MARKERS[index % len(_MARKERS)]
+        if label in PAPER_LINESTYLES:
+            line, line_name = PAPER_LINESTYLES[label], names[PAPER_LINESTYLES[label]]
+        else:
+            line, line_name = free[others % len(free)]
+            others += 1
+        styles[label] = (line, marker, f"{line_name}, {marker_name}")
+    return styles
 
 
 def relative_surprise_curves_figure(
@@ -116,7 +133,7 @@ def relative_surprise_curves_figure(
                              "(was the VOE probe callback enabled during fit?)")
         curves.setdefault(label, {}).update(found)
     labels = list(curves)
-    styles = _linestyles(labels)
+    styles = _run_styles(labels)
     concepts = list(dict.fromkeys(c for label in labels for c, _ in curves[label]))
     figure, axes = panel_grid(len(concepts), 5.0, 3.6, max_cols=3)
     colors = {}
@@ -129,16 +146,14 @@ def relative_surprise_curves_figure(
                 if (concept, variant) in curves[label]:
                     steps, values = curves[label][(concept, variant)]
                     ax.plot(steps * step_scale.get(label, 1.0), values, color=color,
-                            linestyle=styles[label], marker="o", markersize=2.5,
+                            linestyle=styles[label][0], marker=styles[label][1], markersize=3,
                             label=f"{variant} ({label})")
         ax.axhline(0.0, color="black", linewidth=0.8)
         ax.set_title(concept, fontsize=10)
         ax.set_xlabel("training step" + (" (scaled)" if step_scale else ""))
         ax.set_ylabel("relative surprise")
         ax.legend(fontsize=7)
-    names = {"-": "solid", "--": "dashed", ":": "dotted", "-.": "dash-dot"}
-    legend = ", ".join(f"{label}: {names.get(styles[label], 'dash-dot-dot')}"
-                       for label in labels if isinstance(styles[label], str))
+    legend = "; ".join(f"{label}: {styles[label][2]}" for label in labels)
     figure.suptitle(f"Relative surprise over training ({legend})", fontsize=10)
     return figure
 
