@@ -11,6 +11,25 @@ if ! { ldconfig -p 2>/dev/null | grep -q libEGL_mesa && compgen -G "/usr/lib/*/d
     libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libopengl0 libglvnd0 >/dev/null
 fi
 
+# pip must be there; a system Python marked EXTERNALLY-MANAGED (PEP 668: Debian 12, Ubuntu
+# 23.04 and later) refuses it outside a virtual environment, which pip says and we explain.
+VENV_HINT="make a virtual environment (python3 -m venv .venv && . .venv/bin/activate), then rerun"
+if ! python3 -m pip --version >/dev/null 2>&1; then
+  echo "install.sh: $(command -v python3) has no pip; install it (apt-get install python3-pip) or $VENV_HINT" >&2
+  exit 1
+fi
+pip_install() {
+  local log status=0
+  log=$(mktemp)
+  python3 -m pip install -q "$@" 2>"$log" || status=$?
+  cat "$log" >&2
+  if [ "$status" -ne 0 ] && grep -q "externally-managed-environment" "$log"; then
+    echo "install.sh: $(command -v python3) is managed by the system (PEP 668); $VENV_HINT" >&2
+  fi
+  rm -f "$log"
+  return "$status"
+}
+
 # torch first, pinned, and the CPU build from PyTorch's own index, so pip does not pull the
 # multi-GB CUDA build from the default index as a dependency. A torch already installed is kept.
 # Where that index cannot be reached (a machine without internet), pip's configured index is
@@ -20,11 +39,11 @@ CPU_INDEX="https://download.pytorch.org/whl/cpu"
 if ! python3 -c "import torch" 2>/dev/null; then
   if python3 -c "import sys, urllib.request; urllib.request.urlopen(sys.argv[1], timeout=15)" \
       "$CPU_INDEX/" 2>/dev/null; then
-    python3 -m pip install -q "$TORCH" --index-url "$CPU_INDEX"
+    pip_install "$TORCH" --index-url "$CPU_INDEX"
   else
     echo "install.sh: $CPU_INDEX cannot be reached; installing $TORCH from pip's configured index" >&2
-    python3 -m pip install -q "$TORCH"
+    pip_install "$TORCH"
   fi
 fi
-python3 -m pip install -q -e ".[test]"
+pip_install -e ".[test]"
 python3 -c "import voe_lightning, mujoco, torch; print('voe_lightning', voe_lightning.__version__, '| mujoco', mujoco.__version__, '| torch', torch.__version__)"
