@@ -82,6 +82,23 @@ def test_resume_continues_in_the_same_run(workdir):
     assert not (workdir / "runs" / "tiny" / "version_1").exists()
 
 
+@pytest.mark.parametrize("checkpoint_class,last_step", [
+    ("lightning.pytorch.callbacks.ModelCheckpoint", 2),  # Lightning: the last scheduled step
+    ("voe_lightning.callbacks.FinalStepCheckpoint", 3),  # ours: the step training ended at
+])
+def test_last_checkpoint_holds_the_step_training_ended_at(workdir, checkpoint_class, last_step):
+    config = yaml.safe_load(Path(CONFIG).read_text())
+    for callback in config["trainer"]["callbacks"]:
+        if callback["class_path"].endswith("FinalStepCheckpoint"):
+            callback["class_path"] = checkpoint_class
+            callback["init_args"] = {"save_last": True, "every_n_train_steps": 2}
+    (workdir / "tiny.yaml").write_text(yaml.safe_dump(config))
+    main(["fit", "--config", "tiny.yaml", "--trainer.max_steps", "3"])
+    checkpoints = workdir / "runs" / "tiny" / "version_0" / "checkpoints"
+    assert torch.load(checkpoints / "last.ckpt", weights_only=True)["global_step"] == last_step
+    assert [path.name.split("-")[-1] for path in checkpoints.glob("epoch=*")] == [f"step={last_step}.ckpt"]
+
+
 @pytest.mark.parametrize(
     "arguments,message",
     [

@@ -92,7 +92,7 @@ def test_documented_command_parses_into_a_complete_run(command):
     assert "VOEReportCallback" in present
     if command[0] == "fit":  # trains: probes while training, checkpoints at each validation
         assert {"VOEProbeCallback", "ExpectationImages", "TQDMProgressBar"} <= present.keys()
-        checkpoint = present["ModelCheckpoint"]
+        checkpoint = present["FinalStepCheckpoint"]
         assert checkpoint["save_last"]
         assert config["trainer"]["val_check_interval"] % checkpoint["every_n_train_steps"] == 0
         model_class(**config["model"]["init_args"])  # the constructor takes the composed values
@@ -107,8 +107,8 @@ def test_later_configs_append_to_or_override_base():
     base = callbacks(compose("joint"))
     cpu = compose("cpu")
     assert callbacks(cpu).keys() == base.keys() | {"LearningRateMonitor"}  # callbacks+: appends
-    assert callbacks(cpu)["ModelCheckpoint"]["every_n_train_steps"] == 2000
-    assert callbacks(compose("quickstart"))["ModelCheckpoint"]["every_n_train_steps"] == 250
+    assert callbacks(cpu)["FinalStepCheckpoint"]["every_n_train_steps"] == 2000
+    assert callbacks(compose("quickstart"))["FinalStepCheckpoint"]["every_n_train_steps"] == 250
     assert cpu["trainer"]["gradient_clip_val"] == 10.0  # base.yaml's
     separate = compose("joint", "solidity")
     assert separate["data"]["class_path"] == "datamodules.ConceptDataModule"
@@ -137,4 +137,4 @@ def test_base_is_read_before_the_given_configs():
     give (the CLI's default config file), and a later base.yaml would change nothing."""
     alone = compose("quickstart")
     assert alone == compose("base", "quickstart")
-    assert {"VOEProbeCallback", "VOEReportCallback", "ModelCheckpoint"} <= callbacks(alone).keys()
+    assert {"VOEProbeCallback", "VOEReportCallback", "FinalStepCheckpoint"} <= callbacks(alone).keys()

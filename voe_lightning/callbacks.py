@@ -1,5 +1,6 @@
 """Callbacks, one concern each: VOE statistics of the validation probes over training, image
-strips of what the model expected to see, and the VOE report of a ``test`` run."""
+strips of what the model expected to see, the VOE report of a ``test`` run, and a checkpoint
+of the final training step."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
+from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.utilities import rank_zero_warn
 from rich.console import Console
 from rich.table import Table
@@ -153,6 +155,19 @@ def voe_table(
             end_section=last,
         )
     return table
+
+
+class FinalStepCheckpoint(ModelCheckpoint):
+    """Lightning's ``ModelCheckpoint`` that also saves the step training ends at. Lightning's
+    keeps ``last.ckpt`` at the last *scheduled* step, so ``max_steps: 3600`` with
+    ``every_n_train_steps: 2000`` would leave the step-2,000 model there for ``test``."""
+
+    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        super().on_train_end(trainer, pl_module)
+        if trainer.global_step > 0 and self._last_global_step_saved != trainer.global_step:
+            candidates = self._monitor_candidates(trainer)
+            self._save_topk_checkpoint(trainer, candidates)
+            self._save_last_checkpoint(trainer, candidates)
 
 
 class ExpectationImages(L.Callback):
