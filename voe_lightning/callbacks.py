@@ -164,7 +164,8 @@ class FinalStepCheckpoint(ModelCheckpoint):
 
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         super().on_train_end(trainer, pl_module)
-        if trainer.global_step > 0 and self._last_global_step_saved != trainer.global_step:
+        # Lightning's own rule: not under fast_dev_run, not outside fit, not a step already saved.
+        if not self._should_skip_saving_checkpoint(trainer):
             candidates = self._monitor_candidates(trainer)
             self._save_topk_checkpoint(trainer, candidates)
             self._save_last_checkpoint(trainer, candidates)
