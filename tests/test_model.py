@@ -10,6 +10,7 @@ from torch.utils.data import DataLoader
 
 from voe_lightning import specs
 from voe_lightning.model import Decoder, Encoder, VOEModel, gaussian_kl, standard_normal_kl
+from voe_lightning.model.vrnn import gaussian_kl_per_latent
 
 B, T, H, W = 2, 4, 32, 32
 TINY = dict(
@@ -289,6 +290,45 @@ def test_kl_warmup_scales_only_the_training_kl(tmp_path):
     torch.testing.assert_close(model.surprise(frames()), surprise)
 
 
+def test_free_bits_clamp_each_latents_batch_mean_kl_in_the_loss_only():
+    """With kl_free_bits the loss's KL term is sum_t,latents max(bits, batch-mean KL); the
+    logged kl is the true KL, and latents under the floor get no KL gradient."""
+    model = tiny_model()
+    x = specs.to_model_input(frames())
+    output, logits = model(x)
+    per_latent = gaussian_kl_per_latent(
+        output.posterior_mean, output.posterior_log_std, output.prior_mean, output.prior_log_std
+    )
+    assert per_latent.shape == (B, T, 8)
+    torch.testing.assert_close(per_latent.sum(-1), output.kl)
+    batch_mean = per_latent.mean(dim=0)
+    bits = batch_mean.median().item()  # about half the latents sit under the floor
+    model.hparams.kl_free_bits = bits
+    terms = model.loss_terms(x, output, logits)
+    torch.testing.assert_close(terms["kl"], output.kl.sum(dim=1).mean())
+    clamped = torch.where(batch_mean < bits, torch.full_like(batch_mean, bits), batch_mean).sum()
+    assert clamped > terms["kl"]
+    torch.testing.assert_close(
+        terms["loss"], terms["reconstruction"] + clamped + terms["prior_regularizer"]
+    )
+    model.hparams.kl_free_bits = 1e6  # every latent under the floor: the KL term is constant
+    terms = model.loss_terms(x, output, logits)
+    torch.testing.assert_close(
+        terms["loss"] - terms["reconstruction"] - terms["prior_regularizer"],
+        torch.tensor(T * 8 * 1e6),
+    )
+    parameters = [p for p in model.parameters() if p.requires_grad]
+    with_floor = torch.autograd.grad(terms["loss"], parameters, retain_graph=True,
+                                     allow_unused=True)
+    without_kl = torch.autograd.grad(terms["reconstruction"] + terms["prior_regularizer"],
+                                     parameters, allow_unused=True)
+    for a, b in zip(with_floor, without_kl, strict=True):
+        if a is None or b is None:
+            assert a is None and b is None
+        else:
+            torch.testing.assert_close(a, b)
+
+
 def test_cosine_schedule_decays_to_zero_at_max_steps(tmp_path):
     model = tiny_model(lr_schedule="cosine", learning_rate=1e-3)
     loader = DataLoader(_Clips(4), batch_size=2, collate_fn=torch.stack)
@@ -307,6 +347,7 @@ def test_cosine_schedule_decays_to_zero_at_max_steps(tmp_path):
 @pytest.mark.parametrize("argument,value,message", [
     ("lr_schedule", "linear", "constant, cosine"),
     ("kl_warmup_steps", -1, "kl_warmup_steps must be >= 0"),
+    ("kl_free_bits", -0.5, "kl_free_bits must be >= 0 nats, got -0.5"),
 ])
 def test_bad_recipe_arguments_are_refused(argument, value, message):
     with pytest.raises(ValueError, match=message):

@@ -16,7 +16,9 @@ from voe_lightning import specs
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model.memory import LRUMemory
 from voe_lightning.model.networks import Decoder, Encoder
-from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, standard_normal_kl
+from voe_lightning.model.vrnn import (
+    VRNNCore, VRNNOutput, gaussian_kl_per_latent, standard_normal_kl,
+)
 
 LOSS_TERMS = ("reconstruction", "kl", "prior_regularizer")
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
@@ -74,6 +76,10 @@ class VOEModel(SurpriseModel):
             per step along a half cosine to 0 at the Trainer's ``max_steps``.
         kl_warmup_steps: scale KL(posterior || prior) in the training loss from 0 up to 1 over
             this many steps (0, the paper's: no warm-up). Surprise is never scaled.
+        kl_free_bits: free bits (Kingma et al. 2016), in nats per latent per frame: the training
+            loss counts each latent's batch-mean KL at each frame as at least this much, so
+            latents below it get no push toward the prior (0, the paper's: plain KL). The
+            logged ``kl`` and surprise are the true KL.
         compile_model: ``torch.compile`` the encoder, decoder and recurrent core in place
             (opt-in: compiling takes minutes on a CPU).
         channels_last: keep the encoder and decoder in NHWC layout, the fast layout of oneDNN
@@ -88,7 +94,9 @@ class VOEModel(SurpriseModel):
     """
 
     ARCHITECTURE = ARCHITECTURE
-    TRAINING_ONLY = ("learning_rate", "adam_betas", "lr_schedule", "kl_warmup_steps")
+    TRAINING_ONLY = (
+        "learning_rate", "adam_betas", "lr_schedule", "kl_warmup_steps", "kl_free_bits",
+    )
     VALIDATION_METRIC = "val/kl"
     SURPRISE = "KL(posterior || prior)"
 
@@ -114,6 +122,7 @@ class VOEModel(SurpriseModel):
         adam_betas: tuple[float, float] = (0.9, 0.999),
         lr_schedule: str = "constant",
         kl_warmup_steps: int = 0,
+        kl_free_bits: float = 0.0,
         compile_model: bool = False,
         channels_last: bool = True,
         precision: str = "auto",
@@ -130,6 +139,8 @@ class VOEModel(SurpriseModel):
                              f"{', '.join(LR_SCHEDULES)}")
         if kl_warmup_steps < 0:
             raise ValueError(f"kl_warmup_steps must be >= 0, got {kl_warmup_steps}")
+        if kl_free_bits < 0:
+            raise ValueError(f"kl_free_bits must be >= 0 nats, got {kl_free_bits}")
         if prior_regularizer_weight < 0:
             raise ValueError(
                 f"prior_regularizer_weight must be non-negative, got {prior_regularizer_weight}"
@@ -204,7 +215,8 @@ class VOEModel(SurpriseModel):
     def loss_terms(self, x: torch.Tensor, output: VRNNOutput, logits: torch.Tensor) -> dict[str, torch.Tensor]:
         """Per-sequence loss terms averaged over the batch (float32): reconstruction =
         sum_t,pixels BCE; kl = sum_t KL(post || prior); prior_regularizer = weight *
-        sum_t KL(prior || N(0, I)); loss = their sum, kl times ``kl_weight``."""
+        sum_t KL(prior || N(0, I)); loss = their sum, kl times ``kl_weight`` (with free bits,
+        the clamped KL of :meth:`kl_objective` in its place)."""
         batch = x.shape[0]
         reconstruction = (
             F.binary_cross_entropy_with_logits(logits.float(), x.float(), reduction="sum") / batch
@@ -214,7 +226,8 @@ class VOEModel(SurpriseModel):
             standard_normal_kl(output.prior_mean, output.prior_log_std).sum(dim=1).mean()
         )
         return {
-            "loss": reconstruction + self.kl_weight * kl + prior_regularizer,
+            "loss": (reconstruction + self.kl_weight * self.kl_objective(output, kl)
+                     + prior_regularizer),
             "reconstruction": reconstruction,
             "kl": kl,
             "prior_regularizer": prior_regularizer,
@@ -274,6 +287,17 @@ class VOEModel(SurpriseModel):
             "prior": torch.cat([output.prior_mean, output.prior_log_std], dim=-1),
             "memory": output.memory,
         }
+
+    def kl_objective(self, output: VRNNOutput, kl: torch.Tensor) -> torch.Tensor:
+        """The KL term the training loss minimizes: ``kl`` (per sequence, batch mean), or with
+        free bits sum_t,latents max(free_bits, batch-mean KL of that latent at t)."""
+        free_bits = self.hparams.kl_free_bits
+        if not free_bits:
+            return kl
+        per_latent = gaussian_kl_per_latent(
+            output.posterior_mean, output.posterior_log_std, output.prior_mean, output.prior_log_std
+        )
+        return per_latent.mean(dim=0).clamp(min=free_bits).sum()
 
     @property
     def kl_weight(self) -> float:

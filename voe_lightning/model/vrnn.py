@@ -17,16 +17,23 @@ from voe_lightning.model.memory import LRUMemory
 LOG_STD_LIMIT = 10.0
 
 
-def gaussian_kl(
+def gaussian_kl_per_latent(
     mean_q: torch.Tensor, log_std_q: torch.Tensor, mean_p: torch.Tensor, log_std_p: torch.Tensor
 ) -> torch.Tensor:
-    """Analytic KL(q || p) of diagonal Gaussians, summed over the last dim, in float32."""
+    """Analytic KL(q || p) of diagonal Gaussians, one value per latent (last dim), in float32."""
     mean_q, log_std_q, mean_p, log_std_p = (
         x.float() for x in (mean_q, log_std_q, mean_p, log_std_p)
     )
     variance_ratio = torch.exp(2.0 * (log_std_q - log_std_p))
     mahalanobis = (mean_q - mean_p).square() * torch.exp(-2.0 * log_std_p)
-    return (log_std_p - log_std_q + 0.5 * (variance_ratio + mahalanobis - 1.0)).sum(-1)
+    return log_std_p - log_std_q + 0.5 * (variance_ratio + mahalanobis - 1.0)
+
+
+def gaussian_kl(
+    mean_q: torch.Tensor, log_std_q: torch.Tensor, mean_p: torch.Tensor, log_std_p: torch.Tensor
+) -> torch.Tensor:
+    """Analytic KL(q || p) of diagonal Gaussians, summed over the last dim, in float32."""
+    return gaussian_kl_per_latent(mean_q, log_std_q, mean_p, log_std_p).sum(-1)
 
 
 def standard_normal_kl(mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
