@@ -16,8 +16,10 @@ import torch
 from nbclient import NotebookClient
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+from voe_lightning import analysis
 from voe_lightning.cli import main
 from voe_lightning.model import VOEModel
+from voe_lightning.store import collate, open_split
 
 CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
 
@@ -324,7 +326,8 @@ def test_training_only_arguments_may_differ_when_testing_a_checkpoint(workdir, t
     run = copy_of(trained, workdir)
     checkpoint = str(run / "checkpoints" / "last.ckpt")
     training_only = ["--model.init_args.learning_rate", "0.5", "--model.init_args.lr_schedule",
-                     "cosine", "--model.init_args.kl_warmup_steps", "7"]
+                     "cosine", "--model.init_args.kl_warmup_steps", "7",
+                     "--model.init_args.kl_free_bits", "0.2"]
     with pytest.raises(ValueError, match="lr_schedule: config 'cosine', checkpoint 'constant'"):
         main(["fit", "--config", CONFIG, "--ckpt_path", checkpoint, *training_only])
     main(["test", "--config", CONFIG, "--ckpt_path", checkpoint, *training_only])
@@ -392,3 +395,27 @@ def test_intphys_test_of_a_checkpoint_writes_beside_it_in_the_models_geometry(wo
     assert not (run / "voe_report").exists() and not (workdir / "runs" / "intphys_dev").exists()
     video = cli.datamodule.video
     assert (len(video.indices), video.height, video.width) == (6, 32, 32)
+
+
+def test_analyze_latents_counts_the_latents_that_carry_information(trained, capsys):
+    """`analyze latents` reads consistent test videos from the store and tabulates the KL per
+    latent of each checkpoint; its numbers are surprise split over latents."""
+    checkpoint = trained / "checkpoints" / "last.ckpt"
+    root = trained.parents[2] / "data" / "tiny"
+    table = main(["analyze", "latents", "--checkpoints", f"[one step={checkpoint}]",
+                  "--root", str(root), "--pairs", "2"])
+    assert "| one step |" in capsys.readouterr().out
+    row = table.splitlines()[2].split(" | ")
+    assert row[-1].endswith("of 8 |")
+    model = VOEModel.load_from_checkpoint(checkpoint, map_location="cpu", weights_only=True).eval()
+    frames = collate([open_split(root, "object_persistence", "test")[i]
+                      for i in range(2)])["consistent", "frames"]
+    surprise = model.surprise(frames)
+    usage = analysis.latent_usage(model, frames, threshold=0.0)
+    assert float(row[1]) == pytest.approx(surprise.sum(dim=1).mean().item(), abs=0.06)
+    assert usage["kl_per_sequence"] == pytest.approx(surprise.sum(dim=1).mean().item(), rel=1e-5)
+    assert usage["first_frame"] == pytest.approx(surprise[:, 0].mean().item(), rel=1e-5)
+    assert usage["latents_in_use"] == 8  # KL is positive in every latent of a one-step model
+    assert analysis.latent_usage(model, frames, threshold=1e9)["latents_in_use"] == 0
+    with pytest.raises(FileNotFoundError, match="no store at nowhere"):
+        analysis.latents([str(checkpoint)], Path("nowhere"))

@@ -265,6 +265,16 @@ class VOEModel(SurpriseModel):
         return self.rollout(x, deterministic=deterministic, generator=generator).kl
 
     @torch.no_grad()
+    def latent_kl(self, frames: torch.Tensor) -> torch.Tensor:
+        """KL(posterior_t || prior_t) per latent [B, T, latent_size] (float32) of uint8 videos
+        [B, T, H, W, 3], deterministic rollout: surprise before the sum over latents. Latents
+        near 0 in every frame carry nothing (posterior collapse; ``analyze latents``)."""
+        output = self.rollout(self._model_input(frames), deterministic=True)
+        return gaussian_kl_per_latent(
+            output.posterior_mean, output.posterior_log_std, output.prior_mean, output.prior_log_std
+        )
+
+    @torch.no_grad()
     def expected_frames(
         self, frames: torch.Tensor, mask: torch.Tensor | None = None,
         camera: torch.Tensor | None = None,
