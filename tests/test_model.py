@@ -10,7 +10,6 @@ from torch.utils.data import DataLoader
 
 from voe_lightning import specs
 from voe_lightning.model import Decoder, Encoder, VOEModel, gaussian_kl, standard_normal_kl
-from voe_lightning.model.vrnn import gaussian_kl_per_latent
 
 B, T, H, W = 2, 4, 32, 32
 TINY = dict(
@@ -296,9 +295,7 @@ def test_free_bits_clamp_each_latents_batch_mean_kl_in_the_loss_only():
     model = tiny_model()
     x = specs.to_model_input(frames())
     output, logits = model(x)
-    per_latent = gaussian_kl_per_latent(
-        output.posterior_mean, output.posterior_log_std, output.prior_mean, output.prior_log_std
-    )
+    per_latent = output.kl_per_latent()
     assert per_latent.shape == (B, T, 8)
     torch.testing.assert_close(per_latent.sum(-1), output.kl)
     batch_mean = per_latent.mean(dim=0)

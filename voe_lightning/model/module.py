@@ -16,9 +16,7 @@ from voe_lightning import specs
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model.memory import LRUMemory
 from voe_lightning.model.networks import Decoder, Encoder
-from voe_lightning.model.vrnn import (
-    VRNNCore, VRNNOutput, gaussian_kl_per_latent, standard_normal_kl,
-)
+from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, standard_normal_kl
 
 LOSS_TERMS = ("reconstruction", "kl", "prior_regularizer")
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
@@ -269,10 +267,7 @@ class VOEModel(SurpriseModel):
         """KL(posterior_t || prior_t) per latent [B, T, latent_size] (float32) of uint8 videos
         [B, T, H, W, 3], deterministic rollout: surprise before the sum over latents. Latents
         near 0 in every frame carry nothing (posterior collapse; ``analyze latents``)."""
-        output = self.rollout(self._model_input(frames), deterministic=True)
-        return gaussian_kl_per_latent(
-            output.posterior_mean, output.posterior_log_std, output.prior_mean, output.prior_log_std
-        )
+        return self.rollout(self._model_input(frames), deterministic=True).kl_per_latent()
 
     @torch.no_grad()
     def expected_frames(
@@ -304,10 +299,7 @@ class VOEModel(SurpriseModel):
         free_bits = self.hparams.kl_free_bits
         if not free_bits:
             return kl
-        per_latent = gaussian_kl_per_latent(
-            output.posterior_mean, output.posterior_log_std, output.prior_mean, output.prior_log_std
-        )
-        return per_latent.mean(dim=0).clamp(min=free_bits).sum()
+        return output.kl_per_latent().mean(dim=0).clamp(min=free_bits).sum()
 
     @property
     def kl_weight(self) -> float:

@@ -69,6 +69,12 @@ class VRNNOutput:
     memory: torch.Tensor
     reads: torch.Tensor
 
+    def kl_per_latent(self) -> torch.Tensor:
+        """KL(posterior_t || prior_t) per latent [B, T, latent_size]; ``kl`` is its sum."""
+        return gaussian_kl_per_latent(
+            self.posterior_mean, self.posterior_log_std, self.prior_mean, self.prior_log_std
+        )
+
 
 class VRNNCore(nn.Module):
     """Steps the VRNN through time given encoded frames [B, T, embedding_size].
