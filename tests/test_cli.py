@@ -7,6 +7,7 @@ import re
 import shutil
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import nbformat
@@ -79,9 +80,18 @@ def test_fit_then_test_writes_curves_checkpoint_and_report(workdir):
 def test_resume_continues_in_the_same_run(workdir):
     main(["fit", "--config", CONFIG])
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
-    cli = main(["fit", "--config", CONFIG, "--trainer.max_steps", "4", "--ckpt_path", str(checkpoint)])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cli = main(["fit", "--config", CONFIG, "--trainer.max_steps", "4", "--ckpt_path", str(checkpoint)])
+    assert not [w for w in caught if "resumes in the checkpoint's run" in str(w.message)]
     assert cli.trainer.global_step == 4
     assert not (workdir / "runs" / "tiny" / "version_1").exists()
+    # Another logger name cannot move a resumed run: it is named as not used, not dropped silently.
+    with pytest.warns(UserWarning, match=r"resumes in the checkpoint's run .*tiny.*'elsewhere' is not used"):
+        cli = main(["fit", "--config", CONFIG, "--trainer.max_steps", "6", "--ckpt_path", str(checkpoint),
+                    "--trainer.logger.init_args.name", "elsewhere"])
+    assert cli.trainer.global_step == 6
+    assert not (workdir / "runs" / "elsewhere").exists()
 
 
 @pytest.mark.parametrize("checkpoint_class,last_step", [

@@ -15,6 +15,7 @@ from typing import Any
 import torch
 from jsonargparse import ActionConfigFile, ArgumentParser, Namespace
 from lightning.pytorch.cli import LightningCLI
+from lightning.pytorch.utilities import rank_zero_warn
 
 from voe_lightning import analysis, cues, generate
 from voe_lightning.model import SurpriseModel
@@ -43,7 +44,8 @@ COMMANDS: dict[str, Any] = {
 class VOECLI(LightningCLI):
     """LightningCLI that works in the run directory of ``--ckpt_path``
     (``<save_dir>/<name>/<version>/checkpoints/x.ckpt``), whatever logger name the config
-    gives: a resumed ``fit`` continues its TensorBoard curves and checkpoints there, and
+    gives: a resumed ``fit`` continues its TensorBoard curves and checkpoints there (warning
+    that another logger name it was given is not used), and
     ``validate``/``test`` write their logs and report beside the checkpoint (an external
     benchmark's in a sub-directory named after the config's logger name, so it does not
     replace the report on the package's probes). ``validate``/``test`` save their config as
@@ -136,6 +138,12 @@ class VOECLI(LightningCLI):
         if init_args is None or not all(key in init_args for key in ("save_dir", "name", "version")):
             return
         version = run_dir.name
+        if self.subcommand == "fit" and init_args.get("name") not in (None, run_dir.parent.name):
+            rank_zero_warn(
+                f"fit --ckpt_path resumes in the checkpoint's run {run_dir}, so its curves and "
+                f"checkpoints continue there; the logger name {init_args['name']!r} is not "
+                "used. A later test of this run replaces its voe_report/: copy it first to keep it."
+            )
         data_class = _import(config["data"].class_path) if config.get("data") else None
         # An external benchmark's DataModule has metrics of its own; ProbeDataModule's are none.
         if (self.subcommand != "fit" and data_class is not None
