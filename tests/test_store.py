@@ -12,6 +12,7 @@ from tensordict import TensorDict
 from torch.utils.data import DataLoader
 
 from voe_lightning import generate, specs, store
+from voe_lightning.benchmarks.cache import write_cache
 
 
 def _video(rng: np.random.Generator, num_frames: int, height: int, width: int):
@@ -204,3 +205,18 @@ def test_written_files_respect_the_umask(tmp_path, umask, mode):
         os.umask(previous)
     assert stat.S_IMODE((tmp_path / "a.voe").stat().st_mode) == mode
     assert stat.S_IMODE((tmp_path / "manifest.json").stat().st_mode) == mode
+
+
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o755), (0o027, 0o750)])
+def test_a_benchmark_cache_folder_respects_the_umask(tmp_path, umask, mode):
+    """The cache is staged in a mkdtemp folder (always 0700) and renamed into place: a lab's
+    shared cache must open for others as the umask allows."""
+    previous = os.umask(umask)
+    try:
+        cache = write_cache(tmp_path / "cache", [fake_clip("continuity", "example", 0)],
+                            specs.clip_spec())
+    finally:
+        os.umask(previous)
+    assert stat.S_IMODE(cache.root.stat().st_mode) == mode
+    assert all(stat.S_IMODE(path.stat().st_mode) in (mode, mode & 0o666)
+               for path in cache.root.rglob("*"))

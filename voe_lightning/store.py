@@ -198,7 +198,7 @@ def _write_bytes(file, data: bytes) -> None:
     file.write(data)
 
 
-def _umask() -> int:
+def current_umask() -> int:
     """This process's umask, read without changing it (``os.umask`` would, for every thread)."""
     try:
         with open("/proc/self/status") as status:
@@ -222,7 +222,7 @@ def atomic_write(path: str | os.PathLike, chunks: Iterable[bytes]) -> int:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        os.fchmod(handle, 0o666 & ~_umask())
+        os.fchmod(handle, 0o666 & ~current_umask())
         size = 0
         with os.fdopen(handle, "wb") as file:
             for chunk in chunks:

@@ -128,6 +128,7 @@ def write_cache(
     directory = Path(directory)
     directory.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
+    os.chmod(staging, 0o777 & ~store.current_umask())  # mkdtemp makes it 0700 whatever the umask
     try:
         count, shards, buffer = 0, 0, []
         for record in records:
