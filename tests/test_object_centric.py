@@ -10,7 +10,10 @@ from tensordict import TensorDict
 
 from voe_lightning.cli import main
 from voe_lightning.model import ObjectCentricModel, SurpriseModel
-from voe_lightning.model.slots import object_slots
+from voe_lightning.model.slots import MAX_MASK_JUMP, centroid_moves, object_slots
+from voe_lightning.scenes import (
+    CLIP_KINDS_BY_CONCEPT, CONCEPTS, PROBE_VARIANTS, generate_clip, generate_probe,
+)
 
 CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
 TINY = dict(image_size=(32, 32), num_slots=4, code_size=8, encoder_channels=(8, 8),
@@ -71,6 +74,33 @@ def test_shapes_and_each_stage_trains_only_its_networks():
     assert not model.perception.training  # frozen in eval mode in the dynamics stage
 
 
+def test_the_open_choices_train_and_score():
+    """The arguments the paper leaves open: a plain autoencoder (no KL, deterministic codes),
+    the pixel error of the decoded prediction added to surprise, and no camera input."""
+    frames, mask, camera = _video()
+    batch = _batch(frames, mask, camera)
+    for variational in (True, False):
+        model = _model(variational=variational, perception_steps=1, perception_frames=None)
+        first, second = (model.train().perception_terms(batch) for _ in range(2))
+        assert torch.isfinite(first["loss"]) and (first["kl"] > 0) == variational
+        same = torch.isclose(first["reconstruction"], second["reconstruction"], rtol=1e-5)
+        assert bool(same) != variational  # sampled codes only in the VAE
+    codes_only, with_pixels = _model(), _model(pixel_surprise_weight=0.5)
+    with_pixels.load_state_dict(codes_only.state_dict())
+    expected = codes_only.expected_frames(frames, mask, camera)
+    x = codes_only._model_input(frames, codes_only.image_size)
+    pixels = (expected - x).pow(2).sum(dim=(2, 3, 4))
+    pixels[:, 0] = 0
+    torch.testing.assert_close(with_pixels.surprise(frames, mask, camera),
+                               codes_only.surprise(frames, mask, camera) + 0.5 * pixels,
+                               atol=1e-3, rtol=1e-4)
+    blind = _model(use_camera=False, perception_steps=0).train()
+    assert blind.surprise(frames, mask).shape == (B, T)
+    del batch["camera"]
+    blind.training_step(batch, 0).backward()
+    assert all(p.grad is not None for p in blind.dynamics.parameters())
+
+
 def _permuted(model, frames, mask, camera, order):
     """Predicted codes and surprise with the object ids relabelled so slots take ``order``."""
     relabel = torch.arange(256, dtype=torch.uint8)
@@ -129,6 +159,47 @@ def test_bad_inputs_are_refused_naming_the_video():
                         batch_size=[B])
     with pytest.raises(ValueError, match=r"seed 21"):
         _model().probe_step(probes)
+
+
+def test_a_mask_id_that_jumps_between_frames_is_refused_naming_the_video():
+    _, mask, _ = _video()
+    jumped = mask.clone()
+    jumped[1, 3:][jumped[1, 3:] == 3] = 0
+    jumped[1, 3:, 26:31, 20:30] = 3  # id 3 teleports to the far corner at frame 3
+    with pytest.raises(ValueError, match=r"video 1 of the batch \(seed 12\): mask id 3 jumps "
+                                         r"0\.[5-9]\d of the frame diagonal between frames 2 "
+                                         r"and 3"):
+        object_slots(jumped, num_slots=4, seeds=torch.tensor([11, 12]))
+    # Ids numbered per frame (a new id in every frame) read as more objects than slots: the
+    # error says that no frame has that many, so the ids change between frames.
+    renumbered = mask.clone()
+    for t in range(T):
+        renumbered[:, t][renumbered[:, t] == 3] = 10 + t
+    with pytest.raises(ValueError, match=r"shows 6 objects .* no frame shows more than 2 at once: "
+                                         r"if the ids number each frame's objects"):
+        object_slots(renumbered, num_slots=4)
+    with pytest.raises(ValueError, match=r"more than num_slots=1; raise num_slots"):
+        object_slots(mask, num_slots=1)
+
+
+def _generated_videos(seeds=range(2)):
+    for concept in CONCEPTS:
+        for seed in seeds:
+            for kind in CLIP_KINDS_BY_CONCEPT[concept]:
+                yield f"{concept}/{kind}/{seed}", generate_clip(concept, kind, seed)["mask"]
+            for variant in PROBE_VARIANTS[concept]:
+                record = generate_probe(concept, variant, seed)
+                for side in ("consistent", "inconsistent"):
+                    yield f"{concept}/{variant}/{side}/{seed}", record[side]["mask"]
+
+
+def test_the_generators_masks_follow_one_object_per_id():
+    """Every clip kind and probe variant passes the jump check with room to spare (its
+    largest centroid move is well under MAX_MASK_JUMP)."""
+    for name, mask in _generated_videos():
+        slots = object_slots(mask[None], num_slots=12)
+        largest = float(centroid_moves(slots.masks[:, :, 1:] > 0).max())
+        assert largest < 0.8 * MAX_MASK_JUMP, (name, largest)
 
 
 def test_object_free_twin_needs_no_mask_and_matches_the_parameter_count():
