@@ -317,6 +317,22 @@ def test_test_of_a_checkpoint_writes_its_report_beside_it(workdir, trained):
     assert "last.ckpt" in (run / "test_config.yaml").read_text()  # the test's own config
 
 
+def test_test_on_other_data_keeps_the_runs_own_report(workdir, trained, capsys):
+    """Issue 10 case 9: `test --ckpt_path X` with a mistyped root generates only its probes
+    and writes its report beside the run's own, never over it, saying where."""
+    run = copy_of(trained, workdir)
+    checkpoint = str(run / "checkpoints" / "last.ckpt")
+    main(["test", "--config", CONFIG, "--ckpt_path", checkpoint])
+    own = (run / "voe_report" / "summary.json").read_text()
+    main(["test", "--config", CONFIG, "--ckpt_path", checkpoint,
+          "--data.init_args.root", "data/tpyo"])
+    assert (run / "voe_report" / "summary.json").read_text() == own
+    assert (run / "data_data_tpyo" / "voe_report" / "summary.json").is_file()
+    out = capsys.readouterr().out
+    assert f"test reads data/tpyo, not the data {run} was trained on" in out
+    assert "the run's own voe_report/ is kept" in out
+
+
 def test_model_arguments_that_differ_from_the_checkpoint_are_refused(workdir, trained):
     """Issue 10 case 10: LightningCLI takes the model's arguments from --ckpt_path, so one the
     user gives that differs would be ignored; it is refused, naming the file and both values."""

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+import yaml
 from jsonargparse import ActionConfigFile, ArgumentParser, Namespace
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.utilities import rank_zero_warn
@@ -149,9 +150,28 @@ class VOECLI(LightningCLI):
         if (self.subcommand != "fit" and data_class is not None
                 and data_class.benchmark_metrics is not ProbeDataModule.benchmark_metrics):
             version = f"{version}/{init_args.get('name') or data_class.__name__}"
+        elif self.subcommand != "fit" and (other := _other_data(config, run_dir)) is not None:
+            version = f"{version}/{other}"
+            print(f"{self.subcommand} reads {config['data'].init_args.root}, not the data "
+                  f"{run_dir} was trained on: its logs and report go to {run_dir / other}, "
+                  "and the run's own voe_report/ is kept")
         init_args["save_dir"] = str(run_dir.parent.parent)
         init_args["name"] = run_dir.parent.name
         init_args["version"] = version
+
+
+def _other_data(config: Any, run_dir: Path) -> str | None:
+    """When ``config`` evaluates data under another root than the run's training config
+    (``run_dir/config.yaml``) names, a folder name for its results ("data_<root>"), so that a
+    mistyped or different root never replaces the run's own report; else None."""
+    root = getattr(config["data"], "init_args", {}).get("root") if config.get("data") else None
+    try:
+        trained = yaml.safe_load((run_dir / "config.yaml").read_text())["data"]["init_args"]["root"]
+    except (OSError, yaml.YAMLError, KeyError, TypeError):
+        return None
+    if root is None or trained is None or Path(root).resolve() == Path(trained).resolve():
+        return None
+    return "data_" + "_".join(part for part in Path(root).parts if part not in ("/", "..", "."))
 
 
 def read_checkpoint(path: str | Path) -> dict:
