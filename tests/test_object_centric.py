@@ -247,6 +247,37 @@ def test_fit_both_stages_then_test_through_the_cli(tmp_path, monkeypatch, object
     assert (run / "voe_report" / "predictions_object_persistence.png").is_file()
 
 
+def test_the_object_free_twin_is_scored_on_intphys_by_the_benchmark_configs(tmp_path, monkeypatch):
+    """configs/intphys_dev.yaml tests an object-free checkpoint, its model class coming from the
+    checkpoint, and `predict` writes its answer.txt; IntPhys has neither masks nor camera poses,
+    so this is the twin (without camera input) that can be scored there."""
+    from test_intphys import FRAMES, make_intphys
+
+    monkeypatch.chdir(tmp_path)
+    model = ["--model", "voe_lightning.model.ObjectCentricModel", "--model.image_size=[32, 32]",
+             "--model.code_size=8", "--model.encoder_channels=[8, 8]", "--model.state_size=16",
+             "--model.relation_sizes=[16]", "--model.node_sizes=[16]",
+             "--model.relation_size=16", "--model.perception_steps=1", "--model.object_free=true",
+             "--model.use_camera=false"]  # IntPhys has no camera poses
+    main(["fit", "--config", CONFIG, *model, "--trainer.logger.init_args.name=twin"])
+    run = tmp_path / "runs" / "twin" / "version_0"
+    checkpoint = str(run / "checkpoints" / "last.ckpt")
+    configs = Path(__file__).parents[1] / "configs"
+    data = ["--data.init_args.root", str(tmp_path / "intphys"), "--data.init_args.frames_per_movie",
+            str(FRAMES), "--data.init_args.num_workers", "0", "--data.init_args.cache_dir", "null"]
+    make_intphys(tmp_path / "intphys", "dev", labelled=True)
+    cli = main(["test", "--config", str(configs / "intphys_dev.yaml"), "--ckpt_path", checkpoint,
+                *data])
+    assert isinstance(cli.model, ObjectCentricModel) and cli.model.hparams.object_free
+    metrics = json.loads((run / "intphys_dev" / "voe_report" / "benchmark_metrics.json").read_text())
+    assert metrics  # IntPhys' own error rates of this checkpoint
+    make_intphys(tmp_path / "intphys", "test", labelled=False)
+    main(["predict", "--config", str(configs / "intphys_dev.yaml"),
+          "--config", str(configs / "intphys_test.yaml"), "--ckpt_path", checkpoint, *data])
+    lines = (tmp_path / "answer.txt").read_text().splitlines()
+    assert len(lines) == 3 * 4 and all(0.0 <= float(line.split()[1]) <= 1.0 for line in lines)
+
+
 def test_configs_build_models_of_matching_size(monkeypatch):
     from test_configs import ROOT, compose
 

@@ -89,7 +89,8 @@ class SlotDynamics(nn.Module):
         batch, steps, slots, _ = codes.shape
         if self.use_camera and camera is None:
             raise ValueError("use_camera is set but no camera pose was given (batch key "
-                             "'camera', float [B, T, 6])")
+                             "'camera', float [B, T, 6]); data without camera poses (IntPhys) "
+                             "needs a model trained with use_camera: false")
         hidden = codes.new_zeros(batch * slots, self.state_size)
         cell = torch.zeros_like(hidden)
         weight = present.float()  # [B, S]
