@@ -72,15 +72,15 @@ def _ddp(subcommand: str, *arguments: str, cwd: Path) -> None:
     assert "All distributed processes registered" in result.stdout + result.stderr
 
 
-def _report(report: Path) -> tuple[dict[tuple[str, str], int], dict[tuple, tuple]]:
-    """Each summary row's n, and each pair's surprise of both videos by (concept, variant,
-    seed), from a voe_report directory."""
+def _report(report: Path) -> tuple[dict[tuple[str, str], dict], dict[tuple, tuple]]:
+    """Each summary row by (concept, variant), and each pair's surprise of both videos by
+    (concept, variant, seed), from a voe_report directory."""
     rows = json.loads((report / "summary.json").read_text())["rows"]
     with open(report / "pairs.csv", newline="") as handle:
         pairs = {(r["concept"], r["variant"], int(r["seed"])):
                  (float(r["surprise_consistent"]), float(r["surprise_inconsistent"]))
                  for r in csv.DictReader(handle)}
-    return {(row["concept"], row["variant"]): row["n"] for row in rows}, pairs
+    return {(row["concept"], row["variant"]): row for row in rows}, pairs
 
 
 def test_ddp_fit_and_test_match_a_single_process(tmp_path, monkeypatch):
@@ -105,18 +105,26 @@ def test_ddp_fit_and_test_match_a_single_process(tmp_path, monkeypatch):
         elif abs(ddp_fit[tag.rsplit("/", 1)[0] + "/relative_surprise"]) > 100 * NOISE:
             assert value == pytest.approx(single[tag], rel=1e-4), tag
 
-    # test: the report gathered from both ranks equals the single-process report.
     # test: the report gathered from both ranks holds the single-process report's pairs, each
-    # once, with the same surprise.
+    # once, with the same surprise, and so the same statistics in every row.
     _ddp("test", "--ckpt_path", str(checkpoint), cwd=tmp_path)
-    ddp_counts, ddp_pairs = _report(run / "voe_report")
+    ddp_rows, ddp_pairs = _report(run / "voe_report")
     main(["test", "--config", CONFIG, *DATA, "--ckpt_path", str(checkpoint)])
-    counts, pairs = _report(run / "voe_report")
-    assert ddp_counts == counts
-    assert counts[("object_persistence", "pooled")] == 6 and len(pairs) == 15
+    rows, pairs = _report(run / "voe_report")
+    assert rows.keys() == ddp_rows.keys()
+    assert rows[("object_persistence", "pooled")]["n"] == 6 and len(pairs) == 15
     assert ddp_pairs.keys() == pairs.keys()
     for key, surprise in pairs.items():
         assert ddp_pairs[key] == pytest.approx(surprise, rel=1e-5, abs=NOISE), key
+    for key, row in rows.items():
+        assert ddp_rows[key]["n"] == row["n"], key
+        for statistic in ("relative_surprise", "accuracy", "auroc"):
+            assert ddp_rows[key][statistic] == pytest.approx(row[statistic], rel=1e-4,
+                                                             abs=NOISE), (key, statistic)
+        if abs(row["relative_surprise"]) > 100 * NOISE:  # t and p of a real difference
+            for statistic in ("t", "p_value"):
+                assert ddp_rows[key][statistic] == pytest.approx(row[statistic], rel=1e-3,
+                                                                 abs=1e-6), (key, statistic)
 
 
 def test_cpu_ddp_ranks_exit_cleanly(tmp_path):
