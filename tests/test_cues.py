@@ -136,6 +136,33 @@ def test_pairs_without_masks_skip_the_mask_cue_with_a_note(audit, tmp_path):
     assert "unchangeableness/color, foreground: foreground_pixels skipped" in markdown
 
 
+def test_model_correlations_agree_with_scipy_and_expose_a_cue_follower(audit, tmp_path):
+    """A 'model' whose relative surprise is the motion cue's d plus noise has r near 1 with
+    that cue in every group, the pooled one too; r agrees with scipy.stats.pearsonr."""
+    motion = audit.scores["inconsistent"]["motion_energy"] - audit.scores["consistent"]["motion_energy"]
+    follower = 3.0 * motion + np.random.default_rng(0).normal(0.0, 1e-3, len(audit))
+    rows = {(r["concept"], r["variant"], r["cue"]): r for r in audit.model_correlations(follower)}
+    for concept, variant, selected in audit.groups():
+        row = rows[(concept, variant, "motion_energy")]
+        reference = stats.pearsonr(follower[selected], motion[selected])
+        assert row["r"] == pytest.approx(reference.statistic, rel=1e-10) and row["r"] > 0.99
+        assert row["p_two_sided"] == pytest.approx(reference.pvalue, rel=1e-6)
+    # No masks, no foreground score: no correlation, with the reason.
+    assert rows[("unchangeableness", "color", "foreground_pixels")]["r"] is None
+    assert "not scored" in rows[("unchangeableness", "color", "foreground_pixels")]["note"]
+    constant = audit.model_correlations(np.ones(len(audit)))
+    assert all(r["r"] is None and "constant" in r["note"] for r in constant
+               if r["concept"] == "object_persistence")
+    with pytest.raises(ValueError, match="one value per scored pair"):
+        audit.model_correlations(np.ones(3))
+    cues.write_audit(audit.rows(), tmp_path, correlation_rows=list(rows.values()))
+    markdown = (tmp_path / "cues.md").read_text()
+    assert "Does the model's surprise track a cue, pair by pair?" in markdown
+    assert "| object_persistence | **pooled** | 12 |" in markdown.split("pair by pair?")[1]
+    with open(tmp_path / "cue_correlations.csv", newline="") as handle:
+        assert len(list(csv.DictReader(handle))) == len(rows)
+
+
 def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
     root = tmp_path / "store"
     # 2 test pairs per variant, 8 frames: with 6 frames (0.5 s apart) unchangeableness' screen

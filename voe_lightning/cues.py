@@ -64,6 +64,8 @@ SIDES = ("consistent", "inconsistent")
 CUE_COLUMNS = (("concept", "variant", "cue")
                + tuple(f for f in statistics.PairedTestResult.__dataclass_fields__ if f != "note")
                + ("p_two_sided", "note"))
+#: Columns of cue_correlations.csv (``CueAudit.model_correlations``).
+CORRELATION_COLUMNS = ("concept", "variant", "cue", "n", "r", "p_two_sided", "alpha", "note")
 
 
 def score_videos(
@@ -192,6 +194,38 @@ class CueAudit:
                     d = inconsistent - consistent
                     row["accuracy"] = float(np.mean(d > 0) + 0.5 * np.mean(d == 0))
                     row["p_two_sided"] = _two_sided(result.t, result.df)
+                rows.append(row)
+        return rows
+
+
+    def model_correlations(self, model_difference: np.ndarray,
+                           alpha: float = 0.05) -> list[dict[str, Any]]:
+        """How closely a model tracks each cue pair by pair: per group (``groups``) and cue,
+        Pearson's r across pairs between the model's relative surprise d (``model_difference``,
+        one per pair, in this audit's order) and the cue's d, with its two-sided p
+        (``scipy.stats.pearsonr``). A model that follows a cue has r far from 0 even in a
+        pooled group where its accuracy is at chance; columns ``CORRELATION_COLUMNS``."""
+        model_difference = np.asarray(model_difference, dtype=np.float64)
+        if model_difference.shape != (len(self),):
+            raise ValueError(f"model_difference must hold one value per scored pair ({len(self)}), "
+                             f"got shape {model_difference.shape}")
+        rows = []
+        for concept, variant, selected in self.groups():
+            model = model_difference[selected]
+            for cue in CUES:
+                cue_d = (self.scores["inconsistent"][cue] - self.scores["consistent"][cue])[selected]
+                row = dict.fromkeys(CORRELATION_COLUMNS)
+                row.update(concept=concept, variant=variant, cue=cue, n=int(selected.sum()),
+                           alpha=alpha)
+                if np.isnan(cue_d).any() or np.isnan(model).any():
+                    row["note"] = f"{cue} or the model's surprise is not scored for every pair"
+                elif row["n"] < 3:
+                    row["note"] = f"only {row['n']} pairs: no correlation (needs at least 3)"
+                elif np.ptp(cue_d) == 0 or np.ptp(model) == 0:
+                    row["note"] = "constant across pairs: r undefined"
+                else:
+                    result = stats.pearsonr(model, cue_d)
+                    row.update(r=float(result.statistic), p_two_sided=float(result.pvalue))
                 rows.append(row)
         return rows
 
@@ -327,6 +361,35 @@ def format_markdown(
     return "\n".join(lines) + "\n"
 
 
+def format_correlations(correlation_rows: Sequence[Mapping[str, Any]],
+                        title: str = "Does the model's surprise track a cue, pair by pair?") -> str:
+    """Markdown table of ``CueAudit.model_correlations``: r per concept/variant (and pooled)
+    and cue, bold where two-sided p < alpha."""
+    by_key = {(r["concept"], r["variant"], r["cue"]): r for r in correlation_rows}
+    header = ["concept", "variant", "n"] + [CUE_TITLES[cue] for cue in CUES]
+    lines = [f"## {title}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for concept, variant in dict.fromkeys((r["concept"], r["variant"]) for r in correlation_rows):
+        cells = []
+        for cue in CUES:
+            row = by_key[(concept, variant, cue)]
+            if row["r"] is None:
+                cells.append("n/a")
+            else:
+                text = f"{row['r']:+.2f}"
+                cells.append(f"**{text}**" if row["p_two_sided"] < row["alpha"] else text)
+        name = f"**{variant}**" if variant == statistics.POOLED else variant
+        n = by_key[(concept, variant, CUES[0])]["n"]
+        lines.append(f"| {concept} | {name} | {n} | " + " | ".join(cells) + " |")
+    alpha = next((r["alpha"] for r in correlation_rows), 0.05)
+    lines += ["", "Each cell: Pearson's r across pairs between the model's relative surprise "
+              "S(inconsistent) - S(consistent) and the cue's score(inconsistent) - "
+              f"score(consistent); **bold**: two-sided p < {alpha:g}. A model whose pooled "
+              "accuracy is at chance but whose r with a cue is large follows that cue in each "
+              "variant, and the variants cancel; physics would not depend on the cue. Full "
+              "values in cue_correlations.csv."]
+    return "\n".join(lines) + "\n"
+
+
 def cue_table(
     cue_rows: Sequence[Mapping[str, Any]],
     model_rows: Sequence[Mapping[str, Any]] | None = None,
@@ -358,19 +421,31 @@ def write_audit(
     out_dir: str | Path,
     model_rows: Sequence[Mapping[str, Any]] | None = None,
     title: str = "Cue audit",
+    correlation_rows: Sequence[Mapping[str, Any]] | None = None,
     **metadata: Any,
 ) -> Path:
-    """Write ``out_dir/cues.md`` (the compact table, beside the model's rows when given),
-    ``cues.csv`` (every column of every row) and ``cues.json`` (rows and ``metadata``)."""
+    """Write ``out_dir/cues.md`` (the compact table, beside the model's rows when given, then
+    the model-cue correlations when given), ``cues.csv`` (every column of every row),
+    ``cue_correlations.csv`` (with correlations) and ``cues.json`` (rows, correlations and
+    ``metadata``)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "cues.md").write_text(format_markdown(cue_rows, model_rows, title))
+    markdown = format_markdown(cue_rows, model_rows, title)
+    if correlation_rows is not None:
+        markdown += "\n" + format_correlations(correlation_rows)
+        with open(out / "cue_correlations.csv", "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=CORRELATION_COLUMNS)
+            writer.writeheader()
+            writer.writerows(correlation_rows)
+    (out / "cues.md").write_text(markdown)
     with open(out / "cues.csv", "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=CUE_COLUMNS)
         writer.writeheader()
         writer.writerows(cue_rows)
     document = {**metadata, "cues": list(CUES),
                 "rows": [statistics.json_row(row) for row in cue_rows]}
+    if correlation_rows is not None:
+        document["model_correlations"] = [statistics.json_row(row) for row in correlation_rows]
     (out / "cues.json").write_text(json.dumps(document, indent=2) + "\n")
     return out
 

@@ -52,11 +52,16 @@ def write_report(
         if len(cue_audit) != len(results):
             raise ValueError(f"the cue audit scored {len(cue_audit)} pairs, the model "
                              f"{len(results)}: they must be the same pairs")
+        if (tuple(cue_audit.concepts) != results.concept
+                or tuple(cue_audit.variants) != results.variant):
+            raise ValueError("the cue audit's pairs are not the model's pairs in the same order")
         cue_rows = cue_audit.rows(alpha=alpha)
+        correlations = cue_audit.model_correlations(results.relative_surprise, alpha=alpha)
         title = "Cue audit on the model's test pairs"
-        cues.write_audit(cue_rows, report_dir, model_rows=rows, title=title, alpha=alpha,
-                         num_pairs=len(cue_audit))
-        markdown += "\n" + cues.format_markdown(cue_rows, rows, title)
+        cues.write_audit(cue_rows, report_dir, model_rows=rows, title=title,
+                         correlation_rows=correlations, alpha=alpha, num_pairs=len(cue_audit))
+        markdown += ("\n" + cues.format_markdown(cue_rows, rows, title)
+                     + "\n" + cues.format_correlations(correlations))
     write_figures(results, rows, report_dir, predictions, trajectories, trajectory_labels,
                   seed=seed)
     if echo:

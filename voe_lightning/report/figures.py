@@ -69,7 +69,7 @@ def histogram_figure(results: PairResults, rows: Sequence[Mapping[str, Any]]) ->
     figure, axes = panel_grid(len(groups), 4.2, 3.2)
     by_key = {(row["concept"], row["variant"]): row for row in rows}
     for ax, (concept, variant, pairs) in zip(axes, groups):
-        d = pairs.total_inconsistent - pairs.total_consistent
+        d = pairs.relative_surprise
         sd = d.std(ddof=1) if d.size > 1 else 0.0
         shown = d[np.abs(d - d.mean()) <= OUTLIER_SD * sd] if sd > 0 else d
         row = by_key[(concept, variant)]

@@ -88,6 +88,11 @@ class PairResults:
     def total_inconsistent(self) -> np.ndarray:
         return self.surprise_inconsistent.sum(axis=1)
 
+    @property
+    def relative_surprise(self) -> np.ndarray:
+        """Each pair's d = S(inconsistent) - S(consistent), [N]."""
+        return self.total_inconsistent - self.total_consistent
+
     @classmethod
     def from_probe_outputs(
         cls,
