@@ -163,6 +163,34 @@ def test_model_correlations_agree_with_scipy_and_expose_a_cue_follower(audit, tm
         assert len(list(csv.DictReader(handle))) == len(rows)
 
 
+def test_the_report_shows_a_cue_follower_in_its_correlations_and_scatter(audit, tmp_path):
+    """write_report with the cue audit of the model's pairs adds the correlation table to
+    cues.md, cue_correlations.csv, the r values to cues.json and cue_scatter.png."""
+    from voe_lightning.report import write_report
+    from voe_lightning.report.results import PairResults
+
+    motion = audit.scores["inconsistent"]["motion_energy"] - audit.scores["consistent"]["motion_energy"]
+    noise = np.random.default_rng(0).normal(0.0, 0.05 * motion.std(), len(audit))
+    follower = 3.0 * motion + noise
+    per_frame = np.zeros((len(audit), 4))
+    inconsistent = per_frame.copy()
+    inconsistent[:, -1] = follower
+    results = PairResults(audit.concepts, audit.variants, np.arange(len(audit)),
+                          np.full(len(audit), 2), per_frame, inconsistent)
+    np.testing.assert_allclose(results.relative_surprise, follower)
+    write_report(results, tmp_path, cue_audit=audit, bootstrap=0, echo=False)
+    report = tmp_path / "voe_report"
+    assert "pair by pair?" in (report / "cues.md").read_text()
+    assert (report / "cue_scatter.png").stat().st_size > 10_000
+    correlations = json.loads((report / "cues.json").read_text())["model_correlations"]
+    pooled = [r for r in correlations if r["variant"] == "pooled" and r["cue"] == "motion_energy"]
+    assert len(pooled) == 1 and pooled[0]["r"] > 0.9
+    shuffled = PairResults(audit.concepts[::-1], audit.variants[::-1], np.arange(len(audit)),
+                           np.full(len(audit), 2), per_frame, inconsistent)
+    with pytest.raises(ValueError, match="not the model's pairs in the same order"):
+        write_report(shuffled, tmp_path, cue_audit=audit, bootstrap=0, echo=False)
+
+
 def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
     root = tmp_path / "store"
     # 2 test pairs per variant, 8 frames: with 6 frames (0.5 s apart) unchangeableness' screen

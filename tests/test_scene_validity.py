@@ -105,9 +105,6 @@ def test_different_seeds_render_different_clips():
     assert not np.array_equal(a, b)
 
 
-#: The frame-local cues: scores a viewer without memory beyond the last two frames could use.
-FRAME_LOCAL_CUES = ("foreground_pixels", "motion_energy", "copy_last_error",
-                    "linear_extrapolation_error")
 #: Each concept's balanced pools: the counterbalanced pair pooled, or each variant on its own.
 BALANCED_POOLS = [
     (concept, ("standard", "counterbalanced")) if concept in specs.POOLED_CONCEPTS
@@ -130,7 +127,7 @@ def test_balanced_pools_have_no_frame_local_cue(concept, variants):
     audit = cues.audit_records(records)
     pool = "pooled" if len(variants) > 1 else variants[0]
     rows = {row["cue"]: row for row in audit.rows() if row["variant"] == pool}
-    for cue in FRAME_LOCAL_CUES:
+    for cue in cues.FRAME_LOCAL_CUES:
         row = rows[cue]
         d_z = 0.0 if np.isnan(row["d_z"]) else row["d_z"]  # NaN: every pair tied
         assert abs(d_z) <= 0.25 and 0.3 <= row["accuracy"] <= 0.7, (

@@ -21,6 +21,7 @@ from matplotlib.figure import Figure
 
 from voe_lightning import specs
 from voe_lightning.callbacks import VOEReportCallback
+from voe_lightning.cues import FRAME_LOCAL_CUES
 from voe_lightning.model import VOEModel
 from voe_lightning.report.figures import panel_grid
 from voe_lightning.report.results import PairResults, format_p
@@ -30,7 +31,6 @@ from voe_lightning.store import collate, open_split, read_manifest
 
 __all__ = [
     "COMMANDS",
-    "FRAME_LOCAL_CUES",
     "RELATIVE_SURPRISE_TAG",
     "comparison_markdown",
     "comparison_rows",
@@ -285,9 +285,6 @@ def run_size_sweep(
 
 #: Generalization probe variants (paper §5), which no verdict reads.
 GENERALIZATION = {v for variants in GENERALIZATION_VARIANTS.values() for v in variants}
-#: The cues the fairness gate holds at chance on every pooled row (novelty needs memory).
-FRAME_LOCAL_CUES = ("foreground_pixels", "motion_energy", "copy_last_error",
-                    "linear_extrapolation_error")
 
 
 def _latest_report(run_dir: str | Path) -> Path:

@@ -55,6 +55,9 @@ __all__ = [
 CUES: tuple[str, ...] = ("foreground_pixels", "motion_energy", "copy_last_error",
                          "linear_extrapolation_error", "pixel_novelty")
 MASK_CUES: tuple[str, ...] = ("foreground_pixels",)
+#: The cues that read each frame on its own; the fairness gate holds them at chance on every
+#: pooled row (pixel novelty needs a memory of the video).
+FRAME_LOCAL_CUES: tuple[str, ...] = CUES[:4]
 #: Short column titles of the compact tables.
 CUE_TITLES = {"foreground_pixels": "foreground", "motion_energy": "motion",
               "copy_last_error": "copy-last", "linear_extrapolation_error": "lin. extrap.",

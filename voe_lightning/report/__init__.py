@@ -56,14 +56,15 @@ def write_report(
                 or tuple(cue_audit.variants) != results.variant):
             raise ValueError("the cue audit's pairs are not the model's pairs in the same order")
         cue_rows = cue_audit.rows(alpha=alpha)
-        correlations = cue_audit.model_correlations(results.relative_surprise, alpha=alpha)
+        correlations: list[dict[str, Any]] | None = cue_audit.model_correlations(results.relative_surprise, alpha=alpha)
         title = "Cue audit on the model's test pairs"
         cues.write_audit(cue_rows, report_dir, model_rows=rows, title=title,
                          correlation_rows=correlations, alpha=alpha, num_pairs=len(cue_audit))
         markdown += ("\n" + cues.format_markdown(cue_rows, rows, title)
                      + "\n" + cues.format_correlations(correlations))
     write_figures(results, rows, report_dir, predictions, trajectories, trajectory_labels,
-                  seed=seed)
+                  seed=seed, cue_audit=cue_audit,
+                  correlation_rows=correlations if cue_audit is not None else None)
     if echo:
         _print_markdown(markdown, report_dir)
     return rows

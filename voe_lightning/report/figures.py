@@ -252,6 +252,51 @@ def tsne_figure(
     return figure
 
 
+def cue_scatter_figure(results: PairResults, cue_audit: Any,
+                       correlation_rows: Sequence[Mapping[str, Any]]) -> Figure | None:
+    """Per pair, the model's relative surprise against the difference of the frame-local cue
+    it tracks most (largest |r| of ``CueAudit.model_correlations``), one panel per group a
+    verdict reads (pooled rows; every variant of a concept without one), points coloured by
+    variant: a cue-follower lines up along the cue, its variants on either side of 0."""
+    from voe_lightning.cues import CUE_TITLES, FRAME_LOCAL_CUES
+    from voe_lightning.specs import GENERALIZATION_VARIANTS
+
+    generalization = {v for variants in GENERALIZATION_VARIANTS.values() for v in variants}
+    pooled = {r["concept"] for r in correlation_rows if r["variant"] == "pooled"}
+    panels: dict[tuple[str, str], Mapping[str, Any]] = {}
+    for row in correlation_rows:
+        key = (row["concept"], row["variant"])
+        readable = row["variant"] == "pooled" or (row["concept"] not in pooled
+                                                 and row["variant"] not in generalization)
+        if (readable and row["cue"] in FRAME_LOCAL_CUES and row["r"] is not None
+                and (key not in panels or abs(row["r"]) > abs(panels[key]["r"]))):
+            panels[key] = row
+    if not panels:
+        return None
+    concepts, variants = np.array(results.concept), np.array(results.variant)
+    d = results.relative_surprise
+    figure, axes = panel_grid(len(panels), 3.6, 3.2)
+    for ax, ((concept, variant), row) in zip(axes, panels.items()):
+        cue = row["cue"]
+        cue_d = cue_audit.scores["inconsistent"][cue] - cue_audit.scores["consistent"][cue]
+        chosen = (concepts == concept) & ((variants == variant) if variant != "pooled"
+                                          else np.ones_like(concepts, dtype=bool))
+        for name in dict.fromkeys(variants[chosen]):
+            points = chosen & (variants == name)
+            ax.scatter(cue_d[points], d[points], s=10, alpha=0.7, label=name)
+        ax.axhline(0.0, color="black", linewidth=0.8)
+        ax.axvline(0.0, color="black", linewidth=0.8, linestyle=":")
+        ax.set_title(f"{concept} / {variant}\nr = {row['r']:+.2f}, "
+                     f"{format_p_phrase(row['p_two_sided'])} (two-sided)", fontsize=9)
+        ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 3))
+        ax.set_xlabel(f"{CUE_TITLES[cue]}: score(inc.) - score(con.)", fontsize=8)
+        ax.set_ylabel("model: S(inc.) - S(con.)", fontsize=8)
+        ax.legend(fontsize=7, loc="best")
+    figure.suptitle("Does surprise track a physics-blind cue? Each point a probe pair "
+                    "(the frame-local cue with the largest |r| per panel)")
+    return figure
+
+
 def _save(figure: Figure, path: Path) -> None:
     figure.savefig(path, dpi=110)
 
@@ -264,10 +309,17 @@ def write_figures(
     trajectories: Mapping[str, Any] | None = None,
     trajectory_labels: Sequence[str] | None = None,
     seed: int = 0,
+    cue_audit: Any = None,
+    correlation_rows: Sequence[Mapping[str, Any]] | None = None,
 ) -> None:
     """Write histograms.png and surprise_per_frame.png into ``report_dir``, and from
-    ``predictions`` predictions_<concept>.png, from ``trajectories`` tsne_object_persistence.png."""
+    ``predictions`` predictions_<concept>.png, from ``trajectories`` tsne_object_persistence.png,
+    from ``cue_audit`` and its ``correlation_rows`` cue_scatter.png."""
     _save(histogram_figure(results, rows), report_dir / "histograms.png")
+    if cue_audit is not None and correlation_rows is not None:
+        scatter = cue_scatter_figure(results, cue_audit, correlation_rows)
+        if scatter is not None:
+            _save(scatter, report_dir / "cue_scatter.png")
     _save(per_frame_figure(results), report_dir / "surprise_per_frame.png")
     by_concept: dict[str, list[PredictionExample]] = {}
     for example in predictions or ():
