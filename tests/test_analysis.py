@@ -271,6 +271,7 @@ def test_compare_reads_each_verdicts_rows_beside_the_cue_audit(tmp_path, capsys)
     solidity_a, solidity_b = rows[3], rows[4]
     assert solidity_a["voe"] is True and solidity_b["voe"] is False  # b: a variant M < 0
     assert solidity_a["p_value"] < 1e-6 and solidity_a["cue_accuracy_min"] is None  # no audit
+    assert solidity_a["tracked_cue_r"] is None
 
     out = tmp_path / "compare.md"
     main(["analyze", "compare", "--runs+", f"a={tmp_path / 'a'}", "--runs+", f"b={tmp_path / 'b'}",

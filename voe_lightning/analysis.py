@@ -21,7 +21,7 @@ from matplotlib.figure import Figure
 
 from voe_lightning import specs
 from voe_lightning.callbacks import VOEReportCallback
-from voe_lightning.cues import FRAME_LOCAL_CUES
+from voe_lightning.cues import CUE_TITLES, FRAME_LOCAL_CUES
 from voe_lightning.model import VOEModel
 from voe_lightning.report.figures import panel_grid
 from voe_lightning.report.results import PairResults, format_p
@@ -297,8 +297,9 @@ def _latest_report(run_dir: str | Path) -> Path:
 
 def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, Any]]:
     """Per run and concept, the rows its verdict reads (the pooled row of a counterbalanced
-    concept, else every variant), each with its verdict and the accuracy range of the
-    frame-local cues on the same pairs (from the report's cues.csv, where written)."""
+    concept, else every variant), each with its verdict, the accuracy range of the
+    frame-local cues on the same pairs (from the report's cues.csv, where written) and the
+    frame-local cue the model's surprise correlates with most (cue_correlations.csv)."""
     rows = []
     for label, run_dir in runs:
         report = _latest_report(run_dir)
@@ -310,6 +311,14 @@ def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, An
                     if cue["cue"] in FRAME_LOCAL_CUES and cue["accuracy"] not in ("", "None"):
                         key = (cue["concept"], cue["variant"])
                         cue_accuracy.setdefault(key, []).append(float(cue["accuracy"]))
+        tracked: dict[tuple[str, str], tuple[float, str]] = {}
+        if (report / "cue_correlations.csv").is_file():
+            with open(report / "cue_correlations.csv", newline="") as handle:
+                for cue in csv.DictReader(handle):
+                    key = (cue["concept"], cue["variant"])
+                    if cue["cue"] in FRAME_LOCAL_CUES and cue["r"] not in ("", "None") and (
+                            key not in tracked or abs(float(cue["r"])) > abs(tracked[key][0])):
+                        tracked[key] = (float(cue["r"]), cue["cue"])
         by_concept: dict[str, list[dict]] = {}
         for row in summary["rows"]:
             by_concept.setdefault(row["concept"], []).append(row)
@@ -319,17 +328,19 @@ def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, An
             standard = [row for row in concept_rows if row["variant"] not in GENERALIZATION]
             for row in pooled or standard:  # generalization variants do not enter verdicts
                 accuracies = cue_accuracy.get((row["concept"], row["variant"]), [])
+                r, cue = tracked.get((row["concept"], row["variant"]), (None, None))
                 rows.append({"run": label, "report": str(report), **row,
                              "voe": verdict["voe"], "verdict": verdict["verdict"],
                              "cue_accuracy_min": min(accuracies, default=None),
-                             "cue_accuracy_max": max(accuracies, default=None)})
+                             "cue_accuracy_max": max(accuracies, default=None),
+                             "tracked_cue": cue, "tracked_cue_r": r})
     return rows
 
 
 def comparison_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
     """The comparison as a Markdown table, one line per run, concept and verdict row."""
     lines = ["| run | concept | variant | n | M | t(df) | p | accuracy | frame-local cues: "
-             "accuracy | VOE |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "accuracy | surprise tracks (r) | VOE |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         if row["t"] is None:
             statistics = "| n/a | n/a | n/a | n/a "
@@ -338,9 +349,11 @@ def comparison_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
                           f"| {format_p(row['p_value'])} | {100 * row['accuracy']:.0f}% ")
         cues = ("n/a" if row["cue_accuracy_min"] is None else
                 f"{100 * row['cue_accuracy_min']:.0f}–{100 * row['cue_accuracy_max']:.0f}%")
+        tracks = ("n/a" if row["tracked_cue_r"] is None else
+                  f"{CUE_TITLES[row['tracked_cue']]} ({row['tracked_cue_r']:+.2f})")
         voe = "n/a" if row["voe"] is None else ("**yes**" if row["voe"] else "no")
         lines.append(f"| {row['run']} | {row['concept']} | {row['variant']} | {row['n']} "
-                     f"{statistics}| {cues} | {voe} |")
+                     f"{statistics}| {cues} | {tracks} | {voe} |")
     return "\n".join(lines) + "\n"
 
 
