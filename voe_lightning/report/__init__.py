@@ -7,7 +7,9 @@ Files: ``summary.json``/``summary.csv``/``summary.md`` (one row per concept/vari
 ``pooled`` row per concept with a counterbalanced pair, and each concept's VOE verdict),
 ``pairs.csv`` (one row per probe pair, with per-frame surprise, so anyone can redo the
 statistics), ``cues.md``/``cues.csv``/``cues.json`` (the cue audit on the same pairs, beside the
-model's rows; see ``voe_lightning.cues``), ``histograms.png``, ``surprise_per_frame.png``,
+model's rows, then how the model's relative surprise correlates with each cue's difference;
+see ``voe_lightning.cues``), ``cue_correlations.csv`` and ``cue_scatter.png`` (those
+correlations in full and drawn), ``histograms.png``, ``surprise_per_frame.png``,
 ``predictions_<concept>.png`` and ``tsne_object_persistence.png``.
 """
 
@@ -39,7 +41,7 @@ def write_report(
     """Write ``out_dir/voe_report/`` (module docstring) and return the summary rows.
     ``predictions`` give predictions_<concept>.png, ``trajectories`` (see ``tsne_figure``)
     give tsne_object_persistence.png, ``cue_audit`` (scores of the same pairs) gives
-    cues.md/csv/json; ``echo`` prints the Markdown tables; ``surprise`` names what a frame's
+    cues.md/csv/json, cue_correlations.csv and cue_scatter.png; ``echo`` prints the Markdown tables; ``surprise`` names what a frame's
     surprise is (the model's ``SURPRISE``)."""
     if len(results) == 0:
         raise ValueError("no probe results to report")
@@ -48,6 +50,7 @@ def write_report(
     rows = summarize(results, alpha=alpha, bootstrap=bootstrap, seed=seed)
     markdown = write_summary(results, rows, report_dir, alpha=alpha, bootstrap=bootstrap,
                              surprise=surprise)
+    correlations = None
     if cue_audit is not None:
         if len(cue_audit) != len(results):
             raise ValueError(f"the cue audit scored {len(cue_audit)} pairs, the model "
@@ -56,15 +59,14 @@ def write_report(
                 or tuple(cue_audit.variants) != results.variant):
             raise ValueError("the cue audit's pairs are not the model's pairs in the same order")
         cue_rows = cue_audit.rows(alpha=alpha)
-        correlations: list[dict[str, Any]] | None = cue_audit.model_correlations(results.relative_surprise, alpha=alpha)
+        correlations = cue_audit.model_correlations(results.relative_surprise, alpha=alpha)
         title = "Cue audit on the model's test pairs"
         cues.write_audit(cue_rows, report_dir, model_rows=rows, title=title,
                          correlation_rows=correlations, alpha=alpha, num_pairs=len(cue_audit))
         markdown += ("\n" + cues.format_markdown(cue_rows, rows, title)
                      + "\n" + cues.format_correlations(correlations))
     write_figures(results, rows, report_dir, predictions, trajectories, trajectory_labels,
-                  seed=seed, cue_audit=cue_audit,
-                  correlation_rows=correlations if cue_audit is not None else None)
+                  seed=seed, cue_audit=cue_audit, correlation_rows=correlations)
     if echo:
         _print_markdown(markdown, report_dir)
     return rows
