@@ -41,8 +41,8 @@ def write_report(
     """Write ``out_dir/voe_report/`` (module docstring) and return the summary rows.
     ``predictions`` give predictions_<concept>.png, ``trajectories`` (see ``tsne_figure``)
     give tsne_object_persistence.png, ``cue_audit`` (scores of the same pairs) gives
-    cues.md/csv/json, cue_correlations.csv and cue_scatter.png; ``echo`` prints the Markdown tables; ``surprise`` names what a frame's
-    surprise is (the model's ``SURPRISE``)."""
+    cues.md/csv/json, cue_correlations.csv and cue_scatter.png; ``echo`` prints the Markdown
+    tables; ``surprise`` names what a frame's surprise is (the model's ``SURPRISE``)."""
     if len(results) == 0:
         raise ValueError("no probe results to report")
     report_dir = Path(out_dir) / "voe_report"
