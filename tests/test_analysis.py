@@ -281,3 +281,19 @@ def test_compare_reads_each_verdicts_rows_beside_the_cue_audit(tmp_path, capsys)
     assert "| a | solidity | pooled | 80 |" in table and table.count("**yes**") == 1
     with pytest.raises(FileNotFoundError, match="run test first"):
         analysis.comparison_rows([("missing", tmp_path / "missing")])
+
+
+def test_compare_reads_a_runs_own_report_before_a_newer_one_on_other_data(tmp_path):
+    """`test` writes reports of external benchmarks or other data into sub-folders of the
+    run; `analyze compare` of the run reads the run's own report, even when older."""
+    run = tmp_path / "run"
+    write_report(pair_results({("solidity", "standard"): (40, 2.0),
+                               ("solidity", "counterbalanced"): (40, 2.0)}, seed=1),
+                 run, bootstrap=0, echo=False)
+    (run / "config.yaml").write_text("data: {init_args: {root: data/x}}\n")
+    write_report(pair_results({("solidity", "standard"): (12, 2.0),
+                               ("solidity", "counterbalanced"): (12, 2.0)}, seed=2),
+                 run / "data_data_tpyo", bootstrap=0, echo=False)
+    rows = analysis.comparison_rows([("run", run)])
+    assert [(r["variant"], r["n"]) for r in rows] == [("pooled", 80)]
+    assert rows[0]["report"] == str(run / "voe_report")

@@ -288,11 +288,15 @@ GENERALIZATION = {v for variants in GENERALIZATION_VARIANTS.values() for v in va
 
 
 def _latest_report(run_dir: str | Path) -> Path:
+    """The newest voe_report under ``run_dir``, preferring a training run's own (beside its
+    config.yaml) to those `test` writes into sub-folders for external benchmarks or other
+    data (``<run>/intphys_dev/``, ``<run>/data_<root>/``)."""
     reports = sorted(Path(run_dir).rglob("voe_report/summary.json"),
                      key=lambda path: path.stat().st_mtime)
     if not reports:
         raise FileNotFoundError(f"no voe_report/summary.json under {run_dir} (run test first)")
-    return reports[-1].parent
+    own = [path for path in reports if (path.parent.parent / "config.yaml").is_file()]
+    return (own or reports)[-1].parent
 
 
 def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, Any]]:
@@ -439,7 +443,7 @@ def compare(runs: list[str], out: Path | None = None) -> str:
     """Per-concept verdicts of tested runs side by side, as a Markdown table.
 
     Args:
-        runs: tested run directories as [LABEL=]DIR (their latest voe_report is read).
+        runs: tested run directories as [LABEL=]DIR (their latest own voe_report is read).
         out: also write the table here.
     """
     table = comparison_markdown(comparison_rows([_labelled(run) for run in runs]))
