@@ -170,6 +170,12 @@ def test_a_mask_id_that_jumps_between_frames_is_refused_naming_the_video():
                                          r"0\.[5-9]\d of the frame diagonal between frames 2 "
                                          r"and 3"):
         object_slots(jumped, num_slots=4, seeds=torch.tensor([11, 12]))
+    frames, _, camera = _video()
+    with pytest.raises(ValueError, match="raise max_mask_jump where objects really move"):
+        _model().surprise(frames, jumped, camera)
+    assert _model(max_mask_jump=None).surprise(frames, jumped, camera).shape == (B, T)
+    with pytest.raises(ValueError, match="max_mask_jump must be > 0 or None"):
+        _model(max_mask_jump=0.0)
     # Ids numbered per frame (a new id in every frame) read as more objects than slots: the
     # error says that no frame has that many, so the ids change between frames.
     renumbered = mask.clone()
@@ -180,6 +186,24 @@ def test_a_mask_id_that_jumps_between_frames_is_refused_naming_the_video():
         object_slots(renumbered, num_slots=4)
     with pytest.raises(ValueError, match=r"more than num_slots=1; raise num_slots"):
         object_slots(mask, num_slots=1)
+
+
+def test_a_sample_of_a_clips_frames_is_no_jump():
+    """Stage one trains on a random sample of each clip's frames: an object that moves steadily
+    lies far apart in two sampled frames, which is no jump (the whole clip is checked)."""
+    frames, mask, camera = _video()
+    moving = torch.zeros_like(mask)
+    for t in range(T):
+        moving[:, t, 2:7, 2 + 6 * t: 7 + 6 * t] = 3  # 6 pixels a frame: 0.13 of the diagonal
+    with pytest.raises(ValueError, match="mask id 3 jumps 0.5"):
+        object_slots(moving[:, [0, 4]], num_slots=4)
+    object_slots(moving[:, [0, 4]], num_slots=4, max_jump=None)
+    object_slots(moving[:, [0, 4]], num_slots=4, max_jump=0.6)
+    model = _model(perception_steps=1, perception_frames=2).train()
+    batch = _batch(frames, moving, camera)
+    torch.manual_seed(0)
+    for _ in range(20):  # some of these samples take frames 0 and 4
+        assert torch.isfinite(model.training_step(batch, 0))
 
 
 def _generated_videos(seeds=range(2)):

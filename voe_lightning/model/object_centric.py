@@ -14,7 +14,13 @@ from voe_lightning import specs
 from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.model.dynamics import SlotDynamics
 from voe_lightning.model.perception import Perception, compose
-from voe_lightning.model.slots import Slots, object_slots, require_mask, whole_frame_slot
+from voe_lightning.model.slots import (
+    MAX_MASK_JUMP,
+    Slots,
+    object_slots,
+    require_mask,
+    whole_frame_slot,
+)
 
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
 ARCHITECTURE = (
@@ -62,6 +68,9 @@ class ObjectCentricModel(SurpriseModel):
             (mask all ones, no masks needed, no interactions).
         object_free_code_size: the twin's code size; None sizes it so its parameter count is
             closest to the object-centric model's at the same arguments.
+        max_mask_jump: the largest move of an object's mask centroid between consecutive frames,
+            as a fraction of the frame diagonal, before a video is refused as having ids that
+            change objects (``slots.refuse_jumps``; our scenes move at most 0.34); None: no check.
         learning_rate: Adam.
         channels_last: NHWC convolutions.
         training_frames: frames per training clip, recorded from the training batches.
@@ -90,6 +99,7 @@ class ObjectCentricModel(SurpriseModel):
         pixel_surprise_weight: float = 0.0,
         object_free: bool = False,
         object_free_code_size: int | None = None,
+        max_mask_jump: float | None = MAX_MASK_JUMP,
         learning_rate: float = 1e-3,
         channels_last: bool = True,
         training_frames: int | None = None,
@@ -100,6 +110,8 @@ class ObjectCentricModel(SurpriseModel):
             raise ValueError(f"num_slots and code_size must be >= 1, got {num_slots}, {code_size}")
         if perception_frames is not None and perception_frames < 1:
             raise ValueError(f"perception_frames must be >= 1 or None, got {perception_frames}")
+        if max_mask_jump is not None and max_mask_jump <= 0:
+            raise ValueError(f"max_mask_jump must be > 0 or None (no check), got {max_mask_jump}")
         if perception_steps < 0 or learning_rate <= 0:
             raise ValueError(f"perception_steps must be >= 0 and learning_rate > 0, got "
                              f"{perception_steps}, {learning_rate}")
@@ -111,12 +123,14 @@ class ObjectCentricModel(SurpriseModel):
 
     # ----------------------------------------------------------------------------- slots
     def slots(self, frames: torch.Tensor, mask: torch.Tensor | None,
-              seeds: torch.Tensor | None = None) -> Slots:
-        """The slots of uint8 videos [B, T, H, W, 3] (see ``slots.object_slots``)."""
+              seeds: torch.Tensor | None = None, consecutive: bool = True) -> Slots:
+        """The slots of uint8 videos [B, T, H, W, 3] (see ``slots.object_slots``; frames not
+        ``consecutive`` are a sample of a clip's frames, where ids may move far between two)."""
         if self.hparams.object_free:
             return whole_frame_slot(frames.to(self.device))
         mask = require_mask(mask, frames, seeds).to(self.device)
-        return object_slots(mask, self.hparams.num_slots, seeds)
+        max_jump = self.hparams.max_mask_jump if consecutive else None
+        return object_slots(mask, self.hparams.num_slots, seeds, max_jump)
 
     def perceive(self, x: torch.Tensor, slots: Slots) -> tuple[torch.Tensor, torch.Tensor]:
         """Model input [B, T, 3, H, W] -> code mean and log-std [B, T, S, C]."""
@@ -158,12 +172,15 @@ class ObjectCentricModel(SurpriseModel):
         composed frame; mask = cross-entropy of the composition weights against the true slot
         masks; kl = kl_weight * KL of the present slots' codes to N(0, I) (VAE only)."""
         frames, mask = self._frames_of(batch), video_inputs(batch).get("mask")
+        seeds = _seeds(batch)
         chosen = self.hparams.perception_frames
-        if chosen is not None and chosen < frames.shape[1]:
+        sampled = chosen is not None and chosen < frames.shape[1]
+        if sampled:
+            self.slots(frames, mask, seeds)  # refuses bad masks on the whole, consecutive clip
             steps = torch.randperm(frames.shape[1])[:chosen].sort().values
             frames, mask = frames[:, steps], (mask[:, steps] if mask is not None else None)
         x = self._model_input(frames, self.image_size)
-        slots = self.slots(frames, mask, _seeds(batch))
+        slots = self.slots(frames, mask, seeds, consecutive=not sampled)
         mean, log_std = self.perceive(x, slots)
         codes = mean
         if self.hparams.variational:

@@ -48,12 +48,14 @@ def require_mask(
     return mask
 
 
-def object_slots(mask: torch.Tensor, num_slots: int, seeds: torch.Tensor | None = None) -> Slots:
+def object_slots(mask: torch.Tensor, num_slots: int, seeds: torch.Tensor | None = None,
+                 max_jump: float | None = MAX_MASK_JUMP) -> Slots:
     """Assign the ids of ``mask`` uint8 [B, T, H, W] to ``num_slots`` object slots plus the
     background slot. An id keeps its slot for the whole video: an object that vanishes (say,
     behind an occluder) and reappears has an empty mask while hidden, never a new slot. More
-    ids than slots, an id that jumps across the frame (``refuse_jumps``), or a batch with no
-    object at all, is refused naming the video."""
+    ids than slots, an id that jumps more than ``max_jump`` of the frame diagonal between two
+    frames (``refuse_jumps``; None: no check, as for a sample of a clip's frames), or a batch
+    with no object at all, is refused naming the video."""
     batch = mask.shape[0]
     ids = torch.zeros(batch, num_slots + 1, dtype=torch.int64, device=mask.device)
     present = torch.zeros(batch, num_slots + 1, dtype=torch.bool, device=mask.device)
@@ -82,7 +84,8 @@ def object_slots(mask: torch.Tensor, num_slots: int, seeds: torch.Tensor | None 
         )
     masks = mask.long()[:, :, None] == ids[:, None, :, None, None]  # [B, T, K + 1, H, W]
     masks[:, :, 1:] &= present[:, None, 1:, None, None]  # padding slots see nothing
-    refuse_jumps(masks[:, :, 1:], ids[:, 1:], seeds)
+    if max_jump is not None:
+        refuse_jumps(masks[:, :, 1:], ids[:, 1:], seeds, max_jump)
     return Slots(ids=ids, present=present, masks=masks.float())
 
 
@@ -100,18 +103,20 @@ def centroid_moves(masks: torch.Tensor) -> torch.Tensor:
     return torch.where((pixels[:, 1:] > 0) & (pixels[:, :-1] > 0), move, torch.zeros_like(move))
 
 
-def refuse_jumps(masks: torch.Tensor, ids: torch.Tensor, seeds: torch.Tensor | None) -> None:
-    """Refuse an object id whose mask centroid moves more than ``MAX_MASK_JUMP`` of the frame
+def refuse_jumps(masks: torch.Tensor, ids: torch.Tensor, seeds: torch.Tensor | None,
+                 max_jump: float = MAX_MASK_JUMP) -> None:
+    """Refuse an object id whose mask centroid moves more than ``max_jump`` of the frame
     diagonal between consecutive frames that both show it (masks bool [B, T, K, H, W]): a slot
     must follow one object, or the dynamics learn teleports."""
     move = centroid_moves(masks)
-    if bool((move > MAX_MASK_JUMP).any()):
-        video, frame, slot = (int(i) for i in (move > MAX_MASK_JUMP).nonzero()[0])
+    if bool((move > max_jump).any()):
+        video, frame, slot = (int(i) for i in (move > max_jump).nonzero()[0])
         raise ValueError(
             f"{video_name(video, seeds)}: mask id {int(ids[video, slot])} jumps "
             f"{float(move[video, frame, slot]):.2f} of the frame diagonal between frames {frame} "
-            f"and {frame + 1} (at most {MAX_MASK_JUMP} expected): each id must name one object "
-            "for the whole video; renumber per-frame masks by object (track them) first"
+            f"and {frame + 1} (at most max_mask_jump={max_jump} expected): each id must name one "
+            "object for the whole video; renumber per-frame masks by object (track them) "
+            "first, or raise max_mask_jump where objects really move that fast"
         )
 
 
