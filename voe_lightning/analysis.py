@@ -21,11 +21,10 @@ from matplotlib.figure import Figure
 
 from voe_lightning import specs
 from voe_lightning.callbacks import VOEReportCallback
-from voe_lightning.cues import CUE_TITLES, FRAME_LOCAL_CUES
+from voe_lightning.cues import CUE_TITLES, FRAME_LOCAL_CUES, tracked_cues
 from voe_lightning.model import VOEModel
 from voe_lightning.report.figures import panel_grid
 from voe_lightning.report.results import PairResults, format_p
-from voe_lightning.specs import GENERALIZATION_VARIANTS
 from voe_lightning.statistics import paired_test
 from voe_lightning.store import collate, open_split, read_manifest
 
@@ -283,8 +282,6 @@ def run_size_sweep(
 # ----------------------------------------------------------------------------- comparison
 
 
-#: Generalization probe variants (paper §5), which no verdict reads.
-GENERALIZATION = {v for variants in GENERALIZATION_VARIANTS.values() for v in variants}
 
 
 def _latest_report(run_dir: str | Path) -> Path:
@@ -315,36 +312,35 @@ def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, An
                     if cue["cue"] in FRAME_LOCAL_CUES and cue["accuracy"] not in ("", "None"):
                         key = (cue["concept"], cue["variant"])
                         cue_accuracy.setdefault(key, []).append(float(cue["accuracy"]))
-        tracked: dict[tuple[str, str], tuple[float, str]] = {}
+        tracked = {}
         if (report / "cue_correlations.csv").is_file():
             with open(report / "cue_correlations.csv", newline="") as handle:
-                for cue in csv.DictReader(handle):
-                    key = (cue["concept"], cue["variant"])
-                    if cue["cue"] in FRAME_LOCAL_CUES and cue["r"] not in ("", "None") and (
-                            key not in tracked or abs(float(cue["r"])) > abs(tracked[key][0])):
-                        tracked[key] = (float(cue["r"]), cue["cue"])
+                tracked = tracked_cues(
+                    {**row, "r": float(row["r"]) if row["r"] not in ("", "None") else None}
+                    for row in csv.DictReader(handle))
         by_concept: dict[str, list[dict]] = {}
         for row in summary["rows"]:
             by_concept.setdefault(row["concept"], []).append(row)
         for verdict in summary["verdicts"]:
             concept_rows = by_concept[verdict["concept"]]
             pooled = [row for row in concept_rows if row["variant"] == "pooled"]
-            standard = [row for row in concept_rows if row["variant"] not in GENERALIZATION]
+            standard = [row for row in concept_rows
+                        if row["variant"] not in specs.GENERALIZATION_VARIANT_NAMES]
             for row in pooled or standard:  # generalization variants do not enter verdicts
                 accuracies = cue_accuracy.get((row["concept"], row["variant"]), [])
-                r, cue = tracked.get((row["concept"], row["variant"]), (None, None))
+                cue = tracked.get((row["concept"], row["variant"]), {"cue": None, "r": None})
                 rows.append({"run": label, "report": str(report), **row,
                              "voe": verdict["voe"], "verdict": verdict["verdict"],
                              "cue_accuracy_min": min(accuracies, default=None),
                              "cue_accuracy_max": max(accuracies, default=None),
-                             "tracked_cue": cue, "tracked_cue_r": r})
+                             "tracked_cue": cue["cue"], "tracked_cue_r": cue["r"]})
     return rows
 
 
 def comparison_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
     """The comparison as a Markdown table, one line per run, concept and verdict row."""
     lines = ["| run | concept | variant | n | M | t(df) | p | accuracy | frame-local cues: "
-             "accuracy | surprise tracks (r) | VOE |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "accuracy | surprise tracks (r) | VOE |", "|" + "---|" * 11]
     for row in rows:
         if row["t"] is None:
             statistics = "| n/a | n/a | n/a | n/a "

@@ -42,12 +42,15 @@ __all__ = [
     "CUES",
     "CUE_COLUMNS",
     "CueAudit",
+    "FRAME_LOCAL_CUES",
     "audit",
     "audit_records",
     "audit_split",
     "cue_table",
+    "format_correlations",
     "format_markdown",
     "score_videos",
+    "tracked_cues",
     "write_audit",
 ]
 
@@ -200,7 +203,6 @@ class CueAudit:
                 rows.append(row)
         return rows
 
-
     def model_correlations(self, model_difference: np.ndarray,
                            alpha: float = 0.05) -> list[dict[str, Any]]:
         """How closely a model tracks each cue pair by pair: per group (``groups``) and cue,
@@ -212,11 +214,13 @@ class CueAudit:
         if model_difference.shape != (len(self),):
             raise ValueError(f"model_difference must hold one value per scored pair ({len(self)}), "
                              f"got shape {model_difference.shape}")
+        differences = {cue: self.scores["inconsistent"][cue] - self.scores["consistent"][cue]
+                       for cue in CUES}
         rows = []
         for concept, variant, selected in self.groups():
             model = model_difference[selected]
             for cue in CUES:
-                cue_d = (self.scores["inconsistent"][cue] - self.scores["consistent"][cue])[selected]
+                cue_d = differences[cue][selected]
                 row = dict.fromkeys(CORRELATION_COLUMNS)
                 row.update(concept=concept, variant=variant, cue=cue, n=int(selected.sum()),
                            alpha=alpha)
@@ -231,6 +235,20 @@ class CueAudit:
                     row.update(r=float(result.statistic), p_two_sided=float(result.pvalue))
                 rows.append(row)
         return rows
+
+
+def tracked_cues(
+    correlation_rows: Iterable[Mapping[str, Any]],
+) -> dict[tuple[str, str], Mapping[str, Any]]:
+    """Per (concept, variant) of ``CueAudit.model_correlations`` rows: the row of the
+    frame-local cue whose r is largest in size (rows without an r are skipped)."""
+    tracked: dict[tuple[str, str], Mapping[str, Any]] = {}
+    for row in correlation_rows:
+        key = (row["concept"], row["variant"])
+        if row["cue"] in FRAME_LOCAL_CUES and row["r"] is not None and (
+                key not in tracked or abs(row["r"]) > abs(tracked[key]["r"])):
+            tracked[key] = row
+    return tracked
 
 
 def _two_sided(t: float, df: int) -> float:

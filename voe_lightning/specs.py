@@ -50,6 +50,11 @@ GENERALIZATION_VARIANTS: dict[str, tuple[str, ...]] = {
     "containment": (),
 }
 
+#: Every generalization variant's name: no verdict reads them.
+GENERALIZATION_VARIANT_NAMES: frozenset[str] = frozenset(
+    variant for variants in GENERALIZATION_VARIANTS.values() for variant in variants
+)
+
 PROBE_VARIANTS: dict[str, tuple[str, ...]] = {
     concept: STANDARD_VARIANTS[concept] + GENERALIZATION_VARIANTS[concept] for concept in CONCEPTS
 }

@@ -20,6 +20,8 @@ from voe_lightning.report.results import (
     format_number,
     format_p_phrase,
 )
+from voe_lightning.specs import GENERALIZATION_VARIANT_NAMES
+from voe_lightning.statistics import POOLED
 
 #: Histograms hide pairs whose d lies beyond this many SD from the mean (display only).
 OUTLIER_SD = 3.0
@@ -258,19 +260,12 @@ def cue_scatter_figure(results: PairResults, cue_audit: Any,
     it tracks most (largest |r| of ``CueAudit.model_correlations``), one panel per group a
     verdict reads (pooled rows; every variant of a concept without one), points coloured by
     variant: a cue-follower lines up along the cue, its variants on either side of 0."""
-    from voe_lightning.cues import CUE_TITLES, FRAME_LOCAL_CUES
-    from voe_lightning.specs import GENERALIZATION_VARIANTS
+    from voe_lightning.cues import CUE_TITLES, tracked_cues
 
-    generalization = {v for variants in GENERALIZATION_VARIANTS.values() for v in variants}
-    pooled = {r["concept"] for r in correlation_rows if r["variant"] == "pooled"}
-    panels: dict[tuple[str, str], Mapping[str, Any]] = {}
-    for row in correlation_rows:
-        key = (row["concept"], row["variant"])
-        readable = row["variant"] == "pooled" or (row["concept"] not in pooled
-                                                 and row["variant"] not in generalization)
-        if (readable and row["cue"] in FRAME_LOCAL_CUES and row["r"] is not None
-                and (key not in panels or abs(row["r"]) > abs(panels[key]["r"]))):
-            panels[key] = row
+    pooled = {r["concept"] for r in correlation_rows if r["variant"] == POOLED}
+    panels = {key: row for key, row in tracked_cues(correlation_rows).items()
+              if key[1] == POOLED or (key[0] not in pooled
+                                      and key[1] not in GENERALIZATION_VARIANT_NAMES)}
     if not panels:
         return None
     concepts, variants = np.array(results.concept), np.array(results.variant)
@@ -279,8 +274,9 @@ def cue_scatter_figure(results: PairResults, cue_audit: Any,
     for ax, ((concept, variant), row) in zip(axes, panels.items()):
         cue = row["cue"]
         cue_d = cue_audit.scores["inconsistent"][cue] - cue_audit.scores["consistent"][cue]
-        chosen = (concepts == concept) & ((variants == variant) if variant != "pooled"
-                                          else np.ones_like(concepts, dtype=bool))
+        chosen = concepts == concept
+        if variant != POOLED:
+            chosen &= variants == variant
         for name in dict.fromkeys(variants[chosen]):
             points = chosen & (variants == name)
             ax.scatter(cue_d[points], d[points], s=10, alpha=0.7, label=name)
