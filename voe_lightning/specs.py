@@ -73,6 +73,14 @@ HEIGHT = 64
 WIDTH = 64
 #: Largest number of distinct object ids a mask may carry (0 is the background).
 MAX_OBJECT_ID = 32
+#: Object-state slots per frame, indexed by mask id (slot 0, the background, stays empty).
+OBJECT_SLOTS = MAX_OBJECT_ID + 1
+#: What ``objects/shape_label`` indexes (Kubric's name; Composite reserves ``shape``): ``none``
+#: marks a slot with no object; an object made of several primitives (a container) is
+#: ``compound``.
+OBJECT_SHAPES: tuple[str, ...] = (
+    "none", "sphere", "box", "cylinder", "capsule", "ellipsoid", "compound",
+)
 
 
 def _check_name(kind: str, name: str, valid: tuple[str, ...]) -> None:
@@ -102,6 +110,25 @@ def _video_spec(num_frames: int, height: int, width: int) -> dict:
         "frames": Bounded(0, 255, shape=(num_frames, height, width, 3), dtype=torch.uint8),
         "mask": Bounded(0, MAX_OBJECT_ID, shape=(num_frames, height, width), dtype=torch.uint8),
     }
+
+
+def objects_spec(num_frames: int = NUM_FRAMES) -> Composite:
+    """Per-frame states of a video's objects, what a perfect 3D perception would recover (as
+    Kubric and Physion export), indexed [T, OBJECT_SLOTS] by mask id: world ``position`` (m) and
+    ``orientation`` (quaternion w, x, y, z) of the object's body, ``size`` (half-extents of its
+    bounding box in the body frame, m), ``shape_label`` (index into OBJECT_SHAPES; 0: no object
+    with this id at that frame), ``color`` (RGB in [0, 1]) and ``visible_fraction`` (the share of the
+    frame's pixels that show it: 0 when hidden). Ground truth: a model that may only see what is
+    visible must mask out the states of hidden objects itself."""
+    slots = (num_frames, OBJECT_SLOTS)
+    return Composite(
+        position=Unbounded(shape=(*slots, 3), dtype=torch.float32),
+        orientation=Bounded(-1.0, 1.0, shape=(*slots, 4), dtype=torch.float32),
+        size=Unbounded(shape=(*slots, 3), dtype=torch.float32),
+        shape_label=Categorical(len(OBJECT_SHAPES), shape=slots, dtype=torch.int64),
+        color=Bounded(0.0, 1.0, shape=(*slots, 3), dtype=torch.float32),
+        visible_fraction=Bounded(0.0, 1.0, shape=slots, dtype=torch.float32),
+    )
 
 
 def _camera_spec(num_frames: int) -> Unbounded:

@@ -22,15 +22,17 @@ def _destroy_process_group() -> None:
         torch.distributed.destroy_process_group()
 
 
-def video_inputs(batch: Any, video: str | None = None) -> dict[str, torch.Tensor]:
-    """``mask`` of a clip batch (``video=None``) or of one side of a probe batch, and the
-    batch's ``camera``, each when the batch has it: keyword arguments of the protocol."""
+def video_inputs(batch: Any, video: str | None = None) -> dict[str, Any]:
+    """``mask`` and ``objects`` (per-object states, ``specs.objects_spec``) of a clip batch
+    (``video=None``) or of one side of a probe batch, and the batch's ``camera``, each when the
+    batch has it: keyword arguments of the protocol."""
     nested = isinstance(batch, TensorDictBase)
     keys = set(batch.keys(include_nested=True) if nested else batch.keys())
     inputs = {}
-    key = "mask" if video is None else (video, "mask")
-    if key in keys:
-        inputs["mask"] = batch[key]
+    for name in ("mask", "objects"):
+        key = name if video is None else (video, name)
+        if key in keys:
+            inputs[name] = batch[key]
     if "camera" in keys:
         inputs["camera"] = batch["camera"]
     return inputs
@@ -39,8 +41,9 @@ def video_inputs(batch: Any, video: str | None = None) -> dict[str, torch.Tensor
 class SurpriseModel(LightningModule, metaclass=ABCMeta):
     """Base of the package's video models. Subclasses implement ``surprise``,
     ``expected_frames`` and ``trajectories`` of uint8 videos ``frames`` [B, T, H, W, 3], given
-    optionally their object-id ``mask`` uint8 [B, T, H, W] (0 = background) and ``camera``
-    poses float [B, T, 6]; a model that needs neither accepts and ignores them (a subclass
+    optionally their object-id ``mask`` uint8 [B, T, H, W] (0 = background), ``camera``
+    poses float [B, T, 6] and ``objects``, the per-object states of ``specs.objects_spec``
+    (batched [B, T, K]); a model that needs none of them accepts and ignores them (a subclass
     missing one of the three cannot be built: ABCMeta). ``ARCHITECTURE``
     names the constructor arguments that shape the parameters, which a checkpoint must share;
     ``TRAINING_ONLY`` those that change only how it trains (optimizer, schedules), which
@@ -53,14 +56,14 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
     @abstractmethod
     def surprise(
         self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-        camera: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None, objects: TensorDictBase | None = None,
     ) -> torch.Tensor:
         """Per-frame surprise [B, T] (float32); a video's surprise is its sum over frames."""
 
     @abstractmethod
     def expected_frames(
         self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-        camera: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None, objects: TensorDictBase | None = None,
     ) -> torch.Tensor:
         """What the model expected each frame to be given the previous ones [B, T, 3, H, W]
         in [0, 1]."""
@@ -68,7 +71,7 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
     @abstractmethod
     def trajectories(
         self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-        camera: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None, objects: TensorDictBase | None = None,
     ) -> dict[str, torch.Tensor]:
         """Named time courses [B, T, D] of the model's state (the t-SNE figure draws them)."""
 

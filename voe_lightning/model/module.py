@@ -253,12 +253,13 @@ class VOEModel(SurpriseModel):
         frames: torch.Tensor,
         mask: torch.Tensor | None = None,
         camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
         deterministic: bool = True,
         generator: torch.Generator | None = None,
     ) -> torch.Tensor:
         """Per-frame surprise KL(posterior_t || prior_t) [B, T] (float32) of uint8 videos
         [B, T, H, W, 3]; deterministic (posterior means fed back) unless asked otherwise.
-        Pixels alone: ``mask`` and ``camera`` are ignored."""
+        Pixels alone: ``mask``, ``camera`` and ``objects`` are ignored."""
         x = self._model_input(frames)
         return self.rollout(x, deterministic=deterministic, generator=generator).kl
 
@@ -272,7 +273,7 @@ class VOEModel(SurpriseModel):
     @torch.no_grad()
     def expected_frames(
         self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-        camera: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None, objects: TensorDictBase | None = None,
     ) -> torch.Tensor:
         """What the model expected each frame to be given the previous ones (paper Figure 5):
         sigmoid(decoder(prior mean)) [B, T, 3, H, W], deterministic rollout (pixels alone)."""
@@ -282,7 +283,7 @@ class VOEModel(SurpriseModel):
     @torch.no_grad()
     def trajectories(
         self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-        camera: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None, objects: TensorDictBase | None = None,
     ) -> dict[str, torch.Tensor]:
         """Time courses for t-SNE (paper Appendix B): ``prior`` [B, T, 2Z] (mean then log-std)
         and ``memory`` [B, T, slots * units] after each step's write, deterministic rollout

@@ -245,7 +245,8 @@ class ObjectCentricModel(SurpriseModel):
 
     @torch.no_grad()
     def surprise(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                 camera: torch.Tensor | None = None) -> torch.Tensor:
+                 camera: torch.Tensor | None = None,
+                 objects: TensorDictBase | None = None) -> torch.Tensor:
         """Per-frame surprise [B, T] (float32), see the class docstring."""
         out = self._predict(frames, mask, camera)
         error = (out["predicted"] - out["codes"]).pow(2).sum(-1) * out["present"][:, None]
@@ -259,7 +260,8 @@ class ObjectCentricModel(SurpriseModel):
 
     @torch.no_grad()
     def expected_frames(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                        camera: torch.Tensor | None = None) -> torch.Tensor:
+                        camera: torch.Tensor | None = None,
+                 objects: TensorDictBase | None = None) -> torch.Tensor:
         """The decoded, composed predicted codes [B, T, 3, H, W] in [0, 1] (frame 0: the
         reconstruction of the first frame)."""
         out = self._predict(frames, mask, camera)
@@ -267,7 +269,8 @@ class ObjectCentricModel(SurpriseModel):
 
     @torch.no_grad()
     def trajectories(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                     camera: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+                     camera: torch.Tensor | None = None,
+                 objects: TensorDictBase | None = None) -> dict[str, torch.Tensor]:
         """``codes`` (perceived) and ``predicted`` [B, T, S * C], the slots' codes flattened
         per frame (padding slots zeroed)."""
         out = self._predict(frames, mask, camera)
