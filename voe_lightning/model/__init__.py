@@ -1,18 +1,22 @@
 """The video models behind one protocol (``SurpriseModel``): the VRNN-LRU (paper §4: LRU
 memory, encoder/decoder, recurrent core) and the object-centric model after PLATO (Piloto et
-al. 2022: object slots from masks, per-object perception, interaction-network slot dynamics)."""
+al. 2022: object slots from masks, per-object perception, interaction-network slot dynamics)
+and the positive control with perfect perception (``ObjectStateModel``: object states in, slot
+dynamics, the likelihood of what is seen as surprise)."""
 
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model.memory import LRUMemory, MemoryState, Read
 from voe_lightning.model.module import VOEModel
 from voe_lightning.model.networks import Decoder, Encoder
 from voe_lightning.model.object_centric import ObjectCentricModel
+from voe_lightning.model.object_state import ObjectStateModel
 from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, gaussian_kl, standard_normal_kl
 
 __all__ = [
     "SurpriseModel",
     "VOEModel",
     "ObjectCentricModel",
+    "ObjectStateModel",
     "LRUMemory",
     "MemoryState",
     "Read",

@@ -1,0 +1,404 @@
+"""The positive control: an object-state learner with perfect perception. It reads what a
+perfect 3D perception system would hand to physics (per frame, the states of the objects visible
+at that frame, ``specs.objects_spec``, hidden ones masked out, and the camera pose), learns their
+dynamics from the training clips, tracks hidden objects forward, and is surprised by the negative
+log-likelihood of what is then seen. If it cannot show VOE on a concept, the stimuli are wrong."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from tensordict import TensorDictBase
+from torch import nn
+
+from voe_lightning import specs
+from voe_lightning.model.base import SurpriseModel, video_inputs
+from voe_lightning.model.dynamics import CAMERA_FEATURES, camera_features, mlp
+from voe_lightning.scenes.base import FOVY
+
+#: The continuous state of an object that the model predicts: position (3), orientation (4),
+#: size (3), colour (3). A sphere's orientation cannot be seen, so it reads as the identity.
+STATE_SIZE = 13
+SHAPES = len(specs.OBJECT_SHAPES)
+SPHERE = specs.OBJECT_SHAPES.index("sphere")
+#: Per-slot features the recurrent core reads: the state, its shape (one-hot), its visible share,
+#: its camera coordinates (right, up, depth) and image-plane position, its velocity, visibility.
+FEATURES = STATE_SIZE + SHAPES + 1 + 3 + 2 + 3 + 1
+#: Pair features: relative world position, relative camera coordinates and image-plane offset of
+#: the other object, both sizes, the other's orientation and shape.
+PAIR_FEATURES = 3 + 3 + 2 + 3 + 3 + 4 + SHAPES
+LOG_2PI = math.log(2 * math.pi)
+
+#: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
+ARCHITECTURE = ("hidden_size", "message_size", "use_camera")
+
+
+@dataclass
+class Observations:
+    """What perfect perception reports of a batch of videos, over the ``slots`` mask ids any of
+    them shows: ``state`` [B, T, S, 13] and ``shape`` one-hot [B, T, S, 7] (zero where hidden),
+    ``fraction`` [B, T, S] visible share of the frame, ``visible`` bool [B, T, S]; ``camera``
+    [B, T, 6] poses."""
+
+    ids: torch.Tensor
+    state: torch.Tensor
+    shape: torch.Tensor
+    fraction: torch.Tensor
+    visible: torch.Tensor
+    camera: torch.Tensor
+
+
+def observe(objects: TensorDictBase, camera: torch.Tensor) -> Observations:
+    """The visible objects' states of batched ``objects`` (``specs.objects_spec`` [B, T, K]):
+    every state of an object is zeroed at the frames where it has no visible pixel, so nothing
+    hidden reaches the model. Only the mask ids some video of the batch shows become slots."""
+    visible_any = (objects["visible_fraction"] > 0).flatten(0, 1).any(0)
+    visible_any[0] = False  # the background
+    ids = visible_any.nonzero().flatten()
+    picked = {name: objects[name].index_select(2, ids) for name in objects.keys()}  # [B, T, S]
+    visible = picked["visible_fraction"] > 0
+    label = picked["shape_label"].long()
+    orientation = picked["orientation"].float()
+    orientation = orientation * torch.where(orientation[..., :1] < 0, -1.0, 1.0)  # w >= 0
+    identity = torch.tensor([1.0, 0.0, 0.0, 0.0], device=orientation.device)
+    orientation = torch.where((label == SPHERE)[..., None], identity, orientation)
+    state = torch.cat([picked["position"].float(), orientation, picked["size"].float(),
+                       picked["color"].float()], dim=-1)
+    keep = visible[..., None].float()
+    return Observations(
+        ids=ids,
+        state=state * keep,
+        shape=F.one_hot(label, SHAPES).float() * keep,
+        fraction=picked["visible_fraction"].float() * visible,
+        visible=visible,
+        camera=camera.float(),
+    )
+
+
+def camera_coordinates(position: torch.Tensor, camera: torch.Tensor) -> torch.Tensor:
+    """World points [B, S, 3] in the frame of MuJoCo's free camera at poses [B, 6]: offsets
+    along its right, up and forward (depth) axes [B, S, 3] (``scenes.base.camera_axes``)."""
+    azimuth, elevation = torch.deg2rad(camera[:, 4]), torch.deg2rad(camera[:, 5])
+    forward = torch.stack([elevation.cos() * azimuth.cos(), elevation.cos() * azimuth.sin(),
+                           elevation.sin()], dim=-1)
+    up = torch.stack([-elevation.sin() * azimuth.cos(), -elevation.sin() * azimuth.sin(),
+                      elevation.cos()], dim=-1)
+    right = torch.linalg.cross(forward, up)
+    eye = camera[:, :3] - camera[:, 3:4] * forward
+    offset = position - eye[:, None]
+    return torch.stack([(offset * axis[:, None]).sum(-1) for axis in (right, up, forward)], -1)
+
+
+def image_plane(coordinates: torch.Tensor) -> torch.Tensor:
+    """Camera coordinates [..., 3] -> image-plane position [..., 2] in units of the half
+    field of view (inside the image: both within [-1, 1])."""
+    depth = coordinates[..., 2:3].clamp(min=0.05)
+    return coordinates[..., :2] / depth / math.tan(math.radians(FOVY) / 2)
+
+
+def gaussian_nll(value: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
+    """-log N(value; mean, exp(log_std)^2), summed over the last dimension."""
+    z = (value - mean) * torch.exp(-log_std)
+    return (0.5 * z.pow(2) + log_std + 0.5 * LOG_2PI).sum(-1)
+
+
+class ObjectStateModel(SurpriseModel):
+    """Slot dynamics over perfectly perceived object states, the package's positive control.
+
+    Each mask id is a slot, created when the id is first seen (nothing earlier depends on it).
+    Per step t, from the slots' recurrent states after frame t-1 and their beliefs (the last
+    state seen, or, while hidden, the state predicted for them, so a hidden object is tracked
+    forward), the model predicts for every known slot its state at t (a Gaussian: mean = belief
+    + a predicted change, learned standard deviation; its shape as a categorical) and its
+    visibility at t (a Bernoulli, from its predicted camera coordinates and image position
+    against every other slot's: occlusion is learned). A context over the known slots predicts
+    whether a new object appears at t and, if so, its state. Then the frame's observations
+    update the beliefs and, through an interaction network over slot pairs, a GRU per slot.
+
+    Surprise at frame t (frame 0: 0) is the negative log-likelihood of what is seen at t: for
+    each known slot, the visibility term, plus where visible the state and shape terms; plus
+    the appearance term (whether some new object appears, and each newcomer's state and shape).
+    Training minimises the same quantity summed over the training clips' frames.
+
+    Args:
+        hidden_size: recurrent state per slot and width of the MLPs.
+        message_size: size of the summed pair messages.
+        use_camera: the core and visibility read the camera pose; without it, camera
+            coordinates are taken from a fixed default pose.
+        min_std: floor of the predicted standard deviations (metres for positions): the
+            precision of a perfect perception system.
+        learning_rate: Adam.
+        training_frames: frames per training clip, recorded from the training batches.
+    """
+
+    ARCHITECTURE = ARCHITECTURE
+    TRAINING_ONLY = ("learning_rate",)
+    SURPRISE = ("the negative log-likelihood of the seen object states (visibility, state and "
+                "shape of every known object, and any newcomer's appearance)")
+
+    def __init__(
+        self,
+        hidden_size: int = 128,
+        message_size: int = 64,
+        use_camera: bool = True,
+        min_std: float = 0.01,
+        learning_rate: float = 1e-3,
+        training_frames: int | None = None,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        if hidden_size < 1 or message_size < 1:
+            raise ValueError(f"hidden_size and message_size must be >= 1, got {hidden_size}, "
+                             f"{message_size}")
+        if min_std <= 0 or learning_rate <= 0:
+            raise ValueError(f"min_std and learning_rate must be > 0, got {min_std}, "
+                             f"{learning_rate}")
+        hidden, message = hidden_size, message_size
+        self.message = mlp([2 * hidden + PAIR_FEATURES, hidden, message])
+        self.update = nn.GRUCell(FEATURES + message + CAMERA_FEATURES, hidden)
+        self.dynamics = mlp([hidden + message + CAMERA_FEATURES, hidden, hidden,
+                             2 * STATE_SIZE + SHAPES])
+        self.occlusion = mlp([hidden + PAIR_FEATURES, hidden, message])
+        self.visibility = mlp([hidden + message + 3 + 2 + 3 + CAMERA_FEATURES, hidden, 1])
+        self.appearance = mlp([hidden + CAMERA_FEATURES, hidden, 1 + 2 * STATE_SIZE + SHAPES])
+        self.log_min_std = math.log(min_std)
+
+    # ----------------------------------------------------------------------------- inputs
+    def _inputs(self, frames: torch.Tensor, objects: TensorDictBase | None,
+                camera: torch.Tensor | None) -> Observations:
+        if objects is None:
+            raise ValueError(
+                "the object-state model (the positive control) reads each video's object "
+                f"states (batch key 'objects', specs.objects_spec), but a batch of "
+                f"{tuple(frames.shape[:2])} videos came without them; use the package's "
+                "generated records (GENERATOR_VERSION 3 or later)")
+        steps = frames.shape[1]
+        if camera is None or not self.hparams.use_camera:
+            camera = torch.tensor([0.0, 0.0, 0.4, 4.0, 90.0, -20.0], device=self.device)
+            camera = camera.expand(frames.shape[0], steps, 6)
+        return observe(objects.to(self.device), camera.to(self.device))
+
+    # ----------------------------------------------------------------------------- core
+    def _pairs(self, state: torch.Tensor, shape: torch.Tensor, coordinates: torch.Tensor
+               ) -> torch.Tensor:
+        """Pair features [B, S_i, S_j, PAIR_FEATURES] of slot j seen from slot i."""
+        def other_minus_self(values):
+            return values[:, None, :] - values[:, :, None]
+        slots = state.shape[1]
+        position, orientation, size = state[..., :3], state[..., 3:7], state[..., 7:10]
+        return torch.cat([
+            other_minus_self(position),
+            other_minus_self(coordinates),
+            other_minus_self(image_plane(coordinates)),
+            size[:, None].expand(-1, slots, -1, -1),
+            size[:, :, None].expand(-1, -1, slots, -1),
+            orientation[:, None].expand(-1, slots, -1, -1),
+            shape[:, None].expand(-1, slots, -1, -1),
+        ], dim=-1)
+
+    @staticmethod
+    def _pair_weight(known: torch.Tensor) -> torch.Tensor:
+        """1 for pairs (i, j) of known slots with j != i [B, S, S, 1]."""
+        weight = known[:, None, :] & known[:, :, None]
+        eye = torch.eye(known.shape[1], dtype=torch.bool, device=known.device)
+        return (weight & ~eye).float()[..., None]
+
+    def _messages(self, network: nn.Module, own: torch.Tensor, other: torch.Tensor | None,
+                  pairs: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
+        """Sum over the other known slots j of network([own_i, (other_j), pair_ij])."""
+        slots = own.shape[1]
+        parts = [own[:, :, None].expand(-1, -1, slots, -1)]
+        if other is not None:
+            parts.append(other[:, None].expand(-1, slots, -1, -1))
+        return (network(torch.cat([*parts, pairs], dim=-1)) * self._pair_weight(known)).sum(2)
+
+    def rollout(self, observations: Observations) -> dict[str, torch.Tensor]:
+        """Run the slots through a batch's frames. Returns per frame and slot [B, T, S] the
+        visibility, state and shape terms of the NLL (0 where they do not apply), ``appear``
+        [B, T] (the appearance term), the beliefs [B, T, S, 13], the predicted visibility
+        probability [B, T, S], ``known`` [B, T, S] (seen at some frame <= t) and the slots'
+        recurrent states [B, T, S, H]."""
+        obs = observations
+        batch, steps, slots = obs.visible.shape
+        hidden_size = self.hparams.hidden_size
+        hidden = obs.state.new_zeros(batch, slots, hidden_size)
+        belief = obs.state.new_zeros(batch, slots, STATE_SIZE)
+        shape = obs.state.new_zeros(batch, slots, SHAPES)
+        known = torch.zeros(batch, slots, dtype=torch.bool, device=obs.state.device)
+        zeros = obs.state.new_zeros(batch, slots)
+        terms = {name: [] for name in ("visibility", "state", "shape")}
+        appear, beliefs, probability, knowns, states = [], [], [], [], []
+        min_std = self.log_min_std
+        for t in range(steps):
+            pose = obs.camera[:, t]
+            pose_features = camera_features(pose)[:, None].expand(-1, slots, -1)
+            visible = obs.visible[:, t]
+            new = visible & ~known
+            if t == 0:
+                predicted, appear_t = belief, obs.state.new_zeros(batch)
+                for name in terms:
+                    terms[name].append(zeros)
+                probability.append(zeros)
+            else:
+                coordinates = camera_coordinates(belief[..., :3], pose)
+                pairs = self._pairs(belief, shape, coordinates)
+                message = self._messages(self.message, hidden, hidden, pairs, known)
+                out = self.dynamics(torch.cat([hidden, message, pose_features], dim=-1))
+                change, log_std, shape_logits = out.split([STATE_SIZE, STATE_SIZE, SHAPES], -1)
+                predicted = belief + change
+                log_std = min_std + F.softplus(log_std - min_std)
+                # visibility at t from where every known slot is predicted to be at t
+                coordinates = camera_coordinates(predicted[..., :3], pose)
+                pairs = self._pairs(predicted, shape, coordinates)
+                occluders = self._messages(self.occlusion, hidden, None, pairs, known)
+                logit = self.visibility(torch.cat(
+                    [hidden, occluders, coordinates, image_plane(coordinates), predicted[..., 7:10],
+                     pose_features], dim=-1)).squeeze(-1)
+                seen = visible.float()
+                keep = known.float()
+                terms["visibility"].append(
+                    F.binary_cross_entropy_with_logits(logit, seen, reduction="none") * keep)
+                terms["state"].append(
+                    gaussian_nll(obs.state[:, t], predicted, log_std) * seen * keep)
+                label = obs.shape[:, t].argmax(-1)
+                terms["shape"].append(F.cross_entropy(
+                    shape_logits.flatten(0, 1), label.flatten(), reduction="none"
+                ).view(batch, slots) * seen * keep)
+                probability.append(torch.sigmoid(logit) * keep)
+                appear_t = self._appearance(hidden, known, pose, new, obs.state[:, t],
+                                            obs.shape[:, t])
+            appear.append(appear_t)
+            # observe frame t: seen slots take what is seen, hidden ones their prediction
+            previous = belief
+            belief = torch.where(visible[..., None], obs.state[:, t], predicted)
+            moved = (known & ~new)[..., None].float()  # known before t: a velocity
+            velocity = (belief[..., :3] - previous[..., :3]) * moved
+            shape = torch.where(visible[..., None], obs.shape[:, t], shape)
+            known = known | visible
+            coordinates = camera_coordinates(belief[..., :3], pose)
+            features = torch.cat([belief, shape, obs.fraction[:, t, :, None], coordinates,
+                                  image_plane(coordinates), velocity,
+                                  visible[..., None].float()], dim=-1)
+            pairs = self._pairs(belief, shape, coordinates)
+            message = self._messages(self.message, hidden, hidden, pairs, known)
+            step_input = torch.cat([features, message, pose_features], dim=-1)
+            hidden = self.update(step_input.flatten(0, 1), hidden.flatten(0, 1)).view_as(hidden)
+            hidden = hidden * known[..., None]
+            belief = belief * known[..., None]
+            beliefs.append(belief)
+            knowns.append(known)
+            states.append(hidden)
+        return {
+            **{name: torch.stack(values, dim=1) for name, values in terms.items()},
+            "appear": torch.stack(appear, dim=1),
+            "belief": torch.stack(beliefs, dim=1),
+            "visible_probability": torch.stack(probability, dim=1),
+            "known": torch.stack(knowns, dim=1),
+            "hidden": torch.stack(states, dim=1),
+        }
+
+    def _appearance(self, hidden: torch.Tensor, known: torch.Tensor, pose: torch.Tensor,
+                    new: torch.Tensor, state: torch.Tensor, shape: torch.Tensor) -> torch.Tensor:
+        """-log p(which objects appear at t) [B]: a Bernoulli of whether any new object
+        appears, given the mean state of the known slots and the pose, plus each newcomer's
+        state (Gaussian) and shape (categorical)."""
+        weight = known.float()[..., None]
+        context = (hidden * weight).sum(1) / weight.sum(1).clamp(min=1)
+        out = self.appearance(torch.cat([context, camera_features(pose)], dim=-1))
+        logit, mean, log_std, shape_logits = out.split([1, STATE_SIZE, STATE_SIZE, SHAPES], -1)
+        log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
+        any_new = new.any(-1).float()
+        term = F.binary_cross_entropy_with_logits(logit.squeeze(-1), any_new, reduction="none")
+        newcomer = gaussian_nll(state, mean[:, None], log_std[:, None])
+        newcomer = newcomer - (F.log_softmax(shape_logits, -1)[:, None] * shape).sum(-1)
+        return term + (newcomer * new.float()).sum(-1)
+
+    def _per_frame(self, out: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The NLL of each frame [B, T]: every slot's terms plus the appearance term."""
+        return (out["visibility"] + out["state"] + out["shape"]).sum(-1) + out["appear"]
+
+    # ----------------------------------------------------------------------------- training
+    def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
+        frames = self._frames_of(batch)
+        inputs = video_inputs(batch)
+        out = self.rollout(self._inputs(frames, inputs.get("objects"), inputs.get("camera")))
+        clips = frames.shape[0]
+        terms = {name: out[name].sum() / clips
+                 for name in ("visibility", "state", "shape", "appear")}
+        terms["loss"] = sum(terms.values())
+        self._check_finite(terms)
+        self.log("train/loss", terms["loss"], prog_bar=True, batch_size=clips)
+        for name, value in terms.items():
+            if name != "loss":
+                self.log(f"train/{name}", value, batch_size=clips)
+        return terms["loss"]
+
+    def configure_optimizers(self) -> torch.optim.Optimizer:
+        return torch.optim.Adam(self.parameters(), lr=self.hparams.learning_rate)
+
+    # ----------------------------------------------------------------------------- protocol
+    @torch.no_grad()
+    def surprise(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+                 camera: torch.Tensor | None = None,
+                 objects: TensorDictBase | None = None) -> torch.Tensor:
+        """Per-frame surprise [B, T] (float32): the NLL of what is seen (class docstring)."""
+        out = self.rollout(self._inputs(frames, objects, camera))
+        return self._per_frame(out).float()
+
+    @torch.no_grad()
+    def expected_frames(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+                        camera: torch.Tensor | None = None,
+                        objects: TensorDictBase | None = None) -> torch.Tensor:
+        """What the model expected [B, T, 3, H, W]: each known slot's expected state drawn as a
+        disc of its colour at its projected position and size, as opaque as the predicted
+        probability that it is seen (frame 0: what is seen), nearer objects over farther."""
+        observations = self._inputs(frames, objects, camera)
+        out = self.rollout(observations)
+        belief = torch.cat([out["belief"][:, :1], out["belief"][:, :-1]], dim=1)
+        opacity = torch.cat([observations.visible[:, :1].float(),
+                             out["visible_probability"][:, 1:]], dim=1)
+        return draw_discs(belief, opacity, observations.camera, frames.shape[2:4])
+
+    @torch.no_grad()
+    def trajectories(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+                     camera: torch.Tensor | None = None,
+                     objects: TensorDictBase | None = None) -> dict[str, torch.Tensor]:
+        """``slots`` [B, T, H]: the mean recurrent state of the known slots at each frame."""
+        out = self.rollout(self._inputs(frames, objects, camera))
+        weight = out["known"].float()[..., None]
+        return {"slots": (out["hidden"] * weight).sum(2) / weight.sum(2).clamp(min=1)}
+
+
+def draw_discs(state: torch.Tensor, opacity: torch.Tensor, camera: torch.Tensor,
+               image_size: tuple[int, int]) -> torch.Tensor:
+    """Object states [B, T, S, 13] drawn as discs of their colour on grey [B, T, 3, H, W]:
+    centre at the projected position, radius from the largest half-extent over the depth,
+    ``opacity`` [B, T, S] in [0, 1], painted far to near."""
+    batch, steps, slots = state.shape[:3]
+    height, width = image_size
+    coordinates = camera_coordinates(state.flatten(0, 1)[..., :3], camera.flatten(0, 1))
+    coordinates = coordinates.view(batch, steps, slots, 3)
+    plane = image_plane(coordinates)  # [-1, 1] across the field of view
+    focal = height / 2
+    column = width / 2 + plane[..., 0] * focal
+    row = height / 2 - plane[..., 1] * focal
+    radius = state[..., 7:10].amax(-1) / coordinates[..., 2].clamp(min=0.05)
+    radius = radius / math.tan(math.radians(FOVY) / 2) * focal
+    rows = torch.arange(height, device=state.device, dtype=torch.float32) + 0.5
+    columns = torch.arange(width, device=state.device, dtype=torch.float32) + 0.5
+    image = torch.full((batch, steps, 3, height, width), 0.5, device=state.device)
+    order = coordinates[..., 2].argsort(dim=-1, descending=True)
+    for index in range(slots):
+        slot = order[..., index]  # [B, T]: the farthest remaining slot of each frame
+        def take(values):
+            return values.gather(2, slot[..., None]).squeeze(2)
+        inside = ((rows[:, None] - take(row)[..., None, None]).pow(2)
+                  + (columns[None] - take(column)[..., None, None]).pow(2)
+                  <= take(radius)[..., None, None].pow(2)).float()
+        alpha = (inside * take(opacity)[..., None, None])[:, :, None]
+        colour = state.gather(2, slot[..., None, None].expand(-1, -1, 1, STATE_SIZE))[:, :, 0]
+        image = image * (1 - alpha) + colour[..., 10:13, None, None] * alpha
+    return image.clamp(0, 1)
