@@ -47,9 +47,20 @@ def test_slots_follow_ids_and_keep_an_occluded_object():
     _, mask, _ = _video()
     slots = object_slots(mask, num_slots=4)
     assert slots.ids[0].tolist() == [0, 3, 5, 0, 0]
-    assert slots.present[0].tolist() == [True, True, True, False, False]
+    assert slots.seen[0].tolist() == [[True, True, True, False, False]] * T
     assert slots.masks[0, 2, 2].sum() == 0 and slots.masks[0, 1, 2].sum() > 0  # hidden, kept
     assert torch.equal(slots.masks.sum(2), torch.ones(B, T, 32, 32))  # a partition of pixels
+
+
+def test_a_slot_is_created_when_its_id_is_first_seen():
+    """An id first seen at frame 3 takes the next free slot then, though it is smaller than
+    the ids seen before it, and counts as seen from frame 3 on only."""
+    _, mask, _ = _video()
+    mask[:, 3:, 26:31, 20:25] = 2
+    slots = object_slots(mask, num_slots=4)
+    assert slots.ids[0].tolist() == [0, 3, 5, 2, 0]
+    assert slots.seen[0, :, 3].tolist() == [False] * 3 + [True] * (T - 3)
+    assert not slots.seen[0, :, 4].any()
 
 
 def test_shapes_and_each_stage_trains_only_its_networks():

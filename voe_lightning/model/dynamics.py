@@ -34,8 +34,10 @@ class SlotDynamics(nn.Module):
 
     Per step t and slot i, with LSTM state h_i, current code z_i and buffer summary b_i
     (attention of a query from h_i over slot i's codes z_i,<t):
-    relation e_ij = MLP_rel([h_i, z_i, b_i, h_j, z_j, b_j]) summed over the other present
-    slots j; node input MLP_node([h_i, z_i, b_i, sum_j e_ij, camera]) -> LSTM -> h_i';
+    relation e_ij = MLP_rel([h_i, z_i, b_i, h_j, z_j, b_j]) summed over the other slots j seen
+    by step t (a slot not yet seen neither sends nor receives messages, like a padding slot, so
+    an object first seen later changes no earlier step);
+    node input MLP_node([h_i, z_i, b_i, sum_j e_ij, camera]) -> LSTM -> h_i';
     prediction z_i,t+1 = z_i + Linear(h_i') (the change of code is predicted).
 
     Args:
@@ -82,10 +84,11 @@ class SlotDynamics(nn.Module):
         return torch.einsum("bst,bstc->bsc", weights, codes)
 
     def forward(
-        self, codes: torch.Tensor, present: torch.Tensor, camera: torch.Tensor | None = None
+        self, codes: torch.Tensor, seen: torch.Tensor, camera: torch.Tensor | None = None
     ) -> torch.Tensor:
-        """Codes [B, T, S, C] and presence [B, S] (padding slots False) -> predictions
-        [B, T, S, C], where prediction t is the code expected at t + 1 from codes <= t."""
+        """Codes [B, T, S, C] and whether each slot was seen by each step [B, T, S] (padding
+        slots never) -> predictions [B, T, S, C], where prediction t is the code expected at
+        t + 1 from codes <= t (and the camera pose of t + 1)."""
         batch, steps, slots, _ = codes.shape
         if self.use_camera and camera is None:
             raise ValueError("use_camera is set but no camera pose was given (batch key "
@@ -93,8 +96,8 @@ class SlotDynamics(nn.Module):
                              "needs a model trained with use_camera: false")
         hidden = codes.new_zeros(batch * slots, self.state_size)
         cell = torch.zeros_like(hidden)
-        weight = present.float()  # [B, S]
-        pair_weight = weight[:, None, :] * weight[:, :, None]
+        weight = seen.float()  # [B, T, S]
+        pair_weight = weight[:, :, None, :] * weight[:, :, :, None]  # [B, T, S_i, S_j]
         pair_weight = pair_weight * (1 - torch.eye(slots, device=codes.device))  # j != i
         buffer: list[torch.Tensor] = []
         predictions = []
@@ -106,7 +109,7 @@ class SlotDynamics(nn.Module):
             if self.relation is not None:
                 pairs = torch.cat([node[:, :, None].expand(-1, -1, slots, -1),
                                    node[:, None, :].expand(-1, slots, -1, -1)], dim=-1)
-                messages = self.relation(pairs) * pair_weight[..., None]  # [B, S_i, S_j, R]
+                messages = self.relation(pairs) * pair_weight[:, t, ..., None]  # [B, Si, Sj, R]
                 inputs.append(messages.sum(dim=2))
             if self.use_camera:
                 pose = camera[:, min(t + 1, steps - 1)]  # the pose of the frame predicted

@@ -42,7 +42,10 @@ class ObjectCentricModel(SurpriseModel):
     and only the dynamics train (squared error of the predicted codes). Parameters of the
     inactive stage get no gradient, so Adam leaves them untouched.
 
-    Surprise at frame t: the squared error, summed over the present slots, between the code
+    Slots are created causally, when their id is first seen (``slots.Slots``): surprise at
+    frame t depends on the frames, masks and camera poses up to t only (DESIGN.md §5).
+
+    Surprise at frame t: the squared error, summed over the slots seen by t, between the code
     predicted from frames < t and the code perceived at t (frame 0: 0), plus
     ``pixel_surprise_weight`` times the squared pixel error of the decoded prediction.
 
@@ -78,7 +81,7 @@ class ObjectCentricModel(SurpriseModel):
 
     ARCHITECTURE = ARCHITECTURE
     TRAINING_ONLY = ("learning_rate", "perception_steps")
-    SURPRISE = "the squared error of the predicted object codes (summed over present slots)"
+    SURPRISE = "the squared error of the predicted object codes (summed over the slots seen)"
 
     def __init__(
         self,
@@ -138,13 +141,13 @@ class ObjectCentricModel(SurpriseModel):
         mean, log_std = self.perception.encode(x.flatten(0, 1), slots.masks.flatten(0, 1))
         return mean.unflatten(0, (batch, steps)), log_std.unflatten(0, (batch, steps))
 
-    def render(self, codes: torch.Tensor, present: torch.Tensor
+    def render(self, codes: torch.Tensor, seen: torch.Tensor
                ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Codes [B, T, S, C] -> composed frames [B, T, 3, H, W] and log composition weights
-        [B, T, S, H, W]."""
+        """Codes [B, T, S, C] -> frames [B, T, 3, H, W] composed of the slots seen by each
+        frame (``seen`` [B, T, S]) and log composition weights [B, T, S, H, W]."""
         batch, steps, slots = codes.shape[:3]
         rgb, logits = self.perception.decode(codes.flatten(0, 1))
-        frame, log_weights = compose(rgb, logits, present.repeat_interleave(steps, dim=0))
+        frame, log_weights = compose(rgb, logits, seen.flatten(0, 1))
         return (frame.view(batch, steps, *frame.shape[1:]),
                 log_weights.view(batch, steps, slots, *log_weights.shape[2:]))
 
@@ -156,9 +159,9 @@ class ObjectCentricModel(SurpriseModel):
         slots = self.slots(frames, mask)
         codes, _ = self.perceive(x, slots)
         camera = camera.to(self.device) if camera is not None else None
-        predicted = self.dynamics(codes, slots.present, camera)
+        predicted = self.dynamics(codes, slots.seen, camera)
         aligned = torch.cat([codes[:, :1], predicted[:, :-1]], dim=1)
-        return {"x": x, "codes": codes, "predicted": aligned, "present": slots.present}
+        return {"x": x, "codes": codes, "predicted": aligned, "seen": slots.seen}
 
     # ----------------------------------------------------------------------------- training
     @property
@@ -170,7 +173,7 @@ class ObjectCentricModel(SurpriseModel):
         """Perception loss per clip (mean over the batch), on ``perception_frames`` of its
         frames: reconstruction = sum over frames and pixels of the squared error of the
         composed frame; mask = cross-entropy of the composition weights against the true slot
-        masks; kl = kl_weight * KL of the present slots' codes to N(0, I) (VAE only)."""
+        masks; kl = kl_weight * KL of the seen slots' codes to N(0, I) (VAE only)."""
         frames, mask = self._frames_of(batch), video_inputs(batch).get("mask")
         seeds = _seeds(batch)
         chosen = self.hparams.perception_frames
@@ -185,13 +188,13 @@ class ObjectCentricModel(SurpriseModel):
         codes = mean
         if self.hparams.variational:
             codes = mean + log_std.exp() * torch.randn_like(mean)
-        composed, log_weights = self.render(codes, slots.present)
+        composed, log_weights = self.render(codes, slots.seen)
         clips = x.shape[0]
         reconstruction = (composed - x).pow(2).sum() / clips
         seen = slots.masks > 0
         mask = -torch.where(seen, log_weights, torch.zeros_like(log_weights)).sum() / clips
-        present = slots.present[:, None, :, None].float()
-        kl = 0.5 * (mean.pow(2) + (2 * log_std).exp() - 1 - 2 * log_std) * present
+        kl = 0.5 * (mean.pow(2) + (2 * log_std).exp() - 1 - 2 * log_std)
+        kl = kl * slots.seen[..., None]
         kl = self.hparams.kl_weight * kl.sum() / clips
         if not self.hparams.variational:
             kl = torch.zeros_like(kl)
@@ -201,7 +204,8 @@ class ObjectCentricModel(SurpriseModel):
 
     def dynamics_terms(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """Dynamics loss per clip: squared error of the predicted codes (frames 1..T-1) against
-        the frozen perception's codes, summed over present slots (mean over the batch)."""
+        the frozen perception's codes, summed over the slots seen by the predicted frame (mean
+        over the batch)."""
         frames = self._frames_of(batch)
         inputs = video_inputs(batch)
         x = self._model_input(frames, self.image_size)
@@ -209,8 +213,8 @@ class ObjectCentricModel(SurpriseModel):
         with torch.no_grad():
             codes, _ = self.perceive(x, slots)
         camera = inputs["camera"].to(self.device) if "camera" in inputs else None
-        predicted = self.dynamics(codes, slots.present, camera)
-        error = (predicted[:, :-1] - codes[:, 1:]).pow(2).sum(-1) * slots.present[:, None]
+        predicted = self.dynamics(codes, slots.seen, camera)
+        error = (predicted[:, :-1] - codes[:, 1:]).pow(2).sum(-1) * slots.seen[:, 1:]
         prediction = error.sum() / x.shape[0]
         return {"loss": prediction, "prediction": prediction}
 
@@ -249,10 +253,10 @@ class ObjectCentricModel(SurpriseModel):
                  objects: TensorDictBase | None = None) -> torch.Tensor:
         """Per-frame surprise [B, T] (float32), see the class docstring."""
         out = self._predict(frames, mask, camera)
-        error = (out["predicted"] - out["codes"]).pow(2).sum(-1) * out["present"][:, None]
+        error = (out["predicted"] - out["codes"]).pow(2).sum(-1) * out["seen"]
         surprise = error.sum(-1)
         if self.hparams.pixel_surprise_weight:
-            expected, _ = self.render(out["predicted"], out["present"])
+            expected, _ = self.render(out["predicted"], out["seen"])
             pixels = (expected - out["x"]).pow(2).sum(dim=(2, 3, 4))
             surprise = surprise + self.hparams.pixel_surprise_weight * pixels
         surprise[:, 0] = 0.0
@@ -265,16 +269,16 @@ class ObjectCentricModel(SurpriseModel):
         """The decoded, composed predicted codes [B, T, 3, H, W] in [0, 1] (frame 0: the
         reconstruction of the first frame)."""
         out = self._predict(frames, mask, camera)
-        return self.render(out["predicted"], out["present"])[0]
+        return self.render(out["predicted"], out["seen"])[0]
 
     @torch.no_grad()
     def trajectories(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
                      camera: torch.Tensor | None = None,
                  objects: TensorDictBase | None = None) -> dict[str, torch.Tensor]:
         """``codes`` (perceived) and ``predicted`` [B, T, S * C], the slots' codes flattened
-        per frame (padding slots zeroed)."""
+        per frame (slots not yet seen and padding slots zeroed)."""
         out = self._predict(frames, mask, camera)
-        keep = out["present"][:, None, :, None].float()
+        keep = out["seen"][..., None].float()
         return {"codes": (out["codes"] * keep).flatten(2),
                 "predicted": (out["predicted"] * keep).flatten(2)}
 

@@ -16,11 +16,14 @@ MAX_MASK_JUMP = 0.5
 
 @dataclass
 class Slots:
-    """Slot 0 is the background (mask id 0, always present); slots 1..K hold the object ids
-    present anywhere in the video in increasing order, then padding (id 0, not present)."""
+    """Slot 0 is the background (mask id 0, seen in every frame); slots 1..K hold the video's
+    object ids in the order they are first seen (ids first seen in the same frame in increasing
+    order), then padding (id 0, never seen). A slot is created when its id is first seen:
+    before that frame it is not ``seen``, exactly like a padding slot, so an id that first
+    appears at frame f changes nothing the model computes for frames before f."""
 
     ids: torch.Tensor  # int64 [B, K + 1]
-    present: torch.Tensor  # bool [B, K + 1]
+    seen: torch.Tensor  # bool [B, T, K + 1], whether the slot's id was seen at frames <= t
     masks: torch.Tensor  # float32 [B, T, K + 1, H, W], 1 where the slot's object is seen
 
 
@@ -51,15 +54,16 @@ def require_mask(
 def object_slots(mask: torch.Tensor, num_slots: int, seeds: torch.Tensor | None = None,
                  max_jump: float | None = MAX_MASK_JUMP) -> Slots:
     """Assign the ids of ``mask`` uint8 [B, T, H, W] to ``num_slots`` object slots plus the
-    background slot. An id keeps its slot for the whole video: an object that vanishes (say,
-    behind an occluder) and reappears has an empty mask while hidden, never a new slot. More
-    ids than slots, an id that jumps more than ``max_jump`` of the frame diagonal between two
-    frames (``refuse_jumps``; None: no check, as for a sample of a clip's frames), or a batch
-    with no object at all, is refused naming the video."""
-    batch = mask.shape[0]
+    background slot, causally (see ``Slots``). An id keeps its slot from the frame it is first
+    seen to the end of the video: an object that vanishes (say, behind an occluder) and
+    reappears has an empty mask while hidden, never a new slot. More ids than slots, an id that
+    jumps more than ``max_jump`` of the frame diagonal between two frames (``refuse_jumps``;
+    None: no check, as for a sample of a clip's frames), or a batch with no object at all, is
+    refused naming the video."""
+    batch, steps = mask.shape[:2]
     ids = torch.zeros(batch, num_slots + 1, dtype=torch.int64, device=mask.device)
-    present = torch.zeros(batch, num_slots + 1, dtype=torch.bool, device=mask.device)
-    present[:, 0] = True
+    first = torch.full((batch, num_slots + 1), steps, dtype=torch.int64, device=mask.device)
+    first[:, 0] = 0
     for index in range(batch):
         found = torch.unique(mask[index])
         found = found[found != 0]
@@ -74,19 +78,24 @@ def object_slots(mask: torch.Tensor, num_slots: int, seeds: torch.Tensor | None 
                 f"{video_name(index, seeds)} shows {found.numel()} objects (mask ids "
                 f"{found.tolist()}), more than num_slots={num_slots}; {hint}"
             )
-        ids[index, 1 : 1 + found.numel()] = found.long()
-        present[index, 1 : 1 + found.numel()] = True
-    if not bool(present[:, 1:].any()):
+        shown = (mask[index, :, None] == found[None, :, None, None]).flatten(2).any(-1)  # [T, K]
+        appears = shown.int().argmax(0)  # the first frame that shows each id
+        appears, order = torch.sort(appears, stable=True)  # ties keep increasing ids
+        ids[index, 1 : 1 + found.numel()] = found[order].long()
+        first[index, 1 : 1 + found.numel()] = appears
+    if not bool((first[:, 1:] < steps).any()):
         raise ValueError(
             f"no video of the batch shows an object (every mask is 0, e.g. "
             f"{video_name(0, seeds)}): the object-centric model needs segmentation masks "
             "(IntPhys records carry zero masks); use the object-free twin (object_free: true)"
         )
+    frame = torch.arange(steps, device=mask.device)
+    seen = frame[None, :, None] >= first[:, None, :]  # [B, T, K + 1]
     masks = mask.long()[:, :, None] == ids[:, None, :, None, None]  # [B, T, K + 1, H, W]
-    masks[:, :, 1:] &= present[:, None, 1:, None, None]  # padding slots see nothing
+    masks &= seen[..., None, None]  # padding slots (id 0) see nothing
     if max_jump is not None:
         refuse_jumps(masks[:, :, 1:], ids[:, 1:], seeds, max_jump)
-    return Slots(ids=ids, present=present, masks=masks.float())
+    return Slots(ids=ids, seen=seen, masks=masks.float())
 
 
 def centroid_moves(masks: torch.Tensor) -> torch.Tensor:
@@ -121,11 +130,11 @@ def refuse_jumps(masks: torch.Tensor, ids: torch.Tensor, seeds: torch.Tensor | N
 
 
 def whole_frame_slot(frames: torch.Tensor) -> Slots:
-    """The object-free twin's single slot: the whole frame, always present."""
+    """The object-free twin's single slot: the whole frame, seen in every frame."""
     batch, steps, height, width = frames.shape[:4]
     device = frames.device
     return Slots(
         ids=torch.zeros(batch, 1, dtype=torch.int64, device=device),
-        present=torch.ones(batch, 1, dtype=torch.bool, device=device),
+        seen=torch.ones(batch, steps, 1, dtype=torch.bool, device=device),
         masks=torch.ones(batch, steps, 1, height, width, device=device),
     )

@@ -1,0 +1,141 @@
+"""Causality is part of the model protocol (DESIGN.md §5): a model's surprise at frame t may
+depend only on the frames, masks, camera poses and object states up to t. Every
+``SurpriseModel`` family the package ships runs through two checks: on generated probe pairs,
+whose two videos are byte-identical through the manipulation frame, per-frame surprise is
+identical there; and on a random video, truncating or altering everything after frame t leaves
+surprise up to t unchanged. A family that failed could read the answer from the future (an id
+that first appears later, a slot count, a normalisation over the whole video)."""
+
+import pytest
+import torch
+from tensordict import TensorDict
+
+from voe_lightning import specs
+from voe_lightning.model import ObjectCentricModel, SurpriseModel, VOEModel
+from voe_lightning.scenes import CONCEPTS, PROBE_VARIANTS, generate_probe
+
+SIZE = 32
+SEEDS = (0, 1)
+TOLERANCE = 1e-6
+# float32: bf16 kernels may round identical rows of a batch apart (3e-8 on one pair here, on
+# an AVX-512 EPYC), which is no information from the future but could pass 1e-6 elsewhere.
+VRNN = dict(image_size=(SIZE, SIZE), latent_size=8, mlp_sizes=(16, 16), memory_slots=5,
+            memory_slot_size=6, memory_read_heads=2, controller_size=12, encoder_blocks=3,
+            encoder_channels=(4, 4, 8), encoder_mlp_size=20, precision="float32")
+# Ten object slots: the generalization variants show up to nine objects in one video.
+OBJECT_CENTRIC = dict(image_size=(SIZE, SIZE), num_slots=10, code_size=8,
+                      encoder_channels=(8, 8), state_size=16, relation_sizes=(16,),
+                      node_sizes=(16,), relation_size=16)
+
+#: Every model family the package ships, untrained and tiny: one line adds a family.
+FAMILIES = [
+    pytest.param(lambda: VOEModel(**VRNN), id="vrnn_lru"),
+    pytest.param(lambda: ObjectCentricModel(**OBJECT_CENTRIC), id="object_centric"),
+    pytest.param(lambda: ObjectCentricModel(**OBJECT_CENTRIC, object_free=True),
+                 id="object_free"),
+]
+
+
+def _build(family) -> SurpriseModel:
+    """The family's model with fixed initial weights, in eval mode."""
+    torch.manual_seed(0)
+    return family().eval()
+
+
+@pytest.fixture(scope="module")
+def probes() -> TensorDict:
+    """A probe pair of every concept, variant and seed of ``SEEDS``, stacked into one batch
+    (the generator's records as they are: masks, camera, and object states when they carry
+    them)."""
+    records = [generate_probe(concept, variant, seed, height=SIZE, width=SIZE)
+               for concept in CONCEPTS for variant in PROBE_VARIANTS[concept] for seed in SEEDS]
+    return torch.stack(records)
+
+
+def _names(probes: TensorDict) -> list[str]:
+    return [f"{specs.CONCEPTS[int(concept)]}/{specs.VARIANTS[int(variant)]}/seed {int(seed)}"
+            for concept, variant, seed in zip(probes["concept"], probes["variant"],
+                                              probes["seed"])]
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_surprise_is_identical_through_the_manipulation_frame_of_every_probe(family, probes):
+    """The probe step scores both videos of each pair from the pair's own masks, camera and
+    object states; through the manipulation frame they are byte-identical, so is surprise."""
+    out = _build(family).probe_step(probes)
+    differences = {}
+    for index, name in enumerate(_names(probes)):
+        seen = int(probes["manipulation_frame"][index]) + 1
+        consistent, inconsistent = probes["consistent"][index], probes["inconsistent"][index]
+        for key in ("frames", "mask"):  # the premise: byte-identical videos through m
+            assert torch.equal(consistent[key][:seen], inconsistent[key][:seen]), (name, key)
+        difference = (out["surprise_consistent"][index, :seen]
+                      - out["surprise_inconsistent"][index, :seen]).abs().max()
+        differences[name] = float(difference)
+    differ = [f"{name}: {difference:.3g}" for name, difference in differences.items()
+              if difference > TOLERANCE]
+    assert not differ, "surprise differs through the manipulation frame: " + "; ".join(differ)
+
+
+B, T = 2, 6
+
+
+def _random_video(seed: int) -> dict:
+    """Random frames and camera poses, a mask whose object ids first appear at different
+    frames (4 at frame 0, 9 at 1, 2 at 3 though smaller than the ids before it, 6 at 4) and
+    object states whose visible fraction follows the mask."""
+    generator = torch.Generator().manual_seed(seed)
+    frames = torch.randint(0, 256, (B, T, SIZE, SIZE, 3), dtype=torch.uint8,
+                           generator=generator)
+    mask = torch.zeros(B, T, SIZE, SIZE, dtype=torch.uint8)
+    for row, (object_id, first) in enumerate(((4, 0), (9, 1), (2, 3), (6, 4))):
+        for t in range(first, T):
+            mask[:, t, 7 * row: 7 * row + 5, 3 + t: 11 + t] = object_id
+    camera = torch.randn(B, T, 6, generator=generator)
+    return {"frames": frames, "mask": mask, "camera": camera, "objects": _objects(mask, seed)}
+
+
+def _objects(mask: torch.Tensor, seed: int) -> TensorDict:
+    """Random object states (``specs.objects_spec``) for ``mask`` [B, T, H, W]: an id's
+    visible fraction is its share of the frame's pixels, its shape 0 where it is not seen."""
+    torch.manual_seed(seed)
+    spec = specs.objects_spec(mask.shape[1])
+    objects = spec.expand(mask.shape[0], *spec.shape).rand()
+    ids = torch.arange(specs.OBJECT_SLOTS, dtype=torch.uint8)
+    visible = (mask[..., None] == ids).float().mean(dim=(2, 3))  # [B, T, OBJECT_SLOTS]
+    visible[..., 0] = 0
+    objects["visible_fraction"] = visible
+    objects["shape_label"] = torch.where(visible > 0, objects["shape_label"].clamp(min=1), 0)
+    return objects
+
+
+def _splice(value, t: int, other=None):
+    """A tensor or object states [B, T, ...] up to frame t, then ``other``'s after it (none:
+    cut there)."""
+    def splice(mine: torch.Tensor, theirs: torch.Tensor | None = None) -> torch.Tensor:
+        return mine[:, : t + 1] if theirs is None else torch.cat([mine[:, : t + 1],
+                                                                  theirs[:, t + 1:]], dim=1)
+
+    if isinstance(value, TensorDict):
+        return value.apply(splice, *(() if other is None else (other,)))
+    return splice(value, other)
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_nothing_after_frame_t_changes_surprise_up_to_t(family):
+    """For every frame t of a random video: cutting the video after t, or replacing its frames,
+    masks (an object vanishes, a new id appears), camera poses and object states after t,
+    leaves surprise[:, :t + 1] as it was."""
+    model = _build(family)
+    video = _random_video(0)
+    other = _random_video(1)
+    other["mask"] = torch.where(other["mask"] == 4, 13, other["mask"])  # id 4 gone, id 13 new
+    other["objects"] = _objects(other["mask"], 1)
+    surprise = model.surprise(**video)
+    for t in range(T - 1):
+        cut = {name: _splice(value, t) for name, value in video.items()}
+        altered = {name: _splice(value, t, other[name]) for name, value in video.items()}
+        for name, changed in (("cut", cut), ("altered", altered)):
+            torch.testing.assert_close(model.surprise(**changed)[:, : t + 1],
+                                       surprise[:, : t + 1], atol=TOLERANCE, rtol=0,
+                                       msg=lambda message: f"{name} after frame {t}: {message}")
