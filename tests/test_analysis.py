@@ -142,15 +142,18 @@ def test_sweep_rows_are_disjoint_evaluation_sets(tmp_path):
 
 def test_size_sweep_figure_marks_significant_points_green():
     rows = [{"train_size": size, "eval_set": i, "concept": "object_persistence",
-             "variant": "standard", "relative_surprise": effect, "significant": effect > 0.5}
+             "variant": "standard", "relative_surprise": effect, "significant": effect > 0.5,
+             "alpha": 0.01}
             for size, effect in ((100, 0.1), (1000, 0.6), (10000, 0.9)) for i in range(2)]
     figure = analysis.size_sweep_figure(rows)
     ax = figure.axes[0]
     assert ax.get_xscale() == "log"
     colors = {points.get_label(): points.get_facecolor()[0][:3] for points in ax.collections}
     tab_green = (0.172, 0.627, 0.172)
-    assert np.allclose(colors["significant (p < .05)"], tab_green, atol=0.01)
+    assert np.allclose(colors["significant (p < 0.01)"], tab_green, atol=0.01)  # the rows' alpha
     assert len(ax.collections[0].get_offsets()) == 4
+    older = analysis.size_sweep_figure([{k: v for k, v in r.items() if k != "alpha"} for r in rows])
+    assert "significant" in {points.get_label() for points in older.axes[0].collections}
 
 
 def test_run_size_sweep_drives_fit_then_test(tmp_path):
@@ -165,7 +168,7 @@ def test_run_size_sweep_drives_fit_then_test(tmp_path):
         if args[0] == "test":
             pairs = int(args[args.index("--data.test_pairs") + 1])
             write_report(pair_results({("solidity", "standard"): (pairs, size / 100)}, seed=size),
-                         tmp_path / f"test_{size}", bootstrap=0, echo=False)
+                         tmp_path / f"test_{size}", bootstrap=0, echo=False, alpha=0.05)
             callback.report_dir = tmp_path / f"test_{size}" / "voe_report"
         return types.SimpleNamespace(trainer=types.SimpleNamespace(
             checkpoint_callback=checkpoint, callbacks=[callback]))
@@ -187,6 +190,7 @@ def test_run_size_sweep_drives_fit_then_test(tmp_path):
     assert [(r["train_size"], r["eval_set"], r["n"]) for r in rows] == [(10, 0, 6), (10, 1, 6),
                                                                          (300, 0, 6), (300, 1, 6)]
     assert json.loads(out.read_text()) == rows
+    assert {r["alpha"] for r in rows} == {0.05}  # each evaluation set at its run's alpha
 
 
 def test_run_size_sweep_names_a_missing_report_callback(tmp_path):

@@ -1,5 +1,6 @@
-"""VOEProbeCallback: per concept/variant streaming tests plus the pooled test over the union of
-a counterbalanced concept's pairs, logged as voe/<concept>/pooled/*, and the printed verdict."""
+"""VOEProbeCallback: per concept/variant streaming tests plus the stratified pooled test of a
+counterbalanced concept's two variants, logged as voe/<concept>/pooled/*, and the printed
+verdict with the run's alpha."""
 
 from types import SimpleNamespace
 
@@ -9,8 +10,8 @@ import torch
 from rich.console import Console
 from scipy import stats
 
-from voe_lightning import specs
-from voe_lightning.callbacks import VOEProbeCallback, voe_table
+from voe_lightning import specs, statistics
+from voe_lightning.callbacks import VOEProbeCallback, VOEReportCallback, voe_table
 from voe_lightning.probe_datamodule import ProbeDataModule
 
 CASES = [("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
@@ -34,7 +35,7 @@ class _Module:
         self.logged[name] = value
 
 
-def test_probe_callback_logs_the_pooled_test_over_both_variants():
+def test_probe_callback_logs_the_stratified_pooled_test_of_both_variants():
     rng = np.random.default_rng(0)
     trainer = SimpleNamespace(datamodule=_Probes(), sanity_checking=False)
     callback, module = VOEProbeCallback(print_table=False), _Module()
@@ -56,21 +57,36 @@ def test_probe_callback_logs_the_pooled_test_over_both_variants():
             pairs[CASES[i]][1].append(consistent[row].sum())
     callback.on_validation_epoch_end(trainer, module)
 
-    union = [pairs[CASES[0]][k] + pairs[CASES[1]][k] for k in (0, 1)]
-    reference = stats.ttest_rel(*union, alternative="greater")
-    assert module.logged["voe/object_persistence/pooled/t"] == pytest.approx(reference.statistic)
-    assert module.logged["voe/object_persistence/pooled/p_value"] == pytest.approx(reference.pvalue)
-    assert callback.last[("object_persistence", "pooled")]["n"] == len(union[0])
+    # Stratified: (M1 + M2) / 2 over 0.5 sqrt(s1^2/n1 + s2^2/n2), which is Welch's t of d1
+    # against -d2 (scipy), with its Welch-Satterthwaite df.
+    d1, d2 = (np.subtract(*pairs[case]) for case in CASES[:2])
+    reference = stats.ttest_ind(d1, -d2, equal_var=False, alternative="greater")
+    logged = module.logged
+    assert logged["voe/object_persistence/pooled/relative_surprise"] == pytest.approx(
+        (d1.mean() + d2.mean()) / 2, rel=1e-12)
+    assert logged["voe/object_persistence/pooled/t"] == pytest.approx(reference.statistic, rel=1e-9)
+    assert logged["voe/object_persistence/pooled/p_value"] == pytest.approx(reference.pvalue,
+                                                                           rel=1e-9)
+    assert logged["voe/object_persistence/pooled/accuracy"] == np.mean(np.r_[d1, d2] > 0)
+    assert logged["voe/object_persistence/pooled/n"] == d1.size + d2.size
     for statistic in VOEProbeCallback.STATISTICS:
         assert f"voe/object_persistence/pooled/{statistic}" in module.logged
     assert not any(name.startswith("voe/unchangeableness/pooled") for name in module.logged)
     assert list(callback.last) == [CASES[0], CASES[1], ("object_persistence", "pooled"), CASES[2]]
 
     console = Console(width=200, record=True)
-    console.print(voe_table(callback.last, title="VOE"))
+    console.print(voe_table(callback.last, title="VOE", alpha=0.05))
     text = console.export_text()
     assert "verdict" in text and "pooled" in text
+    assert "VOE (α = 0.05)" in text and "* < 0.05" in text  # the alpha in the table header
     assert "undecided: no test of position, shape" in text  # unchangeableness lacks two variants
+
+
+def test_callbacks_take_the_default_alpha_and_refuse_a_bad_one():
+    assert VOEProbeCallback().alpha == VOEReportCallback().alpha == statistics.ALPHA
+    assert VOEProbeCallback(alpha=0.05).alpha == 0.05
+    with pytest.raises(ValueError, match=r"alpha must be a significance level in \(0, 1\).*got 5"):
+        VOEReportCallback(alpha=5)
 
 
 def test_probe_callback_refuses_a_datamodule_without_names():

@@ -244,6 +244,34 @@ def test_validate_reports_the_voe_statistics(workdir):
     cli = main(["validate", "--config", CONFIG])
     metrics = cli.trainer.callback_metrics
     assert "voe/object_persistence/standard/relative_surprise" in metrics
+    assert metrics["voe/object_persistence/pooled/n"] == 4  # 2 val pairs per variant
+
+
+def _alphas(cli) -> dict[str, float]:
+    return {type(c).__name__: c.alpha for c in cli.trainer.callbacks if hasattr(c, "alpha")}
+
+
+def test_the_runs_one_alpha_reaches_every_callback_and_a_second_one_is_refused(workdir):
+    """configs/base.yaml's top-level alpha (or --alpha) is every callback's; a callback given
+    another alpha of its own is refused, naming both."""
+    limit = ["--trainer.limit_val_batches", "0"]  # the callbacks are built, nothing runs
+    default = main(["validate", "--config", CONFIG, *limit])
+    assert default.config["validate"]["alpha"] == 0.01
+    assert _alphas(default) == {"VOEProbeCallback": 0.01, "VOEReportCallback": 0.01}
+    chosen = main(["validate", "--config", CONFIG, "--alpha", "0.05", *limit])
+    assert _alphas(chosen) == {"VOEProbeCallback": 0.05, "VOEReportCallback": 0.05}
+    saved = yaml.safe_load((workdir / "runs" / "tiny" / "version_1" / "validate_config.yaml")
+                           .read_text())
+    assert saved["alpha"] == 0.05  # the saved config says which alpha the run used
+    second = workdir / "second_alpha.yaml"
+    second.write_text("trainer:\n  callbacks+:\n"
+                      "    - class_path: voe_lightning.callbacks.VOEReportCallback\n"
+                      "      init_args: {alpha: 0.05}\n")
+    with pytest.raises(ValueError, match=r"VOEReportCallback was given alpha 0.05, the run's "
+                                         r"alpha is 0.01: a run has one significance level"):
+        main(["validate", "--config", CONFIG, "--config", str(second), *limit])
+    with pytest.raises(ValueError, match=r"alpha must be a significance level in \(0, 1\)"):
+        main(["validate", "--config", CONFIG, "--alpha", "2", *limit])
 
 
 def test_training_does_not_depend_on_how_often_validation_runs(workdir):

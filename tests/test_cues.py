@@ -95,25 +95,33 @@ def audit():
     return cues.audit_records(records, batch_size=4)
 
 
-def test_rows_agree_with_scipy_and_pool_the_union_of_both_variants(audit):
+def test_rows_agree_with_scipy_and_pool_both_variants_stratified(audit):
+    """Variant rows are scipy's paired test; the pooled row, as the model's, is the stratified
+    test of both variants: scipy's Welch test of d_standard against -d_counterbalanced."""
     rows = {(r["concept"], r["variant"], r["cue"]): r for r in audit.rows()}
     assert [(c, v) for c, v, _ in audit.groups()] == [
         ("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
         ("object_persistence", "pooled"), ("unchangeableness", "color")]
     persistence = audit.concepts == "object_persistence"
-    for variant, selected in [("standard", persistence & (audit.variants == "standard")),
-                              ("counterbalanced", persistence & (audit.variants == "counterbalanced")),
-                              ("pooled", persistence)]:
-        for cue in ("motion_energy", "pixel_novelty"):
-            inconsistent = audit.scores["inconsistent"][cue][selected]
-            consistent = audit.scores["consistent"][cue][selected]
-            reference = stats.ttest_rel(inconsistent, consistent, alternative="greater")
+    standard = persistence & (audit.variants == "standard")
+    counterbalanced = persistence & (audit.variants == "counterbalanced")
+    for cue in ("motion_energy", "pixel_novelty"):
+        d = audit.scores["inconsistent"][cue] - audit.scores["consistent"][cue]
+        for variant, selected in [("standard", standard), ("counterbalanced", counterbalanced)]:
+            reference = stats.ttest_1samp(d[selected], 0.0, alternative="greater")
             row = rows[("object_persistence", variant, cue)]
-            assert row["n"] == selected.sum() == (12 if variant == "pooled" else 6)
+            assert row["n"] == selected.sum() == 6
             assert row["t"] == pytest.approx(reference.statistic, rel=1e-10)
             assert row["p_value"] == pytest.approx(reference.pvalue, rel=1e-8)
-            two_sided = stats.ttest_rel(inconsistent, consistent).pvalue
+            two_sided = stats.ttest_1samp(d[selected], 0.0).pvalue
             assert row["p_two_sided"] == pytest.approx(two_sided, rel=1e-8)
+        pooled = rows[("object_persistence", "pooled", cue)]
+        welch = stats.ttest_ind(d[standard], -d[counterbalanced], equal_var=False)
+        assert pooled["n"] == 12
+        assert pooled["t"] == pytest.approx(welch.statistic, rel=1e-10)
+        assert pooled["p_two_sided"] == pytest.approx(welch.pvalue, rel=1e-8)
+        assert pooled["relative_surprise"] == pytest.approx(
+            (d[standard].mean() + d[counterbalanced].mean()) / 2, rel=1e-12)
 
 
 def test_accuracy_counts_ties_half(audit):
@@ -222,7 +230,10 @@ def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
     assert len(table) == 6 * len(cues.CUES) and tuple(table[0]) == cues.CUE_COLUMNS
     document = json.loads((out / "cues.json").read_text())
     assert document["split"] == "val" and document["num_pairs"] == 20
-    assert "| object_persistence | **pooled** | 8 |" in (out / "cues.md").read_text()
+    assert document["alpha"] == 0.01  # configs/base.yaml's alpha is the command's default
+    markdown = (out / "cues.md").read_text()
+    assert "| object_persistence | **pooled** | 8 |" in markdown
+    assert markdown.startswith("## Cue audit of") and "(α = 0.01)" in markdown.splitlines()[0]
 
     config = tmp_path / "audit.yaml"  # --config: the same arguments from a file
     config.write_text(f"root: {root}\nconcepts: [unchangeableness]\nprogress: false\n")
@@ -235,7 +246,7 @@ def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
     assert "Got value: train" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["audit", "--root", str(root), "--alpha", "1.5"])
-    assert "alpha must be in (0, 1)" in capsys.readouterr().err
+    assert "alpha must be a significance level in (0, 1), e.g. 0.01; got 1.5" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["audit", "--root", str(tmp_path / "nowhere"), "--progress", "false"])
     assert "no dataset at" in capsys.readouterr().err

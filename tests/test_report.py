@@ -1,5 +1,5 @@
-"""The VOE report: schema of every file, statistics equal to paired_test per group, pairs.csv
-round trip, every figure written, degenerate groups explained, and VOEReportCallback in a real
+"""The VOE report: schema of every file, statistics equal to paired_test per group (the
+stratified pooled_test for pooled rows) at the run's alpha, pairs.csv round trip, every figure written, degenerate groups explained, and VOEReportCallback in a real
 Trainer.test with a small frame-persistence model."""
 
 import csv
@@ -22,7 +22,7 @@ from voe_lightning.probe_datamodule import ProbeDataModule
 from voe_lightning.report import write_report
 from voe_lightning.report.figures import PredictionExample
 from voe_lightning.report.results import SUMMARY_COLUMNS, PairResults
-from voe_lightning.statistics import paired_test
+from voe_lightning.statistics import ALPHA, paired_test, pooled_test
 
 T, H, W = 6, 16, 16
 
@@ -78,26 +78,49 @@ def test_summary_rows_are_paired_tests_in_specs_order(report):
     assert [(r["concept"], r["variant"]) for r in rows] == [
         ("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
         ("object_persistence", "pooled"), ("continuity", "standard"), ("solidity", "standard")]
-    for row, (_, _, pairs) in zip(rows, results.groups(pooled=True)):
+    for row, (_, variant, pairs) in zip(rows, results.groups(pooled=True)):
         if row["n"] < 2:
             continue
-        expected = paired_test(pairs.total_inconsistent, pairs.total_consistent, bootstrap=200)
+        if variant == "pooled":
+            expected = pooled_test(pairs.total_inconsistent, pairs.total_consistent,
+                                   pairs.variant, bootstrap=200)
+        else:
+            expected = paired_test(pairs.total_inconsistent, pairs.total_consistent, bootstrap=200)
+        assert expected.alpha == ALPHA
         assert {k: row[k] for k in expected.as_dict()} == expected.as_dict()
     assert rows[0]["significant"] and not rows[1]["significant"]
 
 
-def test_pooled_row_is_the_test_over_both_variants_pairs(report):
-    _, results, rows = report
-    persistence = [(pairs.total_inconsistent, pairs.total_consistent)
-                   for concept, variant, pairs in results.groups()
-                   if concept == "object_persistence"]
-    inconsistent = np.concatenate([inc for inc, _ in persistence])
-    consistent = np.concatenate([con for _, con in persistence])
+def test_pooled_row_is_the_stratified_test_of_both_variants(report):
+    """M = (M1 + M2) / 2, SE = 0.5 sqrt(s1^2/n1 + s2^2/n2), Welch-Satterthwaite df, by hand."""
+    directory, results, rows = report
+    d1, d2 = (pairs.relative_surprise for concept, variant, pairs in results.groups()
+              if concept == "object_persistence")
     pooled = rows[2]
-    assert pooled["n"] == 10 + 9 == inconsistent.size
-    reference = stats.ttest_rel(inconsistent, consistent, alternative="greater")
-    assert pooled["t"] == pytest.approx(reference.statistic, rel=1e-12)
-    assert pooled["p_value"] == pytest.approx(reference.pvalue, rel=1e-9)
+    assert pooled["n"] == 10 + 9 == d1.size + d2.size
+    v1, v2 = d1.var(ddof=1) / d1.size, d2.var(ddof=1) / d2.size
+    mean, standard_error = (d1.mean() + d2.mean()) / 2, 0.5 * np.sqrt(v1 + v2)
+    df = (v1 + v2) ** 2 / (v1**2 / (d1.size - 1) + v2**2 / (d2.size - 1))
+    assert pooled["relative_surprise"] == pytest.approx(mean, rel=1e-12)
+    assert pooled["t"] == pytest.approx(mean / standard_error, rel=1e-12)
+    assert pooled["df"] == pytest.approx(df, rel=1e-12)
+    assert pooled["p_value"] == pytest.approx(stats.t.sf(mean / standard_error, df), rel=1e-9)
+    # summary.md prints the real-valued df with one decimal, and alpha in the header.
+    markdown = (directory / "summary.md").read_text()
+    assert f"t({df:.1f}) = {mean / standard_error:.2f}" in markdown
+    assert f"| sig. (α = {ALPHA:g}) |" in markdown.splitlines()[0]
+
+
+def test_a_pooled_row_with_a_variant_of_one_pair_is_explained_not_tested(tmp_path):
+    results = synthetic_results()
+    counterbalanced = [(c, v) == ("object_persistence", "counterbalanced")
+                       for c, v in zip(results.concept, results.variant)]
+    keep = ~np.array(counterbalanced)
+    keep[counterbalanced.index(True)] = True  # one counterbalanced pair only
+    rows = write_report(results.select(keep), tmp_path, bootstrap=0, echo=False)
+    pooled = next(r for r in rows if r["variant"] == "pooled")
+    assert pooled["t"] is None and pooled["note"] == (
+        "no pooled test: counterbalanced has 1 pair (each variant needs at least 2)")
 
 
 def test_summary_states_each_concepts_verdict(report):
@@ -107,7 +130,7 @@ def test_summary_states_each_concepts_verdict(report):
     assert list(verdicts) == ["object_persistence", "continuity", "solidity"]
     counterbalanced_mean = rows[1]["relative_surprise"]
     assert verdicts["object_persistence"]["voe"] is (
-        rows[2]["p_value"] < 0.05 and rows[0]["relative_surprise"] > 0 < counterbalanced_mean)
+        rows[2]["p_value"] < ALPHA and rows[0]["relative_surprise"] > 0 < counterbalanced_mean)
     # continuity and solidity lack their counterbalanced pairs: no pooled test, no verdict.
     assert verdicts["continuity"]["voe"] is None and "counterbalanced" in verdicts["continuity"]["verdict"]
     markdown = (directory / "summary.md").read_text()
@@ -212,7 +235,7 @@ def _probe(concept, variant, seed):
         "manipulation_frame": torch.tensor(manipulation),
         "manipulated_ids": torch.zeros(4, dtype=torch.int64), "seed": torch.tensor(seed),
     }, batch_size=[])
-    assert specs.probe_spec(T, H, W).is_in(record)
+    assert specs.probe_spec(T, H, W, objects=False).is_in(record)
     return record
 
 

@@ -1,12 +1,16 @@
-"""The VOE statistics against scipy: one-shot paired test, degenerate inputs, and the streaming
-metric's exactness when states from several processes are merged (simulated DDP)."""
+"""The VOE statistics against scipy: one-shot paired test, the stratified pooled test (one-shot
+and streaming) against a hand computation, degenerate inputs, the streaming metric's exactness
+when states from several processes are merged (simulated DDP), the verdict rules and the one
+alpha."""
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+import yaml
 from scipy import stats
 from sklearn.metrics import roc_auc_score
 
@@ -39,7 +43,7 @@ def test_paired_test_agrees_with_scipy(n, effect, seed):
     assert result.relative_surprise == pytest.approx(d.mean(), rel=1e-12)
     assert result.sd == pytest.approx(d.std(ddof=1), rel=1e-12)
     assert result.d_z == pytest.approx(d.mean() / d.std(ddof=1), rel=1e-12)
-    assert result.significant == (reference.pvalue < 0.05)
+    assert result.significant == (reference.pvalue < statistics.ALPHA)
     assert result.accuracy == np.mean(d > 0)
     labels = np.r_[np.ones(n), np.zeros(n)]
     reference_auroc = roc_auc_score(labels, np.r_[inconsistent, consistent])
@@ -231,17 +235,20 @@ def _result(p, mean):
 def test_pooled_verdict_needs_a_significant_pool_and_both_variants_positive():
     from voe_lightning.statistics import concept_verdicts
 
-    def verdict(standard, counterbalanced, pooled):
+    def verdict(standard, counterbalanced, pooled, alpha=0.01):
         results = {("continuity", "standard"): standard,
                    ("continuity", "counterbalanced"): counterbalanced,
                    ("continuity", "pooled"): pooled}
-        return concept_verdicts(results)[0]
+        return concept_verdicts(results, alpha)[0]
 
-    assert verdict(_result(0.01, 2.0), _result(0.3, 0.1), _result(0.02, 1.0)).voe is True
-    failed = verdict(_result(0.001, 5.0), _result(0.9, -0.5), _result(0.01, 2.0))
+    assert verdict(_result(0.001, 2.0), _result(0.3, 0.1), _result(0.005, 1.0)).voe is True
+    failed = verdict(_result(0.001, 5.0), _result(0.9, -0.5), _result(0.001, 2.0))
     assert failed.voe is False and failed.text() == "no VOE: counterbalanced M = -0.5 <= 0"
-    weak = verdict(_result(0.2, 1.0), _result(0.3, 0.5), _result(0.06, 0.7))
-    assert weak.text() == "no VOE: pooled p = .060 >= 0.05"
+    weak = verdict(_result(0.2, 1.0), _result(0.3, 0.5), _result(0.02, 0.7))
+    assert weak.text() == "no VOE: pooled p = .020 >= 0.01"
+    assert "pooled p < 0.01" in weak.rule
+    assert verdict(_result(0.2, 1.0), _result(0.3, 0.5), _result(0.02, 0.7), alpha=0.05).voe
+    assert concept_verdicts({("continuity", "pooled"): _result(0.02, 0.7)})[0].voe is None
     missing = concept_verdicts({("continuity", "standard"): _result(0.001, 3.0)})[0]
     assert missing.voe is None and "counterbalanced, pooled" in missing.text()
 
@@ -249,13 +256,139 @@ def test_pooled_verdict_needs_a_significant_pool_and_both_variants_positive():
 def test_unchangeableness_verdict_needs_every_variant_significant():
     from voe_lightning.statistics import concept_verdicts
 
-    results = {("unchangeableness", v): _result(0.01, 1.0) for v in ("position", "color", "shape")}
+    results = {("unchangeableness", v): _result(0.005, 1.0) for v in ("position", "color", "shape")}
     results[("unchangeableness", "color_plus1")] = _result(0.9, -1.0)  # generalization: ignored
     assert concept_verdicts(results)[0].voe is True
-    results[("unchangeableness", "shape")] = _result(0.2, 0.4)
-    assert concept_verdicts(results)[0].text() == "no VOE: shape p = .200 >= 0.05"
+    results[("unchangeableness", "shape")] = _result(0.02, 0.4)
+    assert concept_verdicts(results)[0].text() == "no VOE: shape p = .020 >= 0.01"
+    assert concept_verdicts(results, alpha=0.05)[0].voe is True
     results[("unchangeableness", "color")] = {"p_value": None, "relative_surprise": None}
     assert concept_verdicts(results)[0].voe is None
+
+
+def test_the_verdict_rules_take_arrays_as_concept_verdicts_takes_rows():
+    """The calibration applies the rules to thousands of repetitions at once: element by
+    element they must decide as ``concept_verdicts`` does."""
+    from voe_lightning.statistics import concept_verdicts, pooled_rule, variant_rule
+
+    rng = np.random.default_rng(3)
+    p, standard, counterbalanced = rng.uniform(0, 0.03, 50), rng.normal(0, 1, 50), rng.normal(0, 1, 50)
+    vectorized = pooled_rule(p, standard, counterbalanced, 0.01)
+    for i in range(50):
+        rows = {("solidity", "standard"): _result(0.5, standard[i]),
+                ("solidity", "counterbalanced"): _result(0.5, counterbalanced[i]),
+                ("solidity", "pooled"): _result(p[i], 0.0)}
+        assert concept_verdicts(rows, 0.01)[0].voe == vectorized[i]
+    three = rng.uniform(0, 0.02, (3, 50))
+    vectorized = variant_rule(three, 0.01)
+    for i in range(50):
+        rows = {("unchangeableness", v): _result(three[k, i], 1.0)
+                for k, v in enumerate(("position", "color", "shape"))}
+        assert concept_verdicts(rows, 0.01)[0].voe == vectorized[i]
+
+
+# ----------------------------------------------------------------------------- stratified test
+
+
+def _hand_stratified(d1, d2):
+    """M, SE, Welch-Satterthwaite df and one-tailed p written out with numpy and scipy."""
+    v1, v2 = d1.var(ddof=1) / d1.size, d2.var(ddof=1) / d2.size
+    mean = (d1.mean() + d2.mean()) / 2
+    standard_error = 0.5 * np.sqrt(v1 + v2)
+    df = (v1 + v2) ** 2 / (v1**2 / (d1.size - 1) + v2**2 / (d2.size - 1))
+    return mean, standard_error, df, stats.t.sf(mean / standard_error, df)
+
+
+@pytest.mark.parametrize("sizes, effects, seed", [((12, 9), (1.5, -1.0), 0),
+                                                  ((48, 48), (0.4, 0.2), 1),
+                                                  ((3, 200), (-0.3, 0.6), 2)])
+def test_pooled_test_is_the_stratified_test_computed_by_hand(sizes, effects, seed):
+    rng = np.random.default_rng(seed)
+    # The variants' means differ by design (opposite cues) and so do their spreads.
+    d = [rng.normal(effect, 1.0 + k, size) for k, (size, effect) in enumerate(zip(sizes, effects))]
+    consistent = rng.gamma(2.0, 5.0, sum(sizes))
+    inconsistent = consistent + np.concatenate(d)
+    strata = ["standard"] * sizes[0] + ["counterbalanced"] * sizes[1]
+    result = statistics.pooled_test(inconsistent, consistent, strata, bootstrap=300)
+    mean, standard_error, df, p = _hand_stratified(*d)
+    assert result.n == sum(sizes)
+    assert result.relative_surprise == pytest.approx(mean, rel=1e-12)
+    assert result.t == pytest.approx(mean / standard_error, rel=1e-12)
+    assert result.df == pytest.approx(df, rel=1e-12)
+    assert result.p_value == pytest.approx(p, rel=1e-9)
+    # scipy's Welch test of d1 against -d2 is the same test: t = (M1 + M2) / sqrt(v1 + v2).
+    welch = stats.ttest_ind(d[0], -d[1], equal_var=False, alternative="greater")
+    assert result.t == pytest.approx(welch.statistic, rel=1e-12)
+    assert result.p_value == pytest.approx(welch.pvalue, rel=1e-9)
+    assert result.significant == (p < statistics.ALPHA)
+    union = np.concatenate(d)
+    assert result.sd == pytest.approx(union.std(ddof=1), rel=1e-12)
+    assert result.d_z == pytest.approx(mean / union.std(ddof=1), rel=1e-12)
+    half = stats.t.ppf(0.975, df) * standard_error / union.std(ddof=1)
+    assert result.d_z_ci_low == pytest.approx(result.d_z - half, rel=1e-9)
+    assert result.accuracy == np.mean(union > 0)
+    assert result.relative_surprise_ci_low < mean < result.relative_surprise_ci_high
+
+
+def test_stratified_test_has_more_power_than_the_union_when_variants_split():
+    """Mirrored variants (means +2 and -1.6): the union counts their split as noise."""
+    rng = np.random.default_rng(4)
+    d1, d2 = rng.normal(2.0, 0.5, 40), rng.normal(-1.6, 0.5, 40)
+    strata = ["standard"] * 40 + ["counterbalanced"] * 40
+    pooled = statistics.pooled_test(np.r_[d1, d2], np.zeros(80), strata, bootstrap=0)
+    union = stats.ttest_1samp(np.r_[d1, d2], 0.0, alternative="greater")
+    assert pooled.p_value < 0.01 < 0.1 < union.pvalue
+
+
+def test_streaming_pooled_values_equal_the_one_shot_pooled_test():
+    rng = np.random.default_rng(5)
+    sizes, effects = (30, 17), (0.8, -0.3)
+    parts = []
+    for size, effect in zip(sizes, effects):
+        consistent = rng.gamma(2.0, 5.0, size)
+        parts.append((consistent + rng.normal(effect, 2.0, size), consistent))
+    streamed = [{k: v.item() for k, v in _stream(inc, con, batch=7).compute().items()}
+                for inc, con in parts]
+    pooled = statistics.pooled_values(streamed)
+    one_shot = statistics.pooled_test(np.r_[parts[0][0], parts[1][0]],
+                                      np.r_[parts[0][1], parts[1][1]],
+                                      ["standard"] * sizes[0] + ["counterbalanced"] * sizes[1],
+                                      bootstrap=0)
+    assert pooled["n"] == one_shot.n == sum(sizes)
+    for key in ("relative_surprise", "t", "df", "p_value", "accuracy"):
+        assert pooled[key] == pytest.approx(getattr(one_shot, key), rel=1e-9), key
+
+
+def test_stratified_degenerate_and_refused_inputs():
+    # Every d equal within each variant: zero standard error, the one-variant rule decides.
+    zero = statistics.stratified_test([(4, 0.5, 0.0), (6, 0.1, 0.0)])
+    assert zero.t == math.inf and zero.p_value == 0.0 and "t = +inf" in zero.note
+    nothing = statistics.stratified_test([(4, 0.0, 0.0), (6, 0.0, 0.0)])
+    assert math.isnan(nothing.t) and nothing.p_value == 1.0
+    # One variant without spread: the other's alone gives SE and df = n - 1.
+    one = statistics.stratified_test([(5, 1.0, 0.0), (8, 0.2, 0.5)])
+    assert one.df == pytest.approx(7.0) and one.standard_error == pytest.approx(0.5 * math.sqrt(0.5 / 8))
+    with pytest.raises(ValueError, match="at least 2 strata"):
+        statistics.stratified_test([(5, 1.0, 1.0)])
+    with pytest.raises(ValueError, match="at least 2 probe pairs, got n=1"):
+        statistics.stratified_test([(5, 1.0, 1.0), (1, 0.3, 0.0)])
+    with pytest.raises(ValueError, match="counterbalanced has 1 pair"):
+        statistics.pooled_test([1.0, 2.0, 3.0], [0.0, 0.0, 0.0],
+                               ["standard", "standard", "counterbalanced"])
+    with pytest.raises(ValueError, match="at least 2 variants"):
+        statistics.pooled_test([1.0, 2.0, 3.0], [0.0, 0.0, 0.0], ["standard"] * 3)
+
+
+# ----------------------------------------------------------------------------- alpha
+
+
+def test_one_alpha_in_code_and_base_config_and_bad_values_are_named():
+    base = yaml.safe_load((Path(__file__).parents[1] / "configs" / "base.yaml").read_text())
+    assert base["alpha"] == statistics.ALPHA == 0.01
+    for bad in (0, 1, 1.5, -0.1, "0.05", True):
+        with pytest.raises(ValueError, match=r"alpha must be a significance level in \(0, 1\)"):
+            statistics.check_alpha(bad)
+    assert statistics.format_alpha(0.01) == "α = 0.01"
 
 
 def test_json_row_writes_non_finite_values_as_strings_float_reads_back():

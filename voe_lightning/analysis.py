@@ -24,8 +24,8 @@ from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.cues import CUE_TITLES, FRAME_LOCAL_CUES, tracked_cues
 from voe_lightning.model import VOEModel
 from voe_lightning.report.figures import panel_grid
-from voe_lightning.report.results import PairResults, format_p
-from voe_lightning.statistics import paired_test
+from voe_lightning.report.results import PairResults, format_p, format_t
+from voe_lightning.statistics import ALPHA, format_alpha, paired_test
 from voe_lightning.store import collate, open_split, read_manifest
 
 __all__ = [
@@ -167,7 +167,7 @@ def relative_surprise_curves_figure(
 
 
 def sweep_rows(results: PairResults, train_size: int, eval_sets: int,
-               alpha: float = 0.05) -> list[dict[str, Any]]:
+               alpha: float = ALPHA) -> list[dict[str, Any]]:
     """Split each concept/variant's test pairs (ordered by seed) into ``eval_sets`` disjoint
     evaluation sets and test each: one row per (concept, variant, evaluation set)."""
     if eval_sets < 1:
@@ -185,7 +185,8 @@ def sweep_rows(results: PairResults, train_size: int, eval_sets: int,
             rows.append({"train_size": int(train_size), "eval_set": index, "concept": concept,
                          "variant": variant, "n": test.n,
                          "relative_surprise": test.relative_surprise, "t": test.t,
-                         "p_value": test.p_value, "significant": test.significant})
+                         "p_value": test.p_value, "significant": test.significant,
+                         "alpha": alpha})
     return rows
 
 
@@ -196,11 +197,14 @@ def size_sweep_figure(rows: Sequence[Mapping[str, Any]]) -> Figure:
         raise ValueError("no sweep rows to plot")
     keys = list(dict.fromkeys((row["concept"], row["variant"]) for row in rows))
     figure, axes = panel_grid(len(keys), 4.6, 3.6, max_cols=3)
+    alphas = {row.get("alpha") for row in rows}  # rows of older sweeps do not say
+    significant_label = ("significant" if len(alphas) > 1 or None in alphas
+                         else f"significant (p < {alphas.pop():g})")
     sizes = sorted({row["train_size"] for row in rows})
     logarithmic = len(sizes) > 1 and sizes[0] > 0 and sizes[-1] / sizes[0] >= 10
     for ax, (concept, variant) in zip(axes, keys):
         mine = [row for row in rows if (row["concept"], row["variant"]) == (concept, variant)]
-        for significant, color, label in ((True, "tab:green", "significant (p < .05)"),
+        for significant, color, label in ((True, "tab:green", significant_label),
                                           (False, "tab:gray", "not significant")):
             chosen = [row for row in mine if bool(row["significant"]) == significant]
             if chosen:
@@ -229,6 +233,14 @@ def _report_dir(cli: Any) -> Path:
             return callback.report_dir
     raise RuntimeError("the test run wrote no VOE report: add voe_lightning.callbacks."
                        "VOEReportCallback to the config's trainer.callbacks")
+
+
+def _report_alpha(report_dir: Path) -> float:
+    """The significance level a voe_report was written at (its summary.json's alpha)."""
+    try:
+        return float(json.loads((Path(report_dir) / "summary.json").read_text())["alpha"])
+    except (OSError, KeyError, ValueError, TypeError):
+        return ALPHA
 
 
 def _checkpoint(cli: Any) -> str:
@@ -273,8 +285,9 @@ def run_size_sweep(
         fit = cli_main(["fit", *common])
         test = cli_main(["test", *common, "--ckpt_path", _checkpoint(fit),
                          *(arg.format(size=size) for arg in test_args)])
-        results = PairResults.from_csv(_report_dir(test) / "pairs.csv")
-        rows.extend(sweep_rows(results, size, eval_sets))
+        report = _report_dir(test)
+        results = PairResults.from_csv(report / "pairs.csv")
+        rows.extend(sweep_rows(results, size, eval_sets, alpha=_report_alpha(report)))
         out.write_text(json.dumps(rows, indent=2) + "\n")
     return rows
 
@@ -338,14 +351,17 @@ def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, An
 
 
 def comparison_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
-    """The comparison as a Markdown table, one line per run, concept and verdict row."""
+    """The comparison as a Markdown table, one line per run, concept and verdict row; the
+    VOE column's header names the runs' alpha (each run's verdict is at its own)."""
+    alphas = {row.get("alpha") for row in rows if row.get("alpha") is not None}
+    voe = f"VOE ({format_alpha(alphas.pop())})" if len(alphas) == 1 else "VOE (each run's α)"
     lines = ["| run | concept | variant | n | M | t(df) | p | accuracy | frame-local cues: "
-             "accuracy | surprise tracks (r) | VOE |", "|" + "---|" * 11]
+             f"accuracy | surprise tracks (r) | {voe} |", "|" + "---|" * 11]
     for row in rows:
         if row["t"] is None:
             statistics = "| n/a | n/a | n/a | n/a "
         else:
-            statistics = (f"| {row['relative_surprise']:.3g} | t({row['df']}) = {row['t']:.2f} "
+            statistics = (f"| {row['relative_surprise']:.3g} | {format_t(row['t'], row['df'])} "
                           f"| {format_p(row['p_value'])} | {100 * row['accuracy']:.0f}% ")
         cues = ("n/a" if row["cue_accuracy_min"] is None else
                 f"{100 * row['cue_accuracy_min']:.0f}–{100 * row['cue_accuracy_max']:.0f}%")
@@ -431,7 +447,8 @@ def sweep_plot(out: Path, results: Path | None = None, runs: dict[int, Path] | N
             pairs = sorted(Path(run_dir).rglob("voe_report/pairs.csv"))
             if not pairs:
                 raise FileNotFoundError(f"no voe_report/pairs.csv under {run_dir} (run test first)")
-            rows.extend(sweep_rows(PairResults.from_csv(pairs[-1]), size, eval_sets))
+            rows.extend(sweep_rows(PairResults.from_csv(pairs[-1]), size, eval_sets,
+                                   alpha=_report_alpha(pairs[-1].parent)))
     return _write(size_sweep_figure(rows), out)
 
 

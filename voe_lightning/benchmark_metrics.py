@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from voe_lightning.statistics import paired_test, ranked_auroc
+from voe_lightning.statistics import ALPHA, paired_test, ranked_auroc
 
 #: A movie path in an IntPhys answer file: <block>/<scene>/<movie 1-4>.
 ANSWER_PATH = re.compile(r"^(O[123])/([^/\s]+)/([1-4])$")
@@ -84,7 +84,7 @@ def quadruplet_metrics(
     quadruplet: Sequence[int],
     surprise_possible: Any,
     surprise_impossible: Any,
-    alpha: float = 0.05,
+    alpha: float = ALPHA,
     bootstrap: int = 2000,
 ) -> dict[str, Any]:
     """Metrics of matched pairs (one row per pair: its quadruplet id, the possible movie's and

@@ -25,11 +25,15 @@ from voe_lightning.report import write_report
 from voe_lightning.report.figures import PredictionExample
 from voe_lightning.report.results import PROBE_OUTPUT_KEYS, PairResults, as_numpy
 from voe_lightning.statistics import (
+    ALPHA,
     POOLED,
     POOLED_VARIANTS,
     PairedSurpriseStats,
+    check_alpha,
     concept_verdicts,
+    format_alpha,
     pair_groups,
+    pooled_values,
 )
 
 
@@ -42,29 +46,26 @@ def _names(trainer: L.Trainer, user: str) -> tuple[tuple[str, ...], tuple[str, .
 class VOEProbeCallback(L.Callback):
     """Every validation run (set its frequency with ``trainer.val_check_interval``, in training
     steps) streams each probe pair's relative surprise into one PairedSurpriseStats per
-    concept/variant, then logs ``voe/<concept>/<variant>/{relative_surprise,t,p_value,accuracy}``.
-    A concept with a standard and a counterbalanced variant also streams every one of their
-    pairs into a third metric, logged as ``voe/<concept>/pooled/...``: the test over the union
-    of both variants' pairs. The sums are float64 torchmetrics states, so the result is exact
-    under DDP. At the end of ``fit`` it prints the last table with each concept's verdict."""
+    concept/variant, then logs ``voe/<concept>/<variant>/{relative_surprise,t,p_value,accuracy,n}``.
+    A concept with a standard and a counterbalanced variant also gets
+    ``voe/<concept>/pooled/...``: the stratified test of its two variants
+    (``statistics.pooled_values``, from their float64 sums, so exact under DDP as they are).
+    At the end of ``fit`` it prints the last table with each concept's verdict at ``alpha``
+    (None: ``statistics.ALPHA``; the CLI gives the run's ``alpha`` from configs/base.yaml)."""
 
-    STATISTICS = ("relative_surprise", "t", "p_value", "accuracy")
+    STATISTICS = ("relative_surprise", "t", "p_value", "accuracy", "n")
 
-    def __init__(self, print_table: bool = True, alpha: float = 0.05):
+    def __init__(self, print_table: bool = True, alpha: float | None = None):
         super().__init__()
-        if not 0.0 < alpha < 1.0:
-            raise ValueError(f"alpha must be in (0, 1), got {alpha}")
         self.print_table = print_table
-        self.alpha = alpha
+        self.alpha = ALPHA if alpha is None else check_alpha(alpha)
         self.metrics: dict[tuple[str, str], PairedSurpriseStats] = {}
         self.last: dict[tuple[str, str], dict[str, float]] = {}
 
     def on_validation_epoch_start(self, trainer, pl_module) -> None:
         cases = probe_datamodule(trainer, type(self).__name__).probe_cases("val")
-        concepts, variants = zip(*cases) if cases else ((), ())
-        pooled = [(c, v) for c, v, _ in pair_groups(concepts, variants) if v == POOLED]
         # Create every metric up front so all DDP ranks hold the same states.
-        for case in list(cases) + pooled:
+        for case in cases:
             self._metric(case, pl_module.device)
         for metric in self.metrics.values():
             metric.reset()
@@ -85,28 +86,26 @@ class VOEProbeCallback(L.Callback):
         groups = defaultdict(list)
         for index, (c, v) in enumerate(zip(outputs["concept"].tolist(), outputs["variant"].tolist())):
             groups[(concept_names[c], variant_names[v])].append(index)
-        for (concept, variant), rows in groups.items():
+        for case, rows in groups.items():
             rows = torch.tensor(rows, device=inconsistent.device)
-            cases = [(concept, variant)]
-            if variant in POOLED_VARIANTS:
-                cases.append((concept, POOLED))  # the union: its states sum both variants'
-            for case in cases:
-                self._metric(case, pl_module.device).update(inconsistent[rows], consistent[rows])
+            self._metric(case, pl_module.device).update(inconsistent[rows], consistent[rows])
 
     def on_validation_epoch_end(self, trainer, pl_module) -> None:
         if trainer.sanity_checking:
             return
-        self.last = {}
-        concepts, variants = zip(*self.metrics) if self.metrics else ((), ())
-        order = [(c, v) for c, v, _ in pair_groups(concepts, variants, pooled=False)]
-        for concept, variant in order:
-            metric = self.metrics[(concept, variant)]
-            if variant == POOLED and not all((concept, v) in self.metrics for v in POOLED_VARIANTS):
-                continue  # one variant alone: nothing to pool
+        computed = {}
+        for case, metric in self.metrics.items():
             try:  # called on every rank alike: compute() syncs the states under DDP
-                values = {k: float(v) for k, v in metric.compute().items()}
+                computed[case] = {k: float(v) for k, v in metric.compute().items()}
             except ValueError:  # fewer than two pairs of this case so far
                 continue
+        self.last = {}
+        concepts, variants = zip(*computed) if computed else ((), ())
+        for concept, variant, _ in pair_groups(concepts, variants):
+            if variant == POOLED:
+                values = pooled_values([computed[(concept, v)] for v in POOLED_VARIANTS])
+            else:
+                values = computed[(concept, variant)]
             self.last[(concept, variant)] = values
             for statistic in self.STATISTICS:
                 pl_module.log(
@@ -123,14 +122,15 @@ class VOEProbeCallback(L.Callback):
 
 
 def voe_table(
-    results: dict[tuple[str, str], dict[str, float]], title: str, alpha: float = 0.05
+    results: dict[tuple[str, str], dict[str, float]], title: str, alpha: float = ALPHA
 ) -> Table:
     """A rich table of relative surprise, t, p and accuracy per concept/variant (pooled rows
-    bold), with each concept's verdict (``statistics.concept_verdicts``) on its first row."""
+    bold: the stratified test), alpha in its title and p header, with each concept's verdict
+    (``statistics.concept_verdicts``) on its first row."""
     verdicts = {v.concept: v for v in concept_verdicts(results, alpha)}
-    table = Table(title=title)
-    for column in ("concept", "variant", "n", "relative surprise", "t", "p (one-tailed)",
-                   "accuracy", "verdict"):
+    table = Table(title=f"{title} ({format_alpha(alpha)})")
+    for column in ("concept", "variant", "n", "relative surprise", "t",
+                   f"p (one-tailed, * < {alpha:g})", "accuracy", "verdict"):
         justify = "left" if column in ("concept", "variant", "verdict") else "right"
         table.add_column(column, justify=justify, overflow="fold")
     keys = list(results)
@@ -239,7 +239,8 @@ class VOEReportCallback(L.Callback):
     up to ``max_prediction_examples`` inconsistent probes per concept/variant for
     predictions_<concept>.png (``pl_module.expected_frames``) and ``tsne_pairs``
     object-persistence pairs, standard and counterbalanced alternately, for the t-SNE figure
-    (``pl_module.trajectories``). With ``cue_audit`` it scores the physics-blind cues of every
+    (``pl_module.trajectories``). Tests are at ``alpha`` (None: ``statistics.ALPHA``; the CLI
+    gives the run's ``alpha`` from configs/base.yaml). With ``cue_audit`` it scores the physics-blind cues of every
     test batch's pairs (``voe_lightning.cues``, on the batch's device), so the cue rows of
     cues.md/cues.csv share the model's pairs and n. Names are decoded with the
     ProbeDataModule's ``concept_names`` / ``variant_names``. After the test, ``summary``
@@ -250,7 +251,7 @@ class VOEReportCallback(L.Callback):
         out_dir: str | None = None,
         max_prediction_examples: int = 1,
         tsne_pairs: int = 2,
-        alpha: float = 0.05,
+        alpha: float | None = None,
         bootstrap: int = 2000,
         seed: int = 0,
         cue_audit: bool = True,
@@ -261,7 +262,8 @@ class VOEReportCallback(L.Callback):
         self.out_dir = out_dir
         self.max_prediction_examples = max_prediction_examples
         self.tsne_pairs = tsne_pairs
-        self.alpha, self.bootstrap, self.seed = alpha, bootstrap, seed
+        self.alpha = ALPHA if alpha is None else check_alpha(alpha)
+        self.bootstrap, self.seed = bootstrap, seed
         self.cue_audit = cue_audit
         self.summary: list[dict[str, Any]] | None = None
         self.report_dir: Path | None = None

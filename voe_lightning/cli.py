@@ -18,7 +18,7 @@ from jsonargparse import ActionConfigFile, ArgumentParser, Namespace
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.utilities import rank_zero_warn
 
-from voe_lightning import analysis, cues, generate
+from voe_lightning import analysis, cues, generate, statistics
 from voe_lightning.model import SurpriseModel
 from voe_lightning.probe_datamodule import ProbeDataModule
 
@@ -55,6 +55,12 @@ class VOECLI(LightningCLI):
     model arguments the user gives that differ from the checkpoint's (LightningCLI replaces the
     config's model arguments with the checkpoint's, so they would be ignored). The subcommands
     of ``COMMANDS`` call their function instead, with no model, data or trainer."""
+
+    def add_arguments_to_parser(self, parser: Any) -> None:
+        """The run's one significance level, ``alpha`` (configs/base.yaml sets it)."""
+        parser.add_argument("--alpha", type=float, default=statistics.ALPHA,
+                            help="significance level of every test, verdict and table of the "
+                            "run; each callback with an alpha argument gets it")
 
     def _add_subcommands(self, parser: Any, **kwargs: Any) -> None:
         """Lightning's subcommands, then those of ``COMMANDS``, each listed with its summary."""
@@ -119,6 +125,8 @@ class VOECLI(LightningCLI):
 
     def before_instantiate_classes(self) -> None:
         config = self.config.get(self.subcommand, {})
+        if self.subcommand in LIGHTNING_SUBCOMMANDS:
+            _give_alpha(config)
         if config and "weights_only" in config and config.get("weights_only") is None:
             config["weights_only"] = True  # torch>=2.4 may default to unpickling anything
         if self.subcommand != "fit":
@@ -158,6 +166,29 @@ class VOECLI(LightningCLI):
         init_args["save_dir"] = str(run_dir.parent.parent)
         init_args["name"] = run_dir.parent.name
         init_args["version"] = version
+
+
+def _give_alpha(config: Any) -> None:
+    """Hand the run's ``alpha`` to every configured callback that takes one and was not given
+    one; refuse a callback whose own alpha differs (one alpha per run, DESIGN.md §6)."""
+    alpha = statistics.check_alpha(config["alpha"])
+    for callback in config["trainer"].get("callbacks") or []:
+        class_path = getattr(callback, "class_path", None)
+        if class_path is None:
+            continue
+        if "alpha" not in inspect.signature(_import(class_path).__init__).parameters:
+            continue
+        if callback.get("init_args") is None:
+            callback["init_args"] = Namespace()
+        given = callback["init_args"].get("alpha")
+        if given is None:
+            callback["init_args"]["alpha"] = alpha
+        elif given != alpha:
+            raise ValueError(
+                f"{class_path} was given alpha {given}, the run's alpha is {alpha}: a run has one "
+                "significance level. Set it once, as the top-level `alpha:` of a config (e.g. "
+                "configs/base.yaml) or --alpha, and leave the callbacks' alpha out."
+            )
 
 
 def _other_data(config: Any, run_dir: Path) -> str | None:
@@ -228,11 +259,26 @@ def _add_command(subcommands: Any, name: str, command: Any) -> None:
     subcommands.add_subcommand(name, parser, help=description.splitlines()[0])
     if not nested:
         parser.add_function_arguments(command, as_group=False, sub_configs=True)
+        if "alpha" in inspect.signature(command).parameters:
+            parser.set_defaults(alpha=base_alpha())
         return
     inner = parser.add_subcommands()
     for inner_name, function in command.items():
         if inner_name != "_help":
             _add_command(inner, inner_name, function)
+
+
+def base_alpha() -> float:
+    """The ``alpha`` of configs/base.yaml (``statistics.ALPHA`` where the file or the key is
+    missing): the default significance level of the commands beside Lightning's too."""
+    try:
+        alpha = yaml.safe_load(BASE_CONFIG.read_text()).get("alpha", statistics.ALPHA)
+    except (OSError, AttributeError):
+        return statistics.ALPHA
+    try:
+        return statistics.check_alpha(alpha)
+    except ValueError as error:
+        raise ValueError(f"{BASE_CONFIG}: {error}") from None
 
 
 def _call(command: Any, arguments: Namespace) -> Any:

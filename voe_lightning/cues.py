@@ -177,9 +177,10 @@ class CueAudit:
         concept with a counterbalanced pair (``statistics.pair_groups``)."""
         return statistics.pair_groups(self.concepts, self.variants)
 
-    def rows(self, alpha: float = 0.05, bootstrap: int = 0) -> list[dict[str, Any]]:
-        """One row per (concept, variant or pooled, cue), columns ``CUE_COLUMNS``: the paired
-        test of score(inconsistent) - score(consistent), ``accuracy`` counting ties as half."""
+    def rows(self, alpha: float = statistics.ALPHA, bootstrap: int = 0) -> list[dict[str, Any]]:
+        """One row per (concept, variant or pooled, cue), columns ``CUE_COLUMNS``: the test
+        of score(inconsistent) - score(consistent) the model's rows get
+        (``statistics.group_test``: stratified for pooled), ``accuracy`` counting ties as half."""
         rows = []
         for concept, variant, selected in self.groups():
             for cue in CUES:
@@ -188,14 +189,16 @@ class CueAudit:
                 row: dict[str, Any] = dict.fromkeys(CUE_COLUMNS)
                 row.update(concept=concept, variant=variant, cue=cue, n=int(selected.sum()))
                 unscored = int(np.isnan(inconsistent).sum() + np.isnan(consistent).sum())
+                untested = statistics.untested_reason(variant, self.variants[selected])
                 if unscored:
                     row["note"] = (f"{cue} skipped: {unscored} of {2 * row['n']} videos have no "
                                    "object mask (all zero or absent)")
-                elif row["n"] < 2:
-                    row["note"] = f"only {row['n']} pair: no test (needs at least 2)"
+                elif untested:
+                    row["note"] = untested
                 else:
-                    result = statistics.paired_test(inconsistent, consistent, alpha=alpha,
-                                                    bootstrap=bootstrap)
+                    result = statistics.group_test(variant, inconsistent, consistent,
+                                                   self.variants[selected], alpha=alpha,
+                                                   bootstrap=bootstrap)
                     row.update(result.as_dict())
                     d = inconsistent - consistent
                     row["accuracy"] = float(np.mean(d > 0) + 0.5 * np.mean(d == 0))
@@ -204,7 +207,7 @@ class CueAudit:
         return rows
 
     def model_correlations(self, model_difference: np.ndarray,
-                           alpha: float = 0.05) -> list[dict[str, Any]]:
+                           alpha: float = statistics.ALPHA) -> list[dict[str, Any]]:
         """How closely a model tracks each cue pair by pair: per group (``groups``) and cue,
         Pearson's r across pairs between the model's relative surprise d (``model_difference``,
         one per pair, in this audit's order) and the cue's d, with its two-sided p
@@ -251,7 +254,7 @@ def tracked_cues(
     return tracked
 
 
-def _two_sided(t: float, df: int) -> float:
+def _two_sided(t: float, df: float) -> float:
     """Two-sided p of a paired t statistic (inf: 0; undefined, every d = 0: 1)."""
     if math.isnan(t):
         return 1.0
@@ -358,7 +361,9 @@ def format_markdown(
     model = model_rows is not None
     header = (["concept", "variant", "n"] + (["model (surprise)"] if model else [])
               + [CUE_TITLES[cue] for cue in CUES])
-    lines = [f"## {title}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    alpha = statistics.rows_alpha(cue_rows)
+    lines = [f"## {title} ({statistics.format_alpha(alpha)})", "",
+             "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for concept, variant, n, cells in _table_cells(cue_rows, model_rows):
         texts = []
         for index, (text, separates) in enumerate(cells):
@@ -368,13 +373,14 @@ def format_markdown(
                 texts.append(f"**{text}**" if separates else text)
         name = f"**{variant}**" if variant == statistics.POOLED else variant
         lines.append(f"| {concept} | {name} | {n} | " + " | ".join(texts) + " |")
-    alpha = next((r["alpha"] for r in cue_rows if r.get("alpha") is not None), 0.05)
     lines += ["", "Each cell: accuracy / d_z of d = score(inconsistent) - score(consistent) on "
               "the same pairs (cue accuracy counts ties as half: 50% is chance). Cues are "
               "physics-blind: " + ", ".join(f"{CUE_TITLES[c]} = {c}" for c in CUES) + ". "
               f"**Bold**: the cue separates the pairs (two-sided p < {alpha:g}), so a model "
               "could do as well without physics."
-              + (" Model: accuracy / d_z of surprise, * one-tailed p < alpha." if model else "")
+              + (f" Model: accuracy / d_z of surprise, * one-tailed p < {alpha:g}; pooled rows "
+                 "(cues' too) are the stratified test of the two variants." if model else
+                 " Pooled rows are the stratified test of the two variants.")
               + " Full statistics in cues.csv."]
     notes = [f"{r['concept']}/{r['variant']}, {CUE_TITLES[r['cue']]}: {r['note']}"
              for r in cue_rows if r.get("note") and "bootstrap" not in r["note"]]
@@ -388,7 +394,9 @@ def format_correlations(correlation_rows: Sequence[Mapping[str, Any]],
     and cue, bold where two-sided p < alpha."""
     by_key = {(r["concept"], r["variant"], r["cue"]): r for r in correlation_rows}
     header = ["concept", "variant", "n"] + [CUE_TITLES[cue] for cue in CUES]
-    lines = [f"## {title}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    alpha = statistics.rows_alpha(correlation_rows)
+    lines = [f"## {title} ({statistics.format_alpha(alpha)})", "",
+             "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for concept, variant in dict.fromkeys((r["concept"], r["variant"]) for r in correlation_rows):
         cells = []
         for cue in CUES:
@@ -401,7 +409,6 @@ def format_correlations(correlation_rows: Sequence[Mapping[str, Any]],
         name = f"**{variant}**" if variant == statistics.POOLED else variant
         n = by_key[(concept, variant, CUES[0])]["n"]
         lines.append(f"| {concept} | {name} | {n} | " + " | ".join(cells) + " |")
-    alpha = next((r["alpha"] for r in correlation_rows), 0.05)
     lines += ["", "Each cell: Pearson's r across pairs between the model's relative surprise "
               "S(inconsistent) - S(consistent) and the cue's score(inconsistent) - "
               f"score(consistent); **bold**: two-sided p < {alpha:g}. A model whose pooled "
@@ -419,8 +426,10 @@ def cue_table(
     """The compact cue table as a rich Table (separating cue cells red, pooled rows bold)."""
     from rich.table import Table
 
-    table = Table(title=title, caption="accuracy (ties half) / d_z; red: the cue separates the "
-                  "pairs (two-sided p < alpha)")
+    alpha = statistics.rows_alpha(cue_rows)
+    table = Table(title=f"{title} ({statistics.format_alpha(alpha)})",
+                  caption="accuracy (ties half) / d_z; red: the cue separates the pairs "
+                  f"(two-sided p < {alpha:g})")
     for column in ["concept", "variant", "n"] + (["model"] if model_rows is not None else []) + [
             CUE_TITLES[cue] for cue in CUES]:
         table.add_column(column, justify="left" if column in ("concept", "variant") else "right")
@@ -479,7 +488,7 @@ def audit(
     split: Literal["val", "test", "generalization"] = "test",
     concepts: list[specs.Concept] | None = None,
     out: Path | None = None,
-    alpha: float = 0.05,
+    alpha: float = statistics.ALPHA,
     batch_size: int = 64,
     num_workers: int = 0,
     progress: bool = True,
@@ -494,15 +503,16 @@ def audit(
         split: probe split to audit.
         concepts: concepts to audit (default: every concept in the store).
         out: output folder (default: ROOT/cue_audit/SPLIT).
-        alpha: significance level.
+        alpha: significance level (default: configs/base.yaml's alpha).
         batch_size: pairs scored at once.
         num_workers: data loader worker processes.
         progress: show a progress bar.
     """
     from rich.console import Console
 
-    if not 0.0 < alpha < 1.0 or batch_size < 1:
-        raise ValueError(f"alpha must be in (0, 1) and batch_size >= 1, got {alpha} and {batch_size}")
+    statistics.check_alpha(alpha)
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be >= 1, got {batch_size}")
     scores = audit_split(root, split, concepts, batch_size, num_workers, progress=progress)
     rows = scores.rows(alpha=alpha)
     title = f"Cue audit of {root} ({split} split, {len(scores)} pairs)"

@@ -13,12 +13,21 @@ Degenerate inputs, decided once here:
   (d_z and its interval are +-inf likewise). When every d is exactly 0 there is no evidence
   for H1 at all: t and d_z are undefined (NaN) and p is set to 1 (not significant). Every such
   result carries a ``note`` saying so, which the report prints beside the row.
+
+A concept with a counterbalanced pair is also tested ``pooled`` (DESIGN.md §6): a stratified
+test of the mean of its variants' mean differences, M = (M_standard + M_counterbalanced) / 2,
+with SE = 0.5 * sqrt(s1^2/n1 + s2^2/n2) and Welch-Satterthwaite df (``stratified_test``, and
+``pooled_test`` for per-pair input). The variants' cue differences point opposite ways by
+design, so a test over the union of their pairs would count that split as noise.
+
+One significance level, ``ALPHA``, decides every verdict and table unless a run sets its own
+(``alpha:`` in configs/base.yaml, which the CLI hands to every callback and command).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -31,28 +40,65 @@ from torchmetrics.functional.classification import binary_auroc
 from voe_lightning import specs
 
 __all__ = [
+    "ALPHA",
     "POOLED",
     "POOLED_VARIANTS",
     "PairedSurpriseStats",
     "PairedTestResult",
+    "StratifiedTest",
     "TTest",
     "Verdict",
     "as_float64",
+    "check_alpha",
     "concept_verdicts",
+    "format_alpha",
     "effect_size_interval",
+    "group_test",
     "paired_test",
     "pair_groups",
+    "pooled_rule",
+    "pooled_values",
+    "pooled_test",
     "relative_surprise",
+    "rows_alpha",
+    "stratified_moments",
+    "stratified_test",
     "t_test_from_moments",
+    "untested_reason",
+    "variant_rule",
 ]
 
 #: The row name of a concept's pooled test, and the variants it pools (DESIGN.md §4, §6).
 POOLED = "pooled"
 POOLED_VARIANTS: tuple[str, str] = ("standard", "counterbalanced")
 
+#: The significance level of every verdict and table unless a run sets another: .01 per test,
+#: so that five concepts' verdicts together stay near .05 (DESIGN.md §6). configs/base.yaml
+#: states it as the run's ``alpha``; a test checks the two agree.
+ALPHA = 0.01
+
 #: A variance below this fraction of the mean square is treated as exactly zero (the streaming
 #: form computes it from sums, where equal differences leave rounding residue of about 1e-16).
 _ZERO_VARIANCE_RTOL = 1e-12
+
+
+def check_alpha(alpha: Any) -> float:
+    """``alpha`` as a float if it is a significance level in (0, 1); a ValueError otherwise."""
+    if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0.0 < alpha < 1.0:
+        raise ValueError(f"alpha must be a significance level in (0, 1), e.g. {ALPHA}; "
+                         f"got {alpha!r}")
+    return float(alpha)
+
+
+def format_alpha(alpha: float) -> str:
+    """A significance level as every table header prints it: 'α = 0.01'."""
+    return f"α = {alpha:g}"
+
+
+def rows_alpha(rows: Iterable[Mapping[str, Any]]) -> float:
+    """The significance level result rows were tested at (their ``alpha``; ``ALPHA`` when
+    no row was tested)."""
+    return next((row["alpha"] for row in rows if row.get("alpha") is not None), ALPHA)
 
 
 def as_float64(values: Any, name: str) -> np.ndarray:
@@ -102,27 +148,91 @@ class TTest:
     note: str
 
 
-def t_test_from_moments(n: int, mean: float, variance: float) -> TTest:
-    """The one-tailed paired t-test from n, the mean and the (ddof=1) variance of d, with the
-    degenerate cases of the module docstring. p comes from scipy's t distribution."""
+def t_and_p(mean: Any, standard_error: Any, df: Any) -> tuple[Any, Any]:
+    """t = M / SE and its one-tailed p (H1: M > 0) from scipy's t distribution; numpy arrays
+    broadcast (the calibration tests thousands of repetitions at once) as scalars do."""
+    t = np.divide(mean, standard_error)
+    return t, stats.t.sf(t, df)
+
+
+def _is_zero_variance(n: int, mean: float, variance: float) -> bool:
+    """Whether a variance is zero up to the rounding residue of sums (``_ZERO_VARIANCE_RTOL``)."""
+    return variance <= _ZERO_VARIANCE_RTOL * (variance * (n - 1) / n + mean * mean)
+
+
+def _degenerate(mean: float) -> tuple[float, float, str]:
+    """t, p and note of a test whose standard error is zero (module docstring)."""
+    if mean > 0:
+        return math.inf, 0.0, f"zero variance: every d = {mean:.6g} > 0, so t = +inf, p = 0"
+    if mean < 0:
+        return -math.inf, 1.0, f"zero variance: every d = {mean:.6g} < 0, so t = -inf, p = 1"
+    return math.nan, 1.0, "every d = 0: no difference at all; t and d_z undefined, p set to 1"
+
+
+def _check_moments(n: int, mean: float, variance: float) -> None:
     if n < 2:
         raise ValueError(f"a paired t-test needs at least 2 probe pairs, got n={n}")
     if not (math.isfinite(mean) and math.isfinite(variance)):
         raise ValueError(f"moments of the differences are not finite: mean={mean}, var={variance}")
+
+
+def t_test_from_moments(n: int, mean: float, variance: float) -> TTest:
+    """The one-tailed paired t-test from n, the mean and the (ddof=1) variance of d, with the
+    degenerate cases of the module docstring. p comes from scipy's t distribution."""
+    _check_moments(n, mean, variance)
     df = n - 1
-    mean_square = variance * df / n + mean * mean
-    if variance <= _ZERO_VARIANCE_RTOL * mean_square:
-        if mean > 0:
-            return TTest(n, mean, 0.0, math.inf, df, 0.0,
-                         f"zero variance: every d = {mean:.6g} > 0, so t = +inf, p = 0")
-        if mean < 0:
-            return TTest(n, mean, 0.0, -math.inf, df, 1.0,
-                         f"zero variance: every d = {mean:.6g} < 0, so t = -inf, p = 1")
-        return TTest(n, 0.0, 0.0, math.nan, df, 1.0,
-                     "every d = 0: no difference at all; t and d_z undefined, p set to 1")
+    if _is_zero_variance(n, mean, variance):
+        t, p, note = _degenerate(mean)
+        return TTest(n, 0.0 if math.isnan(t) else mean, 0.0, t, df, p, note)
     sd = math.sqrt(variance)
-    t = mean / (sd / math.sqrt(n))
-    return TTest(n, mean, sd, t, df, float(stats.t.sf(t, df)), "")
+    t, p = t_and_p(mean, sd / math.sqrt(n), df)
+    return TTest(n, mean, sd, float(t), df, float(p), "")
+
+
+@dataclass(frozen=True)
+class StratifiedTest:
+    """The pooled test of a concept's variants (strata): ``mean`` is the unweighted mean of
+    their mean differences, ``standard_error`` its SE, ``df`` Welch-Satterthwaite's (a real
+    number), ``p_value`` one-tailed (H1: mean > 0); ``n`` counts the pairs of every stratum."""
+
+    n: int
+    mean: float
+    standard_error: float
+    t: float
+    df: float
+    p_value: float
+    note: str
+
+
+def stratified_moments(n: Any, mean: Any, variance: Any) -> tuple[Any, Any, Any]:
+    """The mean of k strata's mean differences, its standard error (1/k) sqrt(sum s_i^2/n_i)
+    and the Welch-Satterthwaite df (sum s_i^2/n_i)^2 / sum (s_i^2/n_i)^2/(n_i - 1), from each
+    stratum's n, mean and (ddof=1) variance along axis 0 (arrays broadcast over the rest)."""
+    n, mean, variance = (np.asarray(x, dtype=np.float64) for x in (n, mean, variance))
+    squared_errors = variance / n
+    total = squared_errors.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        df = total * total / (squared_errors * squared_errors / (n - 1)).sum(axis=0)
+    return mean.mean(axis=0), np.sqrt(total) / n.shape[0], df
+
+
+def stratified_test(strata: Sequence[tuple[int, float, float]]) -> StratifiedTest:
+    """The stratified test from each stratum's (n, mean, variance) of d (module docstring).
+    A stratum whose variance is zero up to rounding counts as zero; when every one is, the
+    degenerate rule of the module docstring decides (t = +-inf, or NaN with p = 1)."""
+    if len(strata) < 2:
+        raise ValueError(f"a stratified test needs at least 2 strata (variants), got {len(strata)}")
+    for n, mean, variance in strata:
+        _check_moments(n, mean, variance)
+    variances = [0.0 if _is_zero_variance(n, mean, variance) else variance
+                 for n, mean, variance in strata]
+    ns, means = [n for n, _, _ in strata], [mean for _, mean, _ in strata]
+    mean, standard_error, df = (float(x) for x in stratified_moments(ns, means, variances))
+    if standard_error == 0.0:
+        t, p, note = _degenerate(mean)
+        return StratifiedTest(sum(ns), mean, 0.0, t, math.nan, p, note)
+    t, p = t_and_p(mean, standard_error, df)
+    return StratifiedTest(sum(ns), mean, standard_error, float(t), df, float(p), "")
 
 
 def effect_size_interval(t: float, n: int, confidence: float = 0.95) -> tuple[float, float]:
@@ -159,7 +269,8 @@ def effect_size_interval(t: float, n: int, confidence: float = 0.95) -> tuple[fl
 class PairedTestResult:
     """Everything the paper reports for one concept/variant, with d = S(inc) - S(con).
 
-    ``relative_surprise`` is the paper's M (mean of d); ``p_value`` is one-tailed (H1: M > 0);
+    ``relative_surprise`` is the paper's M (mean of d; a pooled row's: the mean of its
+    variants' means, ``pooled_test``, whose ``df`` is a real number); ``p_value`` is one-tailed (H1: M > 0);
     ``d_z`` = M / sd with a noncentral-t interval; ``accuracy`` is the share of pairs with
     d > 0 (the relative accuracy); ``auroc`` is the area under the ROC curve for telling
     inconsistent from consistent videos by surprise alone (unpaired); the
@@ -170,7 +281,7 @@ class PairedTestResult:
     relative_surprise: float
     sd: float
     t: float
-    df: int
+    df: float
     p_value: float
     significant: bool
     alpha: float
@@ -199,10 +310,18 @@ def ranked_auroc(positive: np.ndarray, negative: np.ndarray) -> float:
     return float(binary_auroc(torch.from_numpy(ranks), target))
 
 
-def _bootstrap_mean_interval(d: np.ndarray, resamples: int, seed: int) -> tuple[float, float]:
+def _bootstrap_mean_interval(parts: Sequence[np.ndarray], resamples: int, seed: int
+                             ) -> tuple[float, float]:
+    """BCa 95% interval of the mean of the parts' means, each part resampled on its own (one
+    part: the mean of d; a pooled row's variants: the stratified mean)."""
+    def mean_of_means(*samples: np.ndarray, axis: int = -1) -> np.ndarray:
+        return np.mean([np.mean(sample, axis=axis) for sample in samples], axis=0)
+
+    size = sum(part.size for part in parts)
     result = stats.bootstrap(
-        (d,), np.mean, n_resamples=resamples, confidence_level=0.95, method="BCa",
-        rng=np.random.default_rng(seed), batch=max(1, min(resamples, 2_000_000 // d.size)),
+        tuple(parts), mean_of_means, n_resamples=resamples, confidence_level=0.95,
+        method="BCa", rng=np.random.default_rng(seed),
+        batch=max(1, min(resamples, 2_000_000 // size)),
     )
     low, high = result.confidence_interval
     if not (np.isfinite(low) and np.isfinite(high)):  # BCa undefined (e.g. n=2): percentile
@@ -210,54 +329,42 @@ def _bootstrap_mean_interval(d: np.ndarray, resamples: int, seed: int) -> tuple[
     return (float(low), float(high))
 
 
-def paired_test(
-    inconsistent: Any,
-    consistent: Any,
-    alpha: float = 0.05,
-    bootstrap: int = 2000,
-    seed: int = 0,
-) -> PairedTestResult:
-    """One-tailed paired t-test of per-pair surprise, H1: mean(inconsistent - consistent) > 0.
-    Agrees with ``scipy.stats.ttest_rel(inconsistent, consistent, alternative="greater")``.
-    ``bootstrap`` resamples (seeded by ``seed``) give the 95% interval of M; 0 skips it and
-    reports NaN bounds with a note."""
-    if not 0.0 < alpha < 1.0:
-        raise ValueError(f"alpha must be in (0, 1), got {alpha}")
+def _check_options(alpha: float, bootstrap: int) -> None:
+    check_alpha(alpha)
     if bootstrap < 0:
         raise ValueError(f"bootstrap must be a number of resamples >= 0, got {bootstrap}")
-    inc = as_float64(inconsistent, "inconsistent surprise")
-    con = as_float64(consistent, "consistent surprise")
-    d = relative_surprise(inc, con)
-    n = d.size
-    if n < 2:
-        raise ValueError(f"a paired t-test needs at least 2 probe pairs, got n={n}")
-    mean = float(np.mean(d))
-    test = t_test_from_moments(n, mean, float(np.var(d, ddof=1)))
-    if test.sd == 0.0:
-        d_z = test.t  # +inf, -inf, or nan when every d = 0
-    else:
-        d_z = mean / test.sd
-    d_z_low, d_z_high = effect_size_interval(test.t, n)
-    notes = [test.note] if test.note else []
-    if test.sd == 0.0:  # every resample has the same mean
+
+
+def _result(inc: np.ndarray, con: np.ndarray, parts: Sequence[np.ndarray], mean: float,
+            t: float, df: float, p_value: float, note: str, d_z_interval: tuple[float, float],
+            alpha: float, bootstrap: int, seed: int) -> PairedTestResult:
+    """The report row of a test of d = inc - con, whatever test gave M, t, df and p: d_z is M
+    over the SD of every pair's d, accuracy and AUROC count every pair; ``parts`` are what the
+    bootstrap of M resamples separately."""
+    d = inc - con
+    sd = float(np.std(d, ddof=1))
+    zero_error = not math.isfinite(t) or sd == 0.0
+    d_z = t if zero_error else mean / sd  # +inf, -inf, or nan when every d = 0
+    notes = [note] if note else []
+    if zero_error:  # every resample has the same mean
         mean_low = mean_high = mean
     elif bootstrap:
-        mean_low, mean_high = _bootstrap_mean_interval(d, bootstrap, seed)
+        mean_low, mean_high = _bootstrap_mean_interval(parts, bootstrap, seed)
     else:
         mean_low = mean_high = math.nan
         notes.append("bootstrap interval of M not computed (bootstrap=0)")
     return PairedTestResult(
-        n=n,
+        n=d.size,
         relative_surprise=mean,
-        sd=test.sd,
-        t=test.t,
-        df=test.df,
-        p_value=test.p_value,
-        significant=bool(test.p_value < alpha),
+        sd=0.0 if zero_error else sd,
+        t=t,
+        df=df,
+        p_value=p_value,
+        significant=bool(p_value < alpha),
         alpha=alpha,
         d_z=d_z,
-        d_z_ci_low=d_z_low,
-        d_z_ci_high=d_z_high,
+        d_z_ci_low=d_z_interval[0],
+        d_z_ci_high=d_z_interval[1],
         accuracy=float(np.mean(d > 0)),
         auroc=ranked_auroc(inc, con),
         relative_surprise_ci_low=mean_low,
@@ -266,12 +373,97 @@ def paired_test(
     )
 
 
+def paired_test(
+    inconsistent: Any,
+    consistent: Any,
+    alpha: float = ALPHA,
+    bootstrap: int = 2000,
+    seed: int = 0,
+) -> PairedTestResult:
+    """One-tailed paired t-test of per-pair surprise, H1: mean(inconsistent - consistent) > 0.
+    Agrees with ``scipy.stats.ttest_rel(inconsistent, consistent, alternative="greater")``.
+    ``bootstrap`` resamples (seeded by ``seed``) give the 95% interval of M; 0 skips it and
+    reports NaN bounds with a note."""
+    _check_options(alpha, bootstrap)
+    inc = as_float64(inconsistent, "inconsistent surprise")
+    con = as_float64(consistent, "consistent surprise")
+    d = relative_surprise(inc, con)
+    if d.size < 2:
+        raise ValueError(f"a paired t-test needs at least 2 probe pairs, got n={d.size}")
+    test = t_test_from_moments(d.size, float(np.mean(d)), float(np.var(d, ddof=1)))
+    return _result(inc, con, [d], test.mean, test.t, test.df, test.p_value, test.note,
+                   effect_size_interval(test.t, d.size), alpha, bootstrap, seed)
+
+
+def pooled_test(
+    inconsistent: Any,
+    consistent: Any,
+    strata: Sequence[str],
+    alpha: float = ALPHA,
+    bootstrap: int = 2000,
+    seed: int = 0,
+) -> PairedTestResult:
+    """The pooled row of a concept: ``stratified_test`` over the pairs' ``strata`` (their
+    variants, e.g. standard and counterbalanced), so M is the mean of the variants' mean
+    differences. ``sd`` and ``d_z`` = M / sd are over every pair's d, accuracy and AUROC count
+    every pair; d_z's interval is M's t interval (M +- t_.975(df) SE) over sd, and the
+    bootstrap interval of M resamples each variant on its own."""
+    _check_options(alpha, bootstrap)
+    inc = as_float64(inconsistent, "inconsistent surprise")
+    con = as_float64(consistent, "consistent surprise")
+    d = relative_surprise(inc, con)
+    strata = np.asarray(strata, dtype=object)
+    if strata.shape != d.shape:
+        raise ValueError(f"strata must name one variant per pair ({d.size}); got shape "
+                         f"{strata.shape}")
+    names = list(dict.fromkeys(strata.tolist()))
+    reason = untested_reason(POOLED, strata.tolist())
+    if reason or len(names) < 2:
+        raise ValueError(reason or f"a pooled test needs pairs of at least 2 variants, got "
+                         f"{names}")
+    parts = [d[strata == name] for name in names]
+    test = stratified_test([(part.size, float(np.mean(part)), float(np.var(part, ddof=1)))
+                            for part in parts])
+    sd = float(np.std(d, ddof=1))
+    if test.standard_error > 0.0 and sd > 0.0:
+        half = float(stats.t.ppf(0.975, test.df)) * test.standard_error
+        d_z_interval = ((test.mean - half) / sd, (test.mean + half) / sd)
+    else:
+        d_z_interval = (test.t, test.t)
+    return _result(inc, con, parts, test.mean, test.t, test.df, test.p_value, test.note,
+                   d_z_interval, alpha, bootstrap, seed)
+
+
+def untested_reason(variant: str, variants: Sequence[str]) -> str:
+    """Why a group of ``pair_groups`` whose pairs have these ``variants`` gets no test, or ''
+    if it gets one: fewer than two pairs; for the pooled row, a variant with fewer than two."""
+    counts = dict.fromkeys(variants, 0)
+    for name in variants:
+        counts[name] += 1
+    if len(variants) < 2:
+        return f"only {len(variants)} pair: no test (needs at least 2)"
+    short = [f"{name} has {count}" for name, count in counts.items() if count < 2]
+    if variant == POOLED and short:
+        return f"no pooled test: {', '.join(short)} pair (each variant needs at least 2)"
+    return ""
+
+
+def group_test(variant: str, inconsistent: Any, consistent: Any, variants: Sequence[str],
+               alpha: float = ALPHA, bootstrap: int = 2000, seed: int = 0) -> PairedTestResult:
+    """The test of one row of ``pair_groups``: ``pooled_test`` over the pairs' ``variants``
+    for the ``POOLED`` row, ``paired_test`` for any other."""
+    if variant == POOLED:
+        return pooled_test(inconsistent, consistent, variants, alpha, bootstrap, seed)
+    return paired_test(inconsistent, consistent, alpha, bootstrap, seed)
+
+
 class PairedSurpriseStats(Metric):
     """Streaming paired t-test for training-time callbacks: keeps n, sum d, sum d^2 and the
     count of d > 0 as float64 sum-states, so a DDP reduction (or ``merge_state``) gives the
     same result as one pass over all pairs. ``compute()`` returns float64 scalar tensors
     ``relative_surprise`` (mean d), ``t``, ``p_value`` (one-tailed, scipy's t distribution),
-    ``accuracy`` (share of d > 0) and ``n``."""
+    ``accuracy`` (share of d > 0), ``n`` and ``variance`` (of d, ddof=1: what
+    ``pooled_values`` pools variants from)."""
 
     is_differentiable = False
     higher_is_better = None
@@ -325,9 +517,20 @@ class PairedSurpriseStats(Metric):
             "p_value": test.p_value,
             "accuracy": float(self.positive) / n,
             "n": float(n),
+            "variance": variance,
         }
         return {key: torch.tensor(value, dtype=torch.float64) for key, value in values.items()}
 
+
+def pooled_values(variant_values: Sequence[Mapping[str, float]]) -> dict[str, float]:
+    """The pooled row of the streaming form from its variants' ``PairedSurpriseStats`` values
+    (n, relative_surprise, variance, accuracy): ``stratified_test``'s M, t, df and p, and the
+    share of all their pairs with d > 0."""
+    test = stratified_test([(int(round(float(v["n"]))), float(v["relative_surprise"]),
+                             float(v["variance"])) for v in variant_values])
+    positive = sum(float(v["accuracy"]) * float(v["n"]) for v in variant_values)
+    return {"relative_surprise": test.mean, "t": test.t, "p_value": test.p_value,
+            "df": test.df, "accuracy": positive / test.n, "n": float(test.n)}
 
 
 # ----------------------------------------------------------------------------- groups and verdicts
@@ -339,7 +542,7 @@ def pair_groups(
     """(concept, variant, boolean row selector) for every concept/variant among the pairs, in
     ``specs`` order where known (others after, in order of first appearance). With ``pooled``,
     a concept holding both ``standard`` and ``counterbalanced`` pairs gets a ``pooled`` group
-    (the union of the two) right after its variants."""
+    (the pairs of both, tested by ``pooled_test``) right after its variants."""
     concepts = np.asarray(concepts, dtype=object)
     variants = np.asarray(variants, dtype=object)
     keys = list(dict.fromkeys(zip(concepts.tolist(), variants.tolist())))
@@ -381,43 +584,62 @@ def _p(p: float) -> str:
     return f"{p:.3f}".lstrip("0") if p >= 0.001 else "< .001"
 
 
+def pooled_rule(pooled_p: Any, standard_mean: Any, counterbalanced_mean: Any,
+                alpha: float) -> Any:
+    """VOE for a concept with a counterbalanced pair: the pooled (stratified) test is
+    significant and both variants' M > 0. Arrays broadcast (the calibration's repetitions)."""
+    return ((np.asarray(pooled_p) < alpha) & (np.asarray(standard_mean) > 0)
+            & (np.asarray(counterbalanced_mean) > 0))
+
+
+def variant_rule(p_values: Sequence[Any], alpha: float) -> Any:
+    """VOE for a concept without one (unchangeableness): every probe variant's p < alpha
+    (``p_values`` one per variant along axis 0; arrays broadcast over the rest)."""
+    return np.all(np.asarray(p_values, dtype=np.float64) < alpha, axis=0)
+
+
 def concept_verdicts(
     results: Mapping[tuple[str, str], Mapping[str, Any]] | Sequence[Mapping[str, Any]],
-    alpha: float = 0.05,
+    alpha: float = ALPHA,
 ) -> list[Verdict]:
-    """Per concept, in the order first seen: VOE only when the pooled test is significant
-    (p < alpha) and both pooled variants have M > 0, for a concept with a counterbalanced
-    pair; otherwise (unchangeableness' position/color/shape, a benchmark's own variants) only
-    when every one of its probe variants is significant. Generalization variants do not
-    enter. ``results`` maps (concept, variant) to a dict with ``p_value`` and
+    """Per concept, in the order first seen: ``pooled_rule`` for a concept with a
+    counterbalanced pair, otherwise (unchangeableness' position/color/shape, a benchmark's own
+    variants) ``variant_rule`` over every one of its probe variants. Generalization variants
+    do not enter. ``results`` maps (concept, variant) to a dict with ``p_value`` and
     ``relative_surprise`` (None when untested), or is a list of rows that carry both names."""
+    check_alpha(alpha)
     if not isinstance(results, Mapping):
         results = {(row["concept"], row["variant"]): row for row in results}
     verdicts = []
     for concept in dict.fromkeys(concept for concept, _ in results):
         present = [v for c, v in results if c == concept and v != POOLED]
         required = list(specs.STANDARD_VARIANTS.get(concept, present))
-        if set(POOLED_VARIANTS) <= set(required):
-            rule = "pooled p < alpha and M > 0 in both standard and counterbalanced"
-            needed = [(concept, variant) for variant in POOLED_VARIANTS] + [(concept, POOLED)]
+        pooled = set(POOLED_VARIANTS) <= set(required)
+        if pooled:
+            rule = f"pooled p < {alpha:g} and M > 0 in both standard and counterbalanced"
+            needed = [*POOLED_VARIANTS, POOLED]
         else:
-            rule = f"p < alpha in every variant ({', '.join(required)})"
-            needed = [(concept, variant) for variant in required]
-        untested = [variant for _, variant in needed
+            rule = f"p < {alpha:g} in every variant ({', '.join(required)})"
+            needed = required
+        untested = [variant for variant in needed
                     if results.get((concept, variant), {}).get("p_value") is None]
         if untested:
             verdicts.append(Verdict(concept, None, rule,
                                     f"no test of {', '.join(untested)} (needs >= 2 pairs each)"))
             continue
-        failed = []
-        for _, variant in needed:
-            values = results[(concept, variant)]
-            if variant in POOLED_VARIANTS and rule.startswith("pooled"):
-                if not values["relative_surprise"] > 0:
-                    failed.append(f"{variant} M = {values['relative_surprise']:.3g} <= 0")
-            elif not values["p_value"] < alpha:
-                failed.append(f"{variant} p = {_p(values['p_value'])} >= {alpha:g}")
-        verdicts.append(Verdict(concept, not failed, rule, "; ".join(failed)))
+        values = {variant: results[(concept, variant)] for variant in needed}
+        if pooled:
+            means = [values[variant]["relative_surprise"] for variant in POOLED_VARIANTS]
+            voe = bool(pooled_rule(values[POOLED]["p_value"], *means, alpha))
+            failed = [f"{variant} M = {mean:.3g} <= 0"
+                      for variant, mean in zip(POOLED_VARIANTS, means) if not mean > 0]
+            tested = [POOLED]
+        else:
+            voe = bool(variant_rule([values[v]["p_value"] for v in needed], alpha))
+            failed, tested = [], needed
+        failed += [f"{variant} p = {_p(values[variant]['p_value'])} >= {alpha:g}"
+                   for variant in tested if not values[variant]["p_value"] < alpha]
+        verdicts.append(Verdict(concept, voe, rule, "" if voe else "; ".join(failed)))
     return verdicts
 
 

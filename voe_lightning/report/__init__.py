@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from voe_lightning import cues
+from voe_lightning.statistics import ALPHA
 from voe_lightning.report.figures import PredictionExample, write_figures
 from voe_lightning.report.results import VRNN_SURPRISE, PairResults, summarize, write_summary
 
@@ -32,7 +33,7 @@ def write_report(
     *,
     trajectory_labels: Sequence[str] | None = None,
     cue_audit: cues.CueAudit | None = None,
-    alpha: float = 0.05,
+    alpha: float = ALPHA,
     bootstrap: int = 2000,
     seed: int = 0,
     echo: bool = True,

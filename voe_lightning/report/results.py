@@ -17,11 +17,15 @@ import torch
 from voe_lightning.model.module import VOEModel
 from voe_lightning.specs import CONCEPTS, VARIANTS
 from voe_lightning.statistics import (
+    ALPHA,
     PairedTestResult,
     concept_verdicts,
+    format_alpha,
+    group_test,
     json_row,
     pair_groups,
-    paired_test,
+    rows_alpha,
+    untested_reason,
 )
 
 #: Keys of the dict that ``VOEModel.probe_step`` (and so ``test_step``) returns.
@@ -194,21 +198,24 @@ class PairResults:
 
 
 def summarize(
-    results: PairResults, alpha: float = 0.05, bootstrap: int = 2000, seed: int = 0
+    results: PairResults, alpha: float = ALPHA, bootstrap: int = 2000, seed: int = 0
 ) -> list[dict[str, Any]]:
     """One row per concept/variant, and a ``pooled`` row per concept with a counterbalanced
-    pair (the test over the union of both variants' pairs): the paired test of summed
-    surprise. A group with fewer than two pairs gets ``None`` statistics and a note instead
+    pair (``statistics.pooled_test``: the stratified test of its variants' mean differences):
+    the test of summed surprise (``statistics.group_test``). A group without a test (fewer
+    than two pairs, ``statistics.untested_reason``) gets ``None`` statistics and a note instead
     of failing the report."""
     rows = []
     for concept, variant, pairs in results.groups(pooled=True):
         row: dict[str, Any] = {"concept": concept, "variant": variant}
-        if len(pairs) < 2:
+        reason = untested_reason(variant, pairs.variant)
+        if reason:
             row.update({key: None for key in SUMMARY_COLUMNS[2:]})
-            row.update(n=len(pairs), note=f"only {len(pairs)} pair: no test (needs at least 2)")
+            row.update(n=len(pairs), note=reason)
         else:
-            row.update(paired_test(pairs.total_inconsistent, pairs.total_consistent,
-                                   alpha=alpha, bootstrap=bootstrap, seed=seed).as_dict())
+            row.update(group_test(variant, pairs.total_inconsistent, pairs.total_consistent,
+                                  pairs.variant, alpha=alpha, bootstrap=bootstrap,
+                                  seed=seed).as_dict())
         rows.append(row)
     return rows
 
@@ -233,6 +240,16 @@ def format_p(p: float | None) -> str:
     return f"{p:.3f}".lstrip("0") if p < 1 else "1"
 
 
+def format_t(t: float | None, df: float | None) -> str:
+    """'t(47) = 2.31' as in the paper's text; a pooled row's real-valued Welch-Satterthwaite
+    df with one decimal, 't(93.4) = 2.31'; 'n/a' without a test."""
+    if t is None:
+        return "n/a"
+    whole = df is None or (isinstance(df, float) and not math.isfinite(df)) or float(df).is_integer()
+    degrees = format_number(df, ".0f") if whole else f"{df:.1f}"
+    return f"t({degrees}) = {format_number(t, '.2f')}"
+
+
 def format_p_phrase(p: float) -> str:
     """'p < .001' or 'p = .034', as in the paper's text."""
     return f"p {format_p(p)}" if p < 0.001 else f"p = {format_p(p)}"
@@ -250,9 +267,8 @@ def _interval(value: Any, low: Any, high: Any, spec: str) -> str:
 
 def format_verdicts(rows: Sequence[Mapping[str, Any]]) -> list[str]:
     """Markdown lines of each concept's VOE verdict (``statistics.concept_verdicts``)."""
-    alpha = next((row["alpha"] for row in rows if row.get("alpha") is not None), 0.05)
     lines = []
-    for verdict in concept_verdicts(rows, alpha):
+    for verdict in concept_verdicts(rows, rows_alpha(rows)):
         text = "**VOE**" if verdict.voe else verdict.text()
         lines.append(f"- {verdict.concept}: {text} (rule: {verdict.rule})")
     return lines
@@ -263,10 +279,12 @@ VRNN_SURPRISE = VOEModel.SURPRISE
 
 
 def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURPRISE) -> str:
-    """The summary as a Markdown table (paper notation), notes as footnotes below it, then
-    each concept's VOE verdict; ``surprise`` names what a frame's surprise is."""
-    header = ("| concept | variant | n | M [95% CI] | t(df) | p | sig. | d_z [95% CI] "
-              "| accuracy | AUROC |")
+    """The summary as a Markdown table (paper notation, alpha in its header), notes as
+    footnotes below it, then each concept's VOE verdict; ``surprise`` names what a frame's
+    surprise is."""
+    alpha = rows_alpha(rows)
+    header = (f"| concept | variant | n | M [95% CI] | t(df) | p | sig. ({format_alpha(alpha)}) "
+              "| d_z [95% CI] | accuracy | AUROC |")
     lines = [header, "|" + "---|" * (header.count("|") - 1)]
     notes = []
     for row in rows:
@@ -274,22 +292,22 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURP
         if row.get("note"):
             notes.append(row["note"])
             marker = f" [{len(notes)}]"
-        t = "n/a" if row["t"] is None else f"t({row['df']}) = {format_number(row['t'], '.2f')}"
         sig = "n/a" if row["significant"] is None else ("yes *" if row["significant"] else "no")
         accuracy = "n/a" if row["accuracy"] is None else f"{100 * row['accuracy']:.1f}%"
         mean = _interval(row["relative_surprise"], row["relative_surprise_ci_low"],
                          row["relative_surprise_ci_high"], ".3g")
         lines.append(
             f"| {row['concept']} | {row['variant']}{marker} | {row['n']} | {mean} "
-            f"| {t} | {format_p(row['p_value'])} | {sig} "
+            f"| {format_t(row['t'], row['df'])} | {format_p(row['p_value'])} | {sig} "
             f"| {_interval(row['d_z'], row['d_z_ci_low'], row['d_z_ci_high'], '.2f')} "
             f"| {accuracy} | {format_number(row['auroc'], '.3f')} |")
     lines.append("")
     lines.append("M: mean relative surprise d = S(inconsistent) - S(consistent), S = sum over "
                  f"frames of {surprise}; one-tailed paired t-test, H1: M > 0; "
-                 "sig.: p < alpha (* as in the paper); accuracy: share of pairs with d > 0; "
-                 "pooled: the test over the union of a concept's standard and counterbalanced "
-                 "pairs.")
+                 f"sig.: p < {alpha:g} (* as in the paper); accuracy: share of pairs "
+                 "with d > 0; pooled: the stratified test of a concept's standard and "
+                 "counterbalanced pairs, M the mean of the two variants' M, its SE from both, "
+                 "Welch-Satterthwaite df; its d_z is M over the SD of d of all its pairs.")
     lines.extend(f"[{i}] {note}" for i, note in enumerate(notes, start=1))
     lines += ["", "Verdicts: a concept shows VOE only when its pooled test is significant and "
               "both variants point the right way (M > 0); without a counterbalanced pair, when "
