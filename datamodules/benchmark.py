@@ -20,7 +20,7 @@ from voe_lightning.store import record_loader
 
 class BenchmarkDataModule(ProbeDataModule):
     """What the benchmark DataModules share: their record specs (over their own concept and
-    variant vocabularies), the counts of skipped input, the loader settings, and the model
+    variant vocabularies; a benchmark has no object states), the counts of skipped input, the loader settings, and the model
     input geometry (``video``): num_frames, height and width as given, or, left None, the
     model's (its ``training_frames`` and ``image_size`` hyperparameters), resolved in ``setup``.
     Subclasses set ``concept_names``/``variant_names`` and ``source_frames`` (frames of every
@@ -77,13 +77,14 @@ class BenchmarkDataModule(ProbeDataModule):
 
     def probe_spec(self) -> Composite:
         v = self.video
-        base = specs.probe_spec(len(v.indices), v.height, v.width)
+        base = specs.probe_spec(len(v.indices), v.height, v.width, objects=False)
         return benchmark_spec(base, len(self.concept_names), len(self.variant_names))
 
     def clip_spec(self) -> Composite:
         v = self.video
         return benchmark_spec(
-            specs.clip_spec(len(v.indices), v.height, v.width), len(self.concept_names)
+            specs.clip_spec(len(v.indices), v.height, v.width, objects=False),
+            len(self.concept_names),
         )
 
     @property

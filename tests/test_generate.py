@@ -248,13 +248,38 @@ def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch)
         assert generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6}).shards_generated == 1
     assert specs.concept_name(store.open_split(tmp_path, "continuity", "test")[0]) == "continuity"
     # Generator version: a scene change makes every shard stale.
-    monkeypatch.setattr(generate, "GENERATOR_VERSION", generate.GENERATOR_VERSION + 1)
+    version = generate.GENERATOR_VERSION
+    monkeypatch.setattr(generate, "GENERATOR_VERSION", version + 1)
     assert len(store.verify(tmp_path)) == len(generate.manifest_plan(store.read_manifest(tmp_path))[0])
     options = {**SMALL, "height": 32, "train_examples": 2, "train_controls": 6}
-    with pytest.warns(UserWarning, match="its generator_version is 2, expected 3"):
+    with pytest.warns(UserWarning, match=f"its generator_version is {version}, expected {version + 1}"):
         summary = generate.ensure_dataset(tmp_path, concepts=("continuity", "solidity"), **options)
     assert summary.shards_skipped == 0 and store.verify(tmp_path) == []
     assert store.read_manifest(tmp_path)["generator_version"] == generate.GENERATOR_VERSION
+
+
+def test_shards_without_object_states_are_regenerated(tmp_path, calls):
+    """A shard written before records carried object states (GENERATOR_VERSION 2) does not
+    match the record layout: verify finds it and generate rewrites it with them."""
+    generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    layouts = generate.record_layouts(scenes.VideoOptions(num_frames=6, height=24, width=24))
+    assert "objects/visible_fraction" in layouts["clip"]
+    assert "inconsistent/objects/shape_label" in layouts["probe"]
+    for split in ("train", "test"):
+        path = store.shard_path(tmp_path, "continuity", split, 0)
+        reader = store.ShardReader(path)
+        records = [reader[i] for i in range(len(reader))]
+        meta = reader.index.meta
+        reader.close()
+        stripped = [r.exclude("objects", ("consistent", "objects"), ("inconsistent", "objects"))
+                    for r in records]
+        store.write_shard(path, stripped, meta)
+    stale = {store.shard_path(tmp_path, "continuity", split, 0) for split in ("train", "test")}
+    assert set(store.verify(tmp_path)) == stale
+    with pytest.warns(UserWarning, match=r"its records' (consistent/)?objects/color is missing"):
+        summary = generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    assert summary.shards_generated == 2 and store.verify(tmp_path) == []
+    assert ("objects", "position") in store.open_split(tmp_path, "continuity", "train")[0].keys(True)
 
 
 def _children(pid: int) -> list[int]:

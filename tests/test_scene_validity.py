@@ -38,10 +38,13 @@ def test_probe_pairs_are_valid(concept, variant):
         assert specs.concept_name(record) == concept and specs.variant_name(record) == variant
         m = int(record["manipulation_frame"])
         consistent, inconsistent = record["consistent"], record["inconsistent"]
-        for key in ("frames", "mask"):
+        states = [("objects", name) for name in consistent["objects"].keys()]
+        for key in ("frames", "mask", *states):
             assert torch.equal(consistent[key][: m + 1], inconsistent[key][: m + 1]), (
                 f"{concept}/{variant} seed {seed}: {key} differ up to manipulation frame {m}"
             )
+        for video in ("consistent", "inconsistent"):
+            check_objects_agree_with_mask(record[video], f"{concept}/{variant} seed {seed} {video}")
         ids = [i for i in record["manipulated_ids"].tolist() if i]
         assert ids, "a probe must name the manipulated object ids"
         if concept == "solidity":
@@ -61,6 +64,84 @@ def test_probe_pairs_are_valid(concept, variant):
         assert not torch.equal(consistent["frames"][m:], inconsistent["frames"][m:]), (
             f"{concept}/{variant} seed {seed}: the two videos never differ"
         )
+
+
+def check_objects_agree_with_mask(video, where: str) -> None:
+    """A video's object states hold a slot for every id its mask shows, visible_fraction is
+    that id's share of the pixels (0 exactly where the mask lacks it), slots without an
+    object are all zeros, and present objects have unit quaternions, positive sizes and
+    colours in [0, 1]."""
+    mask, objects = video["mask"].long(), video["objects"]
+    share = (mask[..., None] == torch.arange(specs.OBJECT_SLOTS)).float().mean(dim=(1, 2))
+    share[:, 0] = 0.0  # the background is no object
+    assert torch.equal(objects["visible_fraction"], share), f"{where}: visible_fraction != mask"
+    present = objects["shape_label"] > 0
+    shown = share > 0
+    assert not (shown & ~present).any(), f"{where}: ids {mask.unique().tolist()} shown without states"
+    assert not present[:, 0].any(), f"{where}: the background holds an object"
+    for name in ("position", "orientation", "size", "color"):
+        assert not objects[name][~present].any(), f"{where}: absent objects have a {name}"
+    norms = objects["orientation"][present].norm(dim=-1)
+    torch.testing.assert_close(norms, torch.ones_like(norms))
+    assert (objects["size"][present] > 0).all(), f"{where}: an object without size"
+    colors = objects["color"][present]
+    assert ((colors >= 0) & (colors <= 1)).all(), f"{where}: colour outside [0, 1]"
+
+
+@pytest.mark.parametrize("concept,kind", CLIP_CASES)
+def test_clip_object_states_agree_with_masks(concept, kind):
+    for seed in range(NUM_SEEDS):
+        check_objects_agree_with_mask(
+            generate_clip(concept, kind, seed), f"{concept} {kind} seed {seed}"
+        )
+
+
+def _present(record, video: str, object_id: int) -> list[bool]:
+    return (record[video, "objects", "shape_label"][:, object_id] > 0).tolist()
+
+
+@pytest.mark.parametrize("seed", range(NUM_SEEDS))
+def test_object_states_follow_the_hidden_changes(seed):
+    """States are the scene's ground truth: an object taken out of the scene is absent while
+    it is out (and one that appears, until it does), a container is one compound object
+    whose box stands on the floor, a ball rolls at its radius above it, and a changed colour or
+    place shows in the states from the frame after the manipulation."""
+    record = generate_probe("continuity", "standard", seed)
+    m, ball = int(record["manipulation_frame"]), int(record["manipulated_ids"][0])
+    assert all(_present(record, "consistent", ball))
+    gone = _present(record, "inconsistent", ball)
+    assert all(gone[: m + 1]) and not all(gone[m + 1 :]) and gone[-1]
+    states = record["consistent", "objects"]
+    radius = states["size"][:, ball]
+    torch.testing.assert_close(radius, radius[:, :1].expand(-1, 3))
+    torch.testing.assert_close(states["position"][:, ball, 2], radius[:, 2], atol=2e-3, rtol=0)
+    assert (states["shape_label"][:, ball] == specs.OBJECT_SHAPES.index("sphere")).all()
+
+    for variant, appears in (("standard", False), ("counterbalanced", True)):
+        record = generate_probe("object_persistence", variant, seed)
+        m, obj = int(record["manipulation_frame"]), int(record["manipulated_ids"][0])
+        steady, changed = _present(record, "consistent", obj), _present(record, "inconsistent", obj)
+        assert steady == [not appears] * len(steady)
+        assert changed == [not appears] * (m + 1) + [appears] * (len(changed) - m - 1)
+
+    record = generate_probe("solidity", "counterbalanced", seed)
+    m, support = int(record["manipulation_frame"]), int(record["manipulated_ids"][0])
+    assert not any(_present(record, "consistent", support))
+    appeared = _present(record, "inconsistent", support)
+    assert appeared == [False] * (m + 1) + [True] * (len(appeared) - m - 1)
+    states = record["consistent", "objects"]
+    container = int((states["shape_label"][0] == specs.OBJECT_SHAPES.index("compound")).nonzero())
+    torch.testing.assert_close(states["position"][:, container, 2], states["size"][:, container, 2])
+
+    for change, key in (("color", "color"), ("position", "position")):
+        record = generate_probe("unchangeableness", change, seed)
+        m = int(record["manipulation_frame"])
+        for object_id in [i for i in record["manipulated_ids"].tolist() if i]:
+            before, after = (
+                record[video, "objects", key][:, object_id] for video in ("consistent", "inconsistent")
+            )
+            assert torch.equal(before[: m + 1], after[: m + 1])
+            assert not torch.isclose(before[m + 1 :], after[m + 1 :]).all(dim=-1).any()
 
 
 @pytest.mark.parametrize("concept,variant", PROBE_CASES)

@@ -243,7 +243,7 @@ def test_projection_lands_on_the_rendered_ball():
     camera = continuity.CAMERA.sample(rng)
     layout = continuity.probe_layout(rng, "standard", camera, VIDEO)
     sim = continuity.build(rng, VIDEO, camera, layout)
-    frames, masks, states, positions = continuity.record_tracking_ball(sim)
+    (_, masks, _), states, positions = continuity.record_tracking_ball(sim)
     seen = continuity.what_hides_ball(sim, masks, positions)
     ball = sim.mask_id("ball")
     pixels = continuity.ball_pixels(masks, ball)

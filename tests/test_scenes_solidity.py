@@ -35,7 +35,7 @@ def test_probe_camera_sees_into_the_top_but_not_the_bottom(variant, seed):
     back = builder.add(
         "back", [Geom("box", (ix, 0.004, 0.04))], (0, iy - 0.004, h - 0.05), "green", free=False
     )
-    _, mask = builder.build().render()
+    mask = builder.build().render()[1]
     assert back.mask_id in visible_ids(mask), "the camera must see inside the top"
     assert bottom.mask_id not in visible_ids(mask), "the camera must not see the bottom"
 

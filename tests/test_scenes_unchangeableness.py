@@ -149,7 +149,7 @@ def test_projection_matches_the_renderer():
     for point in [(0.5, 1.0, 0.1), (-0.8, -0.3, 0.1)]:
         builder = base.SceneBuilder(np.random.default_rng(0), base.VideoOptions(), camera)
         builder.add_primitive("ball", "sphere", [0.08], point, "red", free=False)
-        _, mask = builder.build().render()
+        mask = builder.build().render()[1]
         ys, xs = np.nonzero(mask == 1)
         u, v = (xs.mean() + 0.5) / 32 - 1, 1 - (ys.mean() + 0.5) / 32
         assert np.allclose(scene.image_point(camera, point), (u, v), atol=0.03)

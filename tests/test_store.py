@@ -11,7 +11,7 @@ import torch
 from tensordict import TensorDict
 from torch.utils.data import DataLoader
 
-from voe_lightning import generate, specs, store
+from voe_lightning import generate, scenes, specs, store
 from voe_lightning.benchmarks.cache import write_cache
 
 
@@ -32,18 +32,27 @@ def _video(rng: np.random.Generator, num_frames: int, height: int, width: int):
     return frames, mask
 
 
+def _objects(rng: np.random.Generator, mask: np.ndarray) -> np.ndarray:
+    """Object states of ``_video``'s square (id 1, a box): random pose, its mask's share."""
+    objects = np.zeros((len(mask), specs.OBJECT_SLOTS), specs.OBJECT_STATE_DTYPE)
+    square = objects[:, 1]
+    square["position"] = rng.normal(size=(len(mask), 3))
+    square["orientation"] = (1.0, 0.0, 0.0, 0.0)
+    square["size"] = rng.uniform(0.1, 0.3, 3)
+    square["shape_label"] = specs.OBJECT_SHAPES.index("box")
+    square["color"] = rng.random(3)
+    square["visible_fraction"] = (mask == 1).mean(axis=(1, 2))
+    return objects
+
+
 def fake_clip(concept, kind, seed, num_frames=15, height=64, width=64, **_):
     """A clip record satisfying specs.clip_spec, determined by its arguments."""
     rng = np.random.default_rng([seed, specs.CLIP_KINDS.index(kind)])
     frames, mask = _video(rng, num_frames, height, width)
-    return TensorDict(
-        frames=torch.from_numpy(frames),
-        mask=torch.from_numpy(mask),
-        camera=torch.from_numpy(rng.normal(size=(num_frames, 6)).astype(np.float32)),
-        concept=torch.tensor(specs.CONCEPTS.index(concept)),
-        kind=torch.tensor(specs.CLIP_KINDS.index(kind)),
-        seed=torch.tensor(seed, dtype=torch.int64),
-        batch_size=[],
+    camera = rng.normal(size=(num_frames, 6))
+    return specs.clip_record(
+        frames, mask, camera, specs.CONCEPTS.index(concept), specs.CLIP_KINDS.index(kind), seed,
+        _objects(rng, mask),
     )
 
 
@@ -52,20 +61,15 @@ def fake_probe(concept, variant, seed, num_frames=15, height=64, width=64, **_):
     video from the manipulation frame on."""
     rng = np.random.default_rng([seed, specs.VARIANTS.index(variant)])
     frames, mask = _video(rng, num_frames, height, width)
+    objects = _objects(rng, mask)
     manipulation = num_frames // 2
-    gone_frames, gone_mask = frames.copy(), mask.copy()
+    gone_frames, gone_mask, gone_objects = frames.copy(), mask.copy(), objects.copy()
     gone_frames[manipulation:] = frames[0, :1, :1]
     gone_mask[manipulation:] = 0
-    return TensorDict(
-        consistent={"frames": torch.from_numpy(frames), "mask": torch.from_numpy(mask)},
-        inconsistent={"frames": torch.from_numpy(gone_frames), "mask": torch.from_numpy(gone_mask)},
-        camera=torch.zeros(num_frames, 6),
-        concept=torch.tensor(specs.CONCEPTS.index(concept)),
-        variant=torch.tensor(specs.VARIANTS.index(variant)),
-        manipulation_frame=torch.tensor(manipulation),
-        manipulated_ids=torch.tensor([1, 0, 0, 0]),
-        seed=torch.tensor(seed, dtype=torch.int64),
-        batch_size=[],
+    gone_objects[manipulation:] = np.zeros((), specs.OBJECT_STATE_DTYPE)
+    return specs.probe_record(
+        (frames, mask, objects), (gone_frames, gone_mask, gone_objects), np.zeros(6),
+        specs.CONCEPTS.index(concept), specs.VARIANTS.index(variant), manipulation, seed, [1],
     )
 
 
@@ -93,6 +97,22 @@ def test_round_trip_is_lossless_for_random_clips_and_probes(tmp_path):
     assert probe_reader.index.seeds == [int(p["seed"]) for p in probes]
     with pytest.raises(IndexError, match="out of range"):
         clip_reader[4]
+
+
+def test_generated_records_round_trip_exactly_with_their_object_states(tmp_path):
+    """Rendered records, nested float and int object states beside the uint8 videos, come back
+    bit for bit."""
+    records = {
+        "clip": scenes.generate_clip("containment", "example", 0),
+        "probe": scenes.generate_probe("unchangeableness", "shape", 0),
+    }
+    for name, record in records.items():
+        store.write_shard(tmp_path / f"{name}.voe", [record])
+        stored = store.ShardReader(tmp_path / f"{name}.voe")[0]
+        assert _equal(stored, record)
+        objects = stored["objects"] if name == "clip" else stored["inconsistent", "objects"]
+        assert objects["position"].dtype == torch.float32
+        assert objects["shape_label"].dtype == torch.int64 and objects["shape_label"].any()
 
 
 def test_structured_videos_compress_well_below_40_kb(tmp_path):

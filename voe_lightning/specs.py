@@ -105,21 +105,26 @@ def check_variant(concept: str, variant: str) -> None:
     _check_name(f"probe variant for {concept}", variant, PROBE_VARIANTS[concept])
 
 
-def _video_spec(num_frames: int, height: int, width: int) -> dict:
-    return {
+def _video_spec(num_frames: int, height: int, width: int, objects: bool) -> dict:
+    video = {
         "frames": Bounded(0, 255, shape=(num_frames, height, width, 3), dtype=torch.uint8),
         "mask": Bounded(0, MAX_OBJECT_ID, shape=(num_frames, height, width), dtype=torch.uint8),
     }
+    return {**video, "objects": objects_spec(num_frames)} if objects else video
 
 
 def objects_spec(num_frames: int = NUM_FRAMES) -> Composite:
     """Per-frame states of a video's objects, what a perfect 3D perception would recover (as
     Kubric and Physion export), indexed [T, OBJECT_SLOTS] by mask id: world ``position`` (m) and
-    ``orientation`` (quaternion w, x, y, z) of the object's body, ``size`` (half-extents of its
-    bounding box in the body frame, m), ``shape_label`` (index into OBJECT_SHAPES; 0: no object
-    with this id at that frame), ``color`` (RGB in [0, 1]) and ``visible_fraction`` (the share of the
-    frame's pixels that show it: 0 when hidden). Ground truth: a model that may only see what is
-    visible must mask out the states of hidden objects itself."""
+    ``orientation`` (quaternion w, x, y, z) of the object, ``size`` (half-extents of its
+    bounding box in its body frame, m), ``shape_label`` (index into OBJECT_SHAPES; 0: no object
+    with this id at that frame), ``color`` (RGB in [0, 1]) and ``visible_fraction`` (the share of
+    the frame's pixels that show it: 0 when hidden). ``position`` is the centre of that bounding
+    box: the body's origin for a one-primitive object; a container, whose body origin lies on
+    its floor, has it half its height up. Ground truth for every object in the scene, hidden or
+    not: a model that may only see what is visible must mask out the states of hidden objects
+    itself. An object taken out of the scene (parked out of view) has no states at that frame.
+    A probe pair shares the states of its manipulation frame (see ``scenes.base.splice``)."""
     slots = (num_frames, OBJECT_SLOTS)
     return Composite(
         position=Unbounded(shape=(*slots, 3), dtype=torch.float32),
@@ -131,15 +136,29 @@ def objects_spec(num_frames: int = NUM_FRAMES) -> Composite:
     )
 
 
+#: One object slot of ``objects_spec`` as a numpy structured dtype: generators collect a video's
+#: states in an array [T, OBJECT_SLOTS] of it, which ``clip_record``/``probe_record`` store.
+OBJECT_STATE_DTYPE = np.dtype(
+    [
+        (name, torch.empty((), dtype=leaf.dtype).numpy().dtype, tuple(leaf.shape[2:]))
+        for name, leaf in objects_spec(1).items()
+    ]
+)
+
+
 def _camera_spec(num_frames: int) -> Unbounded:
     """Per-frame camera pose: lookat x, y, z, distance, azimuth (deg), elevation (deg)."""
     return Unbounded(shape=(num_frames, 6), dtype=torch.float32)
 
 
-def clip_spec(num_frames: int = NUM_FRAMES, height: int = HEIGHT, width: int = WIDTH) -> Composite:
-    """Spec of a training clip (an example or a control)."""
+def clip_spec(
+    num_frames: int = NUM_FRAMES, height: int = HEIGHT, width: int = WIDTH, objects: bool = True
+) -> Composite:
+    """Spec of a training clip (an example or a control); with ``objects`` (the generator's
+    records) it carries the per-frame object states of ``objects_spec``, which external
+    benchmarks' records lack."""
     return Composite(
-        **_video_spec(num_frames, height, width),
+        **_video_spec(num_frames, height, width, objects),
         camera=_camera_spec(num_frames),
         concept=Categorical(len(CONCEPTS), shape=(), dtype=torch.int64),
         kind=Categorical(len(CLIP_KINDS), shape=(), dtype=torch.int64),
@@ -147,13 +166,16 @@ def clip_spec(num_frames: int = NUM_FRAMES, height: int = HEIGHT, width: int = W
     )
 
 
-def probe_spec(num_frames: int = NUM_FRAMES, height: int = HEIGHT, width: int = WIDTH) -> Composite:
+def probe_spec(
+    num_frames: int = NUM_FRAMES, height: int = HEIGHT, width: int = WIDTH, objects: bool = True
+) -> Composite:
     """Spec of a probe pair: a consistent and an inconsistent video that differ only after
     ``manipulation_frame``; ``manipulated_ids`` holds the mask ids the hidden change touched
-    (padded with 0)."""
+    (padded with 0). Each video carries its object states when ``objects`` (as in
+    ``clip_spec``)."""
     return Composite(
-        consistent=Composite(**_video_spec(num_frames, height, width)),
-        inconsistent=Composite(**_video_spec(num_frames, height, width)),
+        consistent=Composite(**_video_spec(num_frames, height, width, objects)),
+        inconsistent=Composite(**_video_spec(num_frames, height, width, objects)),
         camera=_camera_spec(num_frames),
         concept=Categorical(len(CONCEPTS), shape=(), dtype=torch.int64),
         variant=Categorical(len(VARIANTS), shape=(), dtype=torch.int64),
@@ -163,11 +185,25 @@ def probe_spec(num_frames: int = NUM_FRAMES, height: int = HEIGHT, width: int = 
     )
 
 
-def _video(frames: np.ndarray, mask: np.ndarray) -> dict[str, torch.Tensor]:
-    return {
+def _video(frames: np.ndarray, mask: np.ndarray, objects: np.ndarray | None = None) -> dict:
+    """A video's record entries; ``objects`` [T, OBJECT_SLOTS] of OBJECT_STATE_DTYPE, if given,
+    becomes the nested ``objects`` TensorDict."""
+    video = {
         "frames": torch.from_numpy(np.ascontiguousarray(frames)),
         "mask": torch.from_numpy(np.ascontiguousarray(mask)),
     }
+    if objects is None:
+        return video
+    if objects.dtype != OBJECT_STATE_DTYPE or objects.shape != (len(frames), OBJECT_SLOTS):
+        raise ValueError(
+            f"object states must be [{len(frames)}, {OBJECT_SLOTS}] of OBJECT_STATE_DTYPE, got "
+            f"{list(objects.shape)} of {objects.dtype}"
+        )
+    states = {
+        name: torch.from_numpy(np.ascontiguousarray(objects[name]))
+        for name in OBJECT_STATE_DTYPE.names
+    }
+    return {**video, "objects": TensorDict(states, batch_size=[])}
 
 
 def _camera(camera: np.ndarray, num_frames: int) -> torch.Tensor:
@@ -176,14 +212,21 @@ def _camera(camera: np.ndarray, num_frames: int) -> torch.Tensor:
 
 
 def clip_record(
-    frames: np.ndarray, mask: np.ndarray, camera: np.ndarray, concept: int, kind: int, seed: int
+    frames: np.ndarray,
+    mask: np.ndarray,
+    camera: np.ndarray,
+    concept: int,
+    kind: int,
+    seed: int,
+    objects: np.ndarray | None = None,
 ) -> TensorDict:
     """A clip record (``clip_spec`` keys) from uint8 frames [T, H, W, 3] and mask [T, H, W],
-    camera poses [T, 6] (or one [6] for all frames) and vocabulary indices (ours, or a
-    benchmark's own)."""
+    camera poses [T, 6] (or one [6] for all frames), vocabulary indices (ours, or a
+    benchmark's own) and the object states [T, OBJECT_SLOTS] of OBJECT_STATE_DTYPE (None for
+    a benchmark's video, which has none: ``clip_spec(objects=False)``)."""
     return TensorDict(
         {
-            **_video(frames, mask),
+            **_video(frames, mask, objects),
             "camera": _camera(camera, len(frames)),
             "concept": torch.tensor(concept, dtype=torch.int64),
             "kind": torch.tensor(kind, dtype=torch.int64),
@@ -194,8 +237,8 @@ def clip_record(
 
 
 def probe_record(
-    consistent: tuple[np.ndarray, np.ndarray],
-    inconsistent: tuple[np.ndarray, np.ndarray],
+    consistent: tuple[np.ndarray, ...],
+    inconsistent: tuple[np.ndarray, ...],
     camera: np.ndarray,
     concept: int,
     variant: int,
@@ -203,8 +246,9 @@ def probe_record(
     seed: int,
     manipulated_ids: Sequence[int] = (),
 ) -> TensorDict:
-    """A probe record (``probe_spec`` keys) from the (frames, mask) of its consistent and
-    inconsistent video, camera as in ``clip_record`` and vocabulary indices;
+    """A probe record (``probe_spec`` keys) from the (frames, mask, objects) of its consistent
+    and inconsistent video (objects as in ``clip_record``, or (frames, mask) for a benchmark's
+    videos), camera as in ``clip_record`` and vocabulary indices;
     ``manipulated_ids`` (at most 4) are padded with 0, which also stands for unknown."""
     ids = [int(i) for i in manipulated_ids]
     if len(ids) > 4:

@@ -2,7 +2,8 @@
 
 Layout: ``root/manifest.json`` and ``root/<concept>/<split>/shard-NNNNN.voe``. A shard holds one
 zstd-compressed blob per record (frames and masks as uint8 temporal deltas, the inconsistent
-video of a probe as its difference from the consistent one), each with a CRC32, followed by an
+video of a probe as its difference from the consistent one, every other leaf, such as camera
+poses and object states, as it is), each with a CRC32, followed by an
 index of offsets, so a DataLoader worker reads one record without touching the rest. Shards are
 written atomically; readers open files lazily in each process (fork and spawn workers alike).
 """

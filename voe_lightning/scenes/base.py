@@ -25,6 +25,8 @@ SHAPES = {
     "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
     "ellipsoid": mujoco.mjtGeom.mjGEOM_ELLIPSOID,
 }
+#: ``objects/shape_label`` of an object of one geom, by MuJoCo geom type.
+SHAPE_LABELS = {int(geom_type): specs.OBJECT_SHAPES.index(name) for name, geom_type in SHAPES.items()}
 
 #: Distinct, saturated object colours (the paper's figures use such colours on a plain floor).
 PALETTE: dict[str, tuple[float, float, float]] = {
@@ -390,6 +392,9 @@ class Simulation:
         for obj in objects.values():
             for geom_name in obj.geom_names:
                 self.geom_mask_id[model.geom(geom_name).id] = obj.mask_id
+        #: Objects taken out of the scene by ``remove``, with what ``restore`` puts back.
+        self.removed: dict[str, _Removed] = {}
+        self.boxes = {name: bounding_box(model, obj) for name, obj in objects.items()}
         mujoco.mj_forward(model, self.data)
 
     # --- state manipulation (used by scripts and by hidden "magic") ---------------------------
@@ -425,14 +430,36 @@ class Simulation:
         self.data.qvel[dof + 3 : dof + 6] = angular
 
     def remove(self, name: str) -> None:
-        """Make an object vanish: park it far outside the view, where it touches nothing."""
-        obj = self.objects[name]
-        self.move(name, (60.0 + 4.0 * obj.mask_id, 60.0, 1.0))
+        """Take an object out of the scene: park it far outside the view, where it touches
+        nothing (a free body stops colliding and floats); it has no object states until
+        ``restore`` puts it back."""
+        if name in self.removed:
+            raise ValueError(f"object {name!r} is already removed")
+        obj, body = self.objects[name], self.model.body(name).id
+        geoms = [self.model.geom(geom_name) for geom_name in obj.geom_names]
+        self.removed[name] = _Removed(
+            self.data.xpos[body].copy(),
+            self.data.xquat[body].copy(),
+            [(int(geom.contype[0]), int(geom.conaffinity[0])) for geom in geoms],
+            float(self.model.body_gravcomp[body]),
+        )
+        self.move(name, (60.0 + 4.0 * body, 60.0, 1.0))
         if obj.free:
-            for geom_name in obj.geom_names:
-                self.model.geom(geom_name).contype = 0
-                self.model.geom(geom_name).conaffinity = 0
-            self.model.body_gravcomp[self.model.body(name).id] = 1.0
+            for geom in geoms:
+                geom.contype = geom.conaffinity = 0
+            self.model.body_gravcomp[body] = 1.0
+
+    def restore(self, name: str) -> None:
+        """Put an object that ``remove`` took out back where it was (at rest), colliding and
+        weighing as before; nothing to do for an object in the scene."""
+        removed = self.removed.pop(name, None)
+        if removed is None:
+            return
+        for geom_name, (contype, conaffinity) in zip(self.objects[name].geom_names, removed.bits):
+            self.model.geom(geom_name).contype = contype
+            self.model.geom(geom_name).conaffinity = conaffinity
+        self.model.body_gravcomp[self.model.body(name).id] = removed.gravcomp
+        self.move(name, removed.position, removed.quat)
 
     def set_color(self, name: str, color: str | Sequence[float]) -> None:
         for geom_name in self.objects[name].geom_names:
@@ -465,34 +492,94 @@ class Simulation:
         twin.set_state(self.get_state())
         twin.objects, twin.video, twin.camera = self.objects, self.video, self.camera
         twin.geom_mask_id, twin.controller = self.geom_mask_id, self.controller
+        twin.removed, twin.boxes = dict(self.removed), self.boxes
         return twin
 
     # --- rendering ------------------------------------------------------------------------------
-    def render(self) -> tuple[np.ndarray, np.ndarray]:
-        """The current RGB frame and its object-id mask (0 = background and fixed scenery).
-        Poses are refreshed first: after ``mj_step`` the drawn poses are one step old, while a
-        forked twin's are current, which would make a probe pair differ at the fork."""
+    def render(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The current RGB frame, its object-id mask (0 = background and fixed scenery) and the
+        objects' states (``object_states``). Poses are refreshed first: after ``mj_step`` the
+        drawn poses are one step old, while a forked twin's are current, which would make a
+        probe pair differ at the fork."""
         mujoco.mj_forward(self.model, self.data)
         renderer = get_renderer(self.video.height, self.video.width)
         rgb, geom_ids = renderer.render(self.model, self.data, self.camera)
-        return rgb, self.geom_mask_id[geom_ids]
+        mask = self.geom_mask_id[geom_ids]
+        return rgb, mask, self.object_states(mask)
+
+    def object_states(self, mask: np.ndarray) -> np.ndarray:
+        """The states of the objects in the scene (not removed), one slot per mask id
+        ([OBJECT_SLOTS] of ``specs.OBJECT_STATE_DTYPE``, see ``specs.objects_spec``): pose from
+        the current data (centre of the body-frame box), box and shape from the model, colour
+        from the geoms' rgba (``set_color`` changes it), and the share of ``mask``'s pixels
+        showing the id. Only one object in the scene may hold an id at a time."""
+        states = np.zeros(specs.OBJECT_SLOTS, specs.OBJECT_STATE_DTYPE)
+        visible = np.bincount(mask.ravel(), minlength=specs.OBJECT_SLOTS) / mask.size
+        for name, obj in self.objects.items():
+            if name in self.removed:
+                continue
+            slot = obj.mask_id
+            if states["shape_label"][slot]:
+                raise RuntimeError(f"two objects in the scene hold mask id {slot}")
+            centre, half, label = self.boxes[name]
+            body = self.data.body(name)
+            states["position"][slot] = body.xpos + body.xmat.reshape(3, 3) @ centre
+            states["orientation"][slot] = body.xquat
+            states["size"][slot] = half
+            states["shape_label"][slot] = label
+            states["color"][slot] = self.model.geom(obj.geom_names[0]).rgba[:3]
+            states["visible_fraction"][slot] = visible[slot]
+        return states
 
     def record(
         self,
         num_frames: int,
         script: Callable[["Simulation", int], None] | None = None,
         first_frame: int = 0,
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Render ``num_frames`` frames, stepping one frame interval after each.
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Render ``num_frames`` frames, stepping one frame interval after each: (frames, masks,
+        object states) as ``render`` gives them, stacked over time.
         ``script(sim, frame_index)`` runs before each frame is rendered (scripted motion)."""
-        frames = np.empty((num_frames, self.video.height, self.video.width, 3), np.uint8)
-        masks = np.empty((num_frames, self.video.height, self.video.width), np.uint8)
+        shape = (num_frames, self.video.height, self.video.width)
+        frames, masks = np.empty((*shape, 3), np.uint8), np.empty(shape, np.uint8)
+        objects = np.empty((num_frames, specs.OBJECT_SLOTS), specs.OBJECT_STATE_DTYPE)
         for offset in range(num_frames):
             if script is not None:
                 script(self, first_frame + offset)
-            frames[offset], masks[offset] = self.render()
+            frames[offset], masks[offset], objects[offset] = self.render()
             self.step(self.video.steps_per_frame)
-        return frames, masks
+        return frames, masks, objects
+
+
+@dataclass(frozen=True)
+class _Removed:
+    """What ``Simulation.remove`` changed about an object, for ``restore``: its pose, its
+    geoms' collision bits and its body's gravity compensation."""
+
+    position: np.ndarray
+    quat: np.ndarray
+    bits: list[tuple[int, int]]
+    gravcomp: float
+
+
+def bounding_box(model: mujoco.MjModel, obj: SceneObject) -> tuple[np.ndarray, np.ndarray, int]:
+    """Centre and half-extents, in its body frame, of the box that holds all of ``obj``'s geoms
+    (each geom's own box, MuJoCo's ``geom_aabb``, turned into the body frame), and its
+    ``objects/shape_label``: its geom's shape, or ``compound`` for several geoms."""
+    low, high = np.full(3, np.inf), np.full(3, -np.inf)
+    rotation = np.empty(9)
+    for geom_name in obj.geom_names:
+        geom = model.geom(geom_name)
+        mujoco.mju_quat2Mat(rotation, geom.quat)
+        turn = rotation.reshape(3, 3)
+        aabb = model.geom_aabb[geom.id]
+        centre, half = geom.pos + turn @ aabb[:3], np.abs(turn) @ aabb[3:]
+        low, high = np.minimum(low, centre - half), np.maximum(high, centre + half)
+    if len(obj.geom_names) == 1:
+        label = SHAPE_LABELS[int(model.geom(obj.geom_names[0]).type[0])]
+    else:
+        label = specs.OBJECT_SHAPES.index("compound")
+    return (low + high) / 2, (high - low) / 2, label
 
 
 def visible_ids(mask: np.ndarray) -> set[int]:
@@ -529,16 +616,34 @@ def draw_until_valid(
     raise RuntimeError(f"no valid scene after {attempts} draws; last rejection: {last}")
 
 
+#: A rendered video: uint8 frames [T, H, W, 3], masks [T, H, W] and object states [T, OBJECT_SLOTS]
+#: of ``specs.OBJECT_STATE_DTYPE``, as ``Simulation.record`` gives them.
+Video = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def splice(consistent: Video, rest: Video, manipulation_frame: int) -> Video:
+    """The inconsistent video of a pair: the consistent one before ``manipulation_frame``, then
+    ``rest``, rendered from the manipulated twin from that frame on. The hidden change happens
+    at the manipulation frame, which renders alike in both; its object states are the
+    consistent video's too, so that a pair is identical through that frame in everything a
+    model may read (DESIGN.md §5), and the states show the change from the next frame on."""
+    frames, masks, objects = (
+        np.concatenate([a[:manipulation_frame], b]) for a, b in zip(consistent, rest)
+    )
+    objects[manipulation_frame] = consistent[2][manipulation_frame]
+    return frames, masks, objects
+
+
 def record_pair(
     sim: Simulation,
     manipulation_frame: int,
     manipulate: Callable[[Simulation], None],
     script: Callable[[Simulation, int], None] | None = None,
     script_inconsistent: Callable[[Simulation, int], None] | None = None,
-) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+) -> tuple[Video, Video]:
     """Render a probe pair from one simulation: frames before ``manipulation_frame`` are
     rendered once and shared; then the simulation forks, ``manipulate`` applies the hidden
-    change to the inconsistent branch, and both branches run to the end."""
+    change to the inconsistent branch, and both branches run to the end (``splice``)."""
     total = sim.video.num_frames
     if not 0 < manipulation_frame < total:
         raise ValueError(f"manipulation_frame must be in [1, {total - 1}], got {manipulation_frame}")
@@ -551,8 +656,7 @@ def record_pair(
         rest, script_inconsistent or script, first_frame=manipulation_frame
     )
     consistent = tuple(np.concatenate([a, b]) for a, b in zip(prefix, consistent_rest))
-    inconsistent = tuple(np.concatenate([a, b]) for a, b in zip(prefix, inconsistent_rest))
-    return consistent, inconsistent
+    return consistent, splice(consistent, inconsistent_rest, manipulation_frame)
 
 
 def record_pair_when(
@@ -562,20 +666,24 @@ def record_pair_when(
     hidden_ids: Sequence[int] = (),
     script: Callable[[Simulation, int], None] | None = None,
     checks_per_frame: int = 1,
-) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray], int]:
+) -> tuple[Video, Video, int]:
     """Render a probe pair whose hidden change happens as soon as it can, for events whose
     timing only the physics knows (a plank landing, a block entering a box). At each check
     (every frame, and ``checks_per_frame - 1`` more times between frames, for brief windows)
     where ``ready(sim, next_frame)`` holds, a twin is forked and ``manipulate``d (it may return
     False to decline); the change is kept if none of ``hidden_ids`` shows in either simulation
     then. The manipulation frame is the first frame rendered after it; ``hidden_ids`` must be
-    unseen there too. Returns (consistent, inconsistent, manipulation_frame); raises
-    RejectedSample if no check succeeds or the change shows at the manipulation frame."""
+    unseen there too, and both videos share its object states (see ``splice``). Returns
+    (consistent, inconsistent, manipulation_frame); raises RejectedSample if no check succeeds
+    or the change shows at the manipulation frame."""
     video = sim.video
     hidden = set(hidden_ids)
     shape = (video.num_frames, video.height, video.width)
     frames = [np.empty((*shape, 3), np.uint8), np.empty((*shape, 3), np.uint8)]
     masks = [np.empty(shape, np.uint8), np.empty(shape, np.uint8)]
+    objects = [
+        np.empty((video.num_frames, specs.OBJECT_SLOTS), specs.OBJECT_STATE_DTYPE) for _ in range(2)
+    ]
     chunks = [len(c) for c in np.array_split(np.arange(video.steps_per_frame), checks_per_frame)]
     twin: Simulation | None = None
     manipulation_frame = -1
@@ -598,14 +706,14 @@ def record_pair_when(
         for branch in (sim, twin):
             if branch is not None and script is not None:
                 script(branch, t)
-        frames[0][t], masks[0][t] = sim.render()
+        frames[0][t], masks[0][t], objects[0][t] = sim.render()
         if twin is None and t >= 1:
             twin = try_change(t, masks[0][t])
             manipulation_frame = t if twin is not None else -1
         if twin is None:
-            frames[1][t], masks[1][t] = frames[0][t], masks[0][t]
+            frames[1][t], masks[1][t], objects[1][t] = frames[0][t], masks[0][t], objects[0][t]
         else:
-            frames[1][t], masks[1][t] = twin.render()
+            frames[1][t], masks[1][t], objects[1][t] = twin.render()
         if t == manipulation_frame and not (unseen(masks[0][t]) and unseen(masks[1][t])):
             raise RejectedSample("the hidden change shows at the manipulation frame")
         for index, steps in enumerate(chunks):
@@ -617,4 +725,5 @@ def record_pair_when(
                 manipulation_frame = t + 1 if twin is not None else -1
     if twin is None:
         raise RejectedSample("no moment where the hidden change could happen unseen")
-    return (frames[0], masks[0]), (frames[1], masks[1]), manipulation_frame
+    objects[1][manipulation_frame] = objects[0][manipulation_frame]  # shared, as in ``splice``
+    return (frames[0], masks[0], objects[0]), (frames[1], masks[1], objects[1]), manipulation_frame

@@ -283,7 +283,7 @@ def check_hidden_and_carried(
     or whose cube ``sim`` (the branch where it rides in the container, run to the end) did not
     carry along with the container from ``start``."""
     cube = sim.mask_id("cube")
-    for _, masks in videos:
+    for _, masks, _ in videos:
         if cube in base.visible_ids(masks[frame]):
             raise RejectedSample("the cube shows at the manipulation frame")
     carried = sim.position("cube")[0] - start[0]
@@ -375,7 +375,7 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
     def make(rng: np.random.Generator) -> TensorDict:
         layout, camera, frame = clip_layout(kind, rng, video)
         sim = build(rng, video, camera, layout)
-        frames, masks = sim.record(video.num_frames)
+        frames, masks, objects = sim.record(video.num_frames)
         cube = sim.mask_id("cube")
         if kind == "cube_behind_container" and cube in base.visible_ids(masks[frame]):
             raise RejectedSample("the cube behind the container is not hidden by it")
@@ -384,7 +384,7 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             raise RejectedSample("the randomly placed cube is hidden or out of view")
         return specs.clip_record(
             frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
-            specs.CLIP_KINDS.index(kind), seed,
+            specs.CLIP_KINDS.index(kind), seed, objects,
         )
 
     return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, kind))

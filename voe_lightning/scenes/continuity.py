@@ -177,16 +177,16 @@ def launch(sim: Simulation, start, velocity) -> None:
     sim.set_velocity("ball", (vx, vy, 0.0), (-vy / radius, vx / radius, 0.0))
 
 
-def record_tracking_ball(sim: Simulation) -> tuple[np.ndarray, np.ndarray, list, np.ndarray]:
-    """Render the whole video, keeping the state and ball position at every frame."""
+def record_tracking_ball(sim: Simulation) -> tuple[base.Video, list, np.ndarray]:
+    """Render the whole video, keeping the simulation state and ball position at every frame."""
     states, positions = [], []
 
     def keep(sim: Simulation, frame: int) -> None:
         states.append(sim.get_state())
         positions.append(sim.position("ball"))
 
-    frames, masks = sim.record(sim.video.num_frames, keep)
-    return frames, masks, states, np.array(positions)
+    video = sim.record(sim.video.num_frames, keep)
+    return video, states, np.array(positions)
 
 
 def ball_pixels(masks: np.ndarray, ball_id: int) -> np.ndarray:
@@ -374,35 +374,25 @@ def first_hidden(seen: np.ndarray, pixels: np.ndarray, occluder: int, after: int
     return int(hidden[0])
 
 
-def unhide_ball(twin: Simulation, original: Simulation) -> None:
-    """Undo ``twin.remove('ball')``: collisions and gravity as in ``original``."""
-    for geom_name in twin.objects["ball"].geom_names:
-        twin.model.geom(geom_name).contype = original.model.geom(geom_name).contype
-        twin.model.geom(geom_name).conaffinity = original.model.geom(geom_name).conaffinity
-    body = twin.model.body("ball").id
-    twin.model.body_gravcomp[body] = original.model.body_gravcomp[body]
-
-
 def _standard(rng: np.random.Generator, variant: str, video: VideoOptions, camera: CameraPose):
     """The paper's pair: the consistent video rendered whole; the inconsistent one forks at the
     frame the ball is hidden by the first pillar, parks the ball, and restores the consistent
     state (ball on course) at the frame it is hidden by the last pillar."""
     layout = probe_layout(rng, variant, camera, video)
     sim = build(rng, video, camera, layout)
-    frames, masks, states, positions = record_tracking_ball(sim)
-    vanish, reappear = vanish_and_reappear(sim, layout, masks, positions)
+    consistent, states, positions = record_tracking_ball(sim)
+    vanish, reappear = vanish_and_reappear(sim, layout, consistent[1], positions)
     twin = sim.fork()
     twin.set_state(states[vanish])
     twin.remove("ball")
 
     def reappear_on_course(twin: Simulation, frame: int) -> None:
         if frame == reappear:
-            unhide_ball(twin, sim)
+            twin.restore("ball")
             twin.set_state(states[reappear])
 
     rest = twin.record(video.num_frames - vanish, reappear_on_course, first_frame=vanish)
-    inconsistent = tuple(np.concatenate([a[:vanish], b]) for a, b in zip((frames, masks), rest))
-    return sim, (frames, masks), inconsistent, vanish
+    return sim, consistent, base.splice(consistent, rest, vanish), vanish
 
 
 #: Counterbalanced: frames before the end at which the inconsistent ball is put back behind the
@@ -443,7 +433,8 @@ def _counterbalanced(rng: np.random.Generator, video: VideoOptions, camera: Came
     before_end = int(rng.integers(REAPPEAR_BEFORE_END[0], REAPPEAR_BEFORE_END[1] + 1))
     if not rolls_on_in_view(layout, camera, video, behind, speed, before_end):
         raise RejectedSample("the reappearing ball would roll out of view")
-    frames, masks, states, positions = record_tracking_ball(sim)
+    consistent, states, positions = record_tracking_ball(sim)
+    masks = consistent[1]
     ball = sim.mask_id("ball")
     pixels = ball_pixels(masks, ball)
     seen = what_hides_ball(sim, masks, positions)
@@ -457,20 +448,20 @@ def _counterbalanced(rng: np.random.Generator, video: VideoOptions, camera: Came
 
     def put_back(twin: Simulation, frame: int) -> None:
         if frame == back:
-            unhide_ball(twin, sim)
+            twin.restore("ball")
             launch(twin, (behind, depth, height), (direction * speed, 0.0))
 
     twin = sim.fork()
     twin.set_state(states[vanish])
     twin.remove("ball")
     rest = twin.record(video.num_frames - vanish, put_back, first_frame=vanish)
-    inconsistent = tuple(np.concatenate([a[:vanish], b]) for a, b in zip((frames, masks), rest))
+    inconsistent = base.splice(consistent, rest, vanish)
     shown = ball_pixels(inconsistent[1], ball)
     if shown[back]:
         raise RejectedSample("the ball shows where it is put back behind the second pillar")
     if shown[-1] < VISIBLE_SHARE * full:
         raise RejectedSample("the reappearing ball is not seen whole in the last frame")
-    return sim, (frames, masks), inconsistent, vanish
+    return sim, consistent, inconsistent, vanish
 
 
 def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
@@ -508,7 +499,7 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             layout = probe_layout(rng, "standard", camera, video)
             layout.gap_block_height = layout.pillar_height * float(rng.uniform(0.75, 1.0))
         sim = build(rng, video, camera, layout)
-        frames, masks, _, positions = record_tracking_ball(sim)
+        (frames, masks, objects), _, positions = record_tracking_ball(sim)
         pixels = ball_pixels(masks, sim.mask_id("ball"))
         if (pixels > 0).sum() < video.num_frames / 3:
             raise RejectedSample("the ball is seen in less than a third of the frames")
@@ -522,7 +513,7 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
                     raise RejectedSample("the ball shows above the gap block")
         return specs.clip_record(
             frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
-            specs.CLIP_KINDS.index(kind), seed,
+            specs.CLIP_KINDS.index(kind), seed, objects,
         )
 
     return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, kind))

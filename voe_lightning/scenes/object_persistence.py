@@ -45,8 +45,6 @@ PROBE_ANCHOR_OFFSET = ((-0.2, 0.2), (0.4, 0.55))
 #: floor in controls) of training clips; probes draw inside these.
 PLANK_HALF_LENGTH = (0.3, 1.6)
 DROP_HEIGHT = (0.2, 1.4)
-#: Where an object waits, out of view and touching nothing but the floor, until it appears.
-PARKED_XY = (40.0, 40.0)
 
 
 def _quat(axis: tuple[float, float, float], angle: float) -> np.ndarray:
@@ -174,15 +172,14 @@ def probe_layout(rng: np.random.Generator) -> dict:
     }
 
 
-def _change_step(
-    sim: base.Simulation, rest_pos, quat, rng: np.random.Generator, last_frame: int
-) -> int:
+def _change_step(sim: base.Simulation, rng: np.random.Generator, last_frame: int) -> int:
     """A physics step after which the object can appear or vanish unseen, drawn at random from
     all such steps: the plank's front edge has landed, the plank does not touch the object's
     place yet (so the plank moves the same with and without the object) and hides it. Found on
-    a copy holding the object in place; raises RejectedSample when there is none."""
+    a copy holding the object in place (put back, if removed); raises RejectedSample when there
+    is none."""
     dry = sim.fork()
-    dry.move("object", rest_pos, quat)
+    dry.restore("object")
     plank, obj = sim.model.geom("plank_0").id, sim.model.geom("object_0").id
     spf = sim.video.steps_per_frame
     fromto = np.empty(6)
@@ -219,16 +216,17 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
         builder = SceneBuilder(rng, video, layout["camera"])
         obj, obj_xy = layout["object"], layout["object_xy"]
         counterbalanced = variant == "counterbalanced"
-        _add_object(builder, obj, PARKED_XY if counterbalanced else obj_xy, object_color)
+        _add_object(builder, obj, obj_xy, object_color)
         _add_plank(
             builder, layout["plank_half"], layout["plank_center"], layout["plank_quat"], plank_color
         )
         sim = builder.build()
+        if counterbalanced:  # out of the scene until it appears (``restore``) where it was built
+            sim.remove("object")
         object_id = sim.mask_id("object")
-        rest_pos, rest_quat = (obj_xy[0], obj_xy[1], obj["half"]), base.yaw_quat(obj["yaw"])
         # The change happens at physics step ``step``: start the video that many steps into a
         # frame interval (as every clip starts at a random phase) so that it falls on a frame.
-        step = _change_step(sim, rest_pos, rest_quat, rng, last_frame=video.num_frames - 3)
+        step = _change_step(sim, rng, last_frame=video.num_frames - 3)
         frame, phase = divmod(step, video.steps_per_frame)
         sim.step(phase)
 
@@ -236,7 +234,7 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
             if not counterbalanced:
                 twin.remove("object")
                 return
-            twin.move("object", rest_pos, rest_quat)
+            twin.restore("object")
             if _touching(twin, "object_0", "plank_0"):
                 raise RejectedSample("the object would appear touching the plank")
 
@@ -335,7 +333,7 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
         )
         sim = builder.build()
         sim.step(int(rng.integers(video.steps_per_frame)))  # a random phase, as probes have
-        frames, masks = sim.record(video.num_frames)
+        frames, masks, objects = sim.record(video.num_frames)
         if kind == "plank_beside_object":
             pushed = np.linalg.norm(sim.position("object")[:2] - obj_xy) > 0.005
             if pushed or _touching(sim, "object_0", "plank_0"):
@@ -346,7 +344,7 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             raise RejectedSample("the plank landed out of view")
         return specs.clip_record(
             frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
-            specs.CLIP_KINDS.index(kind), seed,
+            specs.CLIP_KINDS.index(kind), seed, objects,
         )
 
     return base.draw_until_valid(make, rng)

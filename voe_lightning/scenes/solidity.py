@@ -221,22 +221,21 @@ def _add_block(builder: SceneBuilder, block: dict, xy, bottom: float, color: str
 
 def _add_support(builder: SceneBuilder, box: dict, block: dict, top: float, color: str) -> None:
     """The hidden support of the counterbalanced probe: a pedestal under the block's footprint
-    from the container's floor up to ``top`` (solid, so a fast block cannot tunnel through it),
-    colliding with nothing until the manipulation."""
+    from the container's floor up to ``top`` (solid, so a fast block cannot tunnel through it).
+    A mocap body, so that it can wait out of the scene (``Simulation.remove``) until the
+    manipulation puts it back."""
     half_x, half_y, _ = block["half"]
     x, y = block["offset"]
     floor = 2 * box["wall"]
-    support = builder.add(
+    builder.add(
         "support",
         [Geom("box", (half_x, half_y, (top - floor) / 2))],
         (x, y, (top + floor) / 2),
         color,
         quat=base.yaw_quat(block["yaw"]),
         free=False,
+        mocap=True,
     )
-    for geom_name in support.geom_names:
-        builder.spec.geom(geom_name).contype = 0
-        builder.spec.geom(geom_name).conaffinity = 0
 
 
 def _block_bottom(sim: base.Simulation) -> float:
@@ -251,14 +250,8 @@ def _fall_through(twin: base.Simulation) -> None:
 
 
 def _make_solid(twin: base.Simulation) -> None:
-    """The magic: the hidden support starts colliding, so the block lands on it (the body's
-    collision bits, which MuJoCo checks before its geoms', switch on too)."""
-    for geom_name in twin.objects["support"].geom_names:
-        twin.model.geom(geom_name).contype = 1
-        twin.model.geom(geom_name).conaffinity = 1
-    body = twin.model.body("support").id
-    twin.model.body_contype[body] = 1
-    twin.model.body_conaffinity[body] = 1
+    """The magic: the hidden support appears in the container, so the block lands on it."""
+    twin.restore("support")
 
 
 def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
@@ -281,6 +274,8 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
         if variant == "counterbalanced":
             _add_support(builder, box, block, params["support"], container_color)
         sim = builder.build()
+        if variant == "counterbalanced":
+            sim.remove("support")
         block_id = sim.mask_id("block")
         rim = box["height"] - 0.02
         step = video.steps_per_frame * video.timestep
@@ -396,7 +391,7 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
                 raise RejectedSample("no block hides behind the container from this camera")
             _add_block(builder, block, xy, drop, block_color)
         sim = builder.build()
-        frames, masks = sim.record(video.num_frames)
+        frames, masks, objects = sim.record(video.num_frames)
         if kind != "no_object" and sim.mask_id("block") not in base.visible_ids(masks[0]):
             raise RejectedSample("the block is not seen before it falls")
         if kind == "object_behind_container" and sim.mask_id("block") in base.visible_ids(
@@ -405,7 +400,7 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             raise RejectedSample("the block behind the container is still seen at the end")
         return specs.clip_record(
             frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
-            specs.CLIP_KINDS.index(kind), seed,
+            specs.CLIP_KINDS.index(kind), seed, objects,
         )
 
     return base.draw_until_valid(make, rng)

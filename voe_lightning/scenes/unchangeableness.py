@@ -356,7 +356,7 @@ def _make_probe(
         def manipulate(sim: base.Simulation) -> None:
             for index, (twin_name, twin) in zip(reshaped, twins):
                 sim.remove(names[index])
-                sim.move(twin_name, resting_position(twin, float(xs[index]), row_y))
+                sim.restore(twin_name)
 
     sim = builder.build()
     if change == "shape":
@@ -378,7 +378,7 @@ def _check_probe(consistent, inconsistent, manipulation_frame, manipulated, coun
     objects = set(range(1, count + 1))
     if base.visible_ids(consistent[1][0]) & objects != objects:
         raise RejectedSample("not every object is visible before the screen comes down")
-    for _, masks in (consistent, inconsistent):
+    for _, masks, _ in (consistent, inconsistent):
         if base.visible_ids(masks[manipulation_frame]) & (objects | set(manipulated)):
             raise RejectedSample("the screen does not hide the row at the manipulation")
     shown = base.visible_ids(consistent[1][-1]) | base.visible_ids(inconsistent[1][-1])
@@ -469,10 +469,10 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
         if screen is not None:
             screen.add_to(builder)
         sim = builder.build()
-        frames, masks = sim.record(video.num_frames, screen.script if screen else None)
+        frames, masks, objects = sim.record(video.num_frames, screen.script if screen else None)
         return specs.clip_record(
             frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
-            specs.CLIP_KINDS.index(kind), seed,
+            specs.CLIP_KINDS.index(kind), seed, objects,
         )
 
     return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, kind))
