@@ -11,7 +11,7 @@ import torch
 from tensordict import TensorDict
 
 from voe_lightning import specs
-from voe_lightning.model import ObjectCentricModel, SurpriseModel, VOEModel
+from voe_lightning.model import ObjectCentricModel, ObjectStateModel, SurpriseModel, VOEModel
 from voe_lightning.scenes import CONCEPTS, PROBE_VARIANTS, generate_probe
 
 SIZE = 32
@@ -35,6 +35,7 @@ FAMILIES = [
     pytest.param(lambda: ObjectCentricModel(**OBJECT_CENTRIC), id="object_centric"),
     pytest.param(lambda: ObjectCentricModel(**OBJECT_CENTRIC, object_free=True),
                  id="object_free"),
+    pytest.param(lambda: ObjectStateModel(hidden_size=16, message_size=8), id="object_state"),
 ]
 
 
