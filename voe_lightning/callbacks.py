@@ -17,6 +17,7 @@ from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.utilities import rank_zero_warn
 from rich.console import Console
 from rich.table import Table
+from tensordict import TensorDictBase
 
 from voe_lightning import cues, specs
 from voe_lightning.model.base import SurpriseModel, video_inputs
@@ -171,6 +172,14 @@ class FinalStepCheckpoint(ModelCheckpoint):
             self._save_last_checkpoint(trainer, candidates)
 
 
+def _first_frames(video_input: Any, count: int) -> Any:
+    """The first ``count`` frames of one video's input: a tensor [T, ...], or a TensorDict of
+    per-frame leaves (``objects``, whose batch dims end before T)."""
+    if isinstance(video_input, TensorDictBase):
+        return video_input.apply(lambda leaf: leaf[:count])
+    return video_input[:count]
+
+
 class ExpectationImages(L.Callback):
     """At each validation run, logs to TensorBoard, for one fixed inconsistent validation probe
     per concept, the input frames above ``expected_frames`` (given the probe's mask and camera):
@@ -202,7 +211,7 @@ class ExpectationImages(L.Callback):
         if experiment is None or not hasattr(experiment, "add_image"):
             return
         for concept, example in self.examples.items():
-            video = {key: value[: self.max_frames][None].to(pl_module.device)
+            video = {key: _first_frames(value, self.max_frames)[None].to(pl_module.device)
                      for key, value in example.items()}
             frames = example["frames"][: self.max_frames]
             with torch.no_grad():
