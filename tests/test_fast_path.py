@@ -111,8 +111,12 @@ def test_channels_last_float32_surprise_equals_the_reference():
 
 
 def test_bf16_surprise_agrees_with_float32():
-    """Per-video surprise within 1% relative; the sign of per-pair differences (what the VOE
-    statistics test) agrees for at least 90% of pairs."""
+    """Per-video surprise within 1% relative, so a pair's difference d = S1 - S2 within 1% of
+    S1 + S2. The sign of d is not compared: this untrained model's videos differ by about 1e-3
+    of S, below what bf16 resolves (2^-8), so which pairs flip depends on the CPU's bf16
+    kernels (AVX512-BF16 and AMX round differently from emulation), not on the fast path. The
+    VOE statistics of such near-zero d are compared with propagated noise in
+    tests/test_distributed.py."""
     reference, fast = pair(FAST_BF16)
     videos = moving_squares(4 * B, 3)
     expected = reference.surprise(videos).sum(dim=1)
@@ -120,9 +124,6 @@ def test_bf16_surprise_agrees_with_float32():
     assert actual.dtype == torch.float32
     relative = ((actual - expected).abs() / expected.abs()).max()
     assert relative < 1e-2, relative
-    first, second = expected.chunk(2), actual.chunk(2)
-    same_sign = ((first[0] - first[1]).sign() == (second[0] - second[1]).sign()).float().mean()
-    assert same_sign >= 0.9, same_sign
 
 
 def test_bf16_training_losses_follow_float32():

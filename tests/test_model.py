@@ -115,8 +115,12 @@ def test_surprise_is_deterministic_per_frame_kl():
     assert surprise.shape == (B, T) and surprise.dtype == torch.float32
     assert not surprise.requires_grad
     torch.testing.assert_close(model.surprise(video), surprise, rtol=0, atol=0)
-    # A row's surprise does not depend on the rest of the batch.
-    torch.testing.assert_close(model.surprise(video[1:]), surprise[1:], rtol=1e-5, atol=1e-5)
+    # A row's surprise does not depend on the rest of the batch, up to float32 rounding: in
+    # float32, as bf16 autocast (the default where the CPU has AVX512-BF16) may round a row
+    # differently when oneDNN picks another kernel for another batch size.
+    exact = tiny_model(precision="float32")
+    torch.testing.assert_close(exact.surprise(video[1:]), exact.surprise(video)[1:],
+                               rtol=1e-5, atol=1e-5)
     # Deterministic mode equals a rollout fed with posterior means.
     expected = model.rollout(specs.to_model_input(video), deterministic=True).kl
     torch.testing.assert_close(surprise, expected)
