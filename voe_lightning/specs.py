@@ -124,7 +124,9 @@ def objects_spec(num_frames: int = NUM_FRAMES) -> Composite:
     its floor, has it half its height up. Ground truth for every object in the scene, hidden or
     not: a model that may only see what is visible must mask out the states of hidden objects
     itself. An object taken out of the scene (parked out of view) has no states at that frame.
-    A probe pair shares the states of its manipulation frame (see ``scenes.base.splice``)."""
+    An id names one spatio-temporal object, as a tracker would: a body swapped in for another
+    while hidden holds that one's id, and the states are the current holder's. A probe pair
+    shares the states of its manipulation frame (see ``scenes.base.splice``)."""
     slots = (num_frames, OBJECT_SLOTS)
     return Composite(
         position=Unbounded(shape=(*slots, 3), dtype=torch.float32),

@@ -194,7 +194,9 @@ def yaw_quat(angle: float) -> list[float]:
 
 class SceneBuilder:
     """Builds one episode with MjSpec: floor, light, camera and named objects, each object
-    labelled with its own mask id (1, 2, ... in the order added)."""
+    labelled with a mask id (1, 2, ... in the order added). An id names what a tracker would
+    follow, one spatio-temporal object: a body that will be swapped in for another while
+    hidden shares that one's id (``replaces``)."""
 
     def __init__(
         self,
@@ -258,14 +260,21 @@ class SceneBuilder:
         mocap: bool = False,
         density: float = 500.0,
         friction: float = 0.8,
+        replaces: str | None = None,
     ) -> SceneObject:
         """Add an object made of ``geoms``; ``free`` bodies fall and collide, ``mocap`` bodies
-        are moved by the script (screens, rods), others are fixed (pillars, walls)."""
+        are moved by the script (screens, rods), others are fixed (pillars, walls). An object
+        that ``replaces`` another (swapped in for it while hidden, never in the scene at the
+        same time: ``Simulation.remove``) takes its mask id; any other gets a new one."""
         if name in self.objects:
             raise ValueError(f"object {name!r} already exists")
-        obj = SceneObject(name, len(self.objects) + 1, free, mocap)
-        if obj.mask_id > specs.MAX_OBJECT_ID:
+        if replaces is not None:
+            mask_id = self.objects[replaces].mask_id
+        else:
+            mask_id = max((other.mask_id for other in self.objects.values()), default=0) + 1
+        if mask_id > specs.MAX_OBJECT_ID:
             raise ValueError(f"a scene may hold at most {specs.MAX_OBJECT_ID} objects")
+        obj = SceneObject(name, mask_id, free, mocap)
         body = self.spec.worldbody.add_body(name=name, pos=list(pos), quat=list(quat), mocap=mocap)
         if free:
             body.add_freejoint(name=f"{name}_joint")

@@ -40,6 +40,8 @@ SCREEN_FLOOR_GAP = 0.002
 SCREEN_COLOR = (0.52, 0.38, 0.24)
 #: Manipulated ids a probe record can carry (probe_record pads to this many).
 MAX_MANIPULATED_IDS = 4
+#: Objects a shape probe changes at most.
+MOST_RESHAPED = 2
 #: One camera distribution for examples, both controls and probes.
 CAMERA = CameraRange(
     lookat_x=(-0.3, 0.3),
@@ -104,12 +106,20 @@ def draw_object(rng: np.random.Generator, radius: float, color: str) -> ObjectDr
     return ObjectDraw(shape, radius, float(rng.random()), float(rng.uniform(-0.6, 0.6)), color)
 
 
-def add_object(builder: SceneBuilder, name: str, draw: ObjectDraw, x: float, y: float):
+def add_object(
+    builder: SceneBuilder,
+    name: str,
+    draw: ObjectDraw,
+    x: float,
+    y: float,
+    replaces: str | None = None,
+):
     """Add a static object resting on the floor at (x, y); a mocap body, so the hidden change
-    can move it with sim.move."""
+    can move it with sim.move. A twin swapped in for another object ``replaces`` it (its id)."""
     geoms, z = draw.geoms()
+    quat = base.yaw_quat(draw.yaw)
     return builder.add(
-        name, geoms, (x, y, z), draw.color, quat=base.yaw_quat(draw.yaw), free=False, mocap=True
+        name, geoms, (x, y, z), draw.color, quat=quat, free=False, mocap=True, replaces=replaces
     )
 
 
@@ -335,8 +345,9 @@ def _make_probe(
             for index, color in zip(recoloured, new_colors):
                 sim.set_color(names[index], color)
 
-    else:  # shape: each changed object swaps with a same-coloured twin of another shape.
-        reshaped = rng.choice(count, _changed_count(rng, MAX_MANIPULATED_IDS // 2), replace=False)
+    else:  # shape: each changed object swaps with a same-coloured twin of another shape, which
+        # takes its mask id: to a tracker it is the same object, changed.
+        reshaped = rng.choice(count, _changed_count(rng, MOST_RESHAPED), replace=False)
         twins = []
         for index in reshaped:
             original = draws[index]
@@ -349,9 +360,8 @@ def _make_probe(
                 original.color,
             )
             twins.append((f"twin{index}", twin))
-            add_object(builder, f"twin{index}", twin, float(xs[index]), row_y)
+            add_object(builder, f"twin{index}", twin, float(xs[index]), row_y, names[index])
         manipulated = [builder.objects[names[i]].mask_id for i in reshaped]
-        manipulated += [builder.objects[name].mask_id for name, _ in twins]
 
         def manipulate(sim: base.Simulation) -> None:
             for index, (twin_name, twin) in zip(reshaped, twins):
