@@ -99,10 +99,26 @@ def image_plane(coordinates: torch.Tensor) -> torch.Tensor:
     return coordinates[..., :2] / depth / math.tan(math.radians(FOVY) / 2)
 
 
-def gaussian_nll(value: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
-    """-log N(value; mean, exp(log_std)^2), summed over the last dimension."""
+def gaussian_nll(value: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
+    """-log N(value; mean, exp(log_std)^2) and the entropy of that Gaussian, each summed over
+    the last dimension."""
     z = (value - mean) * torch.exp(-log_std)
-    return (0.5 * z.pow(2) + log_std + 0.5 * LOG_2PI).sum(-1)
+    entropy = log_std + 0.5 * (LOG_2PI + 1)
+    return (0.5 * z.pow(2) + log_std + 0.5 * LOG_2PI).sum(-1), entropy.sum(-1)
+
+
+def bernoulli_nll(logit: torch.Tensor, value: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """-log Bernoulli(value; sigmoid(logit)) and the entropy of that Bernoulli."""
+    return (F.binary_cross_entropy_with_logits(logit, value, reduction="none"),
+            F.binary_cross_entropy_with_logits(logit, torch.sigmoid(logit), reduction="none"))
+
+
+def categorical_nll(logits: torch.Tensor, one_hot: torch.Tensor
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+    """-log Categorical(one_hot; softmax(logits)) over the last dimension, and its entropy."""
+    log_p = F.log_softmax(logits, dim=-1)
+    return -(log_p * one_hot).sum(-1), -(log_p.exp() * log_p).sum(-1)
 
 
 class ObjectStateModel(SurpriseModel):
@@ -216,61 +232,40 @@ class ObjectStateModel(SurpriseModel):
         return (network(torch.cat([*parts, pairs], dim=-1)) * self._pair_weight(known)).sum(2)
 
     def rollout(self, observations: Observations) -> dict[str, torch.Tensor]:
-        """Run the slots through a batch's frames. Returns per frame and slot [B, T, S] the
-        visibility, state and shape terms of the NLL (0 where they do not apply), ``appear``
-        [B, T] (the appearance term), the beliefs [B, T, S, 13], the predicted visibility
+        """Run the slots through a batch's frames. Returns, per frame and slot [B, T, S], the
+        negative log-likelihood of the visibility, state and shape seen (0 where they do not
+        apply) and the entropy of each prediction (``<term>_entropy``), ``appear`` and
+        ``appear_entropy`` [B, T] (the appearance term), the beliefs after each frame and the
+        states predicted for it (frame 0: none) [B, T, S, 13], the predicted visibility
         probability [B, T, S], ``known`` [B, T, S] (seen at some frame <= t) and the slots'
         recurrent states [B, T, S, H]."""
         obs = observations
         batch, steps, slots = obs.visible.shape
-        hidden_size = self.hparams.hidden_size
-        hidden = obs.state.new_zeros(batch, slots, hidden_size)
+        hidden = obs.state.new_zeros(batch, slots, self.hparams.hidden_size)
         belief = obs.state.new_zeros(batch, slots, STATE_SIZE)
         shape = obs.state.new_zeros(batch, slots, SHAPES)
         known = torch.zeros(batch, slots, dtype=torch.bool, device=obs.state.device)
-        zeros = obs.state.new_zeros(batch, slots)
-        terms = {name: [] for name in ("visibility", "state", "shape")}
-        appear, beliefs, probability, knowns, states = [], [], [], [], []
-        min_std = self.log_min_std
+        names = ("visibility", "state", "shape", "appear")
+        terms = {key: [] for name in names for key in (name, f"{name}_entropy")}
+        beliefs, predictions, probability, knowns, states = [], [], [], [], []
         for t in range(steps):
             pose = obs.camera[:, t]
             pose_features = camera_features(pose)[:, None].expand(-1, slots, -1)
             visible = obs.visible[:, t]
             new = visible & ~known
             if t == 0:
-                predicted, appear_t = belief, obs.state.new_zeros(batch)
-                for name in terms:
-                    terms[name].append(zeros)
-                probability.append(zeros)
+                predicted = belief
+                for key in terms:
+                    terms[key].append(obs.state.new_zeros(batch, *(() if "appear" in key
+                                                                   else (slots,))))
+                probability.append(obs.state.new_zeros(batch, slots))
             else:
-                coordinates = camera_coordinates(belief[..., :3], pose)
-                pairs = self._pairs(belief, shape, coordinates)
-                message = self._messages(self.message, hidden, hidden, pairs, known)
-                out = self.dynamics(torch.cat([hidden, message, pose_features], dim=-1))
-                change, log_std, shape_logits = out.split([STATE_SIZE, STATE_SIZE, SHAPES], -1)
-                predicted = belief + change
-                log_std = min_std + F.softplus(log_std - min_std)
-                # visibility at t from where every known slot is predicted to be at t
-                coordinates = camera_coordinates(predicted[..., :3], pose)
-                pairs = self._pairs(predicted, shape, coordinates)
-                occluders = self._messages(self.occlusion, hidden, None, pairs, known)
-                logit = self.visibility(torch.cat(
-                    [hidden, occluders, coordinates, image_plane(coordinates), predicted[..., 7:10],
-                     pose_features], dim=-1)).squeeze(-1)
-                seen = visible.float()
-                keep = known.float()
-                terms["visibility"].append(
-                    F.binary_cross_entropy_with_logits(logit, seen, reduction="none") * keep)
-                terms["state"].append(
-                    gaussian_nll(obs.state[:, t], predicted, log_std) * seen * keep)
-                label = obs.shape[:, t].argmax(-1)
-                terms["shape"].append(F.cross_entropy(
-                    shape_logits.flatten(0, 1), label.flatten(), reduction="none"
-                ).view(batch, slots) * seen * keep)
-                probability.append(torch.sigmoid(logit) * keep)
-                appear_t = self._appearance(hidden, known, pose, new, obs.state[:, t],
-                                            obs.shape[:, t])
-            appear.append(appear_t)
+                predicted, step_terms, seen_probability = self._predict(
+                    hidden, belief, shape, known, pose, pose_features, obs, t)
+                for key, value in step_terms.items():
+                    terms[key].append(value)
+                probability.append(seen_probability)
+            predictions.append(predicted)
             # observe frame t: seen slots take what is seen, hidden ones their prediction
             previous = belief
             belief = torch.where(visible[..., None], obs.state[:, t], predicted)
@@ -292,33 +287,73 @@ class ObjectStateModel(SurpriseModel):
             knowns.append(known)
             states.append(hidden)
         return {
-            **{name: torch.stack(values, dim=1) for name, values in terms.items()},
-            "appear": torch.stack(appear, dim=1),
+            **{key: torch.stack(values, dim=1) for key, values in terms.items()},
             "belief": torch.stack(beliefs, dim=1),
+            "predicted": torch.stack(predictions, dim=1),
             "visible_probability": torch.stack(probability, dim=1),
             "known": torch.stack(knowns, dim=1),
             "hidden": torch.stack(states, dim=1),
         }
 
+    def _predict(self, hidden, belief, shape, known, pose, pose_features, obs: Observations,
+                 t: int) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]:
+        """Frame t's predictions from the slots after frame t-1: the predicted states
+        [B, S, 13], the terms of what frame t shows (``rollout``) and p(visible) [B, S]."""
+        batch, slots = known.shape
+        coordinates = camera_coordinates(belief[..., :3], pose)
+        pairs = self._pairs(belief, shape, coordinates)
+        message = self._messages(self.message, hidden, hidden, pairs, known)
+        out = self.dynamics(torch.cat([hidden, message, pose_features], dim=-1))
+        change, log_std, shape_logits = out.split([STATE_SIZE, STATE_SIZE, SHAPES], -1)
+        predicted = belief + change
+        log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
+        # visibility at t from where every known slot is predicted to be at t
+        coordinates = camera_coordinates(predicted[..., :3], pose)
+        pairs = self._pairs(predicted, shape, coordinates)
+        occluders = self._messages(self.occlusion, hidden, None, pairs, known)
+        logit = self.visibility(torch.cat(
+            [hidden, occluders, coordinates, image_plane(coordinates), predicted[..., 7:10],
+             pose_features], dim=-1)).squeeze(-1)
+        visible = obs.visible[:, t]
+        seen, keep = visible.float(), known.float()
+        terms = {}
+        for name, (nll, entropy), weight in (
+            ("visibility", bernoulli_nll(logit, seen), keep),
+            ("state", gaussian_nll(obs.state[:, t], predicted, log_std), seen * keep),
+            ("shape", categorical_nll(shape_logits, obs.shape[:, t]), seen * keep),
+        ):
+            terms[name], terms[f"{name}_entropy"] = nll * weight, entropy * weight
+        terms["appear"], terms["appear_entropy"] = self._appearance(
+            hidden, known, pose, visible & ~known, obs.state[:, t], obs.shape[:, t])
+        return predicted, terms, torch.sigmoid(logit) * keep
+
     def _appearance(self, hidden: torch.Tensor, known: torch.Tensor, pose: torch.Tensor,
-                    new: torch.Tensor, state: torch.Tensor, shape: torch.Tensor) -> torch.Tensor:
-        """-log p(which objects appear at t) [B]: a Bernoulli of whether any new object
-        appears, given the mean state of the known slots and the pose, plus each newcomer's
-        state (Gaussian) and shape (categorical)."""
+                    new: torch.Tensor, state: torch.Tensor, shape: torch.Tensor
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """-log p(which objects appear at t) [B] and its entropy: a Bernoulli of whether any
+        new object appears, given the mean state of the known slots and the pose, plus each
+        newcomer's state (Gaussian) and shape (categorical)."""
         weight = known.float()[..., None]
         context = (hidden * weight).sum(1) / weight.sum(1).clamp(min=1)
         out = self.appearance(torch.cat([context, camera_features(pose)], dim=-1))
         logit, mean, log_std, shape_logits = out.split([1, STATE_SIZE, STATE_SIZE, SHAPES], -1)
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
-        any_new = new.any(-1).float()
-        term = F.binary_cross_entropy_with_logits(logit.squeeze(-1), any_new, reduction="none")
-        newcomer = gaussian_nll(state, mean[:, None], log_std[:, None])
-        newcomer = newcomer - (F.log_softmax(shape_logits, -1)[:, None] * shape).sum(-1)
-        return term + (newcomer * new.float()).sum(-1)
+        any_new, entropy = bernoulli_nll(logit.squeeze(-1), new.any(-1).float())
+        state_nll, state_entropy = gaussian_nll(state, mean[:, None], log_std[:, None])
+        shape_nll, shape_entropy = categorical_nll(shape_logits[:, None], shape)
+        newcomers = new.float()
+        return (any_new + ((state_nll + shape_nll) * newcomers).sum(-1),
+                entropy + ((state_entropy + shape_entropy) * newcomers).sum(-1))
 
     def _per_frame(self, out: dict[str, torch.Tensor]) -> torch.Tensor:
-        """The NLL of each frame [B, T]: every slot's terms plus the appearance term."""
-        return (out["visibility"] + out["state"] + out["shape"]).sum(-1) + out["appear"]
+        """Each frame's surprise [B, T]: the excess surprisal of what it shows, the negative
+        log-likelihood of each term minus its expectation under the model's own prediction
+        (the entropy), summed over slots and terms. A density's raw NLL would reward every
+        visible object with a negative term (about -40 nats a frame at 1 cm precision), so a
+        video showing more would read as less surprising whatever its physics."""
+        excess = sum(out[name] - out[f"{name}_entropy"]
+                     for name in ("visibility", "state", "shape"))
+        return excess.sum(-1) + out["appear"] - out["appear_entropy"]
 
     # ----------------------------------------------------------------------------- training
     def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
@@ -326,7 +361,7 @@ class ObjectStateModel(SurpriseModel):
         inputs = video_inputs(batch)
         out = self.rollout(self._inputs(frames, inputs.get("objects"), inputs.get("camera")))
         clips = frames.shape[0]
-        terms = {name: out[name].sum() / clips
+        terms = {name: out[name].sum() / clips  # the negative log-likelihood of the clips
                  for name in ("visibility", "state", "shape", "appear")}
         terms["loss"] = sum(terms.values())
         self._check_finite(terms)
@@ -357,7 +392,7 @@ class ObjectStateModel(SurpriseModel):
         probability that it is seen (frame 0: what is seen), nearer objects over farther."""
         observations = self._inputs(frames, objects, camera)
         out = self.rollout(observations)
-        belief = torch.cat([out["belief"][:, :1], out["belief"][:, :-1]], dim=1)
+        belief = torch.cat([out["belief"][:, :1], out["predicted"][:, 1:]], dim=1)
         opacity = torch.cat([observations.visible[:, :1].float(),
                              out["visible_probability"][:, 1:]], dim=1)
         return draw_discs(belief, opacity, observations.camera, frames.shape[2:4])
