@@ -140,7 +140,7 @@ def test_module_entry_point_lists_every_subcommand_with_its_summary():
     [(["generate"], "sharded store"), (["audit"], "Physics-blind cue scores"),
      (["analyze"], "curves, sweep, sweep-plot, compare"), (["analyze", "curves"], "Figure 6"),
      (["analyze", "sweep"], "per training-set size"), (["analyze", "sweep-plot"], "Figure 3"),
-     (["analyze", "compare"], "verdicts")],
+     (["analyze", "compare"], "verdicts"), (["analyze", "calibrate"], "Calibration of the VOE")],
 )
 def test_each_command_has_a_help_with_its_summary_and_config(capsys, command, summary):
     with pytest.raises(SystemExit) as raised:

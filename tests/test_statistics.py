@@ -232,7 +232,7 @@ def _result(p, mean):
     return {"p_value": p, "relative_surprise": mean}
 
 
-def test_pooled_verdict_needs_a_significant_pool_and_both_variants_positive():
+def test_pooled_verdict_needs_the_pool_and_both_variants_significant():
     from voe_lightning.statistics import concept_verdicts
 
     def verdict(standard, counterbalanced, pooled, alpha=0.01):
@@ -241,13 +241,17 @@ def test_pooled_verdict_needs_a_significant_pool_and_both_variants_positive():
                    ("continuity", "pooled"): pooled}
         return concept_verdicts(results, alpha)[0]
 
-    assert verdict(_result(0.001, 2.0), _result(0.3, 0.1), _result(0.005, 1.0)).voe is True
+    assert verdict(_result(0.001, 2.0), _result(0.005, 0.1), _result(0.001, 1.0)).voe is True
     failed = verdict(_result(0.001, 5.0), _result(0.9, -0.5), _result(0.001, 2.0))
     assert failed.voe is False and failed.text() == "no VOE: counterbalanced M = -0.5 <= 0"
-    weak = verdict(_result(0.2, 1.0), _result(0.3, 0.5), _result(0.02, 0.7))
+    # M > 0 is not enough: a cue pointing the wrong way plus noise gets there (calibration).
+    positive = verdict(_result(0.001, 5.0), _result(0.3, 0.2), _result(0.001, 2.0))
+    assert positive.text() == "no VOE: counterbalanced p = .300 >= 0.01"
+    weak = verdict(_result(0.005, 1.0), _result(0.005, 0.5), _result(0.02, 0.7))
     assert weak.text() == "no VOE: pooled p = .020 >= 0.01"
-    assert "pooled p < 0.01" in weak.rule
-    assert verdict(_result(0.2, 1.0), _result(0.3, 0.5), _result(0.02, 0.7), alpha=0.05).voe
+    assert "stratified pooled test and in both standard and counterbalanced" in weak.rule
+    assert "p < 0.01" in weak.rule
+    assert verdict(_result(0.005, 1.0), _result(0.005, 0.5), _result(0.02, 0.7), alpha=0.05).voe
     assert concept_verdicts({("continuity", "pooled"): _result(0.02, 0.7)})[0].voe is None
     missing = concept_verdicts({("continuity", "standard"): _result(0.001, 3.0)})[0]
     assert missing.voe is None and "counterbalanced, pooled" in missing.text()
@@ -266,25 +270,21 @@ def test_unchangeableness_verdict_needs_every_variant_significant():
     assert concept_verdicts(results)[0].voe is None
 
 
-def test_the_verdict_rules_take_arrays_as_concept_verdicts_takes_rows():
-    """The calibration applies the rules to thousands of repetitions at once: element by
-    element they must decide as ``concept_verdicts`` does."""
-    from voe_lightning.statistics import concept_verdicts, pooled_rule, variant_rule
+def test_the_verdict_rule_takes_arrays_as_concept_verdicts_takes_rows():
+    """The calibration applies the rule to thousands of repetitions at once: element by
+    element it must decide as ``concept_verdicts`` does."""
+    from voe_lightning.statistics import concept_verdicts, verdict_rule
 
     rng = np.random.default_rng(3)
-    p, standard, counterbalanced = rng.uniform(0, 0.03, 50), rng.normal(0, 1, 50), rng.normal(0, 1, 50)
-    vectorized = pooled_rule(p, standard, counterbalanced, 0.01)
-    for i in range(50):
-        rows = {("solidity", "standard"): _result(0.5, standard[i]),
-                ("solidity", "counterbalanced"): _result(0.5, counterbalanced[i]),
-                ("solidity", "pooled"): _result(p[i], 0.0)}
-        assert concept_verdicts(rows, 0.01)[0].voe == vectorized[i]
-    three = rng.uniform(0, 0.02, (3, 50))
-    vectorized = variant_rule(three, 0.01)
-    for i in range(50):
-        rows = {("unchangeableness", v): _result(three[k, i], 1.0)
-                for k, v in enumerate(("position", "color", "shape"))}
-        assert concept_verdicts(rows, 0.01)[0].voe == vectorized[i]
+    cases = {"solidity": ("standard", "counterbalanced", "pooled"),
+             "unchangeableness": ("position", "color", "shape")}
+    for concept, variants in cases.items():
+        p = rng.uniform(0, 0.02, (3, 60))
+        vectorized = verdict_rule(p, 0.01)
+        assert 0 < vectorized.sum() < 60
+        for i in range(60):
+            rows = {(concept, v): _result(p[k, i], 1.0) for k, v in enumerate(variants)}
+            assert concept_verdicts(rows, 0.01)[0].voe == vectorized[i]
 
 
 # ----------------------------------------------------------------------------- stratified test

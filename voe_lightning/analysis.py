@@ -1,8 +1,9 @@
 """Analyses across runs: relative surprise over training read from TensorBoard event files,
 separate vs joint runs on one figure (paper Figure 6), the training-set-size sweep with its
-reliability plot (paper Figure 3), the per-concept verdicts of tested runs side by side, and how
-many of a VRNN-LRU's latents carry information.
-``python -m voe_lightning analyze curves|sweep|sweep-plot|compare|latents``.
+reliability plot (paper Figure 3), the per-concept verdicts of tested runs side by side, how
+many of a VRNN-LRU's latents carry information, and the calibration of the verdict
+(``voe_lightning.calibration``).
+``python -m voe_lightning analyze curves|sweep|sweep-plot|compare|latents|calibrate``.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 import torch
 from matplotlib.figure import Figure
 
-from voe_lightning import specs
+from voe_lightning import calibration, specs
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.cues import CUE_TITLES, FRAME_LOCAL_CUES, tracked_cues
 from voe_lightning.model import VOEModel
@@ -522,9 +523,10 @@ def latents(checkpoints: list[str], root: Path, pairs: int = 16, threshold: floa
 
 
 #: ``analyze``'s subcommands, as jsonargparse's ``auto_cli`` takes them (``_help``: the summary).
-COMMANDS = {"_help": "Figures and tables over runs: curves, sweep, sweep-plot, compare, latents.",
+COMMANDS = {"_help": "Figures and tables over runs: curves, sweep, sweep-plot, compare, latents; "
+                     "and the verdict's calibration on a store: calibrate.",
             "curves": curves, "sweep": sweep, "sweep-plot": sweep_plot, "compare": compare,
-            "latents": latents}
+            "latents": latents, "calibrate": calibration.calibrate_store}
 
 
 def _write(figure: Figure, path: str | Path) -> Path:

@@ -56,7 +56,6 @@ __all__ = [
     "group_test",
     "paired_test",
     "pair_groups",
-    "pooled_rule",
     "pooled_values",
     "pooled_test",
     "relative_surprise",
@@ -65,7 +64,7 @@ __all__ = [
     "stratified_test",
     "t_test_from_moments",
     "untested_reason",
-    "variant_rule",
+    "verdict_rule",
 ]
 
 #: The row name of a concept's pooled test, and the variants it pools (DESIGN.md §4, §6).
@@ -209,6 +208,7 @@ def stratified_moments(n: Any, mean: Any, variance: Any) -> tuple[Any, Any, Any]
     and the Welch-Satterthwaite df (sum s_i^2/n_i)^2 / sum (s_i^2/n_i)^2/(n_i - 1), from each
     stratum's n, mean and (ddof=1) variance along axis 0 (arrays broadcast over the rest)."""
     n, mean, variance = (np.asarray(x, dtype=np.float64) for x in (n, mean, variance))
+    n = n.reshape(n.shape + (1,) * (variance.ndim - n.ndim))  # one n per stratum
     squared_errors = variance / n
     total = squared_errors.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -584,17 +584,14 @@ def _p(p: float) -> str:
     return f"{p:.3f}".lstrip("0") if p >= 0.001 else "< .001"
 
 
-def pooled_rule(pooled_p: Any, standard_mean: Any, counterbalanced_mean: Any,
-                alpha: float) -> Any:
-    """VOE for a concept with a counterbalanced pair: the pooled (stratified) test is
-    significant and both variants' M > 0. Arrays broadcast (the calibration's repetitions)."""
-    return ((np.asarray(pooled_p) < alpha) & (np.asarray(standard_mean) > 0)
-            & (np.asarray(counterbalanced_mean) > 0))
-
-
-def variant_rule(p_values: Sequence[Any], alpha: float) -> Any:
-    """VOE for a concept without one (unchangeableness): every probe variant's p < alpha
-    (``p_values`` one per variant along axis 0; arrays broadcast over the rest)."""
+def verdict_rule(p_values: Sequence[Any], alpha: float) -> Any:
+    """VOE when every test a concept's verdict reads has p < alpha (``p_values`` one per test
+    along axis 0; arrays broadcast over the rest, as the calibration's repetitions). For a
+    concept with a counterbalanced pair these are the stratified pooled test and each variant's
+    own: requiring each variant significant, not only M > 0, is an intersection-union test, so
+    a model that follows a cue pointing the wrong way in one variant says VOE in at most alpha
+    of repetitions (``voe_lightning.calibration``); M > 0 alone lets it through whenever noise
+    lifts that variant's M above zero."""
     return np.all(np.asarray(p_values, dtype=np.float64) < alpha, axis=0)
 
 
@@ -602,11 +599,12 @@ def concept_verdicts(
     results: Mapping[tuple[str, str], Mapping[str, Any]] | Sequence[Mapping[str, Any]],
     alpha: float = ALPHA,
 ) -> list[Verdict]:
-    """Per concept, in the order first seen: ``pooled_rule`` for a concept with a
-    counterbalanced pair, otherwise (unchangeableness' position/color/shape, a benchmark's own
-    variants) ``variant_rule`` over every one of its probe variants. Generalization variants
-    do not enter. ``results`` maps (concept, variant) to a dict with ``p_value`` and
-    ``relative_surprise`` (None when untested), or is a list of rows that carry both names."""
+    """Per concept, in the order first seen, ``verdict_rule`` over the tests it reads: for a
+    concept with a counterbalanced pair, the pooled test and both variants; otherwise
+    (unchangeableness' position/color/shape, a benchmark's own variants) every one of its
+    probe variants. Generalization variants do not enter. ``results`` maps (concept, variant)
+    to a dict with ``p_value`` and ``relative_surprise`` (None when untested), or is a list of
+    rows that carry both names."""
     check_alpha(alpha)
     if not isinstance(results, Mapping):
         results = {(row["concept"], row["variant"]): row for row in results}
@@ -614,9 +612,9 @@ def concept_verdicts(
     for concept in dict.fromkeys(concept for concept, _ in results):
         present = [v for c, v in results if c == concept and v != POOLED]
         required = list(specs.STANDARD_VARIANTS.get(concept, present))
-        pooled = set(POOLED_VARIANTS) <= set(required)
-        if pooled:
-            rule = f"pooled p < {alpha:g} and M > 0 in both standard and counterbalanced"
+        if set(POOLED_VARIANTS) <= set(required):
+            rule = (f"p < {alpha:g} in the stratified pooled test and in both standard and "
+                    "counterbalanced")
             needed = [*POOLED_VARIANTS, POOLED]
         else:
             rule = f"p < {alpha:g} in every variant ({', '.join(required)})"
@@ -628,17 +626,14 @@ def concept_verdicts(
                                     f"no test of {', '.join(untested)} (needs >= 2 pairs each)"))
             continue
         values = {variant: results[(concept, variant)] for variant in needed}
-        if pooled:
-            means = [values[variant]["relative_surprise"] for variant in POOLED_VARIANTS]
-            voe = bool(pooled_rule(values[POOLED]["p_value"], *means, alpha))
-            failed = [f"{variant} M = {mean:.3g} <= 0"
-                      for variant, mean in zip(POOLED_VARIANTS, means) if not mean > 0]
-            tested = [POOLED]
-        else:
-            voe = bool(variant_rule([values[v]["p_value"] for v in needed], alpha))
-            failed, tested = [], needed
-        failed += [f"{variant} p = {_p(values[variant]['p_value'])} >= {alpha:g}"
-                   for variant in tested if not values[variant]["p_value"] < alpha]
+        voe = bool(verdict_rule([values[variant]["p_value"] for variant in needed], alpha))
+        failed = []
+        for variant in needed:
+            p_value, mean = values[variant]["p_value"], values[variant]["relative_surprise"]
+            if not mean > 0:
+                failed.append(f"{variant} M = {mean:.3g} <= 0")
+            elif not p_value < alpha:
+                failed.append(f"{variant} p = {_p(p_value)} >= {alpha:g}")
         verdicts.append(Verdict(concept, voe, rule, "" if voe else "; ".join(failed)))
     return verdicts
 

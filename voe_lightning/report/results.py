@@ -309,9 +309,9 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURP
                  "counterbalanced pairs, M the mean of the two variants' M, its SE from both, "
                  "Welch-Satterthwaite df; its d_z is M over the SD of d of all its pairs.")
     lines.extend(f"[{i}] {note}" for i, note in enumerate(notes, start=1))
-    lines += ["", "Verdicts: a concept shows VOE only when its pooled test is significant and "
-              "both variants point the right way (M > 0); without a counterbalanced pair, when "
-              "every probe variant is significant. Generalization variants do not enter.", ""]
+    lines += ["", f"Verdicts: a concept shows VOE only when its pooled test and each of its "
+              f"two variants are significant (p < {alpha:g}); without a counterbalanced pair, "
+              "when every probe variant is. Generalization variants do not enter.", ""]
     lines += format_verdicts(rows)
     return "\n".join(lines) + "\n"
 

@@ -1,0 +1,119 @@
+"""The verdict is calibrated (DESIGN.md §6): on synthetic surprise made of the real cue scores
+of generated probes (``voe_lightning.calibration``), a model with no physics says VOE in at most
+alpha of repetitions per concept, whether it is noise or follows a frame-local cue linearly or
+not, wherever the stimuli let any test tell it apart; its power at a true effect is the
+noncentral t's. Probes are few and small (30 pairs per variant, 32x32) for a 2-core CPU."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from voe_lightning import calibration, cues, specs
+from voe_lightning.scenes import generate_probe
+from voe_lightning.statistics import ALPHA
+
+PAIRS, SIZE, REPETITIONS = 30, 32, 2000
+
+
+@pytest.fixture(scope="module")
+def audit():
+    records = [generate_probe(concept, variant, 910_000 + seed, height=SIZE, width=SIZE)
+               for concept, variants in specs.STANDARD_VARIANTS.items() for variant in variants
+               for seed in range(PAIRS)]
+    return cues.audit_records(records)
+
+
+@pytest.fixture(scope="module")
+def rows(audit):
+    return calibration.calibrate(audit, repetitions=REPETITIONS, deltas=np.zeros(1),
+                                 power_weights=())
+
+
+def _describe(row) -> str:
+    return (f"{row.concept}: {row.follower} of {row.cue}, sign {row.sign:+d}, weight "
+            f"{row.weight:g}: false VOE {100 * row.false_voe_rate:.2f}%")
+
+
+@pytest.mark.parametrize("concept", specs.CONCEPTS)
+def test_false_voe_stays_at_alpha_for_noise_and_every_cue_follower_the_stimuli_can_expose(
+        rows, concept):
+    """Every (cue, follower, sign, weight) whose cue term is not positive in every variant:
+    the verdict must say VOE in at most alpha of repetitions, within the binomial error of
+    REPETITIONS over all the rates at once (Bonferroni, p = .001)."""
+    bound = calibration.false_voe_bound(REPETITIONS, ALPHA, tests=len(rows))
+    mine = [row for row in rows if row.concept == concept]
+    checked = [row for row in mine if not row.right_on_every_variant]
+    assert mine[0].cue is None and mine[0].pairs == PAIRS  # noise alone comes first
+    assert len(checked) >= len(cues.FRAME_LOCAL_CUES) * 2 * len(calibration.WEIGHTS)
+    worst = max(checked, key=lambda row: row.false_voe_rate)
+    assert worst.false_voe_rate <= bound, _describe(worst) + f" > bound {100 * bound:.2f}%"
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "stimuli: in continuity, solidity and containment the counterbalanced variant mirrors the "
+    "cue differences but not the cue levels, so a model whose surprise is the square of a "
+    "video's standardized motion, foreground or extrapolation error is right on both variants "
+    "(false VOE 14% to 100% here); see docs/calibration.md. Remove this mark when no "
+    "calibration row exceeds the bound."))
+def test_no_cue_follower_gets_false_voe_beyond_alpha(rows):
+    """Also the followers the stimuli favour in every variant (``right_on_every_variant``):
+    no test of d can tell those from VOE, so they show where the scenes must change."""
+    bound = calibration.false_voe_bound(REPETITIONS, ALPHA, tests=len(rows))
+    offenders = [_describe(row) for row in rows if row.false_voe_rate > bound]
+    assert all(row.right_on_every_variant for row in rows if row.false_voe_rate > bound)
+    assert not offenders, offenders
+
+
+def test_power_of_noise_alone_is_the_noncentral_t():
+    """Unchangeableness' verdict needs each of its three variants significant: at effect delta
+    its rate is P(t > t_.99) under the noncentral t (df n - 1, nc delta sqrt(n)), cubed; a
+    pooled concept's, both variants and their stratified test, at delta = 0 at most alpha^2."""
+    n, repetitions = 20, 4000
+    deltas = np.array([0.0, 0.5, 0.9])
+    noise = {variant: np.zeros(1) for variant in specs.STANDARD_VARIANTS["unchangeableness"]}
+    rates = calibration.verdict_rates(noise, "unchangeableness", n, repetitions, ALPHA, deltas,
+                                      np.random.default_rng(1))
+    critical = stats.t.ppf(1 - ALPHA, n - 1)
+    expected = stats.nct.sf(critical, n - 1, deltas * np.sqrt(n)) ** 3
+    error = 4 * np.sqrt(np.maximum(expected * (1 - expected), 1 / repetitions) / repetitions)
+    assert np.all(np.abs(rates - expected) <= error), (rates, expected)
+    pooled = {variant: np.zeros(1) for variant in specs.STANDARD_VARIANTS["solidity"]}
+    rate = calibration.verdict_rates(pooled, "solidity", n, repetitions, ALPHA, np.zeros(1),
+                                     np.random.default_rng(2))
+    assert rate[0] <= calibration.false_voe_bound(repetitions, ALPHA**2)
+
+
+def test_calibration_is_seeded_and_refuses_bad_arguments(audit):
+    first = calibration.calibrate(audit, repetitions=50, concepts=["solidity"],
+                                  followers=["linear"], weights=(1.0,), seed=3)
+    assert first == calibration.calibrate(audit, repetitions=50, concepts=["solidity"],
+                                          followers=["linear"], weights=(1.0,), seed=3)
+    assert first[0].delta_80 is not None and first[1].delta_80 is not None  # power at weight 1
+    table = calibration.calibration_markdown(first)
+    assert "| solidity | 30 | linear |" in table and "(α = 0.01, 50 repetitions)" in table
+    with pytest.raises(ValueError, match=r"unknown followers \['cubic'\]; valid: linear"):
+        calibration.calibrate(audit, followers=["cubic"])
+    with pytest.raises(ValueError, match="alpha must be a significance level"):
+        calibration.calibrate(audit, alpha=0)
+
+
+def test_analyze_calibrate_prints_and_writes_the_table_of_a_store(tmp_path, capsys):
+    from voe_lightning.cli import main
+    from voe_lightning.generate import generate_dataset
+
+    root = tmp_path / "store"
+    generate_dataset(root, concepts=["object_persistence"], train_examples=0,
+                     val_pairs_per_variant=4, test_pairs_per_variant=0,
+                     generalization_pairs_per_variant=0, workers=1, num_frames=8, height=32,
+                     width=32, progress=False)
+    capsys.readouterr()
+    out = tmp_path / "calibration.md"
+    table = main(["analyze", "calibrate", "--root", str(root), "--split", "val",
+                  "--repetitions", "40", "--progress", "false", "--out", str(out)])
+    assert table == capsys.readouterr().out == out.read_text()
+    assert f"## Calibration on the val pairs of {root} (α = 0.01, 40 repetitions)" in table
+    assert table.count("| object_persistence | 4 |") == len(calibration.FOLLOWERS)
+    rows = json.loads(out.with_suffix(".json").read_text())
+    assert {row["concept"] for row in rows} == {"object_persistence"} and rows[0]["cue"] is None

@@ -1,0 +1,352 @@
+"""Calibration of the VOE verdict (DESIGN.md §6): how often it says VOE for a model that has no
+physics, only a physics-blind cue, and how large a true effect it needs to say VOE reliably.
+
+A synthetic model's relative surprise of probe pair i of a concept is
+
+    d_i = delta + weight * sign * follow(cue scores of pair i) + noise_i,   noise_i ~ N(0, 1),
+
+built from the *real* cue scores of generated probes (``cues.CueAudit``, the frame-local cues):
+``follow`` is one of ``FOLLOWERS``, linear or not, of the pair's cue difference or of each
+video's score, scaled to unit SD over the concept's pairs; ``sign`` says which way the model
+follows the cue; ``delta`` (in noise SDs) is a true violation effect. Each repetition draws
+``pairs`` pairs per variant (with replacement, from the audit's pairs of that variant) and new
+noise, tests every variant and the pooled row as reports do (``statistics``) and applies the
+verdict rule (``statistics.verdict_rule``). With delta = 0 the rate
+of VOE verdicts is the false-VOE rate, which must stay at or below alpha; over a grid of delta
+the rate is the verdict's power. The same draws serve every delta (delta only shifts each
+variant's mean), so the power curve is one simulation.
+
+``python -m voe_lightning analyze calibrate --root DIR`` prints the table (docs/calibration.md).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from scipy import stats
+
+from voe_lightning import cues, specs, statistics
+
+__all__ = [
+    "DELTAS",
+    "FOLLOWERS",
+    "WEIGHTS",
+    "CalibrationRow",
+    "calibrate",
+    "calibrate_store",
+    "calibration_markdown",
+    "cue_terms",
+    "false_voe_bound",
+    "rows_as_dicts",
+    "verdict_rates",
+]
+
+#: A cue follower: per-pair term from the pairs' scores (consistent, inconsistent) and the
+#: concept's scale of score differences, scale of scores and mean score.
+Follower = Callable[[np.ndarray, np.ndarray, float, float, float], np.ndarray]
+
+
+def _linear(con, inc, difference_scale, score_scale, score_mean):
+    """z: the cue difference in SDs of the concept's differences."""
+    return (inc - con) / difference_scale
+
+
+def _tanh(*scores):
+    return np.tanh(_linear(*scores))
+
+
+def _signed_square(*scores):
+    z = _linear(*scores)
+    return z * np.abs(z)
+
+
+def _threshold(*scores):
+    z = _linear(*scores)
+    return np.sign(z) * (np.abs(z) > 0.5)
+
+
+def _per_video_square(con, inc, difference_scale, score_scale, score_mean):
+    """u_inc^2 - u_con^2, u a video's score in SDs of the concept's scores from their mean."""
+    return ((inc - score_mean) / score_scale) ** 2 - ((con - score_mean) / score_scale) ** 2
+
+
+#: How a physics-blind model may turn a cue into surprise: odd functions of the pair's cue
+#: difference z (linear; saturating; expanding; a detector that fires beyond half an SD), and a
+#: per-video one, each video's surprise the square of its standardized score u (convex: the
+#: difference u_inc^2 - u_con^2 need not cancel over mirrored variants).
+FOLLOWERS: dict[str, Follower] = {
+    "linear": _linear,
+    "tanh": _tanh,
+    "signed square": _signed_square,
+    "threshold": _threshold,
+    "per-video square": _per_video_square,
+}
+#: The cue term's SD over a concept's pairs, in noise SDs.
+WEIGHTS: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0)
+#: The true effects (noise SDs) at which power is computed.
+DELTAS: np.ndarray = np.round(np.arange(0.0, 3.0001, 0.02), 2)
+
+
+def cue_terms(audit: cues.CueAudit, concept: str, cue: str, follower: str
+              ) -> dict[str, np.ndarray] | None:
+    """Per variant of ``concept`` (its verdict's variants), the follower's term of each of the
+    audit's pairs, scaled to unit SD over all those pairs; None where the cue is not scored for
+    every pair or does not vary (nothing to follow)."""
+    variants = specs.STANDARD_VARIANTS.get(concept, ())
+    rows = (audit.concepts == concept) & np.isin(audit.variants, variants)
+    con = audit.scores["consistent"][cue][rows]
+    inc = audit.scores["inconsistent"][cue][rows]
+    if not rows.any() or np.isnan(con).any() or np.isnan(inc).any():
+        return None
+    both = np.concatenate([con, inc])
+    difference_scale, score_scale = float(np.std(inc - con)), float(np.std(both))
+    if difference_scale == 0.0 or score_scale == 0.0:
+        return None
+    term = FOLLOWERS[follower](con, inc, difference_scale, score_scale, float(np.mean(both)))
+    spread = float(np.std(term))
+    if spread == 0.0:
+        return None
+    term = term / spread
+    return {variant: term[audit.variants[rows] == variant] for variant in variants
+            if (audit.variants[rows] == variant).any()}
+
+
+def verdict_rates(terms: Mapping[str, np.ndarray], concept: str, pairs: int, repetitions: int,
+                  alpha: float, deltas: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The share of ``repetitions`` whose verdict for ``concept`` is VOE, at each of ``deltas``,
+    for relative surprise delta + term + N(0, 1) per pair; ``terms`` per variant (all zero: pure
+    noise). Each repetition resamples ``pairs`` pairs per variant."""
+    variants = specs.STANDARD_VARIANTS[concept]
+    missing = [variant for variant in variants if variant not in terms]
+    if missing:
+        raise ValueError(f"{concept} needs cue terms of every variant {variants}; missing "
+                         f"{missing}")
+    moments = {}
+    for variant in variants:
+        pool = terms[variant]
+        d = pool[rng.integers(0, pool.size, (repetitions, pairs))]
+        d = d + rng.standard_normal((repetitions, pairs))
+        moments[variant] = (d.mean(axis=1), d.var(axis=1, ddof=1))
+    shifted = np.asarray(deltas, dtype=np.float64)[:, None]  # [deltas, 1] over [repetitions]
+    means = {variant: mean[None] + shifted for variant, (mean, _) in moments.items()}
+    p_values = [statistics.t_and_p(means[v], np.sqrt(moments[v][1] / pairs), pairs - 1)[1]
+                for v in variants]
+    if set(statistics.POOLED_VARIANTS) <= set(variants):
+        pooled = statistics.POOLED_VARIANTS
+        mean, error, df = statistics.stratified_moments(
+            [pairs] * len(pooled), [means[v] for v in pooled],
+            [np.broadcast_to(moments[v][1], means[v].shape) for v in pooled])
+        p_values.append(statistics.t_and_p(mean, error, df)[1])
+    return statistics.verdict_rule(p_values, alpha).mean(axis=1)
+
+
+@dataclass(frozen=True)
+class CalibrationRow:
+    """One synthetic model of one concept: which cue it follows (None: noise only), how
+    (``follower``, ``sign``, ``weight``), its rate of VOE verdicts at delta = 0 (the false-VOE
+    rate) and the smallest delta of the grid at which the rate reaches 80% (NaN if none; None
+    where power was not computed), with the rate there. ``right_on_every_variant``: the cue term
+    is positive on average in every variant of the audited pairs, so the follower looks like VOE
+    to any test of d; no verdict can be calibrated against it (the stimuli's fault: the
+    variants do not mirror this cue); otherwise the verdict rule holds it to alpha."""
+
+    concept: str
+    cue: str | None
+    follower: str | None
+    sign: int
+    weight: float
+    pairs: int
+    repetitions: int
+    alpha: float
+    false_voe_rate: float
+    delta_80: float | None
+    power_at_delta_80: float | None
+    right_on_every_variant: bool
+
+
+def calibrate(
+    audit: cues.CueAudit,
+    pairs: int | None = None,
+    repetitions: int = 2000,
+    alpha: float = statistics.ALPHA,
+    concepts: Sequence[str] | None = None,
+    cue_names: Sequence[str] = cues.FRAME_LOCAL_CUES,
+    followers: Sequence[str] = tuple(FOLLOWERS),
+    weights: Sequence[float] = WEIGHTS,
+    deltas: np.ndarray = DELTAS,
+    power_weights: Sequence[float] = (1.0,),
+    seed: int = 0,
+) -> list[CalibrationRow]:
+    """A ``CalibrationRow`` per concept of the audit (or ``concepts``) for noise alone and for
+    each cue, follower, sign (+1, -1) and weight; ``pairs`` per variant per repetition
+    (default: the audit's smallest variant). Power (over ``deltas``) is computed for noise
+    alone and the ``power_weights``; the other rows have only the false-VOE rate (their
+    ``delta_80`` is NaN). Seeded: the same arguments give the same rows."""
+    statistics.check_alpha(alpha)
+    if repetitions < 1:
+        raise ValueError(f"repetitions must be >= 1, got {repetitions}")
+    unknown = sorted(set(followers) - set(FOLLOWERS))
+    if unknown:
+        raise ValueError(f"unknown followers {unknown}; valid: {', '.join(FOLLOWERS)}")
+    zero = np.zeros(1)
+    grid_with_zero = np.unique(np.concatenate([zero, np.asarray(deltas, dtype=np.float64)]))
+    present = list(dict.fromkeys(audit.concepts.tolist()))
+    concepts = [c for c in (concepts or present) if c in specs.STANDARD_VARIANTS]
+    rows = []
+    for concept in concepts:
+        variants = specs.STANDARD_VARIANTS[concept]
+        sizes = {v: int(((audit.concepts == concept) & (audit.variants == v)).sum())
+                 for v in variants}
+        if min(sizes.values()) < 2:
+            raise ValueError(f"{concept} needs at least 2 audited pairs of each of {variants}; "
+                             f"the audit has {sizes}")
+        n = pairs or min(sizes.values())
+        if n < 2:
+            raise ValueError(f"pairs must be >= 2 per variant, got {pairs}")
+        rng = np.random.default_rng([seed, specs.CONCEPTS.index(concept)])
+
+        def row(cue, follower, sign, weight, terms):
+            power = cue is None or weight in power_weights
+            grid = grid_with_zero if power else zero
+            rates = verdict_rates(terms, concept, n, repetitions, alpha, grid, rng)
+            reached = np.flatnonzero(rates >= 0.8)
+            delta_80 = power_80 = None
+            if power:
+                at = int(reached[0]) if reached.size else None
+                delta_80 = float(grid[at]) if at is not None else math.nan
+                power_80 = float(rates[at]) if at is not None else math.nan
+            right = cue is not None and all(float(np.mean(term)) > 0 for term in terms.values())
+            return CalibrationRow(concept, cue, follower, sign, weight, n, repetitions, alpha,
+                                  float(rates[0]), delta_80, power_80, right)
+
+        rows.append(row(None, None, 1, 0.0, {v: np.zeros(1) for v in variants}))
+        for cue in cue_names:
+            for follower in followers:
+                terms = cue_terms(audit, concept, cue, follower)
+                if terms is None:
+                    continue
+                for sign in (1, -1):
+                    for weight in weights:
+                        rows.append(row(cue, follower, sign, weight,
+                                        {v: sign * weight * term for v, term in terms.items()}))
+    return rows
+
+
+def false_voe_bound(repetitions: int, alpha: float, tests: int = 1,
+                    error: float = 1e-3) -> float:
+    """The largest false-VOE rate a calibrated verdict (true rate <= alpha) shows in
+    ``repetitions`` with probability 1 - ``error`` over ``tests`` rates at once (Bonferroni):
+    the binomial quantile, as a rate."""
+    return float(stats.binom.ppf(1.0 - error / tests, repetitions, alpha)) / repetitions
+
+
+def _power(row: CalibrationRow) -> str:
+    """'δ (power there)' of a row, '> 3' beyond the grid, 'n/a' where not computed."""
+    if row.delta_80 is None:
+        return "n/a"
+    if math.isnan(row.delta_80):
+        return f"> {DELTAS[-1]:g}"
+    return f"{row.delta_80:.2f} ({100 * row.power_at_delta_80:.0f}%)"
+
+
+def calibration_markdown(rows: Sequence[CalibrationRow], title: str = "Calibration") -> str:
+    """The table of docs/calibration.md: per concept and follower, the worst false-VOE rate at
+    delta = 0 over cues, signs and weights (and which), the binomial bound it must stay under,
+    and the delta at which the verdict first says VOE in 80% of repetitions (with the power
+    there) for noise alone and for the worst cue and sign at weight 1."""
+    if not rows:
+        raise ValueError("no calibration rows to tabulate")
+    alpha, repetitions = rows[0].alpha, rows[0].repetitions
+    tested = [row for row in rows if row.cue is not None]
+    bound = false_voe_bound(repetitions, alpha, max(1, len(rows)))
+    lines = [f"## {title} ({statistics.format_alpha(alpha)}, {repetitions} repetitions)", "",
+             "| concept | pairs per variant | cue follower | false VOE at δ = 0: worst (cue, "
+             "sign, weight) | δ (power) at 80% VOE: noise only | δ (power) at 80% VOE: worst "
+             "cue at weight 1 (cue, sign) |", "|" + "---|" * 6]
+    for concept in dict.fromkeys(row.concept for row in rows):
+        noise = next(row for row in rows if row.concept == concept and row.cue is None)
+        for follower in dict.fromkeys(row.follower for row in tested if row.concept == concept):
+            mine = [row for row in tested if (row.concept, row.follower) == (concept, follower)]
+            worst = max(mine, key=lambda row: row.false_voe_rate)
+            at_one = [row for row in mine if row.weight == 1.0 and row.delta_80 is not None]
+            hardest = max(at_one, key=lambda row: (math.inf if math.isnan(row.delta_80)
+                                                   else row.delta_80)) if at_one else None
+            hard = ("n/a" if hardest is None else
+                    f"{_power(hardest)} ({cues.CUE_TITLES[hardest.cue]}, {hardest.sign:+d})")
+            flag = (" †" if worst.right_on_every_variant else "") + (
+                " **> bound**" if worst.false_voe_rate > bound else "")
+            lines.append(
+                f"| {concept} | {noise.pairs} | {follower} | {100 * worst.false_voe_rate:.2f}%"
+                f"{flag} ({cues.CUE_TITLES[worst.cue]}, {worst.sign:+d}, {worst.weight:g}) "
+                f"| {_power(noise)} | {hard} |")
+    lines += ["", f"Synthetic relative surprise d = δ + weight · sign · f(cue) + N(0, 1) per pair "
+              "(δ and weight in noise SDs; f scaled to unit SD over the concept's pairs), from "
+              "the real cue scores of the audited probes; each repetition resamples the pairs "
+              "of each variant and tests as the report does (pooled: the stratified test; "
+              "verdict: `statistics.verdict_rule`). "
+              f"False VOE must stay at or below α; with {repetitions} repetitions and "
+              f"{len(rows)} rates, {100 * bound:.2f}% is the binomial bound (p = .001, "
+              "Bonferroni) a calibrated verdict stays under. δ: the smallest of a grid of "
+              "steps of 0.02 at which the verdict says VOE in at least 80% of repetitions, "
+              "and that share. †: the cue term is positive on average in every variant of "
+              "these pairs (the variants do not mirror the cue), so the follower looks like VOE "
+              "to any test of d: the stimuli's fault, not the verdict's."]
+    return "\n".join(lines) + "\n"
+
+
+def rows_as_dicts(rows: Sequence[CalibrationRow]) -> list[dict[str, Any]]:
+    """The rows as plain dicts (JSON)."""
+    return [statistics.json_row(vars(row)) for row in rows]
+
+
+# ----------------------------------------------------------------------------- command line
+
+
+def calibrate_store(
+    root: Path,
+    split: Literal["val", "test"] = "test",
+    concepts: list[specs.Concept] | None = None,
+    pairs: int | None = None,
+    repetitions: int = 2000,
+    alpha: float = statistics.ALPHA,
+    seed: int = 0,
+    out: Path | None = None,
+    batch_size: int = 64,
+    num_workers: int = 0,
+    progress: bool = True,
+) -> str:
+    """Calibration of the VOE verdict on synthetic cue-following surprise, as a Markdown table.
+
+    Scores the cues of a probe split (as ``audit`` does), then simulates models that follow
+    them without physics (``voe_lightning.calibration``): the false-VOE rate at no effect and
+    the effect at which the verdict says VOE in 80% of repetitions, per concept and follower.
+
+    Args:
+        root: dataset folder (a generated store).
+        split: probe split whose pairs give the cue scores.
+        concepts: concepts to calibrate (default: every concept in the store).
+        pairs: pairs per variant in each repetition (default: all the split has).
+        repetitions: simulated experiments per synthetic model.
+        alpha: significance level (default: configs/base.yaml's alpha).
+        seed: seed of the simulation.
+        out: also write the table here, and every row as JSON beside it (.json).
+        batch_size: pairs scored at once.
+        num_workers: data loader worker processes.
+        progress: show a progress bar while scoring.
+    """
+    audit = cues.audit_split(root, split, concepts, batch_size, num_workers, progress=progress)
+    rows = calibrate(audit, pairs=pairs, repetitions=repetitions, alpha=alpha, seed=seed)
+    table = calibration_markdown(rows, title=f"Calibration on the {split} pairs of {root}")
+    print(table, end="")
+    if out:
+        out = Path(out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(table)
+        out.with_suffix(".json").write_text(json.dumps(rows_as_dicts(rows), indent=2) + "\n")
+    return table
