@@ -31,6 +31,8 @@ FEATURES = STATE_SIZE + SHAPES + 1 + 3 + 2 + 3 + 1
 #: the other object, both sizes, the other's orientation and shape.
 PAIR_FEATURES = 3 + 3 + 2 + 3 + 3 + 4 + SHAPES
 LOG_2PI = math.log(2 * math.pi)
+#: The per-slot terms of a frame's negative log-likelihood; ``appear`` is per frame.
+SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape")
 
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
 ARCHITECTURE = ("hidden_size", "message_size", "use_camera")
@@ -38,8 +40,8 @@ ARCHITECTURE = ("hidden_size", "message_size", "use_camera")
 
 @dataclass
 class Observations:
-    """What perfect perception reports of a batch of videos, over the ``slots`` mask ids any of
-    them shows: ``state`` [B, T, S, 13] and ``shape`` one-hot [B, T, S, 7] (zero where hidden),
+    """What perfect perception reports of a batch of videos, per video over the mask ids
+    ``ids`` [B, S] it shows (``observe``): ``state`` [B, T, S, 13] and ``shape`` one-hot [B, T, S, 7] (zero where hidden),
     ``fraction`` [B, T, S] visible share of the frame, ``visible`` bool [B, T, S]; ``camera``
     [B, T, 6] poses."""
 
@@ -54,11 +56,20 @@ class Observations:
 def observe(objects: TensorDictBase, camera: torch.Tensor) -> Observations:
     """The visible objects' states of batched ``objects`` (``specs.objects_spec`` [B, T, K]):
     every state of an object is zeroed at the frames where it has no visible pixel, so nothing
-    hidden reaches the model. Only the mask ids some video of the batch shows become slots."""
-    visible_any = (objects["visible_fraction"] > 0).flatten(0, 1).any(0)
-    visible_any[0] = False  # the background
-    ids = visible_any.nonzero().flatten()
-    picked = {name: objects[name].index_select(2, ids) for name in objects.keys()}  # [B, T, S]
+    hidden reaches the model. Each video's slots are the mask ids it shows, in the order they
+    are first seen (then by id), padded with ids it never shows: a slot that joins later takes
+    a later place, and empty slots add exact zeros, so nothing before it changes."""
+    seen = objects["visible_fraction"] > 0  # [B, T, K]
+    steps, count = seen.shape[1:]
+    first = torch.where(seen.any(1), seen.float().argmax(1), steps)  # [B, K]; T: never
+    first[:, 0] = steps + 1  # the background is no object
+    order = (first * count + torch.arange(count, device=seen.device)).argsort(dim=1)
+    slots = int((first <= steps - 1).sum(1).max())
+    ids = order[:, :slots]  # [B, S]
+    picked = {name: value.gather(2, ids[:, None].expand(-1, steps, -1).reshape(
+                  *ids.shape[:1], steps, slots, *([1] * (value.dim() - 3))
+              ).expand(-1, -1, -1, *value.shape[3:]))
+              for name, value in objects.items()}  # [B, T, S, ...]
     visible = picked["visible_fraction"] > 0
     label = picked["shape_label"].long()
     orientation = picked["orientation"].float()
@@ -134,10 +145,12 @@ class ObjectStateModel(SurpriseModel):
     whether a new object appears at t and, if so, its state. Then the frame's observations
     update the beliefs and, through an interaction network over slot pairs, a GRU per slot.
 
-    Surprise at frame t (frame 0: 0) is the negative log-likelihood of what is seen at t: for
-    each known slot, the visibility term, plus where visible the state and shape terms; plus
-    the appearance term (whether some new object appears, and each newcomer's state and shape).
-    Training minimises the same quantity summed over the training clips' frames.
+    What frame t shows has a negative log-likelihood (NLL): for each known slot the visibility
+    term, plus where visible the state and shape terms; plus the appearance terms (whether some
+    new object appears, and each newcomer's state and shape). Training minimises it summed over
+    the training clips' frames. Surprise at frame t (frame 0: 0) is its rectified excess: each
+    term's NLL less its expectation under the prediction (the entropy), where positive
+    (``_per_frame`` says why).
 
     Args:
         hidden_size: recurrent state per slot and width of the MLPs.
@@ -173,11 +186,11 @@ class ObjectStateModel(SurpriseModel):
             raise ValueError(f"min_std and learning_rate must be > 0, got {min_std}, "
                              f"{learning_rate}")
         hidden, message = hidden_size, message_size
-        self.message = mlp([2 * hidden + PAIR_FEATURES, hidden, message])
+        self.message = PairNetwork(hidden, hidden, hidden, message)
         self.update = nn.GRUCell(FEATURES + message + CAMERA_FEATURES, hidden)
         self.dynamics = mlp([hidden + message + CAMERA_FEATURES, hidden, hidden,
                              2 * STATE_SIZE + SHAPES])
-        self.occlusion = mlp([hidden + PAIR_FEATURES, hidden, message])
+        self.occlusion = PairNetwork(hidden, 0, hidden, message)
         self.visibility = mlp([hidden + message + 3 + 2 + 3 + CAMERA_FEATURES, hidden, 1])
         self.appearance = mlp([hidden + CAMERA_FEATURES, hidden, 1 + 2 * STATE_SIZE + SHAPES])
         self.log_min_std = math.log(min_std)
@@ -222,14 +235,10 @@ class ObjectStateModel(SurpriseModel):
         eye = torch.eye(known.shape[1], dtype=torch.bool, device=known.device)
         return (weight & ~eye).float()[..., None]
 
-    def _messages(self, network: nn.Module, own: torch.Tensor, other: torch.Tensor | None,
+    def _messages(self, network: "PairNetwork", own: torch.Tensor, other: torch.Tensor | None,
                   pairs: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
-        """Sum over the other known slots j of network([own_i, (other_j), pair_ij])."""
-        slots = own.shape[1]
-        parts = [own[:, :, None].expand(-1, -1, slots, -1)]
-        if other is not None:
-            parts.append(other[:, None].expand(-1, slots, -1, -1))
-        return (network(torch.cat([*parts, pairs], dim=-1)) * self._pair_weight(known)).sum(2)
+        """Sum over the other known slots j of network(own_i, other_j, pair_ij) [B, S, M]."""
+        return (network(own, other, pairs) * self._pair_weight(known)).sum(2)
 
     def rollout(self, observations: Observations) -> dict[str, torch.Tensor]:
         """Run the slots through a batch's frames. Returns, per frame and slot [B, T, S], the
@@ -245,8 +254,8 @@ class ObjectStateModel(SurpriseModel):
         belief = obs.state.new_zeros(batch, slots, STATE_SIZE)
         shape = obs.state.new_zeros(batch, slots, SHAPES)
         known = torch.zeros(batch, slots, dtype=torch.bool, device=obs.state.device)
-        names = ("visibility", "state", "shape", "appear")
-        terms = {key: [] for name in names for key in (name, f"{name}_entropy")}
+        terms = {key: [] for name in SLOT_TERMS + ("appear",)
+                 for key in (name, f"{name}_entropy")}
         beliefs, predictions, probability, knowns, states = [], [], [], [], []
         for t in range(steps):
             pose = obs.camera[:, t]
@@ -256,8 +265,8 @@ class ObjectStateModel(SurpriseModel):
             if t == 0:
                 predicted = belief
                 for key in terms:
-                    terms[key].append(obs.state.new_zeros(batch, *(() if "appear" in key
-                                                                   else (slots,))))
+                    terms[key].append(obs.state.new_zeros(
+                        batch, *(() if key.startswith("appear") else (slots,))))
                 probability.append(obs.state.new_zeros(batch, slots))
             else:
                 predicted, step_terms, seen_probability = self._predict(
@@ -323,37 +332,43 @@ class ObjectStateModel(SurpriseModel):
             ("shape", categorical_nll(shape_logits, obs.shape[:, t]), seen * keep),
         ):
             terms[name], terms[f"{name}_entropy"] = nll * weight, entropy * weight
-        terms["appear"], terms["appear_entropy"] = self._appearance(
-            hidden, known, pose, visible & ~known, obs.state[:, t], obs.shape[:, t])
+        terms.update(self._appearance(hidden, known, pose, visible & ~known, obs.state[:, t],
+                                      obs.shape[:, t]))
         return predicted, terms, torch.sigmoid(logit) * keep
 
     def _appearance(self, hidden: torch.Tensor, known: torch.Tensor, pose: torch.Tensor,
                     new: torch.Tensor, state: torch.Tensor, shape: torch.Tensor
-                    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """-log p(which objects appear at t) [B] and its entropy: a Bernoulli of whether any
-        new object appears, given the mean state of the known slots and the pose, plus each
-        newcomer's state (Gaussian) and shape (categorical)."""
+                    ) -> dict[str, torch.Tensor]:
+        """The appearance terms of frame t and their entropies: ``appear`` [B], a Bernoulli of
+        whether any new object appears, given the mean state of the known slots and the pose;
+        ``newcomer_state`` and ``newcomer_shape`` [B, S], each newcomer's state (Gaussian) and
+        shape (categorical)."""
         weight = known.float()[..., None]
         context = (hidden * weight).sum(1) / weight.sum(1).clamp(min=1)
         out = self.appearance(torch.cat([context, camera_features(pose)], dim=-1))
         logit, mean, log_std, shape_logits = out.split([1, STATE_SIZE, STATE_SIZE, SHAPES], -1)
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
-        any_new, entropy = bernoulli_nll(logit.squeeze(-1), new.any(-1).float())
-        state_nll, state_entropy = gaussian_nll(state, mean[:, None], log_std[:, None])
-        shape_nll, shape_entropy = categorical_nll(shape_logits[:, None], shape)
         newcomers = new.float()
-        return (any_new + ((state_nll + shape_nll) * newcomers).sum(-1),
-                entropy + ((state_entropy + shape_entropy) * newcomers).sum(-1))
+        terms = {}
+        for name, (nll, entropy), weight in (
+            ("appear", bernoulli_nll(logit.squeeze(-1), new.any(-1).float()), 1.0),
+            ("newcomer_state", gaussian_nll(state, mean[:, None], log_std[:, None]), newcomers),
+            ("newcomer_shape", categorical_nll(shape_logits[:, None], shape), newcomers),
+        ):
+            terms[name], terms[f"{name}_entropy"] = nll * weight, entropy * weight
+        return terms
 
     def _per_frame(self, out: dict[str, torch.Tensor]) -> torch.Tensor:
-        """Each frame's surprise [B, T]: the excess surprisal of what it shows, the negative
-        log-likelihood of each term minus its expectation under the model's own prediction
-        (the entropy), summed over slots and terms. A density's raw NLL would reward every
-        visible object with a negative term (about -40 nats a frame at 1 cm precision), so a
-        video showing more would read as less surprising whatever its physics."""
-        excess = sum(out[name] - out[f"{name}_entropy"]
-                     for name in ("visibility", "state", "shape"))
-        return excess.sum(-1) + out["appear"] - out["appear_entropy"]
+        """Each frame's surprise [B, T]: the positive part of the excess surprisal of each
+        term of each slot (its negative log-likelihood minus its expectation under the
+        model's own prediction, the entropy), summed. Only what is less likely than expected
+        counts: a density's raw NLL rewards every visible object with a negative term (about
+        -40 nats a frame at 1 cm precision), and so does its excess, if less, where the model
+        predicts better than its floor of precision; either way the video showing more would
+        read as less surprising, whatever its physics."""
+        def excess(name: str) -> torch.Tensor:
+            return (out[name] - out[f"{name}_entropy"]).clamp(min=0)
+        return sum(excess(name).sum(-1) for name in SLOT_TERMS) + excess("appear")
 
     # ----------------------------------------------------------------------------- training
     def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
@@ -362,7 +377,7 @@ class ObjectStateModel(SurpriseModel):
         out = self.rollout(self._inputs(frames, inputs.get("objects"), inputs.get("camera")))
         clips = frames.shape[0]
         terms = {name: out[name].sum() / clips  # the negative log-likelihood of the clips
-                 for name in ("visibility", "state", "shape", "appear")}
+                 for name in SLOT_TERMS + ("appear",)}
         terms["loss"] = sum(terms.values())
         self._check_finite(terms)
         self.log("train/loss", terms["loss"], prog_bar=True, batch_size=clips)
@@ -405,6 +420,26 @@ class ObjectStateModel(SurpriseModel):
         out = self.rollout(self._inputs(frames, objects, camera))
         weight = out["known"].float()[..., None]
         return {"slots": (out["hidden"] * weight).sum(2) / weight.sum(2).clamp(min=1)}
+
+
+class PairNetwork(nn.Module):
+    """An MLP over [own_i, other_j, pair_ij] for every slot pair, with its first layer split
+    by input: the slots' parts are computed once per slot, not once per pair (S times less)."""
+
+    def __init__(self, own_size: int, other_size: int, hidden_size: int, output_size: int):
+        super().__init__()
+        self.own = nn.Linear(own_size, hidden_size)
+        self.other = nn.Linear(other_size, hidden_size, bias=False) if other_size else None
+        self.pair = nn.Linear(PAIR_FEATURES, hidden_size, bias=False)
+        self.out = nn.Linear(hidden_size, output_size)
+
+    def forward(self, own: torch.Tensor, other: torch.Tensor | None, pairs: torch.Tensor
+                ) -> torch.Tensor:
+        """own [B, S, O], other [B, S, P] (or None), pairs [B, S, S, F] -> [B, S, S, out]."""
+        first = self.own(own)[:, :, None] + self.pair(pairs)
+        if self.other is not None:
+            first = first + self.other(other)[:, None]
+        return self.out(torch.relu(first))
 
 
 def draw_discs(state: torch.Tensor, opacity: torch.Tensor, camera: torch.Tensor,
