@@ -165,8 +165,9 @@ class ObjectStateModel(SurpriseModel):
 
     ARCHITECTURE = ARCHITECTURE
     TRAINING_ONLY = ("learning_rate",)
-    SURPRISE = ("the negative log-likelihood of the seen object states (visibility, state and "
-                "shape of every known object, and any newcomer's appearance)")
+    SURPRISE = ("the rectified excess surprisal of the seen object states (each term's negative "
+                "log-likelihood less its entropy, where positive: the visibility, state and shape "
+                "of every known object, and any newcomer's appearance)")
 
     def __init__(
         self,
