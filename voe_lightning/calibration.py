@@ -196,8 +196,8 @@ def calibrate(
         raise ValueError(f"unknown followers {unknown}; valid: {', '.join(FOLLOWERS)}")
     zero = np.zeros(1)
     grid_with_zero = np.unique(np.concatenate([zero, np.asarray(deltas, dtype=np.float64)]))
-    present = list(dict.fromkeys(audit.concepts.tolist()))
-    concepts = [c for c in (concepts or present) if c in specs.STANDARD_VARIANTS]
+    chosen = set(concepts or audit.concepts.tolist())
+    concepts = [concept for concept in specs.CONCEPTS if concept in chosen]  # specs order
     rows = []
     for concept in concepts:
         variants = specs.STANDARD_VARIANTS[concept]
@@ -279,12 +279,14 @@ def calibration_markdown(rows: Sequence[CalibrationRow], title: str = "Calibrati
                                                    else row.delta_80)) if at_one else None
             hard = ("n/a" if hardest is None else
                     f"{_power(hardest)} ({cues.CUE_TITLES[hardest.cue]}, {hardest.sign:+d})")
-            flag = (" †" if worst.right_on_every_variant else "") + (
-                " **> bound**" if worst.false_voe_rate > bound else "")
-            lines.append(
-                f"| {concept} | {noise.pairs} | {follower} | {100 * worst.false_voe_rate:.2f}%"
-                f"{flag} ({cues.CUE_TITLES[worst.cue]}, {worst.sign:+d}, {worst.weight:g}) "
-                f"| {_power(noise)} | {hard} |")
+            false_voe = f"{100 * worst.false_voe_rate:.2f}%"
+            if worst.false_voe_rate > 0:
+                false_voe += ((" †" if worst.right_on_every_variant else "")
+                              + (" **> bound**" if worst.false_voe_rate > bound else "")
+                              + f" ({cues.CUE_TITLES[worst.cue]}, {worst.sign:+d}, "
+                              f"{worst.weight:g})")
+            lines.append(f"| {concept} | {noise.pairs} | {follower} | {false_voe} "
+                         f"| {_power(noise)} | {hard} |")
     lines += ["", f"Synthetic relative surprise d = δ + weight · sign · f(cue) + N(0, 1) per pair "
               "(δ and weight in noise SDs; f scaled to unit SD over the concept's pairs), from "
               "the real cue scores of the audited probes; each repetition resamples the pairs "
