@@ -51,6 +51,7 @@ PARAMETERS = {
     "block half x": lambda p: p["block"]["half"][0],
     "block half y": lambda p: p["block"]["half"][1],
     "drop above the rim": lambda p: p["drop"],
+    "hold before the drop": lambda p: p["hold"],
     "container height": lambda p: p["box"]["height"],
     "container inner y": lambda p: p["box"]["inner_y"],
     **{
@@ -83,6 +84,21 @@ def test_probe_parameters_lie_inside_the_examples_range_with_mass_there(variant)
         solidity.EXAMPLE_HEIGHTS[0] <= solidity.PROBE_HEIGHTS[variant][0]
         and solidity.PROBE_HEIGHTS[variant][1] <= solidity.EXAMPLE_HEIGHTS[1]
     )
+
+
+@pytest.mark.parametrize("variant", solidity.VARIANTS)
+def test_the_block_is_seen_still_for_several_frames_before_the_change(variant):
+    """The block hangs still at first (it used to drop at once, reaching the rim, the earliest
+    change, within a frame or two): the change comes at frame 4 or later, after at least four
+    frames showing the block at rest, and it has started falling by then."""
+    for seed in range(4):
+        record = generate_probe(CONCEPT, variant, seed)
+        m = int(record["manipulation_frame"])
+        states = record["consistent", "objects"]
+        heights, seen = states["position"][:m, BLOCK, 2], states["visible_fraction"][:m, BLOCK]
+        still = int((heights == heights[0]).sum())
+        assert m >= 4 and still >= 4 and (seen[:still] > 0).all(), (seed, m, still)
+        assert states["position"][m, BLOCK, 2] < heights[0], "it falls before the change"
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

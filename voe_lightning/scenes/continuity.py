@@ -2,9 +2,10 @@
 the ``standard`` inconsistent probe it vanishes behind the first pillar and reappears behind the
 last one without ever crossing the gap; the ``gap_block`` control shows the same visibility
 pattern physically. The ``counterbalanced`` pair mirrors its cues: a ball that slows and stops
-behind the first pillar (consistent) against the same ball reappearing after the second pillar
-(inconsistent), so the inconsistent video shows more ball and motion where the standard one
-shows less. Examples roll free or slowing balls on unconstrained paths past the same pillars."""
+behind the first pillar (consistent) against the same ball reappearing after the second pillar,
+rolling as it was launched (inconsistent), so the inconsistent video shows more ball and motion
+where the standard one shows less. Examples roll free or slowing balls on unconstrained paths
+past the same pillars."""
 
 from __future__ import annotations
 
@@ -52,10 +53,13 @@ EXAMPLE_BALL_RADIUS = (0.13, 0.24)
 PROBE_BALL_DEPTH = (0.35, 0.6)  # behind the pillars
 EXAMPLE_BALL_DEPTH = (-0.9, 1.0)  # in front of or behind them
 PROBE_SPEED = (0.55, 1.2)
-STOPPING_SPEED = (0.7, 1.1)  # counterbalanced: the launch speed of a ball that then stops
+#: Counterbalanced: the launch speed of a ball that then stops, and of the inconsistent ball
+#: when it is put back: it never rolls faster than it was launched, as fast as examples launch
+#: theirs. Higher than PROBE_SPEED because it slows down: its motion after reappearing mirrors
+#: the standard ball's in the gap (the cue audit's balance).
+STOPPING_SPEED = (1.1, 1.5)
 EXAMPLE_SPEED = (0.4, 1.5)
-REAPPEAR_SPEED = (1.2, 1.5)  # counterbalanced: the inconsistent ball's speed when put back
-STOP_TIME = (1.0, 1.8)  # counterbalanced: seconds from launch to standstill
+STOP_TIME = (1.2, 2.0)  # counterbalanced: seconds from launch to standstill
 #: MuJoCo rolling friction (a length, contact dimension 6): 0 rolls freely; probes that stop
 #: derive theirs from STOP_TIME and speed, always inside the examples' range.
 EXAMPLE_ROLLING_FRICTION = (0.005, 0.045)
@@ -397,7 +401,7 @@ def _standard(rng: np.random.Generator, variant: str, video: VideoOptions, camer
 
 #: Counterbalanced: frames before the end at which the inconsistent ball is put back behind the
 #: second pillar (integers, uniform), so it shows for about as long as the standard ball in the gap.
-REAPPEAR_BEFORE_END = (5, 8)
+REAPPEAR_BEFORE_END = (6, 9)
 
 
 def rolls_on_in_view(
@@ -420,7 +424,8 @@ def rolls_on_in_view(
 def _counterbalanced(rng: np.random.Generator, video: VideoOptions, camera: CameraPose):
     """The mirror pair: a ball slows and stops behind the first pillar (consistent); in the
     inconsistent video it is parked when hidden there and put back behind the second pillar,
-    rolling on with the same friction, so it reappears after it without crossing the gap."""
+    rolling as it was launched and slowing with the same friction, so it reappears after it
+    without crossing the gap (and never moves faster than it was seen to)."""
     layout = probe_layout(rng, "counterbalanced", camera, video)
     sim = build(rng, video, camera, layout)
     aim_to_stop(sim, layout, rng)
@@ -428,8 +433,7 @@ def _counterbalanced(rng: np.random.Generator, video: VideoOptions, camera: Came
     _, depth, height = layout.ball_start
     last_x, _ = layout.pillars[last]
     behind = x_behind(camera, video, last_x, depth, height)
-    speed = float(rng.uniform(*REAPPEAR_SPEED))
-    direction = float(np.sign(layout.ball_velocity[0]))
+    speed = float(np.hypot(*layout.ball_velocity))
     before_end = int(rng.integers(REAPPEAR_BEFORE_END[0], REAPPEAR_BEFORE_END[1] + 1))
     if not rolls_on_in_view(layout, camera, video, behind, speed, before_end):
         raise RejectedSample("the reappearing ball would roll out of view")
@@ -449,7 +453,7 @@ def _counterbalanced(rng: np.random.Generator, video: VideoOptions, camera: Came
     def put_back(twin: Simulation, frame: int) -> None:
         if frame == back:
             twin.restore("ball")
-            launch(twin, (behind, depth, height), (direction * speed, 0.0))
+            launch(twin, (behind, depth, height), layout.ball_velocity)
 
     twin = sim.fork()
     twin.set_state(states[vanish])

@@ -1,13 +1,17 @@
 """Solidity (paper §3, after Hespos & Baillargeon 2001): a rectangular block is dropped into an
 open container. In probes the camera sees inside the top of the container but not its bottom.
-``standard``: a tall block comes to rest protruding (consistent) or falls through the container
-and the floor, its collisions switched off once inside, the penetration hidden by the front face
-(inconsistent). ``counterbalanced`` mirrors it: a short block sinks out of sight (consistent) or
-lands on a hidden support high in the container and stays protruding (inconsistent). Examples
-vary heights and perspective freely; controls show the container alone, or the block falling
-behind it and ending hidden by it."""
+The block hangs still for a moment before it is let go (as if by an unseen hand), in examples
+for anything from no time to over a second, in probes long enough that a model sees it for
+several frames before the hidden change. ``standard``: a tall block comes to rest protruding
+(consistent) or falls through the container and the floor, its collisions switched off once
+inside, the penetration hidden by the front face (inconsistent). ``counterbalanced`` mirrors
+it: a short block sinks out of sight (consistent) or lands on a hidden support high in the
+container and stays protruding (inconsistent). Examples vary heights and perspective freely;
+controls show the container alone, or the block falling behind it and ending hidden by it."""
 
 from __future__ import annotations
+
+from typing import Callable
 
 import numpy as np
 from tensordict import TensorDict
@@ -50,6 +54,11 @@ PROBE_HEIGHTS = {"standard": (1.0, 1.4), "counterbalanced": (0.2, 0.7)}
 #: Height of the block's bottom above the rim when it is released.
 EXAMPLE_DROP = (0.05, 0.6)
 PROBE_DROP = (0.05, 0.35)
+#: How long the block hangs still before it is let go (s, rounded down to whole frames, see
+#: ``release_frame``). Probes hold it for 4-6 frames at 15 frames over 3 s: dropped at once,
+#: a block reaches the rim (the earliest hidden change) within one or two frames.
+EXAMPLE_HOLD = (0.0, 1.2)
+PROBE_HOLD = (0.6, 1.2)
 #: Of the back wall's inner face, the probe camera hides at least/at most this fraction.
 HIDDEN_BACK_WALL = (0.3, 0.9)
 #: How far a probe's resting block must rise above the sight line over the front rim to show,
@@ -151,14 +160,34 @@ def _draw_block(rng: np.random.Generator, box: dict, heights: tuple[float, float
 
 
 def draw_example(rng: np.random.Generator) -> dict:
-    """The parameters of a training clip: container, block, camera and drop height."""
+    """The parameters of a training clip: container, block, camera, drop height and how long
+    the block is held before it drops."""
     box = _draw_container(rng)
     return {
         "box": box,
         "block": _draw_block(rng, box, EXAMPLE_HEIGHTS),
         "camera": CAMERA.sample(rng),
         "drop": float(rng.uniform(*EXAMPLE_DROP)),
+        "hold": float(rng.uniform(*EXAMPLE_HOLD)),
     }
+
+
+def release_frame(hold: float, video: VideoOptions) -> int:
+    """The last frame showing the block held still, ``hold`` seconds in: it is let go right
+    after that frame, so that it has fallen one frame interval's drop at the next one."""
+    return int(hold // (video.steps_per_frame * video.timestep))
+
+
+def release_script(sim: base.Simulation, frame: int) -> Callable[[base.Simulation, int], None]:
+    """A per-frame script that lets the block go once ``frame`` is rendered: until then its
+    weight is compensated (``_add_block``), so it hangs still."""
+    block = sim.model.body("block").id
+
+    def script(sim: base.Simulation, rendering: int) -> None:
+        if rendering == frame:
+            sim.model.body_gravcomp[block] = 0.0
+
+    return script
 
 
 def draw_probe(
@@ -178,7 +207,8 @@ def draw_probe(
         longest = float(np.sqrt(2 * longest_fall / GRAVITY))
         raise ValueError(
             f"{CONCEPT} counterbalanced probes need frames at most {longest:.2f} s apart (the block "
-            f"must still be above the hidden support at frame 1), got {frame_time:.2f} s "
+            "must still be above the hidden support a frame after it is let go), got "
+            f"{frame_time:.2f} s "
             f"({video.num_frames} frames over {video.duration:g} s); use num_frames >= "
             f"{int(np.ceil(video.duration / longest))}"
         )
@@ -192,12 +222,13 @@ def draw_probe(
         hidden = [_hidden_height(eye, box, x, y) for x, y in corners]
         top = 2 * box["wall"] + 2 * block["half"][2]
         params = {"box": box, "block": block, "camera": camera}
+        params["hold"] = float(rng.uniform(*PROBE_HOLD))
         if variant == "standard" and top > max(hidden) + PROTRUSION:
             return {**params, "drop": float(rng.uniform(*PROBE_DROP))}
         if variant == "counterbalanced" and top < min(hidden) - MARGIN:
             # The support hides just below the sight line; on it the block protrudes. The drop
-            # is timed so that at the first frame the block is just above the support: landing
-            # on it moves the block little, as the standard's landing on the floor does.
+            # is timed so that a frame after it is let go the block is just above the support:
+            # landing on it moves the block little, as the standard's landing on the floor does.
             support = min(hidden) - MARGIN
             fall = GRAVITY * (video.steps_per_frame * video.timestep) ** 2 / 2
             drop = support + rng.uniform(*CLEARANCE) + fall - box["height"]
@@ -209,6 +240,7 @@ def draw_probe(
 
 
 def _add_block(builder: SceneBuilder, block: dict, xy, bottom: float, color: str) -> None:
+    """The block, its weight compensated (it hangs still) until ``release_script`` lets it go."""
     builder.add_primitive(
         "block",
         "box",
@@ -217,6 +249,7 @@ def _add_block(builder: SceneBuilder, block: dict, xy, bottom: float, color: str
         color,
         quat=base.yaw_quat(block["yaw"]),
     )
+    builder.spec.body("block").gravcomp = 1.0
 
 
 def _add_support(builder: SceneBuilder, box: dict, block: dict, top: float, color: str) -> None:
@@ -279,9 +312,10 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
         block_id = sim.mask_id("block")
         rim = box["height"] - 0.02
         step = video.steps_per_frame * video.timestep
+        released = release_frame(params["hold"], video)
 
         def ready(sim: base.Simulation, frame: int) -> bool:
-            if frame > video.num_frames - 3:
+            if not released < frame <= video.num_frames - 3:
                 return False
             bottom = _block_bottom(sim)
             if variant == "standard":
@@ -293,7 +327,9 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
             return bottom > support + 0.005 and (bottom < rim or next_bottom < support + 0.02)
 
         manipulate = _fall_through if variant == "standard" else _make_solid
-        consistent, inconsistent, frame = base.record_pair_when(sim, manipulate, ready)
+        consistent, inconsistent, frame = base.record_pair_when(
+            sim, manipulate, ready, script=release_script(sim, released)
+        )
         if variant == "standard":
             manipulated = block_id
             for t in range(frame, video.num_frames):
@@ -391,7 +427,10 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
                 raise RejectedSample("no block hides behind the container from this camera")
             _add_block(builder, block, xy, drop, block_color)
         sim = builder.build()
-        frames, masks, objects = sim.record(video.num_frames)
+        script = None
+        if kind != "no_object":
+            script = release_script(sim, release_frame(params["hold"], video))
+        frames, masks, objects = sim.record(video.num_frames, script)
         if kind != "no_object" and sim.mask_id("block") not in base.visible_ids(masks[0]):
             raise RejectedSample("the block is not seen before it falls")
         if kind == "object_behind_container" and sim.mask_id("block") in base.visible_ids(
