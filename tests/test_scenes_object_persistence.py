@@ -167,3 +167,21 @@ def test_change_happens_on_a_frame_while_hidden(variant):
 def test_bad_names_list_valid_ones(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+def test_every_clip_kind_drops_the_plank_from_the_same_heights():
+    """A plank's starting height must not tell whether it will land on an object: controls drop
+    it from over a (virtual) object's top, as examples do (the positive control, trained when
+    controls dropped it from lower, expected every high plank to end propped). Same seeds:
+    identical heights; across seeds: one distribution (two-sample KS test)."""
+    from scipy.stats import ks_2samp
+
+    kinds = ("example", "plank_beside_object", "plank_on_empty_floor")
+    heights = {kind: np.array([object_persistence.clip_layout(np.random.default_rng(seed), kind)
+                               ["plank_center"][2] for seed in range(300)]) for kind in kinds}
+    for kind in kinds[1:]:
+        np.testing.assert_allclose(heights[kind], heights["example"])
+    shifted = np.array([object_persistence.clip_layout(np.random.default_rng(1000 + seed),
+                                                       "plank_on_empty_floor")["plank_center"][2]
+                        for seed in range(300)])
+    assert ks_2samp(heights["example"], shifted).pvalue > 0.01

@@ -41,8 +41,8 @@ PROBE_CAMERA = CAMERA.narrow(azimuth=(84.0, 96.0), elevation=(-32.0, -22.0))
 #: controls anywhere in this box, probes in the middle of it.
 ANCHOR_OFFSET = ((-0.25, 0.25), (0.2, 0.6))
 PROBE_ANCHOR_OFFSET = ((-0.2, 0.2), (0.4, 0.55))
-#: Longest plank half side and drop height (lowest point above the object's top, or above the
-#: floor in controls) of training clips; probes draw inside these.
+#: Longest plank half side and drop height (lowest point above the object's top, in controls
+#: the top of an object of the drawn size) of training clips; probes draw inside these.
 PLANK_HALF_LENGTH = (0.3, 1.6)
 DROP_HEIGHT = (0.2, 1.4)
 
@@ -284,8 +284,12 @@ def clip_layout(rng: np.random.Generator, kind: str) -> dict:
     obj = _draw_object(rng, (0.15, 0.4))
     anchor = _anchor(rng, camera, ANCHOR_OFFSET)
     drop = float(rng.uniform(*DROP_HEIGHT))
+    # Every kind drops the plank from over the drawn object's top, whether or not the object
+    # ends up under it: were the controls' planks dropped from lower, a plank's height alone
+    # would tell a learner whether it will land on something (a counterbalanced probe's plank
+    # falls from an example's height onto an empty floor).
     plank_half, plank_quat, plank_center, plank_radius = _random_plank(
-        rng, above=(2 * obj["half"] if kind == "example" else 0.0) + drop
+        rng, above=2 * obj["half"] + drop
     )
     if kind == "example":
         # Somewhere over the object, so that the plank hits it.
