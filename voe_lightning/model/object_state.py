@@ -24,12 +24,16 @@ from voe_lightning.scenes.base import FOVY
 STATE_SIZE = 13
 SHAPES = len(specs.OBJECT_SHAPES)
 SPHERE = specs.OBJECT_SHAPES.index("sphere")
+#: Where an object is in the view (``view``): camera coordinates (right, up, depth), and the
+#: centre and half-extents (right, up) of its bounding box in the image plane.
+VIEW = 3 + 2 + 2
 #: Per-slot features the recurrent core reads: the state, its shape (one-hot), its visible share,
-#: its camera coordinates (right, up, depth) and image-plane position, its velocity, visibility.
-FEATURES = STATE_SIZE + SHAPES + 1 + 3 + 2 + 3 + 1
-#: Pair features: relative world position, relative camera coordinates and image-plane offset of
-#: the other object, both sizes, the other's orientation and shape.
-PAIR_FEATURES = 3 + 3 + 2 + 3 + 3 + 4 + SHAPES
+#: its view, its velocity and whether it is seen.
+FEATURES = STATE_SIZE + SHAPES + 1 + VIEW + 3 + 1
+#: Pair features: the other object's position, camera coordinates and image-box centre relative
+#: to this one's, both sizes, both image-box half-extents, how much of this one's image box the
+#: other's covers (along right, up, and both), the other's orientation and shape.
+PAIR_FEATURES = 3 + 3 + 2 + 3 + 3 + 2 + 2 + 3 + 4 + SHAPES
 LOG_2PI = math.log(2 * math.pi)
 #: The per-slot terms of a frame's negative log-likelihood; ``appear`` is per frame.
 SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape")
@@ -89,18 +93,50 @@ def observe(objects: TensorDictBase, camera: torch.Tensor) -> Observations:
     )
 
 
-def camera_coordinates(position: torch.Tensor, camera: torch.Tensor) -> torch.Tensor:
-    """World points [B, S, 3] in the frame of MuJoCo's free camera at poses [B, 6]: offsets
-    along its right, up and forward (depth) axes [B, S, 3] (``scenes.base.camera_axes``)."""
+def camera_axes(camera: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """Eye position, right, up and forward unit vectors [B, 3] of MuJoCo's free camera at
+    poses [B, 6] (the torch twin of ``scenes.base.camera_axes``)."""
     azimuth, elevation = torch.deg2rad(camera[:, 4]), torch.deg2rad(camera[:, 5])
     forward = torch.stack([elevation.cos() * azimuth.cos(), elevation.cos() * azimuth.sin(),
                            elevation.sin()], dim=-1)
     up = torch.stack([-elevation.sin() * azimuth.cos(), -elevation.sin() * azimuth.sin(),
                       elevation.cos()], dim=-1)
-    right = torch.linalg.cross(forward, up)
     eye = camera[:, :3] - camera[:, 3:4] * forward
+    return eye, torch.linalg.cross(forward, up), up, forward
+
+
+def camera_coordinates(position: torch.Tensor, camera: torch.Tensor) -> torch.Tensor:
+    """World points [B, S, 3] in the frame of the camera at poses [B, 6]: offsets along its
+    right, up and forward (depth) axes [B, S, 3]."""
+    eye, *axes = camera_axes(camera)
     offset = position - eye[:, None]
-    return torch.stack([(offset * axis[:, None]).sum(-1) for axis in (right, up, forward)], -1)
+    return torch.stack([(offset * axis[:, None]).sum(-1) for axis in axes], -1)
+
+
+def quaternion_matrix(quaternion: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices [..., 3, 3] of quaternions [..., 4] (w, x, y, z; zeros give zeros)."""
+    w, x, y, z = quaternion.unbind(-1)
+    return torch.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ], dim=-1).unflatten(-1, (3, 3)) * (quaternion.norm(dim=-1) > 0)[..., None, None]
+
+
+def view(state: torch.Tensor, camera: torch.Tensor) -> torch.Tensor:
+    """Where objects of ``state`` [B, S, 13] are seen from poses [B, 6]: camera coordinates,
+    and the centre and half-extents of each one's bounding box in the image plane (the box's
+    extent along the camera's right and up axes over its depth) [B, S, VIEW]. What a renderer
+    would compute; the model still learns which objects hide which."""
+    coordinates = camera_coordinates(state[..., :3], camera)
+    _, right, up, _ = camera_axes(camera)
+    body_axes = quaternion_matrix(state[..., 3:7])  # columns: the body's axes in the world
+    half = state[..., 7:10]
+    extents = [((axis[:, None, :, None] * body_axes).sum(-2).abs() * half).sum(-1)
+               for axis in (right, up)]
+    depth = coordinates[..., 2:3].clamp(min=0.05) * math.tan(math.radians(FOVY) / 2)
+    return torch.cat([coordinates, image_plane(coordinates), torch.stack(extents, -1) / depth],
+                     dim=-1)
 
 
 def image_plane(coordinates: torch.Tensor) -> torch.Tensor:
@@ -192,7 +228,7 @@ class ObjectStateModel(SurpriseModel):
         self.dynamics = mlp([hidden + message + CAMERA_FEATURES, hidden, hidden,
                              2 * STATE_SIZE + SHAPES])
         self.occlusion = PairNetwork(hidden, 0, hidden, message)
-        self.visibility = mlp([hidden + message + 3 + 2 + 3 + CAMERA_FEATURES, hidden, 1])
+        self.visibility = mlp([hidden + message + VIEW + 3 + CAMERA_FEATURES, hidden, 1])
         self.appearance = mlp([hidden + CAMERA_FEATURES, hidden, 1 + 2 * STATE_SIZE + SHAPES])
         self.log_min_std = math.log(min_std)
 
@@ -212,21 +248,31 @@ class ObjectStateModel(SurpriseModel):
         return observe(objects.to(self.device), camera.to(self.device))
 
     # ----------------------------------------------------------------------------- core
-    def _pairs(self, state: torch.Tensor, shape: torch.Tensor, coordinates: torch.Tensor
+    def _pairs(self, state: torch.Tensor, shape: torch.Tensor, seen_as: torch.Tensor
                ) -> torch.Tensor:
-        """Pair features [B, S_i, S_j, PAIR_FEATURES] of slot j seen from slot i."""
+        """Pair features [B, S_i, S_j, PAIR_FEATURES] of slot j seen from slot i (``seen_as``:
+        each slot's ``view``)."""
         def other_minus_self(values):
             return values[:, None, :] - values[:, :, None]
+
+        def other(values):
+            return values[:, None].expand(-1, slots, -1, -1)
+
+        def own(values):
+            return values[:, :, None].expand(-1, -1, slots, -1)
         slots = state.shape[1]
         position, orientation, size = state[..., :3], state[..., 3:7], state[..., 7:10]
+        centre, half = seen_as[..., 3:5], seen_as[..., 5:7]
+        # the share of i's image box along each axis that j's box spans
+        overlap = ((other(half) + own(half) - other_minus_self(centre).abs())
+                   / (2 * own(half)).clamp(min=1e-3)).clamp(0, 1)
         return torch.cat([
             other_minus_self(position),
-            other_minus_self(coordinates),
-            other_minus_self(image_plane(coordinates)),
-            size[:, None].expand(-1, slots, -1, -1),
-            size[:, :, None].expand(-1, -1, slots, -1),
-            orientation[:, None].expand(-1, slots, -1, -1),
-            shape[:, None].expand(-1, slots, -1, -1),
+            other_minus_self(seen_as[..., :3]),
+            other_minus_self(centre),
+            other(size), own(size), other(half), own(half),
+            overlap, overlap.prod(-1, keepdim=True),
+            other(orientation), other(shape),
         ], dim=-1)
 
     @staticmethod
@@ -283,11 +329,10 @@ class ObjectStateModel(SurpriseModel):
             velocity = (belief[..., :3] - previous[..., :3]) * moved
             shape = torch.where(visible[..., None], obs.shape[:, t], shape)
             known = known | visible
-            coordinates = camera_coordinates(belief[..., :3], pose)
-            features = torch.cat([belief, shape, obs.fraction[:, t, :, None], coordinates,
-                                  image_plane(coordinates), velocity,
-                                  visible[..., None].float()], dim=-1)
-            pairs = self._pairs(belief, shape, coordinates)
+            seen_as = view(belief, pose)
+            features = torch.cat([belief, shape, obs.fraction[:, t, :, None], seen_as,
+                                  velocity, visible[..., None].float()], dim=-1)
+            pairs = self._pairs(belief, shape, seen_as)
             message = self._messages(self.message, hidden, hidden, pairs, known)
             step_input = torch.cat([features, message, pose_features], dim=-1)
             hidden = self.update(step_input.flatten(0, 1), hidden.flatten(0, 1)).view_as(hidden)
@@ -310,20 +355,19 @@ class ObjectStateModel(SurpriseModel):
         """Frame t's predictions from the slots after frame t-1: the predicted states
         [B, S, 13], the terms of what frame t shows (``rollout``) and p(visible) [B, S]."""
         batch, slots = known.shape
-        coordinates = camera_coordinates(belief[..., :3], pose)
-        pairs = self._pairs(belief, shape, coordinates)
+        pairs = self._pairs(belief, shape, view(belief, pose))
         message = self._messages(self.message, hidden, hidden, pairs, known)
         out = self.dynamics(torch.cat([hidden, message, pose_features], dim=-1))
         change, log_std, shape_logits = out.split([STATE_SIZE, STATE_SIZE, SHAPES], -1)
         predicted = belief + change
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
         # visibility at t from where every known slot is predicted to be at t
-        coordinates = camera_coordinates(predicted[..., :3], pose)
-        pairs = self._pairs(predicted, shape, coordinates)
+        seen_as = view(predicted, pose)
+        pairs = self._pairs(predicted, shape, seen_as)
         occluders = self._messages(self.occlusion, hidden, None, pairs, known)
         logit = self.visibility(torch.cat(
-            [hidden, occluders, coordinates, image_plane(coordinates), predicted[..., 7:10],
-             pose_features], dim=-1)).squeeze(-1)
+            [hidden, occluders, seen_as, predicted[..., 7:10], pose_features], dim=-1)
+        ).squeeze(-1)
         visible = obs.visible[:, t]
         seen, keep = visible.float(), known.float()
         terms = {}
