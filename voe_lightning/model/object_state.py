@@ -139,6 +139,26 @@ def view(state: torch.Tensor, camera: torch.Tensor) -> torch.Tensor:
                      dim=-1)
 
 
+def seen_by_geometry(seen_as: torch.Tensor, known: torch.Tensor, depth_scale: float = 0.05
+                     ) -> torch.Tensor:
+    """How likely each slot is to be seen by geometry alone [B, S], from every slot's ``view``
+    [B, S, VIEW]: the share of its image box inside the frame, times the chance that no known
+    slot in front of it (by a margin of ``depth_scale`` metres, softly) covers its image box.
+    What a renderer of bounding boxes would say; the visibility head learns the rest."""
+    centre, half = seen_as[..., 3:5], seen_as[..., 5:7].clamp(min=1e-3)
+    inside = ((torch.minimum(centre + half, torch.ones_like(centre))
+               - torch.maximum(centre - half, -torch.ones_like(centre))) / (2 * half))
+    inside = inside.clamp(0, 1).prod(-1)
+    depth = seen_as[..., 2]
+    in_front = torch.sigmoid((depth[:, :, None] - depth[:, None, :]) / depth_scale)  # j before i
+    overlap = ((half[:, None] + half[:, :, None] - (centre[:, None] - centre[:, :, None]).abs())
+               / (2 * half[:, :, None])).clamp(0, 1).prod(-1)  # of i's box, by j's
+    others = (known[:, None, :] & ~torch.eye(known.shape[1], dtype=torch.bool,
+                                             device=known.device)).float()
+    uncovered = (1 - in_front * overlap * others).prod(-1)
+    return inside * uncovered
+
+
 def image_plane(coordinates: torch.Tensor) -> torch.Tensor:
     """Camera coordinates [..., 3] -> image-plane position [..., 2] in units of the half
     field of view (inside the image: both within [-1, 1])."""
@@ -176,8 +196,9 @@ class ObjectStateModel(SurpriseModel):
     state seen, or, while hidden, the state predicted for them, so a hidden object is tracked
     forward), the model predicts for every known slot its state at t (a Gaussian: mean = belief
     + a predicted change, learned standard deviation; its shape as a categorical) and its
-    visibility at t (a Bernoulli, from its predicted camera coordinates and image position
-    against every other slot's: occlusion is learned). A context over the known slots predicts
+    visibility at t (a Bernoulli whose logit is that of ``seen_by_geometry``, what bounding
+    boxes at the predicted states would show, times a learned weight, plus a learned term from
+    its view against every other slot's: which objects really hide which is learned). A context over the known slots predicts
     whether a new object appears at t and, if so, its state. Then the frame's observations
     update the beliefs and, through an interaction network over slot pairs, a GRU per slot.
 
@@ -229,6 +250,8 @@ class ObjectStateModel(SurpriseModel):
                              2 * STATE_SIZE + SHAPES])
         self.occlusion = PairNetwork(hidden, 0, hidden, message)
         self.visibility = mlp([hidden + message + VIEW + 3 + CAMERA_FEATURES, hidden, 1])
+        #: How much the visibility logit starts from geometry (``seen_by_geometry``); learned.
+        self.geometry_weight = nn.Parameter(torch.ones(()))
         self.appearance = mlp([hidden + CAMERA_FEATURES, hidden, 1 + 2 * STATE_SIZE + SHAPES])
         self.log_min_std = math.log(min_std)
 
@@ -365,9 +388,10 @@ class ObjectStateModel(SurpriseModel):
         seen_as = view(predicted, pose)
         pairs = self._pairs(predicted, shape, seen_as)
         occluders = self._messages(self.occlusion, hidden, None, pairs, known)
+        geometry = seen_by_geometry(seen_as, known).clamp(0.02, 0.98)
         logit = self.visibility(torch.cat(
             [hidden, occluders, seen_as, predicted[..., 7:10], pose_features], dim=-1)
-        ).squeeze(-1)
+        ).squeeze(-1) + self.geometry_weight * torch.logit(geometry)
         visible = obs.visible[:, t]
         seen, keep = visible.float(), known.float()
         terms = {}
