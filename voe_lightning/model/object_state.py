@@ -35,6 +35,9 @@ FEATURES = STATE_SIZE + SHAPES + 1 + VIEW + 3 + 1
 #: other's covers (along right, up, and both), the other's orientation and shape.
 PAIR_FEATURES = 3 + 3 + 2 + 3 + 3 + 2 + 2 + 3 + 4 + SHAPES
 LOG_2PI = math.log(2 * math.pi)
+#: The largest move of a state in one frame interval, in each of the inertia and the learned
+#: change (metres for positions; our fastest object, a falling block, moves 0.6 m a frame).
+MAX_MOVE = 1.5
 #: The per-slot terms of a frame's negative log-likelihood; ``appear`` is per frame.
 SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape")
 
@@ -45,9 +48,9 @@ ARCHITECTURE = ("hidden_size", "message_size", "use_camera")
 @dataclass
 class Observations:
     """What perfect perception reports of a batch of videos, per video over the mask ids
-    ``ids`` [B, S] it shows (``observe``): ``state`` [B, T, S, 13] and ``shape`` one-hot [B, T, S, 7] (zero where hidden),
-    ``fraction`` [B, T, S] visible share of the frame, ``visible`` bool [B, T, S]; ``camera``
-    [B, T, 6] poses."""
+    ``ids`` [B, S] it shows (``observe``): ``state`` [B, T, S, 13] and ``shape`` one-hot
+    [B, T, S, 7] (zero where hidden), ``fraction`` [B, T, S] visible share of the frame,
+    ``visible`` bool [B, T, S]; ``camera`` [B, T, 6] poses."""
 
     ids: torch.Tensor
     state: torch.Tensor
@@ -129,9 +132,9 @@ def view(state: torch.Tensor, camera: torch.Tensor) -> torch.Tensor:
     extent along the camera's right and up axes over its depth) [B, S, VIEW]. What a renderer
     would compute; the model still learns which objects hide which."""
     coordinates = camera_coordinates(state[..., :3], camera)
-    _, right, up, _ = camera_axes(camera)
     body_axes = quaternion_matrix(state[..., 3:7])  # columns: the body's axes in the world
     half = state[..., 7:10]
+    _, right, up, _ = camera_axes(camera)
     extents = [((axis[:, None, :, None] * body_axes).sum(-2).abs() * half).sum(-1)
                for axis in (right, up)]
     depth = coordinates[..., 2:3].clamp(min=0.05) * math.tan(math.radians(FOVY) / 2)
@@ -194,13 +197,14 @@ class ObjectStateModel(SurpriseModel):
     Each mask id is a slot, created when the id is first seen (nothing earlier depends on it).
     Per step t, from the slots' recurrent states after frame t-1 and their beliefs (the last
     state seen, or, while hidden, the state predicted for them, so a hidden object is tracked
-    forward), the model predicts for every known slot its state at t (a Gaussian: mean = belief
-    + a predicted change, learned standard deviation; its shape as a categorical) and its
-    visibility at t (a Bernoulli whose logit is that of ``seen_by_geometry``, what bounding
-    boxes at the predicted states would show, times a learned weight, plus a learned term from
-    its view against every other slot's: which objects really hide which is learned). A context over the known slots predicts
-    whether a new object appears at t and, if so, its state. Then the frame's observations
-    update the beliefs and, through an interaction network over slot pairs, a GRU per slot.
+    forward), the model predicts for every known slot its state at t (a Gaussian: mean = belief,
+    moved on by inertia (the last frame's move), plus a learned change, learned standard
+    deviation; its shape as a categorical) and its visibility at t (a Bernoulli whose logit is
+    that of ``seen_by_geometry``, what bounding boxes at the predicted states would show, times
+    a learned weight, plus a learned term from its view against every other slot's: which
+    objects really hide which is learned). A context over the known slots predicts whether a
+    new object appears at t and, if so, its state. Then the frame's observations update the
+    beliefs and, through an interaction network over slot pairs, a GRU per slot.
 
     What frame t shows has a negative log-likelihood (NLL): for each known slot the visibility
     term, plus where visible the state and shape terms; plus the appearance terms (whether some
@@ -323,6 +327,7 @@ class ObjectStateModel(SurpriseModel):
         hidden = obs.state.new_zeros(batch, slots, self.hparams.hidden_size)
         belief = obs.state.new_zeros(batch, slots, STATE_SIZE)
         shape = obs.state.new_zeros(batch, slots, SHAPES)
+        velocity = obs.state.new_zeros(batch, slots, 3)
         known = torch.zeros(batch, slots, dtype=torch.bool, device=obs.state.device)
         terms = {key: [] for name in SLOT_TERMS + ("appear",)
                  for key in (name, f"{name}_entropy")}
@@ -340,7 +345,7 @@ class ObjectStateModel(SurpriseModel):
                 probability.append(obs.state.new_zeros(batch, slots))
             else:
                 predicted, step_terms, seen_probability = self._predict(
-                    hidden, belief, shape, known, pose, pose_features, obs, t)
+                    hidden, belief, velocity, shape, known, pose, pose_features, obs, t)
                 for key, value in step_terms.items():
                     terms[key].append(value)
                 probability.append(seen_probability)
@@ -348,8 +353,11 @@ class ObjectStateModel(SurpriseModel):
             # observe frame t: seen slots take what is seen, hidden ones their prediction
             previous = belief
             belief = torch.where(visible[..., None], obs.state[:, t], predicted)
-            moved = (known & ~new)[..., None].float()  # known before t: a velocity
-            velocity = (belief[..., :3] - previous[..., :3]) * moved
+            # the last move: seen in both frames, what was seen; else what was predicted (a
+            # reappearing object's jump from its predicted place is a correction, not a move)
+            steady = (visible & (obs.visible[:, t - 1] if t else visible))[..., None]
+            move = torch.where(steady, belief, predicted)[..., :3] - previous[..., :3]
+            velocity = move * (known & ~new)[..., None].float()  # known before t
             shape = torch.where(visible[..., None], obs.shape[:, t], shape)
             known = known | visible
             seen_as = view(belief, pose)
@@ -373,16 +381,20 @@ class ObjectStateModel(SurpriseModel):
             "hidden": torch.stack(states, dim=1),
         }
 
-    def _predict(self, hidden, belief, shape, known, pose, pose_features, obs: Observations,
-                 t: int) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]:
+    def _predict(self, hidden, belief, velocity, shape, known, pose, pose_features,
+                 obs: Observations, t: int
+                 ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]:
         """Frame t's predictions from the slots after frame t-1: the predicted states
-        [B, S, 13], the terms of what frame t shows (``rollout``) and p(visible) [B, S]."""
+        [B, S, 13] (positions by inertia, the last frame's move repeated, plus a learned
+        change), the terms of what frame t shows (``rollout``) and p(visible) [B, S]."""
         batch, slots = known.shape
         pairs = self._pairs(belief, shape, view(belief, pose))
         message = self._messages(self.message, hidden, hidden, pairs, known)
         out = self.dynamics(torch.cat([hidden, message, pose_features], dim=-1))
         change, log_std, shape_logits = out.split([STATE_SIZE, STATE_SIZE, SHAPES], -1)
-        predicted = belief + change
+        # bounded, so a hidden object's rollout cannot feed on itself and diverge
+        inertia = F.pad(velocity.clamp(-MAX_MOVE, MAX_MOVE), (0, STATE_SIZE - 3))
+        predicted = belief + inertia + MAX_MOVE * torch.tanh(change / MAX_MOVE)
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
         # visibility at t from where every known slot is predicted to be at t
         seen_as = view(predicted, pose)
