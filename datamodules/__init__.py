@@ -1,12 +1,14 @@
 """LightningDataModules: one concept, all five interleaved, and the external benchmarks."""
 
 from datamodules.intphys import IntPhysDataModule
+from datamodules.intphys2 import IntPhys2DataModule
 from datamodules.physical_concepts import PhysicalConceptsDataModule
 from datamodules.voe import ConceptDataModule, JointDataModule, VOEDataModule
 
 __all__ = [
     "ConceptDataModule",
     "IntPhysDataModule",
+    "IntPhys2DataModule",
     "JointDataModule",
     "PhysicalConceptsDataModule",
     "VOEDataModule",

@@ -3,19 +3,28 @@ skipped-input counts, loader settings and the model input geometry."""
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+from tensordict import TensorDict
 from torch.utils.data import DataLoader, Dataset
 from torchrl.data import Composite
+from tqdm import tqdm
 
 from voe_lightning import specs
 from voe_lightning.benchmarks.base import (
     FrameSampling,
+    RecordList,
     SkipLog,
     benchmark_spec,
     frame_indices,
     merge_counts,
+    worker_loader,
 )
+from voe_lightning.benchmarks.cache import open_cache, write_cache
 from voe_lightning.probe_datamodule import ProbeDataModule
-from voe_lightning.store import record_loader
+from voe_lightning.store import probe_sampler, record_loader
 
 
 class BenchmarkDataModule(ProbeDataModule):
@@ -36,6 +45,8 @@ class BenchmarkDataModule(ProbeDataModule):
         self._skips: dict[str, SkipLog] = {}
         self._cached_skips: dict[str, dict[str, int]] = {}
         self._video: FrameSampling | None = None
+        self._probes: dict[str, Dataset] = {}
+        self._tables: dict[str, dict[int, dict[str, Any]]] = {}
 
     @property
     def video(self) -> FrameSampling:
@@ -95,3 +106,39 @@ class BenchmarkDataModule(ProbeDataModule):
 
     def _loader(self, dataset: Dataset, batch_size: int, **kwargs) -> DataLoader:
         return record_loader(dataset, batch_size, self.hparams.num_workers, **kwargs)
+
+    def _probe_loader(self, dataset: Dataset) -> DataLoader:
+        """Probe pairs or single videos in order, each on one DDP rank."""
+        return self._loader(dataset, self.hparams.probe_batch_size, sampler=probe_sampler(dataset))
+
+    def _read_probes(self, split: str, decoder: Dataset, folder: Path | None, unit: str,
+                     key: Callable[[int], int]) -> Dataset:
+        """The probe records of ``split`` from the cache at ``folder`` when it is intact, else
+        decoded by ``decoder`` (items: (records, table entry or None)) in worker processes and
+        written there (``folder`` None: kept in memory). Fills ``_probes[split]`` and
+        ``_tables[split]`` (``key(seed)`` -> entry) and the skipped counts."""
+        cached = open_cache(folder, {"table": dict, "skipped": dict}) if folder else None
+        if cached is not None:  # its counts already include this scan's skips
+            self._skips[split] = SkipLog()
+            self._cached_skips[split] = cached.meta.get("skipped", {})
+            self._tables[split] = {int(k): v for k, v in cached.meta["table"].items()}
+            self._probes[split] = cached
+            return cached
+        meta: dict[str, Any] = {"table": {}}
+        records = self._decode(decoder, meta, self._skips[split], split, unit, key)
+        self._probes[split] = (RecordList(list(records)) if folder is None
+                               else write_cache(folder, records, self.probe_spec(), meta))
+        self._tables[split] = meta["table"]
+        return self._probes[split]
+
+    def _decode(self, decoder: Dataset, meta: dict, skips: SkipLog, what: str, unit: str,
+                key: Callable[[int], int]) -> Iterator[TensorDict]:
+        """The probe records, decoded by worker processes; fills ``meta`` (table, skipped
+        counts) as it goes, complete once exhausted."""
+        loader = worker_loader(decoder, self.hparams.num_workers)
+        for records, entry in tqdm(loader, desc=f"decoding {type(self).__name__} {what}",
+                                   unit=unit, leave=False):
+            if entry is not None:
+                meta["table"][key(int(records[0]["seed"]))] = entry
+            yield from records
+        meta["skipped"] = skips.counts()

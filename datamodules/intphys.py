@@ -16,7 +16,7 @@ from tqdm import tqdm
 from datamodules.arguments import check_at_least, check_fraction
 from datamodules.benchmark import BenchmarkDataModule
 from voe_lightning.benchmark_metrics import grouped_metrics, incomplete_quadruplets, pair_surprise
-from voe_lightning.benchmarks.base import RecordList, SkipLog, worker_loader
+from voe_lightning.benchmarks.base import SkipLog, worker_loader
 from voe_lightning.benchmarks.cache import fingerprint, open_cache, write_cache
 from voe_lightning.benchmarks.intphys import (
     BLOCKS,
@@ -29,7 +29,6 @@ from voe_lightning.benchmarks.intphys import (
     scan_quadruplets,
     scan_train,
 )
-from voe_lightning.store import probe_sampler
 
 
 class IntPhysDataModule(BenchmarkDataModule):
@@ -104,8 +103,6 @@ class IntPhysDataModule(BenchmarkDataModule):
         self.save_hyperparameters()
         self.source_frames = frames_per_movie
         self._resolve_video(required=False)
-        self._probes: dict[str, Dataset] = {}
-        self._tables: dict[str, dict[int, dict[str, Any]]] = {}
         self._train: Dataset | None = None
         self._movies: dict[str, list[Movie]] = {}
 
@@ -148,40 +145,9 @@ class IntPhysDataModule(BenchmarkDataModule):
             for m in q.movies
             for p in (m.path / "scene", m.path / "status.json")
         ]
-        folder = self._cache_folder(split, sources)
-        required = {"table": dict, "skipped": dict}
-        cached = open_cache(folder, required) if folder is not None else None
-        if cached is not None:  # its counts already include this scan's skips
-            self._skips[split] = SkipLog()
-            self._cached_skips[split] = cached.meta.get("skipped", {})
-            self._tables[split] = {int(k): v for k, v in cached.meta["table"].items()}
-            self._probes[split] = cached
-            return cached
-        meta: dict[str, Any] = {"table": {}}
-        records = self._decode(
-            QuadrupletDataset(quadruplets, self.video, h.lenient, skips), meta, skips, split
-        )
-        self._probes[split] = (
-            RecordList(list(records))
-            if folder is None
-            else write_cache(folder, records, self.probe_spec(), meta)
-        )
-        self._tables[split] = meta["table"]
-        return self._probes[split]
-
-    def _decode(
-        self, dataset: QuadrupletDataset, meta: dict, skips: SkipLog, split: str
-    ) -> Iterator[TensorDict]:
-        """The probe records, decoded by worker processes; fills ``meta`` (quadruplet table,
-        skipped counts) as it goes, complete once exhausted."""
-        loader = worker_loader(dataset, self.hparams.num_workers)
-        for records, entry in tqdm(
-            loader, desc=f"decoding IntPhys {split}", unit="scene", leave=False
-        ):
-            if entry is not None:
-                meta["table"][records[0]["seed"].item() // 2] = entry
-            yield from records
-        meta["skipped"] = skips.counts()
+        decoder = QuadrupletDataset(quadruplets, self.video, h.lenient, skips)
+        return self._read_probes(split, decoder, self._cache_folder(split, sources), "scene",
+                                 key=lambda seed: seed // 2)
 
     def quadruplets(self, split: str = "dev") -> dict[int, dict[str, Any]]:
         """quadruplet_index -> {block, scene, variant, ambiguous_pairing, pairs: [{possible,
@@ -244,16 +210,13 @@ class IntPhysDataModule(BenchmarkDataModule):
         )
 
     def val_dataloader(self) -> DataLoader:
-        probes = self.probes(self.hparams.eval_split)
-        return self._loader(probes, self.hparams.probe_batch_size, sampler=probe_sampler(probes))
+        return self._probe_loader(self.probes(self.hparams.eval_split))
 
     def test_dataloader(self) -> DataLoader:
         return self.val_dataloader()
 
     def predict_dataloader(self) -> DataLoader:
-        dataset = MovieDataset(self.movies(self.hparams.predict_split), self.video)
-        return self._loader(dataset, self.hparams.probe_batch_size,
-                            sampler=probe_sampler(dataset))
+        return self._probe_loader(MovieDataset(self.movies(self.hparams.predict_split), self.video))
 
     # --- evaluation ------------------------------------------------------------------------------
     def benchmark_metrics(self, outputs: dict[str, Any], **options: Any) -> dict[str, Any]:

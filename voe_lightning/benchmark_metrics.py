@@ -18,6 +18,21 @@ The DeepMind Physical Concepts probes come in the same 2 + 2 quadruplets and get
 metrics per concept. Matched possible/impossible pairs also get our one-tailed paired t-test
 (``voe_lightning.statistics.paired_test``, inconsistent = impossible).
 
+IntPhys 2 (Bordes et al. 2025), scored as the V-JEPA intuitive-physics evaluation (Garrido et
+al. 2025) scores it, from each video's per-frame surprise, over Possible/Impossible pairs of one
+scene and prefix (``intphys2_metrics``):
+
+- relative accuracy: share of pairs with S(possible) < S(impossible), S the mean
+  (``relative_accuracy_mean``) or the max (``relative_accuracy_max``) of per-frame surprise; a
+  tie counts half (chance is 0.5; without ties this is the strict rule), ``ties_*`` counts them;
+- absolute accuracy: a video is called impossible when its max surprise exceeds the threshold,
+  the 90th percentile (numpy's linear interpolation) of the possible videos' max surprise over
+  the whole split; the share of videos, possible and impossible, called right. One threshold
+  for every group, so the group rows are what the one classifier gets there, and the same
+  threshold turns Held-Out surprise into the leaderboard's answers;
+- AUROC of max surprise (``auroc``) and of mean surprise (``auroc_mean``) for detecting
+  impossible videos, ties half.
+
 Submissions: ``answer.txt`` holds one ``<movie path> <plausibility>`` line per movie, paths
 relative to the test folder (``O1/0001/1 0.9751``), 0 <= P <= 1. ``plausibility_from_surprise``
 maps surprise to P by a decreasing affine map over the whole submission, which preserves every
@@ -292,3 +307,111 @@ def score_answers(
                 ),
             }
     return result
+
+
+# --- IntPhys 2 ----------------------------------------------------------------------------------
+#: Percentile of the possible videos' max surprise above which a video is called impossible.
+INTPHYS2_PERCENTILE = 90.0
+
+
+def relative_accuracy(surprise_possible: Any, surprise_impossible: Any) -> tuple[float, int]:
+    """Share of pairs whose possible video is less surprising than its impossible one (a tie
+    counts half), and the number of ties."""
+    possible = np.asarray(surprise_possible, dtype=np.float64).ravel()
+    impossible = np.asarray(surprise_impossible, dtype=np.float64).ravel()
+    if possible.shape != impossible.shape or possible.size == 0:
+        raise ValueError(f"need one possible and one impossible surprise per pair (>0 pairs), got "
+                         f"{possible.size} and {impossible.size}")
+    ties = int((possible == impossible).sum())
+    return float(((possible < impossible).sum() + 0.5 * ties) / possible.size), ties
+
+
+def surprise_threshold(max_surprise_possible: Any, percentile: float = INTPHYS2_PERCENTILE
+                       ) -> float:
+    """The ``percentile``-th percentile of the possible videos' max surprise: above it a video
+    is called impossible."""
+    values = np.asarray(max_surprise_possible, dtype=np.float64).ravel()
+    if values.size == 0 or not np.isfinite(values).all():
+        raise ValueError(f"a threshold needs finite max surprise of >0 possible videos, got "
+                         f"{values.size} values")
+    return float(np.percentile(values, percentile))
+
+
+def absolute_accuracy(max_surprise: Any, is_possible: Any, threshold: float) -> float:
+    """Share of videos called right: impossible when max surprise > ``threshold``."""
+    called_possible = np.asarray(max_surprise, dtype=np.float64).ravel() <= threshold
+    return float((called_possible == np.asarray(is_possible, dtype=bool).ravel()).mean())
+
+
+def video_pair_metrics(
+    frames_possible: Any,
+    frames_impossible: Any,
+    threshold: float,
+    alpha: float = ALPHA,
+    bootstrap: int = 2000,
+) -> dict[str, Any]:
+    """IntPhys 2 metrics of matched pairs from per-frame surprise [N, T] of each pair's possible
+    and impossible video, at a given absolute ``threshold``, with the paired t-test of
+    S(impossible) - S(possible) over pairs (S summed over frames, as in our probe reports)."""
+    possible = np.asarray(frames_possible, dtype=np.float64)
+    impossible = np.asarray(frames_impossible, dtype=np.float64)
+    if possible.ndim != 2 or possible.shape != impossible.shape or possible.shape[0] == 0:
+        raise ValueError(f"per-frame surprise must be [N, T] on both sides (N > 0), got "
+                         f"{possible.shape} and {impossible.shape}")
+    n = possible.shape[0]
+    relative_mean, ties_mean = relative_accuracy(possible.mean(1), impossible.mean(1))
+    relative_max, ties_max = relative_accuracy(possible.max(1), impossible.max(1))
+    labels = np.concatenate([np.ones(n, bool), np.zeros(n, bool)])
+    maxima = np.concatenate([possible.max(1), impossible.max(1)])
+    means = np.concatenate([possible.mean(1), impossible.mean(1)])
+    result: dict[str, Any] = {
+        "n_pairs": n,
+        "relative_accuracy_mean": relative_mean,
+        "ties_mean": ties_mean,
+        "relative_accuracy_max": relative_max,
+        "ties_max": ties_max,
+        "absolute_accuracy": absolute_accuracy(maxima, labels, threshold),
+        "auroc": auroc(maxima, labels),
+        "auroc_mean": auroc(means, labels),
+    }
+    if n >= 2:
+        result["paired_test"] = paired_test(impossible.sum(1), possible.sum(1), alpha=alpha,
+                                            bootstrap=bootstrap).as_dict()
+    else:
+        result["paired_test"] = {"n": n, "note": "a paired t-test needs 2 pairs"}
+    return result
+
+
+def intphys2_metrics(
+    principle: Sequence[str],
+    difficulty: Sequence[str],
+    camera: Sequence[str],
+    frames_possible: Any,
+    frames_impossible: Any,
+    percentile: float = INTPHYS2_PERCENTILE,
+    **options: Any,
+) -> dict[str, Any]:
+    """``video_pair_metrics`` over all pairs (``all``), per principle (``principle``) and per
+    principle x difficulty x camera (``principle_difficulty_camera``, keyed
+    ``<principle>/<difficulty>/<camera>``), at one threshold from all possible videos
+    (``threshold``). ``options`` go to ``video_pair_metrics`` (alpha, bootstrap)."""
+    possible = np.asarray(frames_possible, dtype=np.float64)
+    impossible = np.asarray(frames_impossible, dtype=np.float64)
+    keys = list(zip(principle, difficulty, camera))
+    if len(keys) != len(possible) or len(possible) != len(impossible):
+        raise ValueError(f"one principle, difficulty and camera per pair: got {len(keys)} "
+                         f"labels for {len(possible)} and {len(impossible)} pairs")
+    threshold = surprise_threshold(possible.max(axis=-1), percentile)
+
+    def metrics(rows: np.ndarray) -> dict[str, Any]:
+        return video_pair_metrics(possible[rows], impossible[rows], threshold, **options)
+
+    return {
+        "threshold": {"value": threshold, "percentile": percentile,
+                      "of": "max per-frame surprise of the possible videos"},
+        "all": metrics(np.ones(len(keys), bool)),
+        "principle": {p: metrics(np.array([k[0] == p for k in keys]))
+                      for p in sorted({k[0] for k in keys})},
+        "principle_difficulty_camera": {"/".join(key): metrics(np.array([k == key for k in keys]))
+                                        for key in sorted(set(keys))},
+    }

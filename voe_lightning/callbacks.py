@@ -386,6 +386,9 @@ class VOEReportCallback(L.Callback):
         path = self.report_dir / "benchmark_metrics.json"
         path.write_text(json.dumps(metrics, indent=2, default=lambda v: v.item()) + "\n")
         print(f"benchmark metrics written to {path}")
+        for name, text in datamodule.benchmark_files(merged).items():
+            (self.report_dir / name).write_text(text)
+            print(f"{name} written to {self.report_dir / name}")
 
     def _predictions(self, pl_module: L.LightningModule,
                      examples: list[dict[str, Any]]) -> list[PredictionExample]:

@@ -49,6 +49,7 @@ __all__ = [
     "cue_table",
     "format_correlations",
     "format_markdown",
+    "frame_scores",
     "score_videos",
     "tracked_cues",
     "write_audit",
@@ -74,12 +75,51 @@ CUE_COLUMNS = (("concept", "variant", "cue")
 CORRELATION_COLUMNS = ("concept", "variant", "cue", "n", "r", "p_two_sided", "alpha", "note")
 
 
+def frame_scores(
+    frames: torch.Tensor, mask: torch.Tensor | None, first: int = 1
+) -> dict[str, torch.Tensor]:
+    """Every cue's per-frame value of a batch of videos: uint8 frames [B, T, H, W, 3], mask
+    [B, T, H, W] (or None: ``foreground_pixels`` is NaN); float64 [B, T] per cue. Frame t's
+    value reads frames up to t only (0 where a cue needs earlier frames); ``pixel_novelty`` is
+    computed from frame ``first`` on (0 before), as the frames before it are not scored."""
+    if frames.ndim != 5 or frames.shape[-1] != 3:
+        raise ValueError(f"frames must be [B, T, H, W, 3], got {tuple(frames.shape)}")
+    batch, num_frames = frames.shape[:2]
+    x = specs.to_model_input(frames).contiguous()  # [B, T, 3, H, W]: ~10x faster than NHWC
+
+    def per_frame(values: torch.Tensor) -> torch.Tensor:
+        """Values of the last frames [B, T - k] as [B, T], 0 for the first k frames."""
+        padded = torch.zeros(batch, num_frames, dtype=torch.float64, device=frames.device)
+        padded[:, num_frames - values.shape[1]:] = values.double()
+        return padded
+
+    difference = x[:, 1:] - x[:, :-1]
+    predicted = (2.0 * x[:, 1:-1] - x[:, :-2]).clamp_(0.0, 1.0)
+    novelty = torch.zeros(batch, num_frames, dtype=torch.float64, device=frames.device)
+    for t in range(max(first, 1), num_frames):
+        nearest = (x[:, 0] - x[:, t]).abs_().sum(dim=1)  # [B, H, W], L1 over channels
+        for s in range(1, t):
+            nearest = torch.minimum(nearest, (x[:, s] - x[:, t]).abs_().sum(dim=1))
+        novelty[:, t] = nearest.sum(dim=(1, 2)).double()
+    scores = {
+        "motion_energy": per_frame(difference.abs().mean(dim=(2, 3, 4))),
+        "copy_last_error": per_frame(difference.square().mean(dim=(2, 3, 4))),
+        "linear_extrapolation_error": per_frame((x[:, 2:] - predicted).square().mean(dim=(2, 3, 4))),
+        "pixel_novelty": novelty,
+        "foreground_pixels": (
+            torch.full((batch, num_frames), math.nan, dtype=torch.float64, device=frames.device)
+            if mask is None else (mask > 0).sum(dim=(2, 3)).double()),
+    }
+    return {cue: scores[cue] for cue in CUES}
+
+
 def score_videos(
     frames: torch.Tensor, mask: torch.Tensor | None, manipulation_frame: torch.Tensor
 ) -> dict[str, torch.Tensor]:
     """Every cue's score of a batch of videos: uint8 frames [B, T, H, W, 3], mask [B, T, H, W]
     (or None: no ``foreground_pixels``, NaN), manipulation frame [B]; float64 [B] per cue.
-    Runs on the frames' device; each score sums per-frame values over the frames t > m."""
+    Runs on the frames' device; each score sums the per-frame values (``frame_scores``) over
+    the frames t > m."""
     if frames.ndim != 5 or frames.shape[-1] != 3:
         raise ValueError(f"frames must be [B, T, H, W, 3], got {tuple(frames.shape)}")
     batch, num_frames = frames.shape[:2]
@@ -87,33 +127,9 @@ def score_videos(
     if m.numel() != batch or bool(((m < 0) | (m >= num_frames)).any()):
         raise ValueError(f"manipulation_frame must hold {batch} values in [0, {num_frames - 1}], "
                          f"got {m.tolist()}")
-    x = specs.to_model_input(frames).contiguous()  # [B, T, 3, H, W]: ~10x faster than NHWC
     after = (torch.arange(num_frames, device=frames.device)[None] > m[:, None]).double()
-
-    def total(per_frame: torch.Tensor, first: int) -> torch.Tensor:
-        """Sum of per-frame values [B, T - first] (frame first, ...) over frames after m."""
-        return (per_frame.double() * after[:, first:]).sum(dim=1)
-
-    difference = x[:, 1:] - x[:, :-1]
-    predicted = (2.0 * x[:, 1:-1] - x[:, :-2]).clamp_(0.0, 1.0)
-    novelty = torch.zeros(batch, num_frames, dtype=torch.float64, device=frames.device)
-    for t in range(int(m.min()) + 1, num_frames):
-        nearest = (x[:, 0] - x[:, t]).abs_().sum(dim=1)  # [B, H, W], L1 over channels
-        for s in range(1, t):
-            nearest = torch.minimum(nearest, (x[:, s] - x[:, t]).abs_().sum(dim=1))
-        novelty[:, t] = nearest.sum(dim=(1, 2)).double()
-    scores = {
-        "motion_energy": total(difference.abs().mean(dim=(2, 3, 4)), 1),
-        "copy_last_error": total(difference.square().mean(dim=(2, 3, 4)), 1),
-        "linear_extrapolation_error": total((x[:, 2:] - predicted).square().mean(dim=(2, 3, 4)), 2),
-        "pixel_novelty": total(novelty, 0),
-    }
-    if mask is None:
-        scores["foreground_pixels"] = torch.full((batch,), math.nan, dtype=torch.float64,
-                                                 device=frames.device)
-    else:
-        scores["foreground_pixels"] = total((mask > 0).sum(dim=(2, 3)), 0)
-    return {cue: scores[cue] for cue in CUES}
+    per_frame = frame_scores(frames, mask, first=int(m.min()) + 1)
+    return {cue: (values * after).sum(dim=1) for cue, values in per_frame.items()}
 
 
 def _mask(video: Any) -> torch.Tensor | None:

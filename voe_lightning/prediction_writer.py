@@ -1,8 +1,9 @@
-"""``predict``'s output file: IntPhys' answer.txt from ``SurpriseModel.predict_step``'s
-per-movie surprise, gathered from every DDP rank."""
+"""``predict``'s output files, from ``SurpriseModel.predict_step``'s per-video surprise gathered
+from every DDP rank: IntPhys' answer.txt and the IntPhys 2 leaderboard's jsonl."""
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -32,22 +33,72 @@ class IntPhysAnswerWriter(BasePredictionWriter):
         predictions: Sequence[Any],
         batch_indices: Sequence[Any],
     ) -> None:
-        scores = [
-            (index, value)
-            for batch in predictions
-            for index, value in zip(batch["index"].tolist(), batch["surprise"].tolist())
-        ]
-        if trainer.world_size > 1:  # each rank scored its own movies: gather them on rank 0
-            gathered: list[Any] = [None] * trainer.world_size
-            torch.distributed.all_gather_object(gathered, scores)
-            scores = [score for rank in gathered for score in rank]
-        if not trainer.is_global_zero:
+        scores = gathered_scores(trainer, predictions, "surprise")
+        if scores is not None:
+            write_answer_file(self.path, scores)
+            rank_zero_info(f"wrote {self.path} ({len(scores)} movies)")
+
+
+def gathered_scores(trainer: L.Trainer, predictions: Sequence[Any], key: str
+                    ) -> dict[str, float] | None:
+    """On rank zero, video name -> ``predictions``' ``key`` of every video of the predict
+    dataset (``names[index]``), gathered from every DDP rank; None on the other ranks. A
+    video scored twice or never is refused."""
+    scores = [(index, value) for batch in predictions
+              for index, value in zip(batch["index"].tolist(), batch[key].tolist())]
+    if trainer.world_size > 1:  # each rank scored its own videos: gather them on rank 0
+        gathered: list[Any] = [None] * trainer.world_size
+        torch.distributed.all_gather_object(gathered, scores)
+        scores = [score for rank in gathered for score in rank]
+    if not trainer.is_global_zero:
+        return None
+    names = trainer.predict_dataloaders.dataset.names
+    if sorted(index for index, _ in scores) != list(range(len(names))):
+        raise RuntimeError(
+            f"predict scored {len(scores)} videos ({len({i for i, _ in scores})} distinct) of "
+            f"the {len(names)} in the predict dataset; every video needs exactly one score")
+    return {names[index]: value for index, value in sorted(scores)}
+
+
+def intphys2_threshold(threshold: float | str) -> float:
+    """The absolute threshold a number gives, or the one a ``test`` run's benchmark_metrics.json
+    (IntPhys 2, e.g. on Main) learned: ``metrics.threshold.value``."""
+    if not isinstance(threshold, str):
+        return float(threshold)
+    path = Path(threshold)
+    try:
+        return float(json.loads(path.read_text())["metrics"]["threshold"]["value"])
+    except FileNotFoundError:
+        raise FileNotFoundError(f"threshold file {path} does not exist; give a number or the "
+                                "benchmark_metrics.json of a test on IntPhys 2 Main") from None
+    except (ValueError, KeyError, TypeError) as error:
+        raise ValueError(f"{path} holds no metrics.threshold.value ({type(error).__name__}: "
+                         f"{error}); expected the benchmark_metrics.json of a test on IntPhys 2 "
+                         "Main") from None
+
+
+class IntPhys2LeaderboardWriter(BasePredictionWriter):
+    """Writes the IntPhys 2 leaderboard's jsonl to ``path`` at the end of ``predict``: one
+    ``{"data_name", "task", "row_id", "model_answer"}`` line per video of the predict dataset,
+    ``row_id`` its name and ``model_answer`` 1 (possible) when its max per-frame surprise is at
+    most ``threshold``, else 0 (impossible). ``threshold`` is a number or the
+    benchmark_metrics.json of a ``test`` on Main (the 90th percentile of the possible videos'
+    max surprise there). ``data_name`` and ``task`` are written as given."""
+
+    def __init__(self, threshold: float | str, path: str | os.PathLike = "intphys2_heldout.jsonl",
+                 data_name: str = "IntPhys2", task: str = "HeldOut"):
+        super().__init__(write_interval="epoch")
+        self.threshold = intphys2_threshold(threshold)
+        self.path, self.data_name, self.task = Path(path), data_name, task
+
+    def write_on_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule,
+                           predictions: Sequence[Any], batch_indices: Sequence[Any]) -> None:
+        scores = gathered_scores(trainer, predictions, "surprise_max")
+        if scores is None:
             return
-        names = trainer.predict_dataloaders.dataset.names
-        if sorted(index for index, _ in scores) != list(range(len(names))):
-            raise RuntimeError(
-                f"predict scored {len(scores)} movies ({len({i for i, _ in scores})} distinct) of "
-                f"the {len(names)} in the predict dataset; every movie needs exactly one score"
-            )
-        write_answer_file(self.path, {names[index]: value for index, value in scores})
-        rank_zero_info(f"wrote {self.path} ({len(names)} movies)")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        lines = [json.dumps({"data_name": self.data_name, "task": self.task, "row_id": name,
+                             "model_answer": int(value <= self.threshold)})
+                 for name, value in scores.items()]
+        self.path.write_text("".join(line + "\n" for line in lines))
+        rank_zero_info(f"wrote {self.path} ({len(scores)} videos, threshold {self.threshold:g})")

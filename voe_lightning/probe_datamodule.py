@@ -36,6 +36,11 @@ class ProbeDataModule(L.LightningDataModule, metaclass=ABCMeta):
         ``benchmark_metrics.json``); None here: the package's probes have none."""
         return None
 
+    def benchmark_files(self, outputs: Mapping[str, Any]) -> dict[str, str]:
+        """Further report files of an external benchmark (file name -> text, written beside
+        ``benchmark_metrics.json``) from the merged ``probe_step`` outputs; none here."""
+        return {}
+
 
 def probe_datamodule(trainer: L.Trainer, user: str) -> ProbeDataModule:
     """``trainer.datamodule``, refused with a clear error unless it is a ProbeDataModule;

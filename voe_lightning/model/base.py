@@ -168,10 +168,12 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
     def predict_step(
         self, batch: TensorDictBase, batch_idx: int, dataloader_idx: int = 0
     ) -> dict[str, torch.Tensor]:
-        """Each video's surprise (its sum over frames, float64) with its ``index`` in the predict
-        dataset, for a prediction writer; its mask and camera go along when the batch has them."""
-        surprise = self.surprise(self._frames_of(batch), **video_inputs(batch))
-        return {"index": batch["index"], "surprise": surprise.double().sum(-1)}
+        """Each video's surprise (its sum over frames, float64, and its largest frame's:
+        ``surprise_max``) with its ``index`` in the predict dataset, for a prediction writer;
+        its mask and camera go along when the batch has them."""
+        surprise = self.surprise(self._frames_of(batch), **video_inputs(batch)).double()
+        return {"index": batch["index"], "surprise": surprise.sum(-1),
+                "surprise_max": surprise.max(-1).values}
 
     # ----------------------------------------------------------------------------- checkpoints
     def _model_input(self, frames: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:

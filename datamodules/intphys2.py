@@ -1,0 +1,206 @@
+"""IntPhys 2 (Bordes et al. 2025) as a LightningDataModule: the labelled Possible/Impossible
+pairs of a split for ``validate``/``test`` (with the benchmark's metrics and videos.csv in the
+report), and single videos for ``predict`` (the leaderboard's jsonl, see
+``voe_lightning.prediction_writer.IntPhys2LeaderboardWriter``); the reading is
+``voe_lightning.benchmarks.intphys2``."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from torch.utils.data import DataLoader, Dataset
+
+from datamodules.arguments import check_at_least, check_fraction
+from datamodules.benchmark import BenchmarkDataModule
+from voe_lightning.benchmark_metrics import intphys2_metrics
+from voe_lightning.benchmarks.base import SkipLog
+from voe_lightning.benchmarks.cache import fingerprint
+from voe_lightning.benchmarks.intphys2 import (
+    DIFFICULTIES,
+    PRINCIPLES,
+    SPLITS,
+    ClipSampling,
+    PairDataset,
+    Video,
+    VideoDataset,
+    pair_videos,
+    read_metadata,
+)
+
+#: Columns of videos.csv, one row per scored video.
+VIDEO_COLUMNS = ("name", "principle", "difficulty", "camera", "label", "pair", "surprise_mean",
+                 "surprise_max")
+
+
+class IntPhys2DataModule(BenchmarkDataModule):
+    """IntPhys 2 for ``validate``/``test`` (Possible/Impossible pairs of ``eval_split``, default
+    Main) and ``predict`` (single videos of ``predict_split``, default HeldOut). No ``fit``:
+    IntPhys 2 has no training videos.
+
+    Args:
+        root: folder holding ``Debug/``, ``Main/`` and ``HeldOut/`` (each ``metadata.csv`` and
+            ``Videos/<name>.mp4``).
+        probe_batch_size: probe pairs (or videos) per batch.
+        num_workers: DataLoader worker processes (also used to decode the pairs in ``setup``).
+        num_frames, height, width: model input geometry; frames are resized with PIL.
+            None (default): the model's (its ``training_frames`` and ``image_size``
+            hyperparameters); a model without them (``CueScorer``) needs them given.
+        frame_stride: take every ``frame_stride``-th frame from ``first_frame`` (the V-JEPA
+            evaluation's frame step); None (default): ``num_frames`` spread evenly over each
+            video, whatever its length.
+        first_frame: first source frame sampled.
+        divergence_level, divergence_fraction: a frame differs when more than this fraction of
+            its pixels differ by more than this many grey levels (tolerates mp4 noise).
+        eval_split: split of the validation and test pairs (labelled: Debug or Main).
+        predict_split: split whose videos ``predict_dataloader`` serves.
+        lenient: skip bad rows, missing or undecodable videos and malformed scene groups
+            instead of raising; ``skipped`` counts them per reason.
+        cache_dir: if set, decoded pairs are written there once (store shards) and reused.
+    """
+
+    concept_names, variant_names = PRINCIPLES, DIFFICULTIES
+    #: Videos differ in length, so frames are picked per video (``ClipSampling``); this bound
+    #: only lets the shared geometry (``BenchmarkDataModule.video``) resolve.
+    source_frames = 1 << 30
+
+    def __init__(
+        self,
+        root: str = "data/intphys2",
+        probe_batch_size: int = 8,
+        num_workers: int = 0,
+        num_frames: int | None = None,
+        height: int | None = None,
+        width: int | None = None,
+        frame_stride: int | None = None,
+        first_frame: int = 0,
+        divergence_level: int = 10,
+        divergence_fraction: float = 0.001,
+        eval_split: str = "Main",
+        predict_split: str = "HeldOut",
+        lenient: bool = False,
+        cache_dir: str | None = None,
+    ):
+        super().__init__()
+        check_at_least({
+            "probe_batch_size": (probe_batch_size, 1),
+            "num_workers": (num_workers, 0),
+            "num_frames": (num_frames, 1),
+            "height": (height, 1),
+            "width": (width, 1),
+            "frame_stride": (frame_stride, 1),
+            "first_frame": (first_frame, 0),
+            "divergence_level": (divergence_level, 0),
+        })
+        check_fraction("divergence_fraction", divergence_fraction)
+        for name, split in [("eval_split", eval_split), ("predict_split", predict_split)]:
+            if split not in SPLITS:
+                raise ValueError(f"{name} must be one of {', '.join(SPLITS)}, got {split!r}")
+        if eval_split == "HeldOut":
+            raise ValueError("eval_split='HeldOut' has no labels to pair videos by; use 'Main' "
+                             "or 'Debug'")
+        self.save_hyperparameters()
+        self._resolve_video(required=False)
+        self._videos: dict[str, list[Video]] = {}
+
+    @property
+    def sampling(self) -> ClipSampling:
+        return ClipSampling(self.video, self.hparams.frame_stride, self.hparams.first_frame)
+
+    # --- building --------------------------------------------------------------------------------
+    def setup(self, stage: str | None = None) -> None:
+        self._resolve_video()
+        if stage in ("fit", "validate", "test", None):
+            self.probes(self.hparams.eval_split)
+        if stage == "predict":
+            self.videos(self.hparams.predict_split)
+
+    def probes(self, split: str = "Main") -> Dataset:
+        """The probe pairs of a labelled split (decoded once; from the cache when there is one)."""
+        if split in self._probes:
+            return self._probes[split]
+        h = self.hparams
+        skips = self._skips[split] = SkipLog()
+        pairs = pair_videos(read_metadata(h.root, split, True, h.lenient, skips), h.lenient, skips)
+        folder = None
+        if h.cache_dir is not None:
+            settings = {"what": split, "video": self.video.__dict__, "frame_stride": h.frame_stride,
+                        "first_frame": h.first_frame, "lenient": h.lenient}
+            sources = [Path(h.root) / split / "metadata.csv"] + [
+                v.path for pair in pairs for v in (pair.possible, pair.impossible)]
+            folder = Path(h.cache_dir) / "intphys2" / split / fingerprint(settings, sources)
+        return self._read_probes(split, PairDataset(pairs, self.sampling, h.lenient, skips),
+                                 folder, "pair", key=int)
+
+    def pairs(self, split: str = "Main") -> dict[int, dict[str, Any]]:
+        """pair seed -> {scene, prefix, condition, principle, difficulty, camera, possible,
+        impossible (video names), possible_row, impossible_row, divergence_frame}."""
+        self.probes(split)
+        return self._tables[split]
+
+    def videos(self, split: str = "HeldOut") -> list[Video]:
+        """Every video of ``split`` in metadata order (labels read where the split has them)."""
+        if split not in self._videos:
+            self._videos[split] = read_metadata(self.hparams.root, split, split != "HeldOut")
+        return self._videos[split]
+
+    def probe_cases(self, split: str = "val") -> list[tuple[str, str]]:
+        """The (principle, difficulty) names present among the evaluation pairs."""
+        table = self.pairs(self.hparams.eval_split)
+        return sorted({(e["principle"], e["difficulty"]) for e in table.values()})
+
+    # --- loaders ---------------------------------------------------------------------------------
+    def val_dataloader(self) -> DataLoader:
+        return self._probe_loader(self.probes(self.hparams.eval_split))
+
+    def test_dataloader(self) -> DataLoader:
+        return self.val_dataloader()
+
+    def predict_dataloader(self) -> DataLoader:
+        return self._probe_loader(VideoDataset(self.videos(self.hparams.predict_split),
+                                               self.sampling))
+
+    # --- evaluation ------------------------------------------------------------------------------
+    def _entries(self, outputs: dict[str, Any]) -> list[dict[str, Any]]:
+        table = self.pairs(self.hparams.eval_split)
+        seeds = [int(seed) for seed in outputs["seed"]]
+        unknown = [seed for seed in seeds if seed not in table]
+        if unknown:
+            raise KeyError(f"seeds {unknown[:5]} name no IntPhys 2 {self.hparams.eval_split} pair")
+        return [table[seed] for seed in seeds]
+
+    def benchmark_metrics(self, outputs: dict[str, Any], **options: Any) -> dict[str, Any]:
+        """IntPhys 2 metrics (``benchmark_metrics.intphys2_metrics``: relative accuracy from mean
+        and max per-frame surprise, absolute accuracy at the threshold, AUROC, the paired
+        t-test; overall, per principle and per principle x difficulty x camera) of collected
+        ``probe_step`` outputs. ``options`` go to ``video_pair_metrics`` (alpha, bootstrap)."""
+        entries = self._entries(outputs)
+        return {
+            "benchmark": "IntPhys 2",
+            "split": self.hparams.eval_split,
+            "metrics": intphys2_metrics(
+                [e["principle"] for e in entries], [e["difficulty"] for e in entries],
+                [e["camera"] for e in entries], outputs["surprise_consistent"],
+                outputs["surprise_inconsistent"], **options),
+            "skipped": self.skipped,
+        }
+
+    def benchmark_files(self, outputs: dict[str, Any]) -> dict[str, str]:
+        """videos.csv: one row per scored video (``VIDEO_COLUMNS``), ``pair`` its pair's seed and
+        ``label`` possible or impossible, surprise the mean and max over its frames."""
+        text = io.StringIO()
+        writer = csv.DictWriter(text, VIDEO_COLUMNS, lineterminator="\n")
+        writer.writeheader()
+        for seed, entry, *sides in zip(outputs["seed"], self._entries(outputs),
+                                       outputs["surprise_consistent"],
+                                       outputs["surprise_inconsistent"]):
+            for label, frames in zip(("possible", "impossible"), sides):
+                writer.writerow({
+                    "name": entry[label], "principle": entry["principle"],
+                    "difficulty": entry["difficulty"], "camera": entry["camera"], "label": label,
+                    "pair": int(seed), "surprise_mean": float(np.mean(frames, dtype=np.float64)),
+                    "surprise_max": float(np.max(frames))})
+        return {"videos.csv": text.getvalue()}

@@ -1,0 +1,307 @@
+"""IntPhys 2 reader on tiny mp4 fixtures in the released layout (rows shuffled, every principle,
+both prefixes, Debug's ``filename`` column, Held-Out without labels): pairing, decoding, every
+bad-input error, the metrics against a hand computation, and ``test``/``predict`` through the
+CLI with the parameter-free CueScorer and no checkpoint."""
+
+import csv
+import json
+import random
+import shutil
+
+from pathlib import Path
+
+import av
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from datamodules.intphys2 import VIDEO_COLUMNS, IntPhys2DataModule
+from voe_lightning.benchmark_metrics import intphys2_metrics
+from voe_lightning.benchmarks.base import BenchmarkDataError
+from voe_lightning.cli import main
+
+FRAMES, SIZE = 8, 16
+#: num_frames=4 spread over 8 frames samples source frames [0, 2, 5, 7].
+SAMPLED = [0, 2, 5, 7]
+COLUMNS = ["SceneIndex", "name", "file_name", "game_name", "condition", "env", "type", "occluder",
+           "Difficulty", "Camera"]
+#: scene -> (condition, principle, difficulty, camera); one scene per principle.
+SCENES = {
+    "3": ("permanence", "Permanence", "Easy", "Static"),
+    "10": ("immutability_texture", "Immutability", "Medium", "Static"),
+    "10_1": ("continuity_swap", "Continuity", "Hard", "Moving"),
+    "25": ("solidity", "Solidity", "Hard", "Moving"),
+}
+#: prefix -> (the possible video's object, the impossible one's object after the switch,
+#: switch source frame, first sampled frame that differs)
+PREFIXES = {"1": ("A", "B", 4, 2), "2": ("B", "A", 6, 3)}
+CONFIG = str(Path(__file__).resolve().parents[1] / "configs" / "intphys2.yaml")
+
+
+def write_mp4(path, frames):
+    """A lossless RGB H.264 mp4 (PyAV), so decoded pixels equal the ones written."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("libx264rgb", rate=10)
+        stream.width, stream.height, stream.pix_fmt = SIZE, SIZE, "rgb24"
+        stream.options = {"qp": "0"}
+        for frame in frames:
+            container.mux(stream.encode(av.VideoFrame.from_ndarray(frame, format="rgb24")))
+        container.mux(stream.encode())
+
+
+def frame(seed, world, t):
+    image = np.random.default_rng(seed).integers(0, 100, (SIZE, SIZE, 3), dtype=np.uint8)
+    image[t % SIZE, :, 1] = 250  # a time marker
+    if world == "A":
+        image[2:7, 2:7] = (255, 0, 0)
+    else:
+        image[9:14, 9:14] = (0, 0, 255)
+    return image
+
+
+def scene_rows(split_dir, number, scene, frames=FRAMES, id_column="file_name"):
+    condition, _, difficulty, camera = SCENES[scene]
+    rows = []
+    for prefix, (world, other, switch, _) in PREFIXES.items():
+        for kind in ("Possible", "Impossible"):
+            name = f"s{scene}_{prefix}_{kind.lower()}"
+            worlds = [world if kind == "Possible" or t < switch else other for t in range(frames)]
+            write_mp4(split_dir / "Videos" / f"{name}.mp4",
+                      [frame(number, w, t) for t, w in enumerate(worlds)])
+            rows.append({"SceneIndex": scene, "name": name, id_column: f"{name}.mp4",
+                         "game_name": "g", "condition": condition, "env": "e",
+                         "type": f"{prefix}_{kind}", "occluder": "o", "Difficulty": difficulty,
+                         "Camera": camera})
+    return rows
+
+
+def write_metadata(split_dir, rows, columns=COLUMNS):
+    with open(split_dir / "metadata.csv", "w", newline="") as stream:
+        writer = csv.DictWriter(stream, columns, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("intphys2")
+    rows = [row for number, scene in enumerate(SCENES) for row in
+            scene_rows(root / "Main", number, scene)]
+    random.Random(0).shuffle(rows)
+    write_metadata(root / "Main", rows)
+    debug = scene_rows(root / "Debug", 7, "3", frames=12, id_column="filename")
+    for row in debug:
+        row["Difficulty"] = ""
+    write_metadata(root / "Debug", debug, ["SceneIndex", "name", "filename", "condition", "type",
+                                           "Difficulty", "Camera"])
+    held_out = scene_rows(root / "HeldOut", 9, "25")
+    write_metadata(root / "HeldOut", held_out, ["file_name"])
+    return root
+
+
+def datamodule(root, **options):
+    settings = dict(root=str(root), num_frames=4, height=SIZE, width=SIZE, probe_batch_size=3)
+    return IntPhys2DataModule(**{**settings, **options})
+
+
+def copy(root, tmp_path):
+    shutil.copytree(root, tmp_path / "intphys2")
+    return tmp_path / "intphys2"
+
+
+def test_shuffled_rows_pair_by_scene_and_prefix_for_every_principle(root):
+    dm = datamodule(root)
+    dm.setup("test")
+    table = dm.pairs("Main")
+    assert len(table) == 8
+    assert sorted({e["principle"] for e in table.values()}) == sorted(p for _, p, _, _ in
+                                                                       SCENES.values())
+    for seed, entry in table.items():
+        assert entry["possible"] == f"s{entry['scene']}_{entry['prefix']}_possible"
+        assert entry["impossible"] == f"s{entry['scene']}_{entry['prefix']}_impossible"
+        assert entry["divergence_frame"] == PREFIXES[entry["prefix"]][3]
+    # pairs come in (condition, scene, prefix) order whatever the rows' order
+    assert [(table[s]["condition"], table[s]["prefix"]) for s in sorted(table)][:2] == [
+        ("continuity_swap", "1"), ("continuity_swap", "2")]
+    batch = next(iter(dm.test_dataloader()))
+    assert batch["consistent", "frames"].shape == (3, 4, SIZE, SIZE, 3)
+    for record in batch:
+        assert dm.probe_spec().is_in(record)
+    entry = table[int(batch["seed"][0])]
+    expected = np.stack([frame(list(SCENES).index(entry["scene"]), PREFIXES[entry["prefix"]][0], t)
+                         for t in SAMPLED])
+    assert np.array_equal(batch["consistent", "frames"][0].numpy(), expected)  # lossless decode
+    assert dm.concept_names[int(batch["concept"][0])] == entry["principle"]
+    assert dm.variant_names[int(batch["variant"][0])] == entry["difficulty"]
+    assert dm.probe_cases() == sorted({(p, d) for _, p, d, _ in SCENES.values()})
+
+
+def test_debug_filename_column_and_frame_step_of_longer_videos(root):
+    dm = datamodule(root, eval_split="Debug", frame_stride=3, first_frame=1)
+    dm.setup("test")
+    table = dm.pairs("Debug")
+    assert len(table) == 2 and {e["difficulty"] for e in table.values()} == {"unspecified"}
+    batch = next(iter(dm.test_dataloader()))
+    first = table[int(batch["seed"][0])]
+    expected = np.stack([frame(7, PREFIXES[first["prefix"]][0], t) for t in (1, 4, 7, 10)])
+    assert np.array_equal(batch["consistent", "frames"][0].numpy(), expected)
+    with pytest.raises(BenchmarkDataError, match=r"need frame 13, but movies have 12"):
+        datamodule(root, eval_split="Debug", frame_stride=4, first_frame=1).setup("test")
+
+
+def test_cached_pairs_are_served_without_decoding(root, tmp_path, monkeypatch):
+    first = datamodule(root, cache_dir=str(tmp_path))
+    first.setup("test")
+    monkeypatch.setattr("voe_lightning.benchmarks.intphys2.read_video", None)  # would fail
+    second = datamodule(root, cache_dir=str(tmp_path))
+    second.setup("test")
+    assert second.pairs("Main") == first.pairs("Main")
+    a, b = next(iter(first.test_dataloader())), next(iter(second.test_dataloader()))
+    assert torch.equal(a["inconsistent", "frames"], b["inconsistent", "frames"])
+
+
+def _edit_main(root, edit):
+    path = root / "Main" / "metadata.csv"
+    rows = list(csv.DictReader(open(path, newline="")))
+    write_metadata(root / "Main", edit(rows))
+
+
+@pytest.mark.parametrize("case, reason, message", [
+    ("malformed_group", "malformed_group",
+     r"scene 3 \(permanence\), prefix 1: 2 Possible and 1 Impossible videos \(line \d+ "),
+    ("missing_file", "missing_file", r"metadata.csv, line \d+: file_name 'gone.mp4' names .*gone"),
+    ("unlisted_file", "unlisted_file", r"extra.mp4 has no row in .*metadata.csv"),
+    ("unknown_condition", "unknown_condition", r"line \d+: unknown condition 'gravity'"),
+    ("unknown_type", "unknown_type", r"line \d+: unknown type '3_Possible'"),
+    ("undecodable", "undecodable_video", r"s25_2_possible.mp4 does not decode"),
+])
+def test_bad_input_raises_naming_it_or_is_skipped_and_counted_when_lenient(
+        root, tmp_path, case, reason, message):
+    data = copy(root, tmp_path)
+    videos = data / "Main" / "Videos"
+    if case == "malformed_group":
+        shutil.copy(videos / "s3_1_possible.mp4", videos / "s3_1_again.mp4")
+        _edit_main(data, lambda rows: rows + [{**next(r for r in rows if r["name"] ==
+                                                      "s3_1_possible"),
+                                               "name": "again", "file_name": "s3_1_again.mp4"}])
+    elif case == "missing_file":
+        _edit_main(data, lambda rows: rows + [{**rows[0], "name": "gone", "file_name": "gone.mp4"}])
+    elif case == "unlisted_file":
+        shutil.copy(videos / "s3_1_possible.mp4", videos / "extra.mp4")
+    elif case == "unknown_condition":
+        _edit_main(data, lambda rows: [{**r, "condition": "gravity"} if r["SceneIndex"] == "25"
+                                       else r for r in rows])
+    elif case == "unknown_type":
+        _edit_main(data, lambda rows: [{**r, "type": "3_Possible"} if r["type"] == "1_Possible"
+                                       and r["SceneIndex"] == "25" else r for r in rows])
+    else:
+        (videos / "s25_2_possible.mp4").write_bytes(b"not a video")
+    with pytest.raises(BenchmarkDataError, match=message) as error:
+        datamodule(data).setup("test")
+    assert error.value.reason == reason
+    dm = datamodule(data, lenient=True)
+    dm.setup("test")
+    assert dm.skipped.get(reason) == (4 if case == "unknown_condition" else 1)  # 4 rows
+    # the rest is kept: the scene's other pairs and every other scene
+    lost = {"malformed_group": 1, "missing_file": 0, "unlisted_file": 0, "unknown_condition": 2,
+            "unknown_type": 1, "undecodable": 1}[case]
+    assert len(dm.probes("Main")) == 8 - lost
+    if case == "unknown_type":  # its scene and prefix now hold only an Impossible
+        assert dm.skipped["malformed_group"] == 1
+
+
+def test_bad_arguments_and_missing_splits_name_the_valid_choices(root, tmp_path):
+    with pytest.raises(ValueError, match=r"eval_split must be one of Debug, Main, HeldOut"):
+        datamodule(root, eval_split="main")
+    with pytest.raises(ValueError, match=r"'HeldOut' has no labels"):
+        datamodule(root, eval_split="HeldOut")
+    with pytest.raises(FileNotFoundError, match=r"no IntPhys 2 Main split at .*expected"):
+        datamodule(tmp_path).setup("test")
+    (tmp_path / "Main").mkdir()
+    (tmp_path / "Main" / "metadata.csv").write_text("a,b\n1,2\n")
+    with pytest.raises(BenchmarkDataError, match=r"has columns \['a', 'b'\]; expected file_name"):
+        datamodule(tmp_path).setup("test")
+
+
+def test_metrics_match_a_hand_computation(root):
+    """Per-frame surprise per (principle, prefix): prefix 1 pairs as below, prefix 2 pairs all
+    possible [0, 0, 0, 0] vs impossible [0, 0, 0, 1] (right by mean and max)."""
+    prefix_1 = {  # possible, impossible
+        "Permanence": ([0, 1, 0, 1], [0, 0, 3, 0]),    # mean right, max right
+        "Immutability": ([2, 2, 2, 2], [0, 0, 0, 4]),  # mean wrong, max right
+        "Continuity": ([1, 1, 1, 1], [1, 1, 1, 1]),    # ties
+        "Solidity": ([0, 0, 0, 5], [0, 2, 0, 0]),      # both wrong
+    }
+    dm = datamodule(root)
+    table = dm.pairs("Main")
+    seeds = sorted(table)
+    sides = [prefix_1[table[s]["principle"]] if table[s]["prefix"] == "1"
+             else ([0, 0, 0, 0], [0, 0, 0, 1]) for s in seeds]
+    outputs = {"seed": np.array(seeds),
+               "surprise_consistent": np.array([p for p, _ in sides], np.float32),
+               "surprise_inconsistent": np.array([i for _, i in sides], np.float32)}
+    report = dm.benchmark_metrics(outputs, bootstrap=0)
+    metrics = report["metrics"]
+    # possible maxima {1, 2, 1, 5, 0, 0, 0, 0}: 90th percentile at 0.9 * 7 = 6.3 -> 2 + 0.3 * 3
+    assert metrics["threshold"]["value"] == pytest.approx(2.9)
+    overall = metrics["all"]
+    assert overall["n_pairs"] == 8
+    assert overall["relative_accuracy_mean"] == pytest.approx((1 + 0 + 0.5 + 0 + 4) / 8)
+    assert overall["relative_accuracy_max"] == pytest.approx((1 + 1 + 0.5 + 0 + 4) / 8)
+    assert overall["ties_mean"] == overall["ties_max"] == 1
+    # possible right: 7 of 8 (max 5 > 2.9); impossible right: 3 and 4 only
+    assert overall["absolute_accuracy"] == pytest.approx((7 + 2) / 16)
+    # impossible maxima {3, 4, 1, 2, 1, 1, 1, 1} over possible {1, 2, 1, 5, 0, 0, 0, 0}
+    assert overall["auroc"] == pytest.approx((7 + 7 + 5 + 6.5 + 4 * 5) / 64)
+    assert overall["paired_test"]["n"] == 8
+    immutability = metrics["principle"]["Immutability"]
+    assert immutability["relative_accuracy_mean"] == 0.5
+    assert immutability["relative_accuracy_max"] == 1.0
+    assert immutability["absolute_accuracy"] == 0.75  # possible 2, 0 right; impossible 4 only
+    assert set(metrics["principle_difficulty_camera"]) == {
+        "/".join((p, d, c)) for _, p, d, c in SCENES.values()}
+    assert metrics["principle_difficulty_camera"]["Solidity/Hard/Moving"]["n_pairs"] == 2
+    same = intphys2_metrics(*zip(*[(table[s]["principle"], table[s]["difficulty"],
+                                    table[s]["camera"]) for s in seeds]),
+                            outputs["surprise_consistent"], outputs["surprise_inconsistent"],
+                            bootstrap=0)
+    assert same["all"] == overall
+
+
+def _run(root, tmp_path, subcommand, *extra):
+    return main([subcommand, "--config", CONFIG, *extra,
+                 "--model", "voe_lightning.model.CueScorer", "--model.init_args.cue", "motion",
+                 "--data.init_args.root", str(root), "--data.init_args.num_frames", "4",
+                 "--data.init_args.height", str(SIZE), "--data.init_args.width", str(SIZE),
+                 "--data.init_args.num_workers", "0", "--data.init_args.cache_dir", "null",
+                 "--trainer.logger.init_args.save_dir", str(tmp_path / "runs"),
+                 "--trainer.enable_progress_bar", "false"])
+
+
+def test_cue_scorer_runs_test_and_predict_without_a_checkpoint(root, tmp_path):
+    _run(root, tmp_path, "test")
+    report = tmp_path / "runs" / "intphys2" / "version_0" / "voe_report"
+    metrics = json.loads((report / "benchmark_metrics.json").read_text())
+    assert metrics["benchmark"] == "IntPhys 2" and metrics["metrics"]["all"]["n_pairs"] == 8
+    rows = list(csv.DictReader(open(report / "videos.csv")))
+    assert tuple(rows[0]) == VIDEO_COLUMNS and len(rows) == 16
+    by_name = {row["name"]: row for row in rows}
+    # motion per frame: the impossible video's object jumps once, so its max exceeds the possible's
+    for prefix in PREFIXES:
+        assert (float(by_name[f"s25_{prefix}_impossible"]["surprise_max"])
+                > float(by_name[f"s25_{prefix}_possible"]["surprise_max"]))
+    assert {row["label"] for row in rows} == {"possible", "impossible"}
+
+    config = tmp_path / "heldout.yaml"
+    jsonl = tmp_path / "heldout.jsonl"
+    config.write_text(yaml.safe_dump({"trainer": {"callbacks+": [{
+        "class_path": "voe_lightning.prediction_writer.IntPhys2LeaderboardWriter",
+        "init_args": {"threshold": str(report / "benchmark_metrics.json"), "path": str(jsonl)}}]}}))
+    _run(root, tmp_path, "predict", "--config", str(config))
+    lines = [json.loads(line) for line in jsonl.read_text().splitlines()]
+    assert [line["row_id"] for line in lines] == [f"s25_{p}_{k}" for p in PREFIXES
+                                                  for k in ("possible", "impossible")]
+    assert all(line["model_answer"] in (0, 1) and line["data_name"] == "IntPhys2"
+               and line["task"] == "HeldOut" for line in lines)

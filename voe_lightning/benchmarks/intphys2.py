@@ -1,0 +1,363 @@
+"""The IntPhys 2 benchmark (Bordes et al. 2025) read as our records: the released layout
+``<root>/<split>/Videos/<name>.mp4`` with ``<root>/<split>/metadata.csv`` (columns
+``SceneIndex, name, file_name, game_name, condition, env, type, occluder, Difficulty, Camera``;
+the Debug split may call ``file_name`` ``filename``; the Held-Out split has no labels).
+
+A row's ``type`` is ``<prefix>_Possible`` or ``<prefix>_Impossible`` (prefix 1 or 2): each scene
+holds two possible/impossible pairs, and the Possible of a scene and prefix is paired with the
+Impossible of the same scene and prefix into one of our probe records (consistent = possible,
+``manipulation_frame`` = first sampled frame where the two differ, ``seed`` = the pair's index
+in (condition, scene, prefix) order). The principle comes from ``condition``. Videos are decoded
+with PyAV, sampled (every ``frame_step``-th frame from ``first_frame``, or spread evenly over
+each video) and resized with PIL.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import re
+from collections import defaultdict
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import av
+import numpy as np
+import torch
+from tensordict import TensorDict
+from torch.utils.data import Dataset
+
+from voe_lightning import specs
+from voe_lightning.benchmarks.base import (
+    BenchmarkDataError,
+    FrameSampling,
+    SkipLog,
+    first_divergence,
+    frame_indices,
+)
+
+#: Concept vocabulary of IntPhys 2 records: the four principles.
+PRINCIPLES: tuple[str, ...] = ("Permanence", "Immutability", "Continuity", "Solidity")
+#: ``condition`` values of metadata.csv and their principle.
+CONDITIONS: dict[str, str] = {
+    "permanence": "Permanence",
+    "immutability": "Immutability",
+    "immutability_texture": "Immutability",
+    "continuity": "Continuity",
+    "continuity_swap": "Continuity",
+    "solidity": "Solidity",
+}
+#: Variant vocabulary: the Main split's difficulty (``unspecified`` where a row has none).
+DIFFICULTIES: tuple[str, ...] = ("Easy", "Medium", "Hard", "unspecified")
+SPLITS: tuple[str, ...] = ("Debug", "Main", "HeldOut")
+#: Labelled rows need these columns, besides the id column (``file_name`` or ``filename``).
+LABEL_COLUMNS: tuple[str, ...] = ("SceneIndex", "condition", "type")
+ID_COLUMNS: tuple[str, ...] = ("file_name", "filename")
+_TYPE = re.compile(r"^([12])_(Possible|Impossible)$")
+
+
+@dataclass(frozen=True)
+class Video:
+    """One row of metadata.csv (``row`` is its line number) and its file; the label fields are
+    None for an unlabelled split."""
+
+    path: Path
+    name: str
+    row: int
+    scene: str | None = None
+    prefix: str | None = None
+    condition: str | None = None
+    difficulty: str = "unspecified"
+    camera: str = "unspecified"
+    is_possible: bool | None = None
+
+    @property
+    def principle(self) -> str | None:
+        return CONDITIONS.get(self.condition) if self.condition else None
+
+
+@dataclass(frozen=True)
+class Pair:
+    """The Possible and the Impossible video of one scene and prefix; ``index`` is the pair's
+    seed."""
+
+    index: int
+    possible: Video
+    impossible: Video
+
+    def entry(self, divergence: int) -> dict[str, Any]:
+        """The pair's row of the pairing table (kept in the cache's manifest)."""
+        p = self.possible
+        return {"scene": p.scene, "prefix": p.prefix, "condition": p.condition,
+                "principle": p.principle, "difficulty": p.difficulty, "camera": p.camera,
+                "possible": p.name, "impossible": self.impossible.name,
+                "possible_row": p.row, "impossible_row": self.impossible.row,
+                "divergence_frame": divergence}
+
+
+@dataclass(frozen=True)
+class ClipSampling:
+    """Which frames of a video of any length become the model's ``len(video.indices)`` frames:
+    every ``frame_step``-th from ``first_frame``, or, with ``frame_step`` None, spread evenly
+    over the whole video; ``video`` gives the size and the divergence thresholds."""
+
+    video: FrameSampling
+    frame_step: int | None = None
+    first_frame: int = 0
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.video.indices)
+
+    def indices(self, available: int, path: Path) -> np.ndarray:
+        try:
+            return frame_indices(available, self.num_frames, self.frame_step, self.first_frame)
+        except ValueError as error:
+            raise BenchmarkDataError(f"{path}: {error}", "too_short") from None
+
+
+# --- metadata ------------------------------------------------------------------------------------
+def split_folder(root: str | os.PathLike, split: str) -> Path:
+    if split not in SPLITS:
+        raise ValueError(f"unknown IntPhys 2 split {split!r}; valid splits are: {', '.join(SPLITS)}")
+    folder = Path(root) / split
+    if not folder.is_dir():
+        raise FileNotFoundError(
+            f"no IntPhys 2 {split} split at {folder}; expected {folder}/metadata.csv and "
+            f"{folder}/Videos/<name>.mp4")
+    return folder
+
+
+def _resolve(folder: Path, file_name: str) -> Path:
+    """The video a metadata ``file_name`` names: relative to the split folder when it has a
+    folder part (``Videos/x.mp4``), else in ``Videos/``; ``.mp4`` added when it has no suffix."""
+    relative = Path(file_name)
+    if not relative.suffix:
+        relative = relative.with_suffix(".mp4")
+    return folder / relative if len(relative.parts) > 1 else folder / "Videos" / relative
+
+
+def _row_video(folder: Path, csv_path: Path, number: int, row: dict[str, str],
+               id_column: str, labelled: bool) -> Video:
+    where = f"{csv_path}, line {number}"
+    file_name = (row.get(id_column) or "").strip()
+    if not file_name:
+        raise BenchmarkDataError(f"{where}: empty {id_column}; expected a video file name",
+                                 "bad_row")
+    path = _resolve(folder, file_name)
+    if not path.is_file():
+        raise BenchmarkDataError(
+            f"{where}: {id_column} {file_name!r} names {path}, which does not exist",
+            "missing_file")
+    name = (row.get("name") or "").strip() or path.stem
+    difficulty = (row.get("Difficulty") or "").strip().capitalize() or "unspecified"
+    if difficulty not in DIFFICULTIES:
+        raise BenchmarkDataError(
+            f"{where}: unknown Difficulty {row.get('Difficulty')!r}; expected one of Easy, Medium, "
+            "Hard (or empty)", "unknown_difficulty")
+    camera = (row.get("Camera") or "").strip() or "unspecified"
+    if not labelled:
+        return Video(path, name, number, difficulty=difficulty, camera=camera)
+    condition = (row.get("condition") or "").strip()
+    if condition not in CONDITIONS:
+        raise BenchmarkDataError(
+            f"{where}: unknown condition {condition!r}; expected one of "
+            f"{', '.join(CONDITIONS)}", "unknown_condition")
+    kind = _TYPE.match((row.get("type") or "").strip())
+    if kind is None:
+        raise BenchmarkDataError(
+            f"{where}: unknown type {row.get('type')!r}; expected 1_Possible, 1_Impossible, "
+            "2_Possible or 2_Impossible", "unknown_type")
+    scene = (row.get("SceneIndex") or "").strip()
+    if not scene:
+        raise BenchmarkDataError(f"{where}: empty SceneIndex; expected the scene's index",
+                                 "bad_row")
+    return Video(path, name, number, scene, kind[1], condition, difficulty, camera,
+                 kind[2] == "Possible")
+
+
+def read_metadata(
+    root: str | os.PathLike,
+    split: str,
+    labelled: bool = True,
+    lenient: bool = False,
+    skips: SkipLog | None = None,
+) -> list[Video]:
+    """The videos ``<split>/metadata.csv`` lists, in file order, each with its file checked
+    (without metadata.csv, an unlabelled split lists every ``Videos/*.mp4``). A bad row (file
+    missing, unknown condition or type) and a video with no row raise a BenchmarkDataError
+    naming the file and line, or with ``lenient`` are logged to ``skips`` and left out."""
+    folder = split_folder(root, split)
+    csv_path = folder / "metadata.csv"
+    if not csv_path.is_file():
+        if labelled:
+            raise FileNotFoundError(f"no {csv_path}; a labelled split needs its metadata.csv")
+        return [Video(path, path.stem, 0) for path in sorted((folder / "Videos").glob("*.mp4"))]
+
+    def refuse(error: BenchmarkDataError) -> None:
+        if not lenient:
+            raise error
+        if skips is not None:
+            skips.add(error.reason, str(error))
+
+    with open(csv_path, newline="") as stream:
+        reader = csv.DictReader(stream)
+        columns = reader.fieldnames or []
+        id_column = next((c for c in ID_COLUMNS if c in columns), None)
+        missing = [c for c in LABEL_COLUMNS if c not in columns] if labelled else []
+        if id_column is None or missing:
+            raise BenchmarkDataError(
+                f"{csv_path} has columns {columns}; expected {' or '.join(ID_COLUMNS)}"
+                + (f" and {', '.join(LABEL_COLUMNS)}" if labelled else ""), "bad_metadata")
+        videos, listed = [], set()
+        for number, row in enumerate(reader, start=2):  # line 1 is the header
+            if (row.get(id_column) or "").strip():  # a bad row still names its file
+                listed.add(_resolve(folder, row[id_column].strip()).resolve())
+            try:
+                videos.append(_row_video(folder, csv_path, number, row, id_column, labelled))
+            except BenchmarkDataError as error:
+                refuse(error)
+    for path in sorted((folder / "Videos").glob("*.mp4")):
+        if path.resolve() not in listed:
+            refuse(BenchmarkDataError(
+                f"{path} has no row in {csv_path}; every video needs one", "unlisted_file"))
+    return videos
+
+
+def _scene_key(scene: str) -> tuple:
+    """Natural order of SceneIndex values (``2`` < ``10`` < ``10_0``)."""
+    return tuple((0, int(part)) if part.isdigit() else (1, part) for part in re.split(r"[_.]", scene))
+
+
+def pair_videos(
+    videos: Iterable[Video], lenient: bool = False, skips: SkipLog | None = None
+) -> list[Pair]:
+    """Pair each Possible with the Impossible of the same condition, scene and prefix, in
+    (condition, scene, prefix) order whatever the rows' order. A group that is not exactly one
+    Possible and one Impossible raises, naming the scene and its rows, or with ``lenient`` is
+    logged to ``skips`` and left out."""
+    groups: dict[tuple[str, str, str], list[Video]] = defaultdict(list)
+    for video in videos:
+        groups[(video.condition, video.scene, video.prefix)].append(video)
+    pairs = []
+    for condition, scene, prefix in sorted(groups, key=lambda k: (k[0], _scene_key(k[1]), k[2])):
+        group = groups[(condition, scene, prefix)]
+        possible = [v for v in group if v.is_possible]
+        impossible = [v for v in group if not v.is_possible]
+        if len(possible) != 1 or len(impossible) != 1:
+            rows = ", ".join(f"line {v.row} ({v.name}, {prefix}_"
+                             f"{'Possible' if v.is_possible else 'Impossible'})" for v in group)
+            error = BenchmarkDataError(
+                f"scene {scene} ({condition}), prefix {prefix}: {len(possible)} Possible and "
+                f"{len(impossible)} Impossible videos ({rows}); expected exactly one of each",
+                "malformed_group")
+            if not lenient:
+                raise error
+            if skips is not None:
+                skips.add(error.reason, str(error))
+            continue
+        pairs.append(Pair(len(pairs), possible[0], impossible[0]))
+    return pairs
+
+
+# --- videos ---------------------------------------------------------------------------------------
+def read_video(path: Path, sampling: ClipSampling) -> np.ndarray:
+    """The sampled frames of an mp4 at full resolution, uint8 [T, h, w, 3], decoded with PyAV.
+    Frames are picked while decoding (from the stream's frame count, checked at the end), so a
+    long video is never held whole."""
+
+    def decode(available: int) -> tuple[list[np.ndarray], int]:
+        wanted = set(sampling.indices(available, path).tolist()) if available else set()
+        kept, count = [], 0
+        with av.open(str(path)) as container:
+            if not container.streams.video:
+                raise BenchmarkDataError(f"{path} holds no video stream; expected an mp4 video",
+                                         "undecodable_video")
+            for frame in container.decode(container.streams.video[0]):
+                if count in wanted:
+                    kept.append(frame.to_ndarray(format="rgb24"))
+                count += 1
+        return kept, count
+
+    try:
+        with av.open(str(path)) as container:
+            stated = container.streams.video[0].frames if container.streams.video else 0
+        frames, count = decode(stated)
+        if count != stated:  # the container's frame count was absent or wrong
+            frames, count = decode(count)
+    except BenchmarkDataError:
+        raise
+    except FileNotFoundError:
+        raise BenchmarkDataError(f"missing video {path}", "missing_file") from None
+    except (av.FFmpegError, OSError, ValueError) as error:
+        raise BenchmarkDataError(
+            f"{path} does not decode ({type(error).__name__}: {error}); expected an mp4 video",
+            "undecodable_video") from None
+    if len(frames) != sampling.num_frames:
+        raise BenchmarkDataError(f"{path} has no decodable frames; expected an mp4 video",
+                                 "undecodable_video")
+    return np.stack(frames)
+
+
+class PairDataset(Dataset):
+    """Item k: ([the probe record of pair k], its pairing table entry). With ``lenient``, a pair
+    that fails to decode is logged and yields ([], None)."""
+
+    def __init__(self, pairs: Sequence[Pair], sampling: ClipSampling, lenient: bool,
+                 skips: SkipLog):
+        self.pairs, self.sampling, self.lenient, self.skips = list(pairs), sampling, lenient, skips
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def __getitem__(self, index: int) -> tuple[list[TensorDict], dict[str, Any] | None]:
+        try:
+            return self.decode(self.pairs[index])
+        except BenchmarkDataError as error:
+            if not self.lenient:
+                raise
+            self.skips.add(error.reason, str(error))
+            return [], None
+
+    def decode(self, pair: Pair) -> tuple[list[TensorDict], dict[str, Any]]:
+        video = self.sampling.video
+        possible = video.resize(read_video(pair.possible.path, self.sampling))
+        impossible = video.resize(read_video(pair.impossible.path, self.sampling))
+        divergence = first_divergence(possible, impossible, video.divergence_level,
+                                      video.divergence_fraction)
+        num_frames = self.sampling.num_frames
+        if divergence >= num_frames:
+            raise BenchmarkDataError(
+                f"{pair.possible.path} and {pair.impossible.path} (scene {pair.possible.scene}, "
+                f"prefix {pair.possible.prefix}) do not differ in any of their {num_frames} "
+                "sampled frames; sample more frames (num_frames, frame_stride) or lower "
+                "divergence_level / divergence_fraction", "no_divergence")
+        zeros = np.zeros((num_frames, video.height, video.width), np.uint8)
+        record = specs.probe_record(
+            (possible, zeros), (impossible, zeros), np.zeros((num_frames, 6), np.float32),
+            concept=PRINCIPLES.index(pair.possible.principle),
+            variant=DIFFICULTIES.index(pair.possible.difficulty),
+            manipulation_frame=divergence, seed=pair.index)
+        return [record], pair.entry(divergence)
+
+
+class VideoDataset(Dataset):
+    """Single videos to score (``predict``): {frames [T, H, W, 3], index}, where
+    ``names[index]`` is the video's name. Never lenient: a submission needs every video."""
+
+    def __init__(self, videos: Sequence[Video], sampling: ClipSampling):
+        self.videos, self.sampling = list(videos), sampling
+
+    @property
+    def names(self) -> list[str]:
+        return [video.name for video in self.videos]
+
+    def __len__(self) -> int:
+        return len(self.videos)
+
+    def __getitem__(self, index: int) -> TensorDict:
+        frames = self.sampling.video.resize(read_video(self.videos[index].path, self.sampling))
+        return TensorDict({"frames": torch.from_numpy(frames),
+                           "index": torch.tensor(index, dtype=torch.int64)}, batch_size=[])
