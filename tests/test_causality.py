@@ -11,7 +11,14 @@ import torch
 from tensordict import TensorDict
 
 from voe_lightning import specs
-from voe_lightning.model import ObjectCentricModel, ObjectStateModel, SurpriseModel, VOEModel
+from voe_lightning.model import (
+    CueScorer,
+    ObjectCentricModel,
+    ObjectStateModel,
+    SurpriseModel,
+    VOEModel,
+)
+from voe_lightning.model.cue_scorer import CUE_NAMES
 from voe_lightning.scenes import CONCEPTS, PROBE_VARIANTS, generate_probe
 
 SIZE = 32
@@ -36,6 +43,7 @@ FAMILIES = [
     pytest.param(lambda: ObjectCentricModel(**OBJECT_CENTRIC, object_free=True),
                  id="object_free"),
     pytest.param(lambda: ObjectStateModel(hidden_size=16, message_size=8), id="object_state"),
+    *[pytest.param(lambda cue=cue: CueScorer(cue), id=f"cue_{cue}") for cue in CUE_NAMES],
 ]
 
 

@@ -3,9 +3,10 @@ memory, encoder/decoder, recurrent core) and the object-centric model after PLAT
 al. 2022: object slots from masks, per-object perception, interaction-network slot dynamics)
 and the positive control with perfect perception (``ObjectStateModel``: object states in, slot
 dynamics, the likelihood of what is seen as surprise), and the physics-blind cues as
-parameter-free models (``CueScorer``)."""
+parameter-free models (``CueScorer``), and any callable frames -> surprise (``CallableModel``)."""
 
 from voe_lightning.model.base import SurpriseModel
+from voe_lightning.model.callable_model import CallableModel
 from voe_lightning.model.cue_scorer import CueScorer
 from voe_lightning.model.memory import LRUMemory, MemoryState, Read
 from voe_lightning.model.module import VOEModel
@@ -17,6 +18,7 @@ from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, gaussian_kl, standard
 __all__ = [
     "SurpriseModel",
     "CueScorer",
+    "CallableModel",
     "VOEModel",
     "ObjectCentricModel",
     "ObjectStateModel",

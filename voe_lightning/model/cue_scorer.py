@@ -66,5 +66,7 @@ class CueScorer(SurpriseModel):
     def trajectories(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
                      camera: torch.Tensor | None = None, objects: TensorDictBase | None = None
                      ) -> dict[str, torch.Tensor]:
-        """The cue's per-frame value as a one-dimensional course [B, T, 1]."""
-        return {"cue": self.surprise(frames, mask)[..., None]}
+        """The cue's per-frame value and its running total, a course [B, T, 2] (the report's
+        t-SNE figure projects courses onto two components)."""
+        value = self.surprise(frames, mask)
+        return {"cue": torch.stack([value, value.cumsum(dim=1)], dim=-1)}

@@ -1,0 +1,53 @@
+"""CueScorer: the frame-local cues as a parameter-free SurpriseModel, equal to the cue audit's
+scores, refusing what it cannot score, and run by ``test`` on our probes with no checkpoint
+(its rows follow the cue it is made of)."""
+
+import csv
+from pathlib import Path
+
+import pytest
+import torch
+
+from voe_lightning import cues
+from voe_lightning.cli import main
+from voe_lightning.model import CueScorer
+from voe_lightning.model.cue_scorer import CUE_NAMES
+
+TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
+
+
+@pytest.mark.parametrize("cue", list(CUE_NAMES))
+def test_surprise_after_the_manipulation_sums_to_the_audit_score(cue):
+    generator = torch.Generator().manual_seed(0)
+    frames = torch.randint(0, 256, (3, 6, 8, 8, 3), dtype=torch.uint8, generator=generator)
+    mask = torch.randint(0, 3, (3, 6, 8, 8), dtype=torch.uint8, generator=generator)
+    manipulation = torch.tensor([0, 2, 4])
+    model = CueScorer(cue)
+    assert list(model.parameters()) == []
+    surprise = model.surprise(frames, mask)
+    after = torch.arange(6)[None] > manipulation[:, None]
+    expected = cues.score_videos(frames, mask, manipulation)[CUE_NAMES[cue]]
+    assert torch.allclose((surprise.double() * after).sum(1), expected, rtol=1e-5)
+    assert model.expected_frames(frames).shape == (3, 6, 3, 8, 8)
+    assert model.trajectories(frames, mask)["cue"].shape == (3, 6, 2)
+
+
+def test_unknown_cue_and_a_mask_cue_without_masks_are_refused():
+    with pytest.raises(ValueError, match=r"unknown cue 'colour'; valid cues are: foreground, "
+                                         r"motion, copy_last"):
+        CueScorer("colour")
+    with pytest.raises(ValueError, match=r"'foreground' counts object pixels and needs masks"):
+        CueScorer("foreground").surprise(torch.zeros(1, 3, 4, 4, 3, dtype=torch.uint8))
+
+
+def test_test_on_our_probes_runs_without_a_checkpoint(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    main(["test", "--config", TINY, "--model", "voe_lightning.model.CueScorer",
+          "--model.init_args.cue", "motion", "--trainer.enable_progress_bar", "false"])
+    report = tmp_path / "runs" / "tiny" / "version_0" / "voe_report"
+    assert (report / "summary.json").is_file() and (report / "cues.csv").is_file()
+    # the pairs share every frame through the manipulation, so its relative surprise is the
+    # motion cue's difference, pair by pair
+    rows = [row for row in csv.DictReader(open(report / "cue_correlations.csv"))
+            if row["cue"] == "motion_energy" and row["variant"] == "pooled"]
+    assert float(rows[0]["r"]) == pytest.approx(1.0)

@@ -1,0 +1,69 @@
+"""Any video model as a ``SurpriseModel`` without subclassing: a plain callable frames ->
+per-frame surprise, named by its import path, so ``test`` and ``predict`` score it with
+``--model voe_lightning.model.CallableModel --model.init_args.function my_pkg.surprise``."""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+
+import torch
+from tensordict import TensorDictBase
+
+from voe_lightning import specs
+from voe_lightning.model.base import SurpriseModel
+
+
+def import_callable(path: str) -> Callable:
+    """The object ``package.module.name`` names (``package.module:name`` too), checked callable."""
+    module_name, _, name = path.replace(":", ".").rpartition(".")
+    try:
+        function = getattr(importlib.import_module(module_name), name)
+    except (ImportError, AttributeError, ValueError) as error:
+        raise ValueError(f"function {path!r} cannot be imported ({error}); give the dotted path "
+                         "of a callable, e.g. my_package.models.surprise") from None
+    if not callable(function):
+        raise ValueError(f"function {path!r} is a {type(function).__name__}, not a callable")
+    return function
+
+
+class CallableModel(SurpriseModel):
+    """Wraps ``function(frames) -> surprise``: frames uint8 [B, T, H, W, 3] on this module's
+    device, per-frame surprise [B, T] (frame t's from frames up to t only, the protocol's
+    causality). The callable owns any weights (loaded from a local path when it is built);
+    nothing here is trained, so ``test`` needs no checkpoint. It has no expectation to show:
+    ``expected_frames`` are the input frames.
+
+    Args:
+        function: import path of the callable, e.g. ``my_package.models.surprise``.
+    """
+
+    SURPRISE = "the wrapped model's surprise"
+
+    def __init__(self, function: str):
+        super().__init__()
+        self.save_hyperparameters()
+        self.function = import_callable(function)
+
+    def surprise(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+                 camera: torch.Tensor | None = None, objects: TensorDictBase | None = None
+                 ) -> torch.Tensor:
+        surprise = torch.as_tensor(self.function(frames.to(self.device)))
+        if tuple(surprise.shape) != tuple(frames.shape[:2]):
+            raise ValueError(f"{self.hparams.function} returned surprise of shape "
+                             f"{tuple(surprise.shape)} for frames {tuple(frames.shape)}; expected "
+                             f"[B, T] = {list(frames.shape[:2])}")
+        return surprise.float()
+
+    def expected_frames(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+                        camera: torch.Tensor | None = None,
+                        objects: TensorDictBase | None = None) -> torch.Tensor:
+        return specs.to_model_input(frames)
+
+    def trajectories(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+                     camera: torch.Tensor | None = None, objects: TensorDictBase | None = None
+                     ) -> dict[str, torch.Tensor]:
+        """Surprise and its running total, a course [B, T, 2] (the report's t-SNE figure
+        projects courses onto two components)."""
+        value = self.surprise(frames)
+        return {"surprise": torch.stack([value, value.cumsum(dim=1)], dim=-1)}
