@@ -1,17 +1,22 @@
 """CueScorer: the frame-local cues as a parameter-free SurpriseModel, equal to the cue audit's
-scores, refusing what it cannot score, and run by ``test`` on our probes with no checkpoint
-(its rows follow the cue it is made of)."""
+scores, refusing what it cannot score, and run by ``test`` with no checkpoint on our probes (its
+rows follow the cue it is made of), IntPhys and Physical Concepts (IntPhys 2: test_intphys2)."""
 
 import csv
+import json
 from pathlib import Path
 
+import lightning as L
 import pytest
 import torch
 
 from voe_lightning import cues
+from voe_lightning.benchmark_metrics import read_answer_file
+from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.cli import main
 from voe_lightning.model import CueScorer
 from voe_lightning.model.cue_scorer import CUE_NAMES
+from voe_lightning.prediction_writer import IntPhysAnswerWriter
 
 TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
 
@@ -51,3 +56,31 @@ def test_test_on_our_probes_runs_without_a_checkpoint(tmp_path, monkeypatch):
     rows = [row for row in csv.DictReader(open(report / "cue_correlations.csv"))
             if row["cue"] == "motion_energy" and row["variant"] == "pooled"]
     assert float(rows[0]["r"]) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("dataset", ["intphys", "physical_concepts"])
+def test_test_on_the_other_benchmarks_runs_without_a_checkpoint(dataset, tmp_path):
+    """IntPhys and DeepMind Physical Concepts fixtures (those readers' tests'): the report and
+    the benchmark's own metrics are written; IntPhys' answer.txt comes from ``predict``."""
+    if dataset == "intphys":
+        import test_intphys as fixtures
+
+        root = fixtures.make_intphys(tmp_path / "data", "dev", labelled=True)
+        fixtures.make_intphys(root, "test", labelled=False)
+    else:
+        import test_physical_concepts as fixtures
+
+        root = fixtures.make_dataset(tmp_path / "data")
+    trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False,
+                        callbacks=[VOEReportCallback(out_dir=str(tmp_path), bootstrap=0)])
+    trainer.test(CueScorer("linear_extrapolation"), datamodule=fixtures.datamodule(root))
+    metrics = json.loads((tmp_path / "voe_report" / "benchmark_metrics.json").read_text())
+    assert metrics["metrics"]
+    if dataset == "intphys":
+        trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False,
+                            enable_model_summary=False,
+                            callbacks=[IntPhysAnswerWriter(tmp_path / "answer.txt")])
+        trainer.predict(CueScorer("motion"), datamodule=fixtures.datamodule(root),
+                        return_predictions=False)
+        assert len(read_answer_file(tmp_path / "answer.txt")) == 12
