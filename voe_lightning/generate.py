@@ -275,7 +275,16 @@ def _reconcile_manifest(
 ) -> dict:
     """The manifest for this run: the stored one, extended with new concepts, or a new one.
     Refuses other settings for what is stored unless ``overwrite``, which deletes the data
-    they invalidate (every concept if the video or shard settings changed)."""
+    they invalidate (every concept if the video or shard settings changed). Read, merged and
+    written under the root's manifest lock, so concurrent runs keep each other's concepts."""
+    with store.manifest_lock(root):
+        return _reconcile_locked(root, video, shard_size, entries, overwrite)
+
+
+def _reconcile_locked(
+    root: Path, video: VideoOptions, shard_size: int, entries: dict[str, dict], overwrite: bool
+) -> dict:
+    """``_reconcile_manifest``'s work, with the manifest lock held."""
     settings = _settings(video, shard_size)
     try:
         old = store.read_manifest(root)

@@ -25,6 +25,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 import torch
 import zstandard
+from filelock import FileLock
 from tensordict import TensorDict, TensorDictBase
 from torch.utils.data import DataLoader, Dataset, Sampler
 
@@ -566,6 +567,14 @@ def read_manifest(root: str | os.PathLike) -> dict | None:
         expected = ", ".join(f"{key}: {kind.__name__}" for key, kind in MANIFEST_KEYS.items())
         raise ManifestError(f"{path} is not a voe_lightning manifest: bad {', '.join(wrong)}; expected {expected}; {fix}")
     return manifest
+
+
+def manifest_lock(root: str | os.PathLike) -> FileLock:
+    """The lock a writer holds from reading the root's manifest to writing it back, so two
+    ``generate`` runs on one root (say, for two concepts) merge their entries instead of the
+    last writer's replacing the other's."""
+    Path(root).mkdir(parents=True, exist_ok=True)
+    return FileLock(Path(root) / f".{MANIFEST_NAME}.lock")
 
 
 def write_manifest(root: str | os.PathLike, manifest: dict) -> None:
