@@ -25,7 +25,7 @@ from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.cues import CUE_TITLES, FRAME_LOCAL_CUES, tracked_cues
 from voe_lightning.model import VOEModel
 from voe_lightning.report.figures import panel_grid
-from voe_lightning.report.results import PairResults, format_p, format_t
+from voe_lightning.report.results import PairResults, format_p, format_t, read_summary
 from voe_lightning.statistics import ALPHA, format_alpha, paired_test
 from voe_lightning.store import collate, open_split, read_manifest
 
@@ -237,11 +237,11 @@ def _report_dir(cli: Any) -> Path:
 
 
 def _report_alpha(report_dir: Path) -> float:
-    """The significance level a voe_report was written at (its summary.json's alpha)."""
-    try:
-        return float(json.loads((Path(report_dir) / "summary.json").read_text())["alpha"])
-    except (OSError, KeyError, ValueError, TypeError):
+    """The significance level a voe_report was written at (its summary.json's alpha; ALPHA
+    where it has none). A corrupt summary.json is named, not read as the default alpha."""
+    if not (Path(report_dir) / "summary.json").is_file():
         return ALPHA
+    return float(read_summary(report_dir).get("alpha", ALPHA))
 
 
 def _checkpoint(cli: Any) -> str:
@@ -318,7 +318,7 @@ def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, An
     rows = []
     for label, run_dir in runs:
         report = _latest_report(run_dir)
-        summary = json.loads((report / "summary.json").read_text())
+        summary = read_summary(report)
         cue_accuracy: dict[tuple[str, str], list[float]] = {}
         if (report / "cues.csv").is_file():
             with open(report / "cues.csv", newline="") as handle:

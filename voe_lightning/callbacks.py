@@ -252,8 +252,9 @@ class VOEReportCallback(L.Callback):
     gives the run's ``alpha`` from configs/base.yaml). With ``cue_audit`` it scores the physics-blind cues of every
     test batch's pairs (``voe_lightning.cues``, on the batch's device), so the cue rows of
     cues.md/cues.csv share the model's pairs and n. Names are decoded with the
-    ProbeDataModule's ``concept_names`` / ``variant_names``. After the test, ``summary``
-    holds the rows and ``report_dir`` the directory written."""
+    ProbeDataModule's ``concept_names`` / ``variant_names``. summary.json's ``source`` names
+    the checkpoint tested, its global step, the DataModule, its data root and concepts.
+    After the test, ``summary`` holds the rows and ``report_dir`` the directory written."""
 
     def __init__(
         self,
@@ -277,6 +278,7 @@ class VOEReportCallback(L.Callback):
         self.summary: list[dict[str, Any]] | None = None
         self.report_dir: Path | None = None
         self._failed = self._ended = False
+        self._checkpoint_step: int | None = None
         self._reset()
 
     def _reset(self) -> None:
@@ -295,6 +297,21 @@ class VOEReportCallback(L.Callback):
     def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule,
                      exception: BaseException) -> None:
         self._failed = True
+
+    def on_load_checkpoint(self, trainer: L.Trainer, pl_module: L.LightningModule,
+                           checkpoint: dict[str, Any]) -> None:
+        self._checkpoint_step = checkpoint.get("global_step")
+
+    def _source(self, trainer: L.Trainer) -> dict[str, Any]:
+        """What the report is made from: checkpoint (None: the model as built), its global
+        step, the DataModule's class, data root and the concepts of its test pairs."""
+        datamodule = probe_datamodule(trainer, type(self).__name__)
+        root = getattr(datamodule, "hparams", {}).get("root")
+        return {"checkpoint": str(trainer.ckpt_path) if trainer.ckpt_path else None,
+                "global_step": self._checkpoint_step if trainer.ckpt_path else None,
+                "datamodule": f"{type(datamodule).__module__}.{type(datamodule).__qualname__}",
+                "data_root": str(root) if root is not None else None,
+                "concepts": sorted({concept for concept, _ in datamodule.probe_cases("test")})}
 
     def teardown(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         # Lightning skips the whole test loop (and on_test_end) when the loaders are empty.
@@ -371,7 +388,8 @@ class VOEReportCallback(L.Callback):
         self.summary = write_report(results, out_dir, predictions, trajectories,
                                     trajectory_labels=labels, cue_audit=cue_audit,
                                     alpha=self.alpha, bootstrap=self.bootstrap,
-                                    seed=self.seed, surprise=pl_module.SURPRISE)
+                                    seed=self.seed, surprise=pl_module.SURPRISE,
+                                    source=self._source(trainer))
         self.report_dir = Path(out_dir) / "voe_report"
         self._write_benchmark_metrics(trainer, outputs)
 

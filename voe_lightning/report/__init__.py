@@ -11,15 +11,23 @@ model's rows, then how the model's relative surprise correlates with each cue's 
 see ``voe_lightning.cues``), ``cue_correlations.csv`` and ``cue_scatter.png`` (those
 correlations in full and drawn), ``histograms.png``, ``surprise_per_frame.png``,
 ``predictions_<concept>.png`` and ``tsne_object_persistence.png``.
+
+A report is written whole into a new folder that then replaces ``voe_report/``, so an
+interrupted ``test`` leaves the previous report intact and no file of an earlier report (say,
+another concept's predictions) survives beside a new summary.
 """
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from voe_lightning import cues
+from voe_lightning.store import current_umask
 from voe_lightning.statistics import ALPHA
 from voe_lightning.report.figures import PredictionExample, write_figures
 from voe_lightning.report.results import VRNN_SURPRISE, PairResults, summarize, write_summary
@@ -38,19 +46,54 @@ def write_report(
     seed: int = 0,
     echo: bool = True,
     surprise: str = VRNN_SURPRISE,
+    source: Mapping[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
     """Write ``out_dir/voe_report/`` (module docstring) and return the summary rows.
     ``predictions`` give predictions_<concept>.png, ``trajectories`` (see ``tsne_figure``)
     give tsne_object_persistence.png, ``cue_audit`` (scores of the same pairs) gives
     cues.md/csv/json, cue_correlations.csv and cue_scatter.png; ``echo`` prints the Markdown
-    tables; ``surprise`` names what a frame's surprise is (the model's ``SURPRISE``)."""
+    tables; ``surprise`` names what a frame's surprise is (the model's ``SURPRISE``);
+    ``source`` (checkpoint, its global step, data root, concepts) goes into summary.json."""
     if len(results) == 0:
         raise ValueError("no probe results to report")
-    report_dir = Path(out_dir) / "voe_report"
-    report_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=".voe_report.", dir=out_dir))
+    try:
+        rows = _write_files(results, staging, predictions, trajectories, trajectory_labels,
+                            cue_audit, alpha, bootstrap, seed, echo, surprise, source)
+        report_dir = _replace_folder(staging, out_dir / "voe_report")
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    if echo:
+        print(f"VOE report written to {report_dir}")
+    return rows
+
+
+def _replace_folder(new: Path, target: Path) -> Path:
+    """Put the folder ``new`` in place of ``target`` (removing the old one whole), with the
+    mode a folder ``mkdir`` makes would have (``mkdtemp``'s 0700 hides it from a lab)."""
+    os.chmod(new, 0o777 & ~current_umask())
+    if target.exists():
+        replaced = Path(tempfile.mkdtemp(prefix=f".{target.name}.replaced.", dir=target.parent))
+        os.replace(target, replaced / target.name)
+        os.replace(new, target)
+        shutil.rmtree(replaced, ignore_errors=True)
+    else:
+        os.replace(new, target)
+    return target
+
+
+def _write_files(results: PairResults, report_dir: Path,
+                 predictions: Sequence[PredictionExample] | None,
+                 trajectories: Mapping[str, Any] | None, trajectory_labels: Sequence[str] | None,
+                 cue_audit: cues.CueAudit | None, alpha: float, bootstrap: int, seed: int,
+                 echo: bool, surprise: str, source: Mapping[str, Any] | None
+                 ) -> list[dict[str, Any]]:
+    """Every file of the report (``write_report``) into ``report_dir``; the summary rows."""
     rows = summarize(results, alpha=alpha, bootstrap=bootstrap, seed=seed)
     markdown = write_summary(results, rows, report_dir, alpha=alpha, bootstrap=bootstrap,
-                             surprise=surprise)
+                             surprise=surprise, source=source)
     correlations = None
     if cue_audit is not None:
         if len(cue_audit) != len(results):
@@ -69,11 +112,11 @@ def write_report(
     write_figures(results, rows, report_dir, predictions, trajectories, trajectory_labels,
                   seed=seed, cue_audit=cue_audit, correlation_rows=correlations)
     if echo:
-        _print_markdown(markdown, report_dir)
+        _print_markdown(markdown)
     return rows
 
 
-def _print_markdown(markdown: str, report_dir: Path) -> None:
+def _print_markdown(markdown: str) -> None:
     from rich.console import Console
     from rich.markdown import Markdown
 
@@ -82,4 +125,3 @@ def _print_markdown(markdown: str, report_dir: Path) -> None:
         console.print(Markdown(markdown))
     else:
         print(markdown, end="")
-    print(f"VOE report written to {report_dir}")

@@ -4,6 +4,7 @@ concept/variant (``summarize``) and the summary tables (summary.json, summary.cs
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
 from collections.abc import Mapping, Sequence
@@ -176,7 +177,11 @@ class PairResults:
 
     @classmethod
     def from_csv(cls, path: str | Path) -> PairResults:
-        """Read pairs.csv back (per-frame surprise columns define the results)."""
+        """Read pairs.csv back (per-frame surprise columns define the results), checked: every
+        row whole and numeric, its totals the sums of its frames and, where summary.json lies
+        beside it, as many rows as it counts pairs and the SHA-256 it recorded (which catches
+        a last value cut short). A file that fails is named as corrupt."""
+        path = Path(path)
         with open(path, newline="") as handle:
             rows = list(csv.DictReader(handle))
         if not rows:
@@ -187,6 +192,10 @@ class PairResults:
         if not con_cols or len(con_cols) != len(inc_cols):
             raise ValueError(f"{path} lacks per-frame surprise columns "
                              "surprise_consistent_tNN / surprise_inconsistent_tNN")
+        for line, row in enumerate(rows, start=2):
+            _check_pair_row(path, line, row, con_cols, inc_cols)
+        if path.with_name("summary.json").is_file():
+            _check_against_summary(path, len(rows))
         return cls(
             concept=[r["concept"] for r in rows],
             variant=[r["variant"] for r in rows],
@@ -195,6 +204,61 @@ class PairResults:
             surprise_consistent=[[float(r[c]) for c in con_cols] for r in rows],
             surprise_inconsistent=[[float(r[c]) for c in inc_cols] for r in rows],
         )
+
+
+def _check_pair_row(path: Path, line: int, row: Mapping[str, str | None],
+                    con_cols: Sequence[str], inc_cols: Sequence[str]) -> None:
+    """Refuse, naming ``path`` and ``line``, a pairs.csv row with a missing or non-numeric
+    value or whose totals are not the sums of its per-frame surprise."""
+    corrupt = f"{path} is corrupt (truncated?) at line {line}"
+    if None in row:
+        raise ValueError(f"{corrupt}: more values than columns")
+    missing = [name for name, value in row.items() if value in (None, "")]
+    if missing:
+        raise ValueError(f"{corrupt}: no value for {', '.join(missing)}")
+    numbers = {}
+    for name in ("seed", "manipulation_frame", "surprise_consistent", "surprise_inconsistent",
+                 *con_cols, *inc_cols):
+        try:
+            numbers[name] = float(row[name])
+        except ValueError:
+            raise ValueError(f"{corrupt}: {name} is {row[name]!r}, not a number") from None
+    for total, frames in (("surprise_consistent", con_cols), ("surprise_inconsistent", inc_cols)):
+        summed = math.fsum(numbers[name] for name in frames)
+        if not math.isclose(summed, numbers[total], rel_tol=1e-9, abs_tol=1e-9):
+            raise ValueError(f"{corrupt}: {total} is {row[total]}, its frames sum to {summed!r}")
+
+
+def _check_against_summary(path: Path, num_rows: int) -> None:
+    """Refuse a pairs.csv whose row count or SHA-256 differs from what the summary.json
+    beside it recorded when both were written."""
+    summary = read_summary(path.parent)
+    corrupt = f"{path} is corrupt (truncated?)"
+    rewrite = "run test again to rewrite it"
+    if summary.get("num_pairs") is not None and summary["num_pairs"] != num_rows:
+        raise ValueError(f"{corrupt}: it holds {num_rows} pairs, {path.with_name('summary.json')} "
+                         f"counts {summary['num_pairs']}; {rewrite}")
+    recorded = summary.get("pairs_csv_sha256")
+    if recorded is not None and recorded != _sha256(path):
+        raise ValueError(f"{corrupt}: its SHA-256 is not the one "
+                         f"{path.with_name('summary.json')} recorded; {rewrite}")
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def read_summary(report_dir: str | Path) -> dict[str, Any]:
+    """A report's summary.json, naming the file when it is truncated or not a summary."""
+    path = Path(report_dir) / "summary.json"
+    try:
+        summary = json.loads(path.read_text())
+    except ValueError as error:
+        raise ValueError(f"{path} is corrupt (truncated?): {error}; run test again to rewrite "
+                         "it") from None
+    if not isinstance(summary, dict) or not isinstance(summary.get("rows"), list):
+        raise ValueError(f"{path} is not a voe_report summary (no rows); run test again")
+    return summary
 
 
 def summarize(
@@ -317,10 +381,15 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURP
 
 
 def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], report_dir: Path, *,
-                  alpha: float, bootstrap: int, surprise: str) -> str:
-    """Write summary.json, summary.csv, summary.md (of ``summarize``'s ``rows``) and pairs.csv
-    into ``report_dir``; return the Markdown summary."""
-    document = {"alpha": alpha, "bootstrap_resamples": bootstrap, "num_pairs": len(results),
+                  alpha: float, bootstrap: int, surprise: str,
+                  source: Mapping[str, Any] | None = None) -> str:
+    """Write pairs.csv, summary.json (with ``source``: what the report was made from, and
+    pairs.csv's SHA-256, which ``PairResults.from_csv`` checks), summary.csv and summary.md
+    (of ``summarize``'s ``rows``) into ``report_dir``; return the Markdown summary."""
+    results.to_csv(report_dir / "pairs.csv")
+    document = {"source": dict(source or {}),
+                "alpha": alpha, "bootstrap_resamples": bootstrap, "num_pairs": len(results),
+                "pairs_csv_sha256": _sha256(report_dir / "pairs.csv"),
                 "num_frames": results.num_frames,
                 "video_surprise": f"sum over frames of {surprise}",
                 "rows": [json_row(row) for row in rows],
@@ -333,5 +402,4 @@ def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], repor
         writer.writerows(rows)
     markdown = format_markdown(rows, surprise)
     (report_dir / "summary.md").write_text(markdown)
-    results.to_csv(report_dir / "pairs.csv")
     return markdown
