@@ -7,20 +7,23 @@ from __future__ import annotations
 
 import importlib
 import inspect
-import pickle
+import os
 import sys
+import traceback
 from pathlib import Path
 from typing import Any
 
-import torch
 import yaml
 from jsonargparse import ActionConfigFile, ArgumentParser, Namespace
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.utilities import rank_zero_warn
+from lightning.pytorch.utilities.exceptions import SIGTERMException
 
-from voe_lightning import analysis, cues, generate, statistics
+from voe_lightning import analysis, cues, generate, preflight, runs, statistics
+from voe_lightning.interruption import InterruptCheckpoint
 from voe_lightning.model import SurpriseModel
 from voe_lightning.probe_datamodule import ProbeDataModule
+from voe_lightning.runs import read_checkpoint
 
 #: Trainer, logger, callbacks and model class every fit/validate/test/predict starts from, so
 #: ``--config configs/joint.yaml`` alone is a whole run; later ``--config`` files override it.
@@ -32,6 +35,12 @@ LIGHTNING_SUBCOMMANDS = {
     "test": "The VOE report of a checkpoint on the test probes.",
     "predict": "Per-video surprise of a checkpoint, e.g. IntPhys' answer.txt.",
 }
+
+#: Environment variable that, like ``--debug`` anywhere on the command line, shows the traceback
+#: of a refused argument or input instead of its one-line error.
+DEBUG_VARIABLE = "VOE_DEBUG"
+#: Errors that mean a bad argument or input: printed as one line, exit status 2.
+USER_ERRORS = (ValueError, OSError)
 
 #: The subcommands beside Lightning's: name -> the function it calls, or a dict of its own
 #: subcommands (as jsonargparse's ``auto_cli`` takes them, ``_help`` being the summary).
@@ -47,13 +56,17 @@ class VOECLI(LightningCLI):
     (``<save_dir>/<name>/<version>/checkpoints/x.ckpt``), whatever logger name the config
     gives: a resumed ``fit`` continues its TensorBoard curves and checkpoints there (warning
     that another logger name it was given is not used), and
-    ``validate``/``test`` write their logs and report beside the checkpoint (an external
-    benchmark's in a sub-directory named after the config's logger name, so it does not
-    replace the report on the package's probes). ``validate``/``test`` save their config as
-    ``<subcommand>_config.yaml``, keeping the run's training ``config.yaml``. A missing
-    checkpoint is refused before any work starts, and so are a truncated or corrupt one and
-    model arguments the user gives that differ from the checkpoint's (LightningCLI replaces the
-    config's model arguments with the checkpoint's, so they would be ignored). The subcommands
+    ``validate``/``test`` write their logs and report beside the checkpoint: the run's own
+    report for its last.ckpt on its training data and concepts, a folder of its own
+    (``runs.report_folder``) for any other checkpoint, data root, concepts or external
+    benchmark. ``validate``/``test`` save their config as ``<subcommand>_config.yaml``,
+    keeping the run's training ``config.yaml``. ``--ckpt_path last``/``best`` name the newest
+    run of the config's logger name. A missing checkpoint (or a directory) is refused before
+    any work starts, and so are a truncated or corrupt one, model arguments the user gives
+    that differ from the checkpoint's (LightningCLI replaces the config's model arguments with
+    the checkpoint's, so they would be ignored), and ``test``/``predict`` of a model with
+    trainable parameters and no checkpoint. SIGTERM or SIGINT during ``fit`` saves a resumable
+    last.ckpt and exits with 128 + the signal's number (``interruption``). The subcommands
     of ``COMMANDS`` call their function instead, with no model, data or trainer."""
 
     def add_arguments_to_parser(self, parser: Any) -> None:
@@ -80,24 +93,64 @@ class VOECLI(LightningCLI):
 
     def _run_subcommand(self, subcommand: str) -> None:
         """Run the Trainer's method, or call a ``COMMANDS`` function (its return value in
-        ``self.result``), printing a ValueError or OSError (a bad value) as an error, exit 2."""
-        if subcommand not in COMMANDS:
-            return super()._run_subcommand(subcommand)
-        try:
+        ``self.result``). A run stopped by SIGTERM/SIGINT exits with 128 + its number, saying
+        where ``InterruptCheckpoint`` saved it."""
+        if subcommand in COMMANDS:
             self.result = _call(COMMANDS[subcommand], self.config[subcommand])
-        except (ValueError, OSError) as error:
-            print(f"error: {error}", file=sys.stderr)
-            raise SystemExit(2) from error
+            return
+        try:
+            super()._run_subcommand(subcommand)
+        except SIGTERMException as stopped:
+            interrupt = next((callback for callback in self.trainer.callbacks
+                              if isinstance(callback, InterruptCheckpoint)), InterruptCheckpoint())
+            saved = (f"saved a resumable checkpoint {interrupt.saved}: continue with "
+                     f"`fit --ckpt_path {interrupt.saved}`" if interrupt.saved else "nothing saved")
+            print(f"{subcommand} stopped by {interrupt.signal_name or 'SIGTERM'} at step "
+                  f"{self.trainer.global_step}; {saved}", file=sys.stderr)
+            raise SystemExit(interrupt.exit_code()) from stopped
+
+    def before_fit(self) -> None:
+        """Every fit saves a resumable checkpoint when preempted (SIGTERM) or interrupted."""
+        callbacks = self.trainer.callbacks
+        if not any(isinstance(callback, InterruptCheckpoint) for callback in callbacks):
+            callbacks.append(InterruptCheckpoint())
+
+    def before_test(self) -> None:
+        self._refuse_untrained("test")
+
+    def before_predict(self) -> None:
+        self._refuse_untrained("predict")
+
+    def _refuse_untrained(self, subcommand: str) -> None:
+        """A model with trainable parameters and no checkpoint would report on random weights;
+        a model without (a physics-blind scorer) needs no checkpoint."""
+        if self.config[subcommand].get("ckpt_path"):
+            return
+        trainable = sum(p.numel() for p in self.model.parameters() if p.requires_grad)
+        if trainable:
+            raise ValueError(
+                f"{subcommand} without --ckpt_path would use the untrained weights of "
+                f"{type(self.model).__name__} ({trainable:,} trainable parameters): give "
+                "--ckpt_path PATH.ckpt, or --ckpt_path last for the newest checkpoint of the "
+                "config's logger name (only a model without trainable parameters needs none)")
 
     def parse_arguments(self, parser: Any, args: Any) -> None:
-        """Parse, then read --ckpt_path (naming it if unreadable) and compare the model
-        arguments given explicitly (a re-parse without defaults) with its hyperparameters."""
+        """Parse, then resolve --ckpt_path to one file (``_checkpoint``), read it (naming it if
+        unreadable) and compare the model arguments given explicitly (a re-parse without
+        defaults) with its hyperparameters."""
         super().parse_arguments(parser, args)
         subcommand = self.config.get("subcommand")
-        ckpt_path = self.config[subcommand].get("ckpt_path") if subcommand else None
-        if not ckpt_path or not Path(ckpt_path).is_file():
+        if subcommand not in LIGHTNING_SUBCOMMANDS:
             return
-        trained = read_checkpoint(ckpt_path).get("hyper_parameters") or {}
+        config = self.config[subcommand]
+        word = config.get("ckpt_path")
+        if not word or word in runs.LIGHTNING_CHECKPOINT_WORDS:
+            return
+        ckpt_path = config["ckpt_path"] = str(self._checkpoint(config, word))
+        checkpoint = read_checkpoint(ckpt_path)
+        if word in runs.RUN_CHECKPOINT_WORDS:
+            print(f"--ckpt_path {word}: {ckpt_path} (step {checkpoint.get('global_step')})")
+        trained = checkpoint.get("hyper_parameters") or {}
         if isinstance(args, (dict, Namespace)):
             explicit = parser.parse_object(args, defaults=False)
         else:
@@ -123,29 +176,44 @@ class VOECLI(LightningCLI):
                 + "; ".join(conflicts) + ". Leave them out or give the checkpoint's values."
             )
 
+    @staticmethod
+    def _checkpoint(config: Any, ckpt_path: str) -> Path:
+        """The checkpoint file ``--ckpt_path`` names: ``last``/``best`` of the newest run of
+        the config's logger name (``runs.run_checkpoint``), else the file itself."""
+        if ckpt_path not in runs.RUN_CHECKPOINT_WORDS:
+            return runs.checkpoint_file(ckpt_path)
+        init_args = getattr(config["trainer"].get("logger"), "init_args", None) or {}
+        if not init_args.get("save_dir") or not init_args.get("name"):
+            raise ValueError(f"--ckpt_path {ckpt_path} names the newest run of the logger's "
+                             "save_dir and name, and the config's trainer.logger has none: give "
+                             "a .ckpt file")
+        return runs.run_checkpoint(ckpt_path, init_args["save_dir"], init_args["name"])
+
     def before_instantiate_classes(self) -> None:
         config = self.config.get(self.subcommand, {})
         if self.subcommand in LIGHTNING_SUBCOMMANDS:
             _give_alpha(config)
+            preflight.check_run(self.subcommand, config)
         if config and "weights_only" in config and config.get("weights_only") is None:
             config["weights_only"] = True  # torch>=2.4 may default to unpickling anything
         if self.subcommand != "fit":
             self.save_config_kwargs = {**self.save_config_kwargs,
                                        "config_filename": f"{self.subcommand}_config.yaml"}
         ckpt_path = config.get("ckpt_path") if config else None
-        if not ckpt_path or ckpt_path in ("last", "best", "hpc", "registry"):
+        if not ckpt_path or ckpt_path in runs.LIGHTNING_CHECKPOINT_WORDS:
             return
-        checkpoint = Path(ckpt_path)
-        if not checkpoint.is_file():
-            raise FileNotFoundError(f"--ckpt_path {ckpt_path!r} does not exist")
+        checkpoint = Path(ckpt_path)  # an existing file: parse_arguments resolved it
         if checkpoint.parent.name == "checkpoints":
-            self._log_into_run(config, run_dir=checkpoint.parent.parent)
+            self._log_into_run(config, checkpoint)
 
-    def _log_into_run(self, config: Any, run_dir: Path) -> None:
-        """Point a logger with save_dir/name/version (TensorBoard, CSV) at ``run_dir``."""
+    def _log_into_run(self, config: Any, checkpoint: Path) -> None:
+        """Point a logger with save_dir/name/version (TensorBoard, CSV) at the checkpoint's
+        run, and for ``validate``/``test``/``predict`` at the folder ``runs.report_folder``
+        gives this checkpoint, data root, concepts and benchmark there."""
         init_args = getattr(config["trainer"].get("logger"), "init_args", None)
         if init_args is None or not all(key in init_args for key in ("save_dir", "name", "version")):
             return
+        run_dir = checkpoint.parent.parent
         version = run_dir.name
         if self.subcommand == "fit" and init_args.get("name") not in (None, run_dir.parent.name):
             rank_zero_warn(
@@ -153,15 +221,10 @@ class VOECLI(LightningCLI):
                 f"checkpoints continue there; the logger name {init_args['name']!r} is not "
                 "used. A later test of this run replaces its voe_report/: copy it first to keep it."
             )
-        data_class = _import(config["data"].class_path) if config.get("data") else None
-        # An external benchmark's DataModule has metrics of its own; ProbeDataModule's are none.
-        if (self.subcommand != "fit" and data_class is not None
-                and data_class.benchmark_metrics is not ProbeDataModule.benchmark_metrics):
-            version = f"{version}/{init_args.get('name') or data_class.__name__}"
-        elif self.subcommand != "fit" and (other := _other_data(config, run_dir)) is not None:
-            version = f"{version}/{other}"
-            print(f"{self.subcommand} reads {config['data'].init_args.root}, not the data "
-                  f"{run_dir} was trained on: its logs and report go to {run_dir / other}, "
+        if self.subcommand != "fit" and (folder := _report_folder(config, checkpoint)) is not None:
+            version = f"{version}/{folder}"
+            print(f"{self.subcommand} of {checkpoint} on other data, concepts or another "
+                  f"checkpoint than the run's own: its logs and report go to {run_dir / folder}, "
                   "and the run's own voe_report/ is kept")
         init_args["save_dir"] = str(run_dir.parent.parent)
         init_args["name"] = run_dir.parent.name
@@ -191,31 +254,26 @@ def _give_alpha(config: Any) -> None:
             )
 
 
-def _other_data(config: Any, run_dir: Path) -> str | None:
-    """When ``config`` evaluates data under another root than the run's training config
-    (``run_dir/config.yaml``) names, a folder name for its results ("data_<root>"), so that a
-    mistyped or different root never replaces the run's own report; else None."""
-    root = getattr(config["data"], "init_args", {}).get("root") if config.get("data") else None
+def _report_folder(config: Any, checkpoint: Path) -> str | None:
+    """``runs.report_folder`` of evaluating ``checkpoint`` with ``config``'s data, compared
+    with the data and concepts of the run's training config (``<run>/config.yaml``)."""
+    data = config.get("data")
+    data_args = getattr(data, "init_args", None) or {}
+    data_class = _import(data.class_path) if getattr(data, "class_path", None) else None
+    # An external benchmark's DataModule has metrics of its own; ProbeDataModule's are none.
+    benchmark = None
+    if (data_class is not None
+            and data_class.benchmark_metrics is not ProbeDataModule.benchmark_metrics):
+        logger_args = getattr(config["trainer"].get("logger"), "init_args", None) or {}
+        benchmark = logger_args.get("name") or data_class.__name__
     try:
-        trained = yaml.safe_load((run_dir / "config.yaml").read_text())["data"]["init_args"]["root"]
+        trained = yaml.safe_load((checkpoint.parent.parent / "config.yaml").read_text())
+        trained_args = trained["data"]["init_args"]
     except (OSError, yaml.YAMLError, KeyError, TypeError):
-        return None
-    if root is None or trained is None or Path(root).resolve() == Path(trained).resolve():
-        return None
-    return "data_" + "_".join(part for part in Path(root).parts if part not in ("/", "..", "."))
-
-
-def read_checkpoint(path: str | Path) -> dict:
-    """``torch.load`` of a checkpoint (weights only), naming the file when it cannot be read
-    (torch's errors for a truncated file, e.g. ``OSError: [Errno 22]``, name none)."""
-    try:
-        return torch.load(path, map_location="cpu", weights_only=True)
-    except PermissionError:
-        raise  # names the file already
-    except (OSError, EOFError, RuntimeError, pickle.UnpicklingError) as error:
-        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
-        raise ValueError(f"cannot read the checkpoint {path}: it is truncated or corrupt "
-                         f"({reason})") from error
+        trained_args = {}
+    return runs.report_folder(checkpoint, data_args.get("root"), runs.concepts_of(data_args),
+                              benchmark, trained_args.get("root"),
+                              runs.concepts_of(trained_args))
 
 
 def _conflicts(given: Any, trained: dict, ignored: tuple[str, ...] = ()) -> list[str]:
@@ -293,8 +351,41 @@ def _call(command: Any, arguments: Namespace) -> Any:
 
 def main(args: list[str] | None = None) -> Any:
     """Entry point of ``python -m voe_lightning``; tests call ``main([...])``. Returns the CLI,
-    or for a subcommand of ``COMMANDS`` its function's return value."""
-    cli = VOECLI(
+    or for a subcommand of ``COMMANDS`` its function's return value. A bad argument or input
+    (``USER_ERRORS``) is printed as one line, ``error: ...``, and exits with status 2; with
+    ``--debug`` anywhere among the arguments, or ``VOE_DEBUG=1``, it raises instead."""
+    words = list(sys.argv[1:] if args is None else args)
+    debug = "--debug" in words or os.environ.get(DEBUG_VARIABLE, "") not in ("", "0")
+    words = [word for word in words if word != "--debug"]
+    if args is None:
+        sys.argv[1:] = words  # LightningCLI reads the command line itself
+    try:
+        cli = _cli(None if args is None else words)
+    except USER_ERRORS as error:
+        if debug:
+            raise
+        print(f"error: {_user_message(error)}", file=sys.stderr)
+        raise SystemExit(2) from error
+    return cli.result if cli.subcommand in COMMANDS else cli
+
+
+def _user_message(error: BaseException) -> str:
+    """The message of the error the user's value caused: jsonargparse wraps a class's
+    ValueError in one of its own that lists every type it tried, so unwrap those."""
+    while error.__cause__ is not None and _raised_in(error, "jsonargparse"):
+        error = error.__cause__
+    return str(error)
+
+
+def _raised_in(error: BaseException, package: str) -> bool:
+    """Whether ``error`` was raised by code of ``package``."""
+    frames = traceback.extract_tb(error.__traceback__)
+    return bool(frames) and f"{os.sep}{package}{os.sep}" in frames[-1].filename
+
+
+def _cli(args: list[str] | None) -> VOECLI:
+    """The VOECLI of ``args`` (None: the command line), run."""
+    return VOECLI(
         model_class=SurpriseModel,
         datamodule_class=ProbeDataModule,
         subclass_mode_model=True,
@@ -303,9 +394,10 @@ def main(args: list[str] | None = None) -> Any:
         save_config_kwargs={"overwrite": True},
         parser_kwargs={"prog": "python -m voe_lightning",
                        "description": "Probe video models' intuitive physics by violation of "
-                       "expectation: generate the data, train and test, audit cues, analyze runs.",
+                       "expectation: generate the data, train and test, audit cues, analyze runs. "
+                       "A bad argument or input is one line, 'error: ...'; --debug anywhere "
+                       f"(or {DEBUG_VARIABLE}=1) shows its traceback.",
                        **{name: {"default_config_files": [str(BASE_CONFIG)]}
                           for name in LIGHTNING_SUBCOMMANDS}},
         args=args,
     )
-    return cli.result if cli.subcommand in COMMANDS else cli

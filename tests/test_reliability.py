@@ -1,0 +1,288 @@
+"""Issue 27: nothing silently wrong. A test without a trained checkpoint is refused, last/best
+name a real run, reports never mix or keep stale files and say what they were made from,
+preemption saves, concurrent generate runs keep each other's concepts, a corrupt pairs.csv is
+named, and a bad argument is one line. docs/reliability.md lists each case."""
+
+import json
+import os
+import shutil
+import signal
+import threading
+import time
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from test_cli import CONFIG, copy_of, trained, workdir  # noqa: F401 (fixtures)
+from voe_lightning import generate, specs, store
+from voe_lightning.cli import main
+from voe_lightning.model.base import SurpriseModel
+from voe_lightning.report import write_report
+from voe_lightning.report.results import PairResults
+from voe_lightning.runs import report_folder
+from voe_lightning.scenes.base import VideoOptions
+
+
+class MeanBrightness(SurpriseModel):
+    """A physics-blind model without parameters: a frame's surprise is its mean brightness."""
+
+    def surprise(self, frames, mask=None, camera=None, objects=None):
+        return specs.to_model_input(frames).mean(dim=(2, 3, 4))
+
+    def expected_frames(self, frames, mask=None, camera=None, objects=None):
+        return specs.to_model_input(frames)
+
+    def trajectories(self, frames, mask=None, camera=None, objects=None):
+        return {"colour": specs.to_model_input(frames).mean(dim=(3, 4))}  # [B, T, 3]
+
+
+class SignalAtStep(L.Callback):
+    """Sends this process ``signal_name`` when training reaches ``step``, as a preemption."""
+
+    def __init__(self, step: int, signal_name: str):
+        self.step, self.signal_name = step, signal_name
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+        if trainer.global_step == self.step:
+            os.kill(os.getpid(), signal.Signals[self.signal_name])
+
+
+def _error_line(capsys) -> str:
+    """The one line a refused command printed (and that it printed no traceback)."""
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    lines = [line for line in err.splitlines() if line.startswith("error: ")]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def _refused(capsys, arguments: list[str]) -> str:
+    with pytest.raises(SystemExit) as raised:
+        main(arguments)
+    assert raised.value.code == 2
+    return _error_line(capsys)
+
+
+# ----------------------------------------------------------------------------- 1: checkpoints
+@pytest.mark.parametrize("subcommand", ["test", "predict"])
+def test_a_trainable_model_without_checkpoint_is_refused_naming_the_fix(workdir, capsys,
+                                                                        subcommand):
+    line = _refused(capsys, [subcommand, "--config", CONFIG])
+    assert "untrained weights of VOEModel" in line and "--ckpt_path" in line
+    assert not (workdir / "data").exists() and not list(workdir.rglob("voe_report"))
+
+
+def test_a_model_without_parameters_needs_no_checkpoint(workdir):
+    main(["test", "--config", CONFIG, "--model", "test_reliability.MeanBrightness"])
+    [report] = workdir.rglob("voe_report")
+    source = json.loads((report / "summary.json").read_text())["source"]
+    assert source["checkpoint"] is None and source["global_step"] is None
+    assert source["concepts"] == ["object_persistence"] and source["data_root"] == "data/tiny"
+
+
+def test_last_is_the_newest_run_and_the_report_names_what_it_was_made_from(workdir, trained,
+                                                                            capsys):
+    older = copy_of(trained, workdir)
+    newer = older.parent / "version_1"
+    shutil.copytree(older, newer)
+    os.utime(newer / "checkpoints" / "last.ckpt", (time.time() + 5, time.time() + 5))
+    main(["test", "--config", CONFIG, "--trainer.logger.init_args.name", "trained",
+          "--ckpt_path", "last"])
+    assert f"--ckpt_path last: {Path('runs/trained/version_1/checkpoints/last.ckpt')} (step 1)" in (
+        capsys.readouterr().out)
+    assert not (older / "voe_report").exists()
+    source = json.loads((newer / "voe_report" / "summary.json").read_text())["source"]
+    assert source == {"checkpoint": str(Path("runs/trained/version_1/checkpoints/last.ckpt")),
+                      "global_step": 1, "datamodule": "datamodules.voe.ConceptDataModule",
+                      "data_root": "data/tiny", "concepts": ["object_persistence"]}
+    # fit --ckpt_path last resumes that run (Lightning alone would start again from step 0).
+    cli = main(["fit", "--config", CONFIG, "--trainer.logger.init_args.name", "trained",
+                "--ckpt_path", "last", "--trainer.max_steps", "2"])
+    assert cli.trainer.global_step == 2
+    assert sorted(path.name for path in older.parent.iterdir()) == ["version_0", "version_1"]
+
+
+@pytest.mark.parametrize("word, message", [
+    ("last", "no checkpoint of logger name 'nothing': looked for "
+             f"{Path('runs/nothing/*/checkpoints/last.ckpt')}"),
+    ("best", "monitor no metric"),
+])
+def test_last_or_best_without_such_a_checkpoint_is_refused(workdir, trained, capsys, word,
+                                                           message):
+    copy_of(trained, workdir)
+    name = "nothing" if word == "last" else "trained"
+    line = _refused(capsys, ["test", "--config", CONFIG, "--ckpt_path", word,
+                             "--trainer.logger.init_args.name", name])
+    assert message in line
+    assert not (workdir / "data").exists()
+
+
+def test_a_directory_as_checkpoint_is_named_as_one(workdir, trained, capsys):
+    run = copy_of(trained, workdir)
+    line = _refused(capsys, ["test", "--config", CONFIG, "--ckpt_path", str(run)])
+    assert f"--ckpt_path {run} is a directory, not a checkpoint file" in line
+    assert str(run / "checkpoints" / "last.ckpt") in line
+    assert "does not exist" not in line
+
+
+# ----------------------------------------------------------------------------- 2, 3: folders
+def test_a_retest_on_another_concept_gets_its_own_folder_and_no_stale_files(workdir, trained):
+    run = copy_of(trained, workdir)
+    checkpoint = str(run / "checkpoints" / "last.ckpt")
+    main(["test", "--config", CONFIG, "--ckpt_path", checkpoint])
+    own = run / "voe_report"
+    (own / "stale.png").write_bytes(b"from an earlier report")
+    main(["test", "--config", CONFIG, "--ckpt_path", checkpoint])
+    assert not (own / "stale.png").exists(), "a rewritten report keeps no earlier file"
+    own_summary = (own / "summary.json").read_text()
+    main(["test", "--config", CONFIG, "--ckpt_path", checkpoint,
+          "--data.init_args.concept", "continuity"])
+    assert (own / "summary.json").read_text() == own_summary
+    [other] = [path for path in run.glob("concepts_continuity-*/voe_report")]
+    source = json.loads((other / "summary.json").read_text())["source"]
+    assert source["concepts"] == ["continuity"]
+    assert not list(other.glob("*object_persistence*"))
+    assert not list(run.glob(".voe_report*")) and not list(other.parent.glob(".voe_report*"))
+
+
+@pytest.mark.parametrize("first, second", [("alt/one", "alt_one"), ("a/b", "/a/b"),
+                                           ("../x", "x"), ("data/x", "data/x/")])
+def test_two_data_roots_never_share_a_report_folder(tmp_path, monkeypatch, first, second):
+    monkeypatch.chdir(tmp_path)
+    checkpoint = tmp_path / "runs" / "r" / "version_0" / "checkpoints" / "last.ckpt"
+    folders = [report_folder(checkpoint, root, None, None, "data/trained", None)
+               for root in (first, second)]
+    same = Path(first).resolve() == Path(second).resolve()
+    assert (folders[0] == folders[1]) == same
+    assert report_folder(checkpoint, "data/trained", ["a"], None, "data/trained", ["a"]) is None
+
+
+# ----------------------------------------------------------------------------- 4: preemption
+@pytest.mark.parametrize("signal_name, code", [("SIGTERM", 143), ("SIGINT", 130)])
+def test_a_signal_during_fit_saves_a_resumable_checkpoint_and_exits_non_zero(
+        workdir, capsys, signal_name, code):
+    config = workdir / "signal.yaml"
+    config.write_text(yaml.safe_dump({"trainer": {"callbacks+": [{
+        "class_path": "test_reliability.SignalAtStep",
+        "init_args": {"step": 3, "signal_name": signal_name}}]}}))
+    with pytest.raises(SystemExit) as raised:
+        main(["fit", "--config", CONFIG, "--config", str(config), "--trainer.max_steps", "6"])
+    assert raised.value.code == code
+    checkpoint = Path("runs/tiny/version_0/checkpoints/last.ckpt")
+    assert (f"fit stopped by {signal_name} at step 3; saved a resumable checkpoint {checkpoint}"
+            in capsys.readouterr().err)
+    assert torch.load(checkpoint, weights_only=True)["global_step"] == 3
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    cli = main(["fit", "--config", CONFIG, "--trainer.max_steps", "6", "--ckpt_path", "last"])
+    assert cli.trainer.global_step == 6
+    assert not (workdir / "runs" / "tiny" / "version_1").exists()
+
+
+# ----------------------------------------------------------------------------- 5: manifest
+def test_concurrent_generate_runs_for_two_concepts_keep_both_in_the_manifest(tmp_path,
+                                                                             monkeypatch):
+    """Each run reads the manifest, pauses (as rendering would), then writes it back."""
+    read = store.read_manifest
+
+    def slow_read(root):
+        manifest = read(root)
+        time.sleep(0.3)
+        return manifest
+
+    monkeypatch.setattr(store, "read_manifest", slow_read)
+    video = VideoOptions(num_frames=6, height=32, width=32)
+    entries = {concept: generate._prepare(tmp_path, [concept], 2, None, 1, 1, 1, 4, 6, 32, 32)
+               .entries[concept] for concept in ("continuity", "solidity")}
+    runs = [threading.Thread(target=generate._reconcile_manifest,
+                             args=(tmp_path, video, 4, {concept: entry}, False))
+            for concept, entry in entries.items()]
+    for run in runs:
+        run.start()
+    for run in runs:
+        run.join()
+    assert set(read(tmp_path)["concepts"]) == {"continuity", "solidity"}
+
+
+# ----------------------------------------------------------------------------- 6: report files
+def _results(pairs: int = 4) -> PairResults:
+    rng = np.random.default_rng(0)
+    return PairResults(concept=["continuity"] * pairs, variant=["standard"] * pairs,
+                       seed=np.arange(pairs), manipulation_frame=np.full(pairs, 2),
+                       surprise_consistent=rng.random((pairs, 5)),
+                       surprise_inconsistent=rng.random((pairs, 5)) + 0.1)
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda text: text[:-4] + "\n", "its SHA-256 is not the one .*summary.json recorded"),
+    (lambda text: "\n".join(text.splitlines()[:-1]) + "\n", "holds 3 pairs"),  # a row lost
+    (lambda text: text[: len(text) // 2], "no value for"),  # cut mid-row
+    (lambda text: text.replace(",2,", ",two,", 1), "manipulation_frame is 'two', not a number"),
+])
+def test_a_damaged_pairs_csv_is_named_as_corrupt(tmp_path, damage, message):
+    write_report(_results(), tmp_path, bootstrap=10, echo=False)
+    pairs = tmp_path / "voe_report" / "pairs.csv"
+    assert len(PairResults.from_csv(pairs)) == 4
+    pairs.write_text(damage(pairs.read_text()))
+    with pytest.raises(ValueError, match=rf"{pairs} is corrupt .*{message}"):
+        PairResults.from_csv(pairs)
+
+
+def test_an_interrupted_report_leaves_the_previous_one_whole(tmp_path, monkeypatch):
+    write_report(_results(), tmp_path, bootstrap=10, echo=False)
+    before = {path.name: path.read_bytes() for path in (tmp_path / "voe_report").iterdir()}
+
+    def fail(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr("voe_lightning.report.write_figures", fail)
+    with pytest.raises(OSError):
+        write_report(_results(6), tmp_path, bootstrap=10, echo=False)
+    after = {path.name: path.read_bytes() for path in (tmp_path / "voe_report").iterdir()}
+    assert after == before
+    assert [path.name for path in tmp_path.iterdir()] == ["voe_report"]
+
+
+# ----------------------------------------------------------------------------- one-line errors
+@pytest.mark.parametrize("arguments, message", [
+    (["--data.init_args.test_pairs", "0"], "test_pairs must be an integer of at least 1, got 0"),
+    (["--ckpt_path", "missing.ckpt"], "--ckpt_path 'missing.ckpt' does not exist"),
+])
+def test_a_bad_argument_is_one_line_and_debug_shows_the_traceback(workdir, capsys, arguments,
+                                                                   message):
+    assert message in _refused(capsys, ["fit", "--config", CONFIG, *arguments])
+    with pytest.raises((ValueError, OSError)):
+        main(["fit", "--config", CONFIG, *arguments, "--debug"])
+    assert not (workdir / "data").exists()
+
+
+# ----------------------------------------------------------------------------- cross-checks
+@pytest.mark.parametrize("arguments, message", [
+    (["--data.init_args.batch_size", "64"],
+     "data.init_args.batch_size 64 is larger than the 8 training clips"),
+    (["--data.init_args.height", "48"],
+     "model.init_args.image_size [32, 32] differs from the data's height x width 48 x 32"),
+    (["--trainer.max_steps", "-2"], "trainer.max_steps -2: give a number of steps >= 0"),
+])
+def test_arguments_that_contradict_each_other_are_refused_before_rendering(workdir, capsys,
+                                                                           arguments, message):
+    assert message in _refused(capsys, ["fit", "--config", CONFIG, *arguments])
+    assert not (workdir / "data").exists()
+
+
+def test_a_fit_that_would_never_validate_says_so(workdir):
+    with pytest.warns(UserWarning, match="val_check_interval 5 is larger than trainer.max_steps "
+                                         "1: no validation will run"):
+        main(["fit", "--config", CONFIG, "--trainer.max_steps", "1",
+              "--trainer.val_check_interval", "5"])
+
+
+def test_a_truncated_summary_json_is_named(tmp_path, capsys):
+    write_report(_results(), tmp_path, bootstrap=10, echo=False)
+    summary = tmp_path / "voe_report" / "summary.json"
+    summary.write_text(summary.read_text()[:100])
+    line = _refused(capsys, ["analyze", "compare", "--runs", json.dumps([str(tmp_path)])])
+    assert f"{summary} is corrupt (truncated?)" in line

@@ -1,0 +1,75 @@
+"""A preempted or interrupted ``fit`` saves where it stopped and says so: SIGTERM (a cluster's
+preemption) and SIGINT (Ctrl-C) stop training at the end of the current step through
+Lightning's own SIGTERM handling, and ``InterruptCheckpoint`` saves a resumable last.ckpt
+there; the CLI then exits with 128 + the signal's number instead of 0."""
+
+from __future__ import annotations
+
+import signal
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+from lightning.pytorch.utilities.exceptions import SIGTERMException
+
+from voe_lightning.runs import LAST_CHECKPOINT
+
+
+class InterruptCheckpoint(L.Callback):
+    """While training runs, SIGINT is handled as SIGTERM (Lightning then raises
+    ``SIGTERMException`` once the step in progress has ended, so the loops' state is whole);
+    on that exception the trainer's full state is saved as last.ckpt in the run's checkpoint
+    folder, ready for ``fit --ckpt_path <it>`` (or ``last``). A second Ctrl-C stops at once,
+    saving nothing. After the exception, ``signal_name`` and ``saved`` say what happened."""
+
+    def __init__(self) -> None:
+        self.signal_name: str | None = None
+        self.saved: Path | None = None
+        self._previous: dict[int, Any] = {}
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self.signal_name, self.saved = None, None
+        # Lightning's SIGTERM handler is in place by now: it only sets a flag the loops read.
+        terminate = signal.getsignal(signal.SIGTERM)
+        if not callable(terminate):
+            return
+        self._previous = {number: signal.getsignal(number)
+                          for number in (signal.SIGTERM, signal.SIGINT)}
+
+        def on_signal(number: int, frame: Any) -> None:
+            if self.signal_name is None:
+                self.signal_name = signal.Signals(number).name
+            signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C: now
+            terminate(number, frame)
+
+        signal.signal(signal.SIGTERM, on_signal)
+        signal.signal(signal.SIGINT, on_signal)
+
+    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._restore_handlers()
+
+    def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule,
+                     exception: BaseException) -> None:
+        self._restore_handlers()
+        if not isinstance(exception, SIGTERMException):
+            return
+        self.signal_name = self.signal_name or "SIGTERM"
+        self.saved = self.checkpoint_path(trainer)
+        trainer.save_checkpoint(self.saved)
+
+    @staticmethod
+    def checkpoint_path(trainer: L.Trainer) -> Path:
+        """last.ckpt in the ModelCheckpoint's folder, else in ``<log_dir>/checkpoints``."""
+        callback = trainer.checkpoint_callback
+        folder = getattr(callback, "dirpath", None) or Path(
+            trainer.log_dir or trainer.default_root_dir) / "checkpoints"
+        return Path(folder) / LAST_CHECKPOINT
+
+    def _restore_handlers(self) -> None:
+        for number, handler in self._previous.items():
+            signal.signal(number, handler)
+        self._previous = {}
+
+    def exit_code(self) -> int:
+        """The shell's code for death by the signal received: 128 + its number."""
+        return 128 + int(signal.Signals[self.signal_name or "SIGTERM"])

@@ -1,0 +1,73 @@
+"""Arguments checked against each other before any rendering or training starts, from the
+parsed config alone: combinations that each pass their own check but together would train on
+nothing, log no VOE statistics or fail only after the data is rendered."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from lightning.pytorch.utilities import rank_zero_warn
+
+from voe_lightning import specs
+from voe_lightning.runs import concepts_of
+
+
+def check_run(subcommand: str, config: Any) -> None:
+    """Refuse, naming the arguments and what would be valid, a ``config`` (one Lightning
+    subcommand's section) whose trainer, model and data arguments contradict each other; warn
+    of a fit that would never validate (a smoke test may mean it)."""
+    trainer = config.get("trainer") or {}
+    data = getattr(config.get("data"), "init_args", None) or {}
+    model = getattr(config.get("model"), "init_args", None) or {}
+    max_steps = trainer.get("max_steps")
+    if isinstance(max_steps, int) and max_steps < -1:
+        raise ValueError(f"trainer.max_steps {max_steps}: give a number of steps >= 0, or -1 "
+                         "for no limit")
+    _check_image_size(model, data)
+    if subcommand != "fit":
+        return
+    interval = trainer.get("val_check_interval")
+    if (isinstance(interval, int) and isinstance(max_steps, int) and max_steps > 0
+            and interval > max_steps and _callback_configured(trainer, "VOEProbeCallback")):
+        rank_zero_warn(
+            f"trainer.val_check_interval {interval} is larger than trainer.max_steps "
+            f"{max_steps}: no validation will run, so VOEProbeCallback logs no VOE "
+            f"statistics; use val_check_interval <= {max_steps} to have them")
+    _check_batch_size(data)
+
+
+def _check_image_size(model: Any, data: Any) -> None:
+    """The model's ``image_size`` must be the data's height and width (found otherwise only
+    after the whole dataset is rendered)."""
+    image_size = model.get("image_size")
+    height, width = data.get("height"), data.get("width")
+    if image_size is None or height is None or width is None:
+        return
+    if tuple(image_size) != (height, width):
+        raise ValueError(
+            f"model.init_args.image_size {list(image_size)} differs from the data's height x "
+            f"width {height} x {width}: set both to one size (e.g. --data.init_args.height "
+            f"{image_size[0]} --data.init_args.width {image_size[1]})")
+
+
+def _check_batch_size(data: Any) -> None:
+    """A training batch larger than the training set is dropped whole (drop_last), so
+    nothing would be trained."""
+    batch_size, examples = data.get("batch_size"), data.get("train_examples")
+    if not isinstance(batch_size, int) or not isinstance(examples, int):
+        return
+    controls = data.get("train_controls")
+    controls = examples if controls is None else controls
+    concepts = concepts_of(data) or specs.CONCEPTS
+    clips = (examples + controls) * len(concepts)
+    if batch_size > clips:
+        raise ValueError(
+            f"data.init_args.batch_size {batch_size} is larger than the {clips} training clips "
+            f"({examples} examples + {controls} controls x {len(concepts)} concept(s)), so "
+            f"every batch would be dropped and nothing trained: use batch_size <= {clips}")
+
+
+def _callback_configured(trainer: Any, name: str) -> bool:
+    """Whether a callback whose class is named ``name`` is among the trainer's callbacks."""
+    return any(str(getattr(callback, "class_path", "")).rsplit(".", 1)[-1] == name
+               for callback in trainer.get("callbacks") or [])

@@ -1,0 +1,121 @@
+"""Where a run's checkpoints and reports are: ``--ckpt_path`` resolved to one checkpoint file
+(``last``/``best`` to the newest run of a logger name, a directory refused naming the files in
+it), and the one report folder each (checkpoint, data root, concepts) gets inside a run."""
+
+from __future__ import annotations
+
+import hashlib
+import pickle
+import re
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import torch
+
+#: ``--ckpt_path`` words that name a checkpoint of the newest run of the config's logger name.
+RUN_CHECKPOINT_WORDS = ("last", "best")
+#: ``--ckpt_path`` words Lightning resolves itself (a SLURM requeue's, a model registry's).
+LIGHTNING_CHECKPOINT_WORDS = ("hpc", "registry")
+#: The file ModelCheckpoint(save_last=True), FinalStepCheckpoint and InterruptCheckpoint write.
+LAST_CHECKPOINT = "last.ckpt"
+
+
+def checkpoint_file(ckpt_path: str) -> Path:
+    """``ckpt_path`` as an existing checkpoint file; a directory is refused naming the
+    checkpoints found under it, a missing path naming itself."""
+    path = Path(ckpt_path)
+    if path.is_dir():
+        found = sorted(path.rglob("*.ckpt"), key=lambda file: file.stat().st_mtime)
+        listed = ", ".join(str(file) for file in found[-3:][::-1])
+        hint = f"the newest under it: {listed}" if found else "it holds no *.ckpt file"
+        raise IsADirectoryError(f"--ckpt_path {ckpt_path} is a directory, not a checkpoint file; "
+                                f"give one .ckpt file ({hint})")
+    if not path.is_file():
+        raise FileNotFoundError(f"--ckpt_path {ckpt_path!r} does not exist (give a .ckpt file, "
+                                "or last/best for the newest run of the config's logger name)")
+    return path
+
+
+def run_checkpoint(word: str, save_dir: str | Path, name: str) -> Path:
+    """The checkpoint ``word`` (``last`` or ``best``) names: of the newest run under
+    ``save_dir/name`` holding a last.ckpt, that file, or the best one its ModelCheckpoint
+    recorded. Refused, naming what was looked for, where there is none (Lightning would start
+    ``fit`` from scratch and ``test`` untrained weights)."""
+    pattern = f"*/checkpoints/{LAST_CHECKPOINT}"
+    runs = sorted((Path(save_dir) / name).glob(pattern), key=lambda file: file.stat().st_mtime)
+    if not runs:
+        raise FileNotFoundError(
+            f"--ckpt_path {word}: no checkpoint of logger name {name!r}: looked for "
+            f"{Path(save_dir) / name / pattern}. Give a .ckpt file, or the logger name "
+            "(--trainer.logger.init_args.name) of a trained run")
+    last = runs[-1]
+    if word == "last":
+        return last
+    states = read_checkpoint(last).get("callbacks") or {}
+    monitored = [state for state in states.values()
+                 if isinstance(state, dict) and state.get("monitor")]
+    if not monitored:
+        raise ValueError(
+            f"--ckpt_path best: the checkpoints of {last.parent} monitor no metric "
+            "(ModelCheckpoint monitor is None), so none is best; give --ckpt_path last or a "
+            ".ckpt file")
+    best = Path(monitored[0].get("best_model_path") or "")
+    for candidate in (best, last.parent / best.name):
+        if best.name and candidate.is_file():
+            return candidate
+    raise FileNotFoundError(f"--ckpt_path best: {last} records the best checkpoint as "
+                            f"{str(best) or 'none'}, which does not exist")
+
+
+def read_checkpoint(path: str | Path) -> dict:
+    """``torch.load`` of a checkpoint (weights only), naming the file when it cannot be read
+    (torch's errors for a truncated file, e.g. ``OSError: [Errno 22]``, name none)."""
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except PermissionError:
+        raise  # names the file already
+    except (OSError, EOFError, RuntimeError, pickle.UnpicklingError) as error:
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise ValueError(f"cannot read the checkpoint {path}: it is truncated or corrupt "
+                         f"({reason})") from error
+
+
+def concepts_of(data_arguments: Any) -> tuple[str, ...] | None:
+    """The concepts a DataModule's init arguments select (``concept`` or ``concepts``), in
+    sorted order; None when they name none (the DataModule's default)."""
+    if not data_arguments:
+        return None
+    concepts = data_arguments.get("concepts")
+    if concepts is None and data_arguments.get("concept") is not None:
+        concepts = [data_arguments.get("concept")]
+    return tuple(sorted(str(concept) for concept in concepts)) if concepts is not None else None
+
+
+def report_folder(checkpoint: Path, root: str | None, concepts: Iterable[str] | None,
+                  benchmark: str | None, trained_root: str | None,
+                  trained_concepts: Iterable[str] | None) -> str | None:
+    """The folder, inside a checkpoint's run, of the logs and report of one (checkpoint, data
+    root, concepts, benchmark); None for the run's own (its last.ckpt on the data and concepts
+    it was trained on), which goes into the run itself. Any other gets a folder of its own,
+    named for people (what differs) and, so no two ever share one (``alt/one`` and
+    ``alt_one``, ``a/b`` and ``/a/b``), a hash of the resolved checkpoint, root and concepts."""
+    concepts = tuple(sorted(concepts)) if concepts is not None else None
+    trained_concepts = tuple(sorted(trained_concepts)) if trained_concepts is not None else None
+    other_root = root is not None and (trained_root is None
+                                       or Path(root).resolve() != Path(trained_root).resolve())
+    other_concepts = concepts is not None and concepts != trained_concepts
+    parts = [benchmark] if benchmark else []
+    if checkpoint.name != LAST_CHECKPOINT:
+        parts.append(f"ckpt_{checkpoint.stem}")
+    if other_root:
+        parts.append("data_" + "_".join(part for part in Path(root).parts
+                                        if part not in ("/", "..", ".")))
+    if other_concepts:
+        parts.append("concepts_" + "+".join(concepts))
+    if not parts:
+        return None
+    key = "\n".join([str(checkpoint.resolve()), str(Path(root).resolve()) if root else "",
+                     ",".join(concepts or ()), benchmark or ""])
+    readable = re.sub(r"[^A-Za-z0-9_.+=-]", "_", "-".join(parts))[:80]
+    return f"{readable}-{hashlib.sha256(key.encode()).hexdigest()[:8]}"
