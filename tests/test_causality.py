@@ -6,6 +6,8 @@ identical there; and on a random video, truncating or altering everything after 
 surprise up to t unchanged. A family that failed could read the answer from the future (an id
 that first appears later, a slot count, a normalisation over the whole video)."""
 
+import importlib.util
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -19,6 +21,7 @@ from voe_lightning.model import (
     VOEModel,
 )
 from voe_lightning.model.cue_scorer import CUE_NAMES
+from voe_lightning.model.videomae import VideoMAEScorer
 from voe_lightning.scenes import CONCEPTS, PROBE_VARIANTS, generate_probe
 
 SIZE = 32
@@ -36,6 +39,12 @@ OBJECT_CENTRIC = dict(image_size=(SIZE, SIZE), num_slots=10, code_size=8,
                       encoder_channels=(8, 8), state_size=16, relation_sizes=(16,),
                       node_sizes=(16,), relation_size=16)
 
+# Sixteen frames: the probes have fifteen (padded to the model's length).
+VIDEOMAE = dict(image_size=SIZE, patch_size=8, num_frames=16, tubelet_size=2, hidden_size=16,
+                num_hidden_layers=1, num_attention_heads=2, intermediate_size=32,
+                decoder_num_attention_heads=2, decoder_hidden_size=16,
+                decoder_num_hidden_layers=1, decoder_intermediate_size=32)
+
 #: Every model family the package ships, untrained and tiny: one line adds a family.
 FAMILIES = [
     pytest.param(lambda: VOEModel(**VRNN), id="vrnn_lru"),
@@ -44,6 +53,9 @@ FAMILIES = [
                  id="object_free"),
     pytest.param(lambda: ObjectStateModel(hidden_size=16, message_size=8), id="object_state"),
     *[pytest.param(lambda cue=cue: CueScorer(cue), id=f"cue_{cue}") for cue in CUE_NAMES],
+    pytest.param(lambda: VideoMAEScorer(config=VIDEOMAE), id="videomae",
+                 marks=pytest.mark.skipif(importlib.util.find_spec("transformers") is None,
+                                          reason="VideoMAEScorer needs transformers")),
 ]
 
 

@@ -3,7 +3,8 @@ memory, encoder/decoder, recurrent core) and the object-centric model after PLAT
 al. 2022: object slots from masks, per-object perception, interaction-network slot dynamics)
 and the positive control with perfect perception (``ObjectStateModel``: object states in, slot
 dynamics, the likelihood of what is seen as surprise), and the physics-blind cues as
-parameter-free models (``CueScorer``), and any callable frames -> surprise (``CallableModel``)."""
+parameter-free models (``CueScorer``), any callable frames -> surprise (``CallableModel``) and a
+maintained library's predictive model (``VideoMAEScorer``, transformers' VideoMAE)."""
 
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model.callable_model import CallableModel
@@ -13,12 +14,14 @@ from voe_lightning.model.module import VOEModel
 from voe_lightning.model.networks import Decoder, Encoder
 from voe_lightning.model.object_centric import ObjectCentricModel
 from voe_lightning.model.object_state import ObjectStateModel
+from voe_lightning.model.videomae import VideoMAEScorer
 from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, gaussian_kl, standard_normal_kl
 
 __all__ = [
     "SurpriseModel",
     "CueScorer",
     "CallableModel",
+    "VideoMAEScorer",
     "VOEModel",
     "ObjectCentricModel",
     "ObjectStateModel",
