@@ -26,6 +26,8 @@ from voe_lightning.report.results import PairResults
 from voe_lightning.runs import report_folder
 from voe_lightning.scenes.base import VideoOptions
 
+CONFIGS = Path(__file__).parents[1] / "configs"
+
 
 class MeanBrightness(SurpriseModel):
     """A physics-blind model without parameters: a frame's surprise is its mean brightness."""
@@ -68,10 +70,14 @@ def _refused(capsys, arguments: list[str]) -> str:
 
 
 # ----------------------------------------------------------------------------- 1: checkpoints
-@pytest.mark.parametrize("subcommand", ["test", "predict"])
+@pytest.mark.parametrize("arguments", [
+    ["test", "--config", CONFIG],
+    ["predict", "--config", str(CONFIGS / "intphys_dev.yaml"),
+     "--config", str(CONFIGS / "intphys_test.yaml"), "--data.init_args.root", "nowhere"],
+])
 def test_a_trainable_model_without_checkpoint_is_refused_naming_the_fix(workdir, capsys,
-                                                                        subcommand):
-    line = _refused(capsys, [subcommand, "--config", CONFIG])
+                                                                        arguments):
+    line = _refused(capsys, arguments)
     assert "untrained weights of VOEModel" in line and "--ckpt_path" in line
     assert not (workdir / "data").exists() and not list(workdir.rglob("voe_report"))
 
@@ -286,3 +292,47 @@ def test_a_truncated_summary_json_is_named(tmp_path, capsys):
     summary.write_text(summary.read_text()[:100])
     line = _refused(capsys, ["analyze", "compare", "--runs", json.dumps([str(tmp_path)])])
     assert f"{summary} is corrupt (truncated?)" in line
+
+
+def _retired(checkpoint: Path, workdir: Path) -> Path:
+    """``checkpoint`` with a model argument VOEModel does not take, as an older version's."""
+    stored = torch.load(checkpoint, weights_only=True)
+    stored["hyper_parameters"]["retired_argument"] = 3
+    torch.save(stored, workdir / "old.ckpt")
+    return workdir / "old.ckpt"
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--config", "broken.yaml"], "--config broken.yaml is not valid YAML at line 3, column 1"),
+    (["--trainer.logger.init_args.name", "n" * 300], "is 300 bytes long; a folder name may "
+                                                     "have at most 255"),
+    (["--trainer.logger.init_args.save_dir", "a_file/runs"],
+     f"cannot write the run folder {Path('a_file/runs/tiny')}: a_file is not a writable folder"),
+    (["--data.init_args.root", "a_file"], "data.init_args.root a_file is a file, not a dataset "
+                                          "folder"),
+])
+def test_a_bad_file_or_folder_is_named_in_one_line_before_any_work(workdir, capsys, arguments,
+                                                                   message):
+    (workdir / "broken.yaml").write_text("trainer:\n  max_steps: [1\n")
+    (workdir / "a_file").write_text("not a folder")
+    assert message in _refused(capsys, ["fit", "--config", CONFIG, *arguments])
+    assert not (workdir / "data").exists()
+
+
+def test_a_checkpoint_argument_the_model_no_longer_takes_is_named(workdir, trained, capsys):
+    old = _retired(trained / "checkpoints" / "last.ckpt", workdir)
+    line = _refused(capsys, ["test", "--config", CONFIG, "--ckpt_path", str(old)])
+    assert f"{old} holds model arguments VOEModel no longer takes: retired_argument" in line
+
+
+def test_predict_with_a_datamodule_that_cannot_predict_is_one_line(workdir, trained, capsys):
+    line = _refused(capsys, ["predict", "--config", CONFIG,
+                             "--ckpt_path", str(trained / "checkpoints" / "last.ckpt")])
+    assert "datamodules.ConceptDataModule has none" in line
+    assert not (workdir / "data").exists()
+
+
+def test_a_shard_too_large_for_memory_is_warned_of(tmp_path):
+    with pytest.warns(UserWarning, match=r"4096 x 4096 x 15 frames with shard_size 100 hold "
+                                         r"about 187.5 GiB per shard"):
+        generate._prepare(tmp_path, ["continuity"], 1, None, 1, 1, 0, 100, 15, 4096, 4096)

@@ -17,7 +17,7 @@ import yaml
 from jsonargparse import ActionConfigFile, ArgumentParser, Namespace
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.utilities import rank_zero_warn
-from lightning.pytorch.utilities.exceptions import SIGTERMException
+from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
 
 from voe_lightning import analysis, cues, generate, preflight, runs, statistics
 from voe_lightning.interruption import InterruptCheckpoint
@@ -40,7 +40,7 @@ LIGHTNING_SUBCOMMANDS = {
 #: of a refused argument or input instead of its one-line error.
 DEBUG_VARIABLE = "VOE_DEBUG"
 #: Errors that mean a bad argument or input: printed as one line, exit status 2.
-USER_ERRORS = (ValueError, OSError)
+USER_ERRORS = (ValueError, OSError, MisconfigurationException)
 
 #: The subcommands beside Lightning's: name -> the function it calls, or a dict of its own
 #: subcommands (as jsonargparse's ``auto_cli`` takes them, ``_help`` being the summary).
@@ -151,6 +151,7 @@ class VOECLI(LightningCLI):
         if word in runs.RUN_CHECKPOINT_WORDS:
             print(f"--ckpt_path {word}: {ckpt_path} (step {checkpoint.get('global_step')})")
         trained = checkpoint.get("hyper_parameters") or {}
+        _refuse_retired_arguments(ckpt_path, trained)
         if isinstance(args, (dict, Namespace)):
             explicit = parser.parse_object(args, defaults=False)
         else:
@@ -200,11 +201,12 @@ class VOECLI(LightningCLI):
             self.save_config_kwargs = {**self.save_config_kwargs,
                                        "config_filename": f"{self.subcommand}_config.yaml"}
         ckpt_path = config.get("ckpt_path") if config else None
-        if not ckpt_path or ckpt_path in runs.LIGHTNING_CHECKPOINT_WORDS:
-            return
-        checkpoint = Path(ckpt_path)  # an existing file: parse_arguments resolved it
-        if checkpoint.parent.name == "checkpoints":
-            self._log_into_run(config, checkpoint)
+        if ckpt_path and ckpt_path not in runs.LIGHTNING_CHECKPOINT_WORDS:
+            checkpoint = Path(ckpt_path)  # an existing file: parse_arguments resolved it
+            if checkpoint.parent.name == "checkpoints":
+                self._log_into_run(config, checkpoint)
+        if self.subcommand in LIGHTNING_SUBCOMMANDS:
+            preflight.check_logger(config)
 
     def _log_into_run(self, config: Any, checkpoint: Path) -> None:
         """Point a logger with save_dir/name/version (TensorBoard, CSV) at the checkpoint's
@@ -229,6 +231,23 @@ class VOECLI(LightningCLI):
         init_args["save_dir"] = str(run_dir.parent.parent)
         init_args["name"] = run_dir.parent.name
         init_args["version"] = version
+
+
+def _refuse_retired_arguments(ckpt_path: str, trained: dict) -> None:
+    """Refuse a checkpoint whose model arguments include some its model class no longer takes
+    (a checkpoint of an older version), naming them, before the model is built."""
+    if not trained.get("_class_path"):
+        return
+    model_class = _import(trained["_class_path"])
+    parameters = inspect.signature(model_class.__init__).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values()):
+        return
+    retired = sorted(name for name in trained if not name.startswith("_") and name not in parameters)
+    if retired:
+        raise ValueError(
+            f"{ckpt_path} holds model arguments {model_class.__name__} no longer takes: "
+            f"{', '.join(retired)} (a checkpoint of an older version?); test it with the version "
+            "that wrote it")
 
 
 def _give_alpha(config: Any) -> None:
@@ -360,6 +379,7 @@ def main(args: list[str] | None = None) -> Any:
     if args is None:
         sys.argv[1:] = words  # LightningCLI reads the command line itself
     try:
+        _check_yaml(words)
         cli = _cli(None if args is None else words)
     except USER_ERRORS as error:
         if debug:
@@ -367,6 +387,23 @@ def main(args: list[str] | None = None) -> Any:
         print(f"error: {_user_message(error)}", file=sys.stderr)
         raise SystemExit(2) from error
     return cli.result if cli.subcommand in COMMANDS else cli
+
+
+def _check_yaml(words: list[str]) -> None:
+    """Refuse a ``--config`` file that is not valid YAML, naming it (jsonargparse's message
+    gives the line and column of "<unicode string>")."""
+    files = [word.split("=", 1)[1] for word in words if word.startswith("--config=")]
+    files += [after for word, after in zip(words, words[1:]) if word == "--config"]
+    for name in files:
+        try:
+            yaml.safe_load(Path(name).read_text())
+        except OSError:
+            continue  # the parser names a missing file itself
+        except yaml.YAMLError as error:
+            mark = getattr(error, "problem_mark", None)
+            where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+            problem = getattr(error, "problem", None) or error
+            raise ValueError(f"--config {name} is not valid YAML{where}: {problem}") from None
 
 
 def _user_message(error: BaseException) -> str:

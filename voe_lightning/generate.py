@@ -423,9 +423,24 @@ def _prepare(
     if not isinstance(shard_size, int) or shard_size < 1:
         raise ValueError(f"shard_size must be a positive integer, got {shard_size!r}")
     video = VideoOptions(num_frames=num_frames, height=height, width=width)
+    _warn_of_shard_memory(video, shard_size)
     concept_counts = {concept: split_counts(concept, **counts) for concept in concepts}
     entries = {concept: _concept_entry(c) for concept, c in concept_counts.items()}
     return _Request(Path(root), video, shard_size, concept_counts, entries)
+
+
+def _warn_of_shard_memory(video: VideoOptions, shard_size: int) -> None:
+    """Warn when a shard, which a worker holds whole in memory while rendering it, would take
+    more than a quarter of this machine's memory (frames and masks of both videos of a pair)."""
+    pair_bytes = 2 * video.num_frames * video.height * video.width * (3 + 1)
+    shard_bytes = shard_size * pair_bytes
+    memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    if shard_bytes > memory / 4:
+        warnings.warn(
+            f"{video.height} x {video.width} x {video.num_frames} frames with shard_size "
+            f"{shard_size} hold about {shard_bytes / 2**30:.1f} GiB per shard in each worker's "
+            f"memory ({memory / 2**30:.0f} GiB here): lower shard_size, height or width",
+            stacklevel=3)
 
 
 def generate_dataset(

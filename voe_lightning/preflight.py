@@ -4,12 +4,19 @@ nothing, log no VOE statistics or fail only after the data is rendered."""
 
 from __future__ import annotations
 
+import importlib
+import os
+from pathlib import Path
 from typing import Any
 
+import lightning as L
 from lightning.pytorch.utilities import rank_zero_warn
 
 from voe_lightning import specs
 from voe_lightning.runs import concepts_of
+
+#: The longest file or folder name (bytes) common file systems take.
+NAME_MAX = 255
 
 
 def check_run(subcommand: str, config: Any) -> None:
@@ -24,6 +31,14 @@ def check_run(subcommand: str, config: Any) -> None:
         raise ValueError(f"trainer.max_steps {max_steps}: give a number of steps >= 0, or -1 "
                          "for no limit")
     _check_image_size(model, data)
+    root = data.get("root")
+    if root is not None and Path(root).exists() and not Path(root).is_dir():
+        raise NotADirectoryError(f"data.init_args.root {root} is a file, not a dataset folder: "
+                                 "give a folder (generate makes it where it does not exist)")
+    data_class = getattr(config.get("data"), "class_path", None)
+    if subcommand == "predict" and data_class and not _predicts(data_class):
+        raise ValueError(f"predict needs a DataModule with a predict_dataloader, and {data_class} "
+                         "has none: use one that has (e.g. configs/intphys_test.yaml's), or test")
     if subcommand != "fit":
         return
     interval = trainer.get("val_check_interval")
@@ -34,6 +49,28 @@ def check_run(subcommand: str, config: Any) -> None:
             f"{max_steps}: no validation will run, so VOEProbeCallback logs no VOE "
             f"statistics; use val_check_interval <= {max_steps} to have them")
     _check_batch_size(data)
+
+
+def check_logger(config: Any) -> None:
+    """The run folder the logger will write (its logs, checkpoints, report) must be creatable:
+    a name no file system takes, or a folder this user cannot write, is refused now rather
+    than after training or the whole test pass."""
+    logger = getattr((config.get("trainer") or {}).get("logger"), "init_args", None) or {}
+    if not logger.get("save_dir"):
+        return
+    parts = [str(part) for part in (logger.get("name"), logger.get("version"))
+             if part not in (None, "")]
+    for part in "/".join(parts).split("/"):
+        if len(part.encode()) > NAME_MAX:
+            raise ValueError(f"trainer.logger.init_args name or version {part[:40]}... is "
+                             f"{len(part.encode())} bytes long; a folder name may have at most "
+                             f"{NAME_MAX}: choose a shorter one")
+    folder = Path(logger["save_dir"], *parts)
+    existing = next(path for path in (folder, *folder.parents) if path.exists())
+    if not os.access(existing, os.W_OK | os.X_OK) or not existing.is_dir():
+        raise PermissionError(f"cannot write the run folder {folder}: {existing} is not a "
+                              "writable folder; choose another trainer.logger.init_args.save_dir "
+                              "or make it writable")
 
 
 def _check_image_size(model: Any, data: Any) -> None:
@@ -65,6 +102,13 @@ def _check_batch_size(data: Any) -> None:
             f"data.init_args.batch_size {batch_size} is larger than the {clips} training clips "
             f"({examples} examples + {controls} controls x {len(concepts)} concept(s)), so "
             f"every batch would be dropped and nothing trained: use batch_size <= {clips}")
+
+
+def _predicts(class_path: str) -> bool:
+    """Whether the DataModule class ``class_path`` names implements predict_dataloader."""
+    module_name, _, name = class_path.rpartition(".")
+    data_class = getattr(importlib.import_module(module_name), name)
+    return data_class.predict_dataloader is not L.LightningDataModule.predict_dataloader
 
 
 def _callback_configured(trainer: Any, name: str) -> bool:
