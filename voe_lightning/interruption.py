@@ -6,6 +6,7 @@ there; the CLI then exits with 128 + the signal's number instead of 0."""
 from __future__ import annotations
 
 import signal
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -31,8 +32,8 @@ class InterruptCheckpoint(L.Callback):
         self.signal_name, self.saved = None, None
         # Lightning's SIGTERM handler is in place by now: it only sets a flag the loops read.
         terminate = signal.getsignal(signal.SIGTERM)
-        if not callable(terminate):
-            return
+        if not callable(terminate) or threading.current_thread() is not threading.main_thread():
+            return  # no Lightning handler to hand over to, or handlers cannot be set here
         self._previous = {number: signal.getsignal(number)
                           for number in (signal.SIGTERM, signal.SIGINT)}
 
