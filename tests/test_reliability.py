@@ -336,3 +336,9 @@ def test_a_shard_too_large_for_memory_is_warned_of(tmp_path):
     with pytest.warns(UserWarning, match=r"4096 x 4096 x 15 frames with shard_size 100 hold "
                                          r"about 187.5 GiB per shard"):
         generate._prepare(tmp_path, ["continuity"], 1, None, 1, 1, 0, 100, 15, 4096, 4096)
+
+
+def test_generate_of_one_frame_videos_is_one_line_naming_num_frames(tmp_path, capsys):
+    line = _refused(capsys, ["generate", "--root", str(tmp_path / "data"), "--num_frames", "1"])
+    assert "num_frames must be an integer of at least 2" in line
+    assert not (tmp_path / "data").exists()

@@ -422,6 +422,9 @@ def _prepare(
             raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
     if not isinstance(shard_size, int) or shard_size < 1:
         raise ValueError(f"shard_size must be a positive integer, got {shard_size!r}")
+    if not isinstance(num_frames, int) or num_frames < 2:
+        raise ValueError(f"num_frames must be an integer of at least 2 (a probe changes after "
+                         f"its first frame), got {num_frames!r}")
     video = VideoOptions(num_frames=num_frames, height=height, width=width)
     _warn_of_shard_memory(video, shard_size)
     concept_counts = {concept: split_counts(concept, **counts) for concept in concepts}
