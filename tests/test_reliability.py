@@ -342,3 +342,14 @@ def test_generate_of_one_frame_videos_is_one_line_naming_num_frames(tmp_path, ca
     line = _refused(capsys, ["generate", "--root", str(tmp_path / "data"), "--num_frames", "1"])
     assert "num_frames must be an integer of at least 2" in line
     assert not (tmp_path / "data").exists()
+
+
+def test_a_setting_a_scene_cannot_render_is_one_line(tmp_path, capsys):
+    """Solidity's counterbalanced probes need num_frames >= 7; the scene says so while
+    rendering (not before: see docs/reliability.md), now as the user's error."""
+    line = _refused(capsys, ["generate", "--root", str(tmp_path), "--concepts", "[solidity]",
+                             "--num_frames", "4", "--height", "32", "--width", "32",
+                             "--train_examples", "1", "--val_pairs", "1", "--test_pairs", "1",
+                             "--generalization_pairs", "0", "--workers", "1",
+                             "--progress", "false"])
+    assert "use num_frames >= 7" in line

@@ -348,7 +348,10 @@ def generate_shard(root: str | os.PathLike, task: ShardTask, video: VideoOptions
         try:
             records.append(render_record(task.concept, task.split, name, seed, video))
         except (ValueError, RuntimeError) as error:
-            raise RuntimeError(
+            # A ValueError is a setting the scene cannot render (solidity's num_frames): it
+            # stays one, so the CLI prints it as the user's error, in one line.
+            kind = ValueError if isinstance(error, ValueError) else RuntimeError
+            raise kind(
                 f"rendering {task.concept} {task.split} {name} seed {seed} for {task.path(root)} "
                 f"failed: {error}"
             ) from error
