@@ -88,7 +88,7 @@ def test_after_training_it_tracks_a_hidden_ball_and_a_vanishing_or_teleport_surp
     torch.manual_seed(0)
     model = ObjectStateModel(hidden_size=32, message_size=16, learning_rate=3e-3)
     model.log = lambda *args, **kwargs: None
-    optimizer = model.configure_optimizers()
+    optimizer = model.configure_optimizers()["optimizer"]
     consistent = scripted_clips(32, seed=7)
     inconsistent = {hide: scripted_clips(32, seed=7, hide=hide)
                     for hide in ("vanish", "teleport")}

@@ -5,7 +5,6 @@ callbacks, reports and notebooks use."""
 from __future__ import annotations
 
 import contextlib
-import math
 from collections.abc import Sequence
 
 import torch
@@ -14,6 +13,7 @@ from tensordict import TensorDictBase
 
 from voe_lightning import specs
 from voe_lightning.model.base import SurpriseModel
+from voe_lightning.model import optimization
 from voe_lightning.model.memory import LRUMemory
 from voe_lightning.model.networks import Decoder, Encoder
 from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, standard_normal_kl
@@ -36,7 +36,6 @@ ARCHITECTURE = (
     "encoder_mlp_size",
 )
 PRECISIONS = ("auto", "bf16", "float32")
-LR_SCHEDULES = ("constant", "cosine")
 
 
 def bf16_is_fast(device: torch.device) -> bool:
@@ -132,9 +131,7 @@ class VOEModel(SurpriseModel):
             raise ValueError(f"unknown precision {precision!r}; valid choices are: {', '.join(PRECISIONS)}")
         if learning_rate <= 0:
             raise ValueError(f"learning_rate must be positive, got {learning_rate}")
-        if lr_schedule not in LR_SCHEDULES:
-            raise ValueError(f"unknown lr_schedule {lr_schedule!r}; valid choices are: "
-                             f"{', '.join(LR_SCHEDULES)}")
+        optimization.check_schedule(lr_schedule)
         if kl_warmup_steps < 0:
             raise ValueError(f"kl_warmup_steps must be >= 0, got {kl_warmup_steps}")
         if kl_free_bits < 0:
@@ -310,17 +307,7 @@ class VOEModel(SurpriseModel):
 
     # ----------------------------------------------------------------------------- optimizer
     def configure_optimizers(self) -> dict:
-        optimizer = torch.optim.Adam(
-            self.parameters(), lr=self.hparams.learning_rate, betas=tuple(self.hparams.adam_betas)
-        )
-        if self.hparams.lr_schedule == "constant":
-            return {"optimizer": optimizer}
-        total = self.trainer.max_steps
-        if total is None or total < 1:
-            raise ValueError("lr_schedule 'cosine' decays to 0 at trainer.max_steps; set it "
-                             f"(got max_steps={total})")
-        schedule = torch.optim.lr_scheduler.LambdaLR(
-            optimizer, lambda step: 0.5 * (1 + math.cos(math.pi * min(step, total) / total))
-        )
-        return {"optimizer": optimizer,
-                "lr_scheduler": {"scheduler": schedule, "interval": "step"}}
+        return optimization.adam(self.parameters(), self.hparams.learning_rate,
+                                 self.hparams.lr_schedule,
+                                 getattr(self._trainer, "max_steps", None),
+                                 tuple(self.hparams.adam_betas))

@@ -15,8 +15,16 @@ from tensordict import TensorDictBase
 from torch import nn
 
 from voe_lightning import specs
+from voe_lightning.model import optimization
 from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.model.dynamics import CAMERA_FEATURES, camera_features, mlp
+from voe_lightning.model.object_geometry import (
+    VIEW,
+    camera_coordinates,
+    image_plane,
+    seen_by_geometry,
+    view,
+)
 from voe_lightning.scenes.base import FOVY
 
 #: The continuous state of an object that the model predicts: position (3), orientation (4),
@@ -24,9 +32,6 @@ from voe_lightning.scenes.base import FOVY
 STATE_SIZE = 13
 SHAPES = len(specs.OBJECT_SHAPES)
 SPHERE = specs.OBJECT_SHAPES.index("sphere")
-#: Where an object is in the view (``view``): camera coordinates (right, up, depth), and the
-#: centre and half-extents (right, up) of its bounding box in the image plane.
-VIEW = 3 + 2 + 2
 #: Per-slot features the recurrent core reads: the state, its shape (one-hot), its visible share,
 #: its view, its velocity and whether it is seen.
 FEATURES = STATE_SIZE + SHAPES + 1 + VIEW + 3 + 1
@@ -96,79 +101,6 @@ def observe(objects: TensorDictBase, camera: torch.Tensor) -> Observations:
     )
 
 
-def camera_axes(camera: torch.Tensor) -> tuple[torch.Tensor, ...]:
-    """Eye position, right, up and forward unit vectors [B, 3] of MuJoCo's free camera at
-    poses [B, 6] (the torch twin of ``scenes.base.camera_axes``)."""
-    azimuth, elevation = torch.deg2rad(camera[:, 4]), torch.deg2rad(camera[:, 5])
-    forward = torch.stack([elevation.cos() * azimuth.cos(), elevation.cos() * azimuth.sin(),
-                           elevation.sin()], dim=-1)
-    up = torch.stack([-elevation.sin() * azimuth.cos(), -elevation.sin() * azimuth.sin(),
-                      elevation.cos()], dim=-1)
-    eye = camera[:, :3] - camera[:, 3:4] * forward
-    return eye, torch.linalg.cross(forward, up), up, forward
-
-
-def camera_coordinates(position: torch.Tensor, camera: torch.Tensor) -> torch.Tensor:
-    """World points [B, S, 3] in the frame of the camera at poses [B, 6]: offsets along its
-    right, up and forward (depth) axes [B, S, 3]."""
-    eye, *axes = camera_axes(camera)
-    offset = position - eye[:, None]
-    return torch.stack([(offset * axis[:, None]).sum(-1) for axis in axes], -1)
-
-
-def quaternion_matrix(quaternion: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices [..., 3, 3] of quaternions [..., 4] (w, x, y, z; zeros give zeros)."""
-    w, x, y, z = quaternion.unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], dim=-1).unflatten(-1, (3, 3)) * (quaternion.norm(dim=-1) > 0)[..., None, None]
-
-
-def view(state: torch.Tensor, camera: torch.Tensor) -> torch.Tensor:
-    """Where objects of ``state`` [B, S, 13] are seen from poses [B, 6]: camera coordinates,
-    and the centre and half-extents of each one's bounding box in the image plane (the box's
-    extent along the camera's right and up axes over its depth) [B, S, VIEW]. What a renderer
-    would compute; the model still learns which objects hide which."""
-    coordinates = camera_coordinates(state[..., :3], camera)
-    body_axes = quaternion_matrix(state[..., 3:7])  # columns: the body's axes in the world
-    half = state[..., 7:10]
-    _, right, up, _ = camera_axes(camera)
-    extents = [((axis[:, None, :, None] * body_axes).sum(-2).abs() * half).sum(-1)
-               for axis in (right, up)]
-    depth = coordinates[..., 2:3].clamp(min=0.05) * math.tan(math.radians(FOVY) / 2)
-    return torch.cat([coordinates, image_plane(coordinates), torch.stack(extents, -1) / depth],
-                     dim=-1)
-
-
-def seen_by_geometry(seen_as: torch.Tensor, known: torch.Tensor, depth_scale: float = 0.05
-                     ) -> torch.Tensor:
-    """How likely each slot is to be seen by geometry alone [B, S], from every slot's ``view``
-    [B, S, VIEW]: the share of its image box inside the frame, times the chance that no known
-    slot in front of it (by a margin of ``depth_scale`` metres, softly) covers its image box.
-    What a renderer of bounding boxes would say; the visibility head learns the rest."""
-    centre, half = seen_as[..., 3:5], seen_as[..., 5:7].clamp(min=1e-3)
-    inside = ((torch.minimum(centre + half, torch.ones_like(centre))
-               - torch.maximum(centre - half, -torch.ones_like(centre))) / (2 * half))
-    inside = inside.clamp(0, 1).prod(-1)
-    depth = seen_as[..., 2]
-    in_front = torch.sigmoid((depth[:, :, None] - depth[:, None, :]) / depth_scale)  # j before i
-    overlap = ((half[:, None] + half[:, :, None] - (centre[:, None] - centre[:, :, None]).abs())
-               / (2 * half[:, :, None])).clamp(0, 1).prod(-1)  # of i's box, by j's
-    others = (known[:, None, :] & ~torch.eye(known.shape[1], dtype=torch.bool,
-                                             device=known.device)).float()
-    uncovered = (1 - in_front * overlap * others).prod(-1)
-    return inside * uncovered
-
-
-def image_plane(coordinates: torch.Tensor) -> torch.Tensor:
-    """Camera coordinates [..., 3] -> image-plane position [..., 2] in units of the half
-    field of view (inside the image: both within [-1, 1])."""
-    depth = coordinates[..., 2:3].clamp(min=0.05)
-    return coordinates[..., :2] / depth / math.tan(math.radians(FOVY) / 2)
-
-
 def gaussian_nll(value: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor
                  ) -> tuple[torch.Tensor, torch.Tensor]:
     """-log N(value; mean, exp(log_std)^2) and the entropy of that Gaussian, each summed over
@@ -220,12 +152,13 @@ class ObjectStateModel(SurpriseModel):
             coordinates are taken from a fixed default pose.
         min_std: floor of the predicted standard deviations (metres for positions): the
             precision of a perfect perception system.
-        learning_rate: Adam.
+        learning_rate: Adam's (peak) learning rate.
+        lr_schedule: ``"constant"`` or ``"cosine"`` (decays to 0 at ``trainer.max_steps``).
         training_frames: frames per training clip, recorded from the training batches.
     """
 
     ARCHITECTURE = ARCHITECTURE
-    TRAINING_ONLY = ("learning_rate",)
+    TRAINING_ONLY = ("learning_rate", "lr_schedule")
     SURPRISE = ("the rectified excess surprisal of the seen object states (each term's negative "
                 "log-likelihood less its entropy, where positive: the visibility, state and shape "
                 "of every known object, and any newcomer's appearance)")
@@ -237,6 +170,7 @@ class ObjectStateModel(SurpriseModel):
         use_camera: bool = True,
         min_std: float = 0.01,
         learning_rate: float = 1e-3,
+        lr_schedule: str = "constant",
         training_frames: int | None = None,
     ) -> None:
         super().__init__()
@@ -247,6 +181,7 @@ class ObjectStateModel(SurpriseModel):
         if min_std <= 0 or learning_rate <= 0:
             raise ValueError(f"min_std and learning_rate must be > 0, got {min_std}, "
                              f"{learning_rate}")
+        optimization.check_schedule(lr_schedule)
         hidden, message = hidden_size, message_size
         self.message = PairNetwork(hidden, hidden, hidden, message)
         self.update = nn.GRUCell(FEATURES + message + CAMERA_FEATURES, hidden)
@@ -400,7 +335,7 @@ class ObjectStateModel(SurpriseModel):
         seen_as = view(predicted, pose)
         pairs = self._pairs(predicted, shape, seen_as)
         occluders = self._messages(self.occlusion, hidden, None, pairs, known)
-        geometry = seen_by_geometry(seen_as, known).clamp(0.02, 0.98)
+        geometry = seen_by_geometry(predicted, shape, known, pose).clamp(0.02, 0.98)
         logit = self.visibility(torch.cat(
             [hidden, occluders, seen_as, predicted[..., 7:10], pose_features], dim=-1)
         ).squeeze(-1) + self.geometry_weight * torch.logit(geometry)
@@ -467,8 +402,10 @@ class ObjectStateModel(SurpriseModel):
                 self.log(f"train/{name}", value, batch_size=clips)
         return terms["loss"]
 
-    def configure_optimizers(self) -> torch.optim.Optimizer:
-        return torch.optim.Adam(self.parameters(), lr=self.hparams.learning_rate)
+    def configure_optimizers(self) -> dict:
+        return optimization.adam(self.parameters(), self.hparams.learning_rate,
+                                 self.hparams.lr_schedule,
+                                 getattr(self._trainer, "max_steps", None))
 
     # ----------------------------------------------------------------------------- protocol
     @torch.no_grad()

@@ -1,0 +1,186 @@
+"""What a renderer of object boxes would show: camera coordinates, image-plane boxes and which
+points of an object no other object hides. The positive control (``object_state``) starts its
+visibility from this geometry and learns the rest; all of it is differentiable, so the dynamics
+of a hidden object learn from whether it was expected to be seen."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from voe_lightning import specs
+from voe_lightning.scenes.base import FOVY
+
+#: Where an object is in the view (``view``): camera coordinates (right, up, depth), and the
+#: centre and half-extents (right, up) of its bounding box in the image plane.
+VIEW = 3 + 2 + 2
+COMPOUND = specs.OBJECT_SHAPES.index("compound")
+#: The points of an object's box whose sight lines are tested: its centre and its eight corners
+#: drawn in to this share of the half-extents (a corner exactly on a touching face is moot).
+CORNER_INSET = 0.9
+#: Half-thickness (m) of the walls and bottom of an open container (a ``compound`` object is an
+#: open-topped box of its bounding box: what lies inside it is seen over its rim, not through
+#: its walls).
+WALL = 0.02
+#: Softness (m) of the sight-line tests: how far a sight line must pass through a box, or a
+#: point lie above the floor, to count as clearly hidden or clearly not.
+SOFTNESS = 0.01
+#: How far a corner of each shape's box (``specs.OBJECT_SHAPES``) must be drawn in to lie inside
+#: the shape: a sphere's by sqrt(3), a cylinder's or capsule's by sqrt(2), a box's not at all.
+ROUNDNESS = tuple({"sphere": math.sqrt(3), "ellipsoid": math.sqrt(3), "cylinder": math.sqrt(2),
+                   "capsule": math.sqrt(2)}.get(name, 1.0) for name in specs.OBJECT_SHAPES)
+
+
+def camera_axes(camera: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """Eye position, right, up and forward unit vectors [B, 3] of MuJoCo's free camera at
+    poses [B, 6] (the torch twin of ``scenes.base.camera_axes``)."""
+    azimuth, elevation = torch.deg2rad(camera[:, 4]), torch.deg2rad(camera[:, 5])
+    forward = torch.stack([elevation.cos() * azimuth.cos(), elevation.cos() * azimuth.sin(),
+                           elevation.sin()], dim=-1)
+    up = torch.stack([-elevation.sin() * azimuth.cos(), -elevation.sin() * azimuth.sin(),
+                      elevation.cos()], dim=-1)
+    eye = camera[:, :3] - camera[:, 3:4] * forward
+    return eye, torch.linalg.cross(forward, up), up, forward
+
+
+def camera_coordinates(position: torch.Tensor, camera: torch.Tensor) -> torch.Tensor:
+    """World points [B, ..., 3] in the frame of the camera at poses [B, 6]: offsets along its
+    right, up and forward (depth) axes [B, ..., 3]."""
+    eye, *axes = camera_axes(camera)
+    extra = (1,) * (position.dim() - 2)
+    offset = position - eye.view(-1, *extra, 3)
+    return torch.stack([(offset * axis.view(-1, *extra, 3)).sum(-1) for axis in axes], -1)
+
+
+def quaternion_matrix(quaternion: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices [..., 3, 3] of quaternions [..., 4] (w, x, y, z; zeros give zeros)."""
+    w, x, y, z = quaternion.unbind(-1)
+    return torch.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ], dim=-1).unflatten(-1, (3, 3)) * (quaternion.norm(dim=-1) > 0)[..., None, None]
+
+
+def image_plane(coordinates: torch.Tensor) -> torch.Tensor:
+    """Camera coordinates [..., 3] -> image-plane position [..., 2] in units of the half
+    field of view (inside the image: both within [-1, 1])."""
+    depth = coordinates[..., 2:3].clamp(min=0.05)
+    return coordinates[..., :2] / depth / math.tan(math.radians(FOVY) / 2)
+
+
+def view(state: torch.Tensor, camera: torch.Tensor) -> torch.Tensor:
+    """Where objects of ``state`` [B, S, 13] (position, orientation, half-size, colour) are
+    seen from poses [B, 6]: camera coordinates, and the centre and half-extents of each one's
+    bounding box in the image plane (the box's extent along the camera's right and up axes over
+    its depth) [B, S, VIEW]."""
+    coordinates = camera_coordinates(state[..., :3], camera)
+    body_axes = quaternion_matrix(state[..., 3:7])  # columns: the body's axes in the world
+    half = state[..., 7:10]
+    _, right, up, _ = camera_axes(camera)
+    extents = [((axis[:, None, :, None] * body_axes).sum(-2).abs() * half).sum(-1)
+               for axis in (right, up)]
+    depth = coordinates[..., 2:3].clamp(min=0.05) * math.tan(math.radians(FOVY) / 2)
+    return torch.cat([coordinates, image_plane(coordinates), torch.stack(extents, -1) / depth],
+                     dim=-1)
+
+
+def _rotations(state: torch.Tensor) -> torch.Tensor:
+    """Each object's rotation [B, S, 3, 3]; an object with no orientation reads as upright."""
+    rotation = quaternion_matrix(state[..., 3:7])
+    upright = torch.eye(3, dtype=state.dtype, device=state.device)
+    return torch.where(state[..., 3:7].norm(dim=-1)[..., None, None] > 0, rotation, upright)
+
+
+def sample_points(state: torch.Tensor, shape: torch.Tensor) -> torch.Tensor:
+    """The tested points of each object [B, S, 9, 3] (world): its centre and the corners of its
+    box drawn in (CORNER_INSET), and for a round shape further, into the shape itself (a
+    sphere's box corners stick out of it)."""
+    signs = torch.tensor([[0.0, 0.0, 0.0]] + [[x, y, z] for x in (-1.0, 1.0)
+                                              for y in (-1.0, 1.0) for z in (-1.0, 1.0)],
+                         dtype=state.dtype, device=state.device)
+    inset = CORNER_INSET / torch.tensor(ROUNDNESS, dtype=state.dtype, device=state.device)
+    inset = (shape * inset).sum(-1, keepdim=True) + CORNER_INSET * (shape.sum(-1, keepdim=True)
+                                                                    == 0)
+    local = signs * (inset * state[..., 7:10])[..., None, :]  # [B, S, 9, 3]
+    return state[..., None, :3] + torch.einsum("bsij,bspj->bspi", _rotations(state), local)
+
+
+def occluder_boxes(state: torch.Tensor, shape: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """Each object as up to five solid boxes in its own frame: a solid object is its bounding
+    box; an open container (``compound``) its bottom and four walls. Returns the boxes' centres
+    and half-sizes [B, S, 5, 3] (body frame, from the object's centre) and whether each is
+    real [B, S, 5]."""
+    half = state[..., 7:10]
+    hx, hy, hz = half.unbind(-1)
+    wall = torch.minimum(half.amin(-1), torch.full_like(hx, WALL))
+    zero = torch.zeros_like(hx)
+    centres = torch.stack([
+        torch.stack([zero, zero, -hz + wall], -1),
+        torch.stack([zero, hy - wall, zero], -1), torch.stack([zero, wall - hy, zero], -1),
+        torch.stack([hx - wall, zero, zero], -1), torch.stack([wall - hx, zero, zero], -1),
+    ], dim=-2)
+    halves = torch.stack([
+        torch.stack([hx, hy, wall], -1),
+        torch.stack([hx, wall, hz], -1), torch.stack([hx, wall, hz], -1),
+        torch.stack([wall, hy, hz], -1), torch.stack([wall, hy, hz], -1),
+    ], dim=-2)
+    compound = (shape.argmax(-1) == COMPOUND) & (shape.amax(-1) > 0)  # [B, S]
+    solid_centres = torch.zeros_like(centres)
+    solid_halves = torch.cat([half[..., None, :], torch.zeros_like(halves[..., 1:, :])], -2)
+    real = torch.ones_like(compound[..., None].expand(*compound.shape, 5))
+    real = torch.where(compound[..., None], real, real & (torch.arange(5, device=real.device)
+                                                          == 0))
+    return (torch.where(compound[..., None, None], centres, solid_centres),
+            torch.where(compound[..., None, None], halves, solid_halves), real)
+
+
+def sight_blocked(eye: torch.Tensor, points: torch.Tensor, state: torch.Tensor,
+                  shape: torch.Tensor) -> torch.Tensor:
+    """How surely each object j's boxes block the sight line from ``eye`` [B, 3] to each point
+    [B, S, P, 3] [B, S, P, S_j] (soft, in [0, 1]): a slab test in each box's frame, softened
+    by SOFTNESS over how far the line runs through the box before reaching the point."""
+    rotation = _rotations(state)  # [B, J, 3, 3]
+    centres, halves, real = occluder_boxes(state, shape)  # [B, J, Q, 3], [B, J, Q]
+    world_centres = state[..., None, :3] + torch.einsum("bjik,bjqk->bjqi", rotation, centres)
+    # eye and points in each box's frame: [B, J, Q, 3] and [B, S, P, J, Q, 3]
+    eye_local = torch.einsum("bjki,bjqk->bjqi", rotation, eye[:, None, None] - world_centres)
+    offset = points[:, :, :, None, None] - world_centres[:, None, None]
+    point_local = torch.einsum("bjki,bspjqk->bspjqi", rotation, offset)
+    direction = point_local - eye_local[:, None, None]
+    length = direction.norm(dim=-1).clamp(min=1e-6)
+    tiny = direction.abs() < 1e-9
+    safe = torch.where(tiny, torch.full_like(direction, 1e-9), direction)
+    start = eye_local[:, None, None]
+    low, high = (-halves[:, None, None] - start) / safe, (halves[:, None, None] - start) / safe
+    inside_slab = start.abs() <= halves[:, None, None]
+    enter = torch.where(tiny, torch.where(inside_slab, -1e9, 1e9), torch.minimum(low, high))
+    leave = torch.where(tiny, torch.where(inside_slab, 1e9, -1e9), torch.maximum(low, high))
+    near, far = enter.amax(-1) * length, leave.amin(-1) * length  # metres along the line
+    # the stretch of the line inside the box, up to the point: > 0 when the box hides it
+    through = torch.sigmoid((torch.minimum(far, length) - near.clamp(min=0)) / SOFTNESS)
+    blocked = through * real[:, None, None].float()  # [B, S, P, J, Q]
+    return 1 - (1 - blocked).prod(-1)
+
+
+def seen_by_geometry(state: torch.Tensor, shape: torch.Tensor, known: torch.Tensor,
+                     camera: torch.Tensor) -> torch.Tensor:
+    """How likely each slot is to be seen by geometry alone [B, S], from the slots' states
+    [B, S, 13] and shapes [B, S, SHAPES] at poses [B, 6]: whether some of its image box is in
+    the frame, times the best, over the tested points of its box, of the chance that the point
+    is above the floor and hidden by no other known slot. What a renderer of the objects' boxes
+    would say."""
+    seen_as = view(state, camera)
+    centre, half = seen_as[..., 3:5], seen_as[..., 5:7]
+    overlap = (torch.minimum(centre + half, torch.ones_like(centre))
+               - torch.maximum(centre - half, -torch.ones_like(centre)))
+    in_frame = torch.sigmoid(overlap / (2 * SOFTNESS)).prod(-1)
+    in_frame = in_frame * torch.sigmoid((seen_as[..., 2] - 0.05) / SOFTNESS)  # before the eye
+    points = sample_points(state, shape)  # [B, S, P, 3]
+    above_floor = torch.sigmoid(points[..., 2] / SOFTNESS)
+    blocked = sight_blocked(camera_axes(camera)[0], points, state, shape)  # [B, S, P, J]
+    slots = known.shape[1]
+    others = (known[:, None, :] & ~torch.eye(slots, dtype=torch.bool, device=known.device))
+    clear = (1 - blocked * others[:, :, None].float()).prod(-1)
+    return in_frame * (above_floor * clear).amax(-1)
