@@ -1,5 +1,5 @@
-"""Loading throughput (DESIGN.md §7): records per second read from the store through the
-DataLoader the DataModules use (decompression, checksum, TensorDict collation), for training
+"""Loading throughput (docs/architecture.md §10): records per second read from the store through
+the DataLoader the DataModules use (decompression, checksum, TensorDict collation), for training
 clips and probe pairs, with 0 and 2 worker processes. It must outrun training by a wide margin.
 
 Run: ``python benchmarks/loading.py [--root data/bench_loading] [--records 512]`` (generates a

@@ -1,5 +1,5 @@
-"""Training throughput of the VRNN-LRU (DESIGN.md §7): the float32 NCHW baseline beside the
-fast path (the model's defaults: channels-last, bf16 autocast where the device supports it;
+"""Training throughput of the VRNN-LRU (docs/architecture.md §10): the float32 NCHW baseline beside
+the fast path (the model's defaults: channels-last, bf16 autocast where the device supports it;
 ``torch.compile`` on a GPU unless ``--compile off``), as sequences per second and their ratio,
 for the quickstart-size and paper-size models of ``configs/quickstart.yaml`` and ``configs/paper.yaml``.
 

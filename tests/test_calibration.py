@@ -1,6 +1,6 @@
-"""The verdict is calibrated (DESIGN.md §6): on synthetic surprise made of the real cue scores
-of generated probes (``voe_lightning.calibration``), a model with no physics says VOE in at most
-alpha of repetitions per concept, whether it is noise or follows a frame-local cue linearly or
+"""The verdict is calibrated (docs/architecture.md §8): on synthetic surprise made of the real cue
+scores of generated probes (``voe_lightning.calibration``), a model with no physics says VOE in at
+most alpha of repetitions per concept, whether it is noise or follows a frame-local cue linearly or
 not, wherever the stimuli let any test tell it apart; its power at a true effect is the
 noncentral t's. Probes are few and small (30 pairs per variant, 32x32) for a 2-core CPU."""
 

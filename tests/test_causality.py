@@ -1,5 +1,5 @@
-"""Causality is part of the model protocol (DESIGN.md §5): a model's surprise at frame t may
-depend only on the frames, masks, camera poses and object states up to t. Every
+"""Causality is part of the model protocol (docs/architecture.md §7): a model's surprise at frame t
+may depend only on the frames, masks, camera poses and object states up to t. Every
 ``SurpriseModel`` family the package ships runs through two checks: on generated probe pairs,
 whose two videos are byte-identical through the manipulation frame, per-frame surprise is
 identical there; and on a random video, truncating or altering everything after frame t leaves

@@ -1,5 +1,5 @@
-"""LRU memory invariants (DESIGN.md §5): read weights are distributions, usage decays by gamma,
-a closed write gate writes to the least-used slot(s), batch rows are independent, gradients
+"""LRU memory invariants (docs/architecture.md §7): read weights are distributions, usage decays by
+gamma, a closed write gate writes to the least-used slot(s), batch rows are independent, gradients
 flow, and the controller sees the last read only when asked."""
 
 import pytest

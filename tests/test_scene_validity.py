@@ -1,5 +1,5 @@
-"""DESIGN.md §4 validity, for every concept and probe variant over several seeds: frames
-identical through the manipulation frame, hidden manipulation, a real difference afterwards,
+"""Validity (docs/architecture.md §4), for every concept and probe variant over several seeds:
+frames identical through the manipulation frame, hidden manipulation, a real difference afterwards,
 determinism, records matching the specs, one camera distribution per concept, and no
 physics-blind cue in any concept's balanced pool of probes. Set VOE_VALIDITY_SEEDS to check
 more seeds (CI uses a few; run with 50 before changing a scene) and VOE_FAIRNESS_PAIRS for
@@ -163,9 +163,9 @@ def _ids(record, video: str) -> tuple[set[int], set[int]]:
 
 @pytest.mark.parametrize("concept,variant", PROBE_CASES)
 def test_a_pair_holds_the_same_ids_unless_an_object_appears_by_design(concept, variant):
-    """Mask ids are what a tracker would give (DESIGN.md §4): a body swapped in or moved while
-    hidden keeps the id of the one it replaced, so both videos of a pair show the same ids, and
-    their states hold the same ids except for an object that appears by design."""
+    """Mask ids are what a tracker would give (docs/architecture.md §4): a body swapped in or moved
+    while hidden keeps the id of the one it replaced, so both videos of a pair show the same ids,
+    and their states hold the same ids except for an object that appears by design."""
     for seed in range(NUM_SEEDS):
         record = generate_probe(concept, variant, seed)
         (shown, held), (shown_changed, held_changed) = (

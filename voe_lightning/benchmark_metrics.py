@@ -1,4 +1,5 @@
-"""The external benchmarks' published metrics, computed from model surprise (DESIGN.md §6).
+"""The external benchmarks' published metrics, computed from model surprise
+(docs/architecture.md §8).
 
 IntPhys (Riochet et al. 2018, arXiv:1803.07616, eqs. 1-2, and the challenge's scoring program)
 scores a plausibility P(x) per movie, in quadruplets of two possible and two impossible movies:

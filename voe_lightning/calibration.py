@@ -1,5 +1,5 @@
-"""Calibration of the VOE verdict (DESIGN.md §6): how often it says VOE for a model that has no
-physics, only a physics-blind cue, and how large a true effect it needs to say VOE reliably.
+"""Calibration of the VOE verdict (docs/architecture.md §8): how often it says VOE for a model that
+has no physics, only a physics-blind cue, and how large a true effect it needs to say VOE reliably.
 
 A synthetic model's relative surprise of probe pair i of a concept is
 

@@ -1,8 +1,9 @@
-"""The cue audit (DESIGN.md §4, §6): physics-blind scores of each probe video, tested with the
-same paired statistics as a model's surprise. A score that tells inconsistent from consistent
-videos of a concept's pooled pairs is a low-level cue in the stimuli, not evidence of physics,
-so these rows stand beside every model result (``test`` writes them to ``voe_report/cues.*``)
-and ``python -m voe_lightning audit --root DIR`` runs them on any probe split of a store.
+"""The cue audit (docs/architecture.md §4, §8): physics-blind scores of each probe video, tested
+with the same paired statistics as a model's surprise. A score that tells inconsistent from
+consistent videos of a concept's pooled pairs is a low-level cue in the stimuli, not evidence of
+physics, so these rows stand beside every model result (``test`` writes them to
+``voe_report/cues.*``) and ``python -m voe_lightning audit --root DIR`` runs them on any probe split
+of a store.
 
 Every score is computed on the frames after ``manipulation_frame`` (the two videos of a pair are
 identical up to and including it), per video, with frames x_t in [0, 1]:

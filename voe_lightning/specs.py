@@ -1,5 +1,6 @@
 """The data contract: names of concepts, clip kinds and probe variants, and the torchrl specs
-of every record (DESIGN.md §3). Generators, the store, DataModules and tests all use these."""
+of every record (docs/architecture.md §3). Generators, the store, DataModules and tests all use
+these."""
 
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ CLIP_KINDS_BY_CONCEPT: dict[str, tuple[str, ...]] = {
 }
 
 #: Probe variants per concept used for validation and test (paper §3; ``counterbalanced`` for
-#: continuity, solidity and containment is ours, DESIGN.md §4).
+#: continuity, solidity and containment is ours, docs/architecture.md §4).
 STANDARD_VARIANTS: dict[str, tuple[str, ...]] = {
     "object_persistence": ("standard", "counterbalanced"),
     "unchangeableness": ("position", "color", "shape"),

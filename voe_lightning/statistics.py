@@ -1,5 +1,5 @@
-"""Violation-of-expectation statistics (DESIGN.md §6): the one-tailed paired t-test of
-S(inconsistent) - S(consistent), as infant looking-time studies use it, in a one-shot form for
+"""Violation-of-expectation statistics (docs/architecture.md §8): the one-tailed paired t-test
+of S(inconsistent) - S(consistent), as infant looking-time studies use it, in a one-shot form for
 reports (``paired_test``) and a streaming torchmetrics form for training-time callbacks
 (``PairedSurpriseStats``). Both share ``t_test_from_moments`` so they decide degenerate cases
 the same way.
@@ -14,11 +14,12 @@ Degenerate inputs, decided once here:
   for H1 at all: t and d_z are undefined (NaN) and p is set to 1 (not significant). Every such
   result carries a ``note`` saying so, which the report prints beside the row.
 
-A concept with a counterbalanced pair is also tested ``pooled`` (DESIGN.md §6): a stratified
-test of the mean of its variants' mean differences, M = (M_standard + M_counterbalanced) / 2,
-with SE = 0.5 * sqrt(s1^2/n1 + s2^2/n2) and Welch-Satterthwaite df (``stratified_test``, and
-``pooled_test`` for per-pair input). The variants' cue differences point opposite ways by
-design, so a test over the union of their pairs would count that split as noise.
+A concept with a counterbalanced pair is also tested ``pooled`` (docs/architecture.md §8): a
+stratified test of the mean of its variants' mean differences,
+M = (M_standard + M_counterbalanced) / 2, with SE = 0.5 * sqrt(s1^2/n1 + s2^2/n2) and
+Welch-Satterthwaite df (``stratified_test``, and ``pooled_test`` for per-pair input). The
+variants' cue differences point opposite ways by design, so a test over the union of their pairs
+would count that split as noise.
 
 One significance level, ``ALPHA``, decides every verdict and table unless a run sets its own
 (``alpha:`` in configs/base.yaml, which the CLI hands to every callback and command).
@@ -67,13 +68,14 @@ __all__ = [
     "verdict_rule",
 ]
 
-#: The row name of a concept's pooled test, and the variants it pools (DESIGN.md §4, §6).
+#: The row name of a concept's pooled test, and the variants it pools
+#: (docs/architecture.md §4, §8).
 POOLED = "pooled"
 POOLED_VARIANTS: tuple[str, str] = ("standard", "counterbalanced")
 
 #: The significance level of every verdict and table unless a run sets another: .01 per test,
-#: so that five concepts' verdicts together stay near .05 (DESIGN.md §6). configs/base.yaml
-#: states it as the run's ``alpha``; a test checks the two agree.
+#: so that five concepts' verdicts together stay near .05 (docs/architecture.md §8).
+#: configs/base.yaml states it as the run's ``alpha``; a test checks the two agree.
 ALPHA = 0.01
 
 #: A variance below this fraction of the mean square is treated as exactly zero (the streaming
@@ -566,8 +568,8 @@ def pair_groups(
 
 @dataclass(frozen=True)
 class Verdict:
-    """Whether a concept shows VOE by the rule of DESIGN.md §4: ``voe`` is True or False, or
-    None when the pairs needed to decide are missing; ``reason`` names what failed."""
+    """Whether a concept shows VOE by the rule of docs/architecture.md §8: ``voe`` is True or
+    False, or None when the pairs needed to decide are missing; ``reason`` names what failed."""
 
     concept: str
     voe: bool | None

@@ -1,4 +1,5 @@
-"""A sharded, compressed, random-access store of clip and probe records (DESIGN.md §3).
+"""A sharded, compressed, random-access store of clip and probe records
+(docs/architecture.md §3).
 
 Layout: ``root/manifest.json`` and ``root/<concept>/<split>/shard-NNNNN.voe``. A shard holds one
 zstd-compressed blob per record (frames and masks as uint8 temporal deltas, the inconsistent
