@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 
-from voe_lightning import generate, specs, store
+from voe_lightning import generate, specs, store, store_plan
 from voe_lightning.scenes.base import VideoOptions, get_renderer
 
 
@@ -31,12 +31,12 @@ def measure(concept: str, clips: int, pairs: int, video: VideoOptions, root: Pat
     """Generate ``clips`` training clips (examples and controls 1:1) and ``pairs`` test probe
     pairs of ``concept`` as shards under ``root``; time each part and size the files."""
     variants = specs.STANDARD_VARIANTS[concept]
-    counts = generate.split_counts(
+    counts = store_plan.split_counts(
         concept, train_examples=clips // 2, train_controls=clips - clips // 2,
         val_pairs_per_variant=0, test_pairs_per_variant=-(-pairs // len(variants)),
         generalization_pairs_per_variant=0,
     )  # fmt: skip
-    tasks = generate.plan_shards({concept: counts}, shard_size=max(clips, pairs, 1))
+    tasks = store_plan.plan_shards({concept: counts}, shard_size=max(clips, pairs, 1))
     result = {"concept": concept}
     for task in tasks:
         started, cpu_started = time.perf_counter(), time.process_time()
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     results = []
     with tempfile.TemporaryDirectory(prefix="voe_generation_benchmark_") as root:
         for concept in args.concepts:
-            generate.generate_shard(root, generate.ShardTask(concept, "train", 999, (("example", 10**6),)), video)  # warm-up
+            generate.generate_shard(root, store_plan.ShardTask(concept, "train", 999, (("example", 10**6),)), video)  # warm-up
             result = measure(concept, args.clips, args.pairs, video, Path(root))
             train, test = result["train"], result["test"]
             videos = train["videos"] + test["videos"]

@@ -203,6 +203,18 @@ def test_run_size_sweep_names_a_missing_report_callback(tmp_path):
         analysis.run_size_sweep(["c.yaml"], [5], out=tmp_path / "s.json", cli_main=no_report)
 
 
+def test_sweep_command_runs_fit_and_test_through_the_cli_main(monkeypatch, tmp_path):
+    """``analyze sweep`` gets the CLI's entry point from the CLI (analysis imports no CLI)."""
+    received = {}
+    monkeypatch.setattr(analysis, "run_size_sweep", lambda *args, cli_main: received.update(
+        args=args, cli_main=cli_main) or [])
+    main(["analyze", "sweep", "--lightning_configs", "[configs/quickstart.yaml]",
+          "--sizes", "[5]", "--out", str(tmp_path / "sweep.json")])
+    assert received["cli_main"] is main and received["args"][1] == [5]
+    with pytest.raises(TypeError, match="run it as `python -m voe_lightning analyze sweep`"):
+        analysis.sweep([Path("configs/quickstart.yaml")], [5])
+
+
 def test_command_line_writes_the_figures(tmp_path, capsys):
     runs = _curve_runs(tmp_path)
     curves_png = tmp_path / "figs" / "curves.png"

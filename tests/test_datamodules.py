@@ -11,7 +11,7 @@ from datamodules import ConceptDataModule, IntPhysDataModule, JointDataModule, P
 from datamodules.voe import InterleavedSampler
 from test_store import fake_clip, fake_probe
 
-from voe_lightning import generate, specs, store
+from voe_lightning import generate, specs, store, store_plan
 
 
 def test_interleaved_sampler_takes_equal_counts_per_part_and_alternates():
@@ -93,10 +93,10 @@ def test_prepare_data_regenerates_a_checksum_corrupt_shard(tmp_path, monkeypatch
     data = bytearray(shard.read_bytes())
     data[len(store._MAGIC) + 10] ^= 0xFF  # inside the first record
     shard.write_bytes(bytes(data))
-    assert store.verify(tmp_path) == [shard]
+    assert store_plan.verify(tmp_path) == [shard]
     with pytest.warns(UserWarning, match=rf"{shard}: record 0 checksum mismatch"):
         datamodule.prepare_data()
-    assert store.verify(tmp_path) == []
+    assert store_plan.verify(tmp_path) == []
     first = store.open_split(tmp_path, "continuity", "train")[0]
     expected = fake_clip("continuity", specs.CLIP_KINDS[int(first["kind"])], 0, num_frames=4, height=16, width=16)
     assert torch.equal(first["frames"], expected["frames"])

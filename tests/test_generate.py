@@ -14,7 +14,7 @@ import pytest
 import torch
 from test_store import fake_clip, fake_probe
 
-from voe_lightning import generate, scenes, specs, store
+from voe_lightning import generate, scenes, specs, store, store_plan
 from voe_lightning.cli import main
 
 SMALL = dict(
@@ -56,8 +56,8 @@ def _plan(**overrides):
     counts.update(overrides)
     if counts["train_controls"] is None:
         counts["train_controls"] = counts["train_examples"]
-    per_concept = {c: generate.split_counts(c, **counts) for c in specs.CONCEPTS}
-    return generate.plan_shards(per_concept, shard_size=4)
+    per_concept = {c: store_plan.split_counts(c, **counts) for c in specs.CONCEPTS}
+    return store_plan.plan_shards(per_concept, shard_size=4)
 
 
 def test_plan_matches_controls_one_to_one_and_keeps_splits_disjoint():
@@ -73,8 +73,8 @@ def test_plan_matches_controls_one_to_one_and_keeps_splits_disjoint():
             for split in store.SPLITS
         }
         for split, own in seeds.items():
-            start = generate.SEED_STARTS[split]
-            assert all(start <= seed < start + generate.SEED_RANGE for seed in own)
+            start = store_plan.SEED_STARTS[split]
+            assert all(start <= seed < start + store_plan.SEED_RANGE for seed in own)
             assert all(not own & other for name, other in seeds.items() if name != split)
     unchangeableness = [t for t in tasks if t.concept == "unchangeableness"]
     variants = {v for t in unchangeableness if t.split == "generalization" for v, _ in t.items}
@@ -92,7 +92,7 @@ def test_slices_cover_every_shard_exactly_once(tmp_path, calls):
     ]
     assert sum(s.shards_generated for s in summaries) == summaries[0].shards_planned + summaries[1].shards_planned + summaries[2].shards_planned
     assert len(calls) == len(set(calls))  # no record rendered twice
-    assert store.verify(tmp_path) == []
+    assert store_plan.verify(tmp_path) == []
     assert generate.generate_dataset(tmp_path, CONCEPTS, **SMALL).shards_generated == 0
     with pytest.raises(ValueError, match=r"shard_index must be in \[0, 2\], got 3"):
         generate.generate_dataset(tmp_path, CONCEPTS, shard_index=3, num_shards=3, **SMALL)
@@ -126,10 +126,10 @@ def test_round_trip_resume_and_repair(tmp_path, calls):
     corrupt.write_bytes(bytes(data))
     with pytest.raises(store.CorruptShardError, match=str(corrupt)):
         store.open_split(tmp_path, "unchangeableness", "test")[6]  # first record of shard 2
-    assert sorted(store.verify(tmp_path)) == sorted([corrupt, missing])
+    assert sorted(store_plan.verify(tmp_path)) == sorted([corrupt, missing])
     repaired = generate.generate_dataset(tmp_path, CONCEPTS, **SMALL)
     assert repaired.shards_generated == 2 and repaired.records_generated == len(calls) == 3 + 3
-    assert store.verify(tmp_path) == []
+    assert store_plan.verify(tmp_path) == []
     assert torch.equal(
         store.open_split(tmp_path, "unchangeableness", "test")[6]["inconsistent", "frames"],
         before["inconsistent", "frames"],
@@ -158,7 +158,7 @@ def test_ensure_dataset_of_some_splits_leaves_the_rest_to_a_later_run(tmp_path, 
     assert generate.ensure_dataset(tmp_path, concepts=("continuity",), splits=("test",),
                                    **SMALL) is None
     generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
-    assert len(calls) == 8 + 2 * 2 + 2 * 3 + 1 and store.verify(tmp_path) == []
+    assert len(calls) == 8 + 2 * 2 + 2 * 3 + 1 and store_plan.verify(tmp_path) == []
     with pytest.raises(ValueError, match="unknown split 'tests'; valid splits are: train"):
         generate.ensure_dataset(tmp_path, concepts=("continuity",), splits=("tests",), **SMALL)
 
@@ -170,7 +170,7 @@ def test_other_settings_are_refused_unless_overwritten(tmp_path, calls):
     with pytest.raises(generate.ManifestMismatchError, match=r"kinds.example: stored 4, asked 5"):
         generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "train_examples": 5})
     summary = generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32, "overwrite": True})
-    assert summary.shards_skipped == 0 and store.verify(tmp_path) == []
+    assert summary.shards_skipped == 0 and store_plan.verify(tmp_path) == []
     assert store.open_split(tmp_path, "continuity", "train")[0]["frames"].shape == (6, 32, 24, 3)
 
 
@@ -215,9 +215,9 @@ def test_command_line_generates_with_real_scenes_in_two_workers(tmp_path):
             "--height", "32", "--width", "32", "--progress", "false"]  # fmt: skip
     summary = main(argv)
     assert summary.shards_generated == summary.shards_planned == 9
-    assert store.verify(root) == []
+    assert store_plan.verify(root) == []
     val = store.open_split(root, "continuity", "val")[0]
-    expected = scenes.generate_probe("continuity", "standard", generate.SEED_STARTS["val"], height=32, width=32)
+    expected = scenes.generate_probe("continuity", "standard", store_plan.SEED_STARTS["val"], height=32, width=32)
     assert torch.equal(val["inconsistent", "frames"], expected["inconsistent", "frames"])
     assert main(argv).shards_generated == 0
 
@@ -225,14 +225,14 @@ def test_command_line_generates_with_real_scenes_in_two_workers(tmp_path):
 def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch):
     """Issue 10 case 1: seeds alone do not make a shard the planned one."""
     generate.generate_dataset(tmp_path, CONCEPTS, **SMALL)
-    planned = len(generate.plan_shards({"continuity": generate.split_counts("continuity", 4, 4, 2, 3, 1)}, 3))
+    planned = len(store_plan.plan_shards({"continuity": store_plan.split_counts("continuity", 4, 4, 2, 3, 1)}, 3))
     # Record spec: same seeds, other video size, manifest lost.
     (tmp_path / "manifest.json").unlink()
     with pytest.warns(UserWarning, match=r"frames is uint8\[6, 24, 24, 3\], expected uint8\[6, 32, 24, 3\]"):
         summary = generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32})
     assert summary.shards_generated == planned and summary.shards_skipped == 0
     assert store.open_split(tmp_path, "continuity", "train")[0]["frames"].shape == (6, 32, 24, 3)
-    assert store.verify(tmp_path) == []
+    assert store_plan.verify(tmp_path) == []
     # Kinds per record: same seeds, other kind counts.
     (tmp_path / "manifest.json").unlink()
     with pytest.warns(UserWarning, match=r"train/shard-00000.voe: does not belong here: its names is"):
@@ -243,26 +243,26 @@ def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch)
     generate.generate_dataset(tmp_path, ("solidity",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6})
     foreign = store.shard_path(tmp_path, "continuity", "test", 0)
     foreign.write_bytes(store.shard_path(tmp_path, "solidity", "test", 0).read_bytes())
-    assert store.verify(tmp_path) == [foreign]
+    assert store_plan.verify(tmp_path) == [foreign]
     with pytest.warns(UserWarning, match=r"its concept is 'solidity', expected 'continuity'"):
         assert generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6}).shards_generated == 1
     assert specs.concept_name(store.open_split(tmp_path, "continuity", "test")[0]) == "continuity"
     # Generator version: a scene change makes every shard stale.
-    version = generate.GENERATOR_VERSION
-    monkeypatch.setattr(generate, "GENERATOR_VERSION", version + 1)
-    assert len(store.verify(tmp_path)) == len(generate.manifest_plan(store.read_manifest(tmp_path))[0])
+    version = store_plan.GENERATOR_VERSION
+    monkeypatch.setattr(store_plan, "GENERATOR_VERSION", version + 1)
+    assert len(store_plan.verify(tmp_path)) == len(store_plan.manifest_plan(store.read_manifest(tmp_path))[0])
     options = {**SMALL, "height": 32, "train_examples": 2, "train_controls": 6}
     with pytest.warns(UserWarning, match=f"its generator_version is {version}, expected {version + 1}"):
         summary = generate.ensure_dataset(tmp_path, concepts=("continuity", "solidity"), **options)
-    assert summary.shards_skipped == 0 and store.verify(tmp_path) == []
-    assert store.read_manifest(tmp_path)["generator_version"] == generate.GENERATOR_VERSION
+    assert summary.shards_skipped == 0 and store_plan.verify(tmp_path) == []
+    assert store.read_manifest(tmp_path)["generator_version"] == store_plan.GENERATOR_VERSION
 
 
 def test_shards_without_object_states_are_regenerated(tmp_path, calls):
     """A shard written before records carried object states (GENERATOR_VERSION 2) does not
     match the record layout: verify finds it and generate rewrites it with them."""
     generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
-    layouts = generate.record_layouts(scenes.VideoOptions(num_frames=6, height=24, width=24))
+    layouts = store_plan.record_layouts(scenes.VideoOptions(num_frames=6, height=24, width=24))
     assert "objects/visible_fraction" in layouts["clip"]
     assert "inconsistent/objects/shape_label" in layouts["probe"]
     for split in ("train", "test"):
@@ -275,10 +275,10 @@ def test_shards_without_object_states_are_regenerated(tmp_path, calls):
                     for r in records]
         store.write_shard(path, stripped, meta)
     stale = {store.shard_path(tmp_path, "continuity", split, 0) for split in ("train", "test")}
-    assert set(store.verify(tmp_path)) == stale
+    assert set(store_plan.verify(tmp_path)) == stale
     with pytest.warns(UserWarning, match=r"its records' (consistent/)?objects/color is missing"):
         summary = generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
-    assert summary.shards_generated == 2 and store.verify(tmp_path) == []
+    assert summary.shards_generated == 2 and store_plan.verify(tmp_path) == []
     assert ("objects", "position") in store.open_split(tmp_path, "continuity", "train")[0].keys(True)
 
 
@@ -351,8 +351,8 @@ def test_a_malformed_manifest_is_named_and_overwritten_on_request(tmp_path, call
     with pytest.raises(store.ManifestError, match="--overwrite"):
         store.open_split(tmp_path, "continuity", "train")
     with pytest.raises(store.ManifestError, match=path):
-        store.verify(tmp_path)
+        store_plan.verify(tmp_path)
     calls.clear()
     summary = generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "overwrite": True})
     assert summary.shards_skipped == summary.shards_planned and calls == []  # the shards still belong
-    assert store.verify(tmp_path) == [] and store.read_manifest(tmp_path)["shard_size"] == 3
+    assert store_plan.verify(tmp_path) == [] and store.read_manifest(tmp_path)["shard_size"] == 3

@@ -1,7 +1,9 @@
 """The library never depends on the DataModules: no module of ``voe_lightning`` imports
-``datamodules``, not even by name in a string (``importlib``, a dispatch table)."""
+``datamodules``, not even by name in a string (``importlib``, a dispatch table); and no module of
+the package is in an import circle, not even through an import inside a function."""
 
 import ast
+import graphlib
 import pkgutil
 import re
 from pathlib import Path
@@ -41,3 +43,37 @@ def test_no_module_of_voe_lightning_imports_datamodules():
     assert {"voe_lightning.cli", "voe_lightning.benchmarks.intphys", "voe_lightning.model.base"} <= files.keys()
     offenders = {name: refs for name, path in files.items() if (refs := datamodules_references(path))}
     assert offenders == {}
+
+
+def package_imports(name: str, path: Path, modules: set[str]) -> set[str]:
+    """The package's modules that the module ``name`` at ``path`` imports, anywhere in it (a
+    function's import is a circle too, only a later one): ``from a import b`` names the module
+    ``a.b`` when there is one, else ``a``."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            candidates = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = package.rsplit(".", node.level - 1)[0] if node.level else ""
+            module = ".".join(part for part in (base, node.module) if part)
+            candidates = [f"{module}.{alias.name}" if f"{module}.{alias.name}" in modules else module
+                          for alias in node.names]
+        else:
+            continue
+        for candidate in candidates:
+            while candidate and candidate not in modules:  # a.b.c of a module a.b: a.b
+                candidate = candidate.rpartition(".")[0]
+            if candidate and candidate != name:
+                found.add(candidate)
+    return found
+
+
+def test_no_module_of_voe_lightning_is_in_an_import_circle():
+    files = module_files()
+    graph = {name: package_imports(name, path, set(files)) for name, path in files.items()}
+    assert graph["voe_lightning.generate"] >= {"voe_lightning.store", "voe_lightning.store_plan"}
+    try:
+        graphlib.TopologicalSorter(graph).prepare()
+    except graphlib.CycleError as error:
+        raise AssertionError(f"import circle: {' -> '.join(error.args[1])}") from None

@@ -11,7 +11,7 @@ import torch
 from tensordict import TensorDict
 from torch.utils.data import DataLoader
 
-from voe_lightning import generate, scenes, specs, store
+from voe_lightning import generate, scenes, specs, store, store_plan
 from voe_lightning.benchmarks.cache import write_cache
 
 
@@ -166,7 +166,7 @@ def test_corrupt_and_truncated_shards_are_named(tmp_path, monkeypatch):
         tmp_path, ("continuity",), train_examples=5, val_pairs_per_variant=0, test_pairs_per_variant=0,
         generalization_pairs_per_variant=0, shard_size=4, workers=1, progress=False,
     )  # fmt: skip
-    assert store.verify(tmp_path) == []
+    assert store_plan.verify(tmp_path) == []
     fifth = store.open_split(tmp_path, "continuity", "train")[5]
     corrupt = store.shard_path(tmp_path, "continuity", "train", 1)
     data = bytearray(corrupt.read_bytes())
@@ -180,9 +180,9 @@ def test_corrupt_and_truncated_shards_are_named(tmp_path, monkeypatch):
     with pytest.raises(store.CorruptShardError, match=str(truncated)):
         dataset[8]
     assert _equal(dataset[5], fifth)  # other records still readable
-    assert store.verify(tmp_path) == [corrupt, truncated]
+    assert store_plan.verify(tmp_path) == [corrupt, truncated]
     store.shard_path(tmp_path, "continuity", "train", 0).unlink()
-    assert store.verify(tmp_path)[0] == store.shard_path(tmp_path, "continuity", "train", 0)
+    assert store_plan.verify(tmp_path)[0] == store.shard_path(tmp_path, "continuity", "train", 0)
 
 
 def test_failed_write_names_the_path_and_leaves_no_temporary(tmp_path, monkeypatch):

@@ -260,18 +260,18 @@ def run_size_sweep(
     out: str | Path = "runs/size_sweep/sweep.json",
     extra_args: Sequence[str] = (),
     test_args: Sequence[str] = (),
-    cli_main: Callable[[list[str]], Any] | None = None,
+    *,
+    cli_main: Callable[[list[str]], Any],
 ) -> list[dict[str, Any]]:
-    """Train one model per training-set size with ``python -m voe_lightning fit`` (with each of
-    ``configs`` in order, e.g. ``configs/quickstart.yaml``; base.yaml is read first) and test it
+    """Train one model per training-set size with ``cli_main(["fit", ...])``, the entry point of
+    ``python -m voe_lightning`` (with each of ``configs`` in order, e.g.
+    ``configs/quickstart.yaml``; base.yaml is read first), and test it
     on ``eval_sets`` x ``pairs_per_set`` test pairs, split into disjoint evaluation sets
     (``sweep_rows``). ``extra_args`` go to both commands, ``test_args`` to ``test`` only; in
     both ``{size}`` is replaced by the size (e.g. ``--data.root=data/sweep_{size}`` to keep
     each size's dataset apart). Needs ``VOEReportCallback`` in the config's callbacks. Writes
     the rows to ``out`` after each size and returns them; plot them with
     ``size_sweep_figure(rows)``."""
-    if cli_main is None:
-        from voe_lightning.cli import main as cli_main
     if not sizes or any(size < 1 for size in sizes):
         raise ValueError(f"sizes must be positive training-set sizes, got {list(sizes)}")
     out = Path(out)
@@ -406,6 +406,7 @@ def sweep(
     extra_args: Sequence[str] = (),
     test_args: Sequence[str] = (),
     plot: Path | None = None,
+    _cli_main: Callable[[list[str]], Any] | None = None,
 ) -> list[dict[str, Any]]:
     """Train and test one model per training-set size, writing the rows to sweep.json.
 
@@ -419,9 +420,14 @@ def sweep(
         extra_args: extra fit and test arguments; {size} is replaced by the size.
         test_args: extra test arguments; {size} is replaced by the size.
         plot: also write the Figure 3 PNG here.
+        _cli_main: the entry point that runs fit and test; the CLI passes its own ``main``, so
+            this module does not import the CLI (jsonargparse offers no optional ``_`` argument).
     """
+    if _cli_main is None:
+        raise TypeError("sweep runs fit and test through _cli_main: run it as `python -m "
+                        "voe_lightning analyze sweep`, or pass voe_lightning.cli.main")
     rows = run_size_sweep(lightning_configs, sizes, eval_sets, pairs_per_set, out, extra_args,
-                          test_args)
+                          test_args, cli_main=_cli_main)
     if plot:
         _write(size_sweep_figure(rows), plot)
     return rows

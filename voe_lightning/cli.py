@@ -252,7 +252,8 @@ def _refuse_retired_arguments(ckpt_path: str, trained: dict) -> None:
 
 def _give_alpha(config: Any) -> None:
     """Hand the run's ``alpha`` to every configured callback that takes one and was not given
-    one; refuse a callback whose own alpha differs (one alpha per run, DESIGN.md §6)."""
+    one; refuse a callback whose own alpha differs (one alpha per run, docs/architecture.md
+    §8)."""
     alpha = statistics.check_alpha(config["alpha"])
     for callback in config["trainer"].get("callbacks") or []:
         class_path = getattr(callback, "class_path", None)
@@ -359,13 +360,15 @@ def base_alpha() -> float:
 
 
 def _call(command: Any, arguments: Namespace) -> Any:
-    """Call the function of a ``COMMANDS`` entry that its parsed ``arguments`` select."""
+    """Call the function of a ``COMMANDS`` entry that its parsed ``arguments`` select; one that
+    runs other commands (``analyze sweep``) gets this CLI's ``main`` as ``_cli_main``."""
     arguments = arguments.clone()
     arguments.pop("config", None)
     if isinstance(command, dict):
         name = arguments.pop("subcommand")
         return _call(command[name], arguments[name])
-    return command(**arguments)
+    entry_point = {"_cli_main": main} if "_cli_main" in inspect.signature(command).parameters else {}
+    return command(**arguments, **entry_point)
 
 
 def main(args: list[str] | None = None) -> Any:

@@ -584,7 +584,9 @@ def write_manifest(root: str | os.PathLike, manifest: dict) -> None:
     atomic_write(Path(root) / MANIFEST_NAME, [text.encode()])
 
 
-def _manifest_or_error(root: str | os.PathLike) -> dict:
+def read_manifest_or_error(root: str | os.PathLike) -> dict:
+    """The root's manifest; a FileNotFoundError naming the command that makes one if there is
+    none."""
     manifest = read_manifest(root)
     if manifest is None:
         raise FileNotFoundError(
@@ -608,7 +610,7 @@ def open_split(root: str | os.PathLike, concept: str, split: str) -> SplitDatase
     at ``root``, as a torch Dataset of TensorDicts (batch them with ``collate_fn=collate``)."""
     specs.check_concept(concept)
     check_split(split)
-    manifest = _manifest_or_error(root)
+    manifest = read_manifest_or_error(root)
     if manifest.get("vocabulary", vocabulary()) != vocabulary():
         raise ValueError(
             f"the store at {root} was written by voe_lightning {manifest.get('package_version')} "
@@ -621,13 +623,3 @@ def open_split(root: str | os.PathLike, concept: str, split: str) -> SplitDatase
             f"concept {concept!r} was not generated in {root}; it holds: {', '.join(stored) or 'none'}"
         )
     return SplitDataset(root, concept, split, manifest)
-
-
-def verify(root: str | os.PathLike) -> list[Path]:
-    """Check every shard the manifest of ``root`` plans: intact index, the planned concept,
-    split, kinds or variants and seeds per record, the record spec's shapes and dtypes, the
-    current generator version and every record's checksum. Returns the paths of the missing,
-    corrupt or foreign ones (empty when the store is intact); ``generate`` regenerates them."""
-    from voe_lightning import generate  # the plan is generate's; it imports this module
-
-    return [path for path, _ in generate.bad_shards(root, _manifest_or_error(root))]
