@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 
 from voe_lightning import scenes, specs
-from voe_lightning.model.object_geometry import seen_by_geometry
+from voe_lightning.model.object_geometry import on_or_above_floor, seen_by_geometry
 
 CAMERA = torch.tensor([[0.0, 0.0, 0.4, 3.0, 90.0, -30.0]])  # looking along +y, from above
 BOX, COMPOUND = specs.OBJECT_SHAPES.index("box"), specs.OBJECT_SHAPES.index("compound")
@@ -73,3 +73,18 @@ def test_geometry_of_the_true_states_agrees_with_the_rendered_masks(concept):
                 agree += int(((p > 0.5) == (fraction > 0))[clear].sum())
                 total += int(clear.sum())
     assert agree / total > 0.98, f"{agree} of {total}"
+
+
+def test_nothing_is_predicted_below_the_floor():
+    """A box whose centre would sink below its half-height is raised to rest on the floor, a
+    tilted one by its tilted extent; an object above the floor is left where it is."""
+    state, _, _ = states(((0.0, 0.0, -0.8), (0.1, 0.2, 0.3), BOX),
+                         ((0.5, 0.0, 1.2), (0.1, 0.1, 0.1), BOX))
+    tilted = state.clone()
+    tilted[0, 0, 3:7] = torch.tensor([0.9238795, 0.3826834, 0.0, 0.0])  # 45 degrees about x
+    for given, lowest in ((state, 0.3), (tilted, (0.2 + 0.3) * 0.70710678)):
+        raised = on_or_above_floor(given)
+        assert float(raised[0, 0, 2]) == pytest.approx(lowest, abs=1e-5)
+        torch.testing.assert_close(raised[0, 1], given[0, 1])
+        torch.testing.assert_close(raised[..., [0, 1, *range(3, 13)]],
+                                   given[..., [0, 1, *range(3, 13)]])

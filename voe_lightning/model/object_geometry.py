@@ -93,6 +93,15 @@ def _rotations(state: torch.Tensor) -> torch.Tensor:
     return torch.where(state[..., 3:7].norm(dim=-1)[..., None, None] > 0, rotation, upright)
 
 
+def on_or_above_floor(state: torch.Tensor) -> torch.Tensor:
+    """``state`` [..., 13] with every object raised, where needed, so that its box's lowest
+    point is on or above the floor (z = 0): the floor is seen in every scene and nothing rests
+    below it, so a hidden object's predicted fall ends there."""
+    lowest = (_rotations(state)[..., 2, :].abs() * state[..., 7:10]).sum(-1)  # centre - bottom
+    height = torch.maximum(state[..., 2], lowest)
+    return torch.cat([state[..., :2], height[..., None], state[..., 3:]], dim=-1)
+
+
 def sample_points(state: torch.Tensor, shape: torch.Tensor) -> torch.Tensor:
     """The tested points of each object [B, S, 9, 3] (world): its centre and the corners of its
     box drawn in (CORNER_INSET), and for a round shape further, into the shape itself (a

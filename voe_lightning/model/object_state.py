@@ -22,6 +22,7 @@ from voe_lightning.model.object_geometry import (
     VIEW,
     camera_coordinates,
     image_plane,
+    on_or_above_floor,
     seen_by_geometry,
     view,
 )
@@ -130,8 +131,8 @@ class ObjectStateModel(SurpriseModel):
     Per step t, from the slots' recurrent states after frame t-1 and their beliefs (the last
     state seen, or, while hidden, the state predicted for them, so a hidden object is tracked
     forward), the model predicts for every known slot its state at t (a Gaussian: mean = belief,
-    moved on by inertia (the last frame's move), plus a learned change, learned standard
-    deviation; its shape as a categorical) and its visibility at t (a Bernoulli whose logit is
+    moved on by inertia (the last frame's move), plus a learned change, and never below the
+    floor; learned standard deviation; its shape as a categorical) and its visibility at t (a Bernoulli whose logit is
     that of ``seen_by_geometry``, what bounding boxes at the predicted states would show, times
     a learned weight, plus a learned term from its view against every other slot's: which
     objects really hide which is learned). A context over the known slots predicts whether a
@@ -321,7 +322,7 @@ class ObjectStateModel(SurpriseModel):
                  ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]:
         """Frame t's predictions from the slots after frame t-1: the predicted states
         [B, S, 13] (positions by inertia, the last frame's move repeated, plus a learned
-        change), the terms of what frame t shows (``rollout``) and p(visible) [B, S]."""
+        change, raised to rest on the floor where they would sink below it), the terms of what frame t shows (``rollout``) and p(visible) [B, S]."""
         batch, slots = known.shape
         pairs = self._pairs(belief, shape, view(belief, pose))
         message = self._messages(self.message, hidden, hidden, pairs, known)
@@ -329,7 +330,7 @@ class ObjectStateModel(SurpriseModel):
         change, log_std, shape_logits = out.split([STATE_SIZE, STATE_SIZE, SHAPES], -1)
         # bounded, so a hidden object's rollout cannot feed on itself and diverge
         inertia = F.pad(velocity.clamp(-MAX_MOVE, MAX_MOVE), (0, STATE_SIZE - 3))
-        predicted = belief + inertia + MAX_MOVE * torch.tanh(change / MAX_MOVE)
+        predicted = on_or_above_floor(belief + inertia + MAX_MOVE * torch.tanh(change / MAX_MOVE))
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
         # visibility at t from where every known slot is predicted to be at t
         seen_as = view(predicted, pose)
