@@ -4,9 +4,11 @@ attention summaries of their buffered earlier codes; it predicts every slot's ne
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 CAMERA_FEATURES = 8  # lookat xyz, distance, sin/cos azimuth, sin/cos elevation
@@ -40,6 +42,16 @@ class SlotDynamics(nn.Module):
     node input MLP_node([h_i, z_i, b_i, sum_j e_ij, camera]) -> LSTM -> h_i';
     prediction z_i,t+1 = z_i + Linear(h_i') (the change of code is predicted).
 
+    With ``visibility``, a slot also predicts whether it is seen at t + 1 (a Bernoulli logit
+    from its state and predicted code) and the spread of its code (a Gaussian's log-std, at least ``min_std``), and a context over
+    the slots seen by t predicts whether a new object appears at t + 1 and its code
+    (``rollout``). A known slot hidden at t (its mask empty) is rolled forward without a
+    target: its input is the code predicted for it, not the code of its empty mask, and the
+    node MLP reads whether it is seen. Its codes move on by inertia: the prediction is
+    z_i + v_i + Linear(h_i'), v_i the last step's change of code (a slot seen at both steps:
+    what was perceived; else what was predicted, so a reappearing object's jump from its
+    predicted code is a correction, not a move), as the positive control's states do.
+
     Args:
         code_size: object code size.
         state_size: LSTM state per slot.
@@ -48,6 +60,8 @@ class SlotDynamics(nn.Module):
         interactions: build the relation MLP; False for a single slot (the object-free twin),
             which has nothing to interact with.
         use_camera: the node MLP also sees the camera pose of the frame being predicted.
+        visibility: build the visibility, spread and appearance heads (``rollout``).
+        min_std: floor of the predicted codes' standard deviations.
     """
 
     def __init__(
@@ -59,11 +73,14 @@ class SlotDynamics(nn.Module):
         relation_size: int,
         interactions: bool = True,
         use_camera: bool = False,
+        visibility: bool = False,
+        min_std: float = 0.05,
     ) -> None:
         super().__init__()
         self.code_size, self.state_size = code_size, state_size
-        self.use_camera = use_camera
-        node_in = state_size + 2 * code_size
+        self.use_camera, self.visibility = use_camera, visibility
+        self.log_min_std = math.log(min_std)
+        node_in = state_size + 2 * code_size + (1 if visibility else 0)
         self.relation = (mlp([2 * node_in, *relation_sizes, relation_size])
                          if interactions else None)
         node_inputs = node_in + (relation_size if interactions else 0)
@@ -73,6 +90,11 @@ class SlotDynamics(nn.Module):
         self.key = nn.Linear(code_size, code_size)
         self.cell = nn.LSTMCell(state_size, state_size)
         self.readout = nn.Linear(state_size, code_size)
+        if visibility:
+            self.spread = nn.Linear(state_size, code_size)
+            self.seen_logit = mlp([state_size + code_size, state_size, 1])
+            context = state_size + (CAMERA_FEATURES if use_camera else 0)
+            self.appearance = mlp([context, state_size, 1 + 2 * code_size])
 
     def _buffer_summary(self, hidden: torch.Tensor, buffer: list[torch.Tensor]) -> torch.Tensor:
         """Attention of each slot's state over its own buffered codes [B, S, code_size]."""
@@ -84,27 +106,72 @@ class SlotDynamics(nn.Module):
         return torch.einsum("bst,bstc->bsc", weights, codes)
 
     def forward(
-        self, codes: torch.Tensor, seen: torch.Tensor, camera: torch.Tensor | None = None
+        self, codes: torch.Tensor, seen: torch.Tensor, camera: torch.Tensor | None = None,
+        visible: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Codes [B, T, S, C] and whether each slot was seen by each step [B, T, S] (padding
         slots never) -> predictions [B, T, S, C], where prediction t is the code expected at
-        t + 1 from codes <= t (and the camera pose of t + 1)."""
+        t + 1 from codes <= t (and the camera pose of t + 1). With ``visibility``, ``visible``
+        [B, T, S] (the slot's mask is not empty at t) is required: see the class docstring."""
+        return self._run(codes, seen, camera, visible)[0]
+
+    def rollout(self, codes: torch.Tensor, seen: torch.Tensor, visible: torch.Tensor,
+                camera: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """The distributions a ``visibility`` model predicts at each step t for step t + 1:
+        ``mean`` and ``log_std`` of each slot's code [B, T, S, C], its ``seen_logit``
+        [B, T, S]; ``appear_logit`` [B, T] (some new object appears), ``newcomer_mean`` and
+        ``newcomer_log_std`` [B, T, C] (its code)."""
+        if not self.visibility:
+            raise ValueError("rollout needs the visibility heads: build SlotDynamics with "
+                             "visibility=True")
+        mean, hidden = self._run(codes, seen, camera, visible)
+        context = (hidden * seen[..., None]).sum(2) / seen.sum(2, keepdim=True).clamp(min=1)
+        if self.use_camera:
+            poses = torch.cat([camera[:, 1:], camera[:, -1:]], dim=1)  # of the frame predicted
+            context = torch.cat([context, camera_features(poses)], dim=-1)
+        appear_logit, newcomer_mean, newcomer_log_std = self.appearance(context).split(
+            [1, self.code_size, self.code_size], dim=-1)
+        return {"mean": mean, "log_std": self._floored(self.spread(hidden)),
+                "seen_logit": self.seen_logit(torch.cat([hidden, mean], -1)).squeeze(-1),
+                "appear_logit": appear_logit.squeeze(-1), "newcomer_mean": newcomer_mean,
+                "newcomer_log_std": self._floored(newcomer_log_std)}
+
+    def _floored(self, log_std: torch.Tensor) -> torch.Tensor:
+        """A log-std at least ``log(min_std)``, smoothly."""
+        return self.log_min_std + F.softplus(log_std - self.log_min_std)
+
+    def _run(self, codes: torch.Tensor, seen: torch.Tensor, camera: torch.Tensor | None,
+             visible: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Step through time: predictions [B, T, S, C] and LSTM states [B, T, S, H]."""
         batch, steps, slots, _ = codes.shape
         if self.use_camera and camera is None:
             raise ValueError("use_camera is set but no camera pose was given (batch key "
                              "'camera', float [B, T, 6]); data without camera poses (IntPhys) "
                              "needs a model trained with use_camera: false")
+        if self.visibility and visible is None:
+            raise ValueError("a visibility-aware SlotDynamics needs `visible` [B, T, S], "
+                             "whether each slot's mask is not empty at each frame")
         hidden = codes.new_zeros(batch * slots, self.state_size)
         cell = torch.zeros_like(hidden)
         weight = seen.float()  # [B, T, S]
         pair_weight = weight[:, :, None, :] * weight[:, :, :, None]  # [B, T, S_i, S_j]
         pair_weight = pair_weight * (1 - torch.eye(slots, device=codes.device))  # j != i
         buffer: list[torch.Tensor] = []
-        predictions = []
+        predictions, states = [], []
+        velocity = torch.zeros_like(codes[:, 0])
         for t in range(steps):
+            code = codes[:, t]
+            if self.visibility and t:  # a hidden slot goes on from what was predicted for it
+                code = torch.where(visible[:, t, :, None], code, predictions[-1])
+                steady = (visible[:, t] & visible[:, t - 1])[..., None]
+                move = torch.where(steady, code, predictions[-1]) - buffer[-1]
+                velocity = move * seen[:, t - 1, :, None]  # known before t
             state = hidden.view(batch, slots, -1)
             summary = self._buffer_summary(state, buffer)
-            node = torch.cat([state, codes[:, t], summary], dim=-1)  # [B, S, N]
+            parts = [state, code, summary]
+            if self.visibility:
+                parts.append(visible[:, t, :, None].float())
+            node = torch.cat(parts, dim=-1)  # [B, S, N]
             inputs = [node]
             if self.relation is not None:
                 pairs = torch.cat([node[:, :, None].expand(-1, -1, slots, -1),
@@ -117,6 +184,7 @@ class SlotDynamics(nn.Module):
             step_input = self.node(torch.cat(inputs, dim=-1)).flatten(0, 1)
             hidden, cell = self.cell(step_input, (hidden, cell))
             change = self.readout(hidden).view(batch, slots, -1)
-            predictions.append(codes[:, t] + change)
-            buffer.append(codes[:, t])
-        return torch.stack(predictions, dim=1)
+            predictions.append(code + velocity + change)
+            states.append(hidden.view(batch, slots, -1))
+            buffer.append(code)
+        return torch.stack(predictions, dim=1), torch.stack(states, dim=1)
