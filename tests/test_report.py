@@ -177,13 +177,14 @@ def test_pairs_csv_round_trips_exactly(report):
     directory, results, _ = report
     with open(directory / "pairs.csv", newline="") as handle:
         header = next(csv.reader(handle))
-    assert header[:7] == ["concept", "variant", "seed", "manipulation_frame", "surprise_consistent",
-                          "surprise_inconsistent", "relative_surprise"]
-    assert len(header) == 7 + 2 * T and header[-1] == f"surprise_inconsistent_t{T - 1:02d}"
+    assert header[:8] == ["concept", "variant", "seed", "manipulation_frame", "surprise_consistent",
+                          "surprise_inconsistent", "relative_surprise", "first_difference"]
+    assert len(header) == 8 + 2 * T and header[-1] == f"surprise_inconsistent_t{T - 1:02d}"
     again = PairResults.from_csv(directory / "pairs.csv")
     assert again.concept == results.concept and again.variant == results.variant
     np.testing.assert_array_equal(again.seed, results.seed)
     np.testing.assert_array_equal(again.manipulation_frame, results.manipulation_frame)
+    np.testing.assert_array_equal(again.first_difference, results.first_difference)
     np.testing.assert_array_equal(again.surprise_consistent, results.surprise_consistent)
     np.testing.assert_array_equal(again.surprise_inconsistent, results.surprise_inconsistent)
 

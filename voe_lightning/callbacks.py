@@ -24,7 +24,12 @@ from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.probe_datamodule import probe_datamodule
 from voe_lightning.report import write_report
 from voe_lightning.report.figures import PredictionExample
-from voe_lightning.report.results import PROBE_OUTPUT_KEYS, PairResults, as_numpy
+from voe_lightning.report.results import (
+    FIRST_DIFFERENCE,
+    PROBE_OUTPUT_KEYS,
+    PairResults,
+    as_numpy,
+)
 from voe_lightning.statistics import (
     ALPHA,
     POOLED,
@@ -36,6 +41,7 @@ from voe_lightning.statistics import (
     pair_groups,
     pooled_values,
 )
+from voe_lightning.surprise_window import surprise_window as parse_window
 
 
 def _names(trainer: L.Trainer, user: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -254,7 +260,11 @@ class VOEReportCallback(L.Callback):
     cues.md/cues.csv share the model's pairs and n. Names are decoded with the
     ProbeDataModule's ``concept_names`` / ``variant_names``. summary.json's ``source`` names
     the checkpoint tested, its global step, the DataModule, its data root and concepts.
-    After the test, ``summary`` holds the rows and ``report_dir`` the directory written."""
+    ``surprise_window`` (``surprise_window.surprise_window``: ``all``, the paper's, or
+    ``{start: first_difference, frames: k}``) adds the tests of each video's surprise summed
+    over that window beside those over all frames (None: all frames only; the CLI gives the
+    run's ``surprise_window``). After the test, ``summary`` holds the rows and ``report_dir``
+    the directory written."""
 
     def __init__(
         self,
@@ -265,6 +275,7 @@ class VOEReportCallback(L.Callback):
         bootstrap: int = 2000,
         seed: int = 0,
         cue_audit: bool = True,
+        surprise_window: str | dict[str, Any] | None = None,
     ) -> None:
         if max_prediction_examples < 0 or tsne_pairs < 0:
             raise ValueError("max_prediction_examples and tsne_pairs must be >= 0, got "
@@ -275,6 +286,7 @@ class VOEReportCallback(L.Callback):
         self.alpha = ALPHA if alpha is None else check_alpha(alpha)
         self.bootstrap, self.seed = bootstrap, seed
         self.cue_audit = cue_audit
+        self.surprise_window = parse_window(surprise_window)
         self.summary: list[dict[str, Any]] | None = None
         self.report_dir: Path | None = None
         self._failed = self._ended = False
@@ -336,7 +348,8 @@ class VOEReportCallback(L.Callback):
         missing = [key for key in PROBE_OUTPUT_KEYS if key not in outputs]
         if missing:
             raise KeyError(f"test_step output lacks {missing} (needs {list(PROBE_OUTPUT_KEYS)})")
-        stored = {key: as_numpy(outputs[key], None) for key in PROBE_OUTPUT_KEYS}
+        stored = {key: as_numpy(outputs[key], None)
+                  for key in (*PROBE_OUTPUT_KEYS, FIRST_DIFFERENCE) if key in outputs}
         self._outputs.append(stored)
         if self.cue_audit:
             self._cues.append(cues.CueAudit.score_batch(batch, self._concept_names,
@@ -389,7 +402,7 @@ class VOEReportCallback(L.Callback):
                                     trajectory_labels=labels, cue_audit=cue_audit,
                                     alpha=self.alpha, bootstrap=self.bootstrap,
                                     seed=self.seed, surprise=pl_module.SURPRISE,
-                                    source=self._source(trainer))
+                                    source=self._source(trainer), window=self.surprise_window)
         self.report_dir = Path(out_dir) / "voe_report"
         self._write_benchmark_metrics(trainer, outputs)
 

@@ -11,7 +11,7 @@ import os
 import sys
 import traceback
 from pathlib import Path
-from typing import Any
+from typing import Any, Union
 
 import yaml
 from jsonargparse import ActionConfigFile, ArgumentParser, Namespace
@@ -24,6 +24,7 @@ from voe_lightning.interruption import InterruptCheckpoint
 from voe_lightning.model import SurpriseModel
 from voe_lightning.probe_datamodule import ProbeDataModule
 from voe_lightning.runs import read_checkpoint
+from voe_lightning.surprise_window import surprise_window
 
 #: Trainer, logger, callbacks and model class every fit/validate/test/predict starts from, so
 #: ``--config configs/joint.yaml`` alone is a whole run; later ``--config`` files override it.
@@ -70,10 +71,15 @@ class VOECLI(LightningCLI):
     of ``COMMANDS`` call their function instead, with no model, data or trainer."""
 
     def add_arguments_to_parser(self, parser: Any) -> None:
-        """The run's one significance level, ``alpha`` (configs/base.yaml sets it)."""
+        """The run's one significance level, ``alpha`` (configs/base.yaml sets it), and its
+        ``surprise_window``."""
         parser.add_argument("--alpha", type=float, default=statistics.ALPHA,
                             help="significance level of every test, verdict and table of the "
                             "run; each callback with an alpha argument gets it")
+        parser.add_argument("--surprise_window", type=Union[str, dict, None], default="all",
+                            help="frames a video's surprise sums in the report: all (the "
+                            "paper's) or {start: first_difference, frames: k}, reported beside "
+                            "all frames; each callback with a surprise_window argument gets it")
 
     def _add_subcommands(self, parser: Any, **kwargs: Any) -> None:
         """Lightning's subcommands, then those of ``COMMANDS``, each listed with its summary."""
@@ -194,6 +200,7 @@ class VOECLI(LightningCLI):
         config = self.config.get(self.subcommand, {})
         if self.subcommand in LIGHTNING_SUBCOMMANDS:
             _give_alpha(config)
+            _give_surprise_window(config)
             preflight.check_run(self.subcommand, config)
         if config and "weights_only" in config and config.get("weights_only") is None:
             config["weights_only"] = True  # torch>=2.4 may default to unpickling anything
@@ -250,22 +257,39 @@ def _refuse_retired_arguments(ckpt_path: str, trained: dict) -> None:
             "that wrote it")
 
 
+def _callbacks_taking(config: Any, argument: str) -> list[tuple[str, Any]]:
+    """(class path, init_args) of each configured callback whose class takes ``argument``."""
+    taking = []
+    for callback in config["trainer"].get("callbacks") or []:
+        class_path = getattr(callback, "class_path", None)
+        if class_path is None:
+            continue
+        if argument not in inspect.signature(_import(class_path).__init__).parameters:
+            continue
+        if callback.get("init_args") is None:
+            callback["init_args"] = Namespace()
+        taking.append((class_path, callback["init_args"]))
+    return taking
+
+
+def _give_surprise_window(config: Any) -> None:
+    """Hand the run's ``surprise_window`` (checked) to every configured callback that takes
+    one and was not given one."""
+    window = surprise_window(config.get("surprise_window")).as_config()
+    for _, init_args in _callbacks_taking(config, "surprise_window"):
+        if init_args.get("surprise_window") is None:
+            init_args["surprise_window"] = window
+
+
 def _give_alpha(config: Any) -> None:
     """Hand the run's ``alpha`` to every configured callback that takes one and was not given
     one; refuse a callback whose own alpha differs (one alpha per run, docs/architecture.md
     §8)."""
     alpha = statistics.check_alpha(config["alpha"])
-    for callback in config["trainer"].get("callbacks") or []:
-        class_path = getattr(callback, "class_path", None)
-        if class_path is None:
-            continue
-        if "alpha" not in inspect.signature(_import(class_path).__init__).parameters:
-            continue
-        if callback.get("init_args") is None:
-            callback["init_args"] = Namespace()
-        given = callback["init_args"].get("alpha")
+    for class_path, init_args in _callbacks_taking(config, "alpha"):
+        given = init_args.get("alpha")
         if given is None:
-            callback["init_args"]["alpha"] = alpha
+            init_args["alpha"] = alpha
         elif given != alpha:
             raise ValueError(
                 f"{class_path} was given alpha {given}, the run's alpha is {alpha}: a run has one "

@@ -15,6 +15,7 @@ from lightning.pytorch.utilities import rank_zero_warn
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
+from voe_lightning.surprise_window import first_difference
 
 
 def _destroy_process_group() -> None:
@@ -122,7 +123,9 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
     # ----------------------------------------------------------------------------- probes
     def probe_step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """Surprise of both videos of each probe pair (one pass: rows never interact); each
-        video's mask and the pair's camera go to the model when the batch has them."""
+        video's mask and the pair's camera go to the model when the batch has them. Also the
+        pair's ``first_difference``, the first frame at which its videos differ, where a
+        surprise window starts (``voe_lightning.surprise_window``)."""
         consistent = batch["consistent", "frames"]
         inconsistent = batch["inconsistent", "frames"]
         sides = [video_inputs(batch, "consistent"), video_inputs(batch, "inconsistent")]
@@ -137,6 +140,7 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
             "manipulation_frame": batch["manipulation_frame"],
             "surprise_consistent": surprise_consistent,
             "surprise_inconsistent": surprise_inconsistent,
+            "first_difference": first_difference(consistent, inconsistent),
         }
 
     #: Name under which ``validation_step`` logs the consistent probes' mean video surprise.

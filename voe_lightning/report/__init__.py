@@ -4,8 +4,9 @@
 ``figures``.
 
 Files: ``summary.json``/``summary.csv``/``summary.md`` (one row per concept/variant, a
-``pooled`` row per concept with a counterbalanced pair, and each concept's VOE verdict),
-``pairs.csv`` (one row per probe pair, with per-frame surprise, so anyone can redo the
+``pooled`` row per concept with a counterbalanced pair, and each concept's VOE verdict; with
+a surprise window, its rows beside them and in ``summary_window.csv``), ``pairs.csv`` (one row
+per probe pair, with per-frame surprise and its first difference, so anyone can redo the
 statistics), ``cues.md``/``cues.csv``/``cues.json`` (the cue audit on the same pairs, beside the
 model's rows, then how the model's relative surprise correlates with each cue's difference;
 see ``voe_lightning.cues``), ``cue_correlations.csv`` and ``cue_scatter.png`` (those
@@ -31,6 +32,7 @@ from voe_lightning.store import current_umask
 from voe_lightning.statistics import ALPHA
 from voe_lightning.report.figures import PredictionExample, write_figures
 from voe_lightning.report.results import VRNN_SURPRISE, PairResults, summarize, write_summary
+from voe_lightning.surprise_window import SurpriseWindow
 
 
 def write_report(
@@ -47,13 +49,15 @@ def write_report(
     echo: bool = True,
     surprise: str = VRNN_SURPRISE,
     source: Mapping[str, Any] | None = None,
+    window: SurpriseWindow = SurpriseWindow(),
 ) -> list[dict[str, Any]]:
     """Write ``out_dir/voe_report/`` (module docstring) and return the summary rows.
     ``predictions`` give predictions_<concept>.png, ``trajectories`` (see ``tsne_figure``)
     give tsne_object_persistence.png, ``cue_audit`` (scores of the same pairs) gives
     cues.md/csv/json, cue_correlations.csv and cue_scatter.png; ``echo`` prints the Markdown
     tables; ``surprise`` names what a frame's surprise is (the model's ``SURPRISE``);
-    ``source`` (checkpoint, its global step, data root, concepts) goes into summary.json."""
+    ``source`` (checkpoint, its global step, data root, concepts) goes into summary.json;
+    a ``window`` other than all frames adds its tables beside the paper's (``write_summary``)."""
     if len(results) == 0:
         raise ValueError("no probe results to report")
     out_dir = Path(out_dir)
@@ -61,7 +65,7 @@ def write_report(
     staging = Path(tempfile.mkdtemp(prefix=".voe_report.", dir=out_dir))
     try:
         rows = _write_files(results, staging, predictions, trajectories, trajectory_labels,
-                            cue_audit, alpha, bootstrap, seed, echo, surprise, source)
+                            cue_audit, alpha, bootstrap, seed, echo, surprise, source, window)
         report_dir = _replace_folder(staging, out_dir / "voe_report")
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -88,12 +92,15 @@ def _write_files(results: PairResults, report_dir: Path,
                  predictions: Sequence[PredictionExample] | None,
                  trajectories: Mapping[str, Any] | None, trajectory_labels: Sequence[str] | None,
                  cue_audit: cues.CueAudit | None, alpha: float, bootstrap: int, seed: int,
-                 echo: bool, surprise: str, source: Mapping[str, Any] | None
-                 ) -> list[dict[str, Any]]:
+                 echo: bool, surprise: str, source: Mapping[str, Any] | None,
+                 window: SurpriseWindow) -> list[dict[str, Any]]:
     """Every file of the report (``write_report``) into ``report_dir``; the summary rows."""
     rows = summarize(results, alpha=alpha, bootstrap=bootstrap, seed=seed)
+    window_rows = (None if window.all_frames else
+                   summarize(results.windowed(window), alpha=alpha, bootstrap=bootstrap, seed=seed))
     markdown = write_summary(results, rows, report_dir, alpha=alpha, bootstrap=bootstrap,
-                             surprise=surprise, source=source)
+                             surprise=surprise, source=source, window=window,
+                             window_rows=window_rows)
     correlations = None
     if cue_audit is not None:
         if len(cue_audit) != len(results):

@@ -17,6 +17,7 @@ import torch
 
 from voe_lightning.model.module import VOEModel
 from voe_lightning.specs import CONCEPTS, VARIANTS
+from voe_lightning.surprise_window import SurpriseWindow
 from voe_lightning.statistics import (
     ALPHA,
     PairedTestResult,
@@ -32,6 +33,9 @@ from voe_lightning.statistics import (
 #: Keys of the dict that ``VOEModel.probe_step`` (and so ``test_step``) returns.
 PROBE_OUTPUT_KEYS = ("concept", "variant", "seed", "manipulation_frame",
                      "surprise_consistent", "surprise_inconsistent")
+#: A key ``probe_step`` also returns, which a model's own probe step may leave out: the first
+#: frame at which each pair's videos differ (``PairResults`` then takes manipulation_frame + 1).
+FIRST_DIFFERENCE = "first_difference"
 #: Columns of summary.csv, in order (``None`` cells mean "no test", explained in ``note``).
 SUMMARY_COLUMNS = ("concept", "variant") + tuple(PairedTestResult.__dataclass_fields__)
 
@@ -45,8 +49,9 @@ def as_numpy(values: Any, dtype: Any) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class PairResults:
-    """Per-pair probe results of a run: names, seeds, manipulation frames and per-frame
-    surprise [N, T] of both videos. A video's surprise is the sum over its frames (§6)."""
+    """Per-pair probe results of a run: names, seeds, manipulation frames, the first frame at
+    which the pair's videos differ (None: manipulation_frame + 1) and per-frame surprise
+    [N, T] of both videos. A video's surprise is the sum over its frames (§6)."""
 
     concept: tuple[str, ...]
     variant: tuple[str, ...]
@@ -54,12 +59,16 @@ class PairResults:
     manipulation_frame: np.ndarray
     surprise_consistent: np.ndarray
     surprise_inconsistent: np.ndarray
+    first_difference: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         set_(self, "concept", tuple(str(c) for c in self.concept))
         set_(self, "variant", tuple(str(v) for v in self.variant))
+        if self.first_difference is None:
+            set_(self, "first_difference", as_numpy(self.manipulation_frame, np.int64) + 1)
         for name, dtype in (("seed", np.int64), ("manipulation_frame", np.int64),
+                            ("first_difference", np.int64),
                             ("surprise_consistent", np.float64),
                             ("surprise_inconsistent", np.float64)):
             set_(self, name, as_numpy(getattr(self, name), dtype))
@@ -69,8 +78,10 @@ class PairResults:
                              f"{self.surprise_consistent.shape}")
         shapes = {"variant": (len(self.variant),), "seed": self.seed.shape,
                   "manipulation_frame": self.manipulation_frame.shape,
+                  "first_difference": self.first_difference.shape,
                   "surprise_inconsistent": self.surprise_inconsistent.shape}
         expected = {"variant": (n,), "seed": (n,), "manipulation_frame": (n,),
+                    "first_difference": (n,),
                     "surprise_inconsistent": self.surprise_consistent.shape}
         wrong = {k: v for k, v in shapes.items() if v != expected[k]}
         if wrong:
@@ -98,6 +109,15 @@ class PairResults:
         """Each pair's d = S(inconsistent) - S(consistent), [N]."""
         return self.total_inconsistent - self.total_consistent
 
+    def windowed(self, window: SurpriseWindow) -> PairResults:
+        """These pairs with every frame outside ``window`` (counted from each pair's first
+        difference) scoring 0, so each video's surprise is its sum over the window: the one
+        place a window enters the statistics."""
+        weights = window.frame_weights(self.num_frames, self.first_difference)
+        return PairResults(self.concept, self.variant, self.seed, self.manipulation_frame,
+                           self.surprise_consistent * weights,
+                           self.surprise_inconsistent * weights, self.first_difference)
+
     @classmethod
     def from_probe_outputs(
         cls,
@@ -109,13 +129,16 @@ class PairResults:
         ``concept``/``variant`` indices with the DataModule's name tuples."""
         if not outputs:
             raise ValueError("no probe results: the list of probe_step outputs is empty")
-        columns: dict[str, list[np.ndarray]] = {key: [] for key in PROBE_OUTPUT_KEYS}
+        keys = PROBE_OUTPUT_KEYS
+        if all(FIRST_DIFFERENCE in output for output in outputs):
+            keys = (*keys, FIRST_DIFFERENCE)
+        columns: dict[str, list[np.ndarray]] = {key: [] for key in keys}
         for index, output in enumerate(outputs):
             missing = [key for key in PROBE_OUTPUT_KEYS if key not in output]
             if missing:
                 raise KeyError(f"probe output {index} lacks {missing}; probe_step must return "
                                f"{list(PROBE_OUTPUT_KEYS)}")
-            for key in PROBE_OUTPUT_KEYS:
+            for key in keys:
                 columns[key].append(as_numpy(output[key], None))
         merged = {key: np.concatenate(values) for key, values in columns.items()}
 
@@ -133,6 +156,7 @@ class PairResults:
             manipulation_frame=merged["manipulation_frame"],
             surprise_consistent=merged["surprise_consistent"],
             surprise_inconsistent=merged["surprise_inconsistent"],
+            first_difference=merged.get(FIRST_DIFFERENCE),
         )
 
     def select(self, rows: np.ndarray) -> PairResults:
@@ -145,6 +169,7 @@ class PairResults:
             manipulation_frame=self.manipulation_frame[index],
             surprise_consistent=self.surprise_consistent[index],
             surprise_inconsistent=self.surprise_inconsistent[index],
+            first_difference=self.first_difference[index],
         )
 
     def groups(self, pooled: bool = False) -> list[tuple[str, str, PairResults]]:
@@ -157,7 +182,7 @@ class PairResults:
     def csv_columns(self) -> list[str]:
         frames = [f"t{t:02d}" for t in range(self.num_frames)]
         return (["concept", "variant", "seed", "manipulation_frame", "surprise_consistent",
-                 "surprise_inconsistent", "relative_surprise"]
+                 "surprise_inconsistent", "relative_surprise", FIRST_DIFFERENCE]
                 + [f"surprise_consistent_{f}" for f in frames]
                 + [f"surprise_inconsistent_{f}" for f in frames])
 
@@ -171,7 +196,7 @@ class PairResults:
                 writer.writerow(
                     [self.concept[i], self.variant[i], int(self.seed[i]),
                      int(self.manipulation_frame[i]), repr(float(con)), repr(float(inc)),
-                     repr(float(inc - con))]
+                     repr(float(inc - con)), int(self.first_difference[i])]
                     + [repr(float(x)) for x in self.surprise_consistent[i]]
                     + [repr(float(x)) for x in self.surprise_inconsistent[i]])
 
@@ -203,6 +228,8 @@ class PairResults:
             manipulation_frame=[int(r["manipulation_frame"]) for r in rows],
             surprise_consistent=[[float(r[c]) for c in con_cols] for r in rows],
             surprise_inconsistent=[[float(r[c]) for c in inc_cols] for r in rows],
+            first_difference=([int(r[FIRST_DIFFERENCE]) for r in rows]
+                              if FIRST_DIFFERENCE in columns else None),
         )
 
 
@@ -217,8 +244,9 @@ def _check_pair_row(path: Path, line: int, row: Mapping[str, str | None],
     if missing:
         raise ValueError(f"{corrupt}: no value for {', '.join(missing)}")
     numbers = {}
-    for name in ("seed", "manipulation_frame", "surprise_consistent", "surprise_inconsistent",
-                 *con_cols, *inc_cols):
+    optional = [FIRST_DIFFERENCE] if FIRST_DIFFERENCE in row else []
+    for name in ("seed", "manipulation_frame", *optional, "surprise_consistent",
+                 "surprise_inconsistent", *con_cols, *inc_cols):
         try:
             numbers[name] = float(row[name])
         except ValueError:
@@ -342,10 +370,11 @@ def format_verdicts(rows: Sequence[Mapping[str, Any]]) -> list[str]:
 VRNN_SURPRISE = VOEModel.SURPRISE
 
 
-def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURPRISE) -> str:
+def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURPRISE,
+                    window: SurpriseWindow = SurpriseWindow()) -> str:
     """The summary as a Markdown table (paper notation, alpha in its header), notes as
     footnotes below it, then each concept's VOE verdict; ``surprise`` names what a frame's
-    surprise is."""
+    surprise is, ``window`` the frames a video's surprise sums."""
     alpha = rows_alpha(rows)
     header = (f"| concept | variant | n | M [95% CI] | t(df) | p | sig. ({format_alpha(alpha)}) "
               "| d_z [95% CI] | accuracy | AUROC |")
@@ -366,8 +395,10 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURP
             f"| {_interval(row['d_z'], row['d_z_ci_low'], row['d_z_ci_high'], '.2f')} "
             f"| {accuracy} | {format_number(row['auroc'], '.3f')} |")
     lines.append("")
+    frames = ("frames" if window.all_frames else f"the {window.describe()} (the first frame "
+              "at which its two videos differ)")
     lines.append("M: mean relative surprise d = S(inconsistent) - S(consistent), S = sum over "
-                 f"frames of {surprise}; one-tailed paired t-test, H1: M > 0; "
+                 f"{frames} of {surprise}; one-tailed paired t-test, H1: M > 0; "
                  f"sig.: p < {alpha:g} (* as in the paper); accuracy: share of pairs "
                  "with d > 0; pooled: the stratified test of a concept's standard and "
                  "counterbalanced pairs, M the mean of the two variants' M, its SE from both, "
@@ -382,24 +413,50 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURP
 
 def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], report_dir: Path, *,
                   alpha: float, bootstrap: int, surprise: str,
-                  source: Mapping[str, Any] | None = None) -> str:
+                  source: Mapping[str, Any] | None = None,
+                  window: SurpriseWindow = SurpriseWindow(),
+                  window_rows: Sequence[Mapping[str, Any]] | None = None) -> str:
     """Write pairs.csv, summary.json (with ``source``: what the report was made from, and
     pairs.csv's SHA-256, which ``PairResults.from_csv`` checks), summary.csv and summary.md
-    (of ``summarize``'s ``rows``) into ``report_dir``; return the Markdown summary."""
+    (of ``summarize``'s ``rows``, over all frames) into ``report_dir``; with a ``window``
+    other than all frames, its ``window_rows`` go beside them: summary.json's ``window``,
+    summary_window.csv and a section of summary.md. Return the Markdown summary."""
     results.to_csv(report_dir / "pairs.csv")
     document = {"source": dict(source or {}),
                 "alpha": alpha, "bootstrap_resamples": bootstrap, "num_pairs": len(results),
                 "pairs_csv_sha256": _sha256(report_dir / "pairs.csv"),
                 "num_frames": results.num_frames,
                 "video_surprise": f"sum over frames of {surprise}",
-                "rows": [json_row(row) for row in rows],
-                "verdicts": [{"concept": v.concept, "voe": v.voe, "verdict": v.text(),
-                              "rule": v.rule} for v in concept_verdicts(rows, alpha)]}
-    (report_dir / "summary.json").write_text(json.dumps(document, indent=2) + "\n")
+                "surprise_window": window.as_config(),
+                **_tables(rows, alpha)}
     with open(report_dir / "summary.csv", "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=SUMMARY_COLUMNS)
-        writer.writeheader()
-        writer.writerows(rows)
+        _write_rows(handle, rows)
     markdown = format_markdown(rows, surprise)
+    if not window.all_frames:
+        document["window"] = {"surprise_window": window.as_config(),
+                              "video_surprise": f"sum over the {window.describe()} of {surprise}",
+                              **_tables(window_rows, alpha)}
+        with open(report_dir / "summary_window.csv", "w", newline="") as handle:
+            _write_rows(handle, window_rows)
+        markdown += (f"\n## Surprise window: {window.describe()}\n\nBeside the paper's sums "
+                     "over all frames above, never instead of them.\n\n"
+                     + format_markdown(window_rows, surprise, window))
+    else:
+        markdown += "\nSurprise window: all frames (the paper's).\n"
+    (report_dir / "summary.json").write_text(json.dumps(document, indent=2) + "\n")
     (report_dir / "summary.md").write_text(markdown)
     return markdown
+
+
+def _tables(rows: Sequence[Mapping[str, Any]], alpha: float) -> dict[str, Any]:
+    """summary.json's ``rows`` (strict JSON) and ``verdicts`` of ``summarize``'s rows."""
+    return {"rows": [json_row(row) for row in rows],
+            "verdicts": [{"concept": v.concept, "voe": v.voe, "verdict": v.text(),
+                          "rule": v.rule} for v in concept_verdicts(rows, alpha)]}
+
+
+def _write_rows(handle: Any, rows: Sequence[Mapping[str, Any]]) -> None:
+    """``summarize``'s rows as CSV (``SUMMARY_COLUMNS``)."""
+    writer = csv.DictWriter(handle, fieldnames=SUMMARY_COLUMNS)
+    writer.writeheader()
+    writer.writerows(rows)
