@@ -10,6 +10,7 @@ from tensordict import TensorDict
 
 from voe_lightning.cli import main
 from voe_lightning.model import ObjectCentricModel, SurpriseModel
+from voe_lightning.model.object_centric import SURPRISES
 from voe_lightning.model.slots import MAX_MASK_JUMP, centroid_moves, object_slots
 from voe_lightning.scenes import (
     CLIP_KINDS_BY_CONCEPT, CONCEPTS, PROBE_VARIANTS, generate_clip, generate_probe,
@@ -256,14 +257,16 @@ def test_checkpoint_of_the_twin_is_refused_naming_the_difference():
     assert isinstance(model, SurpriseModel)
 
 
-@pytest.mark.parametrize("object_free", [False, True])
-def test_fit_both_stages_then_test_through_the_cli(tmp_path, monkeypatch, object_free):
+@pytest.mark.parametrize("object_free, surprise", [(False, "squared_error"),
+                                                    (True, "squared_error"),
+                                                    (False, "likelihood")])
+def test_fit_both_stages_then_test_through_the_cli(tmp_path, monkeypatch, object_free, surprise):
     monkeypatch.chdir(tmp_path)
     model = ["--model", "voe_lightning.model.ObjectCentricModel", "--model.image_size=[32, 32]",
              "--model.num_slots=4", "--model.code_size=8", "--model.encoder_channels=[8, 8]",
              "--model.state_size=16", "--model.relation_sizes=[16]", "--model.node_sizes=[16]",
              "--model.relation_size=16", "--model.perception_steps=1",
-             f"--model.object_free={object_free}"]
+             f"--model.object_free={object_free}", f"--model.surprise={surprise}"]
     main(["fit", "--config", CONFIG, *model, "--trainer.logger.init_args.name=oc"])
     run = tmp_path / "runs" / "oc" / "version_0"
     checkpoint = torch.load(run / "checkpoints" / "last.ckpt", weights_only=True)
@@ -272,8 +275,8 @@ def test_fit_both_stages_then_test_through_the_cli(tmp_path, monkeypatch, object
     main(["test", "--config", CONFIG, *model, "--trainer.logger.init_args.name=oc",
           "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
     summary = json.loads((run / "voe_report" / "summary.json").read_text())
-    assert summary["video_surprise"] == f"sum over frames of {ObjectCentricModel.SURPRISE}"
-    assert "predicted object codes" in (run / "voe_report" / "summary.md").read_text()
+    assert summary["video_surprise"] == f"sum over frames of {SURPRISES[(surprise, 'codes')]}"
+    assert "object codes" in (run / "voe_report" / "summary.md").read_text()
     rows = summary["rows"]
     assert {(r["concept"], r["variant"], r["n"]) for r in rows} == {
         ("object_persistence", "standard", 3), ("object_persistence", "counterbalanced", 3),

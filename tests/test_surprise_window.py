@@ -105,3 +105,43 @@ def test_the_report_names_its_window_beside_all_frames(tmp_path, monkeypatch):
         assert len(list(csv.DictReader(handle))) == len(expected)
     # the first differences are the probes' own: after the manipulation frame
     assert bool((pairs.first_difference > pairs.manipulation_frame).all())
+
+
+def test_validation_curves_log_the_window_beside_all_frames():
+    """``VOEProbeCallback(surprise_window=...)`` logs ``voe/...`` over all frames, as before,
+    and ``voe_window/...`` over the window; here by hand on the toy pairs."""
+    from types import SimpleNamespace
+
+    from voe_lightning import specs
+    from voe_lightning.callbacks import VOEProbeCallback
+    from voe_lightning.probe_datamodule import ProbeDataModule
+
+    class Probes(ProbeDataModule):
+        concept_names, variant_names = specs.CONCEPTS, specs.VARIANTS
+
+        def probe_cases(self, split="val"):
+            return [("continuity", "standard")]
+
+    class Module:
+        device = torch.device("cpu")
+        logged: dict = {}
+
+        def log(self, name, value, **kwargs):
+            self.logged[name] = value
+
+    results, module = _toy(), Module()
+    trainer = SimpleNamespace(datamodule=Probes(), sanity_checking=False)
+    callback = VOEProbeCallback(print_table=False,
+                                surprise_window={"start": "first_difference", "frames": 2})
+    callback.on_validation_epoch_start(trainer, module)
+    outputs = {"concept": torch.tensor([specs.CONCEPTS.index("continuity")] * 2),
+               "variant": torch.tensor([specs.VARIANTS.index("standard")] * 2),
+               "manipulation_frame": torch.tensor([1, 1]),
+               "first_difference": torch.tensor([2, 3]),
+               "surprise_consistent": torch.from_numpy(results.surprise_consistent),
+               "surprise_inconsistent": torch.from_numpy(results.surprise_inconsistent)}
+    callback.on_validation_batch_end(trainer, module, outputs, None, 0)
+    callback.on_validation_epoch_end(trainer, module)
+    assert module.logged["voe/continuity/standard/relative_surprise"] == pytest.approx(13.5)
+    assert module.logged["voe_window/continuity/standard/relative_surprise"] == pytest.approx(8.5)
+    assert callback.last[("continuity", "standard")]["relative_surprise"] == pytest.approx(13.5)

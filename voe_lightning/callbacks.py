@@ -41,6 +41,7 @@ from voe_lightning.statistics import (
     pair_groups,
     pooled_values,
 )
+from voe_lightning.surprise_window import SurpriseWindow
 from voe_lightning.surprise_window import surprise_window as parse_window
 
 
@@ -58,29 +59,38 @@ class VOEProbeCallback(L.Callback):
     ``voe/<concept>/pooled/...``: the stratified test of its two variants
     (``statistics.pooled_values``, from their float64 sums, so exact under DDP as they are).
     At the end of ``fit`` it prints the last table with each concept's verdict at ``alpha``
-    (None: ``statistics.ALPHA``; the CLI gives the run's ``alpha`` from configs/base.yaml)."""
+    (None: ``statistics.ALPHA``; the CLI gives the run's ``alpha`` from configs/base.yaml).
+    A ``surprise_window`` other than all frames (``surprise_window.surprise_window``; the CLI
+    gives the run's) logs the same statistics of each video's surprise summed over that window
+    beside them, as ``voe_window/...``."""
 
     STATISTICS = ("relative_surprise", "t", "p_value", "accuracy", "n")
 
-    def __init__(self, print_table: bool = True, alpha: float | None = None):
+    def __init__(self, print_table: bool = True, alpha: float | None = None,
+                 surprise_window: str | dict[str, Any] | None = None):
         super().__init__()
         self.print_table = print_table
         self.alpha = ALPHA if alpha is None else check_alpha(alpha)
-        self.metrics: dict[tuple[str, str], PairedSurpriseStats] = {}
+        window = parse_window(surprise_window)
+        #: The windows whose statistics are logged, by log prefix: all frames first.
+        self.windows = {"voe": SurpriseWindow(), **({} if window.all_frames
+                                                    else {"voe_window": window})}
+        self.metrics: dict[tuple[str, str, str], PairedSurpriseStats] = {}
         self.last: dict[tuple[str, str], dict[str, float]] = {}
 
     def on_validation_epoch_start(self, trainer, pl_module) -> None:
         cases = probe_datamodule(trainer, type(self).__name__).probe_cases("val")
         # Create every metric up front so all DDP ranks hold the same states.
-        for case in cases:
-            self._metric(case, pl_module.device)
+        for prefix in self.windows:
+            for case in cases:
+                self._metric((prefix, *case), pl_module.device)
         for metric in self.metrics.values():
             metric.reset()
 
-    def _metric(self, case: tuple[str, str], device: torch.device) -> PairedSurpriseStats:
-        if case not in self.metrics:
-            self.metrics[case] = PairedSurpriseStats().to(device)
-        return self.metrics[case]
+    def _metric(self, key: tuple[str, str, str], device: torch.device) -> PairedSurpriseStats:
+        if key not in self.metrics:
+            self.metrics[key] = PairedSurpriseStats().to(device)
+        return self.metrics[key]
 
     def on_validation_batch_end(
         self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0
@@ -88,36 +98,49 @@ class VOEProbeCallback(L.Callback):
         if not outputs:
             return
         concept_names, variant_names = _names(trainer, type(self).__name__)
-        inconsistent = outputs["surprise_inconsistent"].sum(-1)
-        consistent = outputs["surprise_consistent"].sum(-1)
         groups = defaultdict(list)
         for index, (c, v) in enumerate(zip(outputs["concept"].tolist(), outputs["variant"].tolist())):
             groups[(concept_names[c], variant_names[v])].append(index)
-        for case, rows in groups.items():
-            rows = torch.tensor(rows, device=inconsistent.device)
-            self._metric(case, pl_module.device).update(inconsistent[rows], consistent[rows])
+        for prefix, window in self.windows.items():
+            inconsistent, consistent = (_window_sum(outputs, side, window)
+                                        for side in ("inconsistent", "consistent"))
+            for case, rows in groups.items():
+                rows = torch.tensor(rows, device=inconsistent.device)
+                self._metric((prefix, *case), pl_module.device).update(inconsistent[rows],
+                                                                       consistent[rows])
 
     def on_validation_epoch_end(self, trainer, pl_module) -> None:
         if trainer.sanity_checking:
             return
+        for prefix in self.windows:
+            results = self._results(prefix)
+            for (concept, variant), values in results.items():
+                for statistic in self.STATISTICS:
+                    pl_module.log(f"{prefix}/{concept}/{variant}/{statistic}", values[statistic],
+                                  sync_dist=False)
+            if prefix == "voe":
+                self.last = results
+
+    def _results(self, prefix: str) -> dict[tuple[str, str], dict[str, float]]:
+        """The statistics of the window logged under ``prefix``, per concept/variant with the
+        pooled rows, of the cases with at least two pairs so far."""
         computed = {}
-        for case, metric in self.metrics.items():
+        for (window, *case), metric in self.metrics.items():
+            if window != prefix:
+                continue
             try:  # called on every rank alike: compute() syncs the states under DDP
-                computed[case] = {k: float(v) for k, v in metric.compute().items()}
+                computed[tuple(case)] = {k: float(v) for k, v in metric.compute().items()}
             except ValueError:  # fewer than two pairs of this case so far
                 continue
-        self.last = {}
+        results = {}
         concepts, variants = zip(*computed) if computed else ((), ())
         for concept, variant, _ in pair_groups(concepts, variants):
             if variant == POOLED:
-                values = pooled_values([computed[(concept, v)] for v in POOLED_VARIANTS])
+                results[(concept, variant)] = pooled_values(
+                    [computed[(concept, v)] for v in POOLED_VARIANTS])
             else:
-                values = computed[(concept, variant)]
-            self.last[(concept, variant)] = values
-            for statistic in self.STATISTICS:
-                pl_module.log(
-                    f"voe/{concept}/{variant}/{statistic}", values[statistic], sync_dist=False
-                )
+                results[(concept, variant)] = computed[(concept, variant)]
+        return results
 
     def on_fit_end(self, trainer, pl_module) -> None:
         if self.print_table and self.last and trainer.is_global_zero:
@@ -126,6 +149,19 @@ class VOEProbeCallback(L.Callback):
                 console.width = 120
             title = f"VOE on validation probes, step {trainer.global_step}"
             console.print(voe_table(self.last, title=title, alpha=self.alpha))
+
+
+def _window_sum(outputs: Mapping[str, Any], side: str, window: SurpriseWindow) -> torch.Tensor:
+    """Each ``side`` video's surprise of probe ``outputs`` summed over ``window`` from its
+    pair's first difference (``manipulation_frame`` + 1 where the outputs lack it), [B]."""
+    surprise = outputs[f"surprise_{side}"]
+    if window.all_frames:
+        return surprise.sum(-1)
+    first = (outputs["first_difference"] if "first_difference" in outputs
+             else outputs["manipulation_frame"] + 1)
+    weights = window.frame_weights(surprise.shape[-1], torch.as_tensor(first).cpu())
+    return (surprise * torch.as_tensor(weights, dtype=surprise.dtype,
+                                       device=surprise.device)).sum(-1)
 
 
 def voe_table(
