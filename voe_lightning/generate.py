@@ -27,7 +27,7 @@ from tqdm.auto import tqdm
 
 import voe_lightning
 from voe_lightning import specs, store, store_plan
-from voe_lightning.scenes import generate_clip, generate_probe
+from voe_lightning.scenes import check_video, generate_clip, generate_probe
 from voe_lightning.scenes.base import VideoOptions
 from voe_lightning.store_plan import (
     SEED_STARTS,
@@ -278,6 +278,9 @@ def _prepare(
         raise ValueError(f"num_frames must be an integer of at least 2 (a probe changes after "
                          f"its first frame), got {num_frames!r}")
     video = VideoOptions(num_frames=num_frames, height=height, width=width)
+    if val_pairs_per_variant or test_pairs_per_variant:  # before a shard of any concept renders
+        for concept in concepts:
+            check_video(concept, num_frames=num_frames, height=height, width=width)
     _warn_of_shard_memory(video, shard_size)
     concept_counts = {concept: split_counts(concept, **counts) for concept in concepts}
     entries = {concept: _concept_entry(c) for concept, c in concept_counts.items()}

@@ -34,6 +34,14 @@ def _module(concept: str):
     return importlib.import_module(f"voe_lightning.scenes.{concept}")
 
 
+def check_video(concept: str, **options) -> None:
+    """Refuse video options (VideoOptions fields) that ``concept``'s scenes cannot render,
+    before anything is rendered; a concept without such limits accepts any."""
+    check = getattr(_module(concept), "check_video", None)
+    if check is not None:
+        check(VideoOptions(**options))
+
+
 def generate_clip(concept: str, kind: str, seed: int, **options) -> TensorDict:
     """Render one training clip (``kind`` is ``example`` or one of the concept's controls).
     ``options`` are VideoOptions fields (num_frames, height, width, duration, timestep)."""

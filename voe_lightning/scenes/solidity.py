@@ -190,6 +190,23 @@ def release_script(sim: base.Simulation, frame: int) -> Callable[[base.Simulatio
     return script
 
 
+def check_video(video: VideoOptions) -> None:
+    """Refuse frames too far apart for the counterbalanced probes (the block must still be
+    above the hidden support a frame after it is let go), naming the num_frames that would do;
+    ``generate`` calls it before rendering anything."""
+    frame_time = video.steps_per_frame * video.timestep
+    longest_fall = CONTAINER_HEIGHT[1] + PROBE_DROP[1]
+    if GRAVITY * frame_time**2 / 2 > longest_fall:
+        longest = float(np.sqrt(2 * longest_fall / GRAVITY))
+        raise ValueError(
+            f"{CONCEPT} counterbalanced probes need frames at most {longest:.2f} s apart (the block "
+            "must still be above the hidden support a frame after it is let go), got "
+            f"{frame_time:.2f} s "
+            f"({video.num_frames} frames over {video.duration:g} s); use num_frames >= "
+            f"{int(np.ceil(video.duration / longest))}"
+        )
+
+
 def draw_probe(
     variant: str, rng: np.random.Generator, video: VideoOptions = VideoOptions()
 ) -> dict:
@@ -201,17 +218,8 @@ def draw_probe(
         raise ValueError(
             f"unknown {CONCEPT} probe variant {variant!r}; valid: {', '.join(VARIANTS)}"
         )
-    frame_time = video.steps_per_frame * video.timestep
-    longest_fall = CONTAINER_HEIGHT[1] + PROBE_DROP[1]
-    if variant == "counterbalanced" and GRAVITY * frame_time**2 / 2 > longest_fall:
-        longest = float(np.sqrt(2 * longest_fall / GRAVITY))
-        raise ValueError(
-            f"{CONCEPT} counterbalanced probes need frames at most {longest:.2f} s apart (the block "
-            "must still be above the hidden support a frame after it is let go), got "
-            f"{frame_time:.2f} s "
-            f"({video.num_frames} frames over {video.duration:g} s); use num_frames >= "
-            f"{int(np.ceil(video.duration / longest))}"
-        )
+    if variant == "counterbalanced":
+        check_video(video)
     for _ in range(1000):
         box, camera = _draw_container(rng), PROBE_CAMERA.sample(rng)
         if not sees_top_not_bottom(camera, box):
