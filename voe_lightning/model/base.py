@@ -1,4 +1,4 @@
-"""The model protocol every video model implements (DESIGN.md §5): per-frame surprise, the
+"""The model protocol every video model implements (docs/architecture.md §7): per-frame surprise, the
 expected frames and the trajectories, so callbacks, reports and the cue audit treat every model
 alike; plus what they share: probe steps, frame-count recording and checkpoint safety."""
 

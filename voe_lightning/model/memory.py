@@ -1,5 +1,5 @@
 """LRU external memory with an LSTM controller (Santoro et al. 2016 addressing, as used by the
-VRNN-LRU of Gemici et al. 2017 and Piloto et al. 2018; DESIGN.md §5).
+VRNN-LRU of Gemici et al. 2017 and Piloto et al. 2018; docs/architecture.md §7).
 
 The memory is stateless as a module: every step takes and returns an explicit
 :class:`MemoryState` of tensors with a leading batch dimension, so batch rows never interact and

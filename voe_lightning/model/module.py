@@ -1,4 +1,4 @@
-"""The VRNN-LRU video model as a LightningModule: training loss (DESIGN.md §5), surprise as
+"""The VRNN-LRU video model as a LightningModule: training loss (docs/architecture.md §7), surprise as
 per-frame KL(posterior || prior) (§6), and the probe, expectation and trajectory views the
 callbacks, reports and notebooks use."""
 

@@ -59,7 +59,7 @@ class ObjectCentricModel(SurpriseModel):
     inactive stage get no gradient, so Adam leaves them untouched.
 
     Slots are created causally, when their id is first seen (``slots.Slots``): surprise at
-    frame t depends on the frames, masks and camera poses up to t only (DESIGN.md §5).
+    frame t depends on the frames, masks and camera poses up to t only (docs/architecture.md §7).
 
     ``surprise`` chooses what the dynamics predict and how code-space surprise is scored:
 

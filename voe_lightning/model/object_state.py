@@ -132,10 +132,10 @@ class ObjectStateModel(SurpriseModel):
     state seen, or, while hidden, the state predicted for them, so a hidden object is tracked
     forward), the model predicts for every known slot its state at t (a Gaussian: mean = belief,
     moved on by inertia (the last frame's move), plus a learned change, and never below the
-    floor; learned standard deviation; its shape as a categorical) and its visibility at t (a Bernoulli whose logit is
-    that of ``seen_by_geometry``, what bounding boxes at the predicted states would show, times
-    a learned weight, plus a learned term from its view against every other slot's: which
-    objects really hide which is learned). A context over the known slots predicts whether a
+    floor; learned standard deviation; its shape as a categorical) and its visibility at t (a
+    Bernoulli whose logit is that of ``seen_by_geometry``, what sight lines to the objects'
+    boxes at the predicted states would show, times a learned weight, plus a learned term from
+    its view against every other slot's). A context over the known slots predicts whether a
     new object appears at t and, if so, its state. Then the frame's observations update the
     beliefs and, through an interaction network over slot pairs, a GRU per slot.
 
@@ -322,7 +322,8 @@ class ObjectStateModel(SurpriseModel):
                  ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]:
         """Frame t's predictions from the slots after frame t-1: the predicted states
         [B, S, 13] (positions by inertia, the last frame's move repeated, plus a learned
-        change, raised to rest on the floor where they would sink below it), the terms of what frame t shows (``rollout``) and p(visible) [B, S]."""
+        change, raised to rest on the floor where they would sink below it), the terms of what
+        frame t shows (``rollout``) and p(visible) [B, S]."""
         batch, slots = known.shape
         pairs = self._pairs(belief, shape, view(belief, pose))
         message = self._messages(self.message, hidden, hidden, pairs, known)

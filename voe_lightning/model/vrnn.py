@@ -1,4 +1,4 @@
-"""The recurrent core of the VRNN-LRU (paper §4, DESIGN.md §5): per time step a controller read
+"""The recurrent core of the VRNN-LRU (paper §4, docs/architecture.md §7): per time step a controller read
 of the LRU memory, a prior map from the read, a posterior map that corrects the prior with the
 encoded frame, a latent sample, and a memory write. Only this core loops over time."""
 

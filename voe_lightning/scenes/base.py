@@ -88,7 +88,7 @@ class CameraPose:
 @dataclass(frozen=True)
 class CameraRange:
     """One concept's camera distribution: each pose parameter uniform in its (low, high).
-    Examples, every control and the probes of a concept draw from it (DESIGN.md §4, "one
+    Examples, every control and the probes of a concept draw from it (docs/architecture.md §4, "one
     world"); probes may draw from a narrower range that lies inside it (``narrow``)."""
 
     lookat_x: tuple[float, float]
@@ -635,7 +635,7 @@ def splice(consistent: Video, rest: Video, manipulation_frame: int) -> Video:
     ``rest``, rendered from the manipulated twin from that frame on. The hidden change happens
     at the manipulation frame, which renders alike in both; its object states are the
     consistent video's too, so that a pair is identical through that frame in everything a
-    model may read (DESIGN.md §5), and the states show the change from the next frame on."""
+    model may read (docs/architecture.md §7), and the states show the change from the next frame on."""
     frames, masks, objects = (
         np.concatenate([a[:manipulation_frame], b]) for a, b in zip(consistent, rest)
     )

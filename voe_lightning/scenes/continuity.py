@@ -41,7 +41,7 @@ PILLAR_DEPTH = 0.12
 VISIBLE_SHARE = 0.5
 GRAVITY = 9.81
 
-#: Parameter ranges (uniform). Probes draw inside the examples' ranges (DESIGN.md §4).
+#: Parameter ranges (uniform). Probes draw inside the examples' ranges (docs/architecture.md §4).
 PILLAR_WIDTH = (0.42, 0.55)
 GAP = (0.45, 0.9)
 THREE_PILLAR_GAP = (0.8, 0.9)  # the outer pair as in training, from the wide end of GAP

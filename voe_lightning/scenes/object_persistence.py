@@ -24,7 +24,7 @@ from voe_lightning.scenes.base import (
 )
 
 CONCEPT = "object_persistence"
-#: One camera distribution for examples, controls and probes (DESIGN.md §4, "one world"); the
+#: One camera distribution for examples, controls and probes (docs/architecture.md §4, "one world"); the
 #: scene is placed relative to where the camera looks (``_anchor``).
 CAMERA = CameraRange(
     lookat_x=(-0.4, 0.4),

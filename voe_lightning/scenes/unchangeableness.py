@@ -5,7 +5,7 @@ foreground and change one or more of them behind the screen (``position``, ``col
 (paper §5). Examples scatter the objects anywhere and drop a screen of any size at any depth
 (half of them in the foreground, wide, as the probes' screen); the controls omit the screen
 (``objects_only``) or the objects (``screen_only``). Examples, controls and probes share one
-camera distribution, object sizes and screen motion (DESIGN.md §4, "one world")."""
+camera distribution, object sizes and screen motion (docs/architecture.md §4, "one world")."""
 
 from __future__ import annotations
 
