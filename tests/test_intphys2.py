@@ -293,6 +293,12 @@ def test_cue_scorer_runs_test_and_predict_without_a_checkpoint(root, tmp_path):
         assert (float(by_name[f"s25_{prefix}_impossible"]["surprise_max"])
                 > float(by_name[f"s25_{prefix}_possible"]["surprise_max"]))
     assert {row["label"] for row in rows} == {"possible", "impossible"}
+    # the physics-blind baselines' rows stand beside the model's, on the same pairs
+    blind = list(csv.DictReader(open(report / "cues.csv")))
+    assert {row["cue"] for row in blind} >= {"motion_energy", "copy_last_error",
+                                             "linear_extrapolation_error", "pixel_novelty"}
+    motion = {row["concept"]: int(row["n"]) for row in blind if row["cue"] == "motion_energy"}
+    assert motion == {"Continuity": 2, "Immutability": 2, "Permanence": 2, "Solidity": 2}
 
     config = tmp_path / "heldout.yaml"
     jsonl = tmp_path / "heldout.jsonl"

@@ -198,11 +198,12 @@ def test_probe_step_on_a_spec_batch():
     batch = specs.probe_spec(T, H, W).expand(3).rand()
     result = model.probe_step(batch)
     assert set(result) == {
-        "concept", "variant", "seed", "manipulation_frame",
+        "concept", "variant", "seed", "manipulation_frame", "first_difference",
         "surprise_consistent", "surprise_inconsistent",
     }
     for key in ("concept", "variant", "seed", "manipulation_frame"):
         assert torch.equal(result[key], batch[key])
+    assert result["first_difference"].tolist() == [0, 0, 0]  # random videos differ at once
     assert result["surprise_consistent"].shape == (3, T)
     assert result["surprise_inconsistent"].shape == (3, T)
     torch.testing.assert_close(
