@@ -144,8 +144,8 @@ def test_ensure_dataset_generates_only_what_is_missing(tmp_path, calls):
     summary = generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
     assert summary.shards_generated == 1 and len(calls) == made + 3
     # Another concept joins the same root; the first is left alone.
-    generate.ensure_dataset(tmp_path, concepts=("solidity",), **SMALL)
-    assert set(json.loads((tmp_path / "manifest.json").read_text())["concepts"]) == {"continuity", "solidity"}
+    generate.ensure_dataset(tmp_path, concepts=("containment",), **SMALL)
+    assert set(json.loads((tmp_path / "manifest.json").read_text())["concepts"]) == {"continuity", "containment"}
     with pytest.raises(TypeError, match="frames_per_video"):
         generate.ensure_dataset(tmp_path, frames_per_video=3)
 
@@ -240,11 +240,11 @@ def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch)
     kinds = [specs.CLIP_KINDS[int(r["kind"])] for r in store.open_split(tmp_path, "continuity", "train")]
     assert kinds.count("example") == 2
     # Concept: a shard of another concept copied in its place.
-    generate.generate_dataset(tmp_path, ("solidity",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6})
+    generate.generate_dataset(tmp_path, ("containment",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6})
     foreign = store.shard_path(tmp_path, "continuity", "test", 0)
-    foreign.write_bytes(store.shard_path(tmp_path, "solidity", "test", 0).read_bytes())
+    foreign.write_bytes(store.shard_path(tmp_path, "containment", "test", 0).read_bytes())
     assert store_plan.verify(tmp_path) == [foreign]
-    with pytest.warns(UserWarning, match=r"its concept is 'solidity', expected 'continuity'"):
+    with pytest.warns(UserWarning, match=r"its concept is 'containment', expected 'continuity'"):
         assert generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6}).shards_generated == 1
     assert specs.concept_name(store.open_split(tmp_path, "continuity", "test")[0]) == "continuity"
     # Generator version: a scene change makes every shard stale.
@@ -253,7 +253,7 @@ def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch)
     assert len(store_plan.verify(tmp_path)) == len(store_plan.manifest_plan(store.read_manifest(tmp_path))[0])
     options = {**SMALL, "height": 32, "train_examples": 2, "train_controls": 6}
     with pytest.warns(UserWarning, match=f"its generator_version is {version}, expected {version + 1}"):
-        summary = generate.ensure_dataset(tmp_path, concepts=("continuity", "solidity"), **options)
+        summary = generate.ensure_dataset(tmp_path, concepts=("continuity", "containment"), **options)
     assert summary.shards_skipped == 0 and store_plan.verify(tmp_path) == []
     assert store.read_manifest(tmp_path)["generator_version"] == store_plan.GENERATOR_VERSION
 

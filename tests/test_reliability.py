@@ -202,7 +202,7 @@ def test_concurrent_generate_runs_for_two_concepts_keep_both_in_the_manifest(tmp
     monkeypatch.setattr(store, "read_manifest", slow_read)
     video = VideoOptions(num_frames=6, height=32, width=32)
     entries = {concept: generate._prepare(tmp_path, [concept], 2, None, 1, 1, 1, 4, 6, 32, 32)
-               .entries[concept] for concept in ("continuity", "solidity")}
+               .entries[concept] for concept in ("continuity", "containment")}
     runs = [threading.Thread(target=generate._reconcile_manifest,
                              args=(tmp_path, video, 4, {concept: entry}, False))
             for concept, entry in entries.items()]
@@ -210,7 +210,7 @@ def test_concurrent_generate_runs_for_two_concepts_keep_both_in_the_manifest(tmp
         run.start()
     for run in runs:
         run.join()
-    assert set(read(tmp_path)["concepts"]) == {"continuity", "solidity"}
+    assert set(read(tmp_path)["concepts"]) == {"continuity", "containment"}
 
 
 # ----------------------------------------------------------------------------- 6: report files
