@@ -138,9 +138,7 @@ def occluder_boxes(state: torch.Tensor, shape: torch.Tensor) -> tuple[torch.Tens
     compound = (shape.argmax(-1) == COMPOUND) & (shape.amax(-1) > 0)  # [B, S]
     solid_centres = torch.zeros_like(centres)
     solid_halves = torch.cat([half[..., None, :], torch.zeros_like(halves[..., 1:, :])], -2)
-    real = torch.ones_like(compound[..., None].expand(*compound.shape, 5))
-    real = torch.where(compound[..., None], real, real & (torch.arange(5, device=real.device)
-                                                          == 0))
+    real = compound[..., None] | (torch.arange(5, device=compound.device) == 0)  # solid: 1 box
     return (torch.where(compound[..., None, None], centres, solid_centres),
             torch.where(compound[..., None, None], halves, solid_halves), real)
 
