@@ -137,7 +137,7 @@ def per_frame_figure(results: PairResults) -> Figure:
         ax.axvline(0, color="black", linestyle="--", linewidth=1)
         ax.set_title(f"{concept} / {variant} (n = {len(pairs)})", fontsize=10)
         ax.set_xlabel("frame relative to manipulation (dashed)")
-        ax.set_ylabel("surprise KL(post || prior)")
+        ax.set_ylabel("surprise per frame (the model's)")
         ax.legend(fontsize=8, loc="upper left")
     figure.suptitle("Mean per-frame surprise with 95% confidence bands", fontsize=10)
     return figure
