@@ -24,7 +24,7 @@ from voe_lightning.model.base import SurpriseModel
 from voe_lightning.report import write_report
 from voe_lightning.report.results import PairResults
 from voe_lightning.runs import report_folder
-from voe_lightning.scenes.base import VideoOptions
+from voe_lightning.scenes.camera import VideoOptions
 
 CONFIGS = Path(__file__).parents[1] / "configs"
 

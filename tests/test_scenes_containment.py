@@ -7,11 +7,13 @@ import numpy as np
 import pytest
 import torch
 
-from voe_lightning.scenes import base, containment, generate_clip, generate_probe
+from voe_lightning.scenes import containment, generate_clip, generate_probe
+from voe_lightning.scenes.camera import CameraPose, VideoOptions
+from voe_lightning.scenes.sampling import RejectedSample, rng_for
 
-VIDEO = base.VideoOptions()
+VIDEO = VideoOptions()
 #: A pose in the middle of the concept's camera range.
-CAMERA = base.CameraPose(lookat=(0.0, 0.2, 0.35), distance=3.4, azimuth=90.0, elevation=-27.0)
+CAMERA = CameraPose(lookat=(0.0, 0.2, 0.35), distance=3.4, azimuth=90.0, elevation=-27.0)
 CONTAINER, CUBE, ROD = 1, 2, 3  # mask ids in the order the scene adds them
 
 
@@ -212,7 +214,7 @@ def test_cube_behind_container_is_hidden_then_revealed_in_place():
 
 def test_cube_random_position_is_visible_outside_the_container():
     for seed in range(2):
-        rng = base.rng_for(seed, "test")
+        rng = rng_for(seed, "test")
         layout, _, _ = containment.clip_layout("cube_random_position", rng, VIDEO)
         x0, y0 = layout.container_xy
         cx, cy, _ = layout.cube_start
@@ -224,7 +226,7 @@ def test_cube_random_position_is_visible_outside_the_container():
 def test_examples_are_not_constrained_to_hide_the_cube():
     heights, showing = [], 0
     for seed in range(8):
-        rng = base.rng_for(seed, "test")
+        rng = rng_for(seed, "test")
         layout, camera, _ = containment.clip_layout("example", rng, VIDEO)
         heights.append(layout.height / (2 * layout.cube_half))
     assert min(heights) < 1.0 < max(heights), "some containers are lower than the cube"
@@ -247,9 +249,9 @@ def test_no_room_off_the_slide_is_a_rejection_not_a_hang():
     land: the draw is rejected (and redrawn by draw_until_valid) instead of looping forever,
     which hung generation of 1,000+ containment controls."""
     rng = np.random.default_rng(0)
-    layout, _ = containment.sample_layout(rng, base.VideoOptions(), containment.EXAMPLE_RANGES)
+    layout, _ = containment.sample_layout(rng, VideoOptions(), containment.EXAMPLE_RANGES)
     layout.container_xy, layout.shift, layout.half_y = (-1.0, 0.0), 2.0, 1.0
-    with pytest.raises(base.RejectedSample, match="no place for the cube off the container's slide"):
+    with pytest.raises(RejectedSample, match="no place for the cube off the container's slide"):
         containment.place_off_path(rng, layout)
     layout.shift, layout.half_y = 0.2, 0.1  # a small container: room to spare
     containment.place_off_path(rng, layout)

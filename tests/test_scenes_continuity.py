@@ -7,9 +7,12 @@ import numpy as np
 import pytest
 import torch
 
-from voe_lightning.scenes import base, continuity, generate_clip, generate_probe
+from voe_lightning.scenes import continuity, generate_clip, generate_probe
+from voe_lightning.scenes.camera import VideoOptions, pixel_of, x_at_column
+from voe_lightning.scenes.recording import record_tracking
+from voe_lightning.scenes.sampling import RejectedSample, rng_for
 
-VIDEO = base.VideoOptions()
+VIDEO = VideoOptions()
 PILLAR_HALF_DEPTH = continuity.PILLAR_DEPTH / 2
 
 
@@ -119,7 +122,7 @@ def test_three_pillars_has_an_extra_pillar(probe_record):
 
 
 def _parameters(sampler, draws: int) -> dict[str, np.ndarray]:
-    rows = [sampler(base.rng_for(seed, "parameters")).parameters() for seed in range(draws)]
+    rows = [sampler(rng_for(seed, "parameters")).parameters() for seed in range(draws)]
     return {name: np.array([row[name] for row in rows]) for name in rows[0]}
 
 
@@ -133,7 +136,7 @@ def test_probe_parameters_lie_inside_the_examples_ranges(variant):
         while True:  # as draw_until_valid: a layout needing a speed outside the range is redrawn
             try:
                 return continuity.probe_layout(rng, variant, continuity.CAMERA.sample(rng), VIDEO)
-            except base.RejectedSample:
+            except RejectedSample:
                 pass
 
     probes = _parameters(probe_sampler, 500)
@@ -175,7 +178,7 @@ def test_examples_have_balls_that_slow_and_stop():
     """The counterbalanced consistent event (a ball that slows and stops) occurs in training."""
     stopped = rolled_on = 0
     for seed in range(12):
-        rng = base.rng_for(seed, "stopping")
+        rng = rng_for(seed, "stopping")
         layout = continuity.example_layout(rng, VIDEO.duration)
         sim = continuity.build(rng, VIDEO, continuity.CAMERA.sample(rng), layout)
         sim.step(VIDEO.steps_per_frame * VIDEO.num_frames)
@@ -190,7 +193,7 @@ def test_examples_have_balls_that_slow_and_stop():
 def test_examples_never_have_three_pillars_and_paths_are_unconstrained():
     depths = []
     for seed in range(6):
-        rng = base.rng_for(seed, "test")
+        rng = rng_for(seed, "test")
         layout = continuity.example_layout(rng, VIDEO.duration)
         assert len(layout.pillars) == 2
         depths.append(layout.ball_start[1])
@@ -251,9 +254,9 @@ def test_slowing_ball_is_aimed_to_rest_behind_the_first_pillar():
 def test_x_at_column_inverts_the_projection():
     camera = continuity.CAMERA.sample(np.random.default_rng(2))
     for x in (-0.8, 0.0, 0.7):
-        column = continuity.pixel_of(camera, VIDEO, (x, 0.5, 0.2))[1]
-        found = continuity.x_at_column(camera, VIDEO, column + 0.5, 0.5, 0.2)
-        assert continuity.pixel_of(camera, VIDEO, (found, 0.5, 0.2))[1] == column
+        column = pixel_of(camera, VIDEO, (x, 0.5, 0.2))[1]
+        found = x_at_column(camera, VIDEO, column + 0.5, 0.5, 0.2)
+        assert pixel_of(camera, VIDEO, (found, 0.5, 0.2))[1] == column
 
 
 def test_projection_lands_on_the_rendered_ball():
@@ -261,7 +264,7 @@ def test_projection_lands_on_the_rendered_ball():
     camera = continuity.CAMERA.sample(rng)
     layout = continuity.probe_layout(rng, "standard", camera, VIDEO)
     sim = continuity.build(rng, VIDEO, camera, layout)
-    (_, masks, _), states, positions = continuity.record_tracking_ball(sim)
+    (_, masks, _), states, positions = record_tracking(sim, "ball")
     seen = continuity.what_hides_ball(sim, masks, positions)
     ball = sim.mask_id("ball")
     pixels = continuity.ball_pixels(masks, ball)

@@ -8,7 +8,9 @@ import pytest
 import torch
 
 from voe_lightning.scenes import VideoOptions, generate_clip, generate_probe
-from voe_lightning.scenes import base, object_persistence
+from voe_lightning.scenes import object_persistence
+from voe_lightning.scenes.camera import CAMERA_PARAMETERS
+from voe_lightning.scenes.sampling import RejectedSample
 
 CONCEPT = "object_persistence"
 
@@ -111,7 +113,7 @@ def _parameters(layout: dict) -> dict[str, float]:
         "plank_half_thickness": half[2],
         "plank_tilt": _tilt_degrees(layout["plank_quat"]),
         "drop_height": layout["drop"],
-        **dict(zip(base.CAMERA_PARAMETERS, layout["camera"].as_array().tolist())),
+        **dict(zip(CAMERA_PARAMETERS, layout["camera"].as_array().tolist())),
         # Where the object stands relative to where the camera looks.
         "object_dx": layout["object_xy"][0] - layout["camera"].lookat[0],
         "object_dy": layout["object_xy"][1] - layout["camera"].lookat[1],
@@ -123,7 +125,7 @@ def _draw(sampler, count: int) -> dict[str, np.ndarray]:
     while len(draws) < count:
         try:
             draws.append(_parameters(sampler(rng)))
-        except base.RejectedSample:
+        except RejectedSample:
             continue
     return {name: np.array([d[name] for d in draws]) for name in draws[0]}
 

@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from voe_lightning.scenes import VideoOptions, generate_clip, generate_probe, solidity
-from voe_lightning.scenes.base import Geom, SceneBuilder, visible_ids
+from voe_lightning.scenes.builder import Geom, SceneBuilder
+from voe_lightning.scenes.simulation import visible_ids
 
 CONCEPT = "solidity"
 CONTAINER, BLOCK, SUPPORT = 1, 2, 3  # mask ids, in the order the objects are added

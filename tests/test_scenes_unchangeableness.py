@@ -5,14 +5,25 @@ import numpy as np
 import pytest
 
 from voe_lightning import specs
-from voe_lightning.scenes import base, generate_clip, generate_probe
+from voe_lightning.scenes import generate_clip, generate_probe
 from voe_lightning.scenes import unchangeableness as scene
+from voe_lightning.scenes.builder import SceneBuilder
+from voe_lightning.scenes.camera import (
+    CAMERA_PARAMETERS,
+    CameraPose,
+    VideoOptions,
+    floor_point,
+    height_above_view,
+    image_point,
+)
+from voe_lightning.scenes.sampling import RejectedSample
+from voe_lightning.scenes.simulation import visible_ids
 
 SEEDS = range(3)
 
 
 def ids_at(mask, frame):
-    return base.visible_ids(mask[frame].numpy())
+    return visible_ids(mask[frame].numpy())
 
 
 def mean_color(record_video, frame, mask_id):
@@ -96,7 +107,7 @@ def test_generalization_probes_have_one_or_two_more_objects_than_training(change
 def test_training_clips_never_exceed_the_probe_object_count():
     for seed in range(4):
         clip = generate_clip("unchangeableness", "objects_only", seed)
-        count = len(base.visible_ids(clip["mask"].numpy()))
+        count = len(visible_ids(clip["mask"].numpy()))
         assert scene.MIN_OBJECTS <= count <= scene.MAX_OBJECTS
 
 
@@ -114,7 +125,7 @@ def test_controls_omit_the_screen_or_the_objects():
     frames = objects_only["frames"]
     assert (frames == frames[0]).all(), "without a screen nothing moves"
     screen_only = generate_clip("unchangeableness", "screen_only", 1)
-    ids = base.visible_ids(screen_only["mask"].numpy())
+    ids = visible_ids(screen_only["mask"].numpy())
     assert len(ids) == 1, "only the screen"
     rows = screen_rows(screen_only["mask"], ids.pop())
     lowest = int(rows.argmax())
@@ -127,13 +138,13 @@ def test_examples_scatter_objects_and_occlude_only_some():
     for seed in range(6):
         clip = generate_clip("unchangeableness", "example", seed)
         mask = clip["mask"].numpy()
-        ids = sorted(base.visible_ids(mask))
+        ids = sorted(visible_ids(mask))
         screen_id, objects = ids[-1], ids[:-1]
         assert scene.MIN_OBJECTS <= len(objects) <= scene.MAX_OBJECTS
         rows = screen_rows(clip["mask"], screen_id)
         assert rows.max() > max(rows[0], rows[-1]), f"seed {seed}: the screen goes down and up"
         for mask_id in objects:
-            shown = [mask_id in base.visible_ids(frame) for frame in mask]
+            shown = [mask_id in visible_ids(frame) for frame in mask]
             hidden_some_time += shown[0] and not all(shown)
             always_visible += all(shown)
     assert hidden_some_time and always_visible
@@ -147,15 +158,15 @@ def test_probes_align_objects_in_a_row():
 
 
 def test_projection_matches_the_renderer():
-    camera = base.CameraPose(lookat=(0.2, 0.3, 0.1), distance=3.0, azimuth=80, elevation=-30)
+    camera = CameraPose(lookat=(0.2, 0.3, 0.1), distance=3.0, azimuth=80, elevation=-30)
     for point in [(0.5, 1.0, 0.1), (-0.8, -0.3, 0.1)]:
-        builder = base.SceneBuilder(np.random.default_rng(0), base.VideoOptions(), camera)
+        builder = SceneBuilder(np.random.default_rng(0), VideoOptions(), camera)
         builder.add_primitive("ball", "sphere", [0.08], point, "red", free=False)
         mask = builder.build().render()[1]
         ys, xs = np.nonzero(mask == 1)
         u, v = (xs.mean() + 0.5) / 32 - 1, 1 - (ys.mean() + 0.5) / 32
-        assert np.allclose(scene.image_point(camera, point), (u, v), atol=0.03)
-        back = scene.floor_point(camera, u, v, point[2])
+        assert np.allclose(image_point(camera, point), (u, v), atol=0.03)
+        back = floor_point(camera, u, v, point[2])
         assert np.allclose(back[:2], point[:2], atol=0.08)
 
 
@@ -168,12 +179,12 @@ def test_other_video_geometry():
 
 def test_bad_names_list_the_valid_ones():
     with pytest.raises(ValueError, match="valid variants"):
-        scene.probe("size", 0, base.VideoOptions())
+        scene.probe("size", 0, VideoOptions())
     with pytest.raises(ValueError, match="valid kinds"):
-        scene.clip("screen", 0, base.VideoOptions())
+        scene.clip("screen", 0, VideoOptions())
 
 
-def _screen_parameters(screen: scene.Screen, camera: base.CameraPose) -> dict[str, float]:
+def _screen_parameters(screen: scene.Screen, camera: CameraPose) -> dict[str, float]:
     motion = screen.motion
     return {
         "screen_dx": screen.x - camera.lookat[0],
@@ -181,12 +192,12 @@ def _screen_parameters(screen: scene.Screen, camera: base.CameraPose) -> dict[st
         "screen_width": screen.width,
         "screen_height": screen.height,
         "screen_bottom": motion.bottom,
-        "screen_start_above_view": motion.top - scene.height_above_view(camera, screen.x, screen.y),
+        "screen_start_above_view": motion.top - height_above_view(camera, screen.x, screen.y),
         "screen_start": motion.start,
         "screen_lowering": motion.down - motion.start,
         "screen_held_down": motion.up - motion.down,
         "screen_raising": motion.end - motion.up,
-        **dict(zip(base.CAMERA_PARAMETERS, camera.as_array().tolist())),
+        **dict(zip(CAMERA_PARAMETERS, camera.as_array().tolist())),
     }
 
 
@@ -204,13 +215,13 @@ def _stack(draws: list[dict]) -> dict[str, np.ndarray]:
 
 
 def _example_draws(count: int) -> tuple[dict, dict]:
-    rng, video, screens, objects = np.random.default_rng(1), base.VideoOptions(), [], []
+    rng, video, screens, objects = np.random.default_rng(1), VideoOptions(), [], []
     while len(screens) < count:
         camera = scene.CAMERA.sample(rng)
         screen = scene.draw_example_screen(rng, camera, video)
         try:
             placed = scene.scatter_objects(rng, camera, screen, 1.0)
-        except base.RejectedSample:
+        except RejectedSample:
             continue
         screens.append(_screen_parameters(screen, camera))
         objects += [_object_parameters(draw, x, y, camera) for draw, x, y in placed]
@@ -218,11 +229,11 @@ def _example_draws(count: int) -> tuple[dict, dict]:
 
 
 def _probe_draws(count: int, counts) -> tuple[dict, dict]:
-    rng, video, screens, objects = np.random.default_rng(2), base.VideoOptions(), [], []
+    rng, video, screens, objects = np.random.default_rng(2), VideoOptions(), [], []
     while len(screens) < count:
         try:
             layout = scene.probe_layout(rng, int(rng.choice(counts)), video)
-        except base.RejectedSample:
+        except RejectedSample:
             continue
         screens.append(_screen_parameters(layout.screen, layout.camera))
         objects += [

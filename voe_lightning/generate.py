@@ -28,7 +28,7 @@ from tqdm.auto import tqdm
 import voe_lightning
 from voe_lightning import specs, store, store_plan
 from voe_lightning.scenes import check_video, generate_clip, generate_probe
-from voe_lightning.scenes.base import VideoOptions
+from voe_lightning.scenes.camera import VideoOptions
 from voe_lightning.store_plan import (
     SEED_STARTS,
     ShardTask,

@@ -127,7 +127,7 @@ def objects_spec(num_frames: int = NUM_FRAMES) -> Composite:
     itself. An object taken out of the scene (parked out of view) has no states at that frame.
     An id names one spatio-temporal object, as a tracker would: a body swapped in for another
     while hidden holds that one's id, and the states are the current holder's. A probe pair
-    shares the states of its manipulation frame (see ``scenes.base.splice``)."""
+    shares the states of its manipulation frame (see ``scenes.recording.splice``)."""
     slots = (num_frames, OBJECT_SLOTS)
     return Composite(
         position=Unbounded(shape=(*slots, 3), dtype=torch.float32),

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Sequence
 
 from voe_lightning import specs, store
-from voe_lightning.scenes.base import VideoOptions
+from voe_lightning.scenes.camera import VideoOptions
 
 #: First seed of each split; the ranges are a billion wide, so splits never share a seed.
 SEED_STARTS: dict[str, int] = {

@@ -1,5 +1,9 @@
 """Procedural MuJoCo stimuli for the five concepts: training clips (examples and controls) and
-consistent/inconsistent probe pairs. One module per concept holds all of its scene logic."""
+consistent/inconsistent probe pairs. One module per concept holds all of its scene logic, on a
+toolkit of one module per idea: ``camera`` (video options, camera poses and ranges, projection),
+``appearance`` (shapes, colours), ``rendering`` (the stage every scene is built on, the
+renderer), ``builder`` (MjSpec scene builder), ``simulation``, ``recording`` (probe pairs forked
+at the hidden change) and ``sampling`` (seeded draws)."""
 
 from __future__ import annotations
 
@@ -8,7 +12,7 @@ import importlib
 from tensordict import TensorDict
 
 from voe_lightning import specs
-from voe_lightning.scenes.base import VideoOptions
+from voe_lightning.scenes.camera import VideoOptions
 from voe_lightning.specs import (
     CLIP_KINDS_BY_CONCEPT,
     CONCEPTS,

@@ -17,16 +17,12 @@ import numpy as np
 from tensordict import TensorDict
 
 from voe_lightning import specs
-from voe_lightning.scenes import base
-from voe_lightning.scenes.base import (
-    CameraPose,
-    CameraRange,
-    Geom,
-    RejectedSample,
-    SceneBuilder,
-    Simulation,
-    VideoOptions,
-)
+from voe_lightning.scenes.appearance import distinct_colors
+from voe_lightning.scenes.builder import Geom, SceneBuilder, yaw_quat
+from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions
+from voe_lightning.scenes.recording import record_pair
+from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
+from voe_lightning.scenes.simulation import Simulation, visible_ids
 
 CONCEPT = "containment"
 #: The one (static per clip) camera distribution of examples, every control and the probes.
@@ -94,7 +90,7 @@ def build(
     a per-step controller prescribes, so its walls and bottom carry the cube by contact and
     friction; the rod (a mocap body) comes down onto its trailing wall and rides along."""
     builder = SceneBuilder(rng, video, camera)
-    container_color, cube_color, rod_color = base.distinct_colors(rng, 3)
+    container_color, cube_color, rod_color = distinct_colors(rng, 3)
     x0, y0 = layout.container_xy
     builder.add(
         "container",
@@ -113,7 +109,7 @@ def build(
         (layout.cube_half,) * 3,
         layout.cube_start,
         cube_color,
-        quat=base.yaw_quat(layout.cube_yaw),
+        quat=yaw_quat(layout.cube_yaw),
     )
     rod_offset = -np.sign(layout.shift) * (layout.half_x + WALL / 2)
     rod_top = (x0 + rod_offset, y0, ROD_START_HEIGHT + ROD_HALF_LENGTH)
@@ -284,7 +280,7 @@ def check_hidden_and_carried(
     carry along with the container from ``start``."""
     cube = sim.mask_id("cube")
     for _, masks, _ in videos:
-        if cube in base.visible_ids(masks[frame]):
+        if cube in visible_ids(masks[frame]):
             raise RejectedSample("the cube shows at the manipulation frame")
     carried = sim.position("cube")[0] - start[0]
     if abs(carried - layout.shift) > 0.6 * layout.half_x:
@@ -304,7 +300,7 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
         if variant == "standard":
             layout, frame = sample_layout(rng, video, PROBE_RANGES)
             sim = build(rng, video, camera, layout)
-            consistent, inconsistent = base.record_pair(sim, frame, release_cube)
+            consistent, inconsistent = record_pair(sim, frame, release_cube)
             start = layout.cube_start
             check_hidden_and_carried(sim, layout, frame, (consistent, inconsistent), start)
         else:
@@ -322,14 +318,14 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
                 twin.move("cube", (*target, WALL + layout.cube_half + 1e-3), quat)
                 twins.append(twin)
 
-            consistent, inconsistent = base.record_pair(sim, frame, pass_into_container)
+            consistent, inconsistent = record_pair(sim, frame, pass_into_container)
             check_hidden_and_carried(twins[0], layout, frame, (consistent, inconsistent), target)
         return specs.probe_record(
             consistent, inconsistent, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
             specs.VARIANTS.index(variant), frame, seed, [sim.mask_id("cube")],
         )
 
-    return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, variant))
+    return draw_until_valid(make, rng_for(seed, CONCEPT, variant))
 
 
 def clip_layout(
@@ -377,7 +373,7 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
         sim = build(rng, video, camera, layout)
         frames, masks, objects = sim.record(video.num_frames)
         cube = sim.mask_id("cube")
-        if kind == "cube_behind_container" and cube in base.visible_ids(masks[frame]):
+        if kind == "cube_behind_container" and cube in visible_ids(masks[frame]):
             raise RejectedSample("the cube behind the container is not hidden by it")
         enough = MIN_VISIBLE_PIXELS * video.height * video.width / 4096
         if kind == "cube_random_position" and (masks[frame] == cube).sum() < enough:
@@ -387,4 +383,4 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             specs.CLIP_KINDS.index(kind), seed, objects,
         )
 
-    return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, kind))
+    return draw_until_valid(make, rng_for(seed, CONCEPT, kind))

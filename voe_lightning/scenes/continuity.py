@@ -15,15 +15,21 @@ import numpy as np
 from tensordict import TensorDict
 
 from voe_lightning import specs
-from voe_lightning.scenes import base
-from voe_lightning.scenes.base import (
+from voe_lightning.scenes.appearance import distinct_colors
+from voe_lightning.scenes.builder import SceneBuilder
+from voe_lightning.scenes.camera import (
     CameraPose,
     CameraRange,
-    RejectedSample,
-    SceneBuilder,
-    Simulation,
     VideoOptions,
+    camera_axes,
+    focal_length,
+    pixel_of,
+    view_edges,
+    x_at_column,
 )
+from voe_lightning.scenes.recording import record_tracking, splice
+from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
+from voe_lightning.scenes.simulation import Simulation
 
 CONCEPT = "continuity"
 #: The one camera distribution of the concept: examples, the gap_block control and every probe
@@ -106,30 +112,6 @@ class Layout:
         }
 
 
-def focal_length(video: VideoOptions) -> float:
-    """Focal length in pixels of MuJoCo's free camera."""
-    return (video.height / 2) / np.tan(np.radians(base.FOVY) / 2)
-
-
-def pixel_of(camera: CameraPose, video: VideoOptions, point) -> tuple[int, int]:
-    """Pixel (row, column) where the world ``point`` appears in a frame (may lie outside it)."""
-    right, up, depth = base.camera_coordinates(camera, point)
-    focal = focal_length(video)
-    column = video.width / 2 + focal * right / depth
-    row = video.height / 2 - focal * up / depth
-    return int(np.floor(row)), int(np.floor(column))
-
-
-def x_at_column(camera: CameraPose, video: VideoOptions, column: float, y: float, z: float) -> float:
-    """The world x where the line (·, y, z) crosses image column ``column`` (the camera's right
-    axis is horizontal, so this is the root of a linear equation)."""
-    position, right, _, forward = base.camera_axes(camera)
-    k = (column - video.width / 2) / focal_length(video)
-    along = (y - position[1]) * right[1]
-    ahead = (y - position[1]) * forward[1] + (z - position[2]) * forward[2]
-    return float(position[0] + (k * ahead - along) / (right[0] - k * forward[0]))
-
-
 def x_behind(camera: CameraPose, video: VideoOptions, pillar_x: float, y: float, z: float) -> float:
     """The x on the ball's line (·, y, z) that the camera sees right behind a pillar's centre."""
     return x_at_column(camera, video, pixel_of(camera, video, (pillar_x, 0.0, z))[1] + 0.5, y, z)
@@ -140,7 +122,7 @@ def build(
 ) -> Simulation:
     """Compile the scene and launch the ball rolling (spin matched to its speed, no slip)."""
     builder = SceneBuilder(rng, video, camera)
-    pillar_color, block_color, ball_color = base.distinct_colors(rng, 3)
+    pillar_color, block_color, ball_color = distinct_colors(rng, 3)
     height = layout.pillar_height
     for index, (x, width) in enumerate(layout.pillars):
         builder.add_primitive(
@@ -181,18 +163,6 @@ def launch(sim: Simulation, start, velocity) -> None:
     sim.set_velocity("ball", (vx, vy, 0.0), (-vy / radius, vx / radius, 0.0))
 
 
-def record_tracking_ball(sim: Simulation) -> tuple[base.Video, list, np.ndarray]:
-    """Render the whole video, keeping the simulation state and ball position at every frame."""
-    states, positions = [], []
-
-    def keep(sim: Simulation, frame: int) -> None:
-        states.append(sim.get_state())
-        positions.append(sim.position("ball"))
-
-    video = sim.record(sim.video.num_frames, keep)
-    return video, states, np.array(positions)
-
-
 def ball_pixels(masks: np.ndarray, ball_id: int) -> np.ndarray:
     """Visible ball pixels per frame."""
     return (masks == ball_id).sum(axis=(1, 2))
@@ -217,7 +187,7 @@ def column(sim: Simulation, point) -> int:
 
 def full_ball_pixels(sim: Simulation, radius: float, y: float) -> float:
     """Roughly how many pixels a whole ball of ``radius`` at depth ``y`` covers."""
-    position, _, _, forward = base.camera_axes(sim.camera)
+    position, _, _, forward = camera_axes(sim.camera)
     depth = (np.array([position[0], y, radius]) - position) @ forward
     return float(np.pi * (focal_length(sim.video) * radius / depth) ** 2)
 
@@ -277,10 +247,6 @@ def probe_layout(
         raise RejectedSample(f"the ball would roll at {speed:.2f} m/s, outside {PROBE_SPEED}")
     return Layout(pillars, height, radius, (start, depth, radius), (direction * speed, 0.0))
 
-
-def view_edges(camera: CameraPose, video: VideoOptions, y: float, z: float) -> tuple[float, float]:
-    """The world x of the left and right frame edges on the line (·, y, z)."""
-    return x_at_column(camera, video, 0.0, y, z), x_at_column(camera, video, video.width, y, z)
 
 
 def example_layout(rng: np.random.Generator, duration: float) -> Layout:
@@ -384,7 +350,7 @@ def _standard(rng: np.random.Generator, variant: str, video: VideoOptions, camer
     state (ball on course) at the frame it is hidden by the last pillar."""
     layout = probe_layout(rng, variant, camera, video)
     sim = build(rng, video, camera, layout)
-    consistent, states, positions = record_tracking_ball(sim)
+    consistent, states, positions = record_tracking(sim, "ball")
     vanish, reappear = vanish_and_reappear(sim, layout, consistent[1], positions)
     twin = sim.fork()
     twin.set_state(states[vanish])
@@ -396,7 +362,7 @@ def _standard(rng: np.random.Generator, variant: str, video: VideoOptions, camer
             twin.set_state(states[reappear])
 
     rest = twin.record(video.num_frames - vanish, reappear_on_course, first_frame=vanish)
-    return sim, consistent, base.splice(consistent, rest, vanish), vanish
+    return sim, consistent, splice(consistent, rest, vanish), vanish
 
 
 #: Counterbalanced: frames before the end at which the inconsistent ball is put back behind the
@@ -437,7 +403,7 @@ def _counterbalanced(rng: np.random.Generator, video: VideoOptions, camera: Came
     before_end = int(rng.integers(REAPPEAR_BEFORE_END[0], REAPPEAR_BEFORE_END[1] + 1))
     if not rolls_on_in_view(layout, camera, video, behind, speed, before_end):
         raise RejectedSample("the reappearing ball would roll out of view")
-    consistent, states, positions = record_tracking_ball(sim)
+    consistent, states, positions = record_tracking(sim, "ball")
     masks = consistent[1]
     ball = sim.mask_id("ball")
     pixels = ball_pixels(masks, ball)
@@ -459,7 +425,7 @@ def _counterbalanced(rng: np.random.Generator, video: VideoOptions, camera: Came
     twin.set_state(states[vanish])
     twin.remove("ball")
     rest = twin.record(video.num_frames - vanish, put_back, first_frame=vanish)
-    inconsistent = base.splice(consistent, rest, vanish)
+    inconsistent = splice(consistent, rest, vanish)
     shown = ball_pixels(inconsistent[1], ball)
     if shown[back]:
         raise RejectedSample("the ball shows where it is put back behind the second pillar")
@@ -486,7 +452,7 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
             specs.VARIANTS.index(variant), vanish, seed, [ball],
         )
 
-    return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, variant))
+    return draw_until_valid(make, rng_for(seed, CONCEPT, variant))
 
 
 def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
@@ -503,7 +469,7 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             layout = probe_layout(rng, "standard", camera, video)
             layout.gap_block_height = layout.pillar_height * float(rng.uniform(0.75, 1.0))
         sim = build(rng, video, camera, layout)
-        (frames, masks, objects), _, positions = record_tracking_ball(sim)
+        (frames, masks, objects), _, positions = record_tracking(sim, "ball")
         pixels = ball_pixels(masks, sim.mask_id("ball"))
         if (pixels > 0).sum() < video.num_frames / 3:
             raise RejectedSample("the ball is seen in less than a third of the frames")
@@ -520,4 +486,4 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             specs.CLIP_KINDS.index(kind), seed, objects,
         )
 
-    return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, kind))
+    return draw_until_valid(make, rng_for(seed, CONCEPT, kind))

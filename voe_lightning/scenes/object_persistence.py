@@ -14,14 +14,12 @@ import numpy as np
 from tensordict import TensorDict
 
 from voe_lightning import specs
-from voe_lightning.scenes import base
-from voe_lightning.scenes.base import (
-    CameraPose,
-    CameraRange,
-    RejectedSample,
-    SceneBuilder,
-    VideoOptions,
-)
+from voe_lightning.scenes.appearance import distinct_colors
+from voe_lightning.scenes.builder import SceneBuilder, yaw_quat
+from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions
+from voe_lightning.scenes.recording import record_pair
+from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
+from voe_lightning.scenes.simulation import Simulation, visible_ids
 
 CONCEPT = "object_persistence"
 #: One camera distribution for examples, controls and probes (docs/architecture.md §4, "one world"); the
@@ -82,7 +80,7 @@ def _add_object(builder: SceneBuilder, obj: dict, xy, color: str) -> None:
         size,
         [xy[0], xy[1], obj["half"]],
         color,
-        quat=base.yaw_quat(obj["yaw"]),
+        quat=yaw_quat(obj["yaw"]),
         density=1500.0,
         friction=1.5,
     )
@@ -104,7 +102,7 @@ def _anchor(rng: np.random.Generator, camera: CameraPose, offset) -> np.ndarray:
     return np.array(camera.lookat[:2]) + (rng.uniform(x_low, x_high), rng.uniform(y_low, y_high))
 
 
-def _plank_lowest_point(sim: base.Simulation) -> float:
+def _plank_lowest_point(sim: Simulation) -> float:
     """Height of the plank's lowest corner above the floor."""
     geom = sim.data.geom("plank_0")
     half = sim.model.geom("plank_0").size
@@ -112,7 +110,7 @@ def _plank_lowest_point(sim: base.Simulation) -> float:
     return float(geom.xpos[2] - np.abs(rotation[2]) @ half)
 
 
-def _touching(sim: base.Simulation, first: str, second: str, depth: float = 0.0) -> bool:
+def _touching(sim: Simulation, first: str, second: str, depth: float = 0.0) -> bool:
     """Whether geoms ``first`` and ``second`` are in contact (penetrating deeper than ``depth``)."""
     ids = {sim.model.geom(first).id, sim.model.geom(second).id}
     contacts = sim.data.contact[: sim.data.ncon]
@@ -172,7 +170,7 @@ def probe_layout(rng: np.random.Generator) -> dict:
     }
 
 
-def _change_step(sim: base.Simulation, rng: np.random.Generator, last_frame: int) -> int:
+def _change_step(sim: Simulation, rng: np.random.Generator, last_frame: int) -> int:
     """A physics step after which the object can appear or vanish unseen, drawn at random from
     all such steps: the plank's front edge has landed, the plank does not touch the object's
     place yet (so the plank moves the same with and without the object) and hides it. Found on
@@ -194,7 +192,7 @@ def _change_step(sim: base.Simulation, rng: np.random.Generator, last_frame: int
         candidates.append((step, dry.fork()))
     for index in rng.permutation(len(candidates)):
         step, state = candidates[index]
-        if sim.mask_id("object") not in base.visible_ids(state.render()[1]):
+        if sim.mask_id("object") not in visible_ids(state.render()[1]):
             return step
     raise RejectedSample("no moment where the plank hides the object's place before touching it")
 
@@ -208,11 +206,11 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
         raise ValueError(
             f"unknown {CONCEPT} probe variant {variant!r}; valid: standard, counterbalanced"
         )
-    rng = base.rng_for(seed, CONCEPT, variant)
+    rng = rng_for(seed, CONCEPT, variant)
 
     def make(rng: np.random.Generator) -> TensorDict:
         layout = probe_layout(rng)
-        plank_color, object_color = base.distinct_colors(rng, 2)
+        plank_color, object_color = distinct_colors(rng, 2)
         builder = SceneBuilder(rng, video, layout["camera"])
         obj, obj_xy = layout["object"], layout["object_xy"]
         counterbalanced = variant == "counterbalanced"
@@ -230,7 +228,7 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
         frame, phase = divmod(step, video.steps_per_frame)
         sim.step(phase)
 
-        def manipulate(twin: base.Simulation) -> None:
+        def manipulate(twin: Simulation) -> None:
             if not counterbalanced:
                 twin.remove("object")
                 return
@@ -238,22 +236,22 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
             if _touching(twin, "object_0", "plank_0"):
                 raise RejectedSample("the object would appear touching the plank")
 
-        consistent, inconsistent = base.record_pair(sim, frame, manipulate)
-        if object_id in base.visible_ids(consistent[1][frame]) | base.visible_ids(
+        consistent, inconsistent = record_pair(sim, frame, manipulate)
+        if object_id in visible_ids(consistent[1][frame]) | visible_ids(
             inconsistent[1][frame]
         ):
             raise RejectedSample("the object shows at the manipulation frame")
-        if not counterbalanced and object_id not in base.visible_ids(consistent[1][0]):
+        if not counterbalanced and object_id not in visible_ids(consistent[1][0]):
             raise RejectedSample("the object is hidden before the plank falls")
         propped = inconsistent if counterbalanced else consistent
-        if any(object_id in base.visible_ids(mask) for mask in propped[1][frame:]):
+        if any(object_id in visible_ids(mask) for mask in propped[1][frame:]):
             raise RejectedSample("the object shows from under the propped plank")
         return specs.probe_record(
             consistent, inconsistent, layout["camera"].as_array(), specs.CONCEPTS.index(CONCEPT),
             specs.VARIANTS.index(variant), frame, seed, [object_id],
         )
 
-    return base.draw_until_valid(make, rng)
+    return draw_until_valid(make, rng)
 
 
 # --- training clips --------------------------------------------------------------------------
@@ -323,10 +321,10 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
     kinds = ("example", "plank_beside_object", "plank_on_empty_floor")
     if kind not in kinds:
         raise ValueError(f"unknown {CONCEPT} clip kind {kind!r}; valid: {', '.join(kinds)}")
-    rng = base.rng_for(seed, CONCEPT, kind)
+    rng = rng_for(seed, CONCEPT, kind)
 
     def make(rng: np.random.Generator) -> TensorDict:
-        plank_color, object_color = base.distinct_colors(rng, 2)
+        plank_color, object_color = distinct_colors(rng, 2)
         layout = clip_layout(rng, kind)
         obj, obj_xy, camera = layout["object"], layout["object_xy"], layout["camera"]
         builder = SceneBuilder(rng, video, camera)
@@ -342,13 +340,13 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             pushed = np.linalg.norm(sim.position("object")[:2] - obj_xy) > 0.005
             if pushed or _touching(sim, "object_0", "plank_0"):
                 raise RejectedSample("the plank touched the object")
-            if sim.mask_id("object") not in base.visible_ids(masks[-1]):
+            if sim.mask_id("object") not in visible_ids(masks[-1]):
                 raise RejectedSample("the plank hid the object")
-        if sim.mask_id("plank") not in base.visible_ids(masks[-1]):
+        if sim.mask_id("plank") not in visible_ids(masks[-1]):
             raise RejectedSample("the plank landed out of view")
         return specs.clip_record(
             frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
             specs.CLIP_KINDS.index(kind), seed, objects,
         )
 
-    return base.draw_until_valid(make, rng)
+    return draw_until_valid(make, rng)

@@ -17,15 +17,12 @@ import numpy as np
 from tensordict import TensorDict
 
 from voe_lightning import specs
-from voe_lightning.scenes import base
-from voe_lightning.scenes.base import (
-    CameraPose,
-    CameraRange,
-    Geom,
-    RejectedSample,
-    SceneBuilder,
-    VideoOptions,
-)
+from voe_lightning.scenes.appearance import distinct_colors
+from voe_lightning.scenes.builder import Geom, SceneBuilder, yaw_quat
+from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions
+from voe_lightning.scenes.recording import record_pair_when
+from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
+from voe_lightning.scenes.simulation import Simulation, visible_ids
 
 CONCEPT = "solidity"
 VARIANTS = ("standard", "counterbalanced")
@@ -178,12 +175,12 @@ def release_frame(hold: float, video: VideoOptions) -> int:
     return int(hold // (video.steps_per_frame * video.timestep))
 
 
-def release_script(sim: base.Simulation, frame: int) -> Callable[[base.Simulation, int], None]:
+def release_script(sim: Simulation, frame: int) -> Callable[[Simulation, int], None]:
     """A per-frame script that lets the block go once ``frame`` is rendered: until then its
     weight is compensated (``_add_block``), so it hangs still."""
     block = sim.model.body("block").id
 
-    def script(sim: base.Simulation, rendering: int) -> None:
+    def script(sim: Simulation, rendering: int) -> None:
         if rendering == frame:
             sim.model.body_gravcomp[block] = 0.0
 
@@ -255,7 +252,7 @@ def _add_block(builder: SceneBuilder, block: dict, xy, bottom: float, color: str
         block["half"],
         (xy[0], xy[1], bottom + block["half"][2]),
         color,
-        quat=base.yaw_quat(block["yaw"]),
+        quat=yaw_quat(block["yaw"]),
     )
     builder.spec.body("block").gravcomp = 1.0
 
@@ -273,24 +270,24 @@ def _add_support(builder: SceneBuilder, box: dict, block: dict, top: float, colo
         [Geom("box", (half_x, half_y, (top - floor) / 2))],
         (x, y, (top + floor) / 2),
         color,
-        quat=base.yaw_quat(block["yaw"]),
+        quat=yaw_quat(block["yaw"]),
         free=False,
         mocap=True,
     )
 
 
-def _block_bottom(sim: base.Simulation) -> float:
+def _block_bottom(sim: Simulation) -> float:
     return float(sim.position("block")[2] - sim.model.geom("block_0").size[2])
 
 
-def _fall_through(twin: base.Simulation) -> None:
+def _fall_through(twin: Simulation) -> None:
     """The magic: the block stops colliding, so it falls through the container and the floor."""
     for geom_name in twin.objects["block"].geom_names:
         twin.model.geom(geom_name).contype = 0
         twin.model.geom(geom_name).conaffinity = 0
 
 
-def _make_solid(twin: base.Simulation) -> None:
+def _make_solid(twin: Simulation) -> None:
     """The magic: the hidden support appears in the container, so the block lands on it."""
     twin.restore("support")
 
@@ -303,12 +300,12 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
         raise ValueError(
             f"unknown {CONCEPT} probe variant {variant!r}; valid: {', '.join(VARIANTS)}"
         )
-    rng = base.rng_for(seed, CONCEPT, variant)
+    rng = rng_for(seed, CONCEPT, variant)
 
     def make(rng: np.random.Generator) -> TensorDict:
         params = draw_probe(variant, rng, video)
         box, block, camera = params["box"], params["block"], params["camera"]
-        container_color, block_color = base.distinct_colors(rng, 2)
+        container_color, block_color = distinct_colors(rng, 2)
         builder = SceneBuilder(rng, video, camera)
         _add_container(builder, box, container_color)
         _add_block(builder, block, block["offset"], box["height"] + params["drop"], block_color)
@@ -322,7 +319,7 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
         step = video.steps_per_frame * video.timestep
         released = release_frame(params["hold"], video)
 
-        def ready(sim: base.Simulation, frame: int) -> bool:
+        def ready(sim: Simulation, frame: int) -> bool:
             if not released < frame <= video.num_frames - 3:
                 return False
             bottom = _block_bottom(sim)
@@ -335,7 +332,7 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
             return bottom > support + 0.005 and (bottom < rim or next_bottom < support + 0.02)
 
         manipulate = _fall_through if variant == "standard" else _make_solid
-        consistent, inconsistent, frame = base.record_pair_when(
+        consistent, inconsistent, frame = record_pair_when(
             sim, manipulate, ready, script=release_script(sim, released)
         )
         if variant == "standard":
@@ -352,14 +349,14 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
             shown, gone = inconsistent[1][-1], consistent[1][-1]
         if (shown == block_id).sum() < 6:
             raise RejectedSample("the protruding block is hidden: the pair would not differ")
-        if block_id in base.visible_ids(gone):
+        if block_id in visible_ids(gone):
             raise RejectedSample("the block that should be out of view is seen at the end")
         return specs.probe_record(
             consistent, inconsistent, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
             specs.VARIANTS.index(variant), frame, seed, [manipulated],
         )
 
-    return base.draw_until_valid(make, rng)
+    return draw_until_valid(make, rng)
 
 
 def _behind_container(rng: np.random.Generator, box: dict, block: dict, camera: CameraPose):
@@ -407,12 +404,12 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
     block falls behind the container and ends hidden by it)."""
     if kind not in CLIP_KINDS:
         raise ValueError(f"unknown {CONCEPT} clip kind {kind!r}; valid: {', '.join(CLIP_KINDS)}")
-    rng = base.rng_for(seed, CONCEPT, kind)
+    rng = rng_for(seed, CONCEPT, kind)
 
     def make(rng: np.random.Generator) -> TensorDict:
         params = draw_example(rng)
         box, block, camera = params["box"], params["block"], params["camera"]
-        container_color, block_color = base.distinct_colors(rng, 2)
+        container_color, block_color = distinct_colors(rng, 2)
         builder = SceneBuilder(rng, video, camera)
         _add_container(builder, box, container_color)
         drop = box["height"] + params["drop"]
@@ -439,9 +436,9 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
         if kind != "no_object":
             script = release_script(sim, release_frame(params["hold"], video))
         frames, masks, objects = sim.record(video.num_frames, script)
-        if kind != "no_object" and sim.mask_id("block") not in base.visible_ids(masks[0]):
+        if kind != "no_object" and sim.mask_id("block") not in visible_ids(masks[0]):
             raise RejectedSample("the block is not seen before it falls")
-        if kind == "object_behind_container" and sim.mask_id("block") in base.visible_ids(
+        if kind == "object_behind_container" and sim.mask_id("block") in visible_ids(
             masks[-1]
         ):
             raise RejectedSample("the block behind the container is still seen at the end")
@@ -450,4 +447,4 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             specs.CLIP_KINDS.index(kind), seed, objects,
         )
 
-    return base.draw_until_valid(make, rng)
+    return draw_until_valid(make, rng)

@@ -16,15 +16,19 @@ import numpy as np
 from tensordict import TensorDict
 
 from voe_lightning import specs
-from voe_lightning.scenes import base
-from voe_lightning.scenes.base import (
+from voe_lightning.scenes.appearance import COLOR_NAMES, distinct_colors
+from voe_lightning.scenes.builder import Geom, SceneBuilder, yaw_quat
+from voe_lightning.scenes.camera import (
     CameraPose,
     CameraRange,
-    Geom,
-    RejectedSample,
-    SceneBuilder,
     VideoOptions,
+    floor_point,
+    height_above_view,
+    image_point,
 )
+from voe_lightning.scenes.recording import record_pair
+from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
+from voe_lightning.scenes.simulation import Simulation, visible_ids
 
 CONCEPT = "unchangeableness"
 #: Objects in training clips and standard probes; generalization probes add one or two more.
@@ -117,7 +121,7 @@ def add_object(
     """Add a static object resting on the floor at (x, y); a mocap body, so the hidden change
     can move it with sim.move. A twin swapped in for another object ``replaces`` it (its id)."""
     geoms, z = draw.geoms()
-    quat = base.yaw_quat(draw.yaw)
+    quat = yaw_quat(draw.yaw)
     return builder.add(
         name, geoms, (x, y, z), draw.color, quat=quat, free=False, mocap=True, replaces=replaces
     )
@@ -125,37 +129,6 @@ def add_object(
 
 def resting_position(draw: ObjectDraw, x: float, y: float) -> tuple[float, float, float]:
     return (x, y, draw.geoms()[1])
-
-
-# --- camera geometry -----------------------------------------------------------------------------
-def image_point(camera: CameraPose, point, aspect: float = 1.0) -> tuple[float, float]:
-    """Normalised image coordinates of a world point: (-1..1 left to right, -1..1 bottom to top)."""
-    right, up, depth = base.camera_coordinates(camera, point)
-    if depth <= 0:
-        return math.inf, math.inf
-    tan_half = math.tan(math.radians(base.FOVY) / 2)
-    return float(right / (depth * tan_half * aspect)), float(up / (depth * tan_half))
-
-
-def floor_point(camera: CameraPose, u: float, v: float, height: float, aspect: float = 1.0):
-    """The point at ``height`` above the floor seen at image coordinates (u, v), or None when
-    that pixel looks above the horizon."""
-    position, right, up, forward = base.camera_axes(camera)
-    tan_half = math.tan(math.radians(base.FOVY) / 2)
-    ray = forward + u * tan_half * aspect * right + v * tan_half * up
-    if ray[2] >= 0:
-        return None
-    return position + ray * (height - position[2]) / ray[2]
-
-
-def height_above_view(camera: CameraPose, x: float, y: float) -> float:
-    """The height at (x, y) above which the camera sees nothing (the top edge of the image)."""
-    position, _, up, forward = base.camera_axes(camera)
-    tan_half = math.tan(math.radians(base.FOVY) / 2)
-    offset = np.array([x, y, 0.0]) - position
-    # up-component = tan_half * forward-component, linear in the height z.
-    denominator = up[2] - tan_half * forward[2]
-    return float((tan_half * (offset @ forward) - offset @ up) / denominator)
 
 
 # --- the screen ----------------------------------------------------------------------------------
@@ -217,7 +190,7 @@ class Screen:
     def position(self, frame: float) -> tuple[float, float, float]:
         return (self.x, self.y, self.motion.bottom_height(frame) + self.height / 2)
 
-    def script(self, sim: base.Simulation, frame: int) -> None:
+    def script(self, sim: Simulation, frame: int) -> None:
         """Per-frame script for Simulation.record / record_pair: place the screen."""
         sim.move("screen", self.position(frame))
 
@@ -279,7 +252,7 @@ def probe_layout(rng: np.random.Generator, count: int, video: VideoOptions) -> P
     row_x = camera.lookat[0] + float(rng.uniform(-0.1, 0.1))
     row_y = camera.lookat[1] - float(rng.uniform(0.0, 0.3))
     xs = row_x + slot * (np.arange(count) - (count - 1) / 2)
-    colors = [base.COLOR_NAMES[i] for i in rng.permutation(len(base.COLOR_NAMES))]
+    colors = [COLOR_NAMES[i] for i in rng.permutation(len(COLOR_NAMES))]
     largest_radius = min(OBJECT_RADIUS[1], 0.425 * slot)
     draws = [
         draw_object(rng, float(rng.uniform(OBJECT_RADIUS[0], largest_radius)), color)
@@ -332,7 +305,7 @@ def _make_probe(
         targets = np.roll(chosen, shift)
         manipulated = [builder.objects[names[i]].mask_id for i in chosen]
 
-        def manipulate(sim: base.Simulation) -> None:
+        def manipulate(sim: Simulation) -> None:
             for source, target in zip(chosen, targets):
                 sim.move(names[source], resting_position(draws[source], float(xs[target]), row_y))
 
@@ -341,7 +314,7 @@ def _make_probe(
         new_colors = [spare_colors[k] for k in range(len(recoloured))]
         manipulated = [builder.objects[names[i]].mask_id for i in recoloured]
 
-        def manipulate(sim: base.Simulation) -> None:
+        def manipulate(sim: Simulation) -> None:
             for index, color in zip(recoloured, new_colors):
                 sim.set_color(names[index], color)
 
@@ -363,7 +336,7 @@ def _make_probe(
             add_object(builder, f"twin{index}", twin, float(xs[index]), row_y, names[index])
         manipulated = [builder.objects[names[i]].mask_id for i in reshaped]
 
-        def manipulate(sim: base.Simulation) -> None:
+        def manipulate(sim: Simulation) -> None:
             for index, (twin_name, twin) in zip(reshaped, twins):
                 sim.remove(names[index])
                 sim.restore(twin_name)
@@ -372,7 +345,7 @@ def _make_probe(
     if change == "shape":
         for twin_name, _ in twins:
             sim.remove(twin_name)
-    consistent, inconsistent = base.record_pair(
+    consistent, inconsistent = record_pair(
         sim, manipulation_frame, manipulate, script=screen.script
     )
     _check_probe(consistent, inconsistent, manipulation_frame, manipulated, count)
@@ -386,12 +359,12 @@ def _check_probe(consistent, inconsistent, manipulation_frame, manipulated, coun
     """Reject draws where the objects do not all show first, the screen does not hide the row at
     the manipulation, or the change is not revealed at the end."""
     objects = set(range(1, count + 1))
-    if base.visible_ids(consistent[1][0]) & objects != objects:
+    if visible_ids(consistent[1][0]) & objects != objects:
         raise RejectedSample("not every object is visible before the screen comes down")
     for _, masks, _ in (consistent, inconsistent):
-        if base.visible_ids(masks[manipulation_frame]) & (objects | set(manipulated)):
+        if visible_ids(masks[manipulation_frame]) & (objects | set(manipulated)):
             raise RejectedSample("the screen does not hide the row at the manipulation")
-    shown = base.visible_ids(consistent[1][-1]) | base.visible_ids(inconsistent[1][-1])
+    shown = visible_ids(consistent[1][-1]) | visible_ids(inconsistent[1][-1])
     changed_pixels = (consistent[0][-1] != inconsistent[0][-1]).any(axis=-1).sum()
     if not set(manipulated) & shown or changed_pixels < 4:
         raise RejectedSample("the change is not revealed when the screen rises")
@@ -402,8 +375,8 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
     inconsistent video some objects changed ``variant``'s property behind the screen."""
     change, extra = parse_variant(variant)
     # Separate salt words: rng_for reads only the first 8 bytes of each word.
-    rng = base.rng_for(seed, CONCEPT, change, f"plus{extra}")
-    return base.draw_until_valid(
+    rng = rng_for(seed, CONCEPT, change, f"plus{extra}")
+    return draw_until_valid(
         lambda r: _make_probe(change, extra, variant, seed, video, r), rng
     )
 
@@ -437,7 +410,7 @@ def scatter_objects(
     """2-4 static objects (draw, x, y) anywhere in view (uniformly over the image, up to 2.5 m
     past the point the camera looks at), apart from one another and the screen."""
     count = int(rng.integers(MIN_OBJECTS, MAX_OBJECTS + 1))
-    colors = base.distinct_colors(rng, count)
+    colors = distinct_colors(rng, count)
     placed: list[tuple[float, float, float]] = []
     objects = []
     for color in colors:
@@ -485,4 +458,4 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             specs.CLIP_KINDS.index(kind), seed, objects,
         )
 
-    return base.draw_until_valid(make, base.rng_for(seed, CONCEPT, kind))
+    return draw_until_valid(make, rng_for(seed, CONCEPT, kind))

@@ -1,0 +1,182 @@
+"""How a scene is filmed: the video's size and timing (``VideoOptions``), the free camera's pose
+(``CameraPose``), each concept's camera distribution (``CameraRange``, the "one world" of
+docs/architecture.md §4), and the projection between world points and image pixels that scenes
+use to place objects in or out of view. One home for the camera's geometry, so every concept
+projects alike (the positive control's ``model/object_geometry.py`` is its torch twin)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from voe_lightning import specs
+
+
+@dataclass(frozen=True)
+class VideoOptions:
+    """Geometry and timing of a rendered video (paper: 15 frames, 64x64, about 3 s)."""
+
+    num_frames: int = specs.NUM_FRAMES
+    height: int = specs.HEIGHT
+    width: int = specs.WIDTH
+    duration: float = 3.0
+    timestep: float = 0.01
+
+    def __post_init__(self) -> None:
+        for name in ("num_frames", "height", "width"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if not 0 < self.timestep <= self.duration / self.num_frames:
+            raise ValueError(
+                f"timestep {self.timestep} must be in (0, duration/num_frames="
+                f"{self.duration / self.num_frames:g}]"
+            )
+
+    @property
+    def steps_per_frame(self) -> int:
+        return max(1, round(self.duration / self.num_frames / self.timestep))
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """A free camera looking at ``lookat`` from ``distance`` at ``azimuth``/``elevation`` (deg)."""
+
+    lookat: tuple[float, float, float] = (0.0, 0.0, 0.4)
+    distance: float = 4.0
+    azimuth: float = 90.0
+    elevation: float = -20.0
+
+    def as_array(self) -> np.ndarray:
+        return np.array([*self.lookat, self.distance, self.azimuth, self.elevation], np.float32)
+
+
+@dataclass(frozen=True)
+class CameraRange:
+    """One concept's camera distribution: each pose parameter uniform in its (low, high).
+    Examples, every control and the probes of a concept draw from it (docs/architecture.md §4, "one
+    world"); probes may draw from a narrower range that lies inside it (``narrow``)."""
+
+    lookat_x: tuple[float, float]
+    lookat_y: tuple[float, float]
+    lookat_z: tuple[float, float]
+    distance: tuple[float, float]
+    azimuth: tuple[float, float]
+    elevation: tuple[float, float]
+
+    def __post_init__(self) -> None:
+        for name, (low, high) in self.ranges().items():
+            if not low <= high:
+                raise ValueError(f"camera range {name} must have low <= high, got ({low}, {high})")
+
+    def ranges(self) -> dict[str, tuple[float, float]]:
+        """The (low, high) of each parameter, in the order of ``CameraPose.as_array``."""
+        return {name: getattr(self, name) for name in CAMERA_PARAMETERS}
+
+    def sample(self, rng: np.random.Generator) -> CameraPose:
+        x, y, z, distance, azimuth, elevation = (
+            float(rng.uniform(low, high)) for low, high in self.ranges().values()
+        )
+        return CameraPose((x, y, z), distance, azimuth, elevation)
+
+    def contains(self, camera: CameraPose | np.ndarray, tolerance: float = 1e-4) -> bool:
+        """Whether a pose (or a ``[..., 6]`` array of poses) lies inside every range."""
+        values = np.asarray(camera.as_array() if isinstance(camera, CameraPose) else camera)
+        low, high = np.array(list(self.ranges().values()), np.float64).T
+        return bool(((values >= low - tolerance) & (values <= high + tolerance)).all())
+
+    def narrow(self, **ranges: tuple[float, float]) -> "CameraRange":
+        """A sub-range for probes; refuses a range that leaves this one."""
+        for name, (low, high) in ranges.items():
+            outer_low, outer_high = self.ranges()[name]
+            if low < outer_low or high > outer_high:
+                raise ValueError(
+                    f"probe camera {name} range ({low}, {high}) leaves the training range "
+                    f"({outer_low}, {outer_high})"
+                )
+        return CameraRange(**{**self.ranges(), **ranges})
+
+
+#: Names of the six camera parameters, in the order of ``CameraPose.as_array``.
+CAMERA_PARAMETERS = ("lookat_x", "lookat_y", "lookat_z", "distance", "azimuth", "elevation")
+
+#: Vertical field of view of MuJoCo's free camera (model default, degrees).
+FOVY = 45.0
+
+
+def camera_axes(camera: CameraPose) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Position, right, up and forward unit vectors of MuJoCo's free camera at ``camera``."""
+    az, el = math.radians(camera.azimuth), math.radians(camera.elevation)
+    forward = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    up = np.array([-math.sin(el) * math.cos(az), -math.sin(el) * math.sin(az), math.cos(el)])
+    position = np.asarray(camera.lookat) - camera.distance * forward
+    return position, np.cross(forward, up), up, forward
+
+
+def camera_coordinates(camera: CameraPose, point) -> tuple[float, float, float]:
+    """The world ``point`` in the camera's frame: its offsets along right, up and forward
+    (depth); every projection of a point into the image starts here."""
+    position, right, up, forward = camera_axes(camera)
+    offset = np.asarray(point, float) - position
+    return offset @ right, offset @ up, offset @ forward
+
+
+# --- projection between the world and the image ---------------------------------------------
+def focal_length(video: VideoOptions) -> float:
+    """Focal length in pixels of MuJoCo's free camera."""
+    return (video.height / 2) / np.tan(np.radians(FOVY) / 2)
+
+
+def pixel_of(camera: CameraPose, video: VideoOptions, point) -> tuple[int, int]:
+    """Pixel (row, column) where the world ``point`` appears in a frame (may lie outside it)."""
+    right, up, depth = camera_coordinates(camera, point)
+    focal = focal_length(video)
+    column = video.width / 2 + focal * right / depth
+    row = video.height / 2 - focal * up / depth
+    return int(np.floor(row)), int(np.floor(column))
+
+
+def x_at_column(camera: CameraPose, video: VideoOptions, column: float, y: float, z: float) -> float:
+    """The world x where the line (·, y, z) crosses image column ``column`` (the camera's right
+    axis is horizontal, so this is the root of a linear equation)."""
+    position, right, _, forward = camera_axes(camera)
+    k = (column - video.width / 2) / focal_length(video)
+    along = (y - position[1]) * right[1]
+    ahead = (y - position[1]) * forward[1] + (z - position[2]) * forward[2]
+    return float(position[0] + (k * ahead - along) / (right[0] - k * forward[0]))
+
+
+def view_edges(camera: CameraPose, video: VideoOptions, y: float, z: float) -> tuple[float, float]:
+    """The world x of the left and right frame edges on the line (·, y, z)."""
+    return x_at_column(camera, video, 0.0, y, z), x_at_column(camera, video, video.width, y, z)
+
+
+def image_point(camera: CameraPose, point, aspect: float = 1.0) -> tuple[float, float]:
+    """Normalised image coordinates of a world point: (-1..1 left to right, -1..1 bottom to top)."""
+    right, up, depth = camera_coordinates(camera, point)
+    if depth <= 0:
+        return math.inf, math.inf
+    tan_half = math.tan(math.radians(FOVY) / 2)
+    return float(right / (depth * tan_half * aspect)), float(up / (depth * tan_half))
+
+
+def floor_point(camera: CameraPose, u: float, v: float, height: float, aspect: float = 1.0):
+    """The point at ``height`` above the floor seen at image coordinates (u, v), or None when
+    that pixel looks above the horizon."""
+    position, right, up, forward = camera_axes(camera)
+    tan_half = math.tan(math.radians(FOVY) / 2)
+    ray = forward + u * tan_half * aspect * right + v * tan_half * up
+    if ray[2] >= 0:
+        return None
+    return position + ray * (height - position[2]) / ray[2]
+
+
+def height_above_view(camera: CameraPose, x: float, y: float) -> float:
+    """The height at (x, y) above which the camera sees nothing (the top edge of the image)."""
+    position, _, up, forward = camera_axes(camera)
+    tan_half = math.tan(math.radians(FOVY) / 2)
+    offset = np.array([x, y, 0.0]) - position
+    # up-component = tan_half * forward-component, linear in the height z.
+    denominator = up[2] - tan_half * forward[2]
+    return float((tan_half * (offset @ forward) - offset @ up) / denominator)

@@ -1,0 +1,141 @@
+"""Recording videos from a simulation for probes: the consistent video and its inconsistent
+twin, forked from one simulation at the hidden manipulation and identical through the
+manipulation frame (docs/architecture.md §4), either at a chosen frame (``record_pair``) or as
+soon as the physics allows the change unseen (``record_pair_when``); and a whole video with the
+state at every frame (``record_tracking``), to fork later at a frame an object's path chooses."""
+
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import numpy as np
+
+from voe_lightning import specs
+from voe_lightning.scenes.sampling import RejectedSample
+from voe_lightning.scenes.simulation import Simulation, visible_ids
+
+
+#: A rendered video: uint8 frames [T, H, W, 3], masks [T, H, W] and object states [T, OBJECT_SLOTS]
+#: of ``specs.OBJECT_STATE_DTYPE``, as ``Simulation.record`` gives them.
+Video = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def splice(consistent: Video, rest: Video, manipulation_frame: int) -> Video:
+    """The inconsistent video of a pair: the consistent one before ``manipulation_frame``, then
+    ``rest``, rendered from the manipulated twin from that frame on. The hidden change happens
+    at the manipulation frame, which renders alike in both; its object states are the
+    consistent video's too, so that a pair is identical through that frame in everything a
+    model may read (docs/architecture.md §7), and the states show the change from the next frame on."""
+    frames, masks, objects = (
+        np.concatenate([a[:manipulation_frame], b]) for a, b in zip(consistent, rest)
+    )
+    objects[manipulation_frame] = consistent[2][manipulation_frame]
+    return frames, masks, objects
+
+
+def record_tracking(sim: Simulation, name: str) -> tuple[Video, list, np.ndarray]:
+    """Render the whole video, keeping the simulation state and the position of object ``name``
+    at every frame (to fork a twin later at a frame the object's path chooses)."""
+    states, positions = [], []
+
+    def keep(sim: Simulation, frame: int) -> None:
+        states.append(sim.get_state())
+        positions.append(sim.position(name))
+
+    video = sim.record(sim.video.num_frames, keep)
+    return video, states, np.array(positions)
+
+
+def record_pair(
+    sim: Simulation,
+    manipulation_frame: int,
+    manipulate: Callable[[Simulation], None],
+    script: Callable[[Simulation, int], None] | None = None,
+    script_inconsistent: Callable[[Simulation, int], None] | None = None,
+) -> tuple[Video, Video]:
+    """Render a probe pair from one simulation: frames before ``manipulation_frame`` are
+    rendered once and shared; then the simulation forks, ``manipulate`` applies the hidden
+    change to the inconsistent branch, and both branches run to the end (``splice``)."""
+    total = sim.video.num_frames
+    if not 0 < manipulation_frame < total:
+        raise ValueError(f"manipulation_frame must be in [1, {total - 1}], got {manipulation_frame}")
+    prefix = sim.record(manipulation_frame, script)
+    twin = sim.fork()
+    manipulate(twin)
+    rest = total - manipulation_frame
+    consistent_rest = sim.record(rest, script, first_frame=manipulation_frame)
+    inconsistent_rest = twin.record(
+        rest, script_inconsistent or script, first_frame=manipulation_frame
+    )
+    consistent = tuple(np.concatenate([a, b]) for a, b in zip(prefix, consistent_rest))
+    return consistent, splice(consistent, inconsistent_rest, manipulation_frame)
+
+
+def record_pair_when(
+    sim: Simulation,
+    manipulate: Callable[[Simulation], bool | None],
+    ready: Callable[[Simulation, int], bool],
+    hidden_ids: Sequence[int] = (),
+    script: Callable[[Simulation, int], None] | None = None,
+    checks_per_frame: int = 1,
+) -> tuple[Video, Video, int]:
+    """Render a probe pair whose hidden change happens as soon as it can, for events whose
+    timing only the physics knows (a plank landing, a block entering a box). At each check
+    (every frame, and ``checks_per_frame - 1`` more times between frames, for brief windows)
+    where ``ready(sim, next_frame)`` holds, a twin is forked and ``manipulate``d (it may return
+    False to decline); the change is kept if none of ``hidden_ids`` shows in either simulation
+    then. The manipulation frame is the first frame rendered after it; ``hidden_ids`` must be
+    unseen there too, and both videos share its object states (see ``splice``). Returns
+    (consistent, inconsistent, manipulation_frame); raises RejectedSample if no check succeeds
+    or the change shows at the manipulation frame."""
+    video = sim.video
+    hidden = set(hidden_ids)
+    shape = (video.num_frames, video.height, video.width)
+    frames = [np.empty((*shape, 3), np.uint8), np.empty((*shape, 3), np.uint8)]
+    masks = [np.empty(shape, np.uint8), np.empty(shape, np.uint8)]
+    objects = [
+        np.empty((video.num_frames, specs.OBJECT_SLOTS), specs.OBJECT_STATE_DTYPE) for _ in range(2)
+    ]
+    chunks = [len(c) for c in np.array_split(np.arange(video.steps_per_frame), checks_per_frame)]
+    twin: Simulation | None = None
+    manipulation_frame = -1
+
+    def unseen(mask: np.ndarray) -> bool:
+        return not visible_ids(mask) & hidden
+
+    def try_change(next_frame: int, mask: np.ndarray | None) -> Simulation | None:
+        """The manipulated twin, if the change can happen unseen now (``mask``: sim's view)."""
+        if next_frame >= video.num_frames or not ready(sim, next_frame):
+            return None
+        if not unseen(sim.render()[1] if mask is None else mask):
+            return None
+        candidate = sim.fork()
+        if manipulate(candidate) is False or not unseen(candidate.render()[1]):
+            return None
+        return candidate
+
+    for t in range(video.num_frames):
+        for branch in (sim, twin):
+            if branch is not None and script is not None:
+                script(branch, t)
+        frames[0][t], masks[0][t], objects[0][t] = sim.render()
+        if twin is None and t >= 1:
+            twin = try_change(t, masks[0][t])
+            manipulation_frame = t if twin is not None else -1
+        if twin is None:
+            frames[1][t], masks[1][t], objects[1][t] = frames[0][t], masks[0][t], objects[0][t]
+        else:
+            frames[1][t], masks[1][t], objects[1][t] = twin.render()
+        if t == manipulation_frame and not (unseen(masks[0][t]) and unseen(masks[1][t])):
+            raise RejectedSample("the hidden change shows at the manipulation frame")
+        for index, steps in enumerate(chunks):
+            sim.step(steps)
+            if twin is not None:
+                twin.step(steps)
+            elif index < len(chunks) - 1:
+                twin = try_change(t + 1, None)
+                manipulation_frame = t + 1 if twin is not None else -1
+    if twin is None:
+        raise RejectedSample("no moment where the hidden change could happen unseen")
+    objects[1][manipulation_frame] = objects[0][manipulation_frame]  # shared, as in ``splice``
+    return (frames[0], masks[0], objects[0]), (frames[1], masks[1], objects[1]), manipulation_frame

@@ -1,0 +1,39 @@
+"""Random draws of a scene: a seeded generator per (seed, concept, kind or variant), and redrawing
+a sample that breaks a probe's constraints until one holds (deterministic for one seed)."""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Callable
+
+import numpy as np
+from tensordict import TensorDict
+
+
+def rng_for(seed: int, *salt: str) -> np.random.Generator:
+    """A generator determined by ``seed`` and names (concept, kind or variant), so that the
+    same seed in different concepts or kinds gives independent draws."""
+    if seed < 0:
+        raise ValueError(f"seed must be non-negative, got {seed}")
+    words = [
+        int.from_bytes(hashlib.blake2b(word.encode(), digest_size=8).digest(), "little")
+        for word in salt
+    ]
+    return np.random.default_rng([seed, *words, len(salt)])
+
+
+class RejectedSample(Exception):
+    """A random draw that does not satisfy a probe's constraints; the caller draws again."""
+
+
+def draw_until_valid(
+    make: Callable[[np.random.Generator], TensorDict], rng: np.random.Generator, attempts: int = 50
+) -> TensorDict:
+    """Call ``make(rng)`` until it does not raise RejectedSample (deterministic for one rng)."""
+    last = None
+    for _ in range(attempts):
+        try:
+            return make(rng)
+        except RejectedSample as error:
+            last = error
+    raise RuntimeError(f"no valid scene after {attempts} draws; last rejection: {last}")
