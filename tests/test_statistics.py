@@ -14,13 +14,9 @@ import yaml
 from scipy import stats
 from sklearn.metrics import roc_auc_score
 
-from voe_lightning import statistics
-from voe_lightning.statistics import (
-    PairedSurpriseStats,
-    PairedTestResult,
-    effect_size_interval,
-    paired_test,
-)
+from voe_lightning import statistics, statistics_format
+from voe_lightning.statistics import PairedTestResult, effect_size_interval, paired_test
+from voe_lightning.streaming_statistics import PairedSurpriseStats, pooled_values
 
 
 def _surprise(n, effect, seed):
@@ -233,7 +229,7 @@ def _result(p, mean):
 
 
 def test_pooled_verdict_needs_the_pool_and_both_variants_significant():
-    from voe_lightning.statistics import concept_verdicts
+    from voe_lightning.verdicts import concept_verdicts
 
     def verdict(standard, counterbalanced, pooled, alpha=0.01):
         results = {("continuity", "standard"): standard,
@@ -258,7 +254,7 @@ def test_pooled_verdict_needs_the_pool_and_both_variants_significant():
 
 
 def test_unchangeableness_verdict_needs_every_variant_significant():
-    from voe_lightning.statistics import concept_verdicts
+    from voe_lightning.verdicts import concept_verdicts
 
     results = {("unchangeableness", v): _result(0.005, 1.0) for v in ("position", "color", "shape")}
     results[("unchangeableness", "color_plus1")] = _result(0.9, -1.0)  # generalization: ignored
@@ -273,7 +269,7 @@ def test_unchangeableness_verdict_needs_every_variant_significant():
 def test_the_verdict_rule_takes_arrays_as_concept_verdicts_takes_rows():
     """The calibration applies the rule to thousands of repetitions at once: element by
     element it must decide as ``concept_verdicts`` does."""
-    from voe_lightning.statistics import concept_verdicts, verdict_rule
+    from voe_lightning.verdicts import concept_verdicts, verdict_rule
 
     rng = np.random.default_rng(3)
     cases = {"solidity": ("standard", "counterbalanced", "pooled"),
@@ -349,7 +345,7 @@ def test_streaming_pooled_values_equal_the_one_shot_pooled_test():
         parts.append((consistent + rng.normal(effect, 2.0, size), consistent))
     streamed = [{k: v.item() for k, v in _stream(inc, con, batch=7).compute().items()}
                 for inc, con in parts]
-    pooled = statistics.pooled_values(streamed)
+    pooled = pooled_values(streamed)
     one_shot = statistics.pooled_test(np.r_[parts[0][0], parts[1][0]],
                                       np.r_[parts[0][1], parts[1][1]],
                                       ["standard"] * sizes[0] + ["counterbalanced"] * sizes[1],
@@ -388,13 +384,44 @@ def test_one_alpha_in_code_and_base_config_and_bad_values_are_named():
     for bad in (0, 1, 1.5, -0.1, "0.05", True):
         with pytest.raises(ValueError, match=r"alpha must be a significance level in \(0, 1\)"):
             statistics.check_alpha(bad)
-    assert statistics.format_alpha(0.01) == "α = 0.01"
+    assert statistics_format.format_alpha(0.01) == "α = 0.01"
 
 
 def test_json_row_writes_non_finite_values_as_strings_float_reads_back():
     row = {"concept": "solidity", "t": float("inf"), "d_z": float("-inf"), "p": float("nan"),
            "n": 3, "M": 0.5}
-    encoded = json.loads(json.dumps(statistics.json_row(row), allow_nan=False))
+    encoded = json.loads(json.dumps(statistics_format.json_row(row), allow_nan=False))
     assert encoded == {"concept": "solidity", "t": "inf", "d_z": "-inf", "p": "nan", "n": 3,
                        "M": 0.5}
     assert float(encoded["t"]) == math.inf and math.isnan(float(encoded["p"]))
+
+
+def test_one_row_formatter_writes_each_number_alike_in_every_style():
+    """statistics_format.row_text is the one place a row's numbers become text: the report,
+    figures, cue cells, the comparison and the console table only choose a precision."""
+    d = np.array([1.0, 2.0, 0.5, -0.2, 1.5, 0.9])
+    row = {"concept": "solidity", "variant": "pooled",
+           **statistics.pooled_test(d + 1.0, np.ones(6),
+                                    ["standard"] * 3 + ["counterbalanced"] * 3,
+                                    bootstrap=0).as_dict()}
+    report = statistics_format.row_text(row)
+    assert report.t.startswith(f"t({row['df']:.1f}) = ")  # a real-valued df, one decimal
+    assert report.accuracy == f"{100 * row['accuracy']:.1f}%" and report.sig in ("yes *", "no")
+    assert report.mean_interval == report.mean  # bootstrap=0: no interval of M
+    brief = statistics_format.row_text(row, statistics_format.BRIEF)
+    assert brief.accuracy == f"{100 * row['accuracy']:.0f}%" and brief.t == report.t
+    console = statistics_format.row_text(
+        {key: row[key] for key in ("n", "relative_surprise", "t", "p_value", "accuracy")},
+        statistics_format.CONSOLE, alpha=0.5)
+    assert (console.n, console.mean, console.t, console.accuracy) == (
+        "6", f"{row['relative_surprise']:.3f}", f"{row['t']:.2f}", f"{row['accuracy']:.2f}")
+    assert console.p == f"{row['p_value']:.3g}" and console.star == "*"
+    # a row read back from summary.json, non-finite values as strings
+    untested = statistics_format.row_text({"n": 1, "t": None, "p_value": None, "accuracy": None})
+    assert (untested.t, untested.p, untested.sig, untested.accuracy) == ("n/a",) * 4
+    degenerate = statistics_format.row_text(statistics_format.json_row(
+        {"n": 3, "relative_surprise": 1.0, "t": math.inf, "df": 2, "p_value": 0.0, "d_z": math.inf,
+         "relative_surprise_ci_low": math.nan, "relative_surprise_ci_high": math.nan,
+         "significant": True}))
+    assert (degenerate.t, degenerate.p, degenerate.d_z, degenerate.mean_interval) == (
+        "t(2) = +inf", "< .001", "+inf", "1")

@@ -25,8 +25,9 @@ from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.cues import CUE_TITLES, FRAME_LOCAL_CUES, tracked_cues
 from voe_lightning.model import VOEModel
 from voe_lightning.report.figures import panel_grid
-from voe_lightning.report.results import PairResults, format_p, format_t, read_summary
-from voe_lightning.statistics import ALPHA, format_alpha, paired_test
+from voe_lightning.report.results import PairResults, read_summary
+from voe_lightning.statistics import ALPHA, paired_test
+from voe_lightning.statistics_format import BRIEF, format_alpha, row_text
 from voe_lightning.store import collate, open_split, read_manifest
 
 __all__ = [
@@ -359,11 +360,8 @@ def comparison_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
     lines = ["| run | concept | variant | n | M | t(df) | p | accuracy | frame-local cues: "
              f"accuracy | surprise tracks (r) | {voe} |", "|" + "---|" * 11]
     for row in rows:
-        if row["t"] is None:
-            statistics = "| n/a | n/a | n/a | n/a "
-        else:
-            statistics = (f"| {row['relative_surprise']:.3g} | {format_t(row['t'], row['df'])} "
-                          f"| {format_p(row['p_value'])} | {100 * row['accuracy']:.0f}% ")
+        text = row_text(row, BRIEF)
+        statistics = f"| {text.mean} | {text.t} | {text.p} | {text.accuracy} "
         cues = ("n/a" if row["cue_accuracy_min"] is None else
                 f"{100 * row['cue_accuracy_min']:.0f}–{100 * row['cue_accuracy_max']:.0f}%")
         tracks = ("n/a" if row["tracked_cue_r"] is None else

@@ -11,7 +11,7 @@ video's score, scaled to unit SD over the concept's pairs; ``sign`` says which w
 follows the cue; ``delta`` (in noise SDs) is a true violation effect. Each repetition draws
 ``pairs`` pairs per variant (with replacement, from the audit's pairs of that variant) and new
 noise, tests every variant and the pooled row as reports do (``statistics``) and applies the
-verdict rule (``statistics.verdict_rule``). With delta = 0 the rate
+verdict rule (``verdicts.verdict_rule``). With delta = 0 the rate
 of VOE verdicts is the false-VOE rate, which must stay at or below alpha; over a grid of delta
 the rate is the verdict's power. The same draws serve every delta (delta only shifts each
 variant's mean), so the power curve is one simulation.
@@ -32,6 +32,8 @@ import numpy as np
 from scipy import stats
 
 from voe_lightning import cues, specs, statistics
+from voe_lightning.statistics_format import format_alpha, json_row
+from voe_lightning.verdicts import verdict_rule
 
 __all__ = [
     "DELTAS",
@@ -143,7 +145,7 @@ def verdict_rates(terms: Mapping[str, np.ndarray], concept: str, pairs: int, rep
             [pairs] * len(pooled), [means[v] for v in pooled],
             [np.broadcast_to(moments[v][1], means[v].shape) for v in pooled])
         p_values.append(statistics.t_and_p(mean, error, df)[1])
-    return statistics.verdict_rule(p_values, alpha).mean(axis=1)
+    return verdict_rule(p_values, alpha).mean(axis=1)
 
 
 @dataclass(frozen=True)
@@ -265,7 +267,7 @@ def calibration_markdown(rows: Sequence[CalibrationRow], title: str = "Calibrati
     alpha, repetitions = rows[0].alpha, rows[0].repetitions
     tested = [row for row in rows if row.cue is not None]
     bound = false_voe_bound(repetitions, alpha, max(1, len(rows)))
-    lines = [f"## {title} ({statistics.format_alpha(alpha)}, {repetitions} repetitions)", "",
+    lines = [f"## {title} ({format_alpha(alpha)}, {repetitions} repetitions)", "",
              "| concept | pairs per variant | cue follower | false VOE at δ = 0: worst (cue, "
              "sign, weight) | δ (power) at 80% VOE: noise only | δ (power) at 80% VOE: worst "
              "cue at weight 1 (cue, sign) |", "|" + "---|" * 6]
@@ -291,7 +293,7 @@ def calibration_markdown(rows: Sequence[CalibrationRow], title: str = "Calibrati
               "(δ and weight in noise SDs; f scaled to unit SD over the concept's pairs), from "
               "the real cue scores of the audited probes; each repetition resamples the pairs "
               "of each variant and tests as the report does (pooled: the stratified test; "
-              "verdict: `statistics.verdict_rule`). "
+              "verdict: `verdicts.verdict_rule`). "
               f"False VOE must stay at or below α; with {repetitions} repetitions and "
               f"{len(rows)} rates, {100 * bound:.2f}% is the binomial bound (p = .001, "
               "Bonferroni) a calibrated verdict stays under. δ: the smallest of a grid of "
@@ -304,7 +306,7 @@ def calibration_markdown(rows: Sequence[CalibrationRow], title: str = "Calibrati
 
 def rows_as_dicts(rows: Sequence[CalibrationRow]) -> list[dict[str, Any]]:
     """The rows as plain dicts (JSON)."""
-    return [statistics.json_row(vars(row)) for row in rows]
+    return [json_row(vars(row)) for row in rows]
 
 
 # ----------------------------------------------------------------------------- command line

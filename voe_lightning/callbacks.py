@@ -30,17 +30,10 @@ from voe_lightning.report.results import (
     PairResults,
     as_numpy,
 )
-from voe_lightning.statistics import (
-    ALPHA,
-    POOLED,
-    POOLED_VARIANTS,
-    PairedSurpriseStats,
-    check_alpha,
-    concept_verdicts,
-    format_alpha,
-    pair_groups,
-    pooled_values,
-)
+from voe_lightning.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
+from voe_lightning.statistics_format import CONSOLE, format_alpha, row_text
+from voe_lightning.streaming_statistics import PairedSurpriseStats, pooled_values
+from voe_lightning.verdicts import concept_verdicts, pair_groups
 from voe_lightning.surprise_window import SurpriseWindow
 from voe_lightning.surprise_window import surprise_window as parse_window
 
@@ -57,7 +50,7 @@ class VOEProbeCallback(L.Callback):
     concept/variant, then logs ``voe/<concept>/<variant>/{relative_surprise,t,p_value,accuracy,n}``.
     A concept with a standard and a counterbalanced variant also gets
     ``voe/<concept>/pooled/...``: the stratified test of its two variants
-    (``statistics.pooled_values``, from their float64 sums, so exact under DDP as they are).
+    (``streaming_statistics.pooled_values``, from their float64 sums, so exact under DDP as they are).
     At the end of ``fit`` it prints the last table with each concept's verdict at ``alpha``
     (None: ``statistics.ALPHA``; the CLI gives the run's ``alpha`` from configs/base.yaml).
     A ``surprise_window`` other than all frames (``surprise_window.surprise_window``; the CLI
@@ -169,7 +162,7 @@ def voe_table(
 ) -> Table:
     """A rich table of relative surprise, t, p and accuracy per concept/variant (pooled rows
     bold: the stratified test), alpha in its title and p header, with each concept's verdict
-    (``statistics.concept_verdicts``) on its first row."""
+    (``verdicts.concept_verdicts``) on its first row."""
     verdicts = {v.concept: v for v in concept_verdicts(results, alpha)}
     table = Table(title=f"{title} ({format_alpha(alpha)})")
     for column in ("concept", "variant", "n", "relative surprise", "t",
@@ -178,7 +171,7 @@ def voe_table(
         table.add_column(column, justify=justify, overflow="fold")
     keys = list(results)
     for index, ((concept, variant), values) in enumerate(results.items()):
-        marker = "*" if values["p_value"] < alpha else ""
+        cells = row_text(values, CONSOLE, alpha)
         first = index == 0 or keys[index - 1][0] != concept
         last = index + 1 == len(keys) or keys[index + 1][0] != concept
         verdict = verdicts[concept]
@@ -188,11 +181,11 @@ def voe_table(
         table.add_row(
             concept if first else "",
             variant,
-            f"{values['n']:.0f}",
-            f"{values['relative_surprise']:.3f}",
-            f"{values['t']:.2f}",
-            f"{values['p_value']:.3g}{marker}",
-            f"{values['accuracy']:.2f}",
+            cells.n,
+            cells.mean,
+            cells.t,
+            cells.p + cells.star,
+            cells.accuracy,
             text,
             style="bold" if variant == POOLED else None,
             end_section=last,

@@ -29,7 +29,7 @@ import csv
 import json
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -38,6 +38,8 @@ import torch
 from scipy import stats
 
 from voe_lightning import specs, statistics
+from voe_lightning.statistics_format import BRIEF, format_alpha, json_row, row_text, rows_alpha
+from voe_lightning.verdicts import pair_groups
 
 __all__ = [
     "CUES",
@@ -72,6 +74,8 @@ SIDES = ("consistent", "inconsistent")
 CUE_COLUMNS = (("concept", "variant", "cue")
                + tuple(f for f in statistics.PairedTestResult.__dataclass_fields__ if f != "note")
                + ("p_two_sided", "note"))
+#: How a compact table's cell writes accuracy and d_z: '61% / +0.52'.
+CELL_STYLE = replace(BRIEF, d_z="+.2f")
 #: Columns of cue_correlations.csv (``CueAudit.model_correlations``).
 CORRELATION_COLUMNS = ("concept", "variant", "cue", "n", "r", "p_two_sided", "alpha", "note")
 
@@ -191,8 +195,8 @@ class CueAudit:
 
     def groups(self) -> list[tuple[str, str, np.ndarray]]:
         """(concept, variant, row selector) for every variant, and a ``pooled`` group for each
-        concept with a counterbalanced pair (``statistics.pair_groups``)."""
-        return statistics.pair_groups(self.concepts, self.variants)
+        concept with a counterbalanced pair (``verdicts.pair_groups``)."""
+        return pair_groups(self.concepts, self.variants)
 
     def rows(self, alpha: float = statistics.ALPHA, bootstrap: int = 0) -> list[dict[str, Any]]:
         """One row per (concept, variant or pooled, cue), columns ``CUE_COLUMNS``: the test
@@ -343,11 +347,9 @@ def _cell(row: Mapping[str, Any] | None) -> tuple[str, bool]:
     """'acc% / d_z' of a row, and whether it separates the pairs (p_two_sided or p < alpha)."""
     if row is None or row.get("accuracy") is None:
         return "n/a", False
-    d_z = row["d_z"]
-    effect = ("undefined" if math.isnan(d_z) else ("+inf" if d_z > 0 else "-inf")
-              if math.isinf(d_z) else f"{d_z:+.2f}")
+    text = row_text(row, CELL_STYLE)
     separates = row["p_two_sided"] < row["alpha"] if "p_two_sided" in row else row["significant"]
-    return f"{100 * row['accuracy']:.0f}% / {effect}", bool(separates)
+    return f"{text.accuracy} / {text.d_z}", bool(separates)
 
 
 def _table_cells(
@@ -378,8 +380,8 @@ def format_markdown(
     model = model_rows is not None
     header = (["concept", "variant", "n"] + (["model (surprise)"] if model else [])
               + [CUE_TITLES[cue] for cue in CUES])
-    alpha = statistics.rows_alpha(cue_rows)
-    lines = [f"## {title} ({statistics.format_alpha(alpha)})", "",
+    alpha = rows_alpha(cue_rows)
+    lines = [f"## {title} ({format_alpha(alpha)})", "",
              "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for concept, variant, n, cells in _table_cells(cue_rows, model_rows):
         texts = []
@@ -411,8 +413,8 @@ def format_correlations(correlation_rows: Sequence[Mapping[str, Any]],
     and cue, bold where two-sided p < alpha."""
     by_key = {(r["concept"], r["variant"], r["cue"]): r for r in correlation_rows}
     header = ["concept", "variant", "n"] + [CUE_TITLES[cue] for cue in CUES]
-    alpha = statistics.rows_alpha(correlation_rows)
-    lines = [f"## {title} ({statistics.format_alpha(alpha)})", "",
+    alpha = rows_alpha(correlation_rows)
+    lines = [f"## {title} ({format_alpha(alpha)})", "",
              "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for concept, variant in dict.fromkeys((r["concept"], r["variant"]) for r in correlation_rows):
         cells = []
@@ -443,8 +445,8 @@ def cue_table(
     """The compact cue table as a rich Table (separating cue cells red, pooled rows bold)."""
     from rich.table import Table
 
-    alpha = statistics.rows_alpha(cue_rows)
-    table = Table(title=f"{title} ({statistics.format_alpha(alpha)})",
+    alpha = rows_alpha(cue_rows)
+    table = Table(title=f"{title} ({format_alpha(alpha)})",
                   caption="accuracy (ties half) / d_z; red: the cue separates the pairs "
                   f"(two-sided p < {alpha:g})")
     for column in ["concept", "variant", "n"] + (["model"] if model_rows is not None else []) + [
@@ -490,9 +492,9 @@ def write_audit(
         writer.writeheader()
         writer.writerows(cue_rows)
     document = {**metadata, "cues": list(CUES),
-                "rows": [statistics.json_row(row) for row in cue_rows]}
+                "rows": [json_row(row) for row in cue_rows]}
     if correlation_rows is not None:
-        document["model_correlations"] = [statistics.json_row(row) for row in correlation_rows]
+        document["model_correlations"] = [json_row(row) for row in correlation_rows]
     (out / "cues.json").write_text(json.dumps(document, indent=2) + "\n")
     return out
 

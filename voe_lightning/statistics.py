@@ -1,8 +1,10 @@
 """Violation-of-expectation statistics (docs/architecture.md §8): the one-tailed paired t-test
-of S(inconsistent) - S(consistent), as infant looking-time studies use it, in a one-shot form for
-reports (``paired_test``) and a streaming torchmetrics form for training-time callbacks
-(``PairedSurpriseStats``). Both share ``t_test_from_moments`` so they decide degenerate cases
-the same way.
+of S(inconsistent) - S(consistent), as infant looking-time studies use it, in the one-shot form
+reports use (``paired_test``, ``pooled_test``). The streaming torchmetrics form of the
+training-time callbacks (``voe_lightning.streaming_statistics``) shares ``t_test_from_moments``
+and ``stratified_test``, so both decide degenerate cases the same way. Which rows a table has
+and the verdict they give are in ``voe_lightning.verdicts``; how a row is written, in
+``voe_lightning.statistics_format``.
 
 Degenerate inputs, decided once here:
 
@@ -28,44 +30,35 @@ One significance level, ``ALPHA``, decides every verdict and table unless a run 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 import torch
 from scipy import optimize, stats
-from torchmetrics import Metric
 from torchmetrics.functional.classification import binary_auroc
-
-from voe_lightning import specs
 
 __all__ = [
     "ALPHA",
     "POOLED",
     "POOLED_VARIANTS",
-    "PairedSurpriseStats",
     "PairedTestResult",
     "StratifiedTest",
     "TTest",
-    "Verdict",
     "as_float64",
     "check_alpha",
-    "concept_verdicts",
-    "format_alpha",
     "effect_size_interval",
     "group_test",
     "paired_test",
-    "pair_groups",
-    "pooled_values",
     "pooled_test",
+    "ranked_auroc",
     "relative_surprise",
-    "rows_alpha",
     "stratified_moments",
     "stratified_test",
+    "t_and_p",
     "t_test_from_moments",
     "untested_reason",
-    "verdict_rule",
 ]
 
 #: The row name of a concept's pooled test, and the variants it pools
@@ -89,17 +82,6 @@ def check_alpha(alpha: Any) -> float:
         raise ValueError(f"alpha must be a significance level in (0, 1), e.g. {ALPHA}; "
                          f"got {alpha!r}")
     return float(alpha)
-
-
-def format_alpha(alpha: float) -> str:
-    """A significance level as every table header prints it: 'α = 0.01'."""
-    return f"α = {alpha:g}"
-
-
-def rows_alpha(rows: Iterable[Mapping[str, Any]]) -> float:
-    """The significance level result rows were tested at (their ``alpha``; ``ALPHA`` when
-    no row was tested)."""
-    return next((row["alpha"] for row in rows if row.get("alpha") is not None), ALPHA)
 
 
 def as_float64(values: Any, name: str) -> np.ndarray:
@@ -272,7 +254,8 @@ class PairedTestResult:
     """Everything the paper reports for one concept/variant, with d = S(inc) - S(con).
 
     ``relative_surprise`` is the paper's M (mean of d; a pooled row's: the mean of its
-    variants' means, ``pooled_test``, whose ``df`` is a real number); ``p_value`` is one-tailed (H1: M > 0);
+    variants' means, ``pooled_test``, whose ``df`` is a real number); ``p_value`` is
+    one-tailed (H1: M > 0);
     ``d_z`` = M / sd with a noncentral-t interval; ``accuracy`` is the share of pairs with
     d > 0 (the relative accuracy); ``auroc`` is the area under the ROC curve for telling
     inconsistent from consistent videos by surprise alone (unpaired); the
@@ -437,8 +420,9 @@ def pooled_test(
 
 
 def untested_reason(variant: str, variants: Sequence[str]) -> str:
-    """Why a group of ``pair_groups`` whose pairs have these ``variants`` gets no test, or ''
-    if it gets one: fewer than two pairs; for the pooled row, a variant with fewer than two."""
+    """Why a group of ``verdicts.pair_groups`` whose pairs have these ``variants`` gets no
+    test, or '' if it gets one: fewer than two pairs; for the pooled row, a variant with fewer
+    than two."""
     counts = dict.fromkeys(variants, 0)
     for name in variants:
         counts[name] += 1
@@ -452,199 +436,8 @@ def untested_reason(variant: str, variants: Sequence[str]) -> str:
 
 def group_test(variant: str, inconsistent: Any, consistent: Any, variants: Sequence[str],
                alpha: float = ALPHA, bootstrap: int = 2000, seed: int = 0) -> PairedTestResult:
-    """The test of one row of ``pair_groups``: ``pooled_test`` over the pairs' ``variants``
+    """The test of one row of ``verdicts.pair_groups``: ``pooled_test`` over the pairs' ``variants``
     for the ``POOLED`` row, ``paired_test`` for any other."""
     if variant == POOLED:
         return pooled_test(inconsistent, consistent, variants, alpha, bootstrap, seed)
     return paired_test(inconsistent, consistent, alpha, bootstrap, seed)
-
-
-class PairedSurpriseStats(Metric):
-    """Streaming paired t-test for training-time callbacks: keeps n, sum d, sum d^2 and the
-    count of d > 0 as float64 sum-states, so a DDP reduction (or ``merge_state``) gives the
-    same result as one pass over all pairs. ``compute()`` returns float64 scalar tensors
-    ``relative_surprise`` (mean d), ``t``, ``p_value`` (one-tailed, scipy's t distribution),
-    ``accuracy`` (share of d > 0), ``n`` and ``variance`` (of d, ddof=1: what
-    ``pooled_values`` pools variants from)."""
-
-    is_differentiable = False
-    higher_is_better = None
-    full_state_update = False
-
-    n: torch.Tensor
-    sum_d: torch.Tensor
-    sum_d_squared: torch.Tensor
-    positive: torch.Tensor
-
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(**kwargs)
-        for name in ("n", "sum_d", "sum_d_squared", "positive"):
-            self.add_state(name, default=torch.zeros((), dtype=torch.float64),
-                           dist_reduce_fx="sum")
-
-    def update(
-        self, surprise_inconsistent: torch.Tensor, surprise_consistent: torch.Tensor
-    ) -> None:
-        """Add a batch of pairs: per-video surprise [B] of the inconsistent and consistent video."""
-        inc = torch.as_tensor(surprise_inconsistent).detach()
-        con = torch.as_tensor(surprise_consistent).detach()
-        if inc.ndim != 1 or inc.shape != con.shape:
-            raise ValueError(
-                "update expects per-video surprise of shape [B] for both videos of each pair; "
-                f"got inconsistent {tuple(inc.shape)} and consistent {tuple(con.shape)}"
-            )
-        d = inc.to(device=self.sum_d.device, dtype=torch.float64) - con.to(
-            device=self.sum_d.device, dtype=torch.float64)
-        bad = ~torch.isfinite(d)
-        if bad.any():
-            raise ValueError(
-                f"{int(bad.sum())} of {d.numel()} probe pairs in this batch have non-finite "
-                f"surprise ({int(torch.isnan(d).sum())} NaN); the model produced invalid surprise"
-            )
-        self.n += d.numel()
-        self.sum_d += d.sum()
-        self.sum_d_squared += (d * d).sum()
-        self.positive += (d > 0).sum()
-
-    def compute(self) -> dict[str, torch.Tensor]:
-        n = int(round(float(self.n)))
-        if n < 2:
-            raise ValueError(f"PairedSurpriseStats needs at least 2 probe pairs, got n={n}")
-        mean = float(self.sum_d) / n
-        variance = max(0.0, (float(self.sum_d_squared) - n * mean * mean) / (n - 1))
-        test = t_test_from_moments(n, mean, variance)
-        values = {
-            "relative_surprise": test.mean,
-            "t": test.t,
-            "p_value": test.p_value,
-            "accuracy": float(self.positive) / n,
-            "n": float(n),
-            "variance": variance,
-        }
-        return {key: torch.tensor(value, dtype=torch.float64) for key, value in values.items()}
-
-
-def pooled_values(variant_values: Sequence[Mapping[str, float]]) -> dict[str, float]:
-    """The pooled row of the streaming form from its variants' ``PairedSurpriseStats`` values
-    (n, relative_surprise, variance, accuracy): ``stratified_test``'s M, t, df and p, and the
-    share of all their pairs with d > 0."""
-    test = stratified_test([(int(round(float(v["n"]))), float(v["relative_surprise"]),
-                             float(v["variance"])) for v in variant_values])
-    positive = sum(float(v["accuracy"]) * float(v["n"]) for v in variant_values)
-    return {"relative_surprise": test.mean, "t": test.t, "p_value": test.p_value,
-            "df": test.df, "accuracy": positive / test.n, "n": float(test.n)}
-
-
-# ----------------------------------------------------------------------------- groups and verdicts
-
-
-def pair_groups(
-    concepts: Sequence[str], variants: Sequence[str], pooled: bool = True
-) -> list[tuple[str, str, np.ndarray]]:
-    """(concept, variant, boolean row selector) for every concept/variant among the pairs, in
-    ``specs`` order where known (others after, in order of first appearance). With ``pooled``,
-    a concept holding both ``standard`` and ``counterbalanced`` pairs gets a ``pooled`` group
-    (the pairs of both, tested by ``pooled_test``) right after its variants."""
-    concepts = np.asarray(concepts, dtype=object)
-    variants = np.asarray(variants, dtype=object)
-    keys = list(dict.fromkeys(zip(concepts.tolist(), variants.tolist())))
-
-    def order(key: tuple[str, str]) -> tuple[int, int, int]:
-        concept, variant = key
-        return (specs.CONCEPTS.index(concept) if concept in specs.CONCEPTS else len(specs.CONCEPTS),
-                specs.VARIANTS.index(variant) if variant in specs.VARIANTS else len(specs.VARIANTS),
-                keys.index(key))
-
-    groups = []
-    ordered = sorted(keys, key=order)
-    for concept in dict.fromkeys(concept for concept, _ in ordered):
-        in_concept = concepts == concept
-        present = [variant for c, variant in ordered if c == concept]
-        groups.extend((concept, variant, in_concept & (variants == variant)) for variant in present)
-        if pooled and set(POOLED_VARIANTS) <= set(present):
-            groups.append((concept, POOLED, in_concept & np.isin(variants, POOLED_VARIANTS)))
-    return groups
-
-
-@dataclass(frozen=True)
-class Verdict:
-    """Whether a concept shows VOE by the rule of docs/architecture.md §8: ``voe`` is True or
-    False, or None when the pairs needed to decide are missing; ``reason`` names what failed."""
-
-    concept: str
-    voe: bool | None
-    rule: str
-    reason: str
-
-    def text(self) -> str:
-        if self.voe:
-            return "VOE"
-        return ("undecided: " if self.voe is None else "no VOE: ") + self.reason
-
-
-def _p(p: float) -> str:
-    return f"{p:.3f}".lstrip("0") if p >= 0.001 else "< .001"
-
-
-def verdict_rule(p_values: Sequence[Any], alpha: float) -> Any:
-    """VOE when every test a concept's verdict reads has p < alpha (``p_values`` one per test
-    along axis 0; arrays broadcast over the rest, as the calibration's repetitions). For a
-    concept with a counterbalanced pair these are the stratified pooled test and each variant's
-    own: requiring each variant significant, not only M > 0, is an intersection-union test, so
-    a model that follows a cue pointing the wrong way in one variant says VOE in at most alpha
-    of repetitions (``voe_lightning.calibration``); M > 0 alone lets it through whenever noise
-    lifts that variant's M above zero."""
-    return np.all(np.asarray(p_values, dtype=np.float64) < alpha, axis=0)
-
-
-def concept_verdicts(
-    results: Mapping[tuple[str, str], Mapping[str, Any]] | Sequence[Mapping[str, Any]],
-    alpha: float = ALPHA,
-) -> list[Verdict]:
-    """Per concept, in the order first seen, ``verdict_rule`` over the tests it reads: for a
-    concept with a counterbalanced pair, the pooled test and both variants; otherwise
-    (unchangeableness' position/color/shape, a benchmark's own variants) every one of its
-    probe variants. Generalization variants do not enter. ``results`` maps (concept, variant)
-    to a dict with ``p_value`` and ``relative_surprise`` (None when untested), or is a list of
-    rows that carry both names."""
-    check_alpha(alpha)
-    if not isinstance(results, Mapping):
-        results = {(row["concept"], row["variant"]): row for row in results}
-    verdicts = []
-    for concept in dict.fromkeys(concept for concept, _ in results):
-        present = [v for c, v in results if c == concept and v != POOLED]
-        required = list(specs.STANDARD_VARIANTS.get(concept, present))
-        if set(POOLED_VARIANTS) <= set(required):
-            rule = (f"p < {alpha:g} in the stratified pooled test and in both standard and "
-                    "counterbalanced")
-            needed = [*POOLED_VARIANTS, POOLED]
-        else:
-            rule = f"p < {alpha:g} in every variant ({', '.join(required)})"
-            needed = required
-        untested = [variant for variant in needed
-                    if results.get((concept, variant), {}).get("p_value") is None]
-        if untested:
-            verdicts.append(Verdict(concept, None, rule,
-                                    f"no test of {', '.join(untested)} (needs >= 2 pairs each)"))
-            continue
-        values = {variant: results[(concept, variant)] for variant in needed}
-        voe = bool(verdict_rule([values[variant]["p_value"] for variant in needed], alpha))
-        failed = []
-        for variant in needed:
-            p_value, mean = values[variant]["p_value"], values[variant]["relative_surprise"]
-            if not mean > 0:
-                failed.append(f"{variant} M = {mean:.3g} <= 0")
-            elif not p_value < alpha:
-                failed.append(f"{variant} p = {_p(p_value)} >= {alpha:g}")
-        verdicts.append(Verdict(concept, voe, rule, "" if voe else "; ".join(failed)))
-    return verdicts
-
-
-def json_row(row: Mapping[str, Any]) -> dict[str, Any]:
-    """A statistics row as strict JSON: non-finite floats become the strings 'inf', '-inf' and
-    'nan' (``float()`` reads them back; the row's note says why they are not finite)."""
-    def value(v: Any) -> Any:
-        if isinstance(v, float) and not math.isfinite(v):
-            return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")
-        return v
-    return {key: value(v) for key, v in row.items()}

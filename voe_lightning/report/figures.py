@@ -14,14 +14,10 @@ import numpy as np
 from matplotlib.figure import Figure
 from scipy import stats
 
-from voe_lightning.report.results import (
-    PairResults,
-    as_numpy,
-    format_number,
-    format_p_phrase,
-)
+from voe_lightning.report.results import PairResults, as_numpy
 from voe_lightning.specs import GENERALIZATION_VARIANT_NAMES
 from voe_lightning.statistics import POOLED
+from voe_lightning.statistics_format import BRIEF, format_p_phrase, row_text, rows_alpha
 
 #: Histograms hide pairs whose d lies beyond this many SD from the mean (display only).
 OUTLIER_SD = 3.0
@@ -57,11 +53,10 @@ def panel_grid(count: int, width: float, height: float, max_cols: int = 4):
 def _stats_text(row: Mapping[str, Any]) -> str:
     if row["t"] is None:
         return f"n = {row['n']}: no test"
-    star = " *" if row["significant"] else ""
-    return (f"M = {format_number(row['relative_surprise'])}\n"
-            f"t({row['df']}) = {format_number(row['t'], '.2f')}, "
-            f"{format_p_phrase(row['p_value'])}{star}\n"
-            f"d_z = {format_number(row['d_z'], '.2f')}, acc. = {100 * row['accuracy']:.0f}%")
+    text = row_text(row, BRIEF)
+    star = " *" if text.significant else ""
+    return (f"M = {text.mean}\n{text.t}, {text.p_phrase}{star}\n"
+            f"d_z = {text.d_z}, acc. = {text.accuracy}")
 
 
 def histogram_figure(results: PairResults, rows: Sequence[Mapping[str, Any]]) -> Figure:
@@ -89,7 +84,8 @@ def histogram_figure(results: PairResults, rows: Sequence[Mapping[str, Any]]) ->
                 transform=ax.transAxes, ha="right", va="top", fontsize=8,
                 bbox=dict(boxstyle="round", facecolor="white", alpha=0.85, edgecolor="0.7"))
     title = ("Relative surprise per probe pair (dashed: mean of all pairs). Outliers > 3 SD "
-             "removed for display only; tests use all pairs; * p < .05 one-tailed")
+             "removed for display only; tests use all pairs; "
+             f"* p < {rows_alpha(rows):g} one-tailed")
     figure.suptitle(textwrap.fill(title, width=int(14 * figure.get_figwidth())), fontsize=10)
     return figure
 

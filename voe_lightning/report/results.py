@@ -18,17 +18,9 @@ import torch
 from voe_lightning.model.module import VOEModel
 from voe_lightning.specs import CONCEPTS, VARIANTS
 from voe_lightning.surprise_window import SurpriseWindow
-from voe_lightning.statistics import (
-    ALPHA,
-    PairedTestResult,
-    concept_verdicts,
-    format_alpha,
-    group_test,
-    json_row,
-    pair_groups,
-    rows_alpha,
-    untested_reason,
-)
+from voe_lightning.statistics import ALPHA, PairedTestResult, group_test, untested_reason
+from voe_lightning.statistics_format import format_alpha, json_row, row_text, rows_alpha
+from voe_lightning.verdicts import concept_verdicts, pair_groups
 
 #: Keys of the dict that ``VOEModel.probe_step`` (and so ``test_step``) returns.
 PROBE_OUTPUT_KEYS = ("concept", "variant", "seed", "manipulation_frame",
@@ -312,53 +304,8 @@ def summarize(
     return rows
 
 
-def format_number(value: Any, spec: str = ".3g") -> str:
-    if value is None:
-        return "n/a"
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "undefined"
-        if math.isinf(value):
-            return "+inf" if value > 0 else "-inf"
-    return format(value, spec)
-
-
-def format_p(p: float | None) -> str:
-    """APA-style p value for a table cell: '< .001', '.034', '1'."""
-    if p is None:
-        return "n/a"
-    if p < 0.001:
-        return "< .001"
-    return f"{p:.3f}".lstrip("0") if p < 1 else "1"
-
-
-def format_t(t: float | None, df: float | None) -> str:
-    """'t(47) = 2.31' as in the paper's text; a pooled row's real-valued Welch-Satterthwaite
-    df with one decimal, 't(93.4) = 2.31'; 'n/a' without a test."""
-    if t is None:
-        return "n/a"
-    whole = df is None or (isinstance(df, float) and not math.isfinite(df)) or float(df).is_integer()
-    degrees = format_number(df, ".0f") if whole else f"{df:.1f}"
-    return f"t({degrees}) = {format_number(t, '.2f')}"
-
-
-def format_p_phrase(p: float) -> str:
-    """'p < .001' or 'p = .034', as in the paper's text."""
-    return f"p {format_p(p)}" if p < 0.001 else f"p = {format_p(p)}"
-
-
-def _interval(value: Any, low: Any, high: Any, spec: str) -> str:
-    if value is None:
-        return "n/a"
-    if low is None or (isinstance(low, float) and math.isnan(low) and not math.isnan(value)):
-        return format_number(value, spec)
-    if low == high == value:
-        return format_number(value, spec)
-    return f"{format_number(value, spec)} [{format_number(low, spec)}, {format_number(high, spec)}]"
-
-
 def format_verdicts(rows: Sequence[Mapping[str, Any]]) -> list[str]:
-    """Markdown lines of each concept's VOE verdict (``statistics.concept_verdicts``)."""
+    """Markdown lines of each concept's VOE verdict (``verdicts.concept_verdicts``)."""
     lines = []
     for verdict in concept_verdicts(rows, rows_alpha(rows)):
         text = "**VOE**" if verdict.voe else verdict.text()
@@ -385,15 +332,11 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURP
         if row.get("note"):
             notes.append(row["note"])
             marker = f" [{len(notes)}]"
-        sig = "n/a" if row["significant"] is None else ("yes *" if row["significant"] else "no")
-        accuracy = "n/a" if row["accuracy"] is None else f"{100 * row['accuracy']:.1f}%"
-        mean = _interval(row["relative_surprise"], row["relative_surprise_ci_low"],
-                         row["relative_surprise_ci_high"], ".3g")
+        text = row_text(row)
         lines.append(
-            f"| {row['concept']} | {row['variant']}{marker} | {row['n']} | {mean} "
-            f"| {format_t(row['t'], row['df'])} | {format_p(row['p_value'])} | {sig} "
-            f"| {_interval(row['d_z'], row['d_z_ci_low'], row['d_z_ci_high'], '.2f')} "
-            f"| {accuracy} | {format_number(row['auroc'], '.3f')} |")
+            f"| {row['concept']} | {row['variant']}{marker} | {text.n} | {text.mean_interval} "
+            f"| {text.t} | {text.p} | {text.sig} | {text.d_z_interval} | {text.accuracy} "
+            f"| {text.auroc} |")
     lines.append("")
     frames = ("frames" if window.all_frames else f"the {window.describe()} (the first frame "
               "at which its two videos differ)")
