@@ -11,7 +11,7 @@ from datamodules import ConceptDataModule, IntPhysDataModule, JointDataModule, P
 from datamodules.voe import InterleavedSampler
 from test_store import fake_clip, fake_probe
 
-from voe_lightning import generate, specs, store, store_plan
+from voe_lightning import generate, specs, store, store_plan, store_shards
 
 
 def test_interleaved_sampler_takes_equal_counts_per_part_and_alternates():
@@ -91,7 +91,7 @@ def test_prepare_data_regenerates_a_checksum_corrupt_shard(tmp_path, monkeypatch
     datamodule.prepare_data()
     shard = store.shard_path(tmp_path, "continuity", "train", 0)
     data = bytearray(shard.read_bytes())
-    data[len(store._MAGIC) + 10] ^= 0xFF  # inside the first record
+    data[len(store_shards._MAGIC) + 10] ^= 0xFF  # inside the first record
     shard.write_bytes(bytes(data))
     assert store_plan.verify(tmp_path) == [shard]
     with pytest.warns(UserWarning, match=rf"{shard}: record 0 checksum mismatch"):

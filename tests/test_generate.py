@@ -14,7 +14,7 @@ import pytest
 import torch
 from test_store import fake_clip, fake_probe
 
-from voe_lightning import generate, scenes, specs, store, store_plan
+from voe_lightning import generate, scenes, specs, store, store_plan, store_shards
 from voe_lightning.cli import main
 
 SMALL = dict(
@@ -200,7 +200,7 @@ def test_full_disk_names_the_shard(tmp_path, calls, monkeypatch):
     generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
     lost = store.shard_path(tmp_path, "continuity", "test", 0)
     lost.unlink()
-    monkeypatch.setattr(store, "_write_bytes", full_disk)
+    monkeypatch.setattr(store_shards, "_write_bytes", full_disk)
     with pytest.raises(OSError, match=f"cannot write {lost}: No space left on device"):
         generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
     assert not list(lost.parent.glob("*.tmp"))  # no temporary left behind
@@ -267,13 +267,13 @@ def test_shards_without_object_states_are_regenerated(tmp_path, calls):
     assert "inconsistent/objects/shape_label" in layouts["probe"]
     for split in ("train", "test"):
         path = store.shard_path(tmp_path, "continuity", split, 0)
-        reader = store.ShardReader(path)
+        reader = store_shards.ShardReader(path)
         records = [reader[i] for i in range(len(reader))]
         meta = reader.index.meta
         reader.close()
         stripped = [r.exclude("objects", ("consistent", "objects"), ("inconsistent", "objects"))
                     for r in records]
-        store.write_shard(path, stripped, meta)
+        store_shards.write_shard(path, stripped, meta)
     stale = {store.shard_path(tmp_path, "continuity", split, 0) for split in ("train", "test")}
     assert set(store_plan.verify(tmp_path)) == stale
     with pytest.warns(UserWarning, match=r"its records' (consistent/)?objects/color is missing"):

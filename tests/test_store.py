@@ -11,7 +11,7 @@ import torch
 from tensordict import TensorDict
 from torch.utils.data import DataLoader
 
-from voe_lightning import generate, scenes, specs, store, store_plan
+from voe_lightning import generate, scenes, specs, store, store_plan, store_shards
 from voe_lightning.benchmarks.cache import write_cache
 
 
@@ -84,9 +84,9 @@ def test_round_trip_is_lossless_for_random_clips_and_probes(tmp_path):
     torch.manual_seed(0)
     clips = [specs.clip_spec(5, 12, 10).rand() for _ in range(4)]  # odd sizes, random bytes
     probes = [specs.probe_spec().rand() for _ in range(3)]
-    store.write_shard(tmp_path / "clips.voe", clips)
-    store.write_shard(tmp_path / "probes.voe", probes, {"note": "kept"})
-    clip_reader, probe_reader = store.ShardReader(tmp_path / "clips.voe"), store.ShardReader(tmp_path / "probes.voe")
+    store_shards.write_shard(tmp_path / "clips.voe", clips)
+    store_shards.write_shard(tmp_path / "probes.voe", probes, {"note": "kept"})
+    clip_reader, probe_reader = store_shards.ShardReader(tmp_path / "clips.voe"), store_shards.ShardReader(tmp_path / "probes.voe")
     assert len(clip_reader) == 4 and len(probe_reader) == 3
     for i in (2, 0, 3, 1):  # random order
         assert _equal(clip_reader[i], clips[i])
@@ -107,8 +107,8 @@ def test_generated_records_round_trip_exactly_with_their_object_states(tmp_path)
         "probe": scenes.generate_probe("unchangeableness", "shape", 0),
     }
     for name, record in records.items():
-        store.write_shard(tmp_path / f"{name}.voe", [record])
-        stored = store.ShardReader(tmp_path / f"{name}.voe")[0]
+        store_shards.write_shard(tmp_path / f"{name}.voe", [record])
+        stored = store_shards.ShardReader(tmp_path / f"{name}.voe")[0]
         assert _equal(stored, record)
         objects = stored["objects"] if name == "clip" else stored["inconsistent", "objects"]
         assert objects["position"].dtype == torch.float32
@@ -118,8 +118,8 @@ def test_generated_records_round_trip_exactly_with_their_object_states(tmp_path)
 def test_structured_videos_compress_well_below_40_kb(tmp_path):
     clips = [fake_clip("solidity", "example", seed) for seed in range(8)]
     probes = [fake_probe("solidity", "standard", seed) for seed in range(8)]
-    clip_bytes = store.write_shard(tmp_path / "c.voe", clips)
-    probe_bytes = store.write_shard(tmp_path / "p.voe", probes)
+    clip_bytes = store_shards.write_shard(tmp_path / "c.voe", clips)
+    probe_bytes = store_shards.write_shard(tmp_path / "p.voe", probes)
     raw = 15 * 64 * 64 * 4  # frames and mask of one video
     assert clip_bytes / 8 < raw / 10
     # The inconsistent video is stored as its difference from the consistent one.
@@ -135,7 +135,7 @@ def _split_root(tmp_path, count=10, shard_size=4, concept="continuity"):
     manifest["concepts"][concept]["splits"]["train"]["count"] = count
     clips = [fake_clip(concept, "example", seed) for seed in range(count)]
     for index, start in enumerate(range(0, count, shard_size)):
-        store.write_shard(store.shard_path(tmp_path, concept, "train", index), clips[start : start + shard_size])
+        store_shards.write_shard(store.shard_path(tmp_path, concept, "train", index), clips[start : start + shard_size])
     store.write_manifest(tmp_path, manifest)
     return clips
 
@@ -189,10 +189,10 @@ def test_failed_write_names_the_path_and_leaves_no_temporary(tmp_path, monkeypat
     def full_disk(file, data):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(store, "_write_bytes", full_disk)
+    monkeypatch.setattr(store_shards, "_write_bytes", full_disk)
     path = tmp_path / "concept" / "train" / "shard-00000.voe"
     with pytest.raises(OSError, match=str(path)) as error:
-        store.write_shard(path, [fake_clip("solidity", "example", 0)])
+        store_shards.write_shard(path, [fake_clip("solidity", "example", 0)])
     assert error.value.errno == 28
     assert list(path.parent.iterdir()) == []
 
@@ -219,8 +219,8 @@ def test_written_files_respect_the_umask(tmp_path, umask, mode):
     """Issue 10 case 3: a dataset made for a lab is readable as the umask allows, not 0600."""
     previous = os.umask(umask)
     try:
-        store.write_shard(tmp_path / "a.voe", [fake_clip("continuity", "example", 0)])
-        store.write_manifest(tmp_path, {"format": store.FORMAT})
+        store_shards.write_shard(tmp_path / "a.voe", [fake_clip("continuity", "example", 0)])
+        store.write_manifest(tmp_path, {"format": store_shards.FORMAT})
     finally:
         os.umask(previous)
     assert stat.S_IMODE((tmp_path / "a.voe").stat().st_mode) == mode

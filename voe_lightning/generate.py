@@ -26,7 +26,7 @@ from typing import Iterable, Sequence
 from tqdm.auto import tqdm
 
 import voe_lightning
-from voe_lightning import specs, store, store_plan
+from voe_lightning import specs, store, store_plan, store_shards
 from voe_lightning.scenes import check_video, generate_clip, generate_probe
 from voe_lightning.scenes.camera import VideoOptions
 from voe_lightning.store_plan import (
@@ -98,7 +98,7 @@ def _concept_entry(counts: dict[str, dict[str, int]]) -> dict:
 
 def _settings(video: VideoOptions, shard_size: int) -> dict:
     return {
-        "format": store.FORMAT,
+        "format": store_shards.FORMAT,
         "video": dataclasses.asdict(video),
         "shard_size": shard_size,
         "seed_starts": SEED_STARTS,
@@ -204,7 +204,7 @@ def generate_shard(root: str | os.PathLike, task: ShardTask, video: VideoOptions
                 f"rendering {task.concept} {task.split} {name} seed {seed} for {task.path(root)} "
                 f"failed: {error}"
             ) from error
-    return len(records), store.write_shard(task.path(root), records, shard_meta(task))
+    return len(records), store_shards.write_shard(task.path(root), records, shard_meta(task))
 
 
 def _generate_shard_star(arguments) -> tuple[int, int, int]:

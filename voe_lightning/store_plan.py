@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
-from voe_lightning import specs, store
+from voe_lightning import specs, store, store_shards
 from voe_lightning.scenes.camera import VideoOptions
 
 #: First seed of each split; the ranges are a billion wide, so splits never share a seed.
@@ -121,13 +121,13 @@ def shard_meta(task: ShardTask) -> dict:
 def record_layouts(video: VideoOptions) -> dict[str, dict]:
     """Per record type (clip, probe): the leaves, dtypes and shapes its shards must store."""
     size = (video.num_frames, video.height, video.width)
-    return {"clip": store.spec_layout(specs.clip_spec(*size)), "probe": store.spec_layout(specs.probe_spec(*size))}
+    return {"clip": store_shards.spec_layout(specs.clip_spec(*size)), "probe": store_shards.spec_layout(specs.probe_spec(*size))}
 
 
 def check_task(root: Path, task: ShardTask, layouts: dict[str, dict], full: bool = True) -> None:
     """Raise CorruptShardError naming the shard of ``task`` and why, unless it is intact and
     holds exactly the planned records (concept, split, names, seeds, shapes, generator)."""
-    store.check_shard(
+    store_shards.check_shard(
         task.path(root), task.seeds, full, shard_meta(task), layouts[store.SPLIT_RECORD_TYPE[task.split]]
     )
 
