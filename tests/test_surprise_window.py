@@ -12,7 +12,12 @@ import torch
 
 from voe_lightning.cli import main
 from voe_lightning.report.results import PairResults, summarize
-from voe_lightning.surprise_window import SurpriseWindow, first_difference, surprise_window
+from voe_lightning.surprise_window import (
+    SurpriseWindow,
+    first_difference,
+    surprise_window,
+    video_surprise,
+)
 
 TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
 
@@ -54,6 +59,19 @@ def test_a_window_sums_the_frames_from_the_first_difference_by_hand():
     unknown = PairResults(results.concept, results.variant, results.seed, [2, 0],
                           results.surprise_consistent, results.surprise_inconsistent)
     assert unknown.first_difference.tolist() == [3, 1]
+
+
+def test_a_videos_surprise_is_made_in_one_place_for_tensors_and_arrays():
+    per_frame = torch.arange(12, dtype=torch.float32).reshape(2, 6)
+    assert torch.equal(video_surprise(per_frame), per_frame.sum(-1))
+    assert video_surprise(per_frame).dtype == torch.float32  # summed in the input's dtype
+    window = SurpriseWindow(2)
+    windowed = video_surprise(per_frame, window, torch.tensor([1, 5]))
+    assert windowed.tolist() == [1.0 + 2.0, 11.0]  # frames 1-2; frame 5 only (the video ends)
+    assert np.array_equal(video_surprise(per_frame.double().numpy(), window, [1, 5]),
+                          windowed.double().numpy())
+    with pytest.raises(ValueError, match="needs each pair's first difference"):
+        video_surprise(per_frame, window)
 
 
 @pytest.mark.parametrize("value", ["some", {"start": "manipulation_frame", "frames": 3},

@@ -55,6 +55,7 @@ import numpy as np
 import torch
 
 from voe_lightning.statistics import ALPHA, paired_test, ranked_auroc
+from voe_lightning.surprise_window import video_surprise
 
 #: A movie path in an IntPhys answer file: <block>/<scene>/<movie 1-4>.
 ANSWER_PATH = re.compile(r"^(O[123])/([^/\s]+)/([1-4])$")
@@ -149,8 +150,9 @@ def pair_surprise(outputs: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray, n
     impossible (inconsistent) video's total surprise, from collected ``probe_step`` outputs
     (seed, surprise_consistent, surprise_inconsistent [N, T])."""
     seeds = torch.as_tensor(outputs["seed"]).cpu().numpy().ravel()
-    possible = torch.as_tensor(outputs["surprise_consistent"]).double().sum(-1).cpu().numpy()
-    impossible = torch.as_tensor(outputs["surprise_inconsistent"]).double().sum(-1).cpu().numpy()
+    possible, impossible = (
+        video_surprise(torch.as_tensor(outputs[f"surprise_{side}"]).double()).cpu().numpy()
+        for side in ("consistent", "inconsistent"))
     return seeds, possible, impossible
 
 
@@ -376,8 +378,8 @@ def video_pair_metrics(
         "auroc_mean": auroc(means, labels),
     }
     if n >= 2:
-        result["paired_test"] = paired_test(impossible.sum(1), possible.sum(1), alpha=alpha,
-                                            bootstrap=bootstrap).as_dict()
+        result["paired_test"] = paired_test(video_surprise(impossible), video_surprise(possible),
+                                            alpha=alpha, bootstrap=bootstrap).as_dict()
     else:
         result["paired_test"] = {"n": n, "note": "a paired t-test needs 2 pairs"}
     return result

@@ -34,7 +34,7 @@ from voe_lightning.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
 from voe_lightning.statistics_format import CONSOLE, format_alpha, row_text
 from voe_lightning.streaming_statistics import PairedSurpriseStats, pooled_values
 from voe_lightning.verdicts import concept_verdicts, pair_groups
-from voe_lightning.surprise_window import SurpriseWindow
+from voe_lightning.surprise_window import SurpriseWindow, video_surprise
 from voe_lightning.surprise_window import surprise_window as parse_window
 
 
@@ -145,16 +145,11 @@ class VOEProbeCallback(L.Callback):
 
 
 def _window_sum(outputs: Mapping[str, Any], side: str, window: SurpriseWindow) -> torch.Tensor:
-    """Each ``side`` video's surprise of probe ``outputs`` summed over ``window`` from its
-    pair's first difference (``manipulation_frame`` + 1 where the outputs lack it), [B]."""
-    surprise = outputs[f"surprise_{side}"]
-    if window.all_frames:
-        return surprise.sum(-1)
-    first = (outputs["first_difference"] if "first_difference" in outputs
-             else outputs["manipulation_frame"] + 1)
-    weights = window.frame_weights(surprise.shape[-1], torch.as_tensor(first).cpu())
-    return (surprise * torch.as_tensor(weights, dtype=surprise.dtype,
-                                       device=surprise.device)).sum(-1)
+    """Each ``side`` video's surprise of probe ``outputs`` over ``window`` from its pair's first
+    difference (``manipulation_frame`` + 1 where the outputs lack it), [B]."""
+    first = (None if window.all_frames else outputs["first_difference"]
+             if "first_difference" in outputs else outputs["manipulation_frame"] + 1)
+    return video_surprise(outputs[f"surprise_{side}"], window, first)
 
 
 def voe_table(

@@ -58,6 +58,26 @@ class SurpriseWindow:
         return ((frame >= start) & (frame < start + self.frames)).astype(np.float64)
 
 
+def video_surprise(per_frame: Any, window: SurpriseWindow = SurpriseWindow(),
+                   first_difference: Any = None) -> Any:
+    """Each video's surprise from its per-frame surprise [..., T] (a tensor or an array): the
+    sum over its frames (the paper's, docs/architecture.md §7), or over ``window``'s frames
+    counted from each pair's ``first_difference`` [N] (needed then). The one place a video's
+    surprise is made: summed in the input's own dtype (and on its device), so a caller that
+    wants float64 sums converts first."""
+    if window.all_frames:
+        return per_frame.sum(-1)
+    if first_difference is None:
+        raise ValueError(f"a surprise window of {window.describe()} needs each pair's first "
+                         "difference")
+    first = (first_difference.cpu() if isinstance(first_difference, torch.Tensor)
+             else first_difference)
+    weights = window.frame_weights(per_frame.shape[-1], first)
+    if isinstance(per_frame, torch.Tensor):
+        weights = torch.as_tensor(weights, dtype=per_frame.dtype, device=per_frame.device)
+    return (per_frame * weights).sum(-1)
+
+
 def surprise_window(value: Any) -> SurpriseWindow:
     """A window from what a config gives: ``all`` (or None), ``{start: first_difference,
     frames: k}``, or a ``SurpriseWindow``; anything else is refused naming what is valid."""

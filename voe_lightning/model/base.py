@@ -15,7 +15,7 @@ from lightning.pytorch.utilities import rank_zero_warn
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
-from voe_lightning.surprise_window import first_difference
+from voe_lightning.surprise_window import first_difference, video_surprise
 
 
 def _destroy_process_group() -> None:
@@ -176,7 +176,7 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
         ``surprise_max``) with its ``index`` in the predict dataset, for a prediction writer;
         its mask and camera go along when the batch has them."""
         surprise = self.surprise(self._frames_of(batch), **video_inputs(batch)).double()
-        return {"index": batch["index"], "surprise": surprise.sum(-1),
+        return {"index": batch["index"], "surprise": video_surprise(surprise),
                 "surprise_max": surprise.max(-1).values}
 
     # ----------------------------------------------------------------------------- checkpoints

@@ -17,7 +17,7 @@ import torch
 
 from voe_lightning.model.module import VOEModel
 from voe_lightning.specs import CONCEPTS, VARIANTS
-from voe_lightning.surprise_window import SurpriseWindow
+from voe_lightning.surprise_window import SurpriseWindow, video_surprise
 from voe_lightning.statistics import ALPHA, PairedTestResult, group_test, untested_reason
 from voe_lightning.statistics_format import format_alpha, json_row, row_text, rows_alpha
 from voe_lightning.verdicts import concept_verdicts, pair_groups
@@ -90,11 +90,11 @@ class PairResults:
     @property
     def total_consistent(self) -> np.ndarray:
         """Per-video surprise of the consistent videos: sum over frames, [N]."""
-        return self.surprise_consistent.sum(axis=1)
+        return video_surprise(self.surprise_consistent)
 
     @property
     def total_inconsistent(self) -> np.ndarray:
-        return self.surprise_inconsistent.sum(axis=1)
+        return video_surprise(self.surprise_inconsistent)
 
     @property
     def relative_surprise(self) -> np.ndarray:
