@@ -14,7 +14,8 @@ import pytest
 import torch
 from test_store import fake_clip, fake_probe
 
-from voe_lightning import generate, scenes, specs, store, store_plan, store_shards
+from voe_lightning import generate, generate_manifest, scenes, specs, store, store_plan
+from voe_lightning import store_shards
 from voe_lightning.cli import main
 
 SMALL = dict(
@@ -165,9 +166,9 @@ def test_ensure_dataset_of_some_splits_leaves_the_rest_to_a_later_run(tmp_path, 
 
 def test_other_settings_are_refused_unless_overwritten(tmp_path, calls):
     generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
-    with pytest.raises(generate.ManifestMismatchError, match=r"video.height: stored 24, asked 32"):
+    with pytest.raises(generate_manifest.ManifestMismatchError, match=r"video.height: stored 24, asked 32"):
         generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32})
-    with pytest.raises(generate.ManifestMismatchError, match=r"kinds.example: stored 4, asked 5"):
+    with pytest.raises(generate_manifest.ManifestMismatchError, match=r"kinds.example: stored 4, asked 5"):
         generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "train_examples": 5})
     summary = generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32, "overwrite": True})
     assert summary.shards_skipped == 0 and store_plan.verify(tmp_path) == []

@@ -18,7 +18,7 @@ import torch
 import yaml
 
 from test_cli import CONFIG, copy_of, trained, workdir  # noqa: F401 (fixtures)
-from voe_lightning import generate, specs, store
+from voe_lightning import generate, generate_manifest, specs, store
 from voe_lightning.cli import main
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.report import write_report
@@ -203,7 +203,7 @@ def test_concurrent_generate_runs_for_two_concepts_keep_both_in_the_manifest(tmp
     video = VideoOptions(num_frames=6, height=32, width=32)
     entries = {concept: generate._prepare(tmp_path, [concept], 2, None, 1, 1, 1, 4, 6, 32, 32)
                .entries[concept] for concept in ("continuity", "containment")}
-    runs = [threading.Thread(target=generate._reconcile_manifest,
+    runs = [threading.Thread(target=generate_manifest.reconcile_manifest,
                              args=(tmp_path, video, 4, {concept: entry}, False))
             for concept, entry in entries.items()]
     for run in runs:

@@ -5,32 +5,21 @@ deterministic list of shards that parallel worker processes render, resumably an
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import dataclasses
 import inspect
-import multiprocessing
 import os
-import shutil
-import signal
-import sys
-import threading
 import time
 import warnings
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Sequence
 
 from tqdm.auto import tqdm
 
-import voe_lightning
-from voe_lightning import specs, store, store_plan, store_shards
+from voe_lightning import generate_manifest, specs, store, store_shards, worker_pool
 from voe_lightning.scenes import check_video, generate_clip, generate_probe
 from voe_lightning.scenes.camera import VideoOptions
 from voe_lightning.store_plan import (
-    SEED_STARTS,
     ShardTask,
     check_task,
     plan_shards,
@@ -47,11 +36,7 @@ DEFAULT_TRAIN_EXAMPLES = 10_000
 DEFAULT_VAL_PAIRS = 500
 DEFAULT_TEST_PAIRS = 2_000
 DEFAULT_GENERALIZATION_PAIRS = 500
-_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
-
-class ManifestMismatchError(ValueError):
-    """The root already holds a dataset generated with other settings."""
 
 
 @dataclass
@@ -66,119 +51,6 @@ class GenerationSummary:
     bytes_written: int
     seconds: float
 
-
-def _describe_spec(spec) -> dict:
-    """A JSON description of a record spec: per leaf its type, dtype, shape and bounds."""
-    described = {}
-    for key, leaf in spec.items(include_nested=True, leaves_only=True):
-        key = key if isinstance(key, str) else "/".join(key)
-        entry = {"type": type(leaf).__name__, "dtype": str(leaf.dtype), "shape": list(leaf.shape)}
-        if hasattr(leaf.space, "low"):
-            entry["low"], entry["high"] = leaf.space.low.min().item(), leaf.space.high.max().item()
-        if hasattr(leaf.space, "n"):
-            entry["n"] = int(leaf.space.n)
-        described[key] = entry
-    return described
-
-
-def _concept_entry(counts: dict[str, dict[str, int]]) -> dict:
-    splits = {}
-    for split in store.SPLITS:
-        count = sum(counts[split].values())
-        key = "kinds" if store.SPLIT_RECORD_TYPE[split] == "clip" else "variants"
-        splits[split] = {
-            "record_type": store.SPLIT_RECORD_TYPE[split],
-            "count": count,
-            "seed_start": SEED_STARTS[split],
-            "seed_stop": SEED_STARTS[split] + count,
-            key: counts[split],
-        }
-    return {"splits": splits}
-
-
-def _settings(video: VideoOptions, shard_size: int) -> dict:
-    return {
-        "format": store_shards.FORMAT,
-        "video": dataclasses.asdict(video),
-        "shard_size": shard_size,
-        "seed_starts": SEED_STARTS,
-        "vocabulary": store.vocabulary(),
-    }
-
-
-_SETTING_KEYS = ("format", "video", "shard_size", "seed_starts", "vocabulary")
-
-
-def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
-    if isinstance(old, dict) and isinstance(new, dict):
-        out = []
-        for key in sorted(set(old) | set(new)):
-            out += _differences(old.get(key), new.get(key), f"{prefix}{key}.")
-        return out
-    return [] if old == new else [f"{prefix[:-1]}: stored {old!r}, asked {new!r}"]
-
-
-def _reconcile_manifest(
-    root: Path, video: VideoOptions, shard_size: int, entries: dict[str, dict], overwrite: bool
-) -> dict:
-    """The manifest for this run: the stored one, extended with new concepts, or a new one.
-    Refuses other settings for what is stored unless ``overwrite``, which deletes the data
-    they invalidate (every concept if the video or shard settings changed). Read, merged and
-    written under the root's manifest lock, so concurrent runs keep each other's concepts."""
-    with store.manifest_lock(root):
-        return _reconcile_locked(root, video, shard_size, entries, overwrite)
-
-
-def _reconcile_locked(
-    root: Path, video: VideoOptions, shard_size: int, entries: dict[str, dict], overwrite: bool
-) -> dict:
-    """``_reconcile_manifest``'s work, with the manifest lock held."""
-    settings = _settings(video, shard_size)
-    try:
-        old = store.read_manifest(root)
-    except store.ManifestError:
-        if not overwrite:
-            raise
-        old = None  # replaced; the shards are checked against the new plan one by one
-    if old is not None:
-        setting_changes = _differences({k: old.get(k) for k in _SETTING_KEYS}, settings)
-        changed = {
-            c for c in entries if c in old["concepts"] and old["concepts"][c] != entries[c]
-        }
-        concept_changes = [
-            d for c in sorted(changed) for d in _differences(old["concepts"][c], entries[c], f"{c}.")
-        ]
-        if setting_changes or concept_changes:
-            if not overwrite:
-                derived = (".count:", ".seed_stop:")  # follow from the per-kind counts
-                shown = [d for d in setting_changes + concept_changes if not any(s in d for s in derived)]
-                raise ManifestMismatchError(
-                    f"{root / store.MANIFEST_NAME} was generated with other settings:\n  "
-                    + "\n  ".join(shown or setting_changes + concept_changes)
-                    + "\nUse another root, the same settings, or overwrite=True (--overwrite) "
-                    "to delete the affected data and regenerate it."
-                )
-            doomed = set(old["concepts"]) if setting_changes else changed
-            for concept in doomed & set(specs.CONCEPTS):
-                shutil.rmtree(root / concept, ignore_errors=True)
-            kept = {c: e for c, e in old["concepts"].items() if c not in doomed}
-            old = {**old, **settings, "concepts": kept}
-    merged = {**(old["concepts"] if old else {}), **entries}
-    if (old is not None and merged == old["concepts"]
-            and old.get("generator_version") == store_plan.GENERATOR_VERSION):
-        return old
-    manifest = {
-        **settings,
-        "package_version": voe_lightning.__version__,
-        "generator_version": store_plan.GENERATOR_VERSION,
-        "spec": {
-            "clip": _describe_spec(specs.clip_spec(video.num_frames, video.height, video.width)),
-            "probe": _describe_spec(specs.probe_spec(video.num_frames, video.height, video.width)),
-        },
-        "concepts": merged,
-    }
-    store.write_manifest(root, manifest)
-    return manifest
 
 
 # --- rendering ----------------------------------------------------------------------------------
@@ -217,14 +89,6 @@ def _remove_stale_temporaries(path: Path) -> None:
     if path.parent.is_dir():
         for temporary in path.parent.glob(f".{path.name}.*.tmp"):
             temporary.unlink(missing_ok=True)
-
-
-def default_workers() -> int:
-    """The number of cores this process may use."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1
 
 
 # --- entry points -------------------------------------------------------------------------------
@@ -283,7 +147,7 @@ def _prepare(
             check_video(concept, num_frames=num_frames, height=height, width=width)
     _warn_of_shard_memory(video, shard_size)
     concept_counts = {concept: split_counts(concept, **counts) for concept in concepts}
-    entries = {concept: _concept_entry(c) for concept, c in concept_counts.items()}
+    entries = {concept: generate_manifest.concept_entry(c) for concept, c in concept_counts.items()}
     return _Request(Path(root), video, shard_size, concept_counts, entries)
 
 
@@ -332,7 +196,7 @@ def generate_dataset(
         raise ValueError(f"num_shards must be a positive integer, got {num_shards!r}")
     if not isinstance(shard_index, int) or not 0 <= shard_index < num_shards:
         raise ValueError(f"shard_index must be in [0, {num_shards - 1}], got {shard_index!r}")
-    workers = default_workers() if workers is None else workers
+    workers = worker_pool.default_workers() if workers is None else workers
     if not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
     splits = _checked_splits(splits)
@@ -345,7 +209,7 @@ def generate_dataset(
     started = time.perf_counter()
     if root.exists() and not root.is_dir():
         raise NotADirectoryError(f"dataset root {root} exists and is not a directory")
-    _reconcile_manifest(root, video, shard_size, request.entries, overwrite)
+    generate_manifest.reconcile_manifest(root, video, shard_size, request.entries, overwrite)
     tasks = _planned(request, splits)[shard_index::num_shards]
     layouts = record_layouts(video)
     todo, replaced = [], []
@@ -386,60 +250,14 @@ def generate_dataset(
 
 
 def _run(root: Path, todo: list[ShardTask], video: VideoOptions, workers: int):
-    """Generate the shards of ``todo``, yielding (videos, records, bytes) as each is written:
-    in this process for one worker, else in a pool of spawned processes (a fresh interpreter
-    each: safe with EGL contexts and torch threads). A worker that dies raises an error
-    instead of hanging; on any error the shards already written stay and a rerun resumes."""
-    if workers == 1 or len(todo) <= 1:
-        yield from (_generate_shard_star((root, task, video)) for task in todo)
-        return
-    context = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(
-        min(workers, len(todo)), context, initializer=_init_worker, initargs=(os.getpid(),)
-    )
-    with pool:
-        futures = [pool.submit(_generate_shard_star, (root, task, video)) for task in todo]
-        try:
-            for future in as_completed(futures):
-                yield future.result()
-        except BrokenProcessPool as error:
-            raise RuntimeError(
-                f"a generation worker process died while writing {root} (its error is printed "
-                "above); finished shards are kept: run generate again to resume"
-            ) from error
-        finally:
-            for future in futures:
-                future.cancel()  # shards not started are dropped; running ones finish
-
-
-def _init_worker(parent: int) -> None:
-    """Tie the worker's life to its parent's, then use one thread: rendering and physics are
-    single-threaded and torch ops are tiny."""
-    import torch
-
-    _die_with_parent(parent)
-    torch.set_num_threads(1)
-
-
-def _die_with_parent(parent: int) -> None:
-    """Make this process exit when process ``parent`` dies, even by SIGKILL: no orphan keeps
-    rendering into the store or holding its EGL context. Linux: the kernel sends SIGKILL
-    (prctl PR_SET_PDEATHSIG); elsewhere a daemon thread polls the parent id once a second."""
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-        linked = sys.platform.startswith("linux") and libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) == 0
-    except (OSError, AttributeError):
-        linked = False
-    if os.getppid() != parent:  # died before the link was made
-        os._exit(1)
-    if not linked:
-
-        def watch() -> None:
-            while os.getppid() == parent:
-                time.sleep(1.0)
-            os._exit(1)
-
-        threading.Thread(target=watch, name="die-with-parent", daemon=True).start()
+    """Generate the shards of ``todo``, yielding (videos, records, bytes) as each is written,
+    with ``workers`` processes (``worker_pool.run``). A worker that dies raises an error instead
+    of hanging; on any error the shards already written stay and a rerun resumes."""
+    yield from worker_pool.run(
+        _generate_shard_star, [(root, task, video) for task in todo], workers,
+        died=f"a generation worker process died while writing {root} (its error is printed "
+        "above); finished shards are kept: run generate again to resume",
+    )  # fmt: skip
 
 
 def ensure_dataset(root: str | os.PathLike, **options) -> GenerationSummary | None:
@@ -476,12 +294,7 @@ def _is_complete(request: "_Request", splits: Sequence[str]) -> bool:
     """Whether the store holds every planned shard of ``splits``, intact (checksums included:
     a corrupt record must be repaired before training, not met in the middle of it)."""
     manifest = store.read_manifest(request.root)
-    if manifest is None or manifest.get("generator_version") != store_plan.GENERATOR_VERSION:
-        return False
-    settings = _settings(request.video, request.shard_size)
-    if _differences({k: manifest.get(k) for k in _SETTING_KEYS}, settings):
-        return False
-    if any(manifest["concepts"].get(c) != e for c, e in request.entries.items()):
+    if not generate_manifest.matches(manifest, request.video, request.shard_size, request.entries):
         return False
     layouts = record_layouts(request.video)
     for task in _planned(request, splits):

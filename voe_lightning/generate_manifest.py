@@ -1,0 +1,146 @@
+"""The manifest a ``generate`` run writes (docs/architecture.md §5): its settings (format, video,
+shard size, seed ranges, vocabulary), generator and package versions, record specs and each
+concept's splits; how it merges with the manifest already stored (refusing other settings unless
+told to overwrite, which deletes the data they invalidate), and whether a stored manifest is the
+one a request would write."""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from pathlib import Path
+
+import voe_lightning
+from voe_lightning import specs, store, store_plan
+from voe_lightning.scenes.camera import VideoOptions
+from voe_lightning.store_plan import SEED_STARTS
+from voe_lightning.store_shards import FORMAT
+
+
+class ManifestMismatchError(ValueError):
+    """The root already holds a dataset generated with other settings."""
+
+
+def _describe_spec(spec) -> dict:
+    """A JSON description of a record spec: per leaf its type, dtype, shape and bounds."""
+    described = {}
+    for key, leaf in spec.items(include_nested=True, leaves_only=True):
+        key = key if isinstance(key, str) else "/".join(key)
+        entry = {"type": type(leaf).__name__, "dtype": str(leaf.dtype), "shape": list(leaf.shape)}
+        if hasattr(leaf.space, "low"):
+            entry["low"], entry["high"] = leaf.space.low.min().item(), leaf.space.high.max().item()
+        if hasattr(leaf.space, "n"):
+            entry["n"] = int(leaf.space.n)
+        described[key] = entry
+    return described
+
+
+def concept_entry(counts: dict[str, dict[str, int]]) -> dict:
+    splits = {}
+    for split in store.SPLITS:
+        count = sum(counts[split].values())
+        key = "kinds" if store.SPLIT_RECORD_TYPE[split] == "clip" else "variants"
+        splits[split] = {
+            "record_type": store.SPLIT_RECORD_TYPE[split],
+            "count": count,
+            "seed_start": SEED_STARTS[split],
+            "seed_stop": SEED_STARTS[split] + count,
+            key: counts[split],
+        }
+    return {"splits": splits}
+
+
+def _settings(video: VideoOptions, shard_size: int) -> dict:
+    return {
+        "format": FORMAT,
+        "video": dataclasses.asdict(video),
+        "shard_size": shard_size,
+        "seed_starts": SEED_STARTS,
+        "vocabulary": store.vocabulary(),
+    }
+
+
+_SETTING_KEYS = ("format", "video", "shard_size", "seed_starts", "vocabulary")
+
+
+def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
+    if isinstance(old, dict) and isinstance(new, dict):
+        out = []
+        for key in sorted(set(old) | set(new)):
+            out += _differences(old.get(key), new.get(key), f"{prefix}{key}.")
+        return out
+    return [] if old == new else [f"{prefix[:-1]}: stored {old!r}, asked {new!r}"]
+
+
+def reconcile_manifest(
+    root: Path, video: VideoOptions, shard_size: int, entries: dict[str, dict], overwrite: bool
+) -> dict:
+    """The manifest for this run: the stored one, extended with new concepts, or a new one.
+    Refuses other settings for what is stored unless ``overwrite``, which deletes the data
+    they invalidate (every concept if the video or shard settings changed). Read, merged and
+    written under the root's manifest lock, so concurrent runs keep each other's concepts."""
+    with store.manifest_lock(root):
+        return _reconcile_locked(root, video, shard_size, entries, overwrite)
+
+
+def _reconcile_locked(
+    root: Path, video: VideoOptions, shard_size: int, entries: dict[str, dict], overwrite: bool
+) -> dict:
+    """``reconcile_manifest``'s work, with the manifest lock held."""
+    settings = _settings(video, shard_size)
+    try:
+        old = store.read_manifest(root)
+    except store.ManifestError:
+        if not overwrite:
+            raise
+        old = None  # replaced; the shards are checked against the new plan one by one
+    if old is not None:
+        setting_changes = _differences({k: old.get(k) for k in _SETTING_KEYS}, settings)
+        changed = {
+            c for c in entries if c in old["concepts"] and old["concepts"][c] != entries[c]
+        }
+        concept_changes = [
+            d for c in sorted(changed) for d in _differences(old["concepts"][c], entries[c], f"{c}.")
+        ]
+        if setting_changes or concept_changes:
+            if not overwrite:
+                derived = (".count:", ".seed_stop:")  # follow from the per-kind counts
+                shown = [d for d in setting_changes + concept_changes if not any(s in d for s in derived)]
+                raise ManifestMismatchError(
+                    f"{root / store.MANIFEST_NAME} was generated with other settings:\n  "
+                    + "\n  ".join(shown or setting_changes + concept_changes)
+                    + "\nUse another root, the same settings, or overwrite=True (--overwrite) "
+                    "to delete the affected data and regenerate it."
+                )
+            doomed = set(old["concepts"]) if setting_changes else changed
+            for concept in doomed & set(specs.CONCEPTS):
+                shutil.rmtree(root / concept, ignore_errors=True)
+            kept = {c: e for c, e in old["concepts"].items() if c not in doomed}
+            old = {**old, **settings, "concepts": kept}
+    merged = {**(old["concepts"] if old else {}), **entries}
+    if (old is not None and merged == old["concepts"]
+            and old.get("generator_version") == store_plan.GENERATOR_VERSION):
+        return old
+    manifest = {
+        **settings,
+        "package_version": voe_lightning.__version__,
+        "generator_version": store_plan.GENERATOR_VERSION,
+        "spec": {
+            "clip": _describe_spec(specs.clip_spec(video.num_frames, video.height, video.width)),
+            "probe": _describe_spec(specs.probe_spec(video.num_frames, video.height, video.width)),
+        },
+        "concepts": merged,
+    }
+    store.write_manifest(root, manifest)
+    return manifest
+
+
+
+def matches(manifest: dict | None, video: VideoOptions, shard_size: int, entries: dict[str, dict]) -> bool:
+    """Whether the stored ``manifest`` is what a request of these settings and concept
+    ``entries`` would write, at this ``GENERATOR_VERSION`` (None, no manifest, never is)."""
+    if manifest is None or manifest.get("generator_version") != store_plan.GENERATOR_VERSION:
+        return False
+    if _differences({k: manifest.get(k) for k in _SETTING_KEYS}, _settings(video, shard_size)):
+        return False
+    return all(manifest["concepts"].get(c) == e for c, e in entries.items())

@@ -1,0 +1,82 @@
+"""Running work in a pool of spawned worker processes tied to this one's life: each a fresh
+interpreter (safe with EGL contexts and torch threads) on one thread, that exits when its parent
+dies, even by SIGKILL, so no orphan keeps writing. ``generate`` renders its shards with it."""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import multiprocessing
+import os
+import signal
+import sys
+import threading
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any, Callable, Iterator, Sequence
+
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def default_workers() -> int:
+    """The number of cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+
+def run(function: Callable[[Any], Any], arguments: Sequence, workers: int, died: str) -> Iterator:
+    """Yield ``function(argument)`` for each of ``arguments`` as each finishes: in this process
+    for one worker or one argument, else in a pool of ``workers`` spawned processes. A worker
+    that dies raises a RuntimeError saying ``died`` instead of hanging; on any error, arguments
+    not started are dropped and running ones finish."""
+    if workers == 1 or len(arguments) <= 1:
+        yield from (function(argument) for argument in arguments)
+        return
+    context = multiprocessing.get_context("spawn")
+    pool = ProcessPoolExecutor(
+        min(workers, len(arguments)), context, initializer=_init_worker, initargs=(os.getpid(),)
+    )
+    with pool:
+        futures = [pool.submit(function, argument) for argument in arguments]
+        try:
+            for future in as_completed(futures):
+                yield future.result()
+        except BrokenProcessPool as error:
+            raise RuntimeError(died) from error
+        finally:
+            for future in futures:
+                future.cancel()
+
+
+def _init_worker(parent: int) -> None:
+    """Tie the worker's life to its parent's, then use one thread: rendering and physics are
+    single-threaded and torch ops are tiny."""
+    import torch
+
+    _die_with_parent(parent)
+    torch.set_num_threads(1)
+
+
+def _die_with_parent(parent: int) -> None:
+    """Make this process exit when process ``parent`` dies, even by SIGKILL: no orphan keeps
+    rendering into the store or holding its EGL context. Linux: the kernel sends SIGKILL
+    (prctl PR_SET_PDEATHSIG); elsewhere a daemon thread polls the parent id once a second."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        linked = sys.platform.startswith("linux") and libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        linked = False
+    if os.getppid() != parent:  # died before the link was made
+        os._exit(1)
+    if not linked:
+
+        def watch() -> None:
+            while os.getppid() == parent:
+                time.sleep(1.0)
+            os._exit(1)
+
+        threading.Thread(target=watch, name="die-with-parent", daemon=True).start()
