@@ -194,7 +194,8 @@ def test_predict_with_the_intphys_test_config_writes_the_answer_file(workdir):
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
     configs = Path(__file__).parents[1] / "configs"
     main(["predict", "--config", str(configs / "intphys_dev.yaml"),
-          "--config", str(configs / "intphys_test.yaml"), "--ckpt_path", str(checkpoint),
+          "--config", str(configs / "overlays" / "intphys_test.yaml"),
+          "--ckpt_path", str(checkpoint),
           "--data.init_args.root", str(workdir / "intphys"), "--data.init_args.num_frames", "5",
           "--data.init_args.frames_per_movie", str(FRAMES), "--data.init_args.num_workers", "0",
           "--data.init_args.cache_dir", "null"])

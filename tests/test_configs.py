@@ -30,7 +30,7 @@ def documented_commands(command: re.Pattern = COMMAND) -> list[tuple[str, ...]]:
     sources = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
     texts = [path.read_text() for path in sources]
     texts += ["\n".join(re.sub(r"^#\s?", "", line) for line in path.read_text().splitlines()
-                        if line.startswith("#")) for path in sorted(CONFIGS.glob("*.yaml"))]
+                        if line.startswith("#")) for path in sorted(CONFIGS.rglob("*.yaml"))]
     commands: dict[tuple[str, ...], None] = {}
     for text in texts:
         for line in re.sub(r"\\\n\s*", " ", text).splitlines():
@@ -78,9 +78,29 @@ def in_repository(monkeypatch):
 
 
 def test_every_config_is_in_a_documented_command():
-    used = {Path(word).name for command in documented_commands() for word in command
+    used = {word for command in documented_commands() for word in command
             if word.startswith("configs/")}
-    assert used | {"base.yaml"} == {path.name for path in CONFIGS.glob("*.yaml")}
+    shipped = {str(path.relative_to(ROOT)) for path in CONFIGS.rglob("*.yaml")}
+    assert used | {"configs/base.yaml"} == shipped
+
+
+def test_an_overlay_is_visibly_one():
+    """A config that only works on top of another lives in configs/overlays/, names the config it
+    overlays in its first line, and comes after a parent in every documented command; every other
+    study config is a whole run alone (a documented command starts with it)."""
+    commands = documented_commands()
+    firsts = {command[command.index("--config") + 1] for command in commands}
+    overlays = sorted((CONFIGS / "overlays").glob("*.yaml"))
+    assert len(overlays) >= 9
+    for path in overlays:
+        first_line = path.read_text().splitlines()[0]
+        parents = re.findall(r"configs/\w+\.yaml", first_line)
+        assert first_line.startswith("# Overlay on ") and parents, path.name
+        assert all((ROOT / parent).is_file() for parent in parents), first_line
+        assert str(path.relative_to(ROOT)) not in firsts, f"{path.name} is documented alone"
+    for path in CONFIGS.glob("*.yaml"):
+        if path.name != "base.yaml":
+            assert str(path.relative_to(ROOT)) in firsts, f"{path.name} is never documented alone"
 
 
 @pytest.mark.parametrize("command", documented_commands(), ids=" ".join)
@@ -111,7 +131,7 @@ def test_later_configs_append_to_or_override_base():
     assert callbacks(cpu)["FinalStepCheckpoint"]["every_n_train_steps"] == 2000
     assert callbacks(compose("quickstart"))["FinalStepCheckpoint"]["every_n_train_steps"] == 250
     assert cpu["trainer"]["gradient_clip_val"] == 10.0  # base.yaml's
-    separate = compose("joint", "solidity")
+    separate = compose("joint", "overlays/solidity")
     assert separate["data"]["class_path"] == "datamodules.ConceptDataModule"
     assert separate["data"]["init_args"]["concept"] == "solidity"
     assert separate["data"]["init_args"]["root"] == "data/voe_10k"  # joint.yaml's, kept

@@ -311,7 +311,8 @@ def test_the_object_free_twin_is_scored_on_intphys_by_the_benchmark_configs(tmp_
     assert metrics  # IntPhys' own error rates of this checkpoint
     make_intphys(tmp_path / "intphys", "test", labelled=False)
     main(["predict", "--config", str(configs / "intphys_dev.yaml"),
-          "--config", str(configs / "intphys_test.yaml"), "--ckpt_path", checkpoint, *data])
+          "--config", str(configs / "overlays" / "intphys_test.yaml"), "--ckpt_path", checkpoint,
+          *data])
     lines = (tmp_path / "answer.txt").read_text().splitlines()
     assert len(lines) == 3 * 4 and all(0.0 <= float(line.split()[1]) <= 1.0 for line in lines)
 
@@ -323,9 +324,9 @@ def test_configs_build_models_of_matching_size(monkeypatch):
     counts = {}
     for name, configs in (
         ("object_centric", ("base", "object_centric")),
-        ("object_free", ("base", "object_centric", "object_free")),
+        ("object_free", ("base", "object_centric", "overlays/object_free")),
         ("physical_concepts_object_centric",
-         ("base", "physical_concepts", "physical_concepts_object_centric")),
+         ("base", "physical_concepts", "overlays/physical_concepts_object_centric")),
     ):
         model = compose(*configs)["model"]
         assert model["class_path"] == "voe_lightning.model.ObjectCentricModel"
@@ -335,7 +336,7 @@ def test_configs_build_models_of_matching_size(monkeypatch):
 
 
 def test_fit_and_test_on_physical_concepts_freeform_and_probes(tmp_path, monkeypatch):
-    """configs/physical_concepts_object_centric.yaml's path on a tiny Physical Concepts
+    """configs/overlays/physical_concepts_object_centric.yaml's path on a tiny Physical Concepts
     dataset in the released layout: train on freeform clips (masks and camera poses from the
     records), then test on the probe quadruplets with the benchmark's own metrics."""
     from test_physical_concepts import make_dataset
@@ -344,7 +345,7 @@ def test_fit_and_test_on_physical_concepts_freeform_and_probes(tmp_path, monkeyp
     root = make_dataset(tmp_path / "physical_concepts")
     configs = Path(__file__).parents[1] / "configs"
     arguments = [
-        *(word for name in ("base", "physical_concepts", "physical_concepts_object_centric")
+        *(word for name in ("base", "physical_concepts", "overlays/physical_concepts_object_centric")
           for word in ("--config", str(configs / f"{name}.yaml"))),
         "--trainer.max_steps=2", "--trainer.val_check_interval=2",
         "--trainer.logger.init_args.name=pc",

@@ -73,7 +73,8 @@ def _refused(capsys, arguments: list[str]) -> str:
 @pytest.mark.parametrize("arguments", [
     ["test", "--config", CONFIG],
     ["predict", "--config", str(CONFIGS / "intphys_dev.yaml"),
-     "--config", str(CONFIGS / "intphys_test.yaml"), "--data.init_args.root", "nowhere"],
+     "--config", str(CONFIGS / "overlays" / "intphys_test.yaml"),
+     "--data.init_args.root", "nowhere"],
 ])
 def test_a_trainable_model_without_checkpoint_is_refused_naming_the_fix(workdir, capsys,
                                                                         arguments):

@@ -38,7 +38,8 @@ def check_run(subcommand: str, config: Any) -> None:
     data_class = getattr(config.get("data"), "class_path", None)
     if subcommand == "predict" and data_class and not _predicts(data_class):
         raise ValueError(f"predict needs a DataModule with a predict_dataloader, and {data_class} "
-                         "has none: use one that has (e.g. configs/intphys_test.yaml's), or test")
+                         "has none: use one that has (e.g. configs/overlays/intphys_test.yaml's), "
+                         "or test")
     if subcommand != "fit":
         return
     interval = trainer.get("val_check_interval")
