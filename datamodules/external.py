@@ -1,5 +1,7 @@
-"""What the benchmark DataModules share: record specs over the benchmark's own vocabularies,
-skipped-input counts, loader settings and the model input geometry."""
+"""What the DataModules of the external benchmarks (IntPhys, IntPhys 2, Physical Concepts)
+share: record specs over the benchmark's own vocabularies, skipped-input counts, loader settings
+and the model input geometry. Their readers are ``voe_lightning.external``; their metrics,
+``voe_lightning.external.evaluation`` (from each DataModule's ``external_pairs``)."""
 
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ from torchrl.data import Composite
 from tqdm import tqdm
 
 from voe_lightning import specs
-from voe_lightning.benchmarks.base import (
+from voe_lightning.external.base import (
     FrameSampling,
     RecordList,
     SkipLog,
@@ -22,15 +24,15 @@ from voe_lightning.benchmarks.base import (
     merge_counts,
     worker_loader,
 )
-from voe_lightning.benchmarks.cache import open_cache, write_cache
+from voe_lightning.external.cache import open_cache, write_cache
 from voe_lightning.probe_datamodule import ProbeDataModule
 from voe_lightning.store import probe_sampler, record_loader
 
 
-class BenchmarkDataModule(ProbeDataModule):
-    """What the benchmark DataModules share: their record specs (over their own concept and
-    variant vocabularies; a benchmark has no object states), the counts of skipped input, the loader settings, and the model
-    input geometry (``video``): num_frames, height and width as given, or, left None, the
+class ExternalDataModule(ProbeDataModule):
+    """What the external benchmarks' DataModules share: their record specs (over their own
+    concept and variant vocabularies; a benchmark has no object states), the counts of skipped
+    input, the loader settings, and the model input geometry (``video``): num_frames, height and width as given, or, left None, the
     model's (its ``training_frames`` and ``image_size`` hyperparameters), resolved in ``setup``.
     Subclasses set ``concept_names``/``variant_names`` and ``source_frames`` (frames of every
     source video), save hyperparameters num_frames, height, width, frame_stride, first_frame,

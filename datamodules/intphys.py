@@ -1,6 +1,6 @@
 """IntPhys (Riochet et al. 2018) as a LightningDataModule: training movies as clips, the
 labelled dev quadruplets as probe pairs, and single movies for ``predict`` (answer.txt, see
-``voe_lightning.prediction_writer``); the reading is ``voe_lightning.benchmarks.intphys``."""
+``voe_lightning.prediction_writer``); the reading is ``voe_lightning.external.intphys``."""
 
 from __future__ import annotations
 
@@ -14,11 +14,11 @@ from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
 from datamodules.arguments import check_at_least, check_fraction
-from datamodules.benchmark import BenchmarkDataModule
-from voe_lightning.benchmark_metrics import grouped_metrics, incomplete_quadruplets, pair_surprise
-from voe_lightning.benchmarks.base import SkipLog, worker_loader
-from voe_lightning.benchmarks.cache import fingerprint, open_cache, write_cache
-from voe_lightning.benchmarks.intphys import (
+from datamodules.external import ExternalDataModule
+from voe_lightning.external.base import SkipLog, worker_loader
+from voe_lightning.external.cache import fingerprint, open_cache, write_cache
+from voe_lightning.external.evaluation import ExternalPairs
+from voe_lightning.external.intphys import (
     BLOCKS,
     CONCEPT_NAMES,
     VARIANT_NAMES,
@@ -31,7 +31,7 @@ from voe_lightning.benchmarks.intphys import (
 )
 
 
-class IntPhysDataModule(BenchmarkDataModule):
+class IntPhysDataModule(ExternalDataModule):
     """IntPhys for ``fit`` (training movies of ``train/`` as clips, dev probes for validation),
     ``validate``/``test`` (probe pairs of ``eval_split``, default the labelled dev set) and
     ``predict`` (single movies of ``predict_split``, default the unlabelled test set, scored
@@ -219,31 +219,9 @@ class IntPhysDataModule(BenchmarkDataModule):
         return self._probe_loader(MovieDataset(self.movies(self.hparams.predict_split), self.video))
 
     # --- evaluation ------------------------------------------------------------------------------
-    def benchmark_metrics(self, outputs: dict[str, Any], **options: Any) -> dict[str, Any]:
-        """IntPhys metrics per block (``all``, and ``visible`` / ``occluded`` when scene names say)
-        from collected ``probe_step`` outputs (seed, surprise_consistent, surprise_inconsistent
-        [N, T]); a movie's surprise is its sum over frames. ``options`` go to
-        ``benchmark_metrics.quadruplet_metrics`` (alpha, bootstrap)."""
-        table = self.quadruplets(self.hparams.eval_split)
-        seeds, possible, impossible = pair_surprise(outputs)
-        quadruplet = seeds // 2
-        for seed in seeds.tolist():
-            if seed // 2 not in table:
-                raise KeyError(f"seed {seed} names no IntPhys {self.hparams.eval_split} probe pair")
-        entries = [table[q] for q in quadruplet.tolist()]
-        groups = [CONCEPT_NAMES[BLOCKS.index(e["block"])] for e in entries]
-        visibility = [
-            e["variant"].split("_")[0] if e["variant"] != "unspecified" else None for e in entries
-        ]
-        return {
-            "benchmark": "IntPhys",
-            "split": self.hparams.eval_split,
-            "metrics": grouped_metrics(
-                groups, quadruplet, possible, impossible, visibility, **options
-            ),
-            "incomplete_quadruplets": incomplete_quadruplets(quadruplet.tolist()),
-            "ambiguous_pairings": len(
-                {int(q) for q, e in zip(quadruplet, entries) if e["ambiguous_pairing"]}
-            ),
-            "skipped": self.skipped,
-        }
+    def external_pairs(self) -> ExternalPairs:
+        """The evaluated split's quadruplets (``quadruplets``) and skipped counts, for IntPhys'
+        metrics (``voe_lightning.external.evaluation``)."""
+        split = self.hparams.eval_split
+        return ExternalPairs("IntPhys", self.concept_names, split, self.quadruplets(split),
+                             self.skipped)

@@ -2,24 +2,21 @@
 pairs of a split for ``validate``/``test`` (with the benchmark's metrics and videos.csv in the
 report), and single videos for ``predict`` (the leaderboard's jsonl, see
 ``voe_lightning.prediction_writer.IntPhys2LeaderboardWriter``); the reading is
-``voe_lightning.benchmarks.intphys2``."""
+``voe_lightning.external.intphys2``."""
 
 from __future__ import annotations
 
-import csv
-import io
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from torch.utils.data import DataLoader, Dataset
 
 from datamodules.arguments import check_at_least, check_fraction
-from datamodules.benchmark import BenchmarkDataModule
-from voe_lightning.benchmark_metrics import intphys2_metrics
-from voe_lightning.benchmarks.base import SkipLog
-from voe_lightning.benchmarks.cache import fingerprint
-from voe_lightning.benchmarks.intphys2 import (
+from datamodules.external import ExternalDataModule
+from voe_lightning.external.base import SkipLog
+from voe_lightning.external.cache import fingerprint
+from voe_lightning.external.evaluation import ExternalPairs
+from voe_lightning.external.intphys2 import (
     DIFFICULTIES,
     PRINCIPLES,
     SPLITS,
@@ -31,12 +28,7 @@ from voe_lightning.benchmarks.intphys2 import (
     read_metadata,
 )
 
-#: Columns of videos.csv, one row per scored video.
-VIDEO_COLUMNS = ("name", "principle", "difficulty", "camera", "label", "pair", "surprise_mean",
-                 "surprise_max")
-
-
-class IntPhys2DataModule(BenchmarkDataModule):
+class IntPhys2DataModule(ExternalDataModule):
     """IntPhys 2 for ``validate``/``test`` (Possible/Impossible pairs of ``eval_split``, default
     Main) and ``predict`` (single videos of ``predict_split``, default HeldOut). No ``fit``:
     IntPhys 2 has no training videos.
@@ -64,7 +56,7 @@ class IntPhys2DataModule(BenchmarkDataModule):
 
     concept_names, variant_names = PRINCIPLES, DIFFICULTIES
     #: Videos differ in length, so frames are picked per video (``ClipSampling``); this bound
-    #: only lets the shared geometry (``BenchmarkDataModule.video``) resolve.
+    #: only lets the shared geometry (``ExternalDataModule.video``) resolve.
     source_frames = 1 << 30
 
     def __init__(
@@ -164,43 +156,9 @@ class IntPhys2DataModule(BenchmarkDataModule):
                                                self.sampling))
 
     # --- evaluation ------------------------------------------------------------------------------
-    def _entries(self, outputs: dict[str, Any]) -> list[dict[str, Any]]:
-        table = self.pairs(self.hparams.eval_split)
-        seeds = [int(seed) for seed in outputs["seed"]]
-        unknown = [seed for seed in seeds if seed not in table]
-        if unknown:
-            raise KeyError(f"seeds {unknown[:5]} name no IntPhys 2 {self.hparams.eval_split} pair")
-        return [table[seed] for seed in seeds]
-
-    def benchmark_metrics(self, outputs: dict[str, Any], **options: Any) -> dict[str, Any]:
-        """IntPhys 2 metrics (``benchmark_metrics.intphys2_metrics``: relative accuracy from mean
-        and max per-frame surprise, absolute accuracy at the threshold, AUROC, the paired
-        t-test; overall, per principle and per principle x difficulty x camera) of collected
-        ``probe_step`` outputs. ``options`` go to ``video_pair_metrics`` (alpha, bootstrap)."""
-        entries = self._entries(outputs)
-        return {
-            "benchmark": "IntPhys 2",
-            "split": self.hparams.eval_split,
-            "metrics": intphys2_metrics(
-                [e["principle"] for e in entries], [e["difficulty"] for e in entries],
-                [e["camera"] for e in entries], outputs["surprise_consistent"],
-                outputs["surprise_inconsistent"], **options),
-            "skipped": self.skipped,
-        }
-
-    def benchmark_files(self, outputs: dict[str, Any]) -> dict[str, str]:
-        """videos.csv: one row per scored video (``VIDEO_COLUMNS``), ``pair`` its pair's seed and
-        ``label`` possible or impossible, surprise the mean and max over its frames."""
-        text = io.StringIO()
-        writer = csv.DictWriter(text, VIDEO_COLUMNS, lineterminator="\n")
-        writer.writeheader()
-        for seed, entry, *sides in zip(outputs["seed"], self._entries(outputs),
-                                       outputs["surprise_consistent"],
-                                       outputs["surprise_inconsistent"]):
-            for label, frames in zip(("possible", "impossible"), sides):
-                writer.writerow({
-                    "name": entry[label], "principle": entry["principle"],
-                    "difficulty": entry["difficulty"], "camera": entry["camera"], "label": label,
-                    "pair": int(seed), "surprise_mean": float(np.mean(frames, dtype=np.float64)),
-                    "surprise_max": float(np.max(frames))})
-        return {"videos.csv": text.getvalue()}
+    def external_pairs(self) -> ExternalPairs:
+        """The evaluated split's pairs (``pairs``) and skipped counts, for IntPhys 2's metrics
+        and videos.csv (``voe_lightning.external.evaluation``)."""
+        split = self.hparams.eval_split
+        return ExternalPairs("IntPhys 2", self.concept_names, split, self.pairs(split),
+                             self.skipped)

@@ -1,6 +1,6 @@
 """The DeepMind Physical Concepts dataset (Piloto et al. 2022) as a LightningDataModule:
 freeform clips for training and the five concepts' probe quadruplets for evaluation; the
-reading (TFRecords, without TensorFlow) is ``voe_lightning.benchmarks.physical_concepts``."""
+reading (TFRecords, without TensorFlow) is ``voe_lightning.external.physical_concepts``."""
 
 from __future__ import annotations
 
@@ -15,11 +15,11 @@ from torch.utils.data import DataLoader, Dataset, IterableDataset, Subset
 from tqdm import tqdm
 
 from datamodules.arguments import check_at_least, check_fraction
-from datamodules.benchmark import BenchmarkDataModule
-from voe_lightning.benchmark_metrics import grouped_metrics, incomplete_quadruplets, pair_surprise
-from voe_lightning.benchmarks.base import SkipLog, worker_loader
-from voe_lightning.benchmarks.cache import fingerprint, open_cache, write_cache
-from voe_lightning.benchmarks.physical_concepts import (
+from datamodules.external import ExternalDataModule
+from voe_lightning.external.base import SkipLog, worker_loader
+from voe_lightning.external.cache import fingerprint, open_cache, write_cache
+from voe_lightning.external.evaluation import ExternalPairs
+from voe_lightning.external.physical_concepts import (
     CONCEPT_NAMES,
     NUM_FRAMES,
     PROBE_CONCEPTS,
@@ -32,7 +32,7 @@ from voe_lightning.benchmarks.physical_concepts import (
 )
 
 
-class PhysicalConceptsDataModule(BenchmarkDataModule):
+class PhysicalConceptsDataModule(ExternalDataModule):
     """Trains on ``freeform/train`` clips and probes ``probes/<concept>`` for every concept in
     ``concepts``, so ``fit`` and ``test`` work as on our own data. The release has one probe set
     per concept: validation during ``fit`` uses the first ``val_quadruplets_per_concept``
@@ -216,16 +216,8 @@ class PhysicalConceptsDataModule(BenchmarkDataModule):
         )
 
     # --- evaluation ------------------------------------------------------------------------------
-    def benchmark_metrics(self, outputs: dict[str, Any], **options: Any) -> dict[str, Any]:
-        """Per concept: relative and absolute error rate and AUROC over quadruplets (IntPhys'
-        definitions) and the paired t-test over matched pairs, from collected ``probe_step``
-        outputs (concept, seed, surprise_consistent, surprise_inconsistent [N, T])."""
-        seeds, possible, impossible = pair_surprise(outputs)
-        concepts = [CONCEPT_NAMES[c] for c in torch.as_tensor(outputs["concept"]).tolist()]
-        quadruplet = seeds // 2
-        return {
-            "benchmark": "DeepMind Physical Concepts",
-            "metrics": grouped_metrics(concepts, quadruplet, possible, impossible, **options),
-            "incomplete_quadruplets": incomplete_quadruplets(zip(concepts, quadruplet.tolist())),
-            "skipped": self.skipped,
-        }
+    def external_pairs(self) -> ExternalPairs:
+        """The concept names and skipped counts, for the per-concept quadruplet metrics
+        (``voe_lightning.external.evaluation``); a pair's quadruplet is its ``seed // 2``."""
+        return ExternalPairs("DeepMind Physical Concepts", self.concept_names,
+                             skipped=self.skipped)

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from voe_lightning import cues
-from voe_lightning.benchmark_metrics import read_answer_file
+from voe_lightning.external.metrics import read_answer_file
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.cli import main
 from voe_lightning.model import CueScorer

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from voe_lightning.benchmark_metrics import (
+from voe_lightning.external.metrics import (
     absolute_error_rate,
     auroc,
     grouped_metrics,

@@ -16,12 +16,13 @@ import pytest
 import torch
 from PIL import Image
 
-import voe_lightning.benchmarks.intphys as intphys
+import voe_lightning.external.intphys as intphys
 from datamodules.intphys import IntPhysDataModule
 from voe_lightning import specs
-from voe_lightning.benchmark_metrics import read_answer_file, score_answers
-from voe_lightning.benchmarks.base import BenchmarkDataError
-from voe_lightning.benchmarks.intphys import read_png
+from voe_lightning.external.base import BenchmarkDataError
+from voe_lightning.external.evaluation import external_metrics
+from voe_lightning.external.metrics import read_answer_file, score_answers
+from voe_lightning.external.intphys import read_png
 from voe_lightning.model import SurpriseModel
 from voe_lightning.prediction_writer import IntPhysAnswerWriter
 
@@ -206,7 +207,7 @@ def test_benchmark_metrics_per_block_match_hand_computed_values(dataset_root):
         f"{s3}/{f3[2]}": 1.0,
         f"{s3}/{f3[3]}": 3.0,
     }
-    report = dm.benchmark_metrics(fake_outputs(dm, surprise), bootstrap=0)
+    report = external_metrics(dm.external_pairs(), fake_outputs(dm, surprise), bootstrap=0)
     o1 = report["metrics"]["O1_object_permanence"]
     assert o1["all"]["relative_error_rate"] == pytest.approx(0.5)
     # impossible {3, 4, 2, 3} vs possible {1, 2, 5, 1}: 11.5 of 16 pairs ranked right
@@ -266,7 +267,8 @@ def test_answer_file_for_the_unlabelled_test_set(dataset_root, tmp_path):
 def test_answer_file_scores_equal_the_surprise_metrics_on_dev(dataset_root, tmp_path):
     dm = datamodule(dataset_root, predict_split="dev")
     surprise = predict(dm, tmp_path / "answer.txt")
-    from_surprise = dm.benchmark_metrics(fake_outputs(dm, surprise), bootstrap=0)["metrics"]
+    from_surprise = external_metrics(dm.external_pairs(), fake_outputs(dm, surprise),
+                                     bootstrap=0)["metrics"]
     answers = read_answer_file(tmp_path / "answer.txt")
     labels = {m.name: m.is_possible for m in dm.movies("dev")}
     official = score_answers(answers, labels)
@@ -468,7 +470,8 @@ def test_bad_input_raises_naming_the_file_or_is_skipped_and_counted_when_lenient
         "surprise_consistent": torch.zeros(4, 5),
         "surprise_inconsistent": torch.ones(4, 5),
     }
-    assert lenient.benchmark_metrics(outputs, bootstrap=0)["skipped"] == {reason: 1}
+    metrics = external_metrics(lenient.external_pairs(), outputs, bootstrap=0)
+    assert metrics["skipped"] == {reason: 1}
 
 
 def test_lenient_loading_writes_nothing_to_the_temp_directory(

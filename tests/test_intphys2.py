@@ -16,9 +16,10 @@ import pytest
 import torch
 import yaml
 
-from datamodules.intphys2 import VIDEO_COLUMNS, IntPhys2DataModule
-from voe_lightning.benchmark_metrics import intphys2_metrics
-from voe_lightning.benchmarks.base import BenchmarkDataError
+from datamodules.intphys2 import IntPhys2DataModule
+from voe_lightning.external.base import BenchmarkDataError
+from voe_lightning.external.evaluation import VIDEO_COLUMNS, external_metrics
+from voe_lightning.external.metrics import intphys2_metrics
 from voe_lightning.cli import main
 
 FRAMES, SIZE = 8, 16
@@ -154,7 +155,7 @@ def test_debug_filename_column_and_frame_step_of_longer_videos(root):
 def test_cached_pairs_are_served_without_decoding(root, tmp_path, monkeypatch):
     first = datamodule(root, cache_dir=str(tmp_path))
     first.setup("test")
-    monkeypatch.setattr("voe_lightning.benchmarks.intphys2.read_video", None)  # would fail
+    monkeypatch.setattr("voe_lightning.external.intphys2.read_video", None)  # would fail
     second = datamodule(root, cache_dir=str(tmp_path))
     second.setup("test")
     assert second.pairs("Main") == first.pairs("Main")
@@ -242,7 +243,7 @@ def test_metrics_match_a_hand_computation(root):
     outputs = {"seed": np.array(seeds),
                "surprise_consistent": np.array([p for p, _ in sides], np.float32),
                "surprise_inconsistent": np.array([i for _, i in sides], np.float32)}
-    report = dm.benchmark_metrics(outputs, bootstrap=0)
+    report = external_metrics(dm.external_pairs(), outputs, bootstrap=0)
     metrics = report["metrics"]
     # possible maxima {1, 2, 1, 5, 0, 0, 0, 0}: 90th percentile at 0.9 * 7 = 6.3 -> 2 + 0.3 * 3
     assert metrics["threshold"]["value"] == pytest.approx(2.9)

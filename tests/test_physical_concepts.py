@@ -13,10 +13,11 @@ import pytest
 import torch
 from tfrecord.writer import TFRecordWriter
 
-import voe_lightning.benchmarks.physical_concepts as physical_concepts
+import voe_lightning.external.physical_concepts as physical_concepts
 from datamodules.physical_concepts import PhysicalConceptsDataModule
-from voe_lightning.benchmarks.base import BenchmarkDataError
-from voe_lightning.benchmarks.physical_concepts import read_records
+from voe_lightning.external.base import BenchmarkDataError
+from voe_lightning.external.evaluation import external_metrics
+from voe_lightning.external.physical_concepts import read_records
 
 T, H, W = 15, 64, 64
 #: num_frames=5 of 15 samples frames [0, 4, 7, 10, 14].
@@ -208,7 +209,7 @@ def test_benchmark_metrics_per_concept_from_probe_outputs(dataset_root):
         "surprise_consistent": torch.full((16, 5), 2.0),
         "surprise_inconsistent": impossible,
     }
-    metrics = dm.benchmark_metrics(outputs, bootstrap=0)
+    metrics = external_metrics(dm.external_pairs(), outputs, bootstrap=0)
     assert metrics["metrics"]["continuity"]["all"]["relative_error_rate"] == 0.0
     assert metrics["metrics"]["continuity"]["all"]["auroc"] == 1.0
     assert metrics["metrics"]["continuity"]["all"]["n_quadruplets"] == 4

@@ -12,7 +12,7 @@ from tensordict import TensorDict
 from torch.utils.data import DataLoader
 
 from voe_lightning import generate, scenes, specs, store, store_plan, store_shards
-from voe_lightning.benchmarks.cache import write_cache
+from voe_lightning.external.cache import write_cache
 
 
 def _video(rng: np.random.Generator, num_frames: int, height: int, width: int):

@@ -20,6 +20,7 @@ from rich.table import Table
 from tensordict import TensorDictBase
 
 from voe_lightning import cues, specs
+from voe_lightning.external.evaluation import evaluate
 from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.probe_datamodule import probe_datamodule
 from voe_lightning.report import write_report
@@ -431,17 +432,18 @@ class VOEReportCallback(L.Callback):
         self._write_benchmark_metrics(trainer, outputs)
 
     def _write_benchmark_metrics(self, trainer: L.Trainer, outputs: list[dict[str, Any]]) -> None:
-        """External benchmarks (IntPhys, Physical Concepts) add their own published metrics."""
-        datamodule = probe_datamodule(trainer, type(self).__name__)
+        """External benchmarks (IntPhys, Physical Concepts, IntPhys 2) add their own published
+        metrics and files (``external.evaluation``, over the DataModule's ``external_pairs``)."""
+        pairs = probe_datamodule(trainer, type(self).__name__).external_pairs()
+        if pairs is None:
+            return
         merged = {key: np.concatenate([output[key] for output in outputs])
                   for key in PROBE_OUTPUT_KEYS}
-        metrics = datamodule.benchmark_metrics(merged, alpha=self.alpha, bootstrap=self.bootstrap)
-        if metrics is None:
-            return
+        metrics, files = evaluate(pairs, merged, alpha=self.alpha, bootstrap=self.bootstrap)
         path = self.report_dir / "benchmark_metrics.json"
         path.write_text(json.dumps(metrics, indent=2, default=lambda v: v.item()) + "\n")
         print(f"benchmark metrics written to {path}")
-        for name, text in datamodule.benchmark_files(merged).items():
+        for name, text in files.items():
             (self.report_dir / name).write_text(text)
             print(f"{name} written to {self.report_dir / name}")
 

@@ -304,10 +304,10 @@ def _report_folder(config: Any, checkpoint: Path) -> str | None:
     data = config.get("data")
     data_args = getattr(data, "init_args", None) or {}
     data_class = _import(data.class_path) if getattr(data, "class_path", None) else None
-    # An external benchmark's DataModule has metrics of its own; ProbeDataModule's are none.
+    # An external benchmark's DataModule describes its pairs for its own metrics; ours do not.
     benchmark = None
     if (data_class is not None
-            and data_class.benchmark_metrics is not ProbeDataModule.benchmark_metrics):
+            and data_class.external_pairs is not ProbeDataModule.external_pairs):
         logger_args = getattr(config["trainer"].get("logger"), "init_args", None) or {}
         benchmark = logger_args.get("name") or data_class.__name__
     try:

@@ -14,13 +14,13 @@ import torch
 from lightning.pytorch.callbacks import BasePredictionWriter
 from lightning.pytorch.utilities import rank_zero_info
 
-from voe_lightning.benchmark_metrics import write_answer_file
+from voe_lightning.external.metrics import write_answer_file
 
 
 class IntPhysAnswerWriter(BasePredictionWriter):
     """Writes the IntPhys challenge's ``answer.txt`` to ``path`` at the end of ``predict``: one
     line per movie of the predict dataset (its ``names[index]``, e.g. ``O1/0001/1``) with a
-    plausibility from the movie's total surprise (``benchmark_metrics.write_answer_file``)."""
+    plausibility from the movie's total surprise (``external.metrics.write_answer_file``)."""
 
     def __init__(self, path: str | os.PathLike = "answer.txt"):
         super().__init__(write_interval="epoch")

@@ -5,10 +5,12 @@ without them is refused at once instead of being decoded with the wrong vocabula
 from __future__ import annotations
 
 from abc import ABCMeta, abstractmethod
-from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING
 
 import lightning as L
+
+if TYPE_CHECKING:
+    from voe_lightning.external.evaluation import ExternalPairs
 
 
 class ProbeDataModule(L.LightningDataModule, metaclass=ABCMeta):
@@ -29,17 +31,11 @@ class ProbeDataModule(L.LightningDataModule, metaclass=ABCMeta):
     def probe_cases(self, split: str = "val") -> list[tuple[str, str]]:
         """The (concept, variant) pairs whose probes ``split`` holds."""
 
-    def benchmark_metrics(
-        self, outputs: Mapping[str, Any], **options: Any
-    ) -> dict[str, Any] | None:
-        """An external benchmark's own metrics of the merged ``probe_step`` outputs (written to
-        ``benchmark_metrics.json``); None here: the package's probes have none."""
+    def external_pairs(self) -> ExternalPairs | None:
+        """What an external benchmark's own evaluation needs of this DataModule's test pairs
+        (``voe_lightning.external.evaluation``: metrics written to ``benchmark_metrics.json``,
+        extra files); None here: the package's probes have none."""
         return None
-
-    def benchmark_files(self, outputs: Mapping[str, Any]) -> dict[str, str]:
-        """Further report files of an external benchmark (file name -> text, written beside
-        ``benchmark_metrics.json``) from the merged ``probe_step`` outputs; none here."""
-        return {}
 
 
 def probe_datamodule(trainer: L.Trainer, user: str) -> ProbeDataModule:

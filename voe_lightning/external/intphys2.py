@@ -30,7 +30,7 @@ from tensordict import TensorDict
 from torch.utils.data import Dataset
 
 from voe_lightning import specs
-from voe_lightning.benchmarks.base import (
+from voe_lightning.external.base import (
     BenchmarkDataError,
     FrameSampling,
     SkipLog,

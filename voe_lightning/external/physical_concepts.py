@@ -39,7 +39,7 @@ from tfrecord.writer import TFRecordWriter
 from torch.utils.data import ConcatDataset, Dataset, IterableDataset, get_worker_info
 
 from voe_lightning import specs
-from voe_lightning.benchmarks.base import (
+from voe_lightning.external.base import (
     BenchmarkDataError,
     FrameSampling,
     SkipLog,
