@@ -12,7 +12,7 @@ import torch
 from scipy import stats
 from tensordict import TensorDict
 
-from voe_lightning import cues, specs
+from voe_lightning import cue_report, cues, specs
 from voe_lightning.cli import main
 from voe_lightning.generate import generate_dataset
 
@@ -138,7 +138,7 @@ def test_pairs_without_masks_skip_the_mask_cue_with_a_note(audit, tmp_path):
     skipped = {r["cue"]: r for r in rows}["foreground_pixels"]
     assert skipped["t"] is None and "no object mask" in skipped["note"] and skipped["n"] == 5
     assert all(r["t"] is not None for r in rows if r["cue"] != "foreground_pixels")
-    cues.write_audit(audit.rows(), tmp_path)
+    cue_report.write_audit(audit.rows(), tmp_path)
     markdown = (tmp_path / "cues.md").read_text()
     assert "| unchangeableness | color | 5 | n/a |" in markdown
     assert "unchangeableness/color, foreground: foreground_pixels skipped" in markdown
@@ -163,7 +163,7 @@ def test_model_correlations_agree_with_scipy_and_expose_a_cue_follower(audit, tm
                if r["concept"] == "object_persistence")
     with pytest.raises(ValueError, match="one value per scored pair"):
         audit.model_correlations(np.ones(3))
-    cues.write_audit(audit.rows(), tmp_path, correlation_rows=list(rows.values()))
+    cue_report.write_audit(audit.rows(), tmp_path, correlation_rows=list(rows.values()))
     markdown = (tmp_path / "cues.md").read_text()
     assert "Does the model's surprise track a cue, pair by pair?" in markdown
     assert "| object_persistence | **pooled** | 12 |" in markdown.split("pair by pair?")[1]

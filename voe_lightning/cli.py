@@ -19,7 +19,7 @@ from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
 
-from voe_lightning import analysis, cues, generate, preflight, runs, statistics
+from voe_lightning import analysis, cue_report, generate, preflight, runs, statistics
 from voe_lightning.interruption import InterruptCheckpoint
 from voe_lightning.model import SurpriseModel
 from voe_lightning.probe_datamodule import ProbeDataModule
@@ -47,7 +47,7 @@ USER_ERRORS = (ValueError, OSError, MisconfigurationException)
 #: subcommands (as jsonargparse's ``auto_cli`` takes them, ``_help`` being the summary).
 COMMANDS: dict[str, Any] = {
     "generate": generate.generate,
-    "audit": cues.audit,
+    "audit": cue_report.audit,
     "analyze": analysis.COMMANDS,
 }
 

@@ -27,7 +27,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from voe_lightning import cues
+from voe_lightning import cue_report, cues
 from voe_lightning.store import current_umask
 from voe_lightning.statistics import ALPHA
 from voe_lightning.report.figures import PredictionExample, write_figures
@@ -112,10 +112,10 @@ def _write_files(results: PairResults, report_dir: Path,
         cue_rows = cue_audit.rows(alpha=alpha)
         correlations = cue_audit.model_correlations(results.relative_surprise, alpha=alpha)
         title = "Cue audit on the model's test pairs"
-        cues.write_audit(cue_rows, report_dir, model_rows=rows, title=title,
+        cue_report.write_audit(cue_rows, report_dir, model_rows=rows, title=title,
                          correlation_rows=correlations, alpha=alpha, num_pairs=len(cue_audit))
-        markdown += ("\n" + cues.format_markdown(cue_rows, rows, title)
-                     + "\n" + cues.format_correlations(correlations))
+        markdown += ("\n" + cue_report.format_markdown(cue_rows, rows, title)
+                     + "\n" + cue_report.format_correlations(correlations))
     write_figures(results, rows, report_dir, predictions, trajectories, trajectory_labels,
                   seed=seed, cue_audit=cue_audit, correlation_rows=correlations)
     if echo:

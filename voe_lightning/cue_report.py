@@ -1,0 +1,224 @@
+"""The cue audit written out (docs/architecture.md §8): the compact table of each cue's
+accuracy / d_z beside the model's (Markdown for summary and cues.md, rich for the terminal), the
+table of how the model's surprise correlates with each cue pair by pair, the files cues.md,
+cues.csv, cue_correlations.csv and cues.json, and ``python -m voe_lightning audit``. The scores
+and their tests are ``voe_lightning.cues``; each cell's numbers are written by
+``statistics_format.row_text``, as every statistics table's are."""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Literal
+
+from voe_lightning import specs, statistics
+from voe_lightning.cues import CORRELATION_COLUMNS, CUE_COLUMNS, CUE_TITLES, CUES, audit_split
+from voe_lightning.statistics_format import BRIEF, format_alpha, json_row, row_text, rows_alpha
+
+__all__ = ["audit", "cue_table", "format_correlations", "format_markdown", "write_audit"]
+
+#: How a compact table's cell writes accuracy and d_z: '61% / +0.52'.
+CELL_STYLE = replace(BRIEF, d_z="+.2f")
+
+
+
+def _cell(row: Mapping[str, Any] | None) -> tuple[str, bool]:
+    """'acc% / d_z' of a row, and whether it separates the pairs (p_two_sided or p < alpha)."""
+    if row is None or row.get("accuracy") is None:
+        return "n/a", False
+    text = row_text(row, CELL_STYLE)
+    separates = row["p_two_sided"] < row["alpha"] if "p_two_sided" in row else row["significant"]
+    return f"{text.accuracy} / {text.d_z}", bool(separates)
+
+
+def _table_cells(
+    cue_rows: Sequence[Mapping[str, Any]], model_rows: Sequence[Mapping[str, Any]] | None
+) -> list[tuple[str, str, int, list[tuple[str, bool]]]]:
+    """(concept, variant, n, cells) per group: the model's cell first when given, then one
+    cell per cue."""
+    by_key = {(r["concept"], r["variant"], r["cue"]): r for r in cue_rows}
+    models = {(r["concept"], r["variant"]): r for r in model_rows or ()}
+    table = []
+    for concept, variant in dict.fromkeys((r["concept"], r["variant"]) for r in cue_rows):
+        cells = [_cell(models.get((concept, variant)))] if model_rows is not None else []
+        cells += [_cell(by_key.get((concept, variant, cue))) for cue in CUES]
+        n = by_key[(concept, variant, CUES[0])]["n"]
+        table.append((concept, variant, n, cells))
+    return table
+
+
+def format_markdown(
+    cue_rows: Sequence[Mapping[str, Any]],
+    model_rows: Sequence[Mapping[str, Any]] | None = None,
+    title: str = "Cue audit",
+) -> str:
+    """The compact cue table as Markdown: per concept/variant (and pooled), accuracy / d_z of
+    each cue, beside the model's when ``model_rows`` (report summary rows) are given. Cue
+    cells that separate the pairs (two-sided p < alpha) are bold; model cells with one-tailed
+    p < alpha carry *. Notes (skipped cues, degenerate tests) follow the table."""
+    model = model_rows is not None
+    header = (["concept", "variant", "n"] + (["model (surprise)"] if model else [])
+              + [CUE_TITLES[cue] for cue in CUES])
+    alpha = rows_alpha(cue_rows)
+    lines = [f"## {title} ({format_alpha(alpha)})", "",
+             "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for concept, variant, n, cells in _table_cells(cue_rows, model_rows):
+        texts = []
+        for index, (text, separates) in enumerate(cells):
+            if model and index == 0:
+                texts.append(text + (" *" if separates else ""))
+            else:
+                texts.append(f"**{text}**" if separates else text)
+        name = f"**{variant}**" if variant == statistics.POOLED else variant
+        lines.append(f"| {concept} | {name} | {n} | " + " | ".join(texts) + " |")
+    lines += ["", "Each cell: accuracy / d_z of d = score(inconsistent) - score(consistent) on "
+              "the same pairs (cue accuracy counts ties as half: 50% is chance). Cues are "
+              "physics-blind: " + ", ".join(f"{CUE_TITLES[c]} = {c}" for c in CUES) + ". "
+              f"**Bold**: the cue separates the pairs (two-sided p < {alpha:g}), so a model "
+              "could do as well without physics."
+              + (f" Model: accuracy / d_z of surprise, * one-tailed p < {alpha:g}; pooled rows "
+                 "(cues' too) are the stratified test of the two variants." if model else
+                 " Pooled rows are the stratified test of the two variants.")
+              + " Full statistics in cues.csv."]
+    notes = [f"{r['concept']}/{r['variant']}, {CUE_TITLES[r['cue']]}: {r['note']}"
+             for r in cue_rows if r.get("note") and "bootstrap" not in r["note"]]
+    lines += [f"- {note}" for note in notes]
+    return "\n".join(lines) + "\n"
+
+
+def format_correlations(correlation_rows: Sequence[Mapping[str, Any]],
+                        title: str = "Does the model's surprise track a cue, pair by pair?") -> str:
+    """Markdown table of ``CueAudit.model_correlations``: r per concept/variant (and pooled)
+    and cue, bold where two-sided p < alpha."""
+    by_key = {(r["concept"], r["variant"], r["cue"]): r for r in correlation_rows}
+    header = ["concept", "variant", "n"] + [CUE_TITLES[cue] for cue in CUES]
+    alpha = rows_alpha(correlation_rows)
+    lines = [f"## {title} ({format_alpha(alpha)})", "",
+             "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for concept, variant in dict.fromkeys((r["concept"], r["variant"]) for r in correlation_rows):
+        cells = []
+        for cue in CUES:
+            row = by_key[(concept, variant, cue)]
+            if row["r"] is None:
+                cells.append("n/a")
+            else:
+                text = f"{row['r']:+.2f}"
+                cells.append(f"**{text}**" if row["p_two_sided"] < row["alpha"] else text)
+        name = f"**{variant}**" if variant == statistics.POOLED else variant
+        n = by_key[(concept, variant, CUES[0])]["n"]
+        lines.append(f"| {concept} | {name} | {n} | " + " | ".join(cells) + " |")
+    lines += ["", "Each cell: Pearson's r across pairs between the model's relative surprise "
+              "S(inconsistent) - S(consistent) and the cue's score(inconsistent) - "
+              f"score(consistent); **bold**: two-sided p < {alpha:g}. A model whose pooled "
+              "accuracy is at chance but whose r with a cue is large follows that cue in each "
+              "variant, and the variants cancel; physics would not depend on the cue. Full "
+              "values in cue_correlations.csv."]
+    return "\n".join(lines) + "\n"
+
+
+def cue_table(
+    cue_rows: Sequence[Mapping[str, Any]],
+    model_rows: Sequence[Mapping[str, Any]] | None = None,
+    title: str = "Cue audit",
+):
+    """The compact cue table as a rich Table (separating cue cells red, pooled rows bold)."""
+    from rich.table import Table
+
+    alpha = rows_alpha(cue_rows)
+    table = Table(title=f"{title} ({format_alpha(alpha)})",
+                  caption="accuracy (ties half) / d_z; red: the cue separates the pairs "
+                  f"(two-sided p < {alpha:g})")
+    for column in ["concept", "variant", "n"] + (["model"] if model_rows is not None else []) + [
+            CUE_TITLES[cue] for cue in CUES]:
+        table.add_column(column, justify="left" if column in ("concept", "variant") else "right")
+    groups = _table_cells(cue_rows, model_rows)
+    for index, (concept, variant, n, cells) in enumerate(groups):
+        styled = []
+        for column, (text, separates) in enumerate(cells):
+            is_model = model_rows is not None and column == 0
+            styled.append(text + " *" if is_model and separates
+                          else f"[red]{text}[/red]" if separates else text)
+        last = index + 1 == len(groups) or groups[index + 1][0] != concept
+        table.add_row(concept, variant, str(n), *styled,
+                      style="bold" if variant == statistics.POOLED else None, end_section=last)
+    return table
+
+
+def write_audit(
+    cue_rows: Sequence[Mapping[str, Any]],
+    out_dir: str | Path,
+    model_rows: Sequence[Mapping[str, Any]] | None = None,
+    title: str = "Cue audit",
+    correlation_rows: Sequence[Mapping[str, Any]] | None = None,
+    **metadata: Any,
+) -> Path:
+    """Write ``out_dir/cues.md`` (the compact table, beside the model's rows when given, then
+    the model-cue correlations when given), ``cues.csv`` (every column of every row),
+    ``cue_correlations.csv`` (with correlations) and ``cues.json`` (rows, correlations and
+    ``metadata``)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    markdown = format_markdown(cue_rows, model_rows, title)
+    if correlation_rows is not None:
+        markdown += "\n" + format_correlations(correlation_rows)
+        with open(out / "cue_correlations.csv", "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=CORRELATION_COLUMNS)
+            writer.writeheader()
+            writer.writerows(correlation_rows)
+    (out / "cues.md").write_text(markdown)
+    with open(out / "cues.csv", "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=CUE_COLUMNS)
+        writer.writeheader()
+        writer.writerows(cue_rows)
+    document = {**metadata, "cues": list(CUES),
+                "rows": [json_row(row) for row in cue_rows]}
+    if correlation_rows is not None:
+        document["model_correlations"] = [json_row(row) for row in correlation_rows]
+    (out / "cues.json").write_text(json.dumps(document, indent=2) + "\n")
+    return out
+
+
+def audit(
+    root: Path,
+    split: Literal["val", "test", "generalization"] = "test",
+    concepts: list[specs.Concept] | None = None,
+    out: Path | None = None,
+    alpha: float = statistics.ALPHA,
+    batch_size: int = 64,
+    num_workers: int = 0,
+    progress: bool = True,
+) -> list[dict[str, Any]]:
+    """Physics-blind cue scores of a probe split, with the model's paired statistics.
+
+    Prints the table (M, t, p, d_z, accuracy and pooled rows per cue) and writes cues.md,
+    cues.csv and cues.json; returns the rows.
+
+    Args:
+        root: dataset folder (a generated store).
+        split: probe split to audit.
+        concepts: concepts to audit (default: every concept in the store).
+        out: output folder (default: ROOT/cue_audit/SPLIT).
+        alpha: significance level (default: configs/base.yaml's alpha).
+        batch_size: pairs scored at once.
+        num_workers: data loader worker processes.
+        progress: show a progress bar.
+    """
+    from rich.console import Console
+
+    statistics.check_alpha(alpha)
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+    scores = audit_split(root, split, concepts, batch_size, num_workers, progress=progress)
+    rows = scores.rows(alpha=alpha)
+    title = f"Cue audit of {root} ({split} split, {len(scores)} pairs)"
+    out = write_audit(rows, out or Path(root) / "cue_audit" / split, title=title, root=str(root),
+                      split=split, alpha=alpha, num_pairs=len(scores))
+    console = Console()
+    if not console.is_terminal:  # logs and pipes: do not cut the table at 80 columns
+        console.width = 140
+    console.print(cue_table(rows, title=title))
+    print(f"cue audit written to {out} (cues.md, cues.csv, cues.json)")
+    return rows
