@@ -13,7 +13,7 @@ from nbclient import NotebookClient
 from PIL import Image
 from torch.utils.tensorboard import SummaryWriter
 
-from voe_lightning import analysis
+from voe_lightning import analysis, size_sweep
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.cli import main
 from voe_lightning.report import write_report
@@ -126,7 +126,7 @@ def test_curves_of_three_runs_are_told_apart_by_style_and_marker(tmp_path):
 def test_sweep_rows_are_disjoint_evaluation_sets(tmp_path):
     results = pair_results({("object_persistence", "standard"): (30, 1.0),
                             ("continuity", "standard"): (31, 0.0)})
-    rows = analysis.sweep_rows(results, train_size=100, eval_sets=3)
+    rows = size_sweep.sweep_rows(results, train_size=100, eval_sets=3)
     assert len(rows) == 6 and {r["train_size"] for r in rows} == {100}
     persistence = [r for r in rows if r["concept"] == "object_persistence"]
     assert [r["eval_set"] for r in persistence] == [0, 1, 2]
@@ -137,7 +137,7 @@ def test_sweep_rows_are_disjoint_evaluation_sets(tmp_path):
     expected = paired_test(first.total_inconsistent, first.total_consistent, bootstrap=0)
     assert persistence[0]["t"] == expected.t and persistence[0]["p_value"] == expected.p_value
     with pytest.raises(ValueError, match="too few for 20 evaluation sets"):
-        analysis.sweep_rows(results, 100, eval_sets=20)
+        size_sweep.sweep_rows(results, 100, eval_sets=20)
 
 
 def test_size_sweep_figure_marks_significant_points_green():
@@ -145,14 +145,14 @@ def test_size_sweep_figure_marks_significant_points_green():
              "variant": "standard", "relative_surprise": effect, "significant": effect > 0.5,
              "alpha": 0.01}
             for size, effect in ((100, 0.1), (1000, 0.6), (10000, 0.9)) for i in range(2)]
-    figure = analysis.size_sweep_figure(rows)
+    figure = size_sweep.size_sweep_figure(rows)
     ax = figure.axes[0]
     assert ax.get_xscale() == "log"
     colors = {points.get_label(): points.get_facecolor()[0][:3] for points in ax.collections}
     tab_green = (0.172, 0.627, 0.172)
     assert np.allclose(colors["significant (p < 0.01)"], tab_green, atol=0.01)  # the rows' alpha
     assert len(ax.collections[0].get_offsets()) == 4
-    older = analysis.size_sweep_figure([{k: v for k, v in r.items() if k != "alpha"} for r in rows])
+    older = size_sweep.size_sweep_figure([{k: v for k, v in r.items() if k != "alpha"} for r in rows])
     assert "significant" in {points.get_label() for points in older.axes[0].collections}
 
 
@@ -174,7 +174,7 @@ def test_run_size_sweep_drives_fit_then_test(tmp_path):
             checkpoint_callback=checkpoint, callbacks=[callback]))
 
     out = tmp_path / "sweep" / "sweep.json"
-    rows = analysis.run_size_sweep(["configs/base.yaml", "configs/x.yaml"], [10, 300],
+    rows = size_sweep.run_size_sweep(["configs/base.yaml", "configs/x.yaml"], [10, 300],
                                    eval_sets=2, pairs_per_set=6, out=out,
                                    extra_args=["--data.root=data/sweep_{size}"],
                                    test_args=["--data.generalization=true"], cli_main=fake_cli)
@@ -200,19 +200,19 @@ def test_run_size_sweep_names_a_missing_report_callback(tmp_path):
                                                                    callbacks=[]))
 
     with pytest.raises(RuntimeError, match="add voe_lightning.callbacks.VOEReportCallback"):
-        analysis.run_size_sweep(["c.yaml"], [5], out=tmp_path / "s.json", cli_main=no_report)
+        size_sweep.run_size_sweep(["c.yaml"], [5], out=tmp_path / "s.json", cli_main=no_report)
 
 
 def test_sweep_command_runs_fit_and_test_through_the_cli_main(monkeypatch, tmp_path):
-    """``analyze sweep`` gets the CLI's entry point from the CLI (analysis imports no CLI)."""
+    """``analyze sweep`` gets the CLI's entry point from the CLI (size_sweep imports no CLI)."""
     received = {}
-    monkeypatch.setattr(analysis, "run_size_sweep", lambda *args, cli_main: received.update(
+    monkeypatch.setattr(size_sweep, "run_size_sweep", lambda *args, cli_main: received.update(
         args=args, cli_main=cli_main) or [])
     main(["analyze", "sweep", "--lightning_configs", "[configs/quickstart.yaml]",
           "--sizes", "[5]", "--out", str(tmp_path / "sweep.json")])
     assert received["cli_main"] is main and received["args"][1] == [5]
     with pytest.raises(TypeError, match="run it as `python -m voe_lightning analyze sweep`"):
-        analysis.sweep([Path("configs/quickstart.yaml")], [5])
+        size_sweep.sweep([Path("configs/quickstart.yaml")], [5])
 
 
 def test_command_line_writes_the_figures(tmp_path, capsys):
@@ -251,7 +251,7 @@ def test_notebook_reproduces_the_figures_of_a_run_directory(tmp_path, monkeypatc
     write_report(results, run, bootstrap=100, echo=False)
     write_events(run, {("object_persistence", "standard"): lambda s: s / 400,
                        ("continuity", "standard"): lambda s: 0.0})
-    sweep = analysis.sweep_rows(results, 100, 2)
+    sweep = size_sweep.sweep_rows(results, 100, 2)
     (tmp_path / "sweep.json").write_text(json.dumps(sweep))
     monkeypatch.setenv("VOE_RUN_DIR", str(tmp_path))
     monkeypatch.setenv("VOE_SWEEP_RESULTS", str(tmp_path / "sweep.json"))

@@ -1,18 +1,16 @@
 """Analyses across runs: relative surprise over training read from TensorBoard event files,
-separate vs joint runs on one figure (paper Figure 6), the training-set-size sweep with its
-reliability plot (paper Figure 3), the per-concept verdicts of tested runs side by side, how
-many of a VRNN-LRU's latents carry information, and the calibration of the verdict
-(``voe_lightning.calibration``).
+separate vs joint runs on one figure (paper Figure 6), the per-concept verdicts of tested runs
+side by side, and how many of a VRNN-LRU's latents carry information; with the training-set-size
+sweep (``voe_lightning.size_sweep``, paper Figure 3) and the calibration of the verdict
+(``voe_lightning.calibration``), the subcommands of ``analyze`` (``COMMANDS``).
 ``python -m voe_lightning analyze curves|sweep|sweep-plot|compare|latents|calibrate``.
 """
 
 from __future__ import annotations
 
 import csv
-import json
 import re
-import textwrap
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,12 +19,11 @@ import torch
 from matplotlib.figure import Figure
 
 from voe_lightning import calibration, specs
-from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.cues import CUE_TITLES, FRAME_LOCAL_CUES, tracked_cues
 from voe_lightning.model import VOEModel
-from voe_lightning.report.figures import panel_grid
-from voe_lightning.report.results import PairResults, read_summary
-from voe_lightning.statistics import ALPHA, paired_test
+from voe_lightning.report.figures import panel_grid, save_figure
+from voe_lightning.report.results import read_summary
+from voe_lightning.size_sweep import sweep, sweep_plot
 from voe_lightning.statistics_format import BRIEF, format_alpha, row_text
 from voe_lightning.store import collate, open_split, read_manifest
 
@@ -39,9 +36,6 @@ __all__ = [
     "read_relative_surprise",
     "read_scalars",
     "relative_surprise_curves_figure",
-    "run_size_sweep",
-    "size_sweep_figure",
-    "sweep_rows",
 ]
 
 #: TensorBoard tags the training callback logs, one per concept/variant.
@@ -165,135 +159,6 @@ def relative_surprise_curves_figure(
     return figure
 
 
-# ----------------------------------------------------------------------------- size sweep
-
-
-def sweep_rows(results: PairResults, train_size: int, eval_sets: int,
-               alpha: float = ALPHA) -> list[dict[str, Any]]:
-    """Split each concept/variant's test pairs (ordered by seed) into ``eval_sets`` disjoint
-    evaluation sets and test each: one row per (concept, variant, evaluation set)."""
-    if eval_sets < 1:
-        raise ValueError(f"eval_sets must be at least 1, got {eval_sets}")
-    rows = []
-    for concept, variant, pairs in results.groups():
-        if len(pairs) < 2 * eval_sets:
-            raise ValueError(f"{concept}/{variant} has {len(pairs)} test pairs, too few for "
-                             f"{eval_sets} evaluation sets of at least 2 pairs")
-        order = np.argsort(pairs.seed, kind="stable")
-        for index, chunk in enumerate(np.array_split(order, eval_sets)):
-            subset = pairs.select(chunk)
-            test = paired_test(subset.total_inconsistent, subset.total_consistent,
-                               alpha=alpha, bootstrap=0)
-            rows.append({"train_size": int(train_size), "eval_set": index, "concept": concept,
-                         "variant": variant, "n": test.n,
-                         "relative_surprise": test.relative_surprise, "t": test.t,
-                         "p_value": test.p_value, "significant": test.significant,
-                         "alpha": alpha})
-    return rows
-
-
-def size_sweep_figure(rows: Sequence[Mapping[str, Any]]) -> Figure:
-    """Reliability of relative surprise vs training-set size (paper Figure 3): a point per
-    evaluation set, green when significant; one panel per concept/variant."""
-    if not rows:
-        raise ValueError("no sweep rows to plot")
-    keys = list(dict.fromkeys((row["concept"], row["variant"]) for row in rows))
-    figure, axes = panel_grid(len(keys), 4.6, 3.6, max_cols=3)
-    alphas = {row.get("alpha") for row in rows}  # rows of older sweeps do not say
-    significant_label = ("significant" if len(alphas) > 1 or None in alphas
-                         else f"significant (p < {alphas.pop():g})")
-    sizes = sorted({row["train_size"] for row in rows})
-    logarithmic = len(sizes) > 1 and sizes[0] > 0 and sizes[-1] / sizes[0] >= 10
-    for ax, (concept, variant) in zip(axes, keys):
-        mine = [row for row in rows if (row["concept"], row["variant"]) == (concept, variant)]
-        for significant, color, label in ((True, "tab:green", significant_label),
-                                          (False, "tab:gray", "not significant")):
-            chosen = [row for row in mine if bool(row["significant"]) == significant]
-            if chosen:
-                ax.scatter([row["train_size"] for row in chosen],
-                           [row["relative_surprise"] for row in chosen],
-                           color=color, edgecolor="black", linewidth=0.4, s=30, label=label,
-                           zorder=3)
-        ax.axhline(0.0, color="black", linewidth=0.8)
-        if logarithmic:
-            ax.set_xscale("log")
-        ax.set_xticks(sizes, [str(size) for size in sizes])
-        ax.margins(x=0.15)
-        ax.set_title(f"{concept} / {variant}", fontsize=10)
-        ax.set_xlabel("training set size (examples per concept)")
-        ax.set_ylabel("relative surprise")
-        ax.legend(fontsize=7)
-    title = "Reliability of relative surprise: each point is an independent evaluation set"
-    figure.suptitle(textwrap.fill(title, width=int(14 * figure.get_figwidth())), fontsize=10)
-    return figure
-
-
-def _report_dir(cli: Any) -> Path:
-    trainer = getattr(cli, "trainer", None)
-    for callback in getattr(trainer, "callbacks", []):
-        if isinstance(callback, VOEReportCallback) and callback.report_dir is not None:
-            return callback.report_dir
-    raise RuntimeError("the test run wrote no VOE report: add voe_lightning.callbacks."
-                       "VOEReportCallback to the config's trainer.callbacks")
-
-
-def _report_alpha(report_dir: Path) -> float:
-    """The significance level a voe_report was written at (its summary.json's alpha; ALPHA
-    where it has none). A corrupt summary.json is named, not read as the default alpha."""
-    if not (Path(report_dir) / "summary.json").is_file():
-        return ALPHA
-    return float(read_summary(report_dir).get("alpha", ALPHA))
-
-
-def _checkpoint(cli: Any) -> str:
-    callback = getattr(getattr(cli, "trainer", None), "checkpoint_callback", None)
-    path = callback and (callback.last_model_path or callback.best_model_path)
-    if not path:
-        raise RuntimeError("the fit run saved no checkpoint (is checkpointing enabled?)")
-    return path
-
-
-def run_size_sweep(
-    configs: Sequence[str | Path],
-    sizes: Sequence[int],
-    eval_sets: int = 5,
-    pairs_per_set: int = 100,
-    out: str | Path = "runs/size_sweep/sweep.json",
-    extra_args: Sequence[str] = (),
-    test_args: Sequence[str] = (),
-    *,
-    cli_main: Callable[[list[str]], Any],
-) -> list[dict[str, Any]]:
-    """Train one model per training-set size with ``cli_main(["fit", ...])``, the entry point of
-    ``python -m voe_lightning`` (with each of ``configs`` in order, e.g.
-    ``configs/quickstart.yaml``; base.yaml is read first), and test it
-    on ``eval_sets`` x ``pairs_per_set`` test pairs, split into disjoint evaluation sets
-    (``sweep_rows``). ``extra_args`` go to both commands, ``test_args`` to ``test`` only; in
-    both ``{size}`` is replaced by the size (e.g. ``--data.root=data/sweep_{size}`` to keep
-    each size's dataset apart). Needs ``VOEReportCallback`` in the config's callbacks. Writes
-    the rows to ``out`` after each size and returns them; plot them with
-    ``size_sweep_figure(rows)``."""
-    if not sizes or any(size < 1 for size in sizes):
-        raise ValueError(f"sizes must be positive training-set sizes, got {list(sizes)}")
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    rows: list[dict[str, Any]] = []
-    for size in sizes:
-        # test_pairs goes to fit too: fit generates the store, test must find the same one.
-        common = [*(word for config in configs for word in ("--config", str(config))),
-                  "--data.train_examples", str(size),
-                  "--data.test_pairs", str(eval_sets * pairs_per_set),
-                  *(arg.format(size=size) for arg in extra_args)]
-        fit = cli_main(["fit", *common])
-        test = cli_main(["test", *common, "--ckpt_path", _checkpoint(fit),
-                         *(arg.format(size=size) for arg in test_args)])
-        report = _report_dir(test)
-        results = PairResults.from_csv(report / "pairs.csv")
-        rows.extend(sweep_rows(results, size, eval_sets, alpha=_report_alpha(report)))
-        out.write_text(json.dumps(rows, indent=2) + "\n")
-    return rows
-
-
 # ----------------------------------------------------------------------------- comparison
 
 
@@ -391,70 +256,8 @@ def curves(runs: list[str], out: Path, step_scale: dict[str, float] | None = Non
         step_scale: a factor per label multiplying its steps, e.g. {joint: 0.2} for examples
             per concept.
     """
-    return _write(relative_surprise_curves_figure([_labelled(run) for run in runs], step_scale),
+    return save_figure(relative_surprise_curves_figure([_labelled(run) for run in runs], step_scale),
                   out)
-
-
-def sweep(
-    lightning_configs: list[Path],
-    sizes: list[int],
-    eval_sets: int = 5,
-    pairs_per_set: int = 100,
-    out: Path = Path("runs/size_sweep/sweep.json"),
-    extra_args: Sequence[str] = (),
-    test_args: Sequence[str] = (),
-    plot: Path | None = None,
-    _cli_main: Callable[[list[str]], Any] | None = None,
-) -> list[dict[str, Any]]:
-    """Train and test one model per training-set size, writing the rows to sweep.json.
-
-    Args:
-        lightning_configs: the fit and test configs, in order, after base.yaml (e.g. a
-            study's), with VOEReportCallback in the callbacks.
-        sizes: training-set sizes (examples per concept).
-        eval_sets: disjoint evaluation sets per size.
-        pairs_per_set: test pairs per evaluation set.
-        out: JSON to write the rows to.
-        extra_args: extra fit and test arguments; {size} is replaced by the size.
-        test_args: extra test arguments; {size} is replaced by the size.
-        plot: also write the Figure 3 PNG here.
-        _cli_main: the entry point that runs fit and test; the CLI passes its own ``main``, so
-            this module does not import the CLI (jsonargparse offers no optional ``_`` argument).
-    """
-    if _cli_main is None:
-        raise TypeError("sweep runs fit and test through _cli_main: run it as `python -m "
-                        "voe_lightning analyze sweep`, or pass voe_lightning.cli.main")
-    rows = run_size_sweep(lightning_configs, sizes, eval_sets, pairs_per_set, out, extra_args,
-                          test_args, cli_main=_cli_main)
-    if plot:
-        _write(size_sweep_figure(rows), plot)
-    return rows
-
-
-def sweep_plot(out: Path, results: Path | None = None, runs: dict[int, Path] | None = None,
-               eval_sets: int = 5) -> Path:
-    """Reliability of relative surprise vs training-set size (paper Figure 3), as a PNG.
-
-    Args:
-        out: PNG to write.
-        results: sweep.json written by analyze sweep.
-        runs: instead of results, tested runs (with voe_report/pairs.csv) by training-set
-            size, e.g. {100: runs/size_100, 1000: runs/size_1000}.
-        eval_sets: with runs, evaluation sets per run.
-    """
-    if (results is None) == (runs is None):
-        raise ValueError("give either results (a sweep.json) or runs (SIZE: RUN_DIR), not both")
-    if results is not None:
-        rows = json.loads(Path(results).read_text())
-    else:
-        rows = []
-        for size, run_dir in runs.items():
-            pairs = sorted(Path(run_dir).rglob("voe_report/pairs.csv"))
-            if not pairs:
-                raise FileNotFoundError(f"no voe_report/pairs.csv under {run_dir} (run test first)")
-            rows.extend(sweep_rows(PairResults.from_csv(pairs[-1]), size, eval_sets,
-                                   alpha=_report_alpha(pairs[-1].parent)))
-    return _write(size_sweep_figure(rows), out)
 
 
 def compare(runs: list[str], out: Path | None = None) -> str:
@@ -531,11 +334,3 @@ COMMANDS = {"_help": "Figures and tables over runs: curves, sweep, sweep-plot, c
                      "and the verdict's calibration on a store: calibrate.",
             "curves": curves, "sweep": sweep, "sweep-plot": sweep_plot, "compare": compare,
             "latents": latents, "calibrate": calibration.calibrate_store}
-
-
-def _write(figure: Figure, path: str | Path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, dpi=110)
-    print(f"wrote {path}")
-    return path

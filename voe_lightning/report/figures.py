@@ -38,6 +38,15 @@ class PredictionExample:
     expected: np.ndarray
 
 
+def save_figure(figure: Figure, path: str | Path) -> Path:
+    """Write ``figure`` as a PNG at ``path`` (making its folder), say so, and return the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=110)
+    print(f"wrote {path}")
+    return path
+
+
 def panel_grid(count: int, width: float, height: float, max_cols: int = 4):
     """A constrained-layout figure with ``count`` visible panels of width x height inches in
     rows of at most ``max_cols``: (figure, axes [count])."""
