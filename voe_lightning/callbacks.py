@@ -51,7 +51,8 @@ class VOEProbeCallback(L.Callback):
     concept/variant, then logs ``voe/<concept>/<variant>/{relative_surprise,t,p_value,accuracy,n}``.
     A concept with a standard and a counterbalanced variant also gets
     ``voe/<concept>/pooled/...``: the stratified test of its two variants
-    (``streaming_statistics.pooled_values``, from their float64 sums, so exact under DDP as they are).
+    (``streaming_statistics.pooled_values``, from their float64 sums, so exact under DDP as
+    they are).
     At the end of ``fit`` it prints the last table with each concept's verdict at ``alpha``
     (None: ``statistics.ALPHA``; the CLI gives the run's ``alpha`` from configs/base.yaml).
     A ``surprise_window`` other than all frames (``surprise_window.surprise_window``; the CLI

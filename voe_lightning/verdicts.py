@@ -15,7 +15,7 @@ import numpy as np
 
 from voe_lightning import specs
 from voe_lightning.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
-from voe_lightning.statistics_format import format_p
+from voe_lightning.statistics_format import format_number, format_p
 
 __all__ = ["Verdict", "concept_verdicts", "pair_groups", "verdict_rule"]
 
@@ -111,7 +111,7 @@ def concept_verdicts(
         for variant in needed:
             p_value, mean = values[variant]["p_value"], values[variant]["relative_surprise"]
             if not mean > 0:
-                failed.append(f"{variant} M = {mean:.3g} <= 0")
+                failed.append(f"{variant} M = {format_number(mean)} <= 0")
             elif not p_value < alpha:
                 failed.append(f"{variant} p = {format_p(p_value)} >= {alpha:g}")
         verdicts.append(Verdict(concept, voe, rule, "" if voe else "; ".join(failed)))
