@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import torch
 
-from voe_lightning.model.object_state import bernoulli_nll, gaussian_nll
+from voe_lightning.model.likelihood import bernoulli_nll, gaussian_nll, rectified_excess
 
 #: The terms of what frame t shows: each known slot's visibility, its code where it is seen,
 #: whether a new object appears, and each newcomer's code.
@@ -50,7 +50,7 @@ def excess_surprisal(terms: dict[str, tuple[torch.Tensor, torch.Tensor]]) -> tor
     log-likelihood less its entropy, where positive, summed. Only what is less likely than
     the model expected counts, so a video showing more objects does not read as less surprising
     for each well-predicted object (``docs/study/positive_control.md``, finding 1)."""
-    return sum(_per_frame((nll - entropy).clamp(min=0)) for nll, entropy in terms.values())
+    return sum(_per_frame(rectified_excess(nll, entropy)) for nll, entropy in terms.values())
 
 
 def _per_frame(values: torch.Tensor) -> torch.Tensor:

@@ -1,7 +1,8 @@
 """What a renderer of object boxes would show: camera coordinates, image-plane boxes and which
 points of an object no other object hides. The positive control (``object_state``) starts its
 visibility from this geometry and learns the rest; all of it is differentiable, so the dynamics
-of a hidden object learn from whether it was expected to be seen."""
+of a hidden object learn from whether it was expected to be seen. ``draw_discs`` draws object
+states as they would be seen (the control's expected frames in the report)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import math
 import torch
 
 from voe_lightning import specs
-from voe_lightning.scenes.base import FOVY
+from voe_lightning.scenes.camera import FOVY
 
 #: Where an object is in the view (``view``): camera coordinates (right, up, depth), and the
 #: centre and half-extents (right, up) of its bounding box in the image plane.
@@ -34,7 +35,7 @@ ROUNDNESS = tuple({"sphere": math.sqrt(3), "ellipsoid": math.sqrt(3), "cylinder"
 
 def camera_axes(camera: torch.Tensor) -> tuple[torch.Tensor, ...]:
     """Eye position, right, up and forward unit vectors [B, 3] of MuJoCo's free camera at
-    poses [B, 6] (the torch twin of ``scenes.base.camera_axes``)."""
+    poses [B, 6] (the torch twin of ``scenes.camera.camera_axes``)."""
     azimuth, elevation = torch.deg2rad(camera[:, 4]), torch.deg2rad(camera[:, 5])
     forward = torch.stack([elevation.cos() * azimuth.cos(), elevation.cos() * azimuth.sin(),
                            elevation.sin()], dim=-1)
@@ -191,3 +192,35 @@ def seen_by_geometry(state: torch.Tensor, shape: torch.Tensor, known: torch.Tens
     others = (known[:, None, :] & ~torch.eye(slots, dtype=torch.bool, device=known.device))
     clear = (1 - blocked * others[:, :, None].float()).prod(-1)
     return in_frame * (above_floor * clear).amax(-1)
+
+
+def draw_discs(state: torch.Tensor, opacity: torch.Tensor, camera: torch.Tensor,
+               image_size: tuple[int, int]) -> torch.Tensor:
+    """Object states [B, T, S, 13] drawn as discs of their colour on grey [B, T, 3, H, W]:
+    centre at the projected position, radius from the largest half-extent over the depth,
+    ``opacity`` [B, T, S] in [0, 1], painted far to near."""
+    batch, steps, slots = state.shape[:3]
+    height, width = image_size
+    coordinates = camera_coordinates(state.flatten(0, 1)[..., :3], camera.flatten(0, 1))
+    coordinates = coordinates.view(batch, steps, slots, 3)
+    plane = image_plane(coordinates)  # [-1, 1] across the field of view
+    focal = height / 2
+    column = width / 2 + plane[..., 0] * focal
+    row = height / 2 - plane[..., 1] * focal
+    radius = state[..., 7:10].amax(-1) / coordinates[..., 2].clamp(min=0.05)
+    radius = radius / math.tan(math.radians(FOVY) / 2) * focal
+    rows = torch.arange(height, device=state.device, dtype=torch.float32) + 0.5
+    columns = torch.arange(width, device=state.device, dtype=torch.float32) + 0.5
+    image = torch.full((batch, steps, 3, height, width), 0.5, device=state.device)
+    order = coordinates[..., 2].argsort(dim=-1, descending=True)
+    for index in range(slots):
+        slot = order[..., index]  # [B, T]: the farthest remaining slot of each frame
+        def take(values):
+            return values.gather(2, slot[..., None]).squeeze(2)
+        inside = ((rows[:, None] - take(row)[..., None, None]).pow(2)
+                  + (columns[None] - take(column)[..., None, None]).pow(2)
+                  <= take(radius)[..., None, None].pow(2)).float()
+        alpha = (inside * take(opacity)[..., None, None])[:, :, None]
+        colour = state.gather(2, slot[..., None, None].expand(-1, -1, 1, state.shape[-1]))[:, :, 0]
+        image = image * (1 - alpha) + colour[..., 10:13, None, None] * alpha
+    return image.clamp(0, 1)

@@ -18,15 +18,20 @@ from voe_lightning import specs
 from voe_lightning.model import optimization
 from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.model.dynamics import CAMERA_FEATURES, camera_features, mlp
+from voe_lightning.model.likelihood import (
+    bernoulli_nll,
+    categorical_nll,
+    gaussian_nll,
+    mixture_nll,
+    rectified_excess,
+)
 from voe_lightning.model.object_geometry import (
     VIEW,
-    camera_coordinates,
-    image_plane,
+    draw_discs,
     on_or_above_floor,
     seen_by_geometry,
     view,
 )
-from voe_lightning.scenes.base import FOVY
 
 #: The continuous state of an object that the model predicts: position (3), orientation (4),
 #: size (3), colour (3). A sphere's orientation cannot be seen, so it reads as the identity.
@@ -40,7 +45,6 @@ FEATURES = STATE_SIZE + SHAPES + 1 + VIEW + 3 + 1
 #: to this one's, both sizes, both image-box half-extents, how much of this one's image box the
 #: other's covers (along right, up, and both), the other's orientation and shape.
 PAIR_FEATURES = 3 + 3 + 2 + 3 + 3 + 2 + 2 + 3 + 4 + SHAPES
-LOG_2PI = math.log(2 * math.pi)
 #: The largest move of a state in one frame interval, in each of the inertia and the learned
 #: change (metres for positions; our fastest object, a falling block, moves 0.6 m a frame).
 MAX_MOVE = 1.5
@@ -48,7 +52,7 @@ MAX_MOVE = 1.5
 SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape")
 
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
-ARCHITECTURE = ("hidden_size", "message_size", "use_camera")
+ARCHITECTURE = ("hidden_size", "message_size", "use_camera", "components")
 
 
 @dataclass
@@ -102,37 +106,19 @@ def observe(objects: TensorDictBase, camera: torch.Tensor) -> Observations:
     )
 
 
-def gaussian_nll(value: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor
-                 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """-log N(value; mean, exp(log_std)^2) and the entropy of that Gaussian, each summed over
-    the last dimension."""
-    z = (value - mean) * torch.exp(-log_std)
-    entropy = log_std + 0.5 * (LOG_2PI + 1)
-    return (0.5 * z.pow(2) + log_std + 0.5 * LOG_2PI).sum(-1), entropy.sum(-1)
-
-
-def bernoulli_nll(logit: torch.Tensor, value: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """-log Bernoulli(value; sigmoid(logit)) and the entropy of that Bernoulli."""
-    return (F.binary_cross_entropy_with_logits(logit, value, reduction="none"),
-            F.binary_cross_entropy_with_logits(logit, torch.sigmoid(logit), reduction="none"))
-
-
-def categorical_nll(logits: torch.Tensor, one_hot: torch.Tensor
-                    ) -> tuple[torch.Tensor, torch.Tensor]:
-    """-log Categorical(one_hot; softmax(logits)) over the last dimension, and its entropy."""
-    log_p = F.log_softmax(logits, dim=-1)
-    return -(log_p * one_hot).sum(-1), -(log_p.exp() * log_p).sum(-1)
-
-
 class ObjectStateModel(SurpriseModel):
     """Slot dynamics over perfectly perceived object states, the package's positive control.
 
     Each mask id is a slot, created when the id is first seen (nothing earlier depends on it).
     Per step t, from the slots' recurrent states after frame t-1 and their beliefs (the last
     state seen, or, while hidden, the state predicted for them, so a hidden object is tracked
-    forward), the model predicts for every known slot its state at t (a Gaussian: mean = belief,
-    moved on by inertia (the last frame's move), plus a learned change, and never below the
-    floor; learned standard deviation; its shape as a categorical) and its visibility at t (a
+    forward), the model predicts for every known slot its state at t (a mixture of
+    ``components`` Gaussians: each mean = belief, moved on by inertia (the last frame's move),
+    plus a learned change, and never below the floor; learned standard deviations and weights;
+    its shape as a categorical). A mixture, because at five frames a second a contact is an
+    either-or: a falling plank has landed flat by the next frame or is still in the air or
+    propped up, and one Gaussian's mean sits between them, where neither happens. The most
+    probable component is the slot's predicted state (what a hidden slot's belief follows) and its visibility at t (a
     Bernoulli whose logit is that of ``seen_by_geometry``, what sight lines to the objects'
     boxes at the predicted states would show, times a learned weight, plus a learned term from
     its view against every other slot's). A context over the known slots predicts whether a
@@ -153,6 +139,7 @@ class ObjectStateModel(SurpriseModel):
             coordinates are taken from a fixed default pose.
         min_std: floor of the predicted standard deviations (metres for positions): the
             precision of a perfect perception system.
+        components: Gaussians in the mixture over each slot's next state (1: one Gaussian).
         learning_rate: Adam's (peak) learning rate.
         lr_schedule: ``"constant"`` or ``"cosine"`` (decays to 0 at ``trainer.max_steps``).
         training_frames: frames per training clip, recorded from the training batches.
@@ -170,6 +157,7 @@ class ObjectStateModel(SurpriseModel):
         message_size: int = 64,
         use_camera: bool = True,
         min_std: float = 0.01,
+        components: int = 1,
         learning_rate: float = 1e-3,
         lr_schedule: str = "constant",
         training_frames: int | None = None,
@@ -182,18 +170,27 @@ class ObjectStateModel(SurpriseModel):
         if min_std <= 0 or learning_rate <= 0:
             raise ValueError(f"min_std and learning_rate must be > 0, got {min_std}, "
                              f"{learning_rate}")
+        if components < 1:
+            raise ValueError(f"components must be >= 1 (Gaussians in the mixture over a "
+                             f"slot's next state), got {components}")
         optimization.check_schedule(lr_schedule)
         hidden, message = hidden_size, message_size
         self.message = PairNetwork(hidden, hidden, hidden, message)
         self.update = nn.GRUCell(FEATURES + message + CAMERA_FEATURES, hidden)
         self.dynamics = mlp([hidden + message + CAMERA_FEATURES, hidden, hidden,
-                             2 * STATE_SIZE + SHAPES])
+                             self._dynamics_outputs(components)])
         self.occlusion = PairNetwork(hidden, 0, hidden, message)
         self.visibility = mlp([hidden + message + VIEW + 3 + CAMERA_FEATURES, hidden, 1])
         #: How much the visibility logit starts from geometry (``seen_by_geometry``); learned.
         self.geometry_weight = nn.Parameter(torch.ones(()))
         self.appearance = mlp([hidden + CAMERA_FEATURES, hidden, 1 + 2 * STATE_SIZE + SHAPES])
         self.log_min_std = math.log(min_std)
+
+    @staticmethod
+    def _dynamics_outputs(components: int) -> int:
+        """Per slot: each component's change and log-std, the components' logits (none for
+        one component) and the shape's logits."""
+        return components * 2 * STATE_SIZE + (components if components > 1 else 0) + SHAPES
 
     # ----------------------------------------------------------------------------- inputs
     def _inputs(self, frames: torch.Tensor, objects: TensorDictBase | None,
@@ -321,18 +318,28 @@ class ObjectStateModel(SurpriseModel):
                  obs: Observations, t: int
                  ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]:
         """Frame t's predictions from the slots after frame t-1: the predicted states
-        [B, S, 13] (positions by inertia, the last frame's move repeated, plus a learned
-        change, raised to rest on the floor where they would sink below it), the terms of what
-        frame t shows (``rollout``) and p(visible) [B, S]."""
+        [B, S, 13] (the most probable component's mean: positions by inertia, the last frame's
+        move repeated, plus a learned change, raised to rest on the floor where they would sink
+        below it), the terms of what frame t shows (``rollout``) and p(visible) [B, S]."""
         batch, slots = known.shape
         pairs = self._pairs(belief, shape, view(belief, pose))
         message = self._messages(self.message, hidden, hidden, pairs, known)
         out = self.dynamics(torch.cat([hidden, message, pose_features], dim=-1))
-        change, log_std, shape_logits = out.split([STATE_SIZE, STATE_SIZE, SHAPES], -1)
+        components = self.hparams.components
+        change, log_std, logits, shape_logits = out.split(
+            [components * STATE_SIZE, components * STATE_SIZE,
+             components if components > 1 else 0, SHAPES], -1)
+        change = change.unflatten(-1, (components, STATE_SIZE))  # [B, S, K, 13]
+        log_std = log_std.unflatten(-1, (components, STATE_SIZE))
         # bounded, so a hidden object's rollout cannot feed on itself and diverge
         inertia = F.pad(velocity.clamp(-MAX_MOVE, MAX_MOVE), (0, STATE_SIZE - 3))
-        predicted = on_or_above_floor(belief + inertia + MAX_MOVE * torch.tanh(change / MAX_MOVE))
+        means = on_or_above_floor((belief + inertia)[:, :, None]
+                                  + MAX_MOVE * torch.tanh(change / MAX_MOVE))
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
+        logits = logits if components > 1 else None
+        top = (logits.argmax(-1) if logits is not None
+               else torch.zeros_like(known, dtype=torch.long))
+        predicted = means.gather(2, top[..., None, None].expand(-1, -1, 1, STATE_SIZE))[:, :, 0]
         # visibility at t from where every known slot is predicted to be at t
         seen_as = view(predicted, pose)
         pairs = self._pairs(predicted, shape, seen_as)
@@ -346,7 +353,7 @@ class ObjectStateModel(SurpriseModel):
         terms = {}
         for name, (nll, entropy), weight in (
             ("visibility", bernoulli_nll(logit, seen), keep),
-            ("state", gaussian_nll(obs.state[:, t], predicted, log_std), seen * keep),
+            ("state", mixture_nll(obs.state[:, t], means, log_std, logits), seen * keep),
             ("shape", categorical_nll(shape_logits, obs.shape[:, t]), seen * keep),
         ):
             terms[name], terms[f"{name}_entropy"] = nll * weight, entropy * weight
@@ -385,7 +392,7 @@ class ObjectStateModel(SurpriseModel):
         predicts better than its floor of precision; either way the video showing more would
         read as less surprising, whatever its physics."""
         def excess(name: str) -> torch.Tensor:
-            return (out[name] - out[f"{name}_entropy"]).clamp(min=0)
+            return rectified_excess(out[name], out[f"{name}_entropy"])
         return sum(excess(name).sum(-1) for name in SLOT_TERMS) + excess("appear")
 
     # ----------------------------------------------------------------------------- training
@@ -460,35 +467,3 @@ class PairNetwork(nn.Module):
         if self.other is not None:
             first = first + self.other(other)[:, None]
         return self.out(torch.relu(first))
-
-
-def draw_discs(state: torch.Tensor, opacity: torch.Tensor, camera: torch.Tensor,
-               image_size: tuple[int, int]) -> torch.Tensor:
-    """Object states [B, T, S, 13] drawn as discs of their colour on grey [B, T, 3, H, W]:
-    centre at the projected position, radius from the largest half-extent over the depth,
-    ``opacity`` [B, T, S] in [0, 1], painted far to near."""
-    batch, steps, slots = state.shape[:3]
-    height, width = image_size
-    coordinates = camera_coordinates(state.flatten(0, 1)[..., :3], camera.flatten(0, 1))
-    coordinates = coordinates.view(batch, steps, slots, 3)
-    plane = image_plane(coordinates)  # [-1, 1] across the field of view
-    focal = height / 2
-    column = width / 2 + plane[..., 0] * focal
-    row = height / 2 - plane[..., 1] * focal
-    radius = state[..., 7:10].amax(-1) / coordinates[..., 2].clamp(min=0.05)
-    radius = radius / math.tan(math.radians(FOVY) / 2) * focal
-    rows = torch.arange(height, device=state.device, dtype=torch.float32) + 0.5
-    columns = torch.arange(width, device=state.device, dtype=torch.float32) + 0.5
-    image = torch.full((batch, steps, 3, height, width), 0.5, device=state.device)
-    order = coordinates[..., 2].argsort(dim=-1, descending=True)
-    for index in range(slots):
-        slot = order[..., index]  # [B, T]: the farthest remaining slot of each frame
-        def take(values):
-            return values.gather(2, slot[..., None]).squeeze(2)
-        inside = ((rows[:, None] - take(row)[..., None, None]).pow(2)
-                  + (columns[None] - take(column)[..., None, None]).pow(2)
-                  <= take(radius)[..., None, None].pow(2)).float()
-        alpha = (inside * take(opacity)[..., None, None])[:, :, None]
-        colour = state.gather(2, slot[..., None, None].expand(-1, -1, 1, STATE_SIZE))[:, :, 0]
-        image = image * (1 - alpha) + colour[..., 10:13, None, None] * alpha
-    return image.clamp(0, 1)
