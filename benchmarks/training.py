@@ -27,13 +27,13 @@ import yaml
 from tensordict import TensorDict
 from torch.utils.flop_counter import FlopCounterMode
 
-from voe_lightning.model import VOEModel
+from voe_lightning.model import VRNNLRUModel
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
 #: Left to the benchmark: the optimizer and fast-path settings it sets itself, and the memory's
-#: reading, which stays VOEModel's default (the timings in docs/performance.md were taken with
+#: reading, which stays VRNNLRUModel's default (the timings in docs/performance.md were taken with
 #: it, before configs/paper.yaml read the memory as the paper does).
 NOT_FROM_CONFIG = ("learning_rate", "adam_betas", "compile_model", "channels_last", "precision",
                    "controller_sees_read", "least_used_slots")
@@ -72,7 +72,7 @@ def matmul_flops_per_second(device: torch.device, dtype: torch.dtype, size: int,
     return 2 * size**3 * repeats / (time.perf_counter() - start)
 
 
-def training_step(model: VOEModel, optimizer: torch.optim.Optimizer, batch: TensorDict) -> None:
+def training_step(model: VRNNLRUModel, optimizer: torch.optim.Optimizer, batch: TensorDict) -> None:
     optimizer.zero_grad(set_to_none=True)
     model._step(batch)["loss"].backward()
     optimizer.step()
@@ -87,7 +87,8 @@ def make_path(name: str, device: torch.device, fast: bool, compile_model: bool, 
     batch_size = batch_size or config_batch_size
     torch.manual_seed(0)
     switches = {} if fast else {"channels_last": False, "precision": "float32"}
-    model = VOEModel(**sizes, learning_rate=1e-4, compile_model=fast and compile_model, **switches)
+    model = VRNNLRUModel(**sizes, learning_rate=1e-4, compile_model=fast and compile_model,
+                         **switches)
     model = model.to(device)
     height, width = model.image_size
     batch = TensorDict(
@@ -97,7 +98,7 @@ def make_path(name: str, device: torch.device, fast: bool, compile_model: bool, 
     return model, model.configure_optimizers()["optimizer"], batch
 
 
-def count_flops(model: VOEModel, batch: TensorDict) -> float:
+def count_flops(model: VRNNLRUModel, batch: TensorDict) -> float:
     """FLOPs of one forward + backward (this also warms up allocator and oneDNN primitives)."""
     counter = FlopCounterMode(display=False)
     with counter:

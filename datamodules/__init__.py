@@ -1,4 +1,5 @@
-"""LightningDataModules: one concept, all five interleaved, and the external benchmarks."""
+"""LightningDataModules: concepts interleaved (all five by default) or one, and the external
+benchmarks. ``JointDataModule`` is ``VOEDataModule``'s old name, kept for old configs."""
 
 from datamodules.intphys import IntPhysDataModule
 from datamodules.intphys2 import IntPhys2DataModule

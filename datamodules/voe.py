@@ -52,6 +52,7 @@ class VOEDataModule(ProbeDataModule):
     """Examples + controls of ``concepts`` for training (equal counts per concept, interleaved),
     their validation probe pairs for ``fit`` and test probe pairs (plus the generalization probes
     if ``generalization``) for ``test``. Missing data is generated under ``root`` on first use.
+    With the default ``concepts`` (all five) it is the paper's jointly trained model's data.
 
     Args:
         concepts: which of the five concepts to use.
@@ -209,4 +210,6 @@ class ConceptDataModule(VOEDataModule):
 
 
 class JointDataModule(VOEDataModule):
-    """All five concepts interleaved with equal counts: the paper's jointly trained model."""
+    """``VOEDataModule`` under its old name, kept only so that old configs (LightningCLI's saved
+    ``config.yaml`` of earlier runs: ``class_path: datamodules.JointDataModule``) keep working;
+    name ``datamodules.VOEDataModule``, whose default ``concepts`` are all five."""

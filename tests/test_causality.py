@@ -18,7 +18,7 @@ from voe_lightning.model import (
     ObjectCentricModel,
     ObjectStateModel,
     SurpriseModel,
-    VOEModel,
+    VRNNLRUModel,
 )
 from voe_lightning.model.cue_scorer import CUE_NAMES
 from voe_lightning.model.videomae import VideoMAEScorer
@@ -47,7 +47,7 @@ VIDEOMAE = dict(image_size=SIZE, patch_size=8, num_frames=16, tubelet_size=2, hi
 
 #: Every model family the package ships, untrained and tiny: one line adds a family.
 FAMILIES = [
-    pytest.param(lambda: VOEModel(**VRNN), id="vrnn_lru"),
+    pytest.param(lambda: VRNNLRUModel(**VRNN), id="vrnn_lru"),
     pytest.param(lambda: ObjectCentricModel(**OBJECT_CENTRIC), id="object_centric"),
     pytest.param(lambda: ObjectCentricModel(**OBJECT_CENTRIC, object_free=True),
                  id="object_free"),

@@ -19,7 +19,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from voe_lightning import analysis
 from voe_lightning.cli import main
-from voe_lightning.model import VOEModel
+from voe_lightning.model import VRNNLRUModel
 from voe_lightning.store import collate, open_split
 
 CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
@@ -239,7 +239,7 @@ def test_a_checkpoint_of_another_architecture_is_refused_naming_the_difference(w
     cli = main(["fit", "--config", CONFIG, "--trainer.max_steps", "1"])
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
     arguments = {k: v for k, v in cli.model.hparams.items() if not k.startswith("_")}
-    other = VOEModel(**{**arguments, "latent_size": 12})
+    other = VRNNLRUModel(**{**arguments, "latent_size": 12})
     with pytest.raises(ValueError, match=rf"{checkpoint} was .*\(latent_size: checkpoint 8, config 12\)"):
         cli.trainer.validate(other, datamodule=cli.datamodule, ckpt_path=str(checkpoint))
 
@@ -467,7 +467,8 @@ def test_analyze_latents_counts_the_latents_that_carry_information(trained, caps
     assert "| one step |" in capsys.readouterr().out
     row = table.splitlines()[2].split(" | ")
     assert row[-1].endswith("of 8 |")
-    model = VOEModel.load_from_checkpoint(checkpoint, map_location="cpu", weights_only=True).eval()
+    model = VRNNLRUModel.load_from_checkpoint(checkpoint, map_location="cpu",
+                                              weights_only=True).eval()
     frames = collate([open_split(root, "object_persistence", "test")[i]
                       for i in range(2)])["consistent", "frames"]
     surprise = model.surprise(frames)

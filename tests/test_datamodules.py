@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from datamodules import ConceptDataModule, IntPhysDataModule, JointDataModule, PhysicalConceptsDataModule
+from datamodules import ConceptDataModule, IntPhysDataModule, PhysicalConceptsDataModule, VOEDataModule
 from datamodules.voe import InterleavedSampler
 from test_store import fake_clip, fake_probe
 
@@ -44,7 +44,7 @@ def test_unknown_concept_is_refused_with_the_valid_names():
     with pytest.raises(ValueError, match="valid concepts are: object_persistence"):
         ConceptDataModule(concept="gravity")
     with pytest.raises(ValueError, match="valid concepts are"):
-        JointDataModule(concepts=["continuity", "magnetism"])
+        VOEDataModule(concepts=["continuity", "magnetism"])
 
 
 def test_datamodule_generates_and_serves_spec_batches(tmp_path):
@@ -107,7 +107,7 @@ def test_prepare_data_regenerates_a_checksum_corrupt_shard(tmp_path, monkeypatch
     [(ConceptDataModule, "val_pairs", -1), (ConceptDataModule, "test_pairs", 0),
      (ConceptDataModule, "probe_batch_size", 0), (ConceptDataModule, "num_workers", -2),
      (ConceptDataModule, "generate_workers", 0), (ConceptDataModule, "train_controls", -3),
-     (ConceptDataModule, "num_frames", 1), (JointDataModule, "height", 0),
+     (ConceptDataModule, "num_frames", 1), (VOEDataModule, "height", 0),
      (IntPhysDataModule, "num_workers", -1), (IntPhysDataModule, "frame_stride", 0),
      (PhysicalConceptsDataModule, "first_frame", -1), (PhysicalConceptsDataModule, "shuffle_buffer", -1)],
 )  # fmt: skip

@@ -39,7 +39,7 @@ ABSOLUTE_NOISE = 1e-6  # for a video whose S is near 0
 LOGGED_ROUNDING = 1e-6
 # 3 pairs per variant of 2 + 3 variants: 15 pairs, which do not divide over two ranks. Each
 # pair must still be scored once (Lightning's default sampler would repeat one).
-DATA = ["--data", "datamodules.JointDataModule",
+DATA = ["--data", "datamodules.VOEDataModule",
         "--data.concepts", "[object_persistence, unchangeableness]",
         "--data.init_args.num_frames", "8",  # unchangeableness' screen needs two frames down
         "--data.init_args.val_pairs", "3", "--data.init_args.test_pairs", "3",

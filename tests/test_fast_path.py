@@ -11,8 +11,8 @@ import torch.nn.functional as F
 from tensordict import TensorDict
 
 from voe_lightning import specs
-from voe_lightning.model import Encoder, VOEModel
-from voe_lightning.model.module import bf16_is_fast
+from voe_lightning.model import Encoder, VRNNLRUModel
+from voe_lightning.model.vrnn_lru import bf16_is_fast
 from voe_lightning.model.networks import Bottleneck, PixelShuffle
 
 B, T, H, W = 8, 5, 32, 32
@@ -25,11 +25,11 @@ REFERENCE = dict(channels_last=False, precision="float32")
 FAST_BF16 = dict(channels_last=True, precision="bf16")
 
 
-def pair(fast: dict, **overrides) -> tuple[VOEModel, VOEModel]:
+def pair(fast: dict, **overrides) -> tuple[VRNNLRUModel, VRNNLRUModel]:
     """The reference model and a fast-path model with the same weights."""
     torch.manual_seed(0)
-    reference = VOEModel(**TINY, **REFERENCE, **overrides)
-    other = VOEModel(**TINY, **fast, **overrides)
+    reference = VRNNLRUModel(**TINY, **REFERENCE, **overrides)
+    other = VRNNLRUModel(**TINY, **fast, **overrides)
     other.load_state_dict(reference.state_dict())
     return reference, other
 
@@ -89,11 +89,11 @@ def test_channels_last_backward_on_rgb_input_does_not_crash():
 
 
 def test_precision_switch_resolves_and_refuses_unknown_values():
-    assert not VOEModel(**TINY, precision="float32").uses_bf16
-    assert VOEModel(**TINY, precision="bf16").uses_bf16
-    assert VOEModel(**TINY).uses_bf16 == bf16_is_fast(torch.device("cpu"))
+    assert not VRNNLRUModel(**TINY, precision="float32").uses_bf16
+    assert VRNNLRUModel(**TINY, precision="bf16").uses_bf16
+    assert VRNNLRUModel(**TINY).uses_bf16 == bf16_is_fast(torch.device("cpu"))
     with pytest.raises(ValueError, match="unknown precision 'fp16'; valid choices are: auto, bf16, float32"):
-        VOEModel(**TINY, precision="fp16")
+        VRNNLRUModel(**TINY, precision="fp16")
 
 
 def test_float32_switch_overrides_an_outer_bf16_autocast():

@@ -224,7 +224,7 @@ def test_benchmark_metrics_per_block_match_hand_computed_values(dataset_root):
 
 
 class MeanIntensityModel(SurpriseModel):
-    """Stands in for VOEModel: per-frame 'surprise' = mean pixel intensity."""
+    """Stands in for VRNNLRUModel: per-frame 'surprise' = mean pixel intensity."""
 
     def surprise(self, frames, mask=None, camera=None):
         return frames.float().mean(dim=(-1, -2, -3))

@@ -9,7 +9,7 @@ from torch.distributions import Independent, Normal, kl_divergence
 from torch.utils.data import DataLoader
 
 from voe_lightning import specs
-from voe_lightning.model import Decoder, Encoder, VOEModel, gaussian_kl, standard_normal_kl
+from voe_lightning.model import Decoder, Encoder, VRNNLRUModel, gaussian_kl, standard_normal_kl
 
 B, T, H, W = 2, 4, 32, 32
 TINY = dict(
@@ -26,9 +26,9 @@ TINY = dict(
 )
 
 
-def tiny_model(**overrides) -> VOEModel:
+def tiny_model(**overrides) -> VRNNLRUModel:
     torch.manual_seed(0)
-    return VOEModel(**{**TINY, **overrides})
+    return VRNNLRUModel(**{**TINY, **overrides})
 
 
 def frames(batch=B, steps=T, seed=0) -> torch.Tensor:
@@ -252,7 +252,7 @@ def test_hyperparameters_are_saved():
     model = tiny_model(learning_rate=1e-3)
     assert model.hparams.learning_rate == 1e-3
     assert model.hparams.latent_size == 8
-    defaults = VOEModel()
+    defaults = VRNNLRUModel()
     assert defaults.hparams.learning_rate == 5e-6
     assert defaults.core.latent_size == 256
     assert defaults.core.memory.num_slots == 15 and defaults.core.memory.slot_size == 100

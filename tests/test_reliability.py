@@ -79,7 +79,7 @@ def _refused(capsys, arguments: list[str]) -> str:
 def test_a_trainable_model_without_checkpoint_is_refused_naming_the_fix(workdir, capsys,
                                                                         arguments):
     line = _refused(capsys, arguments)
-    assert "untrained weights of VOEModel" in line and "--ckpt_path" in line
+    assert "untrained weights of VRNNLRUModel" in line and "--ckpt_path" in line
     assert not (workdir / "data").exists() and not list(workdir.rglob("voe_report"))
 
 
@@ -296,7 +296,7 @@ def test_a_truncated_summary_json_is_named(tmp_path, capsys):
 
 
 def _retired(checkpoint: Path, workdir: Path) -> Path:
-    """``checkpoint`` with a model argument VOEModel does not take, as an older version's."""
+    """``checkpoint`` with a model argument VRNNLRUModel does not take, as an older version's."""
     stored = torch.load(checkpoint, weights_only=True)
     stored["hyper_parameters"]["retired_argument"] = 3
     torch.save(stored, workdir / "old.ckpt")
@@ -323,7 +323,7 @@ def test_a_bad_file_or_folder_is_named_in_one_line_before_any_work(workdir, caps
 def test_a_checkpoint_argument_the_model_no_longer_takes_is_named(workdir, trained, capsys):
     old = _retired(trained / "checkpoints" / "last.ckpt", workdir)
     line = _refused(capsys, ["test", "--config", CONFIG, "--ckpt_path", str(old)])
-    assert f"{old} holds model arguments VOEModel no longer takes: retired_argument" in line
+    assert f"{old} holds model arguments VRNNLRUModel no longer takes: retired_argument" in line
 
 
 def test_predict_with_a_datamodule_that_cannot_predict_is_one_line(workdir, trained, capsys):

@@ -20,7 +20,7 @@ from matplotlib.figure import Figure
 
 from voe_lightning import calibration, specs
 from voe_lightning.cues import CUE_TITLES, FRAME_LOCAL_CUES, tracked_cues
-from voe_lightning.model import VOEModel
+from voe_lightning.model import VRNNLRUModel
 from voe_lightning.report.figures import panel_grid, save_figure
 from voe_lightning.report.results import read_summary
 from voe_lightning.size_sweep import sweep, sweep_plot
@@ -277,7 +277,9 @@ def compare(runs: list[str], out: Path | None = None) -> str:
 # ----------------------------------------------------------------------------- latent usage
 
 
-def latent_usage(model: VOEModel, frames: torch.Tensor, threshold: float = 0.01) -> dict[str, Any]:
+def latent_usage(
+    model: VRNNLRUModel, frames: torch.Tensor, threshold: float = 0.01
+) -> dict[str, Any]:
     """How much of ``model``'s latent code carries information on uint8 videos ``frames``: batch
     means of KL(posterior || prior) per sequence, of the first frame and per later frame, and the
     latents whose KL per later frame averages above ``threshold`` nats (the rest sit on the
@@ -316,7 +318,8 @@ def latents(checkpoints: list[str], root: Path, pairs: int = 16, threshold: floa
     lines = ["| checkpoint | KL / sequence | first frame | per later frame | latents in use |",
              "|---|---|---|---|---|"]
     for label, path in map(_labelled, checkpoints):
-        model = VOEModel.load_from_checkpoint(path, map_location="cpu", weights_only=True).eval()
+        model = VRNNLRUModel.load_from_checkpoint(path, map_location="cpu", weights_only=True)
+        model.eval()
         usage = latent_usage(model, frames, threshold)
         lines.append(f"| {label} | {usage['kl_per_sequence']:.1f} | {usage['first_frame']:.1f} | "
                      f"{usage['per_later_frame']:.2f} | "

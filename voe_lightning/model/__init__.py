@@ -1,6 +1,7 @@
-"""The video models behind one protocol (``SurpriseModel``): the VRNN-LRU (paper §4: LRU
-memory, encoder/decoder, recurrent core) and the object-centric model after PLATO (Piloto et
-al. 2022: object slots from masks, per-object perception, interaction-network slot dynamics)
+"""The video models behind one protocol (``SurpriseModel``): the VRNN-LRU (``VRNNLRUModel``,
+paper §4: LRU memory, encoder/decoder, recurrent core; ``VOEModel`` is its old name, kept for
+saved configs and checkpoints) and the object-centric model after PLATO (Piloto et al. 2022:
+object slots from masks, per-object perception, interaction-network slot dynamics)
 and the positive control with perfect perception (``ObjectStateModel``: object states in, slot
 dynamics, the likelihood of what is seen as surprise), and the physics-blind cues as
 parameter-free models (``CueScorer``), any callable frames -> surprise (``CallableModel``) and a
@@ -10,18 +11,19 @@ from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model.callable_model import CallableModel
 from voe_lightning.model.cue_scorer import CueScorer
 from voe_lightning.model.memory import LRUMemory, MemoryState, Read
-from voe_lightning.model.module import VOEModel
 from voe_lightning.model.networks import Decoder, Encoder
 from voe_lightning.model.object_centric import ObjectCentricModel
 from voe_lightning.model.object_state import ObjectStateModel
 from voe_lightning.model.videomae import VideoMAEScorer
 from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, gaussian_kl, standard_normal_kl
+from voe_lightning.model.vrnn_lru import VOEModel, VRNNLRUModel  # VOEModel: its old name
 
 __all__ = [
     "SurpriseModel",
     "CueScorer",
     "CallableModel",
     "VideoMAEScorer",
+    "VRNNLRUModel",
     "VOEModel",
     "ObjectCentricModel",
     "ObjectStateModel",

@@ -15,14 +15,14 @@ from typing import Any
 import numpy as np
 import torch
 
-from voe_lightning.model.module import VOEModel
+from voe_lightning.model.vrnn_lru import VRNNLRUModel
 from voe_lightning.specs import CONCEPTS, VARIANTS
 from voe_lightning.surprise_window import SurpriseWindow, video_surprise
 from voe_lightning.statistics import ALPHA, PairedTestResult, group_test, untested_reason
 from voe_lightning.statistics_format import format_alpha, json_row, row_text, rows_alpha
 from voe_lightning.verdicts import concept_verdicts, pair_groups
 
-#: Keys of the dict that ``VOEModel.probe_step`` (and so ``test_step``) returns.
+#: Keys of the dict that ``VRNNLRUModel.probe_step`` (and so ``test_step``) returns.
 PROBE_OUTPUT_KEYS = ("concept", "variant", "seed", "manipulation_frame",
                      "surprise_consistent", "surprise_inconsistent")
 #: A key ``probe_step`` also returns, which a model's own probe step may leave out: the first
@@ -117,7 +117,7 @@ class PairResults:
         concept_names: Sequence[str] = CONCEPTS,
         variant_names: Sequence[str] = VARIANTS,
     ) -> PairResults:
-        """From the dicts ``VOEModel.probe_step`` returns (one per batch), decoding the
+        """From the dicts ``VRNNLRUModel.probe_step`` returns (one per batch), decoding the
         ``concept``/``variant`` indices with the DataModule's name tuples."""
         if not outputs:
             raise ValueError("no probe results: the list of probe_step outputs is empty")
@@ -314,7 +314,7 @@ def format_verdicts(rows: Sequence[Mapping[str, Any]]) -> list[str]:
 
 
 #: What a frame's surprise is unless told otherwise: the paper's (the VRNN-LRU's).
-VRNN_SURPRISE = VOEModel.SURPRISE
+VRNN_SURPRISE = VRNNLRUModel.SURPRISE
 
 
 def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURPRISE,

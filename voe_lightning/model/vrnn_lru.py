@@ -1,0 +1,318 @@
+"""The VRNN-LRU video model as a LightningModule: training loss (docs/architecture.md §7), surprise as
+per-frame KL(posterior || prior) (§6), and the probe, expectation and trajectory views the
+callbacks, reports and notebooks use."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Sequence
+
+import torch
+import torch.nn.functional as F
+from tensordict import TensorDictBase
+
+from voe_lightning import specs
+from voe_lightning.model.base import SurpriseModel
+from voe_lightning.model import optimization
+from voe_lightning.model.memory import LRUMemory
+from voe_lightning.model.networks import Decoder, Encoder
+from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, standard_normal_kl
+
+LOSS_TERMS = ("reconstruction", "kl", "prior_regularizer")
+#: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
+ARCHITECTURE = (
+    "image_size",
+    "latent_size",
+    "mlp_sizes",
+    "memory_slots",
+    "memory_slot_size",
+    "memory_read_heads",
+    "controller_size",
+    "head_mixing",
+    "write_content",
+    "controller_sees_read",
+    "encoder_blocks",
+    "encoder_channels",
+    "encoder_mlp_size",
+)
+PRECISIONS = ("auto", "bf16", "float32")
+
+
+def bf16_is_fast(device: torch.device) -> bool:
+    """Whether ``device`` runs bf16 convolutions natively: a CUDA GPU that supports bf16, or a
+    CPU with AVX512-BF16 or AMX (elsewhere oneDNN emulates bf16, several times slower)."""
+    if device.type == "cuda":
+        return torch.cuda.is_bf16_supported()
+    if device.type == "cpu":
+        return torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported()
+    return False
+
+
+class VRNNLRUModel(SurpriseModel):
+    """VRNN with an LRU external memory (Piloto et al. 2018 §4, Gemici et al. 2017).
+
+    Defaults are the paper's sizes; ``configs/quickstart.yaml`` shrinks them for a CPU.
+
+    Args:
+        image_size: (H, W) of the frames; both divisible by ``2**encoder_blocks``.
+        latent_size: Gaussian latents per frame (paper: 256).
+        mlp_sizes: hidden layers of the prior and posterior maps (paper: 512, 512).
+        memory_slots, memory_slot_size, memory_read_heads, controller_size: LRU memory (paper:
+            15 slots x 100 units, 3 read heads, 128-unit LSTM controller).
+        usage_decay: gamma of the LRU usage (0.95).
+        head_mixing, write_content, controller_sees_read, least_used_slots: the memory's open
+            choices, see :class:`~voe_lightning.model.memory.LRUMemory`. The paper's reading
+            (``configs/paper.yaml``): ``controller_sees_read=False`` (its LSTM sees the previous
+            latent and its own state) and ``least_used_slots`` = the read heads (Santoro et
+            al.'s n); the defaults (True, 1) keep earlier configs and checkpoints unchanged.
+        encoder_blocks, encoder_channels, encoder_mlp_size: encoder (and mirrored decoder):
+            stride-2 bottleneck blocks (paper: 6 of 64, 64, 128 channels) and MLP (paper: 500).
+        prior_regularizer_weight: weight of sum_t KL(prior_t || N(0, I)) (paper: 1e-4).
+        learning_rate, adam_betas: Adam (paper: lr 5e-6).
+        lr_schedule: ``"constant"`` (the paper's) or ``"cosine"``: the learning rate decays
+            per step along a half cosine to 0 at the Trainer's ``max_steps``.
+        kl_warmup_steps: scale KL(posterior || prior) in the training loss from 0 up to 1 over
+            this many steps (0, the paper's: no warm-up). Surprise is never scaled.
+        kl_free_bits: free bits (Kingma et al. 2016), in nats per latent per frame: the training
+            loss counts each latent's batch-mean KL at each frame as at least this much, so
+            latents below it get no push toward the prior (0, the paper's: plain KL). The
+            logged ``kl`` and surprise are the true KL.
+        compile_model: ``torch.compile`` the encoder, decoder and recurrent core in place
+            (opt-in: compiling takes minutes on a CPU).
+        channels_last: keep the encoder and decoder in NHWC layout, the fast layout of oneDNN
+            and cuDNN (same float32 numbers up to summation order). False is the NCHW reference.
+        precision: ``"auto"`` (default) runs the encoder and decoder under bf16 autocast where
+            :func:`bf16_is_fast` says the device supports it, else leaves precision to the
+            Trainer; ``"bf16"`` always does; ``"float32"`` disables autocast for the whole model
+            (the reference numerics, also under a bf16 Trainer). The recurrent core, surprise
+            and every loss term are float32 in all three.
+        training_frames: frames per training clip, recorded from the training batches (leave it
+            out); checkpoints carry it, so the benchmark DataModules sample as many frames.
+    """
+
+    ARCHITECTURE = ARCHITECTURE
+    TRAINING_ONLY = (
+        "learning_rate", "adam_betas", "lr_schedule", "kl_warmup_steps", "kl_free_bits",
+    )
+    VALIDATION_METRIC = "val/kl"
+    SURPRISE = "KL(posterior || prior)"
+
+    def __init__(
+        self,
+        image_size: tuple[int, int] = (specs.HEIGHT, specs.WIDTH),
+        latent_size: int = 256,
+        mlp_sizes: Sequence[int] = (512, 512),
+        memory_slots: int = 15,
+        memory_slot_size: int = 100,
+        memory_read_heads: int = 3,
+        controller_size: int = 128,
+        usage_decay: float = 0.95,
+        head_mixing: str = "controller",
+        write_content: str = "projection",
+        controller_sees_read: bool = True,
+        least_used_slots: int = 1,
+        encoder_blocks: int = 6,
+        encoder_channels: Sequence[int] = (64, 64, 128),
+        encoder_mlp_size: int = 500,
+        prior_regularizer_weight: float = 1e-4,
+        learning_rate: float = 5e-6,
+        adam_betas: tuple[float, float] = (0.9, 0.999),
+        lr_schedule: str = "constant",
+        kl_warmup_steps: int = 0,
+        kl_free_bits: float = 0.0,
+        compile_model: bool = False,
+        channels_last: bool = True,
+        precision: str = "auto",
+        training_frames: int | None = None,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        if precision not in PRECISIONS:
+            raise ValueError(f"unknown precision {precision!r}; valid choices are: {', '.join(PRECISIONS)}")
+        if learning_rate <= 0:
+            raise ValueError(f"learning_rate must be positive, got {learning_rate}")
+        optimization.check_schedule(lr_schedule)
+        if kl_warmup_steps < 0:
+            raise ValueError(f"kl_warmup_steps must be >= 0, got {kl_warmup_steps}")
+        if kl_free_bits < 0:
+            raise ValueError(f"kl_free_bits must be >= 0 nats, got {kl_free_bits}")
+        if prior_regularizer_weight < 0:
+            raise ValueError(
+                f"prior_regularizer_weight must be non-negative, got {prior_regularizer_weight}"
+            )
+        self.image_size = (int(image_size[0]), int(image_size[1]))
+        self.encoder = Encoder(
+            self.image_size, encoder_blocks, encoder_channels, encoder_mlp_size,
+            channels_last=channels_last,
+        )
+        self.decoder = Decoder(
+            latent_size, self.image_size, encoder_blocks, encoder_channels, encoder_mlp_size,
+            channels_last=channels_last,
+        )
+        memory = LRUMemory(
+            latent_size,
+            num_slots=memory_slots,
+            slot_size=memory_slot_size,
+            num_read_heads=memory_read_heads,
+            controller_size=controller_size,
+            gamma=usage_decay,
+            head_mixing=head_mixing,
+            write_content=write_content,
+            controller_sees_read=controller_sees_read,
+            least_used_slots=least_used_slots,
+        )
+        self.core = VRNNCore(self.encoder.output_size, latent_size, memory, mlp_sizes)
+        if compile_model:
+            for network in (self.encoder, self.decoder, self.core):
+                network.compile()
+
+    # ----------------------------------------------------------------------------- inputs
+    def _model_input(self, frames: torch.Tensor) -> torch.Tensor:
+        """uint8 [B, T, H, W, 3] -> float [B, T, 3, H, W] on this module's device."""
+        return super()._model_input(frames, self.image_size)
+
+    # ----------------------------------------------------------------------------- model
+    @property
+    def uses_bf16(self) -> bool:
+        """Whether the encoder and decoder run under bf16 autocast on the current device."""
+        precision = self.hparams.precision
+        return precision == "bf16" or (precision == "auto" and bf16_is_fast(self.device))
+
+    def _autocast(self, networks: bool) -> contextlib.AbstractContextManager:
+        """The precision context of the convolutional ``networks`` or of the recurrent core."""
+        if self.hparams.precision == "float32":
+            return torch.autocast(self.device.type, enabled=False)
+        if networks and self.uses_bf16:
+            return torch.autocast(self.device.type, dtype=torch.bfloat16)
+        return contextlib.nullcontext()
+
+    def decode(self, z: torch.Tensor) -> torch.Tensor:
+        """Latents [B, T, latent_size] -> Bernoulli logits [B, T, 3, H, W] (bf16 on the fast path)."""
+        with self._autocast(networks=True):
+            return self.decoder(z)
+
+    def rollout(
+        self, x: torch.Tensor, deterministic: bool = False, generator: torch.Generator | None = None
+    ) -> VRNNOutput:
+        """Encode all frames at once, then step the recurrent core through time."""
+        with self._autocast(networks=True):
+            embeddings = self.encoder(x)
+        with self._autocast(networks=False):
+            return self.core(embeddings.float(), deterministic=deterministic, generator=generator)
+
+    def forward(
+        self, x: torch.Tensor, deterministic: bool = False, generator: torch.Generator | None = None
+    ) -> tuple[VRNNOutput, torch.Tensor]:
+        """Model input [B, T, 3, H, W] in [0, 1] -> (rollout, Bernoulli logits [B, T, 3, H, W])."""
+        output = self.rollout(x, deterministic=deterministic, generator=generator)
+        return output, self.decode(output.z)
+
+    def loss_terms(self, x: torch.Tensor, output: VRNNOutput, logits: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Per-sequence loss terms averaged over the batch (float32): reconstruction =
+        sum_t,pixels BCE; kl = sum_t KL(post || prior); prior_regularizer = weight *
+        sum_t KL(prior || N(0, I)); loss = their sum, kl times ``kl_weight`` (with free bits,
+        the clamped KL of :meth:`kl_objective` in its place)."""
+        batch = x.shape[0]
+        reconstruction = (
+            F.binary_cross_entropy_with_logits(logits.float(), x.float(), reduction="sum") / batch
+        )
+        kl = output.kl.sum(dim=1).mean()
+        prior_regularizer = self.hparams.prior_regularizer_weight * (
+            standard_normal_kl(output.prior_mean, output.prior_log_std).sum(dim=1).mean()
+        )
+        return {
+            "loss": (reconstruction + self.kl_weight * self.kl_objective(output, kl)
+                     + prior_regularizer),
+            "reconstruction": reconstruction,
+            "kl": kl,
+            "prior_regularizer": prior_regularizer,
+        }
+
+    def _step(self, batch: TensorDictBase | dict) -> dict[str, torch.Tensor]:
+        x = self._model_input(self._frames_of(batch))
+        output, logits = self(x)
+        terms = self.loss_terms(x, output, logits)
+        self._check_finite(terms)
+        return terms
+
+    def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
+        terms = self._step(batch)
+        batch_size = self._frames_of(batch).shape[0]
+        self.log("train/loss", terms["loss"], prog_bar=True, batch_size=batch_size)
+        for name in LOSS_TERMS:
+            self.log(f"train/{name}", terms[name], batch_size=batch_size)
+        return terms["loss"]
+
+    # ----------------------------------------------------------------------------- surprise
+    @torch.no_grad()
+    def surprise(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+        deterministic: bool = True,
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
+        """Per-frame surprise KL(posterior_t || prior_t) [B, T] (float32) of uint8 videos
+        [B, T, H, W, 3]; deterministic (posterior means fed back) unless asked otherwise.
+        Pixels alone: ``mask``, ``camera`` and ``objects`` are ignored."""
+        x = self._model_input(frames)
+        return self.rollout(x, deterministic=deterministic, generator=generator).kl
+
+    @torch.no_grad()
+    def latent_kl(self, frames: torch.Tensor) -> torch.Tensor:
+        """KL(posterior_t || prior_t) per latent [B, T, latent_size] (float32) of uint8 videos
+        [B, T, H, W, 3], deterministic rollout: surprise before the sum over latents. Latents
+        near 0 in every frame carry nothing (posterior collapse; ``analyze latents``)."""
+        return self.rollout(self._model_input(frames), deterministic=True).kl_per_latent()
+
+    @torch.no_grad()
+    def expected_frames(
+        self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None, objects: TensorDictBase | None = None,
+    ) -> torch.Tensor:
+        """What the model expected each frame to be given the previous ones (paper Figure 5):
+        sigmoid(decoder(prior mean)) [B, T, 3, H, W], deterministic rollout (pixels alone)."""
+        output = self.rollout(self._model_input(frames), deterministic=True)
+        return torch.sigmoid(self.decode(output.prior_mean).float())
+
+    @torch.no_grad()
+    def trajectories(
+        self, frames: torch.Tensor, mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None, objects: TensorDictBase | None = None,
+    ) -> dict[str, torch.Tensor]:
+        """Time courses for t-SNE (paper Appendix B): ``prior`` [B, T, 2Z] (mean then log-std)
+        and ``memory`` [B, T, slots * units] after each step's write, deterministic rollout
+        (pixels alone)."""
+        output = self.rollout(self._model_input(frames), deterministic=True)
+        return {
+            "prior": torch.cat([output.prior_mean, output.prior_log_std], dim=-1),
+            "memory": output.memory,
+        }
+
+    def kl_objective(self, output: VRNNOutput, kl: torch.Tensor) -> torch.Tensor:
+        """The KL term the training loss minimizes: ``kl`` (per sequence, batch mean), or with
+        free bits sum_t,latents max(free_bits, batch-mean KL of that latent at t)."""
+        free_bits = self.hparams.kl_free_bits
+        if not free_bits:
+            return kl
+        return output.kl_per_latent().mean(dim=0).clamp(min=free_bits).sum()
+
+    @property
+    def kl_weight(self) -> float:
+        """Weight of the KL term in the training loss: 1, or the warm-up's ramp (0 -> 1)."""
+        warmup = self.hparams.kl_warmup_steps
+        return min(1.0, (self.global_step + 1) / warmup) if warmup else 1.0
+
+    # ----------------------------------------------------------------------------- optimizer
+    def configure_optimizers(self) -> dict:
+        return optimization.adam(self.parameters(), self.hparams.learning_rate,
+                                 self.hparams.lr_schedule,
+                                 getattr(self._trainer, "max_steps", None),
+                                 tuple(self.hparams.adam_betas))
+
+
+#: The VRNN-LRU's old name (the same class), kept only so that code, saved LightningCLI configs
+#: (``class_path: voe_lightning.model.VOEModel``) and checkpoints of earlier versions keep working.
+VOEModel = VRNNLRUModel
