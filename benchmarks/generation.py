@@ -33,8 +33,8 @@ def measure(concept: str, clips: int, pairs: int, video: VideoOptions, root: Pat
     variants = specs.STANDARD_VARIANTS[concept]
     counts = store_plan.split_counts(
         concept, train_examples=clips // 2, train_controls=clips - clips // 2,
-        val_pairs_per_variant=0, test_pairs_per_variant=-(-pairs // len(variants)),
-        generalization_pairs_per_variant=0,
+        val_pairs=0, test_pairs=-(-pairs // len(variants)),
+        generalization_pairs=0,
     )  # fmt: skip
     tasks = store_plan.plan_shards({concept: counts}, shard_size=max(clips, pairs, 1))
     result = {"concept": concept}

@@ -52,9 +52,9 @@ def main() -> None:
         arguments.root,
         concepts=[arguments.concept],
         train_examples=128,
-        val_pairs_per_variant=64,
-        test_pairs_per_variant=64,
-        generalization_pairs_per_variant=0,
+        val_pairs=64,
+        test_pairs=64,
+        generalization_pairs=0,
         progress=True,
     )
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores")

@@ -105,8 +105,8 @@ def test_analyze_calibrate_prints_and_writes_the_table_of_a_store(tmp_path, caps
 
     root = tmp_path / "store"
     generate_dataset(root, concepts=["object_persistence"], train_examples=0,
-                     val_pairs_per_variant=4, test_pairs_per_variant=0,
-                     generalization_pairs_per_variant=0, workers=1, num_frames=8, height=32,
+                     val_pairs=4, test_pairs=0,
+                     generalization_pairs=0, workers=1, num_frames=8, height=32,
                      width=32, progress=False)
     capsys.readouterr()
     out = tmp_path / "calibration.md"

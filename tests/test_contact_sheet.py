@@ -42,8 +42,8 @@ def test_store_sheet_shows_each_variant_and_kind(tmp_path, monkeypatch):
     monkeypatch.setattr(generate, "generate_probe", fake_probe)
     root = tmp_path / "data"
     generate.generate_dataset(
-        root, ("unchangeableness",), train_examples=4, val_pairs_per_variant=1,
-        test_pairs_per_variant=2, generalization_pairs_per_variant=0, shard_size=4,
+        root, ("unchangeableness",), train_examples=4, val_pairs=1,
+        test_pairs=2, generalization_pairs=0, shard_size=4,
         workers=1, progress=False,
     )  # fmt: skip
     shown = []

@@ -212,8 +212,8 @@ def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
     # 2 test pairs per variant, 8 frames: with 6 frames (0.5 s apart) unchangeableness' screen
     # is sometimes never down for two frames in a row and its sampler gives up.
     generate_dataset(root, concepts=["object_persistence", "unchangeableness"], train_examples=0,
-                     val_pairs_per_variant=4, test_pairs_per_variant=2,
-                     generalization_pairs_per_variant=0, workers=1, num_frames=8, height=32,
+                     val_pairs=4, test_pairs=2,
+                     generalization_pairs=0, workers=1, num_frames=8, height=32,
                      width=32, progress=False)
     capsys.readouterr()
     out = tmp_path / "out"

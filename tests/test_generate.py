@@ -20,9 +20,9 @@ from voe_lightning.cli import main
 
 SMALL = dict(
     train_examples=4,
-    val_pairs_per_variant=2,
-    test_pairs_per_variant=3,
-    generalization_pairs_per_variant=1,
+    val_pairs=2,
+    test_pairs=3,
+    generalization_pairs=1,
     shard_size=3,
     num_frames=6,
     height=24,
@@ -52,8 +52,8 @@ def calls(monkeypatch):
 
 
 def _plan(**overrides):
-    counts = dict(train_examples=10, train_controls=None, val_pairs_per_variant=3,
-                  test_pairs_per_variant=4, generalization_pairs_per_variant=2)  # fmt: skip
+    counts = dict(train_examples=10, train_controls=None, val_pairs=3,
+                  test_pairs=4, generalization_pairs=2)  # fmt: skip
     counts.update(overrides)
     if counts["train_controls"] is None:
         counts["train_controls"] = counts["train_examples"]
@@ -149,6 +149,21 @@ def test_ensure_dataset_generates_only_what_is_missing(tmp_path, calls):
     assert set(json.loads((tmp_path / "manifest.json").read_text())["concepts"]) == {"continuity", "containment"}
     with pytest.raises(TypeError, match="frames_per_video"):
         generate.ensure_dataset(tmp_path, frames_per_video=3)
+
+
+def test_the_counts_old_keyword_names_still_work_with_a_deprecation(tmp_path, calls):
+    """Issue 26: the counts are val_pairs, test_pairs, generalization_pairs everywhere; the old
+    ``*_pairs_per_variant`` keywords of generate_dataset and ensure_dataset still work."""
+    old = {f"{name}_per_variant" if name.endswith("_pairs") else name: value
+           for name, value in SMALL.items()}
+    with pytest.warns(DeprecationWarning, match="val_pairs_per_variant is now called val_pairs"):
+        first = generate.ensure_dataset(tmp_path, concepts=("continuity",), **old)
+    with pytest.warns(DeprecationWarning, match="test_pairs_per_variant is now called test_pairs"):
+        again = generate.generate_dataset(tmp_path, ("continuity",), **old)
+    assert again.shards_skipped == first.shards_planned  # the same plan as under the new names
+    assert generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL) is None
+    with pytest.raises(TypeError, match="give val_pairs only"):
+        generate.generate_dataset(tmp_path, ("continuity",), val_pairs_per_variant=1, **SMALL)
 
 
 def test_ensure_dataset_of_some_splits_leaves_the_rest_to_a_later_run(tmp_path, calls):

@@ -163,8 +163,8 @@ def test_open_split_reads_every_record_from_dataloader_workers(tmp_path):
 def test_corrupt_and_truncated_shards_are_named(tmp_path, monkeypatch):
     monkeypatch.setattr(generate, "generate_clip", fake_clip)
     generate.generate_dataset(
-        tmp_path, ("continuity",), train_examples=5, val_pairs_per_variant=0, test_pairs_per_variant=0,
-        generalization_pairs_per_variant=0, shard_size=4, workers=1, progress=False,
+        tmp_path, ("continuity",), train_examples=5, val_pairs=0, test_pairs=0,
+        generalization_pairs=0, shard_size=4, workers=1, progress=False,
     )  # fmt: skip
     assert store_plan.verify(tmp_path) == []
     fifth = store.open_split(tmp_path, "continuity", "train")[5]

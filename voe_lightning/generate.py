@@ -6,6 +6,7 @@ deterministic list of shards that parallel worker processes render, resumably an
 from __future__ import annotations
 
 import dataclasses
+import functools
 import inspect
 import os
 import time
@@ -108,9 +109,9 @@ def _prepare(
     concepts,
     train_examples,
     train_controls,
-    val_pairs_per_variant,
-    test_pairs_per_variant,
-    generalization_pairs_per_variant,
+    val_pairs,
+    test_pairs,
+    generalization_pairs,
     shard_size,
     num_frames,
     height,
@@ -129,9 +130,9 @@ def _prepare(
     counts = {
         "train_examples": train_examples,
         "train_controls": train_controls,
-        "val_pairs_per_variant": val_pairs_per_variant,
-        "test_pairs_per_variant": test_pairs_per_variant,
-        "generalization_pairs_per_variant": generalization_pairs_per_variant,
+        "val_pairs": val_pairs,
+        "test_pairs": test_pairs,
+        "generalization_pairs": generalization_pairs,
     }
     for name, value in counts.items():
         if not isinstance(value, int) or value < 0:
@@ -142,7 +143,7 @@ def _prepare(
         raise ValueError(f"num_frames must be an integer of at least 2 (a probe changes after "
                          f"its first frame), got {num_frames!r}")
     video = VideoOptions(num_frames=num_frames, height=height, width=width)
-    if val_pairs_per_variant or test_pairs_per_variant:  # before a shard of any concept renders
+    if val_pairs or test_pairs:  # before a shard of any concept renders
         for concept in concepts:
             check_video(concept, num_frames=num_frames, height=height, width=width)
     _warn_of_shard_memory(video, shard_size)
@@ -165,14 +166,38 @@ def _warn_of_shard_memory(video: VideoOptions, shard_size: int) -> None:
             stacklevel=3)
 
 
+#: The counts' old keyword names in generate_dataset and ensure_dataset (issue 26: one name
+#: for one count, the one configs and ``generate --val_pairs`` use).
+OLD_COUNT_NAMES = {f"{split}_pairs_per_variant": f"{split}_pairs"
+                   for split in ("val", "test", "generalization")}
+
+
+def _accepts_old_count_names(function):
+    """``function`` taking the counts under their old keyword names too, with a warning."""
+
+    @functools.wraps(function)
+    def renamed(*args, **kwargs):
+        for old, new in OLD_COUNT_NAMES.items():
+            if old in kwargs:
+                if new in kwargs:
+                    raise TypeError(f"give {new} only ({old} is its old name), not both")
+                warnings.warn(f"{function.__name__}: {old} is now called {new}",
+                              DeprecationWarning, stacklevel=2)
+                kwargs[new] = kwargs.pop(old)
+        return function(*args, **kwargs)
+
+    return renamed
+
+
+@_accepts_old_count_names
 def generate_dataset(
     root: str | os.PathLike,
     concepts: Iterable[str] = specs.CONCEPTS,
     train_examples: int = DEFAULT_TRAIN_EXAMPLES,
     train_controls: int | None = None,
-    val_pairs_per_variant: int = DEFAULT_VAL_PAIRS,
-    test_pairs_per_variant: int = DEFAULT_TEST_PAIRS,
-    generalization_pairs_per_variant: int = DEFAULT_GENERALIZATION_PAIRS,
+    val_pairs: int = DEFAULT_VAL_PAIRS,
+    test_pairs: int = DEFAULT_TEST_PAIRS,
+    generalization_pairs: int = DEFAULT_GENERALIZATION_PAIRS,
     shard_size: int = DEFAULT_SHARD_SIZE,
     workers: int | None = None,
     num_frames: int = specs.NUM_FRAMES,
@@ -185,7 +210,10 @@ def generate_dataset(
     splits: Iterable[str] = store.SPLITS,
 ) -> GenerationSummary:
     """Generate (or complete, or repair) the store at ``root``. ``train_controls`` defaults to
-    ``train_examples`` (1:1 as in the paper), split evenly over the concept's control kinds.
+    ``train_examples`` (1:1 as in the paper), split evenly over the concept's control kinds;
+    ``val_pairs``, ``test_pairs`` and ``generalization_pairs`` count probe pairs per concept and
+    variant (the DataModules' and ``generate``'s names; ``*_pairs_per_variant``, their old names
+    here, are still accepted with a DeprecationWarning).
     Shards that exist and verify are kept; missing or corrupt ones are (re)rendered by
     ``workers`` processes (default: all cores). With ``num_shards`` > 1 only the shards
     ``shard_index, shard_index + num_shards, ...`` of the plan are made (a job array's slice).
@@ -201,9 +229,8 @@ def generate_dataset(
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
     splits = _checked_splits(splits)
     request = _prepare(
-        root, concepts, train_examples, train_controls, val_pairs_per_variant,
-        test_pairs_per_variant, generalization_pairs_per_variant, shard_size,
-        num_frames, height, width,
+        root, concepts, train_examples, train_controls, val_pairs, test_pairs,
+        generalization_pairs, shard_size, num_frames, height, width,
     )  # fmt: skip
     root, video = request.root, request.video
     started = time.perf_counter()
@@ -260,6 +287,7 @@ def _run(root: Path, todo: list[ShardTask], video: VideoOptions, workers: int):
     )  # fmt: skip
 
 
+@_accepts_old_count_names
 def ensure_dataset(root: str | os.PathLike, **options) -> GenerationSummary | None:
     """Make sure the store at ``root`` holds the dataset ``options`` (generate_dataset's
     arguments) describe: returns None at once when the manifest matches and every shard of
@@ -328,7 +356,7 @@ def generate(
     """Render the concepts' training clips and probe pairs into a sharded store.
 
     Resumable: shards that exist and verify are kept, missing or corrupt ones are rendered
-    again. generate_dataset with the DataModules' argument names, printing what it did.
+    again. generate_dataset, printing what it did.
 
     Args:
         root: dataset folder.
@@ -351,8 +379,8 @@ def generate(
         progress: show a progress bar.
     """
     summary = generate_dataset(
-        root, concepts, train_examples, train_controls, val_pairs_per_variant=val_pairs,
-        test_pairs_per_variant=test_pairs, generalization_pairs_per_variant=generalization_pairs,
+        root, concepts, train_examples, train_controls, val_pairs=val_pairs,
+        test_pairs=test_pairs, generalization_pairs=generalization_pairs,
         shard_size=shard_size, workers=workers, num_frames=num_frames, height=height, width=width,
         shard_index=shard_index, num_shards=num_shards, overwrite=overwrite, progress=progress,
     )  # fmt: skip

@@ -76,18 +76,19 @@ def split_counts(
     concept: str,
     train_examples: int,
     train_controls: int,
-    val_pairs_per_variant: int,
-    test_pairs_per_variant: int,
-    generalization_pairs_per_variant: int,
+    val_pairs: int,
+    test_pairs: int,
+    generalization_pairs: int,
 ) -> dict[str, dict[str, int]]:
-    """Records per clip kind or probe variant in each split of ``concept``."""
+    """Records per clip kind or probe variant in each split of ``concept`` (the ``*_pairs``
+    counts are per probe variant)."""
     kinds = specs.CLIP_KINDS_BY_CONCEPT[concept]
     return {
         "train": {kinds[0]: train_examples, **split_evenly(train_controls, kinds[1:])},
-        "val": {v: val_pairs_per_variant for v in specs.STANDARD_VARIANTS[concept]},
-        "test": {v: test_pairs_per_variant for v in specs.STANDARD_VARIANTS[concept]},
+        "val": {v: val_pairs for v in specs.STANDARD_VARIANTS[concept]},
+        "test": {v: test_pairs for v in specs.STANDARD_VARIANTS[concept]},
         "generalization": {
-            v: generalization_pairs_per_variant for v in specs.GENERALIZATION_VARIANTS[concept]
+            v: generalization_pairs for v in specs.GENERALIZATION_VARIANTS[concept]
         },
     }
 
