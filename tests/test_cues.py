@@ -4,6 +4,7 @@ counted half, mask-less pairs skipped with a note, and ``python -m voe_lightning
 tiny generated store."""
 
 import csv
+import dataclasses
 import json
 
 import numpy as np
@@ -169,6 +170,37 @@ def test_model_correlations_agree_with_scipy_and_expose_a_cue_follower(audit, tm
     assert "| object_persistence | **pooled** | 12 |" in markdown.split("pair by pair?")[1]
     with open(tmp_path / "cue_correlations.csv", newline="") as handle:
         assert len(list(csv.DictReader(handle))) == len(rows)
+
+
+def test_the_pooled_correlation_within_variants_is_the_partial_correlation_given_the_variant(
+        audit):
+    """A model whose effect is larger in one variant, while pair by pair it follows no cue, has
+    a large pooled r with a cue whose mean differs between the variants too, and an r near 0
+    within variants; that r is the partial correlation given the variant (the correlation of
+    the residuals of regressing both on the variant), its p from t with n - 3 df."""
+    motion = audit.scores["inconsistent"]["motion_energy"] - audit.scores["consistent"]["motion_energy"]
+    rng = np.random.default_rng(1)
+    shift = np.where(audit.variants == "counterbalanced", 1.0, -1.0)
+    cue = motion + 100 * shift * motion.std()  # variants far apart in the cue's mean
+    scores = {side: dict(values) for side, values in audit.scores.items()}  # the fixture's stay
+    scores["inconsistent"]["motion_energy"] = scores["consistent"]["motion_energy"] + cue
+    shifted = dataclasses.replace(audit, scores=scores)
+    model = 50 * shift + rng.normal(0.0, 1.0, len(audit))  # no pair-by-pair relation
+    rows = {(r["concept"], r["variant"], r["cue"]): r for r in shifted.model_correlations(model)}
+    for concept, variant, selected in audit.groups():
+        if variant != "pooled":
+            continue
+        assert rows[(concept, "pooled", "motion_energy")]["r"] > 0.9
+        within = rows[(concept, cues.WITHIN_VARIANTS, "motion_energy")]
+        design = np.stack([audit.variants[selected] == label
+                           for label in np.unique(audit.variants[selected])], 1).astype(float)
+        residual = [values - design @ np.linalg.lstsq(design, values, rcond=None)[0]
+                    for values in (model[selected], cue[selected])]
+        reference = stats.pearsonr(*residual).statistic
+        assert within["r"] == pytest.approx(reference, rel=1e-9) and abs(within["r"]) < 0.7
+        df = within["n"] - 3
+        t = reference * np.sqrt(df / (1 - reference ** 2))
+        assert within["p_two_sided"] == pytest.approx(2 * stats.t.sf(abs(t), df), rel=1e-9)
 
 
 def test_the_report_shows_a_cue_follower_in_its_correlations_and_scatter(audit, tmp_path):

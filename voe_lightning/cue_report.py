@@ -114,8 +114,11 @@ def format_correlations(correlation_rows: Sequence[Mapping[str, Any]],
               "S(inconsistent) - S(consistent) and the cue's score(inconsistent) - "
               f"score(consistent); **bold**: two-sided p < {alpha:g}. A model whose pooled "
               "accuracy is at chance but whose r with a cue is large follows that cue in each "
-              "variant, and the variants cancel; physics would not depend on the cue. Full "
-              "values in cue_correlations.csv."]
+              "variant, and the variants cancel; physics would not depend on the cue. "
+              "*Pooled within variants*: r after centring each variant's pairs on their own "
+              "means; the pooled r is also large when the model's effect and the cue's merely "
+              "differ in size between the variants, physics-perfect or not. Full values in "
+              "cue_correlations.csv."]
     return "\n".join(lines) + "\n"
 
 

@@ -69,6 +69,8 @@ CUE_COLUMNS = (("concept", "variant", "cue")
                + ("p_two_sided", "note"))
 #: Columns of cue_correlations.csv (``CueAudit.model_correlations``).
 CORRELATION_COLUMNS = ("concept", "variant", "cue", "n", "r", "p_two_sided", "alpha", "note")
+#: The variant name of a pooled group's correlation within its variants (``model_correlations``).
+WITHIN_VARIANTS = "pooled within variants"
 
 
 def frame_scores(
@@ -224,7 +226,10 @@ class CueAudit:
         Pearson's r across pairs between the model's relative surprise d (``model_difference``,
         one per pair, in this audit's order) and the cue's d, with its two-sided p
         (``scipy.stats.pearsonr``). A model that follows a cue has r far from 0 even in a
-        pooled group where its accuracy is at chance; columns ``CORRELATION_COLUMNS``."""
+        pooled group where its accuracy is at chance. Each pooled group also gets a row
+        ``WITHIN_VARIANTS``: r after centring each variant's pairs on their own means (the
+        partial correlation given the variant), which a model whose effect merely differs in
+        size between the variants does not inflate; columns ``CORRELATION_COLUMNS``."""
         model_difference = np.asarray(model_difference, dtype=np.float64)
         if model_difference.shape != (len(self),):
             raise ValueError(f"model_difference must hold one value per scored pair ({len(self)}), "
@@ -233,23 +238,49 @@ class CueAudit:
                        for cue in CUES}
         rows = []
         for concept, variant, selected in self.groups():
-            model = model_difference[selected]
-            for cue in CUES:
-                cue_d = differences[cue][selected]
-                row = dict.fromkeys(CORRELATION_COLUMNS)
-                row.update(concept=concept, variant=variant, cue=cue, n=int(selected.sum()),
-                           alpha=alpha)
-                if np.isnan(cue_d).any() or np.isnan(model).any():
-                    row["note"] = f"{cue} or the model's surprise is not scored for every pair"
-                elif row["n"] < 3:
-                    row["note"] = f"only {row['n']} pairs: no correlation (needs at least 3)"
-                elif np.ptp(cue_d) == 0 or np.ptp(model) == 0:
-                    row["note"] = "constant across pairs: r undefined"
-                else:
-                    result = stats.pearsonr(model, cue_d)
-                    row.update(r=float(result.statistic), p_two_sided=float(result.pvalue))
-                rows.append(row)
+            within = [False, True] if variant == statistics.POOLED else [False]
+            for centred in within:
+                labels = self.variants[selected] if centred else np.zeros(int(selected.sum()))
+                model = _centred(model_difference[selected], labels)
+                for cue in CUES:
+                    cue_d = _centred(differences[cue][selected], labels)
+                    row = dict.fromkeys(CORRELATION_COLUMNS)
+                    row.update(concept=concept, variant=WITHIN_VARIANTS if centred else variant,
+                               cue=cue, n=int(selected.sum()), alpha=alpha)
+                    df = row["n"] - 1 - len(np.unique(labels))  # a mean per variant is spent
+                    if np.isnan(cue_d).any() or np.isnan(model).any():
+                        row["note"] = f"{cue} or the model's surprise is not scored for every pair"
+                    elif df < 1:
+                        row["note"] = f"only {row['n']} pairs: no correlation (needs at least 3)"
+                    elif np.ptp(cue_d) == 0 or np.ptp(model) == 0:
+                        row["note"] = "constant across pairs: r undefined"
+                    else:
+                        row.update(zip(("r", "p_two_sided"), _pearson(model, cue_d, df)))
+                    rows.append(row)
         return rows
+
+
+def _centred(values: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """``values`` less the mean of their label's group (a variant's pairs), so that a
+    correlation over them is the one within groups: with groups of different means, r over
+    the union is large whenever the model's effect and the cue's differ by group, whatever the
+    model follows pair by pair."""
+    values = np.asarray(values, dtype=np.float64)
+    centred = values.copy()
+    for label in np.unique(labels):
+        centred[labels == label] -= values[labels == label].mean()
+    return centred
+
+
+def _pearson(x: np.ndarray, y: np.ndarray, df: int) -> tuple[float, float]:
+    """Pearson's r of centred ``x`` and ``y`` and its two-sided p from Student's t with ``df``
+    degrees of freedom (n - 2 for one group, as ``scipy.stats.pearsonr``; one fewer for each
+    further group whose mean was removed: the partial correlation given the group)."""
+    r = float(np.clip((x @ y) / math.sqrt((x @ x) * (y @ y)), -1.0, 1.0))
+    if abs(r) == 1.0:
+        return r, 0.0
+    t = r * math.sqrt(df / (1 - r * r))
+    return r, float(2 * stats.t.sf(abs(t), df))
 
 
 def tracked_cues(
