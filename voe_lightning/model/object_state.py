@@ -340,13 +340,17 @@ class ObjectStateModel(SurpriseModel):
         top = (logits.argmax(-1) if logits is not None
                else torch.zeros_like(known, dtype=torch.long))
         predicted = means.gather(2, top[..., None, None].expand(-1, -1, 1, STATE_SIZE))[:, :, 0]
-        # visibility at t from where every known slot is predicted to be at t
-        seen_as = view(predicted, pose)
-        pairs = self._pairs(predicted, shape, seen_as)
+        # visibility at t from where every known slot is predicted to be at t; no gradient
+        # reaches the states from it: a hidden object's place is what the dynamics learned
+        # from seen motion predicts, not one bent to explain why it is not seen (with it, a
+        # cube at rest behind a container drifted into it, where the walls would hide it)
+        placed = predicted.detach()
+        seen_as = view(placed, pose)
+        pairs = self._pairs(placed, shape, seen_as)
         occluders = self._messages(self.occlusion, hidden, None, pairs, known)
-        geometry = seen_by_geometry(predicted, shape, known, pose).clamp(0.02, 0.98)
+        geometry = seen_by_geometry(placed, shape, known, pose).clamp(0.02, 0.98)
         logit = self.visibility(torch.cat(
-            [hidden, occluders, seen_as, predicted[..., 7:10], pose_features], dim=-1)
+            [hidden, occluders, seen_as, placed[..., 7:10], pose_features], dim=-1)
         ).squeeze(-1) + self.geometry_weight * torch.logit(geometry)
         visible = obs.visible[:, t]
         seen, keep = visible.float(), known.float()
