@@ -62,6 +62,8 @@ FAMILIES = [
                                             surprise="likelihood"),
                  id="object_free_likelihood"),
     pytest.param(lambda: ObjectStateModel(hidden_size=16, message_size=8), id="object_state"),
+    pytest.param(lambda: ObjectStateModel(hidden_size=16, message_size=8, components=3),
+                 id="object_state_mixture"),
     *[pytest.param(lambda cue=cue: CueScorer(cue), id=f"cue_{cue}") for cue in CUE_NAMES],
     pytest.param(lambda: VideoMAEScorer(config=VIDEOMAE), id="videomae",
                  marks=pytest.mark.skipif(importlib.util.find_spec("transformers") is None,
