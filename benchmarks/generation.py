@@ -14,7 +14,9 @@ from pathlib import Path
 import torch
 
 from voe_lightning import generate, specs, store, store_plan
-from voe_lightning.scenes.base import VideoOptions, get_renderer
+from voe_lightning.scenes.camera import VideoOptions
+from voe_lightning.scenes.rendering import get_renderer
+from voe_lightning.store_codec import COMPRESSION_LEVEL
 
 
 def _cpu_name() -> str:
@@ -66,7 +68,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     print(
         f"generation on one core of {_cpu_name()} ({os.cpu_count()} cores), "
         f"{video.num_frames} frames of {video.height}x{video.width}, MUJOCO_GL={os.environ.get('MUJOCO_GL')}, "
-        f"{args.clips} clips + {args.pairs} probe pairs per concept, zstd level {store.COMPRESSION_LEVEL}"
+        f"{args.clips} clips + {args.pairs} probe pairs per concept, zstd level {COMPRESSION_LEVEL}"
     )
     # CPU time counts every thread of the process (software EGL may render with threads) and
     # is what a core delivers when the machine is not shared; wall time is what this run saw.

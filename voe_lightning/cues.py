@@ -247,7 +247,7 @@ class CueAudit:
                     row = dict.fromkeys(CORRELATION_COLUMNS)
                     row.update(concept=concept, variant=WITHIN_VARIANTS if centred else variant,
                                cue=cue, n=int(selected.sum()), alpha=alpha)
-                    df = row["n"] - 1 - len(np.unique(labels))  # a mean per variant is spent
+                    df = row["n"] - 1 - len(np.unique(labels))  # a mean per group is spent
                     if np.isnan(cue_d).any() or np.isnan(model).any():
                         row["note"] = f"{cue} or the model's surprise is not scored for every pair"
                     elif df < 1:
@@ -255,7 +255,9 @@ class CueAudit:
                     elif np.ptp(cue_d) == 0 or np.ptp(model) == 0:
                         row["note"] = "constant across pairs: r undefined"
                     else:
-                        row.update(zip(("r", "p_two_sided"), _pearson(model, cue_d, df)))
+                        result = stats.pearsonr(model, cue_d)
+                        row.update(r=float(result.statistic), p_two_sided=float(
+                            _partial_p(result.statistic, df) if centred else result.pvalue))
                     rows.append(row)
         return rows
 
@@ -272,15 +274,13 @@ def _centred(values: np.ndarray, labels: np.ndarray) -> np.ndarray:
     return centred
 
 
-def _pearson(x: np.ndarray, y: np.ndarray, df: int) -> tuple[float, float]:
-    """Pearson's r of centred ``x`` and ``y`` and its two-sided p from Student's t with ``df``
-    degrees of freedom (n - 2 for one group, as ``scipy.stats.pearsonr``; one fewer for each
-    further group whose mean was removed: the partial correlation given the group)."""
-    r = float(np.clip((x @ y) / math.sqrt((x @ x) * (y @ y)), -1.0, 1.0))
-    if abs(r) == 1.0:
-        return r, 0.0
-    t = r * math.sqrt(df / (1 - r * r))
-    return r, float(2 * stats.t.sf(abs(t), df))
+def _partial_p(r: float, df: int) -> float:
+    """Two-sided p of a correlation ``r`` of group-centred values: Student's t with ``df``
+    degrees of freedom, one fewer than ``scipy.stats.pearsonr``'s n - 2 for each further group
+    whose mean was removed (the partial correlation given the group)."""
+    if abs(r) >= 1.0:
+        return 0.0
+    return 2 * stats.t.sf(abs(r) * math.sqrt(df / (1 - r * r)), df)
 
 
 def tracked_cues(

@@ -25,10 +25,6 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 from voe_lightning import specs
 from voe_lightning.store_shards import CorruptShardError, ShardReader, atomic_write
 
-# Read from ``store`` by external/cache.py, report/__init__.py and benchmarks/generation.py,
-# though they live in ``store_shards`` and ``store_codec``.
-from voe_lightning.store_codec import COMPRESSION_LEVEL  # noqa: F401
-from voe_lightning.store_shards import FORMAT, check_shard, current_umask, write_shard  # noqa: F401
 
 #: Splits of every concept: training clips, validation and test probes, generalization probes.
 SPLITS: tuple[str, ...] = ("train", "val", "test", "generalization")

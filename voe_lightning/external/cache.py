@@ -18,7 +18,7 @@ import numpy as np
 from tensordict import TensorDictBase
 from torchrl.data import Composite
 
-from voe_lightning import store
+from voe_lightning import store, store_shards
 from voe_lightning.store import CorruptShardError, SplitDataset
 
 #: The store concept and split under which a cache keeps its one record set.
@@ -67,7 +67,7 @@ def _cache_problem(directory: Path, required: dict[str, type]) -> tuple[str, dic
         return f"{path}: unreadable JSON ({error})", None
     if not isinstance(manifest, dict):
         return f"{path}: a JSON {type(manifest).__name__}, expected an object", None
-    if manifest.get("format") != store.FORMAT:
+    if manifest.get("format") != store_shards.FORMAT:
         return "", manifest  # an older layout: stale, not bad
     for key, kind in {**store.MANIFEST_KEYS, **required}.items():
         if key not in manifest:
@@ -83,7 +83,7 @@ def _cache_problem(directory: Path, required: dict[str, type]) -> tuple[str, dic
     for number, size in enumerate(sizes):
         shard = store.shard_path(directory, CONCEPT, SPLIT, number)
         try:
-            index = store.check_shard(shard)
+            index = store_shards.check_shard(shard)
         except CorruptShardError as error:
             return f"{error.path}: {error.reason}", manifest
         if len(index) != size:
@@ -108,7 +108,7 @@ def open_cache(
             stacklevel=2,
         )
         return None
-    if manifest["format"] != store.FORMAT:
+    if manifest["format"] != store_shards.FORMAT:
         return None
     return CachedRecords(directory, manifest)
 
@@ -128,23 +128,23 @@ def write_cache(
     directory = Path(directory)
     directory.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
-    os.chmod(staging, 0o777 & ~store.current_umask())  # mkdtemp makes it 0700 whatever the umask
+    os.chmod(staging, 0o777 & ~store_shards.current_umask())  # mkdtemp makes it 0700 whatever the umask
     try:
         count, shards, buffer = 0, 0, []
         for record in records:
             buffer.append(record)
             count += 1
             if len(buffer) == shard_size:
-                store.write_shard(store.shard_path(staging, CONCEPT, SPLIT, shards), buffer)
+                store_shards.write_shard(store.shard_path(staging, CONCEPT, SPLIT, shards), buffer)
                 shards, buffer = shards + 1, []
         if buffer:
-            store.write_shard(store.shard_path(staging, CONCEPT, SPLIT, shards), buffer)
+            store_shards.write_shard(store.shard_path(staging, CONCEPT, SPLIT, shards), buffer)
         record_type = "probe" if "consistent" in spec.keys() else "clip"
         frames = spec["consistent", "frames"] if record_type == "probe" else spec["frames"]
         num_frames, height, width, _ = frames.shape
         manifest = {
             **(meta or {}),
-            "format": store.FORMAT,
+            "format": store_shards.FORMAT,
             "video": {"num_frames": num_frames, "height": height, "width": width},
             "shard_size": shard_size,
             "concepts": {CONCEPT: {"splits": {SPLIT: {"record_type": record_type, "count": count}}}},

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from voe_lightning import cue_report, cues
-from voe_lightning.store import current_umask
+from voe_lightning.store_shards import current_umask
 from voe_lightning.statistics import ALPHA
 from voe_lightning.report.figures import PredictionExample, write_figures
 from voe_lightning.report.results import VRNN_SURPRISE, PairResults, summarize, write_summary
