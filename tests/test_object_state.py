@@ -10,6 +10,7 @@ from tensordict import TensorDict
 
 from voe_lightning import specs
 from voe_lightning.model import ObjectStateModel
+from voe_lightning.model.object_state import Observations, withheld_spans
 from voe_lightning.model.likelihood import gaussian_nll, mixture_nll
 from voe_lightning.model.optimization import adam
 
@@ -79,9 +80,46 @@ def test_hidden_states_never_reach_the_model():
                               objects=clips["objects"])["slots"].shape == (4, FRAMES, 16)
 
 
-def test_a_mixture_without_components_is_refused():
+def test_withheld_observations_reach_only_the_score():
+    """Training's withheld spans: the model rolls a withheld object forward as if hidden (what
+    it was shown then changes nothing it predicts or believes) while what it shows is still
+    scored; the spans are contiguous, 1 to ``longest`` frames, never at frame 0."""
+    torch.manual_seed(0)
+    withheld = withheld_spans(torch.Size([400, FRAMES, 3]), 0.5, 4, torch.device("cpu"))
+    assert withheld.shape == (400, FRAMES, 3) and not withheld[:, 0].any()
+    lengths = withheld.sum(1)
+    assert 0.4 < float((lengths > 0).float().mean()) < 0.6 and int(lengths.max()) <= 4
+    starts = withheld.float().argmax(1)
+    span = torch.arange(FRAMES)[None, :, None]
+    assert torch.equal(withheld, (lengths > 0)[:, None] & (span >= starts[:, None])
+                       & (span < (starts + lengths)[:, None]))
+    assert withheld_spans(torch.Size([2, FRAMES, 3]), 0.0, 4, torch.device("cpu")) is None
+
+    model = ObjectStateModel(hidden_size=16, message_size=8)
+    clips = scripted_clips(4, seed=1)
+    observations = model._inputs(clips["frames"], clips["objects"], clips["camera"])
+    ball = observations.ids[0].tolist().index(BALL)
+    withheld = torch.zeros_like(observations.visible)
+    withheld[:, 1:3, ball] = True  # the ball is seen at frames 0 to 2 in every clip
+    assert bool(observations.visible[:, :3, ball].all())
+    moved = Observations(**{**vars(observations), "state": observations.state.clone()})
+    moved.state[:, 1:3, ball, :3] += 0.5
+    with torch.no_grad():
+        out, out_moved = model.rollout(observations, withheld), model.rollout(moved, withheld)
+        shown = model.rollout(observations)
+    for name in ("predicted", "belief", "visible_probability"):
+        assert torch.equal(out[name], out_moved[name]), name
+    assert not torch.equal(out["belief"][:, 1], shown["belief"][:, 1])  # really withheld
+    assert bool((out["state"][:, 1:3, ball] != out_moved["state"][:, 1:3, ball]).all())
+
+
+def test_a_mixture_without_components_or_a_bad_withheld_share_is_refused():
     with pytest.raises(ValueError, match="components must be >= 1.*got 0"):
         ObjectStateModel(components=0)
+    with pytest.raises(ValueError, match=r"withhold must be in \[0, 1\].*got 1.5, 8"):
+        ObjectStateModel(withhold=1.5)
+    with pytest.raises(ValueError, match="withhold_frames >= 1, got 0.5, 0"):
+        ObjectStateModel(withhold=0.5, withhold_frames=0)
 
 
 def test_a_video_without_object_states_is_refused_naming_what_it_needs():

@@ -128,7 +128,9 @@ class ObjectStateModel(SurpriseModel):
     What frame t shows has a negative log-likelihood (NLL): for each known slot the visibility
     term, plus where visible the state and shape terms; plus the appearance terms (whether some
     new object appears, and each newcomer's state and shape). Training minimises it summed over
-    the training clips' frames. Surprise at frame t (frame 0: 0) is its rectified excess: each
+    the training clips' frames, with some seen objects' observations withheld for a few frames
+    (``withhold``), so that rolling a hidden object forward is learned against what it then
+    showed. Surprise at frame t (frame 0: 0) is its rectified excess: each
     term's NLL less its expectation under the prediction (the entropy), where positive
     (``_per_frame`` says why).
 
@@ -140,13 +142,18 @@ class ObjectStateModel(SurpriseModel):
         min_std: floor of the predicted standard deviations (metres for positions): the
             precision of a perfect perception system.
         components: Gaussians in the mixture over each slot's next state (1: one Gaussian).
+        withhold: share of each training clip's objects whose observations are withheld for a
+            span of frames (``withheld_spans``): the model rolls them forward as if hidden
+            and is scored on what they show, so tracking a hidden object is learned from
+            targets, not only where it reappears (0: never).
+        withhold_frames: the longest withheld span, in frames.
         learning_rate: Adam's (peak) learning rate.
         lr_schedule: ``"constant"`` or ``"cosine"`` (decays to 0 at ``trainer.max_steps``).
         training_frames: frames per training clip, recorded from the training batches.
     """
 
     ARCHITECTURE = ARCHITECTURE
-    TRAINING_ONLY = ("learning_rate", "lr_schedule")
+    TRAINING_ONLY = ("learning_rate", "lr_schedule", "withhold", "withhold_frames")
     SURPRISE = ("the rectified excess surprisal of the seen object states (each term's negative "
                 "log-likelihood less its entropy, where positive: the visibility, state and shape "
                 "of every known object, and any newcomer's appearance)")
@@ -158,6 +165,8 @@ class ObjectStateModel(SurpriseModel):
         use_camera: bool = True,
         min_std: float = 0.01,
         components: int = 1,
+        withhold: float = 0.0,
+        withhold_frames: int = 8,
         learning_rate: float = 1e-3,
         lr_schedule: str = "constant",
         training_frames: int | None = None,
@@ -173,6 +182,9 @@ class ObjectStateModel(SurpriseModel):
         if components < 1:
             raise ValueError(f"components must be >= 1 (Gaussians in the mixture over a "
                              f"slot's next state), got {components}")
+        if not 0 <= withhold <= 1 or withhold_frames < 1:
+            raise ValueError(f"withhold must be in [0, 1] (a share of each clip's objects) and "
+                             f"withhold_frames >= 1, got {withhold}, {withhold_frames}")
         optimization.check_schedule(lr_schedule)
         hidden, message = hidden_size, message_size
         self.message = PairNetwork(hidden, hidden, hidden, message)
@@ -247,14 +259,20 @@ class ObjectStateModel(SurpriseModel):
         """Sum over the other known slots j of network(own_i, other_j, pair_ij) [B, S, M]."""
         return (network(own, other, pairs) * self._pair_weight(known)).sum(2)
 
-    def rollout(self, observations: Observations) -> dict[str, torch.Tensor]:
+    def rollout(self, observations: Observations, withheld: torch.Tensor | None = None
+                ) -> dict[str, torch.Tensor]:
         """Run the slots through a batch's frames. Returns, per frame and slot [B, T, S], the
         negative log-likelihood of the visibility, state and shape seen (0 where they do not
         apply) and the entropy of each prediction (``<term>_entropy``), ``appear`` and
         ``appear_entropy`` [B, T] (the appearance term), the beliefs after each frame and the
         states predicted for it (frame 0: none) [B, T, S, 13], the predicted visibility
         probability [B, T, S], ``known`` [B, T, S] (seen at some frame <= t) and the slots'
-        recurrent states [B, T, S, H]."""
+        recurrent states [B, T, S, H].
+
+        ``withheld`` (bool [B, T, S], training only): frames at which a known slot's
+        observation is kept from the model, which rolls it forward as if it were hidden, while
+        what it shows is still scored: a hidden object's rollout learns from targets
+        (``withheld_spans``)."""
         obs = observations
         batch, steps, slots = obs.visible.shape
         hidden = obs.state.new_zeros(batch, slots, self.hparams.hidden_size)
@@ -270,6 +288,8 @@ class ObjectStateModel(SurpriseModel):
             pose_features = camera_features(pose)[:, None].expand(-1, slots, -1)
             visible = obs.visible[:, t]
             new = visible & ~known
+            # what reaches the model: the seen slots, less a known one's withheld observation
+            given = visible & ~(withheld[:, t] & known) if withheld is not None else visible
             if t == 0:
                 predicted = belief
                 for key in terms:
@@ -285,17 +305,18 @@ class ObjectStateModel(SurpriseModel):
             predictions.append(predicted)
             # observe frame t: seen slots take what is seen, hidden ones their prediction
             previous = belief
-            belief = torch.where(visible[..., None], obs.state[:, t], predicted)
+            belief = torch.where(given[..., None], obs.state[:, t], predicted)
             # the last move: seen in both frames, what was seen; else what was predicted (a
             # reappearing object's jump from its predicted place is a correction, not a move)
-            steady = (visible & (obs.visible[:, t - 1] if t else visible))[..., None]
+            steady = (given & (given_before if t else given))[..., None]
             move = torch.where(steady, belief, predicted)[..., :3] - previous[..., :3]
             velocity = move * (known & ~new)[..., None].float()  # known before t
-            shape = torch.where(visible[..., None], obs.shape[:, t], shape)
+            shape = torch.where(given[..., None], obs.shape[:, t], shape)
             known = known | visible
+            given_before = given
             seen_as = view(belief, pose)
-            features = torch.cat([belief, shape, obs.fraction[:, t, :, None], seen_as,
-                                  velocity, visible[..., None].float()], dim=-1)
+            features = torch.cat([belief, shape, (obs.fraction[:, t] * given)[..., None],
+                                  seen_as, velocity, given[..., None].float()], dim=-1)
             pairs = self._pairs(belief, shape, seen_as)
             message = self._messages(self.message, hidden, hidden, pairs, known)
             step_input = torch.cat([features, message, pose_features], dim=-1)
@@ -403,7 +424,10 @@ class ObjectStateModel(SurpriseModel):
     def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
         frames = self._frames_of(batch)
         inputs = video_inputs(batch)
-        out = self.rollout(self._inputs(frames, inputs.get("objects"), inputs.get("camera")))
+        observations = self._inputs(frames, inputs.get("objects"), inputs.get("camera"))
+        withheld = withheld_spans(observations.visible.shape, self.hparams.withhold,
+                                  self.hparams.withhold_frames, observations.visible.device)
+        out = self.rollout(observations, withheld)
         clips = frames.shape[0]
         terms = {name: out[name].sum() / clips  # the negative log-likelihood of the clips
                  for name in SLOT_TERMS + ("appear",)}
@@ -451,6 +475,24 @@ class ObjectStateModel(SurpriseModel):
         out = self.rollout(self._inputs(frames, objects, camera))
         weight = out["known"].float()[..., None]
         return {"slots": (out["hidden"] * weight).sum(2) / weight.sum(2).clamp(min=1)}
+
+
+def withheld_spans(shape: torch.Size, share: float, longest: int, device: torch.device
+                   ) -> torch.Tensor | None:
+    """Training's withheld observations, bool [B, T, S]: each (clip, slot) with probability
+    ``share`` gets one span of 1 to ``longest`` frames, starting at a frame from 1 on, during
+    which the model is not told what it sees. Real occlusions rarely hide an object whose
+    motion is known (a cube at rest, a cube in a moving container), so without these spans a
+    hidden object's rollout learns only from where it reappears and drifts. None if
+    ``share`` is 0."""
+    if share <= 0:
+        return None
+    batch, steps, slots = shape
+    chosen = torch.rand(batch, 1, slots, device=device) < share
+    start = torch.randint(1, max(steps, 2), (batch, 1, slots), device=device)
+    length = torch.randint(1, longest + 1, (batch, 1, slots), device=device)
+    time = torch.arange(steps, device=device)[None, :, None]
+    return chosen & (time >= start) & (time < start + length)
 
 
 class PairNetwork(nn.Module):
