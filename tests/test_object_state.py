@@ -10,8 +10,8 @@ from tensordict import TensorDict
 
 from voe_lightning import specs
 from voe_lightning.model import ObjectStateModel
-from voe_lightning.model.object_state import Observations, withheld_spans
 from voe_lightning.model.likelihood import gaussian_nll, mixture_nll
+from voe_lightning.model.object_state import Observations, withheld_spans
 from voe_lightning.model.optimization import adam
 
 FRAMES = 10

@@ -280,6 +280,7 @@ class ObjectStateModel(SurpriseModel):
         shape = obs.state.new_zeros(batch, slots, SHAPES)
         velocity = obs.state.new_zeros(batch, slots, 3)
         known = torch.zeros(batch, slots, dtype=torch.bool, device=obs.state.device)
+        given_before = known  # what reached the model at the frame before (none before 0)
         terms = {key: [] for name in SLOT_TERMS + ("appear",)
                  for key in (name, f"{name}_entropy")}
         beliefs, predictions, probability, knowns, states = [], [], [], [], []
@@ -308,7 +309,7 @@ class ObjectStateModel(SurpriseModel):
             belief = torch.where(given[..., None], obs.state[:, t], predicted)
             # the last move: seen in both frames, what was seen; else what was predicted (a
             # reappearing object's jump from its predicted place is a correction, not a move)
-            steady = (given & (given_before if t else given))[..., None]
+            steady = (given & given_before)[..., None]
             move = torch.where(steady, belief, predicted)[..., :3] - previous[..., :3]
             velocity = move * (known & ~new)[..., None].float()  # known before t
             shape = torch.where(given[..., None], obs.shape[:, t], shape)
