@@ -108,10 +108,12 @@ def _validation_pairs(cli, one_at_a_time: bool = False) -> PairResults:
     """The per-pair surprise of the validation pairs under the single-process CLI's model, in
     the DataModule's batches or one pair per batch."""
     model, datamodule = cli.model.eval(), cli.datamodule
+    batches = datamodule.val_dataloader()
+    if one_at_a_time:
+        batches = [batch[index:index + 1] for batch in batches
+                   for index in range(batch.batch_size[0])]
     with torch.no_grad():
-        outputs = [model.probe_step(batch[index:index + 1] if one_at_a_time else batch)
-                   for batch in datamodule.val_dataloader()
-                   for index in (range(batch.batch_size[0]) if one_at_a_time else [None])]
+        outputs = [model.probe_step(batch) for batch in batches]
     return PairResults.from_probe_outputs(outputs, datamodule.concept_names,
                                           datamodule.variant_names)
 
