@@ -6,12 +6,14 @@ import pytest
 import scipy.special
 import scipy.stats
 import torch
+import torch.nn.functional as F
 from tensordict import TensorDict
 
 from voe_lightning import specs
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.likelihood import gaussian_nll, mixture_nll
-from voe_lightning.model.object_state import Observations, withheld_spans
+from voe_lightning.model.object_geometry import view, world_half_extents
+from voe_lightning.model.object_state import Observations, motion_onsets, withheld_spans
 from voe_lightning.model.optimization import adam
 
 FRAMES = 10
@@ -111,6 +113,89 @@ def test_withheld_observations_reach_only_the_score():
         assert torch.equal(out[name], out_moved[name]), name
     assert not torch.equal(out["belief"][:, 1], shown["belief"][:, 1])  # really withheld
     assert bool((out["state"][:, 1:3, ball] != out_moved["state"][:, 1:3, ball]).all())
+
+
+def test_an_object_set_moving_by_another_is_withheld_from_that_frame():
+    """``motion_onsets``: a seen object at rest that moves from frame 5 together with another
+    starts there; one that moves from the first frame, was not seen just before it moved, or
+    starts with nothing else moving (a ball launched on its own) never does. Each slot that
+    starts is withheld from that frame for 2 to ``longest`` frames, whatever the share."""
+    steps = FRAMES
+    x = torch.zeros(4, steps)
+    x[0, 5:] = 0.1 * torch.arange(1, steps - 4)  # at rest, then moving from frame 5
+    x[1] = 0.1 * torch.arange(steps)  # moving from the first frame
+    x[2, 5:] = 0.1 * torch.arange(1, steps - 4)  # as slot 0, but hidden at frame 4
+    x[3, 8:] = 0.1 * torch.arange(1, steps - 7)  # starts at frame 8, alone (slot 1 hidden)
+    state = torch.zeros(1, steps, 4, 13)
+    state[..., 0] = x.T
+    visible = torch.ones(1, steps, 4, dtype=torch.bool)
+    visible[0, 4, 2] = False
+    visible[0, 7:, :3] = False
+    observations = Observations(ids=torch.arange(1, 5)[None], state=state,
+                                shape=torch.zeros(1, steps, 4, 7), fraction=visible.float(),
+                                visible=visible, camera=CAMERA.expand(1, steps, 6))
+    onsets = motion_onsets(observations)
+    assert torch.nonzero(onsets).tolist() == [[0, 5, 0]]
+    torch.manual_seed(0)
+    for _ in range(20):
+        withheld = withheld_spans(onsets.shape, 0.0, 4, torch.device("cpu"), onsets)
+        frames = torch.nonzero(withheld[0, :, 0]).flatten().tolist()
+        assert frames[0] == 5 and 2 <= len(frames) <= 4
+        assert frames == list(range(5, 5 + len(frames)))
+        assert not withheld[..., 1:].any()
+
+
+@pytest.mark.parametrize("carry", [False, True])
+def test_a_carried_hidden_object_moves_with_its_carrier(carry):
+    """``carry``: with the gate open and no learned change, a hidden object that was at rest
+    moves with the other object from the frame after that one starts to move (its start cannot
+    be foreseen), and stays put without the gate."""
+    steps = 6
+    state = torch.zeros(1, steps, 2, 13)
+    state[..., 2], state[..., 3], state[..., 7:10] = 0.1, 1.0, 0.1  # z, w, half-sizes
+    state[0, :, 0, 0] = 0.2 * torch.arange(steps).clamp(min=1) - 0.2  # at rest, then 0.2/frame
+    state[0, :, 1, 0] = 0.5
+    visible = torch.ones(1, steps, 2, dtype=torch.bool)
+    visible[0, 2:, 1] = False  # the carried object is hidden from frame 2
+    observations = Observations(ids=torch.tensor([[1, 2]]), state=state * visible[..., None],
+                                shape=F.one_hot(torch.full((1, steps, 2), 2), 7).float(),
+                                fraction=visible.float(), visible=visible,
+                                camera=CAMERA.expand(1, steps, 6))
+    model = ObjectStateModel(hidden_size=16, message_size=8, carry=carry)
+    last = model.dynamics[-1]
+    torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)  # no learned change
+    if carry:
+        torch.nn.init.zeros_(model.carry.out.weight)
+        torch.nn.init.constant_(model.carry.out.bias, 30.0)  # the gate open
+    with torch.no_grad():
+        hidden_x = model.rollout(observations)["belief"][0, 2:, 1, 0]
+    expected = 0.5 + 0.2 * torch.arange(steps - 2.0) if carry else torch.full((steps - 2,), 0.5)
+    torch.testing.assert_close(hidden_x, expected)
+
+
+def test_pair_features_say_what_an_object_could_rest_on_or_sit_in():
+    """The world-box pair features (``world_boxes``): a plank above a cube spans 70% of the
+    cube's footprint along x and y and none of its height, and rests 0.55 m above the cube's
+    top; a cube in a container is spanned by the container's box along every axis. A turned
+    box's extents turn with it."""
+    state = torch.zeros(1, 3, 13)
+    state[..., 3] = 1.0  # upright
+    state[0, 0, :3] = torch.tensor([0.0, 0.0, 1.0])  # a plank
+    state[0, 0, 7:10] = torch.tensor([0.5, 0.5, 0.05])
+    state[0, 1, :3], state[0, 1, 7:10] = torch.tensor([0.0, 0.0, 0.2]), 0.2  # a cube
+    state[0, 2, :3] = torch.tensor([0.0, 0.0, 0.3])  # a container around the cube
+    state[0, 2, 7:10] = torch.tensor([0.6, 0.3, 0.3])
+    shape = F.one_hot(torch.full((1, 3), 2), 7).float()
+    model = ObjectStateModel(hidden_size=16, message_size=8, world_boxes=True)
+    pairs = model._pairs(state, shape, view(state, CAMERA[None]))
+    spans, above = pairs[..., -4:-1], pairs[..., -1]
+    torch.testing.assert_close(spans[0, 1, 0], torch.tensor([1.0, 1.0, 0.0]))  # plank over cube
+    torch.testing.assert_close(spans[0, 0, 1], torch.tensor([0.7, 0.7, 0.0]))
+    torch.testing.assert_close(above[0, 0, 1], torch.tensor(0.55))  # plank bottom - cube top
+    torch.testing.assert_close(spans[0, 1, 2], torch.ones(3))  # the cube sits in the container
+    turned = state.clone()
+    turned[0, 2, 3:7] = torch.tensor([2 ** -0.5, 0.0, 0.0, 2 ** -0.5])  # 90 degrees about z
+    torch.testing.assert_close(world_half_extents(turned)[0, 2], torch.tensor([0.3, 0.6, 0.3]))
 
 
 def test_a_mixture_without_components_or_a_bad_withheld_share_is_refused():

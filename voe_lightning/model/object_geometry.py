@@ -94,11 +94,17 @@ def _rotations(state: torch.Tensor) -> torch.Tensor:
     return torch.where(state[..., 3:7].norm(dim=-1)[..., None, None] > 0, rotation, upright)
 
 
+def world_half_extents(state: torch.Tensor) -> torch.Tensor:
+    """Half-extents [..., 3] along the world axes of each object's box, as rotated: its
+    axis-aligned bounding box about its centre."""
+    return (_rotations(state).abs() * state[..., None, 7:10]).sum(-1)
+
+
 def on_or_above_floor(state: torch.Tensor) -> torch.Tensor:
     """``state`` [..., 13] with every object raised, where needed, so that its box's lowest
     point is on or above the floor (z = 0): the floor is seen in every scene and nothing rests
     below it, so a hidden object's predicted fall ends there."""
-    lowest = (_rotations(state)[..., 2, :].abs() * state[..., 7:10]).sum(-1)  # centre - bottom
+    lowest = world_half_extents(state)[..., 2]  # centre - bottom
     height = torch.maximum(state[..., 2], lowest)
     return torch.cat([state[..., :2], height[..., None], state[..., 3:]], dim=-1)
 

@@ -31,6 +31,7 @@ from voe_lightning.model.object_geometry import (
     on_or_above_floor,
     seen_by_geometry,
     view,
+    world_half_extents,
 )
 
 #: The continuous state of an object that the model predicts: position (3), orientation (4),
@@ -43,16 +44,26 @@ SPHERE = specs.OBJECT_SHAPES.index("sphere")
 FEATURES = STATE_SIZE + SHAPES + 1 + VIEW + 3 + 1
 #: Pair features: the other object's position, camera coordinates and image-box centre relative
 #: to this one's, both sizes, both image-box half-extents, how much of this one's image box the
-#: other's covers (along right, up, and both), the other's orientation and shape.
+#: other's covers (along right, up, and both), the other's orientation and shape; with
+#: ``world_boxes``, also WORLD_BOX_FEATURES.
 PAIR_FEATURES = 3 + 3 + 2 + 3 + 3 + 2 + 2 + 3 + 4 + SHAPES
+#: How much of this one's world box the other's spans (along x, y, z) and how far this one's
+#: bottom is above the other's top: what it could rest on, sit in, or be carried by.
+WORLD_BOX_FEATURES = 3 + 1
 #: The largest move of a state in one frame interval, in each of the inertia and the learned
 #: change (metres for positions; our fastest object, a falling block, moves 0.6 m a frame).
 MAX_MOVE = 1.5
+#: A seen object starts to move at frame t when it moved less than RESTING metres into frame t-1
+#: and more than MOVING into frame t (``motion_onsets``).
+RESTING, MOVING = 0.005, 0.02
 #: The per-slot terms of a frame's negative log-likelihood; ``appear`` is per frame.
 SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape")
 
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
-ARCHITECTURE = ("hidden_size", "message_size", "use_camera", "components")
+ARCHITECTURE = ("hidden_size", "message_size", "use_camera", "components", "carry",
+                "world_boxes")
+#: The carry logit's start (own move: 0): objects start out moving mostly on their own.
+CARRY_START = -2.0
 
 
 @dataclass
@@ -113,12 +124,13 @@ class ObjectStateModel(SurpriseModel):
     Per step t, from the slots' recurrent states after frame t-1 and their beliefs (the last
     state seen, or, while hidden, the state predicted for them, so a hidden object is tracked
     forward), the model predicts for every known slot its state at t (a mixture of
-    ``components`` Gaussians: each mean = belief, moved on by inertia (the last frame's move),
-    plus a learned change, and never below the floor; learned standard deviations and weights;
-    its shape as a categorical). A mixture, because at five frames a second a contact is an
-    either-or: a falling plank has landed flat by the next frame or is still in the air or
-    propped up, and one Gaussian's mean sits between them, where neither happens. The most
-    probable component is the slot's predicted state (what a hidden slot's belief follows) and its visibility at t (a
+    ``components`` Gaussians: each mean = belief, moved on by inertia (the last frame's move;
+    with ``carry``, mixed with the others' moves), plus a learned change, and never below the
+    floor; learned standard deviations and weights; its shape as a categorical). A mixture,
+    because at five frames a second a contact is an either-or: a falling plank has landed flat
+    by the next frame or is still in the air or propped up, and one Gaussian's mean sits
+    between them, where neither happens. The most probable component is the slot's predicted
+    state (what a hidden slot's belief follows) and its visibility at t (a
     Bernoulli whose logit is that of ``seen_by_geometry``, what sight lines to the objects'
     boxes at the predicted states would show, times a learned weight, plus a learned term from
     its view against every other slot's). A context over the known slots predicts whether a
@@ -130,7 +142,8 @@ class ObjectStateModel(SurpriseModel):
     new object appears, and each newcomer's state and shape). Training minimises it summed over
     the training clips' frames, with some seen objects' observations withheld for a few frames
     (``withhold``), so that rolling a hidden object forward is learned against what it then
-    showed. Surprise at frame t (frame 0: 0) is its rectified excess: each
+    showed; every object that another sets moving is withheld from that frame on
+    (``withhold_onsets``). Surprise at frame t (frame 0: 0) is its rectified excess: each
     term's NLL less its expectation under the prediction (the entropy), where positive
     (``_per_frame`` says why).
 
@@ -142,18 +155,33 @@ class ObjectStateModel(SurpriseModel):
         min_std: floor of the predicted standard deviations (metres for positions): the
             precision of a perfect perception system.
         components: Gaussians in the mixture over each slot's next state (1: one Gaussian).
+        carry: each slot's inertia is a learned mix of its own last move and the other known
+            slots' (shares over itself and them that sum to 1, from a ``PairNetwork`` over
+            each pair): a cube hidden in a container that starts to slide moves with it, one
+            behind it does not, and a container and the rod pushing it do not carry it twice.
+            Without it, the move must be decoded from the other slot's recurrent state, and a
+            hidden carried cube was left where it was seen (0.8 m off).
+        world_boxes: the pair features add how the two objects' world boxes overlap
+            (``WORLD_BOX_FEATURES``).
         withhold: share of each training clip's objects whose observations are withheld for a
             span of frames (``withheld_spans``): the model rolls them forward as if hidden
             and is scored on what they show, so tracking a hidden object is learned from
             targets, not only where it reappears (0: never).
         withhold_frames: the longest withheld span, in frames.
+        withhold_onsets: every object that another sets moving in a training clip
+            (``motion_onsets``) is withheld from that frame for 2 to ``withhold_frames`` frames:
+            what moves it (the container it sits in, the block that pushes it) must be read
+            from the others, because its own last move says nothing. Without it, a seen cube
+            carried by a container moves by inertia from the slide's second frame, and a
+            hidden one is never learned to be carried.
         learning_rate: Adam's (peak) learning rate.
         lr_schedule: ``"constant"`` or ``"cosine"`` (decays to 0 at ``trainer.max_steps``).
         training_frames: frames per training clip, recorded from the training batches.
     """
 
     ARCHITECTURE = ARCHITECTURE
-    TRAINING_ONLY = ("learning_rate", "lr_schedule", "withhold", "withhold_frames")
+    TRAINING_ONLY = ("learning_rate", "lr_schedule", "withhold", "withhold_frames",
+                     "withhold_onsets")
     SURPRISE = ("the rectified excess surprisal of the seen object states (each term's negative "
                 "log-likelihood less its entropy, where positive: the visibility, state and shape "
                 "of every known object, and any newcomer's appearance)")
@@ -165,8 +193,11 @@ class ObjectStateModel(SurpriseModel):
         use_camera: bool = True,
         min_std: float = 0.01,
         components: int = 1,
+        carry: bool = False,
+        world_boxes: bool = False,
         withhold: float = 0.0,
         withhold_frames: int = 8,
+        withhold_onsets: bool = False,
         learning_rate: float = 1e-3,
         lr_schedule: str = "constant",
         training_frames: int | None = None,
@@ -187,12 +218,16 @@ class ObjectStateModel(SurpriseModel):
                              f"withhold_frames >= 1, got {withhold}, {withhold_frames}")
         optimization.check_schedule(lr_schedule)
         hidden, message = hidden_size, message_size
-        self.message = PairNetwork(hidden, hidden, hidden, message)
+        pair = PAIR_FEATURES + (WORLD_BOX_FEATURES if world_boxes else 0)
+        self.message = PairNetwork(hidden, hidden, hidden, message, pair)
         self.update = nn.GRUCell(FEATURES + message + CAMERA_FEATURES, hidden)
         self.dynamics = mlp([hidden + message + CAMERA_FEATURES, hidden, hidden,
                              self._dynamics_outputs(components)])
-        self.occlusion = PairNetwork(hidden, 0, hidden, message)
+        self.occlusion = PairNetwork(hidden, 0, hidden, message, pair)
         self.visibility = mlp([hidden + message + VIEW + 3 + CAMERA_FEATURES, hidden, 1])
+        self.carry = PairNetwork(hidden, hidden, hidden, 1, pair) if carry else None
+        if self.carry is not None:
+            nn.init.constant_(self.carry.out.bias, CARRY_START)
         #: How much the visibility logit starts from geometry (``seen_by_geometry``); learned.
         self.geometry_weight = nn.Parameter(torch.ones(()))
         self.appearance = mlp([hidden + CAMERA_FEATURES, hidden, 1 + 2 * STATE_SIZE + SHAPES])
@@ -222,8 +257,8 @@ class ObjectStateModel(SurpriseModel):
     # ----------------------------------------------------------------------------- core
     def _pairs(self, state: torch.Tensor, shape: torch.Tensor, seen_as: torch.Tensor
                ) -> torch.Tensor:
-        """Pair features [B, S_i, S_j, PAIR_FEATURES] of slot j seen from slot i (``seen_as``:
-        each slot's ``view``)."""
+        """Pair features [B, S_i, S_j, PAIR_FEATURES (+ WORLD_BOX_FEATURES)] of slot j seen from
+        slot i (``seen_as``: each slot's ``view``)."""
         def other_minus_self(values):
             return values[:, None, :] - values[:, :, None]
 
@@ -232,20 +267,27 @@ class ObjectStateModel(SurpriseModel):
 
         def own(values):
             return values[:, :, None].expand(-1, -1, slots, -1)
+        def spanned(centres, halves):  # the share of i's box along each axis that j's spans
+            return ((other(halves) + own(halves) - other_minus_self(centres).abs())
+                    / (2 * own(halves)).clamp(min=1e-3)).clamp(0, 1)
         slots = state.shape[1]
         position, orientation, size = state[..., :3], state[..., 3:7], state[..., 7:10]
         centre, half = seen_as[..., 3:5], seen_as[..., 5:7]
-        # the share of i's image box along each axis that j's box spans
-        overlap = ((other(half) + own(half) - other_minus_self(centre).abs())
-                   / (2 * own(half)).clamp(min=1e-3)).clamp(0, 1)
-        return torch.cat([
+        overlap = spanned(centre, half)
+        features = [
             other_minus_self(position),
             other_minus_self(seen_as[..., :3]),
             other_minus_self(centre),
             other(size), own(size), other(half), own(half),
             overlap, overlap.prod(-1, keepdim=True),
             other(orientation), other(shape),
-        ], dim=-1)
+        ]
+        if self.hparams.world_boxes:
+            extents = world_half_extents(state)
+            bottom, top = position[..., 2] - extents[..., 2], position[..., 2] + extents[..., 2]
+            features += [spanned(position, extents),
+                         (bottom[:, :, None] - top[:, None, :])[..., None]]
+        return torch.cat(features, dim=-1)
 
     @staticmethod
     def _pair_weight(known: torch.Tensor) -> torch.Tensor:
@@ -353,8 +395,14 @@ class ObjectStateModel(SurpriseModel):
              components if components > 1 else 0, SHAPES], -1)
         change = change.unflatten(-1, (components, STATE_SIZE))  # [B, S, K, 13]
         log_std = log_std.unflatten(-1, (components, STATE_SIZE))
+        move = velocity
+        if self.carry is not None:  # moves with at most one carrier: shares of 1 over self+others
+            logit = self.carry(hidden, hidden, pairs).squeeze(-1)
+            logit = logit.masked_fill(self._pair_weight(known)[..., 0] == 0, -math.inf)
+            share = torch.softmax(F.pad(logit, (1, 0)), dim=-1)[..., 1:]  # own: logit 0
+            move = move + (share[..., None] * (velocity[:, None] - velocity[:, :, None])).sum(2)
         # bounded, so a hidden object's rollout cannot feed on itself and diverge
-        inertia = F.pad(velocity.clamp(-MAX_MOVE, MAX_MOVE), (0, STATE_SIZE - 3))
+        inertia = F.pad(move.clamp(-MAX_MOVE, MAX_MOVE), (0, STATE_SIZE - 3))
         means = on_or_above_floor((belief + inertia)[:, :, None]
                                   + MAX_MOVE * torch.tanh(change / MAX_MOVE))
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
@@ -426,8 +474,10 @@ class ObjectStateModel(SurpriseModel):
         frames = self._frames_of(batch)
         inputs = video_inputs(batch)
         observations = self._inputs(frames, inputs.get("objects"), inputs.get("camera"))
+        onsets = motion_onsets(observations) if self.hparams.withhold_onsets else None
         withheld = withheld_spans(observations.visible.shape, self.hparams.withhold,
-                                  self.hparams.withhold_frames, observations.visible.device)
+                                  self.hparams.withhold_frames, observations.visible.device,
+                                  onsets)
         out = self.rollout(observations, withheld)
         clips = frames.shape[0]
         terms = {name: out[name].sum() / clips  # the negative log-likelihood of the clips
@@ -478,20 +528,44 @@ class ObjectStateModel(SurpriseModel):
         return {"slots": (out["hidden"] * weight).sum(2) / weight.sum(2).clamp(min=1)}
 
 
-def withheld_spans(shape: torch.Size, share: float, longest: int, device: torch.device
-                   ) -> torch.Tensor | None:
+def motion_onsets(observations: Observations) -> torch.Tensor:
+    """The frames at which a seen object is set moving by another, bool [B, T, S]: seen at t-2,
+    t-1 and t, it moved less than ``RESTING`` into t-1 and more than ``MOVING`` into t, and some
+    other object seen at t-1 and t moved more than ``MOVING`` into t too (a container that
+    carries it, a block that pushes it; a ball launched on its own is not one)."""
+    def one_frame_later(values: torch.Tensor) -> torch.Tensor:
+        return torch.cat([torch.zeros_like(values[:, :1]), values[:, :-1]], dim=1)
+    seen = observations.visible
+    position = observations.state[..., :3]
+    move = (position - one_frame_later(position)).norm(dim=-1)
+    seen_twice = seen & one_frame_later(seen)
+    resting = seen_twice & (move < RESTING)
+    moving = seen_twice & (move > MOVING)
+    others_moving = moving.sum(-1, keepdim=True) - moving.long() > 0
+    return moving & one_frame_later(resting) & others_moving
+
+
+def withheld_spans(shape: torch.Size, share: float, longest: int, device: torch.device,
+                   onsets: torch.Tensor | None = None) -> torch.Tensor | None:
     """Training's withheld observations, bool [B, T, S]: each (clip, slot) with probability
     ``share`` gets one span of 1 to ``longest`` frames, starting at a frame from 1 on, during
     which the model is not told what it sees. An object truly hidden in a clip has no target
     until it reappears, so without these spans a hidden object's rollout learns only from that
-    frame, and drifts (a cube at rest behind a container: 0.2 m over nine frames). None if
-    ``share`` is 0."""
-    if share <= 0:
+    frame, and drifts (a cube at rest behind a container: 0.2 m over nine frames). With
+    ``onsets`` (``motion_onsets``), every slot that starts to move gets its span there
+    instead, at least 2 frames long (up to ``longest``): the frame after the start is the one
+    whose move only the other objects can explain. None if there is nothing to withhold."""
+    if share <= 0 and onsets is None:
         return None
     batch, steps, slots = shape
     chosen = torch.rand(batch, 1, slots, device=device) < share
     start = torch.randint(1, max(steps, 2), (batch, 1, slots), device=device)
     length = torch.randint(1, longest + 1, (batch, 1, slots), device=device)
+    if onsets is not None:
+        starts_moving = onsets.any(1, keepdim=True)
+        chosen = chosen | starts_moving
+        start = torch.where(starts_moving, onsets.float().argmax(1, keepdim=True).long(), start)
+        length = torch.where(starts_moving, length.clamp(min=min(2, longest)), length)
     time = torch.arange(steps, device=device)[None, :, None]
     return chosen & (time >= start) & (time < start + length)
 
@@ -500,11 +574,12 @@ class PairNetwork(nn.Module):
     """An MLP over [own_i, other_j, pair_ij] for every slot pair, with its first layer split
     by input: the slots' parts are computed once per slot, not once per pair (S times less)."""
 
-    def __init__(self, own_size: int, other_size: int, hidden_size: int, output_size: int):
+    def __init__(self, own_size: int, other_size: int, hidden_size: int, output_size: int,
+                 pair_size: int = PAIR_FEATURES):
         super().__init__()
         self.own = nn.Linear(own_size, hidden_size)
         self.other = nn.Linear(other_size, hidden_size, bias=False) if other_size else None
-        self.pair = nn.Linear(PAIR_FEATURES, hidden_size, bias=False)
+        self.pair = nn.Linear(pair_size, hidden_size, bias=False)
         self.out = nn.Linear(hidden_size, output_size)
 
     def forward(self, own: torch.Tensor, other: torch.Tensor | None, pairs: torch.Tensor
