@@ -188,7 +188,7 @@ def test_pair_features_say_what_an_object_could_rest_on_or_sit_in():
     shape = F.one_hot(torch.full((1, 3), 2), 7).float()
     model = ObjectStateModel(hidden_size=16, message_size=8, world_boxes=True)
     pairs = model._pairs(state, shape, view(state, CAMERA[None]))
-    spans, above = pairs[..., -4:-1], pairs[..., -1]
+    spans, above = pairs[..., -15:-12], pairs[..., -12]  # before orientation (4), shape (7)
     torch.testing.assert_close(spans[0, 1, 0], torch.tensor([1.0, 1.0, 0.0]))  # plank over cube
     torch.testing.assert_close(spans[0, 0, 1], torch.tensor([0.7, 0.7, 0.0]))
     torch.testing.assert_close(above[0, 0, 1], torch.tensor(0.55))  # plank bottom - cube top

@@ -44,8 +44,8 @@ SPHERE = specs.OBJECT_SHAPES.index("sphere")
 FEATURES = STATE_SIZE + SHAPES + 1 + VIEW + 3 + 1
 #: Pair features: the other object's position, camera coordinates and image-box centre relative
 #: to this one's, both sizes, both image-box half-extents, how much of this one's image box the
-#: other's covers (along right, up, and both), the other's orientation and shape; with
-#: ``world_boxes``, also WORLD_BOX_FEATURES.
+#: other's covers (along right, up, and both), (with ``world_boxes``, WORLD_BOX_FEATURES,) the
+#: other's orientation and shape.
 PAIR_FEATURES = 3 + 3 + 2 + 3 + 3 + 2 + 2 + 3 + 4 + SHAPES
 #: How much of this one's world box the other's spans (along x, y, z) and how far this one's
 #: bottom is above the other's top: what it could rest on, sit in, or be carried by.
@@ -142,8 +142,8 @@ class ObjectStateModel(SurpriseModel):
     new object appears, and each newcomer's state and shape). Training minimises it summed over
     the training clips' frames, with some seen objects' observations withheld for a few frames
     (``withhold``), so that rolling a hidden object forward is learned against what it then
-    showed; every object that another sets moving is withheld from that frame on
-    (``withhold_onsets``). Surprise at frame t (frame 0: 0) is its rectified excess: each
+    showed (and, with ``withhold_onsets``, every object that another sets moving, from that
+    frame). Surprise at frame t (frame 0: 0) is its rectified excess: each
     term's NLL less its expectation under the prediction (the entropy), where positive
     (``_per_frame`` says why).
 
@@ -157,10 +157,11 @@ class ObjectStateModel(SurpriseModel):
         components: Gaussians in the mixture over each slot's next state (1: one Gaussian).
         carry: each slot's inertia is a learned mix of its own last move and the other known
             slots' (shares over itself and them that sum to 1, from a ``PairNetwork`` over
-            each pair): a cube hidden in a container that starts to slide moves with it, one
-            behind it does not, and a container and the rod pushing it do not carry it twice.
-            Without it, the move must be decoded from the other slot's recurrent state, and a
-            hidden carried cube was left where it was seen (0.8 m off).
+            each pair), so that a cube hidden in a container can move with it when it starts
+            to slide, and a container and the rod pushing it do not carry it twice. Without
+            it, the move must be decoded from the other slot's recurrent state, and a hidden
+            carried cube was left where it was seen (0.8 m off). Learned, it also held a
+            block falling into a container (docs/study/positive_control.md, round five).
         world_boxes: the pair features add how the two objects' world boxes overlap
             (``WORLD_BOX_FEATURES``).
         withhold: share of each training clip's objects whose observations are withheld for a
@@ -172,8 +173,8 @@ class ObjectStateModel(SurpriseModel):
             (``motion_onsets``) is withheld from that frame for 2 to ``withhold_frames`` frames:
             what moves it (the container it sits in, the block that pushes it) must be read
             from the others, because its own last move says nothing. Without it, a seen cube
-            carried by a container moves by inertia from the slide's second frame, and a
-            hidden one is never learned to be carried.
+            carried by a container moves by inertia from the slide's second frame, so only a
+            slide's first frame teaches carrying.
         learning_rate: Adam's (peak) learning rate.
         lr_schedule: ``"constant"`` or ``"cosine"`` (decays to 0 at ``trainer.max_steps``).
         training_frames: frames per training clip, recorded from the training batches.
@@ -274,20 +275,20 @@ class ObjectStateModel(SurpriseModel):
         position, orientation, size = state[..., :3], state[..., 3:7], state[..., 7:10]
         centre, half = seen_as[..., 3:5], seen_as[..., 5:7]
         overlap = spanned(centre, half)
-        features = [
+        boxes = []
+        if self.hparams.world_boxes:
+            extents = world_half_extents(state)
+            bottom, top = position[..., 2] - extents[..., 2], position[..., 2] + extents[..., 2]
+            boxes = [spanned(position, extents), (bottom[:, :, None] - top[:, None, :])[..., None]]
+        return torch.cat([
             other_minus_self(position),
             other_minus_self(seen_as[..., :3]),
             other_minus_self(centre),
             other(size), own(size), other(half), own(half),
             overlap, overlap.prod(-1, keepdim=True),
+            *boxes,
             other(orientation), other(shape),
-        ]
-        if self.hparams.world_boxes:
-            extents = world_half_extents(state)
-            bottom, top = position[..., 2] - extents[..., 2], position[..., 2] + extents[..., 2]
-            features += [spanned(position, extents),
-                         (bottom[:, :, None] - top[:, None, :])[..., None]]
-        return torch.cat(features, dim=-1)
+        ], dim=-1)
 
     @staticmethod
     def _pair_weight(known: torch.Tensor) -> torch.Tensor:
