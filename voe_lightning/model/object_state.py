@@ -268,6 +268,7 @@ class ObjectStateModel(SurpriseModel):
 
         def own(values):
             return values[:, :, None].expand(-1, -1, slots, -1)
+
         def spanned(centres, halves):  # the share of i's box along each axis that j's spans
             return ((other(halves) + own(halves) - other_minus_self(centres).abs())
                     / (2 * own(halves)).clamp(min=1e-3)).clamp(0, 1)
