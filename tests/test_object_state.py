@@ -1,6 +1,8 @@
 """The positive control (``ObjectStateModel``): it reads only what is visible, tracks a hidden
 object forward, and is surprised by a vanishing or a teleport after learning from clips."""
 
+import math
+
 import numpy as np
 import pytest
 import scipy.special
@@ -13,7 +15,7 @@ from voe_lightning import specs
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.likelihood import gaussian_nll, mixture_nll
 from voe_lightning.model.object_geometry import view, world_half_extents
-from voe_lightning.model.object_state import Observations, motion_onsets, withheld_spans
+from voe_lightning.model.object_state import CARRIES, Observations, motion_onsets, withheld_spans
 from voe_lightning.model.optimization import adam
 
 FRAMES = 10
@@ -145,32 +147,111 @@ def test_an_object_set_moving_by_another_is_withheld_from_that_frame():
         assert not withheld[..., 1:].any()
 
 
-@pytest.mark.parametrize("carry", [False, True])
+def _two_objects(first_x: torch.Tensor, second_x: torch.Tensor, visible: torch.Tensor
+                 ) -> Observations:
+    """Observations of two 0.2 m cubes 0.1 m above the floor at the given x per frame [T]."""
+    steps = first_x.shape[0]
+    state = torch.zeros(1, steps, 2, 13)
+    state[..., 2], state[..., 3], state[..., 7:10] = 0.1, 1.0, 0.1  # z, w, half-sizes
+    state[0, :, 0, 0], state[0, :, 1, 0] = first_x, second_x
+    return Observations(ids=torch.tensor([[1, 2]]), state=state * visible[..., None],
+                        shape=F.one_hot(torch.full((1, steps, 2), 2), 7).float(),
+                        fraction=visible.float(), visible=visible,
+                        camera=CAMERA.expand(1, steps, 6))
+
+
+def _carrying(carry: str) -> ObjectStateModel:
+    """A model with no learned change and, with ``carry``, every carry gate open."""
+    model = ObjectStateModel(hidden_size=16, message_size=8, carry=carry)
+    last = model.dynamics[-1]
+    torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
+    if model.carry is not None:
+        torch.nn.init.zeros_(model.carry.out.weight)
+        torch.nn.init.constant_(model.carry.out.bias, 30.0)
+    return model
+
+
+@pytest.mark.parametrize("carry", CARRIES)
 def test_a_carried_hidden_object_moves_with_its_carrier(carry):
     """``carry``: with the gate open and no learned change, a hidden object that was at rest
     moves with the other object from the frame after that one starts to move (its start cannot
     be foreseen), and stays put without the gate."""
     steps = 6
-    state = torch.zeros(1, steps, 2, 13)
-    state[..., 2], state[..., 3], state[..., 7:10] = 0.1, 1.0, 0.1  # z, w, half-sizes
-    state[0, :, 0, 0] = 0.2 * torch.arange(steps).clamp(min=1) - 0.2  # at rest, then 0.2/frame
-    state[0, :, 1, 0] = 0.5
     visible = torch.ones(1, steps, 2, dtype=torch.bool)
     visible[0, 2:, 1] = False  # the carried object is hidden from frame 2
-    observations = Observations(ids=torch.tensor([[1, 2]]), state=state * visible[..., None],
-                                shape=F.one_hot(torch.full((1, steps, 2), 2), 7).float(),
-                                fraction=visible.float(), visible=visible,
-                                camera=CAMERA.expand(1, steps, 6))
-    model = ObjectStateModel(hidden_size=16, message_size=8, carry=carry)
-    last = model.dynamics[-1]
-    torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)  # no learned change
-    if carry:
-        torch.nn.init.zeros_(model.carry.out.weight)
-        torch.nn.init.constant_(model.carry.out.bias, 30.0)  # the gate open
+    carrier = 0.2 * torch.arange(steps).clamp(min=1) - 0.2  # at rest, then 0.2 a frame
+    observations = _two_objects(carrier, torch.full((steps,), 0.5), visible)
     with torch.no_grad():
-        hidden_x = model.rollout(observations)["belief"][0, 2:, 1, 0]
-    expected = 0.5 + 0.2 * torch.arange(steps - 2.0) if carry else torch.full((steps - 2,), 0.5)
-    torch.testing.assert_close(hidden_x, expected)
+        hidden_x = _carrying(carry).rollout(observations)["belief"][0, 2:, 1, 0]
+    moved = 0.2 * torch.arange(steps - 2.0) if carry != "none" else torch.zeros(steps - 2)
+    torch.testing.assert_close(hidden_x, 0.5 + moved)
+
+
+@pytest.mark.parametrize("carry", ["velocity", "acceleration"])
+def test_only_a_carrier_that_changes_its_move_passes_it_on(carry):
+    """An object moving past (or falling into) one at rest: carrying the carrier's last move
+    stops it (round five's fault: a block falling into a container was held), carrying the
+    change of that move leaves it going, at the gate's widest open."""
+    steps = 5
+    observations = _two_objects(0.1 * torch.arange(steps + 0.0), torch.full((steps,), 0.3),
+                                torch.ones(1, steps, 2, dtype=torch.bool))
+    with torch.no_grad():
+        predicted_x = _carrying(carry).rollout(observations)["predicted"][0, 3:, 0, 0]
+    expected = 0.1 * torch.arange(2.0, steps - 1) + (0.0 if carry == "velocity" else 0.1)
+    torch.testing.assert_close(predicted_x, expected)
+
+
+@pytest.mark.parametrize("favoured", [0, 1])
+def test_the_stop_component_holds_an_object_where_it_is(favoured):
+    """``stop_component``: with no learned change, the first Gaussian sits where a moving
+    object is, the second where its inertia takes it; the belief follows the one the logits
+    favour, and the state's NLL is that mixture's."""
+    steps = 5
+    observations = _two_objects(0.1 * torch.arange(steps + 0.0), torch.full((steps,), 2.0),
+                                torch.ones(1, steps, 2, dtype=torch.bool))
+    model = ObjectStateModel(hidden_size=16, message_size=8, components=2, stop_component=True)
+    last = model.dynamics[-1]
+    torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
+    with torch.no_grad():
+        last.bias[2 * 2 * 13 + favoured] = 5.0  # the favoured component's logit
+        out = model.rollout(observations)
+    x = 0.1 * torch.arange(2.0, steps)  # from frame 2 on, the last move is 0.1
+    before = x - 0.1
+    torch.testing.assert_close(out["predicted"][0, 2:, 0, 0], before + 0.1 * favoured)
+    state = observations.state[0, 2:, 0]
+    means = torch.stack([state, state], dim=1)  # [T, K, 13]
+    means[:, 0, 0], means[:, 1, 0] = before, before + 0.1
+    floor = math.log(model.hparams.min_std)
+    log_std = torch.full_like(means, floor + F.softplus(torch.tensor(-floor)).item())
+    logits = torch.zeros(steps - 2, 2)
+    logits[:, favoured] = 5.0
+    expected, _ = mixture_nll(state, means, log_std, logits)
+    torch.testing.assert_close(out["state"][0, 2:, 0], expected)
+
+
+def test_hard_assignment_scores_training_by_the_best_gaussian_and_surprise_by_the_mixture():
+    """``hard_assignment``: in training the state term is the best-explaining Gaussian's alone
+    (at least the mixture's), in evaluation the whole mixture's, as without the option."""
+    steps = 5
+    observations = _two_objects(0.1 * torch.arange(steps + 0.0), torch.full((steps,), 2.0),
+                                torch.ones(1, steps, 2, dtype=torch.bool))
+    torch.manual_seed(0)
+    hard = ObjectStateModel(hidden_size=16, message_size=8, components=2, stop_component=True,
+                            hard_assignment=True)
+    torch.manual_seed(0)
+    soft = ObjectStateModel(hidden_size=16, message_size=8, components=2, stop_component=True)
+    with torch.no_grad():
+        evaluated = hard.eval().rollout(observations)["state"]
+        mixture = soft.eval().rollout(observations)["state"]
+        trained = hard.train().rollout(observations)["state"]
+    torch.testing.assert_close(evaluated, mixture)
+    seen = mixture[:, 1:] != 0
+    assert (trained[:, 1:][seen] > mixture[:, 1:][seen]).all()
+
+
+def test_the_stop_component_needs_a_second_one():
+    with pytest.raises(ValueError, match="stop_component needs components >= 2"):
+        ObjectStateModel(components=1, stop_component=True)
 
 
 def test_pair_features_say_what_an_object_could_rest_on_or_sit_in():
@@ -228,6 +309,8 @@ def test_the_mixture_likelihood_is_scipys_and_its_entropy_the_expected_surprisal
                                           np.exp(log_std.numpy())).sum(-1)
     expected = -scipy.special.logsumexp(log_weight + log_density, axis=-1)
     np.testing.assert_allclose(nll.numpy(), expected, rtol=1e-10)
+    hard, _ = mixture_nll(value, means, log_std, logits, hard=True)  # the best component's
+    np.testing.assert_allclose(hard.numpy(), -(log_weight + log_density).max(-1), rtol=1e-10)
 
     single = mixture_nll(value, means[:, :1], log_std[:, :1], None)
     for got, want in zip(single, gaussian_nll(value, means[:, 0], log_std[:, 0])):

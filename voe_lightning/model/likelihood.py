@@ -29,16 +29,19 @@ def bernoulli_nll(logit: torch.Tensor, value: torch.Tensor) -> tuple[torch.Tenso
 
 
 def mixture_nll(value: torch.Tensor, means: torch.Tensor, log_std: torch.Tensor,
-                logits: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+                logits: torch.Tensor | None, hard: bool = False
+                ) -> tuple[torch.Tensor, torch.Tensor]:
     """-log of ``value`` [..., D] under a mixture of diagonal Gaussians (``means`` and
     ``log_std`` [..., K, D], component ``logits`` [..., K] or None for one), and the mixture's
     entropy as sum_k pi_k (H_k - log pi_k): exact for well separated components, at most
-    log K too high where they overlap."""
+    log K too high where they overlap. ``hard``: -log of the best-explaining component's
+    weighted density alone (hard EM), so a component learns only from what it explains."""
     nll, entropy = gaussian_nll(value[..., None, :], means, log_std)  # [..., K]
     if logits is None:
         return nll.squeeze(-1), entropy.squeeze(-1)
     log_weight = F.log_softmax(logits, dim=-1)
-    return (-torch.logsumexp(log_weight - nll, dim=-1),
+    joint = log_weight - nll
+    return (-(joint.amax(-1) if hard else torch.logsumexp(joint, dim=-1)),
             (log_weight.exp() * (entropy - log_weight)).sum(-1))
 
 

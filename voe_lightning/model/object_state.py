@@ -60,10 +60,13 @@ RESTING, MOVING = 0.005, 0.02
 SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape")
 
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
-ARCHITECTURE = ("hidden_size", "message_size", "use_camera", "components", "carry",
-                "world_boxes")
+ARCHITECTURE = ("hidden_size", "message_size", "use_camera", "components", "stop_component",
+                "carry", "world_boxes")
 #: The carry logit's start (own move: 0): objects start out moving mostly on their own.
 CARRY_START = -2.0
+#: What a carrier passes on (``carry``): nothing, its last move (the mover's own taken off),
+#: or the change of its last move.
+CARRIES = ("none", "velocity", "acceleration")
 
 
 @dataclass
@@ -125,7 +128,7 @@ class ObjectStateModel(SurpriseModel):
     state seen, or, while hidden, the state predicted for them, so a hidden object is tracked
     forward), the model predicts for every known slot its state at t (a mixture of
     ``components`` Gaussians: each mean = belief, moved on by inertia (the last frame's move;
-    with ``carry``, mixed with the others' moves), plus a learned change, and never below the
+    with ``carry``, plus a share of a carrier's), plus a learned change, and never below the
     floor; learned standard deviations and weights; its shape as a categorical). A mixture,
     because at five frames a second a contact is an either-or: a falling plank has landed flat
     by the next frame or is still in the air or propped up, and one Gaussian's mean sits
@@ -155,13 +158,23 @@ class ObjectStateModel(SurpriseModel):
         min_std: floor of the predicted standard deviations (metres for positions): the
             precision of a perfect perception system.
         components: Gaussians in the mixture over each slot's next state (1: one Gaussian).
-        carry: each slot's inertia is a learned mix of its own last move and the other known
-            slots' (shares over itself and them that sum to 1, from a ``PairNetwork`` over
-            each pair), so that a cube hidden in a container can move with it when it starts
-            to slide, and a container and the rod pushing it do not carry it twice. Without
-            it, the move must be decoded from the other slot's recurrent state, and a hidden
-            carried cube was left where it was seen (0.8 m off). Learned, it also held a
-            block falling into a container (docs/study/positive_control.md, round five).
+        stop_component: the first Gaussian starts from the belief without the inertia: the
+            hypothesis that the object stops where it is (a plank landing on what is under
+            it, a ball meeting a wall), so that whether it stops or moves on can be the
+            mixture's choice rather than a regression of the change. Round four's three
+            Gaussians all learned to stop a falling plank near the floor, a lone one too; with
+            this option they still did, and a hidden ball was held behind its pillar
+            (docs/study/positive_control.md, round seven).
+        carry: what each slot's inertia takes from a carrier (``CARRIES``), by learned
+            shares over itself and the other known slots that sum to 1 (a ``PairNetwork``
+            over each pair), so that a cube hidden in a container can move with it when it
+            starts to slide, and a container and the rod pushing it do not carry it twice.
+            ``"velocity"``: the carrier's last move less the slot's own; learned, it also held
+            a block falling into a container at rest (docs/study/positive_control.md, round
+            five). ``"acceleration"``: the change of the carrier's last move, which a carrier
+            at rest never has; trained only where a carrier starts or stops, in 3,000 steps
+            its shares stayed shut (round six). ``"none"``: the move must be decoded from the other slot's
+            recurrent state, and a hidden carried cube was left where it was seen (0.8 m off).
         world_boxes: the pair features add how the two objects' world boxes overlap
             (``WORLD_BOX_FEATURES``).
         withhold: share of each training clip's objects whose observations are withheld for a
@@ -175,6 +188,11 @@ class ObjectStateModel(SurpriseModel):
             from the others, because its own last move says nothing. Without it, a seen cube
             carried by a container moves by inertia from the slide's second frame, so only a
             slide's first frame teaches carrying.
+        hard_assignment: training scores a seen state by the mixture's best-explaining
+            Gaussian alone (hard EM), so each Gaussian learns only from what it explains and
+            the hypotheses stay apart; surprise (and validation) use the whole mixture. With
+            the whole mixture in training, round seven's three Gaussians all learned to stop
+            a falling plank, a lone one too.
         learning_rate: Adam's (peak) learning rate.
         lr_schedule: ``"constant"`` or ``"cosine"`` (decays to 0 at ``trainer.max_steps``).
         training_frames: frames per training clip, recorded from the training batches.
@@ -182,7 +200,7 @@ class ObjectStateModel(SurpriseModel):
 
     ARCHITECTURE = ARCHITECTURE
     TRAINING_ONLY = ("learning_rate", "lr_schedule", "withhold", "withhold_frames",
-                     "withhold_onsets")
+                     "withhold_onsets", "hard_assignment")
     SURPRISE = ("the rectified excess surprisal of the seen object states (each term's negative "
                 "log-likelihood less its entropy, where positive: the visibility, state and shape "
                 "of every known object, and any newcomer's appearance)")
@@ -194,11 +212,13 @@ class ObjectStateModel(SurpriseModel):
         use_camera: bool = True,
         min_std: float = 0.01,
         components: int = 1,
-        carry: bool = False,
+        stop_component: bool = False,
+        carry: str = "none",
         world_boxes: bool = False,
         withhold: float = 0.0,
         withhold_frames: int = 8,
         withhold_onsets: bool = False,
+        hard_assignment: bool = False,
         learning_rate: float = 1e-3,
         lr_schedule: str = "constant",
         training_frames: int | None = None,
@@ -214,9 +234,15 @@ class ObjectStateModel(SurpriseModel):
         if components < 1:
             raise ValueError(f"components must be >= 1 (Gaussians in the mixture over a "
                              f"slot's next state), got {components}")
+        if stop_component and components < 2:
+            raise ValueError(f"stop_component needs components >= 2 (one Gaussian for stopping, "
+                             f"the others for moving on), got components={components}")
         if not 0 <= withhold <= 1 or withhold_frames < 1:
             raise ValueError(f"withhold must be in [0, 1] (a share of each clip's objects) and "
                              f"withhold_frames >= 1, got {withhold}, {withhold_frames}")
+        if carry not in CARRIES:
+            raise ValueError(f"carry must be one of {CARRIES} (what a carrier passes on to the "
+                             f"objects it carries), got {carry!r}")
         optimization.check_schedule(lr_schedule)
         hidden, message = hidden_size, message_size
         pair = PAIR_FEATURES + (WORLD_BOX_FEATURES if world_boxes else 0)
@@ -226,13 +252,18 @@ class ObjectStateModel(SurpriseModel):
                              self._dynamics_outputs(components)])
         self.occlusion = PairNetwork(hidden, 0, hidden, message, pair)
         self.visibility = mlp([hidden + message + VIEW + 3 + CAMERA_FEATURES, hidden, 1])
-        self.carry = PairNetwork(hidden, hidden, hidden, 1, pair) if carry else None
+        self.carry = PairNetwork(hidden, hidden, hidden, 1, pair) if carry != "none" else None
         if self.carry is not None:
             nn.init.constant_(self.carry.out.bias, CARRY_START)
         #: How much the visibility logit starts from geometry (``seen_by_geometry``); learned.
         self.geometry_weight = nn.Parameter(torch.ones(()))
         self.appearance = mlp([hidden + CAMERA_FEATURES, hidden, 1 + 2 * STATE_SIZE + SHAPES])
         self.log_min_std = math.log(min_std)
+        #: Per component, how much of the inertia its mean takes (``stop_component``: none for
+        #: the first).
+        keeps = torch.ones(components, 1)
+        keeps[0] = 0.0 if stop_component else 1.0
+        self.register_buffer("inertia_kept", keeps, persistent=False)
 
     @staticmethod
     def _dynamics_outputs(components: int) -> int:
@@ -323,6 +354,7 @@ class ObjectStateModel(SurpriseModel):
         belief = obs.state.new_zeros(batch, slots, STATE_SIZE)
         shape = obs.state.new_zeros(batch, slots, SHAPES)
         velocity = obs.state.new_zeros(batch, slots, 3)
+        acceleration = velocity  # the change of the last move
         known = torch.zeros(batch, slots, dtype=torch.bool, device=obs.state.device)
         given_before = known  # what reached the model at the frame before (none before 0)
         terms = {key: [] for name in SLOT_TERMS + ("appear",)
@@ -343,7 +375,8 @@ class ObjectStateModel(SurpriseModel):
                 probability.append(obs.state.new_zeros(batch, slots))
             else:
                 predicted, step_terms, seen_probability = self._predict(
-                    hidden, belief, velocity, shape, known, pose, pose_features, obs, t)
+                    hidden, belief, velocity, acceleration, shape, known, pose, pose_features,
+                    obs, t)
                 for key, value in step_terms.items():
                     terms[key].append(value)
                 probability.append(seen_probability)
@@ -355,7 +388,8 @@ class ObjectStateModel(SurpriseModel):
             # reappearing object's jump from its predicted place is a correction, not a move)
             steady = (given & given_before)[..., None]
             move = torch.where(steady, belief, predicted)[..., :3] - previous[..., :3]
-            velocity = move * (known & ~new)[..., None].float()  # known before t
+            moving = move * (known & ~new)[..., None].float()  # known before t
+            acceleration, velocity = moving - velocity, moving
             shape = torch.where(given[..., None], obs.shape[:, t], shape)
             known = known | visible
             given_before = given
@@ -380,7 +414,7 @@ class ObjectStateModel(SurpriseModel):
             "hidden": torch.stack(states, dim=1),
         }
 
-    def _predict(self, hidden, belief, velocity, shape, known, pose, pose_features,
+    def _predict(self, hidden, belief, velocity, acceleration, shape, known, pose, pose_features,
                  obs: Observations, t: int
                  ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]:
         """Frame t's predictions from the slots after frame t-1: the predicted states
@@ -402,10 +436,12 @@ class ObjectStateModel(SurpriseModel):
             logit = self.carry(hidden, hidden, pairs).squeeze(-1)
             logit = logit.masked_fill(self._pair_weight(known)[..., 0] == 0, -math.inf)
             share = torch.softmax(F.pad(logit, (1, 0)), dim=-1)[..., 1:]  # own: logit 0
-            move = move + (share[..., None] * (velocity[:, None] - velocity[:, :, None])).sum(2)
+            passed = (velocity[:, None] - velocity[:, :, None]
+                      if self.hparams.carry == "velocity" else acceleration[:, None])
+            move = move + (share[..., None] * passed).sum(2)
         # bounded, so a hidden object's rollout cannot feed on itself and diverge
         inertia = F.pad(move.clamp(-MAX_MOVE, MAX_MOVE), (0, STATE_SIZE - 3))
-        means = on_or_above_floor((belief + inertia)[:, :, None]
+        means = on_or_above_floor((belief[:, :, None] + self.inertia_kept * inertia[:, :, None])
                                   + MAX_MOVE * torch.tanh(change / MAX_MOVE))
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
         logits = logits if components > 1 else None
@@ -429,7 +465,9 @@ class ObjectStateModel(SurpriseModel):
         terms = {}
         for name, (nll, entropy), weight in (
             ("visibility", bernoulli_nll(logit, seen), keep),
-            ("state", mixture_nll(obs.state[:, t], means, log_std, logits), seen * keep),
+            ("state", mixture_nll(obs.state[:, t], means, log_std, logits,
+                                  hard=self.training and self.hparams.hard_assignment),
+             seen * keep),
             ("shape", categorical_nll(shape_logits, obs.shape[:, t]), seen * keep),
         ):
             terms[name], terms[f"{name}_entropy"] = nll * weight, entropy * weight
