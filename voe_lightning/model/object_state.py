@@ -161,10 +161,8 @@ class ObjectStateModel(SurpriseModel):
         stop_component: the first Gaussian starts from the belief without the inertia: the
             hypothesis that the object stops where it is (a plank landing on what is under
             it, a ball meeting a wall), so that whether it stops or moves on can be the
-            mixture's choice rather than a regression of the change. Round four's three
-            Gaussians all learned to stop a falling plank near the floor, a lone one too; with
-            this option they still did, and a hidden ball was held behind its pillar
-            (docs/study/positive_control.md, round seven).
+            mixture's choice rather than a regression of the change. Alone, it held a hidden
+            ball behind its pillar (docs/study/positive_control.md, round seven).
         carry: what each slot's inertia takes from a carrier (``CARRIES``), by learned
             shares over itself and the other known slots that sum to 1 (a ``PairNetwork``
             over each pair), so that a cube hidden in a container can move with it when it
@@ -191,8 +189,8 @@ class ObjectStateModel(SurpriseModel):
         hard_assignment: training scores a seen state by the mixture's best-explaining
             Gaussian alone (hard EM), so each Gaussian learns only from what it explains and
             the hypotheses stay apart; surprise (and validation) use the whole mixture. With
-            the whole mixture in training, round seven's three Gaussians all learned to stop
-            a falling plank, a lone one too.
+            the whole mixture in training, round seven's three Gaussians sat at one height
+            (round eight: apart, and a hidden ball tracked again with ``stop_component``).
         learning_rate: Adam's (peak) learning rate.
         lr_schedule: ``"constant"`` or ``"cosine"`` (decays to 0 at ``trainer.max_steps``).
         training_frames: frames per training clip, recorded from the training batches.
