@@ -1,7 +1,9 @@
 """Where the positive control expects a falling plank to land: for object persistence's
 training clips (examples and planks dropped on an empty floor) and its validation probes, the
 plank's height one frame before it comes to rest, at rest, and as predicted for that frame
-(the most probable component), in metres, means over the videos.
+(the most probable component), in metres, means over the videos. Beside them, two
+extrapolations of the two frames before, each raised to rest on the floor: the last move
+repeated with the orientation kept (the control's inertia), and with the last turn repeated too.
 
     python docs/study/scripts/plank_landing.py runs/r7_s0/version_0/checkpoints/last.ckpt \
         --root data/cpu
@@ -16,15 +18,40 @@ from datamodules import VOEDataModule
 from voe_lightning import specs
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.base import video_inputs
+from voe_lightning.model.object_geometry import on_or_above_floor
 from voe_lightning.store import open_split
 
 #: A plank is at rest from the first frame within this distance (m) of its final height.
 AT_REST = 0.03
 
 
+def quaternion_product(first: torch.Tensor, second: torch.Tensor) -> torch.Tensor:
+    """Hamilton product of (w, x, y, z) quaternions [..., 4]: ``second``'s turn, then ``first``'s."""
+    w1, x1, y1, z1 = first.unbind(-1)
+    w2, x2, y2, z2 = second.unbind(-1)
+    return torch.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2],
+                       dim=-1)
+
+
+def extrapolated(before: torch.Tensor, last: torch.Tensor, turn: bool) -> float:
+    """The height of an object whose states two frames and one frame back are ``before`` and
+    ``last`` [13], after its last move (and, with ``turn``, its last turn) repeated, on or above
+    the floor."""
+    state = last.clone()
+    state[:3] = 2 * last[:3] - before[:3]
+    if turn:
+        conjugate = before[3:7] * torch.tensor([1.0, -1.0, -1.0, -1.0])
+        change = quaternion_product(last[3:7], conjugate)
+        change = change * change[0].sign() if change[0] != 0 else change  # the shorter way
+        state[3:7] = quaternion_product(change, last[3:7])
+    return float(on_or_above_floor(state)[2])
+
+
 def landings(model: ObjectStateModel, frames, objects, camera) -> np.ndarray:
     """Per video whose plank (the object with the largest extent) lands in view: its height
-    the frame before it comes to rest, at rest, and as predicted for that frame [N, 3]."""
+    the frame before it comes to rest, at rest, as predicted for that frame, and as the two
+    extrapolations [N, 5]."""
     observations = model._inputs(frames, objects, camera)
     with torch.no_grad():
         predicted = model.rollout(observations)["predicted"][..., 2]
@@ -34,16 +61,19 @@ def landings(model: ObjectStateModel, frames, objects, camera) -> np.ndarray:
     for video, slot in enumerate(plank.tolist()):
         z = height[video, :, slot]
         landed = int(torch.nonzero((z - z[-1]).abs() < AT_REST)[0])
-        if landed >= 1 and observations.visible[video, landed - 1:landed + 1, slot].all():
+        if landed >= 2 and observations.visible[video, landed - 2:landed + 1, slot].all():
+            before, last = observations.state[video, landed - 2:landed, slot]
             rows.append((float(z[landed - 1]), float(z[landed]),
-                         float(predicted[video, landed, slot])))
-    return np.array(rows).reshape(-1, 3)
+                         float(predicted[video, landed, slot]),
+                         extrapolated(before, last, turn=False),
+                         extrapolated(before, last, turn=True)))
+    return np.array(rows).reshape(-1, 5)
 
 
 def report(name: str, rows: np.ndarray) -> None:
-    before, rest, predicted = rows.mean(0)
-    print(f"{name:40s} {len(rows):4d} landings | before {before:.2f} m, at rest {rest:.2f} m, "
-          f"predicted {predicted:.2f} m")
+    before, rest, predicted, moved, turned = rows.mean(0)
+    print(f"{name:38s} {len(rows):3d} landings | before {before:.2f} m, at rest {rest:.2f} m, "
+          f"predicted {predicted:.2f} m | move repeated {moved:.2f} m, move and turn {turned:.2f} m")
 
 
 def main() -> None:
