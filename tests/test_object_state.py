@@ -249,9 +249,12 @@ def test_hard_assignment_scores_training_by_the_best_gaussian_and_surprise_by_th
     assert (trained[:, 1:][seen] > mixture[:, 1:][seen]).all()
 
 
-def test_the_stop_component_needs_a_second_one():
+def test_the_stop_component_needs_a_second_one_and_carry_a_known_choice():
     with pytest.raises(ValueError, match="stop_component needs components >= 2"):
         ObjectStateModel(components=1, stop_component=True)
+    with pytest.raises(ValueError, match=r"carry must be one of \('none', 'velocity', "
+                                         r"'acceleration'\).*got True"):
+        ObjectStateModel(carry=True)
 
 
 def test_pair_features_say_what_an_object_could_rest_on_or_sit_in():

@@ -171,8 +171,9 @@ class ObjectStateModel(SurpriseModel):
             a block falling into a container at rest (docs/study/positive_control.md, round
             five). ``"acceleration"``: the change of the carrier's last move, which a carrier
             at rest never has; trained only where a carrier starts or stops, in 3,000 steps
-            its shares stayed shut (round six). ``"none"``: the move must be decoded from the other slot's
-            recurrent state, and a hidden carried cube was left where it was seen (0.8 m off).
+            its shares stayed shut (round six). ``"none"``: the move must be decoded from the
+            other slot's recurrent state, and a hidden carried cube was left where it was seen
+            (0.8 m off).
         world_boxes: the pair features add how the two objects' world boxes overlap
             (``WORLD_BOX_FEATURES``).
         withhold: share of each training clip's objects whose observations are withheld for a

@@ -26,12 +26,14 @@ AT_REST = 0.03
 
 
 def quaternion_product(first: torch.Tensor, second: torch.Tensor) -> torch.Tensor:
-    """Hamilton product of (w, x, y, z) quaternions [..., 4]: ``second``'s turn, then ``first``'s."""
+    """Hamilton product of (w, x, y, z) quaternions [..., 4]: ``second``'s turn, then
+    ``first``'s."""
     w1, x1, y1, z1 = first.unbind(-1)
     w2, x2, y2, z2 = second.unbind(-1)
-    return torch.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2],
-                       dim=-1)
+    return torch.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+                        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], dim=-1)
 
 
 def extrapolated(before: torch.Tensor, last: torch.Tensor, turn: bool) -> float:
@@ -73,7 +75,8 @@ def landings(model: ObjectStateModel, frames, objects, camera) -> np.ndarray:
 def report(name: str, rows: np.ndarray) -> None:
     before, rest, predicted, moved, turned = rows.mean(0)
     print(f"{name:38s} {len(rows):3d} landings | before {before:.2f} m, at rest {rest:.2f} m, "
-          f"predicted {predicted:.2f} m | move repeated {moved:.2f} m, move and turn {turned:.2f} m")
+          f"predicted {predicted:.2f} m | move repeated {moved:.2f} m, "
+          f"move and turn {turned:.2f} m")
 
 
 def main() -> None:
