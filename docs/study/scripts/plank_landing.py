@@ -11,6 +11,7 @@ repeated with the orientation kept (the control's inertia), and with the last tu
 
 import argparse
 
+import mujoco
 import numpy as np
 import torch
 
@@ -25,28 +26,19 @@ from voe_lightning.store import open_split
 AT_REST = 0.03
 
 
-def quaternion_product(first: torch.Tensor, second: torch.Tensor) -> torch.Tensor:
-    """Hamilton product of (w, x, y, z) quaternions [..., 4]: ``second``'s turn, then
-    ``first``'s."""
-    w1, x1, y1, z1 = first.unbind(-1)
-    w2, x2, y2, z2 = second.unbind(-1)
-    return torch.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-                        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-                        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], dim=-1)
-
-
 def extrapolated(before: torch.Tensor, last: torch.Tensor, turn: bool) -> float:
     """The height of an object whose states two frames and one frame back are ``before`` and
     ``last`` [13], after its last move (and, with ``turn``, its last turn) repeated, on or above
     the floor."""
     state = last.clone()
     state[:3] = 2 * last[:3] - before[:3]
-    if turn:
-        conjugate = before[3:7] * torch.tensor([1.0, -1.0, -1.0, -1.0])
-        change = quaternion_product(last[3:7], conjugate)
-        change = change * change[0].sign() if change[0] != 0 else change  # the shorter way
-        state[3:7] = quaternion_product(change, last[3:7])
+    if turn:  # MuJoCo's (w, x, y, z) quaternions: the last turn, then repeated
+        previous, latest = before[3:7].double().numpy(), last[3:7].double().numpy()
+        inverse, change, turned = np.empty(4), np.empty(4), np.empty(4)
+        mujoco.mju_negQuat(inverse, previous)
+        mujoco.mju_mulQuat(change, latest, inverse)
+        mujoco.mju_mulQuat(turned, change * (1.0 if change[0] >= 0 else -1.0), latest)
+        state[3:7] = torch.from_numpy(turned).to(state)
     return float(on_or_above_floor(state)[2])
 
 
