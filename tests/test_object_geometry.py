@@ -1,12 +1,18 @@
 """The positive control's geometry (``model/object_geometry.py``): sight lines against object
 boxes, with open containers seen into over their rims, agree with what MuJoCo renders."""
 
+import mujoco
+import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
 
 from voe_lightning import scenes, specs
-from voe_lightning.model.object_geometry import on_or_above_floor, seen_by_geometry
+from voe_lightning.model.object_geometry import (
+    lying_on_floor,
+    on_or_above_floor,
+    seen_by_geometry,
+)
 
 CAMERA = torch.tensor([[0.0, 0.0, 0.4, 3.0, 90.0, -30.0]])  # looking along +y, from above
 BOX, COMPOUND = specs.OBJECT_SHAPES.index("box"), specs.OBJECT_SHAPES.index("compound")
@@ -88,3 +94,57 @@ def test_nothing_is_predicted_below_the_floor():
         torch.testing.assert_close(raised[0, 1], given[0, 1])
         torch.testing.assert_close(raised[..., [0, 1, *range(3, 13)]],
                                    given[..., [0, 1, *range(3, 13)]])
+
+
+def _dropped(half: tuple[float, float, float], tilt: float, yaw: float
+             ) -> tuple[torch.Tensor, torch.Tensor]:
+    """A box of half-sizes ``half`` tilted ``tilt`` degrees about its x axis, yawed ``yaw``,
+    released with its lowest corner 1 cm above a floor: its state then and after MuJoCo has
+    let it fall and come to rest (3 s), each [13]."""
+    quat, turn, orientation = np.empty(4), np.empty(4), np.empty(4)
+    mujoco.mju_axisAngle2Quat(quat, np.array([1.0, 0.0, 0.0]), np.deg2rad(tilt))
+    mujoco.mju_axisAngle2Quat(turn, np.array([0.0, 0.0, 1.0]), np.deg2rad(yaw))
+    mujoco.mju_mulQuat(orientation, turn, quat)
+    spec = mujoco.MjSpec()
+    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[5, 5, 0.1])
+    body = spec.worldbody.add_body(name="box", quat=orientation)
+    body.add_freejoint()
+    body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=list(half), friction=[1.0, 0.005, 0.0001])
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    rotation = np.empty(9)
+    mujoco.mju_quat2Mat(rotation, orientation)
+    data.qpos[2] = np.abs(rotation.reshape(3, 3)[2]) @ np.array(half) + 0.01
+    mujoco.mj_forward(model, data)
+
+    def state() -> torch.Tensor:
+        quat = data.qpos[3:7] * (1 if data.qpos[3] >= 0 else -1)
+        return torch.tensor([*data.qpos[:3], *quat, *half, 0.5, 0.5, 0.5], dtype=torch.float64)
+
+    released = state()
+    while data.time < 3.0:
+        mujoco.mj_step(model, data)
+    return released, state()
+
+
+@pytest.mark.parametrize("half, tilt", [((0.8, 1.2, 0.03), 60.0), ((0.8, 1.2, 0.03), 75.0),
+                                        ((0.2, 0.2, 0.2), 25.0), ((0.2, 0.2, 0.2), 65.0),
+                                        ((0.1, 0.1, 0.1), 0.0)])
+def test_a_landing_box_comes_to_rest_as_lying_on_floor_lays_it(half, tilt):
+    """What MuJoCo does with a tilted box dropped onto the floor: a steep plank falls flat (not
+    onto its end), a cube tilted less than 45 degrees settles back on that face and one tilted
+    more topples onto the next; ``lying_on_floor`` of the released state gives the height and
+    the orientation it rests at (up to the yaw the landing adds)."""
+    released, rest = _dropped(half, tilt, yaw=30.0)
+    laid = lying_on_floor(released)
+    assert float(laid[2]) == pytest.approx(float(rest[2]), abs=2e-3)
+    up_laid, up_rest = (torch.from_numpy(_matrix(state[3:7]))[2] for state in (laid, rest))
+    torch.testing.assert_close(up_laid.abs(), up_rest.abs(), atol=0.02, rtol=0)
+    torch.testing.assert_close(laid[7:], released[7:])
+    assert float(laid[3:7].norm()) == pytest.approx(1.0)
+
+
+def _matrix(quaternion: torch.Tensor) -> np.ndarray:
+    matrix = np.empty(9)
+    mujoco.mju_quat2Mat(matrix, quaternion.numpy())
+    return matrix.reshape(3, 3)

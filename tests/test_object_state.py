@@ -14,7 +14,12 @@ from tensordict import TensorDict
 from voe_lightning import specs
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.likelihood import gaussian_nll, mixture_nll
-from voe_lightning.model.object_geometry import view, world_half_extents
+from voe_lightning.model.object_geometry import (
+    lying_on_floor,
+    on_or_above_floor,
+    view,
+    world_half_extents,
+)
 from voe_lightning.model.object_state import CARRIES, Observations, motion_onsets, withheld_spans
 from voe_lightning.model.optimization import adam
 
@@ -229,6 +234,35 @@ def test_the_stop_component_holds_an_object_where_it_is(favoured):
     torch.testing.assert_close(out["state"][0, 2:, 0], expected)
 
 
+@pytest.mark.parametrize("favoured", [0, 1])
+def test_the_landing_component_lays_a_falling_plank_flat_on_the_floor(favoured):
+    """``landing_component``: with no learned change, the last Gaussian is the plank moved on
+    by its fall and laid flat on the floor (``lying_on_floor``), the first is it moved on as
+    it is, tilted (``on_or_above_floor``); the prediction follows the favoured one."""
+    steps = 4
+    state = torch.zeros(1, steps, 1, 13)
+    state[..., 3:7] = torch.tensor([0.8660254, 0.5, 0.0, 0.0])  # 60 degrees about x
+    state[..., 7:10] = torch.tensor([0.6, 0.9, 0.03])
+    state[0, :, 0, 2] = torch.tensor([2.4, 2.0, 1.6, 1.2])  # falling 0.4 m a frame
+    observations = Observations(
+        ids=torch.tensor([[1]]), state=state, shape=F.one_hot(torch.full((1, steps, 1), 2),
+                                                             7).float(),
+        fraction=torch.ones(1, steps, 1), visible=torch.ones(1, steps, 1, dtype=torch.bool),
+        camera=CAMERA.expand(1, steps, 6))
+    model = ObjectStateModel(hidden_size=16, message_size=8, components=2,
+                             landing_component=True)
+    last = model.dynamics[-1]
+    torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
+    with torch.no_grad():
+        last.bias[2 * 2 * 13 + favoured] = 5.0  # the favoured component's logit
+        predicted = model.rollout(observations)["predicted"][0, 2:, 0]
+    fallen = state[0, 1:-1, 0].clone()
+    fallen[:, 2] -= 0.4  # the last move repeated
+    expected = lying_on_floor(fallen) if favoured else on_or_above_floor(fallen)
+    torch.testing.assert_close(predicted, expected)
+    assert (predicted[:, 2] == 0.03).all() == bool(favoured)
+
+
 def test_hard_assignment_scores_training_by_the_best_gaussian_and_surprise_by_the_mixture():
     """``hard_assignment``: in training the state term is the best-explaining Gaussian's alone
     (at least the mixture's), in evaluation the whole mixture's, as without the option."""
@@ -249,9 +283,12 @@ def test_hard_assignment_scores_training_by_the_best_gaussian_and_surprise_by_th
     assert (trained[:, 1:][seen] > mixture[:, 1:][seen]).all()
 
 
-def test_the_stop_component_needs_a_second_one_and_carry_a_known_choice():
+def test_the_stop_and_landing_components_need_others_and_carry_a_known_choice():
     with pytest.raises(ValueError, match="stop_component needs components >= 2"):
         ObjectStateModel(components=1, stop_component=True)
+    with pytest.raises(ValueError, match="landing_component needs components >= 3 .*one for "
+                                         "stopping.*got components=2"):
+        ObjectStateModel(components=2, stop_component=True, landing_component=True)
     with pytest.raises(ValueError, match=r"carry must be one of \('none', 'velocity', "
                                          r"'acceleration'\).*got True"):
         ObjectStateModel(carry=True)

@@ -100,13 +100,55 @@ def world_half_extents(state: torch.Tensor) -> torch.Tensor:
     return (_rotations(state).abs() * state[..., None, 7:10]).sum(-1)
 
 
+def lowest_point(state: torch.Tensor) -> torch.Tensor:
+    """Height [...] of the lowest point of each object's box above the floor (z = 0)."""
+    return state[..., 2] - world_half_extents(state)[..., 2]
+
+
 def on_or_above_floor(state: torch.Tensor) -> torch.Tensor:
     """``state`` [..., 13] with every object raised, where needed, so that its box's lowest
     point is on or above the floor (z = 0): the floor is seen in every scene and nothing rests
     below it, so a hidden object's predicted fall ends there."""
-    lowest = world_half_extents(state)[..., 2]  # centre - bottom
-    height = torch.maximum(state[..., 2], lowest)
+    height = state[..., 2] - lowest_point(state).clamp(max=0.0)
     return torch.cat([state[..., :2], height[..., None], state[..., 3:]], dim=-1)
+
+
+def quaternion_product(first: torch.Tensor, second: torch.Tensor) -> torch.Tensor:
+    """The rotation [..., 4] that applies ``second``, then ``first`` (w, x, y, z)."""
+    w1, x1, y1, z1 = first.unbind(-1)
+    w2, x2, y2, z2 = second.unbind(-1)
+    return torch.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+                        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], dim=-1)
+
+
+def lying_on_floor(state: torch.Tensor) -> torch.Tensor:
+    """``state`` [..., 13] with every object turned, by the smallest rotation, onto the face
+    of its box it would topple onto, and set down on the floor there: where a tilted box that
+    lands comes to rest (a plank falling steeply turns flat within one frame interval, so no
+    extrapolation of its fall foresees it). The face is the one whose axis is furthest inside
+    its tipping angle (tilted less than the angle at which the centre passes over the box's
+    narrowest edge): a cube settles on its nearest face, a steep plank flat, not on its end.
+    Its place along the floor is kept; an object with no orientation is only set down."""
+    quaternion = state[..., 3:7]
+    quaternion = quaternion / quaternion.norm(dim=-1, keepdim=True).clamp(min=1e-6)
+    rotation = _rotations(torch.cat([state[..., :3], quaternion, state[..., 7:]], dim=-1))
+    half = state[..., 7:10]
+    narrowest_other = torch.stack([half[..., [1, 2]].amin(-1), half[..., [0, 2]].amin(-1),
+                                   half[..., [0, 1]].amin(-1)], dim=-1)
+    tipping = torch.atan2(narrowest_other, half)
+    tilt = torch.acos(rotation[..., 2, :].abs().clamp(max=1.0))
+    nearest = (tipping - tilt).argmax(-1, keepdim=True)  # the axis it comes to rest on
+    axis = rotation.gather(-1, nearest[..., None, :].expand(*rotation.shape[:-1], 1))[..., 0]
+    axis = axis * torch.where(axis[..., 2:] < 0, -1.0, 1.0)  # pointing up
+    # the half-way quaternion turns the axis onto +z: (1 + a.z, a x z), normalised
+    ax, ay, az = axis.unbind(-1)
+    turn = torch.stack([1 + az, ay, -ax, torch.zeros_like(az)], dim=-1)
+    turned = quaternion_product(turn / turn.norm(dim=-1, keepdim=True), quaternion)
+    turned = turned * torch.where(turned[..., :1] < 0, -1.0, 1.0)  # w >= 0, as observed
+    height = half.gather(-1, nearest)
+    return torch.cat([state[..., :2], height, turned, state[..., 7:]], dim=-1)
 
 
 def sample_points(state: torch.Tensor, shape: torch.Tensor) -> torch.Tensor:

@@ -28,6 +28,8 @@ from voe_lightning.model.likelihood import (
 from voe_lightning.model.object_geometry import (
     VIEW,
     draw_discs,
+    lowest_point,
+    lying_on_floor,
     on_or_above_floor,
     seen_by_geometry,
     view,
@@ -61,7 +63,10 @@ SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape"
 
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
 ARCHITECTURE = ("hidden_size", "message_size", "use_camera", "components", "stop_component",
-                "carry", "world_boxes")
+                "landing_component", "carry", "world_boxes")
+#: Per-slot inputs of the dynamics with ``landing_component``: how high the lowest point of the
+#: object's box is above the floor at its belief and where its inertia would take it.
+FLOOR_FEATURES = 2
 #: The carry logit's start (own move: 0): objects start out moving mostly on their own.
 CARRY_START = -2.0
 #: What a carrier passes on (``carry``): nothing, its last move (the mover's own taken off),
@@ -163,6 +168,12 @@ class ObjectStateModel(SurpriseModel):
             it, a ball meeting a wall), so that whether it stops or moves on can be the
             mixture's choice rather than a regression of the change. Alone, it held a hidden
             ball behind its pillar (docs/study/positive_control.md, round seven).
+        landing_component: the last Gaussian lays the object, moved on by inertia and its
+            learned change, flat on the floor (``lying_on_floor``): the hypothesis that it
+            lands, which a steeply falling plank does within one frame interval; and the
+            dynamics read how high each box's lowest point is now and would be by inertia
+            (``FLOOR_FEATURES``), so the mixture can tell when. Without it, a plank still
+            predicted tilted was held at its half-height by the floor (round eight).
         carry: what each slot's inertia takes from a carrier (``CARRIES``), by learned
             shares over itself and the other known slots that sum to 1 (a ``PairNetwork``
             over each pair), so that a cube hidden in a container can move with it when it
@@ -212,6 +223,7 @@ class ObjectStateModel(SurpriseModel):
         min_std: float = 0.01,
         components: int = 1,
         stop_component: bool = False,
+        landing_component: bool = False,
         carry: str = "none",
         world_boxes: bool = False,
         withhold: float = 0.0,
@@ -236,6 +248,10 @@ class ObjectStateModel(SurpriseModel):
         if stop_component and components < 2:
             raise ValueError(f"stop_component needs components >= 2 (one Gaussian for stopping, "
                              f"the others for moving on), got components={components}")
+        if landing_component and components < 2 + stop_component:
+            raise ValueError(f"landing_component needs components >= {2 + stop_component} (one "
+                             f"Gaussian for landing{', one for stopping' if stop_component else ''}"
+                             f", the others for moving on), got components={components}")
         if not 0 <= withhold <= 1 or withhold_frames < 1:
             raise ValueError(f"withhold must be in [0, 1] (a share of each clip's objects) and "
                              f"withhold_frames >= 1, got {withhold}, {withhold_frames}")
@@ -247,7 +263,8 @@ class ObjectStateModel(SurpriseModel):
         pair = PAIR_FEATURES + (WORLD_BOX_FEATURES if world_boxes else 0)
         self.message = PairNetwork(hidden, hidden, hidden, message, pair)
         self.update = nn.GRUCell(FEATURES + message + CAMERA_FEATURES, hidden)
-        self.dynamics = mlp([hidden + message + CAMERA_FEATURES, hidden, hidden,
+        floor = FLOOR_FEATURES if landing_component else 0
+        self.dynamics = mlp([hidden + message + CAMERA_FEATURES + floor, hidden, hidden,
                              self._dynamics_outputs(components)])
         self.occlusion = PairNetwork(hidden, 0, hidden, message, pair)
         self.visibility = mlp([hidden + message + VIEW + 3 + CAMERA_FEATURES, hidden, 1])
@@ -423,13 +440,6 @@ class ObjectStateModel(SurpriseModel):
         batch, slots = known.shape
         pairs = self._pairs(belief, shape, view(belief, pose))
         message = self._messages(self.message, hidden, hidden, pairs, known)
-        out = self.dynamics(torch.cat([hidden, message, pose_features], dim=-1))
-        components = self.hparams.components
-        change, log_std, logits, shape_logits = out.split(
-            [components * STATE_SIZE, components * STATE_SIZE,
-             components if components > 1 else 0, SHAPES], -1)
-        change = change.unflatten(-1, (components, STATE_SIZE))  # [B, S, K, 13]
-        log_std = log_std.unflatten(-1, (components, STATE_SIZE))
         move = velocity
         if self.carry is not None:  # moves with at most one carrier: shares of 1 over self+others
             logit = self.carry(hidden, hidden, pairs).squeeze(-1)
@@ -440,8 +450,21 @@ class ObjectStateModel(SurpriseModel):
             move = move + (share[..., None] * passed).sum(2)
         # bounded, so a hidden object's rollout cannot feed on itself and diverge
         inertia = F.pad(move.clamp(-MAX_MOVE, MAX_MOVE), (0, STATE_SIZE - 3))
-        means = on_or_above_floor((belief[:, :, None] + self.inertia_kept * inertia[:, :, None])
-                                  + MAX_MOVE * torch.tanh(change / MAX_MOVE))
+        inputs = [hidden, message, pose_features]
+        if self.hparams.landing_component:
+            inputs.append(torch.stack([lowest_point(belief), lowest_point(belief + inertia)], -1))
+        out = self.dynamics(torch.cat(inputs, dim=-1))
+        components = self.hparams.components
+        change, log_std, logits, shape_logits = out.split(
+            [components * STATE_SIZE, components * STATE_SIZE,
+             components if components > 1 else 0, SHAPES], -1)
+        change = change.unflatten(-1, (components, STATE_SIZE))  # [B, S, K, 13]
+        log_std = log_std.unflatten(-1, (components, STATE_SIZE))
+        moved = ((belief[:, :, None] + self.inertia_kept * inertia[:, :, None])
+                 + MAX_MOVE * torch.tanh(change / MAX_MOVE))
+        means = on_or_above_floor(moved)
+        if self.hparams.landing_component:
+            means = torch.cat([means[:, :, :-1], lying_on_floor(moved[:, :, -1:])], dim=2)
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
         logits = logits if components > 1 else None
         top = (logits.argmax(-1) if logits is not None
