@@ -236,9 +236,10 @@ def test_the_stop_component_holds_an_object_where_it_is(favoured):
 
 @pytest.mark.parametrize("favoured", [0, 1])
 def test_the_landing_component_lays_a_falling_plank_flat_on_the_floor(favoured):
-    """``landing_component``: with no learned change, the last Gaussian is the plank moved on
-    by its fall and laid flat on the floor (``lying_on_floor``), the first is it moved on as
-    it is, tilted (``on_or_above_floor``); the prediction follows the favoured one."""
+    """``landing_component``: with no learned change of its place, the last Gaussian is the
+    plank moved on by its fall and laid flat on the floor (``lying_on_floor``), its size and
+    colour its own whatever change is learned for them; the first is it moved on as it is,
+    tilted (``on_or_above_floor``); the prediction follows the favoured one."""
     steps = 4
     state = torch.zeros(1, steps, 1, 13)
     state[..., 3:7] = torch.tensor([0.8660254, 0.5, 0.0, 0.0])  # 60 degrees about x
@@ -255,6 +256,7 @@ def test_the_landing_component_lays_a_falling_plank_flat_on_the_floor(favoured):
     torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
     with torch.no_grad():
         last.bias[2 * 2 * 13 + favoured] = 5.0  # the favoured component's logit
+        last.bias[13 + 7:2 * 13] = 0.3  # a change of the landing one's size and colour
         predicted = model.rollout(observations)["predicted"][0, 2:, 0]
     fallen = state[0, 1:-1, 0].clone()
     fallen[:, 2] -= 0.4  # the last move repeated

@@ -169,8 +169,9 @@ class ObjectStateModel(SurpriseModel):
             mixture's choice rather than a regression of the change. Alone, it held a hidden
             ball behind its pillar (docs/study/positive_control.md, round seven).
         landing_component: the last Gaussian lays the object, moved on by inertia and its
-            learned change, flat on the floor (``lying_on_floor``): the hypothesis that it
-            lands, which a steeply falling plank does within one frame interval; and the
+            learned change, flat on the floor (``lying_on_floor``), its size and colour kept
+            (with hard assignment a learned change there drifted, so it never won, and never
+            learned): the hypothesis that it lands, which a steeply falling plank does within one frame interval; and the
             dynamics read how high each box's lowest point is now and would be by inertia
             (``FLOOR_FEATURES``), so the mixture can tell when. Without it, a plank still
             predicted tilted was held at its half-height by the floor (round eight).
@@ -463,8 +464,9 @@ class ObjectStateModel(SurpriseModel):
         moved = ((belief[:, :, None] + self.inertia_kept * inertia[:, :, None])
                  + MAX_MOVE * torch.tanh(change / MAX_MOVE))
         means = on_or_above_floor(moved)
-        if self.hparams.landing_component:
-            means = torch.cat([means[:, :, :-1], lying_on_floor(moved[:, :, -1:])], dim=2)
+        if self.hparams.landing_component:  # it lands as the object it is: size and colour kept
+            landing = torch.cat([moved[:, :, -1:, :7], belief[:, :, None, 7:]], dim=-1)
+            means = torch.cat([means[:, :, :-1], lying_on_floor(landing)], dim=2)
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
         logits = logits if components > 1 else None
         top = (logits.argmax(-1) if logits is not None
