@@ -291,6 +291,8 @@ def test_the_stop_and_landing_components_need_others_and_carry_a_known_choice():
     with pytest.raises(ValueError, match="landing_component needs components >= 3 .*one for "
                                          "stopping.*got components=2"):
         ObjectStateModel(components=2, stop_component=True, landing_component=True)
+    with pytest.raises(ValueError, match="land_on_objects needs landing_component: true"):
+        ObjectStateModel(components=3, land_on_objects=True)
     with pytest.raises(ValueError, match=r"carry must be one of \('none', 'velocity', "
                                          r"'acceleration'\).*got True"):
         ObjectStateModel(carry=True)

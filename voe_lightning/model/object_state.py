@@ -31,6 +31,7 @@ from voe_lightning.model.object_geometry import (
     lowest_point,
     lying_on_floor,
     on_or_above_floor,
+    on_what_is_below,
     seen_by_geometry,
     view,
     world_half_extents,
@@ -63,7 +64,7 @@ SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape"
 
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
 ARCHITECTURE = ("hidden_size", "message_size", "use_camera", "components", "stop_component",
-                "landing_component", "carry", "world_boxes")
+                "landing_component", "land_on_objects", "carry", "world_boxes")
 #: Per-slot inputs of the dynamics with ``landing_component``: how high the lowest point of the
 #: object's box is above the floor at its belief and where its inertia would take it.
 FLOOR_FEATURES = 2
@@ -175,6 +176,11 @@ class ObjectStateModel(SurpriseModel):
             dynamics read how high each box's lowest point is now and would be by inertia
             (``FLOOR_FEATURES``), so the mixture can tell when. Without it, a plank still
             predicted tilted was held at its half-height by the floor (round eight).
+        land_on_objects: the landing Gaussian lays the object on the highest known object
+            below it, where there is one, instead of the floor (``on_what_is_below``): a
+            plank falling onto a hidden object lands on it if the object is still believed to
+            be there. On the floor alone, planks were predicted flat where they were propped
+            (round nine).
         carry: what each slot's inertia takes from a carrier (``CARRIES``), by learned
             shares over itself and the other known slots that sum to 1 (a ``PairNetwork``
             over each pair), so that a cube hidden in a container can move with it when it
@@ -225,6 +231,7 @@ class ObjectStateModel(SurpriseModel):
         components: int = 1,
         stop_component: bool = False,
         landing_component: bool = False,
+        land_on_objects: bool = False,
         carry: str = "none",
         world_boxes: bool = False,
         withhold: float = 0.0,
@@ -253,6 +260,9 @@ class ObjectStateModel(SurpriseModel):
             raise ValueError(f"landing_component needs components >= {2 + stop_component} (one "
                              f"Gaussian for landing{', one for stopping' if stop_component else ''}"
                              f", the others for moving on), got components={components}")
+        if land_on_objects and not landing_component:
+            raise ValueError("land_on_objects needs landing_component: true (it says where the "
+                             "landing Gaussian lays an object)")
         if not 0 <= withhold <= 1 or withhold_frames < 1:
             raise ValueError(f"withhold must be in [0, 1] (a share of each clip's objects) and "
                              f"withhold_frames >= 1, got {withhold}, {withhold_frames}")
@@ -438,7 +448,6 @@ class ObjectStateModel(SurpriseModel):
         [B, S, 13] (the most probable component's mean: positions by inertia, the last frame's
         move repeated, plus a learned change, raised to rest on the floor where they would sink
         below it), the terms of what frame t shows (``rollout``) and p(visible) [B, S]."""
-        batch, slots = known.shape
         pairs = self._pairs(belief, shape, view(belief, pose))
         message = self._messages(self.message, hidden, hidden, pairs, known)
         move = velocity
@@ -466,7 +475,10 @@ class ObjectStateModel(SurpriseModel):
         means = on_or_above_floor(moved)
         if self.hparams.landing_component:  # it lands as the object it is: size and colour kept
             landing = torch.cat([moved[:, :, -1:, :7], belief[:, :, None, 7:]], dim=-1)
-            means = torch.cat([means[:, :, :-1], lying_on_floor(landing)], dim=2)
+            landing = lying_on_floor(landing)
+            if self.hparams.land_on_objects:
+                landing = on_what_is_below(landing[:, :, 0], belief, shape, known)[:, :, None]
+            means = torch.cat([means[:, :, :-1], landing], dim=2)
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
         logits = logits if components > 1 else None
         top = (logits.argmax(-1) if logits is not None
