@@ -172,9 +172,9 @@ class ObjectStateModel(SurpriseModel):
         landing_component: the last Gaussian lays the object, moved on by inertia and its
             learned change, flat on the floor (``lying_on_floor``), its size and colour kept
             (with hard assignment a learned change there drifted, so it never won, and never
-            learned): the hypothesis that it lands, which a steeply falling plank does within one frame interval; and the
-            dynamics read how high each box's lowest point is now and would be by inertia
-            (``FLOOR_FEATURES``), so the mixture can tell when. Without it, a plank still
+            learned): the hypothesis that it lands, which a steeply falling plank does within
+            one frame interval; and the dynamics read how high each box's lowest point is now
+            and would be by inertia (``FLOOR_FEATURES``), so the mixture can tell when. Without it, a plank still
             predicted tilted was held at its half-height by the floor (round eight).
         land_on_objects: the landing Gaussian lays the object on the highest known object
             below it, where there is one, instead of the floor (``on_what_is_below``): a
@@ -289,7 +289,8 @@ class ObjectStateModel(SurpriseModel):
         #: Per component, how much of the inertia its mean takes (``stop_component``: none for
         #: the first).
         keeps = torch.ones(components, 1)
-        keeps[0] = 0.0 if stop_component else 1.0
+        if stop_component:
+            keeps[0] = 0.0
         self.register_buffer("inertia_kept", keeps, persistent=False)
 
     @staticmethod
