@@ -5,8 +5,11 @@ CLI with the parameter-free CueScorer and no checkpoint."""
 
 import csv
 import json
+import os
 import random
 import shutil
+import subprocess
+import sys
 
 from pathlib import Path
 
@@ -312,3 +315,14 @@ def test_cue_scorer_runs_test_and_predict_without_a_checkpoint(root, tmp_path):
                                                   for k in ("possible", "impossible")]
     assert all(line["model_answer"] in (0, 1) and line["data_name"] == "IntPhys2"
                and line["task"] == "HeldOut" for line in lines)
+
+
+def test_the_package_and_its_datamodules_import_without_pyav():
+    """PyAV is needed only to decode IntPhys 2's videos: a machine that trains on generated data
+    (a lent GPU with no package index, say) must start without it."""
+    blocked = ("import sys; sys.modules['av'] = None; "
+               "import voe_lightning.cli, datamodules, voe_lightning.external.intphys2")
+    root = Path(__file__).resolve().parents[1]
+    result = subprocess.run([sys.executable, "-c", blocked], cwd=root, capture_output=True,
+                            text=True, check=False, env={**os.environ, "PYTHONPATH": str(root)})
+    assert result.returncode == 0, result.stderr

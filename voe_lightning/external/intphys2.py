@@ -23,7 +23,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import av
 import numpy as np
 import torch
 from tensordict import TensorDict
@@ -266,7 +265,9 @@ def pair_videos(
 def read_video(path: Path, sampling: ClipSampling) -> np.ndarray:
     """The sampled frames of an mp4 at full resolution, uint8 [T, h, w, 3], decoded with PyAV.
     Frames are picked while decoding (from the stream's frame count, checked at the end), so a
-    long video is never held whole."""
+    long video is never held whole. PyAV is imported here, so the package imports without it
+    (on a machine that trains on generated data alone)."""
+    import av
 
     def decode(available: int) -> tuple[list[np.ndarray], int]:
         wanted = set(sampling.indices(available, path).tolist()) if available else set()
