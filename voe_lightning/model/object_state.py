@@ -174,8 +174,9 @@ class ObjectStateModel(SurpriseModel):
             (with hard assignment a learned change there drifted, so it never won, and never
             learned): the hypothesis that it lands, which a steeply falling plank does within
             one frame interval; and the dynamics read how high each box's lowest point is now
-            and would be by inertia (``FLOOR_FEATURES``), so the mixture can tell when. Without it, a plank still
-            predicted tilted was held at its half-height by the floor (round eight).
+            and would be by inertia (``FLOOR_FEATURES``), so the mixture can tell when. Without
+            it, a plank still predicted tilted was held at its half-height by the floor (round
+            eight).
         land_on_objects: the landing Gaussian lays the object on the highest known object
             below it, where there is one, instead of the floor (``on_what_is_below``): a
             plank falling onto a hidden object lands on it if the object is still believed to
