@@ -20,6 +20,8 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from voe_lightning import analysis
 from voe_lightning.cli import main
 from voe_lightning.model import VRNNLRUModel
+from voe_lightning.model.object_centric import SURPRISES
+from voe_lightning.specs import to_model_input
 from voe_lightning.store import collate, open_split
 
 CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
@@ -392,6 +394,92 @@ def test_training_only_arguments_may_differ_when_testing_a_checkpoint(workdir, t
     main(["test", "--config", CONFIG, "--ckpt_path", checkpoint, *training_only])
     assert (run / "voe_report" / "summary.json").is_file()
     assert "lr_schedule: constant" in (run / "hparams.yaml").read_text()
+
+
+@pytest.fixture(scope="module")
+def trained_object_centric(tmp_path_factory):
+    """A tiny object-centric model fitted with code-space surprise, one step per stage, under
+    runs/oc: its config (the tiny one with this model) and its run directory."""
+    folder = tmp_path_factory.mktemp("object_centric")
+    config = yaml.safe_load(Path(CONFIG).read_text())
+    config["model"] = {"class_path": "voe_lightning.model.ObjectCentricModel", "init_args": {
+        "image_size": [32, 32], "num_slots": 4, "code_size": 8, "encoder_channels": [8, 8],
+        "state_size": 16, "relation_sizes": [16], "node_sizes": [16], "relation_size": 16,
+        "perception_steps": 1}}
+    (folder / "oc.yaml").write_text(yaml.safe_dump(config))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(folder)
+        main(["fit", "--config", "oc.yaml", "--trainer.logger.init_args.name", "oc"])
+    return str(folder / "oc.yaml"), folder / "runs" / "oc" / "version_0"
+
+
+def test_an_evaluation_only_argument_scores_a_checkpoint_otherwise(workdir, trained_object_centric,
+                                                                  capsys):
+    """A checkpoint trained with code-space surprise is tested with `surprise_space pixels`
+    (``EVALUATION_ONLY``: it changes no parameter): the model is built with it, not the
+    checkpoint's, scores the decoded frames, says so, and reports into a folder of its own."""
+    config, trained_run = trained_object_centric
+    run = copy_of(trained_run, workdir)
+    cli = main(["test", "--config", config, "--ckpt_path", str(run / "checkpoints" / "last.ckpt"),
+                "--model.init_args.surprise_space", "pixels"])
+    assert "surprise_space: pixels (trained with codes)" in capsys.readouterr().out
+    model = cli.model.eval()
+    assert model.hparams.surprise_space == "pixels"
+    [report] = run.glob("surprise_space_pixels-*/voe_report")
+    summary = json.loads((report / "summary.json").read_text())
+    assert summary["video_surprise"] == f"sum over frames of {SURPRISES['squared_error', 'pixels']}"
+    assert not (run / "voe_report").exists(), "the run's own report is not this one"
+    generator = torch.Generator().manual_seed(0)
+    frames = torch.randint(0, 256, (2, 6, 32, 32, 3), dtype=torch.uint8, generator=generator)
+    mask = torch.zeros(2, 6, 32, 32, dtype=torch.uint8)
+    mask[:, :, 4:12, 4:12], mask[:, :, 18:26, 16:28] = 1, 2
+    camera = torch.randn(2, 6, 6, generator=generator)
+    surprise = model.surprise(frames, mask, camera)
+    error = (model.expected_frames(frames, mask, camera) - to_model_input(frames)).pow(2)
+    pixel_error = error.sum(dim=(2, 3, 4))
+    pixel_error[:, 0] = 0.0
+    torch.testing.assert_close(surprise, pixel_error)
+    model.hparams.surprise_space = "codes"  # the same weights scored as trained
+    assert not torch.allclose(surprise, model.surprise(frames, mask, camera))
+
+
+def test_an_evaluation_only_argument_as_trained_changes_nothing(workdir, trained_object_centric,
+                                                               capsys):
+    """`surprise_space codes`, the checkpoint's own, is no difference: nothing is announced and
+    the report is the run's own."""
+    config, trained_run = trained_object_centric
+    run = copy_of(trained_run, workdir)
+    cli = main(["test", "--config", config, "--ckpt_path", str(run / "checkpoints" / "last.ckpt"),
+                "--model.init_args.surprise_space", "codes"])
+    out = capsys.readouterr().out
+    assert "evaluation-only" not in out and "scored otherwise" not in out
+    assert cli.model.hparams.surprise_space == "codes"
+    summary = json.loads((run / "voe_report" / "summary.json").read_text())
+    assert summary["video_surprise"] == f"sum over frames of {SURPRISES['squared_error', 'codes']}"
+    assert not list(run.glob("surprise_space_*"))
+
+
+def test_other_model_arguments_are_refused_naming_those_evaluation_may_change(
+        workdir, trained_object_centric):
+    """Beside an evaluation-only argument, one that is not (``surprise`` shapes the dynamics)
+    is still refused, and the message names what evaluating may change; in `fit` of the
+    checkpoint an evaluation-only argument is an ordinary one, refused too."""
+    config, run = trained_object_centric
+    checkpoint = str(run / "checkpoints" / "last.ckpt")
+    with pytest.raises(ValueError) as raised:
+        main(["test", "--debug", "--config", config, "--ckpt_path", checkpoint,
+              "--model.init_args.surprise_space", "pixels",
+              "--model.init_args.surprise", "likelihood"])
+    message = str(raised.value)
+    assert "surprise: config 'likelihood', checkpoint 'squared_error'" in message
+    assert "surprise_space: config" not in message
+    assert ("take other values of ObjectCentricModel's training-only learning_rate, "
+            "perception_steps, code_loss_weight (ignored) and evaluation-only surprise_space "
+            "(used instead of the checkpoint's)") in message
+    with pytest.raises(ValueError, match="surprise_space: config 'pixels', checkpoint 'codes'"):
+        main(["fit", "--debug", "--config", config, "--ckpt_path", checkpoint,
+              "--model.init_args.surprise_space", "pixels"])
+    assert not (workdir / "data").exists(), "refused before any work"
 
 
 def test_a_study_config_on_top_of_base_tests_a_checkpoint(workdir, trained):

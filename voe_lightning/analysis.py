@@ -166,8 +166,9 @@ def relative_surprise_curves_figure(
 
 def _latest_report(run_dir: str | Path) -> Path:
     """The newest voe_report under ``run_dir``, preferring a training run's own (beside its
-    config.yaml) to those `test` writes into sub-folders for external benchmarks or other
-    data, concepts or checkpoints (``<run>/<what differs>-<hash>/``, ``runs.report_folder``)."""
+    config.yaml) to those `test` writes into sub-folders for external benchmarks, other data,
+    concepts, checkpoints or evaluation-only model arguments (``<run>/<what differs>-<hash>/``,
+    ``runs.report_folder``)."""
     reports = sorted(Path(run_dir).rglob("voe_report/summary.json"),
                      key=lambda path: path.stat().st_mtime)
     if not reports:

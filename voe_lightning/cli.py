@@ -65,10 +65,12 @@ class VOECLI(LightningCLI):
     run of the config's logger name. A missing checkpoint (or a directory) is refused before
     any work starts, and so are a truncated or corrupt one, model arguments the user gives
     that differ from the checkpoint's (LightningCLI replaces the config's model arguments with
-    the checkpoint's, so they would be ignored), and ``test``/``predict`` of a model with
-    trainable parameters and no checkpoint. SIGTERM or SIGINT during ``fit`` saves a resumable
-    last.ckpt and exits with 128 + the signal's number (``interruption``). The subcommands
-    of ``COMMANDS`` call their function instead, with no model, data or trainer."""
+    the checkpoint's, so they would be ignored; evaluating it, the model's ``EVALUATION_ONLY``
+    ones given are used instead, and its report gets a folder of its own), and
+    ``test``/``predict`` of a model with trainable parameters and no checkpoint. SIGTERM or
+    SIGINT during ``fit`` saves a resumable last.ckpt and exits with 128 + the signal's
+    number (``interruption``). The subcommands of ``COMMANDS`` call their function instead,
+    with no model, data or trainer."""
 
     def add_arguments_to_parser(self, parser: Any) -> None:
         """The run's one significance level, ``alpha`` (configs/base.yaml sets it), and its
@@ -143,7 +145,12 @@ class VOECLI(LightningCLI):
     def parse_arguments(self, parser: Any, args: Any) -> None:
         """Parse, then resolve --ckpt_path to one file (``_checkpoint``), read it (naming it if
         unreadable) and compare the model arguments given explicitly (a re-parse without
-        defaults) with its hyperparameters."""
+        defaults) with its hyperparameters: evaluating it, its model class's ``TRAINING_ONLY``
+        ones are ignored and its ``EVALUATION_ONLY`` ones kept in ``evaluation_arguments``;
+        any other that differs is refused."""
+        #: The evaluation-only model arguments given otherwise than the checkpoint's, name ->
+        #: value: the model is built with them (``before_instantiate_classes``).
+        self.evaluation_arguments: dict[str, Any] = {}
         super().parse_arguments(parser, args)
         subcommand = self.config.get("subcommand")
         if subcommand not in LIGHTNING_SUBCOMMANDS:
@@ -171,17 +178,31 @@ class VOECLI(LightningCLI):
             if BASE_CONFIG.is_file():
                 words[at:at] = ["--config", str(BASE_CONFIG)]
             explicit = parser.parse_args(words, defaults=False)
-        # Evaluating a checkpoint, its training-only arguments change nothing: no conflict.
+        # Evaluating a checkpoint, its training-only arguments change nothing and its
+        # evaluation-only ones only how it scores: no conflict.
         model_class = _import(trained["_class_path"]) if trained.get("_class_path") else None
-        training_only = (model_class.TRAINING_ONLY if subcommand != "fit" and model_class
-                         and issubclass(model_class, SurpriseModel) else ())
-        conflicts = _conflicts(explicit[subcommand].get("model"), trained, training_only)
+        if not (isinstance(model_class, type) and issubclass(model_class, SurpriseModel)):
+            model_class = None
+        evaluating = subcommand != "fit" and model_class is not None
+        training_only = model_class.TRAINING_ONLY if evaluating else ()
+        evaluation_only = model_class.EVALUATION_ONLY if evaluating else ()
+        given = explicit[subcommand].get("model")
+        conflicts = _conflicts(given, trained, training_only + evaluation_only)
         if conflicts:
             raise ValueError(
                 f"{ckpt_path} was trained with other model arguments than given here, and the "
                 "model's arguments come from the checkpoint, so these would be ignored: "
-                + "; ".join(conflicts) + ". Leave them out or give the checkpoint's values."
+                + "; ".join(conflicts) + ". Leave them out or give the checkpoint's values"
+                + _may_differ(model_class) + "."
             )
+        self.evaluation_arguments = {name: value
+                                     for name, value in _differences(given, trained).items()
+                                     if name in evaluation_only}
+        if self.evaluation_arguments:
+            print(f"{subcommand} scores {ckpt_path} with evaluation-only model arguments other "
+                  "than it was trained with: " + "; ".join(
+                      f"{name}: {value} (trained with {trained[name]})"
+                      for name, value in self.evaluation_arguments.items()))
 
     @staticmethod
     def _checkpoint(config: Any, ckpt_path: str) -> Path:
@@ -198,6 +219,10 @@ class VOECLI(LightningCLI):
 
     def before_instantiate_classes(self) -> None:
         config = self.config.get(self.subcommand, {})
+        # LightningCLI has replaced the model's arguments with the checkpoint's hyperparameters
+        # since parse_arguments (its _parse_ckpt_path): the evaluation-only ones given win.
+        for name, value in self.evaluation_arguments.items():
+            config["model"]["init_args"][name] = value
         if self.subcommand in LIGHTNING_SUBCOMMANDS:
             _give_alpha(config)
             _give_surprise_window(config)
@@ -230,11 +255,13 @@ class VOECLI(LightningCLI):
                 f"checkpoints continue there; the logger name {init_args['name']!r} is not "
                 "used. A later test of this run replaces its voe_report/: copy it first to keep it."
             )
-        if self.subcommand != "fit" and (folder := _report_folder(config, checkpoint)) is not None:
+        folder = (_report_folder(config, checkpoint, self.evaluation_arguments)
+                  if self.subcommand != "fit" else None)
+        if folder is not None:
             version = f"{version}/{folder}"
             print(f"{self.subcommand} of {checkpoint} on other data, concepts or another "
-                  f"checkpoint than the run's own: its logs and report go to {run_dir / folder}, "
-                  "and the run's own voe_report/ is kept")
+                  f"checkpoint than the run's own, or scored otherwise: its logs and report go "
+                  f"to {run_dir / folder}, and the run's own voe_report/ is kept")
         init_args["save_dir"] = str(run_dir.parent.parent)
         init_args["name"] = run_dir.parent.name
         init_args["version"] = version
@@ -298,9 +325,10 @@ def _give_alpha(config: Any) -> None:
             )
 
 
-def _report_folder(config: Any, checkpoint: Path) -> str | None:
-    """``runs.report_folder`` of evaluating ``checkpoint`` with ``config``'s data, compared
-    with the data and concepts of the run's training config (``<run>/config.yaml``)."""
+def _report_folder(config: Any, checkpoint: Path, evaluation: dict[str, Any]) -> str | None:
+    """``runs.report_folder`` of evaluating ``checkpoint`` with ``config``'s data and the
+    ``evaluation``-only model arguments given otherwise, compared with the data and concepts
+    of the run's training config (``<run>/config.yaml``)."""
     data = config.get("data")
     data_args = getattr(data, "init_args", None) or {}
     data_class = _import(data.class_path) if getattr(data, "class_path", None) else None
@@ -317,26 +345,46 @@ def _report_folder(config: Any, checkpoint: Path) -> str | None:
         trained_args = {}
     return runs.report_folder(checkpoint, data_args.get("root"), runs.concepts_of(data_args),
                               benchmark, trained_args.get("root"),
-                              runs.concepts_of(trained_args))
+                              runs.concepts_of(trained_args), evaluation)
+
+
+def _differences(given: Any, trained: dict) -> dict[str, Any]:
+    """Each model argument in ``given`` (the explicitly given model section) that the
+    checkpoint's hyperparameters ``trained`` hold otherwise: name -> the given value."""
+    if not isinstance(given, Namespace) or not trained:
+        return {}
+    arguments = given.get("init_args")
+    arguments = arguments.as_dict() if isinstance(arguments, Namespace) else {}
+    return {name: value for name, value in arguments.items()
+            if name in trained and _plain(value) != _plain(trained[name])}
 
 
 def _conflicts(given: Any, trained: dict, ignored: tuple[str, ...] = ()) -> list[str]:
-    """'name: config X, checkpoint Y' for each model argument in ``given`` (the explicitly
-    given model section), except those ``ignored``, that the checkpoint's hyperparameters
-    ``trained`` hold otherwise."""
+    """'name: config X, checkpoint Y' for each of ``_differences`` except those ``ignored``,
+    after a model class that differs from the checkpoint's."""
     if not isinstance(given, Namespace) or not trained:
         return []
-    arguments = given.get("init_args")
-    arguments = arguments.as_dict() if isinstance(arguments, Namespace) else {}
-    conflicts = [
-        f"{name}: config {value!r}, checkpoint {trained[name]!r}"
-        for name, value in arguments.items()
-        if name in trained and name not in ignored and _plain(value) != _plain(trained[name])
-    ]
+    conflicts = [f"{name}: config {value!r}, checkpoint {trained[name]!r}"
+                 for name, value in _differences(given, trained).items() if name not in ignored]
     class_path, trained_class_path = given.get("class_path"), trained.get("_class_path")
     if class_path and trained_class_path and _import(class_path) is not _import(trained_class_path):
         conflicts.insert(0, f"class_path: config {class_path!r}, checkpoint {trained_class_path!r}")
     return conflicts
+
+
+def _may_differ(model_class: type[SurpriseModel] | None) -> str:
+    """For a refusal: which model arguments evaluating a checkpoint of ``model_class`` may
+    give otherwise, its training-only and evaluation-only ones ("" for none)."""
+    if model_class is None:
+        return ""
+    kinds = [f"{kind} {', '.join(names)} ({effect})" for kind, names, effect in (
+        ("training-only", model_class.TRAINING_ONLY, "ignored"),
+        ("evaluation-only", model_class.EVALUATION_ONLY, "used instead of the checkpoint's"),
+    ) if names]
+    if not kinds:
+        return ""
+    return (f"; validate, test and predict of it take other values of {model_class.__name__}'s "
+            + " and ".join(kinds))
 
 
 def _plain(value: Any) -> Any:

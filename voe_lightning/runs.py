@@ -1,13 +1,14 @@
 """Where a run's checkpoints and reports are: ``--ckpt_path`` resolved to one checkpoint file
 (``last``/``best`` to the newest run of a logger name, a directory refused naming the files in
-it), and the one report folder each (checkpoint, data root, concepts) gets inside a run."""
+it), and the one report folder each (checkpoint, data root, concepts, evaluation-only model
+arguments) gets inside a run."""
 
 from __future__ import annotations
 
 import hashlib
 import pickle
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -94,12 +95,15 @@ def concepts_of(data_arguments: Any) -> tuple[str, ...] | None:
 
 def report_folder(checkpoint: Path, root: str | None, concepts: Iterable[str] | None,
                   benchmark: str | None, trained_root: str | None,
-                  trained_concepts: Iterable[str] | None) -> str | None:
+                  trained_concepts: Iterable[str] | None,
+                  evaluation: Mapping[str, Any] | None = None) -> str | None:
     """The folder, inside a checkpoint's run, of the logs and report of one (checkpoint, data
-    root, concepts, benchmark); None for the run's own (its last.ckpt on the data and concepts
-    it was trained on), which goes into the run itself. Any other gets a folder of its own,
-    named for people (what differs) and, so no two ever share one (``alt/one`` and
-    ``alt_one``, ``a/b`` and ``/a/b``), a hash of the resolved checkpoint, root and concepts."""
+    root, concepts, benchmark, ``evaluation``: the evaluation-only model arguments given
+    otherwise than the checkpoint's, name -> value); None for the run's own (its last.ckpt
+    on the data and concepts it was trained on, scored as trained), which goes into the run
+    itself. Any other gets a folder of its own, named for people (what differs) and, so no
+    two ever share one (``alt/one`` and ``alt_one``, ``a/b`` and ``/a/b``), a hash of the
+    resolved checkpoint, root, concepts and evaluation-only arguments."""
     concepts = tuple(sorted(concepts)) if concepts is not None else None
     trained_concepts = tuple(sorted(trained_concepts)) if trained_concepts is not None else None
     other_root = root is not None and (trained_root is None
@@ -113,9 +117,11 @@ def report_folder(checkpoint: Path, root: str | None, concepts: Iterable[str] | 
                                         if part not in ("/", "..", ".")))
     if other_concepts:
         parts.append("concepts_" + "+".join(concepts))
+    scored = [f"{name}_{value}" for name, value in sorted((evaluation or {}).items())]
+    parts += scored
     if not parts:
         return None
     key = "\n".join([str(checkpoint.resolve()), str(Path(root).resolve()) if root else "",
-                     ",".join(concepts or ()), benchmark or ""])
+                     ",".join(concepts or ()), benchmark or "", *scored])
     readable = re.sub(r"[^A-Za-z0-9_.+=-]", "_", "-".join(parts))[:80]
     return f"{readable}-{hashlib.sha256(key.encode()).hexdigest()[:8]}"

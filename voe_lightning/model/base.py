@@ -48,10 +48,14 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
     missing one of the three cannot be built: ABCMeta). ``ARCHITECTURE``
     names the constructor arguments that shape the parameters, which a checkpoint must share;
     ``TRAINING_ONLY`` those that change only how it trains (optimizer, schedules), which
-    evaluating a checkpoint may give otherwise: they change nothing it computes."""
+    evaluating a checkpoint may give otherwise: they change nothing it computes.
+    ``EVALUATION_ONLY`` those that change only how a trained model scores surprise, no
+    parameter and no training, which evaluating a checkpoint may give otherwise and then uses
+    instead of the checkpoint's, so one checkpoint can be scored in more than one way."""
 
     ARCHITECTURE: tuple[str, ...] = ()
     TRAINING_ONLY: tuple[str, ...] = ()
+    EVALUATION_ONLY: tuple[str, ...] = ()
 
     # ----------------------------------------------------------------------------- protocol
     @abstractmethod

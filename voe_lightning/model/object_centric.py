@@ -97,7 +97,8 @@ class ObjectCentricModel(SurpriseModel):
             on (perception sees single frames, so a few per clip suffice and cost a fraction
             of all); None trains on all.
         surprise: ``squared_error`` or ``likelihood`` (above).
-        surprise_space: ``codes`` or ``pixels`` (above).
+        surprise_space: ``codes`` or ``pixels`` (above); it changes no parameter and no
+            training, so a checkpoint may be tested with either (``EVALUATION_ONLY``).
         min_code_std: floor of the predicted codes' standard deviations (``likelihood``).
         code_loss_weight: weight of the code terms (``code``, ``newcomer_code``) in the
             ``likelihood`` dynamics' training loss (surprise is unweighted); None: 1 / the code
@@ -120,6 +121,9 @@ class ObjectCentricModel(SurpriseModel):
 
     ARCHITECTURE = ARCHITECTURE
     TRAINING_ONLY = ("learning_rate", "perception_steps", "code_loss_weight")
+    # Not ``surprise``: it chooses the training loss, and the likelihood's visibility and spread
+    # heads exist only in a model trained with it.
+    EVALUATION_ONLY = ("surprise_space",)
     SURPRISE = SURPRISES[("squared_error", "codes")]
 
     def __init__(
