@@ -12,6 +12,7 @@ from voe_lightning.model.object_geometry import (
     lying_on_floor,
     on_or_above_floor,
     on_what_is_below,
+    pivoted_down,
     seen_by_geometry,
 )
 
@@ -169,3 +170,72 @@ def test_a_landing_plank_lies_on_what_is_believed_below_it():
                                                       2 * wall + 0.1]))
     known[0, 1] = False  # the cube forgotten: the plank lands on the floor
     assert float(on_what_is_below(laid, state, shape, known)[0, 0, 2]) == pytest.approx(0.03)
+
+
+def _pitched_plank(pitch: float, half=(0.6, 1.2, 0.03)) -> torch.Tensor:
+    """A plank's state [13] pitched ``pitch`` degrees about x (its +y end up), its lowest edge
+    on the floor along the x axis from (0, 0, 0) to (-1.2, 0, 0)."""
+    angle = np.deg2rad(pitch)
+    centre = (-half[0], half[1] * np.cos(angle) - half[2] * np.sin(angle),
+              half[1] * np.sin(angle) + half[2] * np.cos(angle))
+    return torch.tensor([*centre, np.cos(angle / 2), np.sin(angle / 2), 0.0, 0.0, *half,
+                         0.5, 0.5, 0.5], dtype=torch.float32)
+
+
+def _pitch(state: torch.Tensor) -> float:
+    matrix = _matrix(state[3:7].double())
+    return float(np.degrees(np.arctan2(matrix[2, 1], matrix[1, 1])))
+
+
+@pytest.mark.parametrize("near_edge", [0.6, 1.25])
+def test_a_plank_pivots_onto_what_is_believed_below_it(near_edge):
+    """``pivoted_down``: a plank whose front edge has landed turns about it until its underside
+    meets the nearest top edge of a cube believed under it (pitch atan(top / distance)), and
+    falls flat onto the floor, swinging out from the edge, once the cube is forgotten; a cube
+    beside the plank and one above it hold nothing up."""
+    plank = _pitched_plank(40.0)
+    state, shape, known = states(((0.0, 0.0, 0.0), (0.1, 0.1, 0.1), BOX),
+                                 ((-0.6, near_edge + 0.25, 0.25), (0.25, 0.25, 0.25), BOX),
+                                 ((3.0, 1.0, 0.25), (0.25, 0.25, 0.25), BOX),  # beside
+                                 ((-0.6, 0.6, 2.5), (0.2, 0.2, 0.2), BOX))    # above
+    state[0, 0] = plank
+    turned = pivoted_down(state, state, shape, known)[0, 0]
+    assert _pitch(turned) == pytest.approx(np.degrees(np.arctan2(0.5, near_edge)), abs=0.1)
+    torch.testing.assert_close(turned[7:], plank[7:])
+    known[0, 1] = False
+    flat = pivoted_down(state, state, shape, known)[0, 0]
+    assert _pitch(flat) == pytest.approx(0.0, abs=0.1)
+    torch.testing.assert_close(flat[:3], torch.tensor([-0.6, 1.2, 0.03]), atol=1e-4, rtol=0)
+
+
+def test_a_pivoting_plank_comes_to_rest_as_mujoco_rests_object_persistence_planks():
+    """The positive control's support rule against the simulator: in object persistence's
+    standard probes, the plank at the manipulation frame (front edge landed, the object
+    hidden) turned by ``pivoted_down`` onto the object as last seen lands where MuJoCo props it
+    (height within 0.12 m; the plank lying flat in place would be 0.3 m and more off), and with
+    the object forgotten, flat where MuJoCo lays it once the object has vanished."""
+    for seed in range(3):
+        record = scenes.generate_probe("object_persistence", "standard", seed)
+        frame = int(record["manipulation_frame"])
+        sides = {}
+        for side in ("consistent", "inconsistent"):
+            objects = record[side, "objects"]
+            sides[side] = torch.cat([objects["position"], objects["orientation"],
+                                     objects["size"], objects["color"]], dim=-1).float()
+        objects = record["consistent", "objects"]
+        plank = int(objects["size"][0].amax(-1).argmax())
+        hidden = int(record["manipulated_ids"][0])  # slots are indexed by mask id
+        shown = [plank, hidden]
+        state = torch.stack([sides["consistent"][frame, plank],
+                             sides["consistent"][0, hidden]])[None]
+        shape = F.one_hot(objects["shape_label"][0, shown].long()[None],
+                          len(specs.OBJECT_SHAPES)).float()
+        known = torch.ones(1, 2, dtype=torch.bool)
+        propped = pivoted_down(state, state, shape, known)[0, 0]
+        rest = sides["consistent"][-1, plank]
+        assert abs(float(propped[2] - rest[2])) < 0.12, (seed, propped[:3], rest[:3])
+        assert float(lying_on_floor(state[0, 0])[2] - rest[2]) < -0.3
+        known[0, 1] = False
+        flat = pivoted_down(state, state, shape, known)[0, 0]
+        lying = sides["inconsistent"][-1, plank]
+        assert abs(float(flat[2] - lying[2])) < 0.01, (seed, flat[:3], lying[:3])

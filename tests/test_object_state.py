@@ -293,6 +293,10 @@ def test_the_stop_and_landing_components_need_others_and_carry_a_known_choice():
         ObjectStateModel(components=2, stop_component=True, landing_component=True)
     with pytest.raises(ValueError, match="land_on_objects needs landing_component: true"):
         ObjectStateModel(components=3, land_on_objects=True)
+    with pytest.raises(ValueError, match="pivot_landing needs landing_component: true and "
+                                         "land_on_objects: false.*land_on_objects=True"):
+        ObjectStateModel(components=3, landing_component=True, land_on_objects=True,
+                         pivot_landing=True)
     with pytest.raises(ValueError, match=r"carry must be one of \('none', 'velocity', "
                                          r"'acceleration'\).*got True"):
         ObjectStateModel(carry=True)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 
 import torch
+import torch.nn.functional as F
 
 from voe_lightning import specs
 from voe_lightning.scenes.camera import FOVY
@@ -126,32 +127,58 @@ def quaternion_product(first: torch.Tensor, second: torch.Tensor) -> torch.Tenso
                         w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], dim=-1)
 
 
-def lying_on_floor(state: torch.Tensor) -> torch.Tensor:
-    """``state`` [..., 13] with every object turned, by the smallest rotation, onto the face
-    of its box it would topple onto, and set down on the floor there: where a tilted box that
-    lands comes to rest (a plank falling steeply turns flat within one frame interval, so no
-    extrapolation of its fall foresees it). The face is the one whose axis is furthest inside
-    its tipping angle (tilted less than the angle at which the centre passes over the box's
-    narrowest edge): a cube settles on its nearest face, a steep plank flat, not on its end.
-    Its place along the floor is kept; an object with no orientation is only set down."""
+def _unit_quaternion(state: torch.Tensor) -> torch.Tensor:
+    """Each object's orientation [..., 4] scaled to unit length (zeros stay near zero)."""
     quaternion = state[..., 3:7]
-    quaternion = quaternion / quaternion.norm(dim=-1, keepdim=True).clamp(min=1e-6)
-    rotation = _rotations(torch.cat([state[..., :3], quaternion, state[..., 7:]], dim=-1))
-    half = state[..., 7:10]
+    return quaternion / quaternion.norm(dim=-1, keepdim=True).clamp(min=1e-6)
+
+
+def _resting_face(rotation: torch.Tensor, half: torch.Tensor
+                  ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The box axis [..., 1] an object comes to rest on, the one furthest inside its tipping
+    angle (tilted less than the angle at which the centre passes over the box's narrowest
+    edge), and that axis [..., 3] in the world, pointing up."""
     narrowest_other = torch.stack([half[..., [1, 2]].amin(-1), half[..., [0, 2]].amin(-1),
                                    half[..., [0, 1]].amin(-1)], dim=-1)
     tipping = torch.atan2(narrowest_other, half)
     tilt = torch.acos(rotation[..., 2, :].abs().clamp(max=1.0))
-    nearest = (tipping - tilt).argmax(-1, keepdim=True)  # the axis it comes to rest on
+    nearest = (tipping - tilt).argmax(-1, keepdim=True)
     axis = rotation.gather(-1, nearest[..., None, :].expand(*rotation.shape[:-1], 1))[..., 0]
-    axis = axis * torch.where(axis[..., 2:] < 0, -1.0, 1.0)  # pointing up
+    return nearest, axis * torch.where(axis[..., 2:] < 0, -1.0, 1.0)
+
+
+def _upright(quaternion: torch.Tensor) -> torch.Tensor:
+    """The same rotation with w >= 0, as observed states have it."""
+    return quaternion * torch.where(quaternion[..., :1] < 0, -1.0, 1.0)
+
+
+def lying_on_floor(state: torch.Tensor) -> torch.Tensor:
+    """``state`` [..., 13] with every object turned, by the smallest rotation, onto the face
+    of its box it would topple onto (``_resting_face``), and set down on the floor there: where
+    a tilted box that lands comes to rest (a plank falling steeply turns flat within one frame
+    interval, so no extrapolation of its fall foresees it): a cube settles on its nearest face,
+    a steep plank flat, not on its end. Its place along the floor is kept; an object with no
+    orientation is only set down."""
+    quaternion = _unit_quaternion(state)
+    rotation = _rotations(torch.cat([state[..., :3], quaternion, state[..., 7:]], dim=-1))
+    half = state[..., 7:10]
+    nearest, axis = _resting_face(rotation, half)
     # the half-way quaternion turns the axis onto +z: (1 + a.z, a x z), normalised
     ax, ay, az = axis.unbind(-1)
     turn = torch.stack([1 + az, ay, -ax, torch.zeros_like(az)], dim=-1)
-    turned = quaternion_product(turn / turn.norm(dim=-1, keepdim=True), quaternion)
-    turned = turned * torch.where(turned[..., :1] < 0, -1.0, 1.0)  # w >= 0, as observed
+    turned = _upright(quaternion_product(turn / turn.norm(dim=-1, keepdim=True), quaternion))
     height = half.gather(-1, nearest)
     return torch.cat([state[..., :2], height, turned, state[..., 7:]], dim=-1)
+
+
+def support_tops(belief: torch.Tensor, shape: torch.Tensor) -> torch.Tensor:
+    """Height [B, S] at which what lands on each object rests: the top of its box, an open
+    container's (``compound``) bottom, since what falls over its rim falls into it."""
+    own = world_half_extents(belief)
+    bottom = belief[..., 2] - own[..., 2]
+    compound = (shape.argmax(-1) == COMPOUND) & (shape.amax(-1) > 0)
+    wall = torch.minimum(belief[..., 7:10].amin(-1), torch.full_like(bottom, WALL))
+    return torch.where(compound, bottom + 2 * wall, belief[..., 2] + own[..., 2])
 
 
 def on_what_is_below(laid: torch.Tensor, belief: torch.Tensor, shape: torch.Tensor,
@@ -164,9 +191,7 @@ def on_what_is_below(laid: torch.Tensor, belief: torch.Tensor, shape: torch.Tens
     is still believed to be there."""
     extents, own = world_half_extents(laid), world_half_extents(belief)
     bottom = belief[..., 2] - own[..., 2]
-    compound = (shape.argmax(-1) == COMPOUND) & (shape.amax(-1) > 0)
-    wall = torch.minimum(belief[..., 7:10].amin(-1), torch.full_like(bottom, WALL))
-    top = torch.where(compound, bottom + 2 * wall, belief[..., 2] + own[..., 2])  # [B, S]
+    top = support_tops(belief, shape)  # [B, S]
     apart = (laid[:, :, None, :2] - belief[:, None, :, :2]).abs()  # [B, i, j, 2]
     overlap = (apart < extents[:, :, None, :2] + own[:, None, :, :2]).all(-1)
     below = top[:, None, :] <= bottom[:, :, None] + REST_TOLERANCE
@@ -175,6 +200,78 @@ def on_what_is_below(laid: torch.Tensor, belief: torch.Tensor, shape: torch.Tens
     support = torch.where(under, top[:, None, :], torch.zeros_like(under, dtype=top.dtype))
     height = laid[..., 2] + support.amax(-1).clamp(min=0.0)
     return torch.cat([laid[..., :2], height[..., None], laid[..., 3:]], dim=-1)
+
+
+def _rotate(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
+    """Quaternions [..., 4] turning by ``angle`` [...] about unit ``axis`` [..., 3]."""
+    return torch.cat([torch.cos(angle / 2)[..., None], axis * torch.sin(angle / 2)[..., None]],
+                     dim=-1)
+
+
+def _dot(first: torch.Tensor, second: torch.Tensor) -> torch.Tensor:
+    return (first * second).sum(-1)
+
+
+def pivoted_down(state: torch.Tensor, belief: torch.Tensor, shape: torch.Tensor,
+                 known: torch.Tensor) -> torch.Tensor:
+    """``state`` [B, S, 13] with each object turned about the lowest corner of its box, the way
+    it would topple (onto ``_resting_face``), until its underside meets the top of another
+    known object at its ``belief`` (``support_tops``; nine points of each top: the corners and
+    middles of its world box's top and its centre), else lying flat on the floor: where a plank
+    whose front edge has landed comes to rest, propped on an object it falls back onto, or
+    flat. An object already on another's top stays where it is. The turn is found without
+    gradient; the pose passes gradients to ``state``'s position and orientation."""
+    quaternion = _unit_quaternion(state)
+    centre, half = state[..., :3], state[..., 7:10]
+    rotation = _rotations(torch.cat([centre, quaternion, half], dim=-1))
+    corner = torch.where(rotation[..., 2, :] > 0, -1.0, 1.0) * half  # the lowest, box frame
+    hinge = centre + (rotation * corner[..., None, :]).sum(-1)  # [B, S, 3]
+    with torch.no_grad():
+        nearest, up = _resting_face(rotation, half)
+        thickness = half.gather(-1, nearest)[..., 0]  # the underside's half-thickness [B, S]
+        vertical = torch.zeros_like(up)
+        vertical[..., 2] = 1.0
+        across = torch.linalg.cross(up, vertical)  # the hinge line's direction
+        tilt = torch.atan2(across.norm(dim=-1), up[..., 2])
+        across = across / across.norm(dim=-1, keepdim=True).clamp(min=1e-6)
+        along = torch.linalg.cross(across, up)  # in the underside, away from the hinge line
+        face = centre - thickness[..., None] * up - hinge  # underside's centre from hinge
+        along = along * torch.where(_dot(face, along)[..., None] < 0, -1.0, 1.0)
+        outward = torch.linalg.cross(vertical, across)  # horizontal, away from the hinge line
+        outward = outward * torch.where(_dot(centre - hinge, outward)[..., None] < 0, -1.0, 1.0)
+        others = 1.0 - F.one_hot(nearest[..., 0], 3).to(half)  # the underside's two axes
+        reach = [(_dot(rotation.transpose(-1, -2), d[..., None, :]).abs() * half * others).sum(-1)
+                 for d in (across, along)]
+        # the nine top points of every other object [B, 1, S, 9, 3], from each hinge
+        grid = torch.tensor([-1.0, 0.0, 1.0], dtype=state.dtype, device=state.device)
+        offsets = torch.stack(torch.meshgrid(grid, grid, indexing="ij"), -1).reshape(9, 2)
+        extents = world_half_extents(belief)
+        points = torch.cat([belief[..., None, :2] + offsets * extents[..., None, :2],
+                            support_tops(belief, shape)[..., None, None].expand(-1, -1, 9, 1)],
+                           dim=-1)
+        relative = points[:, None] - hinge[:, :, None, None]  # [B, S, S, 9, 3]
+        flat = [v[:, :, None, None] for v in (across, along, outward, up)]
+        side = _dot(relative, flat[0]) - _dot(face, across)[:, :, None, None]
+        height, out = relative[..., 2], _dot(relative, flat[2])
+        distance = torch.hypot(out, height) - _dot(face, along)[:, :, None, None]
+        depth = _dot(relative, flat[3])  # above (+) or below (-) the underside
+        thick = 2 * thickness[:, :, None, None]
+        met = ((side.abs() <= reach[0][:, :, None, None])
+               & (distance.abs() <= reach[1][:, :, None, None])
+               & (height > 0) & (out > 0) & (depth <= thick + REST_TOLERANCE)
+               & known[:, None, :, None]
+               & ~torch.eye(known.shape[1], dtype=torch.bool, device=known.device)[..., None])
+        slope = torch.where(depth >= 0, tilt[:, :, None, None], torch.atan2(height, out))
+        rest = torch.where(met, slope.clamp(max=tilt[:, :, None, None]),
+                           torch.zeros_like(slope)).amax(-1).amax(-1)
+        turn = _rotate(across, tilt - rest)
+        propped = met.any(-1).any(-1)
+    turned = hinge + (quaternion_matrix(turn) * (centre - hinge)[..., None, :]).sum(-1)
+    turned = torch.cat([turned[..., :2],
+                        torch.where(propped, turned[..., 2], thickness)[..., None]],
+                       dim=-1)
+    return torch.cat([turned, _upright(quaternion_product(turn, quaternion)), half,
+                      state[..., 10:]], dim=-1)
 
 
 def sample_points(state: torch.Tensor, shape: torch.Tensor) -> torch.Tensor:

@@ -32,6 +32,7 @@ from voe_lightning.model.object_geometry import (
     lying_on_floor,
     on_or_above_floor,
     on_what_is_below,
+    pivoted_down,
     seen_by_geometry,
     view,
     world_half_extents,
@@ -64,7 +65,7 @@ SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape"
 
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
 ARCHITECTURE = ("hidden_size", "message_size", "use_camera", "components", "stop_component",
-                "landing_component", "land_on_objects", "carry", "world_boxes")
+                "landing_component", "land_on_objects", "pivot_landing", "carry", "world_boxes")
 #: Per-slot inputs of the dynamics with ``landing_component``: how high the lowest point of the
 #: object's box is above the floor at its belief and where its inertia would take it.
 FLOOR_FEATURES = 2
@@ -182,6 +183,12 @@ class ObjectStateModel(SurpriseModel):
             plank falling onto a hidden object lands on it if the object is still believed to
             be there. On the floor alone, planks were predicted flat where they were propped
             (round nine).
+        pivot_landing: the landing Gaussian turns the object about the lowest corner of its
+            box until its underside meets the top of a known object, else flat on the floor
+            (``pivoted_down``), instead of laying it flat in place: a plank whose front edge
+            has landed falls back onto the object believed under it. Laid flat first and then
+            raised (``land_on_objects``), the object that propped a plank was not counted as
+            under it, since the plank's lowest point was already below its top (round ten).
         carry: what each slot's inertia takes from a carrier (``CARRIES``), by learned
             shares over itself and the other known slots that sum to 1 (a ``PairNetwork``
             over each pair), so that a cube hidden in a container can move with it when it
@@ -233,6 +240,7 @@ class ObjectStateModel(SurpriseModel):
         stop_component: bool = False,
         landing_component: bool = False,
         land_on_objects: bool = False,
+        pivot_landing: bool = False,
         carry: str = "none",
         world_boxes: bool = False,
         withhold: float = 0.0,
@@ -264,6 +272,11 @@ class ObjectStateModel(SurpriseModel):
         if land_on_objects and not landing_component:
             raise ValueError("land_on_objects needs landing_component: true (it says where the "
                              "landing Gaussian lays an object)")
+        if pivot_landing and (land_on_objects or not landing_component):
+            raise ValueError("pivot_landing needs landing_component: true and land_on_objects: "
+                             "false (it says, instead, where the landing Gaussian lays an "
+                             f"object), got landing_component={landing_component}, "
+                             f"land_on_objects={land_on_objects}")
         if not 0 <= withhold <= 1 or withhold_frames < 1:
             raise ValueError(f"withhold must be in [0, 1] (a share of each clip's objects) and "
                              f"withhold_frames >= 1, got {withhold}, {withhold_frames}")
@@ -477,7 +490,11 @@ class ObjectStateModel(SurpriseModel):
         means = on_or_above_floor(moved)
         if self.hparams.landing_component:  # it lands as the object it is: size and colour kept
             landing = torch.cat([moved[:, :, -1:, :7], belief[:, :, None, 7:]], dim=-1)
-            landing = lying_on_floor(landing)
+            if self.hparams.pivot_landing:
+                landing = pivoted_down(on_or_above_floor(landing[:, :, 0]), belief, shape,
+                                       known)[:, :, None]
+            else:
+                landing = lying_on_floor(landing)
             if self.hparams.land_on_objects:
                 landing = on_what_is_below(landing[:, :, 0], belief, shape, known)[:, :, None]
             means = torch.cat([means[:, :, :-1], landing], dim=2)
