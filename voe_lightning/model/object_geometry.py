@@ -242,27 +242,28 @@ def pivoted_down(state: torch.Tensor, belief: torch.Tensor, shape: torch.Tensor,
         others = 1.0 - F.one_hot(nearest[..., 0], 3).to(half)  # the underside's two axes
         reach = [(_dot(rotation.transpose(-1, -2), d[..., None, :]).abs() * half * others).sum(-1)
                  for d in (across, along)]
-        # the nine top points of every other object [B, 1, S, 9, 3], from each hinge
+        # the nine top points of every other object [B, S, 9, 3], from each hinge [B, S, S, 9, 3]
         grid = torch.tensor([-1.0, 0.0, 1.0], dtype=state.dtype, device=state.device)
         offsets = torch.stack(torch.meshgrid(grid, grid, indexing="ij"), -1).reshape(9, 2)
         extents = world_half_extents(belief)
         points = torch.cat([belief[..., None, :2] + offsets * extents[..., None, :2],
                             support_tops(belief, shape)[..., None, None].expand(-1, -1, 9, 1)],
                            dim=-1)
-        relative = points[:, None] - hinge[:, :, None, None]  # [B, S, S, 9, 3]
-        flat = [v[:, :, None, None] for v in (across, along, outward, up)]
-        side = _dot(relative, flat[0]) - _dot(face, across)[:, :, None, None]
-        height, out = relative[..., 2], _dot(relative, flat[2])
-        distance = torch.hypot(out, height) - _dot(face, along)[:, :, None, None]
-        depth = _dot(relative, flat[3])  # above (+) or below (-) the underside
-        thick = 2 * thickness[:, :, None, None]
-        met = ((side.abs() <= reach[0][:, :, None, None])
-               & (distance.abs() <= reach[1][:, :, None, None])
-               & (height > 0) & (out > 0) & (depth <= thick + REST_TOLERANCE)
+        relative = points[:, None] - hinge[:, :, None, None]
+
+        def per_pair(values: torch.Tensor) -> torch.Tensor:  # [B, S, ...] -> [B, S, 1, 1, ...]
+            return values[:, :, None, None]
+
+        side = _dot(relative, per_pair(across)) - per_pair(_dot(face, across))
+        height, out = relative[..., 2], _dot(relative, per_pair(outward))
+        distance = torch.hypot(out, height) - per_pair(_dot(face, along))
+        depth = _dot(relative, per_pair(up))  # above (+) or below (-) the underside
+        met = ((side.abs() <= per_pair(reach[0])) & (distance.abs() <= per_pair(reach[1]))
+               & (height > 0) & (out > 0) & (depth <= per_pair(2 * thickness) + REST_TOLERANCE)
                & known[:, None, :, None]
                & ~torch.eye(known.shape[1], dtype=torch.bool, device=known.device)[..., None])
-        slope = torch.where(depth >= 0, tilt[:, :, None, None], torch.atan2(height, out))
-        rest = torch.where(met, slope.clamp(max=tilt[:, :, None, None]),
+        slope = torch.where(depth >= 0, per_pair(tilt), torch.atan2(height, out))
+        rest = torch.where(met, slope.clamp(max=per_pair(tilt)),
                            torch.zeros_like(slope)).amax(-1).amax(-1)
         turn = _rotate(across, tilt - rest)
         propped = met.any(-1).any(-1)
