@@ -202,6 +202,23 @@ def on_what_is_below(laid: torch.Tensor, belief: torch.Tensor, shape: torch.Tens
     return torch.cat([laid[..., :2], height[..., None], laid[..., 3:]], dim=-1)
 
 
+def resting_on(belief: torch.Tensor, shape: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
+    """Which known object each object rests on [B, S_i, S_j] (one-hot over j, or zeros: the
+    floor or nothing): one whose box's footprint holds the object's centre and whose top
+    (``support_tops``: an open container's, its bottom) lies within REST_TOLERANCE of the
+    object's lowest point, the highest such top where several do. A cube lying in a container
+    rests on it; one lying behind it, or a block still falling through its mouth, does not."""
+    extents = world_half_extents(belief)
+    top = support_tops(belief, shape)  # [B, S]
+    apart = (belief[:, :, None, :2] - belief[:, None, :, :2]).abs()  # [B, i, j, 2]
+    inside = (apart <= extents[:, None, :, :2]).all(-1)
+    touching = (lowest_point(belief)[:, :, None] - top[:, None, :]).abs() <= REST_TOLERANCE
+    others = ~torch.eye(known.shape[1], dtype=torch.bool, device=known.device)
+    under = inside & touching & known[:, None, :] & known[:, :, None] & others
+    highest = torch.where(under, top[:, None, :], torch.full_like(apart[..., 0], -math.inf))
+    return F.one_hot(highest.argmax(-1), known.shape[1]).to(belief) * under.any(-1, keepdim=True)
+
+
 def _rotate(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
     """Quaternions [..., 4] turning by ``angle`` [...] about unit ``axis`` [..., 3]."""
     return torch.cat([torch.cos(angle / 2)[..., None], axis * torch.sin(angle / 2)[..., None]],

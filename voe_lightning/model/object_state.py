@@ -33,6 +33,7 @@ from voe_lightning.model.object_geometry import (
     on_or_above_floor,
     on_what_is_below,
     pivoted_down,
+    resting_on,
     seen_by_geometry,
     view,
     world_half_extents,
@@ -72,8 +73,8 @@ FLOOR_FEATURES = 2
 #: The carry logit's start (own move: 0): objects start out moving mostly on their own.
 CARRY_START = -2.0
 #: What a carrier passes on (``carry``): nothing, its last move (the mover's own taken off),
-#: or the change of its last move.
-CARRIES = ("none", "velocity", "acceleration")
+#: or the change of its last move, by learned shares; or, to what rests on it, its whole move.
+CARRIES = ("none", "velocity", "acceleration", "support")
 
 
 @dataclass
@@ -197,7 +198,12 @@ class ObjectStateModel(SurpriseModel):
             a block falling into a container at rest (docs/study/positive_control.md, round
             five). ``"acceleration"``: the change of the carrier's last move, which a carrier
             at rest never has; trained only where a carrier starts or stops, in 3,000 steps
-            its shares stayed shut (round six). ``"none"``: the move must be decoded from the
+            its shares stayed shut (round six). ``"support"``: no shares; what an object rests on
+            (``resting_on``: an open container's bottom, a box's top) carries it whole: the
+            stopping Gaussian moves it by the support's predicted move, and while it is hidden
+            its belief also takes what the support was seen to do beyond that prediction, so a
+            cube hidden in a sliding container keeps its place in it (round twelve). A prior,
+            like the floor's: not learned. ``"none"``: the move must be decoded from the
             other slot's recurrent state, and a hidden carried cube was left where it was seen
             (0.8 m off).
         world_boxes: the pair features add how the two objects' world boxes overlap
@@ -283,6 +289,9 @@ class ObjectStateModel(SurpriseModel):
         if carry not in CARRIES:
             raise ValueError(f"carry must be one of {CARRIES} (what a carrier passes on to the "
                              f"objects it carries), got {carry!r}")
+        if carry == "support" and not stop_component:
+            raise ValueError("carry: support needs stop_component: true (it moves the stopping "
+                             "Gaussian with what the object rests on), got stop_component=false")
         optimization.check_schedule(lr_schedule)
         hidden, message = hidden_size, message_size
         pair = PAIR_FEATURES + (WORLD_BOX_FEATURES if world_boxes else 0)
@@ -293,7 +302,8 @@ class ObjectStateModel(SurpriseModel):
                              self._dynamics_outputs(components)])
         self.occlusion = PairNetwork(hidden, 0, hidden, message, pair)
         self.visibility = mlp([hidden + message + VIEW + 3 + CAMERA_FEATURES, hidden, 1])
-        self.carry = PairNetwork(hidden, hidden, hidden, 1, pair) if carry != "none" else None
+        self.carry = (PairNetwork(hidden, hidden, hidden, 1, pair)
+                      if carry in ("velocity", "acceleration") else None)
         if self.carry is not None:
             nn.init.constant_(self.carry.out.bias, CARRY_START)
         #: How much the visibility logit starts from geometry (``seen_by_geometry``); learned.
@@ -399,6 +409,7 @@ class ObjectStateModel(SurpriseModel):
         acceleration = velocity  # the change of the last move
         known = torch.zeros(batch, slots, dtype=torch.bool, device=obs.state.device)
         given_before = known  # what reached the model at the frame before (none before 0)
+        rests = None  # what each slot rests on (``carry: support``); nothing before frame 1
         terms = {key: [] for name in SLOT_TERMS + ("appear",)
                  for key in (name, f"{name}_entropy")}
         beliefs, predictions, probability, knowns, states = [], [], [], [], []
@@ -416,14 +427,20 @@ class ObjectStateModel(SurpriseModel):
                         batch, *(() if key.startswith("appear") else (slots,))))
                 probability.append(obs.state.new_zeros(batch, slots))
             else:
-                predicted, step_terms, seen_probability = self._predict(
-                    hidden, belief, velocity, acceleration, shape, known, pose, pose_features,
-                    obs, t)
+                predicted, step_terms, seen_probability, rests = self._predict(
+                    hidden, belief, velocity, acceleration, shape, known, known & ~given_before,
+                    pose, pose_features, obs, t)
                 for key, value in step_terms.items():
                     terms[key].append(value)
                 probability.append(seen_probability)
             predictions.append(predicted)
-            # observe frame t: seen slots take what is seen, hidden ones their prediction
+            # observe frame t: seen slots take what is seen, hidden ones their prediction, moved
+            # on by what the support they rest on was seen to do beyond its own prediction
+            if rests is not None:
+                correction = ((obs.state[:, t, :, :3] - predicted[..., :3]) * given[..., None]
+                              ).detach()
+                carried = torch.einsum("bij,bjk->bik", rests, correction) * (~given)[..., None]
+                predicted = predicted + F.pad(carried, (0, STATE_SIZE - 3))
             previous = belief
             belief = torch.where(given[..., None], obs.state[:, t], predicted)
             # the last move: seen in both frames, what was seen; else what was predicted (a
@@ -456,13 +473,17 @@ class ObjectStateModel(SurpriseModel):
             "hidden": torch.stack(states, dim=1),
         }
 
-    def _predict(self, hidden, belief, velocity, acceleration, shape, known, pose, pose_features,
-                 obs: Observations, t: int
-                 ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]:
+    def _predict(self, hidden, belief, velocity, acceleration, shape, known, unseen, pose,
+                 pose_features, obs: Observations, t: int
+                 ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor,
+                            torch.Tensor | None]:
         """Frame t's predictions from the slots after frame t-1: the predicted states
         [B, S, 13] (the most probable component's mean: positions by inertia, the last frame's
         move repeated, plus a learned change, raised to rest on the floor where they would sink
-        below it), the terms of what frame t shows (``rollout``) and p(visible) [B, S]."""
+        below it; with ``carry: support``, a known slot not given at t-1 (``unseen`` [B, S]) that
+        rests on another is held on it, moved by its predicted move), the terms of what frame t
+        shows (``rollout``), p(visible) [B, S] and, with ``carry: support``, what each slot
+        rests on [B, S, S] (``resting_on``), else None."""
         pairs = self._pairs(belief, shape, view(belief, pose))
         message = self._messages(self.message, hidden, hidden, pairs, known)
         move = velocity
@@ -502,7 +523,20 @@ class ObjectStateModel(SurpriseModel):
         logits = logits if components > 1 else None
         top = (logits.argmax(-1) if logits is not None
                else torch.zeros_like(known, dtype=torch.long))
-        predicted = means.gather(2, top[..., None, None].expand(-1, -1, 1, STATE_SIZE))[:, :, 0]
+
+        def most_probable(means: torch.Tensor) -> torch.Tensor:
+            return means.gather(2, top[..., None, None].expand(-1, -1, 1, STATE_SIZE))[:, :, 0]
+        predicted = most_probable(means)
+        rests = None
+        if self.hparams.carry == "support":  # what rests on a known object moves with it
+            rests = resting_on(belief.detach(), shape, known)
+            moves = ((predicted - belief)[..., :3] * known[..., None]).detach()
+            carried = F.pad(torch.einsum("bij,bjk->bik", rests, moves), (0, STATE_SIZE - 3))
+            means = torch.cat([on_or_above_floor(means[:, :, 0] + carried)[:, :, None],
+                               means[:, :, 1:]], dim=2)
+            # unseen, it is believed to stay where it rests on it
+            held = (unseen & (rests.sum(-1) > 0))[..., None]
+            predicted = torch.where(held, belief + carried, most_probable(means))
         # visibility at t from where every known slot is predicted to be at t; no gradient
         # reaches the states from it: a hidden object's place is what the dynamics learned
         # from seen motion predicts, not one bent to explain why it is not seen (with it, a
@@ -528,7 +562,7 @@ class ObjectStateModel(SurpriseModel):
             terms[name], terms[f"{name}_entropy"] = nll * weight, entropy * weight
         terms.update(self._appearance(hidden, known, pose, visible & ~known, obs.state[:, t],
                                       obs.shape[:, t]))
-        return predicted, terms, torch.sigmoid(logit) * keep
+        return predicted, terms, torch.sigmoid(logit) * keep, rests
 
     def _appearance(self, hidden: torch.Tensor, known: torch.Tensor, pose: torch.Tensor,
                     new: torch.Tensor, state: torch.Tensor, shape: torch.Tensor
