@@ -72,7 +72,7 @@ FAMILIES = [
                  id="object_state_pivot"),
     pytest.param(lambda: ObjectStateModel(hidden_size=16, message_size=8, components=4,
                                           stop_component=True, landing_component=True,
-                                          pivot_landing=True, carry="support"),
+                                          pivot_landing=True, carry="support", hold_still=True),
                  id="object_state_support"),
     pytest.param(lambda: ObjectStateModel(hidden_size=16, message_size=8, components=3,
                                           carry="acceleration", world_boxes=True),

@@ -230,6 +230,30 @@ def test_a_cube_hidden_in_a_sliding_container_keeps_its_place_in_it(carry):
     assert (geometry < 0.1).all() == (carry == "support"), geometry
 
 
+@pytest.mark.parametrize("hold_still", [True, False])
+def test_what_lay_still_stays_still_unseen(hold_still):
+    """``hold_still``: with a learned change that drifts every object 5 cm a frame along x, a
+    cube seen lying still on the floor stays where it was seen once hidden; a cube seen sliding
+    along the floor moves on, by its last move and the drift (which the move it feeds takes
+    up: the learned change fed on itself); without it, both drift."""
+    steps = 7
+    visible = torch.ones(1, steps, 2, dtype=torch.bool)
+    visible[0, 3:] = False
+    observations = _two_objects(0.1 * torch.arange(steps + 0.0), torch.full((steps,), 0.5),
+                                visible)
+    model = ObjectStateModel(hidden_size=16, message_size=8, hold_still=hold_still)
+    last = model.dynamics[-1]
+    torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
+    drift = 0.05
+    with torch.no_grad():
+        last.bias[0] = 1.5 * math.atanh(drift / 1.5)  # the change of x (MAX_MOVE * tanh)
+        belief = model.rollout(observations)["belief"][0, 3:, :, 0]
+    after = torch.arange(1, steps - 2.0)  # frames hidden
+    torch.testing.assert_close(belief[:, 0], 0.2 + (0.1 + drift * after).cumsum(0))
+    still = torch.full_like(after, 0.5) if hold_still else 0.5 + (drift * after).cumsum(0)
+    torch.testing.assert_close(belief[:, 1], still)
+
+
 @pytest.mark.parametrize("carry", ["velocity", "acceleration"])
 def test_only_a_carrier_that_changes_its_move_passes_it_on(carry):
     """An object moving past (or falling into) one at rest: carrying the carrier's last move

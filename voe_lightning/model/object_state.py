@@ -26,6 +26,7 @@ from voe_lightning.model.likelihood import (
     rectified_excess,
 )
 from voe_lightning.model.object_geometry import (
+    REST_TOLERANCE,
     VIEW,
     draw_discs,
     lowest_point,
@@ -66,7 +67,8 @@ SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape"
 
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
 ARCHITECTURE = ("hidden_size", "message_size", "use_camera", "components", "stop_component",
-                "landing_component", "land_on_objects", "pivot_landing", "carry", "world_boxes")
+                "landing_component", "land_on_objects", "pivot_landing", "carry", "hold_still",
+                "world_boxes")
 #: Per-slot inputs of the dynamics with ``landing_component``: how high the lowest point of the
 #: object's box is above the floor at its belief and where its inertia would take it.
 FLOOR_FEATURES = 2
@@ -126,6 +128,18 @@ def observe(objects: TensorDictBase, camera: torch.Tensor) -> Observations:
         visible=visible,
         camera=camera.float(),
     )
+
+
+@dataclass
+class Holding:
+    """Which slots stay where they rest while unseen (``carry: support``, ``hold_still``):
+    what each rests on, one-hot [B, S, S] (``resting_on``; zeros: the floor or nothing),
+    whether it is held [B, S], and where, its belief moved by its support's predicted move
+    [B, S, 13]."""
+
+    rests: torch.Tensor
+    holds: torch.Tensor
+    state: torch.Tensor
 
 
 class ObjectStateModel(SurpriseModel):
@@ -206,6 +220,12 @@ class ObjectStateModel(SurpriseModel):
             like the floor's: not learned. ``"none"``: the move must be decoded from the
             other slot's recurrent state, and a hidden carried cube was left where it was seen
             (0.8 m off).
+        hold_still: a known object not seen at the last frame that lies on the floor (its
+            box's lowest point within ``REST_TOLERANCE``) and was still, not moving across the
+            floor, the last time it was seen in two frames running, is held where it is: what
+            lies still stays still unseen. Without it, a cube fallen behind a container drifted
+            into it as the learned change fed on itself, and was then carried away with it
+            (round twelve).
         world_boxes: the pair features add how the two objects' world boxes overlap
             (``WORLD_BOX_FEATURES``).
         withhold: share of each training clip's objects whose observations are withheld for a
@@ -248,6 +268,7 @@ class ObjectStateModel(SurpriseModel):
         land_on_objects: bool = False,
         pivot_landing: bool = False,
         carry: str = "none",
+        hold_still: bool = False,
         world_boxes: bool = False,
         withhold: float = 0.0,
         withhold_frames: int = 8,
@@ -409,7 +430,8 @@ class ObjectStateModel(SurpriseModel):
         acceleration = velocity  # the change of the last move
         known = torch.zeros(batch, slots, dtype=torch.bool, device=obs.state.device)
         given_before = known  # what reached the model at the frame before (none before 0)
-        rests = None  # what each slot rests on (``carry: support``); nothing before frame 1
+        holding = None  # which slots stay where they rest (``Holding``); none before frame 1
+        still = torch.ones_like(known)  # not seen moving across the floor when last seen twice
         terms = {key: [] for name in SLOT_TERMS + ("appear",)
                  for key in (name, f"{name}_entropy")}
         beliefs, predictions, probability, knowns, states = [], [], [], [], []
@@ -427,20 +449,23 @@ class ObjectStateModel(SurpriseModel):
                         batch, *(() if key.startswith("appear") else (slots,))))
                 probability.append(obs.state.new_zeros(batch, slots))
             else:
-                predicted, step_terms, seen_probability, rests = self._predict(
+                predicted, step_terms, seen_probability, holding = self._predict(
                     hidden, belief, velocity, acceleration, shape, known, known & ~given_before,
-                    pose, pose_features, obs, t)
+                    still, pose, pose_features, obs, t)
                 for key, value in step_terms.items():
                     terms[key].append(value)
                 probability.append(seen_probability)
             predictions.append(predicted)
-            # observe frame t: seen slots take what is seen, hidden ones their prediction, moved
-            # on by what the support they rest on was seen to do beyond its own prediction
-            if rests is not None:
+            # observe frame t: seen slots take what is seen, hidden ones their prediction or,
+            # held, where they rest, moved on by what their support was seen to do beyond its
+            # own prediction
+            if holding is not None:
+                hidden_now = (~given)[..., None]
                 correction = ((obs.state[:, t, :, :3] - predicted[..., :3]) * given[..., None]
                               ).detach()
-                carried = torch.einsum("bij,bjk->bik", rests, correction) * (~given)[..., None]
-                predicted = predicted + F.pad(carried, (0, STATE_SIZE - 3))
+                carried = torch.einsum("bij,bjk->bik", holding.rests, correction) * hidden_now
+                predicted = torch.where(holding.holds[..., None] & hidden_now, holding.state,
+                                        predicted) + F.pad(carried, (0, STATE_SIZE - 3))
             previous = belief
             belief = torch.where(given[..., None], obs.state[:, t], predicted)
             # the last move: seen in both frames, what was seen; else what was predicted (a
@@ -449,6 +474,7 @@ class ObjectStateModel(SurpriseModel):
             move = torch.where(steady, belief, predicted)[..., :3] - previous[..., :3]
             moving = move * (known & ~new)[..., None].float()  # known before t
             acceleration, velocity = moving - velocity, moving
+            still = torch.where(steady[..., 0], velocity[..., :2].norm(dim=-1) < MOVING, still)
             shape = torch.where(given[..., None], obs.shape[:, t], shape)
             known = known | visible
             given_before = given
@@ -473,17 +499,17 @@ class ObjectStateModel(SurpriseModel):
             "hidden": torch.stack(states, dim=1),
         }
 
-    def _predict(self, hidden, belief, velocity, acceleration, shape, known, unseen, pose,
-                 pose_features, obs: Observations, t: int
+    def _predict(self, hidden, belief, velocity, acceleration, shape, known, unseen, still,
+                 pose, pose_features, obs: Observations, t: int
                  ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor,
-                            torch.Tensor | None]:
+                            "Holding | None"]:
         """Frame t's predictions from the slots after frame t-1: the predicted states
         [B, S, 13] (the most probable component's mean: positions by inertia, the last frame's
         move repeated, plus a learned change, raised to rest on the floor where they would sink
-        below it; with ``carry: support``, a known slot not given at t-1 (``unseen`` [B, S]) that
-        rests on another is held on it, moved by its predicted move), the terms of what frame t
-        shows (``rollout``), p(visible) [B, S] and, with ``carry: support``, what each slot
-        rests on [B, S, S] (``resting_on``), else None."""
+        below it; a slot not given at t-1 (``unseen`` [B, S]) that ``Holding`` holds is held),
+        the terms of what frame t shows (``rollout``), p(visible) [B, S] and, with ``carry:
+        support`` or ``hold_still``, the ``Holding`` of every known slot (``still`` [B, S]: last
+        seen not moving across the floor), else None."""
         pairs = self._pairs(belief, shape, view(belief, pose))
         message = self._messages(self.message, hidden, hidden, pairs, known)
         move = velocity
@@ -527,16 +553,22 @@ class ObjectStateModel(SurpriseModel):
         def most_probable(means: torch.Tensor) -> torch.Tensor:
             return means.gather(2, top[..., None, None].expand(-1, -1, 1, STATE_SIZE))[:, :, 0]
         predicted = most_probable(means)
-        rests = None
-        if self.hparams.carry == "support":  # what rests on a known object moves with it
+        holding = None
+        if self.hparams.carry == "support" or self.hparams.hold_still:
             rests = resting_on(belief.detach(), shape, known)
-            moves = ((predicted - belief)[..., :3] * known[..., None]).detach()
-            carried = F.pad(torch.einsum("bij,bjk->bik", rests, moves), (0, STATE_SIZE - 3))
-            means = torch.cat([on_or_above_floor(means[:, :, 0] + carried)[:, :, None],
-                               means[:, :, 1:]], dim=2)
-            # unseen, it is believed to stay where it rests on it
-            held = (unseen & (rests.sum(-1) > 0))[..., None]
-            predicted = torch.where(held, belief + carried, most_probable(means))
+            if self.hparams.carry == "support":  # what rests on a known object moves with it
+                moves = ((predicted - belief)[..., :3] * known[..., None]).detach()
+                carried = F.pad(torch.einsum("bij,bjk->bik", rests, moves), (0, STATE_SIZE - 3))
+                means = torch.cat([on_or_above_floor(means[:, :, 0] + carried)[:, :, None],
+                                   means[:, :, 1:]], dim=2)
+                predicted = most_probable(means)
+            else:
+                rests, carried = torch.zeros_like(rests), torch.zeros_like(belief)
+            holds = rests.sum(-1) > 0
+            if self.hparams.hold_still:  # what was still when seen and lies on the floor
+                holds = holds | (still & (lowest_point(belief) <= REST_TOLERANCE))
+            holding = Holding(rests, holds, belief + carried)
+            predicted = torch.where((unseen & holds)[..., None], holding.state, predicted)
         # visibility at t from where every known slot is predicted to be at t; no gradient
         # reaches the states from it: a hidden object's place is what the dynamics learned
         # from seen motion predicts, not one bent to explain why it is not seen (with it, a
@@ -562,7 +594,7 @@ class ObjectStateModel(SurpriseModel):
             terms[name], terms[f"{name}_entropy"] = nll * weight, entropy * weight
         terms.update(self._appearance(hidden, known, pose, visible & ~known, obs.state[:, t],
                                       obs.shape[:, t]))
-        return predicted, terms, torch.sigmoid(logit) * keep, rests
+        return predicted, terms, torch.sigmoid(logit) * keep, holding
 
     def _appearance(self, hidden: torch.Tensor, known: torch.Tensor, pose: torch.Tensor,
                     new: torch.Tensor, state: torch.Tensor, shape: torch.Tensor
