@@ -155,7 +155,8 @@ class ObjectStateModel(SurpriseModel):
     because at five frames a second a contact is an either-or: a falling plank has landed flat
     by the next frame or is still in the air or propped up, and one Gaussian's mean sits
     between them, where neither happens. The most probable component is the slot's predicted
-    state (what a hidden slot's belief follows) and its visibility at t (a
+    state (what a hidden slot's belief follows, unless a prior holds it where it rests:
+    ``carry: support``, ``hold_still``) and its visibility at t (a
     Bernoulli whose logit is that of ``seen_by_geometry``, what sight lines to the objects'
     boxes at the predicted states would show, times a learned weight, plus a learned term from
     its view against every other slot's). A context over the known slots predicts whether a

@@ -5,6 +5,9 @@ and, per term, the mean surprise (rectified excess surprisal summed over frames 
 
     python docs/study/scripts/hidden_tracking.py runs/ost_s3/version_0/checkpoints/last.ckpt \
         --concept containment --root data/cpu
+
+``--set carry=support --set hold_still=true`` evaluates the checkpoint with those constructor
+arguments instead of its own (only ones that add no parameter load).
 """
 
 import argparse
@@ -54,9 +57,15 @@ def main() -> None:
     parser.add_argument("checkpoint")
     parser.add_argument("--concept", default="containment", choices=specs.CONCEPTS)
     parser.add_argument("--root", default="data/cpu")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="a constructor argument to use instead of the checkpoint's")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    model = ObjectStateModel.load_from_checkpoint(args.checkpoint, map_location="cpu").eval()
+    overrides = dict(setting.split("=", 1) for setting in args.set)
+    overrides = {name: {"true": True, "false": False}.get(value, value)
+                 for name, value in overrides.items()}
+    model = ObjectStateModel.load_from_checkpoint(args.checkpoint, map_location="cpu",
+                                                  **overrides).eval()
     data = VOEDataModule(concepts=[args.concept], root=args.root, train_examples=2000,
                          val_pairs=24, test_pairs=200, generalization_pairs=100,
                          probe_batch_size=500)  # configs/cpu.yaml's data
