@@ -556,15 +556,15 @@ class ObjectStateModel(SurpriseModel):
         predicted = most_probable(means)
         holding = None
         if self.hparams.carry == "support" or self.hparams.hold_still:
-            rests = resting_on(belief.detach(), shape, known)
+            rests = belief.new_zeros(*known.shape, known.shape[1])
+            carried = torch.zeros_like(belief)
             if self.hparams.carry == "support":  # what rests on a known object moves with it
+                rests = resting_on(belief.detach(), shape, known)
                 moves = ((predicted - belief)[..., :3] * known[..., None]).detach()
                 carried = F.pad(torch.einsum("bij,bjk->bik", rests, moves), (0, STATE_SIZE - 3))
                 means = torch.cat([on_or_above_floor(means[:, :, 0] + carried)[:, :, None],
                                    means[:, :, 1:]], dim=2)
                 predicted = most_probable(means)
-            else:
-                rests, carried = torch.zeros_like(rests), torch.zeros_like(belief)
             holds = rests.sum(-1) > 0
             if self.hparams.hold_still:  # what was still when seen and lies on the floor
                 holds = holds | (still & (lowest_point(belief) <= REST_TOLERANCE))
