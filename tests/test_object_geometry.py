@@ -9,6 +9,7 @@ import torch.nn.functional as F
 
 from voe_lightning import scenes, specs
 from voe_lightning.model.object_geometry import (
+    draw_ellipses,
     lying_on_floor,
     on_or_above_floor,
     on_what_is_below,
@@ -47,6 +48,26 @@ def test_a_solid_box_hides_what_is_behind_it_not_what_is_in_front_or_beside():
     beside = ((1.0, 0.6, 0.15), (0.1, 0.1, 0.1), BOX)
     p = seen_by_geometry(*states(behind, in_front, beside, screen), CAMERA)[0]
     assert p[0] < 0.05 and p[1] > 0.95 and p[2] > 0.95 and p[3] > 0.95, p
+
+
+def test_what_the_control_expected_is_drawn_as_each_object_looks_turned():
+    """A rod lying across the view is drawn as a streak about as wide as the rod and a few
+    pixels high, not as a disc as large as its length; a cube as a round blob."""
+    rod = ((0.0, 0.0, 0.03), (0.8, 0.03, 0.03), BOX)
+    cube = ((0.0, 1.5, 0.2), (0.2, 0.2, 0.2), BOX)
+    state, _, _ = states(rod, cube)
+    red, blue = torch.tensor([1.0, 0.0, 0.0]), torch.tensor([0.0, 0.0, 1.0])
+    state[0, 0, 10:13], state[0, 1, 10:13] = red, blue
+    image = draw_ellipses(state[:, None], torch.ones(1, 1, 2), CAMERA[:, None], (64, 64))[0, 0]
+
+    def extent(colour: torch.Tensor) -> tuple[int, int]:
+        """Columns and rows with a pixel of exactly that colour."""
+        painted = (image - colour[:, None, None]).abs().amax(0) < 1e-6
+        return int(painted.any(0).sum()), int(painted.any(1).sum())
+    columns, rows = extent(red)
+    assert columns >= 30 and rows <= 4, (columns, rows)
+    columns, rows = extent(blue)
+    assert columns >= 4 and 0.6 <= rows / columns <= 1.6, (columns, rows)
 
 
 def test_below_the_floor_is_unseen_and_geometry_passes_gradients_to_positions():

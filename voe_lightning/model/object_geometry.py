@@ -1,7 +1,7 @@
 """What a renderer of object boxes would show: camera coordinates, image-plane boxes and which
 points of an object no other object hides. The positive control (``object_state``) starts its
 visibility from this geometry and learns the rest; all of it is differentiable, so the dynamics
-of a hidden object learn from whether it was expected to be seen. ``draw_discs`` draws object
+of a hidden object learn from whether it was expected to be seen. ``draw_ellipses`` draws object
 states as they would be seen (the control's expected frames in the report)."""
 
 from __future__ import annotations
@@ -383,32 +383,32 @@ def seen_by_geometry(state: torch.Tensor, shape: torch.Tensor, known: torch.Tens
     return in_frame * (above_floor * clear).amax(-1)
 
 
-def draw_discs(state: torch.Tensor, opacity: torch.Tensor, camera: torch.Tensor,
-               image_size: tuple[int, int]) -> torch.Tensor:
-    """Object states [B, T, S, 13] drawn as discs of their colour on grey [B, T, 3, H, W]:
-    centre at the projected position, radius from the largest half-extent over the depth,
-    ``opacity`` [B, T, S] in [0, 1], painted far to near."""
+def draw_ellipses(state: torch.Tensor, opacity: torch.Tensor, camera: torch.Tensor,
+                  image_size: tuple[int, int]) -> torch.Tensor:
+    """Object states [B, T, S, 13] drawn as ellipses of their colour on grey [B, T, 3, H, W],
+    each filling the image-plane bounding box of the object's box as it is turned (``view``):
+    a rod seen side-on is a thin streak, not a disc as long as the rod. ``opacity`` [B, T, S]
+    in [0, 1]; painted far to near."""
     batch, steps, slots = state.shape[:3]
     height, width = image_size
-    coordinates = camera_coordinates(state.flatten(0, 1)[..., :3], camera.flatten(0, 1))
-    coordinates = coordinates.view(batch, steps, slots, 3)
-    plane = image_plane(coordinates)  # [-1, 1] across the field of view
-    focal = height / 2
-    column = width / 2 + plane[..., 0] * focal
-    row = height / 2 - plane[..., 1] * focal
-    radius = state[..., 7:10].amax(-1) / coordinates[..., 2].clamp(min=0.05)
-    radius = radius / math.tan(math.radians(FOVY) / 2) * focal
+    seen_as = view(state.flatten(0, 1), camera.flatten(0, 1)).view(batch, steps, slots, VIEW)
+    focal = height / 2  # the image plane's [-1, 1] across the field of view, in pixels
+    column = width / 2 + seen_as[..., 3] * focal
+    row = height / 2 - seen_as[..., 4] * focal
+    # half a pixel at least, so that a thin object still shows
+    half_width, half_height = (seen_as[..., 5:7] * focal).clamp(min=0.5).unbind(-1)
     rows = torch.arange(height, device=state.device, dtype=torch.float32) + 0.5
     columns = torch.arange(width, device=state.device, dtype=torch.float32) + 0.5
     image = torch.full((batch, steps, 3, height, width), 0.5, device=state.device)
-    order = coordinates[..., 2].argsort(dim=-1, descending=True)
+    order = seen_as[..., 2].argsort(dim=-1, descending=True)
     for index in range(slots):
         slot = order[..., index]  # [B, T]: the farthest remaining slot of each frame
         def take(values):
             return values.gather(2, slot[..., None]).squeeze(2)
-        inside = ((rows[:, None] - take(row)[..., None, None]).pow(2)
-                  + (columns[None] - take(column)[..., None, None]).pow(2)
-                  <= take(radius)[..., None, None].pow(2)).float()
+        inside = (((rows[:, None] - take(row)[..., None, None])
+                   / take(half_height)[..., None, None]).pow(2)
+                  + ((columns[None] - take(column)[..., None, None])
+                     / take(half_width)[..., None, None]).pow(2) <= 1).float()
         alpha = (inside * take(opacity)[..., None, None])[:, :, None]
         colour = state.gather(2, slot[..., None, None].expand(-1, -1, 1, state.shape[-1]))[:, :, 0]
         image = image * (1 - alpha) + colour[..., 10:13, None, None] * alpha

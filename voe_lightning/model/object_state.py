@@ -28,7 +28,7 @@ from voe_lightning.model.likelihood import (
 from voe_lightning.model.object_geometry import (
     REST_TOLERANCE,
     VIEW,
-    draw_discs,
+    draw_ellipses,
     lowest_point,
     lying_on_floor,
     on_or_above_floor,
@@ -670,15 +670,15 @@ class ObjectStateModel(SurpriseModel):
     def expected_frames(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
                         camera: torch.Tensor | None = None,
                         objects: TensorDictBase | None = None) -> torch.Tensor:
-        """What the model expected [B, T, 3, H, W]: each known slot's expected state drawn as a
-        disc of its colour at its projected position and size, as opaque as the predicted
+        """What the model expected [B, T, 3, H, W]: each known slot's expected state drawn as an
+        ellipse of its colour where and as large as its box is seen, as opaque as the predicted
         probability that it is seen (frame 0: what is seen), nearer objects over farther."""
         observations = self._inputs(frames, objects, camera)
         out = self.rollout(observations)
         belief = torch.cat([out["belief"][:, :1], out["predicted"][:, 1:]], dim=1)
         opacity = torch.cat([observations.visible[:, :1].float(),
                              out["visible_probability"][:, 1:]], dim=1)
-        return draw_discs(belief, opacity, observations.camera, frames.shape[2:4])
+        return draw_ellipses(belief, opacity, observations.camera, frames.shape[2:4])
 
     @torch.no_grad()
     def trajectories(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
