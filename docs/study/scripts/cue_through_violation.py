@@ -1,10 +1,15 @@
-"""Does a model's surprise follow a frame-local cue, or the size of the violation that the cue
-also follows? For object persistence's test pairs: per pair, the model's d (the run's
-pairs.csv), the cue's difference (inconsistent less consistent, summed after the manipulation
-frame, as the cue audit scores it) and the violation's size (how far apart the plank comes to
-rest in the two videos, in metres); Pearson r of each two and the partial r of d and the cue
-given the size, within each variant.
+"""Does a model's surprise follow a frame-local cue, or what the objects did that the cue also
+follows? Per test pair: the model's d (the run's pairs.csv), each cue's difference
+(inconsistent less consistent, summed after the manipulation frame, as the cue audit scores it)
+and a physical difference read from the records' object states; Pearson r of d and the cue,
+and the partial r of the two given the physical difference, within each variant.
 
+``--given motion`` (any concept): how much farther the objects moved (m) and turned (rad) after
+the manipulation frame, and in how many more object-frames they were seen, inconsistent less
+consistent. ``--given rest`` (object persistence, round eleven): how far apart the plank comes
+to rest in the two videos (m).
+
+    python docs/study/scripts/cue_through_violation.py runs/r12_s0/version_0 --given motion
     python docs/study/scripts/cue_through_violation.py runs/r11_s0/version_0 --root data/cpu
 """
 
@@ -19,56 +24,130 @@ from scipy import stats
 from voe_lightning import cues, specs
 from voe_lightning.store import open_split
 
-CONCEPT = "object_persistence"
+#: The physical differences of ``--given motion``, in column order.
+MOTION = ("path", "turn", "seen")
 
 
-def partial_r(x: np.ndarray, y: np.ndarray, given: np.ndarray) -> float:
-    """Pearson r of ``x`` and ``y`` after regressing each on ``given`` (with an intercept)."""
-    design = np.column_stack([np.ones_like(given), given])
+def partial_r(x: np.ndarray, y: np.ndarray, given: list[np.ndarray]) -> float:
+    """Pearson r of ``x`` and ``y`` after regressing each on ``given`` (with an intercept; a
+    constant one is left out)."""
+    design = np.column_stack([np.ones_like(x)] + [g for g in given if np.ptp(g) > 0])
     residual = [v - design @ np.linalg.lstsq(design, v, rcond=None)[0] for v in (x, y)]
     return float(stats.pearsonr(*residual)[0])
 
 
-def pair_table(root: str, cue: str) -> dict[tuple[int, str], tuple[float, float]]:
-    """Per test pair of CONCEPT, by (seed, variant): its cue difference and violation size."""
+def plank_rest(objects, m: int) -> dict[str, float]:
+    """Where the plank (the object with the longest side) is at the last frame: its height."""
+    plank = int(objects["size"][0].amax(-1).argmax())
+    return {"rest": float(objects["position"][-1, plank, 2])}
+
+
+def object_motion(objects, m: int) -> dict[str, float]:
+    """What the objects did after frame m, summed over them: the distance their centres moved
+    (m), the angle they turned through (rad; each step's rotation between consecutive
+    orientations) and the object-frames in which some of them is seen."""
+    present = (objects["shape_label"] > 0).numpy()
+    both = present[1:] & present[:-1]  # an object parked out of view does not move
+    position = objects["position"].double().numpy()
+    orientation = objects["orientation"].double().numpy()
+    moved = np.linalg.norm(np.diff(position, axis=0), axis=-1) * both
+    cosine = np.abs((orientation[1:] * orientation[:-1]).sum(-1)).clip(0.0, 1.0)
+    turned = 2.0 * np.arccos(cosine) * both
+    seen = (objects["visible_fraction"] > 0).numpy()
+    return {"path": float(moved[m:].sum()), "turn": float(turned[m:].sum()),
+            "seen": float(seen[m + 1:].sum())}
+
+
+def pair_table(root: str, concept: str, given: str) -> dict[tuple[int, str], dict[str, float]]:
+    """Per test pair of ``concept``'s standard variants, by (seed, variant): each frame-local
+    cue's difference and the physical difference (``MOTION``'s, or ``rest``: how far apart the
+    plank rests)."""
+    physical = object_motion if given == "motion" else plank_rest
     table = {}
-    for record in open_split(root, CONCEPT, "test"):
+    for record in open_split(root, concept, "test"):
+        variant = specs.VARIANTS[int(record["variant"])]
+        if variant not in specs.STANDARD_VARIANTS[concept]:
+            continue
         m = record["manipulation_frame"].reshape(1)
-        score, rest = {}, {}
+        score, state = {}, {}
         for side in cues.SIDES:
             video = record[side]
-            score[side] = float(cues.score_videos(video["frames"][None], video["mask"][None],
-                                                  m)[cue][0])
-            objects = video["objects"]
-            plank = int(objects["size"][0].amax(-1).argmax())
-            rest[side] = float(objects["position"][-1, plank, 2])
-        key = (int(record["seed"]), specs.VARIANTS[int(record["variant"])])
-        table[key] = (score["inconsistent"] - score["consistent"],
-                      abs(rest["inconsistent"] - rest["consistent"]))
+            score[side] = cues.score_videos(video["frames"][None], video["mask"][None], m)
+            state[side] = physical(video["objects"], int(m))
+        row = {cue: float(score["inconsistent"][cue][0] - score["consistent"][cue][0])
+               for cue in cues.FRAME_LOCAL_CUES}
+        if given == "motion":
+            row.update({key: state["inconsistent"][key] - state["consistent"][key]
+                        for key in MOTION})
+        else:
+            row["size"] = abs(state["inconsistent"]["rest"] - state["consistent"]["rest"])
+        table[(int(record["seed"]), variant)] = row
     return table
+
+
+def run_pairs(run: str, concept: str) -> list[dict[str, str]]:
+    with open(Path(run) / "voe_report" / "pairs.csv", newline="") as file:
+        return [row for row in csv.DictReader(file) if row["concept"] == concept]
+
+
+def print_rest(runs: list[str], table: dict, cue: str) -> None:
+    """Round eleven's table: object persistence, one cue, given the rest distance."""
+    print(f"| run | variant | n | r(d, {cue}) | r({cue}, size) | r(d, size) | "
+          f"partial r(d, {cue} given size) |")
+    print("|---|---|---|---|---|---|---|")
+    for run in runs:
+        pairs = run_pairs(run, "object_persistence")
+        for variant in specs.STANDARD_VARIANTS["object_persistence"]:
+            rows = [(float(row["relative_surprise"]), table[(int(row["seed"]), variant)][cue],
+                     table[(int(row["seed"]), variant)]["size"])
+                    for row in pairs if row["variant"] == variant]
+            d, score, size = np.array(rows).T
+            print(f"| {run} | {variant} | {len(rows)} | {stats.pearsonr(d, score)[0]:+.2f} | "
+                  f"{stats.pearsonr(score, size)[0]:+.2f} | {stats.pearsonr(d, size)[0]:+.2f} | "
+                  f"{partial_r(d, score, [size]):+.2f} |")
+
+
+def print_motion(runs: list[str], tables: dict[str, dict]) -> None:
+    """Per run, concept and variant: r(d, cue) -> partial r given MOTION for every frame-local
+    cue, and r of d with each physical difference."""
+    titles = " | ".join(cues.CUE_TITLES[cue] for cue in cues.FRAME_LOCAL_CUES)
+    print(f"r(d, cue) -> partial r given the objects' {', '.join(MOTION)} differences\n")
+    print(f"| run | concept | variant | n | {titles} | r(d, path / turn / seen) |")
+    print("|---" * (5 + len(cues.FRAME_LOCAL_CUES)) + "|")
+    for run in runs:
+        for concept, table in tables.items():
+            pairs = run_pairs(run, concept)
+            for variant in specs.STANDARD_VARIANTS[concept]:
+                rows = [(float(row["relative_surprise"]), table[(int(row["seed"]), variant)])
+                        for row in pairs if row["variant"] == variant]
+                d = np.array([value for value, _ in rows])
+                column = {key: np.array([row[key] for _, row in rows]) for key in rows[0][1]}
+                given = [column[key] for key in MOTION]
+                cells = [f"{stats.pearsonr(d, column[cue])[0]:+.2f} -> "
+                         f"{partial_r(d, column[cue], given):+.2f}" for cue in cues.FRAME_LOCAL_CUES]
+                physical = " / ".join(f"{stats.pearsonr(d, column[key])[0]:+.2f}"
+                                      if np.ptp(column[key]) > 0 else "const" for key in MOTION)
+                print(f"| {Path(run).parent.name} | {concept} | {variant} | {len(rows)} | "
+                      f"{' | '.join(cells)} | {physical} |")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", help="run folders with voe_report/pairs.csv")
     parser.add_argument("--root", default="data/cpu")
-    parser.add_argument("--cue", default="motion_energy", choices=cues.CUES)
+    parser.add_argument("--given", default="rest", choices=("rest", "motion"))
+    parser.add_argument("--cue", default="motion_energy", choices=cues.FRAME_LOCAL_CUES,
+                        help="the cue of --given rest")
+    parser.add_argument("--concepts", nargs="+", choices=specs.CONCEPTS,
+                        default=["object_persistence", "continuity", "solidity", "containment"],
+                        help="the concepts of --given motion")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    table = pair_table(args.root, args.cue)
-    print(f"| run | variant | n | r(d, {args.cue}) | r({args.cue}, size) | r(d, size) | "
-          f"partial r(d, {args.cue} given size) |")
-    print("|---|---|---|---|---|---|---|")
-    for run in args.runs:
-        with open(Path(run) / "voe_report" / "pairs.csv", newline="") as file:
-            pairs = [row for row in csv.DictReader(file) if row["concept"] == CONCEPT]
-        for variant in specs.STANDARD_VARIANTS[CONCEPT]:
-            rows = [(float(row["relative_surprise"]), *table[(int(row["seed"]), variant)])
-                    for row in pairs if row["variant"] == variant]
-            d, cue, size = np.array(rows).T
-            print(f"| {run} | {variant} | {len(rows)} | {stats.pearsonr(d, cue)[0]:+.2f} | "
-                  f"{stats.pearsonr(cue, size)[0]:+.2f} | {stats.pearsonr(d, size)[0]:+.2f} | "
-                  f"{partial_r(d, cue, size):+.2f} |")
+    if args.given == "rest":
+        print_rest(args.runs, pair_table(args.root, "object_persistence", "rest"), args.cue)
+    else:
+        print_motion(args.runs, {concept: pair_table(args.root, concept, "motion")
+                                 for concept in args.concepts})
 
 
 if __name__ == "__main__":
