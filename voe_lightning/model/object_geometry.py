@@ -403,7 +403,7 @@ def draw_ellipses(state: torch.Tensor, opacity: torch.Tensor, camera: torch.Tens
     order = seen_as[..., 2].argsort(dim=-1, descending=True)
     for index in range(slots):
         slot = order[..., index]  # [B, T]: the farthest remaining slot of each frame
-        def take(values):
+        def take(values, slot=slot):
             return values.gather(2, slot[..., None]).squeeze(2)
         inside = (((rows[:, None] - take(row)[..., None, None])
                    / take(half_height)[..., None, None]).pow(2)
