@@ -14,7 +14,6 @@ to rest in the two videos (m).
 """
 
 import argparse
-import csv
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +21,7 @@ import torch
 from scipy import stats
 
 from voe_lightning import cues, specs
+from voe_lightning.report.results import PairResults
 from voe_lightning.store import open_split
 
 #: The physical differences of ``--given motion``, in column order.
@@ -85,9 +85,12 @@ def pair_table(root: str, concept: str, given: str) -> dict[tuple[int, str], dic
     return table
 
 
-def run_pairs(run: str, concept: str) -> list[dict[str, str]]:
-    with open(Path(run) / "voe_report" / "pairs.csv", newline="") as file:
-        return [row for row in csv.DictReader(file) if row["concept"] == concept]
+def run_pairs(run: str, concept: str, variant: str) -> tuple[np.ndarray, np.ndarray]:
+    """The seeds of a run's test pairs of ``concept``'s ``variant`` and each pair's d, from its
+    pairs.csv (``PairResults``, which checks the file)."""
+    results = PairResults.from_csv(Path(run) / "voe_report" / "pairs.csv")
+    chosen = (np.asarray(results.concept) == concept) & (np.asarray(results.variant) == variant)
+    return results.seed[chosen], results.relative_surprise[chosen]
 
 
 def print_rest(runs: list[str], table: dict, cue: str) -> None:
@@ -96,13 +99,11 @@ def print_rest(runs: list[str], table: dict, cue: str) -> None:
           f"partial r(d, {cue} given size) |")
     print("|---|---|---|---|---|---|---|")
     for run in runs:
-        pairs = run_pairs(run, "object_persistence")
         for variant in specs.STANDARD_VARIANTS["object_persistence"]:
-            rows = [(float(row["relative_surprise"]), table[(int(row["seed"]), variant)][cue],
-                     table[(int(row["seed"]), variant)]["size"])
-                    for row in pairs if row["variant"] == variant]
-            d, score, size = np.array(rows).T
-            print(f"| {run} | {variant} | {len(rows)} | {stats.pearsonr(d, score)[0]:+.2f} | "
+            seeds, d = run_pairs(run, "object_persistence", variant)
+            score, size = np.array([[table[(int(seed), variant)][key] for key in (cue, "size")]
+                                    for seed in seeds]).T
+            print(f"| {run} | {variant} | {len(d)} | {stats.pearsonr(d, score)[0]:+.2f} | "
                   f"{stats.pearsonr(score, size)[0]:+.2f} | {stats.pearsonr(d, size)[0]:+.2f} | "
                   f"{partial_r(d, score, [size]):+.2f} |")
 
@@ -116,18 +117,16 @@ def print_motion(runs: list[str], tables: dict[str, dict]) -> None:
     print("|---" * (5 + len(cues.FRAME_LOCAL_CUES)) + "|")
     for run in runs:
         for concept, table in tables.items():
-            pairs = run_pairs(run, concept)
             for variant in specs.STANDARD_VARIANTS[concept]:
-                rows = [(float(row["relative_surprise"]), table[(int(row["seed"]), variant)])
-                        for row in pairs if row["variant"] == variant]
-                d = np.array([value for value, _ in rows])
-                column = {key: np.array([row[key] for _, row in rows]) for key in rows[0][1]}
+                seeds, d = run_pairs(run, concept, variant)
+                rows = [table[(int(seed), variant)] for seed in seeds]
+                column = {key: np.array([row[key] for row in rows]) for key in rows[0]}
                 given = [column[key] for key in MOTION]
                 cells = [f"{stats.pearsonr(d, column[cue])[0]:+.2f} -> "
                          f"{partial_r(d, column[cue], given):+.2f}" for cue in cues.FRAME_LOCAL_CUES]
                 physical = " / ".join(f"{stats.pearsonr(d, column[key])[0]:+.2f}"
                                       if np.ptp(column[key]) > 0 else "const" for key in MOTION)
-                print(f"| {Path(run).parent.name} | {concept} | {variant} | {len(rows)} | "
+                print(f"| {Path(run).parent.name} | {concept} | {variant} | {len(d)} | "
                       f"{' | '.join(cells)} | {physical} |")
 
 

@@ -14,6 +14,7 @@ import argparse
 
 import numpy as np
 import torch
+import yaml
 
 from datamodules import VOEDataModule
 from voe_lightning import specs
@@ -61,9 +62,8 @@ def main() -> None:
                         help="a constructor argument to use instead of the checkpoint's")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    overrides = dict(setting.split("=", 1) for setting in args.set)
-    overrides = {name: {"true": True, "false": False}.get(value, value)
-                 for name, value in overrides.items()}
+    overrides = {name: yaml.safe_load(value)  # true -> True, 0.5 -> 0.5, none -> "none"
+                 for name, value in (setting.split("=", 1) for setting in args.set)}
     model = ObjectStateModel.load_from_checkpoint(args.checkpoint, map_location="cpu",
                                                   **overrides).eval()
     data = VOEDataModule(concepts=[args.concept], root=args.root, train_examples=2000,
