@@ -21,7 +21,13 @@ from voe_lightning.model.object_geometry import (
     view,
     world_half_extents,
 )
-from voe_lightning.model.object_state import CARRIES, Observations, motion_onsets, withheld_spans
+from voe_lightning.model.object_state import (
+    CARRIES,
+    Observations,
+    motion_onsets,
+    slowed,
+    withheld_spans,
+)
 from voe_lightning.model.optimization import adam
 
 FRAMES = 10
@@ -252,6 +258,47 @@ def test_what_lay_still_stays_still_unseen(hold_still):
     torch.testing.assert_close(belief[:, 0], 0.2 + (0.1 + drift * after).cumsum(0))
     still = torch.full_like(after, 0.5) if hold_still else 0.5 + (drift * after).cumsum(0)
     torch.testing.assert_close(belief[:, 1], still)
+
+
+@pytest.mark.parametrize("slowing", [True, False])
+def test_a_hidden_object_goes_on_slowing_and_stops_where_it_would(slowing):
+    """``slowing``: a cube seen sliding along x, each move 2 cm shorter than the last (0.2,
+    0.18, 0.16 m), then hidden, is believed to slow on to a standstill, 0.56 m on from where it
+    was last seen (0.14 + 0.12 + ... + 0.02 m), and to stay there, not turn back; without it,
+    it slides on at 0.16 m a frame (no learned change)."""
+    steps = 12
+    moves = torch.tensor([0.0, 0.2, 0.18, 0.16] + [0.0] * (steps - 4))
+    visible = torch.ones(1, steps, 2, dtype=torch.bool)
+    visible[0, 4:, 0] = False
+    observations = _two_objects(moves.cumsum(0), torch.full((steps,), 3.0), visible)
+    model = ObjectStateModel(hidden_size=16, message_size=8, slowing=slowing)
+    last = model.dynamics[-1]
+    torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
+    with torch.no_grad():
+        hidden_x = model.rollout(observations)["belief"][0, 4:, 0, 0]
+    last_seen = 0.54
+    if slowing:  # 0.14 + 0.12 + ... + 0.02, then standing still
+        expected = last_seen + (0.16 - 0.02 * torch.arange(1.0, steps - 3)).clamp(min=0).cumsum(0)
+        assert expected[-1].item() == pytest.approx(last_seen + 0.56)
+    else:
+        expected = last_seen + 0.16 * torch.arange(1.0, steps - 3)
+    torch.testing.assert_close(hidden_x, expected)
+
+
+def test_slowing_brakes_only_along_the_floor_and_never_turns_back():
+    """``slowed``: the opposing part of the change shortens the move along the floor, a change
+    that speeds up or turns it leaves the move as it was, the vertical move is untouched, and a
+    brake larger than the move stops it (no reversal); no gradient is lost at standstill."""
+    move = torch.tensor([[0.3, 0.4, -0.2], [0.3, 0.4, -0.2], [0.1, 0.0, 0.0], [0.0, 0.0, 0.0],
+                         [0.2, 0.0, 0.0]], requires_grad=True)
+    change = torch.tensor([[-0.03, -0.04, 0.5], [0.03, 0.04, 0.0], [-0.5, 0.0, 0.0],
+                           [-0.1, 0.0, 0.0], [0.0, 0.3, 0.0]])
+    next_move = slowed(move, change)
+    expected = torch.tensor([[0.27, 0.36, -0.2], [0.3, 0.4, -0.2], [0.0, 0.0, 0.0],
+                             [0.0, 0.0, 0.0], [0.2, 0.0, 0.0]])
+    torch.testing.assert_close(next_move, expected)
+    next_move.sum().backward()
+    assert torch.isfinite(move.grad).all()
 
 
 @pytest.mark.parametrize("carry", ["velocity", "acceleration"])

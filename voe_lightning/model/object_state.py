@@ -68,7 +68,7 @@ SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape"
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
 ARCHITECTURE = ("hidden_size", "message_size", "use_camera", "components", "stop_component",
                 "landing_component", "land_on_objects", "pivot_landing", "carry", "hold_still",
-                "world_boxes")
+                "slowing", "world_boxes")
 #: Per-slot inputs of the dynamics with ``landing_component``: how high the lowest point of the
 #: object's box is above the floor at its belief and where its inertia would take it.
 FLOOR_FEATURES = 2
@@ -227,6 +227,12 @@ class ObjectStateModel(SurpriseModel):
             lies still stays still unseen. Without it, a cube fallen behind a container drifted
             into it as the learned change fed on itself, and was then carried away with it
             (round twelve).
+        slowing: an object's inertia goes on slowing it as its last move was slowed (the part of
+            its last change of move that opposed its move along the floor), until it stops: it
+            never turns back (``slowed``). A ball that rolls slowing to a stop behind a pillar
+            stops there unseen; without it, the hidden rollout carried the last move on, and a
+            seed that had not learned the slowing believed the ball rolled on 0.95 m (round
+            thirteen). A prior, like the floor's: not learned.
         world_boxes: the pair features add how the two objects' world boxes overlap
             (``WORLD_BOX_FEATURES``).
         withhold: share of each training clip's objects whose observations are withheld for a
@@ -270,6 +276,7 @@ class ObjectStateModel(SurpriseModel):
         pivot_landing: bool = False,
         carry: str = "none",
         hold_still: bool = False,
+        slowing: bool = False,
         world_boxes: bool = False,
         withhold: float = 0.0,
         withhold_frames: int = 8,
@@ -513,7 +520,7 @@ class ObjectStateModel(SurpriseModel):
         seen not moving across the floor), else None."""
         pairs = self._pairs(belief, shape, view(belief, pose))
         message = self._messages(self.message, hidden, hidden, pairs, known)
-        move = velocity
+        move = slowed(velocity, acceleration) if self.hparams.slowing else velocity
         if self.carry is not None:  # moves with at most one carrier: shares of 1 over self+others
             logit = self.carry(hidden, hidden, pairs).squeeze(-1)
             logit = logit.masked_fill(self._pair_weight(known)[..., 0] == 0, -math.inf)
@@ -688,6 +695,18 @@ class ObjectStateModel(SurpriseModel):
         out = self.rollout(self._inputs(frames, objects, camera))
         weight = out["known"].float()[..., None]
         return {"slots": (out["hidden"] * weight).sum(2) / weight.sum(2).clamp(min=1)}
+
+
+def slowed(move: torch.Tensor, change: torch.Tensor) -> torch.Tensor:
+    """The next move [..., 3] of an object that goes on slowing as its last ``move`` was slowed
+    by its ``change`` (both [..., 3]): the move along the floor (x, y) less the part of the change
+    that opposed it, never past standstill (it stops, it does not turn back); the vertical move,
+    and a change that speeds the object up or turns it, are left as they were."""
+    along_floor = move[..., :2]
+    speed = along_floor.square().sum(-1, keepdim=True).add(1e-12).sqrt()
+    braking = (-(change[..., :2] * along_floor).sum(-1, keepdim=True) / speed).clamp(min=0)
+    kept = (1 - braking / speed).clamp(0, 1)
+    return torch.cat([along_floor * kept, move[..., 2:]], dim=-1)
 
 
 def motion_onsets(observations: Observations) -> torch.Tensor:
