@@ -14,6 +14,7 @@ from voe_lightning.model.object_geometry import (
     on_or_above_floor,
     on_what_is_below,
     pivoted_down,
+    quaternion_matrix,
     resting_on,
     seen_by_geometry,
 )
@@ -31,6 +32,19 @@ def states(*objects: tuple[tuple[float, float, float], tuple[float, float, float
             torch.tensor(centre), 1.0, torch.tensor(half))
     shape = F.one_hot(torch.tensor([[label for *_, label in objects]]), len(specs.OBJECT_SHAPES))
     return state, shape.float(), torch.ones(1, len(objects), dtype=torch.bool)
+
+
+def test_quaternion_matrices_are_mujocos_and_a_missing_orientation_is_none():
+    """The geometry's rotation (one matrix product of a quaternion's pairwise products) is
+    MuJoCo's own ``mju_quat2Mat`` for unit quaternions; an absent slot's zeros give zeros."""
+    quaternions = torch.randn(64, 4, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    quaternions = quaternions / quaternions.norm(dim=-1, keepdim=True)
+    expected = np.empty((64, 9))
+    for quaternion, matrix in zip(quaternions.numpy(), expected):
+        mujoco.mju_quat2Mat(matrix, quaternion)
+    np.testing.assert_allclose(quaternion_matrix(quaternions).flatten(1).numpy(), expected,
+                               atol=1e-12)
+    assert torch.equal(quaternion_matrix(torch.zeros(2, 4)), torch.zeros(2, 3, 3))
 
 
 @pytest.mark.parametrize("height, seen", [(0.15, False), (0.75, True)])
