@@ -73,7 +73,7 @@ FAMILIES = [
     pytest.param(lambda: ObjectStateModel(hidden_size=16, message_size=8, components=4,
                                           stop_component=True, landing_component=True,
                                           pivot_landing=True, carry="support", hold_still=True,
-                                          slowing=True),
+                                          slowing=True, falling_lands=True),
                  id="object_state_support"),
     pytest.param(lambda: ObjectStateModel(hidden_size=16, message_size=8, components=3,
                                           carry="acceleration", world_boxes=True),

@@ -301,6 +301,30 @@ def test_slowing_brakes_only_along_the_floor_and_never_turns_back():
     assert torch.isfinite(move.grad).all()
 
 
+@pytest.mark.parametrize("falling_lands", [True, False])
+def test_nothing_stops_in_mid_air(falling_lands):
+    """``falling_lands``: with the stopping Gaussian favoured and no learned change, a cube
+    seen falling 0.2 m a frame is predicted to fall 0.2 m on (the stop is left out for it),
+    while a cube sliding along the floor is still held where it is; without it, both are
+    held. The left-out Gaussian leaves the likelihood finite."""
+    steps = 5
+    observations = _two_objects(torch.zeros(steps), 0.1 * torch.arange(steps + 0.0),
+                                torch.ones(1, steps, 2, dtype=torch.bool))
+    observations.state[0, :, 0, 2] = 2.0 - 0.2 * torch.arange(steps + 0.0)
+    model = ObjectStateModel(hidden_size=16, message_size=8, components=2, stop_component=True,
+                             falling_lands=falling_lands)
+    last = model.dynamics[-1]
+    torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
+    with torch.no_grad():
+        last.bias[2 * 2 * 13] = 5.0  # the stopping Gaussian's logit
+        out = model.rollout(observations)
+    seen = observations.state[0, 1:-1]  # where each cube was a frame before frames 2, 3, 4
+    fallen = seen[:, 0, 2] - 0.2 if falling_lands else seen[:, 0, 2]
+    torch.testing.assert_close(out["predicted"][0, 2:, 0, 2], fallen)
+    torch.testing.assert_close(out["predicted"][0, 2:, 1, 0], seen[:, 1, 0])
+    assert torch.isfinite(out["state"]).all() and torch.isfinite(out["state_entropy"]).all()
+
+
 @pytest.mark.parametrize("carry", ["velocity", "acceleration"])
 def test_only_a_carrier_that_changes_its_move_passes_it_on(carry):
     """An object moving past (or falling into) one at rest: carrying the carrier's last move
@@ -411,6 +435,8 @@ def test_the_stop_and_landing_components_need_others_and_carry_a_known_choice():
         ObjectStateModel(carry=True)
     with pytest.raises(ValueError, match="carry: support needs stop_component: true"):
         ObjectStateModel(components=3, carry="support")
+    with pytest.raises(ValueError, match="falling_lands needs stop_component: true"):
+        ObjectStateModel(components=3, falling_lands=True)
 
 
 def test_pair_features_say_what_an_object_could_rest_on_or_sit_in():

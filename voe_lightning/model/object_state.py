@@ -62,13 +62,16 @@ MAX_MOVE = 1.5
 #: A seen object starts to move at frame t when it moved less than RESTING metres into frame t-1
 #: and more than MOVING into frame t (``motion_onsets``).
 RESTING, MOVING = 0.005, 0.02
+#: The logit that takes a Gaussian out of the mixture (``falling_lands``): finite, so that its
+#: share of the entropy is 0 * finite, not 0 * inf.
+LEFT_OUT = -1.0e4
 #: The per-slot terms of a frame's negative log-likelihood; ``appear`` is per frame.
 SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape")
 
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
 ARCHITECTURE = ("hidden_size", "message_size", "use_camera", "components", "stop_component",
                 "landing_component", "land_on_objects", "pivot_landing", "carry", "hold_still",
-                "slowing", "world_boxes")
+                "slowing", "falling_lands", "world_boxes")
 #: Per-slot inputs of the dynamics with ``landing_component``: how high the lowest point of the
 #: object's box is above the floor at its belief and where its inertia would take it.
 FLOOR_FEATURES = 2
@@ -233,6 +236,11 @@ class ObjectStateModel(SurpriseModel):
             stops there unseen; without it, the hidden rollout carried the last move on, and a
             seed that had not learned the slowing believed the ball rolled on 0.95 m (round
             thirteen). A prior, like the floor's: not learned.
+        falling_lands: nothing stops in mid-air: the stopping Gaussian is left out for an
+            object whose last move took it down by more than ``MOVING``, so it lands (the
+            landing Gaussian) or falls on. A seed that held a block where it was one frame
+            after it was let go expected it to stay in view, and read the block that sank out
+            of sight as the violation (round fifteen). A prior: not learned.
         world_boxes: the pair features add how the two objects' world boxes overlap
             (``WORLD_BOX_FEATURES``).
         withhold: share of each training clip's objects whose observations are withheld for a
@@ -277,6 +285,7 @@ class ObjectStateModel(SurpriseModel):
         carry: str = "none",
         hold_still: bool = False,
         slowing: bool = False,
+        falling_lands: bool = False,
         world_boxes: bool = False,
         withhold: float = 0.0,
         withhold_frames: int = 8,
@@ -318,6 +327,9 @@ class ObjectStateModel(SurpriseModel):
         if carry not in CARRIES:
             raise ValueError(f"carry must be one of {CARRIES} (what a carrier passes on to the "
                              f"objects it carries), got {carry!r}")
+        if falling_lands and not stop_component:
+            raise ValueError("falling_lands needs stop_component: true (it leaves the stopping "
+                             "Gaussian out for a falling object), got stop_component=false")
         if carry == "support" and not stop_component:
             raise ValueError("carry: support needs stop_component: true (it moves the stopping "
                              "Gaussian with what the object rests on), got stop_component=false")
@@ -555,6 +567,10 @@ class ObjectStateModel(SurpriseModel):
             means = torch.cat([means[:, :, :-1], landing], dim=2)
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
         logits = logits if components > 1 else None
+        if self.hparams.falling_lands:  # nothing stops in mid-air: it lands or falls on
+            falling = (velocity[..., 2] < -MOVING)[..., None]
+            stopping = torch.arange(components, device=falling.device) == 0
+            logits = logits.masked_fill(falling & stopping, LEFT_OUT)
         top = (logits.argmax(-1) if logits is not None
                else torch.zeros_like(known, dtype=torch.long))
 
