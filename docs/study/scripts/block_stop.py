@@ -1,7 +1,8 @@
 """Where solidity's counterbalanced violation happens, as the positive control sees it: at the
 first frame at which a validation pair's two videos differ (the inconsistent block caught by the
 hidden support), how far the block had fallen, how far it then moves, the control's mixture
-weights for it and the surprise there and over each video, per checkpoint.
+weights for it (as its dynamics give them, before ``falling_lands`` leaves the stop out for a
+falling block) and the surprise there and over each video, per checkpoint.
 
     python docs/study/scripts/block_stop.py runs/r14_slow_s0/version_0/checkpoints/last.ckpt \
         --root data/cpu
@@ -71,9 +72,12 @@ def main() -> None:
                          float(inc["surprise"][b].sum())])
         r = np.array(rows).mean(0)
         k = model.hparams.components
+        left_out = "; falling_lands then leaves the stop out" if model.hparams.get(
+            "falling_lands") else ""
         print(f"{checkpoint}: {len(rows)} pairs; the block fell {r[0]:.3f} m before the first "
-              f"differing frame, the inconsistent one then {r[1]:.3f} m; its weights (stop, "
-              f"move..., land) {np.round(r[2:2 + k], 2).tolist()}, its state surprise there "
+              f"differing frame, the inconsistent one then {r[1]:.3f} m; its weights as the "
+              f"dynamics give them (stop, move..., land{left_out}) "
+              f"{np.round(r[2:2 + k], 2).tolist()}, its state surprise there "
               f"{r[2 + k]:.2f}; surprise at that frame {r[3 + k]:.2f} / {r[4 + k]:.2f}, over the "
               f"videos {r[5 + k]:.2f} / {r[6 + k]:.2f} (consistent / inconsistent)")
 

@@ -6,10 +6,15 @@ and the partial r of the two given the physical difference, within each variant.
 
 ``--given motion`` (any concept): how much farther the objects moved (m) and turned (rad) after
 the manipulation frame, and in how many more object-frames they were seen, inconsistent less
-consistent. ``--given rest`` (object persistence, round eleven): how far apart the plank comes
-to rest in the two videos (m).
+consistent. ``--given reveal`` (containment, round fifteen): after the manipulation frame, at
+which frame the cube (the smallest object) is first seen and in how many frames it is seen, in
+each video (not a difference: the standard consistent cube is mostly never seen), and the
+manipulation frame itself. ``--given rest`` (object persistence, round eleven): how far apart
+the plank comes to rest in the two videos (m).
 
     python docs/study/scripts/cue_through_violation.py runs/r12_s0/version_0 --given motion
+    python docs/study/scripts/cue_through_violation.py runs/r15_s0/version_0 --given reveal \
+        --concepts containment
     python docs/study/scripts/cue_through_violation.py runs/r11_s0/version_0 --root data/cpu
 """
 
@@ -24,8 +29,9 @@ from voe_lightning import cues, specs
 from voe_lightning.report.results import PairResults
 from voe_lightning.store import open_split
 
-#: The physical differences of ``--given motion``, in column order.
-MOTION = ("path", "turn", "seen")
+#: The physical differences of ``--given motion`` and ``--given reveal``, in column order.
+PHYSICAL = {"motion": ("path", "turn", "seen"),
+            "reveal": ("first inc", "first con", "seen inc", "seen con", "m")}
 
 
 def partial_r(x: np.ndarray, y: np.ndarray, given: list[np.ndarray]) -> float:
@@ -58,11 +64,22 @@ def object_motion(objects, m: int) -> dict[str, float]:
             "seen": float(seen[m + 1:].sum())}
 
 
+def cube_reveal(objects, m: int) -> dict[str, float]:
+    """When the cube (the object of smallest box) shows after frame m: the first frame after m
+    in which it is seen (counted from m + 1; the frames left if never) and how many it is
+    seen in."""
+    present = objects["shape_label"][0] > 0
+    cube = int(objects["size"][0].prod(-1).masked_fill(~present, torch.inf).argmin())
+    seen = (objects["visible_fraction"][m + 1:, cube] > 0).numpy()
+    shown = np.flatnonzero(seen)
+    return {"first": float(shown[0] if len(shown) else len(seen)), "seen": float(seen.sum())}
+
+
 def pair_table(root: str, concept: str, given: str) -> dict[tuple[int, str], dict[str, float]]:
     """Per test pair of ``concept``'s standard variants, by (seed, variant): each frame-local
-    cue's difference and the physical difference (``MOTION``'s, or ``rest``: how far apart the
-    plank rests)."""
-    physical = object_motion if given == "motion" else plank_rest
+    cue's difference and the physical quantities (``PHYSICAL[given]``, or ``rest``: how far
+    apart the plank rests)."""
+    physical = {"motion": object_motion, "reveal": cube_reveal, "rest": plank_rest}[given]
     table = {}
     for record in open_split(root, concept, "test"):
         variant = specs.VARIANTS[int(record["variant"])]
@@ -78,7 +95,10 @@ def pair_table(root: str, concept: str, given: str) -> dict[tuple[int, str], dic
                for cue in cues.FRAME_LOCAL_CUES}
         if given == "motion":
             row.update({key: state["inconsistent"][key] - state["consistent"][key]
-                        for key in MOTION})
+                        for key in PHYSICAL[given]})
+        elif given == "reveal":
+            row.update({f"{key} {side[:3]}": state[side][key] for side in cues.SIDES
+                        for key in ("first", "seen")}, m=float(m))
         else:
             row["size"] = abs(state["inconsistent"]["rest"] - state["consistent"]["rest"])
         table[(int(record["seed"]), variant)] = row
@@ -108,12 +128,12 @@ def print_rest(runs: list[str], table: dict, cue: str) -> None:
                   f"{partial_r(d, score, [size]):+.2f} |")
 
 
-def print_motion(runs: list[str], tables: dict[str, dict]) -> None:
-    """Per run, concept and variant: r(d, cue) -> partial r given MOTION for every frame-local
-    cue, and r of d with each physical difference."""
+def print_given(runs: list[str], tables: dict[str, dict], keys: tuple[str, ...]) -> None:
+    """Per run, concept and variant: r(d, cue) -> partial r given the physical differences
+    ``keys`` for every frame-local cue, and r of d with each of them."""
     titles = " | ".join(cues.CUE_TITLES[cue] for cue in cues.FRAME_LOCAL_CUES)
-    print(f"r(d, cue) -> partial r given the objects' {', '.join(MOTION)} differences\n")
-    print(f"| run | concept | variant | n | {titles} | r(d, path / turn / seen) |")
+    print(f"r(d, cue) -> partial r given {', '.join(keys)}\n")
+    print(f"| run | concept | variant | n | {titles} | r(d, {' / '.join(keys)}) |")
     print("|---" * (5 + len(cues.FRAME_LOCAL_CUES)) + "|")
     for run in runs:
         for concept, table in tables.items():
@@ -121,11 +141,11 @@ def print_motion(runs: list[str], tables: dict[str, dict]) -> None:
                 seeds, d = run_pairs(run, concept, variant)
                 rows = [table[(int(seed), variant)] for seed in seeds]
                 column = {key: np.array([row[key] for row in rows]) for key in rows[0]}
-                given = [column[key] for key in MOTION]
+                given = [column[key] for key in keys]
                 cells = [f"{stats.pearsonr(d, column[cue])[0]:+.2f} -> "
                          f"{partial_r(d, column[cue], given):+.2f}" for cue in cues.FRAME_LOCAL_CUES]
                 physical = " / ".join(f"{stats.pearsonr(d, column[key])[0]:+.2f}"
-                                      if np.ptp(column[key]) > 0 else "const" for key in MOTION)
+                                      if np.ptp(column[key]) > 0 else "const" for key in keys)
                 print(f"| {Path(run).parent.name} | {concept} | {variant} | {len(d)} | "
                       f"{' | '.join(cells)} | {physical} |")
 
@@ -134,19 +154,19 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", help="run folders with voe_report/pairs.csv")
     parser.add_argument("--root", default="data/cpu")
-    parser.add_argument("--given", default="rest", choices=("rest", "motion"))
+    parser.add_argument("--given", default="rest", choices=("rest", *PHYSICAL))
     parser.add_argument("--cue", default="motion_energy", choices=cues.FRAME_LOCAL_CUES,
                         help="the cue of --given rest")
     parser.add_argument("--concepts", nargs="+", choices=specs.CONCEPTS,
                         default=["object_persistence", "continuity", "solidity", "containment"],
-                        help="the concepts of --given motion")
+                        help="the concepts of --given motion or reveal")
     args = parser.parse_args()
     torch.set_num_threads(1)
     if args.given == "rest":
         print_rest(args.runs, pair_table(args.root, "object_persistence", "rest"), args.cue)
     else:
-        print_motion(args.runs, {concept: pair_table(args.root, concept, "motion")
-                                 for concept in args.concepts})
+        print_given(args.runs, {concept: pair_table(args.root, concept, args.given)
+                                for concept in args.concepts}, PHYSICAL[args.given])
 
 
 if __name__ == "__main__":
