@@ -325,6 +325,35 @@ def test_nothing_stops_in_mid_air(falling_lands):
     assert torch.isfinite(out["state"]).all() and torch.isfinite(out["state_entropy"]).all()
 
 
+@pytest.mark.parametrize("fall_gain", [0.1, 0.0])
+def test_what_falls_falls_faster(fall_gain):
+    """``fall_gain``: with no learned change, a cube seen falling 0.1, 0.2, 0.3 m a frame (a
+    constant gain of 0.1 m) is predicted where free fall takes it, its last move grown by the
+    gain, while a cube sliding along the floor and one rising keep their last move; without
+    it, every one keeps its last move."""
+    steps = 5
+    observations = _two_objects(torch.zeros(steps), 0.1 * torch.arange(steps + 0.0),
+                                torch.ones(1, steps, 2, dtype=torch.bool))
+    drop = 0.05 * torch.arange(steps + 0.0) * (torch.arange(steps + 0.0) + 1)  # 0, .1, .3, .6
+    observations.state[0, :, 0, 2] = 2.0 - drop
+    rising = _two_objects(torch.zeros(steps), torch.zeros(steps),
+                          torch.ones(1, steps, 2, dtype=torch.bool))
+    rising.state[0, :, 0, 2] = 0.1 + 0.1 * torch.arange(steps + 0.0)
+    model = ObjectStateModel(hidden_size=16, message_size=8, fall_gain=fall_gain)
+    last = model.dynamics[-1]
+    torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
+    with torch.no_grad():
+        predicted = model.rollout(observations)["predicted"][0, 2:]
+        up = model.rollout(rising)["predicted"][0, 2:, 0, 2]
+    seen = observations.state[0, 1:-1]  # where each cube was a frame before frames 2, 3, 4
+    moved = seen - observations.state[0, :-2]
+    torch.testing.assert_close(predicted[:, 0, 2], seen[:, 0, 2] + moved[:, 0, 2] - fall_gain)
+    if fall_gain:
+        torch.testing.assert_close(predicted[:, 0, 2], observations.state[0, 2:, 0, 2])
+    torch.testing.assert_close(predicted[:, 1, 0], seen[:, 1, 0] + 0.1)
+    torch.testing.assert_close(up, rising.state[0, 1:-1, 0, 2] + 0.1)
+
+
 @pytest.mark.parametrize("carry", ["velocity", "acceleration"])
 def test_only_a_carrier_that_changes_its_move_passes_it_on(carry):
     """An object moving past (or falling into) one at rest: carrying the carrier's last move
@@ -437,6 +466,8 @@ def test_the_stop_and_landing_components_need_others_and_carry_a_known_choice():
         ObjectStateModel(components=3, carry="support")
     with pytest.raises(ValueError, match="falling_lands needs stop_component: true"):
         ObjectStateModel(components=3, falling_lands=True)
+    with pytest.raises(ValueError, match=r"fall_gain must be in \[0, 1.5\].*got -0.392"):
+        ObjectStateModel(fall_gain=-0.392)
 
 
 def test_pair_features_say_what_an_object_could_rest_on_or_sit_in():
