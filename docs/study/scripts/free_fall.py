@@ -3,7 +3,8 @@
 then falls (on in free fall, or landing within the frame interval), and, per checkpoint, each
 Gaussian of its mixture: the fall it predicts (the mean's change of height), its standard
 deviation there and its weight, as the model gives them (after ``falling_lands``), and its
-``fall_gain``. Seen blocks only.
+``fall_gain``; then what each Gaussian's choice by hard assignment rests on, the negative
+log-likelihood of each part of the seen state and -log of its weight. Seen blocks only.
 
     python docs/study/scripts/free_fall.py runs/r15_fall_s8/version_0/checkpoints/last.ckpt \
         --root data/cpu
@@ -18,19 +19,25 @@ import torch
 from datamodules import VOEDataModule
 from voe_lightning import specs
 from voe_lightning.model import ObjectStateModel, object_state
+from voe_lightning.model.likelihood import gaussian_nll
 
 #: A block has landed within the interval when it fell less than this (free fall: 0.60 m).
 FREE_FALL = 0.55
+#: The state's parts, whose negative log-likelihood under each Gaussian is reported apart.
+PARTS = {"position": slice(0, 3), "orientation": slice(3, 7), "size": slice(7, 10),
+         "colour": slice(10, 13)}
 
 
 def predicted_falls(model: ObjectStateModel, clips) -> dict[str, np.ndarray]:
     """Per clip whose block is seen at its second frame of fall: that fall (m), and each
-    Gaussian's predicted fall, standard deviation and weight there, grouped by whether the
-    block was still in free fall ("free") or landed within the interval ("landed")."""
+    Gaussian's predicted fall, standard deviation and weight there, then its negative
+    log-likelihood of each part of the seen state (``PARTS``) and -log of its weight (hard
+    assignment trains the Gaussian with the least sum), grouped by whether the block was still
+    in free fall ("free") or landed within the interval ("landed")."""
     caught = []
 
     def spy(observed, means, log_std, logits, hard=False):
-        caught.append((means, log_std, logits))
+        caught.append((observed, means, log_std, logits))
         return nll(observed, means, log_std, logits, hard=hard)
 
     nll = object_state.mixture_nll
@@ -48,11 +55,14 @@ def predicted_falls(model: ObjectStateModel, clips) -> dict[str, np.ndarray]:
         t = int(falls[0]) + 2  # the frame after the first frame of fall
         if t >= height.shape[0] or not seen[t - 2: t + 1, block].all():
             continue
-        means, log_std, logits = (value[b, block] for value in caught[t - 1])
+        seen_state, means, log_std, logits = (value[b, block] for value in caught[t - 1])
         fall = float(height[t - 1, block] - height[t, block])
+        parts = [gaussian_nll(seen_state[None, part], means[:, part], log_std[:, part])[0]
+                 for part in PARTS.values()]
         rows["free" if fall > FREE_FALL else "landed"].append(
             [fall, *(height[t - 1, block] - means[:, 2]).tolist(),
-             *log_std[:, 2].exp().tolist(), *logits.softmax(-1).tolist()])
+             *log_std[:, 2].exp().tolist(), *logits.softmax(-1).tolist(),
+             *torch.cat([*parts, -logits.log_softmax(-1)]).tolist()])
     return {key: np.array(value) for key, value in rows.items() if value}
 
 
@@ -86,7 +96,10 @@ def main() -> None:
                   f" per Gaussian (stop, move..., "
                   f"land) predicted fall {np.round(r[1:1 + k], 3).tolist()}, SD "
                   f"{np.round(r[1 + k:1 + 2 * k], 3).tolist()}, weight "
-                  f"{np.round(r[1 + 2 * k:], 2).tolist()}")
+                  f"{np.round(r[1 + 2 * k:1 + 3 * k], 2).tolist()}")
+            costs = r[1 + 3 * k:].reshape(len(PARTS) + 1, k)
+            for name, cost in zip([*PARTS, "-log weight"], costs):
+                print(f"    {name:12s} nats per Gaussian {np.round(cost, 2).tolist()}")
 
 
 if __name__ == "__main__":
