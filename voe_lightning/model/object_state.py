@@ -546,9 +546,9 @@ class ObjectStateModel(SurpriseModel):
         pairs = self._pairs(belief, shape, view(belief, pose))
         message = self._messages(self.message, hidden, hidden, pairs, known)
         move = slowed(velocity, acceleration) if self.hparams.slowing else velocity
+        falling = velocity[..., 2] < -MOVING  # [B, S]: its last move took it down
         if self.hparams.fall_gain:  # what falls, falls faster
-            falling = (velocity[..., 2:] < -MOVING).float()
-            move = move - F.pad(falling * self.hparams.fall_gain, (2, 0))
+            move = move - F.pad(falling[..., None] * self.hparams.fall_gain, (2, 0))
         if self.carry is not None:  # moves with at most one carrier: shares of 1 over self+others
             logit = self.carry(hidden, hidden, pairs).squeeze(-1)
             logit = logit.masked_fill(self._pair_weight(known)[..., 0] == 0, -math.inf)
@@ -584,9 +584,8 @@ class ObjectStateModel(SurpriseModel):
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
         logits = logits if components > 1 else None
         if self.hparams.falling_lands:  # nothing stops in mid-air: it lands or falls on
-            falling = (velocity[..., 2] < -MOVING)[..., None]
             stopping = torch.arange(components, device=falling.device) == 0
-            logits = logits.masked_fill(falling & stopping, LEFT_OUT)
+            logits = logits.masked_fill(falling[..., None] & stopping, LEFT_OUT)
         top = (logits.argmax(-1) if logits is not None
                else torch.zeros_like(known, dtype=torch.long))
 

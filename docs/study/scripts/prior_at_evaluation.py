@@ -15,7 +15,6 @@ import yaml
 from datamodules import VOEDataModule
 from voe_lightning import specs, statistics
 from voe_lightning.model import ObjectStateModel
-from voe_lightning.model.base import video_inputs
 from voe_lightning.surprise_window import video_surprise
 
 
@@ -40,15 +39,12 @@ def main() -> None:
     surprise: dict[tuple[str, str], dict[str, list]] = {}
     with torch.no_grad():
         for batch in data.test_dataloader():
-            scored = {}
+            out = model.probe_step(batch)
             for side in ("consistent", "inconsistent"):
-                inputs = video_inputs(batch, side)
-                scored[side] = video_surprise(model.surprise(
-                    batch[side, "frames"], None, inputs.get("camera"), inputs["objects"]))
-            for i in range(batch.shape[0]):
-                key = (specs.concept_name(batch[i]), specs.variant_name(batch[i]))
-                for side, values in scored.items():
-                    surprise.setdefault(key, {}).setdefault(side, []).append(float(values[i]))
+                videos = video_surprise(out[f"surprise_{side}"])
+                for concept, variant, value in zip(out["concept"], out["variant"], videos):
+                    key = (specs.CONCEPTS[int(concept)], specs.VARIANTS[int(variant)])
+                    surprise.setdefault(key, {}).setdefault(side, []).append(float(value))
     print(f"{args.checkpoint} with {overrides or 'its own arguments'}")
     for (concept, variant), sides in surprise.items():
         result = statistics.paired_test(sides["inconsistent"], sides["consistent"], bootstrap=0)
