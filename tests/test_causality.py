@@ -74,7 +74,7 @@ FAMILIES = [
                                           stop_component=True, landing_component=True,
                                           pivot_landing=True, carry="support", hold_still=True,
                                           slowing=True, falling_lands=True,
-                                          fall_gain=0.392),
+                                          fall_gain=0.392, shared_identity=True),
                  id="object_state_support"),
     pytest.param(lambda: ObjectStateModel(hidden_size=16, message_size=8, components=3,
                                           carry="acceleration", world_boxes=True),

@@ -2,6 +2,7 @@
 object forward, and is surprised by a vanishing or a teleport after learning from clips."""
 
 import math
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ import torch.nn.functional as F
 from tensordict import TensorDict
 
 from voe_lightning import specs
-from voe_lightning.model import ObjectStateModel
+from voe_lightning.model import ObjectStateModel, object_state
 from voe_lightning.model.likelihood import gaussian_nll, mixture_nll
 from voe_lightning.model.object_geometry import (
     lying_on_floor,
@@ -352,6 +353,43 @@ def test_what_falls_falls_faster(fall_gain):
         torch.testing.assert_close(predicted[:, 0, 2], observations.state[0, 2:, 0, 2])
     torch.testing.assert_close(predicted[:, 1, 0], seen[:, 1, 0] + 0.1)
     torch.testing.assert_close(up, rising.state[0, 1:-1, 0, 2] + 0.1)
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_shared_identity_makes_every_gaussian_predict_the_object_it_is(shared):
+    """``shared_identity``: with random weights, every Gaussian of the mixture predicts the
+    size and colour last seen, with the same spread, so hard assignment chooses by position and
+    orientation alone (a colour change costs every Gaussian the same); without it, the
+    Gaussians disagree about them."""
+    torch.manual_seed(0)
+    steps = 4
+    observations = _two_objects(0.1 * torch.arange(steps + 0.0), torch.full((steps,), 0.5),
+                                torch.ones(1, steps, 2, dtype=torch.bool))
+    observations.state[0, :, :, 10:] = torch.tensor([0.2, 0.4, 0.6])
+    observations.state[0, -1, 0, 10:] = torch.tensor([0.9, 0.1, 0.1])  # recoloured when seen
+    model = ObjectStateModel(hidden_size=16, message_size=8, components=4, stop_component=True,
+                             landing_component=True, pivot_landing=True,
+                             hard_assignment=True, shared_identity=shared)
+    caught = []
+
+    def spy(observed, means, log_std, logits, hard=False):
+        caught.append((observed, means, log_std))
+        return mixture_nll(observed, means, log_std, logits, hard=hard)
+
+    with torch.no_grad(), mock.patch.object(object_state, "mixture_nll", spy):
+        model.rollout(observations)
+    for t, (observed, means, log_std) in enumerate(caught[1:], start=1):
+        identity = means[..., 7:]  # [B, S, K, 6]
+        spread = log_std[..., 7:]
+        if shared:
+            torch.testing.assert_close(identity, observations.state[:, t - 1, :, None, 7:]
+                                       .expand_as(identity))
+            torch.testing.assert_close(spread, spread[:, :, :1].expand_as(spread))
+            costs = gaussian_nll(observed[..., None, 7:], identity, spread)[0]
+            torch.testing.assert_close(costs, costs[:, :, :1].expand_as(costs))
+        else:
+            assert (identity - identity[:, :, :1]).abs().amax() > 1e-3
+            assert (spread - spread[:, :, :1]).abs().amax() > 1e-3
 
 
 @pytest.mark.parametrize("carry", ["velocity", "acceleration"])

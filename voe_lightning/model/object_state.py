@@ -72,7 +72,7 @@ SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape"
 #: checkpoint must agree on all of them.
 ARCHITECTURE = ("hidden_size", "message_size", "use_camera", "components", "stop_component",
                 "landing_component", "land_on_objects", "pivot_landing", "carry", "hold_still",
-                "slowing", "falling_lands", "fall_gain", "world_boxes")
+                "slowing", "falling_lands", "fall_gain", "shared_identity", "world_boxes")
 #: Per-slot inputs of the dynamics with ``landing_component``: how high the lowest point of the
 #: object's box is above the floor at its belief and where its inertia would take it.
 FLOOR_FEATURES = 2
@@ -249,6 +249,12 @@ class ObjectStateModel(SurpriseModel):
             whose mixture gave free fall to a moving Gaussian carried a released block on at its
             first frame's speed, 0.27 m a frame where it falls 0.60; learned from 0 instead, the
             gain stayed under 0.01 (round sixteen). A prior, like the floor's: not learned.
+        shared_identity: the Gaussians differ only in where the object is and how it is turned:
+            each predicts the size and colour it was last believed to have, with one learned
+            spread shared by all (the first Gaussian's). Without it the landing Gaussian, which
+            kept size and colour exactly, won a propped plank's resting frames by some 11 nats
+            of size and colour under hard assignment, and its tight orientation then charged
+            every frame of the plank's rocking (round seventeen).
         world_boxes: the pair features add how the two objects' world boxes overlap
             (``WORLD_BOX_FEATURES``).
         withhold: share of each training clip's objects whose observations are withheld for a
@@ -295,6 +301,7 @@ class ObjectStateModel(SurpriseModel):
         slowing: bool = False,
         falling_lands: bool = False,
         fall_gain: float = 0.0,
+        shared_identity: bool = False,
         world_boxes: bool = False,
         withhold: float = 0.0,
         withhold_frames: int = 8,
@@ -568,6 +575,11 @@ class ObjectStateModel(SurpriseModel):
              components if components > 1 else 0, SHAPES], -1)
         change = change.unflatten(-1, (components, STATE_SIZE))  # [B, S, K, 13]
         log_std = log_std.unflatten(-1, (components, STATE_SIZE))
+        if self.hparams.shared_identity:  # every hypothesis is about the object it is: size and
+            identity = slice(7, STATE_SIZE)  # colour kept, under one learned spread for all
+            change = torch.cat([change[..., :7], torch.zeros_like(change[..., identity])], -1)
+            log_std = torch.cat([log_std[..., :7], log_std[..., :1, identity].expand(
+                *log_std.shape[:-1], STATE_SIZE - 7)], -1)
         moved = ((belief[:, :, None] + self.inertia_kept * inertia[:, :, None])
                  + MAX_MOVE * torch.tanh(change / MAX_MOVE))
         means = on_or_above_floor(moved)
