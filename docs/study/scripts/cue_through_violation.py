@@ -10,12 +10,15 @@ consistent. ``--given reveal`` (containment, round fifteen): after the manipulat
 which frame the cube (the smallest object) is first seen and in how many frames it is seen, in
 each video (not a difference: the standard consistent cube is mostly never seen), and the
 manipulation frame itself. ``--given rest`` (object persistence, round eleven): how far apart
-the plank comes to rest in the two videos (m).
+the plank comes to rest in the two videos (m). ``--given settling`` (object persistence, round
+seventeen): in each video, how far the plank still moves (m) and turns (rad) once it has landed.
 
     python docs/study/scripts/cue_through_violation.py runs/r12_s0/version_0 --given motion
     python docs/study/scripts/cue_through_violation.py runs/r15_s0/version_0 --given reveal \
         --concepts containment
     python docs/study/scripts/cue_through_violation.py runs/r11_s0/version_0 --root data/cpu
+    python docs/study/scripts/cue_through_violation.py runs/r16_s0/version_0 --given settling \
+        --concepts object_persistence
 """
 
 import argparse
@@ -31,7 +34,11 @@ from voe_lightning.store import open_split
 
 #: The physical differences of ``--given motion`` and ``--given reveal``, in column order.
 PHYSICAL = {"motion": ("path", "turn", "seen"),
-            "reveal": ("first inc", "first con", "seen inc", "seen con", "m")}
+            "reveal": ("first inc", "first con", "seen inc", "seen con", "m"),
+            "settling": ("path con", "turn con", "path inc", "turn inc")}
+#: A falling plank has landed once a frame takes it down by less than this (m; it falls 0.3 to
+#: 0.8 m a frame before).
+LANDED = 0.2
 
 
 def partial_r(x: np.ndarray, y: np.ndarray, given: list[np.ndarray]) -> float:
@@ -64,6 +71,21 @@ def object_motion(objects, m: int) -> dict[str, float]:
             "seen": float(seen[m + 1:].sum())}
 
 
+def plank_settling(objects, m: int) -> dict[str, float]:
+    """How much the plank (the object with the longest side) still moves once it has landed
+    (the first frame after m that takes it down by less than ``LANDED``): the distance its
+    centre moves (m) and the angle it turns through (rad) from then to the end."""
+    plank = int(objects["size"][0].amax(-1).argmax())
+    position = objects["position"][:, plank].double().numpy()
+    orientation = objects["orientation"][:, plank].double().numpy()
+    drop = position[:-1, 2] - position[1:, 2]
+    landed = m + 1 + int(np.flatnonzero(drop[m:] < LANDED)[0]) if (drop[m:] < LANDED).any() \
+        else len(position) - 1
+    moved = np.linalg.norm(np.diff(position[landed:], axis=0), axis=-1)
+    cosine = np.abs((orientation[landed + 1:] * orientation[landed:-1]).sum(-1)).clip(0.0, 1.0)
+    return {"path": float(moved.sum()), "turn": float((2.0 * np.arccos(cosine)).sum())}
+
+
 def cube_reveal(objects, m: int) -> dict[str, float]:
     """When the cube (the object of smallest box) shows after frame m: the first frame after m
     in which it is seen (counted from m + 1; the frames left if never) and how many it is
@@ -79,7 +101,8 @@ def pair_table(root: str, concept: str, given: str) -> dict[tuple[int, str], dic
     """Per test pair of ``concept``'s standard variants, by (seed, variant): each frame-local
     cue's difference and the physical quantities (``PHYSICAL[given]``, or ``rest``: how far
     apart the plank rests)."""
-    physical = {"motion": object_motion, "reveal": cube_reveal, "rest": plank_rest}[given]
+    physical = {"motion": object_motion, "reveal": cube_reveal, "rest": plank_rest,
+                "settling": plank_settling}[given]
     table = {}
     for record in open_split(root, concept, "test"):
         variant = specs.VARIANTS[int(record["variant"])]
@@ -99,6 +122,9 @@ def pair_table(root: str, concept: str, given: str) -> dict[tuple[int, str], dic
         elif given == "reveal":
             row.update({f"{key} {side[:3]}": state[side][key] for side in cues.SIDES
                         for key in ("first", "seen")}, m=float(m))
+        elif given == "settling":
+            row.update({f"{key} {side[:3]}": state[side][key] for side in cues.SIDES
+                        for key in ("path", "turn")})
         else:
             row["size"] = abs(state["inconsistent"]["rest"] - state["consistent"]["rest"])
         table[(int(record["seed"]), variant)] = row
@@ -159,7 +185,7 @@ def main() -> None:
                         help="the cue of --given rest")
     parser.add_argument("--concepts", nargs="+", choices=specs.CONCEPTS,
                         default=["object_persistence", "continuity", "solidity", "containment"],
-                        help="the concepts of --given motion or reveal")
+                        help="the concepts of --given motion, reveal or settling")
     args = parser.parse_args()
     torch.set_num_threads(1)
     if args.given == "rest":
