@@ -71,6 +71,14 @@ def object_motion(objects, m: int) -> dict[str, float]:
             "seen": float(seen[m + 1:].sum())}
 
 
+def landing_frame(height, m: int) -> int | None:
+    """The first frame after m that a frame's move took down by less than ``LANDED`` (a falling
+    plank has landed there), from the heights [T] of one object; None if it never lands."""
+    drop = np.asarray(height[:-1]) - np.asarray(height[1:])
+    landed = np.flatnonzero(drop[m:] < LANDED)
+    return m + 1 + int(landed[0]) if len(landed) else None
+
+
 def plank_settling(objects, m: int) -> dict[str, float]:
     """How much the plank (the object with the longest side) still moves once it has landed
     (the first frame after m that takes it down by less than ``LANDED``): the distance its
@@ -78,9 +86,8 @@ def plank_settling(objects, m: int) -> dict[str, float]:
     plank = int(objects["size"][0].amax(-1).argmax())
     position = objects["position"][:, plank].double().numpy()
     orientation = objects["orientation"][:, plank].double().numpy()
-    drop = position[:-1, 2] - position[1:, 2]
-    landed = m + 1 + int(np.flatnonzero(drop[m:] < LANDED)[0]) if (drop[m:] < LANDED).any() \
-        else len(position) - 1
+    landed = landing_frame(position[:, 2], m)
+    landed = len(position) - 1 if landed is None else landed
     moved = np.linalg.norm(np.diff(position[landed:], axis=0), axis=-1)
     cosine = np.abs((orientation[landed + 1:] * orientation[landed:-1]).sum(-1)).clip(0.0, 1.0)
     return {"path": float(moved.sum()), "turn": float((2.0 * np.arccos(cosine)).sum())}

@@ -28,6 +28,14 @@ PARTS = {"position": slice(0, 3), "orientation": slice(3, 7), "size": slice(7, 1
          "colour": slice(10, 13)}
 
 
+def part_nats(observed: torch.Tensor, means: torch.Tensor, log_std: torch.Tensor
+              ) -> torch.Tensor:
+    """Each Gaussian's negative log-likelihood of each part of the seen state (``PARTS``):
+    ``observed`` [..., 13], ``means`` and ``log_std`` [..., K, 13] -> [..., parts, K]."""
+    return torch.stack([gaussian_nll(observed[..., None, part], means[..., part],
+                                     log_std[..., part])[0] for part in PARTS.values()], -2)
+
+
 def predicted_falls(model: ObjectStateModel, clips) -> dict[str, np.ndarray]:
     """Per clip whose block is seen at its second frame of fall: that fall (m), and each
     Gaussian's predicted fall, standard deviation and weight there, then its negative
@@ -57,12 +65,11 @@ def predicted_falls(model: ObjectStateModel, clips) -> dict[str, np.ndarray]:
             continue
         seen_state, means, log_std, logits = (value[b, block] for value in caught[t - 1])
         fall = float(height[t - 1, block] - height[t, block])
-        parts = [gaussian_nll(seen_state[None, part], means[:, part], log_std[:, part])[0]
-                 for part in PARTS.values()]
         rows["free" if fall > FREE_FALL else "landed"].append(
             [fall, *(height[t - 1, block] - means[:, 2]).tolist(),
              *log_std[:, 2].exp().tolist(), *logits.softmax(-1).tolist(),
-             *torch.cat([*parts, -logits.log_softmax(-1)]).tolist()])
+             *part_nats(seen_state, means, log_std).flatten().tolist(),
+             *(-logits.log_softmax(-1)).tolist()])
     return {key: np.array(value) for key, value in rows.items() if value}
 
 

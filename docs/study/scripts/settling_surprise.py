@@ -1,11 +1,11 @@
 """What a propped plank's settling costs the positive control: in object persistence's test
 probes, the video in which the plank ends propped on the object (standard: consistent;
-counterbalanced: inconsistent), at the frames after it lands (the first frame that takes it down
-by less than 0.2 m), split into frames in which it still settles (moves more than 1 cm or turns
-more than 0.01 rad) and frames in which it lies still: how many, the control's state surprise
-of the plank there, its mixture weights (as the dynamics give them) and each Gaussian's
-negative log-likelihood of each part of the seen state (what hard assignment chose by), per
-checkpoint.
+counterbalanced: inconsistent), at the frames after it lands (the first frame that takes it
+down by less than 0.2 m, ``cue_through_violation.landing_frame``), split into frames in which
+it still settles (moves more than 1 cm or turns more than 0.01 rad) and frames in which it lies
+still: how many, the control's state surprise of the plank there, its mixture weights (as the
+dynamics give them) and each Gaussian's negative log-likelihood of each part of the seen state
+(what hard assignment chose by), per checkpoint.
 
     python docs/study/scripts/settling_surprise.py runs/r16_s0/version_0/checkpoints/last.ckpt \
         --root data/cpu
@@ -16,16 +16,15 @@ from unittest import mock
 
 import numpy as np
 import torch
-from free_fall import PARTS  # the state's parts, each Gaussian's nats reported apart
+from cue_through_violation import landing_frame
+from free_fall import PARTS, part_nats
 
 from voe_lightning import specs
 from voe_lightning.model import ObjectStateModel, object_state
-from voe_lightning.model.likelihood import gaussian_nll, rectified_excess
+from voe_lightning.model.likelihood import rectified_excess
 from voe_lightning.model.object_state import STATE_SIZE
 from voe_lightning.store import open_split
 
-#: A falling plank has landed once a frame takes it down by less than this (m).
-LANDED = 0.2
 #: After landing, a frame in which the plank moves or turns by more than these still settles.
 MOVES, TURNS = 0.01, 0.01
 
@@ -54,9 +53,7 @@ def settling_rows(model: ObjectStateModel, videos, cameras, manipulation, varian
     nll = object_state.mixture_nll
 
     def spy(observed, means, log_std, logits, hard=False):
-        scored.append(torch.stack([gaussian_nll(observed[..., None, part], means[..., part],
-                                                log_std[..., part])[0]
-                                   for part in PARTS.values()], -2))  # [B, S, parts, K]
+        scored.append(part_nats(observed, means, log_std))  # [B, S, parts, K]
         return nll(observed, means, log_std, logits, hard=hard)
 
     hook = model.dynamics.register_forward_hook(lambda _, __, out: caught.append(out))
@@ -73,12 +70,10 @@ def settling_rows(model: ObjectStateModel, videos, cameras, manipulation, varian
     for b in range(state.shape[0]):
         plank = int(state[b, 0, :, 7:10].amax(-1).argmax())  # the longest box
         position, orientation = state[b, :, plank, :3], state[b, :, plank, 3:7]
-        drop = position[:-1, 2] - position[1:, 2]
-        m = int(manipulation[b])
-        landed = [t for t in range(m, len(drop)) if drop[t] < LANDED]
-        if not landed:
+        landed = landing_frame(position[:, 2], int(manipulation[b]))
+        if landed is None:
             continue
-        for t in range(landed[0] + 2, state.shape[1]):
+        for t in range(landed + 1, state.shape[1]):
             if not (seen[b, t, plank] and seen[b, t - 1, plank]):
                 continue
             moved = float((position[t] - position[t - 1]).norm())
