@@ -203,6 +203,88 @@ def test_the_pooled_correlation_within_variants_is_the_partial_correlation_given
         assert within["p_two_sided"] == pytest.approx(2 * stats.t.sf(abs(t), df), rel=1e-9)
 
 
+def test_seen_extent_counts_object_frames_seen_in_one_video_only():
+    """After the manipulation frame (2 of 6): object 1 vanishes at frame 4 and object 2 shows a
+    frame early in the inconsistent video of the first pair: 3 object-frames parted, the first
+    at frame 3 (0 frames after m + 1), one object-frame fewer seen; the second pair's videos
+    are alike: none parted, the 3 frames left, none more seen."""
+    consistent = torch.zeros(2, 6, 3)
+    consistent[:, :, 1] = 0.1
+    consistent[:, 4:, 2] = 0.05
+    inconsistent = consistent.clone()
+    inconsistent[0, 4:, 1] = 0.0
+    inconsistent[0, 3, 2] = 0.05
+    extent = cues.seen_extent(inconsistent, consistent, torch.tensor([2, 2]))
+    np.testing.assert_array_equal(extent, [[3.0, 0.0, -1.0], [0.0, 3.0, 0.0]])
+
+
+def _extent_audit(rng, pairs=200):
+    """Object persistence pairs of both variants with a seen extent and a foreground cue that
+    counts it in pixels (each object-frame of the violation shows a random 50 to 150 pixels),
+    mirrored between the variants; no other cue differs."""
+    variants = np.repeat(np.array(["standard", "counterbalanced"], dtype=object), pairs)
+    parted = rng.integers(1, 10, 2 * pairs).astype(float)
+    first = rng.integers(0, 5, 2 * pairs).astype(float)
+    sign = np.where(variants == "standard", -1.0, 1.0)
+    extent = np.stack([parted, first, sign * parted], 1)
+    foreground = sign * parted * rng.uniform(50, 150, 2 * pairs)
+    scores = {side: {cue: np.zeros(2 * pairs) for cue in cues.CUES} for side in cues.SIDES}
+    scores["inconsistent"]["foreground_pixels"] = foreground
+    return cues.CueAudit(np.full(2 * pairs, "object_persistence", dtype=object), variants,
+                         scores, extent), foreground
+
+
+def test_given_the_seen_extent_a_model_that_sees_the_violation_grow_follows_no_cue():
+    """A model whose surprise follows the object-frames of the violation it sees (here, how
+    many more the inconsistent video shows) correlates with the foreground cue within variants
+    (the cue counts the same object-frames in pixels), and not given the seen extent; that r is
+    the partial correlation given a regression on the extent within each variant, its p from t
+    with n - 1 - 6 df. A model that follows the pixels themselves still does, given the
+    extent."""
+    rng = np.random.default_rng(3)
+    audit, foreground = _extent_audit(rng)
+    sees = 3.0 * audit.extent[:, 2] + rng.normal(0.0, 1.0, len(audit))
+    rows = {(r["variant"], r["cue"]): r for r in audit.model_correlations(sees)}
+    assert abs(rows[(cues.WITHIN_VARIANTS, "foreground_pixels")]["r"]) > 0.5
+    given = rows[(cues.GIVEN_EXTENT, "foreground_pixels")]
+    residual = []
+    for values in (sees, foreground):
+        rest = values.copy()
+        for variant in ("standard", "counterbalanced"):
+            chosen = audit.variants == variant
+            design = np.column_stack([np.ones(int(chosen.sum())), audit.extent[chosen]])
+            rest[chosen] -= design @ np.linalg.lstsq(design, values[chosen], rcond=None)[0]
+        residual.append(rest)
+    reference = stats.pearsonr(*residual).statistic
+    assert given["r"] == pytest.approx(reference, rel=1e-9) and abs(given["r"]) < 0.2
+    df = len(audit) - 1 - 2 * 3  # per variant a mean and the extent's rank (parted = |seen|)
+    t = reference * np.sqrt(df / (1 - reference ** 2))
+    assert given["p_two_sided"] == pytest.approx(2 * stats.t.sf(abs(t), df), rel=1e-9)
+    follower = foreground / foreground.std() + rng.normal(0.0, 0.1, len(audit))
+    rows = {(r["variant"], r["cue"]): r for r in audit.model_correlations(follower)}
+    assert rows[(cues.GIVEN_EXTENT, "foreground_pixels")]["r"] > 0.5
+    assert "within variants, given the seen extent" in cue_report.format_correlations(
+        audit.model_correlations(sees))
+    assert not any(r["variant"] == cues.GIVEN_EXTENT for r in dataclasses.replace(
+        audit, extent=None).model_correlations(sees))
+
+
+def test_the_audit_reads_the_seen_extent_from_the_records_objects():
+    """Generated probes carry their objects' states, so the audit has each pair's seen extent
+    (``seen_extent`` of the two videos), in the records' order, across batches."""
+    from voe_lightning.scenes import generate_probe
+
+    records = [generate_probe("containment", variant, seed, height=32, width=32)
+               for variant in ("standard", "counterbalanced") for seed in range(2)]
+    audit = cues.audit_records(records, batch_size=3)
+    expected = np.concatenate([cues.seen_extent(
+        record["inconsistent"]["objects"]["visible_fraction"][None],
+        record["consistent"]["objects"]["visible_fraction"][None],
+        record["manipulation_frame"].reshape(1)) for record in records])
+    np.testing.assert_array_equal(audit.extent, expected)
+    assert (audit.extent[:, 0] > 0).all()  # the cube shows in one video, not the other
+
+
 def test_the_report_shows_a_cue_follower_in_its_correlations_and_scatter(audit, tmp_path):
     """write_report with the cue audit of the model's pairs adds the correlation table to
     cues.md, cue_correlations.csv, the r values to cues.json and cue_scatter.png."""

@@ -117,7 +117,13 @@ def format_correlations(correlation_rows: Sequence[Mapping[str, Any]],
               "variant, and the variants cancel; physics would not depend on the cue. "
               "*Pooled within variants*: r after centring each variant's pairs on their own "
               "means; the pooled r is also large when the model's effect and the cue's merely "
-              "differ in size between the variants, physics-perfect or not. Full values in "
+              "differ in size between the variants, physics-perfect or not. "
+              "*Within variants, given the seen extent* (records with object states): r after "
+              "regressing both, in each variant, on how much of the violation is seen, in "
+              "object-frames (seen in one video only; frames until the first; seen, "
+              "inconsistent less consistent): a model whose surprise grows with the violation "
+              "it sees correlates with the cues that count those frames in pixels, physics or "
+              "not; one that follows the pixels still does. Full values in "
               "cue_correlations.csv."]
     return "\n".join(lines) + "\n"
 

@@ -48,6 +48,7 @@ __all__ = [
     "audit_split",
     "frame_scores",
     "score_videos",
+    "seen_extent",
     "tracked_cues",
 ]
 
@@ -71,6 +72,11 @@ CUE_COLUMNS = (("concept", "variant", "cue")
 CORRELATION_COLUMNS = ("concept", "variant", "cue", "n", "r", "p_two_sided", "alpha", "note")
 #: The variant name of a pooled group's correlation within its variants (``model_correlations``).
 WITHIN_VARIANTS = "pooled within variants"
+#: The variant name of a pooled group's correlation within its variants given how much of each
+#: pair's difference is seen (``seen_extent``; ``model_correlations``).
+GIVEN_EXTENT = "within variants, given the seen extent"
+#: The columns of ``seen_extent``.
+EXTENT_COLUMNS = ("parted", "first_parted", "seen")
 
 
 def frame_scores(
@@ -130,6 +136,26 @@ def score_videos(
     return {cue: (values * after).sum(dim=1) for cue, values in per_frame.items()}
 
 
+def seen_extent(inconsistent: torch.Tensor, consistent: torch.Tensor,
+                manipulation_frame: torch.Tensor) -> np.ndarray:
+    """How much of each pair's difference is seen, in object-frames rather than pixels, from the
+    two videos' ``objects`` ``visible_fraction`` [B, T, K], after the manipulation frame [B]:
+    the object-frames seen in one video and not the other, the frames until the first of them
+    (the frames left if none), and the seen object-frames, inconsistent less consistent;
+    float64 [B, 3] (``EXTENT_COLUMNS``). The pixels would be the foreground cue itself: a model
+    whose surprise grows with how long or how much of a violation it sees follows the cues
+    that count it, whatever its physics."""
+    seen = [(fraction > 0) for fraction in (inconsistent, consistent)]
+    frames = seen[0].shape[1]
+    m = torch.as_tensor(manipulation_frame, device=seen[0].device).reshape(-1, 1)
+    after = torch.arange(frames, device=seen[0].device)[None] > m  # [B, T]
+    parted = ((seen[0] != seen[1]) & after[..., None]).sum(-1)  # [B, T]
+    index = torch.arange(frames, device=m.device)[None]
+    first = torch.where(parted > 0, index, frames).amin(1) - m[:, 0] - 1  # from frame m + 1
+    counted = [(side & after[..., None]).sum((1, 2)) for side in seen]
+    return torch.stack([parted.sum(1), first, counted[0] - counted[1]], 1).double().cpu().numpy()
+
+
 def _mask(video: Any) -> torch.Tensor | None:
     return video["mask"] if "mask" in video.keys() else None
 
@@ -138,11 +164,13 @@ def _mask(video: Any) -> torch.Tensor | None:
 class CueAudit:
     """Per-pair cue scores of probe pairs: ``scores[side][cue]`` float64 arrays over pairs
     (side is ``consistent`` or ``inconsistent``; NaN where a cue cannot be scored), with each
-    pair's concept and variant name."""
+    pair's concept and variant name and, where the records carry object states, its
+    ``seen_extent`` [N, 3] (else None)."""
 
     concepts: np.ndarray
     variants: np.ndarray
     scores: dict[str, dict[str, np.ndarray]]
+    extent: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.concepts)
@@ -166,11 +194,16 @@ class CueAudit:
             for side in SIDES:
                 for cue in MASK_CUES:
                     scores[side][cue][unmasked] = math.nan
+        extent = None
+        if all("objects" in batch[side].keys() for side in SIDES):
+            extent = seen_extent(*(batch[side]["objects"]["visible_fraction"]
+                                   for side in ("inconsistent", "consistent")), m)
         return cls(
             np.array([concept_names[int(i)] for i in batch["concept"].reshape(-1)], dtype=object),
             np.array([variant_names[int(i)] for i in batch["variant"].reshape(-1)], dtype=object),
             {side: {cue: values.cpu().numpy() for cue, values in by_cue.items()}
              for side, by_cue in scores.items()},
+            extent,
         )
 
     @classmethod
@@ -184,6 +217,8 @@ class CueAudit:
             np.concatenate([a.variants for a in audits]),
             {side: {cue: np.concatenate([a.scores[side][cue] for a in audits]) for cue in CUES}
              for side in SIDES},
+            (np.concatenate([a.extent for a in audits])
+             if all(a.extent is not None for a in audits) else None),
         )
 
     def groups(self) -> list[tuple[str, str, np.ndarray]]:
@@ -229,7 +264,11 @@ class CueAudit:
         pooled group where its accuracy is at chance. Each pooled group also gets a row
         ``WITHIN_VARIANTS``: r after centring each variant's pairs on their own means (the
         partial correlation given the variant), which a model whose effect merely differs in
-        size between the variants does not inflate; columns ``CORRELATION_COLUMNS``."""
+        size between the variants does not inflate; and, where the audit has each pair's
+        ``extent``, a row ``GIVEN_EXTENT``: the partial correlation given, in each variant, how
+        much of the violation is seen (``seen_extent``, a regression per variant), which a
+        model whose surprise grows with the seen violation does not inflate either; columns
+        ``CORRELATION_COLUMNS``."""
         model_difference = np.asarray(model_difference, dtype=np.float64)
         if model_difference.shape != (len(self),):
             raise ValueError(f"model_difference must hold one value per scored pair ({len(self)}), "
@@ -238,16 +277,21 @@ class CueAudit:
                        for cue in CUES}
         rows = []
         for concept, variant, selected in self.groups():
-            within = [False, True] if variant == statistics.POOLED else [False]
-            for centred in within:
-                labels = self.variants[selected] if centred else np.zeros(int(selected.sum()))
-                model = _centred(model_difference[selected], labels)
+            given = {variant: None}
+            if variant == statistics.POOLED:
+                given[WITHIN_VARIANTS] = np.empty((int(selected.sum()), 0))
+                if self.extent is not None:
+                    given[GIVEN_EXTENT] = self.extent[selected]
+            for name, covariates in given.items():
+                labels = (self.variants[selected] if covariates is not None
+                          else np.zeros(int(selected.sum())))
+                model, spent = _residuals(model_difference[selected], labels, covariates)
                 for cue in CUES:
-                    cue_d = _centred(differences[cue][selected], labels)
+                    cue_d, _ = _residuals(differences[cue][selected], labels, covariates)
                     row = dict.fromkeys(CORRELATION_COLUMNS)
-                    row.update(concept=concept, variant=WITHIN_VARIANTS if centred else variant,
-                               cue=cue, n=int(selected.sum()), alpha=alpha)
-                    df = row["n"] - 1 - len(np.unique(labels))  # a mean per group is spent
+                    row.update(concept=concept, variant=name, cue=cue, n=int(selected.sum()),
+                               alpha=alpha)
+                    df = row["n"] - 1 - spent  # the regressors spent, a mean per group at least
                     if np.isnan(cue_d).any() or np.isnan(model).any():
                         row["note"] = f"{cue} or the model's surprise is not scored for every pair"
                     elif df < 1:
@@ -257,21 +301,33 @@ class CueAudit:
                     else:
                         result = stats.pearsonr(model, cue_d)
                         row.update(r=float(result.statistic), p_two_sided=float(
-                            _partial_p(result.statistic, df) if centred else result.pvalue))
+                            _partial_p(result.statistic, df) if covariates is not None
+                            else result.pvalue))
                     rows.append(row)
         return rows
 
 
-def _centred(values: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """``values`` less the mean of their label's group (a variant's pairs), so that a
-    correlation over them is the one within groups: with groups of different means, r over
-    the union is large whenever the model's effect and the cue's differ by group, whatever the
-    model follows pair by pair."""
+def _residuals(values: np.ndarray, labels: np.ndarray, covariates: np.ndarray | None = None
+               ) -> tuple[np.ndarray, int]:
+    """``values`` less their least-squares fit, within each label's group (a variant's pairs),
+    on a mean and the group's ``covariates`` [N, k] (none: the mean alone), and the number of
+    regressors spent (the design's rank, summed over groups). A correlation over them is the
+    one within groups, given the covariates: with groups of different means, r over the union
+    is large whenever the model's effect and the cue's differ by group, whatever the model
+    follows pair by pair."""
     values = np.asarray(values, dtype=np.float64)
-    centred = values.copy()
+    covariates = np.empty((len(values), 0)) if covariates is None else covariates
+    residual, spent = values.copy(), 0
     for label in np.unique(labels):
-        centred[labels == label] -= values[labels == label].mean()
-    return centred
+        chosen = labels == label
+        design = np.column_stack([np.ones(int(chosen.sum())), covariates[chosen]])
+        if np.isnan(design).any() or np.isnan(values[chosen]).any():
+            residual[chosen] = math.nan
+            continue
+        fit = np.linalg.lstsq(design, values[chosen], rcond=None)
+        residual[chosen] -= design @ fit[0]
+        spent += int(fit[2])
+    return residual, spent
 
 
 def _partial_p(r: float, df: int) -> float:

@@ -12,6 +12,8 @@ each video (not a difference: the standard consistent cube is mostly never seen)
 manipulation frame itself. ``--given rest`` (object persistence, round eleven): how far apart
 the plank comes to rest in the two videos (m). ``--given settling`` (object persistence, round
 seventeen): in each video, how far the plank still moves (m) and turns (rad) once it has landed.
+``--given extent`` (any concept, round eighteen): how much of the violation is seen, in
+object-frames, not pixels (``cues.seen_extent``; the report's "given the seen extent" row).
 
     python docs/study/scripts/cue_through_violation.py runs/r12_s0/version_0 --given motion
     python docs/study/scripts/cue_through_violation.py runs/r15_s0/version_0 --given reveal \
@@ -19,6 +21,8 @@ seventeen): in each video, how far the plank still moves (m) and turns (rad) onc
     python docs/study/scripts/cue_through_violation.py runs/r11_s0/version_0 --root data/cpu
     python docs/study/scripts/cue_through_violation.py runs/r16_s0/version_0 --given settling \
         --concepts object_persistence
+    python docs/study/scripts/cue_through_violation.py runs/r18_s0/version_0 --given extent \
+        --concepts containment
 """
 
 import argparse
@@ -35,7 +39,8 @@ from voe_lightning.store import open_split
 #: The physical differences of ``--given motion`` and ``--given reveal``, in column order.
 PHYSICAL = {"motion": ("path", "turn", "seen"),
             "reveal": ("first inc", "first con", "seen inc", "seen con", "m"),
-            "settling": ("path con", "turn con", "path inc", "turn inc")}
+            "settling": ("path con", "turn con", "path inc", "turn inc"),
+            "extent": ("parted", "first parted", "seen")}
 #: A falling plank has landed once a frame takes it down by less than this (m; it falls 0.3 to
 #: 0.8 m a frame before).
 LANDED = 0.2
@@ -109,7 +114,7 @@ def pair_table(root: str, concept: str, given: str) -> dict[tuple[int, str], dic
     cue's difference and the physical quantities (``PHYSICAL[given]``, or ``rest``: how far
     apart the plank rests)."""
     physical = {"motion": object_motion, "reveal": cube_reveal, "rest": plank_rest,
-                "settling": plank_settling}[given]
+                "settling": plank_settling}.get(given)  # extent: of the pair, not a video
     table = {}
     for record in open_split(root, concept, "test"):
         variant = specs.VARIANTS[int(record["variant"])]
@@ -120,7 +125,7 @@ def pair_table(root: str, concept: str, given: str) -> dict[tuple[int, str], dic
         for side in cues.SIDES:
             video = record[side]
             score[side] = cues.score_videos(video["frames"][None], video["mask"][None], m)
-            state[side] = physical(video["objects"], int(m))
+            state[side] = physical(video["objects"], int(m)) if physical else {}
         row = {cue: float(score["inconsistent"][cue][0] - score["consistent"][cue][0])
                for cue in cues.FRAME_LOCAL_CUES}
         if given == "motion":
@@ -129,6 +134,10 @@ def pair_table(root: str, concept: str, given: str) -> dict[tuple[int, str], dic
         elif given == "reveal":
             row.update({f"{key} {side[:3]}": state[side][key] for side in cues.SIDES
                         for key in ("first", "seen")}, m=float(m))
+        elif given == "extent":
+            extent = cues.seen_extent(record["inconsistent"]["objects"]["visible_fraction"][None],
+                                      record["consistent"]["objects"]["visible_fraction"][None], m)
+            row.update(zip(PHYSICAL[given], extent[0].tolist()))
         elif given == "settling":
             row.update({f"{key} {side[:3]}": state[side][key] for side in cues.SIDES
                         for key in ("path", "turn")})
@@ -192,7 +201,7 @@ def main() -> None:
                         help="the cue of --given rest")
     parser.add_argument("--concepts", nargs="+", choices=specs.CONCEPTS,
                         default=["object_persistence", "continuity", "solidity", "containment"],
-                        help="the concepts of --given motion, reveal or settling")
+                        help="the concepts of --given motion, reveal, settling or extent")
     args = parser.parse_args()
     torch.set_num_threads(1)
     if args.given == "rest":
