@@ -40,7 +40,7 @@ from voe_lightning.store import open_split
 PHYSICAL = {"motion": ("path", "turn", "seen"),
             "reveal": ("first inc", "first con", "seen inc", "seen con", "m"),
             "settling": ("path con", "turn con", "path inc", "turn inc"),
-            "extent": ("parted", "first parted", "seen")}
+            "extent": cues.EXTENT_COLUMNS}
 #: A falling plank has landed once a frame takes it down by less than this (m; it falls 0.3 to
 #: 0.8 m a frame before).
 LANDED = 0.2
