@@ -55,12 +55,16 @@ def scored(model: ObjectStateModel, records: list) -> dict[str, np.ndarray]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("checkpoints", nargs="+")
+    parser.add_argument("--pairs", type=int, default=200, help="test pairs per variant")
     parser.add_argument("--root", default="data/cpu")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    records = [record for record in open_split(args.root, "object_persistence", "test")
-               if specs.VARIANTS[int(record["variant"])]
-               in specs.STANDARD_VARIANTS["object_persistence"]]
+    records, count = [], dict.fromkeys(specs.STANDARD_VARIANTS["object_persistence"], 0)
+    for record in open_split(args.root, "object_persistence", "test"):
+        variant = specs.VARIANTS[int(record["variant"])]
+        if count.get(variant, args.pairs) < args.pairs:
+            count[variant] += 1
+            records.append(record)
     for checkpoint in args.checkpoints:
         model = ObjectStateModel.load_from_checkpoint(checkpoint, map_location="cpu").eval()
         for label in ("as trained", "no landing change"):
