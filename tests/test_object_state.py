@@ -392,6 +392,42 @@ def test_shared_identity_makes_every_gaussian_predict_the_object_it_is(shared):
             assert (spread - spread[:, :, :1]).abs().amax() > 1e-3
 
 
+@pytest.mark.parametrize("landing_change", [True, False])
+def test_without_a_landing_change_the_landing_gaussian_is_the_geometrys(landing_change):
+    """``landing_change: false``: the landing Gaussian's mean does not move with the dynamics'
+    output for its change of position and orientation (where it lays the object is the
+    geometry's, from the belief moved by inertia), while the other Gaussians' do; with it,
+    the landing mean moves too."""
+    torch.manual_seed(0)
+    steps = 4
+    observations = _two_objects(0.1 * torch.arange(steps + 0.0), torch.full((steps,), 0.5),
+                                torch.ones(1, steps, 2, dtype=torch.bool))
+    model = ObjectStateModel(hidden_size=16, message_size=8, components=4, stop_component=True,
+                             landing_component=True, pivot_landing=True, hard_assignment=True,
+                             landing_change=landing_change)
+    caught = []
+
+    def spy(observed, means, log_std, logits, hard=False):
+        caught.append(means)
+        return mixture_nll(observed, means, log_std, logits, hard=hard)
+
+    def landing_and_moving() -> tuple[torch.Tensor, torch.Tensor]:
+        caught.clear()
+        with torch.no_grad(), mock.patch.object(object_state, "mixture_nll", spy):
+            model.rollout(observations)
+        means = torch.stack(caught[1:])  # [T - 1, B, S, K, 13]
+        return means[..., -1, :7], means[..., 1, :7]
+
+    landing, moving = landing_and_moving()
+    with torch.no_grad():  # push every Gaussian's learned change of x by 0.2 m
+        for k in range(4):
+            model.dynamics[-1].bias[k * 13] += 0.2
+    pushed_landing, pushed_moving = landing_and_moving()
+    assert (pushed_moving - moving)[..., 0].abs().amin() > 0.1
+    moved = (pushed_landing - landing).abs().amax()
+    assert (moved > 0.1) if landing_change else (moved == 0)
+
+
 @pytest.mark.parametrize("carry", ["velocity", "acceleration"])
 def test_only_a_carrier_that_changes_its_move_passes_it_on(carry):
     """An object moving past (or falling into) one at rest: carrying the carrier's last move

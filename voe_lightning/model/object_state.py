@@ -71,7 +71,8 @@ SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape"
 #: Constructor arguments that shape the parameters, or the priors they were trained with: a
 #: checkpoint must agree on all of them.
 ARCHITECTURE = ("hidden_size", "message_size", "use_camera", "components", "stop_component",
-                "landing_component", "land_on_objects", "pivot_landing", "carry", "hold_still",
+                "landing_component", "land_on_objects", "pivot_landing", "landing_change",
+                "carry", "hold_still",
                 "slowing", "falling_lands", "fall_gain", "shared_identity", "world_boxes")
 #: Per-slot inputs of the dynamics with ``landing_component``: how high the lowest point of the
 #: object's box is above the floor at its belief and where its inertia would take it.
@@ -209,6 +210,12 @@ class ObjectStateModel(SurpriseModel):
             has landed falls back onto the object believed under it. Laid flat first and then
             raised (``land_on_objects``), the object that propped a plank was not counted as
             under it, since the plank's lowest point was already below its top (round ten).
+        landing_change: the landing Gaussian's mean starts, like the others', from the belief
+            moved by inertia and a learned change of position and orientation; without it
+            (false), from the belief moved by inertia alone, so where it lays the object is the
+            geometry's. A learned change there let some seeds' landing Gaussian miss a plank
+            already propped on the object by hundreds of nats of position while holding most of
+            the weight (docs/study/positive_control.md, round eighteen).
         carry: what each slot's inertia takes from a carrier (``CARRIES``), by learned
             shares over itself and the other known slots that sum to 1 (a ``PairNetwork``
             over each pair), so that a cube hidden in a container can move with it when it
@@ -296,6 +303,7 @@ class ObjectStateModel(SurpriseModel):
         landing_component: bool = False,
         land_on_objects: bool = False,
         pivot_landing: bool = False,
+        landing_change: bool = True,
         carry: str = "none",
         hold_still: bool = False,
         slowing: bool = False,
@@ -332,6 +340,9 @@ class ObjectStateModel(SurpriseModel):
         if land_on_objects and not landing_component:
             raise ValueError("land_on_objects needs landing_component: true (it says where the "
                              "landing Gaussian lays an object)")
+        if not landing_change and not landing_component:
+            raise ValueError("landing_change: false needs landing_component: true (it is the "
+                             "landing Gaussian's learned change that it leaves out)")
         if pivot_landing and (land_on_objects or not landing_component):
             raise ValueError("pivot_landing needs landing_component: true and land_on_objects: "
                              "false (it says, instead, where the landing Gaussian lays an "
@@ -574,6 +585,8 @@ class ObjectStateModel(SurpriseModel):
             [components * STATE_SIZE, components * STATE_SIZE,
              components if components > 1 else 0, SHAPES], -1)
         change = change.unflatten(-1, (components, STATE_SIZE))  # [B, S, K, 13]
+        if not self.hparams.landing_change:  # the landing Gaussian: where inertia takes it, laid
+            change = torch.cat([change[:, :, :-1], F.pad(change[:, :, -1:, 7:], (7, 0))], dim=2)
         log_std = log_std.unflatten(-1, (components, STATE_SIZE))
         if self.hparams.shared_identity:  # every hypothesis is about the object it is: size and
             identity = slice(7, STATE_SIZE)  # colour kept, under one learned spread for all
