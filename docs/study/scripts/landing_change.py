@@ -32,24 +32,16 @@ def without_landing_change(model: ObjectStateModel) -> torch.utils.hooks.Removab
     return model.dynamics.register_forward_hook(hook)
 
 
-def scored(model: ObjectStateModel, records: list) -> dict[str, np.ndarray]:
-    """Per variant, [pairs, 2]: d (the videos' summed surprise, inconsistent less consistent)
-    and the motion cue's difference."""
-    rows: dict[str, list] = {}
-    for record in records:
-        m = record["manipulation_frame"].reshape(1)
-        surprise, motion = {}, {}
-        for side in cues.SIDES:
-            video = record[side]
-            surprise[side] = float(model.surprise(video["frames"][None], None,
-                                                  record["camera"][None],
-                                                  video["objects"][None]).sum())
-            motion[side] = float(cues.score_videos(video["frames"][None], video["mask"][None],
-                                                   m)["motion_energy"][0])
-        rows.setdefault(specs.VARIANTS[int(record["variant"])], []).append(
-            (surprise["inconsistent"] - surprise["consistent"],
-             motion["inconsistent"] - motion["consistent"]))
-    return {variant: np.array(values) for variant, values in rows.items()}
+def relative(records: list, score) -> np.ndarray:
+    """Per pair, ``score`` of the inconsistent video less that of the consistent one."""
+    return np.array([score(record, "inconsistent") - score(record, "consistent")
+                     for record in records])
+
+
+def motion(record, side: str) -> float:
+    video = record[side]
+    return float(cues.score_videos(video["frames"][None], video["mask"][None],
+                                   record["manipulation_frame"].reshape(1))["motion_energy"][0])
 
 
 def main() -> None:
@@ -65,14 +57,23 @@ def main() -> None:
         if count.get(variant, args.pairs) < args.pairs:
             count[variant] += 1
             records.append(record)
+    variants = np.array([specs.VARIANTS[int(record["variant"])] for record in records])
+    moved = relative(records, motion)  # the model's d is set against it, checkpoint by checkpoint
     for checkpoint in args.checkpoints:
         model = ObjectStateModel.load_from_checkpoint(checkpoint, map_location="cpu").eval()
+
+        def surprise(record, side: str, model=model) -> float:
+            video = record[side]
+            return float(model.surprise(video["frames"][None], None, record["camera"][None],
+                                        video["objects"][None]).sum())
         for label in ("as trained", "no landing change"):
             handle = without_landing_change(model) if label != "as trained" else None
-            for variant, values in scored(model, records).items():
-                d, motion = values.T
-                print(f"{checkpoint} {label:17s} {variant:15s} t {stats.ttest_1samp(d, 0.0).statistic:+.2f}"
-                      f" ({np.mean(d > 0):.0%}), r(d, motion) {stats.pearsonr(d, motion)[0]:+.2f}")
+            d = relative(records, surprise)
+            for variant in dict.fromkeys(variants):
+                mine = variants == variant
+                print(f"{checkpoint} {label:17s} {variant:15s} t "
+                      f"{stats.ttest_1samp(d[mine], 0.0).statistic:+.2f} ({np.mean(d[mine] > 0):.0%}),"
+                      f" r(d, motion) {stats.pearsonr(d[mine], moved[mine])[0]:+.2f}")
             if handle is not None:
                 handle.remove()
 
