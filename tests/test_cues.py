@@ -218,6 +218,29 @@ def test_seen_extent_counts_object_frames_seen_in_one_video_only():
     np.testing.assert_array_equal(extent, [[3.0, 0.0, -1.0], [0.0, 3.0, 0.0]])
 
 
+def test_the_physics_perfect_observer_pays_for_what_it_sees_differ():
+    """After the manipulation frame (1 of 4): object 0 shows in the inconsistent video alone at
+    frame 2 (1); at frame 3 object 1, seen in both, is 0.1 m away (2 STATE_SCALEs) and turned
+    0.05 rad about z (1; its quaternion's sign flipped, the same rotation), while object 0,
+    hidden in both, is somewhere else (0). The difference at frame 1 is not after m (0)."""
+    def objects():
+        return {"position": torch.zeros(1, 4, 2, 3), "visible_fraction": torch.zeros(1, 4, 2),
+                "orientation": torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(1, 4, 2, 1)}
+
+    consistent, inconsistent = objects(), objects()
+    consistent["visible_fraction"][0, :, 1] = 0.1
+    inconsistent["visible_fraction"][0, :, 1] = 0.1
+    inconsistent["visible_fraction"][0, 2, 0] = 0.05
+    inconsistent["position"][0, 1, 1] = torch.tensor([9.0, 0.0, 0.0])
+    inconsistent["position"][0, 3, 1] = torch.tensor([0.1, 0.0, 0.0])
+    inconsistent["position"][0, 3, 0] = torch.tensor([0.0, 5.0, 0.0])
+    half = 0.05 / 2
+    inconsistent["orientation"][0, 3, 1] = -torch.tensor([np.cos(half), 0.0, 0.0, np.sin(half)])
+    surprise = cues.physics_perfect_surprise(inconsistent, consistent, torch.tensor([1]))
+    assert surprise.shape == (1,) and surprise[0] == pytest.approx(4.0, abs=1e-4)
+    assert cues.physics_perfect_surprise(consistent, consistent, torch.tensor([1]))[0] == 0.0
+
+
 def _extent_audit(rng, pairs=200):
     """Object persistence pairs of both variants with a seen extent and a foreground cue that
     counts it in pixels (each object-frame of the violation shows a random 50 to 150 pixels),
@@ -269,9 +292,35 @@ def test_given_the_seen_extent_a_model_that_sees_the_violation_grow_follows_no_c
         audit, extent=None).model_correlations(sees))
 
 
+def test_the_physics_perfect_row_is_the_observers_r_within_variants_whatever_the_model():
+    """The reference row correlates the audit's physics-perfect surprise, not the model's, with
+    each cue after centring each variant (r as scipy's on the centred values); no row without
+    it."""
+    rng = np.random.default_rng(4)
+    audit, foreground = _extent_audit(rng)
+    observer = audit.extent[:, 2] + rng.normal(0.0, 1.0, len(audit))
+    audit = dataclasses.replace(audit, physics_perfect=observer)
+    centred = []
+    for values in (observer, foreground):
+        rest = values.copy()
+        for variant in ("standard", "counterbalanced"):
+            chosen = audit.variants == variant
+            rest[chosen] -= values[chosen].mean()
+        centred.append(rest)
+    reference = stats.pearsonr(*centred).statistic
+    for model in (rng.normal(size=len(audit)), foreground):
+        rows = {(r["variant"], r["cue"]): r for r in audit.model_correlations(model)}
+        row = rows[(cues.PHYSICS_PERFECT, "foreground_pixels")]
+        assert row["r"] == pytest.approx(reference, rel=1e-9) and abs(reference) > 0.3
+    assert rows[(cues.WITHIN_VARIANTS, "foreground_pixels")]["r"] == pytest.approx(1.0)
+    assert "Physics-perfect observer" in cue_report.format_correlations(rows.values())
+    assert not any(r["variant"] == cues.PHYSICS_PERFECT for r in dataclasses.replace(
+        audit, physics_perfect=None).model_correlations(observer))
+
+
 def test_the_audit_reads_the_seen_extent_from_the_records_objects():
     """Generated probes carry their objects' states, so the audit has each pair's seen extent
-    (``seen_extent`` of the two videos), in the records' order, across batches."""
+    and physics-perfect surprise (of the two videos), in the records' order, across batches."""
     from voe_lightning.scenes import generate_probe
 
     records = [generate_probe("containment", variant, seed, height=32, width=32)
@@ -283,6 +332,11 @@ def test_the_audit_reads_the_seen_extent_from_the_records_objects():
         record["manipulation_frame"].reshape(1)) for record in records])
     np.testing.assert_array_equal(audit.extent, expected)
     assert (audit.extent[:, 0] > 0).all()  # the cube shows in one video, not the other
+    observer = np.concatenate([cues.physics_perfect_surprise(
+        record["inconsistent"]["objects"][None], record["consistent"]["objects"][None],
+        record["manipulation_frame"].reshape(1)) for record in records])
+    np.testing.assert_allclose(audit.physics_perfect, observer, rtol=1e-12)
+    assert (audit.physics_perfect >= audit.extent[:, 0]).all()  # and more where states differ
 
 
 def test_the_report_shows_a_cue_follower_in_its_correlations_and_scatter(audit, tmp_path):

@@ -123,7 +123,12 @@ def format_correlations(correlation_rows: Sequence[Mapping[str, Any]],
               "object-frames (seen in one video only; frames until the first; seen, "
               "inconsistent less consistent): a model whose surprise grows with the violation "
               "it sees correlates with the cues that count those frames in pixels, physics or "
-              "not; one that follows the pixels still does. Full values in "
+              "not; one that follows the pixels still does. "
+              "*Physics-perfect observer, within variants* (records with object states): not "
+              "the model's r but that of an observer that expects what the consistent video "
+              "shows and pays for each object-frame seen in one video only and for how far "
+              "apart the states of an object seen in both are: what perfect physics alone gives "
+              "on these pairs, the reference to read a model's row against. Full values in "
               "cue_correlations.csv."]
     return "\n".join(lines) + "\n"
 

@@ -47,6 +47,7 @@ __all__ = [
     "audit_records",
     "audit_split",
     "frame_scores",
+    "physics_perfect_surprise",
     "score_videos",
     "seen_extent",
     "tracked_cues",
@@ -77,6 +78,12 @@ WITHIN_VARIANTS = "pooled within variants"
 GIVEN_EXTENT = "within variants, given the seen extent"
 #: The columns of ``seen_extent``.
 EXTENT_COLUMNS = ("parted", "first_parted", "seen")
+#: The variant name of a pooled group's reference row: the physics-perfect observer's own r
+#: with each cue within variants (``physics_perfect_surprise``; ``model_correlations``).
+PHYSICS_PERFECT = "physics-perfect observer, within variants"
+#: What costs the physics-perfect observer as much as an object-frame seen in one video only:
+#: this many metres between an object's two positions, or radians between its orientations.
+STATE_SCALE = 0.05
 
 
 def frame_scores(
@@ -156,6 +163,28 @@ def seen_extent(inconsistent: torch.Tensor, consistent: torch.Tensor,
     return torch.stack([parted.sum(1), first, counted[0] - counted[1]], 1).double().cpu().numpy()
 
 
+def physics_perfect_surprise(inconsistent: Any, consistent: Any,
+                             manipulation_frame: torch.Tensor) -> np.ndarray:
+    """The relative surprise of an observer with perfect physics and perception, from the two
+    videos' ``objects`` (``position`` [B, T, K, 3], ``orientation`` [B, T, K, 4],
+    ``visible_fraction`` [B, T, K]): it expects what the consistent video shows (physics from
+    the shared first frames) and pays, after the manipulation frame, 1 for each object-frame
+    seen in one video only and, for an object seen in both, the distance between its two states
+    (metres of position plus radians of rotation, in ``STATE_SCALE``); float64 [B]. Its r with
+    the cues is what physics alone gives on the probes: the reference for a model's."""
+    seen = [side["visible_fraction"] > 0 for side in (inconsistent, consistent)]
+    frames = seen[0].shape[1]
+    m = torch.as_tensor(manipulation_frame, device=seen[0].device).reshape(-1, 1)
+    after = (torch.arange(frames, device=seen[0].device)[None] > m)[..., None]  # [B, T, 1]
+    moved = (inconsistent["position"] - consistent["position"]).double().norm(dim=-1)
+    alignment = (inconsistent["orientation"].double() * consistent["orientation"].double()).sum(-1)
+    turned = 2.0 * torch.arccos(alignment.abs().clamp(max=1.0))
+    both = seen[0] & seen[1] & after
+    parted = (seen[0] != seen[1]) & after
+    cost = parted.double() + torch.where(both, (moved + turned) / STATE_SCALE, 0.0)
+    return cost.sum((1, 2)).cpu().numpy()
+
+
 def _mask(video: Any) -> torch.Tensor | None:
     return video["mask"] if "mask" in video.keys() else None
 
@@ -165,12 +194,13 @@ class CueAudit:
     """Per-pair cue scores of probe pairs: ``scores[side][cue]`` float64 arrays over pairs
     (side is ``consistent`` or ``inconsistent``; NaN where a cue cannot be scored), with each
     pair's concept and variant name and, where the records carry object states, its
-    ``seen_extent`` [N, 3] (else None)."""
+    ``seen_extent`` [N, 3] and ``physics_perfect_surprise`` [N] (else None)."""
 
     concepts: np.ndarray
     variants: np.ndarray
     scores: dict[str, dict[str, np.ndarray]]
     extent: np.ndarray | None = None
+    physics_perfect: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.concepts)
@@ -194,16 +224,18 @@ class CueAudit:
             for side in SIDES:
                 for cue in MASK_CUES:
                     scores[side][cue][unmasked] = math.nan
-        extent = None
+        extent = physics_perfect = None
         if all("objects" in batch[side].keys() for side in SIDES):
-            extent = seen_extent(*(batch[side]["objects"]["visible_fraction"]
-                                   for side in ("inconsistent", "consistent")), m)
+            objects = [batch[side]["objects"] for side in ("inconsistent", "consistent")]
+            extent = seen_extent(*(side["visible_fraction"] for side in objects), m)
+            physics_perfect = physics_perfect_surprise(*objects, m)
         return cls(
             np.array([concept_names[int(i)] for i in batch["concept"].reshape(-1)], dtype=object),
             np.array([variant_names[int(i)] for i in batch["variant"].reshape(-1)], dtype=object),
             {side: {cue: values.cpu().numpy() for cue, values in by_cue.items()}
              for side, by_cue in scores.items()},
             extent,
+            physics_perfect,
         )
 
     @classmethod
@@ -217,8 +249,8 @@ class CueAudit:
             np.concatenate([a.variants for a in audits]),
             {side: {cue: np.concatenate([a.scores[side][cue] for a in audits]) for cue in CUES}
              for side in SIDES},
-            (np.concatenate([a.extent for a in audits])
-             if all(a.extent is not None for a in audits) else None),
+            *(np.concatenate(parts) if all(part is not None for part in parts) else None
+              for parts in ([a.extent for a in audits], [a.physics_perfect for a in audits])),
         )
 
     def groups(self) -> list[tuple[str, str, np.ndarray]]:
@@ -267,8 +299,9 @@ class CueAudit:
         size between the variants does not inflate; and, where the audit has each pair's
         ``extent``, a row ``GIVEN_EXTENT``: the partial correlation given, in each variant, how
         much of the violation is seen (``seen_extent``, a regression per variant), which a
-        model whose surprise grows with the seen violation does not inflate either; columns
-        ``CORRELATION_COLUMNS``."""
+        model whose surprise grows with the seen violation does not inflate either; and, where
+        it has ``physics_perfect``, a row ``PHYSICS_PERFECT``: that observer's own r within
+        variants, what physics alone gives on these pairs; columns ``CORRELATION_COLUMNS``."""
         model_difference = np.asarray(model_difference, dtype=np.float64)
         if model_difference.shape != (len(self),):
             raise ValueError(f"model_difference must hold one value per scored pair ({len(self)}), "
@@ -277,15 +310,18 @@ class CueAudit:
                        for cue in CUES}
         rows = []
         for concept, variant, selected in self.groups():
-            given = {variant: None}
+            readings = [(variant, model_difference, None)]  # (row name, d, covariates)
             if variant == statistics.POOLED:
-                given[WITHIN_VARIANTS] = np.empty((int(selected.sum()), 0))
+                within = np.empty((int(selected.sum()), 0))
+                readings.append((WITHIN_VARIANTS, model_difference, within))
                 if self.extent is not None:
-                    given[GIVEN_EXTENT] = self.extent[selected]
-            for name, covariates in given.items():
+                    readings.append((GIVEN_EXTENT, model_difference, self.extent[selected]))
+                if self.physics_perfect is not None:
+                    readings.append((PHYSICS_PERFECT, self.physics_perfect, within))
+            for name, surprise, covariates in readings:
                 labels = (self.variants[selected] if covariates is not None
                           else np.zeros(int(selected.sum())))
-                model, spent = _residuals(model_difference[selected], labels, covariates)
+                model, spent = _residuals(surprise[selected], labels, covariates)
                 for cue in CUES:
                     cue_d, _ = _residuals(differences[cue][selected], labels, covariates)
                     row = dict.fromkeys(CORRELATION_COLUMNS)
