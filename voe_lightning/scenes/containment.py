@@ -193,22 +193,25 @@ class LayoutRanges:
 
 
 #: Probes (and the ``cube_behind_container`` control, which needs the same occlusion): a
-#: container tall and wide enough to hide the cube lying on its bottom or just behind it.
+#: container tall and wide enough to hide the cube lying on its bottom or just behind it, at
+#: one depth range for both variants, so that the container and rod fill as many pixels in
+#: every probe video and only the cube tells the videos apart (docs/calibration.md: a variant
+#: whose container stood nearer the camera showed more of every cue in both its videos).
 PROBE_RANGES = LayoutRanges(
     half_x=(0.26, 0.36),
     half_y=(0.2, 0.28),
     height=(0.42, 0.55),
-    cube_half=(0.08, 0.11),
+    cube_half=(0.075, 0.1),
     offset_x=(-0.15, 0.15),
-    y=(-0.1, 0.2),
+    y=(-0.35, -0.05),
     shift=(0.8, 1.1),
     drop=(0.35, 0.8),
 )
 #: The cube falls behind the container (``counterbalanced`` probes and the
 #: ``cube_behind_container`` control). Revealed farther from the camera and later (the whole
-#: container must pass it), such a cube would show ~30% fewer pixels than the standard probe's
-#: cube left in place; a container nearer the camera and a slightly larger cube even that out.
-BEHIND_RANGES = replace(PROBE_RANGES, y=(-0.35, -0.05), cube_half=(0.09, 0.12))
+#: container must pass it), a cube of the standard probe's size would show fewer pixels than
+#: the standard probe's cube left in place; a larger one evens that out.
+BEHIND_RANGES = replace(PROBE_RANGES, cube_half=(0.09, 0.12))
 #: Examples (and ``cube_random_position``): "like probes, but container position and size are
 #: not constrained to occlude the cube" (paper §3); every probe range lies well inside.
 EXAMPLE_RANGES = LayoutRanges(
