@@ -402,6 +402,21 @@ def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
     markdown = (out / "cues.md").read_text()
     assert "| object_persistence | **pooled** | 8 |" in markdown
     assert markdown.startswith("## Cue audit of") and "(α = 0.01)" in markdown.splitlines()[0]
+    # Generated records carry object states: the physics-perfect observer's correlations too,
+    # the audit's physics_perfect against each cue, per variant and within variants.
+    assert "## What does perfect physics correlate with, pair by pair?" in markdown
+    with open(out / "physics_perfect_correlations.csv", newline="") as handle:
+        observer = {(r["concept"], r["variant"], r["cue"]): r for r in csv.DictReader(handle)}
+    assert ("object_persistence", cues.WITHIN_VARIANTS, "motion_energy") in observer
+    assert not any(variant == cues.PHYSICS_PERFECT for _, variant, _ in observer)
+    scored = cues.audit_split(root, "val")
+    chosen = (scored.concepts == "object_persistence") & (scored.variants == "standard")
+    motion = (scored.scores["inconsistent"]["motion_energy"]
+              - scored.scores["consistent"]["motion_energy"])[chosen]
+    expected = stats.pearsonr(scored.physics_perfect[chosen], motion).statistic
+    row = observer[("object_persistence", "standard", "motion_energy")]
+    assert float(row["r"]) == pytest.approx(expected, rel=1e-9)
+    assert "physics_perfect_correlations" in document and "physics_perfect_correlations.csv" in printed
 
     config = tmp_path / "audit.yaml"  # --config: the same arguments from a file
     config.write_text(f"root: {root}\nconcepts: [unchangeableness]\nprogress: false\n")

@@ -1,7 +1,8 @@
 """The cue audit written out (docs/architecture.md §8): the compact table of each cue's
 accuracy / d_z beside the model's (Markdown for summary and cues.md, rich for the terminal), the
-table of how the model's surprise correlates with each cue pair by pair, the files cues.md,
-cues.csv, cue_correlations.csv and cues.json, and ``python -m voe_lightning audit``. The scores
+tables of how the model's surprise, and a physics-perfect observer's, correlate with each cue
+pair by pair, the files cues.md, cues.csv, cue_correlations.csv,
+physics_perfect_correlations.csv and cues.json, and ``python -m voe_lightning audit``. The scores
 and their tests are ``voe_lightning.cues``; each cell's numbers are written by
 ``statistics_format.row_text``, as every statistics table's are."""
 
@@ -15,10 +16,18 @@ from pathlib import Path
 from typing import Any, Literal
 
 from voe_lightning import specs, statistics
-from voe_lightning.cues import CORRELATION_COLUMNS, CUE_COLUMNS, CUE_TITLES, CUES, audit_split
+from voe_lightning.cues import (
+    CORRELATION_COLUMNS,
+    CUE_COLUMNS,
+    CUE_TITLES,
+    CUES,
+    PHYSICS_PERFECT,
+    audit_split,
+)
 from voe_lightning.statistics_format import BRIEF, format_alpha, json_row, row_text, rows_alpha
 
-__all__ = ["audit", "cue_table", "format_correlations", "format_markdown", "write_audit"]
+__all__ = ["audit", "cue_table", "format_correlations", "format_markdown", "format_physics_perfect",
+           "write_audit"]
 
 #: How a compact table's cell writes accuracy and d_z: '61% / +0.52'.
 CELL_STYLE = replace(BRIEF, d_z="+.2f")
@@ -89,10 +98,9 @@ def format_markdown(
     return "\n".join(lines) + "\n"
 
 
-def format_correlations(correlation_rows: Sequence[Mapping[str, Any]],
-                        title: str = "Does the model's surprise track a cue, pair by pair?") -> str:
-    """Markdown table of ``CueAudit.model_correlations``: r per concept/variant (and pooled)
-    and cue, bold where two-sided p < alpha."""
+def _correlation_table(correlation_rows: Sequence[Mapping[str, Any]], title: str) -> list[str]:
+    """The lines of a Markdown table of ``CueAudit.model_correlations`` rows: r per
+    concept/variant (and pooled) and cue, bold where two-sided p < alpha."""
     by_key = {(r["concept"], r["variant"], r["cue"]): r for r in correlation_rows}
     header = ["concept", "variant", "n"] + [CUE_TITLES[cue] for cue in CUES]
     alpha = rows_alpha(correlation_rows)
@@ -110,7 +118,16 @@ def format_correlations(correlation_rows: Sequence[Mapping[str, Any]],
         name = f"**{variant}**" if variant == statistics.POOLED else variant
         n = by_key[(concept, variant, CUES[0])]["n"]
         lines.append(f"| {concept} | {name} | {n} | " + " | ".join(cells) + " |")
-    lines += ["", "Each cell: Pearson's r across pairs between the model's relative surprise "
+    return lines
+
+
+def format_correlations(correlation_rows: Sequence[Mapping[str, Any]],
+                        title: str = "Does the model's surprise track a cue, pair by pair?") -> str:
+    """Markdown table of ``CueAudit.model_correlations``: r per concept/variant (and pooled)
+    and cue, bold where two-sided p < alpha, and how to read it."""
+    alpha = rows_alpha(correlation_rows)
+    lines = _correlation_table(correlation_rows, title)
+    lines += ["", ("Each cell: Pearson's r across pairs between the model's relative surprise "
               "S(inconsistent) - S(consistent) and the cue's score(inconsistent) - "
               f"score(consistent); **bold**: two-sided p < {alpha:g}. A model whose pooled "
               "accuracy is at chance but whose r with a cue is large follows that cue in each "
@@ -129,7 +146,26 @@ def format_correlations(correlation_rows: Sequence[Mapping[str, Any]],
               "shows and pays for each object-frame seen in one video only and for how far "
               "apart the states of an object seen in both are: what perfect physics alone gives "
               "on these pairs, the reference to read a model's row against. Full values in "
-              "cue_correlations.csv."]
+              "cue_correlations.csv.")]
+    return "\n".join(lines) + "\n"
+
+
+def format_physics_perfect(correlation_rows: Sequence[Mapping[str, Any]]) -> str:
+    """Markdown table of the physics-perfect observer's correlations with each cue
+    (``CueAudit.model_correlations`` of ``CueAudit.physics_perfect``): what perfect physics
+    alone gives on a store's probes, per variant and pooled, and how to read it."""
+    alpha = rows_alpha(correlation_rows)
+    lines = _correlation_table(correlation_rows,
+                               "What does perfect physics correlate with, pair by pair?")
+    lines += ["", ("Each cell: Pearson's r across pairs between a physics-perfect observer's "
+              "relative surprise and the cue's score(inconsistent) - score(consistent); "
+              f"**bold**: two-sided p < {alpha:g}. The observer (`cues.physics_perfect_surprise`) "
+              "expects what the consistent video shows and pays for each object-frame seen in "
+              "one video only and for how far apart the states of an object seen in both are. "
+              "Perfect physics alone gives these correlations on these probes: a model's (the "
+              "`test` report's) are read against them, and a large r within one variant is no "
+              "evidence of cue following where the observer's is large too. Full values in "
+              "physics_perfect_correlations.csv.")]
     return "\n".join(lines) + "\n"
 
 
@@ -167,21 +203,26 @@ def write_audit(
     model_rows: Sequence[Mapping[str, Any]] | None = None,
     title: str = "Cue audit",
     correlation_rows: Sequence[Mapping[str, Any]] | None = None,
+    physics_perfect_rows: Sequence[Mapping[str, Any]] | None = None,
     **metadata: Any,
 ) -> Path:
     """Write ``out_dir/cues.md`` (the compact table, beside the model's rows when given, then
-    the model-cue correlations when given), ``cues.csv`` (every column of every row),
-    ``cue_correlations.csv`` (with correlations) and ``cues.json`` (rows, correlations and
-    ``metadata``)."""
+    the model-cue correlations and the physics-perfect observer's when given), ``cues.csv``
+    (every column of every row), ``cue_correlations.csv`` and
+    ``physics_perfect_correlations.csv`` (with those correlations) and ``cues.json`` (rows,
+    correlations and ``metadata``)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     markdown = format_markdown(cue_rows, model_rows, title)
-    if correlation_rows is not None:
-        markdown += "\n" + format_correlations(correlation_rows)
-        with open(out / "cue_correlations.csv", "w", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=CORRELATION_COLUMNS)
-            writer.writeheader()
-            writer.writerows(correlation_rows)
+    for rows, formatter, name in ((correlation_rows, format_correlations, "cue_correlations"),
+                                  (physics_perfect_rows, format_physics_perfect,
+                                   "physics_perfect_correlations")):
+        if rows is not None:
+            markdown += "\n" + formatter(rows)
+            with open(out / f"{name}.csv", "w", newline="") as handle:
+                writer = csv.DictWriter(handle, fieldnames=CORRELATION_COLUMNS)
+                writer.writeheader()
+                writer.writerows(rows)
     (out / "cues.md").write_text(markdown)
     with open(out / "cues.csv", "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=CUE_COLUMNS)
@@ -191,6 +232,8 @@ def write_audit(
                 "rows": [json_row(row) for row in cue_rows]}
     if correlation_rows is not None:
         document["model_correlations"] = [json_row(row) for row in correlation_rows]
+    if physics_perfect_rows is not None:
+        document["physics_perfect_correlations"] = [json_row(row) for row in physics_perfect_rows]
     (out / "cues.json").write_text(json.dumps(document, indent=2) + "\n")
     return out
 
@@ -208,7 +251,9 @@ def audit(
     """Physics-blind cue scores of a probe split, with the model's paired statistics.
 
     Prints the table (M, t, p, d_z, accuracy and pooled rows per cue) and writes cues.md,
-    cues.csv and cues.json; returns the rows.
+    cues.csv and cues.json; where the records carry object states, also what a physics-perfect
+    observer's surprise correlates with (cues.md, physics_perfect_correlations.csv), the
+    reference for a model's correlations; returns the rows.
 
     Args:
         root: dataset folder (a generated store).
@@ -227,12 +272,18 @@ def audit(
         raise ValueError(f"batch_size must be >= 1, got {batch_size}")
     scores = audit_split(root, split, concepts, batch_size, num_workers, progress=progress)
     rows = scores.rows(alpha=alpha)
+    reference = None
+    if scores.physics_perfect is not None:  # its own row of the report is its within-variants r
+        reference = [row for row in scores.model_correlations(scores.physics_perfect, alpha=alpha)
+                     if row["variant"] != PHYSICS_PERFECT]
     title = f"Cue audit of {root} ({split} split, {len(scores)} pairs)"
     out = write_audit(rows, out or Path(root) / "cue_audit" / split, title=title, root=str(root),
-                      split=split, alpha=alpha, num_pairs=len(scores))
+                      split=split, alpha=alpha, num_pairs=len(scores),
+                      physics_perfect_rows=reference)
     console = Console()
     if not console.is_terminal:  # logs and pipes: do not cut the table at 80 columns
         console.width = 140
     console.print(cue_table(rows, title=title))
-    print(f"cue audit written to {out} (cues.md, cues.csv, cues.json)")
+    extra = ", physics_perfect_correlations.csv" if reference is not None else ""
+    print(f"cue audit written to {out} (cues.md, cues.csv, cues.json{extra})")
     return rows
