@@ -51,18 +51,25 @@ def test_false_voe_stays_at_alpha_for_noise_and_every_cue_follower_the_stimuli_c
     assert worst.false_voe_rate <= bound, _describe(worst) + f" > bound {100 * bound:.2f}%"
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "stimuli: in continuity and solidity the counterbalanced variant mirrors the cue "
-    "differences but not the cue levels, so a model whose surprise is the square of a video's "
-    "standardized motion or extrapolation error is right on both variants (false VOE 4% to "
-    "100% here; containment's levels were balanced enough in GENERATOR_VERSION 7); see "
-    "docs/calibration.md. Remove this mark when no calibration row exceeds the bound."))
-def test_no_cue_follower_gets_false_voe_beyond_alpha(rows):
+#: Concepts whose counterbalanced variant mirrors the cue differences but not the cue levels
+#: (docs/calibration.md): a follower of a video's standardized motion or extrapolation error is
+#: right on both variants (false VOE 4% to 100% here). Containment's levels were balanced
+#: enough in GENERATOR_VERSION 7; remove a concept when its scenes balance them too.
+UNBALANCED_LEVELS = ("continuity", "solidity")
+
+
+@pytest.mark.parametrize("concept", [
+    pytest.param(concept, marks=pytest.mark.xfail(strict=True, reason=(
+        f"stimuli: {concept}'s counterbalanced variant mirrors the cue differences, not the "
+        "levels; see docs/calibration.md")))
+    if concept in UNBALANCED_LEVELS else concept for concept in specs.CONCEPTS])
+def test_no_cue_follower_gets_false_voe_beyond_alpha(rows, concept):
     """Also the followers the stimuli favour in every variant (``right_on_every_variant``):
     no test of d can tell those from VOE, so they show where the scenes must change."""
     bound = calibration.false_voe_bound(REPETITIONS, ALPHA, tests=len(rows))
-    offenders = [_describe(row) for row in rows if row.false_voe_rate > bound]
-    assert all(row.right_on_every_variant for row in rows if row.false_voe_rate > bound)
+    mine = [row for row in rows if row.concept == concept]
+    offenders = [_describe(row) for row in mine if row.false_voe_rate > bound]
+    assert all(row.right_on_every_variant for row in mine if row.false_voe_rate > bound)
     assert not offenders, offenders
 
 
