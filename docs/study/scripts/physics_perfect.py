@@ -5,6 +5,7 @@ the seen extent), and the runs' largest |r| within variants and given the seen e
 many runs stay at or under the bound. Each run's d is read from its ``pairs.csv``.
 
     python docs/study/scripts/physics_perfect.py --root data/cpu --runs runs/r18_s*/version_0
+    python docs/study/scripts/physics_perfect.py --root data/cpu --state_scale 0.2
 """
 
 import argparse
@@ -41,7 +42,10 @@ def main() -> None:
     parser.add_argument("--runs", nargs="*", type=Path, default=[])
     parser.add_argument("--concepts", nargs="+", choices=specs.CONCEPTS, default=[
         concept for concept in specs.CONCEPTS if "counterbalanced" in specs.STANDARD_VARIANTS[concept]])
+    parser.add_argument("--state_scale", type=float, default=cues.STATE_SCALE,
+                        help="metres (and radians) of state difference worth one object-frame")
     args = parser.parse_args()
+    cues.STATE_SCALE = args.state_scale  # read by physics_perfect_surprise at each call
     from voe_lightning.store import open_split
 
     audits, seeds = [], []
