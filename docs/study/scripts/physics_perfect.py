@@ -9,31 +9,31 @@ many runs stay at or under the bound. Each run's d is read from its ``pairs.csv`
 """
 
 import argparse
-import csv
 from pathlib import Path
 
 import numpy as np
 
 from voe_lightning import cues, specs
+from voe_lightning.report.results import PairResults
 
 #: The issue's bound on a model's |r| with every frame-local cue.
 BOUND = 0.3
 
 
-def largest(rows, concept: str, variant: str) -> tuple[float, str]:
-    """|r| and cue title of the frame-local cue with the largest |r| in one row group."""
-    chosen = [row for row in rows if row["concept"] == concept and row["variant"] == variant
-              and row["cue"] in cues.FRAME_LOCAL_CUES and row["r"] is not None]
-    best = max(chosen, key=lambda row: abs(row["r"]))
-    return abs(best["r"]), cues.CUE_TITLES[best["cue"]]
+def largest(tracked, concept: str, variant: str) -> tuple[float, str]:
+    """|r| and cue title of the frame-local cue with the largest |r| in one row group
+    (``tracked``: ``cues.tracked_cues`` of the rows)."""
+    row = tracked[(concept, variant)]
+    return abs(row["r"]), cues.CUE_TITLES[row["cue"]]
 
 
 def run_difference(run: Path, audit: cues.CueAudit, seeds: np.ndarray) -> np.ndarray:
-    """The run's relative surprise per pair of ``audit`` (matched by concept, variant, seed)."""
-    with open(run / "voe_report" / "pairs.csv") as handle:
-        d = {(row["concept"], row["variant"], int(row["seed"])): float(row["relative_surprise"])
-             for row in csv.DictReader(handle)}
-    return np.array([d[key] for key in zip(audit.concepts, audit.variants, seeds)])
+    """The run's relative surprise per pair of ``audit`` (matched by concept, variant, seed),
+    from its pairs.csv (``PairResults``, which checks the file)."""
+    results = PairResults.from_csv(run / "voe_report" / "pairs.csv")
+    d = dict(zip(zip(results.concept, results.variant, results.seed.tolist()),
+                 results.relative_surprise))
+    return np.array([d[key] for key in zip(audit.concepts, audit.variants, seeds.tolist())])
 
 
 def main() -> None:
@@ -54,8 +54,9 @@ def main() -> None:
         audits.append(cues.audit_records(records[k] for k in range(len(records))))
         seeds += [int(records[k]["seed"]) for k in range(len(records))]
     audit, seeds = cues.CueAudit.concatenate(audits), np.array(seeds)
-    observer = audit.model_correlations(audit.physics_perfect)
-    runs = {run: audit.model_correlations(run_difference(run, audit, seeds)) for run in args.runs}
+    observer = cues.tracked_cues(audit.model_correlations(audit.physics_perfect))
+    runs = {run: cues.tracked_cues(audit.model_correlations(run_difference(run, audit, seeds)))
+            for run in args.runs}
     print(f"| concept | physics-perfect observer: standard / counterbalanced | within variants "
           f"| given the seen extent | runs within variants: largest \\|r\\| | ≤ {BOUND} "
           f"| given the seen extent | ≤ {BOUND} |")
