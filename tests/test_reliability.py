@@ -346,13 +346,14 @@ def test_generate_of_one_frame_videos_is_one_line_naming_num_frames(tmp_path, ca
 
 
 def test_a_setting_a_scene_cannot_render_is_one_line_before_anything_renders(tmp_path, capsys):
-    """Solidity's counterbalanced probes need num_frames >= 7: generate says so in one line
-    before rendering any shard, of solidity or of a concept listed before it."""
+    """Solidity's probes need a frame 1 to 1.6 s in with two after it (num_frames >= 5 over
+    3 s): generate says so in one line before rendering any shard, of solidity or of a concept
+    listed before it."""
     line = _refused(capsys, ["generate", "--root", str(tmp_path), "--concepts",
                              "[continuity, solidity]",
                              "--num_frames", "4", "--height", "32", "--width", "32",
                              "--train_examples", "1", "--val_pairs", "1", "--test_pairs", "1",
                              "--generalization_pairs", "0", "--workers", "1",
                              "--progress", "false"])
-    assert "use num_frames >= 7" in line
+    assert "use num_frames >= 5" in line
     assert not list(tmp_path.rglob("*.voe"))  # no shard of either concept rendered

@@ -81,10 +81,32 @@ def test_probe_parameters_lie_inside_the_examples_range_with_mass_there(variant)
         if high > low:
             mass = np.mean((seen >= low) & (seen <= high))
             assert mass >= 0.05, f"{variant} probe {name}: only {mass:.1%} of examples there"
-    assert (
-        solidity.EXAMPLE_HEIGHTS[0] <= solidity.PROBE_HEIGHTS[variant][0]
-        and solidity.PROBE_HEIGHTS[variant][1] <= solidity.EXAMPLE_HEIGHTS[1]
-    )
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_the_variants_draw_the_same_scenes(seed):
+    """The counterbalanced pair mirrors the standard one in what is seen, not only in what
+    changes: drawn from the same generator, the two variants get the same container, camera,
+    footprint, colours' draw and timing, and differ only where the block rests (floor or
+    hidden support), so its height and start; its top then rests equally far above the sight
+    line over the front rim."""
+    drawn = {variant: solidity.draw_probe(variant, np.random.default_rng(seed))
+             for variant in solidity.VARIANTS}
+    standard, counterbalanced = drawn["standard"], drawn["counterbalanced"]
+    for key in ("box", "camera", "hold", "manipulation_frame"):
+        assert standard[key] == counterbalanced[key], key
+    for key in ("offset", "yaw"):
+        assert standard["block"][key] == counterbalanced["block"][key], key
+    assert standard["block"]["half"][:2] == counterbalanced["block"]["half"][:2]
+    floor = 2 * standard["box"]["wall"]
+    tops = [floor + 2 * standard["block"]["half"][2],
+            counterbalanced["support"] + 2 * counterbalanced["block"]["half"][2]]
+    assert tops[0] == pytest.approx(tops[1], abs=1e-12), "both protrude alike when resting"
+    # Both start where a fall of FALL_TIME leaves them just above where they rest.
+    video = VideoOptions()
+    for params, rest in ((standard, floor), (counterbalanced, counterbalanced["support"])):
+        bottom = params["box"]["height"] + params["drop"] - solidity.fall_distance(video)
+        assert solidity.CLEARANCE[0] <= bottom - rest <= solidity.CLEARANCE[1]
 
 
 @pytest.mark.parametrize("variant", solidity.VARIANTS)
@@ -100,6 +122,23 @@ def test_the_block_is_seen_still_for_several_frames_before_the_change(variant):
         still = int((heights == heights[0]).sum())
         assert m >= 4 and still >= 4 and (seen[:still] > 0).all(), (seed, m, still)
         assert states["position"][m, BLOCK, 2] < heights[0], "it falls before the change"
+
+
+@pytest.mark.parametrize("variant", solidity.VARIANTS)
+def test_the_block_is_just_above_where_it_rests_at_the_change(variant):
+    """At the manipulation frame the block has fallen FALL_TIME (as simulated, from where it
+    hung) and is CLEARANCE above where it comes to rest in the video where it rests (standard:
+    consistent, on the floor; counterbalanced: inconsistent, on the hidden support)."""
+    resting = "consistent" if variant == "standard" else "inconsistent"
+    video = VideoOptions()
+    for seed in range(4):
+        record = generate_probe(CONCEPT, variant, seed)
+        m = int(record["manipulation_frame"])
+        height = record[resting, "objects"]["position"][:, BLOCK, 2].double()
+        fallen = float(height[0] - height[m])
+        assert fallen == pytest.approx(solidity.fall_distance(video), abs=1e-3), seed
+        above = float(height[m] - height[-1])
+        assert solidity.CLEARANCE[0] - 0.005 <= above <= solidity.CLEARANCE[1] + 0.005, seed
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -213,8 +252,11 @@ def test_bad_names_list_valid_ones(call, match):
         call()
 
 
-def test_counterbalanced_probe_refuses_too_long_frame_intervals():
-    """With 6 frames over 3 s the block falls past the hidden support before frame 1: a clear
-    error names the interval and the frame count that works, instead of 1,000 failed draws."""
-    with pytest.raises(ValueError, match=r"at most 0\.48 s apart.*got 0\.50 s.*num_frames >= 7"):
-        generate_probe("solidity", "counterbalanced", 0, num_frames=6, height=32, width=32)
+@pytest.mark.parametrize("variant", solidity.VARIANTS)
+def test_probes_refuse_videos_without_a_frame_for_the_change(variant):
+    """With 4 frames over 3 s no frame comes 1.0 to 1.6 s in with two more after it: a clear
+    error names the frames and the count that works, instead of 1,000 failed draws; 5 work."""
+    with pytest.raises(ValueError, match=r"1 to 1\.6 s in.*got 4 frames 0\.75 s apart.*"
+                                         r"num_frames >= 5"):
+        generate_probe("solidity", variant, 0, num_frames=4, height=32, width=32)
+    assert solidity.manipulation_frames(VideoOptions(num_frames=5)) == [2]

@@ -6,8 +6,13 @@ several frames before the hidden change. ``standard``: a tall block comes to res
 (consistent) or falls through the container and the floor, its collisions switched off once
 inside, the penetration hidden by the front face (inconsistent). ``counterbalanced`` mirrors
 it: a short block sinks out of sight (consistent) or lands on a hidden support high in the
-container and stays protruding (inconsistent). Examples vary heights and perspective freely;
-controls show the container alone, or the block falling behind it and ending hidden by it."""
+container and stays protruding (inconsistent). The two variants draw their scenes alike and
+mirror what is seen: the resting block protrudes as far above the sight line over the front
+rim in both (standard on the floor, counterbalanced on the support), and at the manipulation
+frame both blocks have fallen for the same time and are just above where they would rest, so
+a protruding block (and a vanishing one) looks alike whichever variant shows it. Examples vary
+heights and perspective freely; controls show the container alone, or the block falling
+behind it and ending hidden by it."""
 
 from __future__ import annotations
 
@@ -20,7 +25,7 @@ from voe_lightning import specs
 from voe_lightning.scenes.appearance import distinct_colors
 from voe_lightning.scenes.builder import Geom, SceneBuilder, yaw_quat
 from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions
-from voe_lightning.scenes.recording import record_pair_when
+from voe_lightning.scenes.recording import record_pair
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
 
@@ -45,24 +50,28 @@ PROBE_CAMERA = CAMERA.narrow(
     lookat_z=(0.4, 0.75), distance=(2.4, 3.0), azimuth=(85.0, 95.0), elevation=(-40.0, -12.0)
 )
 #: Block height as a multiple of the container's inner depth: examples range from fully hidden
-#: to protruding; standard probes protrude, counterbalanced probes hide when resting.
+#: to protruding. Probes' heights follow from PROTRUSION and lie inside this range.
 EXAMPLE_HEIGHTS = (0.2, 1.5)
-PROBE_HEIGHTS = {"standard": (1.0, 1.4), "counterbalanced": (0.2, 0.7)}
-#: Height of the block's bottom above the rim when it is released.
+#: Height of the block's bottom above the rim when it is released (probes: inside this range).
 EXAMPLE_DROP = (0.05, 0.6)
-PROBE_DROP = (0.05, 0.35)
-#: How long the block hangs still before it is let go (s, rounded down to whole frames, see
-#: ``release_frame``). Probes hold it for 4-6 frames at 15 frames over 3 s: dropped at once,
-#: a block reaches the rim (the earliest hidden change) within one or two frames.
+#: How long the block hangs still before it is let go (s; examples: rounded down to whole
+#: frames, see ``release_frame``). Probes let it go 0.6 to 1.2 s in, 4 to 6 frames at 15 frames
+#: over 3 s: dropped at once, a block reaches the rim within one or two frames.
 EXAMPLE_HOLD = (0.0, 1.2)
 PROBE_HOLD = (0.6, 1.2)
 #: Of the back wall's inner face, the probe camera hides at least/at most this fraction.
 HIDDEN_BACK_WALL = (0.3, 0.9)
-#: How far a probe's resting block must rise above the sight line over the front rim to show,
-#: and how far below it anything hidden must stay.
-PROTRUSION = 0.04
+#: How far a probe's resting block rises above the sight line over the front rim (at its
+#: highest over the footprint), in both variants: standard on the floor, counterbalanced on the
+#: hidden support. Drawn alike, so a protruding block shows as much in either variant.
+PROTRUSION = (0.04, 0.2)
+#: How far below the sight line anything hidden stays (the hidden support's top; the short
+#: block resting on the floor).
 MARGIN = 0.03
-#: Counterbalanced probes: how far above the hidden support the block is at the first frame.
+#: Probes: how long the block has fallen at the manipulation frame (s), and how far above where
+#: it would rest (the floor, or the hidden support) it is then; the same in both variants, so
+#: that both blocks land, or go on falling, at the same speed.
+FALL_TIME = 0.4
 CLEARANCE = (0.01, 0.05)
 GRAVITY = 9.81  # MuJoCo's default, which the scenes keep
 #: Outer height of the container.
@@ -187,65 +196,113 @@ def release_script(sim: Simulation, frame: int) -> Callable[[Simulation, int], N
     return script
 
 
+def _fall_steps(video: VideoOptions) -> int:
+    """Physics steps the probe's block falls before the manipulation frame (FALL_TIME)."""
+    return round(FALL_TIME / video.timestep)
+
+
+def fall_distance(video: VideoOptions) -> float:
+    """How far the probe's block falls from rest in ``_fall_steps``: MuJoCo's semi-implicit
+    Euler step adds g·dt to the speed, then moves by the new speed, so n steps fall
+    g·dt²·n(n+1)/2 (2 cm more than g·t²/2 at 0.4 s in 1 cm steps)."""
+    steps = _fall_steps(video)
+    return GRAVITY * video.timestep**2 * steps * (steps + 1) / 2
+
+
+def manipulation_frames(video: VideoOptions) -> list[int]:
+    """The frames a probe's hidden change may come at: the block let go PROBE_HOLD s in (a
+    physics step, not necessarily a frame) has fallen FALL_TIME s there, and two frames or more
+    follow."""
+    release = [m * video.steps_per_frame - _fall_steps(video) for m in range(video.num_frames - 2)]
+    return [
+        m for m, step in enumerate(release)
+        if m >= 1 and PROBE_HOLD[0] - 1e-9 <= step * video.timestep <= PROBE_HOLD[1] + 1e-9
+    ]
+
+
+def release_controller(sim: Simulation, step: int) -> Callable[[Simulation], None]:
+    """A controller (run before every physics step) that lets the block go at physics step
+    ``step``, between frames if need be: probes time the fall, not the frames."""
+    block = sim.model.body("block").id
+
+    def controller(sim: Simulation) -> None:
+        if sim.data.time >= (step - 0.5) * sim.model.opt.timestep:
+            sim.model.body_gravcomp[block] = 0.0
+
+    return controller
+
+
 def check_video(video: VideoOptions) -> None:
-    """Refuse frames too far apart for the counterbalanced probes (the block must still be
-    above the hidden support a frame after it is let go), naming the num_frames that would do;
+    """Refuse videos too short for the probes (no frame where the block, let go PROBE_HOLD s
+    in, has fallen FALL_TIME s with two frames left), naming the num_frames that would do;
     ``generate`` calls it before rendering anything."""
+    if manipulation_frames(video):
+        return
     frame_time = video.steps_per_frame * video.timestep
-    longest_fall = CONTAINER_HEIGHT[1] + PROBE_DROP[1]
-    if GRAVITY * frame_time**2 / 2 > longest_fall:
-        longest = float(np.sqrt(2 * longest_fall / GRAVITY))
-        raise ValueError(
-            f"{CONCEPT} counterbalanced probes need frames at most {longest:.2f} s apart (the block "
-            "must still be above the hidden support a frame after it is let go), got "
-            f"{frame_time:.2f} s "
-            f"({video.num_frames} frames over {video.duration:g} s); use num_frames >= "
-            f"{int(np.ceil(video.duration / longest))}"
-        )
+    enough = next(
+        n for n in range(video.num_frames + 1, 10 * video.num_frames + 100)
+        if manipulation_frames(VideoOptions(n, video.height, video.width, video.duration,
+                                            min(video.timestep, video.duration / n)))
+    )
+    raise ValueError(
+        f"{CONCEPT} probes need a frame {PROBE_HOLD[0] + FALL_TIME:g} to "
+        f"{PROBE_HOLD[1] + FALL_TIME:g} s in with two more after it (the block hangs "
+        f"{PROBE_HOLD[0]:g} to {PROBE_HOLD[1]:g} s, then falls {FALL_TIME:g} s before the hidden "
+        f"change), got {video.num_frames} frames {frame_time:.2f} s apart over "
+        f"{video.duration:g} s; use num_frames >= {enough}"
+    )
 
 
 def draw_probe(
     variant: str, rng: np.random.Generator, video: VideoOptions = VideoOptions()
 ) -> dict:
     """The parameters of a probe pair, each inside the examples' range: a container seen from
-    the controlled perspective; a block that, resting on the container's floor, protrudes
-    into view (standard) or hides below the sight line over the front rim (counterbalanced),
-    which then also gets the height of the hidden support (``support``: its top)."""
+    the controlled perspective, a block footprint and how far the resting block protrudes above
+    the sight line over the front rim. The scene is drawn alike for both variants and must suit
+    both: the block is tall enough to protrude resting on the floor (standard) or short enough
+    to hide there while protruding from a hidden support below the sight line
+    (counterbalanced, which also gets ``support``: its top). ``manipulation_frame``: when the
+    block, let go ``hold`` s in, has fallen FALL_TIME s to just above where it would rest."""
     if variant not in VARIANTS:
         raise ValueError(
             f"unknown {CONCEPT} probe variant {variant!r}; valid: {', '.join(VARIANTS)}"
         )
-    if variant == "counterbalanced":
-        check_video(video)
+    check_video(video)
+    frames, fall = manipulation_frames(video), fall_distance(video)
     for _ in range(1000):
         box, camera = _draw_container(rng), PROBE_CAMERA.sample(rng)
         if not sees_top_not_bottom(camera, box):
             continue
-        block = _draw_block(rng, box, PROBE_HEIGHTS[variant])
+        block = _draw_block(rng, box, EXAMPLE_HEIGHTS)
         eye = camera_position(camera)
-        corners = _footprint(block, block["offset"])
-        hidden = [_hidden_height(eye, box, x, y) for x, y in corners]
-        top = 2 * box["wall"] + 2 * block["half"][2]
-        params = {"box": box, "block": block, "camera": camera}
-        params["hold"] = float(rng.uniform(*PROBE_HOLD))
-        if variant == "standard" and top > max(hidden) + PROTRUSION:
-            return {**params, "drop": float(rng.uniform(*PROBE_DROP))}
-        if variant == "counterbalanced" and top < min(hidden) - MARGIN:
-            # The support hides just below the sight line; on it the block protrudes. The drop
-            # is timed so that a frame after it is let go the block is just above the support:
-            # landing on it moves the block little, as the standard's landing on the floor does.
-            support = min(hidden) - MARGIN
-            fall = GRAVITY * (video.steps_per_frame * video.timestep) ** 2 / 2
-            drop = support + rng.uniform(*CLEARANCE) + fall - box["height"]
-            if support + 2 * block["half"][2] > max(hidden) + PROTRUSION and (
-                PROBE_DROP[0] <= drop <= PROBE_DROP[1]
-            ):
-                return {**params, "support": support, "drop": float(drop)}
+        hidden = [_hidden_height(eye, box, x, y) for x, y in _footprint(block, block["offset"])]
+        floor, depth = 2 * box["wall"], _depth(box)
+        support = min(hidden) - MARGIN
+        protrusion, clearance = rng.uniform(*PROTRUSION), rng.uniform(*CLEARANCE)
+        manipulation_frame = int(rng.choice(frames))
+        # Resting on the floor (standard) or the support (counterbalanced), the top protrudes.
+        rest = {"standard": floor, "counterbalanced": support}
+        heights = {name: max(hidden) + protrusion - below for name, below in rest.items()}
+        drops = {name: below + clearance + fall - box["height"] for name, below in rest.items()}
+        if floor + heights["counterbalanced"] < support and all(
+            EXAMPLE_HEIGHTS[0] <= height / depth <= EXAMPLE_HEIGHTS[1]
+            for height in heights.values()
+        ) and all(EXAMPLE_DROP[0] <= drop <= EXAMPLE_DROP[1] for drop in drops.values()):
+            block["half"] = (*block["half"][:2], heights[variant] / 2)
+            release = manipulation_frame * video.steps_per_frame - _fall_steps(video)
+            params = {
+                "box": box, "block": block, "camera": camera, "drop": float(drops[variant]),
+                "hold": release * video.timestep, "manipulation_frame": manipulation_frame,
+            }
+            if variant == "counterbalanced":
+                params["support"] = support
+            return params
     raise RuntimeError(f"no {CONCEPT} {variant} probe parameters in 1000 draws")
 
 
 def _add_block(builder: SceneBuilder, block: dict, xy, bottom: float, color: str) -> None:
-    """The block, its weight compensated (it hangs still) until ``release_script`` lets it go."""
+    """The block, its weight compensated (it hangs still) until ``release_script`` (examples)
+    or ``release_controller`` (probes) lets it go."""
     builder.add_primitive(
         "block",
         "box",
@@ -274,10 +331,6 @@ def _add_support(builder: SceneBuilder, box: dict, block: dict, top: float, colo
         free=False,
         mocap=True,
     )
-
-
-def _block_bottom(sim: Simulation) -> float:
-    return float(sim.position("block")[2] - sim.model.geom("block_0").size[2])
 
 
 def _fall_through(twin: Simulation) -> None:
@@ -315,26 +368,10 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
         if variant == "counterbalanced":
             sim.remove("support")
         block_id = sim.mask_id("block")
-        rim = box["height"] - 0.02
-        step = video.steps_per_frame * video.timestep
-        released = release_frame(params["hold"], video)
-
-        def ready(sim: Simulation, frame: int) -> bool:
-            if not released < frame <= video.num_frames - 3:
-                return False
-            bottom = _block_bottom(sim)
-            if variant == "standard":
-                return bottom < rim
-            # The last frame before the block's free fall reaches the support.
-            speed = float(sim.data.qvel[sim.model.joint("block_joint").dofadr[0] + 2])
-            next_bottom = bottom + speed * step - GRAVITY * step**2 / 2
-            support = params["support"]
-            return bottom > support + 0.005 and (bottom < rim or next_bottom < support + 0.02)
-
+        sim.controller = release_controller(sim, round(params["hold"] / video.timestep))
+        frame = params["manipulation_frame"]
         manipulate = _fall_through if variant == "standard" else _make_solid
-        consistent, inconsistent, frame = record_pair_when(
-            sim, manipulate, ready, script=release_script(sim, released)
-        )
+        consistent, inconsistent = record_pair(sim, frame, manipulate)
         if variant == "standard":
             manipulated = block_id
             for t in range(frame, video.num_frames):
