@@ -20,8 +20,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--root", default="data/calibration")
     parser.add_argument("--split", default="test")
+    parser.add_argument("--concepts", nargs="*", default=None, help="default: every concept")
     args = parser.parse_args()
-    pooled = [concept for concept in specs.CONCEPTS
+    pooled = [concept for concept in (args.concepts or specs.CONCEPTS)
               if "counterbalanced" in specs.STANDARD_VARIANTS[concept]]
     audit = cues.audit_split(args.root, args.split, pooled, progress=True)
     print("| concept | cue | standard: consistent → inconsistent (midpoint) | counterbalanced: "
