@@ -87,7 +87,7 @@ def test_probe_parameters_lie_inside_the_examples_range_with_mass_there(variant)
 def test_the_variants_draw_the_same_scenes(seed):
     """The counterbalanced pair mirrors the standard one in what is seen, not only in what
     changes: drawn from the same generator, the two variants get the same container, camera,
-    footprint, colours' draw and timing, and differ only where the block rests (floor or
+    footprint and timing, and differ only where the block rests (floor or
     hidden support), so its height and start; its top then rests equally far above the sight
     line over the front rim."""
     drawn = {variant: solidity.draw_probe(variant, np.random.default_rng(seed))
