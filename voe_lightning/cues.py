@@ -124,6 +124,13 @@ def frame_scores(
     return {cue: scores[cue] for cue in CUES}
 
 
+def _after(manipulation_frame: torch.Tensor, num_frames: int) -> torch.Tensor:
+    """[B, T] bool: the frames after each pair's manipulation frame (on its device), the only
+    ones the audit scores: both videos are identical up to and including it."""
+    m = manipulation_frame.reshape(-1, 1)
+    return torch.arange(num_frames, device=m.device)[None] > m
+
+
 def score_videos(
     frames: torch.Tensor, mask: torch.Tensor | None, manipulation_frame: torch.Tensor
 ) -> dict[str, torch.Tensor]:
@@ -138,7 +145,7 @@ def score_videos(
     if m.numel() != batch or bool(((m < 0) | (m >= num_frames)).any()):
         raise ValueError(f"manipulation_frame must hold {batch} values in [0, {num_frames - 1}], "
                          f"got {m.tolist()}")
-    after = (torch.arange(num_frames, device=frames.device)[None] > m[:, None]).double()
+    after = _after(m, num_frames).double()
     per_frame = frame_scores(frames, mask, first=int(m.min()) + 1)
     return {cue: (values * after).sum(dim=1) for cue, values in per_frame.items()}
 
@@ -155,7 +162,7 @@ def seen_extent(inconsistent: torch.Tensor, consistent: torch.Tensor,
     seen = [(fraction > 0) for fraction in (inconsistent, consistent)]
     frames = seen[0].shape[1]
     m = torch.as_tensor(manipulation_frame, device=seen[0].device).reshape(-1, 1)
-    after = torch.arange(frames, device=seen[0].device)[None] > m  # [B, T]
+    after = _after(m, frames)
     parted = ((seen[0] != seen[1]) & after[..., None]).sum(-1)  # [B, T]
     index = torch.arange(frames, device=m.device)[None]
     first = torch.where(parted > 0, index, frames).amin(1) - m[:, 0] - 1  # from frame m + 1
@@ -173,9 +180,8 @@ def physics_perfect_surprise(inconsistent: Any, consistent: Any,
     (metres of position plus radians of rotation, in ``STATE_SCALE``); float64 [B]. Its r with
     the cues is what physics alone gives on the probes: the reference for a model's."""
     seen = [side["visible_fraction"] > 0 for side in (inconsistent, consistent)]
-    frames = seen[0].shape[1]
-    m = torch.as_tensor(manipulation_frame, device=seen[0].device).reshape(-1, 1)
-    after = (torch.arange(frames, device=seen[0].device)[None] > m)[..., None]  # [B, T, 1]
+    m = torch.as_tensor(manipulation_frame, device=seen[0].device)
+    after = _after(m, seen[0].shape[1])[..., None]  # [B, T, 1]
     moved = (inconsistent["position"] - consistent["position"]).double().norm(dim=-1)
     alignment = (inconsistent["orientation"].double() * consistent["orientation"].double()).sum(-1)
     turned = 2.0 * torch.arccos(alignment.abs().clamp(max=1.0))

@@ -179,21 +179,10 @@ def draw_example(rng: np.random.Generator) -> dict:
 
 
 def release_frame(hold: float, video: VideoOptions) -> int:
-    """The last frame showing the block held still, ``hold`` seconds in: it is let go right
-    after that frame, so that it has fallen one frame interval's drop at the next one."""
+    """The last frame showing an example's block held still, ``hold`` seconds in: it is let go
+    right after that frame (``release_controller`` at its first physics step), so that it has
+    fallen one frame interval's drop at the next one."""
     return int(hold // (video.steps_per_frame * video.timestep))
-
-
-def release_script(sim: Simulation, frame: int) -> Callable[[Simulation, int], None]:
-    """A per-frame script that lets the block go once ``frame`` is rendered: until then its
-    weight is compensated (``_add_block``), so it hangs still."""
-    block = sim.model.body("block").id
-
-    def script(sim: Simulation, rendering: int) -> None:
-        if rendering == frame:
-            sim.model.body_gravcomp[block] = 0.0
-
-    return script
 
 
 def _fall_steps(video: VideoOptions) -> int:
@@ -222,7 +211,9 @@ def manipulation_frames(video: VideoOptions) -> list[int]:
 
 def release_controller(sim: Simulation, step: int) -> Callable[[Simulation], None]:
     """A controller (run before every physics step) that lets the block go at physics step
-    ``step``, between frames if need be: probes time the fall, not the frames."""
+    ``step``: until then its weight is compensated (``_add_block``), so it hangs still.
+    Examples let go right after a frame, probes between frames if need be (they time the fall,
+    not the frames)."""
     block = sim.model.body("block").id
 
     def controller(sim: Simulation) -> None:
@@ -301,8 +292,8 @@ def draw_probe(
 
 
 def _add_block(builder: SceneBuilder, block: dict, xy, bottom: float, color: str) -> None:
-    """The block, its weight compensated (it hangs still) until ``release_script`` (examples)
-    or ``release_controller`` (probes) lets it go."""
+    """The block, its weight compensated (it hangs still) until ``release_controller`` lets
+    it go."""
     builder.add_primitive(
         "block",
         "box",
@@ -469,10 +460,10 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
                 raise RejectedSample("no block hides behind the container from this camera")
             _add_block(builder, block, xy, drop, block_color)
         sim = builder.build()
-        script = None
         if kind != "no_object":
-            script = release_script(sim, release_frame(params["hold"], video))
-        frames, masks, objects = sim.record(video.num_frames, script)
+            released = release_frame(params["hold"], video) * video.steps_per_frame
+            sim.controller = release_controller(sim, released)
+        frames, masks, objects = sim.record(video.num_frames)
         if kind != "no_object" and sim.mask_id("block") not in visible_ids(masks[0]):
             raise RejectedSample("the block is not seen before it falls")
         if kind == "object_behind_container" and sim.mask_id("block") in visible_ids(
