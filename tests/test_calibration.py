@@ -93,6 +93,25 @@ def test_power_of_noise_alone_is_the_noncentral_t():
     assert rate[0] <= calibration.false_voe_bound(repetitions, ALPHA**2)
 
 
+def test_quadruplet_concepts_calibrate_over_quadruplets_and_cancel_post_change_cues(audit):
+    """Object persistence is tested over quadruplets: its noise-only rate at delta is the
+    noncentral t's of D (each half delta + N(0, 1): D ~ N(2 delta, 2)), both halves nearly
+    always above 0 there; and a follower of a cue that reads frames from m on only (motion,
+    copy-last, foreground) has exactly opposite terms in a quadruplet's two halves."""
+    n, repetitions = 20, 4000
+    deltas = np.array([0.0, 0.6])
+    rates = calibration.quadruplet_rates([np.zeros(1), np.zeros(1)], n, repetitions, ALPHA,
+                                         deltas, np.random.default_rng(4))
+    assert rates[0] <= calibration.false_voe_bound(repetitions, ALPHA)
+    expected = stats.nct.sf(stats.t.ppf(1 - ALPHA, n - 1), n - 1, 0.6 * np.sqrt(2 * n))
+    assert abs(rates[1] - expected) <= 4 * np.sqrt(expected * (1 - expected) / repetitions) + 0.01
+    for cue in ("foreground_pixels", "motion_energy", "copy_last_error"):
+        for follower in calibration.FOLLOWERS:
+            terms = calibration.cue_terms(audit, "object_persistence", cue, follower)
+            first, second = terms["standard"], terms["counterbalanced"]
+            assert first.size == PAIRS and np.array_equal(first, -second), (cue, follower)
+
+
 def test_calibration_is_seeded_and_refuses_bad_arguments(audit):
     first = calibration.calibrate(audit, repetitions=50, concepts=["solidity"],
                                   followers=["linear"], weights=(1.0,), seed=3)

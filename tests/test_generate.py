@@ -77,6 +77,13 @@ def test_plan_matches_controls_one_to_one_and_keeps_splits_disjoint():
             start = store_plan.SEED_STARTS[split]
             assert all(start <= seed < start + store_plan.SEED_RANGE for seed in own)
             assert all(not own & other for name, other in seeds.items() if name != split)
+    # A probe split gives every variant the same seeds: a seed names a quadruplet.
+    test = [item for t in tasks if t.concept == "object_persistence" and t.split == "test"
+            for item in t.items]
+    by_variant = {v: sorted(seed for name, seed in test if name == v)
+                  for v in specs.STANDARD_VARIANTS["object_persistence"]}
+    start = store_plan.SEED_STARTS["test"]
+    assert by_variant == {v: list(range(start, start + 4)) for v in by_variant}
     unchangeableness = [t for t in tasks if t.concept == "unchangeableness"]
     variants = {v for t in unchangeableness if t.split == "generalization" for v, _ in t.items}
     assert variants == set(specs.GENERALIZATION_VARIANTS["unchangeableness"])

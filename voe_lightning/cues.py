@@ -37,6 +37,7 @@ import torch
 from scipy import stats
 
 from voe_lightning import specs, statistics
+from voe_lightning.statistics import QUADRUPLET
 from voe_lightning.verdicts import pair_groups
 
 __all__ = [
@@ -67,7 +68,8 @@ CUE_TITLES = {"foreground_pixels": "foreground", "motion_energy": "motion",
 SIDES = ("consistent", "inconsistent")
 #: Columns of cues.csv, in order (``None`` cells mean "no test", explained in ``note``).
 CUE_COLUMNS = (("concept", "variant", "cue")
-               + tuple(f for f in statistics.PairedTestResult.__dataclass_fields__ if f != "note")
+               + tuple(f for f in statistics.QuadrupletTestResult.__dataclass_fields__
+                       if f != "note")
                + ("p_two_sided", "note"))
 #: Columns of cue_correlations.csv (``CueAudit.model_correlations``).
 CORRELATION_COLUMNS = ("concept", "variant", "cue", "n", "r", "p_two_sided", "alpha", "note")
@@ -200,13 +202,15 @@ class CueAudit:
     """Per-pair cue scores of probe pairs: ``scores[side][cue]`` float64 arrays over pairs
     (side is ``consistent`` or ``inconsistent``; NaN where a cue cannot be scored), with each
     pair's concept and variant name and, where the records carry object states, its
-    ``seen_extent`` [N, 3] and ``physics_perfect_surprise`` [N] (else None)."""
+    ``seen_extent`` [N, 3] and ``physics_perfect_surprise`` [N] (else None); ``seeds`` [N]
+    (None where unknown) match a quadruplet concept's two halves (``verdicts.quadruplets``)."""
 
     concepts: np.ndarray
     variants: np.ndarray
     scores: dict[str, dict[str, np.ndarray]]
     extent: np.ndarray | None = None
     physics_perfect: np.ndarray | None = None
+    seeds: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.concepts)
@@ -242,6 +246,7 @@ class CueAudit:
              for side, by_cue in scores.items()},
             extent,
             physics_perfect,
+            batch["seed"].reshape(-1).cpu().numpy() if "seed" in batch.keys() else None,
         )
 
     @classmethod
@@ -256,13 +261,15 @@ class CueAudit:
             {side: {cue: np.concatenate([a.scores[side][cue] for a in audits]) for cue in CUES}
              for side in SIDES},
             *(np.concatenate(parts) if all(part is not None for part in parts) else None
-              for parts in ([a.extent for a in audits], [a.physics_perfect for a in audits])),
+              for parts in ([a.extent for a in audits], [a.physics_perfect for a in audits],
+                            [a.seeds for a in audits])),
         )
 
     def groups(self) -> list[tuple[str, str, np.ndarray]]:
-        """(concept, variant, row selector) for every variant, and a ``pooled`` group for each
-        concept with a counterbalanced pair (``verdicts.pair_groups``)."""
-        return pair_groups(self.concepts, self.variants)
+        """(concept, variant, row selector) for every variant, a ``pooled`` group for each
+        concept with a counterbalanced pair and, where seeds are known, a ``quadruplet`` group
+        for each quadruplet concept (``verdicts.pair_groups``)."""
+        return pair_groups(self.concepts, self.variants, seeds=self.seeds)
 
     def rows(self, alpha: float = statistics.ALPHA, bootstrap: int = 0) -> list[dict[str, Any]]:
         """One row per (concept, variant or pooled, cue), columns ``CUE_COLUMNS``: the test
@@ -274,7 +281,8 @@ class CueAudit:
                 inconsistent = self.scores["inconsistent"][cue][selected]
                 consistent = self.scores["consistent"][cue][selected]
                 row: dict[str, Any] = dict.fromkeys(CUE_COLUMNS)
-                row.update(concept=concept, variant=variant, cue=cue, n=int(selected.sum()))
+                row.update(concept=concept, variant=variant, cue=cue,
+                           n=len(self.concepts[selected]) // (2 if variant == QUADRUPLET else 1))
                 unscored = int(np.isnan(inconsistent).sum() + np.isnan(consistent).sum())
                 untested = statistics.untested_reason(variant, self.variants[selected])
                 if unscored:
@@ -287,7 +295,7 @@ class CueAudit:
                                                    self.variants[selected], alpha=alpha,
                                                    bootstrap=bootstrap)
                     row.update(result.as_dict())
-                    d = inconsistent - consistent
+                    d = _differences(variant, inconsistent - consistent)
                     row["accuracy"] = float(np.mean(d > 0) + 0.5 * np.mean(d == 0))
                     row["p_two_sided"] = _two_sided(result.t, result.df)
                 rows.append(row)
@@ -316,6 +324,8 @@ class CueAudit:
                        for cue in CUES}
         rows = []
         for concept, variant, selected in self.groups():
+            if variant == QUADRUPLET:  # correlations are pair by pair
+                continue
             readings = [(variant, model_difference, None)]  # (row name, d, covariates)
             if variant == statistics.POOLED:
                 within = np.empty((int(selected.sum()), 0))
@@ -347,6 +357,15 @@ class CueAudit:
                             else result.pvalue))
                     rows.append(row)
         return rows
+
+
+def _differences(variant: str, d: np.ndarray) -> np.ndarray:
+    """The differences a group's test is over: per pair, or per quadruplet D, the sum of its
+    halves (a ``quadruplet`` group holds its first halves, then its second halves)."""
+    if variant != QUADRUPLET:
+        return d
+    half = d.size // 2
+    return d[:half] + d[half:]
 
 
 def _residuals(values: np.ndarray, labels: np.ndarray, covariates: np.ndarray | None = None

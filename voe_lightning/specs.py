@@ -40,6 +40,11 @@ POOLED_CONCEPTS: tuple[str, ...] = tuple(
     concept for concept, variants in STANDARD_VARIANTS.items() if "counterbalanced" in variants
 )
 
+#: Concepts whose standard and counterbalanced pairs of one seed are the two halves of one
+#: quadruplet (docs/architecture.md §4): after the change, each pair's inconsistent video is
+#: the other's consistent one, byte for byte. Their verdict is the quadruplet test.
+QUADRUPLET_CONCEPTS: tuple[str, ...] = ("object_persistence",)
+
 #: Generalization probe variants (paper §5): a third pillar; one or two more objects than training.
 GENERALIZATION_VARIANTS: dict[str, tuple[str, ...]] = {
     "object_persistence": (),
