@@ -394,11 +394,10 @@ def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
                       ("object_persistence", "pooled", 8), ("object_persistence", "quadruplet", 4),
                       ("unchangeableness", "position", 4), ("unchangeableness", "color", 4),
                       ("unchangeableness", "shape", 4)]
-    # The store's seeds match each quadruplet's halves: cues of the frames from m on give
-    # D = 0 in every one (linear extrapolation and novelty read frames before m too).
+    # The store's seeds match each quadruplet's halves: the frame-local cues read frames from
+    # m on only, so D = 0 in every one (pixel novelty remembers the frames before m).
     for row in rows:
-        if row["variant"] == "quadruplet" and row["cue"] in ("foreground_pixels",
-                                                             "motion_energy", "copy_last_error"):
+        if row["variant"] == "quadruplet" and row["cue"] in cues.FRAME_LOCAL_CUES:
             assert row["relative_surprise"] == 0.0 and row["accuracy"] == 0.5, row
     with open(out / "cues.csv", newline="") as handle:
         table = list(csv.DictReader(handle))

@@ -95,13 +95,14 @@ def test_post_change_scorers_give_every_quadruplet_d_zero_exactly(quadruplets):
 
 
 def test_the_quadruplet_test_of_a_post_change_scorer_is_null(quadruplets):
-    """The audit's own quadruplet rows of cues that read frames m.. only: M = 0, p = 1."""
+    """The audit's own quadruplet rows of its frame-local cues, which read frames m.. only
+    (linear extrapolation counted from m + 2): M = 0, p = 1."""
     concept, (first, second) = quadruplets
     audit = cues.CueAudit.concatenate([cues.CueAudit.score_batch(first),
                                        cues.CueAudit.score_batch(second)])
     rows = [row for row in audit.rows() if row["variant"] == statistics.QUADRUPLET]
     assert {row["concept"] for row in rows} == {concept} and rows[0]["n"] == len(first)
     for row in rows:
-        if row["cue"] in ("foreground_pixels", "motion_energy", "copy_last_error"):
+        if row["cue"] in cues.FRAME_LOCAL_CUES:
             assert row["relative_surprise"] == 0.0 and row["p_value"] == 1.0, row
             assert "every d = 0" in row["note"]

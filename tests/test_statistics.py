@@ -454,14 +454,15 @@ def test_quadruplet_test_agrees_with_scipy_over_d(n, effect, seed):
 
 def test_quadruplets_match_by_seed_and_the_report_tests_them():
     """The two halves of a quadruplet concept are matched by seed whatever their order; a
-    seed without its other half is left out; a seed twice in one variant is refused."""
+    seed without its other half is left out (a concept without a common seed gets no
+    quadruplet group); a seed twice in one variant is refused."""
     from voe_lightning.report.results import PairResults, summarize
     from voe_lightning.verdicts import concept_verdicts, pair_groups, quadruplets
 
     concepts = ["object_persistence"] * 7 + ["continuity"] * 2
     variants = ["standard", "counterbalanced", "counterbalanced", "standard", "standard",
                 "counterbalanced", "counterbalanced", "standard", "counterbalanced"]
-    seeds = [5, 7, 5, 7, 9, 3, 11, 5, 5]
+    seeds = [5, 7, 5, 7, 9, 3, 11, 5, 6]  # continuity's two pairs: no common seed
     (concept, first, second), = quadruplets(concepts, variants, seeds)
     assert concept == "object_persistence"
     assert first.tolist() == [0, 3] and second.tolist() == [2, 1]  # seeds 5, 7

@@ -10,8 +10,8 @@ built from the *real* cue scores of generated probes (``cues.CueAudit``, the fra
 video's score, scaled to unit SD over the concept's pairs; ``sign`` says which way the model
 follows the cue; ``delta`` (in noise SDs) is a true violation effect. Each repetition draws
 ``pairs`` pairs per variant (with replacement, from the audit's pairs of that variant) and new
-noise, tests every variant and the pooled row as reports do (``statistics``) and applies the
-verdict rule (``verdicts.verdict_rule``). A quadruplet concept (``specs.QUADRUPLET_CONCEPTS``)
+noise, tests every variant as reports do (``statistics``) and applies the verdict rule
+(``verdicts.verdict_rule``). A quadruplet concept (``specs.QUADRUPLET_CONCEPTS``)
 draws whole quadruplets instead, each half's d as above, and applies the quadruplet test and
 ``verdicts.quadruplet_rule`` to D, the sum of its halves: a follower of cue scores that read
 only the frames from the change frame on has opposite terms in the two halves, so D is noise.
@@ -106,7 +106,7 @@ def cue_terms(audit: cues.CueAudit, concept: str, cue: str, follower: str
     audit's pairs, scaled to unit SD over all those pairs; None where the cue is not scored for
     every pair or does not vary (nothing to follow). For a quadruplet concept, the two
     variants' terms are its quadruplets' halves, aligned (``verdicts.quadruplets``)."""
-    variants = specs.STANDARD_VARIANTS.get(concept, ())
+    variants = specs.VERDICT_VARIANTS.get(concept, ())
     rows = (audit.concepts == concept) & np.isin(audit.variants, variants)
     con = audit.scores["consistent"][cue][rows]
     inc = audit.scores["inconsistent"][cue][rows]
@@ -150,7 +150,7 @@ def verdict_rates(terms: Mapping[str, np.ndarray], concept: str, pairs: int, rep
     for relative surprise delta + term + N(0, 1) per pair; ``terms`` per variant (all zero: pure
     noise). Each repetition resamples ``pairs`` pairs per variant (a quadruplet concept:
     ``pairs`` quadruplets, ``quadruplet_rates``)."""
-    variants = specs.STANDARD_VARIANTS[concept]
+    variants = specs.VERDICT_VARIANTS[concept]
     missing = [variant for variant in variants if variant not in terms]
     if missing:
         raise ValueError(f"{concept} needs cue terms of every variant {variants}; missing "
@@ -168,12 +168,6 @@ def verdict_rates(terms: Mapping[str, np.ndarray], concept: str, pairs: int, rep
     means = {variant: mean[None] + shifted for variant, (mean, _) in moments.items()}
     p_values = [statistics.t_and_p(means[v], np.sqrt(moments[v][1] / pairs), pairs - 1)[1]
                 for v in variants]
-    if set(statistics.POOLED_VARIANTS) <= set(variants):
-        pooled = statistics.POOLED_VARIANTS
-        mean, error, df = statistics.stratified_moments(
-            [pairs] * len(pooled), [means[v] for v in pooled],
-            [np.broadcast_to(moments[v][1], means[v].shape) for v in pooled])
-        p_values.append(statistics.t_and_p(mean, error, df)[1])
     return verdict_rule(p_values, alpha).mean(axis=1)
 
 
@@ -250,7 +244,7 @@ def calibrate(
     concepts = [concept for concept in specs.CONCEPTS if concept in chosen]  # specs order
     rows = []
     for concept in concepts:
-        variants = specs.STANDARD_VARIANTS[concept]
+        variants = specs.VERDICT_VARIANTS[concept]
         sizes = ({v: _matched(audit, concept)[1].size for v in variants}
                  if concept in specs.QUADRUPLET_CONCEPTS else
                  {v: int(((audit.concepts == concept) & (audit.variants == v)).sum())
@@ -342,9 +336,9 @@ def calibration_markdown(rows: Sequence[CalibrationRow], title: str = "Calibrati
     lines += ["", f"Synthetic relative surprise d = δ + weight · sign · f(cue) + N(0, 1) per pair "
               "(δ and weight in noise SDs; f scaled to unit SD over the concept's pairs), from "
               "the real cue scores of the audited probes; each repetition resamples the pairs "
-              "of each variant and tests as the report does (pooled: the stratified test; "
-              "verdict: `verdicts.verdict_rule`; a quadruplet concept resamples its "
-              "quadruplets and decides by the quadruplet test, `verdicts.quadruplet_rule`). "
+              "of each variant and tests as the report does (verdict: `verdicts.verdict_rule`; "
+              "a quadruplet concept resamples its quadruplets and decides by the quadruplet "
+              "test, `verdicts.quadruplet_rule`). "
               f"False VOE must stay at or below α; with {repetitions} repetitions and "
               f"{len(rows)} rates, {100 * bound:.2f}% is the binomial bound (p = .001, "
               "Bonferroni) a calibrated verdict stays under. δ: the smallest of a grid of "

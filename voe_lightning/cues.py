@@ -13,7 +13,8 @@ identical up to and including it), per video, with frames x_t in [0, 1]:
 - ``motion_energy``: mean absolute difference of consecutive frames, summed;
 - ``copy_last_error``: mean squared error of predicting each frame by the one before;
 - ``linear_extrapolation_error``: mean squared error of predicting x_t by
-  clip(2 x_{t-1} - x_{t-2}, 0, 1);
+  clip(2 x_{t-1} - x_{t-2}, 0, 1), from t = m + 2 on, so that it reads no frame before m (as
+  the other frame-local cues do not: on a quadruplet every one of them gives D = 0 exactly);
 - ``pixel_novelty``: per pixel, the L1 distance of its colour to the nearest colour seen at that
   place in any earlier frame, summed (something new appearing where it never was).
 
@@ -47,6 +48,7 @@ __all__ = [
     "FRAME_LOCAL_CUES",
     "audit_records",
     "audit_split",
+    "counted_frames",
     "frame_scores",
     "physics_perfect_surprise",
     "score_videos",
@@ -126,6 +128,19 @@ def frame_scores(
     return {cue: scores[cue] for cue in CUES}
 
 
+#: Frames past m + 1 from which a cue is counted: linear extrapolation predicts frame t from
+#: t - 1 and t - 2, so it counts from m + 2 on and, like every frame-local cue, reads no frame
+#: before m (a quadruplet's videos differ there, docs/stimuli.md). Pixel novelty alone
+#: remembers the frames before m, by design.
+_LATER = {"linear_extrapolation_error": 1}
+
+
+def counted_frames(cue: str, manipulation_frame: torch.Tensor, num_frames: int) -> torch.Tensor:
+    """[B, T] bool: the frames whose values ``score_videos`` sums for ``cue``: t > m, and for
+    linear extrapolation t > m + 1 (``_LATER``)."""
+    return _after(manipulation_frame + _LATER.get(cue, 0), num_frames)
+
+
 def _after(manipulation_frame: torch.Tensor, num_frames: int) -> torch.Tensor:
     """[B, T] bool: the frames after each pair's manipulation frame (on its device), the only
     ones the audit scores: both videos are identical up to and including it."""
@@ -139,7 +154,7 @@ def score_videos(
     """Every cue's score of a batch of videos: uint8 frames [B, T, H, W, 3], mask [B, T, H, W]
     (or None: no ``foreground_pixels``, NaN), manipulation frame [B]; float64 [B] per cue.
     Runs on the frames' device; each score sums the per-frame values (``frame_scores``) over
-    the frames t > m."""
+    the frames t > m (linear extrapolation: t > m + 1, ``counted_frames``)."""
     if frames.ndim != 5 or frames.shape[-1] != 3:
         raise ValueError(f"frames must be [B, T, H, W, 3], got {tuple(frames.shape)}")
     batch, num_frames = frames.shape[:2]
@@ -147,9 +162,9 @@ def score_videos(
     if m.numel() != batch or bool(((m < 0) | (m >= num_frames)).any()):
         raise ValueError(f"manipulation_frame must hold {batch} values in [0, {num_frames - 1}], "
                          f"got {m.tolist()}")
-    after = _after(m, num_frames).double()
     per_frame = frame_scores(frames, mask, first=int(m.min()) + 1)
-    return {cue: (values * after).sum(dim=1) for cue, values in per_frame.items()}
+    return {cue: (values * counted_frames(cue, m, num_frames)).sum(dim=1)
+            for cue, values in per_frame.items()}
 
 
 def seen_extent(inconsistent: torch.Tensor, consistent: torch.Tensor,

@@ -32,8 +32,9 @@ SEED_RANGE = 1_000_000_000
 #: standard probes stand the container where the counterbalanced ones do, with a smaller cube;
 #: 8: solidity's two variants draw their scenes alike, protrude alike and fall alike (the
 #: counterbalanced pair shows what the standard one does, with the outcomes swapped); 9: object
-#: persistence's two variants are one quadruplet per seed, and a probe split gives every
-#: variant the same seeds (``split_seeds``), so a seed names a quadruplet.
+#: persistence's, continuity's, solidity's and containment's two variants are one quadruplet
+#: per seed (continuity keeps the paper's probe as its ``paper`` variant), and a probe split
+#: gives every variant the same seeds (``split_seeds``), so a seed names a quadruplet.
 GENERATOR_VERSION = 9
 
 

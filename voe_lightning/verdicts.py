@@ -154,7 +154,7 @@ def concept_verdicts(
             verdicts.append(_quadruplet_verdict(concept, results[(concept, QUADRUPLET)], alpha))
             continue
         present = [v for c, v in results if c == concept and v not in (POOLED, QUADRUPLET)]
-        required = list(specs.STANDARD_VARIANTS.get(concept, present))
+        required = list(specs.VERDICT_VARIANTS.get(concept, present))
         if set(POOLED_VARIANTS) <= set(required):
             rule = (f"p < {alpha:g} in the stratified pooled test and in both standard and "
                     "counterbalanced")

@@ -22,7 +22,7 @@ from voe_lightning.scenes.appearance import distinct_colors
 from voe_lightning.scenes.builder import SceneBuilder, yaw_quat
 from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions
 from voe_lightning.scenes import recording
-from voe_lightning.scenes.recording import join, record_with_ghost
+from voe_lightning.scenes.recording import join, quadruplet_record, record_with_ghost
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
 
@@ -211,14 +211,7 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
         raise ValueError(
             f"unknown {CONCEPT} probe variant {variant!r}; valid: standard, counterbalanced"
         )
-    pairs, camera, frame, object_id = quadruplet(seed, video)
-    consistent, inconsistent = (
-        tuple(np.copy(part) for part in video) for video in pairs[variant == "counterbalanced"]
-    )
-    return specs.probe_record(
-        consistent, inconsistent, camera, specs.CONCEPTS.index(CONCEPT),
-        specs.VARIANTS.index(variant), frame, seed, [object_id],
-    )
+    return quadruplet_record(CONCEPT, variant, seed, quadruplet(seed, video))
 
 
 @functools.lru_cache(maxsize=4)

@@ -12,6 +12,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from tensordict import TensorDict
+
 from voe_lightning import specs
 from voe_lightning.scenes.sampling import RejectedSample
 from voe_lightning.scenes.simulation import Simulation, visible_ids
@@ -53,6 +55,20 @@ def quadruplet(
         raise RejectedSample(f"the two consistent videos differ at the manipulation frame {m}")
     rest = [tuple(part[m:] for part in video) for video in (first, second)]
     return (first, splice(first, rest[1], m)), (second, splice(second, rest[0], m))
+
+
+def quadruplet_record(concept: str, variant: str, seed: int, drawn: tuple) -> TensorDict:
+    """The probe record of ``variant``'s half of a quadruplet ``drawn`` = (((A, AB), (B, BA)),
+    camera, manipulation frame, manipulated id), as a concept's cached ``quadruplet`` gives it:
+    ``standard`` is (A, AB), ``counterbalanced`` (B, BA); its arrays are copies, so the cache
+    stays as it was."""
+    pairs, camera, frame, manipulated = drawn
+    half = specs.QUADRUPLET_VARIANTS.index(variant)
+    consistent, inconsistent = (tuple(np.copy(part) for part in video) for video in pairs[half])
+    return specs.probe_record(
+        consistent, inconsistent, camera, specs.CONCEPTS.index(concept),
+        specs.VARIANTS.index(variant), frame, seed, [manipulated],
+    )
 
 
 def record_with_ghost(
