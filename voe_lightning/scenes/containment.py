@@ -150,13 +150,6 @@ def build(
     return sim
 
 
-def release_cube(sim: Simulation) -> None:
-    """The hidden 'magic': the container's walls and bottom no longer touch the cube, which
-    drops onto the floor (by the bottom's thickness) and stays when the container slides away."""
-    for geom_name in sim.objects["container"].geom_names:
-        sim.model.geom(geom_name).contype = sim.model.geom(geom_name).conaffinity = 0
-
-
 def timeline(rng: np.random.Generator, video: VideoOptions) -> tuple[int, float, float, tuple]:
     """Manipulation frame, move start and end (s), and rod descent (s): the rod comes down
     while the cube settles; the container starts sliding just after the manipulation frame."""
