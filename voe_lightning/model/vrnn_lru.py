@@ -335,7 +335,8 @@ class VRNNLRUModel(SurpriseModel):
         self._steps += 1
         if self._read_back_now():
             self._finite.check()
-            self.log_dict({f"train/{name}": value for name, value in zip(("loss", *LOSS_TERMS), terms)},
+            logged = terms.detach().clone()  # a captured graph's output is overwritten next step
+            self.log_dict({f"train/{name}": value for name, value in zip(("loss", *LOSS_TERMS), logged)},
                           batch_size=frames.shape[0])
         return terms[0]
 
