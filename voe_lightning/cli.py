@@ -42,6 +42,9 @@ LIGHTNING_SUBCOMMANDS = {
 DEBUG_VARIABLE = "VOE_DEBUG"
 #: Errors that mean a bad argument or input: printed as one line, exit status 2.
 USER_ERRORS = (ValueError, OSError, MisconfigurationException)
+#: Exit status of a fit/validate/test whose probe surprise failed the causality check (the
+#: report is written, without verdicts), unless ``--allow_non_causal true``.
+NOT_CAUSAL_EXIT = 3
 
 #: The subcommands beside Lightning's: name -> the function it calls, or a dict of its own
 #: subcommands (as jsonargparse's ``auto_cli`` takes them, ``_help`` being the summary).
@@ -69,8 +72,10 @@ class VOECLI(LightningCLI):
     ones given are used instead, and its report gets a folder of its own), and
     ``test``/``predict`` of a model with trainable parameters and no checkpoint. SIGTERM or
     SIGINT during ``fit`` saves a resumable last.ckpt and exits with 128 + the signal's
-    number (``interruption``). The subcommands of ``COMMANDS`` call their function instead,
-    with no model, data or trainer."""
+    number (``interruption``). A run whose probe surprise is not causal
+    (``causality.check_prefix``: it differs where a pair's videos are identical) exits with
+    ``NOT_CAUSAL_EXIT`` after its report, unless ``--allow_non_causal true``. The subcommands
+    of ``COMMANDS`` call their function instead, with no model, data or trainer."""
 
     def add_arguments_to_parser(self, parser: Any) -> None:
         """The run's one significance level, ``alpha`` (configs/base.yaml sets it), and its
@@ -82,6 +87,9 @@ class VOECLI(LightningCLI):
                             help="frames a video's surprise sums in the report: all (the "
                             "paper's) or {start: first_difference, frames: k}, reported beside "
                             "all frames; each callback with a surprise_window argument gets it")
+        parser.add_argument("--allow_non_causal", type=bool, default=False,
+                            help="exit 0 though the model's surprise is not causal (it differs "
+                            "where a probe pair's videos are identical); verdicts stay withheld")
 
     def _add_subcommands(self, parser: Any, **kwargs: Any) -> None:
         """Lightning's subcommands, then those of ``COMMANDS``, each listed with its summary."""
@@ -125,6 +133,32 @@ class VOECLI(LightningCLI):
 
     def before_test(self) -> None:
         self._refuse_untrained("test")
+
+    def after_fit(self) -> None:
+        self._exit_if_not_causal("fit")
+
+    def after_validate(self) -> None:
+        self._exit_if_not_causal("validate")
+
+    def after_test(self) -> None:
+        self._exit_if_not_causal("test")
+
+    def _exit_if_not_causal(self, subcommand: str) -> None:
+        """Say so in one line and exit with ``NOT_CAUSAL_EXIT`` where a callback's causality
+        check failed (the report and tables give no verdict), unless ``--allow_non_causal``."""
+        for callback in self.trainer.callbacks:
+            causality = getattr(callback, "causality", None)
+            if causality is None or causality.causal:
+                continue
+            where = getattr(callback, "report_dir", None)
+            if self.config[subcommand].get("allow_non_causal"):
+                print(f"{subcommand}: {causality.line()} (--allow_non_causal)", file=sys.stderr)
+                return
+            print(f"error: {subcommand}: {causality.line()}"
+                  + (f"; the report in {where} gives none" if where else "")
+                  + "; --allow_non_causal true exits 0 with the verdicts withheld",
+                  file=sys.stderr)
+            raise SystemExit(NOT_CAUSAL_EXIT)
 
     def before_predict(self) -> None:
         self._refuse_untrained("predict")

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from voe_lightning import specs
+from voe_lightning.causality import NOT_CAUSAL, Causality
 from voe_lightning.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
 from voe_lightning.statistics_format import format_number, format_p
 
@@ -51,14 +52,18 @@ def pair_groups(
 @dataclass(frozen=True)
 class Verdict:
     """Whether a concept shows VOE by the rule of docs/architecture.md §8: ``voe`` is True or
-    False, or None when the pairs needed to decide are missing; ``reason`` names what failed."""
+    False, or None when the pairs needed to decide are missing or the verdict is ``withheld``
+    (the model is not causal, ``voe_lightning.causality``); ``reason`` names what failed."""
 
     concept: str
     voe: bool | None
     rule: str
     reason: str
+    withheld: bool = False
 
     def text(self) -> str:
+        if self.withheld:
+            return "no verdict: " + self.reason
         if self.voe:
             return "VOE"
         return ("undecided: " if self.voe is None else "no VOE: ") + self.reason
@@ -78,13 +83,14 @@ def verdict_rule(p_values: Sequence[Any], alpha: float) -> Any:
 def concept_verdicts(
     results: Mapping[tuple[str, str], Mapping[str, Any]] | Sequence[Mapping[str, Any]],
     alpha: float = ALPHA,
+    causality: Causality | None = None,
 ) -> list[Verdict]:
     """Per concept, in the order first seen, ``verdict_rule`` over the tests it reads: for a
     concept with a counterbalanced pair, the pooled test and both variants; otherwise
     (unchangeableness' position/color/shape, a benchmark's own variants) every one of its
     probe variants. Generalization variants do not enter. ``results`` maps (concept, variant)
     to a dict with ``p_value`` and ``relative_surprise`` (None when untested), or is a list of
-    rows that carry both names."""
+    rows that carry both names. A ``causality`` check that failed withholds every verdict."""
     check_alpha(alpha)
     if not isinstance(results, Mapping):
         results = {(row["concept"], row["variant"]): row for row in results}
@@ -99,6 +105,9 @@ def concept_verdicts(
         else:
             rule = f"p < {alpha:g} in every variant ({', '.join(required)})"
             needed = required
+        if causality is not None and not causality.causal:
+            verdicts.append(Verdict(concept, None, rule, NOT_CAUSAL, withheld=True))
+            continue
         untested = [variant for variant in needed
                     if results.get((concept, variant), {}).get("p_value") is None]
         if untested:

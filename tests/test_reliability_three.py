@@ -1,0 +1,91 @@
+"""Issue 51: nothing silently wrong, round three. A model that reads frames after t gets no
+verdict and a non-zero exit; docs/reliability.md lists each case with its test."""
+
+import json
+
+import pytest
+import torch
+from rich.console import Console
+
+from test_cli import CONFIG, workdir  # noqa: F401 (fixtures)
+from voe_lightning.callbacks import voe_table
+from voe_lightning.causality import check_prefix
+from voe_lightning.cli import NOT_CAUSAL_EXIT, main
+
+CALLABLE = ["--model", "voe_lightning.model.CallableModel", "--model.init_args.function"]
+
+
+def reads_the_next_frame(frames: torch.Tensor) -> torch.Tensor:
+    """Frame t's surprise is frame t + 1's brightness: it reads the future."""
+    brightness = frames.float().mean(dim=(2, 3, 4))
+    return torch.cat([brightness[:, 1:], brightness[:, -1:]], dim=1)
+
+
+def brightness(frames: torch.Tensor) -> torch.Tensor:
+    """Frame t's surprise is its own brightness: causal."""
+    return frames.float().mean(dim=(2, 3, 4))
+
+
+# ----------------------------------------------------------------------------- 1: causality
+def test_a_model_that_reads_the_future_gets_no_verdict_and_a_non_zero_exit(workdir, capsys):
+    with pytest.raises(SystemExit) as raised:
+        main(["test", "--config", CONFIG, *CALLABLE, "test_reliability_three.reads_the_next_frame"])
+    assert raised.value.code == NOT_CAUSAL_EXIT
+    printed = capsys.readouterr()
+    assert "causality: the model is not causal" in printed.out  # summary.md as printed
+    assert "object_persistence: no verdict: the model reads frames after t" in printed.out
+    assert "VOE (rule" not in printed.out and "undecided" not in printed.out
+    errors = [text for text in printed.err.splitlines() if text.startswith("error: ")]
+    assert len(errors) == 1 and "Traceback" not in printed.err
+    assert "test: causality: the model is not causal" in errors[0]
+    assert "in 6 of 6 pairs" in errors[0] and ", first at frame " in errors[0]
+    assert "--allow_non_causal true" in errors[0]
+    [report] = workdir.rglob("voe_report")
+    summary = json.loads((report / "summary.json").read_text())
+    assert summary["causality"]["causal"] is False
+    assert [v["verdict"] for v in summary["verdicts"]] == [
+        "no verdict: the model reads frames after t"]
+    assert "no verdict: the model reads frames after t" in (report / "summary.md").read_text()
+    main(["test", "--config", CONFIG, *CALLABLE, "test_reliability_three.reads_the_next_frame",
+          "--allow_non_causal", "true"])  # exits 0, the verdict still withheld
+    assert "(--allow_non_causal)" in capsys.readouterr().err
+
+
+def test_a_causal_model_passes_the_check_and_keeps_its_verdict(workdir, capsys):
+    main(["test", "--config", CONFIG, *CALLABLE, "test_reliability_three.brightness"])
+    [report] = workdir.rglob("voe_report")
+    summary = json.loads((report / "summary.json").read_text())
+    assert summary["causality"] == {"causal": True, "pairs": 6, "non_causal_pairs": 0,
+                                    "largest_difference": 0.0, "first_frame": None}
+    assert "no verdict" not in summary["verdicts"][0]["verdict"]
+    assert "identical through manipulation_frame (where the two videos are) in all 6 pairs" in (
+        capsys.readouterr().out)
+
+
+def test_the_prefix_check_counts_pairs_and_ignores_float_noise_and_later_frames():
+    consistent = torch.tensor([[1.0, 2.0, 3.0, 4.0], [1.0, 2.0, 3.0, 4.0], [5.0, 5.0, 5.0, 5.0]])
+    inconsistent = consistent.clone()
+    inconsistent[0, 3] += 9.0  # after manipulation_frame 2: allowed
+    inconsistent[1] += torch.tensor([0.0, 1e-6, 0.5, 0.0])  # noise at 1, a difference at 2
+    inconsistent[2, 1] = 7.0  # frame 1 is shared only where the videos first differ at 2
+    found = check_prefix(consistent, inconsistent, torch.tensor([2, 2, 3]), torch.tensor([3, 3, 2]))
+    assert (found.pairs, found.non_causal, found.first_frame) == (3, 2, 1)
+    assert found.largest_difference == pytest.approx(2.0)
+    assert check_prefix(consistent, consistent, torch.tensor([3, 3, 3])).causal
+
+
+def test_validation_of_a_model_that_reads_the_future_warns_and_withholds_the_verdict(workdir,
+                                                                                      capsys):
+    with pytest.warns(UserWarning, match="causality: the model is not causal"):
+        with pytest.raises(SystemExit) as raised:
+            main(["validate", "--config", CONFIG, *CALLABLE,
+                  "test_reliability_three.reads_the_next_frame"])
+    assert raised.value.code == NOT_CAUSAL_EXIT
+    assert "error: validate: causality: the model is not causal" in capsys.readouterr().err
+    causality = check_prefix(torch.zeros(2, 3), torch.ones(2, 3), torch.tensor([1, 1]))
+    results = {("continuity", "standard"): {"relative_surprise": 2.0, "t": 9.0, "p_value": 1e-4,
+                                            "accuracy": 1.0, "n": 9}}
+    console = Console(width=200, record=True)
+    console.print(voe_table(results, "VOE", causality=causality))
+    text = " ".join(console.export_text().split())  # the caption wraps at the table's width
+    assert "no verdict: the model reads frames after t" in text and "in 2 of 2 pairs" in text
