@@ -1,17 +1,24 @@
 """Issue 51: nothing silently wrong, round three. A model that reads frames after t gets no
 verdict and a non-zero exit; docs/reliability.md lists each case with its test."""
 
+import errno
 import json
 
 import pytest
 import torch
 from rich.console import Console
 
+from test_reliability import _refused
 from test_cli import CONFIG, workdir  # noqa: F401 (fixtures)
+from voe_lightning import store_shards
 from voe_lightning.callbacks import voe_table
 from voe_lightning.causality import check_prefix
 from voe_lightning.cli import NOT_CAUSAL_EXIT, main
+from voe_lightning.external.metrics import read_answer_file, write_answer_file
 
+TINY_STORE = ["--num_frames", "6", "--height", "32", "--width", "32", "--train_examples", "1",
+              "--val_pairs", "2", "--test_pairs", "2", "--generalization_pairs", "0",
+              "--workers", "1", "--progress", "false"]
 CALLABLE = ["--model", "voe_lightning.model.CallableModel", "--model.init_args.function"]
 
 
@@ -89,3 +96,57 @@ def test_validation_of_a_model_that_reads_the_future_warns_and_withholds_the_ver
     console.print(voe_table(results, "VOE", causality=causality))
     text = " ".join(console.export_text().split())  # the caption wraps at the table's width
     assert "no verdict: the model reads frames after t" in text and "in 2 of 2 pairs" in text
+
+
+# ----------------------------------------------------------------------------- 2: written whole
+@pytest.fixture(scope="module")
+def tiny_store(tmp_path_factory):
+    """A generated store of object persistence and solidity, two pairs per probe split."""
+    root = tmp_path_factory.mktemp("store")
+    main(["generate", "--root", str(root), "--concepts", "[object_persistence, solidity]",
+          *TINY_STORE])
+    return root
+
+
+def _disk_full_after(monkeypatch, files: int) -> None:
+    """Every write to disk through ``store_shards`` after the first ``files`` files fails
+    with ENOSPC (a full disk)."""
+    written = []
+
+    def write(file, data):
+        if len(written) >= files:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        written.append(file.name)
+        file.write(data)
+
+    monkeypatch.setattr(store_shards, "_write_bytes", write)
+
+
+def _contents(folder):
+    return {path.name: path.read_bytes() for path in folder.iterdir()}
+
+
+def test_a_full_disk_during_audit_names_the_file_and_keeps_the_previous_audit(
+        tiny_store, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "audit"
+    audit = ["audit", "--root", str(tiny_store), "--out", str(out), "--progress", "false"]
+    main(audit)
+    before = _contents(out)
+    assert {"cues.md", "cues.csv", "cues.json"} <= set(before)
+    _disk_full_after(monkeypatch, 1)  # the second file of the audit finds the disk full
+    line = _refused(capsys, [*audit, "--alpha", "0.05"])
+    assert "No space left on device" in line and f"cannot write {out}" in line
+    assert _contents(out) == before  # every file the previous audit's, no temporary left
+
+
+def test_a_full_disk_keeps_the_previous_answer_file_whole(tmp_path, monkeypatch):
+    path = tmp_path / "answer.txt"
+    surprise = {f"O1/a/{movie}": float(movie) for movie in range(1, 5)}
+    write_answer_file(path, surprise)
+    before = path.read_bytes()
+    _disk_full_after(monkeypatch, 0)
+    with pytest.raises(OSError, match=f"cannot write {path}: No space left on device"):
+        write_answer_file(path, {movie: -value for movie, value in surprise.items()})
+    assert path.read_bytes() == before and _contents(tmp_path).keys() == {"answer.txt"}
+    assert len(read_answer_file(path)) == 4
+

@@ -33,6 +33,7 @@ from voe_lightning.report.results import (
     as_numpy,
 )
 from voe_lightning.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
+from voe_lightning.store_shards import write_whole
 from voe_lightning.statistics_format import CONSOLE, format_alpha, row_text
 from voe_lightning.streaming_statistics import PairedSurpriseStats, pooled_values
 from voe_lightning.verdicts import concept_verdicts, pair_groups
@@ -454,7 +455,8 @@ class VOEReportCallback(L.Callback):
 
     def _write_benchmark_metrics(self, trainer: L.Trainer, outputs: list[dict[str, Any]]) -> None:
         """External benchmarks (IntPhys, Physical Concepts, IntPhys 2) add their own published
-        metrics and files (``external.evaluation``, over the DataModule's ``external_pairs``)."""
+        metrics and files (``external.evaluation``, over the DataModule's ``external_pairs``),
+        written whole (``store_shards.write_whole``)."""
         pairs = probe_datamodule(trainer, type(self).__name__).external_pairs()
         if pairs is None:
             return
@@ -462,10 +464,10 @@ class VOEReportCallback(L.Callback):
                   for key in PROBE_OUTPUT_KEYS}
         metrics, files = evaluate(pairs, merged, alpha=self.alpha, bootstrap=self.bootstrap)
         path = self.report_dir / "benchmark_metrics.json"
-        path.write_text(json.dumps(metrics, indent=2, default=lambda v: v.item()) + "\n")
+        write_whole({path: json.dumps(metrics, indent=2, default=lambda v: v.item()) + "\n",
+                     **{self.report_dir / name: text for name, text in files.items()}})
         print(f"benchmark metrics written to {path}")
-        for name, text in files.items():
-            (self.report_dir / name).write_text(text)
+        for name in files:
             print(f"{name} written to {self.report_dir / name}")
 
     def _predictions(self, pl_module: L.LightningModule,

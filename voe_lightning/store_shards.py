@@ -14,7 +14,7 @@ import tempfile
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -75,7 +75,43 @@ def atomic_write(path: str | os.PathLike, chunks: Iterable[bytes]) -> int:
     rename); returns the bytes written. The file gets the mode ``open`` would give it (0666
     less the umask; ``mkstemp`` alone makes it 0600, unreadable to a lab's other users).
     OSErrors (no space, no permission) name ``path``."""
-    path = Path(path)
+    return write_whole({path: chunks})[Path(path)]
+
+
+def write_whole(files: Mapping[str | os.PathLike, Iterable[bytes] | bytes | str]
+                ) -> dict[Path, int]:
+    """Write several files as ``atomic_write`` does one, as a set: every file is staged (its
+    temporary file in its own folder, written and fsynced) before any replaces its old
+    version, so a write that fails (a full disk) leaves every previous file whole, and the
+    error names the file. Contents are bytes, text (UTF-8) or chunks of bytes; returns the
+    bytes written per file."""
+    staged: dict[Path, str] = {}
+    sizes: dict[Path, int] = {}
+    try:
+        for name, content in files.items():
+            path = Path(name)
+            chunks = ([content.encode()] if isinstance(content, str)
+                      else [content] if isinstance(content, bytes) else content)
+            staged[path], sizes[path] = _stage(path, chunks)
+        for path in list(staged):
+            try:
+                os.replace(staged[path], path)
+            except OSError as error:
+                raise OSError(error.errno, f"cannot write {path}: {error.strerror or error}",
+                              str(path)) from error
+            del staged[path]
+        return sizes
+    finally:
+        for temporary in staged.values():
+            try:
+                os.unlink(temporary)
+            except OSError:
+                pass
+
+
+def _stage(path: Path, chunks: Iterable[bytes]) -> tuple[str, int]:
+    """``chunks`` written and fsynced to a new temporary file beside ``path`` (with ``open``'s
+    mode): its name and size. OSErrors name ``path``; the temporary file is gone after one."""
     temporary = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -88,20 +124,17 @@ def atomic_write(path: str | os.PathLike, chunks: Iterable[bytes]) -> int:
                 size += len(chunk)
             file.flush()
             os.fsync(file.fileno())
-        os.replace(temporary, path)
-        temporary = None
-        return size
+        return temporary, size
     except OSError as error:
-        if isinstance(error, CorruptShardError):
-            raise
-        reason = error.strerror or str(error)
-        raise OSError(error.errno, f"cannot write {path}: {reason}", str(path)) from error
-    finally:
         if temporary is not None:
             try:
                 os.unlink(temporary)
             except OSError:
                 pass
+        if isinstance(error, CorruptShardError):
+            raise
+        reason = error.strerror or str(error)
+        raise OSError(error.errno, f"cannot write {path}: {reason}", str(path)) from error
 
 
 def write_shard(

@@ -56,6 +56,7 @@ import torch
 
 from voe_lightning.statistics import ALPHA, paired_test, ranked_auroc
 from voe_lightning.surprise_window import video_surprise
+from voe_lightning.store_shards import write_whole
 
 #: A movie path in an IntPhys answer file: <block>/<scene>/<movie 1-4>.
 ANSWER_PATH = re.compile(r"^(O[123])/([^/\s]+)/([1-4])$")
@@ -236,8 +237,7 @@ def write_answer_file(path: str | os.PathLike, surprise: Mapping[str, float]) ->
         scenes[f"{match[1]}/{match[2]}"].add(match[3])
     _check_complete(scenes, str(path))
     plausibility = plausibility_from_surprise([surprise[m] for m in movies])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("".join(f"{m} {p:.6f}\n" for m, p in zip(movies, plausibility)))
+    write_whole({path: "".join(f"{m} {p:.6f}\n" for m, p in zip(movies, plausibility))})
     return path
 
 
