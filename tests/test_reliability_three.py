@@ -3,6 +3,7 @@ verdict and a non-zero exit; docs/reliability.md lists each case with its test."
 
 import errno
 import json
+import shutil
 
 import pytest
 import torch
@@ -150,3 +151,19 @@ def test_a_full_disk_keeps_the_previous_answer_file_whole(tmp_path, monkeypatch)
     assert path.read_bytes() == before and _contents(tmp_path).keys() == {"answer.txt"}
     assert len(read_answer_file(path)) == 4
 
+
+# ----------------------------------------------------------------------------- 3: audit verifies
+@pytest.mark.parametrize("source, message", [
+    ("solidity/test", "its concept is 'solidity', expected 'object_persistence'"),
+    ("object_persistence/val", "its split is 'val', expected 'test'"),
+])
+def test_audit_refuses_a_shard_of_another_concept_or_split(tiny_store, tmp_path, capsys, source,
+                                                           message):
+    root = tmp_path / "store"
+    shutil.copytree(tiny_store, root)
+    shard = root / "object_persistence" / "test" / "shard-00000.voe"
+    shutil.copyfile(root / source / "shard-00000.voe", shard)
+    line = _refused(capsys, ["audit", "--root", str(root), "--concepts", "[object_persistence]",
+                             "--progress", "false"])
+    assert f"corrupt shard {shard}: does not belong here: {message}" in line
+    assert not (root / "cue_audit").exists()

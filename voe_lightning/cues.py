@@ -437,10 +437,11 @@ def audit_split(
     progress: bool = False,
 ) -> CueAudit:
     """Score every probe pair of ``split`` (val, test or generalization) of the store at
-    ``root`` for ``concepts`` (default: every concept the store holds)."""
+    ``root`` for ``concepts`` (default: every concept the store holds), each shard checked
+    against the manifest first (``store_plan.check_split``: a foreign one is refused)."""
     from torch.utils.data import ConcatDataset
 
-    from voe_lightning import store
+    from voe_lightning import store, store_plan
 
     if store.SPLIT_RECORD_TYPE.get(split) != "probe":
         probe_splits = [s for s, kind in store.SPLIT_RECORD_TYPE.items() if kind == "probe"]
@@ -451,6 +452,7 @@ def audit_split(
         raise FileNotFoundError(f"no dataset at {root} (create one with `python -m voe_lightning "
                                 f"generate --root {root}`)")
     concepts = list(dict.fromkeys(concepts or manifest["concepts"]))
+    store_plan.check_split(root, manifest, concepts, split)
     parts = [store.open_split(root, concept, split) for concept in concepts]
     dataset = ConcatDataset([part for part in parts if len(part)])
     if not len(dataset):

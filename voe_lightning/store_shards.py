@@ -255,14 +255,16 @@ def check_shard(
     fd = _open(path)
     try:
         index = _read_index(fd, path)
-        if expected_seeds is not None and index.seeds != [int(s) for s in expected_seeds]:
-            raise CorruptShardError(
-                path, f"holds {len(index)} records with other seeds than the {len(expected_seeds)} planned"
-            )
+        # What the shard is (concept, split, version) first: a shard copied from elsewhere is
+        # named by that, not by its seeds.
         for key, value in (expected_meta or {}).items():
             if index.meta.get(key) != value:
                 stored = repr(index.meta[key]) if key in index.meta else "missing"
                 raise CorruptShardError(path, f"does not belong here: its {key} is {stored}, expected {value!r}")
+        if expected_seeds is not None and index.seeds != [int(s) for s in expected_seeds]:
+            raise CorruptShardError(
+                path, f"holds {len(index)} records with other seeds than the {len(expected_seeds)} planned"
+            )
         if expected_layout is not None and index.layout != expected_layout:
             stored, expected = index.layout, expected_layout
             first = sorted(k for k in set(stored) | set(expected) if stored.get(k) != expected.get(k))[0]
