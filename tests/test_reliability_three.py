@@ -5,17 +5,29 @@ import errno
 import json
 import shutil
 
+import lightning as L
 import pytest
 import torch
+import yaml
 from rich.console import Console
 
 from test_reliability import _refused
-from test_cli import CONFIG, workdir  # noqa: F401 (fixtures)
+from test_analysis import _curve_runs
+from test_intphys2 import root  # noqa: F401 (a fixture)
+from test_cli import CONFIG, copy_of, trained, workdir  # noqa: F401 (fixtures)
 from voe_lightning import store_shards
 from voe_lightning.callbacks import voe_table
 from voe_lightning.causality import check_prefix
 from voe_lightning.cli import NOT_CAUSAL_EXIT, main
-from voe_lightning.external.metrics import read_answer_file, write_answer_file
+from voe_lightning.external.base import BenchmarkDataError
+from voe_lightning.external.intphys2 import read_metadata
+from voe_lightning.external.metrics import (
+    plausibility_from_surprise,
+    read_answer_file,
+    relative_error_rate,
+    score_answers,
+    write_answer_file,
+)
 
 TINY_STORE = ["--num_frames", "6", "--height", "32", "--width", "32", "--train_examples", "1",
               "--val_pairs", "2", "--test_pairs", "2", "--generalization_pairs", "0",
@@ -167,3 +179,36 @@ def test_audit_refuses_a_shard_of_another_concept_or_split(tiny_store, tmp_path,
                              "--progress", "false"])
     assert f"corrupt shard {shard}: does not belong here: {message}" in line
     assert not (root / "cue_audit").exists()
+
+
+# ----------------------------------------------------------------------------- 4: a run's record
+@pytest.mark.parametrize("argument, value, message", [
+    ("concept", "continuity", "the run trained with 'object_persistence', given 'continuity'"),
+    ("batch_size", "1", "the run trained with 2, given 1"),
+])
+def test_a_resumed_fit_on_other_data_is_refused_and_the_record_kept(workdir, trained, capsys,
+                                                                     argument, value, message):
+    run = copy_of(trained, workdir)
+    record = (run / "config.yaml").read_bytes()
+    resume = ["fit", "--config", CONFIG, "--trainer.logger.init_args.name", "trained",
+              "--ckpt_path", "last", "--trainer.max_steps", "2"]
+    line = _refused(capsys, [*resume, f"--data.init_args.{argument}", value])
+    assert f"resumes the run {run.relative_to(workdir)}, which trained on other data" in line
+    assert f"data.init_args.{argument}: {message}" in line
+    assert not (workdir / "data").exists()  # refused before any work
+    main(resume)  # on the run's own data: resumed, its config saved beside the record
+    assert (run / "config.yaml").read_bytes() == record
+    resumed = yaml.safe_load((run / "config_resumed_step1.yaml").read_text())
+    assert resumed["trainer"]["max_steps"] == 2
+
+
+def test_nothing_is_written_through_a_link_out_of_the_run_folder(workdir, trained, capsys):
+    run = copy_of(trained, workdir)
+    elsewhere = workdir / "elsewhere.txt"
+    elsewhere.write_text("someone else's file\n")
+    (run / "test_config.yaml").symlink_to(elsewhere)
+    line = _refused(capsys, ["test", "--config", CONFIG,
+                             "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
+    assert f"{run / 'test_config.yaml'} is a symbolic link to {elsewhere}, outside the run" in line
+    assert elsewhere.read_text() == "someone else's file\n"
+

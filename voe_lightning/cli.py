@@ -185,6 +185,8 @@ class VOECLI(LightningCLI):
         #: The evaluation-only model arguments given otherwise than the checkpoint's, name ->
         #: value: the model is built with them (``before_instantiate_classes``).
         self.evaluation_arguments: dict[str, Any] = {}
+        #: The global step of the checkpoint --ckpt_path names (None: none named).
+        self.checkpoint_step: int | None = None
         super().parse_arguments(parser, args)
         subcommand = self.config.get("subcommand")
         if subcommand not in LIGHTNING_SUBCOMMANDS:
@@ -195,6 +197,7 @@ class VOECLI(LightningCLI):
             return
         ckpt_path = config["ckpt_path"] = str(self._checkpoint(config, word))
         checkpoint = read_checkpoint(ckpt_path)
+        self.checkpoint_step = checkpoint.get("global_step")
         if word in runs.RUN_CHECKPOINT_WORDS:
             print(f"--ckpt_path {word}: {ckpt_path} (step {checkpoint.get('global_step')})")
         trained = checkpoint.get("hyper_parameters") or {}
@@ -283,6 +286,8 @@ class VOECLI(LightningCLI):
             return
         run_dir = checkpoint.parent.parent
         version = run_dir.name
+        if self.subcommand == "fit":
+            self._keep_record(config, checkpoint, run_dir)
         if self.subcommand == "fit" and init_args.get("name") not in (None, run_dir.parent.name):
             rank_zero_warn(
                 f"fit --ckpt_path resumes in the checkpoint's run {run_dir}, so its curves and "
@@ -299,6 +304,22 @@ class VOECLI(LightningCLI):
         init_args["save_dir"] = str(run_dir.parent.parent)
         init_args["name"] = run_dir.parent.name
         init_args["version"] = version
+
+
+    def _keep_record(self, config: Any, checkpoint: Path, run_dir: Path) -> None:
+        """A resumed ``fit`` trains on the data of the run's record (its saved config.yaml; a
+        difference is refused naming both values; the model's arguments are compared with the
+        checkpoint's in ``parse_arguments``) and saves its own config beside it, never over it
+        (``config_resumed_step<N>.yaml``)."""
+        given = yaml.safe_load(self._parser("fit").dump(config, skip_none=False))
+        differences = runs.record_differences(run_dir / runs.RUN_CONFIG, given)
+        if differences:
+            raise ValueError(
+                f"fit --ckpt_path {checkpoint} resumes the run {run_dir}, which trained on other "
+                f"data than given: {'; '.join(differences)}. Resume with the "
+                "run's values, or fit without --ckpt_path to start a new run")
+        name = runs.fresh_config_name(run_dir, f"config_resumed_step{self.checkpoint_step}")
+        self.save_config_kwargs = {**self.save_config_kwargs, "config_filename": name}
 
 
 def _refuse_retired_arguments(ckpt_path: str, trained: dict) -> None:
@@ -537,6 +558,7 @@ def _cli(args: list[str] | None) -> VOECLI:
         subclass_mode_model=True,
         subclass_mode_data=True,
         seed_everything_default=0,
+        save_config_callback=runs.RunConfig,
         save_config_kwargs={"overwrite": True},
         parser_kwargs={"prog": "python -m voe_lightning",
                        "description": "Probe video models' intuitive physics by violation of "
