@@ -212,3 +212,125 @@ def test_nothing_is_written_through_a_link_out_of_the_run_folder(workdir, traine
     assert f"{run / 'test_config.yaml'} is a symbolic link to {elsewhere}, outside the run" in line
     assert elsewhere.read_text() == "someone else's file\n"
 
+
+# ----------------------------------------------------------------------------- 5: bounded inputs
+def test_the_official_score_of_a_written_answer_file_is_the_reports(tmp_path):
+    """Surprise sums that tie exactly (0 + 4 = 2 + 2, 0 + 6 = 3 + 3) are ties of plausibility
+    sums in memory; six decimals (1 + 0.333333 < 0.666667 + 0.666667) made them errors."""
+    surprise = {"O1/a/1": 0.0, "O1/a/2": 4.0, "O1/a/3": 2.0, "O1/a/4": 2.0,
+                "O1/b/1": 0.0, "O1/b/2": 6.0, "O1/b/3": 3.0, "O1/b/4": 3.0}
+    labels = {movie: movie.endswith(("/1", "/2")) for movie in surprise}
+    possible = [[surprise[f"O1/{s}/{m}"] for m in (1, 2)] for s in "ab"]
+    impossible = [[surprise[f"O1/{s}/{m}"] for m in (3, 4)] for s in "ab"]
+    path = write_answer_file(tmp_path / "answer.txt", surprise)
+    official = score_answers(read_answer_file(path), labels)["O1"]["all"]
+    assert official["relative_error_rate"] == relative_error_rate(possible, impossible) == 0.0
+    assert official["relative_error_rate_ties_half"] == relative_error_rate(
+        possible, impossible, tie_weight=0.5) == 0.5
+    assert read_answer_file(path) == {movie: float(value) for movie, value in zip(
+        sorted(surprise), plausibility_from_surprise([surprise[m] for m in sorted(surprise)]))}
+
+
+def test_an_out_path_is_the_path_written(tmp_path, capsys):
+    runs = _curve_runs(tmp_path)
+    out = tmp_path / "figure"  # no suffix: matplotlib alone would write figure.png
+    main(["analyze", "curves", "--runs", json.dumps([f"{label}={path}" for label, path in runs]),
+          "--out", str(out)])
+    assert f"wrote {out}\n" in capsys.readouterr().out
+    assert out.read_bytes().startswith(b"\x89PNG") and not out.with_suffix(".png").exists()
+    line = _refused(capsys, ["analyze", "curves", "--runs", json.dumps([str(runs[0][1])]),
+                             "--out", str(tmp_path / "figure.docx")])
+    assert f"cannot write a figure as {tmp_path / 'figure.docx'}: '.docx' is no image" in line
+
+
+def test_a_yaml_alias_bomb_is_refused_in_one_line(workdir, capsys):
+    levels = ["a0: &a0 [x, x, x, x, x, x, x, x, x, x]"]
+    levels += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]" for i in range(1, 9)]
+    (workdir / "bomb.yaml").write_text("\n".join(levels) + "\n")  # 10^9 values, 500 bytes
+    line = _refused(capsys, ["fit", "--config", "bomb.yaml"])
+    assert "--config bomb.yaml expands to more than 100,000 values through its YAML aliases" in line
+    assert len(line) < 400
+
+
+def test_an_error_in_a_dataloader_worker_is_the_same_one_line(tiny_store, tmp_path, capsys):
+    """A record whose checksum fails, read by a worker process: the line the main process
+    prints (torch re-raises a CorruptShardError, which takes two arguments, as a RuntimeError
+    holding the worker's traceback)."""
+    root = tmp_path / "store"
+    shutil.copytree(tiny_store, root)
+    shard = root / "object_persistence" / "test" / "shard-00000.voe"
+    data = bytearray(shard.read_bytes())
+    data[40] ^= 0xFF  # inside the first record: the index is intact
+    shard.write_bytes(bytes(data))
+    audit = ["audit", "--root", str(root), "--concepts", "[object_persistence]",
+             "--progress", "false"]
+    lines = [_refused(capsys, [*audit, "--num_workers", workers]) for workers in ("0", "1")]
+    assert lines[0] == lines[1] == f"error: corrupt shard {shard}: record 0 checksum mismatch " \
+        "(rerun generate with this store's settings, or the fit/test using it, whose " \
+        "prepare_data regenerates bad shards)"
+
+
+# ----------------------------------------------------------------------------- 6: weak cases
+def test_intphys2_metadata_with_a_byte_order_mark_reads_and_a_latin1_byte_is_named(root,
+                                                                                   tmp_path):
+    folder = shutil.copytree(root, tmp_path / "intphys2")
+    metadata = folder / "Main" / "metadata.csv"
+    text = metadata.read_text()
+    metadata.write_bytes(b"\xef\xbb\xbf" + text.encode())  # as a spreadsheet saves it
+    labels = [(video.name, video.scene, video.condition, video.is_possible)
+              for video in read_metadata(root, "Main")]
+    assert [(video.name, video.scene, video.condition, video.is_possible)
+            for video in read_metadata(folder, "Main")] == labels
+    metadata.write_bytes(text.replace("\n", "\ncaf\xe9,", 1).encode("latin-1"))
+    with pytest.raises(BenchmarkDataError, match=f"{metadata} is not UTF-8 text"):
+        read_metadata(folder, "Main")
+
+
+class PoisonWeights(L.Callback):
+    """Makes the model's weights NaN before training step ``step``, as a diverged run."""
+
+    def __init__(self, step: int = 1):
+        self.step = step
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx):
+        if trainer.global_step == self.step:
+            with torch.no_grad():
+                for parameter in pl_module.parameters():
+                    parameter.fill_(float("nan"))
+
+
+def test_a_non_finite_loss_is_one_line(workdir, capsys):
+    (workdir / "poison.yaml").write_text(yaml.safe_dump({"trainer": {"callbacks+": [
+        {"class_path": "test_reliability_three.PoisonWeights"}]}}))
+    line = _refused(capsys, ["fit", "--config", CONFIG, "--config", "poison.yaml"])
+    assert "non-finite loss at global step 1" in line
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--config", "configs_folder"], "--config configs_folder is a directory, not a YAML file"),
+    (["--model", "nonexistent_pkg.Model"], "--model nonexistent_pkg.Model cannot be imported "
+                                           "(No module named 'nonexistent_pkg')"),
+    (["--data", "datamodules.NoSuchDataModule"], "--data datamodules.NoSuchDataModule cannot be "
+                                                 "imported"),
+])
+def test_a_config_folder_or_a_class_that_cannot_be_imported_is_one_line(workdir, capsys,
+                                                                        arguments, message):
+    (workdir / "configs_folder").mkdir()
+    line = _refused(capsys, ["fit", "--config", CONFIG, *arguments])
+    assert message in line and len(line) < 300
+
+
+@pytest.mark.parametrize("function", ["returns_none", "returns_a_ragged_list"])
+def test_a_callable_returning_no_array_is_one_line(workdir, capsys, function):
+    line = _refused(capsys, ["test", "--config", CONFIG, *CALLABLE,
+                             f"test_reliability_three.{function}"])
+    assert f"test_reliability_three.{function} returned a" in line
+    assert "that is no array of numbers" in line and "expected surprise [B, T] = [" in line
+
+
+def returns_none(frames):
+    return None
+
+
+def returns_a_ragged_list(frames):
+    return [[0.0] * (index + 1) for index in range(frames.shape[0])]
