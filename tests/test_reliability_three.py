@@ -334,3 +334,17 @@ def returns_none(frames):
 
 def returns_a_ragged_list(frames):
     return [[0.0] * (index + 1) for index in range(frames.shape[0])]
+
+
+def test_audit_of_an_empty_split_or_a_manifest_edited_by_hand_is_one_line(tiny_store, tmp_path,
+                                                                          capsys):
+    audit = ["audit", "--root", str(tiny_store), "--progress", "false"]
+    line = _refused(capsys, [*audit, "--split", "generalization"])
+    assert "the generalization split of" in line and "holds no probe pairs" in line
+    root = shutil.copytree(tiny_store, tmp_path / "store")
+    manifest = json.loads((root / "manifest.json").read_text())
+    del manifest["video"]["num_frames"]  # a default of 15 would blame the intact shards
+    (root / "manifest.json").write_text(json.dumps(manifest))
+    line = _refused(capsys, ["audit", "--root", str(root), "--progress", "false"])
+    assert f"{root / 'manifest.json'}: the manifest describes no valid plan (KeyError: " \
+        "'video.num_frames')" in line

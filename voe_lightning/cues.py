@@ -453,10 +453,11 @@ def audit_split(
                                 f"generate --root {root}`)")
     concepts = list(dict.fromkeys(concepts or manifest["concepts"]))
     store_plan.check_split(root, manifest, concepts, split)
-    parts = [store.open_split(root, concept, split) for concept in concepts]
-    dataset = ConcatDataset([part for part in parts if len(part)])
-    if not len(dataset):
+    parts = [part for part in (store.open_split(root, concept, split) for concept in concepts)
+             if len(part)]
+    if not parts:
         raise ValueError(f"the {split} split of {root} holds no probe pairs for "
-                         f"{', '.join(concepts)}")
+                         f"{', '.join(concepts)}; audit another split, or generate this one")
+    dataset = ConcatDataset(parts)
     loader = store.record_loader(dataset, batch_size, num_workers)
     return audit_records(loader, batch_size=0, progress=progress, total=len(loader))

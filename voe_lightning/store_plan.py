@@ -7,7 +7,7 @@ neither imports the other's planner."""
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Sequence
 
@@ -139,6 +139,10 @@ def check_task(root: Path, task: ShardTask, layouts: dict[str, dict], full: bool
 def manifest_plan(manifest: dict) -> tuple[list[ShardTask], VideoOptions]:
     """The shard plan and video options a manifest describes."""
     try:
+        # Every setting stated: a default filled in would blame intact shards of another size.
+        missing = [field.name for field in fields(VideoOptions) if field.name not in manifest["video"]]
+        if missing:
+            raise KeyError(f"video.{missing[0]}")
         video = VideoOptions(**manifest["video"])
         concept_counts = {}
         for concept, entry in manifest["concepts"].items():
