@@ -3,7 +3,10 @@ verdict and a non-zero exit; docs/reliability.md lists each case with its test."
 
 import errno
 import json
+import os
 import shutil
+import socket
+import subprocess
 
 import lightning as L
 import pytest
@@ -11,10 +14,10 @@ import torch
 import yaml
 from rich.console import Console
 
-from test_reliability import _refused
 from test_analysis import _curve_runs
-from test_intphys2 import root  # noqa: F401 (a fixture)
 from test_cli import CONFIG, copy_of, trained, workdir  # noqa: F401 (fixtures)
+from test_intphys2 import root  # noqa: F401 (a fixture)
+from test_reliability import _refused, _results
 from voe_lightning import store_shards
 from voe_lightning.callbacks import voe_table
 from voe_lightning.causality import check_prefix
@@ -28,6 +31,7 @@ from voe_lightning.external.metrics import (
     score_answers,
     write_answer_file,
 )
+from voe_lightning.report import write_report
 
 TINY_STORE = ["--num_frames", "6", "--height", "32", "--width", "32", "--train_examples", "1",
               "--val_pairs", "2", "--test_pairs", "2", "--generalization_pairs", "0",
@@ -348,3 +352,17 @@ def test_audit_of_an_empty_split_or_a_manifest_edited_by_hand_is_one_line(tiny_s
     line = _refused(capsys, ["audit", "--root", str(root), "--progress", "false"])
     assert f"{root / 'manifest.json'}: the manifest describes no valid plan (KeyError: " \
         "'video.num_frames')" in line
+
+
+def test_a_report_staging_folder_left_by_a_killed_process_is_removed_on_the_next_write(tmp_path):
+    ended = subprocess.Popen(["true"])
+    ended.wait()  # its id no longer runs
+    host = socket.gethostname()
+    stale = tmp_path / f".voe_report.{host}.{ended.pid}.x1"
+    running = tmp_path / f".voe_report.{host}.{os.getpid()}.x2"  # a report being written now
+    other_host = tmp_path / f".voe_report.elsewhere-{host}.1.x3"
+    for folder in (stale, running, other_host):
+        folder.mkdir()
+        (folder / "summary.json").write_text("{}")
+    write_report(_results(), tmp_path, bootstrap=10, echo=False)
+    assert not stale.exists() and running.exists() and other_host.exists()
