@@ -2,10 +2,12 @@
 verdict and a non-zero exit; docs/reliability.md lists each case with its test."""
 
 import errno
+import gzip
 import json
 import os
 import shutil
 import socket
+import struct
 import subprocess
 
 import lightning as L
@@ -13,6 +15,7 @@ import pytest
 import torch
 import yaml
 from rich.console import Console
+from tfrecord.writer import TFRecordWriter
 
 from test_analysis import _curve_runs
 from test_cli import CONFIG, copy_of, trained, workdir  # noqa: F401 (fixtures)
@@ -24,6 +27,7 @@ from voe_lightning.causality import check_prefix
 from voe_lightning.cli import NOT_CAUSAL_EXIT, main
 from voe_lightning.external.base import BenchmarkDataError
 from voe_lightning.external.intphys2 import read_metadata
+from voe_lightning.external.physical_concepts import read_records
 from voe_lightning.external.metrics import (
     plausibility_from_surprise,
     read_answer_file,
@@ -113,6 +117,20 @@ def test_validation_of_a_model_that_reads_the_future_warns_and_withholds_the_ver
     console.print(voe_table(results, "VOE", causality=causality))
     text = " ".join(console.export_text().split())  # the caption wraps at the table's width
     assert "no verdict: the model reads frames after t" in text and "in 2 of 2 pairs" in text
+
+
+def test_check_causality_runs_a_users_model_through_the_protocol(capsys):
+    check = ["check-causality", "--concepts", "[object_persistence]", "--seeds", "1",
+             "--num_frames", "6", *CALLABLE]
+    assert main([*check, "test_reliability_three.brightness"]) is True
+    printed = capsys.readouterr().out
+    assert ("object_persistence, pairs through the manipulation frame: causal (surprise "
+            "identical in all 2 pairs)") in printed
+    assert "object_persistence, videos cut after each frame t: causal" in printed
+    line = _refused(capsys, [*check, "test_reliability_three.reads_the_next_frame"])
+    assert ("CallableModel is not causal: its surprise at frame t reads later frames in "
+            "object_persistence (pairs through the manipulation frame), object_persistence "
+            "(videos cut after each frame t)") in line
 
 
 # ----------------------------------------------------------------------------- 2: written whole
@@ -366,3 +384,15 @@ def test_a_report_staging_folder_left_by_a_killed_process_is_removed_on_the_next
         (folder / "summary.json").write_text("{}")
     write_report(_results(), tmp_path, bootstrap=10, echo=False)
     assert not stale.exists() and running.exists() and other_host.exists()
+
+
+def test_a_physical_concepts_record_with_a_huge_length_field_is_named(tmp_path):
+    """A length field whose own checksum holds (so the framing looks intact) asking for 2^60
+    bytes: named, not a MemoryError."""
+    length = struct.pack("<Q", 1 << 60)
+    path = tmp_path / "data.tfrecord-00000-of-00001"
+    with gzip.open(path, "wb") as stream:
+        stream.write(length + TFRecordWriter.masked_crc(length) + b"\0" * 16)
+    with pytest.raises(BenchmarkDataError, match=rf"{path}: record 0: length field "
+                                                 r"1,152,921,504,606,846,976 bytes, more than"):
+        list(read_records(path))

@@ -21,7 +21,7 @@ from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
 
-from voe_lightning import analysis, cue_report, generate, preflight, runs, statistics
+from voe_lightning import analysis, causality, cue_report, generate, preflight, runs, statistics
 from voe_lightning.interruption import InterruptCheckpoint
 from voe_lightning.model import SurpriseModel
 from voe_lightning.probe_datamodule import ProbeDataModule
@@ -54,6 +54,7 @@ NOT_CAUSAL_EXIT = 3
 COMMANDS: dict[str, Any] = {
     "generate": generate.generate,
     "audit": cue_report.audit,
+    "check-causality": causality.check_causality,
     "analyze": analysis.COMMANDS,
 }
 
@@ -498,7 +499,17 @@ def _call(command: Any, arguments: Namespace) -> Any:
         name = arguments.pop("subcommand")
         return _call(command[name], arguments[name])
     entry_point = {"_cli_main": main} if "_cli_main" in inspect.signature(command).parameters else {}
-    return command(**arguments, **entry_point)
+    return command(**{name: _built(value) for name, value in vars(arguments).items()},
+                   **entry_point)
+
+
+def _built(value: Any) -> Any:
+    """A parsed ``class_path``/``init_args`` value (``check-causality --model``) as the object
+    it describes; any other value as it is."""
+    if not (isinstance(value, Namespace) and "class_path" in value):
+        return value
+    init_args = value.get("init_args")
+    return _import(value["class_path"])(**(init_args.as_dict() if init_args else {}))
 
 
 def main(args: list[str] | None = None) -> Any:
