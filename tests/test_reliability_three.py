@@ -396,3 +396,15 @@ def test_a_physical_concepts_record_with_a_huge_length_field_is_named(tmp_path):
     with pytest.raises(BenchmarkDataError, match=rf"{path}: record 0: length field "
                                                  r"1,152,921,504,606,846,976 bytes, more than"):
         list(read_records(path))
+
+
+def test_generate_repairs_an_empty_folder_in_place_of_a_shard(tiny_store, tmp_path):
+    root = shutil.copytree(tiny_store, tmp_path / "store")
+    shard = root / "solidity" / "val" / "shard-00000.voe"
+    intact = shard.read_bytes()
+    shard.unlink()
+    shard.mkdir()
+    with pytest.warns(UserWarning, match=f"{shard}: a folder, not a shard file"):
+        main(["generate", "--root", str(root), "--concepts", "[object_persistence, solidity]",
+              *TINY_STORE])
+    assert shard.read_bytes() == intact

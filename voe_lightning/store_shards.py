@@ -83,8 +83,9 @@ def write_whole(files: Mapping[str | os.PathLike, Iterable[bytes] | bytes | str]
     """Write several files as ``atomic_write`` does one, as a set: every file is staged (its
     temporary file in its own folder, written and fsynced) before any replaces its old
     version, so a write that fails (a full disk) leaves every previous file whole, and the
-    error names the file. Contents are bytes, text (UTF-8) or chunks of bytes; returns the
-    bytes written per file."""
+    error names the file. An empty folder where a file belongs is replaced too (a non-empty
+    one is named). Contents are bytes, text (UTF-8) or chunks of bytes; returns the bytes
+    written per file."""
     staged: dict[Path, str] = {}
     sizes: dict[Path, int] = {}
     try:
@@ -95,6 +96,8 @@ def write_whole(files: Mapping[str | os.PathLike, Iterable[bytes] | bytes | str]
             staged[path], sizes[path] = _stage(path, chunks)
         for path in list(staged):
             try:
+                if path.is_dir() and not path.is_symlink() and not any(path.iterdir()):
+                    path.rmdir()
                 os.replace(staged[path], path)
             except OSError as error:
                 raise OSError(error.errno, f"cannot write {path}: {error.strerror or error}",
@@ -223,6 +226,8 @@ def _read_index(fd: int, path: Path) -> ShardIndex:
 
 
 def _open(path: Path) -> int:
+    if path.is_dir():
+        raise CorruptShardError(path, "a folder, not a shard file")
     try:
         return os.open(path, os.O_RDONLY)
     except FileNotFoundError as error:
