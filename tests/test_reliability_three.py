@@ -224,6 +224,19 @@ def test_a_resumed_fit_on_other_data_is_refused_and_the_record_kept(workdir, tra
     assert resumed["trainer"]["max_steps"] == 2
 
 
+def test_a_branch_continues_on_other_data_in_a_new_version(workdir, trained, capsys):
+    run = copy_of(trained, workdir)
+    record = (run / "config.yaml").read_bytes()
+    cli = main(["fit", "--config", CONFIG, "--trainer.logger.init_args.name", "trained",
+                "--ckpt_path", "last", "--trainer.max_steps", "2", "--branch", "true",
+                "--data.init_args.concept", "continuity"])
+    assert cli.trainer.global_step == 2
+    branch = run.parent / "version_1"
+    assert "fit --branch: continues from" in capsys.readouterr().out
+    branched = yaml.safe_load((branch / "config.yaml").read_text())
+    assert branched["data"]["init_args"]["concept"] == "continuity"
+    assert (run / "config.yaml").read_bytes() == record
+    assert (branch / "checkpoints" / "last.ckpt").is_file()
 def test_nothing_is_written_through_a_link_out_of_the_run_folder(workdir, trained, capsys):
     run = copy_of(trained, workdir)
     elsewhere = workdir / "elsewhere.txt"

@@ -82,8 +82,9 @@ class VOECLI(LightningCLI):
     of ``COMMANDS`` call their function instead, with no model, data or trainer."""
 
     def add_arguments_to_parser(self, parser: Any) -> None:
-        """The run's one significance level, ``alpha`` (configs/base.yaml sets it), and its
-        ``surprise_window``."""
+        """The run's one significance level, ``alpha`` (configs/base.yaml sets it), its
+        ``surprise_window``, ``branch`` (a resumed fit in a new version) and
+        ``allow_non_causal``."""
         parser.add_argument("--alpha", type=float, default=statistics.ALPHA,
                             help="significance level of every test, verdict and table of the "
                             "run; each callback with an alpha argument gets it")
@@ -91,6 +92,9 @@ class VOECLI(LightningCLI):
                             help="frames a video's surprise sums in the report: all (the "
                             "paper's) or {start: first_difference, frames: k}, reported beside "
                             "all frames; each callback with a surprise_window argument gets it")
+        parser.add_argument("--branch", type=bool, default=False,
+                            help="fit --ckpt_path: continue from the checkpoint in a new version "
+                            "of its run's logger name (other data allowed), keeping the run")
         parser.add_argument("--allow_non_causal", type=bool, default=False,
                             help="exit 0 though the model's surprise is not causal (it differs "
                             "where a probe pair's videos are identical); verdicts stay withheld")
@@ -290,7 +294,11 @@ class VOECLI(LightningCLI):
             return
         run_dir = checkpoint.parent.parent
         version = run_dir.name
-        if self.subcommand == "fit":
+        if self.subcommand == "fit" and config.get("branch"):
+            print(f"fit --branch: continues from {checkpoint} in a new version of "
+                  f"{run_dir.parent} (the run {run_dir} and its record are kept as they are)")
+            version = None  # the logger's next version
+        elif self.subcommand == "fit":
             self._keep_record(config, checkpoint, run_dir)
         if self.subcommand == "fit" and init_args.get("name") not in (None, run_dir.parent.name):
             rank_zero_warn(
@@ -309,7 +317,6 @@ class VOECLI(LightningCLI):
         init_args["name"] = run_dir.parent.name
         init_args["version"] = version
 
-
     def _keep_record(self, config: Any, checkpoint: Path, run_dir: Path) -> None:
         """A resumed ``fit`` trains on the data of the run's record (its saved config.yaml; a
         difference is refused naming both values; the model's arguments are compared with the
@@ -320,8 +327,8 @@ class VOECLI(LightningCLI):
         if differences:
             raise ValueError(
                 f"fit --ckpt_path {checkpoint} resumes the run {run_dir}, which trained on other "
-                f"data than given: {'; '.join(differences)}. Resume with the "
-                "run's values, or fit without --ckpt_path to start a new run")
+                f"data than given: {'; '.join(differences)}. Resume with the run's values, "
+                "or add --branch true to continue from it in a new version")
         name = runs.fresh_config_name(run_dir, f"config_resumed_step{self.checkpoint_step}")
         self.save_config_kwargs = {**self.save_config_kwargs, "config_filename": name}
 
