@@ -73,6 +73,7 @@ class Causality:
 
 
 def _numpy(values: Any) -> np.ndarray:
+    """A tensor or array-like as float64 numpy (on the CPU)."""
     if isinstance(values, torch.Tensor):
         values = values.detach().cpu().double().numpy()
     return np.asarray(values, dtype=np.float64)
@@ -132,8 +133,8 @@ def _through(value: Any, t: int) -> Any:
     return value[:, : t + 1]
 
 
-def check_causality(model: SurpriseModel, concepts: list[specs.Concept] | None = None, seeds: int = 2,
-                    size: int = 32, num_frames: int = 15) -> bool:
+def check_causality(model: SurpriseModel, concepts: list[specs.Concept] | None = None,
+                    seeds: int = 2, size: int = 32, num_frames: int = 15) -> bool:
     """Run a model through the causality protocol on generated probe pairs.
 
     Surprise at frame t may read frames up to t only: per concept, each pair's per-frame

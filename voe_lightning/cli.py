@@ -163,7 +163,7 @@ class VOECLI(LightningCLI):
                 print(f"{subcommand}: {causality.line()} (--allow_non_causal)", file=sys.stderr)
                 return
             print(f"error: {subcommand}: {causality.line()}"
-                  + (f"; the report in {where} gives none" if where else "")
+                  + (f" (report: {where})" if where else "")
                   + "; --allow_non_causal true exits 0 with the verdicts withheld",
                   file=sys.stderr)
             raise SystemExit(NOT_CAUSAL_EXIT)
@@ -300,7 +300,8 @@ class VOECLI(LightningCLI):
             version = None  # the logger's next version
         elif self.subcommand == "fit":
             self._keep_record(config, checkpoint, run_dir)
-        if self.subcommand == "fit" and init_args.get("name") not in (None, run_dir.parent.name):
+        if (self.subcommand == "fit" and not config.get("branch")
+                and init_args.get("name") not in (None, run_dir.parent.name)):
             rank_zero_warn(
                 f"fit --ckpt_path resumes in the checkpoint's run {run_dir}, so its curves and "
                 f"checkpoints continue there; the logger name {init_args['name']!r} is not "
@@ -329,7 +330,8 @@ class VOECLI(LightningCLI):
                 f"fit --ckpt_path {checkpoint} resumes the run {run_dir}, which trained on other "
                 f"data than given: {'; '.join(differences)}. Resume with the run's values, "
                 "or add --branch true to continue from it in a new version")
-        name = runs.fresh_config_name(run_dir, f"config_resumed_step{self.checkpoint_step}")
+        step = "" if self.checkpoint_step is None else f"_step{self.checkpoint_step}"
+        name = runs.fresh_config_name(run_dir, f"config_resumed{step}")
         self.save_config_kwargs = {**self.save_config_kwargs, "config_filename": name}
 
 

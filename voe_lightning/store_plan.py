@@ -140,7 +140,8 @@ def manifest_plan(manifest: dict) -> tuple[list[ShardTask], VideoOptions]:
     """The shard plan and video options a manifest describes."""
     try:
         # Every setting stated: a default filled in would blame intact shards of another size.
-        missing = [field.name for field in fields(VideoOptions) if field.name not in manifest["video"]]
+        missing = [field.name for field in fields(VideoOptions)
+                   if field.name not in manifest["video"]]
         if missing:
             raise KeyError(f"video.{missing[0]}")
         video = VideoOptions(**manifest["video"])
@@ -179,7 +180,8 @@ def bad_shards(root: str | os.PathLike, manifest: dict, concepts: Sequence[str] 
     layouts = record_layouts(video)
     bad = []
     for task in tasks:
-        if (concepts is not None and task.concept not in concepts) or split not in (None, task.split):
+        if ((concepts is not None and task.concept not in concepts)
+                or split not in (None, task.split)):
             continue
         try:
             check_task(Path(root), task, layouts, full)
@@ -188,7 +190,8 @@ def bad_shards(root: str | os.PathLike, manifest: dict, concepts: Sequence[str] 
     return bad
 
 
-def check_split(root: str | os.PathLike, manifest: dict, concepts: Sequence[str], split: str) -> None:
+def check_split(root: str | os.PathLike, manifest: dict, concepts: Sequence[str],
+                split: str) -> None:
     """Refuse to read ``split`` of ``concepts`` unless every shard of it is the one the
     manifest plans (``bad_shards``, index only): a CorruptShardError names the first other one
     (another concept's, split's or version's, other seeds, missing) and what it is."""
