@@ -4,6 +4,7 @@ of the final training step."""
 
 from __future__ import annotations
 
+import functools
 import json
 from collections import defaultdict
 from collections.abc import Mapping
@@ -117,7 +118,8 @@ class VOEProbeCallback(L.Callback):
     def on_validation_epoch_end(self, trainer, pl_module) -> None:
         if trainer.sanity_checking:
             return
-        self.causality = self._causality
+        # Every rank's pairs (under DDP each rank scored its own), as the statistics are.
+        self.causality = functools.reduce(Causality.merge, _gather(self._causality))
         if not self.causality.causal:
             rank_zero_warn(f"validation at step {trainer.global_step}: {self.causality.line()}")
         for prefix in self.windows:
