@@ -385,7 +385,7 @@ def test_audit_of_an_empty_split_or_a_manifest_edited_by_hand_is_one_line(tiny_s
         "'video.num_frames')" in line
 
 
-def test_a_report_staging_folder_left_by_a_killed_process_is_removed_on_the_next_write(tmp_path):
+def test_what_a_killed_writer_staged_is_removed_on_the_next_write(tmp_path):
     ended = subprocess.Popen(["true"])
     ended.wait()  # its id no longer runs
     host = socket.gethostname()
@@ -397,6 +397,13 @@ def test_a_report_staging_folder_left_by_a_killed_process_is_removed_on_the_next
         (folder / "summary.json").write_text("{}")
     write_report(_results(), tmp_path, bootstrap=10, echo=False)
     assert not stale.exists() and running.exists() and other_host.exists()
+    # The same for a file staged by store_shards.write_whole (answer.txt here).
+    stale_file = tmp_path / f".answer.txt.{host}.{ended.pid}.y1.tmp"
+    running_file = tmp_path / f".answer.txt.{host}.{os.getpid()}.y2.tmp"
+    for file in (stale_file, running_file):
+        file.write_text("staged")
+    write_answer_file(tmp_path / "answer.txt", {f"O1/a/{movie}": movie for movie in range(1, 5)})
+    assert not stale_file.exists() and running_file.exists()
 
 
 def test_a_physical_concepts_record_with_a_huge_length_field_is_named(tmp_path):

@@ -7,8 +7,12 @@ and leaf schema, so a DataLoader worker reads one record without the rest. Writi
 from __future__ import annotations
 
 import errno
+import glob
 import json
 import os
+import re
+import shutil
+import socket
 import struct
 import tempfile
 import zlib
@@ -112,13 +116,47 @@ def write_whole(files: Mapping[str | os.PathLike, Iterable[bytes] | bytes | str]
                 pass
 
 
+def temporary_prefix(name: str) -> str:
+    """``.<name>.<host>.<pid>.``: the prefix of a temporary file or folder of this process
+    standing in for ``name`` (``remove_stale`` tells those of a killed process)."""
+    return f".{name}.{socket.gethostname()}.{os.getpid()}."
+
+
+def remove_stale(folder: Path, name: str) -> None:
+    """Remove the temporary files and folders (``temporary_prefix``) of ``name`` in ``folder``
+    that a process of this host left when it was killed (SIGKILL, power loss) before cleaning
+    up: its id no longer runs. Another host's, or a running process's, are left alone."""
+    pattern = re.compile(rf"\.{re.escape(name)}\.{re.escape(socket.gethostname())}\.(\d+)\.")
+    for path in folder.glob(f".{glob.escape(name)}.*"):
+        match = pattern.match(path.name)
+        if match and not _running(int(match[1])):
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+
+
+def _running(pid: int) -> bool:
+    """Whether a process ``pid`` runs on this host."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's
+        return True
+    return True
+
+
 def _stage(path: Path, chunks: Iterable[bytes]) -> tuple[str, int]:
     """``chunks`` written and fsynced to a new temporary file beside ``path`` (with ``open``'s
-    mode): its name and size. OSErrors name ``path``; the temporary file is gone after one."""
+    mode): its name and size. OSErrors name ``path``; the temporary file is gone after one,
+    and those a killed writer left beside ``path`` go first (``remove_stale``)."""
     temporary = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        remove_stale(path.parent, path.name)
+        handle, temporary = tempfile.mkstemp(prefix=temporary_prefix(path.name), suffix=".tmp",
+                                             dir=path.parent)
         os.fchmod(handle, 0o666 & ~current_umask())
         size = 0
         with os.fdopen(handle, "wb") as file:

@@ -22,16 +22,14 @@ host and process id, so the next report removes those a killed process (SIGKILL)
 from __future__ import annotations
 
 import os
-import re
 import shutil
-import socket
 import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from voe_lightning import cue_report, cues
-from voe_lightning.store_shards import current_umask
+from voe_lightning.store_shards import current_umask, remove_stale, temporary_prefix
 from voe_lightning.statistics import ALPHA
 from voe_lightning.report.figures import PredictionExample, write_figures
 from voe_lightning.report.results import VRNN_SURPRISE, PairResults, summarize, write_summary
@@ -66,8 +64,8 @@ def write_report(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     for name in (STAGING, REPLACED):
-        _remove_stale(out_dir, name)
-    staging = Path(tempfile.mkdtemp(prefix=_temporary_prefix(STAGING), dir=out_dir))
+        remove_stale(out_dir, name)
+    staging = Path(tempfile.mkdtemp(prefix=temporary_prefix(STAGING), dir=out_dir))
     try:
         rows = _write_files(results, staging, predictions, trajectories, trajectory_labels,
                             cue_audit, alpha, bootstrap, seed, echo, surprise, source, window)
@@ -83,39 +81,12 @@ def write_report(
 STAGING, REPLACED = "voe_report", "voe_report.replaced"
 
 
-def _temporary_prefix(name: str) -> str:
-    """``.<name>.<host>.<pid>.``: a temporary folder of this process (``_remove_stale``)."""
-    return f".{name}.{socket.gethostname()}.{os.getpid()}."
-
-
-def _remove_stale(folder: Path, name: str) -> None:
-    """Remove the temporary folders ``name`` in ``folder`` that a process of this host left
-    when it was killed before cleaning up (its id no longer running); another host's, or a
-    running process's, are left alone."""
-    pattern = re.compile(rf"\.{re.escape(name)}\.{re.escape(socket.gethostname())}\.(\d+)\.")
-    for path in folder.iterdir():
-        match = pattern.match(path.name)
-        if match and path.is_dir() and not _running(int(match[1])):
-            shutil.rmtree(path, ignore_errors=True)
-
-
-def _running(pid: int) -> bool:
-    """Whether a process ``pid`` runs on this host."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's
-        return True
-    return True
-
-
 def _replace_folder(new: Path, target: Path) -> Path:
     """Put the folder ``new`` in place of ``target`` (removing the old one whole), with the
     mode a folder ``mkdir`` makes would have (``mkdtemp``'s 0700 hides it from a lab)."""
     os.chmod(new, 0o777 & ~current_umask())
     if target.exists():
-        replaced = Path(tempfile.mkdtemp(prefix=_temporary_prefix(REPLACED), dir=target.parent))
+        replaced = Path(tempfile.mkdtemp(prefix=temporary_prefix(REPLACED), dir=target.parent))
         os.replace(target, replaced / target.name)
         os.replace(new, target)
         shutil.rmtree(replaced, ignore_errors=True)
