@@ -38,7 +38,8 @@ def write_events(run_dir, curves, steps=range(0, 500, 100), other_tags=True):
 
 
 def pair_results(groups, seed=0):
-    """n pairs per (concept, variant) with relative surprise ~ N(effect, 1) at one frame."""
+    """n pairs per (concept, variant) with relative surprise ~ N(effect, 1) at one frame, the
+    one after the manipulation frame (causal: identical through it)."""
     rng = np.random.default_rng(seed)
     rows = []
     for (concept, variant), (n, effect) in groups.items():
@@ -46,7 +47,7 @@ def pair_results(groups, seed=0):
             consistent = rng.gamma(2.0, 1.0, T)
             inconsistent = consistent.copy()
             inconsistent[2] += rng.normal(effect, 1.0)
-            rows.append((concept, variant, 1000 - i, 2, consistent, inconsistent))
+            rows.append((concept, variant, 1000 - i, 1, consistent, inconsistent))
     return PairResults(*map(list, zip(*rows)))
 
 

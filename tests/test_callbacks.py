@@ -45,9 +45,11 @@ def test_probe_callback_logs_the_stratified_pooled_test_of_both_variants():
         index = rng.integers(0, 3, 8)
         consistent = rng.gamma(2.0, 1.0, (8, 5))
         inconsistent = consistent + rng.normal(0.3, 1.0, (8, 5))
+        inconsistent[:, :2] = consistent[:, :2]  # causal: identical through the manipulation
         outputs = {
             "concept": torch.tensor([specs.CONCEPTS.index(CASES[i][0]) for i in index]),
             "variant": torch.tensor([specs.VARIANTS.index(CASES[i][1]) for i in index]),
+            "manipulation_frame": torch.ones(8, dtype=torch.int64),
             "surprise_consistent": torch.from_numpy(consistent),
             "surprise_inconsistent": torch.from_numpy(inconsistent),
         }
@@ -73,6 +75,7 @@ def test_probe_callback_logs_the_stratified_pooled_test_of_both_variants():
         assert f"voe/object_persistence/pooled/{statistic}" in module.logged
     assert not any(name.startswith("voe/unchangeableness/pooled") for name in module.logged)
     assert list(callback.last) == [CASES[0], CASES[1], ("object_persistence", "pooled"), CASES[2]]
+    assert callback.causality.causal and callback.causality.pairs == 24
 
     console = Console(width=200, record=True)
     console.print(voe_table(callback.last, title="VOE", alpha=0.05))

@@ -134,13 +134,15 @@ def test_module_entry_point_lists_every_subcommand_with_its_summary():
     result = subprocess.run(
         [sys.executable, "-m", "voe_lightning", "--help"], capture_output=True, text=True, check=True
     )
-    for subcommand in ("fit", "validate", "test", "predict", "generate", "audit", "analyze"):
+    for subcommand in ("fit", "validate", "test", "predict", "generate", "audit",
+                       "check-causality", "analyze"):
         assert re.search(rf"^ +{subcommand} +[A-Z]", result.stdout, re.MULTILINE), subcommand
 
 
 @pytest.mark.parametrize(
     "command,summary",
     [(["generate"], "sharded store"), (["audit"], "Physics-blind cue scores"),
+     (["check-causality"], "causality protocol on generated probe pairs"),
      (["analyze"], "curves, sweep, sweep-plot, compare"), (["analyze", "curves"], "Figure 6"),
      (["analyze", "sweep"], "per training-set size"), (["analyze", "sweep-plot"], "Figure 3"),
      (["analyze", "compare"], "verdicts"), (["analyze", "calibrate"], "Calibration of the VOE")],

@@ -40,10 +40,11 @@ def synthetic_results(seed=0):
             manipulation = int(rng.integers(2, 4))
             consistent = rng.gamma(2.0, 1.0, T)
             inconsistent = consistent.copy()
-            if effect is None:  # every pair differs by exactly 0.5 at the manipulation
-                inconsistent[manipulation] += 0.5
+            # Causal: surprise identical through the manipulation frame (the videos are).
+            if effect is None:  # every pair differs by exactly 0.5 just after the manipulation
+                inconsistent[manipulation + 1] += 0.5
             else:
-                inconsistent[manipulation:] += rng.normal(effect, 0.5, T - manipulation)
+                inconsistent[manipulation + 1:] += rng.normal(effect, 0.5, T - manipulation - 1)
             for key, value in zip(columns, (concept, variant, 100 + i, manipulation,
                                             consistent, inconsistent)):
                 columns[key].append(value)

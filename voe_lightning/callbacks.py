@@ -4,6 +4,7 @@ of the final training step."""
 
 from __future__ import annotations
 
+import functools
 import json
 from collections import defaultdict
 from collections.abc import Mapping
@@ -20,6 +21,7 @@ from rich.table import Table
 from tensordict import TensorDictBase
 
 from voe_lightning import cues, specs
+from voe_lightning.causality import Causality, check_prefix
 from voe_lightning.external.evaluation import evaluate
 from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.probe_datamodule import probe_datamodule
@@ -32,6 +34,7 @@ from voe_lightning.report.results import (
     as_numpy,
 )
 from voe_lightning.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
+from voe_lightning.store_shards import write_whole
 from voe_lightning.statistics_format import CONSOLE, format_alpha, row_text
 from voe_lightning.streaming_statistics import PairedSurpriseStats, pooled_values
 from voe_lightning.verdicts import concept_verdicts, pair_groups
@@ -57,7 +60,9 @@ class VOEProbeCallback(L.Callback):
     (None: ``statistics.ALPHA``; the CLI gives the run's ``alpha`` from configs/base.yaml).
     A ``surprise_window`` other than all frames (``surprise_window.surprise_window``; the CLI
     gives the run's) logs the same statistics of each video's surprise summed over that window
-    beside them, as ``voe_window/...``."""
+    beside them, as ``voe_window/...``. Each validation run also checks causality
+    (``causality.check_prefix``): ``causality`` holds the last run's finding; where surprise
+    differs through the pairs' manipulation frame it warns, and the table gives no verdict."""
 
     STATISTICS = ("relative_surprise", "t", "p_value", "accuracy", "n")
 
@@ -72,6 +77,8 @@ class VOEProbeCallback(L.Callback):
                                                     else {"voe_window": window})}
         self.metrics: dict[tuple[str, str, str], PairedSurpriseStats] = {}
         self.last: dict[tuple[str, str], dict[str, float]] = {}
+        self.causality: Causality | None = None
+        self._causality = Causality()
 
     def on_validation_epoch_start(self, trainer, pl_module) -> None:
         cases = probe_datamodule(trainer, type(self).__name__).probe_cases("val")
@@ -81,6 +88,7 @@ class VOEProbeCallback(L.Callback):
                 self._metric((prefix, *case), pl_module.device)
         for metric in self.metrics.values():
             metric.reset()
+        self._causality = Causality()
 
     def _metric(self, key: tuple[str, str, str], device: torch.device) -> PairedSurpriseStats:
         if key not in self.metrics:
@@ -93,6 +101,9 @@ class VOEProbeCallback(L.Callback):
         if not outputs:
             return
         concept_names, variant_names = _names(trainer, type(self).__name__)
+        self._causality = self._causality.merge(check_prefix(
+            outputs["surprise_consistent"], outputs["surprise_inconsistent"],
+            outputs["manipulation_frame"], outputs.get("first_difference")))
         groups = defaultdict(list)
         for index, (c, v) in enumerate(zip(outputs["concept"].tolist(), outputs["variant"].tolist())):
             groups[(concept_names[c], variant_names[v])].append(index)
@@ -107,6 +118,10 @@ class VOEProbeCallback(L.Callback):
     def on_validation_epoch_end(self, trainer, pl_module) -> None:
         if trainer.sanity_checking:
             return
+        # Every rank's pairs (under DDP each rank scored its own), as the statistics are.
+        self.causality = functools.reduce(Causality.merge, _gather(self._causality))
+        if not self.causality.causal:
+            rank_zero_warn(f"validation at step {trainer.global_step}: {self.causality.line()}")
         for prefix in self.windows:
             results = self._results(prefix)
             for (concept, variant), values in results.items():
@@ -143,7 +158,8 @@ class VOEProbeCallback(L.Callback):
             if not console.is_terminal:  # logs and pipes: do not cut the table at 80 columns
                 console.width = 120
             title = f"VOE on validation probes, step {trainer.global_step}"
-            console.print(voe_table(self.last, title=title, alpha=self.alpha))
+            console.print(voe_table(self.last, title=title, alpha=self.alpha,
+                                    causality=self.causality))
 
 
 def _window_sum(outputs: Mapping[str, Any], side: str, window: SurpriseWindow) -> torch.Tensor:
@@ -155,13 +171,16 @@ def _window_sum(outputs: Mapping[str, Any], side: str, window: SurpriseWindow) -
 
 
 def voe_table(
-    results: dict[tuple[str, str], dict[str, float]], title: str, alpha: float = ALPHA
+    results: dict[tuple[str, str], dict[str, float]], title: str, alpha: float = ALPHA,
+    causality: Causality | None = None,
 ) -> Table:
     """A rich table of relative surprise, t, p and accuracy per concept/variant (pooled rows
     bold: the stratified test), alpha in its title and p header, with each concept's verdict
-    (``verdicts.concept_verdicts``) on its first row."""
-    verdicts = {v.concept: v for v in concept_verdicts(results, alpha)}
-    table = Table(title=f"{title} ({format_alpha(alpha)})")
+    (``verdicts.concept_verdicts``, withheld where ``causality`` failed, whose line is the
+    caption) on its first row."""
+    verdicts = {v.concept: v for v in concept_verdicts(results, alpha, causality)}
+    table = Table(title=f"{title} ({format_alpha(alpha)})",
+                  caption=causality.line() if causality is not None else None)
     for column in ("concept", "variant", "n", "relative surprise", "t",
                    f"p (one-tailed, * < {alpha:g})", "accuracy", "verdict"):
         justify = "left" if column in ("concept", "variant", "verdict") else "right"
@@ -289,8 +308,9 @@ class VOEReportCallback(L.Callback):
     ``surprise_window`` (``surprise_window.surprise_window``: ``all``, the paper's, or
     ``{start: first_difference, frames: k}``) adds the tests of each video's surprise summed
     over that window beside those over all frames (None: all frames only; the CLI gives the
-    run's ``surprise_window``). After the test, ``summary`` holds the rows and ``report_dir``
-    the directory written."""
+    run's ``surprise_window``). After the test, ``summary`` holds the rows, ``report_dir``
+    the directory written and ``causality`` the report's causality check (no verdict where it
+    failed)."""
 
     def __init__(
         self,
@@ -315,6 +335,7 @@ class VOEReportCallback(L.Callback):
         self.surprise_window = parse_window(surprise_window)
         self.summary: list[dict[str, Any]] | None = None
         self.report_dir: Path | None = None
+        self.causality: Causality | None = None
         self._failed = self._ended = False
         self._checkpoint_step: int | None = None
         self._reset()
@@ -331,6 +352,7 @@ class VOEReportCallback(L.Callback):
                             f"and trajectories, voe_lightning.model.base); got "
                             f"{type(pl_module).__name__}")
         self.summary, self.report_dir, self._failed, self._ended = None, None, False, False
+        self.causality = None
 
     def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule,
                      exception: BaseException) -> None:
@@ -430,11 +452,13 @@ class VOEReportCallback(L.Callback):
                                     seed=self.seed, surprise=pl_module.SURPRISE,
                                     source=self._source(trainer), window=self.surprise_window)
         self.report_dir = Path(out_dir) / "voe_report"
+        self.causality = results.causality
         self._write_benchmark_metrics(trainer, outputs)
 
     def _write_benchmark_metrics(self, trainer: L.Trainer, outputs: list[dict[str, Any]]) -> None:
         """External benchmarks (IntPhys, Physical Concepts, IntPhys 2) add their own published
-        metrics and files (``external.evaluation``, over the DataModule's ``external_pairs``)."""
+        metrics and files (``external.evaluation``, over the DataModule's ``external_pairs``),
+        written whole (``store_shards.write_whole``)."""
         pairs = probe_datamodule(trainer, type(self).__name__).external_pairs()
         if pairs is None:
             return
@@ -442,10 +466,10 @@ class VOEReportCallback(L.Callback):
                   for key in PROBE_OUTPUT_KEYS}
         metrics, files = evaluate(pairs, merged, alpha=self.alpha, bootstrap=self.bootstrap)
         path = self.report_dir / "benchmark_metrics.json"
-        path.write_text(json.dumps(metrics, indent=2, default=lambda v: v.item()) + "\n")
+        write_whole({path: json.dumps(metrics, indent=2, default=lambda v: v.item()) + "\n",
+                     **{self.report_dir / name: text for name, text in files.items()}})
         print(f"benchmark metrics written to {path}")
-        for name, text in files.items():
-            (self.report_dir / name).write_text(text)
+        for name in files:
             print(f"{name} written to {self.report_dir / name}")
 
     def _predictions(self, pl_module: L.LightningModule,

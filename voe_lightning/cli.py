@@ -5,9 +5,11 @@ for every command, all listed in ``--help``."""
 
 from __future__ import annotations
 
+import builtins
 import importlib
 import inspect
 import os
+import re
 import sys
 import traceback
 from pathlib import Path
@@ -19,7 +21,7 @@ from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
 
-from voe_lightning import analysis, cue_report, generate, preflight, runs, statistics
+from voe_lightning import analysis, causality, cue_report, generate, preflight, runs, statistics
 from voe_lightning.interruption import InterruptCheckpoint
 from voe_lightning.model import SurpriseModel
 from voe_lightning.probe_datamodule import ProbeDataModule
@@ -40,14 +42,19 @@ LIGHTNING_SUBCOMMANDS = {
 #: Environment variable that, like ``--debug`` anywhere on the command line, shows the traceback
 #: of a refused argument or input instead of its one-line error.
 DEBUG_VARIABLE = "VOE_DEBUG"
-#: Errors that mean a bad argument or input: printed as one line, exit status 2.
-USER_ERRORS = (ValueError, OSError, MisconfigurationException)
+#: Errors that mean a bad argument or input, or a run that cannot go on (a non-finite loss,
+#: ``SurpriseModel._check_finite``): printed as one line, exit status 2.
+USER_ERRORS = (ValueError, OSError, MisconfigurationException, FloatingPointError)
+#: Exit status of a fit/validate/test whose probe surprise failed the causality check (the
+#: report is written, without verdicts), unless ``--allow_non_causal true``.
+NOT_CAUSAL_EXIT = 3
 
 #: The subcommands beside Lightning's: name -> the function it calls, or a dict of its own
 #: subcommands (as jsonargparse's ``auto_cli`` takes them, ``_help`` being the summary).
 COMMANDS: dict[str, Any] = {
     "generate": generate.generate,
     "audit": cue_report.audit,
+    "check-causality": causality.check_causality,
     "analyze": analysis.COMMANDS,
 }
 
@@ -69,12 +76,15 @@ class VOECLI(LightningCLI):
     ones given are used instead, and its report gets a folder of its own), and
     ``test``/``predict`` of a model with trainable parameters and no checkpoint. SIGTERM or
     SIGINT during ``fit`` saves a resumable last.ckpt and exits with 128 + the signal's
-    number (``interruption``). The subcommands of ``COMMANDS`` call their function instead,
-    with no model, data or trainer."""
+    number (``interruption``). A run whose probe surprise is not causal
+    (``causality.check_prefix``: it differs where a pair's videos are identical) exits with
+    ``NOT_CAUSAL_EXIT`` after its report, unless ``--allow_non_causal true``. The subcommands
+    of ``COMMANDS`` call their function instead, with no model, data or trainer."""
 
     def add_arguments_to_parser(self, parser: Any) -> None:
-        """The run's one significance level, ``alpha`` (configs/base.yaml sets it), and its
-        ``surprise_window``."""
+        """The run's one significance level, ``alpha`` (configs/base.yaml sets it), its
+        ``surprise_window``, ``branch`` (a resumed fit in a new version) and
+        ``allow_non_causal``."""
         parser.add_argument("--alpha", type=float, default=statistics.ALPHA,
                             help="significance level of every test, verdict and table of the "
                             "run; each callback with an alpha argument gets it")
@@ -82,6 +92,12 @@ class VOECLI(LightningCLI):
                             help="frames a video's surprise sums in the report: all (the "
                             "paper's) or {start: first_difference, frames: k}, reported beside "
                             "all frames; each callback with a surprise_window argument gets it")
+        parser.add_argument("--branch", type=bool, default=False,
+                            help="fit --ckpt_path: continue from the checkpoint in a new version "
+                            "of its run's logger name (other data allowed), keeping the run")
+        parser.add_argument("--allow_non_causal", type=bool, default=False,
+                            help="exit 0 though the model's surprise is not causal (it differs "
+                            "where a probe pair's videos are identical); verdicts stay withheld")
 
     def _add_subcommands(self, parser: Any, **kwargs: Any) -> None:
         """Lightning's subcommands, then those of ``COMMANDS``, each listed with its summary."""
@@ -126,6 +142,32 @@ class VOECLI(LightningCLI):
     def before_test(self) -> None:
         self._refuse_untrained("test")
 
+    def after_fit(self) -> None:
+        self._exit_if_not_causal("fit")
+
+    def after_validate(self) -> None:
+        self._exit_if_not_causal("validate")
+
+    def after_test(self) -> None:
+        self._exit_if_not_causal("test")
+
+    def _exit_if_not_causal(self, subcommand: str) -> None:
+        """Say so in one line and exit with ``NOT_CAUSAL_EXIT`` where a callback's causality
+        check failed (the report and tables give no verdict), unless ``--allow_non_causal``."""
+        for callback in self.trainer.callbacks:
+            causality = getattr(callback, "causality", None)
+            if causality is None or causality.causal:
+                continue
+            where = getattr(callback, "report_dir", None)
+            if self.config[subcommand].get("allow_non_causal"):
+                print(f"{subcommand}: {causality.line()} (--allow_non_causal)", file=sys.stderr)
+                return
+            print(f"error: {subcommand}: {causality.line()}"
+                  + (f" (report: {where})" if where else "")
+                  + "; --allow_non_causal true exits 0 with the verdicts withheld",
+                  file=sys.stderr)
+            raise SystemExit(NOT_CAUSAL_EXIT)
+
     def before_predict(self) -> None:
         self._refuse_untrained("predict")
 
@@ -151,6 +193,8 @@ class VOECLI(LightningCLI):
         #: The evaluation-only model arguments given otherwise than the checkpoint's, name ->
         #: value: the model is built with them (``before_instantiate_classes``).
         self.evaluation_arguments: dict[str, Any] = {}
+        #: The global step of the checkpoint --ckpt_path names (None: none named).
+        self.checkpoint_step: int | None = None
         super().parse_arguments(parser, args)
         subcommand = self.config.get("subcommand")
         if subcommand not in LIGHTNING_SUBCOMMANDS:
@@ -161,6 +205,7 @@ class VOECLI(LightningCLI):
             return
         ckpt_path = config["ckpt_path"] = str(self._checkpoint(config, word))
         checkpoint = read_checkpoint(ckpt_path)
+        self.checkpoint_step = checkpoint.get("global_step")
         if word in runs.RUN_CHECKPOINT_WORDS:
             print(f"--ckpt_path {word}: {ckpt_path} (step {checkpoint.get('global_step')})")
         trained = checkpoint.get("hyper_parameters") or {}
@@ -249,7 +294,14 @@ class VOECLI(LightningCLI):
             return
         run_dir = checkpoint.parent.parent
         version = run_dir.name
-        if self.subcommand == "fit" and init_args.get("name") not in (None, run_dir.parent.name):
+        if self.subcommand == "fit" and config.get("branch"):
+            print(f"fit --branch: continues from {checkpoint} in a new version of "
+                  f"{run_dir.parent} (the run {run_dir} and its record are kept as they are)")
+            version = None  # the logger's next version
+        elif self.subcommand == "fit":
+            self._keep_record(config, checkpoint, run_dir)
+        if (self.subcommand == "fit" and not config.get("branch")
+                and init_args.get("name") not in (None, run_dir.parent.name)):
             rank_zero_warn(
                 f"fit --ckpt_path resumes in the checkpoint's run {run_dir}, so its curves and "
                 f"checkpoints continue there; the logger name {init_args['name']!r} is not "
@@ -265,6 +317,22 @@ class VOECLI(LightningCLI):
         init_args["save_dir"] = str(run_dir.parent.parent)
         init_args["name"] = run_dir.parent.name
         init_args["version"] = version
+
+    def _keep_record(self, config: Any, checkpoint: Path, run_dir: Path) -> None:
+        """A resumed ``fit`` trains on the data of the run's record (its saved config.yaml; a
+        difference is refused naming both values; the model's arguments are compared with the
+        checkpoint's in ``parse_arguments``) and saves its own config beside it, never over it
+        (``config_resumed_step<N>.yaml``)."""
+        given = yaml.safe_load(self._parser("fit").dump(config, skip_none=False))
+        differences = runs.record_differences(run_dir / runs.RUN_CONFIG, given)
+        if differences:
+            raise ValueError(
+                f"fit --ckpt_path {checkpoint} resumes the run {run_dir}, which trained on other "
+                f"data than given: {'; '.join(differences)}. Resume with the run's values, "
+                "or add --branch true to continue from it in a new version")
+        step = "" if self.checkpoint_step is None else f"_step{self.checkpoint_step}"
+        name = runs.fresh_config_name(run_dir, f"config_resumed{step}")
+        self.save_config_kwargs = {**self.save_config_kwargs, "config_filename": name}
 
 
 def _refuse_retired_arguments(ckpt_path: str, trained: dict) -> None:
@@ -440,13 +508,24 @@ def _call(command: Any, arguments: Namespace) -> Any:
         name = arguments.pop("subcommand")
         return _call(command[name], arguments[name])
     entry_point = {"_cli_main": main} if "_cli_main" in inspect.signature(command).parameters else {}
-    return command(**arguments, **entry_point)
+    return command(**{name: _built(value) for name, value in vars(arguments).items()},
+                   **entry_point)
+
+
+def _built(value: Any) -> Any:
+    """A parsed ``class_path``/``init_args`` value (``check-causality --model``) as the object
+    it describes; any other value as it is."""
+    if not (isinstance(value, Namespace) and "class_path" in value):
+        return value
+    init_args = value.get("init_args")
+    return _import(value["class_path"])(**(init_args.as_dict() if init_args else {}))
 
 
 def main(args: list[str] | None = None) -> Any:
     """Entry point of ``python -m voe_lightning``; tests call ``main([...])``. Returns the CLI,
     or for a subcommand of ``COMMANDS`` its function's return value. A bad argument or input
-    (``USER_ERRORS``) is printed as one line, ``error: ...``, and exits with status 2; with
+    (``USER_ERRORS``, raised here or in a DataLoader worker) is printed as one line,
+    ``error: ...``, and exits with status 2; with
     ``--debug`` anywhere among the arguments, or ``VOE_DEBUG=1``, it raises instead."""
     words = list(sys.argv[1:] if args is None else args)
     debug = "--debug" in words or os.environ.get(DEBUG_VARIABLE, "") not in ("", "0")
@@ -455,23 +534,35 @@ def main(args: list[str] | None = None) -> Any:
         sys.argv[1:] = words  # LightningCLI reads the command line itself
     try:
         _check_yaml(words)
+        _check_classes(words)
         cli = _cli(None if args is None else words)
-    except USER_ERRORS as error:
-        if debug:
+    except Exception as error:
+        message = _user_message(error)
+        if debug or message is None:
             raise
-        print(f"error: {_user_message(error)}", file=sys.stderr)
+        print(f"error: {message}", file=sys.stderr)
         raise SystemExit(2) from error
     return cli.result if cli.subcommand in COMMANDS else cli
 
 
+#: The most values a ``--config`` file may expand to through its YAML aliases (a paper config
+#: holds a few hundred; nested anchors can make 700 bytes hold 10^9, which would hang).
+MAX_CONFIG_VALUES = 100_000
+
+
 def _check_yaml(words: list[str]) -> None:
     """Refuse a ``--config`` file that is not valid YAML, naming it (jsonargparse's message
-    gives the line and column of "<unicode string>")."""
+    gives the line and column of "<unicode string>"), or that expands to more than
+    ``MAX_CONFIG_VALUES`` values through its aliases."""
     files = [word.split("=", 1)[1] for word in words if word.startswith("--config=")]
     files += [after for word, after in zip(words, words[1:]) if word == "--config"]
     for name in files:
+        if Path(name).is_dir():
+            found = sorted(Path(name).glob("*.yaml"))
+            raise ValueError(f"--config {name} is a directory, not a YAML file; give one file"
+                             + (f", e.g. {found[0]}" if found else ""))
         try:
-            yaml.safe_load(Path(name).read_text())
+            document = yaml.compose(Path(name).read_text(), Loader=yaml.SafeLoader)
         except OSError:
             continue  # the parser names a missing file itself
         except yaml.YAMLError as error:
@@ -479,14 +570,72 @@ def _check_yaml(words: list[str]) -> None:
             where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
             problem = getattr(error, "problem", None) or error
             raise ValueError(f"--config {name} is not valid YAML{where}: {problem}") from None
+        if document is not None and _expanded_size(document, {}) > MAX_CONFIG_VALUES:
+            raise ValueError(f"--config {name} expands to more than {MAX_CONFIG_VALUES:,} values "
+                             "through its YAML aliases (*name repeating &name): refused; a "
+                             "config needs no more")
 
 
-def _user_message(error: BaseException) -> str:
-    """The message of the error the user's value caused: jsonargparse wraps a class's
-    ValueError in one of its own that lists every type it tried, so unwrap those."""
+#: Flags whose value may be a class's import path, with an example of one.
+CLASS_FLAGS = {"--model": "voe_lightning.model.VRNNLRUModel",
+               "--data": "datamodules.ConceptDataModule"}
+
+
+def _check_classes(words: list[str]) -> None:
+    """Refuse a ``--model``/``--data`` import path (``package.module.Class``; not a file)
+    that cannot be imported, naming it and why (the parser prints its usage over the cause)."""
+    given = [(flag, value) for flag, value in zip(words, words[1:]) if flag in CLASS_FLAGS]
+    given += [tuple(word.split("=", 1)) for word in words
+              if "=" in word and word.split("=", 1)[0] in CLASS_FLAGS]
+    for flag, value in given:
+        if (not re.fullmatch(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)+", value) or Path(value).exists()
+                or Path(value).suffix in (".yaml", ".yml", ".json")):
+            continue
+        try:
+            _import(value)
+        except (ImportError, AttributeError) as error:
+            raise ValueError(f"{flag} {value} cannot be imported ({error}); give a class's "
+                             f"import path, e.g. {CLASS_FLAGS[flag]}") from None
+
+
+def _expanded_size(node: yaml.Node, sizes: dict[int, int]) -> int:
+    """How many values the YAML ``node`` holds with every alias expanded, counted once per
+    distinct node (``sizes``: by id), so a billion-value alias bomb costs microseconds."""
+    if id(node) not in sizes:
+        sizes[id(node)] = 1  # a node that contains itself counts once
+        children = ([part for pair in node.value for part in pair]
+                    if isinstance(node, yaml.MappingNode)
+                    else node.value if isinstance(node, yaml.SequenceNode) else [])
+        sizes[id(node)] = 1 + sum(_expanded_size(child, sizes) for child in children)
+    return sizes[id(node)]
+
+
+#: How torch's DataLoader re-raises in this process an error a worker process raised: the
+#: worker's whole traceback as its message, whose last line is "module.Type: message".
+WORKER_ERROR = re.compile(r"Caught \w+ in DataLoader worker process \d+\.\n"
+                          r"Original Traceback \(most recent call last\):\n.*\n"
+                          r"(?P<type>[\w.]+): (?P<message>.*?)\n?\Z", re.S)
+
+
+def _user_message(error: BaseException) -> str | None:
+    """The message of the error the user's value caused (None: not one of ``USER_ERRORS``, a
+    bug whose traceback shows): jsonargparse wraps a class's ValueError in one of its own
+    that lists every type it tried, so unwrap those; a DataLoader worker's error is the
+    worker's own one line, as in the main process (torch re-raises it with the worker's
+    traceback as its message, or as a RuntimeError where its type takes other arguments)."""
     while error.__cause__ is not None and _raised_in(error, "jsonargparse"):
         error = error.__cause__
-    return str(error)
+    worker = WORKER_ERROR.match(str(error.args[0]) if error.args else "")
+    if worker is None:
+        return str(error) if isinstance(error, USER_ERRORS) else None
+    module, _, name = worker["type"].rpartition(".")
+    try:
+        original = getattr(importlib.import_module(module) if module else builtins, name, None)
+    except ImportError:
+        original = None
+    if isinstance(original, type) and issubclass(original, USER_ERRORS):
+        return worker["message"]
+    return None
 
 
 def _raised_in(error: BaseException, package: str) -> bool:
@@ -503,6 +652,7 @@ def _cli(args: list[str] | None) -> VOECLI:
         subclass_mode_model=True,
         subclass_mode_data=True,
         seed_everything_default=0,
+        save_config_callback=runs.RunConfig,
         save_config_kwargs={"overwrite": True},
         parser_kwargs={"prog": "python -m voe_lightning",
                        "description": "Probe video models' intuitive physics by violation of "

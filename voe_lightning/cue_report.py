@@ -9,6 +9,7 @@ and their tests are ``voe_lightning.cues``; each cell's numbers are written by
 from __future__ import annotations
 
 import csv
+import io
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
@@ -24,6 +25,7 @@ from voe_lightning.cues import (
     PHYSICS_PERFECT,
     audit_split,
 )
+from voe_lightning.store_shards import write_whole
 from voe_lightning.statistics_format import BRIEF, format_alpha, json_row, row_text, rows_alpha
 
 __all__ = ["audit", "cue_table", "format_correlations", "format_markdown", "format_physics_perfect",
@@ -211,32 +213,37 @@ def write_audit(
     the model-cue correlations and the physics-perfect observer's when given), ``cues.csv``
     (every column of every row), ``cue_correlations.csv`` and
     ``physics_perfect_correlations.csv`` (with those correlations) and ``cues.json`` (rows,
-    correlations and ``metadata``)."""
+    correlations and ``metadata``), all or none of them (``store_shards.write_whole``: a full
+    disk names the file and leaves the previous audit whole)."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     markdown = format_markdown(cue_rows, model_rows, title)
+    files = {}
     for rows, formatter, name in ((correlation_rows, format_correlations, "cue_correlations"),
                                   (physics_perfect_rows, format_physics_perfect,
                                    "physics_perfect_correlations")):
         if rows is not None:
             markdown += "\n" + formatter(rows)
-            with open(out / f"{name}.csv", "w", newline="") as handle:
-                writer = csv.DictWriter(handle, fieldnames=CORRELATION_COLUMNS)
-                writer.writeheader()
-                writer.writerows(rows)
-    (out / "cues.md").write_text(markdown)
-    with open(out / "cues.csv", "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=CUE_COLUMNS)
-        writer.writeheader()
-        writer.writerows(cue_rows)
+            files[out / f"{name}.csv"] = _csv_text(rows, CORRELATION_COLUMNS)
+    files[out / "cues.md"] = markdown
+    files[out / "cues.csv"] = _csv_text(cue_rows, CUE_COLUMNS)
     document = {**metadata, "cues": list(CUES),
                 "rows": [json_row(row) for row in cue_rows]}
     if correlation_rows is not None:
         document["model_correlations"] = [json_row(row) for row in correlation_rows]
     if physics_perfect_rows is not None:
         document["physics_perfect_correlations"] = [json_row(row) for row in physics_perfect_rows]
-    (out / "cues.json").write_text(json.dumps(document, indent=2) + "\n")
+    files[out / "cues.json"] = json.dumps(document, indent=2) + "\n"
+    write_whole(files)
     return out
+
+
+def _csv_text(rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> str:
+    """``rows`` as CSV text with a header of ``columns``."""
+    handle = io.StringIO(newline="")
+    writer = csv.DictWriter(handle, fieldnames=columns)
+    writer.writeheader()
+    writer.writerows(rows)
+    return handle.getvalue()
 
 
 def audit(

@@ -471,10 +471,11 @@ def audit_split(
     progress: bool = False,
 ) -> CueAudit:
     """Score every probe pair of ``split`` (val, test or generalization) of the store at
-    ``root`` for ``concepts`` (default: every concept the store holds)."""
+    ``root`` for ``concepts`` (default: every concept the store holds), each shard checked
+    against the manifest first (``store_plan.check_split``: a foreign one is refused)."""
     from torch.utils.data import ConcatDataset
 
-    from voe_lightning import store
+    from voe_lightning import store, store_plan
 
     if store.SPLIT_RECORD_TYPE.get(split) != "probe":
         probe_splits = [s for s, kind in store.SPLIT_RECORD_TYPE.items() if kind == "probe"]
@@ -485,10 +486,12 @@ def audit_split(
         raise FileNotFoundError(f"no dataset at {root} (create one with `python -m voe_lightning "
                                 f"generate --root {root}`)")
     concepts = list(dict.fromkeys(concepts or manifest["concepts"]))
-    parts = [store.open_split(root, concept, split) for concept in concepts]
-    dataset = ConcatDataset([part for part in parts if len(part)])
-    if not len(dataset):
+    store_plan.check_split(root, manifest, concepts, split)
+    parts = [part for part in (store.open_split(root, concept, split) for concept in concepts)
+             if len(part)]
+    if not parts:
         raise ValueError(f"the {split} split of {root} holds no probe pairs for "
-                         f"{', '.join(concepts)}")
+                         f"{', '.join(concepts)}; audit another split, or generate this one")
+    dataset = ConcatDataset(parts)
     loader = store.record_loader(dataset, batch_size, num_workers)
     return audit_records(loader, batch_size=0, progress=progress, total=len(loader))

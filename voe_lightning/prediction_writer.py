@@ -15,12 +15,14 @@ from lightning.pytorch.callbacks import BasePredictionWriter
 from lightning.pytorch.utilities import rank_zero_info
 
 from voe_lightning.external.metrics import write_answer_file
+from voe_lightning.store_shards import write_whole
 
 
 class IntPhysAnswerWriter(BasePredictionWriter):
     """Writes the IntPhys challenge's ``answer.txt`` to ``path`` at the end of ``predict``: one
     line per movie of the predict dataset (its ``names[index]``, e.g. ``O1/0001/1``) with a
-    plausibility from the movie's total surprise (``external.metrics.write_answer_file``)."""
+    plausibility from the movie's total surprise (``external.metrics.write_answer_file``). Both writers write
+their file whole (``store_shards.write_whole``): a full disk keeps the previous one."""
 
     def __init__(self, path: str | os.PathLike = "answer.txt"):
         super().__init__(write_interval="epoch")
@@ -96,9 +98,8 @@ class IntPhys2LeaderboardWriter(BasePredictionWriter):
         scores = gathered_scores(trainer, predictions, "surprise_max")
         if scores is None:
             return
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         lines = [json.dumps({"data_name": self.data_name, "task": self.task, "row_id": name,
                              "model_answer": int(value <= self.threshold)})
                  for name, value in scores.items()]
-        self.path.write_text("".join(line + "\n" for line in lines))
+        write_whole({self.path: "".join(line + "\n" for line in lines)})
         rank_zero_info(f"wrote {self.path} ({len(scores)} videos, threshold {self.threshold:g})")

@@ -1,7 +1,9 @@
 """Where a run's checkpoints and reports are: ``--ckpt_path`` resolved to one checkpoint file
 (``last``/``best`` to the newest run of a logger name, a directory refused naming the files in
 it), and the one report folder each (checkpoint, data root, concepts, evaluation-only model
-arguments) gets inside a run."""
+arguments) gets inside a run; and a run's record kept: a resumed ``fit`` trains on the data
+and model its saved config names (``record_differences``), configs are never overwritten
+(``fresh_config_name``) nor written through a link out of the run folder (``RunConfig``)."""
 
 from __future__ import annotations
 
@@ -13,6 +15,8 @@ from pathlib import Path
 from typing import Any
 
 import torch
+import yaml
+from lightning.pytorch.cli import SaveConfigCallback
 
 #: ``--ckpt_path`` words that name a checkpoint of the newest run of the config's logger name.
 RUN_CHECKPOINT_WORDS = ("last", "best")
@@ -125,3 +129,66 @@ def report_folder(checkpoint: Path, root: str | None, concepts: Iterable[str] | 
                      ",".join(concepts or ()), benchmark or "", *scored])
     readable = re.sub(r"[^A-Za-z0-9_.+=-]", "_", "-".join(parts))[:80]
     return f"{readable}-{hashlib.sha256(key.encode()).hexdigest()[:8]}"
+
+
+#: The training config LightningCLI saves into a run folder: the run's record.
+RUN_CONFIG = "config.yaml"
+#: The sections of its saved config a resumed ``fit`` must keep: what the run trains on. (Its
+#: model's arguments are the checkpoint's, and one given otherwise is refused by the CLI's
+#: ``parse_arguments``; the saved config holds some the model derives, as None.)
+RECORD_SECTIONS = ("data",)
+
+
+def record_differences(run_config: Path, given: Mapping[str, Any]) -> list[str]:
+    """'key: the run trained with X, given Y' for each value of ``RECORD_SECTIONS`` in the
+    ``given`` config (a plain dict, as saved) that the run's saved ``run_config`` holds
+    otherwise, by dotted key; none where the run saved no readable config."""
+    try:
+        saved = yaml.safe_load(run_config.read_text())
+    except (OSError, yaml.YAMLError):
+        return []
+    if not isinstance(saved, dict):
+        return []
+    old = {key: value for section in RECORD_SECTIONS
+           for key, value in _flat(saved.get(section), section).items()}
+    new = {key: value for section in RECORD_SECTIONS
+           for key, value in _flat(given.get(section), section).items()}
+    return [f"{key}: the run trained with {old.get(key)!r}, given {new.get(key)!r}"
+            for key in sorted(set(old) | set(new)) if old.get(key) != new.get(key)]
+
+
+def _flat(value: Any, prefix: str) -> dict[str, Any]:
+    """A nested dict's leaves by dotted key (tuples as lists: a value as YAML holds it)."""
+    if isinstance(value, Mapping):
+        return {key: leaf for name, item in value.items()
+                for key, leaf in _flat(item, f"{prefix}.{name}").items()}
+    return {prefix: list(value) if isinstance(value, tuple) else value}
+
+
+def fresh_config_name(run_dir: Path, stem: str) -> str:
+    """``<stem>.yaml``, or ``<stem>-2.yaml``, ``-3``... the first name no file in ``run_dir``
+    has: a run's configs are never overwritten."""
+    name, number = f"{stem}.yaml", 1
+    while (run_dir / name).exists() or (run_dir / name).is_symlink():
+        number += 1
+        name = f"{stem}-{number}.yaml"
+    return name
+
+
+def check_inside(path: Path, folder: Path) -> None:
+    """Refuse to write ``path`` through a symbolic link that leads out of ``folder`` (a link
+    in a run folder would have the run overwrite a file elsewhere)."""
+    if path.is_symlink() and not path.resolve().is_relative_to(folder.resolve()):
+        raise ValueError(f"{path} is a symbolic link to {path.resolve()}, outside the run folder "
+                         f"{folder}: nothing is written through it; remove the link")
+
+
+class RunConfig(SaveConfigCallback):
+    """LightningCLI's ``SaveConfigCallback`` that writes nothing through a symbolic link out
+    of the run folder (``check_inside``)."""
+
+    def setup(self, trainer: Any, pl_module: Any, stage: str) -> None:
+        if self.save_to_log_dir and not self.already_saved:
+            log_dir = Path(trainer.log_dir)  # broadcasts: every rank asks
+            check_inside(log_dir / self.config_filename, log_dir)
+        super().setup(trainer, pl_module, stage)

@@ -7,7 +7,7 @@ neither imports the other's planner."""
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Sequence
 
@@ -157,6 +157,11 @@ def check_task(root: Path, task: ShardTask, layouts: dict[str, dict], full: bool
 def manifest_plan(manifest: dict) -> tuple[list[ShardTask], VideoOptions]:
     """The shard plan and video options a manifest describes."""
     try:
+        # Every setting stated: a default filled in would blame intact shards of another size.
+        missing = [field.name for field in fields(VideoOptions)
+                   if field.name not in manifest["video"]]
+        if missing:
+            raise KeyError(f"video.{missing[0]}")
         video = VideoOptions(**manifest["video"])
         concept_counts = {}
         for concept, entry in manifest["concepts"].items():
@@ -181,8 +186,11 @@ def manifest_plan(manifest: dict) -> tuple[list[ShardTask], VideoOptions]:
         ) from error
 
 
-def bad_shards(root: str | os.PathLike, manifest: dict) -> list[tuple[Path, str]]:
-    """(path, reason) of every shard of the manifest's plan that is missing, corrupt or foreign."""
+def bad_shards(root: str | os.PathLike, manifest: dict, concepts: Sequence[str] | None = None,
+               split: str | None = None, full: bool = True) -> list[tuple[Path, str]]:
+    """(path, reason) of every shard of the manifest's plan that is missing, corrupt or foreign,
+    of ``concepts`` and ``split`` where given (None: all); without ``full``, index only (what
+    each shard is and holds, not every record's checksum: a reader checks those as it reads)."""
     try:
         tasks, video = manifest_plan(manifest)
     except store.ManifestError as error:
@@ -190,11 +198,24 @@ def bad_shards(root: str | os.PathLike, manifest: dict) -> list[tuple[Path, str]
     layouts = record_layouts(video)
     bad = []
     for task in tasks:
+        if ((concepts is not None and task.concept not in concepts)
+                or split not in (None, task.split)):
+            continue
         try:
-            check_task(Path(root), task, layouts)
+            check_task(Path(root), task, layouts, full)
         except store.CorruptShardError as error:
             bad.append((error.path, error.reason))
     return bad
+
+
+def check_split(root: str | os.PathLike, manifest: dict, concepts: Sequence[str],
+                split: str) -> None:
+    """Refuse to read ``split`` of ``concepts`` unless every shard of it is the one the
+    manifest plans (``bad_shards``, index only): a CorruptShardError names the first other one
+    (another concept's, split's or version's, other seeds, missing) and what it is."""
+    bad = bad_shards(root, manifest, concepts, split, full=False)
+    if bad:
+        raise store.CorruptShardError(*bad[0])
 
 
 def verify(root: str | os.PathLike) -> list[Path]:

@@ -7,14 +7,18 @@ and leaf schema, so a DataLoader worker reads one record without the rest. Writi
 from __future__ import annotations
 
 import errno
+import glob
 import json
 import os
+import re
+import shutil
+import socket
 import struct
 import tempfile
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -75,11 +79,84 @@ def atomic_write(path: str | os.PathLike, chunks: Iterable[bytes]) -> int:
     rename); returns the bytes written. The file gets the mode ``open`` would give it (0666
     less the umask; ``mkstemp`` alone makes it 0600, unreadable to a lab's other users).
     OSErrors (no space, no permission) name ``path``."""
-    path = Path(path)
+    return write_whole({path: chunks})[Path(path)]
+
+
+def write_whole(files: Mapping[str | os.PathLike, Iterable[bytes] | bytes | str]
+                ) -> dict[Path, int]:
+    """Write several files as ``atomic_write`` does one, as a set: every file is staged (its
+    temporary file in its own folder, written and fsynced) before any replaces its old
+    version, so a write that fails (a full disk) leaves every previous file whole, and the
+    error names the file. An empty folder where a file belongs is replaced too (a non-empty
+    one is named). Contents are bytes, text (UTF-8) or chunks of bytes; returns the bytes
+    written per file."""
+    staged: dict[Path, str] = {}
+    sizes: dict[Path, int] = {}
+    try:
+        for name, content in files.items():
+            path = Path(name)
+            chunks = ([content.encode()] if isinstance(content, str)
+                      else [content] if isinstance(content, bytes) else content)
+            staged[path], sizes[path] = _stage(path, chunks)
+        for path in list(staged):
+            try:
+                if path.is_dir() and not path.is_symlink() and not any(path.iterdir()):
+                    path.rmdir()
+                os.replace(staged[path], path)
+            except OSError as error:
+                raise OSError(error.errno, f"cannot write {path}: {error.strerror or error}",
+                              str(path)) from error
+            del staged[path]
+        return sizes
+    finally:
+        for temporary in staged.values():
+            try:
+                os.unlink(temporary)
+            except OSError:
+                pass
+
+
+def temporary_prefix(name: str) -> str:
+    """``.<name>.<host>.<pid>.``: the prefix of a temporary file or folder of this process
+    standing in for ``name`` (``remove_stale`` tells those of a killed process)."""
+    return f".{name}.{socket.gethostname()}.{os.getpid()}."
+
+
+def remove_stale(folder: Path, name: str) -> None:
+    """Remove the temporary files and folders (``temporary_prefix``) of ``name`` in ``folder``
+    that a process of this host left when it was killed (SIGKILL, power loss) before cleaning
+    up: its id no longer runs. Another host's, or a running process's, are left alone."""
+    pattern = re.compile(rf"\.{re.escape(name)}\.{re.escape(socket.gethostname())}\.(\d+)\.")
+    for path in folder.glob(f".{glob.escape(name)}.*"):
+        match = pattern.match(path.name)
+        if match and not _running(int(match[1])):
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+
+
+def _running(pid: int) -> bool:
+    """Whether a process ``pid`` runs on this host."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's
+        return True
+    return True
+
+
+def _stage(path: Path, chunks: Iterable[bytes]) -> tuple[str, int]:
+    """``chunks`` written and fsynced to a new temporary file beside ``path`` (with ``open``'s
+    mode): its name and size. OSErrors name ``path``; the temporary file is gone after one,
+    and those a killed writer left beside ``path`` go first (``remove_stale``)."""
     temporary = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        remove_stale(path.parent, path.name)
+        handle, temporary = tempfile.mkstemp(prefix=temporary_prefix(path.name), suffix=".tmp",
+                                             dir=path.parent)
         os.fchmod(handle, 0o666 & ~current_umask())
         size = 0
         with os.fdopen(handle, "wb") as file:
@@ -88,20 +165,17 @@ def atomic_write(path: str | os.PathLike, chunks: Iterable[bytes]) -> int:
                 size += len(chunk)
             file.flush()
             os.fsync(file.fileno())
-        os.replace(temporary, path)
-        temporary = None
-        return size
+        return temporary, size
     except OSError as error:
-        if isinstance(error, CorruptShardError):
-            raise
-        reason = error.strerror or str(error)
-        raise OSError(error.errno, f"cannot write {path}: {reason}", str(path)) from error
-    finally:
         if temporary is not None:
             try:
                 os.unlink(temporary)
             except OSError:
                 pass
+        if isinstance(error, CorruptShardError):
+            raise
+        reason = error.strerror or str(error)
+        raise OSError(error.errno, f"cannot write {path}: {reason}", str(path)) from error
 
 
 def write_shard(
@@ -190,6 +264,8 @@ def _read_index(fd: int, path: Path) -> ShardIndex:
 
 
 def _open(path: Path) -> int:
+    if path.is_dir():
+        raise CorruptShardError(path, "a folder, not a shard file")
     try:
         return os.open(path, os.O_RDONLY)
     except FileNotFoundError as error:
@@ -222,14 +298,16 @@ def check_shard(
     fd = _open(path)
     try:
         index = _read_index(fd, path)
-        if expected_seeds is not None and index.seeds != [int(s) for s in expected_seeds]:
-            raise CorruptShardError(
-                path, f"holds {len(index)} records with other seeds than the {len(expected_seeds)} planned"
-            )
+        # What the shard is (concept, split, version) first: a shard copied from elsewhere is
+        # named by that, not by its seeds.
         for key, value in (expected_meta or {}).items():
             if index.meta.get(key) != value:
                 stored = repr(index.meta[key]) if key in index.meta else "missing"
                 raise CorruptShardError(path, f"does not belong here: its {key} is {stored}, expected {value!r}")
+        if expected_seeds is not None and index.seeds != [int(s) for s in expected_seeds]:
+            raise CorruptShardError(
+                path, f"holds {len(index)} records with other seeds than the {len(expected_seeds)} planned"
+            )
         if expected_layout is not None and index.layout != expected_layout:
             stored, expected = index.layout, expected_layout
             first = sorted(k for k in set(stored) | set(expected) if stored.get(k) != expected.get(k))[0]

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from voe_lightning import specs
+from voe_lightning.causality import NOT_CAUSAL, Causality
 from voe_lightning.statistics import ALPHA, POOLED, POOLED_VARIANTS, QUADRUPLET, check_alpha
 from voe_lightning.statistics_format import format_number, format_p
 
@@ -87,14 +88,18 @@ def quadruplets(concepts: Sequence[str], variants: Sequence[str], seeds: Sequenc
 @dataclass(frozen=True)
 class Verdict:
     """Whether a concept shows VOE by the rule of docs/architecture.md §8: ``voe`` is True or
-    False, or None when the pairs needed to decide are missing; ``reason`` names what failed."""
+    False, or None when the pairs needed to decide are missing or the verdict is ``withheld``
+    (the model is not causal, ``voe_lightning.causality``); ``reason`` names what failed."""
 
     concept: str
     voe: bool | None
     rule: str
     reason: str
+    withheld: bool = False
 
     def text(self) -> str:
+        if self.withheld:
+            return "no verdict: " + self.reason
         if self.voe:
             return "VOE"
         return ("undecided: " if self.voe is None else "no VOE: ") + self.reason
@@ -136,6 +141,7 @@ def _quadruplet_verdict(concept: str, row: Mapping[str, Any], alpha: float) -> V
 def concept_verdicts(
     results: Mapping[tuple[str, str], Mapping[str, Any]] | Sequence[Mapping[str, Any]],
     alpha: float = ALPHA,
+    causality: Causality | None = None,
 ) -> list[Verdict]:
     """Per concept, in the order first seen: ``quadruplet_rule`` on its ``quadruplet`` row
     where it has one (a report's rows; the training-time table, which pairs no seeds, has
@@ -144,7 +150,7 @@ def concept_verdicts(
     (unchangeableness' position/color/shape, a benchmark's own variants) every one of its
     probe variants. Generalization variants do not enter. ``results`` maps (concept, variant)
     to a dict with ``p_value`` and ``relative_surprise`` (None when untested), or is a list of
-    rows that carry both names."""
+    rows that carry both names. A ``causality`` check that failed withholds every verdict."""
     check_alpha(alpha)
     if not isinstance(results, Mapping):
         results = {(row["concept"], row["variant"]): row for row in results}
@@ -178,4 +184,6 @@ def concept_verdicts(
             elif not p_value < alpha:
                 failed.append(f"{variant} p = {format_p(p_value)} >= {alpha:g}")
         verdicts.append(Verdict(concept, voe, rule, "" if voe else "; ".join(failed)))
+    if causality is not None and not causality.causal:
+        return [Verdict(v.concept, None, v.rule, NOT_CAUSAL, withheld=True) for v in verdicts]
     return verdicts

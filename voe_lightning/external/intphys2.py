@@ -15,6 +15,7 @@ each video) and resized with PIL.
 from __future__ import annotations
 
 import csv
+import io
 import os
 import re
 from collections import defaultdict
@@ -201,7 +202,7 @@ def read_metadata(
         if skips is not None:
             skips.add(error.reason, str(error))
 
-    with open(csv_path, newline="") as stream:
+    with io.StringIO(_metadata_text(csv_path), newline="") as stream:
         reader = csv.DictReader(stream)
         columns = reader.fieldnames or []
         id_column = next((c for c in ID_COLUMNS if c in columns), None)
@@ -223,6 +224,17 @@ def read_metadata(
             refuse(BenchmarkDataError(
                 f"{path} has no row in {csv_path}; every video needs one", "unlisted_file"))
     return videos
+
+
+def _metadata_text(csv_path: Path) -> str:
+    """metadata.csv as text: UTF-8, without the byte-order mark a spreadsheet may write
+    (which would otherwise name the first column '\ufeffSceneIndex'); a file that is not
+    UTF-8 is named (Python's error names no file)."""
+    try:
+        return csv_path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as error:
+        raise BenchmarkDataError(f"{csv_path} is not UTF-8 text ({error}); save it as UTF-8",
+                                 "bad_metadata") from None
 
 
 def _scene_key(scene: str) -> tuple:

@@ -56,6 +56,7 @@ import torch
 
 from voe_lightning.statistics import ALPHA, paired_test, ranked_auroc
 from voe_lightning.surprise_window import video_surprise
+from voe_lightning.store_shards import write_whole
 
 #: A movie path in an IntPhys answer file: <block>/<scene>/<movie 1-4>.
 ANSWER_PATH = re.compile(r"^(O[123])/([^/\s]+)/([1-4])$")
@@ -227,7 +228,9 @@ def _check_complete(scenes: Mapping[str, set[str]], where: str) -> None:
 def write_answer_file(path: str | os.PathLike, surprise: Mapping[str, float]) -> Path:
     """Write an IntPhys ``answer.txt`` from each movie's total surprise (keys: movie paths
     relative to the split folder, ``O1/0001/1``): one ``<path> <plausibility>`` line per movie,
-    sorted, plausibility from ``plausibility_from_surprise``. Every scene must have its 4 movies."""
+    sorted, plausibility from ``plausibility_from_surprise`` written exactly (``repr``: a
+    rounded value can turn a tie of two movies' sums into an error, so the official score of
+    the file would not be the report's). Every scene must have its 4 movies."""
     path = Path(path)
     movies = sorted(surprise)
     scenes: dict[str, set[str]] = defaultdict(set)
@@ -236,8 +239,7 @@ def write_answer_file(path: str | os.PathLike, surprise: Mapping[str, float]) ->
         scenes[f"{match[1]}/{match[2]}"].add(match[3])
     _check_complete(scenes, str(path))
     plausibility = plausibility_from_surprise([surprise[m] for m in movies])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("".join(f"{m} {p:.6f}\n" for m, p in zip(movies, plausibility)))
+    write_whole({path: "".join(f"{m} {float(p)!r}\n" for m, p in zip(movies, plausibility))})
     return path
 
 

@@ -61,6 +61,9 @@ NUM_FRAMES, HEIGHT, WIDTH = 15, 64, 64
 #: quadruplet_index = shard * SHARD_STRIDE + record number within the shard.
 SHARD_STRIDE = 1_000_000
 SHARD_NAME = re.compile(r"^data\.tfrecord-(\d{5})-of-(\d{5})$")
+#: The largest record length read: a quadruplet of the release is a few MB; a length field
+#: beyond this (a damaged or hostile file) is refused rather than allocated.
+MAX_RECORD_BYTES = 256 << 20
 
 
 # --- TFRecord files ------------------------------------------------------------------------------
@@ -111,6 +114,12 @@ def read_records(
                         "bad_crc",
                     )
                 (length,) = struct.unpack("<Q", header[:8])
+                if length > MAX_RECORD_BYTES:
+                    raise BenchmarkDataError(
+                        f"{path}: record {number}: length field {length:,} bytes, more than any "
+                        f"record of the release (at most {MAX_RECORD_BYTES:,}); a damaged file",
+                        "bad_length",
+                    )
                 body = _read_exact(stream, length + 4, path, number, at_boundary=False)
                 if masked_crc(body[:-4]) != body[-4:]:
                     error = BenchmarkDataError(

@@ -48,7 +48,13 @@ class CallableModel(SurpriseModel):
     def surprise(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
                  camera: torch.Tensor | None = None, objects: TensorDictBase | None = None
                  ) -> torch.Tensor:
-        surprise = torch.as_tensor(self.function(frames.to(self.device)))
+        returned = self.function(frames.to(self.device))
+        try:
+            surprise = torch.as_tensor(returned)
+        except (TypeError, ValueError, RuntimeError) as error:  # None, a ragged list
+            raise ValueError(f"{self.hparams.function} returned a {type(returned).__name__} that "
+                             f"is no array of numbers ({error}); expected surprise [B, T] = "
+                             f"{list(frames.shape[:2])}") from None
         if tuple(surprise.shape) != tuple(frames.shape[:2]):
             raise ValueError(f"{self.hparams.function} returned surprise of shape "
                              f"{tuple(surprise.shape)} for frames {tuple(frames.shape)}; expected "

@@ -15,7 +15,8 @@ correlations in full and drawn), ``histograms.png``, ``surprise_per_frame.png``,
 
 A report is written whole into a new folder that then replaces ``voe_report/``, so an
 interrupted ``test`` leaves the previous report intact and no file of an earlier report (say,
-another concept's predictions) survives beside a new summary.
+another concept's predictions) survives beside a new summary. The temporary folders carry the
+host and process id, so the next report removes those a killed process (SIGKILL) left.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from voe_lightning import cue_report, cues
-from voe_lightning.store_shards import current_umask
+from voe_lightning.store_shards import current_umask, remove_stale, temporary_prefix
 from voe_lightning.statistics import ALPHA
 from voe_lightning.report.figures import PredictionExample, write_figures
 from voe_lightning.report.results import VRNN_SURPRISE, PairResults, summarize, write_summary
@@ -62,7 +63,9 @@ def write_report(
         raise ValueError("no probe results to report")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=".voe_report.", dir=out_dir))
+    for name in (STAGING, REPLACED):
+        remove_stale(out_dir, name)
+    staging = Path(tempfile.mkdtemp(prefix=temporary_prefix(STAGING), dir=out_dir))
     try:
         rows = _write_files(results, staging, predictions, trajectories, trajectory_labels,
                             cue_audit, alpha, bootstrap, seed, echo, surprise, source, window)
@@ -74,12 +77,16 @@ def write_report(
     return rows
 
 
+#: Names of the temporary folders beside voe_report/: the new report, and the old one on its way out.
+STAGING, REPLACED = "voe_report", "voe_report.replaced"
+
+
 def _replace_folder(new: Path, target: Path) -> Path:
     """Put the folder ``new`` in place of ``target`` (removing the old one whole), with the
     mode a folder ``mkdir`` makes would have (``mkdtemp``'s 0700 hides it from a lab)."""
     os.chmod(new, 0o777 & ~current_umask())
     if target.exists():
-        replaced = Path(tempfile.mkdtemp(prefix=f".{target.name}.replaced.", dir=target.parent))
+        replaced = Path(tempfile.mkdtemp(prefix=temporary_prefix(REPLACED), dir=target.parent))
         os.replace(target, replaced / target.name)
         os.replace(new, target)
         shutil.rmtree(replaced, ignore_errors=True)

@@ -3,6 +3,7 @@ around the manipulation, the model's expected frames and the t-SNE of its time c
 
 from __future__ import annotations
 
+import io
 import math
 import textwrap
 from collections.abc import Mapping, Sequence
@@ -18,6 +19,7 @@ from voe_lightning.report.results import PairResults, as_numpy
 from voe_lightning.specs import GENERALIZATION_VARIANT_NAMES
 from voe_lightning.statistics import POOLED
 from voe_lightning.statistics_format import BRIEF, format_p_phrase, row_text, rows_alpha
+from voe_lightning.store_shards import write_whole
 
 #: Histograms hide pairs whose d lies beyond this many SD from the mean (display only).
 OUTLIER_SD = 3.0
@@ -39,10 +41,18 @@ class PredictionExample:
 
 
 def save_figure(figure: Figure, path: str | Path) -> Path:
-    """Write ``figure`` as a PNG at ``path`` (making its folder), say so, and return the path."""
+    """Write ``figure`` at exactly ``path`` (no suffix added: a PNG unless its suffix names
+    another format matplotlib writes), whole (``store_shards.write_whole``), say so, and
+    return the path."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, dpi=110)
+    kind = path.suffix[1:].lower() or "png"
+    if kind not in figure.canvas.get_supported_filetypes():
+        raise ValueError(f"cannot write a figure as {path}: {path.suffix!r} is no image format "
+                         f"matplotlib writes; use .png, or one of "
+                         f"{', '.join(sorted(figure.canvas.get_supported_filetypes()))}")
+    image = io.BytesIO()
+    figure.savefig(image, format=kind, dpi=110)
+    write_whole({path: image.getvalue()})
     print(f"wrote {path}")
     return path
 

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from voe_lightning.causality import Causality, check_prefix
 from voe_lightning.model.vrnn_lru import VRNNLRUModel
 from voe_lightning.specs import CONCEPTS, VARIANTS
 from voe_lightning.surprise_window import SurpriseWindow, video_surprise
@@ -101,6 +102,13 @@ class PairResults:
     def relative_surprise(self) -> np.ndarray:
         """Each pair's d = S(inconsistent) - S(consistent), [N]."""
         return self.total_inconsistent - self.total_consistent
+
+    @property
+    def causality(self) -> Causality:
+        """Whether per-frame surprise is identical where each pair's videos are
+        (``causality.check_prefix``): a report gives no verdict when it is not."""
+        return check_prefix(self.surprise_consistent, self.surprise_inconsistent,
+                            self.manipulation_frame, self.first_difference)
 
     def windowed(self, window: SurpriseWindow) -> PairResults:
         """These pairs with every frame outside ``window`` (counted from each pair's first
@@ -308,10 +316,12 @@ def summarize(
     return rows
 
 
-def format_verdicts(rows: Sequence[Mapping[str, Any]]) -> list[str]:
-    """Markdown lines of each concept's VOE verdict (``verdicts.concept_verdicts``)."""
-    lines = []
-    for verdict in concept_verdicts(rows, rows_alpha(rows)):
+def format_verdicts(rows: Sequence[Mapping[str, Any]],
+                    causality: Causality | None = None) -> list[str]:
+    """Markdown lines of the ``causality`` check and each concept's VOE verdict
+    (``verdicts.concept_verdicts``, withheld when the check failed)."""
+    lines = [causality.line(), ""] if causality is not None else []
+    for verdict in concept_verdicts(rows, rows_alpha(rows), causality):
         text = "**VOE**" if verdict.voe else verdict.text()
         lines.append(f"- {verdict.concept}: {text} (rule: {verdict.rule})")
     return lines
@@ -322,10 +332,12 @@ VRNN_SURPRISE = VRNNLRUModel.SURPRISE
 
 
 def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURPRISE,
-                    window: SurpriseWindow = SurpriseWindow()) -> str:
+                    window: SurpriseWindow = SurpriseWindow(),
+                    causality: Causality | None = None) -> str:
     """The summary as a Markdown table (paper notation, alpha in its header), notes as
-    footnotes below it, then each concept's VOE verdict; ``surprise`` names what a frame's
-    surprise is, ``window`` the frames a video's surprise sums."""
+    footnotes below it, then the ``causality`` check and each concept's VOE verdict;
+    ``surprise`` names what a frame's surprise is, ``window`` the frames a video's surprise
+    sums."""
     alpha = rows_alpha(rows)
     header = (f"| concept | variant | n | M [95% CI] | t(df) | p | sig. ({format_alpha(alpha)}) "
               "| d_z [95% CI] | accuracy | AUROC | halves M |")
@@ -360,7 +372,7 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURP
               "only when its pooled test and each of its two variants are significant; "
               "without a counterbalanced pair, when every probe variant is. Generalization "
               "variants do not enter.", ""]
-    lines += format_verdicts(rows)
+    lines += format_verdicts(rows, causality)
     return "\n".join(lines) + "\n"
 
 
@@ -375,25 +387,27 @@ def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], repor
     other than all frames, its ``window_rows`` go beside them: summary.json's ``window``,
     summary_window.csv and a section of summary.md. Return the Markdown summary."""
     results.to_csv(report_dir / "pairs.csv")
+    causality = results.causality
     document = {"source": dict(source or {}),
                 "alpha": alpha, "bootstrap_resamples": bootstrap, "num_pairs": len(results),
                 "pairs_csv_sha256": _sha256(report_dir / "pairs.csv"),
                 "num_frames": results.num_frames,
                 "video_surprise": f"sum over frames of {surprise}",
                 "surprise_window": window.as_config(),
-                **_tables(rows, alpha)}
+                "causality": causality.as_dict(),
+                **_tables(rows, alpha, causality)}
     with open(report_dir / "summary.csv", "w", newline="") as handle:
         _write_rows(handle, rows)
-    markdown = format_markdown(rows, surprise)
+    markdown = format_markdown(rows, surprise, causality=causality)
     if not window.all_frames:
         document["window"] = {"surprise_window": window.as_config(),
                               "video_surprise": f"sum over the {window.describe()} of {surprise}",
-                              **_tables(window_rows, alpha)}
+                              **_tables(window_rows, alpha, causality)}
         with open(report_dir / "summary_window.csv", "w", newline="") as handle:
             _write_rows(handle, window_rows)
         markdown += (f"\n## Surprise window: {window.describe()}\n\nBeside the paper's sums "
                      "over all frames above, never instead of them.\n\n"
-                     + format_markdown(window_rows, surprise, window))
+                     + format_markdown(window_rows, surprise, window, causality))
     else:
         markdown += "\nSurprise window: all frames (the paper's).\n"
     (report_dir / "summary.json").write_text(json.dumps(document, indent=2) + "\n")
@@ -401,11 +415,13 @@ def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], repor
     return markdown
 
 
-def _tables(rows: Sequence[Mapping[str, Any]], alpha: float) -> dict[str, Any]:
-    """summary.json's ``rows`` (strict JSON) and ``verdicts`` of ``summarize``'s rows."""
+def _tables(rows: Sequence[Mapping[str, Any]], alpha: float,
+            causality: Causality) -> dict[str, Any]:
+    """summary.json's ``rows`` (strict JSON) and ``verdicts`` of ``summarize``'s rows (none
+    given where ``causality`` failed)."""
     return {"rows": [json_row(row) for row in rows],
             "verdicts": [{"concept": v.concept, "voe": v.voe, "verdict": v.text(),
-                          "rule": v.rule} for v in concept_verdicts(rows, alpha)]}
+                          "rule": v.rule} for v in concept_verdicts(rows, alpha, causality)]}
 
 
 def _write_rows(handle: Any, rows: Sequence[Mapping[str, Any]]) -> None:
