@@ -1,5 +1,6 @@
 """The report's numbers: per-pair probe results (``PairResults``, pairs.csv), the paired test per
-concept/variant (``summarize``) and the summary tables (summary.json, summary.csv, summary.md)."""
+concept/variant (``summarize``), the field's metric set beside it (``field_metric_rows``) and
+the summary tables (summary.json, summary.csv, summary.md)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from voe_lightning.field_metrics import field_metrics, format_field_metrics
 from voe_lightning.model.vrnn_lru import VRNNLRUModel
 from voe_lightning.specs import CONCEPTS, VARIANTS
 from voe_lightning.surprise_window import SurpriseWindow, video_surprise
@@ -304,6 +306,20 @@ def summarize(
     return rows
 
 
+def field_metric_rows(results: PairResults) -> dict[str, dict[str, Any]]:
+    """The field's metric set (``field_metrics.field_metrics``: relative accuracy with sum,
+    mean and max surprise, absolute accuracy, AUROC) per concept/variant and pooled group, keyed
+    ``<concept>/<variant>``; each group's threshold is from its own consistent videos, as
+    surprise scales differ between concepts. A group with non-finite surprise gets a note."""
+    rows = {}
+    for concept, variant, pairs in results.groups(pooled=True):
+        sides = (pairs.surprise_consistent, pairs.surprise_inconsistent)
+        rows[f"{concept}/{variant}"] = (
+            field_metrics(*sides) if all(np.isfinite(side).all() for side in sides)
+            else {"n_pairs": len(pairs), "note": "surprise is not finite: no metrics"})
+    return rows
+
+
 def format_verdicts(rows: Sequence[Mapping[str, Any]]) -> list[str]:
     """Markdown lines of each concept's VOE verdict (``verdicts.concept_verdicts``)."""
     lines = []
@@ -361,7 +377,8 @@ def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], repor
                   window_rows: Sequence[Mapping[str, Any]] | None = None) -> str:
     """Write pairs.csv, summary.json (with ``source``: what the report was made from, and
     pairs.csv's SHA-256, which ``PairResults.from_csv`` checks), summary.csv and summary.md
-    (of ``summarize``'s ``rows``, over all frames) into ``report_dir``; with a ``window``
+    (of ``summarize``'s ``rows``, over all frames, and the field's metrics of
+    ``field_metric_rows``) into ``report_dir``; with a ``window``
     other than all frames, its ``window_rows`` go beside them: summary.json's ``window``,
     summary_window.csv and a section of summary.md. Return the Markdown summary."""
     results.to_csv(report_dir / "pairs.csv")
@@ -371,7 +388,8 @@ def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], repor
                 "num_frames": results.num_frames,
                 "video_surprise": f"sum over frames of {surprise}",
                 "surprise_window": window.as_config(),
-                **_tables(rows, alpha)}
+                **_tables(rows, alpha),
+                "field_metrics": field_metric_rows(results)}
     with open(report_dir / "summary.csv", "w", newline="") as handle:
         _write_rows(handle, rows)
     markdown = format_markdown(rows, surprise)
@@ -386,6 +404,8 @@ def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], repor
                      + format_markdown(window_rows, surprise, window))
     else:
         markdown += "\nSurprise window: all frames (the paper's).\n"
+    markdown += ("\n## The field's metrics (all frames)\n\n"
+                 + format_field_metrics(document["field_metrics"], "concept/variant"))
     (report_dir / "summary.json").write_text(json.dumps(document, indent=2) + "\n")
     (report_dir / "summary.md").write_text(markdown)
     return markdown
