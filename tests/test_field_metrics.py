@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from voe_lightning.cli import main
 from voe_lightning.external.metrics import quadruplet_metrics
 from voe_lightning.field_metrics import (
     REDUCTIONS,
@@ -110,3 +111,25 @@ def test_the_report_writes_the_set_per_group_into_summary_json_and_md(tmp_path):
     assert metrics["solidity/pooled"]["relative_accuracy_sum"] == 1.0
     markdown = (tmp_path / "voe_report" / "summary.md").read_text()
     assert format_field_metrics(metrics, "concept/variant") in markdown
+
+
+def test_analyze_context_sweep_tables_the_set_of_each_context_lengths_report(tmp_path, capsys):
+    rng = np.random.default_rng(2)
+    runs = {}
+    for context in (4, 8):
+        consistent = rng.random((4, 5))
+        results = PairResults(concept=["continuity"] * 4, variant=["standard"] * 4,
+                              seed=np.arange(4), manipulation_frame=np.full(4, 1),
+                              surprise_consistent=consistent,
+                              surprise_inconsistent=consistent + rng.random((4, 5)) - 0.3)
+        write_report(results, tmp_path / f"c{context}", echo=False, bootstrap=0)
+        runs[context] = results
+    table = main(["analyze", "context-sweep", "--runs",
+                  json.dumps({str(c): str(tmp_path / f"c{c}") for c in runs}),
+                  "--out", str(tmp_path / "sweep.md")])
+    expected = format_field_metrics(
+        {f"continuity/standard @ {c}": field_metrics(r.surprise_consistent,
+                                                     r.surprise_inconsistent)
+         for c, r in runs.items()}, "concept/variant @ context length")
+    assert table == expected == (tmp_path / "sweep.md").read_text()
+    assert expected in capsys.readouterr().out
