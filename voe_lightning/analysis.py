@@ -4,7 +4,9 @@ side by side, the field's metric set of a windowed model over context length, an
 VRNN-LRU's latents carry information; with the training-set-size
 sweep (``voe_lightning.size_sweep``, paper Figure 3) and the calibration of the verdict
 (``voe_lightning.calibration``), the subcommands of ``analyze`` (``COMMANDS``).
-``python -m voe_lightning analyze curves|sweep|sweep-plot|compare|context-sweep|latents|calibrate``.
+``python -m voe_lightning analyze
+curves|sweep|sweep-plot|compare|context-sweep|latents|null|calibrate``; ``null`` is
+``voe_lightning.null``'s.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from voe_lightning import calibration, specs
 from voe_lightning.cues import CUE_TITLES, FRAME_LOCAL_CUES, tracked_cues
 from voe_lightning.field_metrics import context_sweep, format_field_metrics
 from voe_lightning.model import VRNNLRUModel
+from voe_lightning.null import untrained_null
 from voe_lightning.report.figures import panel_grid, save_figure
 from voe_lightning.report.results import PairResults, read_summary
 from voe_lightning.size_sweep import sweep, sweep_plot
@@ -369,8 +372,8 @@ def latents(checkpoints: list[str], root: Path, pairs: int = 16, threshold: floa
 
 #: ``analyze``'s subcommands, as jsonargparse's ``auto_cli`` takes them (``_help``: the summary).
 COMMANDS = {"_help": "Figures and tables over runs: curves, sweep, sweep-plot, compare, "
-                     "context-sweep, latents; and the verdict's calibration on a store: "
-                     "calibrate.",
+                     "context-sweep, latents; untrained initializations of a config: null; and "
+                     "the verdict's calibration on a store: calibrate.",
             "curves": curves, "sweep": sweep, "sweep-plot": sweep_plot, "compare": compare,
-            "context-sweep": context_sweep_table, "latents": latents,
+            "context-sweep": context_sweep_table, "latents": latents, "null": untrained_null,
             "calibrate": calibration.calibrate_store}
