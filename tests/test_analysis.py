@@ -269,8 +269,9 @@ def test_notebook_reproduces_the_figures_of_a_run_directory(tmp_path, monkeypatc
 
 
 def test_compare_reads_each_verdicts_rows_beside_the_cue_audit(tmp_path, capsys):
-    """`analyze compare`: a pooled concept contributes its pooled row, unchangeableness its
-    three variants (never the generalization ones); effects and verdicts match the reports."""
+    """`analyze compare`: a quadruplet concept contributes its quadruplet row (the pairs'
+    seeds match the halves), unchangeableness its three variants (never the generalization
+    ones); effects and verdicts match the reports."""
     groups = {("solidity", "standard"): (40, 2.0), ("solidity", "counterbalanced"): (40, 2.0),
               ("unchangeableness", "position"): (30, 0.0),
               ("unchangeableness", "color"): (30, 0.0), ("unchangeableness", "shape"): (30, 0.0),
@@ -282,10 +283,10 @@ def test_compare_reads_each_verdicts_rows_beside_the_cue_audit(tmp_path, capsys)
     rows = analysis.comparison_rows([("a", tmp_path / "a"), ("b", tmp_path / "b")])
     assert [(r["run"], r["concept"], r["variant"], r["n"]) for r in rows] == [
         ("a", "unchangeableness", "position", 30), ("a", "unchangeableness", "color", 30),
-        ("a", "unchangeableness", "shape", 30), ("a", "solidity", "pooled", 80),
-        ("b", "solidity", "pooled", 80)]
+        ("a", "unchangeableness", "shape", 30), ("a", "solidity", "quadruplet", 40),
+        ("b", "solidity", "quadruplet", 40)]
     solidity_a, solidity_b = rows[3], rows[4]
-    assert solidity_a["voe"] is True and solidity_b["voe"] is False  # b: a variant M < 0
+    assert solidity_a["voe"] is True and solidity_b["voe"] is False  # b: a half's M < 0
     assert solidity_a["p_value"] < 1e-6 and solidity_a["cue_accuracy_min"] is None  # no audit
     assert solidity_a["tracked_cue_r"] is None
 
@@ -294,7 +295,7 @@ def test_compare_reads_each_verdicts_rows_beside_the_cue_audit(tmp_path, capsys)
           "--out", str(out)])
     table = out.read_text()
     assert table == capsys.readouterr().out
-    assert "| a | solidity | pooled | 80 |" in table and table.count("**yes**") == 1
+    assert "| a | solidity | quadruplet | 40 |" in table and table.count("**yes**") == 1
     with pytest.raises(FileNotFoundError, match="run test first"):
         analysis.comparison_rows([("missing", tmp_path / "missing")])
 
@@ -311,5 +312,5 @@ def test_compare_reads_a_runs_own_report_before_a_newer_one_on_other_data(tmp_pa
                                ("solidity", "counterbalanced"): (12, 2.0)}, seed=2),
                  run / "data_data_tpyo", bootstrap=0, echo=False)
     rows = analysis.comparison_rows([("run", run)])
-    assert [(r["variant"], r["n"]) for r in rows] == [("pooled", 80)]
+    assert [(r["variant"], r["n"]) for r in rows] == [("quadruplet", 40)]
     assert rows[0]["report"] == str(run / "voe_report")

@@ -51,22 +51,13 @@ def test_false_voe_stays_at_alpha_for_noise_and_every_cue_follower_the_stimuli_c
     assert worst.false_voe_rate <= bound, _describe(worst) + f" > bound {100 * bound:.2f}%"
 
 
-#: Concepts whose counterbalanced variant mirrors the cue differences but not the cue levels
-#: (docs/calibration.md): a follower of a video's standardized motion or extrapolation error is
-#: right on both variants (false VOE up to 100% here). Containment's levels were balanced
-#: enough in GENERATOR_VERSION 7, solidity's in 8; remove a concept when its scenes balance
-#: them too.
-UNBALANCED_LEVELS = ("continuity",)
-
-
-@pytest.mark.parametrize("concept", [
-    pytest.param(concept, marks=pytest.mark.xfail(strict=True, reason=(
-        f"stimuli: {concept}'s counterbalanced variant mirrors the cue differences, not the "
-        "levels; see docs/calibration.md")))
-    if concept in UNBALANCED_LEVELS else concept for concept in specs.CONCEPTS])
+@pytest.mark.parametrize("concept", specs.CONCEPTS)
 def test_no_cue_follower_gets_false_voe_beyond_alpha(rows, concept):
     """Also the followers the stimuli favour in every variant (``right_on_every_variant``):
-    no test of d can tell those from VOE, so they show where the scenes must change."""
+    no test of d can tell those from VOE, so they show where the scenes must change. A
+    quadruplet concept (object persistence, continuity) holds every follower of the scores of
+    frames from m on to its noise by construction; continuity, before its quadruplets, let
+    level followers through in 55-100% of repetitions."""
     bound = calibration.false_voe_bound(REPETITIONS, ALPHA, tests=len(rows))
     mine = [row for row in rows if row.concept == concept]
     offenders = [_describe(row) for row in mine if row.false_voe_rate > bound]
@@ -76,8 +67,8 @@ def test_no_cue_follower_gets_false_voe_beyond_alpha(rows, concept):
 
 def test_power_of_noise_alone_is_the_noncentral_t():
     """Unchangeableness' verdict needs each of its three variants significant: at effect delta
-    its rate is P(t > t_.99) under the noncentral t (df n - 1, nc delta sqrt(n)), cubed; a
-    pooled concept's, both variants and their stratified test, at delta = 0 at most alpha^2."""
+    its rate is P(t > t_.99) under the noncentral t (df n - 1, nc delta sqrt(n)), cubed (a
+    quadruplet concept's: test_quadruplet_concepts_calibrate_over_quadruplets...)."""
     n, repetitions = 20, 4000
     deltas = np.array([0.0, 0.5, 0.9])
     noise = {variant: np.zeros(1) for variant in specs.STANDARD_VARIANTS["unchangeableness"]}
@@ -87,10 +78,27 @@ def test_power_of_noise_alone_is_the_noncentral_t():
     expected = stats.nct.sf(critical, n - 1, deltas * np.sqrt(n)) ** 3
     error = 4 * np.sqrt(np.maximum(expected * (1 - expected), 1 / repetitions) / repetitions)
     assert np.all(np.abs(rates - expected) <= error), (rates, expected)
-    pooled = {variant: np.zeros(1) for variant in specs.STANDARD_VARIANTS["solidity"]}
-    rate = calibration.verdict_rates(pooled, "solidity", n, repetitions, ALPHA, np.zeros(1),
-                                     np.random.default_rng(2))
-    assert rate[0] <= calibration.false_voe_bound(repetitions, ALPHA**2)
+
+
+def test_quadruplet_concepts_calibrate_over_quadruplets_and_cancel_post_change_cues(audit):
+    """A quadruplet concept is tested over quadruplets: its noise-only rate at delta is the
+    noncentral t's of D (each half delta + N(0, 1): D ~ N(2 delta, 2)), both halves nearly
+    always above 0 there; and a follower of a frame-local cue (each reads frames from m on
+    only) has exactly opposite terms in a quadruplet's two halves."""
+    n, repetitions = 20, 4000
+    deltas = np.array([0.0, 0.6])
+    rates = calibration.quadruplet_rates([np.zeros(1), np.zeros(1)], n, repetitions, ALPHA,
+                                         deltas, np.random.default_rng(4))
+    assert rates[0] <= calibration.false_voe_bound(repetitions, ALPHA)
+    expected = stats.nct.sf(stats.t.ppf(1 - ALPHA, n - 1), n - 1, 0.6 * np.sqrt(2 * n))
+    assert abs(rates[1] - expected) <= 4 * np.sqrt(expected * (1 - expected) / repetitions) + 0.01
+    for concept in specs.QUADRUPLET_CONCEPTS:
+        for cue in cues.FRAME_LOCAL_CUES:
+            for follower in calibration.FOLLOWERS:
+                terms = calibration.cue_terms(audit, concept, cue, follower)
+                first, second = terms["standard"], terms["counterbalanced"]
+                assert first.size == PAIRS and np.array_equal(first, -second), (
+                    concept, cue, follower)
 
 
 def test_calibration_is_seeded_and_refuses_bad_arguments(audit):

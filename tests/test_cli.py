@@ -57,7 +57,8 @@ def test_fit_then_test_writes_curves_checkpoint_and_report(workdir):
     cases = {(row["concept"], row["variant"], row["n"]) for row in summary}
     assert cases == {("object_persistence", "standard", 3),
                      ("object_persistence", "counterbalanced", 3),
-                     ("object_persistence", "pooled", 6)}
+                     ("object_persistence", "pooled", 6),
+                     ("object_persistence", "quadruplet", 3)}  # the test seeds' quadruplets
     for name in ("pairs.csv", "summary.md", "histograms.png", "surprise_per_frame.png"):
         assert (report / name).is_file(), name
     # The cue audit of the same test pairs, beside the model's rows.

@@ -30,7 +30,7 @@ def test_surprise_after_the_manipulation_sums_to_the_audit_score(cue):
     model = CueScorer(cue)
     assert list(model.parameters()) == []
     surprise = model.surprise(frames, mask)
-    after = torch.arange(6)[None] > manipulation[:, None]
+    after = cues.counted_frames(CUE_NAMES[cue], manipulation, 6)
     expected = cues.score_videos(frames, mask, manipulation)[CUE_NAMES[cue]]
     assert torch.allclose((surprise.double() * after).sum(1), expected, rtol=1e-5)
     assert model.expected_frames(frames).shape == (3, 6, 3, 8, 8)

@@ -76,7 +76,8 @@ def test_datamodule_generates_and_serves_spec_batches(tmp_path):
     assert len(test_loaders) == 2  # test probes and the three-pillar generalization probes
     generalization = next(iter(test_loaders[1]))
     assert {specs.VARIANTS[v] for v in generalization["variant"].tolist()} == {"three_pillars"}
-    assert datamodule.probe_cases("val") == [("continuity", "standard"), ("continuity", "counterbalanced")]
+    assert datamodule.probe_cases("val") == [("continuity", "standard"), ("continuity", "counterbalanced"),
+                                             ("continuity", "paper")]
     assert torch.all(generalization["concept"] == specs.CONCEPTS.index("continuity"))
 
 

@@ -14,6 +14,7 @@ from voe_lightning import specs
 from voe_lightning.model import Encoder, VRNNLRUModel
 from voe_lightning.model.vrnn_lru import bf16_is_fast
 from voe_lightning.model.networks import Bottleneck, PixelShuffle
+from videos import moving_squares
 
 B, T, H, W = 8, 5, 32, 32
 TINY = dict(
@@ -32,19 +33,6 @@ def pair(fast: dict, **overrides) -> tuple[VRNNLRUModel, VRNNLRUModel]:
     other = VRNNLRUModel(**TINY, **fast, **overrides)
     other.load_state_dict(reference.state_dict())
     return reference, other
-
-
-def moving_squares(batch: int, seed: int, frames: int = T) -> torch.Tensor:
-    """uint8 videos of a bright square moving at a random speed on a dark background."""
-    generator = torch.Generator().manual_seed(seed)
-    video = torch.zeros(batch, frames, H, W, 3, dtype=torch.uint8)
-    start = torch.randint(0, 8, (batch,), generator=generator)
-    speed = torch.randint(1, 5, (batch,), generator=generator)
-    for b in range(batch):
-        for t in range(frames):
-            x = int(start[b] + speed[b] * t)
-            video[b, t, 10:18, x : x + 8] = 255
-    return video
 
 
 def test_strided_shortcut_is_a_stride_2_convolution():

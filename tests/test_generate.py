@@ -77,6 +77,13 @@ def test_plan_matches_controls_one_to_one_and_keeps_splits_disjoint():
             start = store_plan.SEED_STARTS[split]
             assert all(start <= seed < start + store_plan.SEED_RANGE for seed in own)
             assert all(not own & other for name, other in seeds.items() if name != split)
+    # A probe split gives every variant the same seeds: a seed names a quadruplet.
+    test = [item for t in tasks if t.concept == "object_persistence" and t.split == "test"
+            for item in t.items]
+    by_variant = {v: sorted(seed for name, seed in test if name == v)
+                  for v in specs.STANDARD_VARIANTS["object_persistence"]}
+    start = store_plan.SEED_STARTS["test"]
+    assert by_variant == {v: list(range(start, start + 4)) for v in by_variant}
     unchangeableness = [t for t in tasks if t.concept == "unchangeableness"]
     variants = {v for t in unchangeableness if t.split == "generalization" for v, _ in t.items}
     assert variants == set(specs.GENERALIZATION_VARIANTS["unchangeableness"])
@@ -140,7 +147,7 @@ def test_round_trip_resume_and_repair(tmp_path, calls):
 def test_ensure_dataset_generates_only_what_is_missing(tmp_path, calls):
     generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
     made = len(calls)
-    assert made == 8 + 2 * 2 + 2 * 3 + 1  # two standard variants, one generalization
+    assert made == 8 + 2 * 3 + 3 * 3 + 1  # three standard variants, one generalization
     store.shard_path(tmp_path, "continuity", "val", 0).unlink()
     summary = generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
     assert summary.shards_generated == 1 and len(calls) == made + 3
@@ -169,12 +176,12 @@ def test_the_counts_old_keyword_names_still_work_with_a_deprecation(tmp_path, ca
 def test_ensure_dataset_of_some_splits_leaves_the_rest_to_a_later_run(tmp_path, calls):
     """Issue 10 case 9: a test run makes only its probes; a later fit completes the store."""
     generate.ensure_dataset(tmp_path, concepts=("continuity",), splits=("test",), **SMALL)
-    assert {kind for _, kind, _, seed in calls} == {"probe"} and len(calls) == 2 * 3
+    assert {kind for _, kind, _, seed in calls} == {"probe"} and len(calls) == 3 * 3
     assert {path.name for path in (tmp_path / "continuity").iterdir()} == {"test"}
     assert generate.ensure_dataset(tmp_path, concepts=("continuity",), splits=("test",),
                                    **SMALL) is None
     generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
-    assert len(calls) == 8 + 2 * 2 + 2 * 3 + 1 and store_plan.verify(tmp_path) == []
+    assert len(calls) == 8 + 2 * 3 + 3 * 3 + 1 and store_plan.verify(tmp_path) == []
     with pytest.raises(ValueError, match="unknown split 'tests'; valid splits are: train"):
         generate.ensure_dataset(tmp_path, concepts=("continuity",), splits=("tests",), **SMALL)
 
@@ -230,7 +237,7 @@ def test_command_line_generates_with_real_scenes_in_two_workers(tmp_path):
             "--generalization_pairs", "1", "--shard_size", "1", "--workers", "2",
             "--height", "32", "--width", "32", "--progress", "false"]  # fmt: skip
     summary = main(argv)
-    assert summary.shards_generated == summary.shards_planned == 9
+    assert summary.shards_generated == summary.shards_planned == 11
     assert store_plan.verify(root) == []
     val = store.open_split(root, "continuity", "val")[0]
     expected = scenes.generate_probe("continuity", "standard", store_plan.SEED_STARTS["val"], height=32, width=32)
@@ -255,12 +262,12 @@ def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch)
         generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6})
     kinds = [specs.CLIP_KINDS[int(r["kind"])] for r in store.open_split(tmp_path, "continuity", "train")]
     assert kinds.count("example") == 2
-    # Concept: a shard of another concept copied in its place.
-    generate.generate_dataset(tmp_path, ("containment",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6})
+    # Concept: a shard of another concept with the same seeds (three variants) in its place.
+    generate.generate_dataset(tmp_path, ("containment", "unchangeableness"), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6})
     foreign = store.shard_path(tmp_path, "continuity", "test", 0)
-    foreign.write_bytes(store.shard_path(tmp_path, "containment", "test", 0).read_bytes())
+    foreign.write_bytes(store.shard_path(tmp_path, "unchangeableness", "test", 0).read_bytes())
     assert store_plan.verify(tmp_path) == [foreign]
-    with pytest.warns(UserWarning, match=r"its concept is 'containment', expected 'continuity'"):
+    with pytest.warns(UserWarning, match=r"its concept is 'unchangeableness', expected 'continuity'"):
         assert generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6}).shards_generated == 1
     assert specs.concept_name(store.open_split(tmp_path, "continuity", "test")[0]) == "continuity"
     # Generator version: a scene change makes every shard stale.
@@ -269,7 +276,7 @@ def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch)
     assert len(store_plan.verify(tmp_path)) == len(store_plan.manifest_plan(store.read_manifest(tmp_path))[0])
     options = {**SMALL, "height": 32, "train_examples": 2, "train_controls": 6}
     with pytest.warns(UserWarning, match=f"its generator_version is {version}, expected {version + 1}"):
-        summary = generate.ensure_dataset(tmp_path, concepts=("continuity", "containment"), **options)
+        summary = generate.ensure_dataset(tmp_path, concepts=("continuity", "containment", "unchangeableness"), **options)
     assert summary.shards_skipped == 0 and store_plan.verify(tmp_path) == []
     assert store.read_manifest(tmp_path)["generator_version"] == store_plan.GENERATOR_VERSION
 

@@ -22,7 +22,7 @@ from voe_lightning.probe_datamodule import ProbeDataModule
 from voe_lightning.report import write_report
 from voe_lightning.report.figures import PredictionExample
 from voe_lightning.report.results import SUMMARY_COLUMNS, PairResults
-from voe_lightning.statistics import ALPHA, paired_test, pooled_test
+from voe_lightning.statistics import ALPHA, paired_test, pooled_test, quadruplet_test
 
 T, H, W = 6, 16, 16
 
@@ -77,18 +77,34 @@ def test_summary_rows_are_paired_tests_in_specs_order(report):
     directory, results, rows = report
     assert [(r["concept"], r["variant"]) for r in rows] == [
         ("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
-        ("object_persistence", "pooled"), ("continuity", "standard"), ("solidity", "standard")]
+        ("object_persistence", "pooled"), ("object_persistence", "quadruplet"),
+        ("continuity", "standard"), ("solidity", "standard")]
     for row, (_, variant, pairs) in zip(rows, results.groups(pooled=True)):
         if row["n"] < 2:
             continue
         if variant == "pooled":
             expected = pooled_test(pairs.total_inconsistent, pairs.total_consistent,
                                    pairs.variant, bootstrap=200)
+        elif variant == "quadruplet":
+            expected = _quadruplets_by_hand(results)
         else:
             expected = paired_test(pairs.total_inconsistent, pairs.total_consistent, bootstrap=200)
         assert expected.alpha == ALPHA
         assert {k: row[k] for k in expected.as_dict()} == expected.as_dict()
     assert rows[0]["significant"] and not rows[1]["significant"]
+
+
+def _quadruplets_by_hand(results):
+    """The quadruplet test of object persistence's pairs matched by seed (100-108: the
+    counterbalanced pairs lack seed 109)."""
+    totals = {}
+    for i, (concept, variant) in enumerate(zip(results.concept, results.variant)):
+        if concept == "object_persistence":
+            totals[variant, int(results.seed[i])] = (results.total_inconsistent[i],
+                                                     results.total_consistent[i])
+    first, second = ([totals[variant, seed] for seed in range(100, 109)]
+                     for variant in ("standard", "counterbalanced"))
+    return quadruplet_test(*np.array(first).T, *np.array(second).T, bootstrap=200)
 
 
 def test_pooled_row_is_the_stratified_test_of_both_variants(report):
@@ -128,8 +144,12 @@ def test_summary_states_each_concepts_verdict(report):
     document = json.loads((directory / "summary.json").read_text())
     verdicts = {v["concept"]: v for v in document["verdicts"]}
     assert list(verdicts) == ["object_persistence", "continuity", "solidity"]
-    assert verdicts["object_persistence"]["voe"] is all(row["p_value"] < ALPHA
-                                                        for row in rows[:3])
+    quadruplet = rows[3]
+    assert quadruplet["variant"] == "quadruplet" and quadruplet["n"] == 9
+    assert verdicts["object_persistence"]["voe"] is (
+        quadruplet["p_value"] < ALPHA and quadruplet["first_half"] > 0
+        and quadruplet["second_half"] > 0)
+    assert "quadruplet test" in verdicts["object_persistence"]["rule"]
     # continuity and solidity lack their counterbalanced pairs: no pooled test, no verdict.
     assert verdicts["continuity"]["voe"] is None and "counterbalanced" in verdicts["continuity"]["verdict"]
     markdown = (directory / "summary.md").read_text()
@@ -144,7 +164,7 @@ def test_summary_files_schema(report):
         reader = csv.DictReader(handle)
         assert tuple(reader.fieldnames) == SUMMARY_COLUMNS
         table = list(reader)
-    assert len(table) == 5
+    assert len(table) == 6
     assert float(table[0]["t"]) == pytest.approx(rows[0]["t"], rel=1e-12)
 
     def refuse(constant):
@@ -152,19 +172,19 @@ def test_summary_files_schema(report):
 
     document = json.loads((directory / "summary.json").read_text(), parse_constant=refuse)
     assert document["num_pairs"] == len(results) == 24 and document["num_frames"] == T
-    assert [list(r) for r in document["rows"]] == [list(SUMMARY_COLUMNS)] * 5
+    assert [list(r) for r in document["rows"]] == [list(SUMMARY_COLUMNS)] * 6
     assert document["rows"][0]["p_value"] == rows[0]["p_value"]
     markdown = (directory / "summary.md").read_text()
     paired, field = markdown.split("## The field's metrics")
     lines = [line for line in paired.splitlines() if line.startswith("|")]
-    assert len(lines) == 2 + 5 and "t(9) = " in markdown and "| M [95% CI] |" in lines[0]
-    assert len([line for line in field.splitlines() if line.startswith("|")]) == 2 + 5
-    assert len(document["field_metrics"]) == 5
+    assert len(lines) == 2 + 6 and "t(9) = " in markdown and "| M [95% CI] |" in lines[0]
+    assert len([line for line in field.splitlines() if line.startswith("|")]) == 2 + 6
+    assert len(document["field_metrics"]) == 6
 
 
 def test_degenerate_groups_are_explained_not_nan(report):
     directory, _, rows = report
-    single, constant = rows[3], rows[4]
+    single, constant = rows[4], rows[5]
     assert single["n"] == 1 and single["t"] is None and "no test" in single["note"]
     assert constant["t"] == math.inf and constant["p_value"] == 0.0
     assert "zero variance" in constant["note"]
@@ -173,7 +193,7 @@ def test_degenerate_groups_are_explained_not_nan(report):
     assert "| continuity | standard [1] | 1 | n/a |" in markdown and "t(3) = +inf" in markdown
     assert "[2] zero variance" in markdown
     document = json.loads((directory / "summary.json").read_text())
-    assert document["rows"][4]["t"] == "inf" and document["rows"][3]["t"] is None
+    assert document["rows"][5]["t"] == "inf" and document["rows"][4]["t"] is None
 
 
 def test_pairs_csv_round_trips_exactly(report):

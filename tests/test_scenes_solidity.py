@@ -1,7 +1,7 @@
 """Solidity scenes, beyond the shared validity test: perspective control (the probe camera sees
 inside the top of the container, never its bottom), probe parameters inside the examples'
-ranges, the standard and counterbalanced pairs showing what they should, and the controls
-being what the paper says."""
+ranges, the quadruplet's two blocks (tall, resting protruding; short, sinking out of sight)
+and its pairs showing what they should, and the controls being what the paper says."""
 
 import mujoco
 import numpy as np
@@ -13,7 +13,7 @@ from voe_lightning.scenes.builder import Geom, SceneBuilder
 from voe_lightning.scenes.simulation import visible_ids
 
 CONCEPT = "solidity"
-CONTAINER, BLOCK, SUPPORT = 1, 2, 3  # mask ids, in the order the objects are added
+CONTAINER, BLOCK = 1, 2  # mask ids, in the order the objects are added
 
 
 def ids_in(mask: torch.Tensor) -> set[int]:
@@ -84,29 +84,30 @@ def test_probe_parameters_lie_inside_the_examples_range_with_mass_there(variant)
 
 
 @pytest.mark.parametrize("seed", range(20))
-def test_the_variants_draw_the_same_scenes(seed):
-    """The counterbalanced pair mirrors the standard one in what is seen, not only in what
-    changes: drawn from the same generator, the two variants get the same container, camera,
-    footprint and timing, and differ only where the block rests (floor or
-    hidden support), so its height and start; its top then rests equally far above the sight
-    line over the front rim."""
-    drawn = {variant: solidity.draw_probe(variant, np.random.default_rng(seed))
-             for variant in solidity.VARIANTS}
-    standard, counterbalanced = drawn["standard"], drawn["counterbalanced"]
-    for key in ("box", "camera", "hold", "manipulation_frame"):
-        assert standard[key] == counterbalanced[key], key
-    for key in ("offset", "yaw"):
-        assert standard["block"][key] == counterbalanced["block"][key], key
-    assert standard["block"]["half"][:2] == counterbalanced["block"]["half"][:2]
-    floor = 2 * standard["box"]["wall"]
-    tops = [floor + 2 * standard["block"]["half"][2],
-            counterbalanced["support"] + 2 * counterbalanced["block"]["half"][2]]
-    assert tops[0] == pytest.approx(tops[1], abs=1e-12), "both protrude alike when resting"
-    # Both start where a fall of FALL_TIME leaves them just above where they rest.
-    video = VideoOptions()
-    for params, rest in ((standard, floor), (counterbalanced, counterbalanced["support"])):
-        bottom = params["box"]["height"] + params["drop"] - solidity.fall_distance(video)
-        assert solidity.CLEARANCE[0] <= bottom - rest <= solidity.CLEARANCE[1]
+def test_the_two_blocks_hang_level_and_only_the_tall_one_can_protrude(seed):
+    """One draw, two scenes: the same container, camera, footprint and timing; the blocks'
+    tops level when let go, so at the change both have fallen FALL_TIME to the same height,
+    the tall one CLEARANCE above the floor; the short one's bottom then and its top at rest
+    lie MARGIN or more below the sight line over the front rim, the tall one's top at rest
+    PROTRUSION above it."""
+    params = solidity.draw_quadruplet(np.random.default_rng(seed))
+    box, block, heights, drops = (params[k] for k in ("box", "block", "heights", "drops"))
+    tops = [box["height"] + drops[size] + heights[size] for size in ("tall", "short")]
+    assert tops[0] == pytest.approx(tops[1], abs=1e-12), "the tops hang level"
+    floor, fall = 2 * box["wall"], solidity.fall_distance(VideoOptions())
+    at_change = tops[0] - fall
+    assert solidity.CLEARANCE[0] <= at_change - heights["tall"] - floor <= solidity.CLEARANCE[1]
+    eye = solidity.camera_position(params["camera"])
+    hidden = [solidity._hidden_height(eye, box, x, y)
+              for x, y in solidity._footprint(block, block["offset"])]
+    assert at_change - heights["short"] <= min(hidden) - solidity.MARGIN + 1e-12
+    assert floor + heights["short"] <= min(hidden) - solidity.MARGIN + 1e-12
+    protrusion = floor + heights["tall"] - max(hidden)
+    assert solidity.PROTRUSION[0] <= protrusion <= solidity.PROTRUSION[1]
+    for variant, size in (("standard", "tall"), ("counterbalanced", "short")):
+        half = solidity.draw_probe(variant, np.random.default_rng(seed))
+        assert half["block"]["half"][2] == pytest.approx(heights[size] / 2)
+        assert half["drop"] == drops[size] and half["box"] == box
 
 
 @pytest.mark.parametrize("variant", solidity.VARIANTS)
@@ -124,17 +125,14 @@ def test_the_block_is_seen_still_for_several_frames_before_the_change(variant):
         assert states["position"][m, BLOCK, 2] < heights[0], "it falls before the change"
 
 
-@pytest.mark.parametrize("variant", solidity.VARIANTS)
-def test_the_block_is_just_above_where_it_rests_at_the_change(variant):
-    """At the manipulation frame the block has fallen FALL_TIME (as simulated, from where it
-    hung) and is CLEARANCE above where it comes to rest in the video where it rests (standard:
-    consistent, on the floor; counterbalanced: inconsistent, on the hidden support)."""
-    resting = "consistent" if variant == "standard" else "inconsistent"
+def test_the_tall_block_is_just_above_the_floor_at_the_change():
+    """At the manipulation frame the blocks have fallen FALL_TIME (as simulated, from where
+    they hung) and the tall one (standard consistent) is CLEARANCE above where it rests."""
     video = VideoOptions()
     for seed in range(4):
-        record = generate_probe(CONCEPT, variant, seed)
+        record = generate_probe(CONCEPT, "standard", seed)
         m = int(record["manipulation_frame"])
-        height = record[resting, "objects"]["position"][:, BLOCK, 2].double()
+        height = record["consistent", "objects"]["position"][:, BLOCK, 2].double()
         fallen = float(height[0] - height[m])
         assert fallen == pytest.approx(solidity.fall_distance(video), abs=1e-3), seed
         above = float(height[m] - height[-1])
@@ -159,20 +157,17 @@ def test_standard_block_rests_visibly_or_falls_out_of_view(seed):
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_counterbalanced_block_sinks_out_of_view_or_stays_on_a_hidden_support(seed):
-    """The mirror of standard: the short block disappears into the container (consistent) or
-    lands on a support that is never seen and stays protruding (inconsistent)."""
+def test_counterbalanced_block_sinks_out_of_view_or_stops_protruding(seed):
+    """The mirror of standard: the short block disappears into the container (consistent) or,
+    after the change, is the tall one resting protruding (inconsistent), never moving again."""
     record = generate_probe(CONCEPT, "counterbalanced", seed)
-    assert record["manipulated_ids"].tolist() == [SUPPORT, 0, 0, 0]
+    assert record["manipulated_ids"].tolist() == [BLOCK, 0, 0, 0]
     m = int(record["manipulation_frame"])
     consistent, inconsistent = record["consistent", "mask"], record["inconsistent", "mask"]
-    for video in (consistent, inconsistent):
-        assert SUPPORT not in ids_in(video.flatten()), "the hidden support shows"
     assert BLOCK in ids_in(consistent[0]) and BLOCK in ids_in(consistent[m])
     assert BLOCK not in ids_in(consistent[-1]), "the short block ends out of view"
     stays = (inconsistent[m + 1 :] == BLOCK).flatten(1).sum(1)
-    assert (stays >= 6).all(), "the supported block protrudes to the end"
-    assert (stays[1:] - stays[:-1]).abs().max() <= 2, "and rests there, unmoving"
+    assert (stays >= 6).all(), "the stopped block protrudes to the end"
     # The inconsistent video shows more of the block and moves less: standard's mirror image.
     shown = [(video[m + 1 :] == BLOCK).sum() for video in (consistent, inconsistent)]
     assert shown[1] > shown[0]

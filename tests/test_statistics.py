@@ -425,3 +425,86 @@ def test_one_row_formatter_writes_each_number_alike_in_every_style():
          "significant": True}))
     assert (degenerate.t, degenerate.p, degenerate.d_z, degenerate.mean_interval) == (
         "t(2) = +inf", "< .001", "+inf", "1")
+
+
+# ----------------------------------------------------------------------------- quadruplet test
+
+
+@pytest.mark.parametrize("n, effect, seed", [(2, 0.5, 0), (25, 0.3, 1), (200, -0.1, 2)])
+def test_quadruplet_test_agrees_with_scipy_over_d(n, effect, seed):
+    """D = [S(AB) - S(A)] + [S(BA) - S(B)] per quadruplet, one-tailed t over quadruplets as
+    scipy's one-sample test of D, accuracy the share of D > 0, and the halves' means."""
+    rng = np.random.default_rng(seed)
+    a, b = rng.normal(10, 2, n), rng.normal(10, 2, n)
+    ab, ba = b + effect + rng.normal(0, 1, n), a + effect + rng.normal(0, 1, n)
+    result = statistics.quadruplet_test(ab, a, ba, b, bootstrap=0)
+    d = (ab - a) + (ba - b)
+    expected = stats.ttest_1samp(d, 0.0, alternative="greater")
+    assert result.n == n and result.df == n - 1
+    assert result.t == pytest.approx(expected.statistic, rel=1e-10)
+    assert result.p_value == pytest.approx(expected.pvalue, rel=1e-10)
+    assert result.relative_surprise == pytest.approx(d.mean(), rel=1e-12)
+    assert result.accuracy == np.mean(d > 0)
+    assert result.first_half == pytest.approx(np.mean(ab - a), rel=1e-12)
+    assert result.second_half == pytest.approx(np.mean(ba - b), rel=1e-12)
+    with pytest.raises(ValueError, match=f"one pair per quadruplet alike; got {n} first and "
+                                         f"{n - 1} second"):
+        statistics.quadruplet_test(ab, a, ba[1:], b[1:])
+
+
+def test_quadruplets_match_by_seed_and_the_report_tests_them():
+    """The two halves of a quadruplet concept are matched by seed whatever their order; a
+    seed without its other half is left out (a concept without a common seed gets no
+    quadruplet group); a seed twice in one variant is refused."""
+    from voe_lightning.report.results import PairResults, summarize
+    from voe_lightning.verdicts import concept_verdicts, pair_groups, quadruplets
+
+    concepts = ["object_persistence"] * 7 + ["continuity"] * 2
+    variants = ["standard", "counterbalanced", "counterbalanced", "standard", "standard",
+                "counterbalanced", "counterbalanced", "standard", "counterbalanced"]
+    seeds = [5, 7, 5, 7, 9, 3, 11, 5, 6]  # continuity's two pairs: no common seed
+    (concept, first, second), = quadruplets(concepts, variants, seeds)
+    assert concept == "object_persistence"
+    assert first.tolist() == [0, 3] and second.tolist() == [2, 1]  # seeds 5, 7
+    groups = pair_groups(concepts, variants, seeds=seeds)
+    assert [(c, v) for c, v, _ in groups] == [
+        ("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
+        ("object_persistence", "pooled"), ("object_persistence", "quadruplet"),
+        ("continuity", "standard"), ("continuity", "counterbalanced"), ("continuity", "pooled")]
+    assert groups[3][2].tolist() == [0, 3, 2, 1]
+    with pytest.raises(ValueError, match="object_persistence/standard holds seed 5 more than"):
+        quadruplets(concepts + ["object_persistence"], variants + ["standard"], seeds + [5])
+
+    rng = np.random.default_rng(0)
+    frames = rng.uniform(0, 1, (len(seeds), 2, 4))
+    results = PairResults(concept=concepts, variant=variants, seed=seeds,
+                          manipulation_frame=[1] * len(seeds), surprise_consistent=frames[:, 0],
+                          surprise_inconsistent=frames[:, 1] + 1.0)
+    rows = {(row["concept"], row["variant"]): row for row in summarize(results, bootstrap=0)}
+    row = rows[("object_persistence", "quadruplet")]
+    total_con, total_inc = frames[:, 0].sum(1), frames[:, 1].sum(1) + 4.0
+    d = total_inc - total_con
+    assert row["n"] == 2 and row["relative_surprise"] == pytest.approx(d[[0, 3]].sum() / 2
+                                                                       + d[[2, 1]].sum() / 2)
+    assert row["first_half"] == pytest.approx(d[[0, 3]].mean())
+    assert rows[("continuity", "pooled")]["first_half"] is None
+    verdict = concept_verdicts(list(rows.values()))[0]
+    assert "quadruplet test, both halves M > 0" in verdict.rule
+
+
+def test_quadruplet_verdict_needs_the_test_and_both_halves():
+    from voe_lightning.verdicts import concept_verdicts, quadruplet_rule
+
+    def verdict(p, first, second):
+        row = {"p_value": p, "relative_surprise": first + second, "first_half": first,
+               "second_half": second}
+        return concept_verdicts({("object_persistence", "standard"): _result(0.9, -1.0),
+                                 ("object_persistence", "quadruplet"): row})[0]
+
+    assert verdict(0.001, 1.0, 0.5).voe is True  # a weak variant row does not decide it
+    assert verdict(0.001, 3.0, -0.5).text() == "no VOE: counterbalanced half M = -0.5 <= 0"
+    assert verdict(0.02, 1.0, 0.5).text() == "no VOE: quadruplet p = .020 >= 0.01"
+    assert verdict(None, 1.0, 1.0).voe is None
+    rules = quadruplet_rule(np.array([0.001, 0.001, 0.5]), np.array([1.0, -1.0, 1.0]),
+                            np.array([1.0, 1.0, 1.0]), 0.01)
+    assert rules.tolist() == [True, False, False]

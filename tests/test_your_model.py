@@ -67,7 +67,7 @@ def test_a_model_from_outside_the_package_is_tested_without_a_checkpoint(user_mo
     summary = json.loads((user_module / "runs" / "tiny" / "version_0" / "voe_report"
                           / "summary.json").read_text())
     assert {row["variant"] for row in summary["rows"]} == {"standard", "counterbalanced",
-                                                           "pooled"}
+                                                           "pooled", "quadruplet"}
 
 
 def test_a_callable_of_the_wrong_shape_or_path_is_named(user_module):

@@ -10,8 +10,12 @@ built from the *real* cue scores of generated probes (``cues.CueAudit``, the fra
 video's score, scaled to unit SD over the concept's pairs; ``sign`` says which way the model
 follows the cue; ``delta`` (in noise SDs) is a true violation effect. Each repetition draws
 ``pairs`` pairs per variant (with replacement, from the audit's pairs of that variant) and new
-noise, tests every variant and the pooled row as reports do (``statistics``) and applies the
-verdict rule (``verdicts.verdict_rule``). With delta = 0 the rate
+noise, tests every variant as reports do (``statistics``) and applies the verdict rule
+(``verdicts.verdict_rule``). A quadruplet concept (``specs.QUADRUPLET_CONCEPTS``)
+draws whole quadruplets instead, each half's d as above, and applies the quadruplet test and
+``verdicts.quadruplet_rule`` to D, the sum of its halves: a follower of cue scores that read
+only the frames from the change frame on has opposite terms in the two halves, so D is noise.
+With delta = 0 the rate
 of VOE verdicts is the false-VOE rate, which must stay at or below alpha; over a grid of delta
 the rate is the verdict's power. The same draws serve every delta (delta only shifts each
 variant's mean), so the power curve is one simulation.
@@ -33,7 +37,7 @@ from scipy import stats
 
 from voe_lightning import cues, specs, statistics
 from voe_lightning.statistics_format import format_alpha, json_row
-from voe_lightning.verdicts import verdict_rule
+from voe_lightning.verdicts import quadruplet_rule, quadruplets, verdict_rule
 
 __all__ = [
     "DELTAS",
@@ -45,6 +49,7 @@ __all__ = [
     "calibration_markdown",
     "cue_terms",
     "false_voe_bound",
+    "quadruplet_rates",
     "rows_as_dicts",
     "verdict_rates",
 ]
@@ -99,8 +104,9 @@ def cue_terms(audit: cues.CueAudit, concept: str, cue: str, follower: str
               ) -> dict[str, np.ndarray] | None:
     """Per variant of ``concept`` (its verdict's variants), the follower's term of each of the
     audit's pairs, scaled to unit SD over all those pairs; None where the cue is not scored for
-    every pair or does not vary (nothing to follow)."""
-    variants = specs.STANDARD_VARIANTS.get(concept, ())
+    every pair or does not vary (nothing to follow). For a quadruplet concept, the two
+    variants' terms are its quadruplets' halves, aligned (``verdicts.quadruplets``)."""
+    variants = specs.VERDICT_VARIANTS.get(concept, ())
     rows = (audit.concepts == concept) & np.isin(audit.variants, variants)
     con = audit.scores["consistent"][cue][rows]
     inc = audit.scores["inconsistent"][cue][rows]
@@ -115,20 +121,43 @@ def cue_terms(audit: cues.CueAudit, concept: str, cue: str, follower: str
     if spread == 0.0:
         return None
     term = term / spread
+    if concept in specs.QUADRUPLET_CONCEPTS:
+        every = np.full(len(audit), np.nan)
+        every[rows] = term
+        _, first, second = _matched(audit, concept)
+        return {variant: every[half] for variant, half in zip(variants, (first, second))}
     return {variant: term[audit.variants[rows] == variant] for variant in variants
             if (audit.variants[rows] == variant).any()}
+
+
+def _matched(audit: cues.CueAudit, concept: str) -> tuple[str, np.ndarray, np.ndarray]:
+    """The audit's quadruplets of ``concept`` (``verdicts.quadruplets``); a ValueError when
+    its pairs carry no seeds or match none."""
+    if audit.seeds is None:
+        raise ValueError(f"{concept} is tested over quadruplets, matched by seed, but the "
+                         "audited pairs carry no seeds")
+    found = [match for match in quadruplets(audit.concepts, audit.variants, audit.seeds)
+             if match[0] == concept]
+    if not found:
+        raise ValueError(f"no {concept} quadruplets among the audited pairs: no seed holds "
+                         "both a standard and a counterbalanced pair")
+    return found[0]
 
 
 def verdict_rates(terms: Mapping[str, np.ndarray], concept: str, pairs: int, repetitions: int,
                   alpha: float, deltas: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """The share of ``repetitions`` whose verdict for ``concept`` is VOE, at each of ``deltas``,
     for relative surprise delta + term + N(0, 1) per pair; ``terms`` per variant (all zero: pure
-    noise). Each repetition resamples ``pairs`` pairs per variant."""
-    variants = specs.STANDARD_VARIANTS[concept]
+    noise). Each repetition resamples ``pairs`` pairs per variant (a quadruplet concept:
+    ``pairs`` quadruplets, ``quadruplet_rates``)."""
+    variants = specs.VERDICT_VARIANTS[concept]
     missing = [variant for variant in variants if variant not in terms]
     if missing:
         raise ValueError(f"{concept} needs cue terms of every variant {variants}; missing "
                          f"{missing}")
+    if concept in specs.QUADRUPLET_CONCEPTS:
+        return quadruplet_rates([terms[v] for v in variants], pairs, repetitions, alpha,
+                                deltas, rng)
     moments = {}
     for variant in variants:
         pool = terms[variant]
@@ -139,13 +168,26 @@ def verdict_rates(terms: Mapping[str, np.ndarray], concept: str, pairs: int, rep
     means = {variant: mean[None] + shifted for variant, (mean, _) in moments.items()}
     p_values = [statistics.t_and_p(means[v], np.sqrt(moments[v][1] / pairs), pairs - 1)[1]
                 for v in variants]
-    if set(statistics.POOLED_VARIANTS) <= set(variants):
-        pooled = statistics.POOLED_VARIANTS
-        mean, error, df = statistics.stratified_moments(
-            [pairs] * len(pooled), [means[v] for v in pooled],
-            [np.broadcast_to(moments[v][1], means[v].shape) for v in pooled])
-        p_values.append(statistics.t_and_p(mean, error, df)[1])
     return verdict_rule(p_values, alpha).mean(axis=1)
+
+
+def quadruplet_rates(halves: Sequence[np.ndarray], count: int, repetitions: int, alpha: float,
+                     deltas: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``verdict_rates`` of a quadruplet concept: each repetition resamples ``count``
+    quadruplets (their two ``halves``' terms, aligned) and adds delta + N(0, 1) to each half's
+    d; VOE by ``quadruplet_rule`` on D = the sum of the halves."""
+    first, second = (np.asarray(half, dtype=np.float64) for half in halves)
+    if first.shape != second.shape:
+        raise ValueError(f"a quadruplet's two halves must align; got {first.size} first and "
+                         f"{second.size} second terms")
+    index = rng.integers(0, first.size, (repetitions, count))
+    drawn = [half[index] + rng.standard_normal((repetitions, count)) for half in (first, second)]
+    total = drawn[0] + drawn[1]
+    shifted = np.asarray(deltas, dtype=np.float64)[:, None]  # [deltas, 1] over [repetitions]
+    error = np.sqrt(total.var(axis=1, ddof=1) / count)
+    p_values = statistics.t_and_p(total.mean(axis=1)[None] + 2 * shifted, error, count - 1)[1]
+    first_mean, second_mean = (half.mean(axis=1)[None] + shifted for half in drawn)
+    return quadruplet_rule(p_values, first_mean, second_mean, alpha).mean(axis=1)
 
 
 @dataclass(frozen=True)
@@ -187,7 +229,7 @@ def calibrate(
 ) -> list[CalibrationRow]:
     """A ``CalibrationRow`` per concept of the audit (or ``concepts``) for noise alone and for
     each cue, follower, sign (+1, -1) and weight; ``pairs`` per variant per repetition
-    (default: the audit's smallest variant). Power (over ``deltas``) is computed for noise
+    (default: the audit's smallest variant; a quadruplet concept: its quadruplets). Power (over ``deltas``) is computed for noise
     alone and the ``power_weights``; the other rows have only the false-VOE rate (their
     ``delta_80`` is NaN). Seeded: the same arguments give the same rows."""
     statistics.check_alpha(alpha)
@@ -202,9 +244,11 @@ def calibrate(
     concepts = [concept for concept in specs.CONCEPTS if concept in chosen]  # specs order
     rows = []
     for concept in concepts:
-        variants = specs.STANDARD_VARIANTS[concept]
-        sizes = {v: int(((audit.concepts == concept) & (audit.variants == v)).sum())
-                 for v in variants}
+        variants = specs.VERDICT_VARIANTS[concept]
+        sizes = ({v: _matched(audit, concept)[1].size for v in variants}
+                 if concept in specs.QUADRUPLET_CONCEPTS else
+                 {v: int(((audit.concepts == concept) & (audit.variants == v)).sum())
+                  for v in variants})
         if min(sizes.values()) < 2:
             raise ValueError(f"{concept} needs at least 2 audited pairs of each of {variants}; "
                              f"the audit has {sizes}")
@@ -268,7 +312,7 @@ def calibration_markdown(rows: Sequence[CalibrationRow], title: str = "Calibrati
     tested = [row for row in rows if row.cue is not None]
     bound = false_voe_bound(repetitions, alpha, max(1, len(rows)))
     lines = [f"## {title} ({format_alpha(alpha)}, {repetitions} repetitions)", "",
-             "| concept | pairs per variant | cue follower | false VOE at δ = 0: worst (cue, "
+             "| concept | pairs per variant (quadruplets) | cue follower | false VOE at δ = 0: worst (cue, "
              "sign, weight) | δ (power) at 80% VOE: noise only | δ (power) at 80% VOE: worst "
              "cue at weight 1 (cue, sign) |", "|" + "---|" * 6]
     for concept in dict.fromkeys(row.concept for row in rows):
@@ -292,8 +336,9 @@ def calibration_markdown(rows: Sequence[CalibrationRow], title: str = "Calibrati
     lines += ["", f"Synthetic relative surprise d = δ + weight · sign · f(cue) + N(0, 1) per pair "
               "(δ and weight in noise SDs; f scaled to unit SD over the concept's pairs), from "
               "the real cue scores of the audited probes; each repetition resamples the pairs "
-              "of each variant and tests as the report does (pooled: the stratified test; "
-              "verdict: `verdicts.verdict_rule`). "
+              "of each variant and tests as the report does (verdict: `verdicts.verdict_rule`; "
+              "a quadruplet concept resamples its quadruplets and decides by the quadruplet "
+              "test, `verdicts.quadruplet_rule`). "
               f"False VOE must stay at or below α; with {repetitions} repetitions and "
               f"{len(rows)} rates, {100 * bound:.2f}% is the binomial bound (p = .001, "
               "Bonferroni) a calibrated verdict stays under. δ: the smallest of a grid of "

@@ -31,7 +31,8 @@ __all__ = ["audit", "cue_table", "format_correlations", "format_markdown", "form
 
 #: How a compact table's cell writes accuracy and d_z: '61% / +0.52'.
 CELL_STYLE = replace(BRIEF, d_z="+.2f")
-
+#: The rows a concept's verdict may read, printed bold: its pooled and quadruplet tests.
+_TESTED_TOGETHER = (statistics.POOLED, statistics.QUADRUPLET)
 
 
 def _cell(row: Mapping[str, Any] | None) -> tuple[str, bool]:
@@ -81,7 +82,7 @@ def format_markdown(
                 texts.append(text + (" *" if separates else ""))
             else:
                 texts.append(f"**{text}**" if separates else text)
-        name = f"**{variant}**" if variant == statistics.POOLED else variant
+        name = f"**{variant}**" if variant in _TESTED_TOGETHER else variant
         lines.append(f"| {concept} | {name} | {n} | " + " | ".join(texts) + " |")
     lines += ["", "Each cell: accuracy / d_z of d = score(inconsistent) - score(consistent) on "
               "the same pairs (cue accuracy counts ties as half: 50% is chance). Cues are "
@@ -115,7 +116,7 @@ def _correlation_table(correlation_rows: Sequence[Mapping[str, Any]], title: str
             else:
                 text = f"{row['r']:+.2f}"
                 cells.append(f"**{text}**" if row["p_two_sided"] < row["alpha"] else text)
-        name = f"**{variant}**" if variant == statistics.POOLED else variant
+        name = f"**{variant}**" if variant in _TESTED_TOGETHER else variant
         n = by_key[(concept, variant, CUES[0])]["n"]
         lines.append(f"| {concept} | {name} | {n} | " + " | ".join(cells) + " |")
     return lines
@@ -193,7 +194,7 @@ def cue_table(
                           else f"[red]{text}[/red]" if separates else text)
         last = index + 1 == len(groups) or groups[index + 1][0] != concept
         table.add_row(concept, variant, str(n), *styled,
-                      style="bold" if variant == statistics.POOLED else None, end_section=last)
+                      style="bold" if variant in _TESTED_TOGETHER else None, end_section=last)
     return table
 
 

@@ -13,7 +13,8 @@ identical up to and including it), per video, with frames x_t in [0, 1]:
 - ``motion_energy``: mean absolute difference of consecutive frames, summed;
 - ``copy_last_error``: mean squared error of predicting each frame by the one before;
 - ``linear_extrapolation_error``: mean squared error of predicting x_t by
-  clip(2 x_{t-1} - x_{t-2}, 0, 1);
+  clip(2 x_{t-1} - x_{t-2}, 0, 1), from t = m + 2 on, so that it reads no frame before m (as
+  the other frame-local cues do not: on a quadruplet every one of them gives D = 0 exactly);
 - ``pixel_novelty``: per pixel, the L1 distance of its colour to the nearest colour seen at that
   place in any earlier frame, summed (something new appearing where it never was).
 
@@ -37,6 +38,7 @@ import torch
 from scipy import stats
 
 from voe_lightning import specs, statistics
+from voe_lightning.statistics import QUADRUPLET
 from voe_lightning.verdicts import pair_groups
 
 __all__ = [
@@ -46,6 +48,7 @@ __all__ = [
     "FRAME_LOCAL_CUES",
     "audit_records",
     "audit_split",
+    "counted_frames",
     "frame_scores",
     "physics_perfect_surprise",
     "score_videos",
@@ -67,7 +70,8 @@ CUE_TITLES = {"foreground_pixels": "foreground", "motion_energy": "motion",
 SIDES = ("consistent", "inconsistent")
 #: Columns of cues.csv, in order (``None`` cells mean "no test", explained in ``note``).
 CUE_COLUMNS = (("concept", "variant", "cue")
-               + tuple(f for f in statistics.PairedTestResult.__dataclass_fields__ if f != "note")
+               + tuple(f for f in statistics.QuadrupletTestResult.__dataclass_fields__
+                       if f != "note")
                + ("p_two_sided", "note"))
 #: Columns of cue_correlations.csv (``CueAudit.model_correlations``).
 CORRELATION_COLUMNS = ("concept", "variant", "cue", "n", "r", "p_two_sided", "alpha", "note")
@@ -124,6 +128,19 @@ def frame_scores(
     return {cue: scores[cue] for cue in CUES}
 
 
+#: Frames past m + 1 from which a cue is counted: linear extrapolation predicts frame t from
+#: t - 1 and t - 2, so it counts from m + 2 on and, like every frame-local cue, reads no frame
+#: before m (a quadruplet's videos differ there, docs/stimuli.md). Pixel novelty alone
+#: remembers the frames before m, by design.
+_LATER = {"linear_extrapolation_error": 1}
+
+
+def counted_frames(cue: str, manipulation_frame: torch.Tensor, num_frames: int) -> torch.Tensor:
+    """[B, T] bool: the frames whose values ``score_videos`` sums for ``cue``: t > m, and for
+    linear extrapolation t > m + 1 (``_LATER``)."""
+    return _after(manipulation_frame + _LATER.get(cue, 0), num_frames)
+
+
 def _after(manipulation_frame: torch.Tensor, num_frames: int) -> torch.Tensor:
     """[B, T] bool: the frames after each pair's manipulation frame (on its device), the only
     ones the audit scores: both videos are identical up to and including it."""
@@ -137,7 +154,7 @@ def score_videos(
     """Every cue's score of a batch of videos: uint8 frames [B, T, H, W, 3], mask [B, T, H, W]
     (or None: no ``foreground_pixels``, NaN), manipulation frame [B]; float64 [B] per cue.
     Runs on the frames' device; each score sums the per-frame values (``frame_scores``) over
-    the frames t > m."""
+    the frames t > m (linear extrapolation: t > m + 1, ``counted_frames``)."""
     if frames.ndim != 5 or frames.shape[-1] != 3:
         raise ValueError(f"frames must be [B, T, H, W, 3], got {tuple(frames.shape)}")
     batch, num_frames = frames.shape[:2]
@@ -145,9 +162,9 @@ def score_videos(
     if m.numel() != batch or bool(((m < 0) | (m >= num_frames)).any()):
         raise ValueError(f"manipulation_frame must hold {batch} values in [0, {num_frames - 1}], "
                          f"got {m.tolist()}")
-    after = _after(m, num_frames).double()
     per_frame = frame_scores(frames, mask, first=int(m.min()) + 1)
-    return {cue: (values * after).sum(dim=1) for cue, values in per_frame.items()}
+    return {cue: (values * counted_frames(cue, m, num_frames)).sum(dim=1)
+            for cue, values in per_frame.items()}
 
 
 def seen_extent(inconsistent: torch.Tensor, consistent: torch.Tensor,
@@ -200,13 +217,15 @@ class CueAudit:
     """Per-pair cue scores of probe pairs: ``scores[side][cue]`` float64 arrays over pairs
     (side is ``consistent`` or ``inconsistent``; NaN where a cue cannot be scored), with each
     pair's concept and variant name and, where the records carry object states, its
-    ``seen_extent`` [N, 3] and ``physics_perfect_surprise`` [N] (else None)."""
+    ``seen_extent`` [N, 3] and ``physics_perfect_surprise`` [N] (else None); ``seeds`` [N]
+    (None where unknown) match a quadruplet concept's two halves (``verdicts.quadruplets``)."""
 
     concepts: np.ndarray
     variants: np.ndarray
     scores: dict[str, dict[str, np.ndarray]]
     extent: np.ndarray | None = None
     physics_perfect: np.ndarray | None = None
+    seeds: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.concepts)
@@ -242,6 +261,7 @@ class CueAudit:
              for side, by_cue in scores.items()},
             extent,
             physics_perfect,
+            batch["seed"].reshape(-1).cpu().numpy() if "seed" in batch.keys() else None,
         )
 
     @classmethod
@@ -256,13 +276,15 @@ class CueAudit:
             {side: {cue: np.concatenate([a.scores[side][cue] for a in audits]) for cue in CUES}
              for side in SIDES},
             *(np.concatenate(parts) if all(part is not None for part in parts) else None
-              for parts in ([a.extent for a in audits], [a.physics_perfect for a in audits])),
+              for parts in ([a.extent for a in audits], [a.physics_perfect for a in audits],
+                            [a.seeds for a in audits])),
         )
 
     def groups(self) -> list[tuple[str, str, np.ndarray]]:
-        """(concept, variant, row selector) for every variant, and a ``pooled`` group for each
-        concept with a counterbalanced pair (``verdicts.pair_groups``)."""
-        return pair_groups(self.concepts, self.variants)
+        """(concept, variant, row selector) for every variant, a ``pooled`` group for each
+        concept with a counterbalanced pair and, where seeds are known, a ``quadruplet`` group
+        for each quadruplet concept (``verdicts.pair_groups``)."""
+        return pair_groups(self.concepts, self.variants, seeds=self.seeds)
 
     def rows(self, alpha: float = statistics.ALPHA, bootstrap: int = 0) -> list[dict[str, Any]]:
         """One row per (concept, variant or pooled, cue), columns ``CUE_COLUMNS``: the test
@@ -274,7 +296,8 @@ class CueAudit:
                 inconsistent = self.scores["inconsistent"][cue][selected]
                 consistent = self.scores["consistent"][cue][selected]
                 row: dict[str, Any] = dict.fromkeys(CUE_COLUMNS)
-                row.update(concept=concept, variant=variant, cue=cue, n=int(selected.sum()))
+                row.update(concept=concept, variant=variant, cue=cue,
+                           n=len(self.concepts[selected]) // (2 if variant == QUADRUPLET else 1))
                 unscored = int(np.isnan(inconsistent).sum() + np.isnan(consistent).sum())
                 untested = statistics.untested_reason(variant, self.variants[selected])
                 if unscored:
@@ -287,7 +310,7 @@ class CueAudit:
                                                    self.variants[selected], alpha=alpha,
                                                    bootstrap=bootstrap)
                     row.update(result.as_dict())
-                    d = inconsistent - consistent
+                    d = _differences(variant, inconsistent - consistent)
                     row["accuracy"] = float(np.mean(d > 0) + 0.5 * np.mean(d == 0))
                     row["p_two_sided"] = _two_sided(result.t, result.df)
                 rows.append(row)
@@ -316,6 +339,8 @@ class CueAudit:
                        for cue in CUES}
         rows = []
         for concept, variant, selected in self.groups():
+            if variant == QUADRUPLET:  # correlations are pair by pair
+                continue
             readings = [(variant, model_difference, None)]  # (row name, d, covariates)
             if variant == statistics.POOLED:
                 within = np.empty((int(selected.sum()), 0))
@@ -347,6 +372,15 @@ class CueAudit:
                             else result.pvalue))
                     rows.append(row)
         return rows
+
+
+def _differences(variant: str, d: np.ndarray) -> np.ndarray:
+    """The differences a group's test is over: per pair, or per quadruplet D, the sum of its
+    halves (a ``quadruplet`` group holds its first halves, then its second halves)."""
+    if variant != QUADRUPLET:
+        return d
+    half = d.size // 2
+    return d[:half] + d[half:]
 
 
 def _residuals(values: np.ndarray, labels: np.ndarray, covariates: np.ndarray | None = None

@@ -39,12 +39,14 @@ def concept_entry(counts: dict[str, dict[str, int]]) -> dict:
     splits = {}
     for split in store.SPLITS:
         count = sum(counts[split].values())
-        key = "kinds" if store.SPLIT_RECORD_TYPE[split] == "clip" else "variants"
+        clips = store.SPLIT_RECORD_TYPE[split] == "clip"
+        key = "kinds" if clips else "variants"
+        seeds = count if clips else max(counts[split].values(), default=0)  # store_plan.split_seeds
         splits[split] = {
             "record_type": store.SPLIT_RECORD_TYPE[split],
             "count": count,
             "seed_start": SEED_STARTS[split],
-            "seed_stop": SEED_STARTS[split] + count,
+            "seed_stop": SEED_STARTS[split] + seeds,
             key: counts[split],
         }
     return {"splits": splits}

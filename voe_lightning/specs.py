@@ -26,19 +26,36 @@ CLIP_KINDS_BY_CONCEPT: dict[str, tuple[str, ...]] = {
 }
 
 #: Probe variants per concept used for validation and test (paper §3; ``counterbalanced`` for
-#: continuity, solidity and containment is ours, docs/architecture.md §4).
+#: continuity, solidity and containment is ours, docs/architecture.md §4; continuity's
+#: ``paper`` is the paper's probe, reported beside the quadruplets, docs/stimuli.md).
 STANDARD_VARIANTS: dict[str, tuple[str, ...]] = {
     "object_persistence": ("standard", "counterbalanced"),
     "unchangeableness": ("position", "color", "shape"),
-    "continuity": ("standard", "counterbalanced"),
+    "continuity": ("standard", "counterbalanced", "paper"),
     "solidity": ("standard", "counterbalanced"),
     "containment": ("standard", "counterbalanced"),
+}
+#: Probe variants reported beside a concept's verdict and never read by it: the paper's
+#: continuity probe, which no splice of two physical videos gives (docs/stimuli.md).
+REPORTED_BESIDE: frozenset[str] = frozenset({"paper"})
+#: The variants a concept's verdict reads (its quadruplet's two halves, or every variant).
+VERDICT_VARIANTS: dict[str, tuple[str, ...]] = {
+    concept: tuple(v for v in variants if v not in REPORTED_BESIDE)
+    for concept, variants in STANDARD_VARIANTS.items()
 }
 #: Concepts whose VOE is read from the pooled test over ``standard`` + ``counterbalanced``
 #: (the counterbalanced pair cancels every frame-local cue of the standard one).
 POOLED_CONCEPTS: tuple[str, ...] = tuple(
     concept for concept, variants in STANDARD_VARIANTS.items() if "counterbalanced" in variants
 )
+
+#: Concepts whose standard and counterbalanced pairs of one seed are the two halves of one
+#: quadruplet (docs/architecture.md §4): after the change, each pair's inconsistent video is
+#: the other's consistent one, byte for byte. Their verdict is the quadruplet test.
+QUADRUPLET_CONCEPTS: tuple[str, ...] = (
+    "object_persistence", "continuity", "solidity", "containment")
+#: A quadruplet's two halves: (A, AB) and (B, BA).
+QUADRUPLET_VARIANTS: tuple[str, str] = ("standard", "counterbalanced")
 
 #: Generalization probe variants (paper §5): a third pillar; one or two more objects than training.
 GENERALIZATION_VARIANTS: dict[str, tuple[str, ...]] = {

@@ -23,6 +23,12 @@ Welch-Satterthwaite df (``stratified_test``, and ``pooled_test`` for per-pair in
 variants' cue differences point opposite ways by design, so a test over the union of their pairs
 would count that split as noise.
 
+A concept whose two variants are the halves of one quadruplet per seed (``specs.QUADRUPLET_CONCEPTS``,
+docs/architecture.md §4) is also tested over quadruplets (``quadruplet_test``): per quadruplet
+D = [S(AB) - S(A)] + [S(BA) - S(B)], the one-tailed t-test of D's mean, with the two halves' mean
+differences beside it. Its inconsistent videos hold exactly the consistent ones' frames after
+the change, so any scorer of those frames alone has D = 0 in every quadruplet.
+
 One significance level, ``ALPHA``, decides every verdict and table unless a run sets its own
 (``alpha:`` in configs/base.yaml, which the CLI hands to every callback and command).
 """
@@ -44,6 +50,8 @@ __all__ = [
     "POOLED",
     "POOLED_VARIANTS",
     "PairedTestResult",
+    "QUADRUPLET",
+    "QuadrupletTestResult",
     "StratifiedTest",
     "TTest",
     "as_float64",
@@ -52,6 +60,7 @@ __all__ = [
     "group_test",
     "paired_test",
     "pooled_test",
+    "quadruplet_test",
     "ranked_auroc",
     "relative_surprise",
     "stratified_moments",
@@ -65,6 +74,9 @@ __all__ = [
 #: (docs/architecture.md §4, §8).
 POOLED = "pooled"
 POOLED_VARIANTS: tuple[str, str] = ("standard", "counterbalanced")
+#: The row name of a concept's quadruplet test; its halves are the POOLED_VARIANTS' pairs of
+#: one seed (first: standard, (A, AB); second: counterbalanced, (B, BA)).
+QUADRUPLET = "quadruplet"
 
 #: The significance level of every verdict and table unless a run sets another: .01 per test,
 #: so that five concepts' verdicts together stay near .05 (docs/architecture.md §8).
@@ -419,13 +431,54 @@ def pooled_test(
                    d_z_interval, alpha, bootstrap, seed)
 
 
+@dataclass(frozen=True)
+class QuadrupletTestResult(PairedTestResult):
+    """The quadruplet row: a ``PairedTestResult`` of D = [S(AB) + S(BA)] - [S(A) + S(B)] per
+    quadruplet (``n`` quadruplets, ``accuracy`` the share with D > 0, IntPhys' relative
+    accuracy), with the mean of each half, ``first_half`` = mean[S(AB) - S(A)] and
+    ``second_half`` = mean[S(BA) - S(B)]: a verdict needs both above 0."""
+
+    first_half: float = math.nan
+    second_half: float = math.nan
+
+
+def quadruplet_test(
+    first_inconsistent: Any,
+    first_consistent: Any,
+    second_inconsistent: Any,
+    second_consistent: Any,
+    alpha: float = ALPHA,
+    bootstrap: int = 2000,
+    seed: int = 0,
+) -> QuadrupletTestResult:
+    """One-tailed t-test over quadruplets of D = [S(AB) - S(A)] + [S(BA) - S(B)], H1: mean D > 0,
+    from the surprise of each quadruplet's first pair (AB, A) and second pair (BA, B), aligned
+    by quadruplet. Agrees with ``scipy.stats.ttest_1samp(D, 0, alternative="greater")``;
+    ``bootstrap`` and ``seed`` as in ``paired_test``."""
+    halves = [relative_surprise(first_inconsistent, first_consistent),
+              relative_surprise(second_inconsistent, second_consistent)]
+    if halves[0].shape != halves[1].shape:
+        raise ValueError(f"the two halves must hold one pair per quadruplet alike; got "
+                         f"{halves[0].size} first and {halves[1].size} second pairs")
+    inconsistent = (as_float64(first_inconsistent, "first inconsistent surprise")
+                    + as_float64(second_inconsistent, "second inconsistent surprise"))
+    consistent = (as_float64(first_consistent, "first consistent surprise")
+                  + as_float64(second_consistent, "second consistent surprise"))
+    result = paired_test(inconsistent, consistent, alpha, bootstrap, seed)
+    return QuadrupletTestResult(**result.as_dict(), first_half=float(np.mean(halves[0])),
+                                second_half=float(np.mean(halves[1])))
+
+
 def untested_reason(variant: str, variants: Sequence[str]) -> str:
     """Why a group of ``verdicts.pair_groups`` whose pairs have these ``variants`` gets no
     test, or '' if it gets one: fewer than two pairs; for the pooled row, a variant with fewer
-    than two."""
+    than two; for the quadruplet row, fewer than two quadruplets (its pairs are halves)."""
     counts = dict.fromkeys(variants, 0)
     for name in variants:
         counts[name] += 1
+    if variant == QUADRUPLET:
+        matched = len(variants) // 2
+        return "" if matched >= 2 else (f"only {matched} quadruplet: no test (needs at least 2)")
     if len(variants) < 2:
         return f"only {len(variants)} pair: no test (needs at least 2)"
     short = [f"{name} has {count}" for name, count in counts.items() if count < 2]
@@ -437,7 +490,13 @@ def untested_reason(variant: str, variants: Sequence[str]) -> str:
 def group_test(variant: str, inconsistent: Any, consistent: Any, variants: Sequence[str],
                alpha: float = ALPHA, bootstrap: int = 2000, seed: int = 0) -> PairedTestResult:
     """The test of one row of ``verdicts.pair_groups``: ``pooled_test`` over the pairs' ``variants``
-    for the ``POOLED`` row, ``paired_test`` for any other."""
+    for the ``POOLED`` row, ``quadruplet_test`` for the ``QUADRUPLET`` row (its pairs: the first
+    halves, then the second halves, aligned), ``paired_test`` for any other."""
+    if variant == QUADRUPLET:
+        half = len(variants) // 2
+        inc, con = np.asarray(inconsistent), np.asarray(consistent)
+        return quadruplet_test(inc[:half], con[:half], inc[half:], con[half:], alpha, bootstrap,
+                               seed)
     if variant == POOLED:
         return pooled_test(inconsistent, consistent, variants, alpha, bootstrap, seed)
     return paired_test(inconsistent, consistent, alpha, bootstrap, seed)

@@ -133,7 +133,8 @@ CONSOLE = RowStyle(n=".0f", mean=".3f", t_with_df=False, p=".3g", accuracy=".2f"
 
 @dataclass(frozen=True)
 class RowText:
-    """A row's cells as text (``row_text``); ``n/a`` where the row has no test."""
+    """A row's cells as text (``row_text``); ``n/a`` where the row has no test; ``halves`` the
+    quadruplet row's two halves' M, 'first / second' ('' for any other row)."""
 
     n: str
     mean: str
@@ -147,6 +148,7 @@ class RowText:
     d_z_interval: str
     accuracy: str
     auroc: str
+    halves: str = ""
 
     @property
     def star(self) -> str:
@@ -184,6 +186,9 @@ def row_text(row: Mapping[str, Any], style: RowStyle = REPORT,
                                      style.d_z),
         accuracy=format_number(accuracy, style.accuracy),
         auroc=format_number(get("auroc"), style.auroc),
+        halves=("" if get("first_half") is None else
+                f"{format_number(get('first_half'), style.mean)} / "
+                f"{format_number(get('second_half'), style.mean)}"),
     )
 
 

@@ -31,8 +31,11 @@ SEED_RANGE = 1_000_000_000
 #: 6: object persistence's controls drop the plank from an example's height; 7: containment's
 #: standard probes stand the container where the counterbalanced ones do, with a smaller cube;
 #: 8: solidity's two variants draw their scenes alike, protrude alike and fall alike (the
-#: counterbalanced pair shows what the standard one does, with the outcomes swapped).
-GENERATOR_VERSION = 8
+#: counterbalanced pair shows what the standard one does, with the outcomes swapped); 9: object
+#: persistence's, continuity's, solidity's and containment's two variants are one quadruplet
+#: per seed (continuity keeps the paper's probe as its ``paper`` variant), and a probe split
+#: gives every variant the same seeds (``split_seeds``), so a seed names a quadruplet.
+GENERATOR_VERSION = 9
 
 
 @dataclass(frozen=True)
@@ -96,6 +99,21 @@ def split_counts(
     }
 
 
+def split_seeds(split: str, names: Sequence[str]) -> list[int]:
+    """The seed of each record of ``split`` (clip kinds or probe variants, in plan order):
+    clips count up from the split's first seed; probes count up per variant, so the k-th pair
+    of every variant has the same seed and the variants' pairs of one seed form a quadruplet
+    (docs/architecture.md §4)."""
+    if store.SPLIT_RECORD_TYPE[split] == "clip":
+        return [SEED_STARTS[split] + i for i in range(len(names))]
+    seen = dict.fromkeys(names, 0)
+    seeds = []
+    for name in names:
+        seeds.append(SEED_STARTS[split] + seen[name])
+        seen[name] += 1
+    return seeds
+
+
 def plan_shards(concept_counts: dict[str, dict[str, dict[str, int]]], shard_size: int) -> list[ShardTask]:
     """The deterministic list of every shard of the dataset, concept by concept, split by split."""
     tasks = []
@@ -104,7 +122,7 @@ def plan_shards(concept_counts: dict[str, dict[str, dict[str, int]]], shard_size
             names = interleave(counts[split])
             if len(names) > SEED_RANGE:
                 raise ValueError(f"{split} of {concept} would need more than {SEED_RANGE} seeds")
-            items = [(name, SEED_STARTS[split] + i) for i, name in enumerate(names)]
+            items = list(zip(names, split_seeds(split, names)))
             for index, start in enumerate(range(0, len(items), shard_size)):
                 tasks.append(ShardTask(concept, split, index, tuple(items[start : start + shard_size])))
     return tasks

@@ -5,7 +5,6 @@ alike; plus what they share: probe steps, frame-count recording and checkpoint s
 from __future__ import annotations
 
 import atexit
-import math
 from abc import ABCMeta, abstractmethod
 from typing import Any
 
@@ -15,6 +14,7 @@ from lightning.pytorch.utilities import rank_zero_warn
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
+from voe_lightning.model.training_monitor import non_finite_message
 from voe_lightning.surprise_window import first_difference, video_surprise
 
 
@@ -102,16 +102,7 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
         names = [name for name in terms if name != "loss"] or list(terms)
         values = torch.stack([terms[name].detach().float() for name in names])
         if not bool(torch.isfinite(values).all()):
-            bad = ", ".join(
-                f"{name}={value:.4g}"
-                for name, value in zip(names, values.tolist())
-                if not math.isfinite(value)
-            )
-            raise FloatingPointError(
-                f"non-finite loss at global step {self.global_step}: {bad} "
-                f"(all terms: {dict(zip(names, values.tolist()))}); stopping before a "
-                "garbage checkpoint is written. Try a lower learning_rate or float32 precision."
-            )
+            raise FloatingPointError(non_finite_message(self.global_step, names, values.tolist()))
 
     def on_train_batch_start(self, batch: TensorDictBase, batch_idx: int) -> None:
         """Record the training clips' frame count in ``training_frames`` (saved in
@@ -186,6 +177,11 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
     # ----------------------------------------------------------------------------- checkpoints
     def _model_input(self, frames: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
         """uint8 [B, T, H, W, 3] -> float [B, T, 3, H, W] on this module's device."""
+        return specs.to_model_input(self._checked_frames(frames, image_size))
+
+    def _checked_frames(self, frames: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
+        """uint8 frames [B, T, H, W, 3] of this model's image size, on its device (refused,
+        naming the shape, otherwise)."""
         if not isinstance(frames, torch.Tensor):
             raise TypeError(f"frames must be a uint8 tensor [B, T, H, W, 3], got {type(frames)}")
         expected = (*image_size, 3)
@@ -194,7 +190,7 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
                 f"frames must be shaped [B, T, {expected[0]}, {expected[1]}, 3] for this model "
                 f"(image_size={image_size}), got {tuple(frames.shape)}"
             )
-        return specs.to_model_input(frames.to(self.device))
+        return frames.to(self.device)
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         """Refuse, naming the file, a checkpoint trained with another architecture (naming the

@@ -212,7 +212,7 @@ class LRUMemory(nn.Module):
         least_used = torch.zeros_like(state.usage).scatter_(
             -1, by_usage[:, : self.least_used_slots], 1.0
         )
-        cleared = F.one_hot(by_usage[:, 0], self.num_slots).to(state.usage.dtype)
+        cleared = torch.zeros_like(state.usage).scatter_(-1, by_usage[:, :1], 1.0)  # one-hot, no host sync
         gate = torch.sigmoid(self.write_gate(hidden).float())  # [B, 1]
         weights = gate * state.mixed_read_weights + (1.0 - gate) * least_used
         return weights, cleared

@@ -6,12 +6,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from voe_lightning.model.memory import LRUMemory
+from voe_lightning.model.memory import LRUMemory, MemoryState
 
 #: Log standard deviations are clipped to this range (paper §4).
 LOG_STD_LIMIT = 10.0
@@ -51,6 +52,18 @@ def mlp(input_size: int, hidden_sizes: Sequence[int], output_size: int) -> nn.Se
         previous = size
     layers.append(nn.Linear(previous, output_size))
     return nn.Sequential(*layers)
+
+
+class FrameStep(NamedTuple):
+    """What one time step gives (float32 distributions): its rows of :class:`VRNNOutput`."""
+
+    prior_mean: torch.Tensor
+    prior_log_std: torch.Tensor
+    posterior_mean: torch.Tensor
+    posterior_log_std: torch.Tensor
+    z: torch.Tensor
+    memory: torch.Tensor
+    reads: torch.Tensor
 
 
 @dataclass
@@ -107,65 +120,83 @@ class VRNNCore(nn.Module):
         # Posterior correction from [enc(x_t), r_t, prior_t]; the enc(x_t) part of the first
         # layer is applied to all frames at once before the time loop.
         self.posterior = mlp(embedding_size + memory.read_size + 2 * latent_size, mlp_sizes, 2 * latent_size)
+        self._compiled_step = None
 
     def _split(self, stats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         mean, log_std = stats.float().chunk(2, dim=-1)
         return mean, log_std
+
+    def step(
+        self, state: MemoryState, z: torch.Tensor, frame_part: torch.Tensor,
+        noise: torch.Tensor | None,
+    ) -> tuple[MemoryState, FrameStep]:
+        """One time step from the memory ``state`` and the last latent ``z`` [B, latent_size]:
+        read, prior, posterior (``frame_part`` [B, hidden] is the frame's share of the
+        posterior's first layer), ``z_t`` = posterior mean + std * ``noise`` (the mean itself
+        when ``noise`` is None), write. A pure function of tensors, so it compiles whole
+        (``fullgraph=True``: no host sync, no data-dependent shape)."""
+        first = self.posterior[0]
+        read = self.memory.read(state, z)
+        prior_mean, prior_log_std = self._split(self.prior(read.read))
+        prior_log_std = prior_log_std.clamp(-LOG_STD_LIMIT, LOG_STD_LIMIT)
+        hidden = frame_part + F.linear(
+            torch.cat([read.read, prior_mean, prior_log_std], dim=-1).to(frame_part.dtype),
+            first.weight[:, self.embedding_size :],
+        )
+        correction_mean, correction_log_std = self._split(self.posterior[1:](hidden))
+        posterior_mean = prior_mean + correction_mean
+        posterior_log_std = (prior_log_std + correction_log_std).clamp(-LOG_STD_LIMIT, LOG_STD_LIMIT)
+        z = posterior_mean if noise is None else posterior_mean + torch.exp(posterior_log_std) * noise
+        state = self.memory.write(state, read, z)
+        return state, FrameStep(prior_mean, prior_log_std, posterior_mean, posterior_log_std, z,
+                                LRUMemory.flat_memory(state), read.read)
+
+    def draw_noise(
+        self, batch: int, steps: int, device: torch.device, generator: torch.Generator | None = None
+    ) -> torch.Tensor:
+        """Standard normal noise for every step [T, B, latent_size], drawn at once (on a CPU the
+        same numbers as T draws of [B, latent_size] when B * latent_size is a multiple of 16)."""
+        return torch.randn((steps, batch, self.latent_size), generator=generator, device=device)
+
+    def compile_step(self) -> None:
+        """Compile :meth:`step` once (inductor, ``fullgraph=True``); :meth:`forward` then
+        calls the compiled step for every frame (``compile: frame``)."""
+        self._compiled_step = torch.compile(self.step, fullgraph=True)
+
+    def __getstate__(self) -> dict:
+        # A compiled function does not pickle (ddp_spawn, deepcopy): recompile after loading.
+        return {**self.__dict__, "_compiled_step": None}
 
     def forward(
         self,
         embeddings: torch.Tensor,
         deterministic: bool = False,
         generator: torch.Generator | None = None,
+        noise: torch.Tensor | None = None,
     ) -> VRNNOutput:
         """Roll out over T steps from ``z_0 = 0`` and an empty memory. ``deterministic`` uses the
-        posterior mean as z_t (for surprise); otherwise z_t is a reparameterized sample (noise
-        from ``generator`` when given)."""
+        posterior mean as z_t (for surprise); otherwise z_t is a reparameterized sample with
+        ``noise`` [T, B, latent_size] (drawn here from ``generator`` when not given)."""
         batch, steps, _ = embeddings.shape
         device = embeddings.device
         first = self.posterior[0]
+        # The enc(x_t) part of the posterior's first layer, for all frames at once.
         frame_part = F.linear(embeddings, first.weight[:, : self.embedding_size], first.bias)
+        if not deterministic and noise is None:
+            noise = self.draw_noise(batch, steps, device, generator)
+        step = self._compiled_step or self.step
         state = self.memory.initial_state(batch, device=device)
         z = torch.zeros(batch, self.latent_size, device=device)
-        outputs: dict[str, list[torch.Tensor]] = {
-            name: [] for name in ("prior_mean", "prior_log_std", "posterior_mean",
-                                  "posterior_log_std", "z", "memory", "reads")
-        }
+        if torch.is_grad_enabled():  # every step's inputs then need grad: one compiled graph
+            state = MemoryState(*(tensor.requires_grad_() for tensor in state))
+            z.requires_grad_()
+        frames = []
         for t in range(steps):
-            read = self.memory.read(state, z)
-            prior_stats = self.prior(read.read)
-            prior_mean, prior_log_std = self._split(prior_stats)
-            prior_log_std = prior_log_std.clamp(-LOG_STD_LIMIT, LOG_STD_LIMIT)
-            hidden = frame_part[:, t] + F.linear(
-                torch.cat([read.read, prior_mean, prior_log_std], dim=-1).to(frame_part.dtype),
-                first.weight[:, self.embedding_size :],
-            )
-            correction_mean, correction_log_std = self._split(self.posterior[1:](hidden))
-            posterior_mean = prior_mean + correction_mean
-            posterior_log_std = (prior_log_std + correction_log_std).clamp(
-                -LOG_STD_LIMIT, LOG_STD_LIMIT
-            )
-            if deterministic:
-                z = posterior_mean
-            else:
-                noise = (  # randn_like: torch.compile cannot trace randn of a dynamic shape
-                    torch.randn_like(posterior_mean) if generator is None else torch.randn(
-                        posterior_mean.shape, generator=generator, device=device,
-                        dtype=posterior_mean.dtype)
-                )
-                z = posterior_mean + torch.exp(posterior_log_std) * noise
-            state = self.memory.write(state, read, z)
-            for name, value in (
-                ("prior_mean", prior_mean),
-                ("prior_log_std", prior_log_std),
-                ("posterior_mean", posterior_mean),
-                ("posterior_log_std", posterior_log_std),
-                ("z", z),
-                ("memory", LRUMemory.flat_memory(state)),
-                ("reads", read.read),
-            ):
-                outputs[name].append(value)
-        stacked = {name: torch.stack(values, dim=1) for name, values in outputs.items()}
+            state, output = step(state, z, frame_part[:, t], None if deterministic else noise[t])
+            z = output.z
+            frames.append(output)
+        stacked = {name: torch.stack(values, dim=1)
+                   for name, values in zip(FrameStep._fields, zip(*frames))}
         kl = gaussian_kl(
             stacked["posterior_mean"],
             stacked["posterior_log_std"],

@@ -16,6 +16,7 @@ from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model import optimization
 from voe_lightning.model.memory import LRUMemory
 from voe_lightning.model.networks import Decoder, Encoder
+from voe_lightning.model.training_monitor import FiniteMonitor
 from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, standard_normal_kl
 
 LOSS_TERMS = ("reconstruction", "kl", "prior_regularizer")
@@ -36,6 +37,9 @@ ARCHITECTURE = (
     "encoder_mlp_size",
 )
 PRECISIONS = ("auto", "bf16", "float32")
+#: ``compile``: ``frame`` compiles the recurrent core's step and the encoder and decoder;
+#: ``auto`` does so on a GPU only (on a CPU compiling costs about a minute).
+COMPILE_MODES = ("auto", "off", "frame")
 
 
 def bf16_is_fast(device: torch.device) -> bool:
@@ -77,8 +81,18 @@ class VRNNLRUModel(SurpriseModel):
             loss counts each latent's batch-mean KL at each frame as at least this much, so
             latents below it get no push toward the prior (0, the paper's: plain KL). The
             logged ``kl`` and surprise are the true KL.
-        compile_model: ``torch.compile`` the encoder, decoder and recurrent core in place
-            (opt-in: compiling takes minutes on a CPU).
+        lr_warmup_steps: raise the learning rate linearly from 0 over this many steps (0, the
+            paper's: none; large batches want it).
+        compile: ``"frame"`` compiles (inductor) the recurrent core's one-frame step, called
+            for each frame, and the encoder and decoder over all B x T frames at once;
+            ``"off"`` runs them eagerly; ``"auto"`` (default) is ``frame`` on a GPU, ``off``
+            elsewhere. Same maps; float sums in another order.
+        cuda_graph: on a single CUDA device, capture the training loss's forward and backward
+            as CUDA graphs (``torch.cuda.make_graphed_callables``) at the first training batch
+            and replay them (thousands of kernel launches become two); elsewhere (a CPU, DDP)
+            the same function runs uncaptured.
+        compile_model: the earlier switch (``True`` is ``compile: frame``), kept so that old
+            configs and checkpoints load.
         channels_last: keep the encoder and decoder in NHWC layout, the fast layout of oneDNN
             and cuDNN (same float32 numbers up to summation order). False is the NCHW reference.
         precision: ``"auto"`` (default) runs the encoder and decoder under bf16 autocast where
@@ -93,6 +107,7 @@ class VRNNLRUModel(SurpriseModel):
     ARCHITECTURE = ARCHITECTURE
     TRAINING_ONLY = (
         "learning_rate", "adam_betas", "lr_schedule", "kl_warmup_steps", "kl_free_bits",
+        "lr_warmup_steps", "compile", "cuda_graph", "compile_model",
     )
     VALIDATION_METRIC = "val/kl"
     SURPRISE = "KL(posterior || prior)"
@@ -120,6 +135,9 @@ class VRNNLRUModel(SurpriseModel):
         lr_schedule: str = "constant",
         kl_warmup_steps: int = 0,
         kl_free_bits: float = 0.0,
+        lr_warmup_steps: int = 0,
+        compile: str = "auto",
+        cuda_graph: bool = True,
         compile_model: bool = False,
         channels_last: bool = True,
         precision: str = "auto",
@@ -131,7 +149,9 @@ class VRNNLRUModel(SurpriseModel):
             raise ValueError(f"unknown precision {precision!r}; valid choices are: {', '.join(PRECISIONS)}")
         if learning_rate <= 0:
             raise ValueError(f"learning_rate must be positive, got {learning_rate}")
-        optimization.check_schedule(lr_schedule)
+        optimization.check_schedule(lr_schedule, lr_warmup_steps)
+        if compile not in COMPILE_MODES:
+            raise ValueError(f"unknown compile {compile!r}; valid choices are: {', '.join(COMPILE_MODES)}")
         if kl_warmup_steps < 0:
             raise ValueError(f"kl_warmup_steps must be >= 0, got {kl_warmup_steps}")
         if kl_free_bits < 0:
@@ -162,9 +182,16 @@ class VRNNLRUModel(SurpriseModel):
             least_used_slots=least_used_slots,
         )
         self.core = VRNNCore(self.encoder.output_size, latent_size, memory, mlp_sizes)
-        if compile_model:
-            for network in (self.encoder, self.decoder, self.core):
-                network.compile()
+        self._compiled: dict | None = None  # compiled encoder and decoder, once resolved
+        self._graphed: tuple | None = None  # (batch shape, captured training loss)
+        self._finite = FiniteMonitor(LOSS_TERMS)  # the loss is their sum
+        # Optimizer steps taken, on the device: the KL warm-up reads it without a host sync.
+        self.register_buffer("_steps", torch.zeros((), dtype=torch.int64), persistent=False)
+
+    def __getstate__(self) -> dict:
+        # Compiled functions and captured graphs do not pickle (ddp_spawn, deepcopy): they are
+        # made again where the copy first runs.
+        return {**super().__getstate__(), "_compiled": None, "_graphed": None}
 
     # ----------------------------------------------------------------------------- inputs
     def _model_input(self, frames: torch.Tensor) -> torch.Tensor:
@@ -179,39 +206,65 @@ class VRNNLRUModel(SurpriseModel):
         return precision == "bf16" or (precision == "auto" and bf16_is_fast(self.device))
 
     def _autocast(self, networks: bool) -> contextlib.AbstractContextManager:
-        """The precision context of the convolutional ``networks`` or of the recurrent core."""
+        """The precision context of the convolutional ``networks`` or of the recurrent core
+        (no weight cache: each weight is cast once a pass anyway, and CUDA graphs need it off)."""
         if self.hparams.precision == "float32":
             return torch.autocast(self.device.type, enabled=False)
         if networks and self.uses_bf16:
-            return torch.autocast(self.device.type, dtype=torch.bfloat16)
+            return torch.autocast(self.device.type, dtype=torch.bfloat16, cache_enabled=False)
         return contextlib.nullcontext()
+
+    @property
+    def compiles(self) -> bool:
+        """Whether ``compile`` resolves to ``frame`` on the current device."""
+        mode = "frame" if self.hparams.compile_model else self.hparams.compile
+        return mode == "frame" or (mode == "auto" and self.device.type == "cuda")
+
+    def _networks(self) -> dict:
+        """The encoder and decoder to call: compiled (once, on first use) when :attr:`compiles`."""
+        if not self.compiles:
+            return {"encoder": self.encoder, "decoder": self.decoder}
+        if self._compiled is None:
+            self.core.compile_step()
+            self._compiled = {"encoder": torch.compile(self.encoder),
+                              "decoder": torch.compile(self.decoder)}
+        return self._compiled
 
     def decode(self, z: torch.Tensor) -> torch.Tensor:
         """Latents [B, T, latent_size] -> Bernoulli logits [B, T, 3, H, W] (bf16 on the fast path)."""
         with self._autocast(networks=True):
-            return self.decoder(z)
+            return self._networks()["decoder"](z)
 
     def rollout(
-        self, x: torch.Tensor, deterministic: bool = False, generator: torch.Generator | None = None
+        self, x: torch.Tensor, deterministic: bool = False, generator: torch.Generator | None = None,
+        noise: torch.Tensor | None = None,
     ) -> VRNNOutput:
-        """Encode all frames at once, then step the recurrent core through time."""
+        """Encode all frames at once, then step the recurrent core through time (sampling with
+        ``noise`` [T, B, latent_size] when given)."""
         with self._autocast(networks=True):
-            embeddings = self.encoder(x)
+            embeddings = self._networks()["encoder"](x)
         with self._autocast(networks=False):
-            return self.core(embeddings.float(), deterministic=deterministic, generator=generator)
+            return self.core(embeddings.float(), deterministic=deterministic, generator=generator,
+                             noise=noise)
 
     def forward(
-        self, x: torch.Tensor, deterministic: bool = False, generator: torch.Generator | None = None
+        self, x: torch.Tensor, deterministic: bool = False, generator: torch.Generator | None = None,
+        noise: torch.Tensor | None = None,
     ) -> tuple[VRNNOutput, torch.Tensor]:
         """Model input [B, T, 3, H, W] in [0, 1] -> (rollout, Bernoulli logits [B, T, 3, H, W])."""
-        output = self.rollout(x, deterministic=deterministic, generator=generator)
+        output = self.rollout(x, deterministic=deterministic, generator=generator, noise=noise)
         return output, self.decode(output.z)
 
-    def loss_terms(self, x: torch.Tensor, output: VRNNOutput, logits: torch.Tensor) -> dict[str, torch.Tensor]:
+    def loss_terms(
+        self, x: torch.Tensor, output: VRNNOutput, logits: torch.Tensor,
+        kl_weight: torch.Tensor | float | None = None,
+    ) -> dict[str, torch.Tensor]:
         """Per-sequence loss terms averaged over the batch (float32): reconstruction =
         sum_t,pixels BCE; kl = sum_t KL(post || prior); prior_regularizer = weight *
-        sum_t KL(prior || N(0, I)); loss = their sum, kl times ``kl_weight`` (with free bits,
-        the clamped KL of :meth:`kl_objective` in its place)."""
+        sum_t KL(prior || N(0, I)); loss = their sum, kl times ``kl_weight`` (default: the
+        warm-up's weight at this step; with free bits, the clamped KL of :meth:`kl_objective`
+        in its place)."""
+        kl_weight = self.kl_weight if kl_weight is None else kl_weight
         batch = x.shape[0]
         reconstruction = (
             F.binary_cross_entropy_with_logits(logits.float(), x.float(), reduction="sum") / batch
@@ -221,7 +274,7 @@ class VRNNLRUModel(SurpriseModel):
             standard_normal_kl(output.prior_mean, output.prior_log_std).sum(dim=1).mean()
         )
         return {
-            "loss": (reconstruction + self.kl_weight * self.kl_objective(output, kl)
+            "loss": (reconstruction + kl_weight * self.kl_objective(output, kl)
                      + prior_regularizer),
             "reconstruction": reconstruction,
             "kl": kl,
@@ -229,19 +282,79 @@ class VRNNLRUModel(SurpriseModel):
         }
 
     def _step(self, batch: TensorDictBase | dict) -> dict[str, torch.Tensor]:
-        x = self._model_input(self._frames_of(batch))
-        output, logits = self(x)
-        terms = self.loss_terms(x, output, logits)
+        """The named loss terms of a training batch at this step's KL weight, checked finite at
+        once (a host sync): for training loops outside Lightning (tests, benchmarks)."""
+        frames = self._checked_frames(self._frames_of(batch), self.image_size)
+        noise = self.core.draw_noise(frames.shape[0], frames.shape[1], frames.device)
+        values = self.training_terms(frames, noise, self.kl_weight_at(self._steps))
+        terms = dict(zip(("loss", *LOSS_TERMS), values))
         self._check_finite(terms)
         return terms
 
+    def training_terms(
+        self, frames: torch.Tensor, noise: torch.Tensor, kl_weight: torch.Tensor
+    ) -> torch.Tensor:
+        """The training loss and its terms [loss, reconstruction, kl, prior_regularizer] of
+        uint8 clips [B, T, H, W, 3] on this device, sampled with ``noise`` [T, B, latent_size]
+        and the KL weighted by ``kl_weight`` (0-dim): a pure function of tensors with no host
+        sync, which is what a CUDA graph captures."""
+        x = specs.to_model_input(frames)
+        output, logits = self(x, noise=noise)
+        terms = self.loss_terms(x, output, logits, kl_weight)
+        return torch.stack([terms[name] for name in ("loss", *LOSS_TERMS)])
+
+    def _training_loss(self, frames: torch.Tensor, noise: torch.Tensor,
+                       kl_weight: torch.Tensor) -> torch.Tensor:
+        """:meth:`training_terms`, replayed from CUDA graphs when :attr:`captures` (captured at
+        the first batch; a batch of another shape runs uncaptured)."""
+        if not self.captures:
+            return self.training_terms(frames, noise, kl_weight)
+        if self._graphed is None:
+            graphed = torch.cuda.make_graphed_callables(
+                _TrainingTerms(self), (frames, noise, kl_weight), allow_unused_input=True)
+            self._graphed = (frames.shape, graphed)
+        shape, graphed = self._graphed
+        if frames.shape != shape:
+            return self.training_terms(frames, noise, kl_weight)
+        return graphed(frames, noise, kl_weight)
+
+    @property
+    def captures(self) -> bool:
+        """Whether training replays CUDA graphs: ``cuda_graph`` on one CUDA device (under DDP
+        the gradients' all-reduce hooks need the uncaptured step)."""
+        single = self._trainer is None or self.trainer.world_size == 1
+        return self.hparams.cuda_graph and self.device.type == "cuda" and single
+
     def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
-        terms = self._step(batch)
-        batch_size = self._frames_of(batch).shape[0]
-        self.log("train/loss", terms["loss"], prog_bar=True, batch_size=batch_size)
-        for name in LOSS_TERMS:
-            self.log(f"train/{name}", terms[name], batch_size=batch_size)
-        return terms["loss"]
+        """One step without a host sync: noise drawn on the device, the terms checked there,
+        and both read back (logged, checked) only every ``log_every_n_steps``."""
+        frames = self._checked_frames(self._frames_of(batch), self.image_size)
+        noise = self.core.draw_noise(frames.shape[0], frames.shape[1], frames.device)
+        terms = self._training_loss(frames, noise, self.kl_weight_at(self._steps))
+        self._finite.update(terms[1:], self._steps)
+        self._steps += 1
+        if self._read_back_now():
+            self._finite.check()
+            logged = terms.detach().clone()  # a captured graph's output is overwritten next step
+            self.log_dict({f"train/{name}": value for name, value in zip(("loss", *LOSS_TERMS), logged)},
+                          batch_size=frames.shape[0])
+        return terms[0]
+
+    def _read_back_now(self) -> bool:
+        """Whether this step logs and checks: every ``log_every_n_steps``, and the last one."""
+        if self._trainer is None:
+            return True
+        every, step = self.trainer.log_every_n_steps, self.global_step + 1
+        return (every > 0 and step % every == 0) or step == self.trainer.max_steps
+
+    def on_train_start(self) -> None:
+        self._steps.fill_(self.global_step)  # a resumed run's warm-up goes on where it was
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        self._finite.check()  # no checkpoint of weights a NaN has already reached
+
+    def on_train_end(self) -> None:
+        self._finite.check()
 
     # ----------------------------------------------------------------------------- surprise
     @torch.no_grad()
@@ -299,18 +412,38 @@ class VRNNLRUModel(SurpriseModel):
             return kl
         return output.kl_per_latent().mean(dim=0).clamp(min=free_bits).sum()
 
+    def kl_weight_at(self, step: torch.Tensor) -> torch.Tensor:
+        """Weight of the KL term at global ``step`` (a tensor, so the graph need not change):
+        1, or the warm-up's ramp (step + 1) / kl_warmup_steps up to 1."""
+        warmup = self.hparams.kl_warmup_steps
+        if not warmup:
+            return torch.ones((), device=step.device)
+        return ((step + 1).float() / warmup).clamp(max=1.0)
+
     @property
     def kl_weight(self) -> float:
-        """Weight of the KL term in the training loss: 1, or the warm-up's ramp (0 -> 1)."""
-        warmup = self.hparams.kl_warmup_steps
-        return min(1.0, (self.global_step + 1) / warmup) if warmup else 1.0
+        """:meth:`kl_weight_at` the trainer's global step, as a number."""
+        return float(self.kl_weight_at(torch.tensor(self.global_step)))
 
     # ----------------------------------------------------------------------------- optimizer
     def configure_optimizers(self) -> dict:
         return optimization.adam(self.parameters(), self.hparams.learning_rate,
                                  self.hparams.lr_schedule,
                                  getattr(self._trainer, "max_steps", None),
-                                 tuple(self.hparams.adam_betas))
+                                 tuple(self.hparams.adam_betas),
+                                 warmup_steps=self.hparams.lr_warmup_steps, fused=True)
+
+
+class _TrainingTerms(torch.nn.Module):
+    """:meth:`VRNNLRUModel.training_terms` as a module over the model's parameters, the form
+    ``torch.cuda.make_graphed_callables`` captures (the model holds it outside its modules)."""
+
+    def __init__(self, model: VRNNLRUModel) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, frames: torch.Tensor, noise: torch.Tensor, kl_weight: torch.Tensor) -> torch.Tensor:
+        return self.model.training_terms(frames, noise, kl_weight)
 
 
 #: The VRNN-LRU's old name (the same class), kept only so that code, saved LightningCLI configs

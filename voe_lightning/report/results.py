@@ -20,7 +20,8 @@ from voe_lightning.field_metrics import field_metrics, format_field_metrics
 from voe_lightning.model.vrnn_lru import VRNNLRUModel
 from voe_lightning.specs import CONCEPTS, VARIANTS
 from voe_lightning.surprise_window import SurpriseWindow, video_surprise
-from voe_lightning.statistics import ALPHA, PairedTestResult, group_test, untested_reason
+from voe_lightning.statistics import (ALPHA, QUADRUPLET, QuadrupletTestResult, group_test,
+                                     untested_reason)
 from voe_lightning.statistics_format import format_alpha, json_row, row_text, rows_alpha
 from voe_lightning.verdicts import concept_verdicts, pair_groups
 
@@ -31,7 +32,7 @@ PROBE_OUTPUT_KEYS = ("concept", "variant", "seed", "manipulation_frame",
 #: frame at which each pair's videos differ (``PairResults`` then takes manipulation_frame + 1).
 FIRST_DIFFERENCE = "first_difference"
 #: Columns of summary.csv, in order (``None`` cells mean "no test", explained in ``note``).
-SUMMARY_COLUMNS = ("concept", "variant") + tuple(PairedTestResult.__dataclass_fields__)
+SUMMARY_COLUMNS = ("concept", "variant") + tuple(QuadrupletTestResult.__dataclass_fields__)
 
 
 def as_numpy(values: Any, dtype: Any) -> np.ndarray:
@@ -169,9 +170,11 @@ class PairResults:
     def groups(self, pooled: bool = False) -> list[tuple[str, str, PairResults]]:
         """(concept, variant, pairs) per concept/variant: concepts and variants in the order
         of ``specs`` where known, others after them in order of first appearance; with
-        ``pooled``, also each concept's ``pooled`` group (standard + counterbalanced)."""
+        ``pooled``, also each concept's ``pooled`` group (standard + counterbalanced) and a
+        quadruplet concept's ``quadruplet`` group (its first halves, then its second halves,
+        matched by seed; ``verdicts.pair_groups``)."""
         return [(concept, variant, self.select(rows)) for concept, variant, rows
-                in pair_groups(self.concept, self.variant, pooled=pooled)]
+                in pair_groups(self.concept, self.variant, pooled=pooled, seeds=self.seed)]
 
     def csv_columns(self) -> list[str]:
         frames = [f"t{t:02d}" for t in range(self.num_frames)]
@@ -286,18 +289,19 @@ def read_summary(report_dir: str | Path) -> dict[str, Any]:
 def summarize(
     results: PairResults, alpha: float = ALPHA, bootstrap: int = 2000, seed: int = 0
 ) -> list[dict[str, Any]]:
-    """One row per concept/variant, and a ``pooled`` row per concept with a counterbalanced
-    pair (``statistics.pooled_test``: the stratified test of its variants' mean differences):
-    the test of summed surprise (``statistics.group_test``). A group without a test (fewer
-    than two pairs, ``statistics.untested_reason``) gets ``None`` statistics and a note instead
-    of failing the report."""
+    """One row per concept/variant, a ``pooled`` row per concept with a counterbalanced
+    pair (``statistics.pooled_test``: the stratified test of its variants' mean differences)
+    and a ``quadruplet`` row per quadruplet concept (``statistics.quadruplet_test``): the test
+    of summed surprise (``statistics.group_test``). A group without a test (fewer than two
+    pairs, ``statistics.untested_reason``) gets ``None`` statistics and a note instead of
+    failing the report; columns a row's test lacks (the halves of a pair test) are ``None``."""
     rows = []
     for concept, variant, pairs in results.groups(pooled=True):
-        row: dict[str, Any] = {"concept": concept, "variant": variant}
+        row: dict[str, Any] = dict.fromkeys(SUMMARY_COLUMNS)
+        row.update(concept=concept, variant=variant)
         reason = untested_reason(variant, pairs.variant)
         if reason:
-            row.update({key: None for key in SUMMARY_COLUMNS[2:]})
-            row.update(n=len(pairs), note=reason)
+            row.update(n=len(pairs) // (2 if variant == QUADRUPLET else 1), note=reason)
         else:
             row.update(group_test(variant, pairs.total_inconsistent, pairs.total_consistent,
                                   pairs.variant, alpha=alpha, bootstrap=bootstrap,
@@ -340,7 +344,7 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURP
     surprise is, ``window`` the frames a video's surprise sums."""
     alpha = rows_alpha(rows)
     header = (f"| concept | variant | n | M [95% CI] | t(df) | p | sig. ({format_alpha(alpha)}) "
-              "| d_z [95% CI] | accuracy | AUROC |")
+              "| d_z [95% CI] | accuracy | AUROC | halves M |")
     lines = [header, "|" + "---|" * (header.count("|") - 1)]
     notes = []
     for row in rows:
@@ -352,7 +356,7 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURP
         lines.append(
             f"| {row['concept']} | {row['variant']}{marker} | {text.n} | {text.mean_interval} "
             f"| {text.t} | {text.p} | {text.sig} | {text.d_z_interval} | {text.accuracy} "
-            f"| {text.auroc} |")
+            f"| {text.auroc} | {text.halves} |")
     lines.append("")
     frames = ("frames" if window.all_frames else f"the {window.describe()} (the first frame "
               "at which its two videos differ)")
@@ -361,11 +365,17 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURP
                  f"sig.: p < {alpha:g} (* as in the paper); accuracy: share of pairs "
                  "with d > 0; pooled: the stratified test of a concept's standard and "
                  "counterbalanced pairs, M the mean of the two variants' M, its SE from both, "
-                 "Welch-Satterthwaite df; its d_z is M over the SD of d of all its pairs.")
+                 "Welch-Satterthwaite df; its d_z is M over the SD of d of all its pairs; "
+                 "quadruplet: per seed D = [S(AB) - S(A)] + [S(BA) - S(B)] over its standard "
+                 "(A, AB) and counterbalanced (B, BA) pairs, whose inconsistent videos hold "
+                 "exactly the consistent ones' frames after the change; M, t and accuracy "
+                 "of D, halves M: the means of S(AB) - S(A) / S(BA) - S(B).")
     lines.extend(f"[{i}] {note}" for i, note in enumerate(notes, start=1))
-    lines += ["", f"Verdicts: a concept shows VOE only when its pooled test and each of its "
-              f"two variants are significant (p < {alpha:g}); without a counterbalanced pair, "
-              "when every probe variant is. Generalization variants do not enter.", ""]
+    lines += ["", f"Verdicts: a concept with quadruplets shows VOE only when its quadruplet "
+              f"test is significant (p < {alpha:g}) and both halves' M are above 0; another "
+              "only when its pooled test and each of its two variants are significant; "
+              "without a counterbalanced pair, when every probe variant is. Generalization "
+              "variants do not enter.", ""]
     lines += format_verdicts(rows)
     return "\n".join(lines) + "\n"
 

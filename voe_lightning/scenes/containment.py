@@ -1,15 +1,18 @@
 """Containment (paper §3, after Hespos & Baillargeon 2001): a cube falls into an open container,
 a rod descends and slides the container sideways. Consistent: the cube travels inside it.
-Inconsistent: the container slides away and reveals the cube where it fell.
+Inconsistent: the container slides away and reveals the cube, left behind.
 
 Counterbalanced variant (ours): the cube falls behind the container (the
 ``cube_behind_container`` control). Consistent: the sliding container reveals it where it fell.
 Inconsistent: it passed through the back wall while hidden and travels away inside the
-container, never revealed. Its inconsistent video shows the cube that the standard one hides,
-so pooling both variants cancels visible-object and motion cues."""
+container, never revealed. The two are one quadruplet per seed: one scene with the cube dropped
+into the container (A) or just behind it (B), spliced at the last frame before the container
+slides, so after it each inconsistent video is exactly the other variant's consistent one (the
+standard inconsistent cube is revealed where B's lies, just behind where the back wall was)."""
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, fields, replace
 
 import mujoco
@@ -20,7 +23,7 @@ from voe_lightning import specs
 from voe_lightning.scenes.appearance import distinct_colors
 from voe_lightning.scenes.builder import Geom, SceneBuilder, yaw_quat
 from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions
-from voe_lightning.scenes.recording import record_pair
+from voe_lightning.scenes import recording
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
 
@@ -147,13 +150,6 @@ def build(
     return sim
 
 
-def release_cube(sim: Simulation) -> None:
-    """The hidden 'magic': the container's walls and bottom no longer touch the cube, which
-    drops onto the floor (by the bottom's thickness) and stays when the container slides away."""
-    for geom_name in sim.objects["container"].geom_names:
-        sim.model.geom(geom_name).contype = sim.model.geom(geom_name).conaffinity = 0
-
-
 def timeline(rng: np.random.Generator, video: VideoOptions) -> tuple[int, float, float, tuple]:
     """Manipulation frame, move start and end (s), and rod descent (s): the rod comes down
     while the cube settles; the container starts sliding just after the manipulation frame."""
@@ -207,10 +203,9 @@ PROBE_RANGES = LayoutRanges(
     shift=(0.8, 1.1),
     drop=(0.35, 0.8),
 )
-#: The cube falls behind the container (``counterbalanced`` probes and the
-#: ``cube_behind_container`` control). Revealed farther from the camera and later (the whole
-#: container must pass it), a cube of the standard probe's size would show fewer pixels than
-#: the standard probe's cube left in place; a larger one evens that out.
+#: The ``cube_behind_container`` control's cube falls behind the container: a larger cube
+#: (revealed farther from the camera, and later, it would show fewer pixels than a probe's).
+#: The probes' quadruplets drop one cube of PROBE_RANGES into or behind the container.
 BEHIND_RANGES = replace(PROBE_RANGES, cube_half=(0.09, 0.12))
 #: Examples (and ``cube_random_position``): "like probes, but container position and size are
 #: not constrained to occlude the cube" (paper §3); every probe range lies well inside.
@@ -291,44 +286,40 @@ def check_hidden_and_carried(
 
 
 def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
-    """A consistent/inconsistent pair sharing every frame through the last one before the
-    container slides, where the cube lies hidden. ``standard``: the cube lies inside the
-    container, and the inconsistent container no longer touches it (left behind, revealed).
-    ``counterbalanced``: the cube lies behind the container, and the inconsistent cube is
-    moved inside it (carried away, never revealed)."""
+    """A probe pair of ``variant``, one half of the seed's quadruplet (``quadruplet``):
+    ``standard`` (the cube falls into the container; consistent: carried away, inconsistent:
+    revealed behind it) or ``counterbalanced`` (it falls behind; consistent: revealed,
+    inconsistent: carried away inside, never revealed)."""
     specs.check_variant(CONCEPT, variant)
+    return recording.quadruplet_record(CONCEPT, variant, seed, quadruplet(seed, video))
 
-    def make(rng: np.random.Generator) -> TensorDict:
+
+@functools.lru_cache(maxsize=4)
+def quadruplet(seed: int, video: VideoOptions) -> tuple:
+    """One scene draw's quadruplet ((A, AB), (B, BA)): one container, rod and slide, the cube
+    dropped into the container (A: it travels inside, hidden) or just behind it (B: the
+    sliding container reveals it), both hidden at the manipulation frame, the last before the
+    container slides (``recording.quadruplet``); with the camera, that frame and the cube's
+    mask id. Cached, as both variants of a seed read it (callers copy what they keep)."""
+
+    def make(rng: np.random.Generator) -> tuple:
         camera = CAMERA.sample(rng)
-        if variant == "standard":
-            layout, frame = sample_layout(rng, video, PROBE_RANGES)
-            sim = build(rng, video, camera, layout)
-            consistent, inconsistent = record_pair(sim, frame, release_cube)
-            start = layout.cube_start
-            check_hidden_and_carried(sim, layout, frame, (consistent, inconsistent), start)
-        else:
-            layout, frame = sample_layout(rng, video, BEHIND_RANGES)
-            drop_behind(rng, layout)
-            # The cube reappears (unseen) close to the front wall, which hides it best.
-            target_x, _ = inside_point(rng, layout)
-            target = (target_x, layout.container_xy[1] - layout.half_y + 1.5 * layout.cube_half)
-            sim = build(rng, video, camera, layout)
-            twins: list[Simulation] = []
+        inside, frame = sample_layout(rng, video, PROBE_RANGES)
+        behind = replace(inside)
+        drop_behind(rng, behind)
+        scene_seed = int(rng.integers(2**63))  # one draw of colours for both scenes
+        sims = [build(np.random.default_rng(scene_seed), video, camera, layout)
+                for layout in (inside, behind)]
+        videos = [sim.record(video.num_frames) for sim in sims]
+        check_hidden_and_carried(sims[0], inside, frame, videos, inside.cube_start)
+        cube = sims[0].mask_id("cube")
+        enough = MIN_VISIBLE_PIXELS * video.height * video.width / 4096
+        if (videos[1][1][-1] == cube).sum() < enough:
+            raise RejectedSample("the cube behind the container is not revealed")
+        pairs = recording.quadruplet(*videos, frame)
+        return pairs, camera.as_array(), frame, cube
 
-            def pass_into_container(twin: Simulation) -> None:
-                """The hidden 'magic': the cube passes through the back wall onto the bottom."""
-                quat = twin.data.body("cube").xquat.copy()
-                twin.move("cube", (*target, WALL + layout.cube_half + 1e-3), quat)
-                twins.append(twin)
-
-            consistent, inconsistent = record_pair(sim, frame, pass_into_container)
-            check_hidden_and_carried(twins[0], layout, frame, (consistent, inconsistent), target)
-        return specs.probe_record(
-            consistent, inconsistent, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
-            specs.VARIANTS.index(variant), frame, seed, [sim.mask_id("cube")],
-        )
-
-    return draw_until_valid(make, rng_for(seed, CONCEPT, variant))
+    return draw_until_valid(make, rng_for(seed, CONCEPT, "quadruplet"))
 
 
 def clip_layout(

@@ -1,14 +1,19 @@
-"""Continuity (paper §3, after Aguilar & Baillargeon 1999): a ball rolls behind two pillars. In
-the ``standard`` inconsistent probe it vanishes behind the first pillar and reappears behind the
-last one without ever crossing the gap; the ``gap_block`` control shows the same visibility
-pattern physically. The ``counterbalanced`` pair mirrors its cues: a ball that slows and stops
-behind the first pillar (consistent) against the same ball reappearing after the second pillar,
-rolling as it was launched (inconsistent), so the inconsistent video shows more ball and motion
-where the standard one shows less. Examples roll free or slowing balls on unconstrained paths
-past the same pillars."""
+"""Continuity (paper §3, after Aguilar & Baillargeon 1999): a ball rolls behind two pillars.
+``standard`` and ``counterbalanced`` are one quadruplet per seed: A is the roll from its launch,
+B the same roll some frames later, at the manipulation frame hidden by the last pillar where A's
+ball is hidden by the first. The standard inconsistent video (A, then B) shows the ball vanish
+behind the first pillar and come out of the last one without crossing the gap; the
+counterbalanced one (B, then A) a ball gone behind the last pillar coming out of the first
+again. After the change each inconsistent video is exactly the other variant's consistent one.
+The ``paper`` variant keeps the paper's own probe, the ball reappearing when it would have
+(hidden across the gap for as long as it takes to cross it), which no splice of two physical
+videos gives (docs/stimuli.md); it is reported beside the quadruplets. The ``gap_block``
+control shows that visibility pattern physically. Examples roll free or slowing balls on
+unconstrained paths past the same pillars."""
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,7 +32,8 @@ from voe_lightning.scenes.camera import (
     view_edges,
     x_at_column,
 )
-from voe_lightning.scenes.recording import record_tracking, splice
+from voe_lightning.scenes import recording
+from voe_lightning.scenes.recording import join, quadruplet_record, record_tracking, splice
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation
 
@@ -45,7 +51,6 @@ CAMERA = CameraRange(
 PILLAR_DEPTH = 0.12
 #: A ball counts as seen when at least this share of its largest visible area shows.
 VISIBLE_SHARE = 0.5
-GRAVITY = 9.81
 
 #: Parameter ranges (uniform). Probes draw inside the examples' ranges (docs/architecture.md §4).
 PILLAR_WIDTH = (0.42, 0.55)
@@ -59,15 +64,8 @@ EXAMPLE_BALL_RADIUS = (0.13, 0.24)
 PROBE_BALL_DEPTH = (0.35, 0.6)  # behind the pillars
 EXAMPLE_BALL_DEPTH = (-0.9, 1.0)  # in front of or behind them
 PROBE_SPEED = (0.55, 1.2)
-#: Counterbalanced: the launch speed of a ball that then stops, and of the inconsistent ball
-#: when it is put back: it never rolls faster than it was launched, as fast as examples launch
-#: theirs. Higher than PROBE_SPEED because it slows down: its motion after reappearing mirrors
-#: the standard ball's in the gap (the cue audit's balance).
-STOPPING_SPEED = (1.1, 1.5)
 EXAMPLE_SPEED = (0.4, 1.5)
-STOP_TIME = (1.2, 2.0)  # counterbalanced: seconds from launch to standstill
-#: MuJoCo rolling friction (a length, contact dimension 6): 0 rolls freely; probes that stop
-#: derive theirs from STOP_TIME and speed, always inside the examples' range.
+#: MuJoCo rolling friction (a length, contact dimension 6): 0 rolls freely (every probe).
 EXAMPLE_ROLLING_FRICTION = (0.005, 0.045)
 EXAMPLE_SLOWING_SHARE = 0.5  # share of examples whose ball slows down (and often stops)
 
@@ -110,11 +108,6 @@ class Layout:
             "speed": float(np.hypot(*self.ball_velocity)),
             "rolling_friction": self.rolling_friction,
         }
-
-
-def x_behind(camera: CameraPose, video: VideoOptions, pillar_x: float, y: float, z: float) -> float:
-    """The x on the ball's line (·, y, z) that the camera sees right behind a pillar's centre."""
-    return x_at_column(camera, video, pixel_of(camera, video, (pillar_x, 0.0, z))[1] + 0.5, y, z)
 
 
 def build(
@@ -210,27 +203,19 @@ def probe_layout(
     camera: CameraPose,
     video: VideoOptions,
 ) -> Layout:
-    """Pillars a little upstream of the view's centre and a ball rolling behind them. ``standard``
-    and ``three_pillars``: free rolling at constant speed from the frame edge or nearer, ending in
-    view past the last pillar (RejectedSample if that needs a speed outside PROBE_SPEED);
-    ``counterbalanced``: launched to slow down and stop in STOP_TIME (its start is aimed later,
-    see ``aim_to_stop``)."""
+    """Pillars a little upstream of the view's centre (three for ``three_pillars``, else two)
+    and a ball rolling freely behind them at constant speed from the frame edge or nearer,
+    ending in view past the last pillar (RejectedSample if that needs a speed outside
+    PROBE_SPEED)."""
     centres, widths = _pillars(rng, 3 if variant == "three_pillars" else 2)
     radius = float(rng.uniform(*PROBE_BALL_RADIUS))
     depth = float(rng.uniform(*PROBE_BALL_DEPTH))
     direction = float(rng.choice([-1.0, 1.0]))
     middle = x_at_column(camera, video, video.width / 2, 0.0, radius)
     # Upstream of the view's centre, leaving room to roll on (or reappear) past the last pillar.
-    offset = rng.uniform(0.0, 0.25) if variant != "counterbalanced" else rng.uniform(0.1, 0.3)
-    shift = middle - direction * float(offset)
+    shift = middle - direction * float(rng.uniform(0.0, 0.25))
     pillars = [(c + shift, w) for c, w in zip(centres, widths)]
     height = float(rng.uniform(*PROBE_PILLAR_HEIGHT))
-    if variant == "counterbalanced":
-        speed = float(rng.uniform(*STOPPING_SPEED))
-        deceleration = speed / float(rng.uniform(*STOP_TIME))
-        # A rolling ball: torque mu*N over the effective mass m(1 + 2/5) at lever r.
-        friction = deceleration * 1.4 * radius / GRAVITY
-        return Layout(pillars, height, radius, (shift, depth, radius), (direction * speed, 0.0), friction)
     ordered = sorted(pillars, key=lambda pillar: direction * pillar[0])
     (first_x, first_w), (last_x, last_w) = ordered[0], ordered[-1]
     upstream, downstream = view_edges(camera, video, depth, radius)[:: int(direction)]
@@ -252,8 +237,7 @@ def probe_layout(
 def example_layout(rng: np.random.Generator, duration: float) -> Layout:
     """Two pillars and a ball whose path is unconstrained: in front of or behind the pillars,
     any speed, either direction, slanted, sometimes dropped from a little height, and in half
-    the clips slowing down under rolling friction (often to a standstill, as in the
-    counterbalanced probes)."""
+    the clips slowing down under rolling friction (often to a standstill)."""
     centres, widths = _pillars(rng, 2)
     shift = float(rng.uniform(-0.5, 0.5))
     radius = float(rng.uniform(*EXAMPLE_BALL_RADIUS))
@@ -282,28 +266,6 @@ def path_pillars(layout: Layout) -> list[int]:
     """Pillar indices in the order the ball passes them."""
     order = sorted(range(len(layout.pillars)), key=lambda i: layout.pillars[i][0])
     return order[::-1] if layout.ball_velocity[0] < 0 else order
-
-
-def aim_to_stop(sim: Simulation, layout: Layout, rng: np.random.Generator) -> None:
-    """Shift the slowing ball's start along its path so it comes to rest behind the first
-    pillar (a random spot off its centre): a dry run measures how far it rolls (the floor is uniform, so the distance does not
-    depend on where it starts)."""
-    video = sim.video
-    trial = sim.fork()
-    start = trial.position("ball")
-    steps = round(max(STOP_TIME) * 1.5 / video.timestep)
-    trial.step(steps)
-    if np.linalg.norm(trial.data.body("ball").cvel[3:]) > 1e-2:
-        raise RejectedSample("the slowing ball does not stop in time")
-    travel = trial.position("ball")[0] - start[0]
-    first_x, first_w = layout.pillars[path_pillars(layout)[0]]
-    _, depth, height = start
-    behind = x_behind(sim.camera, video, first_x, depth, height)
-    slack = max(0.0, first_w * 1.1 - 2 * layout.ball_radius) / 2  # how far off centre it may rest
-    rest = behind + float(rng.uniform(-0.4, 0.4)) * slack
-    new_start = (rest - travel, depth, height)
-    layout.ball_start = new_start
-    launch(sim, new_start, layout.ball_velocity)
 
 
 def vanish_and_reappear(
@@ -365,87 +327,48 @@ def _standard(rng: np.random.Generator, variant: str, video: VideoOptions, camer
     return sim, consistent, splice(consistent, rest, vanish), vanish
 
 
-#: Counterbalanced: frames before the end at which the inconsistent ball is put back behind the
-#: second pillar (integers, uniform), so it shows for about as long as the standard ball in the gap.
-REAPPEAR_BEFORE_END = (6, 9)
-
-
-def rolls_on_in_view(
-    layout: Layout, camera: CameraPose, video: VideoOptions, start: float, speed: float, frames: int
-) -> bool:
-    """Whether a ball put back at ``start`` with ``speed`` ``frames`` frames before the end is
-    may still be in view at the end (its centre; rolling friction's nominal deceleration; a cheap check
-    before rendering, the rendered masks have the last word)."""
-    direction = float(np.sign(layout.ball_velocity[0]))
-    deceleration = layout.rolling_friction * GRAVITY / (1.4 * layout.ball_radius)
-    time = (frames - 1) * video.duration / video.num_frames
-    if speed < deceleration * time:
-        rolled = speed**2 / (2 * deceleration)
-    else:
-        rolled = speed * time - deceleration * time**2 / 2
-    edge = view_edges(camera, video, layout.ball_start[1], layout.ball_radius)[int(direction > 0)]
-    return direction * (edge - start) - rolled >= 0.0
-
-
-def _counterbalanced(rng: np.random.Generator, video: VideoOptions, camera: CameraPose):
-    """The mirror pair: a ball slows and stops behind the first pillar (consistent); in the
-    inconsistent video it is parked when hidden there and put back behind the second pillar,
-    rolling as it was launched and slowing with the same friction, so it reappears after it
-    without crossing the gap (and never moves faster than it was seen to)."""
-    layout = probe_layout(rng, "counterbalanced", camera, video)
+def _quadruplet(rng: np.random.Generator, video: VideoOptions, camera: CameraPose):
+    """One ball's roll past both pillars seen from two moments: A from the launch (hidden by
+    the first pillar at m = ``vanish``), B the same roll k = reappear - vanish frames later
+    (hidden by the last pillar at m). Both show nothing of the ball at m, so they render alike
+    there, and AB (A, then B) shows the paper's violation: the ball vanishes behind the first
+    pillar and comes out of the last one without crossing the gap; BA (B, then A) shows a ball
+    that went behind the last pillar come out of the first one again."""
+    layout = probe_layout(rng, "standard", camera, video)
     sim = build(rng, video, camera, layout)
-    aim_to_stop(sim, layout, rng)
-    first, last = path_pillars(layout)[0], path_pillars(layout)[-1]
-    _, depth, height = layout.ball_start
-    last_x, _ = layout.pillars[last]
-    behind = x_behind(camera, video, last_x, depth, height)
-    speed = float(np.hypot(*layout.ball_velocity))
-    before_end = int(rng.integers(REAPPEAR_BEFORE_END[0], REAPPEAR_BEFORE_END[1] + 1))
-    if not rolls_on_in_view(layout, camera, video, behind, speed, before_end):
-        raise RejectedSample("the reappearing ball would roll out of view")
-    consistent, states, positions = record_tracking(sim, "ball")
-    masks = consistent[1]
-    ball = sim.mask_id("ball")
-    pixels = ball_pixels(masks, ball)
-    seen = what_hides_ball(sim, masks, positions)
-    vanish = first_hidden(seen, pixels, sim.mask_id(f"pillar{first}"), 1)
-    if pixels[vanish:].any():
-        raise RejectedSample("the slowing ball shows again after the first pillar hid it")
-    full = full_ball_pixels(sim, layout.ball_radius, layout.ball_start[1])
-    if not (pixels[:vanish] >= VISIBLE_SHARE * full).any():
-        raise RejectedSample("the ball is not seen before the first pillar")
-    back = max(vanish + 1, video.num_frames - before_end)
+    first, _, positions = record_tracking(sim, "ball")
+    vanish, reappear = vanish_and_reappear(sim, layout, first[1], positions)
+    later = reappear - vanish
+    second = join(tuple(part[later:] for part in first), sim.record(later))
+    return sim, recording.quadruplet(first, second, vanish), vanish
 
-    def put_back(twin: Simulation, frame: int) -> None:
-        if frame == back:
-            twin.restore("ball")
-            launch(twin, (behind, depth, height), layout.ball_velocity)
 
-    twin = sim.fork()
-    twin.set_state(states[vanish])
-    twin.remove("ball")
-    rest = twin.record(video.num_frames - vanish, put_back, first_frame=vanish)
-    inconsistent = splice(consistent, rest, vanish)
-    shown = ball_pixels(inconsistent[1], ball)
-    if shown[back]:
-        raise RejectedSample("the ball shows where it is put back behind the second pillar")
-    if shown[-1] < VISIBLE_SHARE * full:
-        raise RejectedSample("the reappearing ball is not seen whole in the last frame")
-    return sim, consistent, inconsistent, vanish
+@functools.lru_cache(maxsize=4)
+def quadruplet(seed: int, video: VideoOptions) -> tuple:
+    """One scene draw's quadruplet ((A, AB), (B, BA)) (``_quadruplet``), with the camera, the
+    manipulation frame and the ball's mask id. Cached, as both variants of a seed read it
+    (callers copy what they keep)."""
+
+    def make(rng: np.random.Generator) -> tuple:
+        camera = CAMERA.sample(rng)
+        sim, pairs, vanish = _quadruplet(rng, video, camera)
+        return pairs, camera.as_array(), vanish, sim.mask_id("ball")
+
+    return draw_until_valid(make, rng_for(seed, CONCEPT, "quadruplet"))
 
 
 def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
-    """A consistent/inconsistent pair: ``standard`` (two pillars, the paper's), ``three_pillars``
-    (the generalization probe) or ``counterbalanced`` (the slowing ball, see module doc); the
-    camera is drawn from CAMERA like every training clip's."""
+    """A consistent/inconsistent pair: ``standard`` and ``counterbalanced``, the two halves of
+    the seed's quadruplet (``quadruplet``); ``paper`` (the paper's probe, the ball reappearing
+    when it would have, which no splice gives) or ``three_pillars`` (the generalization probe).
+    The camera is drawn from CAMERA like every training clip's."""
     specs.check_variant(CONCEPT, variant)
+    if variant in specs.QUADRUPLET_VARIANTS:
+        return quadruplet_record(CONCEPT, variant, seed, quadruplet(seed, video))
 
     def make(rng: np.random.Generator) -> TensorDict:
         camera = CAMERA.sample(rng)
-        if variant == "counterbalanced":
-            sim, consistent, inconsistent, vanish = _counterbalanced(rng, video, camera)
-        else:
-            sim, consistent, inconsistent, vanish = _standard(rng, variant, video, camera)
+        sim, consistent, inconsistent, vanish = _standard(rng, variant, video, camera)
         ball = sim.mask_id("ball")
         return specs.probe_record(
             consistent, inconsistent, camera.as_array(), specs.CONCEPTS.index(CONCEPT),

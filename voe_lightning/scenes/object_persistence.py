@@ -2,12 +2,16 @@
 Consistent probes end with the plank propped up on the object it hides; inconsistent ones end
 with the plank flat, the object removed while the plank hid it. Counterbalanced probes start
 empty: the plank falls flat (consistent) or ends propped on an object that appeared under it
-while hidden (inconsistent). Examples vary object, plank and poses freely; controls drop the
+while hidden (inconsistent). The two are one quadruplet per seed: the same plank's fall with and
+without the object, spliced where the plank hides its place, so that after the change each
+inconsistent video is exactly the other variant's consistent one. Examples vary object, plank and poses freely; controls drop the
 plank on open floor beside a visible object, or on an empty floor. Every clip starts at a random
 phase of the first frame interval, so that a probe can place its hidden change exactly at a
 frame (frames identical through the manipulation) without starting unlike the examples."""
 
 from __future__ import annotations
+
+import functools
 
 import mujoco
 import numpy as np
@@ -17,7 +21,8 @@ from voe_lightning import specs
 from voe_lightning.scenes.appearance import distinct_colors
 from voe_lightning.scenes.builder import SceneBuilder, yaw_quat
 from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions
-from voe_lightning.scenes.recording import record_pair
+from voe_lightning.scenes import recording
+from voe_lightning.scenes.recording import join, quadruplet_record, record_with_ghost
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
 
@@ -198,58 +203,53 @@ def _change_step(sim: Simulation, rng: np.random.Generator, last_frame: int) -> 
 
 
 def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
-    """A probe pair of ``variant``: ``standard`` (the object vanishes under the plank) or
-    ``counterbalanced`` (an object appears under the plank in an empty scene). Both make the
-    change at a frame, in the same window (landed, not yet touching, hidden), so that the two
-    variants mirror each other."""
+    """A probe pair of ``variant``, one half of the seed's quadruplet (``quadruplet``):
+    ``standard`` (the object vanishes under the plank) or ``counterbalanced`` (the scene starts
+    empty and an object appears under the plank); after the change each pair's inconsistent
+    video is exactly the other's consistent one."""
     if variant not in ("standard", "counterbalanced"):
         raise ValueError(
             f"unknown {CONCEPT} probe variant {variant!r}; valid: standard, counterbalanced"
         )
-    rng = rng_for(seed, CONCEPT, variant)
+    return quadruplet_record(CONCEPT, variant, seed, quadruplet(seed, video))
 
-    def make(rng: np.random.Generator) -> TensorDict:
+
+@functools.lru_cache(maxsize=4)
+def quadruplet(seed: int, video: VideoOptions) -> tuple:
+    """One scene draw's quadruplet: ((A, AB), (B, BA)) with A the plank ending propped on the
+    object and B the same plank's fall in the scene without the object (A's motion: the change
+    comes before the plank touches the object's place), spliced at a frame where the plank
+    hides that place (``recording.quadruplet``); with the camera, that frame and the object's
+    mask id. Cached, as both variants of a seed read it (callers copy what they keep)."""
+    rng = rng_for(seed, CONCEPT, "quadruplet")
+
+    def make(rng: np.random.Generator) -> tuple:
         layout = probe_layout(rng)
         plank_color, object_color = distinct_colors(rng, 2)
         builder = SceneBuilder(rng, video, layout["camera"])
-        obj, obj_xy = layout["object"], layout["object_xy"]
-        counterbalanced = variant == "counterbalanced"
-        _add_object(builder, obj, obj_xy, object_color)
+        _add_object(builder, layout["object"], layout["object_xy"], object_color)
         _add_plank(
             builder, layout["plank_half"], layout["plank_center"], layout["plank_quat"], plank_color
         )
         sim = builder.build()
-        if counterbalanced:  # out of the scene until it appears (``restore``) where it was built
-            sim.remove("object")
         object_id = sim.mask_id("object")
         # The change happens at physics step ``step``: start the video that many steps into a
         # frame interval (as every clip starts at a random phase) so that it falls on a frame.
         step = _change_step(sim, rng, last_frame=video.num_frames - 3)
         frame, phase = divmod(step, video.steps_per_frame)
         sim.step(phase)
-
-        def manipulate(twin: Simulation) -> None:
-            if not counterbalanced:
-                twin.remove("object")
-                return
-            twin.restore("object")
-            if _touching(twin, "object_0", "plank_0"):
-                raise RejectedSample("the object would appear touching the plank")
-
-        consistent, inconsistent = record_pair(sim, frame, manipulate)
-        if object_id in visible_ids(consistent[1][frame]) | visible_ids(
-            inconsistent[1][frame]
-        ):
-            raise RejectedSample("the object shows at the manipulation frame")
-        if not counterbalanced and object_id not in visible_ids(consistent[1][0]):
+        present, absent = record_with_ghost(sim, frame, lambda ghost: ghost.remove("object"))
+        empty = sim.fork()
+        empty.remove("object")
+        rest = video.num_frames - frame
+        present = join(present, sim.record(rest, first_frame=frame))
+        absent = join(absent, empty.record(rest, first_frame=frame))
+        if object_id not in visible_ids(present[1][0]):
             raise RejectedSample("the object is hidden before the plank falls")
-        propped = inconsistent if counterbalanced else consistent
-        if any(object_id in visible_ids(mask) for mask in propped[1][frame:]):
+        if any(object_id in visible_ids(mask) for mask in present[1][frame:]):
             raise RejectedSample("the object shows from under the propped plank")
-        return specs.probe_record(
-            consistent, inconsistent, layout["camera"].as_array(), specs.CONCEPTS.index(CONCEPT),
-            specs.VARIANTS.index(variant), frame, seed, [object_id],
-        )
+        pairs = recording.quadruplet(present, absent, frame)
+        return pairs, layout["camera"].as_array(), frame, object_id
 
     return draw_until_valid(make, rng)
 

@@ -1,14 +1,18 @@
 """Recording videos from a simulation for probes: the consistent video and its inconsistent
 twin, forked from one simulation at the hidden manipulation and identical through the
 manipulation frame (docs/architecture.md §4), either at a chosen frame (``record_pair``) or as
-soon as the physics allows the change unseen (``record_pair_when``); and a whole video with the
-state at every frame (``record_tracking``), to fork later at a frame an object's path chooses."""
+soon as the physics allows the change unseen (``record_pair_when``); a whole video with the
+state at every frame (``record_tracking``), to fork later at a frame an object's path chooses;
+and a quadruplet's two pairs spliced from two consistent videos of one scene (``quadruplet``,
+with ``record_with_ghost`` for a second history of one motion)."""
 
 from __future__ import annotations
 
 from typing import Callable, Sequence
 
 import numpy as np
+
+from tensordict import TensorDict
 
 from voe_lightning import specs
 from voe_lightning.scenes.sampling import RejectedSample
@@ -31,6 +35,56 @@ def splice(consistent: Video, rest: Video, manipulation_frame: int) -> Video:
     )
     objects[manipulation_frame] = consistent[2][manipulation_frame]
     return frames, masks, objects
+
+
+def join(prefix: Video, rest: Video) -> Video:
+    """One video from two consecutive parts (frames, masks and object states each)."""
+    return tuple(np.concatenate([a, b]) for a, b in zip(prefix, rest))
+
+
+def quadruplet(
+    first: Video, second: Video, manipulation_frame: int
+) -> tuple[tuple[Video, Video], tuple[Video, Video]]:
+    """The two probe pairs of one scene draw (docs/architecture.md §4, "Quadruplets"): (A, AB)
+    and (B, BA) from consistent videos A = ``first`` and B = ``second``, where AB is A through
+    the manipulation frame m and B after it, BA the reverse. So after m the inconsistent video
+    of each pair is byte-identical to the consistent video of the other. A and B must render
+    alike at m (frames and masks; the change is hidden there), else RejectedSample."""
+    m = manipulation_frame
+    if not all(np.array_equal(a[m], b[m]) for a, b in zip(first[:2], second[:2])):
+        raise RejectedSample(f"the two consistent videos differ at the manipulation frame {m}")
+    rest = [tuple(part[m:] for part in video) for video in (first, second)]
+    return (first, splice(first, rest[1], m)), (second, splice(second, rest[0], m))
+
+
+def quadruplet_record(concept: str, variant: str, seed: int, drawn: tuple) -> TensorDict:
+    """The probe record of ``variant``'s half of a quadruplet ``drawn`` = (((A, AB), (B, BA)),
+    camera, manipulation frame, manipulated id), as a concept's cached ``quadruplet`` gives it:
+    ``standard`` is (A, AB), ``counterbalanced`` (B, BA); its arrays are copies, so the cache
+    stays as it was."""
+    pairs, camera, frame, manipulated = drawn
+    half = specs.QUADRUPLET_VARIANTS.index(variant)
+    consistent, inconsistent = (tuple(np.copy(part) for part in video) for video in pairs[half])
+    return specs.probe_record(
+        consistent, inconsistent, camera, specs.CONCEPTS.index(concept),
+        specs.VARIANTS.index(variant), frame, seed, [manipulated],
+    )
+
+
+def record_with_ghost(
+    sim: Simulation, num_frames: int, change: Callable[[Simulation], None]
+) -> tuple[Video, Video]:
+    """Render ``num_frames`` frames of ``sim`` and, at each, of a copy of it altered by
+    ``change`` (e.g. an object removed): the same motion seen in two scenes, for a quadruplet's
+    second history where the change touches nothing else before the manipulation frame."""
+    videos = ([], [])
+    for _ in range(num_frames):
+        ghost = sim.fork()
+        change(ghost)
+        for video, view in zip(videos, (sim, ghost)):
+            video.append(view.render())
+        sim.step(sim.video.steps_per_frame)
+    return tuple(tuple(np.stack(part) for part in zip(*video)) for video in videos)
 
 
 def record_tracking(sim: Simulation, name: str) -> tuple[Video, list, np.ndarray]:
@@ -67,7 +121,7 @@ def record_pair(
     inconsistent_rest = twin.record(
         rest, script_inconsistent or script, first_frame=manipulation_frame
     )
-    consistent = tuple(np.concatenate([a, b]) for a, b in zip(prefix, consistent_rest))
+    consistent = join(prefix, consistent_rest)
     return consistent, splice(consistent, inconsistent_rest, manipulation_frame)
 
 

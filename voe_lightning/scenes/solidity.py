@@ -2,20 +2,20 @@
 open container. In probes the camera sees inside the top of the container but not its bottom.
 The block hangs still for a moment before it is let go (as if by an unseen hand), in examples
 for anything from no time to over a second, in probes long enough that a model sees it for
-several frames before the hidden change. ``standard``: a tall block comes to rest protruding
-(consistent) or falls through the container and the floor, its collisions switched off once
-inside, the penetration hidden by the front face (inconsistent). ``counterbalanced`` mirrors
-it: a short block sinks out of sight (consistent) or lands on a hidden support high in the
-container and stays protruding (inconsistent). The two variants draw their scenes alike and
-mirror what is seen: the resting block protrudes as far above the sight line over the front
-rim in both (standard on the floor, counterbalanced on the support), and at the manipulation
-frame both blocks have fallen for the same time and are just above where they would rest, so
-a protruding block (and a vanishing one) looks alike whichever variant shows it. Examples vary
-heights and perspective freely; controls show the container alone, or the block falling
-behind it and ending hidden by it."""
+several frames before the hidden change. ``standard`` and ``counterbalanced`` are one
+quadruplet per seed: one container, camera, footprint and timing, with a tall block (A: it
+comes to rest on the floor protruding above the rim) or a short one (B: it sinks out of sight),
+hung with their tops level so that they fall alike. At the manipulation frame both have fallen
+FALL_TIME, their bottoms hidden by the front wall and only their level tops showing, so they
+render alike; the standard inconsistent video (A, then B) shows the tall block sink out of
+sight as if through the container and the floor, the counterbalanced one (B, then A) the short
+block stop protruding as if on something hidden. After the change each inconsistent video is
+exactly the other variant's consistent one. Examples vary heights and perspective freely;
+controls show the container alone, or the block falling behind it and ending hidden by it."""
 
 from __future__ import annotations
 
+import functools
 from typing import Callable
 
 import numpy as np
@@ -25,7 +25,7 @@ from voe_lightning import specs
 from voe_lightning.scenes.appearance import distinct_colors
 from voe_lightning.scenes.builder import Geom, SceneBuilder, yaw_quat
 from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions
-from voe_lightning.scenes.recording import record_pair
+from voe_lightning.scenes import recording
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
 
@@ -61,16 +61,14 @@ EXAMPLE_HOLD = (0.0, 1.2)
 PROBE_HOLD = (0.6, 1.2)
 #: Of the back wall's inner face, the probe camera hides at least/at most this fraction.
 HIDDEN_BACK_WALL = (0.3, 0.9)
-#: How far a probe's resting block rises above the sight line over the front rim (at its
-#: highest over the footprint), in both variants: standard on the floor, counterbalanced on the
-#: hidden support. Drawn alike, so a protruding block shows as much in either variant.
+#: How far a probe's tall block, resting on the floor, rises above the sight line over the
+#: front rim (at its highest over the footprint).
 PROTRUSION = (0.04, 0.2)
-#: How far below the sight line anything hidden stays (the hidden support's top; the short
-#: block resting on the floor).
+#: How far below the sight line anything hidden stays (the short block's bottom at the change,
+#: its top at rest on the floor).
 MARGIN = 0.03
-#: Probes: how long the block has fallen at the manipulation frame (s), and how far above where
-#: it would rest (the floor, or the hidden support) it is then; the same in both variants, so
-#: that both blocks land, or go on falling, at the same speed.
+#: Probes: how long the blocks have fallen at the manipulation frame (s), and how far above the
+#: floor the tall one is then (the short one goes on falling).
 FALL_TIME = 0.4
 CLEARANCE = (0.01, 0.05)
 GRAVITY = 9.81  # MuJoCo's default, which the scenes keep
@@ -244,20 +242,14 @@ def check_video(video: VideoOptions) -> None:
     )
 
 
-def draw_probe(
-    variant: str, rng: np.random.Generator, video: VideoOptions = VideoOptions()
-) -> dict:
-    """The parameters of a probe pair, each inside the examples' range: a container seen from
-    the controlled perspective, a block footprint and how far the resting block protrudes above
-    the sight line over the front rim. The scene is drawn alike for both variants and must suit
-    both: the block is tall enough to protrude resting on the floor (standard) or short enough
-    to hide there while protruding from a hidden support below the sight line
-    (counterbalanced, which also gets ``support``: its top). ``manipulation_frame``: when the
-    block, let go ``hold`` s in, has fallen FALL_TIME s to just above where it would rest."""
-    if variant not in VARIANTS:
-        raise ValueError(
-            f"unknown {CONCEPT} probe variant {variant!r}; valid: {', '.join(VARIANTS)}"
-        )
+def draw_quadruplet(rng: np.random.Generator, video: VideoOptions = VideoOptions()) -> dict:
+    """The parameters of a probe quadruplet, each inside the examples' range: a container seen
+    from the controlled perspective, a block footprint, two heights for it and when it is let
+    go. ``tall`` rests on the floor protruding PROTRUSION above the sight line over the front
+    rim; ``short`` sinks out of sight. Both hang with their tops level and fall together, so
+    that at ``manipulation_frame`` (fallen FALL_TIME, the tall block CLEARANCE above the floor)
+    both bottoms are hidden and the two look alike; ``drops`` are their bottoms' heights above
+    the rim when let go."""
     check_video(video)
     frames, fall = manipulation_frames(video), fall_distance(video)
     for _ in range(1000):
@@ -268,27 +260,46 @@ def draw_probe(
         eye = camera_position(camera)
         hidden = [_hidden_height(eye, box, x, y) for x, y in _footprint(block, block["offset"])]
         floor, depth = 2 * box["wall"], _depth(box)
-        support = min(hidden) - MARGIN
         protrusion, clearance = rng.uniform(*PROTRUSION), rng.uniform(*CLEARANCE)
         manipulation_frame = int(rng.choice(frames))
-        # Resting on the floor (standard) or the support (counterbalanced), the top protrudes.
-        rest = {"standard": floor, "counterbalanced": support}
-        heights = {name: max(hidden) + protrusion - below for name, below in rest.items()}
-        drops = {name: below + clearance + fall - box["height"] for name, below in rest.items()}
-        if floor + heights["counterbalanced"] < support and all(
-            EXAMPLE_HEIGHTS[0] <= height / depth <= EXAMPLE_HEIGHTS[1]
-            for height in heights.values()
-        ) and all(EXAMPLE_DROP[0] <= drop <= EXAMPLE_DROP[1] for drop in drops.values()):
-            block["half"] = (*block["half"][:2], heights[variant] / 2)
+        top = max(hidden) + protrusion + clearance  # both blocks' top at the change
+        # The short block's bottom is hidden at the change, its top once it rests.
+        low, high = top - min(hidden) + MARGIN, min(hidden) - MARGIN - floor
+        if not low < high:
+            continue
+        heights = {"tall": top - clearance - floor, "short": float(rng.uniform(low, high))}
+        drops = {name: top + fall - height - box["height"] for name, height in heights.items()}
+        if all(EXAMPLE_HEIGHTS[0] <= height / depth <= EXAMPLE_HEIGHTS[1]
+               for height in heights.values()) and all(
+                EXAMPLE_DROP[0] <= drop <= EXAMPLE_DROP[1] for drop in drops.values()):
             release = manipulation_frame * video.steps_per_frame - _fall_steps(video)
-            params = {
-                "box": box, "block": block, "camera": camera, "drop": float(drops[variant]),
-                "hold": release * video.timestep, "manipulation_frame": manipulation_frame,
+            return {
+                "box": box, "block": block, "camera": camera, "heights": heights,
+                "drops": drops, "hold": release * video.timestep,
+                "manipulation_frame": manipulation_frame,
             }
-            if variant == "counterbalanced":
-                params["support"] = support
-            return params
-    raise RuntimeError(f"no {CONCEPT} {variant} probe parameters in 1000 draws")
+    raise RuntimeError(f"no {CONCEPT} probe quadruplet parameters in 1000 draws")
+
+
+def draw_probe(
+    variant: str, rng: np.random.Generator, video: VideoOptions = VideoOptions()
+) -> dict:
+    """The parameters of ``variant``'s consistent scene in a quadruplet (``draw_quadruplet``):
+    ``standard`` the tall block, ``counterbalanced`` the short one; ``block`` carries its
+    height, ``drop`` its start above the rim."""
+    if variant not in VARIANTS:
+        raise ValueError(
+            f"unknown {CONCEPT} probe variant {variant!r}; valid: {', '.join(VARIANTS)}"
+        )
+    params = draw_quadruplet(rng, video)
+    return _scene(params, "tall" if variant == "standard" else "short")
+
+
+def _scene(params: dict, size: str) -> dict:
+    """One of a quadruplet's two scenes: its block ``size`` (tall or short) in ``params``."""
+    half = params["block"]["half"]
+    block = {**params["block"], "half": (half[0], half[1], params["heights"][size] / 2)}
+    return {**params, "block": block, "drop": float(params["drops"][size])}
 
 
 def _add_block(builder: SceneBuilder, block: dict, xy, bottom: float, color: str) -> None:
@@ -305,86 +316,52 @@ def _add_block(builder: SceneBuilder, block: dict, xy, bottom: float, color: str
     builder.spec.body("block").gravcomp = 1.0
 
 
-def _add_support(builder: SceneBuilder, box: dict, block: dict, top: float, color: str) -> None:
-    """The hidden support of the counterbalanced probe: a pedestal under the block's footprint
-    from the container's floor up to ``top`` (solid, so a fast block cannot tunnel through it).
-    A mocap body, so that it can wait out of the scene (``Simulation.remove``) until the
-    manipulation puts it back."""
-    half_x, half_y, _ = block["half"]
-    x, y = block["offset"]
-    floor = 2 * box["wall"]
-    builder.add(
-        "support",
-        [Geom("box", (half_x, half_y, (top - floor) / 2))],
-        (x, y, (top + floor) / 2),
-        color,
-        quat=yaw_quat(block["yaw"]),
-        free=False,
-        mocap=True,
-    )
-
-
-def _fall_through(twin: Simulation) -> None:
-    """The magic: the block stops colliding, so it falls through the container and the floor."""
-    for geom_name in twin.objects["block"].geom_names:
-        twin.model.geom(geom_name).contype = 0
-        twin.model.geom(geom_name).conaffinity = 0
-
-
-def _make_solid(twin: Simulation) -> None:
-    """The magic: the hidden support appears in the container, so the block lands on it."""
-    twin.restore("support")
-
-
 def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
-    """A probe pair: ``standard`` (a tall block rests protruding, or falls through the container
-    out of view) or ``counterbalanced`` (a short block sinks out of view, or stays protruding
-    on a hidden support; the support, never visible, is the manipulated object)."""
+    """A probe pair of ``variant``, one half of the seed's quadruplet (``quadruplet``):
+    ``standard`` (a tall block rests protruding, or after the change sinks out of view as if
+    through the floor) or ``counterbalanced`` (a short block sinks out of view, or after the
+    change stops protruding above the rim as if on something hidden)."""
     if variant not in VARIANTS:
         raise ValueError(
             f"unknown {CONCEPT} probe variant {variant!r}; valid: {', '.join(VARIANTS)}"
         )
-    rng = rng_for(seed, CONCEPT, variant)
+    return recording.quadruplet_record(CONCEPT, variant, seed, quadruplet(seed, video))
 
-    def make(rng: np.random.Generator) -> TensorDict:
-        params = draw_probe(variant, rng, video)
-        box, block, camera = params["box"], params["block"], params["camera"]
+
+@functools.lru_cache(maxsize=4)
+def quadruplet(seed: int, video: VideoOptions) -> tuple:
+    """One scene draw's quadruplet ((A, AB), (B, BA)) (``draw_quadruplet``): A the tall block
+    resting protruding, B the short one sinking out of sight, spliced at the manipulation
+    frame, where only their level tops show; with the camera, that frame and the block's mask
+    id. Cached, as both variants of a seed read it (callers copy what they keep)."""
+
+    def make(rng: np.random.Generator) -> tuple:
+        params = draw_quadruplet(rng, video)
+        box, camera, frame = params["box"], params["camera"], params["manipulation_frame"]
         container_color, block_color = distinct_colors(rng, 2)
-        builder = SceneBuilder(rng, video, camera)
-        _add_container(builder, box, container_color)
-        _add_block(builder, block, block["offset"], box["height"] + params["drop"], block_color)
-        if variant == "counterbalanced":
-            _add_support(builder, box, block, params["support"], container_color)
-        sim = builder.build()
-        if variant == "counterbalanced":
-            sim.remove("support")
+        scene_seed = int(rng.integers(2**63))  # one draw of the stage for both scenes
+        videos = []
+        for size in ("tall", "short"):
+            scene = _scene(params, size)
+            builder = SceneBuilder(np.random.default_rng(scene_seed), video, camera)
+            _add_container(builder, box, container_color)
+            block = scene["block"]
+            _add_block(builder, block, block["offset"], box["height"] + scene["drop"], block_color)
+            sim = builder.build()
+            sim.controller = release_controller(sim, round(params["hold"] / video.timestep))
+            videos.append(sim.record(video.num_frames))
         block_id = sim.mask_id("block")
-        sim.controller = release_controller(sim, round(params["hold"] / video.timestep))
-        frame = params["manipulation_frame"]
-        manipulate = _fall_through if variant == "standard" else _make_solid
-        consistent, inconsistent = record_pair(sim, frame, manipulate)
-        if variant == "standard":
-            manipulated = block_id
-            for t in range(frame, video.num_frames):
-                extra = (inconsistent[1][t] == block_id) & (consistent[1][t] != block_id)
-                if extra.sum() > PENETRATION_TOLERANCE:
-                    raise RejectedSample("the block's fall through the container shows")
-            shown, gone = consistent[1][-1], inconsistent[1][-1]
-        else:
-            manipulated = sim.mask_id("support")
-            if (consistent[1] == manipulated).any() or (inconsistent[1] == manipulated).any():
-                raise RejectedSample("the hidden support shows")
-            shown, gone = inconsistent[1][-1], consistent[1][-1]
-        if (shown == block_id).sum() < 6:
+        (_, tall, _), (_, short, _) = videos
+        extra = (short[frame:] == block_id) & (tall[frame:] != block_id)
+        if extra.sum(axis=(1, 2)).max() > PENETRATION_TOLERANCE:
+            raise RejectedSample("the short block shows where the tall one does not")
+        if (tall[-1] == block_id).sum() < 6:
             raise RejectedSample("the protruding block is hidden: the pair would not differ")
-        if block_id in visible_ids(gone):
+        if block_id in visible_ids(short[-1]):
             raise RejectedSample("the block that should be out of view is seen at the end")
-        return specs.probe_record(
-            consistent, inconsistent, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
-            specs.VARIANTS.index(variant), frame, seed, [manipulated],
-        )
+        return recording.quadruplet(*videos, frame), camera.as_array(), frame, block_id
 
-    return draw_until_valid(make, rng)
+    return draw_until_valid(make, rng_for(seed, CONCEPT, "quadruplet"))
 
 
 def _behind_container(rng: np.random.Generator, box: dict, block: dict, camera: CameraPose):
