@@ -22,6 +22,7 @@ from voe_lightning.model import (
 )
 from voe_lightning.model.cue_scorer import CUE_NAMES
 from voe_lightning.model.videomae import VideoMAEScorer
+from voe_lightning.model.vjepa2 import VJEPA2Scorer
 from voe_lightning.scenes import CONCEPTS, PROBE_VARIANTS, generate_probe
 
 SIZE = 32
@@ -44,6 +45,13 @@ VIDEOMAE = dict(image_size=SIZE, patch_size=8, num_frames=16, tubelet_size=2, hi
                 num_hidden_layers=1, num_attention_heads=2, intermediate_size=32,
                 decoder_num_attention_heads=2, decoder_hidden_size=16,
                 decoder_num_hidden_layers=1, decoder_intermediate_size=32)
+# Windows of 4 frames, 2 seen, sliding by 1: every frame from the fourth is scored.
+VJEPA2 = dict(context_frames=2, window_frames=4, frame_step=1, window_stride=1,
+              config=dict(crop_size=SIZE, patch_size=8, tubelet_size=2, hidden_size=24,
+                          num_attention_heads=2, num_hidden_layers=1, mlp_ratio=2.0,
+                          pred_hidden_size=12, pred_num_attention_heads=2,
+                          pred_num_hidden_layers=1, pred_mlp_ratio=2.0,
+                          pred_zero_init_mask_tokens=False, num_pooler_layers=1))
 
 #: Every model family the package ships, untrained and tiny: one line adds a family.
 FAMILIES = [
@@ -83,6 +91,9 @@ FAMILIES = [
     pytest.param(lambda: VideoMAEScorer(config=VIDEOMAE), id="videomae",
                  marks=pytest.mark.skipif(importlib.util.find_spec("transformers") is None,
                                           reason="VideoMAEScorer needs transformers")),
+    pytest.param(lambda: VJEPA2Scorer(**VJEPA2), id="vjepa2",
+                 marks=pytest.mark.skipif(importlib.util.find_spec("transformers") is None,
+                                          reason="VJEPA2Scorer needs transformers")),
 ]
 
 

@@ -153,6 +153,33 @@ def test_paper_config_reads_the_memory_as_the_paper_does():
     assert (joint["controller_sees_read"], joint["least_used_slots"]) == (True, 1)  # defaults
 
 
+#: configs/paper.yaml's model, pinned: the paper's sizes and stated choices, and the open ones
+#: its header names as departures (head_mixing, write_content).
+PAPER_MODEL = dict(
+    image_size=[64, 64], latent_size=256, mlp_sizes=[512, 512], memory_slots=15,
+    memory_slot_size=100, memory_read_heads=3, controller_size=128, usage_decay=0.95,
+    head_mixing="controller", write_content="projection", controller_sees_read=False,
+    least_used_slots=3, encoder_blocks=6, encoder_channels=[64, 64, 128], encoder_mlp_size=500,
+    prior_regularizer_weight=1e-4, learning_rate=5e-6, adam_betas=[0.9, 0.999],
+    lr_schedule="constant", kl_warmup_steps=0, kl_free_bits=0.0)
+
+
+def test_paper_config_pins_the_papers_choices_and_names_each_departure():
+    """Every choice of the paper config is written in it (a changed model default cannot move
+    it), and its header names each departure from the paper, with the setting that makes it."""
+    paper = compose("paper")
+    arguments = paper["model"]["init_args"]
+    assert {name: arguments[name] for name in PAPER_MODEL} == PAPER_MODEL
+    written = yaml.safe_load((CONFIGS / "paper.yaml").read_text())["model"]["init_args"]
+    assert set(PAPER_MODEL) <= set(written)
+    header = "\n".join(line for line in (CONFIGS / "paper.yaml").read_text().splitlines()
+                       if line.startswith("#"))
+    for departure in ("head_mixing: controller", "write_content: projection", "log-std",
+                      "memory output", "sub-pixel", "stride of 2x1", "deterministic rollout",
+                      "bf16", "every 20,000 steps"):
+        assert departure in header, departure
+
+
 def test_base_is_read_before_the_given_configs():
     """``fit --config configs/quickstart.yaml`` runs exactly what base.yaml then quickstart.yaml
     give (the CLI's default config file), and a later base.yaml would change nothing."""

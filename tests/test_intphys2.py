@@ -258,7 +258,7 @@ def test_metrics_match_a_hand_computation(root):
     # possible right: 7 of 8 (max 5 > 2.9); impossible right: 3 and 4 only
     assert overall["absolute_accuracy"] == pytest.approx((7 + 2) / 16)
     # impossible maxima {3, 4, 1, 2, 1, 1, 1, 1} over possible {1, 2, 1, 5, 0, 0, 0, 0}
-    assert overall["auroc"] == pytest.approx((7 + 7 + 5 + 6.5 + 4 * 5) / 64)
+    assert overall["auroc_max"] == pytest.approx((7 + 7 + 5 + 6.5 + 4 * 5) / 64)
     assert overall["paired_test"]["n"] == 8
     immutability = metrics["principle"]["Immutability"]
     assert immutability["relative_accuracy_mean"] == 0.5

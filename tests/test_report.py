@@ -176,8 +176,11 @@ def test_summary_files_schema(report):
     assert [list(r) for r in document["rows"]] == [list(SUMMARY_COLUMNS)] * 6
     assert document["rows"][0]["p_value"] == rows[0]["p_value"]
     markdown = (directory / "summary.md").read_text()
-    lines = [line for line in markdown.splitlines() if line.startswith("|")]
+    paired, field = markdown.split("## The field's metrics")
+    lines = [line for line in paired.splitlines() if line.startswith("|")]
     assert len(lines) == 2 + 6 and "t(9) = " in markdown and "| M [95% CI] |" in lines[0]
+    assert len([line for line in field.splitlines() if line.startswith("|")]) == 2 + 6
+    assert len(document["field_metrics"]) == 6
 
 
 def test_degenerate_groups_are_explained_not_nan(report):

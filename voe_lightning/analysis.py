@@ -1,9 +1,12 @@
 """Analyses across runs: relative surprise over training read from TensorBoard event files,
 separate vs joint runs on one figure (paper Figure 6), the per-concept verdicts of tested runs
-side by side, and how many of a VRNN-LRU's latents carry information; with the training-set-size
+side by side, the field's metric set of a windowed model over context length, and how many of a
+VRNN-LRU's latents carry information; with the training-set-size
 sweep (``voe_lightning.size_sweep``, paper Figure 3) and the calibration of the verdict
 (``voe_lightning.calibration``), the subcommands of ``analyze`` (``COMMANDS``).
-``python -m voe_lightning analyze curves|sweep|sweep-plot|compare|latents|calibrate``.
+``python -m voe_lightning analyze
+curves|sweep|sweep-plot|compare|context-sweep|latents|null|calibrate``; ``null`` is
+``voe_lightning.null``'s.
 """
 
 from __future__ import annotations
@@ -20,9 +23,11 @@ from matplotlib.figure import Figure
 
 from voe_lightning import calibration, specs
 from voe_lightning.cues import CUE_TITLES, FRAME_LOCAL_CUES, tracked_cues
+from voe_lightning.field_metrics import context_sweep, format_field_metrics
 from voe_lightning.model import VRNNLRUModel
+from voe_lightning.null import untrained_null
 from voe_lightning.report.figures import panel_grid, save_figure
-from voe_lightning.report.results import read_summary
+from voe_lightning.report.results import PairResults, read_summary
 from voe_lightning.statistics import POOLED, QUADRUPLET
 from voe_lightning.size_sweep import sweep, sweep_plot
 from voe_lightning.statistics_format import BRIEF, format_alpha, row_text
@@ -277,6 +282,38 @@ def compare(runs: list[str], out: Path | None = None) -> str:
     return table
 
 
+def context_sweep_table(runs: dict[int, str], out: Path | None = None) -> str:
+    """The field's metric set of one windowed model at several context lengths
+    (``field_metrics.context_sweep``) per concept/variant, as a Markdown table, from one tested
+    run per context length (e.g. ``VJEPA2Scorer`` tested with each ``context_frames``) on the
+    same probes.
+
+    Args:
+        runs: tested run (or report) directories by context length, e.g. {4: runs/c4,
+            8: runs/c8}; the latest voe_report/pairs.csv under each is read.
+        out: also write the table here.
+    """
+    if not runs:
+        raise ValueError("give at least one tested run: --runs '{CONTEXT: RUN_DIR, ...}'")
+    by_group: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
+    for context, run in runs.items():
+        results = PairResults.from_csv(_latest_report(run) / "pairs.csv")
+        for concept, variant, pairs in results.groups(pooled=True):
+            by_group.setdefault(f"{concept}/{variant}", {})[int(context)] = (
+                pairs.surprise_consistent, pairs.surprise_inconsistent)
+    missing = sorted(group for group, sides in by_group.items() if len(sides) != len(runs))
+    if missing:
+        raise ValueError(f"{', '.join(missing[:3])} not in every run's report: test every "
+                         "context length on the same probes")
+    rows = {f"{group} @ {context}": metrics for group, sides in by_group.items()
+            for context, metrics in context_sweep(sides).items()}
+    table = format_field_metrics(rows, "concept/variant @ context length")
+    print(table, end="")
+    if out:
+        Path(out).write_text(table)
+    return table
+
+
 # ----------------------------------------------------------------------------- latent usage
 
 
@@ -336,7 +373,9 @@ def latents(checkpoints: list[str], root: Path, pairs: int = 16, threshold: floa
 
 
 #: ``analyze``'s subcommands, as jsonargparse's ``auto_cli`` takes them (``_help``: the summary).
-COMMANDS = {"_help": "Figures and tables over runs: curves, sweep, sweep-plot, compare, latents; "
-                     "and the verdict's calibration on a store: calibrate.",
+COMMANDS = {"_help": "Figures and tables over runs: curves, sweep, sweep-plot, compare, "
+                     "context-sweep, latents; untrained initializations of a config: null; and "
+                     "the verdict's calibration on a store: calibrate.",
             "curves": curves, "sweep": sweep, "sweep-plot": sweep_plot, "compare": compare,
-            "latents": latents, "calibrate": calibration.calibrate_store}
+            "context-sweep": context_sweep_table, "latents": latents, "null": untrained_null,
+            "calibrate": calibration.calibrate_store}

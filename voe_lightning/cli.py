@@ -6,6 +6,7 @@ for every command, all listed in ``--help``."""
 from __future__ import annotations
 
 import builtins
+import functools
 import importlib
 import inspect
 import os
@@ -501,15 +502,17 @@ def base_alpha() -> float:
 
 def _call(command: Any, arguments: Namespace) -> Any:
     """Call the function of a ``COMMANDS`` entry that its parsed ``arguments`` select; one that
-    runs other commands (``analyze sweep``) gets this CLI's ``main`` as ``_cli_main``."""
+    runs other commands (``analyze sweep``) gets this CLI's ``main`` as ``_cli_main``, one that
+    builds runs without running them (``analyze null``) ``_build_cli`` (``_cli``, not run)."""
     arguments = arguments.clone()
     arguments.pop("config", None)
     if isinstance(command, dict):
         name = arguments.pop("subcommand")
         return _call(command[name], arguments[name])
-    entry_point = {"_cli_main": main} if "_cli_main" in inspect.signature(command).parameters else {}
+    entry_points = {"_cli_main": main, "_build_cli": functools.partial(_cli, run=False)}
+    parameters = inspect.signature(command).parameters
     return command(**{name: _built(value) for name, value in vars(arguments).items()},
-                   **entry_point)
+                   **{key: value for key, value in entry_points.items() if key in parameters})
 
 
 def _built(value: Any) -> Any:
@@ -644,8 +647,10 @@ def _raised_in(error: BaseException, package: str) -> bool:
     return bool(frames) and f"{os.sep}{package}{os.sep}" in frames[-1].filename
 
 
-def _cli(args: list[str] | None) -> VOECLI:
-    """The VOECLI of ``args`` (None: the command line), run."""
+def _cli(args: list[str] | None, run: bool = True) -> VOECLI:
+    """The VOECLI of ``args`` (None: the command line), run; with ``run`` False, its model,
+    data and trainer built from ``args`` (configs after base.yaml, no subcommand) and not run
+    (``analyze null`` tests untrained initializations so, through ``_call``)."""
     return VOECLI(
         model_class=SurpriseModel,
         datamodule_class=ProbeDataModule,
@@ -659,7 +664,9 @@ def _cli(args: list[str] | None) -> VOECLI:
                        "expectation: generate the data, train and test, audit cues, analyze runs. "
                        "A bad argument or input is one line, 'error: ...'; --debug anywhere "
                        f"(or {DEBUG_VARIABLE}=1) shows its traceback.",
-                       **{name: {"default_config_files": [str(BASE_CONFIG)]}
-                          for name in LIGHTNING_SUBCOMMANDS}},
+                       **({name: {"default_config_files": [str(BASE_CONFIG)]}
+                           for name in LIGHTNING_SUBCOMMANDS} if run
+                          else {"default_config_files": [str(BASE_CONFIG)]})},
         args=args,
+        run=run,
     )

@@ -19,20 +19,16 @@ The DeepMind Physical Concepts probes come in the same 2 + 2 quadruplets and get
 metrics per concept. Matched possible/impossible pairs also get our one-tailed paired t-test
 (``voe_lightning.statistics.paired_test``, inconsistent = impossible).
 
-IntPhys 2 (Bordes et al. 2025), scored as the V-JEPA intuitive-physics evaluation (Garrido et
-al. 2025) scores it, from each video's per-frame surprise, over Possible/Impossible pairs of one
-scene and prefix (``intphys2_metrics``):
+The quadruplet benchmarks' pairs also get the field's metric set (``field_metrics``) under
+``field_metrics``, each group its own threshold.
 
-- relative accuracy: share of pairs with S(possible) < S(impossible), S the mean
-  (``relative_accuracy_mean``) or the max (``relative_accuracy_max``) of per-frame surprise; a
-  tie counts half (chance is 0.5; without ties this is the strict rule), ``ties_*`` counts them;
-- absolute accuracy: a video is called impossible when its max surprise exceeds the threshold,
-  the 90th percentile (numpy's linear interpolation) of the possible videos' max surprise over
-  the whole split; the share of videos, possible and impossible, called right. One threshold
-  for every group, so the group rows are what the one classifier gets there, and the same
-  threshold turns Held-Out surprise into the leaderboard's answers;
-- AUROC of max surprise (``auroc``) and of mean surprise (``auroc_mean``) for detecting
-  impossible videos, ties half.
+IntPhys 2 (Bordes et al. 2025) is scored as the V-JEPA intuitive-physics evaluation (Garrido et
+al. 2025) scores it, over Possible/Impossible pairs of one scene and prefix
+(``intphys2_metrics``): the field's metric set (``voe_lightning.field_metrics``: relative
+accuracy and AUROC with sum, mean and max surprise, absolute accuracy) at one threshold for
+every group, the 90th percentile of the possible videos' max surprise over the whole split, so
+the group rows are what the one classifier gets there, and the same threshold turns Held-Out
+surprise into the leaderboard's answers.
 
 Submissions: ``answer.txt`` holds one ``<movie path> <plausibility>`` line per movie, paths
 relative to the test folder (``O1/0001/1 0.9751``), 0 <= P <= 1. ``plausibility_from_surprise``
@@ -54,8 +50,13 @@ from typing import Any
 import numpy as np
 import torch
 
+from voe_lightning.field_metrics import (
+    PERCENTILE,
+    field_metrics,
+    reduce_surprise,
+    surprise_threshold,
+)
 from voe_lightning.statistics import ALPHA, paired_test, ranked_auroc
-from voe_lightning.surprise_window import video_surprise
 from voe_lightning.store_shards import write_whole
 
 #: A movie path in an IntPhys answer file: <block>/<scene>/<movie 1-4>.
@@ -106,12 +107,15 @@ def quadruplet_metrics(
     bootstrap: int = 2000,
 ) -> dict[str, Any]:
     """Metrics of matched pairs (one row per pair: its quadruplet id, the possible movie's and
-    the impossible movie's total surprise): relative error rate (the challenge's rule, and with
-    ties counted half), absolute error rate, AUROC, and the paired t-test of
-    S(impossible) - S(possible) over pairs."""
+    the impossible movie's surprise, per frame [N, T] or as totals [N]): relative error rate
+    (the challenge's rule, and with ties counted half), absolute error rate and AUROC of total
+    surprise (the sum over frames), the paired t-test of S(impossible) - S(possible) over pairs
+    and, given per-frame surprise, the field's metric set (``field_metrics``)."""
     quadruplet = np.asarray(quadruplet).ravel()
-    possible = np.asarray(surprise_possible, dtype=np.float64).ravel()
-    impossible = np.asarray(surprise_impossible, dtype=np.float64).ravel()
+    frames = _per_frame_or_none(surprise_possible, surprise_impossible)
+    possible, impossible = ((reduce_surprise(side, "sum") for side in frames) if frames
+                            else (np.asarray(side, dtype=np.float64).ravel()
+                                  for side in (surprise_possible, surprise_impossible)))
     if not quadruplet.size == possible.size == impossible.size:
         raise ValueError(
             f"one quadruplet id per pair: got {quadruplet.size} ids, {possible.size} possible "
@@ -137,23 +141,37 @@ def quadruplet_metrics(
         "absolute_error_rate": 1.0 - area,
         "auroc": area,
     }
-    if possible.size >= 2:
-        result["paired_test"] = paired_test(
-            impossible, possible, alpha=alpha, bootstrap=bootstrap
-        ).as_dict()
-    else:
-        result["paired_test"] = {"n": int(possible.size), "note": "a paired t-test needs 2 pairs"}
+    result["paired_test"] = _paired_test(impossible, possible, alpha, bootstrap)
+    if frames is not None:
+        result["field_metrics"] = field_metrics(*frames)
     return result
+
+
+def _paired_test(impossible: np.ndarray, possible: np.ndarray, alpha: float, bootstrap: int
+                 ) -> dict[str, Any]:
+    """The one-tailed paired t-test of S(impossible) - S(possible) over pairs, as a dict (a note
+    instead below 2 pairs)."""
+    if possible.size < 2:
+        return {"n": int(possible.size), "note": "a paired t-test needs 2 pairs"}
+    return paired_test(impossible, possible, alpha=alpha, bootstrap=bootstrap).as_dict()
+
+
+def _per_frame_or_none(surprise_possible: Any, surprise_impossible: Any
+                       ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Both sides as float64 per-frame surprise [N, T] when they are two-dimensional, else
+    None (totals)."""
+    sides = tuple(np.asarray(side, dtype=np.float64)
+                  for side in (surprise_possible, surprise_impossible))
+    return sides if all(side.ndim == 2 for side in sides) else None
 
 
 def pair_surprise(outputs: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each pair's seed (its quadruplet is ``seed // 2``) and its possible (consistent) and
-    impossible (inconsistent) video's total surprise, from collected ``probe_step`` outputs
-    (seed, surprise_consistent, surprise_inconsistent [N, T])."""
+    impossible (inconsistent) video's per-frame surprise [N, T] in float64, from collected
+    ``probe_step`` outputs (seed, surprise_consistent, surprise_inconsistent [N, T])."""
     seeds = torch.as_tensor(outputs["seed"]).cpu().numpy().ravel()
-    possible, impossible = (
-        video_surprise(torch.as_tensor(outputs[f"surprise_{side}"]).double()).cpu().numpy()
-        for side in ("consistent", "inconsistent"))
+    possible, impossible = (torch.as_tensor(outputs[f"surprise_{side}"]).double().cpu().numpy()
+                            for side in ("consistent", "inconsistent"))
     return seeds, possible, impossible
 
 
@@ -171,13 +189,14 @@ def grouped_metrics(
     **options: Any,
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """``quadruplet_metrics`` per group (IntPhys block, Physical Concepts concept) under
-    ``all``, and per subgroup (e.g. IntPhys visible / occluded) under its name."""
+    ``all``, and per subgroup (e.g. IntPhys visible / occluded) under its name; surprise per
+    pair as ``quadruplet_metrics`` takes it (per frame [N, T] or totals [N])."""
     groups = list(groups)
     quadruplet = np.asarray(quadruplet).ravel()
-    possible = np.asarray(surprise_possible, dtype=np.float64).ravel()
-    impossible = np.asarray(surprise_impossible, dtype=np.float64).ravel()
+    possible = np.asarray(surprise_possible, dtype=np.float64)
+    impossible = np.asarray(surprise_impossible, dtype=np.float64)
     subgroups = list(subgroups) if subgroups is not None else [None] * len(groups)
-    if not len(groups) == len(subgroups) == quadruplet.size == possible.size == impossible.size:
+    if not len(groups) == len(subgroups) == quadruplet.size == len(possible) == len(impossible):
         raise ValueError("groups, subgroups, quadruplet ids and surprises need one entry per pair")
     result: dict[str, dict[str, dict[str, Any]]] = {}
     for group in sorted(set(groups)):
@@ -315,39 +334,6 @@ def score_answers(
 
 
 # --- IntPhys 2 ----------------------------------------------------------------------------------
-#: Percentile of the possible videos' max surprise above which a video is called impossible.
-INTPHYS2_PERCENTILE = 90.0
-
-
-def relative_accuracy(surprise_possible: Any, surprise_impossible: Any) -> tuple[float, int]:
-    """Share of pairs whose possible video is less surprising than its impossible one (a tie
-    counts half), and the number of ties."""
-    possible = np.asarray(surprise_possible, dtype=np.float64).ravel()
-    impossible = np.asarray(surprise_impossible, dtype=np.float64).ravel()
-    if possible.shape != impossible.shape or possible.size == 0:
-        raise ValueError(f"need one possible and one impossible surprise per pair (>0 pairs), got "
-                         f"{possible.size} and {impossible.size}")
-    ties = int((possible == impossible).sum())
-    return float(((possible < impossible).sum() + 0.5 * ties) / possible.size), ties
-
-
-def surprise_threshold(max_surprise_possible: Any, percentile: float = INTPHYS2_PERCENTILE
-                       ) -> float:
-    """The ``percentile``-th percentile of the possible videos' max surprise: above it a video
-    is called impossible."""
-    values = np.asarray(max_surprise_possible, dtype=np.float64).ravel()
-    if values.size == 0 or not np.isfinite(values).all():
-        raise ValueError(f"a threshold needs finite max surprise of >0 possible videos, got "
-                         f"{values.size} values")
-    return float(np.percentile(values, percentile))
-
-
-def absolute_accuracy(max_surprise: Any, is_possible: Any, threshold: float) -> float:
-    """Share of videos called right: impossible when max surprise > ``threshold``."""
-    called_possible = np.asarray(max_surprise, dtype=np.float64).ravel() <= threshold
-    return float((called_possible == np.asarray(is_possible, dtype=bool).ravel()).mean())
-
-
 def video_pair_metrics(
     frames_possible: Any,
     frames_impossible: Any,
@@ -356,34 +342,12 @@ def video_pair_metrics(
     bootstrap: int = 2000,
 ) -> dict[str, Any]:
     """IntPhys 2 metrics of matched pairs from per-frame surprise [N, T] of each pair's possible
-    and impossible video, at a given absolute ``threshold``, with the paired t-test of
-    S(impossible) - S(possible) over pairs (S summed over frames, as in our probe reports)."""
-    possible = np.asarray(frames_possible, dtype=np.float64)
-    impossible = np.asarray(frames_impossible, dtype=np.float64)
-    if possible.ndim != 2 or possible.shape != impossible.shape or possible.shape[0] == 0:
-        raise ValueError(f"per-frame surprise must be [N, T] on both sides (N > 0), got "
-                         f"{possible.shape} and {impossible.shape}")
-    n = possible.shape[0]
-    relative_mean, ties_mean = relative_accuracy(possible.mean(1), impossible.mean(1))
-    relative_max, ties_max = relative_accuracy(possible.max(1), impossible.max(1))
-    labels = np.concatenate([np.ones(n, bool), np.zeros(n, bool)])
-    maxima = np.concatenate([possible.max(1), impossible.max(1)])
-    means = np.concatenate([possible.mean(1), impossible.mean(1)])
-    result: dict[str, Any] = {
-        "n_pairs": n,
-        "relative_accuracy_mean": relative_mean,
-        "ties_mean": ties_mean,
-        "relative_accuracy_max": relative_max,
-        "ties_max": ties_max,
-        "absolute_accuracy": absolute_accuracy(maxima, labels, threshold),
-        "auroc": auroc(maxima, labels),
-        "auroc_mean": auroc(means, labels),
-    }
-    if n >= 2:
-        result["paired_test"] = paired_test(video_surprise(impossible), video_surprise(possible),
-                                            alpha=alpha, bootstrap=bootstrap).as_dict()
-    else:
-        result["paired_test"] = {"n": n, "note": "a paired t-test needs 2 pairs"}
+    and impossible video: the field's metric set (``field_metrics.field_metrics``) at a given
+    absolute ``threshold``, with the paired t-test of S(impossible) - S(possible) over pairs
+    (S summed over frames, as in our probe reports)."""
+    result = field_metrics(frames_possible, frames_impossible, threshold)
+    result["paired_test"] = _paired_test(reduce_surprise(frames_impossible, "sum"),
+                                         reduce_surprise(frames_possible, "sum"), alpha, bootstrap)
     return result
 
 
@@ -393,7 +357,7 @@ def intphys2_metrics(
     camera: Sequence[str],
     frames_possible: Any,
     frames_impossible: Any,
-    percentile: float = INTPHYS2_PERCENTILE,
+    percentile: float = PERCENTILE,
     **options: Any,
 ) -> dict[str, Any]:
     """``video_pair_metrics`` over all pairs (``all``), per principle (``principle``) and per

@@ -5,7 +5,8 @@ object slots from masks, per-object perception, interaction-network slot dynamic
 and the positive control with perfect perception (``ObjectStateModel``: object states in, slot
 dynamics, the likelihood of what is seen as surprise), and the physics-blind cues as
 parameter-free models (``CueScorer``), any callable frames -> surprise (``CallableModel``) and a
-maintained library's predictive model (``VideoMAEScorer``, transformers' VideoMAE)."""
+maintained library's predictive models (``VideoMAEScorer``, transformers' VideoMAE;
+``VJEPA2Scorer``, V-JEPA 2 scored as the V-JEPA intuitive-physics evaluation scores it)."""
 
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model.callable_model import CallableModel
@@ -15,6 +16,7 @@ from voe_lightning.model.networks import Decoder, Encoder
 from voe_lightning.model.object_centric import ObjectCentricModel
 from voe_lightning.model.object_state import ObjectStateModel
 from voe_lightning.model.videomae import VideoMAEScorer
+from voe_lightning.model.vjepa2 import VJEPA2Scorer
 from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, gaussian_kl, standard_normal_kl
 from voe_lightning.model.vrnn_lru import VOEModel, VRNNLRUModel  # VOEModel: its old name
 
@@ -23,6 +25,7 @@ __all__ = [
     "CueScorer",
     "CallableModel",
     "VideoMAEScorer",
+    "VJEPA2Scorer",
     "VRNNLRUModel",
     "VOEModel",
     "ObjectCentricModel",

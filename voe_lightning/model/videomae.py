@@ -11,23 +11,10 @@ from typing import Any
 import torch
 from tensordict import TensorDictBase
 
-from voe_lightning.model.base import SurpriseModel
-
-#: The normalization VideoMAE's inputs carry (transformers' IMAGENET_DEFAULT_MEAN / _STD).
-IMAGENET_MEAN = (0.485, 0.456, 0.406)
-IMAGENET_STD = (0.229, 0.224, 0.225)
+from voe_lightning.model.pretrained import PretrainedScorer, transformers_module
 
 
-def _videomae() -> Any:
-    try:
-        import transformers
-    except ImportError:
-        raise ImportError("VideoMAEScorer needs Hugging Face transformers: pip install "
-                          "'voe_lightning[videomae]' (or transformers>=4.45)") from None
-    return transformers
-
-
-class VideoMAEScorer(SurpriseModel):
+class VideoMAEScorer(PretrainedScorer):
     """Per-frame surprise from VideoMAE's masked reconstruction, causally: for each tubelet k
     (``tubelet_size`` frames) the model sees tubelets 0..k-1 only (every later one masked) and
     reconstructs tubelet k; its mean squared error (over pixels, or per-patch-normalized pixels
@@ -49,19 +36,9 @@ class VideoMAEScorer(SurpriseModel):
     SURPRISE = "VideoMAE's reconstruction error of the next tubelet"
 
     def __init__(self, pretrained: str | None = None, config: dict[str, Any] | None = None):
-        super().__init__()
-        if (pretrained is None) == (config is None):
-            raise ValueError("give VideoMAEScorer either pretrained (a local folder) or config "
-                             f"(VideoMAEConfig arguments), got pretrained={pretrained!r}, "
-                             f"config={config!r}")
-        transformers = _videomae()
-        if pretrained is not None:
-            self.model = transformers.VideoMAEForPreTraining.from_pretrained(
-                pretrained, local_files_only=True)
-        else:
-            self.model = transformers.VideoMAEForPreTraining(
-                transformers.VideoMAEConfig(**config))
-        self.model.eval().requires_grad_(False)
+        transformers = transformers_module("VideoMAEScorer", "videomae", "4.45")
+        super().__init__(transformers.VideoMAEForPreTraining, transformers.VideoMAEConfig,
+                         pretrained, config)
         settings = self.model.config
         if settings.num_frames % settings.tubelet_size:
             raise ValueError(f"num_frames {settings.num_frames} is not a multiple of tubelet_size "
@@ -69,14 +46,6 @@ class VideoMAEScorer(SurpriseModel):
         self.save_hyperparameters()
         self.hparams.image_size = (settings.image_size, settings.image_size)
         self.hparams.training_frames = settings.num_frames
-        self.register_buffer("mean", torch.tensor(IMAGENET_MEAN)[None, None, :, None, None],
-                             persistent=False)
-        self.register_buffer("std", torch.tensor(IMAGENET_STD)[None, None, :, None, None],
-                             persistent=False)
-
-    def train(self, mode: bool = True) -> VideoMAEScorer:
-        """Stays in eval mode (no dropout): a frozen scorer."""
-        return super().train(False)
 
     # ----------------------------------------------------------------------------- helpers
     def _padded(self, frames: torch.Tensor) -> torch.Tensor:
@@ -110,7 +79,7 @@ class VideoMAEScorer(SurpriseModel):
         tubelets = settings.num_frames // settings.tubelet_size
         per_tubelet = (settings.image_size // settings.patch_size) ** 2
         position = torch.arange(tubelets * per_tubelet, device=x.device)
-        pixel_values = (x - self.mean) / self.std
+        pixel_values = self.normalized(x)
         predictions = []
         for k in range(1, tubelets):
             masked = (position >= k * per_tubelet).expand(x.shape[0], -1)
@@ -154,10 +123,3 @@ class VideoMAEScorer(SurpriseModel):
                        .permute(0, 3, 6, 1, 4, 2, 5).reshape(b, ts, c, h, w))
             expected[:, k * ts:(k + 1) * ts] = tubelet.float().clamp(0, 1)
         return expected[:, :frames.shape[1]]
-
-    def trajectories(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                     camera: torch.Tensor | None = None, objects: TensorDictBase | None = None
-                     ) -> dict[str, torch.Tensor]:
-        """Surprise and its running total, a course [B, T, 2]."""
-        value = self.surprise(frames)
-        return {"surprise": torch.stack([value, value.cumsum(dim=1)], dim=-1)}

@@ -1,5 +1,6 @@
 """The report's numbers: per-pair probe results (``PairResults``, pairs.csv), the paired test per
-concept/variant (``summarize``) and the summary tables (summary.json, summary.csv, summary.md)."""
+concept/variant (``summarize``), the field's metric set beside it (``field_metric_rows``) and
+the summary tables (summary.json, summary.csv, summary.md)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import numpy as np
 import torch
 
 from voe_lightning.causality import Causality, check_prefix
+from voe_lightning.field_metrics import field_metrics, format_field_metrics
 from voe_lightning.model.vrnn_lru import VRNNLRUModel
 from voe_lightning.specs import CONCEPTS, VARIANTS
 from voe_lightning.surprise_window import SurpriseWindow, video_surprise
@@ -316,6 +318,20 @@ def summarize(
     return rows
 
 
+def field_metric_rows(results: PairResults) -> dict[str, dict[str, Any]]:
+    """The field's metric set (``field_metrics.field_metrics``: relative accuracy with sum,
+    mean and max surprise, absolute accuracy, AUROC) per concept/variant and pooled group, keyed
+    ``<concept>/<variant>``; each group's threshold is from its own consistent videos, as
+    surprise scales differ between concepts. A group with non-finite surprise gets a note."""
+    rows = {}
+    for concept, variant, pairs in results.groups(pooled=True):
+        sides = (pairs.surprise_consistent, pairs.surprise_inconsistent)
+        rows[f"{concept}/{variant}"] = (
+            field_metrics(*sides) if all(np.isfinite(side).all() for side in sides)
+            else {"n_pairs": len(pairs), "note": "surprise is not finite: no metrics"})
+    return rows
+
+
 def format_verdicts(rows: Sequence[Mapping[str, Any]],
                     causality: Causality | None = None) -> list[str]:
     """Markdown lines of the ``causality`` check and each concept's VOE verdict
@@ -383,7 +399,8 @@ def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], repor
                   window_rows: Sequence[Mapping[str, Any]] | None = None) -> str:
     """Write pairs.csv, summary.json (with ``source``: what the report was made from, and
     pairs.csv's SHA-256, which ``PairResults.from_csv`` checks), summary.csv and summary.md
-    (of ``summarize``'s ``rows``, over all frames) into ``report_dir``; with a ``window``
+    (of ``summarize``'s ``rows``, over all frames, and the field's metrics of
+    ``field_metric_rows``) into ``report_dir``; with a ``window``
     other than all frames, its ``window_rows`` go beside them: summary.json's ``window``,
     summary_window.csv and a section of summary.md. Return the Markdown summary."""
     results.to_csv(report_dir / "pairs.csv")
@@ -395,7 +412,8 @@ def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], repor
                 "video_surprise": f"sum over frames of {surprise}",
                 "surprise_window": window.as_config(),
                 "causality": causality.as_dict(),
-                **_tables(rows, alpha, causality)}
+                **_tables(rows, alpha, causality),
+                "field_metrics": field_metric_rows(results)}
     with open(report_dir / "summary.csv", "w", newline="") as handle:
         _write_rows(handle, rows)
     markdown = format_markdown(rows, surprise, causality=causality)
@@ -410,6 +428,8 @@ def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], repor
                      + format_markdown(window_rows, surprise, window, causality))
     else:
         markdown += "\nSurprise window: all frames (the paper's).\n"
+    markdown += ("\n## The field's metrics (all frames)\n\n"
+                 + format_field_metrics(document["field_metrics"], "concept/variant"))
     (report_dir / "summary.json").write_text(json.dumps(document, indent=2) + "\n")
     (report_dir / "summary.md").write_text(markdown)
     return markdown

@@ -1,0 +1,135 @@
+"""The untrained null of a model family (docs/architecture.md §6): what copies of the same
+network at initialization score on the same probes, so a trained result can be read against
+it. Garrido et al. (2025) report every model beside 20 untrained seeds of its network; here an
+untrained network reached t = +12 on a difference of 0.03 nats, and the positive control's given
+priors pass concepts before any training, so a verdict alone cannot say what training added.
+
+``untrained_null`` (``python -m voe_lightning analyze null``) tests ``seeds`` initializations
+of a config's model (``seed_everything`` = 0, 1, ...; learned parts at initialization, given
+structure as configured) with the config's test probes and report callback, each report in its
+own folder, then tables per concept/variant the distribution of t over initializations, the
+share significant and, per concept, the share with a VOE verdict; a trained run's t gets its
+percentile in that distribution.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from voe_lightning.report.results import read_summary
+from voe_lightning.statistics_format import format_number
+
+
+def _untrained_report(build_cli: Callable[[list[str]], Any], configs: Sequence[Path],
+                      seed: int, out: Path, extra_args: Sequence[str]) -> dict[str, Any]:
+    """Test the configs' model at initialization under ``seed``; its report's summary."""
+    arguments = [word for config in configs for word in ("--config", str(config))]
+    cli = build_cli([*arguments, "--seed_everything", str(seed),
+                     "--trainer.logger.init_args.save_dir", str(out),
+                     "--trainer.logger.init_args.name", f"seed_{seed}", *extra_args])
+    cli.trainer.test(cli.model, datamodule=cli.datamodule)
+    reports = [callback.report_dir for callback in cli.trainer.callbacks
+               if getattr(callback, "report_dir", None) is not None]
+    if not reports:
+        raise ValueError("the configs' trainer wrote no report: add "
+                         "voe_lightning.callbacks.VOEReportCallback to its callbacks")
+    return read_summary(reports[-1])
+
+
+def _percentile(value: float, null: np.ndarray) -> float:
+    """Share of the null values below ``value``, ties counting half (in percent)."""
+    return float(100 * ((null < value).mean() + 0.5 * (null == value).mean()))
+
+
+def null_rows(summaries: Sequence[Mapping[str, Any]],
+              trained: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
+    """Per concept/variant of the untrained ``summaries`` (report summary.json documents, one
+    per initialization): how many were tested, t's median, minimum and maximum, the share
+    significant, the concept's share of VOE verdicts and, given a ``trained`` summary, its t and
+    that t's percentile among the untrained ones (ties half)."""
+    t_values: dict[tuple[str, str], list[float]] = {}
+    significant: dict[tuple[str, str], list[bool]] = {}
+    voe: dict[str, list[bool]] = {}
+    for summary in summaries:
+        for row in summary["rows"]:
+            if row.get("t") is not None:
+                key = (row["concept"], row["variant"])
+                t_values.setdefault(key, []).append(float(row["t"]))
+                significant.setdefault(key, []).append(bool(row["significant"]))
+        for verdict in summary["verdicts"]:
+            voe.setdefault(verdict["concept"], []).append(bool(verdict["voe"]))
+    trained_t = {(row["concept"], row["variant"]): row.get("t")
+                 for row in (trained or {}).get("rows", [])}
+    rows = []
+    for (concept, variant), values in t_values.items():
+        null = np.asarray(values)
+        row = {"concept": concept, "variant": variant, "initializations": null.size,
+               "t_median": float(np.median(null)), "t_min": float(null.min()),
+               "t_max": float(null.max()),
+               "significant_share": float(np.mean(significant[concept, variant])),
+               "voe_share": float(np.mean(voe.get(concept, [False])))}
+        if trained_t.get((concept, variant)) is not None:
+            row["trained_t"] = float(trained_t[concept, variant])
+            row["trained_percentile"] = _percentile(row["trained_t"], null)
+        rows.append(row)
+    return rows
+
+
+def format_null(rows: Sequence[Mapping[str, Any]], alpha: float) -> str:
+    """``null_rows`` as a Markdown table with a line saying what the columns are."""
+    lines = ["| concept | variant | inits | t median [min, max] | significant | concept VOE "
+             "| trained t | percentile |", "|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        spread = (f"{format_number(row['t_median'], '+.2f')} [{format_number(row['t_min'], '+.2f')}"
+                  f", {format_number(row['t_max'], '+.2f')}]")
+        lines.append(f"| {row['concept']} | {row['variant']} | {row['initializations']} "
+                     f"| {spread} | {row['significant_share']:.0%} | {row['voe_share']:.0%} "
+                     f"| {format_number(row.get('trained_t'), '+.2f')} "
+                     f"| {format_number(row.get('trained_percentile'), '.0f')} |")
+    lines += ["", f"Untrained initializations of one config tested on the same probes: t of "
+              f"the one-tailed paired test per initialization; significant: share with p < "
+              f"{alpha:g}; concept VOE: share of initializations whose verdict for the concept "
+              "is VOE; percentile: where the trained run's t falls among the untrained ones "
+              "(ties half)."]
+    return "\n".join(lines) + "\n"
+
+
+def untrained_null(configs: list[Path], seeds: int = 20, out: Path = Path("runs/null"),
+                   trained: Path | None = None, extra_args: list[str] | None = None,
+                   _build_cli: Callable[[list[str]], Any] | None = None) -> str:
+    """Test untrained initializations of a config's model on its test probes and table the
+    distribution of each concept's statistic and verdict (module docstring); writes
+    ``out/null.json`` (every initialization's rows and verdicts) and ``out/null.md``.
+
+    Args:
+        configs: the test configs, in order, after base.yaml (e.g. configs/quickstart.yaml),
+            with VOEReportCallback in the callbacks.
+        seeds: initializations (seed_everything 0 .. seeds - 1).
+        out: folder of the runs and the table.
+        trained: a trained run's report directory (its voe_report) to place in the null.
+        extra_args: further arguments for every initialization's run, e.g. a smaller test set.
+        _build_cli: builds a run's model, data and trainer from arguments without running it;
+            the CLI passes its own, so this module does not import the CLI.
+    """
+    if _build_cli is None:
+        raise TypeError("untrained_null builds its runs through _build_cli: run it as `python -m "
+                        "voe_lightning analyze null`")
+    if seeds < 1:
+        raise ValueError(f"seeds must be at least 1, got {seeds}")
+    out = Path(out)
+    summaries = [_untrained_report(_build_cli, configs, seed, out, extra_args or ())
+                 for seed in range(seeds)]
+    rows = null_rows(summaries, None if trained is None else read_summary(trained))
+    table = format_null(rows, summaries[0]["alpha"])
+    document = {"configs": [str(c) for c in configs], "seeds": seeds, "rows": rows,
+                "initializations": [{"seed": seed, "rows": s["rows"], "verdicts": s["verdicts"]}
+                                    for seed, s in enumerate(summaries)]}
+    (out / "null.json").write_text(json.dumps(document, indent=2) + "\n")
+    (out / "null.md").write_text(table)
+    print(table, end="")
+    return table
