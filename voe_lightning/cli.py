@@ -581,7 +581,7 @@ def _check_yaml(words: list[str]) -> None:
 
 #: Flags whose value may be a class's import path, with an example of one.
 CLASS_FLAGS = {"--model": "voe_lightning.model.VRNNLRUModel",
-               "--data": "datamodules.ConceptDataModule"}
+               "--data": "my_package.MyDataModule"}
 
 
 def _check_classes(words: list[str]) -> None:
