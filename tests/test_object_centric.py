@@ -280,7 +280,7 @@ def test_fit_both_stages_then_test_through_the_cli(tmp_path, monkeypatch, object
     rows = summary["rows"]
     assert {(r["concept"], r["variant"], r["n"]) for r in rows} == {
         ("object_persistence", "standard", 3), ("object_persistence", "counterbalanced", 3),
-        ("object_persistence", "pooled", 6)}
+        ("object_persistence", "pooled", 6), ("object_persistence", "quadruplet", 3)}
     assert (run / "voe_report" / "predictions_object_persistence.png").is_file()
 
 
