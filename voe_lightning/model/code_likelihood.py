@@ -49,7 +49,8 @@ def excess_surprisal(terms: dict[str, tuple[torch.Tensor, torch.Tensor]]) -> tor
     """Each frame's rectified excess surprisal [B, T - 1]: per slot and term, its negative
     log-likelihood less its entropy, where positive, summed. Only what is less likely than
     the model expected counts, so a video showing more objects does not read as less surprising
-    for each well-predicted object (``docs/study/positive_control.md``, finding 1)."""
+    for each well-predicted object
+    (``docs/study/archive/positive_control_rounds.md``, round one, finding 1)."""
     return sum(_per_frame(rectified_excess(nll, entropy)) for nll, entropy in terms.values())
 
 

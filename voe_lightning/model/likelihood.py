@@ -1,7 +1,8 @@
 """The likelihoods the surprise models score what they see with (a diagonal Gaussian, a
 mixture of them, a Bernoulli, a categorical), each with the entropy of the prediction, and the
 rectified excess surprisal built from the two: a term counts only where what is seen is less
-likely than the model expected (``docs/study/positive_control.md``, finding 1)."""
+likely than the model expected
+(``docs/study/archive/positive_control_rounds.md``, round one, finding 1)."""
 
 from __future__ import annotations
 

@@ -190,7 +190,7 @@ class ObjectStateModel(SurpriseModel):
             hypothesis that the object stops where it is (a plank landing on what is under
             it, a ball meeting a wall), so that whether it stops or moves on can be the
             mixture's choice rather than a regression of the change. Alone, it held a hidden
-            ball behind its pillar (docs/study/positive_control.md, round seven).
+            ball behind its pillar (docs/study/archive/positive_control_rounds.md, round seven).
         landing_component: the last Gaussian lays the object, moved on by inertia and its
             learned change, flat on the floor (``lying_on_floor``), its size and colour kept
             (with hard assignment a learned change there drifted, so it never won, and never
@@ -215,16 +215,17 @@ class ObjectStateModel(SurpriseModel):
             (false), from the belief moved by inertia alone, so where it lays the object is the
             geometry's. A learned change there let some seeds' landing Gaussian miss a plank
             already propped on the object by hundreds of nats of position while holding most of
-            the weight (docs/study/positive_control.md, round eighteen).
+            the weight (docs/study/archive/positive_control_rounds.md, round eighteen).
         carry: what each slot's inertia takes from a carrier (``CARRIES``), by learned
             shares over itself and the other known slots that sum to 1 (a ``PairNetwork``
             over each pair), so that a cube hidden in a container can move with it when it
             starts to slide, and a container and the rod pushing it do not carry it twice.
             ``"velocity"``: the carrier's last move less the slot's own; learned, it also held
-            a block falling into a container at rest (docs/study/positive_control.md, round
-            five). ``"acceleration"``: the change of the carrier's last move, which a carrier
-            at rest never has; trained only where a carrier starts or stops, in 3,000 steps
-            its shares stayed shut (round six). ``"support"``: no shares; what an object rests on
+            a block falling into a container at rest
+            (docs/study/archive/positive_control_rounds.md, round five). ``"acceleration"``:
+            the change of the carrier's last move, which a carrier at rest never has; trained
+            only where a carrier starts or stops, in 3,000 steps its shares stayed shut
+            (round six). ``"support"``: no shares; what an object rests on
             (``resting_on``: an open container's bottom, a box's top) carries it whole: the
             stopping Gaussian moves it by the support's predicted move, and while it is hidden
             its belief also takes what the support was seen to do beyond that prediction, so a

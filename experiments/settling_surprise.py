@@ -7,7 +7,7 @@ still: how many, the control's state surprise of the plank there, its mixture we
 dynamics give them) and each Gaussian's negative log-likelihood of each part of the seen state
 (what hard assignment chose by), per checkpoint.
 
-    python docs/study/scripts/settling_surprise.py runs/r16_s0/version_0/checkpoints/last.ckpt \
+    python experiments/settling_surprise.py runs/r16_s0/version_0/checkpoints/last.ckpt \
         --root data/cpu
 """
 

@@ -5,7 +5,7 @@ object is seen in one video and not the other, and the r of the foreground cue w
 videos' absolute difference of visible fractions (``visible_fraction`` is a share of the frame's
 pixels, so the cue counts the violation's own object-frames in pixels).
 
-    python docs/study/scripts/violation_terms.py runs/object_state/version_0/checkpoints/last.ckpt \
+    python experiments/violation_terms.py runs/object_state/version_0/checkpoints/last.ckpt \
         --concepts containment
 """
 

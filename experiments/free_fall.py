@@ -6,7 +6,7 @@ deviation there and its weight, as the model gives them (after ``falling_lands``
 ``fall_gain``; then what each Gaussian's choice by hard assignment rests on, the negative
 log-likelihood of each part of the seen state and -log of its weight. Seen blocks only.
 
-    python docs/study/scripts/free_fall.py runs/r15_fall_s8/version_0/checkpoints/last.ckpt \
+    python experiments/free_fall.py runs/r15_fall_s8/version_0/checkpoints/last.ckpt \
         --root data/cpu
 """
 

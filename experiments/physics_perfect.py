@@ -4,8 +4,8 @@ runs: per concept, the observer's largest |r| in each variant and within variant
 the seen extent), and the runs' largest |r| within variants and given the seen extent, with how
 many runs stay at or under the bound. Each run's d is read from its ``pairs.csv``.
 
-    python docs/study/scripts/physics_perfect.py --root data/cpu --runs runs/r18_s*/version_0
-    python docs/study/scripts/physics_perfect.py --root data/cpu --state_scale 0.2
+    python experiments/physics_perfect.py --root data/cpu --runs runs/r18_s*/version_0
+    python experiments/physics_perfect.py --root data/cpu --state_scale 0.2
 """
 
 import argparse

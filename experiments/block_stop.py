@@ -4,7 +4,7 @@ hidden support), how far the block had fallen, how far it then moves, the contro
 weights for it (as its dynamics give them, before ``falling_lands`` leaves the stop out for a
 falling block) and the surprise there and over each video, per checkpoint.
 
-    python docs/study/scripts/block_stop.py runs/r14_slow_s0/version_0/checkpoints/last.ckpt \
+    python experiments/block_stop.py runs/r14_slow_s0/version_0/checkpoints/last.ckpt \
         --root data/cpu
 """
 

@@ -5,7 +5,7 @@ than 1 cm, and how much its turn changes from frame to frame against the turn it
 turn would give 0); then, regenerating standard probes with softer contacts or a finer physics
 step (``--settings``), how much it turns after landing (``cue_through_violation.plank_settling``).
 
-    python docs/study/scripts/plank_pivot.py --root data/cpu --settings default tc0.04 dr2 dr4 dt0.005
+    python experiments/plank_pivot.py --root data/cpu --settings default tc0.04 dr2 dr4 dt0.005
 """
 
 import argparse

@@ -3,7 +3,7 @@ negative log-likelihood (nats per video, the training loss's terms, nothing with
 consistent videos of every validation probe (physical videos it never trained on) and of 100
 training clips per concept (every 40th); lower is likelier. No inconsistent video is read.
 
-    python docs/study/scripts/heldout_likelihood.py runs/r12_s*/version_0/checkpoints/last.ckpt
+    python experiments/heldout_likelihood.py runs/r12_s*/version_0/checkpoints/last.ckpt
 """
 
 import argparse

@@ -4,7 +4,7 @@ landing Gaussian's learned change of position and orientation set to 0 (it then 
 down from where inertia takes it, by geometry alone): each variant's t of d (as ``test``
 computes it), the share of pairs with d > 0, and r(d, the motion cue's difference).
 
-    python docs/study/scripts/landing_change.py runs/r18_s4/version_0/checkpoints/last.ckpt \
+    python experiments/landing_change.py runs/r18_s4/version_0/checkpoints/last.ckpt \
         --root data/cpu
 """
 

@@ -15,13 +15,13 @@ seventeen): in each video, how far the plank still moves (m) and turns (rad) onc
 ``--given extent`` (any concept, round eighteen): how much of the violation is seen, in
 object-frames, not pixels (``cues.seen_extent``; the report's "given the seen extent" row).
 
-    python docs/study/scripts/cue_through_violation.py runs/r12_s0/version_0 --given motion
-    python docs/study/scripts/cue_through_violation.py runs/r15_s0/version_0 --given reveal \
+    python experiments/cue_through_violation.py runs/r12_s0/version_0 --given motion
+    python experiments/cue_through_violation.py runs/r15_s0/version_0 --given reveal \
         --concepts containment
-    python docs/study/scripts/cue_through_violation.py runs/r11_s0/version_0 --root data/cpu
-    python docs/study/scripts/cue_through_violation.py runs/r16_s0/version_0 --given settling \
+    python experiments/cue_through_violation.py runs/r11_s0/version_0 --root data/cpu
+    python experiments/cue_through_violation.py runs/r16_s0/version_0 --given settling \
         --concepts object_persistence
-    python docs/study/scripts/cue_through_violation.py runs/r18_s0/version_0 --given extent \
+    python experiments/cue_through_violation.py runs/r18_s0/version_0 --given extent \
         --concepts containment
 """
 

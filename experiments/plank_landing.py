@@ -5,7 +5,7 @@ plank's height one frame before it comes to rest, at rest, and as predicted for 
 extrapolations of the two frames before, each raised to rest on the floor: the last move
 repeated with the orientation kept (the control's inertia), and with the last turn repeated too.
 
-    python docs/study/scripts/plank_landing.py runs/r7_s0/version_0/checkpoints/last.ckpt \
+    python experiments/plank_landing.py runs/r7_s0/version_0/checkpoints/last.ckpt \
         --root data/cpu
 """
 

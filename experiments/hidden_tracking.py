@@ -3,7 +3,7 @@ concept, each hidden object's largest distance (m) between the control's belief 
 hidden position (which the record keeps and the model never reads), per variant and video;
 and, per term, the mean surprise (rectified excess surprisal summed over frames and objects).
 
-    python docs/study/scripts/hidden_tracking.py runs/ost_s3/version_0/checkpoints/last.ckpt \
+    python experiments/hidden_tracking.py runs/ost_s3/version_0/checkpoints/last.ckpt \
         --concept containment --root data/cpu
 
 ``--set carry=support --set hold_still=true`` evaluates the checkpoint with those constructor

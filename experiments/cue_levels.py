@@ -6,7 +6,7 @@ the follower u_inc^2 - u_con^2 has the same sign in both variants unless both mi
 the concept's mean: only cb consistent ~ standard inconsistent and cb inconsistent ~ standard
 consistent, in every cue, makes it wrong in one variant.
 
-    python docs/study/scripts/cue_levels.py --root data/calibration
+    python experiments/cue_levels.py --root data/calibration
 """
 
 import argparse

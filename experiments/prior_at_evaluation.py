@@ -3,7 +3,7 @@ test variant (t and share of pairs right, ``statistics.paired_test`` as ``test``
 with constructor arguments given instead of the checkpoint's (``--set``, only ones that add no
 parameter), on the test pairs of configs/cpu.yaml's data.
 
-    python docs/study/scripts/prior_at_evaluation.py \
+    python experiments/prior_at_evaluation.py \
         runs/r15_fall_s8/version_0/checkpoints/last.ckpt --set fall_gain=0.392
 """
 
