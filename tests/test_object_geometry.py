@@ -12,7 +12,6 @@ from voe_lightning.model.object_geometry import (
     draw_ellipses,
     lying_on_floor,
     on_or_above_floor,
-    on_what_is_below,
     pivoted_down,
     quaternion_matrix,
     resting_on,
@@ -186,26 +185,6 @@ def _matrix(quaternion: torch.Tensor) -> np.ndarray:
     matrix = np.empty(9)
     mujoco.mju_quat2Mat(matrix, quaternion.numpy())
     return matrix.reshape(3, 3)
-
-
-def test_a_landing_plank_lies_on_what_is_believed_below_it():
-    """``on_what_is_below``: a plank above a cube lands on the cube's top while the cube is
-    known, on the floor once it is not; an object beside it, one above it and an open
-    container's rim hold nothing up (the one above lands on the plank where it is believed,
-    a block over the container on its bottom)."""
-    state, shape, known = states(((0.0, 0.0, 0.9), (0.5, 0.8, 0.03), BOX),    # the plank
-                                 ((0.1, 0.2, 0.25), (0.25, 0.25, 0.25), BOX),  # under it
-                                 ((2.0, 2.0, 0.5), (0.5, 0.5, 0.5), BOX),     # beside it
-                                 ((0.0, 0.0, 2.0), (0.2, 0.2, 0.2), BOX),     # above it
-                                 ((-3.0, 0.0, 0.3), (0.3, 0.3, 0.3), COMPOUND),
-                                 ((-3.0, 0.0, 1.0), (0.1, 0.1, 0.1), BOX))    # over its rim
-    laid = lying_on_floor(state)
-    heights = on_what_is_below(laid, state, shape, known)[0, :, 2]
-    wall = 0.02
-    torch.testing.assert_close(heights, torch.tensor([0.53, 0.25, 0.5, 1.13, 0.3,
-                                                      2 * wall + 0.1]))
-    known[0, 1] = False  # the cube forgotten: the plank lands on the floor
-    assert float(on_what_is_below(laid, state, shape, known)[0, 0, 2]) == pytest.approx(0.03)
 
 
 def _pitched_plank(pitch: float, half=(0.6, 1.2, 0.03)) -> torch.Tensor:

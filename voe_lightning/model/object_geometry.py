@@ -25,8 +25,8 @@ CORNER_INSET = 0.9
 #: open-topped box of its bounding box: what lies inside it is seen over its rim, not through
 #: its walls).
 WALL = 0.02
-#: How far (m) below an object's lowest point the top of what it lands on may be
-#: (``on_what_is_below``): one resting on another touches it.
+#: How far (m) below an object's lowest point the top of what it rests on may be
+#: (``resting_on``; ``hold_still``'s floor): one resting on another touches it.
 REST_TOLERANCE = 0.05
 #: Softness (m) of the sight-line tests: how far a sight line must pass through a box, or a
 #: point lie above the floor, to count as clearly hidden or clearly not.
@@ -189,27 +189,6 @@ def support_tops(belief: torch.Tensor, shape: torch.Tensor) -> torch.Tensor:
     compound = (shape.argmax(-1) == COMPOUND) & (shape.amax(-1) > 0)
     wall = torch.minimum(belief[..., 7:10].amin(-1), torch.full_like(bottom, WALL))
     return torch.where(compound, bottom + 2 * wall, belief[..., 2] + own[..., 2])
-
-
-def on_what_is_below(laid: torch.Tensor, belief: torch.Tensor, shape: torch.Tensor,
-                     known: torch.Tensor) -> torch.Tensor:
-    """``laid`` [B, S, 13] (objects lying on the floor, ``lying_on_floor``) raised onto the
-    highest top of another known object below it: one whose box, at its ``belief`` [B, S, 13],
-    overlaps the laid box's footprint and whose top is no higher than the object's lowest
-    point at its own belief (REST_TOLERANCE allowed), an open container's top being its
-    bottom. Where nothing is, the floor. It lands on what it falls onto, if what it falls onto
-    is still believed to be there."""
-    extents, own = world_half_extents(laid), world_half_extents(belief)
-    bottom = belief[..., 2] - own[..., 2]
-    top = support_tops(belief, shape)  # [B, S]
-    apart = (laid[:, :, None, :2] - belief[:, None, :, :2]).abs()  # [B, i, j, 2]
-    overlap = (apart < extents[:, :, None, :2] + own[:, None, :, :2]).all(-1)
-    below = top[:, None, :] <= bottom[:, :, None] + REST_TOLERANCE
-    others = ~torch.eye(known.shape[1], dtype=torch.bool, device=known.device)
-    under = overlap & below & known[:, None, :] & others
-    support = torch.where(under, top[:, None, :], torch.zeros_like(under, dtype=top.dtype))
-    height = laid[..., 2] + support.amax(-1).clamp(min=0.0)
-    return torch.cat([laid[..., :2], height[..., None], laid[..., 3:]], dim=-1)
 
 
 def resting_on(belief: torch.Tensor, shape: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
