@@ -8,12 +8,15 @@ import numpy as np
 import pytest
 import torch
 
+from voe_lightning import cues
 from voe_lightning.scenes import VideoOptions, generate_clip, generate_probe, solidity
 from voe_lightning.scenes.builder import Geom, SceneBuilder
 from voe_lightning.scenes.simulation import visible_ids
 
 CONCEPT = "solidity"
 CONTAINER, BLOCK = 1, 2  # mask ids, in the order the objects are added
+#: The first frame showing the block where it hangs, lowered (the default video's frames).
+LOWERED = round(solidity.LOWERING / 0.2)
 
 
 def ids_in(mask: torch.Tensor) -> set[int]:
@@ -52,6 +55,7 @@ PARAMETERS = {
     "block half x": lambda p: p["block"]["half"][0],
     "block half y": lambda p: p["block"]["half"][1],
     "drop above the rim": lambda p: p["drop"],
+    "lift before the hang": lambda p: p["lift"],
     "hold before the drop": lambda p: p["hold"],
     "container height": lambda p: p["box"]["height"],
     "container inner y": lambda p: p["box"]["inner_y"],
@@ -111,18 +115,43 @@ def test_the_two_blocks_hang_level_and_only_the_tall_one_can_protrude(seed):
 
 
 @pytest.mark.parametrize("variant", solidity.VARIANTS)
-def test_the_block_is_seen_still_for_several_frames_before_the_change(variant):
-    """The block hangs still at first (it used to drop at once, reaching the rim, the earliest
-    change, within a frame or two): the change comes at frame 4 or later, after at least four
-    frames showing the block at rest, and it has started falling by then."""
+def test_the_block_is_lowered_into_view_and_seen_still_before_the_change(variant):
+    """The first frame shows no block: it is lowered from above the view (so every place it
+    covers has been seen uncovered, ``test_no_pixel_is_new_to_one_past_only``). It then hangs
+    still (it used to drop at once, reaching the rim, the earliest change, within a frame or
+    two): the change comes at frame 6 or later, after at least three frames showing the block
+    at rest, and it has started falling by then."""
     for seed in range(4):
         record = generate_probe(CONCEPT, variant, seed)
         m = int(record["manipulation_frame"])
         states = record["consistent", "objects"]
-        heights, seen = states["position"][:m, BLOCK, 2], states["visible_fraction"][:m, BLOCK]
+        seen = states["visible_fraction"][:m, BLOCK]
+        heights = states["position"][LOWERED:m, BLOCK, 2]
         still = int((heights == heights[0]).sum())
-        assert m >= 4 and still >= 4 and (seen[:still] > 0).all(), (seed, m, still)
+        assert seen[0] == 0 and (seen[LOWERED:] > 0).all(), (seed, seen)
+        assert m >= 6 and still >= 3, (seed, m, still)
         assert states["position"][m, BLOCK, 2] < heights[0], "it falls before the change"
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_no_pixel_is_new_to_one_past_only(seed):
+    """Pixel novelty (``cues``) remembers the frames before the change, where a quadruplet's
+    videos differ: the tall block (A) hangs lower than the short one (B), over more of the
+    container's inside. Lowered from above the view, neither covers anything in the first
+    frame, which A and B share; so after the change every pixel not on the block shows the
+    colour it had there, in all four videos, and is new to neither past. What novelty is left,
+    on the block's faces, differs by a grey level here and there: D is about 0, its halves
+    several units each, in opposite directions."""
+    pairs, _, m, block = solidity.quadruplet(seed, VideoOptions())
+    (a, ab), (b, ba) = pairs
+    assert np.array_equal(a[0][0], b[0][0]) and block not in visible_ids(a[1][0])
+    for frames, masks, _ in (a, ab, b, ba):
+        elsewhere = masks[m + 1:] != block
+        assert (frames[m + 1:] == frames[0])[elsewhere].all()
+    videos = torch.from_numpy(np.stack([video[0] for video in (a, ab, b, ba)]))
+    novelty = cues.score_videos(videos, None, torch.full((4,), m))["pixel_novelty"]
+    halves = novelty[1] - novelty[0], novelty[3] - novelty[2]
+    assert abs(float(sum(halves))) < 0.05 < min(abs(float(half)) for half in halves), halves
 
 
 def test_the_tall_block_is_just_above_the_floor_at_the_change():
@@ -133,7 +162,7 @@ def test_the_tall_block_is_just_above_the_floor_at_the_change():
         record = generate_probe(CONCEPT, "standard", seed)
         m = int(record["manipulation_frame"])
         height = record["consistent", "objects"]["position"][:, BLOCK, 2].double()
-        fallen = float(height[0] - height[m])
+        fallen = float(height[LOWERED] - height[m])
         assert fallen == pytest.approx(solidity.fall_distance(video), abs=1e-3), seed
         above = float(height[m] - height[-1])
         assert solidity.CLEARANCE[0] - 0.005 <= above <= solidity.CLEARANCE[1] + 0.005, seed
@@ -145,7 +174,7 @@ def test_standard_block_rests_visibly_or_falls_out_of_view(seed):
     assert record["manipulated_ids"].tolist() == [BLOCK, 0, 0, 0]
     m = int(record["manipulation_frame"])
     consistent, inconsistent = record["consistent", "mask"], record["inconsistent", "mask"]
-    assert BLOCK in ids_in(consistent[0]), "the block is seen before it drops"
+    assert BLOCK in ids_in(consistent[LOWERED]), "the block is seen before it drops"
     # Tall enough to protrude: the resting block stays in view to the end ...
     assert all(BLOCK in ids_in(frame) for frame in consistent[m:])
     # ... while the one falling through sinks (never showing more) and is gone at the end.
@@ -164,7 +193,7 @@ def test_counterbalanced_block_sinks_out_of_view_or_stops_protruding(seed):
     assert record["manipulated_ids"].tolist() == [BLOCK, 0, 0, 0]
     m = int(record["manipulation_frame"])
     consistent, inconsistent = record["consistent", "mask"], record["inconsistent", "mask"]
-    assert BLOCK in ids_in(consistent[0]) and BLOCK in ids_in(consistent[m])
+    assert BLOCK in ids_in(consistent[LOWERED]) and BLOCK in ids_in(consistent[m])
     assert BLOCK not in ids_in(consistent[-1]), "the short block ends out of view"
     stays = (inconsistent[m + 1 :] == BLOCK).flatten(1).sum(1)
     assert (stays >= 6).all(), "the stopped block protrudes to the end"
@@ -182,7 +211,7 @@ def test_counterbalanced_events_occur_in_training():
     finals = []
     for seed in range(30):
         mask = generate_clip(CONCEPT, "example", seed)["mask"]
-        assert BLOCK in ids_in(mask[0])
+        assert BLOCK in ids_in(mask)
         finals.append(BLOCK in ids_in(mask[-1]))
     assert 0 < sum(finals) < len(finals), "examples both hide and show the resting block"
 
@@ -196,7 +225,7 @@ def test_no_object_control_shows_only_the_container():
 def test_object_behind_container_ends_hidden_by_it():
     for seed in range(20):
         mask = generate_clip(CONCEPT, "object_behind_container", seed)["mask"]
-        assert BLOCK in ids_in(mask[0]), "the block is seen before it falls"
+        assert BLOCK in ids_in(mask), "the block is seen before it falls"
         assert BLOCK not in ids_in(mask[-1]), f"seed {seed}: the block is still seen at the end"
 
 
@@ -249,9 +278,9 @@ def test_bad_names_list_valid_ones(call, match):
 
 @pytest.mark.parametrize("variant", solidity.VARIANTS)
 def test_probes_refuse_videos_without_a_frame_for_the_change(variant):
-    """With 4 frames over 3 s no frame comes 1.0 to 1.6 s in with two more after it: a clear
+    """With 4 frames over 3 s no frame comes 1.2 to 1.6 s in with two more after it: a clear
     error names the frames and the count that works, instead of 1,000 failed draws; 5 work."""
-    with pytest.raises(ValueError, match=r"1 to 1\.6 s in.*got 4 frames 0\.75 s apart.*"
+    with pytest.raises(ValueError, match=r"1\.2 to 1\.6 s in.*got 4 frames 0\.75 s apart.*"
                                          r"num_frames >= 5"):
         generate_probe("solidity", variant, 0, num_frames=4, height=32, width=32)
     assert solidity.manipulation_frames(VideoOptions(num_frames=5)) == [2]

@@ -1,11 +1,12 @@
 """Solidity (paper §3, after Hespos & Baillargeon 2001): a rectangular block is dropped into an
 open container. In probes the camera sees inside the top of the container but not its bottom.
-The block hangs still for a moment before it is let go (as if by an unseen hand), in examples
-for anything from no time to over a second, in probes long enough that a model sees it for
-several frames before the hidden change. ``standard`` and ``counterbalanced`` are one
-quadruplet per seed: one container, camera, footprint and timing, with a tall block (A: it
-comes to rest on the floor protruding above the rim) or a short one (B: it sinks out of sight),
-hung with their tops level so that they fall alike. At the manipulation frame both have fallen
+An unseen hand lowers the block (in probes from above the view, so that the first frame shows
+no block) and holds it still for a moment before it lets go, in examples for anything from no
+time to over a second, in probes long enough that a model sees it for several frames before
+the hidden change. ``standard`` and ``counterbalanced`` are one quadruplet per seed: one
+container, camera, footprint and timing, with a tall block (A: it comes to rest on the floor
+protruding above the rim) or a short one (B: it sinks out of sight), hung with their tops level
+so that they fall alike. At the manipulation frame both have fallen
 FALL_TIME, their bottoms hidden by the front wall and only their level tops showing, so they
 render alike; the standard inconsistent video (A, then B) shows the tall block sink out of
 sight as if through the container and the floor, the counterbalanced one (B, then A) the short
@@ -24,7 +25,9 @@ from tensordict import TensorDict
 from voe_lightning import specs
 from voe_lightning.scenes.appearance import distinct_colors
 from voe_lightning.scenes.builder import Geom, SceneBuilder, yaw_quat
-from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions
+from voe_lightning.scenes.camera import (
+    CameraPose, CameraRange, VideoOptions, height_above_view
+)
 from voe_lightning.scenes import recording
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
@@ -55,10 +58,20 @@ EXAMPLE_HEIGHTS = (0.2, 1.5)
 #: Height of the block's bottom above the rim when it is released (probes: inside this range).
 EXAMPLE_DROP = (0.05, 0.6)
 #: How long the block hangs still before it is let go (s; examples: rounded down to whole
-#: frames, see ``release_frame``). Probes let it go 0.6 to 1.2 s in, 4 to 6 frames at 15 frames
-#: over 3 s: dropped at once, a block reaches the rim within one or two frames.
+#: frames, see ``release_frame``). Probes let it go 0.8 to 1.2 s in, 4 to 6 frames at 15 frames
+#: over 3 s, after LOWERING: dropped at once, a block reaches the rim within one or two frames.
 EXAMPLE_HOLD = (0.0, 1.2)
-PROBE_HOLD = (0.6, 1.2)
+PROBE_HOLD = (0.8, 1.2)
+#: The unseen hand first lowers the block from ``lift`` above where it hangs (examples: in
+#: EXAMPLE_LIFT), at a steady speed over LOWERING s (``hand_controller``; an example's block let go sooner falls on from that speed).
+#: Probes lower it from wholly above the view, LIFT_MARGIN or more above the image's top edge,
+#: so that the first frame of both videos of a quadruplet shows the container and the floor
+#: with no block before them: every place the block ever covers has been seen uncovered, and a
+#: memory of the frames before the change finds nothing new where B's block sinks away that A's
+#: past never showed (docs/stimuli.md, "pixel novelty").
+LOWERING = 0.4
+EXAMPLE_LIFT = (0.0, 1.2)
+LIFT_MARGIN = 0.05
 #: Of the back wall's inner face, the probe camera hides at least/at most this fraction.
 HIDDEN_BACK_WALL = (0.3, 0.9)
 #: How far a probe's tall block, resting on the floor, rises above the sight line over the
@@ -164,22 +177,23 @@ def _draw_block(rng: np.random.Generator, box: dict, heights: tuple[float, float
 
 
 def draw_example(rng: np.random.Generator) -> dict:
-    """The parameters of a training clip: container, block, camera, drop height and how long
-    the block is held before it drops."""
+    """The parameters of a training clip: container, block, camera, drop height, how far the
+    block is lowered to it and how long it is held before it drops."""
     box = _draw_container(rng)
     return {
         "box": box,
         "block": _draw_block(rng, box, EXAMPLE_HEIGHTS),
         "camera": CAMERA.sample(rng),
         "drop": float(rng.uniform(*EXAMPLE_DROP)),
+        "lift": float(rng.uniform(*EXAMPLE_LIFT)),
         "hold": float(rng.uniform(*EXAMPLE_HOLD)),
     }
 
 
 def release_frame(hold: float, video: VideoOptions) -> int:
-    """The last frame showing an example's block held still, ``hold`` seconds in: it is let go
-    right after that frame (``release_controller`` at its first physics step), so that it has
-    fallen one frame interval's drop at the next one."""
+    """The last frame showing an example's block held, ``hold`` seconds in: it is let go right
+    after that frame (``hand_controller`` at its first physics step), so that it has fallen one
+    frame interval's drop at the next one (from rest, if LOWERING is over by then)."""
     return int(hold // (video.steps_per_frame * video.timestep))
 
 
@@ -207,16 +221,22 @@ def manipulation_frames(video: VideoOptions) -> list[int]:
     ]
 
 
-def release_controller(sim: Simulation, step: int) -> Callable[[Simulation], None]:
-    """A controller (run before every physics step) that lets the block go at physics step
-    ``step``: until then its weight is compensated (``_add_block``), so it hangs still.
-    Examples let go right after a frame, probes between frames if need be (they time the fall,
-    not the frames)."""
-    block = sim.model.body("block").id
+def hand_controller(sim: Simulation, lift: float, release: int) -> Callable[[Simulation], None]:
+    """A controller (run before every physics step) for the unseen hand that holds the block,
+    its weight compensated (``_add_block``): it lowers it ``lift`` at a steady speed over
+    LOWERING s, holds it still and lets it go at physics step ``release``, at whatever speed it
+    has then. Examples let go right after a frame, probes between frames if need be (they time
+    the fall, not the frames)."""
+    block, timestep = sim.model.body("block").id, sim.model.opt.timestep
+    lowering = round(LOWERING / timestep)
+    speed = lift / (lowering * timestep)
 
     def controller(sim: Simulation) -> None:
-        if sim.data.time >= (step - 0.5) * sim.model.opt.timestep:
+        step = round(sim.data.time / timestep)
+        if step >= release:
             sim.model.body_gravcomp[block] = 0.0
+        else:
+            sim.set_velocity("block", (0.0, 0.0, -speed if step < lowering else 0.0))
 
     return controller
 
@@ -246,10 +266,10 @@ def draw_quadruplet(rng: np.random.Generator, video: VideoOptions = VideoOptions
     """The parameters of a probe quadruplet, each inside the examples' range: a container seen
     from the controlled perspective, a block footprint, two heights for it and when it is let
     go. ``tall`` rests on the floor protruding PROTRUSION above the sight line over the front
-    rim; ``short`` sinks out of sight. Both hang with their tops level and fall together, so
-    that at ``manipulation_frame`` (fallen FALL_TIME, the tall block CLEARANCE above the floor)
-    both bottoms are hidden and the two look alike; ``drops`` are their bottoms' heights above
-    the rim when let go."""
+    rim; ``short`` sinks out of sight. Both are lowered ``lift`` from above the view, hang with
+    their tops level and fall together, so that at ``manipulation_frame`` (fallen FALL_TIME,
+    the tall block CLEARANCE above the floor) both bottoms are hidden and the two look alike;
+    ``drops`` are their bottoms' heights above the rim when let go."""
     check_video(video)
     frames, fall = manipulation_frames(video), fall_distance(video)
     for _ in range(1000):
@@ -269,16 +289,26 @@ def draw_quadruplet(rng: np.random.Generator, video: VideoOptions = VideoOptions
             continue
         heights = {"tall": top - clearance - floor, "short": float(rng.uniform(low, high))}
         drops = {name: top + fall - height - box["height"] for name, height in heights.items()}
+        lift = _lift_out_of_view(camera, block, box["height"] + drops["tall"])
         if all(EXAMPLE_HEIGHTS[0] <= height / depth <= EXAMPLE_HEIGHTS[1]
                for height in heights.values()) and all(
-                EXAMPLE_DROP[0] <= drop <= EXAMPLE_DROP[1] for drop in drops.values()):
+                EXAMPLE_DROP[0] <= drop <= EXAMPLE_DROP[1] for drop in drops.values()
+        ) and EXAMPLE_LIFT[0] <= lift <= EXAMPLE_LIFT[1]:
             release = manipulation_frame * video.steps_per_frame - _fall_steps(video)
             return {
                 "box": box, "block": block, "camera": camera, "heights": heights,
-                "drops": drops, "hold": release * video.timestep,
+                "drops": drops, "lift": lift, "hold": release * video.timestep,
                 "manipulation_frame": manipulation_frame,
             }
     raise RuntimeError(f"no {CONCEPT} probe quadruplet parameters in 1000 draws")
+
+
+def _lift_out_of_view(camera: CameraPose, block: dict, bottom: float) -> float:
+    """How far to lift ``block``, its bottom hanging at ``bottom``, for all of it to lie
+    LIFT_MARGIN or more above the top edge of ``camera``'s view: its bottom corners are the
+    lowest points of it and the view's top face slopes less than vertical."""
+    corners = _footprint(block, block["offset"])
+    return max(height_above_view(camera, x, y) for x, y in corners) - bottom + LIFT_MARGIN
 
 
 def draw_probe(
@@ -303,7 +333,7 @@ def _scene(params: dict, size: str) -> dict:
 
 
 def _add_block(builder: SceneBuilder, block: dict, xy, bottom: float, color: str) -> None:
-    """The block, its weight compensated (it hangs still) until ``release_controller`` lets
+    """The block, its weight compensated (it hangs still) until ``hand_controller`` lets
     it go."""
     builder.add_primitive(
         "block",
@@ -346,12 +376,16 @@ def quadruplet(seed: int, video: VideoOptions) -> tuple:
             builder = SceneBuilder(np.random.default_rng(scene_seed), video, camera)
             _add_container(builder, box, container_color)
             block = scene["block"]
-            _add_block(builder, block, block["offset"], box["height"] + scene["drop"], block_color)
+            bottom = box["height"] + scene["drop"] + params["lift"]
+            _add_block(builder, block, block["offset"], bottom, block_color)
             sim = builder.build()
-            sim.controller = release_controller(sim, round(params["hold"] / video.timestep))
+            release = round(params["hold"] / video.timestep)
+            sim.controller = hand_controller(sim, params["lift"], release)
             videos.append(sim.record(video.num_frames))
         block_id = sim.mask_id("block")
         (_, tall, _), (_, short, _) = videos
+        if block_id in visible_ids(tall[0]) | visible_ids(short[0]):
+            raise RejectedSample("the block is seen in the first frame, before it is lowered")
         extra = (short[frame:] == block_id) & (tall[frame:] != block_id)
         if extra.sum(axis=(1, 2)).max() > PENETRATION_TOLERANCE:
             raise RejectedSample("the short block shows where the tall one does not")
@@ -417,7 +451,7 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
         container_color, block_color = distinct_colors(rng, 2)
         builder = SceneBuilder(rng, video, camera)
         _add_container(builder, box, container_color)
-        drop = box["height"] + params["drop"]
+        drop = box["height"] + params["drop"] + params["lift"]
         if kind == "example":
             _add_block(builder, block, block["offset"], drop, block_color)
         elif kind == "object_behind_container":
@@ -438,10 +472,14 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             _add_block(builder, block, xy, drop, block_color)
         sim = builder.build()
         if kind != "no_object":
-            released = release_frame(params["hold"], video) * video.steps_per_frame
-            sim.controller = release_controller(sim, released)
+            released = release_frame(params["hold"], video)
+            sim.controller = hand_controller(
+                sim, params["lift"], released * video.steps_per_frame
+            )
         frames, masks, objects = sim.record(video.num_frames)
-        if kind != "no_object" and sim.mask_id("block") not in visible_ids(masks[0]):
+        if kind != "no_object" and sim.mask_id("block") not in set().union(
+            *map(visible_ids, masks[: released + 1])
+        ):
             raise RejectedSample("the block is not seen before it falls")
         if kind == "object_behind_container" and sim.mask_id("block") in visible_ids(
             masks[-1]
