@@ -34,8 +34,9 @@ SEED_RANGE = 1_000_000_000
 #: counterbalanced pair shows what the standard one does, with the outcomes swapped); 9: object
 #: persistence's, continuity's, solidity's and containment's two variants are one quadruplet
 #: per seed (continuity keeps the paper's probe as its ``paper`` variant), and a probe split
-#: gives every variant the same seeds (``split_seeds``), so a seed names a quadruplet.
-GENERATOR_VERSION = 9
+#: gives every variant the same seeds (``split_seeds``), so a seed names a quadruplet; 10:
+#: unchangeableness' changes are quadruplets too (``<change>`` and ``<change>_counterbalanced``).
+GENERATOR_VERSION = 10
 
 
 @dataclass(frozen=True)
