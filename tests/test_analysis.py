@@ -13,7 +13,7 @@ from nbclient import NotebookClient
 from PIL import Image
 from torch.utils.tensorboard import SummaryWriter
 
-from voe_lightning import analysis, size_sweep
+from voe_lightning import analysis, size_sweep, specs
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.cli import main
 from voe_lightning.report import write_report
@@ -270,12 +270,12 @@ def test_notebook_reproduces_the_figures_of_a_run_directory(tmp_path, monkeypatc
 
 
 def test_compare_reads_each_verdicts_rows_beside_the_cue_audit(tmp_path, capsys):
-    """`analyze compare`: a quadruplet concept contributes its quadruplet row (the pairs'
-    seeds match the halves), unchangeableness its three variants (never the generalization
-    ones); effects and verdicts match the reports."""
+    """`analyze compare`: a quadruplet concept contributes its quadruplet rows (the pairs'
+    seeds match the halves), unchangeableness one per change (never the generalization
+    variants); effects and verdicts match the reports."""
     groups = {("solidity", "standard"): (40, 2.0), ("solidity", "counterbalanced"): (40, 2.0),
-              ("unchangeableness", "position"): (30, 0.0),
-              ("unchangeableness", "color"): (30, 0.0), ("unchangeableness", "shape"): (30, 0.0),
+              **{("unchangeableness", v): (30, 0.0)
+                 for v in specs.VERDICT_VARIANTS["unchangeableness"]},
               ("unchangeableness", "shape_plus1"): (30, 3.0)}
     write_report(pair_results(groups, seed=1), tmp_path / "a", bootstrap=0, echo=False)
     write_report(pair_results({("solidity", "standard"): (40, 2.0),
@@ -283,8 +283,9 @@ def test_compare_reads_each_verdicts_rows_beside_the_cue_audit(tmp_path, capsys)
                  tmp_path / "b", bootstrap=0, echo=False)
     rows = analysis.comparison_rows([("a", tmp_path / "a"), ("b", tmp_path / "b")])
     assert [(r["run"], r["concept"], r["variant"], r["n"]) for r in rows] == [
-        ("a", "unchangeableness", "position", 30), ("a", "unchangeableness", "color", 30),
-        ("a", "unchangeableness", "shape", 30), ("a", "solidity", "quadruplet", 40),
+        ("a", "unchangeableness", "position_quadruplet", 30),
+        ("a", "unchangeableness", "color_quadruplet", 30),
+        ("a", "unchangeableness", "shape_quadruplet", 30), ("a", "solidity", "quadruplet", 40),
         ("b", "solidity", "quadruplet", 40)]
     solidity_a, solidity_b = rows[3], rows[4]
     assert solidity_a["voe"] is True and solidity_b["voe"] is False  # b: a half's M < 0

@@ -82,7 +82,8 @@ def test_probe_callback_logs_the_stratified_pooled_test_of_both_variants():
     text = console.export_text()
     assert "verdict" in text and "pooled" in text
     assert "VOE (α = 0.05)" in text and "* < 0.05" in text  # the alpha in the table header
-    assert "undecided: no test of position, shape" in text  # unchangeableness lacks two variants
+    # unchangeableness has only color's pairs (no seeds: no quadruplet rows): every half untested
+    assert "undecided: no test of position, position_counterbalanced, color_counterbalanced," in text
 
 
 def test_callbacks_take_the_default_alpha_and_refuse_a_bad_one():

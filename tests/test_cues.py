@@ -391,19 +391,21 @@ def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
     assert "Cue audit of" in printed and "pooled" in printed and "novelty" in printed
     groups = list(dict.fromkeys((r["concept"], r["variant"], r["n"]) for r in rows))
     assert groups == [("object_persistence", "standard", 4), ("object_persistence", "counterbalanced", 4),
-                      ("object_persistence", "pooled", 8), ("object_persistence", "quadruplet", 4),
-                      ("unchangeableness", "position", 4), ("unchangeableness", "color", 4),
-                      ("unchangeableness", "shape", 4)]
-    # The store's seeds match each quadruplet's halves: the frame-local cues read frames from
-    # m on only, so D = 0 in every one (pixel novelty remembers the frames before m).
+                      ("object_persistence", "pooled", 8), ("object_persistence", "quadruplet", 4)
+                      ] + [("unchangeableness", v, 4)
+                           for v in (*specs.VERDICT_VARIANTS["unchangeableness"],
+                                     *specs.QUADRUPLETS["unchangeableness"])]
+    # The store's seeds match each quadruplet's halves (unchangeableness: one per change): the
+    # frame-local cues read frames from m on only, so D = 0 in every one (pixel novelty
+    # remembers the frames before m).
     for row in rows:
-        if row["variant"] == "quadruplet" and row["cue"] in cues.FRAME_LOCAL_CUES:
+        if row["variant"] in specs.QUADRUPLET_ROWS and row["cue"] in cues.FRAME_LOCAL_CUES:
             assert row["relative_surprise"] == 0.0 and row["accuracy"] == 0.5, row
     with open(out / "cues.csv", newline="") as handle:
         table = list(csv.DictReader(handle))
-    assert len(table) == 7 * len(cues.CUES) and tuple(table[0]) == cues.CUE_COLUMNS
+    assert len(table) == len(groups) * len(cues.CUES) and tuple(table[0]) == cues.CUE_COLUMNS
     document = json.loads((out / "cues.json").read_text())
-    assert document["split"] == "val" and document["num_pairs"] == 20
+    assert document["split"] == "val" and document["num_pairs"] == 8 + 6 * 4
     assert document["alpha"] == 0.01  # configs/base.yaml's alpha is the command's default
     markdown = (out / "cues.md").read_text()
     assert "| object_persistence | **pooled** | 8 |" in markdown

@@ -24,9 +24,10 @@ import pytest
 import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+from voe_lightning import specs
 from voe_lightning.cli import main
 from voe_lightning.report.results import PairResults, summarize
-from voe_lightning.statistics import QUADRUPLET
+from voe_lightning.statistics import QUADRUPLET_ROWS
 
 CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
 DDP = ["--trainer.strategy", "ddp_spawn", "--trainer.devices", "2",
@@ -42,10 +43,10 @@ MARGIN = 10
 ABSOLUTE_NOISE = 1e-6  # for a video whose S is near 0
 #: TensorBoard stores scalars as float32: their own rounding, relative.
 LOGGED_ROUNDING = 1e-6
-# 3 pairs per variant of 2 + 3 variants: 15 pairs, which do not divide over two ranks. Each
+# 3 pairs per variant of 3 + 6 variants: 27 pairs, which do not divide over two ranks. Each
 # pair must still be scored once (Lightning's default sampler would repeat one).
 DATA = ["--data", "datamodules.VOEDataModule",
-        "--data.concepts", "[object_persistence, unchangeableness]",
+        "--data.concepts", "[continuity, unchangeableness]",
         "--data.init_args.num_frames", "8",  # unchangeableness' screen needs two frames down
         "--data.init_args.val_pairs", "3", "--data.init_args.test_pairs", "3",
         # float32: bf16 autocast (where the CPU has it) rounds differently per batch size.
@@ -173,8 +174,8 @@ def test_ddp_fit_and_test_match_a_single_process(tmp_path, monkeypatch):
     run = tmp_path / "runs" / "tiny" / "version_0"
     checkpoint = run / "checkpoints" / "last.ckpt"
     ddp_fit = _voe_scalars(run)
-    cases = {("object_persistence", v) for v in ("standard", "counterbalanced", "pooled")}
-    cases |= {("unchangeableness", v) for v in ("position", "color", "shape")}
+    cases = {("continuity", v) for v in ("standard", "counterbalanced", "paper", "pooled")}
+    cases |= {("unchangeableness", v) for v in specs.VERDICT_VARIANTS["unchangeableness"]}
     assert {f"voe/{c}/{v}/{s}" for c, v in cases for s in STATISTICS} == set(ddp_fit)
 
     # The last validation of the DDP fit ran on the checkpoint's weights: a single process
@@ -185,11 +186,11 @@ def test_ddp_fit_and_test_match_a_single_process(tmp_path, monkeypatch):
               if tag.startswith("voe/")}
     assert single.keys() == ddp_fit.keys()
     validation = _validation_pairs(cli)
-    assert len(validation) == 15
+    assert len(validation) == 27
     noise = _batch_noise(validation, _validation_pairs(cli, one_at_a_time=True))
     expected, tolerances = _rows(validation), _tolerances(validation, STATISTICS[:-1], noise)
     for (concept, variant), tolerance in tolerances.items():
-        if variant == QUADRUPLET:  # the training-time table pairs no seeds: no quadruplet row
+        if variant in QUADRUPLET_ROWS:  # the training-time table pairs no seeds: no quadruplet row
             continue
         prefix = f"voe/{concept}/{variant}"
         assert ddp_fit[f"{prefix}/n"] == single[f"{prefix}/n"] == expected[(concept, variant)]["n"]
@@ -206,7 +207,7 @@ def test_ddp_fit_and_test_match_a_single_process(tmp_path, monkeypatch):
     main(["test", "--config", CONFIG, *DATA, "--ckpt_path", str(checkpoint)])
     rows, pairs = _report(run / "voe_report")
     assert rows.keys() == ddp_rows.keys()
-    assert rows[("object_persistence", "pooled")]["n"] == 6 and len(pairs) == 15
+    assert rows[("continuity", "pooled")]["n"] == 6 and len(pairs) == 27
     assert ddp_pairs.keys() == pairs.keys()
     for key, surprise in pairs.items():
         assert ddp_pairs[key] == pytest.approx(surprise, rel=noise, abs=ABSOLUTE_NOISE), key

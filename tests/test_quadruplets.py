@@ -1,5 +1,6 @@
-"""Quadruplets, fair by construction (docs/architecture.md §4): for every quadruplet concept the
-standard and counterbalanced pairs of one seed are one scene's (A, AB) and (B, BA), so after the
+"""Quadruplets, fair by construction (docs/architecture.md §4): for every quadruplet of
+``specs.QUADRUPLETS`` (one per concept; unchangeableness one per change) the two halves' pairs
+of one seed are one scene's (A, AB) and (B, BA), so after the
 change frame m each pair's inconsistent video is byte-identical to the other's consistent one
 (frames, masks and object states), and any scorer of the frames from m on gives every
 quadruplet D = [S(AB) - S(A)] + [S(BA) - S(B)] = 0 exactly. VOE_QUADRUPLET_SEEDS sets how many
@@ -15,12 +16,14 @@ from voe_lightning.scenes import generate_probe
 
 SPLICE_SEEDS = int(os.environ.get("VOE_QUADRUPLET_SEEDS", "50"))
 SIZE = 32
-FIRST, SECOND = statistics.POOLED_VARIANTS
+#: (concept, quadruplet row, its two halves) for every quadruplet.
+QUADRUPLETS = [(concept, row, halves) for concept, rows in specs.QUADRUPLETS.items()
+               for row, halves in rows.items()]
+IDS = [row if row != specs.QUADRUPLET else concept for concept, row, _ in QUADRUPLETS]
 
 
-def _halves(concept: str, seed: int):
-    return [generate_probe(concept, variant, seed, height=SIZE, width=SIZE)
-            for variant in (FIRST, SECOND)]
+def _halves(concept: str, halves: tuple[str, str], seed: int):
+    return [generate_probe(concept, variant, seed, height=SIZE, width=SIZE) for variant in halves]
 
 
 def _check_splice(first, second, where: str) -> None:
@@ -44,17 +47,29 @@ def _check_splice(first, second, where: str) -> None:
         f"{where}: A and B are one video")
 
 
-@pytest.mark.parametrize("concept", specs.QUADRUPLET_CONCEPTS)
-def test_the_two_pairs_of_a_seed_splice_exactly(concept):
+@pytest.mark.parametrize(("concept", "row", "halves"), QUADRUPLETS, ids=IDS)
+def test_the_two_pairs_of_a_seed_splice_exactly(concept, row, halves):
     for seed in range(SPLICE_SEEDS):
-        _check_splice(*_halves(concept, seed), f"{concept} seed {seed}")
+        _check_splice(*_halves(concept, halves, seed), f"{concept} {row} seed {seed}")
 
 
-@pytest.fixture(scope="module", params=specs.QUADRUPLET_CONCEPTS)
+def test_every_verdict_variant_is_the_half_of_one_quadruplet():
+    """The quadruplets' halves are exactly the variants the verdicts read, each in one."""
+    for concept, variants in specs.VERDICT_VARIANTS.items():
+        halves = [v for pair in specs.QUADRUPLETS[concept].values() for v in pair]
+        assert sorted(halves) == sorted(variants) and len(set(halves)) == len(halves)
+        for row, pair in specs.QUADRUPLETS[concept].items():
+            assert [specs.quadruplet_half(concept, v) for v in pair] == [(row, 0), (row, 1)]
+    with pytest.raises(ValueError, match="position, position_counterbalanced"):
+        specs.quadruplet_half("unchangeableness", "position_plus1")
+
+
+@pytest.fixture(scope="module", params=QUADRUPLETS, ids=IDS)
 def quadruplets(request):
-    """12 quadruplets of a concept (seeds far from the splice test's), stacked per half."""
-    halves = [_halves(request.param, 920_000 + seed) for seed in range(12)]
-    return request.param, [torch.stack([pair[k] for pair in halves]) for k in range(2)]
+    """12 quadruplets of one quadruplet (seeds far from the splice test's), stacked per half."""
+    concept, row, halves = request.param
+    pairs = [_halves(concept, halves, 920_000 + seed) for seed in range(12)]
+    return concept, row, [torch.stack([pair[k] for pair in pairs]) for k in range(2)]
 
 
 def _after_m(batch, video: str):
@@ -68,7 +83,7 @@ def test_post_change_scorers_give_every_quadruplet_d_zero_exactly(quadruplets):
     """Every audit cue on frames m.. alone, per-video level followers of those scores (a
     square, a threshold) and a random convolutional net over those frames: D = 0 in every
     quadruplet, so the quadruplet test says every d = 0, p = 1."""
-    concept, (first, second) = quadruplets
+    concept, _, (first, second) = quadruplets
     torch.manual_seed(0)
     net = torch.nn.Sequential(torch.nn.Conv2d(3, 8, 3, padding=1), torch.nn.Tanh(),
                               torch.nn.Conv2d(8, 1, 3, stride=2), torch.nn.Softplus()).double()
@@ -97,11 +112,12 @@ def test_post_change_scorers_give_every_quadruplet_d_zero_exactly(quadruplets):
 def test_the_quadruplet_test_of_a_post_change_scorer_is_null(quadruplets):
     """The audit's own quadruplet rows of its frame-local cues, which read frames m.. only
     (linear extrapolation counted from m + 2): M = 0, p = 1."""
-    concept, (first, second) = quadruplets
+    concept, name, (first, second) = quadruplets
     audit = cues.CueAudit.concatenate([cues.CueAudit.score_batch(first),
                                        cues.CueAudit.score_batch(second)])
-    rows = [row for row in audit.rows() if row["variant"] == statistics.QUADRUPLET]
-    assert {row["concept"] for row in rows} == {concept} and rows[0]["n"] == len(first)
+    rows = [row for row in audit.rows() if row["variant"] in statistics.QUADRUPLET_ROWS]
+    assert {(row["concept"], row["variant"]) for row in rows} == {(concept, name)}
+    assert rows[0]["n"] == len(first)
     for row in rows:
         if row["cue"] in cues.FRAME_LOCAL_CUES:
             assert row["relative_surprise"] == 0.0 and row["p_value"] == 1.0, row

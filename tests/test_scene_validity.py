@@ -225,34 +225,30 @@ def test_different_seeds_render_different_clips():
     assert not np.array_equal(a, b)
 
 
-#: Each concept's balanced pools: the counterbalanced pair pooled, or each variant on its own.
-BALANCED_POOLS = [
-    (concept, ("standard", "counterbalanced")) if concept in specs.POOLED_CONCEPTS
-    else (concept, (variant,))
-    for concept in CONCEPTS
-    for variant in specs.STANDARD_VARIANTS[concept][: 1 if concept in specs.POOLED_CONCEPTS else None]
-]
+#: Each concept's balanced pools: the two halves of each of its quadruplets (unchangeableness:
+#: one per change), tested by the quadruplet row.
+BALANCED_POOLS = [(concept, row, halves) for concept, quadruplets in specs.QUADRUPLETS.items()
+                  for row, halves in quadruplets.items()]
 
 
-@pytest.mark.parametrize("concept,variants", BALANCED_POOLS)
-def test_balanced_pools_have_no_frame_local_cue(concept, variants):
+@pytest.mark.parametrize("concept,row,halves", BALANCED_POOLS)
+def test_balanced_pools_have_no_frame_local_cue(concept, row, halves):
     """A physics-blind score must not tell inconsistent from consistent videos in a pool:
     |d_z| <= 0.25 and accuracy (ties half) in [0.3, 0.7] for every frame-local cue."""
-    per_variant = max(2, FAIRNESS_PAIRS // len(variants))
+    per_variant = max(2, FAIRNESS_PAIRS // len(halves))
     records = [
         generate_probe(concept, variant, seed)
-        for variant in variants
         for seed in range(900_000, 900_000 + per_variant)
+        for variant in halves  # a seed's halves one after the other: its quadruplet drawn once
     ]
     audit = cues.audit_records(records)
-    pool = "pooled" if len(variants) > 1 else variants[0]
-    rows = {row["cue"]: row for row in audit.rows() if row["variant"] == pool}
+    rows = {r["cue"]: r for r in audit.rows() if r["variant"] == row}
     for cue in cues.FRAME_LOCAL_CUES:
-        row = rows[cue]
-        d_z = 0.0 if np.isnan(row["d_z"]) else row["d_z"]  # NaN: every pair tied
-        assert abs(d_z) <= 0.25 and 0.3 <= row["accuracy"] <= 0.7, (
-            f"{concept} {pool}: {cue} separates the pairs (d_z={d_z:+.2f}, "
-            f"accuracy={row['accuracy']:.2f}, n={row['n']})"
+        result = rows[cue]
+        d_z = 0.0 if np.isnan(result["d_z"]) else result["d_z"]  # NaN: every pair tied
+        assert abs(d_z) <= 0.25 and 0.3 <= result["accuracy"] <= 0.7, (
+            f"{concept} {row}: {cue} separates the pairs (d_z={d_z:+.2f}, "
+            f"accuracy={result['accuracy']:.2f}, n={result['n']})"
         )
 
 

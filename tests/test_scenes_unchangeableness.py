@@ -1,5 +1,6 @@
-"""Unchangeableness scenes (paper §3, §5): what each probe set changes behind the screen, the
-extra objects of the generalization probes, and how examples and controls differ."""
+"""Unchangeableness scenes (paper §3, §5): what each change's quadruplet changes behind the
+screen, in both of its halves (that they splice exactly: tests/test_quadruplets.py), the extra
+objects of the generalization probes, and how examples and controls differ."""
 
 import numpy as np
 import pytest
@@ -41,9 +42,14 @@ def row_ids(record):
     return ids_at(record["consistent"]["mask"], 0)
 
 
+def halves(change):
+    return pytest.mark.parametrize("variant", [change, f"{change}_counterbalanced"])
+
+
+@halves("position")
 @pytest.mark.parametrize("seed", SEEDS)
-def test_position_probe_moves_objects_but_keeps_their_look(seed):
-    record = generate_probe("unchangeableness", "position", seed)
+def test_position_probe_moves_objects_but_keeps_their_look(seed, variant):
+    record = generate_probe("unchangeableness", variant, seed)
     m, ids = int(record["manipulation_frame"]), changed(record)
     consistent, inconsistent = record["consistent"], record["inconsistent"]
     assert 2 <= len(ids) <= 4 and set(ids) <= row_ids(record)
@@ -57,9 +63,10 @@ def test_position_probe_moves_objects_but_keeps_their_look(seed):
         assert np.abs(mean_color(consistent, last, mask_id) - mean_color(inconsistent, last, mask_id)).max() < 40
 
 
+@halves("color")
 @pytest.mark.parametrize("seed", SEEDS)
-def test_color_probe_changes_colour_only(seed):
-    record = generate_probe("unchangeableness", "color", seed)
+def test_color_probe_changes_colour_only(seed, variant):
+    record = generate_probe("unchangeableness", variant, seed)
     consistent, inconsistent = record["consistent"], record["inconsistent"]
     # Same geometry throughout: the masks of the two videos are identical.
     assert (consistent["mask"] == inconsistent["mask"]).all()
@@ -69,11 +76,13 @@ def test_color_probe_changes_colour_only(seed):
         assert np.abs(mean_color(inconsistent, -1, mask_id) - before).max() > 40
 
 
+@halves("shape")
 @pytest.mark.parametrize("seed", SEEDS)
-def test_shape_probe_swaps_in_a_same_coloured_twin_under_the_same_id(seed):
+def test_shape_probe_swaps_in_a_same_coloured_twin_under_the_same_id(seed, variant):
     """The twin takes the id of the object it replaces (to a tracker, the same object
-    changed), so both videos show the row's ids; its states name another shape, same colour."""
-    record = generate_probe("unchangeableness", "shape", seed)
+    changed), so both videos show the row's ids; its states name another shape, same colour.
+    In the counterbalanced half the twin stands there from the start, under that id too."""
+    record = generate_probe("unchangeableness", variant, seed)
     consistent, inconsistent = record["consistent"], record["inconsistent"]
     ids, m = changed(record), int(record["manipulation_frame"])
     assert 1 <= len(ids) <= scene.MOST_RESHAPED and set(ids) <= row_ids(record)
@@ -90,6 +99,23 @@ def test_shape_probe_swaps_in_a_same_coloured_twin_under_the_same_id(seed):
         )
         assert (shapes[0] == shapes[0][0]).all() and (shapes[1][: m + 1] == shapes[0][0]).all()
         assert (shapes[1][m + 1 :] != shapes[0][0]).all() and (colours[0] == colours[1]).all()
+
+
+@pytest.mark.parametrize("change", scene.CHANGES)
+def test_the_two_halves_start_with_the_two_values_of_the_property(change):
+    """A and B (the halves' consistent videos) show one row, the same camera and screen, and
+    differ before the screen comes down only where the changed objects stand: in the property
+    the change swaps, nowhere else."""
+    for seed in SEEDS:
+        a, b = (generate_probe("unchangeableness", v, seed)
+                for v in (change, f"{change}_counterbalanced"))
+        assert changed(a) == changed(b) and row_ids(a) == row_ids(b)
+        frames, masks = ([video[key][0].numpy() for video in (a["consistent"], b["consistent"])]
+                         for key in ("frames", "mask"))
+        differs = (frames[0] != frames[1]).any(-1)
+        assert differs.any(), f"seed {seed}: A and B look alike before the change"
+        where_changed = np.isin(masks[0], changed(a)) | np.isin(masks[1], changed(a))
+        assert not (differs & ~where_changed).any(), f"seed {seed}: an unchanged object differs"
 
 
 @pytest.mark.parametrize("change", scene.CHANGES)

@@ -14,7 +14,7 @@ import yaml
 from scipy import stats
 from sklearn.metrics import roc_auc_score
 
-from voe_lightning import statistics, statistics_format
+from voe_lightning import specs, statistics, statistics_format
 from voe_lightning.statistics import PairedTestResult, effect_size_interval, paired_test
 from voe_lightning.streaming_statistics import PairedSurpriseStats, pooled_values
 
@@ -253,17 +253,39 @@ def test_pooled_verdict_needs_the_pool_and_both_variants_significant():
     assert missing.voe is None and "counterbalanced, pooled" in missing.text()
 
 
-def test_unchangeableness_verdict_needs_every_variant_significant():
+def test_unchangeableness_verdict_needs_each_change_quadruplet():
+    """Each change is its own quadruplet: VOE only when all three quadruplet tests are
+    significant with both halves above 0; the halves' own rows and the generalization
+    variants are reported beside it. Without quadruplet rows (the training-time table pairs
+    no seeds) every half must be significant."""
     from voe_lightning.verdicts import concept_verdicts
 
-    results = {("unchangeableness", v): _result(0.005, 1.0) for v in ("position", "color", "shape")}
+    def quadruplet_row(p, first=1.0, second=0.5):
+        return {"p_value": p, "relative_surprise": first + second, "first_half": first,
+                "second_half": second}
+
+    results = {("unchangeableness", f"{change}_quadruplet"): quadruplet_row(0.001)
+               for change in specs.UNCHANGEABLENESS_CHANGES}
     results[("unchangeableness", "color_plus1")] = _result(0.9, -1.0)  # generalization: ignored
+    results[("unchangeableness", "position")] = _result(0.9, -1.0)  # a half: beside the test
     assert concept_verdicts(results)[0].voe is True
-    results[("unchangeableness", "shape")] = _result(0.02, 0.4)
-    assert concept_verdicts(results)[0].text() == "no VOE: shape p = .020 >= 0.01"
+    assert "of each change" in concept_verdicts(results)[0].rule
+    results[("unchangeableness", "shape_quadruplet")] = quadruplet_row(0.02)
+    assert concept_verdicts(results)[0].text() == "no VOE: shape_quadruplet p = .020 >= 0.01"
     assert concept_verdicts(results, alpha=0.05)[0].voe is True
-    results[("unchangeableness", "color")] = {"p_value": None, "relative_surprise": None}
-    assert concept_verdicts(results)[0].voe is None
+    results[("unchangeableness", "color_quadruplet")] = quadruplet_row(0.001, 2.0, -0.5)
+    assert concept_verdicts(results, alpha=0.05)[0].text() == (
+        "no VOE: color_counterbalanced half M = -0.5 <= 0")
+    del results[("unchangeableness", "position_quadruplet")]
+    missing = concept_verdicts(results)[0]
+    assert missing.voe is None and "no test of position_quadruplet" in missing.text()
+
+    halves = {("unchangeableness", v): _result(0.005, 1.0)
+              for v in specs.VERDICT_VARIANTS["unchangeableness"]}
+    assert concept_verdicts(halves)[0].voe is True
+    halves[("unchangeableness", "shape_counterbalanced")] = _result(0.02, 0.4)
+    assert concept_verdicts(halves)[0].text() == (
+        "no VOE: shape_counterbalanced p = .020 >= 0.01")
 
 
 def test_the_verdict_rule_takes_arrays_as_concept_verdicts_takes_rows():
@@ -273,9 +295,9 @@ def test_the_verdict_rule_takes_arrays_as_concept_verdicts_takes_rows():
 
     rng = np.random.default_rng(3)
     cases = {"solidity": ("standard", "counterbalanced", "pooled"),
-             "unchangeableness": ("position", "color", "shape")}
+             "unchangeableness": specs.VERDICT_VARIANTS["unchangeableness"]}
     for concept, variants in cases.items():
-        p = rng.uniform(0, 0.02, (3, 60))
+        p = rng.uniform(0, 0.02, (len(variants), 60))
         vectorized = verdict_rule(p, 0.01)
         assert 0 < vectorized.sum() < 60
         for i in range(60):
@@ -463,8 +485,8 @@ def test_quadruplets_match_by_seed_and_the_report_tests_them():
     variants = ["standard", "counterbalanced", "counterbalanced", "standard", "standard",
                 "counterbalanced", "counterbalanced", "standard", "counterbalanced"]
     seeds = [5, 7, 5, 7, 9, 3, 11, 5, 6]  # continuity's two pairs: no common seed
-    (concept, first, second), = quadruplets(concepts, variants, seeds)
-    assert concept == "object_persistence"
+    (concept, row, first, second), = quadruplets(concepts, variants, seeds)
+    assert (concept, row) == ("object_persistence", "quadruplet")
     assert first.tolist() == [0, 3] and second.tolist() == [2, 1]  # seeds 5, 7
     groups = pair_groups(concepts, variants, seeds=seeds)
     assert [(c, v) for c, v, _ in groups] == [
@@ -474,6 +496,14 @@ def test_quadruplets_match_by_seed_and_the_report_tests_them():
     assert groups[3][2].tolist() == [0, 3, 2, 1]
     with pytest.raises(ValueError, match="object_persistence/standard holds seed 5 more than"):
         quadruplets(concepts + ["object_persistence"], variants + ["standard"], seeds + [5])
+    # unchangeableness: each change's halves are matched on their own, a row per change
+    changes = ["color_counterbalanced", "position", "color", "position_counterbalanced", "shape"]
+    matched = quadruplets(["unchangeableness"] * 5, changes, [4, 4, 4, 4, 4])
+    assert [(row, a.tolist(), b.tolist()) for _, row, a, b in matched] == [
+        ("position_quadruplet", [1], [3]), ("color_quadruplet", [2], [0])]
+    assert [v for _, v, _ in pair_groups(["unchangeableness"] * 5, changes, seeds=[4] * 5)] == [
+        "position", "position_counterbalanced", "color", "color_counterbalanced", "shape",
+        "position_quadruplet", "color_quadruplet"]
 
     rng = np.random.default_rng(0)
     frames = rng.uniform(0, 1, (len(seeds), 2, 4))

@@ -28,7 +28,7 @@ from voe_lightning.model import VRNNLRUModel
 from voe_lightning.null import untrained_null
 from voe_lightning.report.figures import panel_grid, save_figure
 from voe_lightning.report.results import PairResults, read_summary
-from voe_lightning.statistics import POOLED, QUADRUPLET
+from voe_lightning.statistics import POOLED, QUADRUPLET_ROWS
 from voe_lightning.size_sweep import sweep, sweep_plot
 from voe_lightning.statistics_format import BRIEF, format_alpha, row_text
 from voe_lightning.store import collate, open_split, read_manifest
@@ -184,7 +184,7 @@ def _latest_report(run_dir: str | Path) -> Path:
 
 
 def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, Any]]:
-    """Per run and concept, the rows its verdict reads (the quadruplet row of a quadruplet
+    """Per run and concept, the rows its verdict reads (the quadruplet rows of a quadruplet
     concept, the pooled row of another counterbalanced concept, else every variant), each with its verdict, the accuracy range of the
     frame-local cues on the same pairs (from the report's cues.csv, where written) and the
     frame-local cue the model's surprise correlates with most (cue_correlations.csv)."""
@@ -210,7 +210,7 @@ def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, An
             by_concept.setdefault(row["concept"], []).append(row)
         for verdict in summary["verdicts"]:
             concept_rows = by_concept[verdict["concept"]]
-            quadruplet = [row for row in concept_rows if row["variant"] == QUADRUPLET]
+            quadruplet = [row for row in concept_rows if row["variant"] in QUADRUPLET_ROWS]
             pooled = [row for row in concept_rows if row["variant"] == POOLED]
             standard = [row for row in concept_rows
                         if row["variant"] not in specs.GENERALIZATION_VARIANT_NAMES]

@@ -11,10 +11,11 @@ video's score, scaled to unit SD over the concept's pairs; ``sign`` says which w
 follows the cue; ``delta`` (in noise SDs) is a true violation effect. Each repetition draws
 ``pairs`` pairs per variant (with replacement, from the audit's pairs of that variant) and new
 noise, tests every variant as reports do (``statistics``) and applies the verdict rule
-(``verdicts.verdict_rule``). A quadruplet concept (``specs.QUADRUPLET_CONCEPTS``)
+(``verdicts.verdict_rule``). A quadruplet concept (``specs.QUADRUPLETS``)
 draws whole quadruplets instead, each half's d as above, and applies the quadruplet test and
-``verdicts.quadruplet_rule`` to D, the sum of its halves: a follower of cue scores that read
-only the frames from the change frame on has opposite terms in the two halves, so D is noise.
+``verdicts.quadruplet_rule`` to D, the sum of its halves, for each of its quadruplets (VOE when
+all pass: unchangeableness has one per change): a follower of cue scores that read only the
+frames from the change frame on has opposite terms in the two halves, so D is noise.
 With delta = 0 the rate
 of VOE verdicts is the false-VOE rate, which must stay at or below alpha; over a grid of delta
 the rate is the verdict's power. The same draws serve every delta (delta only shifts each
@@ -49,7 +50,7 @@ __all__ = [
     "calibration_markdown",
     "cue_terms",
     "false_voe_bound",
-    "quadruplet_rates",
+    "quadruplet_voe",
     "rows_as_dicts",
     "verdict_rates",
 ]
@@ -105,7 +106,7 @@ def cue_terms(audit: cues.CueAudit, concept: str, cue: str, follower: str
     """Per variant of ``concept`` (its verdict's variants), the follower's term of each of the
     audit's pairs, scaled to unit SD over all those pairs; None where the cue is not scored for
     every pair or does not vary (nothing to follow). For a quadruplet concept, the two
-    variants' terms are its quadruplets' halves, aligned (``verdicts.quadruplets``)."""
+    halves' terms of each quadruplet are aligned by seed (``verdicts.quadruplets``)."""
     variants = specs.VERDICT_VARIANTS.get(concept, ())
     rows = (audit.concepts == concept) & np.isin(audit.variants, variants)
     con = audit.scores["consistent"][cue][rows]
@@ -124,23 +125,25 @@ def cue_terms(audit: cues.CueAudit, concept: str, cue: str, follower: str
     if concept in specs.QUADRUPLET_CONCEPTS:
         every = np.full(len(audit), np.nan)
         every[rows] = term
-        _, first, second = _matched(audit, concept)
-        return {variant: every[half] for variant, half in zip(variants, (first, second))}
+        return {variant: every[half] for row, halves in specs.QUADRUPLETS[concept].items()
+                for variant, half in zip(halves, _matched(audit, concept, row))}
     return {variant: term[audit.variants[rows] == variant] for variant in variants
             if (audit.variants[rows] == variant).any()}
 
 
-def _matched(audit: cues.CueAudit, concept: str) -> tuple[str, np.ndarray, np.ndarray]:
-    """The audit's quadruplets of ``concept`` (``verdicts.quadruplets``); a ValueError when
-    its pairs carry no seeds or match none."""
+def _matched(audit: cues.CueAudit, concept: str, row: str) -> tuple[np.ndarray, np.ndarray]:
+    """The audit's pairs of ``concept``'s quadruplet ``row``, first halves and second halves
+    aligned (``verdicts.quadruplets``); a ValueError when its pairs carry no seeds or match
+    none."""
     if audit.seeds is None:
         raise ValueError(f"{concept} is tested over quadruplets, matched by seed, but the "
                          "audited pairs carry no seeds")
-    found = [match for match in quadruplets(audit.concepts, audit.variants, audit.seeds)
-             if match[0] == concept]
+    found = [(first, second) for c, name, first, second
+             in quadruplets(audit.concepts, audit.variants, audit.seeds) if (c, name) == (concept, row)]
     if not found:
-        raise ValueError(f"no {concept} quadruplets among the audited pairs: no seed holds "
-                         "both a standard and a counterbalanced pair")
+        halves = " and a ".join(specs.QUADRUPLETS[concept][row])
+        raise ValueError(f"no {concept} {row}s among the audited pairs: no seed holds both a "
+                         f"{halves} pair")
     return found[0]
 
 
@@ -149,15 +152,16 @@ def verdict_rates(terms: Mapping[str, np.ndarray], concept: str, pairs: int, rep
     """The share of ``repetitions`` whose verdict for ``concept`` is VOE, at each of ``deltas``,
     for relative surprise delta + term + N(0, 1) per pair; ``terms`` per variant (all zero: pure
     noise). Each repetition resamples ``pairs`` pairs per variant (a quadruplet concept:
-    ``pairs`` quadruplets, ``quadruplet_rates``)."""
+    ``pairs`` quadruplets of each of its quadruplets, VOE when all pass, ``quadruplet_voe``)."""
     variants = specs.VERDICT_VARIANTS[concept]
     missing = [variant for variant in variants if variant not in terms]
     if missing:
         raise ValueError(f"{concept} needs cue terms of every variant {variants}; missing "
                          f"{missing}")
     if concept in specs.QUADRUPLET_CONCEPTS:
-        return quadruplet_rates([terms[v] for v in variants], pairs, repetitions, alpha,
-                                deltas, rng)
+        return np.all([quadruplet_voe([terms[v] for v in halves], pairs, repetitions, alpha,
+                                      deltas, rng)
+                       for halves in specs.QUADRUPLETS[concept].values()], axis=0).mean(axis=1)
     moments = {}
     for variant in variants:
         pool = terms[variant]
@@ -171,11 +175,11 @@ def verdict_rates(terms: Mapping[str, np.ndarray], concept: str, pairs: int, rep
     return verdict_rule(p_values, alpha).mean(axis=1)
 
 
-def quadruplet_rates(halves: Sequence[np.ndarray], count: int, repetitions: int, alpha: float,
-                     deltas: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """``verdict_rates`` of a quadruplet concept: each repetition resamples ``count``
-    quadruplets (their two ``halves``' terms, aligned) and adds delta + N(0, 1) to each half's
-    d; VOE by ``quadruplet_rule`` on D = the sum of the halves."""
+def quadruplet_voe(halves: Sequence[np.ndarray], count: int, repetitions: int, alpha: float,
+                   deltas: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Whether one quadruplet's test says VOE [deltas, repetitions]: each repetition resamples
+    ``count`` quadruplets (their two ``halves``' terms, aligned) and adds delta + N(0, 1) to
+    each half's d; VOE by ``quadruplet_rule`` on D = the sum of the halves."""
     first, second = (np.asarray(half, dtype=np.float64) for half in halves)
     if first.shape != second.shape:
         raise ValueError(f"a quadruplet's two halves must align; got {first.size} first and "
@@ -187,7 +191,7 @@ def quadruplet_rates(halves: Sequence[np.ndarray], count: int, repetitions: int,
     error = np.sqrt(total.var(axis=1, ddof=1) / count)
     p_values = statistics.t_and_p(total.mean(axis=1)[None] + 2 * shifted, error, count - 1)[1]
     first_mean, second_mean = (half.mean(axis=1)[None] + shifted for half in drawn)
-    return quadruplet_rule(p_values, first_mean, second_mean, alpha).mean(axis=1)
+    return quadruplet_rule(p_values, first_mean, second_mean, alpha)
 
 
 @dataclass(frozen=True)
@@ -245,7 +249,7 @@ def calibrate(
     rows = []
     for concept in concepts:
         variants = specs.VERDICT_VARIANTS[concept]
-        sizes = ({v: _matched(audit, concept)[1].size for v in variants}
+        sizes = ({row: _matched(audit, concept, row)[0].size for row in specs.QUADRUPLETS[concept]}
                  if concept in specs.QUADRUPLET_CONCEPTS else
                  {v: int(((audit.concepts == concept) & (audit.variants == v)).sum())
                   for v in variants})

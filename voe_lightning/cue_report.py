@@ -34,7 +34,7 @@ __all__ = ["audit", "cue_table", "format_correlations", "format_markdown", "form
 #: How a compact table's cell writes accuracy and d_z: '61% / +0.52'.
 CELL_STYLE = replace(BRIEF, d_z="+.2f")
 #: The rows a concept's verdict may read, printed bold: its pooled and quadruplet tests.
-_TESTED_TOGETHER = (statistics.POOLED, statistics.QUADRUPLET)
+_TESTED_TOGETHER = frozenset({statistics.POOLED}) | statistics.QUADRUPLET_ROWS
 
 
 def _cell(row: Mapping[str, Any] | None) -> tuple[str, bool]:

@@ -37,9 +37,10 @@ import numpy as np
 import torch
 from scipy import stats
 
-from voe_lightning import specs, statistics
-from voe_lightning.statistics import QUADRUPLET
-from voe_lightning.verdicts import pair_groups
+# verdicts as a module: importing verdicts first reaches this module half-initialized
+# (verdicts -> causality -> model -> cue_scorer -> cues), so its names are read at call time.
+from voe_lightning import specs, statistics, verdicts
+from voe_lightning.statistics import QUADRUPLET_ROWS
 
 __all__ = [
     "CUES",
@@ -282,9 +283,9 @@ class CueAudit:
 
     def groups(self) -> list[tuple[str, str, np.ndarray]]:
         """(concept, variant, row selector) for every variant, a ``pooled`` group for each
-        concept with a counterbalanced pair and, where seeds are known, a ``quadruplet`` group
-        for each quadruplet concept (``verdicts.pair_groups``)."""
-        return pair_groups(self.concepts, self.variants, seeds=self.seeds)
+        concept with a counterbalanced pair and, where seeds are known, a group per quadruplet
+        of ``specs.QUADRUPLETS`` (``verdicts.pair_groups``)."""
+        return verdicts.pair_groups(self.concepts, self.variants, seeds=self.seeds)
 
     def rows(self, alpha: float = statistics.ALPHA, bootstrap: int = 0) -> list[dict[str, Any]]:
         """One row per (concept, variant or pooled, cue), columns ``CUE_COLUMNS``: the test
@@ -297,7 +298,7 @@ class CueAudit:
                 consistent = self.scores["consistent"][cue][selected]
                 row: dict[str, Any] = dict.fromkeys(CUE_COLUMNS)
                 row.update(concept=concept, variant=variant, cue=cue,
-                           n=len(self.concepts[selected]) // (2 if variant == QUADRUPLET else 1))
+                           n=len(self.concepts[selected]) // (2 if variant in QUADRUPLET_ROWS else 1))
                 unscored = int(np.isnan(inconsistent).sum() + np.isnan(consistent).sum())
                 untested = statistics.untested_reason(variant, self.variants[selected])
                 if unscored:
@@ -339,7 +340,7 @@ class CueAudit:
                        for cue in CUES}
         rows = []
         for concept, variant, selected in self.groups():
-            if variant == QUADRUPLET:  # correlations are pair by pair
+            if variant in QUADRUPLET_ROWS:  # correlations are pair by pair
                 continue
             readings = [(variant, model_difference, None)]  # (row name, d, covariates)
             if variant == statistics.POOLED:
@@ -376,8 +377,8 @@ class CueAudit:
 
 def _differences(variant: str, d: np.ndarray) -> np.ndarray:
     """The differences a group's test is over: per pair, or per quadruplet D, the sum of its
-    halves (a ``quadruplet`` group holds its first halves, then its second halves)."""
-    if variant != QUADRUPLET:
+    halves (a quadruplet group holds its first halves, then its second halves)."""
+    if variant not in QUADRUPLET_ROWS:
         return d
     half = d.size // 2
     return d[:half] + d[half:]

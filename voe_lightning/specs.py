@@ -25,23 +25,47 @@ CLIP_KINDS_BY_CONCEPT: dict[str, tuple[str, ...]] = {
     "containment": ("example", "cube_behind_container", "cube_random_position"),
 }
 
-#: Probe variants per concept used for validation and test (paper §3; ``counterbalanced`` for
-#: continuity, solidity and containment is ours, docs/architecture.md §4; continuity's
-#: ``paper`` is the paper's probe, reported beside the quadruplets, docs/stimuli.md).
-STANDARD_VARIANTS: dict[str, tuple[str, ...]] = {
-    "object_persistence": ("standard", "counterbalanced"),
-    "unchangeableness": ("position", "color", "shape"),
-    "continuity": ("standard", "counterbalanced", "paper"),
-    "solidity": ("standard", "counterbalanced"),
-    "containment": ("standard", "counterbalanced"),
+#: What an unchangeableness probe changes behind the screen (paper §3): one quadruplet each.
+UNCHANGEABLENESS_CHANGES: tuple[str, ...] = ("position", "color", "shape")
+
+#: The row name of a quadruplet's test (``statistics.quadruplet_test``) in a concept with one;
+#: a concept with several (unchangeableness) names each ``<change>_quadruplet``.
+QUADRUPLET = "quadruplet"
+#: Per concept, each of its quadruplets (docs/architecture.md §4): its row name -> its two halves,
+#: the probe variants whose pairs of one seed are (A, AB) and (B, BA) of one scene draw, so that
+#: after the change each pair's inconsistent video is the other's consistent one, byte for byte.
+#: A concept's verdict is the quadruplet test of each of its quadruplets.
+QUADRUPLETS: dict[str, dict[str, tuple[str, str]]] = {
+    "object_persistence": {QUADRUPLET: ("standard", "counterbalanced")},
+    "unchangeableness": {
+        f"{change}_{QUADRUPLET}": (change, f"{change}_counterbalanced")
+        for change in UNCHANGEABLENESS_CHANGES
+    },
+    "continuity": {QUADRUPLET: ("standard", "counterbalanced")},
+    "solidity": {QUADRUPLET: ("standard", "counterbalanced")},
+    "containment": {QUADRUPLET: ("standard", "counterbalanced")},
+}
+#: Concepts whose verdict is read from quadruplets.
+QUADRUPLET_CONCEPTS: tuple[str, ...] = tuple(QUADRUPLETS)
+#: Every quadruplet row name, of any concept.
+QUADRUPLET_ROWS: frozenset[str] = frozenset(row for rows in QUADRUPLETS.values() for row in rows)
+
+#: The variants a concept's verdict reads: its quadruplets' halves, in order.
+VERDICT_VARIANTS: dict[str, tuple[str, ...]] = {
+    concept: tuple(variant for halves in quadruplets.values() for variant in halves)
+    for concept, quadruplets in QUADRUPLETS.items()
 }
 #: Probe variants reported beside a concept's verdict and never read by it: the paper's
 #: continuity probe, which no splice of two physical videos gives (docs/stimuli.md).
-REPORTED_BESIDE: frozenset[str] = frozenset({"paper"})
-#: The variants a concept's verdict reads (its quadruplet's two halves, or every variant).
-VERDICT_VARIANTS: dict[str, tuple[str, ...]] = {
-    concept: tuple(v for v in variants if v not in REPORTED_BESIDE)
-    for concept, variants in STANDARD_VARIANTS.items()
+REPORTED_BESIDE_BY_CONCEPT: dict[str, tuple[str, ...]] = {"continuity": ("paper",)}
+REPORTED_BESIDE: frozenset[str] = frozenset(
+    variant for variants in REPORTED_BESIDE_BY_CONCEPT.values() for variant in variants
+)
+#: Probe variants per concept used for validation and test (paper §3; the counterbalanced
+#: halves are ours, docs/architecture.md §4): the verdict's, then those reported beside it.
+STANDARD_VARIANTS: dict[str, tuple[str, ...]] = {
+    concept: VERDICT_VARIANTS[concept] + REPORTED_BESIDE_BY_CONCEPT.get(concept, ())
+    for concept in CONCEPTS
 }
 #: Concepts whose VOE is read from the pooled test over ``standard`` + ``counterbalanced``
 #: (the counterbalanced pair cancels every frame-local cue of the standard one).
@@ -49,19 +73,11 @@ POOLED_CONCEPTS: tuple[str, ...] = tuple(
     concept for concept, variants in STANDARD_VARIANTS.items() if "counterbalanced" in variants
 )
 
-#: Concepts whose standard and counterbalanced pairs of one seed are the two halves of one
-#: quadruplet (docs/architecture.md §4): after the change, each pair's inconsistent video is
-#: the other's consistent one, byte for byte. Their verdict is the quadruplet test.
-QUADRUPLET_CONCEPTS: tuple[str, ...] = (
-    "object_persistence", "continuity", "solidity", "containment")
-#: A quadruplet's two halves: (A, AB) and (B, BA).
-QUADRUPLET_VARIANTS: tuple[str, str] = ("standard", "counterbalanced")
-
 #: Generalization probe variants (paper §5): a third pillar; one or two more objects than training.
 GENERALIZATION_VARIANTS: dict[str, tuple[str, ...]] = {
     "object_persistence": (),
     "unchangeableness": tuple(
-        f"{change}_plus{extra}" for change in ("position", "color", "shape") for extra in (1, 2)
+        f"{change}_plus{extra}" for change in UNCHANGEABLENESS_CHANGES for extra in (1, 2)
     ),
     "continuity": ("three_pillars",),
     "solidity": (),
@@ -121,6 +137,17 @@ def check_variant(concept: str, variant: str) -> None:
     """Raise a ValueError listing the valid probe variants of ``concept``."""
     check_concept(concept)
     _check_name(f"probe variant for {concept}", variant, PROBE_VARIANTS[concept])
+
+
+def quadruplet_half(concept: str, variant: str) -> tuple[str, int]:
+    """(row name, 0 or 1) of the quadruplet whose first or second half ``variant`` is; a
+    ValueError listing ``concept``'s halves if it is none."""
+    for row, halves in QUADRUPLETS.get(concept, {}).items():
+        if variant in halves:
+            return row, halves.index(variant)
+    valid = [v for halves in QUADRUPLETS.get(concept, {}).values() for v in halves]
+    raise ValueError(f"{variant!r} is no half of a {concept} quadruplet; valid halves are: "
+                     f"{', '.join(valid) or 'none'}")
 
 
 def _video_spec(num_frames: int, height: int, width: int, objects: bool) -> dict:

@@ -23,8 +23,8 @@ Welch-Satterthwaite df (``stratified_test``, and ``pooled_test`` for per-pair in
 variants' cue differences point opposite ways by design, so a test over the union of their pairs
 would count that split as noise.
 
-A concept whose two variants are the halves of one quadruplet per seed (``specs.QUADRUPLET_CONCEPTS``,
-docs/architecture.md §4) is also tested over quadruplets (``quadruplet_test``): per quadruplet
+A concept whose variants are the halves of quadruplets, one per seed (``specs.QUADRUPLETS``,
+docs/architecture.md §4), is also tested over each of them (``quadruplet_test``): per quadruplet
 D = [S(AB) - S(A)] + [S(BA) - S(B)], the one-tailed t-test of D's mean, with the two halves' mean
 differences beside it. Its inconsistent videos hold exactly the consistent ones' frames after
 the change, so any scorer of those frames alone has D = 0 in every quadruplet.
@@ -45,12 +45,15 @@ import torch
 from scipy import optimize, stats
 from torchmetrics.functional.classification import binary_auroc
 
+from voe_lightning.specs import QUADRUPLET, QUADRUPLET_ROWS
+
 __all__ = [
     "ALPHA",
     "POOLED",
     "POOLED_VARIANTS",
     "PairedTestResult",
     "QUADRUPLET",
+    "QUADRUPLET_ROWS",
     "QuadrupletTestResult",
     "StratifiedTest",
     "TTest",
@@ -74,9 +77,6 @@ __all__ = [
 #: (docs/architecture.md §4, §8).
 POOLED = "pooled"
 POOLED_VARIANTS: tuple[str, str] = ("standard", "counterbalanced")
-#: The row name of a concept's quadruplet test; its halves are the POOLED_VARIANTS' pairs of
-#: one seed (first: standard, (A, AB); second: counterbalanced, (B, BA)).
-QUADRUPLET = "quadruplet"
 
 #: The significance level of every verdict and table unless a run sets another: .01 per test,
 #: so that five concepts' verdicts together stay near .05 (docs/architecture.md §8).
@@ -472,11 +472,11 @@ def quadruplet_test(
 def untested_reason(variant: str, variants: Sequence[str]) -> str:
     """Why a group of ``verdicts.pair_groups`` whose pairs have these ``variants`` gets no
     test, or '' if it gets one: fewer than two pairs; for the pooled row, a variant with fewer
-    than two; for the quadruplet row, fewer than two quadruplets (its pairs are halves)."""
+    than two; for a quadruplet row, fewer than two quadruplets (its pairs are halves)."""
     counts = dict.fromkeys(variants, 0)
     for name in variants:
         counts[name] += 1
-    if variant == QUADRUPLET:
+    if variant in QUADRUPLET_ROWS:
         matched = len(variants) // 2
         return "" if matched >= 2 else (f"only {matched} quadruplet: no test (needs at least 2)")
     if len(variants) < 2:
@@ -490,9 +490,9 @@ def untested_reason(variant: str, variants: Sequence[str]) -> str:
 def group_test(variant: str, inconsistent: Any, consistent: Any, variants: Sequence[str],
                alpha: float = ALPHA, bootstrap: int = 2000, seed: int = 0) -> PairedTestResult:
     """The test of one row of ``verdicts.pair_groups``: ``pooled_test`` over the pairs' ``variants``
-    for the ``POOLED`` row, ``quadruplet_test`` for the ``QUADRUPLET`` row (its pairs: the first
-    halves, then the second halves, aligned), ``paired_test`` for any other."""
-    if variant == QUADRUPLET:
+    for the ``POOLED`` row, ``quadruplet_test`` for a quadruplet row (``QUADRUPLET_ROWS``; its
+    pairs: the first halves, then the second halves, aligned), ``paired_test`` for any other."""
+    if variant in QUADRUPLET_ROWS:
         half = len(variants) // 2
         inc, con = np.asarray(inconsistent), np.asarray(consistent)
         return quadruplet_test(inc[:half], con[:half], inc[half:], con[half:], alpha, bootstrap,

@@ -36,7 +36,8 @@ SEED_RANGE = 1_000_000_000
 #: per seed (continuity keeps the paper's probe as its ``paper`` variant), and a probe split
 #: gives every variant the same seeds (``split_seeds``), so a seed names a quadruplet; 10:
 #: solidity's block is lowered into view from above it (examples' blocks from up to
-#: EXAMPLE_LIFT above where they hang), so a quadruplet's first frame shows no block.
+#: EXAMPLE_LIFT above where they hang), so a quadruplet's first frame shows no block, and
+#: unchangeableness' changes are quadruplets too (``<change>`` and ``<change>_counterbalanced``).
 GENERATOR_VERSION = 10
 
 

@@ -1,9 +1,10 @@
 """Which rows a VOE table has and the verdict they give (docs/architecture.md §8): every
 concept/variant among the probe pairs, plus a ``pooled`` row for a concept with a standard and
-a counterbalanced variant (``pair_groups``) and, for a concept whose two variants are the
-halves of one quadruplet per seed, its quadruplets (``quadruplets``); and per concept, whether
-it shows VOE (``concept_verdicts``: the quadruplet test with both halves above 0 where there is
-one, else every test its verdict reads significant at alpha, ``verdict_rule``).
+a counterbalanced variant (``pair_groups``) and, for each quadruplet of a concept whose variants
+are the halves of quadruplets, one per seed (``specs.QUADRUPLETS``), its quadruplet row
+(``quadruplets``); and per concept, whether it shows VOE (``concept_verdicts``: each of its
+quadruplet tests with both halves above 0 where it has them, else every test its verdict reads
+significant at alpha, ``verdict_rule``).
 The tests themselves are in ``voe_lightning.statistics``; the verdict's calibration in
 ``voe_lightning.calibration``."""
 
@@ -17,7 +18,7 @@ import numpy as np
 
 from voe_lightning import specs
 from voe_lightning.causality import NOT_CAUSAL, Causality
-from voe_lightning.statistics import ALPHA, POOLED, POOLED_VARIANTS, QUADRUPLET, check_alpha
+from voe_lightning.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
 from voe_lightning.statistics_format import format_number, format_p
 
 __all__ = ["Verdict", "concept_verdicts", "pair_groups", "quadruplet_rule", "quadruplets",
@@ -32,9 +33,9 @@ def pair_groups(
     ``specs`` order where known (others after, in order of first appearance); selectors are
     boolean masks. With ``pooled``, a concept holding both ``standard`` and ``counterbalanced``
     pairs gets a ``pooled`` group (the pairs of both, tested by ``pooled_test``) right after its
-    variants; with ``seeds`` too, a quadruplet concept then gets a ``quadruplet`` group whose
-    selector is an index array, its matched first halves then its second halves in seed order
-    (``quadruplets``; tested by ``quadruplet_test``)."""
+    variants; with ``seeds`` too, each quadruplet of a concept (``specs.QUADRUPLETS``) then gets
+    a group named by its row, whose selector is an index array, its matched first halves then
+    its second halves in seed order (``quadruplets``; tested by ``quadruplet_test``)."""
     concepts = np.asarray(concepts, dtype=object)
     variants = np.asarray(variants, dtype=object)
     keys = list(dict.fromkeys(zip(concepts.tolist(), variants.tolist())))
@@ -45,8 +46,8 @@ def pair_groups(
                 specs.VARIANTS.index(variant) if variant in specs.VARIANTS else len(specs.VARIANTS),
                 keys.index(key))
 
-    matched = ({concept: np.concatenate([first, second]) for concept, first, second
-                in quadruplets(concepts, variants, seeds)} if pooled and seeds is not None else {})
+    matched = [(concept, row, np.concatenate([first, second])) for concept, row, first, second
+               in quadruplets(concepts, variants, seeds)] if pooled and seeds is not None else []
     groups = []
     ordered = sorted(keys, key=order)
     for concept in dict.fromkeys(concept for concept, _ in ordered):
@@ -55,34 +56,38 @@ def pair_groups(
         groups.extend((concept, variant, in_concept & (variants == variant)) for variant in present)
         if pooled and set(POOLED_VARIANTS) <= set(present):
             groups.append((concept, POOLED, in_concept & np.isin(variants, POOLED_VARIANTS)))
-        if concept in matched:
-            groups.append((concept, QUADRUPLET, matched[concept]))
+        groups.extend((c, row, rows) for c, row, rows in matched if c == concept)
     return groups
 
 
 def quadruplets(concepts: Sequence[str], variants: Sequence[str], seeds: Sequence[int]
-                ) -> list[tuple[str, np.ndarray, np.ndarray]]:
-    """(concept, first, second) for every concept of ``specs.QUADRUPLET_CONCEPTS`` among the
-    pairs: the row indices of its standard (first half) and counterbalanced (second half)
-    pairs of every seed both hold, in seed order; a seed names a quadruplet. A seed twice in
-    one variant is refused (the pairs of two splits mixed)."""
+                ) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+    """(concept, row, first, second) for every quadruplet of ``specs.QUADRUPLETS`` among the
+    pairs: the row indices of its first-half (A, AB) and second-half (B, BA) pairs of every seed
+    both hold, in seed order; a seed names a quadruplet. A seed twice in one variant is refused
+    (the pairs of two splits mixed)."""
     concepts, variants = (np.asarray(x, dtype=object) for x in (concepts, variants))
     seeds = np.asarray(seeds, dtype=np.int64)
     matched = []
-    for concept in [c for c in specs.QUADRUPLET_CONCEPTS if c in set(concepts.tolist())]:
-        halves = []
-        for variant in POOLED_VARIANTS:
-            rows = np.flatnonzero((concepts == concept) & (variants == variant))
-            unique, counts = np.unique(seeds[rows], return_counts=True)
-            if (counts > 1).any():
-                raise ValueError(f"{concept}/{variant} holds seed {int(unique[counts > 1][0])} "
-                                 "more than once: a seed must name one quadruplet")
-            halves.append(dict(zip(seeds[rows].tolist(), rows.tolist())))
-        common = sorted(set(halves[0]) & set(halves[1]))
-        if common:
-            matched.append((concept, np.array([halves[0][s] for s in common], dtype=np.int64),
-                            np.array([halves[1][s] for s in common], dtype=np.int64)))
+    for concept in [c for c in specs.QUADRUPLETS if c in set(concepts.tolist())]:
+        for row, halves in specs.QUADRUPLETS[concept].items():
+            by_seed = [_rows_by_seed(concepts, variants, seeds, concept, v) for v in halves]
+            common = sorted(set(by_seed[0]) & set(by_seed[1]))
+            if common:
+                matched.append((concept, row, *(np.array([half[s] for s in common], dtype=np.int64)
+                                                for half in by_seed)))
     return matched
+
+
+def _rows_by_seed(concepts: np.ndarray, variants: np.ndarray, seeds: np.ndarray, concept: str,
+                  variant: str) -> dict[int, int]:
+    """seed -> row index of ``concept``'s ``variant`` pairs; a ValueError on a repeated seed."""
+    rows = np.flatnonzero((concepts == concept) & (variants == variant))
+    unique, counts = np.unique(seeds[rows], return_counts=True)
+    if (counts > 1).any():
+        raise ValueError(f"{concept}/{variant} holds seed {int(unique[counts > 1][0])} "
+                         "more than once: a seed must name one quadruplet")
+    return dict(zip(seeds[rows].tolist(), rows.tolist()))
 
 
 @dataclass(frozen=True)
@@ -124,17 +129,28 @@ def quadruplet_rule(p_value: Any, first_half: Any, second_half: Any, alpha: floa
             & (np.asarray(second_half) > 0))
 
 
-def _quadruplet_verdict(concept: str, row: Mapping[str, Any], alpha: float) -> Verdict:
-    """The verdict of a concept from its quadruplet row (``quadruplet_rule``)."""
-    rule = f"p < {alpha:g} in the quadruplet test, both halves M > 0"
-    if row.get("p_value") is None:
-        return Verdict(concept, None, rule, "no quadruplet test (needs >= 2 quadruplets)")
-    p_value, halves = row["p_value"], (row["first_half"], row["second_half"])
-    failed = [f"{name} half M = {format_number(mean)} <= 0"
-              for name, mean in zip(POOLED_VARIANTS, halves) if not mean > 0]
-    if not p_value < alpha:
-        failed.insert(0, f"quadruplet p = {format_p(p_value)} >= {alpha:g}")
-    voe = bool(quadruplet_rule(p_value, *halves, alpha))
+def _quadruplet_verdict(concept: str, results: Mapping[tuple[str, str], Mapping[str, Any]],
+                        alpha: float) -> Verdict:
+    """The verdict of a concept from its quadruplet rows (``quadruplet_rule`` on each of
+    ``specs.QUADRUPLETS[concept]``; all must pass)."""
+    quadruplets_of = specs.QUADRUPLETS[concept]
+    several = len(quadruplets_of) > 1
+    rule = (f"p < {alpha:g} in the quadruplet test{' of each change' if several else ''}, "
+            "both halves M > 0")
+    untested = [row for row in quadruplets_of if results.get((concept, row), {}).get("p_value")
+                is None]
+    if untested:
+        return Verdict(concept, None, rule, f"no test of {', '.join(untested)} (needs >= 2 "
+                       "quadruplets each)")
+    failed, voe = [], True
+    for row, halves in quadruplets_of.items():
+        p_value = results[(concept, row)]["p_value"]
+        means = (results[(concept, row)]["first_half"], results[(concept, row)]["second_half"])
+        voe &= bool(quadruplet_rule(p_value, *means, alpha))
+        if not p_value < alpha:
+            failed.append(f"{row} p = {format_p(p_value)} >= {alpha:g}")
+        failed += [f"{name} half M = {format_number(mean)} <= 0"
+                   for name, mean in zip(halves, means) if not mean > 0]
     return Verdict(concept, voe, rule, "" if voe else "; ".join(failed))
 
 
@@ -143,11 +159,11 @@ def concept_verdicts(
     alpha: float = ALPHA,
     causality: Causality | None = None,
 ) -> list[Verdict]:
-    """Per concept, in the order first seen: ``quadruplet_rule`` on its ``quadruplet`` row
-    where it has one (a report's rows; the training-time table, which pairs no seeds, has
+    """Per concept, in the order first seen: ``quadruplet_rule`` on each of its quadruplet rows
+    where it has any (a report's rows; the training-time table, which pairs no seeds, has
     none), else ``verdict_rule`` over the tests it reads: for a
     concept with a counterbalanced pair, the pooled test and both variants; otherwise
-    (unchangeableness' position/color/shape, a benchmark's own variants) every one of its
+    (unchangeableness' six halves, a benchmark's own variants) every one of its
     probe variants. Generalization variants do not enter. ``results`` maps (concept, variant)
     to a dict with ``p_value`` and ``relative_surprise`` (None when untested), or is a list of
     rows that carry both names. A ``causality`` check that failed withholds every verdict."""
@@ -156,10 +172,10 @@ def concept_verdicts(
         results = {(row["concept"], row["variant"]): row for row in results}
     verdicts = []
     for concept in dict.fromkeys(concept for concept, _ in results):
-        if (concept, QUADRUPLET) in results:
-            verdicts.append(_quadruplet_verdict(concept, results[(concept, QUADRUPLET)], alpha))
+        if any((concept, row) in results for row in specs.QUADRUPLETS.get(concept, ())):
+            verdicts.append(_quadruplet_verdict(concept, results, alpha))
             continue
-        present = [v for c, v in results if c == concept and v not in (POOLED, QUADRUPLET)]
+        present = [v for c, v in results if c == concept and v != POOLED]
         required = list(specs.VERDICT_VARIANTS.get(concept, present))
         if set(POOLED_VARIANTS) <= set(required):
             rule = (f"p < {alpha:g} in the stratified pooled test and in both standard and "

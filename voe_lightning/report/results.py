@@ -21,7 +21,7 @@ from voe_lightning.field_metrics import field_metrics, format_field_metrics
 from voe_lightning.model.vrnn_lru import VRNNLRUModel
 from voe_lightning.specs import CONCEPTS, VARIANTS
 from voe_lightning.surprise_window import SurpriseWindow, video_surprise
-from voe_lightning.statistics import (ALPHA, QUADRUPLET, QuadrupletTestResult, group_test,
+from voe_lightning.statistics import (ALPHA, QUADRUPLET_ROWS, QuadrupletTestResult, group_test,
                                      untested_reason)
 from voe_lightning.statistics_format import format_alpha, json_row, row_text, rows_alpha
 from voe_lightning.verdicts import concept_verdicts, pair_groups
@@ -179,7 +179,7 @@ class PairResults:
         """(concept, variant, pairs) per concept/variant: concepts and variants in the order
         of ``specs`` where known, others after them in order of first appearance; with
         ``pooled``, also each concept's ``pooled`` group (standard + counterbalanced) and a
-        quadruplet concept's ``quadruplet`` group (its first halves, then its second halves,
+        group per quadruplet of ``specs.QUADRUPLETS`` (its first halves, then its second halves,
         matched by seed; ``verdicts.pair_groups``)."""
         return [(concept, variant, self.select(rows)) for concept, variant, rows
                 in pair_groups(self.concept, self.variant, pooled=pooled, seeds=self.seed)]
@@ -299,7 +299,7 @@ def summarize(
 ) -> list[dict[str, Any]]:
     """One row per concept/variant, a ``pooled`` row per concept with a counterbalanced
     pair (``statistics.pooled_test``: the stratified test of its variants' mean differences)
-    and a ``quadruplet`` row per quadruplet concept (``statistics.quadruplet_test``): the test
+    and a row per quadruplet of ``specs.QUADRUPLETS`` (``statistics.quadruplet_test``): the test
     of summed surprise (``statistics.group_test``). A group without a test (fewer than two
     pairs, ``statistics.untested_reason``) gets ``None`` statistics and a note instead of
     failing the report; columns a row's test lacks (the halves of a pair test) are ``None``."""
@@ -309,7 +309,7 @@ def summarize(
         row.update(concept=concept, variant=variant)
         reason = untested_reason(variant, pairs.variant)
         if reason:
-            row.update(n=len(pairs) // (2 if variant == QUADRUPLET else 1), note=reason)
+            row.update(n=len(pairs) // (2 if variant in QUADRUPLET_ROWS else 1), note=reason)
         else:
             row.update(group_test(variant, pairs.total_inconsistent, pairs.total_consistent,
                                   pairs.variant, alpha=alpha, bootstrap=bootstrap,
@@ -378,13 +378,14 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURP
                  "with d > 0; pooled: the stratified test of a concept's standard and "
                  "counterbalanced pairs, M the mean of the two variants' M, its SE from both, "
                  "Welch-Satterthwaite df; its d_z is M over the SD of d of all its pairs; "
-                 "quadruplet: per seed D = [S(AB) - S(A)] + [S(BA) - S(B)] over its standard "
-                 "(A, AB) and counterbalanced (B, BA) pairs, whose inconsistent videos hold "
+                 "quadruplet (unchangeableness: one per change, <change>_quadruplet): per seed "
+                 "D = [S(AB) - S(A)] + [S(BA) - S(B)] over its first-half (A, AB) and "
+                 "second-half, counterbalanced (B, BA) pairs, whose inconsistent videos hold "
                  "exactly the consistent ones' frames after the change; M, t and accuracy "
                  "of D, halves M: the means of S(AB) - S(A) / S(BA) - S(B).")
     lines.extend(f"[{i}] {note}" for i, note in enumerate(notes, start=1))
-    lines += ["", f"Verdicts: a concept with quadruplets shows VOE only when its quadruplet "
-              f"test is significant (p < {alpha:g}) and both halves' M are above 0; another "
+    lines += ["", f"Verdicts: a concept with quadruplets shows VOE only when each of its "
+              f"quadruplet tests is significant (p < {alpha:g}) with both halves' M above 0; another "
               "only when its pooled test and each of its two variants are significant; "
               "without a counterbalanced pair, when every probe variant is. Generalization "
               "variants do not enter.", ""]

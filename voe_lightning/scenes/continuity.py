@@ -363,7 +363,7 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
     when it would have, which no splice gives) or ``three_pillars`` (the generalization probe).
     The camera is drawn from CAMERA like every training clip's."""
     specs.check_variant(CONCEPT, variant)
-    if variant in specs.QUADRUPLET_VARIANTS:
+    if variant in specs.VERDICT_VARIANTS[CONCEPT]:
         return quadruplet_record(CONCEPT, variant, seed, quadruplet(seed, video))
 
     def make(rng: np.random.Generator) -> TensorDict:

@@ -59,15 +59,16 @@ def quadruplet(
 
 def quadruplet_record(concept: str, variant: str, seed: int, drawn: tuple) -> TensorDict:
     """The probe record of ``variant``'s half of a quadruplet ``drawn`` = (((A, AB), (B, BA)),
-    camera, manipulation frame, manipulated id), as a concept's cached ``quadruplet`` gives it:
-    ``standard`` is (A, AB), ``counterbalanced`` (B, BA); its arrays are copies, so the cache
-    stays as it was."""
+    camera, manipulation frame, manipulated id or ids), as a concept's cached ``quadruplet``
+    gives it: the first half of ``specs.QUADRUPLETS`` (``standard``, or an unchangeableness
+    change) is (A, AB), the second (``counterbalanced``, ``<change>_counterbalanced``) is
+    (B, BA); its arrays are copies, so the cache stays as it was."""
     pairs, camera, frame, manipulated = drawn
-    half = specs.QUADRUPLET_VARIANTS.index(variant)
+    _, half = specs.quadruplet_half(concept, variant)
     consistent, inconsistent = (tuple(np.copy(part) for part in video) for video in pairs[half])
     return specs.probe_record(
         consistent, inconsistent, camera, specs.CONCEPTS.index(concept),
-        specs.VARIANTS.index(variant), frame, seed, [manipulated],
+        specs.VARIANTS.index(variant), frame, seed, np.atleast_1d(manipulated).tolist(),
     )
 
 

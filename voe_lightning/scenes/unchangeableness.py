@@ -1,15 +1,19 @@
 """Unchangeableness (paper §3): static objects keep their position, colour and shape while a
 screen is lowered in front of them and raised again. Probes line 2-4 objects up in the
-foreground and change one or more of them behind the screen (``position``, ``color``, ``shape``);
-``<change>_plus1``/``_plus2`` do the same with one or two more objects than training ever shows
-(paper §5). Examples scatter the objects anywhere and drop a screen of any size at any depth
+foreground, and each change (``position``, ``color``, ``shape``) is a quadruplet per seed: one
+row seen with one value of the property throughout (A) or the other (B), and the two spliced
+while the screen hides the row (AB, BA); the variants ``<change>`` and
+``<change>_counterbalanced`` are its pairs (A, AB) and (B, BA). ``<change>_plus1``/``_plus2``
+are plain pairs with one or two more objects than training ever shows (paper §5). Examples scatter the objects anywhere and drop a screen of any size at any depth
 (half of them in the foreground, wide, as the probes' screen); the controls omit the screen
 (``objects_only``) or the objects (``screen_only``). Examples, controls and probes share one
 camera distribution, object sizes and screen motion (docs/architecture.md §4, "one world")."""
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +30,7 @@ from voe_lightning.scenes.camera import (
     height_above_view,
     image_point,
 )
+from voe_lightning.scenes import recording
 from voe_lightning.scenes.recording import record_pair
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
@@ -34,7 +39,7 @@ CONCEPT = "unchangeableness"
 #: Objects in training clips and standard probes; generalization probes add one or two more.
 MIN_OBJECTS, MAX_OBJECTS = 2, 4
 OBJECT_SHAPES = ("sphere", "box", "cylinder", "capsule")
-CHANGES = ("position", "color", "shape")
+CHANGES = specs.UNCHANGEABLENESS_CHANGES
 #: Widest row of probe objects (m): the camera must see all of them, plus1/plus2 included.
 ROW_MAX_WIDTH = 1.8
 SCREEN_THICKNESS = 0.04
@@ -216,10 +221,12 @@ def draw_screen(
 
 # --- probes --------------------------------------------------------------------------------------
 def parse_variant(variant: str) -> tuple[str, int]:
-    """(change, extra objects) of a probe variant, e.g. ``shape_plus2`` -> (``shape``, 2)."""
-    change, _, extra = variant.partition("_plus")
-    if change not in CHANGES or extra not in ("", "1", "2"):
-        valid = [c + s for c in CHANGES for s in ("", "_plus1", "_plus2")]
+    """(change, extra objects) of a probe variant: a quadruplet half (``color``,
+    ``color_counterbalanced``) -> (``color``, 0); a generalization variant (``shape_plus2``)
+    -> (``shape``, 2)."""
+    change, _, extra = variant.removesuffix("_counterbalanced").partition("_plus")
+    if variant not in specs.PROBE_VARIANTS[CONCEPT]:
+        valid = ", ".join(specs.PROBE_VARIANTS[CONCEPT])
         raise ValueError(f"unknown unchangeableness variant {variant!r}; valid variants: {valid}")
     return change, int(extra or 0)
 
@@ -279,105 +286,149 @@ def probe_layout(rng: np.random.Generator, count: int, video: VideoOptions) -> P
     return ProbeLayout(camera, draws, xs, row_y, screen, colors[count:])
 
 
-def _make_probe(
-    change: str, extra: int, variant: str, seed: int, video: VideoOptions, rng: np.random.Generator
-) -> TensorDict:
-    count = int(rng.integers(MIN_OBJECTS, MAX_OBJECTS + 1)) if extra == 0 else MAX_OBJECTS + extra
-    layout = probe_layout(rng, count, video)
-    camera, draws, xs, row_y = layout.camera, layout.draws, layout.xs, layout.row_y
-    screen, spare_colors = layout.screen, layout.spare_colors
-    hidden = screen.motion.hidden_frames()
-    if not hidden:
-        raise RejectedSample("the screen is never down for two frames in a row")
-    manipulation_frame = int(rng.choice(hidden))
+@dataclass
+class ProbeScene:
+    """A probe's built scene: the simulation of the row as drawn (shape twins taken out), its
+    layout, the change frame (the screen fully down), the mask ids the change touches and the
+    change itself (``change(sim)``: to the other value of the property, at any frame)."""
 
-    builder = SceneBuilder(rng, video, camera)
-    names = [f"object{i}" for i in range(count)]
-    for name, draw, x in zip(names, draws, xs):
-        add_object(builder, name, draw, float(x), row_y)
-    screen.add_to(builder)
+    sim: Simulation
+    layout: ProbeLayout
+    frame: int
+    manipulated: list[int]
+    change: Callable[[Simulation], None]
 
+
+def _draw_change(change: str, rng: np.random.Generator, builder: SceneBuilder,
+                 layout: ProbeLayout, names: list[str]) -> tuple[Callable, list[int], list[str]]:
+    """(the change of ``change``'s property, the ids it touches, the bodies to take out once
+    built) for the row ``names`` of ``layout``; a shape change adds its twins to ``builder``."""
+    draws, xs, row_y, count = layout.draws, layout.xs, layout.row_y, len(names)
     if change == "position":
         # Move 2-4 objects to one another's places (a derangement: every chosen one moves).
         moved = int(rng.integers(2, min(count, MAX_MANIPULATED_IDS) + 1))
         chosen = rng.choice(count, moved, replace=False)
-        shift = int(rng.integers(1, moved))
-        targets = np.roll(chosen, shift)
-        manipulated = [builder.objects[names[i]].mask_id for i in chosen]
+        targets = np.roll(chosen, int(rng.integers(1, moved)))
 
-        def manipulate(sim: Simulation) -> None:
+        def apply(sim: Simulation) -> None:
             for source, target in zip(chosen, targets):
                 sim.move(names[source], resting_position(draws[source], float(xs[target]), row_y))
 
-    elif change == "color":
+        return apply, [builder.objects[names[i]].mask_id for i in chosen], []
+    if change == "color":
         recoloured = rng.choice(count, _changed_count(rng, min(count, 3)), replace=False)
-        new_colors = [spare_colors[k] for k in range(len(recoloured))]
-        manipulated = [builder.objects[names[i]].mask_id for i in recoloured]
+        new_colors = layout.spare_colors[: len(recoloured)]
 
-        def manipulate(sim: Simulation) -> None:
+        def apply(sim: Simulation) -> None:
             for index, color in zip(recoloured, new_colors):
                 sim.set_color(names[index], color)
 
-    else:  # shape: each changed object swaps with a same-coloured twin of another shape, which
-        # takes its mask id: to a tracker it is the same object, changed.
-        reshaped = rng.choice(count, _changed_count(rng, MOST_RESHAPED), replace=False)
-        twins = []
-        for index in reshaped:
-            original = draws[index]
-            others = [s for s in OBJECT_SHAPES if s != original.shape]
-            twin = ObjectDraw(
-                others[rng.integers(len(others))],
-                original.radius,
-                float(rng.random()),
-                original.yaw,
-                original.color,
-            )
-            twins.append((f"twin{index}", twin))
-            add_object(builder, f"twin{index}", twin, float(xs[index]), row_y, names[index])
-        manipulated = [builder.objects[names[i]].mask_id for i in reshaped]
+        return apply, [builder.objects[names[i]].mask_id for i in recoloured], []
+    # shape: each changed object swaps with a same-coloured twin of another shape, which takes
+    # its mask id: to a tracker it is the same object, changed.
+    reshaped = rng.choice(count, _changed_count(rng, MOST_RESHAPED), replace=False)
+    twins = [f"twin{index}" for index in reshaped]
+    for index, twin_name in zip(reshaped, twins):
+        original = draws[index]
+        others = [s for s in OBJECT_SHAPES if s != original.shape]
+        twin = ObjectDraw(others[rng.integers(len(others))], original.radius,
+                          float(rng.random()), original.yaw, original.color)
+        add_object(builder, twin_name, twin, float(xs[index]), row_y, names[index])
 
-        def manipulate(sim: Simulation) -> None:
-            for index, (twin_name, twin) in zip(reshaped, twins):
-                sim.remove(names[index])
-                sim.restore(twin_name)
+    def apply(sim: Simulation) -> None:
+        for index, twin_name in zip(reshaped, twins):
+            sim.remove(names[index])
+            sim.restore(twin_name)
 
+    return apply, [builder.objects[names[i]].mask_id for i in reshaped], twins
+
+
+def probe_scene(change: str, extra: int, video: VideoOptions, rng: np.random.Generator
+                ) -> ProbeScene:
+    """Draw and build a probe's scene: 2-4 objects in a row (``extra`` more for a
+    generalization probe), the screen, a change frame while it is fully down and the change
+    of ``change``'s property (``_draw_change``)."""
+    count = int(rng.integers(MIN_OBJECTS, MAX_OBJECTS + 1)) if extra == 0 else MAX_OBJECTS + extra
+    layout = probe_layout(rng, count, video)
+    hidden = layout.screen.motion.hidden_frames()
+    if not hidden:
+        raise RejectedSample("the screen is never down for two frames in a row")
+    frame = int(rng.choice(hidden))
+    builder = SceneBuilder(rng, video, layout.camera)
+    names = [f"object{i}" for i in range(count)]
+    for name, draw, x in zip(names, layout.draws, layout.xs):
+        add_object(builder, name, draw, float(x), layout.row_y)
+    layout.screen.add_to(builder)
+    apply, manipulated, taken_out = _draw_change(change, rng, builder, layout, names)
     sim = builder.build()
-    if change == "shape":
-        for twin_name, _ in twins:
-            sim.remove(twin_name)
-    consistent, inconsistent = record_pair(
-        sim, manipulation_frame, manipulate, script=screen.script
-    )
-    _check_probe(consistent, inconsistent, manipulation_frame, manipulated, count)
-    return specs.probe_record(
-        consistent, inconsistent, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
-        specs.VARIANTS.index(variant), manipulation_frame, seed, manipulated,
-    )
+    for name in taken_out:
+        sim.remove(name)
+    return ProbeScene(sim, layout, frame, manipulated, apply)
 
 
-def _check_probe(consistent, inconsistent, manipulation_frame, manipulated, count) -> None:
+def _check_pair(consistent, inconsistent, scene: ProbeScene) -> None:
     """Reject draws where the objects do not all show first, the screen does not hide the row at
-    the manipulation, or the change is not revealed at the end."""
-    objects = set(range(1, count + 1))
+    the change frame, or the change is not revealed at the end."""
+    objects = set(range(1, len(scene.layout.draws) + 1))
     if visible_ids(consistent[1][0]) & objects != objects:
         raise RejectedSample("not every object is visible before the screen comes down")
     for _, masks, _ in (consistent, inconsistent):
-        if visible_ids(masks[manipulation_frame]) & (objects | set(manipulated)):
+        if visible_ids(masks[scene.frame]) & (objects | set(scene.manipulated)):
             raise RejectedSample("the screen does not hide the row at the manipulation")
     shown = visible_ids(consistent[1][-1]) | visible_ids(inconsistent[1][-1])
     changed_pixels = (consistent[0][-1] != inconsistent[0][-1]).any(axis=-1).sum()
-    if not set(manipulated) & shown or changed_pixels < 4:
+    if not set(scene.manipulated) & shown or changed_pixels < 4:
         raise RejectedSample("the change is not revealed when the screen rises")
 
 
+@functools.lru_cache(maxsize=4)
+def quadruplet(change: str, seed: int, video: VideoOptions) -> tuple:
+    """One scene draw's quadruplet of ``change`` ((A, AB), (B, BA)): A the row with the
+    property's first value throughout, B with the other (``ProbeScene.change`` applied before
+    the first frame), alike at the change frame, where the screen hides the whole row
+    (``recording.quadruplet``); with the camera, that frame and the ids the change touches."""
+
+    def make(rng: np.random.Generator) -> tuple:
+        scene = probe_scene(change, 0, video, rng)
+        second = scene.sim.fork()
+        scene.change(second)
+        videos = [sim.record(video.num_frames, scene.layout.screen.script)
+                  for sim in (scene.sim, second)]
+        pairs = recording.quadruplet(*videos, scene.frame)
+        for pair in pairs:
+            _check_pair(*pair, scene)
+        return pairs, scene.layout.camera.as_array(), scene.frame, tuple(scene.manipulated)
+
+    return draw_until_valid(make, rng_for(seed, CONCEPT, change, "quadruplet"))
+
+
+def _generalization_probe(change: str, extra: int, variant: str, seed: int,
+                          video: VideoOptions, rng: np.random.Generator) -> TensorDict:
+    """A plain pair of ``extra`` more objects than training: the row, changed behind the
+    screen at the change frame in the inconsistent video (``recording.record_pair``)."""
+    scene = probe_scene(change, extra, video, rng)
+    consistent, inconsistent = record_pair(
+        scene.sim, scene.frame, scene.change, script=scene.layout.screen.script
+    )
+    _check_pair(consistent, inconsistent, scene)
+    return specs.probe_record(
+        consistent, inconsistent, scene.layout.camera.as_array(), specs.CONCEPTS.index(CONCEPT),
+        specs.VARIANTS.index(variant), scene.frame, seed, scene.manipulated,
+    )
+
+
 def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
-    """A consistent/inconsistent probe pair: objects in a row, screen down and up; in the
-    inconsistent video some objects changed ``variant``'s property behind the screen."""
+    """A consistent/inconsistent probe pair: objects in a row, screen down and up. A change's
+    two variants (``color``, ``color_counterbalanced``) are the halves of the seed's
+    quadruplet (``quadruplet``): the row keeps its property, or it changes behind the screen
+    to the other half's value. A generalization variant (``color_plus1``) is a plain pair."""
     change, extra = parse_variant(variant)
+    if extra == 0:
+        return recording.quadruplet_record(CONCEPT, variant, seed, quadruplet(change, seed, video))
     # Separate salt words: rng_for reads only the first 8 bytes of each word.
     rng = rng_for(seed, CONCEPT, change, f"plus{extra}")
     return draw_until_valid(
-        lambda r: _make_probe(change, extra, variant, seed, video, r), rng
+        lambda r: _generalization_probe(change, extra, variant, seed, video, r), rng
     )
 
 
