@@ -125,7 +125,7 @@ class IntPhys2DataModule(ExternalDataModule):
                 v.path for pair in pairs for v in (pair.possible, pair.impossible)]
             folder = Path(h.cache_dir) / "intphys2" / split / fingerprint(settings, sources)
         return self._read_probes(split, PairDataset(pairs, self.sampling, h.lenient, skips),
-                                 folder, "pair", key=int)
+                                 folder, "pair")
 
     def pairs(self, split: str = "Main") -> dict[int, dict[str, Any]]:
         """pair seed -> {scene, prefix, condition, principle, difficulty, camera, possible,

@@ -62,14 +62,15 @@ def pair_groups(
 
 def quadruplets(concepts: Sequence[str], variants: Sequence[str], seeds: Sequence[int]
                 ) -> list[tuple[str, np.ndarray, np.ndarray]]:
-    """(concept, first, second) for every concept of ``specs.QUADRUPLET_CONCEPTS`` among the
-    pairs: the row indices of its standard (first half) and counterbalanced (second half)
-    pairs of every seed both hold, in seed order; a seed names a quadruplet. A seed twice in
-    one variant is refused (the pairs of two splits mixed)."""
+    """(concept, first, second) for every concept among the pairs whose standard (first half)
+    and counterbalanced (second half) pairs share seeds: the row indices of both halves of
+    every seed both hold, in seed order; a seed names a quadruplet. Ours are the concepts of
+    ``specs.QUADRUPLET_CONCEPTS``; a benchmark's reader names its quadruplets' halves so too
+    (docs/benchmarks.md). A seed twice in one variant is refused (two splits mixed)."""
     concepts, variants = (np.asarray(x, dtype=object) for x in (concepts, variants))
     seeds = np.asarray(seeds, dtype=np.int64)
     matched = []
-    for concept in [c for c in specs.QUADRUPLET_CONCEPTS if c in set(concepts.tolist())]:
+    for concept in dict.fromkeys(concepts[np.isin(variants, POOLED_VARIANTS)].tolist()):
         halves = []
         for variant in POOLED_VARIANTS:
             rows = np.flatnonzero((concepts == concept) & (variants == variant))

@@ -8,7 +8,7 @@ which split, each pair's metadata, what was skipped); the evaluation is here, so
 asking the data layer to compute anything.
 
 - IntPhys: ``metrics.grouped_metrics`` per block (and visible / occluded) over quadruplets,
-  a pair's quadruplet being ``seed // 2``;
+  a pair's quadruplet being its ``seed`` (as in our stores; its variant names the half);
 - DeepMind Physical Concepts: the same per concept;
 - IntPhys 2: ``metrics.intphys2_metrics`` per principle and per principle x difficulty x
   camera, and videos.csv (one row per scored video).
@@ -46,7 +46,7 @@ class ExternalPairs:
     """What an external benchmark's evaluation needs beyond the probe outputs: ``benchmark``
     (a key of ``BENCHMARKS``), the DataModule's ``concept_names``, the evaluated ``split``
     (None where the benchmark has one), the pairs' metadata ``table`` (IntPhys: quadruplet
-    index -> {block, variant, ambiguous_pairing, ...}; IntPhys 2: pair seed -> {principle,
+    index -> {block, condition, ambiguous_pairing, ...}; IntPhys 2: pair seed -> {principle,
     difficulty, camera, possible, impossible, ...}; none for Physical Concepts) and the
     ``skipped`` input counts per reason."""
 
@@ -62,14 +62,15 @@ def _intphys(pairs: ExternalPairs, outputs: Mapping[str, Any], **options: Any) -
     a movie's surprise is its sum over frames; ``options`` go to
     ``metrics.quadruplet_metrics`` (alpha, bootstrap)."""
     seeds, possible, impossible = pair_surprise(outputs)
-    quadruplet = seeds // 2
+    quadruplet = seeds
     for seed in seeds.tolist():
-        if seed // 2 not in pairs.table:
-            raise KeyError(f"seed {seed} names no IntPhys {pairs.split} probe pair")
+        if seed not in pairs.table:
+            raise KeyError(f"seed {seed} names no IntPhys {pairs.split} quadruplet")
     entries = [pairs.table[q] for q in quadruplet.tolist()]
     groups = [pairs.concept_names[INTPHYS_BLOCKS.index(e["block"])] for e in entries]
     visibility = [
-        e["variant"].split("_")[0] if e["variant"] != "unspecified" else None for e in entries
+        e["condition"].split("_")[0] if e["condition"] != "unspecified" else None
+        for e in entries
     ]
     return {
         "benchmark": pairs.benchmark,
@@ -90,7 +91,7 @@ def _physical_concepts(pairs: ExternalPairs, outputs: Mapping[str, Any],
     definitions) and the paired t-test over matched pairs."""
     seeds, possible, impossible = pair_surprise(outputs)
     concepts = [pairs.concept_names[c] for c in torch.as_tensor(outputs["concept"]).tolist()]
-    quadruplet = seeds // 2
+    quadruplet = seeds
     return {
         "benchmark": pairs.benchmark,
         "metrics": grouped_metrics(concepts, quadruplet, possible, impossible, **options),
