@@ -5,7 +5,7 @@ and the model input geometry. Their readers are ``voe_lightning.external``; thei
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -113,12 +113,12 @@ class ExternalDataModule(ProbeDataModule):
         """Probe pairs or single videos in order, each on one DDP rank."""
         return self._loader(dataset, self.hparams.probe_batch_size, sampler=probe_sampler(dataset))
 
-    def _read_probes(self, split: str, decoder: Dataset, folder: Path | None, unit: str,
-                     key: Callable[[int], int]) -> Dataset:
+    def _read_probes(self, split: str, decoder: Dataset, folder: Path | None,
+                     unit: str) -> Dataset:
         """The probe records of ``split`` from the cache at ``folder`` when it is intact, else
         decoded by ``decoder`` (items: (records, table entry or None)) in worker processes and
         written there (``folder`` None: kept in memory). Fills ``_probes[split]`` and
-        ``_tables[split]`` (``key(seed)`` -> entry) and the skipped counts."""
+        ``_tables[split]`` (a record's seed -> its item's entry) and the skipped counts."""
         cached = open_cache(folder, {"table": dict, "skipped": dict}) if folder else None
         if cached is not None:  # its counts already include this scan's skips
             self._skips[split] = SkipLog()
@@ -127,20 +127,20 @@ class ExternalDataModule(ProbeDataModule):
             self._probes[split] = cached
             return cached
         meta: dict[str, Any] = {"table": {}}
-        records = self._decode(decoder, meta, self._skips[split], split, unit, key)
+        records = self._decode(decoder, meta, self._skips[split], split, unit)
         self._probes[split] = (RecordList(list(records)) if folder is None
                                else write_cache(folder, records, self.probe_spec(), meta))
         self._tables[split] = meta["table"]
         return self._probes[split]
 
-    def _decode(self, decoder: Dataset, meta: dict, skips: SkipLog, what: str, unit: str,
-                key: Callable[[int], int]) -> Iterator[TensorDict]:
+    def _decode(self, decoder: Dataset, meta: dict, skips: SkipLog, what: str,
+                unit: str) -> Iterator[TensorDict]:
         """The probe records, decoded by worker processes; fills ``meta`` (table, skipped
         counts) as it goes, complete once exhausted."""
         loader = worker_loader(decoder, self.hparams.num_workers)
         for records, entry in tqdm(loader, desc=f"decoding {type(self).__name__} {what}",
                                    unit=unit, leave=False):
             if entry is not None:
-                meta["table"][key(int(records[0]["seed"]))] = entry
+                meta["table"][int(records[0]["seed"])] = entry
             yield from records
         meta["skipped"] = skips.counts()

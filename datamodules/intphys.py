@@ -21,6 +21,7 @@ from voe_lightning.external.evaluation import ExternalPairs
 from voe_lightning.external.intphys import (
     BLOCKS,
     CONCEPT_NAMES,
+    RECORD_VERSION,
     VARIANT_NAMES,
     Movie,
     MovieDataset,
@@ -124,6 +125,7 @@ class IntPhysDataModule(ExternalDataModule):
             "video": self.video.__dict__,
             "frames_per_movie": h.frames_per_movie,
             "lenient": h.lenient,
+            "records": RECORD_VERSION,
         }
 
     def _cache_folder(self, what: str, sources: list[Path]) -> Path | None:
@@ -146,12 +148,12 @@ class IntPhysDataModule(ExternalDataModule):
             for p in (m.path / "scene", m.path / "status.json")
         ]
         decoder = QuadrupletDataset(quadruplets, self.video, h.lenient, skips)
-        return self._read_probes(split, decoder, self._cache_folder(split, sources), "scene",
-                                 key=lambda seed: seed // 2)
+        return self._read_probes(split, decoder, self._cache_folder(split, sources), "scene")
 
     def quadruplets(self, split: str = "dev") -> dict[int, dict[str, Any]]:
-        """quadruplet_index -> {block, scene, variant, ambiguous_pairing, pairs: [{possible,
-        impossible, divergence_frame, divergence_source_frame}]} (pair j has seed 2q + j)."""
+        """quadruplet_index -> {block, scene, condition, ambiguous_pairing, pairs: [{possible,
+        impossible, divergence_frame, divergence_source_frame}]} (pair j has seed q and variant
+        j: ``standard``, ``counterbalanced``)."""
         self.probes(split)
         return self._tables[split]
 
@@ -195,11 +197,11 @@ class IntPhysDataModule(ExternalDataModule):
         return self._movies[split]
 
     def probe_cases(self, split: str = "val") -> list[tuple[str, str]]:
-        """The (concept, variant) names present among the evaluation probes."""
+        """The (concept, variant) names present among the evaluation probes: each block's two
+        quadruplet halves."""
         table = self.quadruplets(self.hparams.eval_split)
-        return sorted(
-            {(CONCEPT_NAMES[BLOCKS.index(e["block"])], e["variant"]) for e in table.values()}
-        )
+        blocks = sorted({CONCEPT_NAMES[BLOCKS.index(e["block"])] for e in table.values()})
+        return [(block, variant) for block in blocks for variant in VARIANT_NAMES]
 
     # --- loaders ---------------------------------------------------------------------------------
     def train_dataloader(self) -> DataLoader:

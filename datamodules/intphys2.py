@@ -17,11 +17,12 @@ from voe_lightning.external.base import SkipLog
 from voe_lightning.external.cache import fingerprint
 from voe_lightning.external.evaluation import ExternalPairs
 from voe_lightning.external.intphys2 import (
-    DIFFICULTIES,
     PRINCIPLES,
     SPLITS,
     ClipSampling,
-    PairDataset,
+    RECORD_VERSION,
+    VARIANT_NAMES,
+    SceneDataset,
     Video,
     VideoDataset,
     pair_videos,
@@ -54,7 +55,7 @@ class IntPhys2DataModule(ExternalDataModule):
         cache_dir: if set, decoded pairs are written there once (store shards) and reused.
     """
 
-    concept_names, variant_names = PRINCIPLES, DIFFICULTIES
+    concept_names, variant_names = PRINCIPLES, VARIANT_NAMES
     #: Videos differ in length, so frames are picked per video (``ClipSampling``); this bound
     #: only lets the shared geometry (``ExternalDataModule.video``) resolve.
     source_frames = 1 << 30
@@ -120,18 +121,21 @@ class IntPhys2DataModule(ExternalDataModule):
         folder = None
         if h.cache_dir is not None:
             settings = {"what": split, "video": self.video.__dict__, "frame_stride": h.frame_stride,
-                        "first_frame": h.first_frame, "lenient": h.lenient}
+                        "first_frame": h.first_frame, "lenient": h.lenient,
+                        "records": RECORD_VERSION}
             sources = [Path(h.root) / split / "metadata.csv"] + [
                 v.path for pair in pairs for v in (pair.possible, pair.impossible)]
             folder = Path(h.cache_dir) / "intphys2" / split / fingerprint(settings, sources)
-        return self._read_probes(split, PairDataset(pairs, self.sampling, h.lenient, skips),
-                                 folder, "pair", key=int)
+        return self._read_probes(split, SceneDataset(pairs, self.sampling, h.lenient, skips),
+                                 folder, "scene")
 
-    def pairs(self, split: str = "Main") -> dict[int, dict[str, Any]]:
-        """pair seed -> {scene, prefix, condition, principle, difficulty, camera, possible,
-        impossible (video names), possible_row, impossible_row, divergence_frame}."""
+    def pairs(self, split: str = "Main") -> dict[tuple[int, str], dict[str, Any]]:
+        """(seed: the scene's index, variant: the pair's half) -> {scene, prefix, condition,
+        principle, difficulty, camera, possible, impossible (video names), possible_row,
+        impossible_row, divergence_frame}."""
         self.probes(split)
-        return self._tables[split]
+        return {(seed, variant): entry for seed, scene in self._tables[split].items()
+                for variant, entry in scene.items()}
 
     def videos(self, split: str = "HeldOut") -> list[Video]:
         """Every video of ``split`` in metadata order (labels read where the split has them)."""
@@ -140,9 +144,10 @@ class IntPhys2DataModule(ExternalDataModule):
         return self._videos[split]
 
     def probe_cases(self, split: str = "val") -> list[tuple[str, str]]:
-        """The (principle, difficulty) names present among the evaluation pairs."""
+        """The (principle, half) names present among the evaluation pairs."""
         table = self.pairs(self.hparams.eval_split)
-        return sorted({(e["principle"], e["difficulty"]) for e in table.values()})
+        return sorted({(e["principle"], variant) for (_, variant), e in table.items()},
+                      key=lambda case: (case[0], VARIANT_NAMES.index(case[1])))
 
     # --- loaders ---------------------------------------------------------------------------------
     def val_dataloader(self) -> DataLoader:

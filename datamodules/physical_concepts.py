@@ -23,6 +23,7 @@ from voe_lightning.external.physical_concepts import (
     CONCEPT_NAMES,
     NUM_FRAMES,
     PROBE_CONCEPTS,
+    RECORD_VERSION,
     SHARD_STRIDE,
     VARIANT_NAMES,
     RecordStream,
@@ -138,7 +139,8 @@ class PhysicalConceptsDataModule(ExternalDataModule):
                 seed=h.seed,
             )
         else:
-            settings = {"part": part, "video": self.video.__dict__, "lenient": h.lenient}
+            settings = {"part": part, "video": self.video.__dict__, "lenient": h.lenient,
+                        "records": RECORD_VERSION}
             folder = (
                 Path(h.cache_dir)
                 / "physical_concepts"
@@ -171,7 +173,7 @@ class PhysicalConceptsDataModule(ExternalDataModule):
         limit = h.val_quadruplets_per_concept
         if h.cache_dir is not None:  # worker processes interleave shards: select by seed
             dataset = self._dataset(f"probes/{concept}")
-            shard, record = np.divmod(dataset.seeds() // 2, SHARD_STRIDE)
+            shard, record = np.divmod(dataset.seeds(), SHARD_STRIDE)
             first = shard.min(initial=np.iinfo(np.int64).max)
             return Subset(dataset, np.flatnonzero((shard == first) & (record < limit)).tolist())
         part = f"probes/{concept}"
@@ -192,7 +194,7 @@ class PhysicalConceptsDataModule(ExternalDataModule):
                 self._dataset(f"probes/{concept}")
 
     def probe_cases(self, split: str = "val") -> list[tuple[str, str]]:
-        return [(concept, VARIANT_NAMES[0]) for concept in self.concepts]
+        return [(concept, variant) for concept in self.concepts for variant in VARIANT_NAMES]
 
     # --- loaders ---------------------------------------------------------------------------------
     def train_dataloader(self) -> DataLoader:
@@ -218,6 +220,6 @@ class PhysicalConceptsDataModule(ExternalDataModule):
     # --- evaluation ------------------------------------------------------------------------------
     def external_pairs(self) -> ExternalPairs:
         """The concept names and skipped counts, for the per-concept quadruplet metrics
-        (``voe_lightning.external.evaluation``); a pair's quadruplet is its ``seed // 2``."""
+        (``voe_lightning.external.evaluation``); a pair's quadruplet is its ``seed``."""
         return ExternalPairs("DeepMind Physical Concepts", self.concept_names,
                              skipped=self.skipped)

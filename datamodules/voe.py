@@ -1,11 +1,14 @@
 """The DataModule behind the per-concept and joint regimes: it generates any missing data in
 ``prepare_data``, trains on examples + controls interleaved with equal counts per concept, and
-serves validation (during ``fit``) and test probe pairs (for ``test``) from the store."""
+serves validation (during ``fit``) and test probe pairs (for ``test``) from the store, or, with
+a ``seed_offset``, from a fresh draw of them in the store's ``seed_offset_<N>`` folder."""
 
 from __future__ import annotations
 
 import os
 from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -15,6 +18,7 @@ from datamodules.arguments import check_at_least
 from datamodules.resident import ResidentBatches, resident_frames
 from voe_lightning import specs, store
 from voe_lightning.generate import ensure_dataset
+from voe_lightning.store_plan import check_seed_offset, seed_offset_root
 from voe_lightning.probe_datamodule import ProbeDataModule
 from voe_lightning.store import open_split, probe_sampler, record_loader
 
@@ -74,6 +78,10 @@ class VOEDataModule(ProbeDataModule):
         generate_workers: processes rendering missing data (default: all cores).
         num_frames, height, width: video geometry (paper: 15 frames of 64x64).
         seed: seed of the training order.
+        seed_offset: draw the validation, test and generalization probes this far into their
+            splits' seed ranges (0: the store's own): a fresh test set of any size no one has
+            seen, generated or read in ``root/seed_offset_<N>`` (``store_plan.seed_offset_root``,
+            probes only), so the training data's store is never touched; the report names it.
     """
 
     concept_names, variant_names = specs.CONCEPTS, specs.VARIANTS
@@ -97,6 +105,7 @@ class VOEDataModule(ProbeDataModule):
         height: int = specs.HEIGHT,
         width: int = specs.WIDTH,
         seed: int = 0,
+        seed_offset: int = 0,
     ):
         super().__init__()
         if not concepts:
@@ -120,18 +129,25 @@ class VOEDataModule(ProbeDataModule):
                 "seed": (seed, 0),
             }
         )
+        check_seed_offset(seed_offset, {"val": val_pairs, "test": test_pairs,
+                                        "generalization": generalization_pairs})
         self.save_hyperparameters()
         self.concepts = list(dict.fromkeys(concepts))
         self._datasets: dict[str, Dataset] = {}
         self._resident: torch.Tensor | None = None
 
     # --- data on disk --------------------------------------------------------------------------
-    def _generation_arguments(self) -> dict:
+    def _generation_arguments(self, split: str) -> dict:
+        """``ensure_dataset``'s arguments for the store ``split`` is in (``_store_root``): the
+        seed offset's, which holds no training clips, for a probe split."""
         h = self.hparams
+        seed_offset = 0 if split == "train" else h.seed_offset
+        train_controls = h.train_examples if h.train_controls is None else h.train_controls
         return dict(
             concepts=self.concepts,
-            train_examples=h.train_examples,
-            train_controls=h.train_examples if h.train_controls is None else h.train_controls,
+            seed_offset=seed_offset,
+            train_examples=0 if seed_offset else h.train_examples,
+            train_controls=0 if seed_offset else train_controls,
             val_pairs=h.val_pairs,
             test_pairs=h.test_pairs,
             generalization_pairs=h.generalization_pairs,
@@ -148,13 +164,30 @@ class VOEDataModule(ProbeDataModule):
             splits.append("generalization")
         return splits
 
+    def _store_root(self, split: str) -> Path:
+        """The store ``split`` is read from: the root's for the training clips, the seed
+        offset's (the root itself at offset 0) for the probes."""
+        seed_offset = 0 if split == "train" else self.hparams.seed_offset
+        return seed_offset_root(self.hparams.root, seed_offset)
+
+    def probe_source(self) -> dict[str, Any]:
+        """The data root, the seed offset and the store its probes are read from."""
+        return {**super().probe_source(), "seed_offset": self.hparams.seed_offset,
+                "probe_root": str(self._store_root("test"))}
+
     def prepare_data(self) -> None:
         """Generate whatever part of the dataset is missing (a no-op when complete): under a
-        ``validate`` or ``test`` only its probe splits, so a mistyped root costs no train split."""
+        ``validate`` or ``test`` only its probe splits, so a mistyped root costs no train split;
+        with a seed offset, the probe splits into their own store (``_store_root``)."""
         trainer = self.trainer
         stage = trainer.state.fn.value if trainer is not None and trainer.state.fn else None
         splits = self._probe_splits(stage) or store.SPLITS
-        ensure_dataset(self.hparams.root, splits=splits, **self._generation_arguments())
+        by_store: dict[Path, list[str]] = {}
+        for split in splits:
+            by_store.setdefault(self._store_root(split), []).append(split)
+        for store_splits in by_store.values():
+            ensure_dataset(self.hparams.root, splits=store_splits,
+                           **self._generation_arguments(store_splits[0]))
 
     def setup(self, stage: str | None = None) -> None:
         splits = self._probe_splits(stage) or (
@@ -164,7 +197,7 @@ class VOEDataModule(ProbeDataModule):
             if split in self._datasets:
                 continue
             parts = [
-                open_split(self.hparams.root, concept, split)
+                open_split(self._store_root(split), concept, split)
                 for concept in self.concepts
                 if split != "generalization" or specs.GENERALIZATION_VARIANTS[concept]
             ]

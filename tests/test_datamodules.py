@@ -151,3 +151,44 @@ def test_intphys_takes_the_models_geometry_in_setup(tmp_path):
     batch = next(iter(datamodule.test_dataloader()))
     assert batch["consistent", "frames"].shape[1:] == (4, 8, 24, 3)  # height as given
     assert datamodule.probe_spec().is_in(batch[0])
+
+
+def test_a_seed_offset_reads_fresh_probes_from_their_own_store_and_trains_on_the_roots(
+        tmp_path, monkeypatch):
+    """Issue 48 part 5: the probe splits of ``seed_offset`` N are generated into and read from
+    root/seed_offset_<N>, the training clips from the root, whose store is left as it was."""
+    monkeypatch.setattr(generate, "generate_clip", fake_clip)
+    monkeypatch.setattr(generate, "generate_probe", fake_probe)
+    options = dict(concept="continuity", root=str(tmp_path), train_examples=4, val_pairs=2,
+                   test_pairs=3, generalization_pairs=1, generate_workers=1, num_frames=4,
+                   height=16, width=16, batch_size=4)
+    ConceptDataModule(**options).prepare_data()
+    before = {path: path.read_bytes() for path in tmp_path.rglob("*") if path.is_file()}
+    datamodule = ConceptDataModule(**options, seed_offset=1000)
+    datamodule.prepare_data()
+    assert {path: path.read_bytes() for path in before} == before
+    fresh = tmp_path / "seed_offset_1000"
+    assert datamodule.probe_source() == {"data_root": str(tmp_path), "seed_offset": 1000,
+                                         "probe_root": str(fresh)}
+    assert not (fresh / "continuity" / "train").exists() and store_plan.verify(fresh) == []
+    datamodule.setup("fit")
+    train = [int(seed) for batch in datamodule.train_dataloader() for seed in batch["seed"]]
+    assert sorted(train) == list(range(8))  # the root's training clips, unshifted
+    val = [int(seed) for batch in datamodule.val_dataloader() for seed in batch["seed"]]
+    assert sorted(set(val)) == [store_plan.SEED_STARTS["val"] + 1000 + k for k in range(2)]
+    datamodule.setup("test")
+    test = next(iter(datamodule.test_dataloader()))
+    assert set(test["seed"].tolist()) == {store_plan.SEED_STARTS["test"] + 1000 + k
+                                          for k in range(3)}
+
+
+def test_a_seed_offset_past_a_splits_range_is_refused_when_built():
+    last = store_plan.SEED_RANGE - 3
+    pairs = dict(val_pairs=3, test_pairs=3, generalization_pairs=1)
+    ConceptDataModule(**pairs, seed_offset=last)
+    with pytest.raises(ValueError, match=r"the test split would need seeds up to 3_000_000_000 "
+                       r".*seed_offset plus the count must be at most 1_000_000_000"):
+        ConceptDataModule(**{**pairs, "test_pairs": 4}, seed_offset=last)
+    with pytest.raises(ValueError, match=r"seed_offset must be an integer in \[0, 999_999_999\]"
+                       r".*got -5"):
+        VOEDataModule(seed_offset=-5)

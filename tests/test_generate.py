@@ -394,3 +394,118 @@ def test_a_malformed_manifest_is_named_and_overwritten_on_request(tmp_path, call
     summary = generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "overwrite": True})
     assert summary.shards_skipped == summary.shards_planned and calls == []  # the shards still belong
     assert store_plan.verify(tmp_path) == [] and store.read_manifest(tmp_path)["shard_size"] == 3
+
+
+# --- seed offset (issue 48 part 5: a fresh test set anyone can re-test a checkpoint on) -------
+OFFSET = 1_000_000
+PROBES_ONLY = {**SMALL, "train_examples": 0}
+
+
+def _store_files(root: Path) -> dict[str, bytes]:
+    return {str(path.relative_to(root)): path.read_bytes()
+            for path in sorted(root.rglob("*")) if path.is_file()}
+
+
+def test_an_offset_shifts_the_probe_seeds_within_their_split_and_never_the_clips():
+    tasks = _plan()
+    shifted = store_plan.plan_shards(
+        {c: store_plan.split_counts(c, 10, 10, 3, 4, 2) for c in specs.CONCEPTS}, 4, OFFSET)
+    for task, moved in zip(tasks, shifted, strict=True):
+        assert moved.items == task.items if task.split == "train" else moved.seeds == [
+            seed + OFFSET for seed in task.seeds]
+        assert ("seed_offset" in store_plan.shard_meta(moved)) == (task.split != "train")
+        assert "seed_offset" not in store_plan.shard_meta(task)  # stores before offsets stay
+    last = store_plan.SEED_RANGE - 4  # 4 test pairs per variant fit exactly
+    edge = store_plan.plan_shards({"solidity": store_plan.split_counts("solidity", 0, 0, 0, 4, 0)},
+                                  4, last)
+    assert max(seed for t in edge for seed in t.seeds) == store_plan.SEED_STARTS["generalization"] - 1
+    with pytest.raises(ValueError, match=r"solidity: the test split would need seeds up to "
+                       r"3_000_000_000 .*past the last seed of its range, 2_999_999_999: "
+                       r"seed_offset plus the count must be at most 1_000_000_000"):
+        store_plan.plan_shards({"solidity": store_plan.split_counts("solidity", 0, 0, 0, 5, 0)},
+                               4, last)
+    for bad in (-1, store_plan.SEED_RANGE, 1.5, True):
+        with pytest.raises(ValueError, match=rf"seed_offset must be an integer in \[0, "
+                           rf"999_999_999\].*got {bad!r}"):
+            store_plan.check_seed_offset(bad)
+
+
+def test_an_offset_store_is_its_own_beside_the_root_resumable_and_checked(tmp_path, calls):
+    generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    before = _store_files(tmp_path)
+    calls.clear()
+    summary = generate.generate_dataset(tmp_path, ("continuity",), **PROBES_ONLY,
+                                        seed_offset=OFFSET)
+    fresh = tmp_path / f"seed_offset_{OFFSET}"
+    assert summary.root == fresh and store_plan.verify(fresh) == []
+    assert {str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*") if p.is_file()
+            and fresh not in p.parents} == set(before)  # the root's store is untouched
+    assert _store_files(tmp_path).items() >= before.items()
+    assert {kind for _, kind, _, _ in calls} == {"probe"}  # no training clips in it
+    manifest = store.read_manifest(fresh)
+    assert manifest["seed_offset"] == OFFSET
+    assert manifest["concepts"]["continuity"]["splits"]["test"]["seed_start"] == (
+        store_plan.SEED_STARTS["test"] + OFFSET)
+    for split in ("val", "test", "generalization"):
+        seeds = [int(r["seed"]) for r in store.open_split(fresh, "continuity", split)]
+        old = [int(r["seed"]) for r in store.open_split(tmp_path, "continuity", split)]
+        assert seeds == [seed + OFFSET for seed in old]
+        assert store_shards.ShardReader(store.shard_path(fresh, "continuity", split, 0)
+                                        ).index.meta["seed_offset"] == OFFSET
+    # Resumable: a rerun keeps it; a lost shard is rendered again at the offset's seeds.
+    lost = store.shard_path(fresh, "continuity", "test", 0)
+    lost.unlink()
+    again = generate.generate_dataset(tmp_path, ("continuity",), **PROBES_ONLY, seed_offset=OFFSET)
+    assert again.shards_generated == 1 and store_plan.verify(fresh) == []
+    assert generate.ensure_dataset(tmp_path, concepts=("continuity",), seed_offset=OFFSET,
+                                   **PROBES_ONLY) is None
+    # Training clips are not shifted: an offset store refuses them, before any work.
+    with pytest.raises(ValueError, match=rf"seed_offset {OFFSET} draws fresh probes only, into "
+                       rf"{fresh}.*give train_examples 0 and train_controls 0, got 4 and 4"):
+        generate.generate_dataset(tmp_path, ("continuity",), **SMALL, seed_offset=OFFSET)
+
+
+def test_a_store_of_another_offset_is_refused_and_its_shards_found(tmp_path, calls):
+    generate.generate_dataset(tmp_path / "a", ("continuity",), **PROBES_ONLY, seed_offset=OFFSET)
+    moved = tmp_path / "b" / "seed_offset_7"  # a store copied to another offset's place
+    moved.parent.mkdir()
+    (tmp_path / "a" / f"seed_offset_{OFFSET}").rename(moved)
+    with pytest.raises(generate_manifest.ManifestMismatchError,
+                       match=rf"seed_offset: stored {OFFSET}, asked 7"):
+        generate.generate_dataset(tmp_path / "b", ("continuity",), **PROBES_ONLY, seed_offset=7)
+    with pytest.raises(generate_manifest.ManifestMismatchError,
+                       match=rf"seed_offset: stored {OFFSET}, asked 0"):
+        generate.generate_dataset(moved, ("continuity",), **PROBES_ONLY)
+    summary = generate.generate_dataset(tmp_path / "b", ("continuity",), **PROBES_ONLY,
+                                        seed_offset=7, overwrite=True)
+    assert summary.root == moved and summary.shards_skipped == 0
+    assert store.read_manifest(moved)["seed_offset"] == 7 and store_plan.verify(moved) == []
+    # A shard of the store at offset 0 in the offset store's place is found by what it is.
+    generate.generate_dataset(tmp_path / "c", ("continuity",), **PROBES_ONLY)
+    foreign = store.shard_path(moved, "continuity", "test", 0)
+    foreign.write_bytes(store.shard_path(tmp_path / "c", "continuity", "test", 0).read_bytes())
+    assert store_plan.verify(moved) == [foreign]
+    with pytest.warns(UserWarning, match="its seed_offset is missing, expected 7"):
+        generate.generate_dataset(tmp_path / "b", ("continuity",), **PROBES_ONLY, seed_offset=7)
+
+
+def test_command_line_draws_fresh_real_probes_at_an_offset(tmp_path, capsys):
+    """MuJoCo: the offset's probes are the scenes of the shifted seeds, and other videos."""
+    root = tmp_path / "data"
+    argv = ["generate", "--root", str(root), "--concepts", "[solidity]", "--val_pairs", "0",
+            "--test_pairs", "1", "--generalization_pairs", "0", "--shard_size", "2",
+            "--workers", "1", "--num_frames", "6", "--height", "32", "--width", "32",
+            "--progress", "false"]  # fmt: skip
+    main([*argv, "--train_examples", "0"])
+    summary = main([*argv, "--seed_offset", str(OFFSET)])
+    assert summary.root == root / f"seed_offset_{OFFSET}"
+    assert str(summary.root) in capsys.readouterr().out  # says where
+    seed = store_plan.SEED_STARTS["test"] + OFFSET
+    for old, new in zip(store.open_split(root, "solidity", "test"),
+                        store.open_split(summary.root, "solidity", "test"), strict=True):
+        variant = specs.VARIANTS[int(new["variant"])]
+        expected = scenes.generate_probe("solidity", variant, seed, num_frames=6, height=32,
+                                         width=32)
+        assert int(new["seed"]) == seed
+        assert torch.equal(new["consistent", "frames"], expected["consistent", "frames"])
+        assert not torch.equal(new["consistent", "frames"], old["consistent", "frames"])

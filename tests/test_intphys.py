@@ -17,6 +17,7 @@ import torch
 from PIL import Image
 
 import voe_lightning.external.intphys as intphys
+from benchmark_quadruplets import check_quadruplet_rows
 from datamodules.intphys import IntPhysDataModule
 from voe_lightning import specs
 from voe_lightning.external.base import BenchmarkDataError
@@ -140,14 +141,13 @@ def test_dev_probes_load_with_spec_shapes_and_pairs_recovered_from_divergence(da
             ),
         }
     for record in records:
-        entry = table[int(record["seed"]) // 2]
-        pair = entry["pairs"][int(record["seed"]) % 2]
+        entry = table[int(record["seed"])]  # a seed names the scene's quadruplet
+        pair = entry["pairs"][int(record["variant"])]  # the variant its half
         m = int(record["manipulation_frame"])
         assert m == pair["divergence_frame"]
         con, inc = record["consistent", "frames"], record["inconsistent", "frames"]
         assert torch.equal(con[:m], inc[:m]) and not torch.equal(con[m], inc[m])
         assert dm.concept_names[int(record["concept"])].startswith(entry["block"])
-        assert dm.variant_names[int(record["variant"])] == entry["variant"]
         # the consistent video is the possible movie, sampled and resized with PIL
         movie = dataset_root / "dev" / pair["possible"]
         expected = np.asarray(
@@ -156,12 +156,13 @@ def test_dev_probes_load_with_spec_shapes_and_pairs_recovered_from_divergence(da
             )
         )
         assert np.array_equal(con[2].numpy(), expected)
-    assert dm.variant_names[int(records[0]["variant"])] == "visible_static"
-    assert dm.variant_names[int(records[4]["variant"])] == "unspecified"
-    assert sorted(dm.probe_cases()) == [
-        ("O1_object_permanence", "occluded_dynamic_1"),
-        ("O1_object_permanence", "visible_static"),
-        ("O2_shape_constancy", "unspecified"),
+    assert [dm.variant_names[int(r["variant"])] for r in records[:2]] == [
+        "standard", "counterbalanced"]
+    assert [entry["condition"] for entry in table.values()] == [
+        "visible_static", "occluded_dynamic_1", "unspecified"]
+    assert dm.probe_cases() == [
+        ("O1_object_permanence", "standard"), ("O1_object_permanence", "counterbalanced"),
+        ("O2_shape_constancy", "standard"), ("O2_shape_constancy", "counterbalanced"),
     ]
     assert dm.skipped == {}
 
@@ -170,7 +171,7 @@ def fake_outputs(dm, surprise_of_movie):
     """probe_step-like outputs whose per-frame surprise sums to the given movie totals."""
     records = torch.cat(list(dm.test_dataloader()))
     table = dm.quadruplets("dev")
-    pairs = [table[int(s) // 2]["pairs"][int(s) % 2] for s in records["seed"]]
+    pairs = [table[int(s)]["pairs"][int(v)] for s, v in zip(records["seed"], records["variant"])]
 
     def frames_of(totals):
         return torch.tensor(totals, dtype=torch.float64)[:, None].expand(-1, 5) / 5
@@ -508,3 +509,14 @@ def test_missing_split_and_bad_arguments_name_the_valid_choices(tmp_path):
         datamodule(tmp_path, eval_split="train")
     with pytest.raises(ValueError, match="need frame 24, but movies have 20 frames"):
         datamodule(tmp_path, num_frames=5, frame_stride=6)
+
+
+def test_a_report_tests_each_block_over_its_scenes_quadruplets(dataset_root):
+    """Issue 48 part 2: both pairs of a scene carry its quadruplet index as seed and their half
+    as variant, so the report tests each block over its scenes (``statistics.quadruplet_test``,
+    IntPhys' unit) and reads the block's verdict from that row."""
+    dm = datamodule(dataset_root)
+    dm.setup("test")
+    probes = torch.cat(list(dm.test_dataloader()))
+    check_quadruplet_rows(probes, dm.concept_names, dm.variant_names,
+                          {"O1_object_permanence": 2, "O2_shape_constancy": 1})

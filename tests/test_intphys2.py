@@ -19,6 +19,7 @@ import pytest
 import torch
 import yaml
 
+from benchmark_quadruplets import check_quadruplet_rows
 from datamodules.intphys2 import IntPhys2DataModule
 from voe_lightning.external.base import BenchmarkDataError
 from voe_lightning.external.evaluation import VIDEO_COLUMNS, external_metrics
@@ -126,20 +127,25 @@ def test_shuffled_rows_pair_by_scene_and_prefix_for_every_principle(root):
         assert entry["possible"] == f"s{entry['scene']}_{entry['prefix']}_possible"
         assert entry["impossible"] == f"s{entry['scene']}_{entry['prefix']}_impossible"
         assert entry["divergence_frame"] == PREFIXES[entry["prefix"]][3]
-    # pairs come in (condition, scene, prefix) order whatever the rows' order
-    assert [(table[s]["condition"], table[s]["prefix"]) for s in sorted(table)][:2] == [
-        ("continuity_swap", "1"), ("continuity_swap", "2")]
+    # scenes come in (condition, scene) order whatever the rows' order; a seed names the
+    # scene, the variant its pair (standard: prefix 1, counterbalanced: prefix 2)
+    assert [(seed, variant, table[seed, variant]["condition"], table[seed, variant]["prefix"])
+            for seed, variant in sorted(table)][:2] == [
+        (0, "counterbalanced", "continuity_swap", "2"), (0, "standard", "continuity_swap", "1")]
+    assert {(v, e["prefix"]) for (_, v), e in table.items()} == {
+        ("standard", "1"), ("counterbalanced", "2")}
+    assert sorted({seed for seed, _ in table}) == [0, 1, 2, 3]
     batch = next(iter(dm.test_dataloader()))
     assert batch["consistent", "frames"].shape == (3, 4, SIZE, SIZE, 3)
     for record in batch:
         assert dm.probe_spec().is_in(record)
-    entry = table[int(batch["seed"][0])]
+    entry = table[int(batch["seed"][0]), dm.variant_names[int(batch["variant"][0])]]
     expected = np.stack([frame(list(SCENES).index(entry["scene"]), PREFIXES[entry["prefix"]][0], t)
                          for t in SAMPLED])
     assert np.array_equal(batch["consistent", "frames"][0].numpy(), expected)  # lossless decode
     assert dm.concept_names[int(batch["concept"][0])] == entry["principle"]
-    assert dm.variant_names[int(batch["variant"][0])] == entry["difficulty"]
-    assert dm.probe_cases() == sorted({(p, d) for _, p, d, _ in SCENES.values()})
+    assert dm.probe_cases() == [(p, v) for p in sorted(p for _, p, _, _ in SCENES.values())
+                                for v in ("standard", "counterbalanced")]
 
 
 def test_debug_filename_column_and_frame_step_of_longer_videos(root):
@@ -148,7 +154,7 @@ def test_debug_filename_column_and_frame_step_of_longer_videos(root):
     table = dm.pairs("Debug")
     assert len(table) == 2 and {e["difficulty"] for e in table.values()} == {"unspecified"}
     batch = next(iter(dm.test_dataloader()))
-    first = table[int(batch["seed"][0])]
+    first = table[int(batch["seed"][0]), dm.variant_names[int(batch["variant"][0])]]
     expected = np.stack([frame(7, PREFIXES[first["prefix"]][0], t) for t in (1, 4, 7, 10)])
     assert np.array_equal(batch["consistent", "frames"][0].numpy(), expected)
     with pytest.raises(BenchmarkDataError, match=r"need frame 13, but movies have 12"):
@@ -208,9 +214,10 @@ def test_bad_input_raises_naming_it_or_is_skipped_and_counted_when_lenient(
     dm = datamodule(data, lenient=True)
     dm.setup("test")
     assert dm.skipped.get(reason) == (4 if case == "unknown_condition" else 1)  # 4 rows
-    # the rest is kept: the scene's other pairs and every other scene
+    # the rest is kept: the scene's other pair (a video that does not decode loses its scene
+    # whole: the scene is decoded as one quadruplet) and every other scene
     lost = {"malformed_group": 1, "missing_file": 0, "unlisted_file": 0, "unknown_condition": 2,
-            "unknown_type": 1, "undecodable": 1}[case]
+            "unknown_type": 1, "undecodable": 2}[case]
     assert len(dm.probes("Main")) == 8 - lost
     if case == "unknown_type":  # its scene and prefix now hold only an Impossible
         assert dm.skipped["malformed_group"] == 1
@@ -243,7 +250,8 @@ def test_metrics_match_a_hand_computation(root):
     seeds = sorted(table)
     sides = [prefix_1[table[s]["principle"]] if table[s]["prefix"] == "1"
              else ([0, 0, 0, 0], [0, 0, 0, 1]) for s in seeds]
-    outputs = {"seed": np.array(seeds),
+    outputs = {"seed": np.array([seed for seed, _ in seeds]),
+               "variant": np.array([dm.variant_names.index(v) for _, v in seeds]),
                "surprise_consistent": np.array([p for p, _ in sides], np.float32),
                "surprise_inconsistent": np.array([i for _, i in sides], np.float32)}
     report = external_metrics(dm.external_pairs(), outputs, bootstrap=0)
@@ -301,8 +309,10 @@ def test_cue_scorer_runs_test_and_predict_without_a_checkpoint(root, tmp_path):
     blind = list(csv.DictReader(open(report / "cues.csv")))
     assert {row["cue"] for row in blind} >= {"motion_energy", "copy_last_error",
                                              "linear_extrapolation_error", "pixel_novelty"}
-    motion = {row["concept"]: int(row["n"]) for row in blind if row["cue"] == "motion_energy"}
-    assert motion == {"Continuity": 2, "Immutability": 2, "Permanence": 2, "Solidity": 2}
+    motion = {(row["concept"], row["variant"]): int(row["n"]) for row in blind
+              if row["cue"] == "motion_energy" and row["variant"] in ("standard", "counterbalanced")}
+    assert motion == {(principle, variant): 1 for _, principle, _, _ in SCENES.values()
+                      for variant in ("standard", "counterbalanced")}
 
     config = tmp_path / "heldout.yaml"
     jsonl = tmp_path / "heldout.jsonl"
@@ -326,3 +336,14 @@ def test_the_package_and_its_datamodules_import_without_pyav():
     result = subprocess.run([sys.executable, "-c", blocked], cwd=root, capture_output=True,
                             text=True, check=False, env={**os.environ, "PYTHONPATH": str(root)})
     assert result.returncode == 0, result.stderr
+
+
+def test_a_report_tests_each_scenes_two_pairs_together(root):
+    """Issue 48 part 2: a scene's two pairs share its seed and are its halves, so the report
+    gives each principle a quadruplet row over its scenes (here one each: a row without a test,
+    and an undecided verdict) beside the per-pair rows."""
+    dm = datamodule(root)
+    dm.setup("test")
+    probes = torch.cat(list(dm.test_dataloader()))
+    check_quadruplet_rows(probes, dm.concept_names, dm.variant_names,
+                          {principle: 1 for _, principle, _, _ in SCENES.values()})

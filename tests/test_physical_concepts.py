@@ -15,6 +15,7 @@ from tfrecord.writer import TFRecordWriter
 
 import voe_lightning.external.physical_concepts as physical_concepts
 from datamodules.physical_concepts import PhysicalConceptsDataModule
+from benchmark_quadruplets import check_quadruplet_rows
 from voe_lightning.external.base import BenchmarkDataError
 from voe_lightning.external.evaluation import external_metrics
 from voe_lightning.external.physical_concepts import read_records
@@ -179,8 +180,8 @@ def test_probe_quadruplets_become_pairs_recovered_from_divergence(dataset_root):
     assert probes["consistent", "frames"].shape == (16, 5, 32, 32, 3)
     for probe in probes:
         assert dm.probe_spec().is_in(probe)
-        record = int(probe["seed"]) // 2 % 1_000_000
-        pair = int(probe["seed"]) % 2
+        record = int(probe["seed"]) % 1_000_000
+        pair = int(probe["variant"])  # the quadruplet's half: 0 standard, 1 counterbalanced
         switch_ab, switch_ba = SWITCHES[record]
         # pair 0: possible A with impossible A->B; pair 1: possible B with impossible B->A
         expected = first_sampled_at_or_after(switch_ab if pair == 0 else switch_ba)
@@ -191,7 +192,8 @@ def test_probe_quadruplets_become_pairs_recovered_from_divergence(dataset_root):
         assert probe["camera"][:, 0].tolist() == [100 * pair + t for t in SAMPLED]
         assert set(probe["consistent", "mask"].unique().tolist()) == {0, 1 + pair}
     assert [dm.concept_names[c] for c in probes["concept"].unique().tolist()] == CONCEPTS
-    assert dm.probe_cases() == [("continuity", "standard"), ("solidity", "standard")]
+    assert dm.probe_cases() == [("continuity", "standard"), ("continuity", "counterbalanced"),
+                                ("solidity", "standard"), ("solidity", "counterbalanced")]
     validation = torch.cat(list(dm.val_dataloader()))
     assert validation.batch_size == torch.Size([4])  # 1 quadruplet per concept
 
@@ -249,11 +251,12 @@ def test_cached_validation_takes_whole_quadruplets_of_the_first_shard(dataset_ro
     dm = datamodule(dataset_root, cache_dir=str(tmp_path / "cache"), num_workers=2, **options)
     dm.setup("validate")
     cached = dm._dataset("probes/continuity")
-    # quadruplet_index = shard * 1_000_000 + record, seed = 2 * quadruplet_index + pair
-    assert [int(cached[i]["seed"]) for i in range(2)] == [0, 2_000_000]
+    # seed = quadruplet_index = shard * 1_000_000 + record; its pairs, the variants 0 and 1
+    assert [int(cached[i]["seed"]) for i in range(2)] == [0, 1_000_000]
     validation = dm._validation_set("continuity")
     seeds = sorted(int(validation[i]["seed"]) for i in range(len(validation)))
-    assert seeds == [0, 1]
+    assert seeds == [0, 0]
+    assert sorted(int(validation[i]["variant"]) for i in range(len(validation))) == [0, 1]
     streamed = torch.cat(list(datamodule(dataset_root, **options).val_dataloader()))["seed"]
     assert sorted(streamed.tolist()) == seeds
 
@@ -372,3 +375,14 @@ def test_an_empty_shard_is_an_error_or_a_counted_skip(tmp_path, content):
     skipped = []
     assert list(read_records(path, skip=skipped.append)) == []
     assert [error.reason for error in skipped] == ["empty"]
+
+
+def test_a_report_tests_each_concept_over_its_quadruplets(dataset_root):
+    """Issue 48 part 2: a record's seed names its quadruplet and its variant the half, as in
+    our stores, so the report's quadruplet row (D = [S(AB) - S(A)] + [S(BA) - S(B)] per
+    quadruplet) and the quadruplet verdict apply to it."""
+    dm = datamodule(dataset_root)
+    dm.setup("test")
+    probes = torch.cat(list(dm.test_dataloader()))
+    check_quadruplet_rows(probes, dm.concept_names, dm.variant_names,
+                          {concept: 4 for concept in CONCEPTS})  # 2 shards x 2 records

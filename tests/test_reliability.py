@@ -105,7 +105,8 @@ def test_last_is_the_newest_run_and_the_report_names_what_it_was_made_from(workd
     source = json.loads((newer / "voe_report" / "summary.json").read_text())["source"]
     assert source == {"checkpoint": str(Path("runs/trained/version_1/checkpoints/last.ckpt")),
                       "global_step": 1, "datamodule": "datamodules.voe.ConceptDataModule",
-                      "data_root": "data/tiny", "concepts": ["object_persistence"]}
+                      "data_root": "data/tiny", "seed_offset": 0, "probe_root": "data/tiny",
+                      "concepts": ["object_persistence"]}
     # fit --ckpt_path last resumes that run (Lightning alone would start again from step 0).
     cli = main(["fit", "--config", CONFIG, "--trainer.logger.init_args.name", "trained",
                 "--ckpt_path", "last", "--trainer.max_steps", "2"])
@@ -202,7 +203,7 @@ def test_concurrent_generate_runs_for_two_concepts_keep_both_in_the_manifest(tmp
 
     monkeypatch.setattr(store, "read_manifest", slow_read)
     video = VideoOptions(num_frames=6, height=32, width=32)
-    entries = {concept: generate._prepare(tmp_path, [concept], 2, None, 1, 1, 1, 4, 6, 32, 32)
+    entries = {concept: generate._prepare(tmp_path, [concept], 2, None, 1, 1, 1, 4, 6, 32, 32, 0)
                .entries[concept] for concept in ("continuity", "containment")}
     runs = [threading.Thread(target=generate_manifest.reconcile_manifest,
                              args=(tmp_path, video, 4, {concept: entry}, False))
@@ -336,7 +337,7 @@ def test_predict_with_a_datamodule_that_cannot_predict_is_one_line(workdir, trai
 def test_a_shard_too_large_for_memory_is_warned_of(tmp_path):
     with pytest.warns(UserWarning, match=r"4096 x 4096 x 15 frames with shard_size 100 hold "
                                          r"about 187.5 GiB per shard"):
-        generate._prepare(tmp_path, ["continuity"], 1, None, 1, 1, 0, 100, 15, 4096, 4096)
+        generate._prepare(tmp_path, ["continuity"], 1, None, 1, 1, 0, 100, 15, 4096, 4096, 0)
 
 
 def test_generate_of_one_frame_videos_is_one_line_naming_num_frames(tmp_path, capsys):
@@ -357,3 +358,42 @@ def test_a_setting_a_scene_cannot_render_is_one_line_before_anything_renders(tmp
                              "--progress", "false"])
     assert "use num_frames >= 5" in line
     assert not list(tmp_path.rglob("*.voe"))  # no shard of either concept rendered
+
+
+def test_a_checkpoint_retested_on_fresh_probes_says_where_and_keeps_the_training_store(
+        workdir, trained, capsys):
+    """Issue 48 part 5: ``--data.init_args.seed_offset N`` generates the test probes into
+    data/tiny/seed_offset_<N> (never the training store), and the report, in a folder of its
+    own, records the offset in summary.json and summary.md's first line."""
+    run = copy_of(trained, workdir)
+    main(["test", "--config", CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt"),
+          "--data.init_args.seed_offset", "1000"])
+    fresh = Path("data/tiny/seed_offset_1000")
+    assert f"generating the test split of object_persistence under {fresh}" in (
+        capsys.readouterr().out)
+    assert sorted(path.name for path in Path("data/tiny").iterdir()) == [fresh.name]
+    assert not (run / "voe_report").exists()  # the place of the run's own report
+    [report] = [path for path in run.rglob("voe_report") if path.parent != run]
+    assert report.parent.name.startswith("data_data_tiny_seed_offset_1000-")
+    summary = json.loads((report / "summary.json").read_text())
+    assert summary["source"]["seed_offset"] == 1000
+    assert summary["source"]["probe_root"] == str(fresh)
+    assert (report / "summary.md").read_text().splitlines()[0] == (
+        f"Tested: checkpoint {run / 'checkpoints' / 'last.ckpt'} (step 1); the probes of "
+        f"{fresh} (seed offset 1000).")
+    seeds = PairResults.from_csv(report / "pairs.csv").seed
+    assert set(seeds.tolist()) == {2_000_001_000 + k for k in range(3)}
+
+
+def test_a_run_saved_before_an_argument_existed_resumes_without_it(tmp_path):
+    """A run's record (config.yaml) from before ``seed_offset`` is compared on what it holds:
+    the new argument is no difference, another value of an old one still is."""
+    from voe_lightning.runs import record_differences
+
+    saved = tmp_path / "config.yaml"
+    saved.write_text(yaml.safe_dump({"data": {"init_args": {"root": "data/tiny"}}}))
+    given = {"data": {"init_args": {"root": "data/tiny", "seed_offset": 0}}}
+    assert record_differences(saved, given) == []
+    given["data"]["init_args"]["root"] = "data/other"
+    assert record_differences(saved, given) == [
+        "data.init_args.root: the run trained with 'data/tiny', given 'data/other'"]

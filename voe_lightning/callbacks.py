@@ -304,7 +304,8 @@ class VOEReportCallback(L.Callback):
     test batch's pairs (``voe_lightning.cues``, on the batch's device), so the cue rows of
     cues.md/cues.csv share the model's pairs and n. Names are decoded with the
     ProbeDataModule's ``concept_names`` / ``variant_names``. summary.json's ``source`` names
-    the checkpoint tested, its global step, the DataModule, its data root and concepts.
+    the checkpoint tested, its global step, the DataModule, its data root (and seed offset and
+    probe store: ``ProbeDataModule.probe_source``) and concepts; summary.md's first line too.
     ``surprise_window`` (``surprise_window.surprise_window``: ``all``, the paper's, or
     ``{start: first_difference, frames: k}``) adds the tests of each video's surprise summed
     over that window beside those over all frames (None: all frames only; the CLI gives the
@@ -364,13 +365,13 @@ class VOEReportCallback(L.Callback):
 
     def _source(self, trainer: L.Trainer) -> dict[str, Any]:
         """What the report is made from: checkpoint (None: the model as built), its global
-        step, the DataModule's class, data root and the concepts of its test pairs."""
+        step, the DataModule's class, where its probes come from (``probe_source``: data root;
+        ours, the seed offset and probe store too) and the concepts of its test pairs."""
         datamodule = probe_datamodule(trainer, type(self).__name__)
-        root = getattr(datamodule, "hparams", {}).get("root")
         return {"checkpoint": str(trainer.ckpt_path) if trainer.ckpt_path else None,
                 "global_step": self._checkpoint_step if trainer.ckpt_path else None,
                 "datamodule": f"{type(datamodule).__module__}.{type(datamodule).__qualname__}",
-                "data_root": str(root) if root is not None else None,
+                **datamodule.probe_source(),
                 "concepts": sorted({concept for concept, _ in datamodule.probe_cases("test")})}
 
     def teardown(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:

@@ -412,9 +412,10 @@ def _report_folder(config: Any, checkpoint: Path, evaluation: dict[str, Any]) ->
         trained_args = trained["data"]["init_args"]
     except (OSError, yaml.YAMLError, KeyError, TypeError):
         trained_args = {}
-    return runs.report_folder(checkpoint, data_args.get("root"), runs.concepts_of(data_args),
-                              benchmark, trained_args.get("root"),
-                              runs.concepts_of(trained_args), evaluation)
+    return runs.report_folder(checkpoint, runs.probe_root(data_args),
+                              runs.concepts_of(data_args), benchmark,
+                              runs.probe_root(trained_args), runs.concepts_of(trained_args),
+                              evaluation)
 
 
 def _differences(given: Any, trained: dict) -> dict[str, Any]:

@@ -1,7 +1,9 @@
 """Generate the dataset store: per concept a train split of examples and controls and
 validation, test and generalization probe splits from disjoint seed ranges, planned as a
 deterministic list of shards that parallel worker processes render, resumably and in slices
-(``--shard_index/--num_shards``) for cluster job arrays. ``python -m voe_lightning generate``."""
+(``--shard_index/--num_shards``) for cluster job arrays; with a ``seed_offset``, a fresh draw of
+the probe splits into a store of their own (``store_plan.seed_offset_root``).
+``python -m voe_lightning generate``."""
 
 from __future__ import annotations
 
@@ -22,9 +24,11 @@ from voe_lightning.scenes import check_video, generate_clip, generate_probe
 from voe_lightning.scenes.camera import VideoOptions
 from voe_lightning.store_plan import (
     ShardTask,
+    check_seed_offset,
     check_task,
     plan_shards,
     record_layouts,
+    seed_offset_root,
     shard_meta,
     split_counts,
 )
@@ -95,13 +99,15 @@ def _remove_stale_temporaries(path: Path) -> None:
 # --- entry points -------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class _Request:
-    """A checked generate request: where, which video size, and the records of every split."""
+    """A checked generate request: where (the seed offset's store), which video size, the
+    records of every split and the probe splits' seed offset."""
 
     root: Path
     video: VideoOptions
     shard_size: int
     concept_counts: dict[str, dict[str, dict[str, int]]]
     entries: dict[str, dict]
+    seed_offset: int
 
 
 def _prepare(
@@ -116,8 +122,14 @@ def _prepare(
     num_frames,
     height,
     width,
+    seed_offset,
 ) -> _Request:
-    """Check generate's arguments (errors name the bad value and the valid choices)."""
+    """Check generate's arguments (errors name the bad value and the valid choices); a
+    ``train_examples`` of None is ``DEFAULT_TRAIN_EXAMPLES``, or none with a seed offset,
+    whose store holds probes only."""
+    check_seed_offset(seed_offset)
+    if train_examples is None:
+        train_examples = 0 if seed_offset else DEFAULT_TRAIN_EXAMPLES
     if isinstance(concepts, str):
         concepts = (concepts,)
     concepts = tuple(dict.fromkeys(concepts))
@@ -127,6 +139,12 @@ def _prepare(
         specs.check_concept(concept)
     if train_controls is None:
         train_controls = train_examples  # matched 1:1 as in the paper
+    if seed_offset and (train_examples or train_controls):
+        raise ValueError(
+            f"seed_offset {seed_offset} draws fresh probes only, into "
+            f"{seed_offset_root(root, seed_offset)} (the training clips are not shifted and stay "
+            f"in {root}); give train_examples 0 and train_controls 0, got {train_examples} and "
+            f"{train_controls}")
     counts = {
         "train_examples": train_examples,
         "train_controls": train_controls,
@@ -148,8 +166,10 @@ def _prepare(
             check_video(concept, num_frames=num_frames, height=height, width=width)
     _warn_of_shard_memory(video, shard_size)
     concept_counts = {concept: split_counts(concept, **counts) for concept in concepts}
-    entries = {concept: generate_manifest.concept_entry(c) for concept, c in concept_counts.items()}
-    return _Request(Path(root), video, shard_size, concept_counts, entries)
+    entries = {concept: generate_manifest.concept_entry(c, seed_offset)
+               for concept, c in concept_counts.items()}
+    return _Request(seed_offset_root(root, seed_offset), video, shard_size, concept_counts,
+                    entries, seed_offset)
 
 
 def _warn_of_shard_memory(video: VideoOptions, shard_size: int) -> None:
@@ -193,7 +213,7 @@ def _accepts_old_count_names(function):
 def generate_dataset(
     root: str | os.PathLike,
     concepts: Iterable[str] = specs.CONCEPTS,
-    train_examples: int = DEFAULT_TRAIN_EXAMPLES,
+    train_examples: int | None = None,
     train_controls: int | None = None,
     val_pairs: int = DEFAULT_VAL_PAIRS,
     test_pairs: int = DEFAULT_TEST_PAIRS,
@@ -208,8 +228,10 @@ def generate_dataset(
     overwrite: bool = False,
     progress: bool = True,
     splits: Iterable[str] = store.SPLITS,
+    seed_offset: int = 0,
 ) -> GenerationSummary:
-    """Generate (or complete, or repair) the store at ``root``. ``train_controls`` defaults to
+    """Generate (or complete, or repair) the store at ``root``. ``train_examples`` defaults to
+    ``DEFAULT_TRAIN_EXAMPLES`` (none with a ``seed_offset``); ``train_controls`` to
     ``train_examples`` (1:1 as in the paper), split evenly over the concept's control kinds;
     ``val_pairs``, ``test_pairs`` and ``generalization_pairs`` count probe pairs per concept and
     variant (the DataModules' and ``generate``'s names; ``*_pairs_per_variant``, their old names
@@ -219,7 +241,10 @@ def generate_dataset(
     ``shard_index, shard_index + num_shards, ...`` of the plan are made (a job array's slice).
     Only the shards of ``splits`` are made (the manifest still plans every split, so a later
     run with all splits completes the store). A root generated with other settings is refused
-    unless ``overwrite``."""
+    unless ``overwrite``. A ``seed_offset`` N shifts the probe splits' seeds by N (within
+    each split's billion-wide range) and puts them in a store of their own, ``root/
+    seed_offset_<N>`` (``store_plan.seed_offset_root``, the summary's ``root``), which holds
+    no training clips: a fresh test set that leaves the store at ``root`` untouched."""
     if not isinstance(num_shards, int) or num_shards < 1:
         raise ValueError(f"num_shards must be a positive integer, got {num_shards!r}")
     if not isinstance(shard_index, int) or not 0 <= shard_index < num_shards:
@@ -230,13 +255,14 @@ def generate_dataset(
     splits = _checked_splits(splits)
     request = _prepare(
         root, concepts, train_examples, train_controls, val_pairs, test_pairs,
-        generalization_pairs, shard_size, num_frames, height, width,
+        generalization_pairs, shard_size, num_frames, height, width, seed_offset,
     )  # fmt: skip
     root, video = request.root, request.video
     started = time.perf_counter()
     if root.exists() and not root.is_dir():
         raise NotADirectoryError(f"dataset root {root} exists and is not a directory")
-    generate_manifest.reconcile_manifest(root, video, shard_size, request.entries, overwrite)
+    generate_manifest.reconcile_manifest(root, video, shard_size, request.entries, overwrite,
+                                         request.seed_offset)
     tasks = _planned(request, splits)[shard_index::num_shards]
     layouts = record_layouts(video)
     todo, replaced = [], []
@@ -300,7 +326,8 @@ def ensure_dataset(root: str | os.PathLike, **options) -> GenerationSummary | No
     if _is_complete(request, splits):
         return None
     print(f"generating the {', '.join(splits)} split{'s' if len(splits) > 1 else ''} of "
-          f"{', '.join(request.concept_counts)} under {root} (missing or incomplete there)")
+          f"{', '.join(request.concept_counts)} under {request.root} (missing or incomplete "
+          "there)")
     return generate_dataset(root, **options)
 
 
@@ -314,7 +341,8 @@ def _checked_splits(splits: Iterable[str]) -> list[str]:
 
 def _planned(request: "_Request", splits: Sequence[str]) -> list[ShardTask]:
     """The planned shards of ``splits``."""
-    return [task for task in plan_shards(request.concept_counts, request.shard_size)
+    return [task for task in plan_shards(request.concept_counts, request.shard_size,
+                                         request.seed_offset)
             if task.split in splits]
 
 
@@ -322,7 +350,8 @@ def _is_complete(request: "_Request", splits: Sequence[str]) -> bool:
     """Whether the store holds every planned shard of ``splits``, intact (checksums included:
     a corrupt record must be repaired before training, not met in the middle of it)."""
     manifest = store.read_manifest(request.root)
-    if not generate_manifest.matches(manifest, request.video, request.shard_size, request.entries):
+    if not generate_manifest.matches(manifest, request.video, request.shard_size,
+                                     request.entries, request.seed_offset):
         return False
     layouts = record_layouts(request.video)
     for task in _planned(request, splits):
@@ -337,7 +366,7 @@ def _is_complete(request: "_Request", splits: Sequence[str]) -> bool:
 def generate(
     root: Path,
     concepts: list[specs.Concept] = list(specs.CONCEPTS),
-    train_examples: int = DEFAULT_TRAIN_EXAMPLES,
+    train_examples: int | None = None,
     train_controls: int | None = None,
     val_pairs: int = DEFAULT_VAL_PAIRS,
     test_pairs: int = DEFAULT_TEST_PAIRS,
@@ -352,6 +381,7 @@ def generate(
     overwrite: bool = False,
     contact_sheets: bool = False,
     progress: bool = True,
+    seed_offset: int = 0,
 ) -> GenerationSummary:
     """Render the concepts' training clips and probe pairs into a sharded store.
 
@@ -361,7 +391,8 @@ def generate(
     Args:
         root: dataset folder.
         concepts: concepts to generate.
-        train_examples: training examples per concept.
+        train_examples: training examples per concept (default 10,000; none with a
+            seed_offset).
         train_controls: training controls per concept, split evenly over its control kinds
             (default: as many as examples).
         val_pairs: validation probe pairs per concept and variant.
@@ -377,12 +408,16 @@ def generate(
         overwrite: delete data generated with other settings instead of refusing.
         contact_sheets: write ROOT/contact_sheets/<concept>.png from the store at the end.
         progress: show a progress bar.
+        seed_offset: shift the probe splits' seeds by this much (0 to 999,999,999 less the
+            pairs per variant) for a fresh test set no one has seen, written to its own store,
+            ROOT/seed_offset_<N> (probes only; printed).
     """
     summary = generate_dataset(
         root, concepts, train_examples, train_controls, val_pairs=val_pairs,
         test_pairs=test_pairs, generalization_pairs=generalization_pairs,
         shard_size=shard_size, workers=workers, num_frames=num_frames, height=height, width=width,
         shard_index=shard_index, num_shards=num_shards, overwrite=overwrite, progress=progress,
+        seed_offset=seed_offset,
     )  # fmt: skip
     print(
         f"{summary.root}: {summary.shards_generated} shards generated "
@@ -393,7 +428,7 @@ def generate(
         from voe_lightning.contact_sheet import write_store_sheet
 
         for concept in dict.fromkeys(concepts):
-            path = Path(root) / "contact_sheets" / f"{concept}.png"
-            write_store_sheet(root, concept, path)
+            path = summary.root / "contact_sheets" / f"{concept}.png"
+            write_store_sheet(summary.root, concept, path)
             print(f"wrote {path}")
     return summary

@@ -1,5 +1,5 @@
 """The manifest a ``generate`` run writes (docs/architecture.md §5): its settings (format, video,
-shard size, seed ranges, vocabulary), generator and package versions, record specs and each
+shard size, seed ranges and the probe splits' seed offset, vocabulary), generator and package versions, record specs and each
 concept's splits; how it merges with the manifest already stored (refusing other settings unless
 told to overwrite, which deletes the data they invalidate), and whether a stored manifest is the
 one a request would write."""
@@ -13,7 +13,7 @@ from pathlib import Path
 import voe_lightning
 from voe_lightning import specs, store, store_plan
 from voe_lightning.scenes.camera import VideoOptions
-from voe_lightning.store_plan import SEED_STARTS
+from voe_lightning.store_plan import SEED_STARTS, manifest_seed_offset, seed_range
 from voe_lightning.store_shards import FORMAT
 
 
@@ -35,34 +35,41 @@ def _describe_spec(spec) -> dict:
     return described
 
 
-def concept_entry(counts: dict[str, dict[str, int]]) -> dict:
+def concept_entry(counts: dict[str, dict[str, int]], seed_offset: int = 0) -> dict:
+    """A concept's manifest entry: per split its record type, count, seeds (``seed_range``,
+    the probe splits' shifted by ``seed_offset``) and counts per kind or variant."""
     splits = {}
     for split in store.SPLITS:
-        count = sum(counts[split].values())
         clips = store.SPLIT_RECORD_TYPE[split] == "clip"
-        key = "kinds" if clips else "variants"
-        seeds = count if clips else max(counts[split].values(), default=0)  # store_plan.split_seeds
+        start, stop = seed_range(split, counts[split], seed_offset)
         splits[split] = {
             "record_type": store.SPLIT_RECORD_TYPE[split],
-            "count": count,
-            "seed_start": SEED_STARTS[split],
-            "seed_stop": SEED_STARTS[split] + seeds,
-            key: counts[split],
+            "count": sum(counts[split].values()),
+            "seed_start": start,
+            "seed_stop": stop,
+            "kinds" if clips else "variants": counts[split],
         }
     return {"splits": splits}
 
 
-def _settings(video: VideoOptions, shard_size: int) -> dict:
+def _settings(video: VideoOptions, shard_size: int, seed_offset: int) -> dict:
     return {
         "format": FORMAT,
         "video": dataclasses.asdict(video),
         "shard_size": shard_size,
         "seed_starts": SEED_STARTS,
+        "seed_offset": seed_offset,
         "vocabulary": store.vocabulary(),
     }
 
 
-_SETTING_KEYS = ("format", "video", "shard_size", "seed_starts", "vocabulary")
+_SETTING_KEYS = ("format", "video", "shard_size", "seed_starts", "seed_offset", "vocabulary")
+
+
+def _stored_settings(manifest: dict) -> dict:
+    """The settings a stored manifest records (a manifest before offsets: seed offset 0)."""
+    return {**{k: manifest.get(k) for k in _SETTING_KEYS},
+            "seed_offset": manifest_seed_offset(manifest)}
 
 
 def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
@@ -75,21 +82,23 @@ def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
 
 
 def reconcile_manifest(
-    root: Path, video: VideoOptions, shard_size: int, entries: dict[str, dict], overwrite: bool
+    root: Path, video: VideoOptions, shard_size: int, entries: dict[str, dict], overwrite: bool,
+    seed_offset: int = 0,
 ) -> dict:
     """The manifest for this run: the stored one, extended with new concepts, or a new one.
     Refuses other settings for what is stored unless ``overwrite``, which deletes the data
     they invalidate (every concept if the video or shard settings changed). Read, merged and
     written under the root's manifest lock, so concurrent runs keep each other's concepts."""
     with store.manifest_lock(root):
-        return _reconcile_locked(root, video, shard_size, entries, overwrite)
+        return _reconcile_locked(root, video, shard_size, entries, overwrite, seed_offset)
 
 
 def _reconcile_locked(
-    root: Path, video: VideoOptions, shard_size: int, entries: dict[str, dict], overwrite: bool
+    root: Path, video: VideoOptions, shard_size: int, entries: dict[str, dict], overwrite: bool,
+    seed_offset: int,
 ) -> dict:
     """``reconcile_manifest``'s work, with the manifest lock held."""
-    settings = _settings(video, shard_size)
+    settings = _settings(video, shard_size, seed_offset)
     try:
         old = store.read_manifest(root)
     except store.ManifestError:
@@ -97,7 +106,7 @@ def _reconcile_locked(
             raise
         old = None  # replaced; the shards are checked against the new plan one by one
     if old is not None:
-        setting_changes = _differences({k: old.get(k) for k in _SETTING_KEYS}, settings)
+        setting_changes = _differences(_stored_settings(old), settings)
         changed = {
             c for c in entries if c in old["concepts"] and old["concepts"][c] != entries[c]
         }
@@ -106,7 +115,8 @@ def _reconcile_locked(
         ]
         if setting_changes or concept_changes:
             if not overwrite:
-                derived = (".count:", ".seed_stop:")  # follow from the per-kind counts
+                # follow from the per-kind counts and the seed offset
+                derived = (".count:", ".seed_start:", ".seed_stop:")
                 shown = [d for d in setting_changes + concept_changes if not any(s in d for s in derived)]
                 raise ManifestMismatchError(
                     f"{root / store.MANIFEST_NAME} was generated with other settings:\n  "
@@ -138,11 +148,12 @@ def _reconcile_locked(
 
 
 
-def matches(manifest: dict | None, video: VideoOptions, shard_size: int, entries: dict[str, dict]) -> bool:
+def matches(manifest: dict | None, video: VideoOptions, shard_size: int,
+            entries: dict[str, dict], seed_offset: int = 0) -> bool:
     """Whether the stored ``manifest`` is what a request of these settings and concept
     ``entries`` would write, at this ``GENERATOR_VERSION`` (None, no manifest, never is)."""
     if manifest is None or manifest.get("generator_version") != store_plan.GENERATOR_VERSION:
         return False
-    if _differences({k: manifest.get(k) for k in _SETTING_KEYS}, _settings(video, shard_size)):
+    if _differences(_stored_settings(manifest), _settings(video, shard_size, seed_offset)):
         return False
     return all(manifest["concepts"].get(c) == e for c, e in entries.items())

@@ -5,7 +5,7 @@ without them is refused at once instead of being decoded with the wrong vocabula
 from __future__ import annotations
 
 from abc import ABCMeta, abstractmethod
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import lightning as L
 
@@ -30,6 +30,13 @@ class ProbeDataModule(L.LightningDataModule, metaclass=ABCMeta):
     @abstractmethod
     def probe_cases(self, split: str = "val") -> list[tuple[str, str]]:
         """The (concept, variant) pairs whose probes ``split`` holds."""
+
+    def probe_source(self) -> dict[str, Any]:
+        """Where this DataModule's probe pairs come from, for the report's ``source``: its
+        data root (``hparams.root``, None where it has none); a DataModule that draws its
+        probes elsewhere says where (``VOEDataModule``: its seed offset and probe store)."""
+        root = getattr(self, "hparams", {}).get("root")
+        return {"data_root": str(root) if root is not None else None}
 
     def external_pairs(self) -> ExternalPairs | None:
         """What an external benchmark's own evaluation needs of this DataModule's test pairs

@@ -18,6 +18,8 @@ import torch
 import yaml
 from lightning.pytorch.cli import SaveConfigCallback
 
+from voe_lightning.store_plan import seed_offset_root
+
 #: ``--ckpt_path`` words that name a checkpoint of the newest run of the config's logger name.
 RUN_CHECKPOINT_WORDS = ("last", "best")
 #: ``--ckpt_path`` words Lightning resolves itself (a SLURM requeue's, a model registry's).
@@ -97,6 +99,16 @@ def concepts_of(data_arguments: Any) -> tuple[str, ...] | None:
     return tuple(sorted(str(concept) for concept in concepts)) if concepts is not None else None
 
 
+def probe_root(data_arguments: Any) -> str | None:
+    """Where a DataModule's init arguments have its probes read: their ``root``, or the store
+    of their ``seed_offset`` under it (``store_plan.seed_offset_root``), so a re-test on fresh
+    probes gets a report folder of its own; None when they name no root."""
+    if not data_arguments or data_arguments.get("root") is None:
+        return None
+    seed_offset = data_arguments.get("seed_offset") or 0
+    return str(seed_offset_root(data_arguments["root"], seed_offset))
+
+
 def report_folder(checkpoint: Path, root: str | None, concepts: Iterable[str] | None,
                   benchmark: str | None, trained_root: str | None,
                   trained_concepts: Iterable[str] | None,
@@ -142,7 +154,9 @@ RECORD_SECTIONS = ("data",)
 def record_differences(run_config: Path, given: Mapping[str, Any]) -> list[str]:
     """'key: the run trained with X, given Y' for each value of ``RECORD_SECTIONS`` in the
     ``given`` config (a plain dict, as saved) that the run's saved ``run_config`` holds
-    otherwise, by dotted key; none where the run saved no readable config."""
+    otherwise, by dotted key; none where the run saved no readable config. A key the record
+    lacks is an argument added since the run was saved (a DataModule's ``seed_offset``), which
+    it ran without, and is not compared."""
     try:
         saved = yaml.safe_load(run_config.read_text())
     except (OSError, yaml.YAMLError):
@@ -154,7 +168,7 @@ def record_differences(run_config: Path, given: Mapping[str, Any]) -> list[str]:
     new = {key: value for section in RECORD_SECTIONS
            for key, value in _flat(given.get(section), section).items()}
     return [f"{key}: the run trained with {old.get(key)!r}, given {new.get(key)!r}"
-            for key in sorted(set(old) | set(new)) if old.get(key) != new.get(key)]
+            for key in sorted(old) if old[key] != new.get(key)]
 
 
 def _flat(value: Any, prefix: str) -> dict[str, Any]:

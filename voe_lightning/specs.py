@@ -35,15 +35,17 @@ QUADRUPLET = "quadruplet"
 #: the probe variants whose pairs of one seed are (A, AB) and (B, BA) of one scene draw, so that
 #: after the change each pair's inconsistent video is the other's consistent one, byte for byte.
 #: A concept's verdict is the quadruplet test of each of its quadruplets.
+#: The two halves of a concept with one quadruplet (and of a benchmark's quadruplets).
+QUADRUPLET_VARIANTS: tuple[str, str] = ("standard", "counterbalanced")
 QUADRUPLETS: dict[str, dict[str, tuple[str, str]]] = {
-    "object_persistence": {QUADRUPLET: ("standard", "counterbalanced")},
+    "object_persistence": {QUADRUPLET: QUADRUPLET_VARIANTS},
     "unchangeableness": {
         f"{change}_{QUADRUPLET}": (change, f"{change}_counterbalanced")
         for change in UNCHANGEABLENESS_CHANGES
     },
-    "continuity": {QUADRUPLET: ("standard", "counterbalanced")},
-    "solidity": {QUADRUPLET: ("standard", "counterbalanced")},
-    "containment": {QUADRUPLET: ("standard", "counterbalanced")},
+    "continuity": {QUADRUPLET: QUADRUPLET_VARIANTS},
+    "solidity": {QUADRUPLET: QUADRUPLET_VARIANTS},
+    "containment": {QUADRUPLET: QUADRUPLET_VARIANTS},
 }
 #: Concepts whose verdict is read from quadruplets.
 QUADRUPLET_CONCEPTS: tuple[str, ...] = tuple(QUADRUPLETS)

@@ -22,6 +22,9 @@ SEED_STARTS: dict[str, int] = {
     "generalization": 3_000_000_000,
 }
 SEED_RANGE = 1_000_000_000
+#: Folder, under a store's root, of the store whose probe splits are shifted by a seed offset
+#: (``seed_offset_root``): a fresh test set beside the training data, never over it.
+SEED_OFFSET_FOLDER = "seed_offset_{}"
 
 #: Version of the stimuli the scenes render. Bump it whenever a scene change alters what a
 #: (concept, kind or variant, seed) renders or records: every shard carries it, and shards of
@@ -49,6 +52,7 @@ class ShardTask:
     split: str
     index: int
     items: tuple[tuple[str, int], ...]
+    seed_offset: int = 0
 
     def path(self, root: str | os.PathLike) -> Path:
         return store.shard_path(root, self.concept, self.split, self.index)
@@ -102,32 +106,77 @@ def split_counts(
     }
 
 
-def split_seeds(split: str, names: Sequence[str]) -> list[int]:
+def check_seed_offset(seed_offset: object, pairs: dict[str, int] | None = None) -> None:
+    """Raise a ValueError unless ``seed_offset`` is an integer in [0, SEED_RANGE): a probe
+    split's seeds start that far into its billion-wide range; with ``pairs`` (probe split ->
+    pairs per variant), unless each split's pairs fit in what is left (``seed_range``)."""
+    if (isinstance(seed_offset, bool) or not isinstance(seed_offset, int)
+            or not 0 <= seed_offset < SEED_RANGE):
+        raise ValueError(f"seed_offset must be an integer in [0, {SEED_RANGE - 1:_}] (each "
+                         f"split's seeds span {SEED_RANGE:_}), got {seed_offset!r}")
+    for split, count in (pairs or {}).items():
+        seed_range(split, {"pairs": count}, seed_offset)
+
+
+def seed_offset_root(root: str | os.PathLike, seed_offset: int) -> Path:
+    """The store holding the probe splits drawn at ``seed_offset``: ``root`` itself for 0,
+    else its own store in ``root/seed_offset_<N>`` (probes only: the training clips are the
+    root's), so a fresh test set never touches the store a model was trained and tuned on."""
+    check_seed_offset(seed_offset)
+    return Path(root) / SEED_OFFSET_FOLDER.format(seed_offset) if seed_offset else Path(root)
+
+
+def seed_range(split: str, counts: dict[str, int], seed_offset: int = 0) -> tuple[int, int]:
+    """[start, stop) of the seeds ``split_seeds`` gives the records of ``split`` with these
+    per kind or variant ``counts``: clips count up from the split's first seed, probes per
+    variant from it plus ``seed_offset``. A ValueError naming the limit when they would leave
+    the split's billion-wide range (into another split's seeds)."""
+    clips = store.SPLIT_RECORD_TYPE[split] == "clip"
+    start = SEED_STARTS[split] + (0 if clips else seed_offset)
+    stop = start + (sum(counts.values()) if clips else max(counts.values(), default=0))
+    limit = SEED_STARTS[split] + SEED_RANGE
+    if stop > limit:
+        raise ValueError(
+            f"the {split} split would need seeds up to {stop - 1:_} (seed_offset "
+            f"{0 if clips else seed_offset:_}, {stop - start:_} records"
+            f"{'' if clips else ' per variant'}), past the last seed of its range, {limit - 1:_}: "
+            f"seed_offset plus the count must be at most {SEED_RANGE:_}")
+    return start, stop
+
+
+def split_seeds(split: str, names: Sequence[str], seed_offset: int = 0) -> list[int]:
     """The seed of each record of ``split`` (clip kinds or probe variants, in plan order):
-    clips count up from the split's first seed; probes count up per variant, so the k-th pair
-    of every variant has the same seed and the variants' pairs of one seed form a quadruplet
-    (docs/architecture.md §4)."""
+    clips count up from the split's first seed; probes count up per variant from it plus
+    ``seed_offset`` (a fresh draw of the probes), so the k-th pair of every variant has the
+    same seed and the variants' pairs of one seed form a quadruplet (docs/architecture.md §4)."""
     if store.SPLIT_RECORD_TYPE[split] == "clip":
         return [SEED_STARTS[split] + i for i in range(len(names))]
     seen = dict.fromkeys(names, 0)
     seeds = []
     for name in names:
-        seeds.append(SEED_STARTS[split] + seen[name])
+        seeds.append(SEED_STARTS[split] + seed_offset + seen[name])
         seen[name] += 1
     return seeds
 
 
-def plan_shards(concept_counts: dict[str, dict[str, dict[str, int]]], shard_size: int) -> list[ShardTask]:
-    """The deterministic list of every shard of the dataset, concept by concept, split by split."""
+def plan_shards(concept_counts: dict[str, dict[str, dict[str, int]]], shard_size: int,
+                seed_offset: int = 0) -> list[ShardTask]:
+    """The deterministic list of every shard of the dataset, concept by concept, split by
+    split; the probe splits' seeds shifted by ``seed_offset`` (``seed_range`` checks they stay
+    in their split's range)."""
     tasks = []
     for concept, counts in concept_counts.items():
         for split in store.SPLITS:
+            offset = 0 if store.SPLIT_RECORD_TYPE[split] == "clip" else seed_offset
+            try:
+                seed_range(split, counts[split], offset)
+            except ValueError as error:
+                raise ValueError(f"{concept}: {error}") from None
             names = interleave(counts[split])
-            if len(names) > SEED_RANGE:
-                raise ValueError(f"{split} of {concept} would need more than {SEED_RANGE} seeds")
-            items = list(zip(names, split_seeds(split, names)))
+            items = list(zip(names, split_seeds(split, names, offset)))
             for index, start in enumerate(range(0, len(items), shard_size)):
-                tasks.append(ShardTask(concept, split, index, tuple(items[start : start + shard_size])))
+                tasks.append(ShardTask(concept, split, index,
+                                       tuple(items[start : start + shard_size]), offset))
     return tasks
 
 
@@ -140,7 +189,15 @@ def shard_meta(task: ShardTask) -> dict:
         "record_type": store.SPLIT_RECORD_TYPE[task.split],
         "names": [name for name, _ in task.items],
         "generator_version": GENERATOR_VERSION,
+        # Only where there is one: the shards of every store made before offsets stay valid.
+        **({"seed_offset": task.seed_offset} if task.seed_offset else {}),
     }
+
+
+def manifest_seed_offset(manifest: dict) -> int:
+    """The seed offset a manifest's probe splits were drawn at (0 where it records none, as
+    every manifest before offsets)."""
+    return manifest.get("seed_offset", 0)
 
 
 def record_layouts(video: VideoOptions) -> dict[str, dict]:
@@ -181,7 +238,8 @@ def manifest_plan(manifest: dict) -> tuple[list[ShardTask], VideoOptions]:
                 # JSON sorted the names; the plan interleaves them in their canonical order
                 order = [n for n in canonical[split] if n in stored] + sorted(set(stored) - set(canonical[split]))
                 concept_counts[concept][split] = {name: stored[name] for name in order}
-        return plan_shards(concept_counts, manifest["shard_size"]), video
+        return (plan_shards(concept_counts, manifest["shard_size"], manifest_seed_offset(manifest)),
+                video)
     except (KeyError, TypeError, AttributeError, ValueError) as error:
         raise store.ManifestError(
             f"the manifest describes no valid plan ({type(error).__name__}: {error}); "

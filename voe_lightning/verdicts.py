@@ -62,21 +62,32 @@ def pair_groups(
 
 def quadruplets(concepts: Sequence[str], variants: Sequence[str], seeds: Sequence[int]
                 ) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
-    """(concept, row, first, second) for every quadruplet of ``specs.QUADRUPLETS`` among the
-    pairs: the row indices of its first-half (A, AB) and second-half (B, BA) pairs of every seed
-    both hold, in seed order; a seed names a quadruplet. A seed twice in one variant is refused
-    (the pairs of two splits mixed)."""
+    """(concept, row, first, second) for every quadruplet among the pairs: the row indices of its
+    first-half (A, AB) and second-half (B, BA) pairs of every seed both hold, in seed order; a
+    seed names a quadruplet. Ours are ``specs.QUADRUPLETS``; any other concept (a benchmark's,
+    whose reader names its quadruplets' halves so, docs/benchmarks.md) has one, row
+    ``quadruplet``, where its standard and counterbalanced pairs share seeds. A seed twice in
+    one variant is refused (the pairs of two splits mixed)."""
     concepts, variants = (np.asarray(x, dtype=object) for x in (concepts, variants))
     seeds = np.asarray(seeds, dtype=np.int64)
+    present = list(dict.fromkeys(concepts.tolist()))
+    ours = [c for c in specs.QUADRUPLETS if c in present]
     matched = []
-    for concept in [c for c in specs.QUADRUPLETS if c in set(concepts.tolist())]:
-        for row, halves in specs.QUADRUPLETS[concept].items():
+    for concept in ours + [c for c in present if c not in specs.QUADRUPLETS]:
+        for row, halves in quadruplets_of(concept).items():
             by_seed = [_rows_by_seed(concepts, variants, seeds, concept, v) for v in halves]
             common = sorted(set(by_seed[0]) & set(by_seed[1]))
             if common:
                 matched.append((concept, row, *(np.array([half[s] for s in common], dtype=np.int64)
                                                 for half in by_seed)))
     return matched
+
+
+def quadruplets_of(concept: str) -> dict[str, tuple[str, str]]:
+    """A concept's quadruplets, row name -> its two halves: ours from ``specs.QUADRUPLETS``,
+    any other concept's (a benchmark's) one ``quadruplet`` of its standard and counterbalanced
+    pairs."""
+    return specs.QUADRUPLETS.get(concept, {specs.QUADRUPLET: specs.QUADRUPLET_VARIANTS})
 
 
 def _rows_by_seed(concepts: np.ndarray, variants: np.ndarray, seeds: np.ndarray, concept: str,
@@ -133,17 +144,17 @@ def _quadruplet_verdict(concept: str, results: Mapping[tuple[str, str], Mapping[
                         alpha: float) -> Verdict:
     """The verdict of a concept from its quadruplet rows (``quadruplet_rule`` on each of
     ``specs.QUADRUPLETS[concept]``; all must pass)."""
-    quadruplets_of = specs.QUADRUPLETS[concept]
-    several = len(quadruplets_of) > 1
+    rows = quadruplets_of(concept)
+    several = len(rows) > 1
     rule = (f"p < {alpha:g} in the quadruplet test{' of each change' if several else ''}, "
             "both halves M > 0")
-    untested = [row for row in quadruplets_of if results.get((concept, row), {}).get("p_value")
+    untested = [row for row in rows if results.get((concept, row), {}).get("p_value")
                 is None]
     if untested:
         return Verdict(concept, None, rule, f"no test of {', '.join(untested)} (needs >= 2 "
                        "quadruplets each)")
     failed, voe = [], True
-    for row, halves in quadruplets_of.items():
+    for row, halves in rows.items():
         p_value = results[(concept, row)]["p_value"]
         means = (results[(concept, row)]["first_half"], results[(concept, row)]["second_half"])
         voe &= bool(quadruplet_rule(p_value, *means, alpha))
@@ -172,7 +183,7 @@ def concept_verdicts(
         results = {(row["concept"], row["variant"]): row for row in results}
     verdicts = []
     for concept in dict.fromkeys(concept for concept, _ in results):
-        if any((concept, row) in results for row in specs.QUADRUPLETS.get(concept, ())):
+        if any((concept, row) in results for row in quadruplets_of(concept)):
             verdicts.append(_quadruplet_verdict(concept, results, alpha))
             continue
         present = [v for c, v in results if c == concept and v != POOLED]

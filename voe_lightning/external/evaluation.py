@@ -8,10 +8,11 @@ which split, each pair's metadata, what was skipped); the evaluation is here, so
 asking the data layer to compute anything.
 
 - IntPhys: ``metrics.grouped_metrics`` per block (and visible / occluded) over quadruplets,
-  a pair's quadruplet being ``seed // 2``;
+  a pair's quadruplet being its ``seed`` (as in our stores; its variant names the half);
 - DeepMind Physical Concepts: the same per concept;
 - IntPhys 2: ``metrics.intphys2_metrics`` per principle and per principle x difficulty x
-  camera, and videos.csv (one row per scored video).
+  camera, and videos.csv (one row per scored video), a pair found by its seed (its scene) and
+  variant (its half).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import numpy as np
 import torch
 
 from voe_lightning.external.intphys import BLOCKS as INTPHYS_BLOCKS
+from voe_lightning.external.intphys2 import VARIANT_NAMES as INTPHYS2_HALVES
 from voe_lightning.external.metrics import (
     grouped_metrics,
     incomplete_quadruplets,
@@ -37,8 +39,8 @@ __all__ = ["BENCHMARKS", "VIDEO_COLUMNS", "ExternalPairs", "evaluate", "external
            "external_metrics"]
 
 #: Columns of IntPhys 2's videos.csv, one row per scored video.
-VIDEO_COLUMNS = ("name", "principle", "difficulty", "camera", "label", "pair", "surprise_mean",
-                 "surprise_max")
+VIDEO_COLUMNS = ("name", "principle", "difficulty", "camera", "label", "seed", "half",
+                 "surprise_mean", "surprise_max")
 
 
 @dataclass(frozen=True)
@@ -46,7 +48,7 @@ class ExternalPairs:
     """What an external benchmark's evaluation needs beyond the probe outputs: ``benchmark``
     (a key of ``BENCHMARKS``), the DataModule's ``concept_names``, the evaluated ``split``
     (None where the benchmark has one), the pairs' metadata ``table`` (IntPhys: quadruplet
-    index -> {block, variant, ambiguous_pairing, ...}; IntPhys 2: pair seed -> {principle,
+    index -> {block, condition, ambiguous_pairing, ...}; IntPhys 2: (seed, half) -> {principle,
     difficulty, camera, possible, impossible, ...}; none for Physical Concepts) and the
     ``skipped`` input counts per reason."""
 
@@ -62,14 +64,15 @@ def _intphys(pairs: ExternalPairs, outputs: Mapping[str, Any], **options: Any) -
     a movie's surprise is its sum over frames; ``options`` go to
     ``metrics.quadruplet_metrics`` (alpha, bootstrap)."""
     seeds, possible, impossible = pair_surprise(outputs)
-    quadruplet = seeds // 2
+    quadruplet = seeds
     for seed in seeds.tolist():
-        if seed // 2 not in pairs.table:
-            raise KeyError(f"seed {seed} names no IntPhys {pairs.split} probe pair")
+        if seed not in pairs.table:
+            raise KeyError(f"seed {seed} names no IntPhys {pairs.split} quadruplet")
     entries = [pairs.table[q] for q in quadruplet.tolist()]
     groups = [pairs.concept_names[INTPHYS_BLOCKS.index(e["block"])] for e in entries]
     visibility = [
-        e["variant"].split("_")[0] if e["variant"] != "unspecified" else None for e in entries
+        e["condition"].split("_")[0] if e["condition"] != "unspecified" else None
+        for e in entries
     ]
     return {
         "benchmark": pairs.benchmark,
@@ -90,7 +93,7 @@ def _physical_concepts(pairs: ExternalPairs, outputs: Mapping[str, Any],
     definitions) and the paired t-test over matched pairs."""
     seeds, possible, impossible = pair_surprise(outputs)
     concepts = [pairs.concept_names[c] for c in torch.as_tensor(outputs["concept"]).tolist()]
-    quadruplet = seeds // 2
+    quadruplet = seeds
     return {
         "benchmark": pairs.benchmark,
         "metrics": grouped_metrics(concepts, quadruplet, possible, impossible, **options),
@@ -99,12 +102,18 @@ def _physical_concepts(pairs: ExternalPairs, outputs: Mapping[str, Any],
     }
 
 
+def _intphys2_keys(outputs: Mapping[str, Any]) -> list[tuple[int, str]]:
+    """Each scored pair's (seed: its scene, half: its variant's name)."""
+    return [(int(seed), INTPHYS2_HALVES[int(variant)])
+            for seed, variant in zip(outputs["seed"], outputs["variant"])]
+
+
 def _intphys2_entries(pairs: ExternalPairs, outputs: Mapping[str, Any]) -> list[Mapping[str, Any]]:
-    seeds = [int(seed) for seed in outputs["seed"]]
-    unknown = [seed for seed in seeds if seed not in pairs.table]
+    keys = _intphys2_keys(outputs)
+    unknown = [key for key in keys if key not in pairs.table]
     if unknown:
-        raise KeyError(f"seeds {unknown[:5]} name no IntPhys 2 {pairs.split} pair")
-    return [pairs.table[seed] for seed in seeds]
+        raise KeyError(f"(seed, half) {unknown[:5]} name no IntPhys 2 {pairs.split} pair")
+    return [pairs.table[key] for key in keys]
 
 
 def _intphys2(pairs: ExternalPairs, outputs: Mapping[str, Any], **options: Any) -> dict[str, Any]:
@@ -125,19 +134,22 @@ def _intphys2(pairs: ExternalPairs, outputs: Mapping[str, Any], **options: Any) 
 
 
 def _intphys2_files(pairs: ExternalPairs, outputs: Mapping[str, Any]) -> dict[str, str]:
-    """videos.csv: one row per scored video (``VIDEO_COLUMNS``), ``pair`` its pair's seed and
-    ``label`` possible or impossible, surprise the mean and max over its frames."""
+    """videos.csv: one row per scored video (``VIDEO_COLUMNS``), ``seed`` and ``half`` its
+    pair's (its scene's index and standard or counterbalanced), ``label`` possible or
+    impossible, surprise the mean and max over its frames."""
     text = io.StringIO()
     writer = csv.DictWriter(text, VIDEO_COLUMNS, lineterminator="\n")
     writer.writeheader()
-    for seed, entry, *sides in zip(outputs["seed"], _intphys2_entries(pairs, outputs),
-                                   outputs["surprise_consistent"],
-                                   outputs["surprise_inconsistent"]):
+    for (seed, half), entry, *sides in zip(_intphys2_keys(outputs),
+                                           _intphys2_entries(pairs, outputs),
+                                           outputs["surprise_consistent"],
+                                           outputs["surprise_inconsistent"]):
         for label, frames in zip(("possible", "impossible"), sides):
             writer.writerow({
                 "name": entry[label], "principle": entry["principle"],
                 "difficulty": entry["difficulty"], "camera": entry["camera"], "label": label,
-                "pair": int(seed), "surprise_mean": float(np.mean(frames, dtype=np.float64)),
+                "seed": seed, "half": half,
+                "surprise_mean": float(np.mean(frames, dtype=np.float64)),
                 "surprise_max": float(np.max(frames))})
     return {"videos.csv": text.getvalue()}
 

@@ -8,7 +8,12 @@ quadruplet of two possible and two impossible movies; every possible movie is pa
 impossible movie it shares the longest prefix with, and the pair becomes one of our probe
 records (consistent = possible, inconsistent = impossible, ``manipulation_frame`` = first
 sampled frame where the two differ: the first *visible* difference, since the impossible event
-itself may be hidden), its ``seed`` is ``2 * quadruplet_index + pair``. Single movies
+itself may be hidden). The quadruplet is exposed as our stores expose theirs: both pairs carry
+``seed = quadruplet_index`` and the variant names the half, ``standard`` for the pair of the
+scene's first possible movie (A, AB) and ``counterbalanced`` for the second's (B, BA), so
+reports test it by ``statistics.quadruplet_test`` (IntPhys splices each impossible movie from the
+possible ones; the halves name no direction of the violation, only folder order). The scene's
+condition (``CONDITIONS``) is in its pairing table entry. Single movies
 (``MovieDataset``) are what ``predict`` scores into the challenge's answer.txt.
 """
 
@@ -46,11 +51,16 @@ CONCEPT_NAMES: tuple[str, ...] = (
 )
 #: Conditions encoded in scene folder names (``0027_O1_test_visible_static_nobj3``); scenes
 #: named by a bare number (the 2019 release) are ``unspecified``.
-VARIANT_NAMES: tuple[str, ...] = tuple(
+CONDITIONS: tuple[str, ...] = tuple(
     f"{visibility}_{motion}"
     for visibility in ("occluded", "visible")
     for motion in ("static", "dynamic_1", "dynamic_2")
 ) + ("unspecified",)
+#: Variant vocabulary of IntPhys probe records: the two halves of a scene's quadruplet.
+VARIANT_NAMES: tuple[str, ...] = specs.QUADRUPLET_VARIANTS
+#: What a probe record's seed and variant mean (cached records of another are decoded again):
+#: 2, the quadruplet index and the half; 1 was ``2 * quadruplet_index + pair``, the condition.
+RECORD_VERSION = 2
 MOVIES: tuple[str, ...] = ("1", "2", "3", "4")
 SPLITS: tuple[str, ...] = ("train", "dev", "test")
 _CONDITION = re.compile(r"(visible|occluded)_(static|dynamic_1|dynamic_2)")
@@ -72,7 +82,7 @@ class Quadruplet:
     index: int
     block: str
     scene: str
-    variant: str
+    condition: str
     movies: tuple[Movie, ...]
 
 
@@ -167,7 +177,8 @@ def read_movie(movie: Path, indices: Sequence[int]) -> np.ndarray:
     return np.stack(frames)
 
 
-def variant_of(scene: str) -> str:
+def condition_of(scene: str) -> str:
+    """The condition a scene folder's name encodes (``CONDITIONS``)."""
     match = _CONDITION.search(scene)
     return f"{match[1]}_{match[2]}" if match else "unspecified"
 
@@ -241,7 +252,8 @@ def _scan_scene(
                 "(header.is_possible); expected 2 and 2",
                 "wrong_label_count",
             )
-    return Quadruplet(index, block, f"{block}/{scene.name}", variant_of(scene.name), tuple(movies))
+    return Quadruplet(index, block, f"{block}/{scene.name}", condition_of(scene.name),
+                      tuple(movies))
 
 
 def scan_train(
@@ -328,9 +340,9 @@ class QuadrupletDataset(Dataset):
                     (video.resize(full[impossible[i].name]), zeros_mask),
                     camera,
                     concept=BLOCKS.index(quadruplet.block),
-                    variant=VARIANT_NAMES.index(quadruplet.variant),
+                    variant=number,
                     manipulation_frame=divergence,
-                    seed=2 * quadruplet.index + number,
+                    seed=quadruplet.index,
                 )
             )
             table.append(
@@ -344,7 +356,7 @@ class QuadrupletDataset(Dataset):
         entry = {
             "block": quadruplet.block,
             "scene": quadruplet.scene,
-            "variant": quadruplet.variant,
+            "condition": quadruplet.condition,
             "ambiguous_pairing": ambiguous,
             "pairs": table,
         }

@@ -6,8 +6,14 @@ the Debug split may call ``file_name`` ``filename``; the Held-Out split has no l
 A row's ``type`` is ``<prefix>_Possible`` or ``<prefix>_Impossible`` (prefix 1 or 2): each scene
 holds two possible/impossible pairs, and the Possible of a scene and prefix is paired with the
 Impossible of the same scene and prefix into one of our probe records (consistent = possible,
-``manipulation_frame`` = first sampled frame where the two differ, ``seed`` = the pair's index
-in (condition, scene, prefix) order). The principle comes from ``condition``. Videos are decoded
+``manipulation_frame`` = first sampled frame where the two differ). The scene's two pairs are
+exposed as our stores expose a quadruplet: both carry ``seed`` = the scene's index in (condition,
+scene) order, and the variant names the half, ``standard`` for prefix 1 and ``counterbalanced``
+for prefix 2, so a report tests the scene's pairs together (``statistics.quadruplet_test``).
+IntPhys 2 designs a scene's pairs so (the outcome possible in one pair is the impossible one in
+the other, an obstacle or occluder deciding which), but its impossible videos are no splice of
+its possible ones (docs/benchmarks.md). The principle comes from ``condition``; the difficulty
+and camera are in the pairing table. Videos are decoded
 with PyAV, sampled (every ``frame_step``-th frame from ``first_frame``, or spread evenly over
 each video) and resized with PIL.
 """
@@ -49,8 +55,14 @@ CONDITIONS: dict[str, str] = {
     "continuity_swap": "Continuity",
     "solidity": "Solidity",
 }
-#: Variant vocabulary: the Main split's difficulty (``unspecified`` where a row has none).
+#: The Main split's difficulty (``unspecified`` where a row has none).
 DIFFICULTIES: tuple[str, ...] = ("Easy", "Medium", "Hard", "unspecified")
+#: Variant vocabulary of IntPhys 2 probe records: a scene's two pairs, by ``type`` prefix.
+VARIANT_NAMES: tuple[str, ...] = specs.QUADRUPLET_VARIANTS
+PREFIXES: tuple[str, ...] = ("1", "2")
+#: What a probe record's seed and variant mean (cached records of another are decoded again):
+#: 2, the scene's index and the pair's half; 1 was the pair's index, the difficulty.
+RECORD_VERSION = 2
 SPLITS: tuple[str, ...] = ("Debug", "Main", "HeldOut")
 #: Labelled rows need these columns, besides the id column (``file_name`` or ``filename``).
 LABEL_COLUMNS: tuple[str, ...] = ("SceneIndex", "condition", "type")
@@ -80,12 +92,16 @@ class Video:
 
 @dataclass(frozen=True)
 class Pair:
-    """The Possible and the Impossible video of one scene and prefix; ``index`` is the pair's
-    seed."""
+    """The Possible and the Impossible video of one scene and prefix; ``index`` is the scene's
+    (the pair's seed), ``half`` its prefix's (the pair's variant)."""
 
     index: int
     possible: Video
     impossible: Video
+
+    @property
+    def half(self) -> int:
+        return PREFIXES.index(self.possible.prefix)
 
     def entry(self, divergence: int) -> dict[str, Any]:
         """The pair's row of the pairing table (kept in the cache's manifest)."""
@@ -246,13 +262,14 @@ def pair_videos(
     videos: Iterable[Video], lenient: bool = False, skips: SkipLog | None = None
 ) -> list[Pair]:
     """Pair each Possible with the Impossible of the same condition, scene and prefix, in
-    (condition, scene, prefix) order whatever the rows' order. A group that is not exactly one
-    Possible and one Impossible raises, naming the scene and its rows, or with ``lenient`` is
-    logged to ``skips`` and left out."""
+    (condition, scene, prefix) order whatever the rows' order, each pair's ``index`` its
+    scene's. A group that is not exactly one Possible and one Impossible raises, naming the
+    scene and its rows, or with ``lenient`` is logged to ``skips`` and left out."""
     groups: dict[tuple[str, str, str], list[Video]] = defaultdict(list)
     for video in videos:
         groups[(video.condition, video.scene, video.prefix)].append(video)
-    pairs = []
+    pairs: list[Pair] = []
+    scenes: dict[tuple[str, str], int] = {}
     for condition, scene, prefix in sorted(groups, key=lambda k: (k[0], _scene_key(k[1]), k[2])):
         group = groups[(condition, scene, prefix)]
         possible = [v for v in group if v.is_possible]
@@ -269,8 +286,17 @@ def pair_videos(
             if skips is not None:
                 skips.add(error.reason, str(error))
             continue
-        pairs.append(Pair(len(pairs), possible[0], impossible[0]))
+        index = scenes.setdefault((condition, scene), len(scenes))
+        pairs.append(Pair(index, possible[0], impossible[0]))
     return pairs
+
+
+def scene_pairs(pairs: Sequence[Pair]) -> list[list[Pair]]:
+    """``pair_videos``'s pairs grouped by scene (by ``index``), in order."""
+    scenes: dict[int, list[Pair]] = {}
+    for pair in pairs:
+        scenes.setdefault(pair.index, []).append(pair)
+    return list(scenes.values())
 
 
 # --- videos ---------------------------------------------------------------------------------------
@@ -314,27 +340,32 @@ def read_video(path: Path, sampling: ClipSampling) -> np.ndarray:
     return np.stack(frames)
 
 
-class PairDataset(Dataset):
-    """Item k: ([the probe record of pair k], its pairing table entry). With ``lenient``, a pair
-    that fails to decode is logged and yields ([], None)."""
+class SceneDataset(Dataset):
+    """Item k: (the probe records of scene k's pairs, its pairing table entry: the variant of
+    each pair -> the pair's entry). With ``lenient``, a scene with a pair that fails to decode
+    is logged and yields ([], None)."""
 
     def __init__(self, pairs: Sequence[Pair], sampling: ClipSampling, lenient: bool,
                  skips: SkipLog):
-        self.pairs, self.sampling, self.lenient, self.skips = list(pairs), sampling, lenient, skips
+        self.scenes, self.sampling = scene_pairs(pairs), sampling
+        self.lenient, self.skips = lenient, skips
 
     def __len__(self) -> int:
-        return len(self.pairs)
+        return len(self.scenes)
 
     def __getitem__(self, index: int) -> tuple[list[TensorDict], dict[str, Any] | None]:
         try:
-            return self.decode(self.pairs[index])
+            decoded = [self.decode(pair) for pair in self.scenes[index]]
         except BenchmarkDataError as error:
             if not self.lenient:
                 raise
             self.skips.add(error.reason, str(error))
             return [], None
+        return ([record for record, _ in decoded],
+                {VARIANT_NAMES[pair.half]: entry
+                 for pair, (_, entry) in zip(self.scenes[index], decoded)})
 
-    def decode(self, pair: Pair) -> tuple[list[TensorDict], dict[str, Any]]:
+    def decode(self, pair: Pair) -> tuple[TensorDict, dict[str, Any]]:
         video = self.sampling.video
         possible = video.resize(read_video(pair.possible.path, self.sampling))
         impossible = video.resize(read_video(pair.impossible.path, self.sampling))
@@ -350,10 +381,9 @@ class PairDataset(Dataset):
         zeros = np.zeros((num_frames, video.height, video.width), np.uint8)
         record = specs.probe_record(
             (possible, zeros), (impossible, zeros), np.zeros((num_frames, 6), np.float32),
-            concept=PRINCIPLES.index(pair.possible.principle),
-            variant=DIFFICULTIES.index(pair.possible.difficulty),
+            concept=PRINCIPLES.index(pair.possible.principle), variant=pair.half,
             manipulation_frame=divergence, seed=pair.index)
-        return [record], pair.entry(divergence)
+        return record, pair.entry(divergence)
 
 
 class VideoDataset(Dataset):

@@ -166,8 +166,9 @@ def _per_frame_or_none(surprise_possible: Any, surprise_impossible: Any
 
 
 def pair_surprise(outputs: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each pair's seed (its quadruplet is ``seed // 2``) and its possible (consistent) and
-    impossible (inconsistent) video's per-frame surprise [N, T] in float64, from collected
+    """Each pair's seed (IntPhys and Physical Concepts: its quadruplet) and its possible
+    (consistent) and impossible (inconsistent) video's per-frame surprise [N, T] in float64,
+    from collected
     ``probe_step`` outputs (seed, surprise_consistent, surprise_inconsistent [N, T])."""
     seeds = torch.as_tensor(outputs["seed"]).cpu().numpy().ravel()
     possible, impossible = (torch.as_tensor(outputs[f"surprise_{side}"]).double().cpu().numpy()

@@ -14,7 +14,11 @@ payload, masked CRC32-C of the payload) is read here so both checksums are verif
 Freeform records become our clips (concept ``freeform``); each probe quadruplet (two possible,
 two impossible videos) becomes two probe pairs, each possible video matched with the impossible
 video it shares the longest prefix with (``manipulation_frame`` = first frame they differ).
-``seed = 2 * quadruplet_index + pair`` with ``quadruplet_index = shard * 1_000_000 + record``.
+The quadruplet is exposed as our stores expose theirs: both pairs carry ``seed =
+quadruplet_index = shard * 1_000_000 + record``, and the variant names the half, ``standard``
+for the pair of the record's first possible video (A, AB) and ``counterbalanced`` for the
+second's (B, BA), so reports test it by ``statistics.quadruplet_test`` (the halves name no
+direction of the violation: the release's order).
 The camera poses are kept in the dataset's own convention.
 """
 
@@ -55,7 +59,10 @@ PROBE_CONCEPTS: tuple[str, ...] = (
     "directional_inertia",
 )
 CONCEPT_NAMES: tuple[str, ...] = PROBE_CONCEPTS + ("freeform",)
-VARIANT_NAMES: tuple[str, ...] = ("standard",)
+VARIANT_NAMES: tuple[str, ...] = specs.QUADRUPLET_VARIANTS
+#: What a probe record's seed and variant mean (cached records of another are decoded again):
+#: 2, the quadruplet index and the half; 1 was ``2 * quadruplet_index + pair``, variant 0.
+RECORD_VERSION = 2
 #: Native geometry of every video in the release.
 NUM_FRAMES, HEIGHT, WIDTH = 15, 64, 64
 #: quadruplet_index = shard * SHARD_STRIDE + record number within the shard.
@@ -289,9 +296,9 @@ def probe_pairs(
                 ),
                 row["possible_camera_pose"][p][indices],
                 concept=concept,
-                variant=0,
+                variant=number,
                 manipulation_frame=divergence,
-                seed=2 * quadruplet_index + number,
+                seed=quadruplet_index,
             )
         )
     return records

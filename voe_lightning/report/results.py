@@ -417,7 +417,8 @@ def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], repor
                 "field_metrics": field_metric_rows(results)}
     with open(report_dir / "summary.csv", "w", newline="") as handle:
         _write_rows(handle, rows)
-    markdown = format_markdown(rows, surprise, causality=causality)
+    markdown = format_source(document["source"]) + format_markdown(rows, surprise,
+                                                                  causality=causality)
     if not window.all_frames:
         document["window"] = {"surprise_window": window.as_config(),
                               "video_surprise": f"sum over the {window.describe()} of {surprise}",
@@ -434,6 +435,23 @@ def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], repor
     (report_dir / "summary.json").write_text(json.dumps(document, indent=2) + "\n")
     (report_dir / "summary.md").write_text(markdown)
     return markdown
+
+
+def format_source(source: Mapping[str, Any]) -> str:
+    """summary.md's first line, from the report's ``source``: the checkpoint tested (and its
+    step) and the store its probes come from with their seed offset, so a re-test on fresh
+    probes says so where it is read; '' where ``source`` names neither."""
+    parts = []
+    if source.get("checkpoint"):
+        step = source.get("global_step")
+        parts.append(f"checkpoint {source['checkpoint']}"
+                     + (f" (step {step})" if step is not None else ""))
+    where = source.get("probe_root") or source.get("data_root")
+    if where:
+        offset = source.get("seed_offset")
+        parts.append(f"the probes of {where}"
+                     + (f" (seed offset {offset})" if offset is not None else ""))
+    return f"Tested: {'; '.join(parts)}.\n\n" if parts else ""
 
 
 def _tables(rows: Sequence[Mapping[str, Any]], alpha: float,
