@@ -5,12 +5,15 @@ import errno
 import gzip
 import json
 import os
+import re
 import shutil
 import socket
 import struct
 import subprocess
 
+import av
 import lightning as L
+import numpy as np
 import pytest
 import torch
 import yaml
@@ -19,14 +22,15 @@ from tfrecord.writer import TFRecordWriter
 
 from test_analysis import _curve_runs
 from test_cli import CONFIG, copy_of, trained, workdir  # noqa: F401 (fixtures)
-from test_intphys2 import root  # noqa: F401 (a fixture)
+from test_intphys2 import FRAMES, SIZE, frame, root  # noqa: F401 (root: a fixture)
 from test_reliability import _refused, _results
 from voe_lightning import store_shards
 from voe_lightning.callbacks import voe_table
 from voe_lightning.causality import check_prefix
 from voe_lightning.cli import NOT_CAUSAL_EXIT, main
-from voe_lightning.external.base import BenchmarkDataError
-from voe_lightning.external.intphys2 import read_metadata
+from voe_lightning.external.base import BenchmarkDataError, FrameSampling
+from voe_lightning.external.intphys import read_label
+from voe_lightning.external.intphys2 import ClipSampling, read_metadata, read_video
 from voe_lightning.external.physical_concepts import read_records
 from voe_lightning.external.metrics import (
     plausibility_from_surprise,
@@ -317,8 +321,61 @@ def test_intphys2_metadata_with_a_byte_order_mark_reads_and_a_latin1_byte_is_nam
     assert [(video.name, video.scene, video.condition, video.is_possible)
             for video in read_metadata(folder, "Main")] == labels
     metadata.write_bytes(text.replace("\n", "\ncaf\xe9,", 1).encode("latin-1"))
-    with pytest.raises(BenchmarkDataError, match=f"{metadata} is not UTF-8 text"):
+    with pytest.raises(BenchmarkDataError, match=f"{metadata} is not UTF-8 text: line 2 holds"):
         read_metadata(folder, "Main")
+
+
+@pytest.mark.parametrize("name, text, read", [
+    ("status.json", '{"header": {"is_possible": true,\n "scene": "caf\xe9"}}\n',
+     lambda path: read_label(path.parent)),
+    ("answer.txt", "O1/a/1 0.5\nO1/caf\xe9/2 0.5\n", read_answer_file),
+])
+def test_a_benchmark_text_file_is_read_as_utf8_and_a_latin1_byte_is_named(tmp_path, name, text,
+                                                                          read):
+    """IntPhys' status.json and answer.txt as metadata.csv: UTF-8 whatever the locale, and a
+    byte UTF-8 cannot decode names the file and its line (Python's error names neither)."""
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    if name == "status.json":
+        assert read(path) is True
+    path.write_bytes(text.encode("latin-1"))
+    with pytest.raises(BenchmarkDataError, match=re.escape(
+            f"{path} is not UTF-8 text: line 2 holds the byte 0xe9, which UTF-8 cannot decode")):
+        read(path)
+
+
+def write_mpeg4(path, frames):
+    """An MPEG-4 Part 2 mp4 with its index first (``movflags faststart``, as streamed video is
+    saved): cut short, it still opens, and FFmpeg conceals what is missing."""
+    with av.open(str(path), "w", options={"movflags": "faststart"}) as container:
+        stream = container.add_stream("mpeg4", rate=10)
+        stream.width, stream.height, stream.pix_fmt = SIZE, SIZE, "yuv420p"
+        for image in frames:
+            container.mux(stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")))
+        container.mux(stream.encode())
+
+
+def test_a_truncated_or_corrupted_intphys2_video_is_refused_naming_it(tmp_path):
+    """Every cut in the last third of a small mp4, and bytes overwritten inside its frames:
+    FFmpeg flags a cut packet or logs the damage and decodes other frames, which PyAV (its log
+    off) scored in silence; each is now a BenchmarkDataError naming the file."""
+    intact = tmp_path / "intact.mp4"
+    write_mpeg4(intact, [frame(0, "A", t) for t in range(FRAMES)])
+    sampling = ClipSampling(FrameSampling((0, 1, 2, 3), SIZE, SIZE))
+    assert read_video(intact, sampling).shape == (4, SIZE, SIZE, 3)
+    data = intact.read_bytes()
+    corrupted = bytearray(data)
+    middle = data.index(b"mdat") + (len(data) - data.index(b"mdat")) // 2
+    corrupted[middle:middle + 40] = np.random.default_rng(0).integers(0, 256, 40, np.uint8).tobytes()
+    damaged = {f"cut_{size}": data[:size] for size in range(len(data) * 2 // 3, len(data))}
+    damaged["corrupted"] = bytes(corrupted)
+    for name, content in damaged.items():
+        path = tmp_path / f"{name}.mp4"
+        path.write_bytes(content)
+        with pytest.raises(BenchmarkDataError, match=re.escape(str(path))) as error:
+            read_video(path, sampling)
+        assert error.value.reason == "undecodable_video"
+        path.unlink()
 
 
 class PoisonWeights(L.Callback):

@@ -1,5 +1,6 @@
-"""What the benchmark readers share: errors and skipped-input counts, frame sampling and
-resizing, and recovering possible/impossible pairs from where two videos first diverge."""
+"""What the benchmark readers share: errors, text read as UTF-8, skipped-input counts, frame
+sampling and resizing, and recovering possible/impossible pairs from where two videos first
+diverge."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import weakref
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -32,6 +34,23 @@ class BenchmarkDataError(ValueError):
 
     def __reduce__(self):  # keep the reason when raised in a DataLoader worker
         return type(self), (str(self), self.reason)
+
+
+def read_text(path: Path, reason: str = "bad_input", hint: str = "save it as UTF-8") -> str:
+    """A benchmark's text file (metadata.csv, status.json, answer.txt) as UTF-8, without the
+    byte-order mark a spreadsheet may write: never the locale's encoding, which would read a
+    latin-1 file as other characters in silence. Undecodable bytes are a BenchmarkDataError
+    (under ``reason``) naming the file, the line and the byte (Python's error names neither
+    file nor line); ``hint`` says what to do."""
+    data = Path(path).read_bytes()
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as error:
+        line = data[:error.start].count(b"\n") + 1
+        raise BenchmarkDataError(
+            f"{path} is not UTF-8 text: line {line} holds the byte "
+            f"0x{data[error.start]:02x}, which UTF-8 cannot decode ({error.reason}); {hint}",
+            reason) from None
 
 
 # --- skipped input ------------------------------------------------------------------------------

@@ -62,7 +62,7 @@ def _cache_problem(directory: Path, required: dict[str, type]) -> tuple[str, dic
     """What is wrong with the cache at ``directory`` ("" if nothing), and its manifest."""
     path = directory / store.MANIFEST_NAME
     try:
-        manifest = json.loads(path.read_text())
+        manifest = json.loads(path.read_text(encoding="utf-8"))
     except (ValueError, UnicodeDecodeError) as error:
         return f"{path}: unreadable JSON ({error})", None
     if not isinstance(manifest, dict):

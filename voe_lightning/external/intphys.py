@@ -39,6 +39,7 @@ from voe_lightning.external.base import (
     FrameSampling,
     SkipLog,
     match_pairs,
+    read_text,
 )
 
 BLOCKS: tuple[str, ...] = ("O1", "O2", "O3")
@@ -124,8 +125,10 @@ def read_label(movie: Path) -> bool:
     """``header.is_possible`` of ``movie/status.json``."""
     path = movie / "status.json"
     try:
-        header = json.loads(path.read_text())["header"]
+        header = json.loads(read_text(path, "missing_label"))["header"]
         label = header["is_possible"]
+    except BenchmarkDataError:
+        raise  # not UTF-8: read_text names the line
     except FileNotFoundError:
         raise BenchmarkDataError(
             f"missing {path}: labelled (dev) movies need status.json with header.is_possible",

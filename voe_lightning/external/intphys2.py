@@ -42,6 +42,7 @@ from voe_lightning.external.base import (
     SkipLog,
     first_divergence,
     frame_indices,
+    read_text,
 )
 
 #: Concept vocabulary of IntPhys 2 records: the four principles.
@@ -218,7 +219,7 @@ def read_metadata(
         if skips is not None:
             skips.add(error.reason, str(error))
 
-    with io.StringIO(_metadata_text(csv_path), newline="") as stream:
+    with io.StringIO(read_text(csv_path, "bad_metadata"), newline="") as stream:
         reader = csv.DictReader(stream)
         columns = reader.fieldnames or []
         id_column = next((c for c in ID_COLUMNS if c in columns), None)
@@ -240,17 +241,6 @@ def read_metadata(
             refuse(BenchmarkDataError(
                 f"{path} has no row in {csv_path}; every video needs one", "unlisted_file"))
     return videos
-
-
-def _metadata_text(csv_path: Path) -> str:
-    """metadata.csv as text: UTF-8, without the byte-order mark a spreadsheet may write
-    (which would otherwise name the first column '\ufeffSceneIndex'); a file that is not
-    UTF-8 is named (Python's error names no file)."""
-    try:
-        return csv_path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError as error:
-        raise BenchmarkDataError(f"{csv_path} is not UTF-8 text ({error}); save it as UTF-8",
-                                 "bad_metadata") from None
 
 
 def _scene_key(scene: str) -> tuple:
@@ -302,9 +292,53 @@ def scene_pairs(pairs: Sequence[Pair]) -> list[list[Pair]]:
 # --- videos ---------------------------------------------------------------------------------------
 def read_video(path: Path, sampling: ClipSampling) -> np.ndarray:
     """The sampled frames of an mp4 at full resolution, uint8 [T, h, w, 3], decoded with PyAV.
-    Frames are picked while decoding (from the stream's frame count, checked at the end), so a
-    long video is never held whole. PyAV is imported here, so the package imports without it
-    (on a machine that trains on generated data alone)."""
+    Frames are picked while decoding (``_decode``), so a long video is never held whole. A
+    damaged file is refused, never scored: one that does not open, that holds a packet FFmpeg
+    flags corrupt, that FFmpeg reports errors in while decoding (PyAV drops FFmpeg's log unless asked, and FFmpeg conceals a damaged
+    packet, so a truncated or corrupted mp4 would decode to other frames in silence), or that
+    decodes fewer frames than its header states. PyAV is imported here, so the package imports
+    without it (on a machine that trains on generated data alone)."""
+    import av
+    import av.logging
+
+    level, skip_repeated = av.logging.get_level(), av.logging.get_skip_repeated()
+    av.logging.set_level(av.logging.ERROR)
+    av.logging.set_skip_repeated(False)  # the same damage in the next file is news too
+    try:
+        # Not only this thread's messages: FFmpeg's decoding threads log the damage.
+        with av.logging.Capture(local=False) as logs:
+            frames, count, stated = _decode(path, sampling)
+    except BenchmarkDataError:
+        raise
+    except FileNotFoundError:
+        raise BenchmarkDataError(f"missing video {path}", "missing_file") from None
+    except (av.FFmpegError, OSError, ValueError) as error:
+        raise BenchmarkDataError(
+            f"{path} does not decode ({type(error).__name__}: {error}); expected an mp4 video",
+            "undecodable_video") from None
+    finally:
+        av.logging.set_level(level)
+        av.logging.set_skip_repeated(skip_repeated)
+    errors = [message.strip() for severity, _, message in logs if severity <= av.logging.ERROR]
+    if errors:
+        raise BenchmarkDataError(
+            f"{path} is damaged: FFmpeg reports {errors[0]!r} decoding it ({len(errors)} "
+            "error(s)); expected an intact mp4 video", "undecodable_video")
+    if count < stated:
+        raise BenchmarkDataError(
+            f"{path} is truncated or damaged: {count} of the {stated} frames its header states "
+            "decode; expected an intact mp4 video", "undecodable_video")
+    if len(frames) != sampling.num_frames:
+        raise BenchmarkDataError(f"{path} has no decodable frames; expected an mp4 video",
+                                 "undecodable_video")
+    return np.stack(frames)
+
+
+def _decode(path: Path, sampling: ClipSampling) -> tuple[list[np.ndarray], int, int]:
+    """The frames ``sampling`` picks from the mp4 at ``path``, the number of frames decoded
+    and the number its header states (0: none stated). The picks come from the stated count;
+    where the header states none, or fewer than decode, the video is decoded again with the
+    picks from the count decoded."""
     import av
 
     def decode(available: int) -> tuple[list[np.ndarray], int]:
@@ -314,30 +348,23 @@ def read_video(path: Path, sampling: ClipSampling) -> np.ndarray:
             if not container.streams.video:
                 raise BenchmarkDataError(f"{path} holds no video stream; expected an mp4 video",
                                          "undecodable_video")
-            for frame in container.decode(container.streams.video[0]):
-                if count in wanted:
-                    kept.append(frame.to_ndarray(format="rgb24"))
-                count += 1
+            for number, packet in enumerate(container.demux(container.streams.video[0])):
+                if packet.is_corrupt:  # cut short: FFmpeg only warns, and decodes what is left
+                    raise BenchmarkDataError(
+                        f"{path} is damaged: its video packet {number} is corrupt (cut "
+                        "short?); expected an intact mp4 video", "undecodable_video")
+                for frame in packet.decode():
+                    if count in wanted:
+                        kept.append(frame.to_ndarray(format="rgb24"))
+                    count += 1
         return kept, count
 
-    try:
-        with av.open(str(path)) as container:
-            stated = container.streams.video[0].frames if container.streams.video else 0
-        frames, count = decode(stated)
-        if count != stated:  # the container's frame count was absent or wrong
-            frames, count = decode(count)
-    except BenchmarkDataError:
-        raise
-    except FileNotFoundError:
-        raise BenchmarkDataError(f"missing video {path}", "missing_file") from None
-    except (av.FFmpegError, OSError, ValueError) as error:
-        raise BenchmarkDataError(
-            f"{path} does not decode ({type(error).__name__}: {error}); expected an mp4 video",
-            "undecodable_video") from None
-    if len(frames) != sampling.num_frames:
-        raise BenchmarkDataError(f"{path} has no decodable frames; expected an mp4 video",
-                                 "undecodable_video")
-    return np.stack(frames)
+    with av.open(str(path)) as container:
+        stated = container.streams.video[0].frames if container.streams.video else 0
+    frames, count = decode(stated)
+    if count > stated:
+        frames, count = decode(count)
+    return frames, count, stated
 
 
 class SceneDataset(Dataset):

@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from voe_lightning.external.base import read_text
 from voe_lightning.field_metrics import (
     PERCENTILE,
     field_metrics,
@@ -268,7 +269,8 @@ def read_answer_file(path: str | os.PathLike) -> dict[str, float]:
     path = Path(path)
     answers: dict[str, float] = {}
     scenes: dict[str, set[str]] = defaultdict(set)
-    for number, line in enumerate(path.read_text().splitlines(), 1):
+    text = read_text(path, hint="write it as UTF-8, as write_answer_file does")
+    for number, line in enumerate(text.splitlines(), 1):
         fields = line.split()
         where = f"{path}, line {number}"
         if len(fields) != 2:
