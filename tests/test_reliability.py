@@ -103,7 +103,8 @@ def test_last_is_the_newest_run_and_the_report_names_what_it_was_made_from(workd
         capsys.readouterr().out)
     assert not (older / "voe_report").exists()
     source = json.loads((newer / "voe_report" / "summary.json").read_text())["source"]
-    assert source == {"checkpoint": str(Path("runs/trained/version_1/checkpoints/last.ckpt")),
+    assert source == {"config": str(Path("runs/trained/version_1/test_config.yaml")),
+                      "checkpoint": str(Path("runs/trained/version_1/checkpoints/last.ckpt")),
                       "global_step": 1, "datamodule": "datamodules.voe.ConceptDataModule",
                       "data_root": "data/tiny", "seed_offset": 0, "probe_root": "data/tiny",
                       "concepts": ["object_persistence"]}

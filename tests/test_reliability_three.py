@@ -10,6 +10,7 @@ import shutil
 import socket
 import struct
 import subprocess
+from pathlib import Path
 
 import av
 import lightning as L
@@ -246,10 +247,30 @@ def test_nothing_is_written_through_a_link_out_of_the_run_folder(workdir, traine
     elsewhere = workdir / "elsewhere.txt"
     elsewhere.write_text("someone else's file\n")
     (run / "test_config.yaml").symlink_to(elsewhere)
-    line = _refused(capsys, ["test", "--config", CONFIG,
-                             "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
-    assert f"{run / 'test_config.yaml'} is a symbolic link to {elsewhere}, outside the run" in line
+    main(["test", "--config", CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
+    assert (run / "test_config.yaml").is_symlink() and (run / "test_config-2.yaml").is_file()
+    (run / "config.yaml").unlink()
+    (run / "config.yaml").symlink_to(elsewhere)
+    line = _refused(capsys, ["fit", "--config", CONFIG, "--trainer.max_steps", "1",
+                             "--trainer.logger.init_args.name", "trained",
+                             "--trainer.logger.init_args.version", "version_0"])
+    assert f"{run.relative_to(workdir) / 'config.yaml'} is a symbolic link to {elsewhere}" in line
     assert elsewhere.read_text() == "someone else's file\n"
+
+
+def test_a_retest_keeps_the_earlier_evaluations_config(workdir, trained):
+    """validate and test of a run's checkpoint save their config beside the earlier one's
+    (``-2``), not over it; the report names the config it was made with."""
+    run = copy_of(trained, workdir)
+    checkpoint = ["--config", CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")]
+    for subcommand in ("validate", "test"):
+        main([subcommand, *checkpoint])
+        main([subcommand, *checkpoint, "--seed_everything", "7"])
+        first, second = (yaml.safe_load((run / f"{subcommand}_config{suffix}.yaml").read_text())
+                         for suffix in ("", "-2"))
+        assert (first["seed_everything"], second["seed_everything"]) == (0, 7)
+    source = json.loads((run / "voe_report" / "summary.json").read_text())["source"]
+    assert Path(source["config"]).resolve() == (run / "test_config-2.yaml").resolve()
 
 
 # ----------------------------------------------------------------------------- 5: bounded inputs

@@ -26,6 +26,7 @@ from voe_lightning.external.evaluation import evaluate
 from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.probe_datamodule import probe_datamodule
 from voe_lightning.report import write_report
+from voe_lightning.runs import RunConfig
 from voe_lightning.report.figures import PredictionExample
 from voe_lightning.report.results import (
     FIRST_DIFFERENCE,
@@ -304,8 +305,9 @@ class VOEReportCallback(L.Callback):
     test batch's pairs (``voe_lightning.cues``, on the batch's device), so the cue rows of
     cues.md/cues.csv share the model's pairs and n. Names are decoded with the
     ProbeDataModule's ``concept_names`` / ``variant_names``. summary.json's ``source`` names
-    the checkpoint tested, its global step, the DataModule, its data root (and seed offset and
-    probe store: ``ProbeDataModule.probe_source``) and concepts; summary.md's first line too.
+    the config file saved for the run, the checkpoint tested, its global step, the DataModule,
+    its data root (and seed offset and probe store: ``ProbeDataModule.probe_source``) and
+    concepts; summary.md's first line too.
     ``surprise_window`` (``surprise_window.surprise_window``: ``all``, the paper's, or
     ``{start: first_difference, frames: k}``) adds the tests of each video's surprise summed
     over that window beside those over all frames (None: all frames only; the CLI gives the
@@ -366,9 +368,13 @@ class VOEReportCallback(L.Callback):
     def _source(self, trainer: L.Trainer) -> dict[str, Any]:
         """What the report is made from: checkpoint (None: the model as built), its global
         step, the DataModule's class, where its probes come from (``probe_source``: data root;
-        ours, the seed offset and probe store too) and the concepts of its test pairs."""
+        ours, the seed offset and probe store too), the concepts of its test pairs, and the
+        config file the CLI saved for this run (``runs.RunConfig``; None: none saved)."""
         datamodule = probe_datamodule(trainer, type(self).__name__)
-        return {"checkpoint": str(trainer.ckpt_path) if trainer.ckpt_path else None,
+        configs = [callback.config_path for callback in trainer.callbacks
+                   if isinstance(callback, RunConfig) and callback.config_path is not None]
+        return {"config": str(configs[0]) if configs else None,
+                "checkpoint": str(trainer.ckpt_path) if trainer.ckpt_path else None,
                 "global_step": self._checkpoint_step if trainer.ckpt_path else None,
                 "datamodule": f"{type(datamodule).__module__}.{type(datamodule).__qualname__}",
                 **datamodule.probe_source(),

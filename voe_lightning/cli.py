@@ -69,7 +69,8 @@ class VOECLI(LightningCLI):
     report for its last.ckpt on its training data and concepts, a folder of its own
     (``runs.report_folder``) for any other checkpoint, data root, concepts or external
     benchmark. ``validate``/``test`` save their config as ``<subcommand>_config.yaml``,
-    keeping the run's training ``config.yaml``. ``--ckpt_path last``/``best`` name the newest
+    keeping the run's training ``config.yaml`` and an earlier evaluation's config there
+    (``<subcommand>_config-2.yaml``, ``-3``...: ``runs.RunConfig``). ``--ckpt_path last``/``best`` name the newest
     run of the config's logger name. A missing checkpoint (or a directory) is refused before
     any work starts, and so are a truncated or corrupt one, model arguments the user gives
     that differ from the checkpoint's (LightningCLI replaces the config's model arguments with
@@ -276,7 +277,7 @@ class VOECLI(LightningCLI):
         if config and "weights_only" in config and config.get("weights_only") is None:
             config["weights_only"] = True  # torch>=2.4 may default to unpickling anything
         if self.subcommand != "fit":
-            self.save_config_kwargs = {**self.save_config_kwargs,
+            self.save_config_kwargs = {**self.save_config_kwargs, "keep_earlier": True,
                                        "config_filename": f"{self.subcommand}_config.yaml"}
         ckpt_path = config.get("ckpt_path") if config else None
         if ckpt_path and ckpt_path not in runs.LIGHTNING_CHECKPOINT_WORDS:

@@ -199,10 +199,23 @@ def check_inside(path: Path, folder: Path) -> None:
 
 class RunConfig(SaveConfigCallback):
     """LightningCLI's ``SaveConfigCallback`` that writes nothing through a symbolic link out
-    of the run folder (``check_inside``)."""
+    of the run folder (``check_inside``) and, with ``keep_earlier`` (``validate``, ``test``,
+    ``predict``), never over an earlier run's config of its name: a re-test saves
+    ``test_config-2.yaml`` beside the first test's ``test_config.yaml``
+    (``fresh_config_name``), so the record of what each evaluation was given is kept while
+    its report is replaced; ``config_path`` is the file written (None before ``setup``)."""
+
+    def __init__(self, *args: Any, keep_earlier: bool = False, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.keep_earlier = keep_earlier
+        self.config_path: Path | None = None
 
     def setup(self, trainer: Any, pl_module: Any, stage: str) -> None:
         if self.save_to_log_dir and not self.already_saved:
             log_dir = Path(trainer.log_dir)  # broadcasts: every rank asks
+            if self.keep_earlier:  # rank zero's folder is the one written: its free name
+                name = fresh_config_name(log_dir, Path(self.config_filename).stem)
+                self.config_filename = trainer.strategy.broadcast(name)
             check_inside(log_dir / self.config_filename, log_dir)
+            self.config_path = log_dir / self.config_filename
         super().setup(trainer, pl_module, stage)
