@@ -1,11 +1,13 @@
 """The untrained null (voe_lightning.null, ``analyze null``): its table by hand from synthetic
 summaries, and the command at a tiny size: each initialization its own seed and report, a
-trained report placed in the distribution."""
+trained report placed in the distribution; the positive control's test report carrying its
+priors alone (one initialization of its own config)."""
 
 import json
 from pathlib import Path
 
 import pytest
+import yaml
 
 from voe_lightning.cli import main
 from voe_lightning.null import format_null, null_rows
@@ -53,7 +55,52 @@ def test_analyze_null_tests_each_initialization_on_the_same_probes(tmp_path, mon
     assert all((tmp_path / "null" / f"seed_{s}" / "version_0" / "voe_report" / "summary.json")
                .is_file() for s in (0, 1))
     assert table == (tmp_path / "null" / "null.md").read_text()
+    assert "priors_alone" not in json.loads((trained / "summary.json").read_text())  # not asked
     assert all(row["initializations"] == 2 and "trained_percentile" in row
                for row in document["rows"])
     with pytest.raises(SystemExit):
         main(["analyze", "null", "--configs", f"[{TINY}]", "--seeds", "0"])
+
+
+def control_config(folder: Path) -> str:
+    """The tiny run with configs/object_state.yaml's model (its priors as given, small sizes)
+    and callbacks (the report's priors_alone among them): its path."""
+    control = yaml.safe_load((Path(__file__).parents[1] / "configs" / "object_state.yaml")
+                             .read_text())
+    config = yaml.safe_load(Path(TINY).read_text())
+    config["model"] = control["model"]
+    config["model"]["init_args"].update(hidden_size=16, message_size=8, withhold_frames=2)
+    config["trainer"]["callbacks"] = control["trainer"]["callbacks"]
+    path = folder / "control.yaml"
+    path.write_text(yaml.safe_dump(config))
+    return str(path)
+
+
+def test_the_controls_report_carries_its_priors_alone(tmp_path, monkeypatch, capsys):
+    """A tested control checkpoint's summary.json and summary.md hold, labelled, the t and
+    verdicts of the same config untrained at the run's seed: exactly what ``analyze null``
+    finds for that initialization, and not the trained model's."""
+    monkeypatch.chdir(tmp_path)
+    config = control_config(tmp_path)
+    main(["fit", "--config", config])
+    run = tmp_path / "runs" / "tiny" / "version_0"
+    main(["test", "--config", config, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
+    assert f"its priors alone (untrained) rows for the report, into {run / 'priors_alone'}" in (
+        capsys.readouterr().out)
+    summary = json.loads((run / "voe_report" / "summary.json").read_text())
+    priors = summary["priors_alone"]
+    assert (priors["label"], priors["seed"]) == ("priors alone (untrained)", 0)
+    assert Path(priors["report"], "summary.json").is_file()
+    cases = [(row["concept"], row["variant"]) for row in summary["rows"]]
+    assert [(row["concept"], row["variant"]) for row in priors["rows"]] == cases
+    assert [v["concept"] for v in priors["verdicts"]] == ["object_persistence"]
+    main(["analyze", "null", "--configs", f"[{config}]", "--seeds", "1", "--out", "untrained"])
+    [initialization] = json.loads((tmp_path / "untrained" / "null.json").read_text())[
+        "initializations"]
+    assert [row["t"] for row in priors["rows"]] == [row["t"] for row in initialization["rows"]]
+    assert [row["t"] for row in priors["rows"]] != [row["t"] for row in summary["rows"]]
+    markdown = (run / "voe_report" / "summary.md").read_text()
+    assert "## Priors alone (untrained)" in markdown
+    assert "| concept | variant | t trained | t priors alone (untrained) |" in markdown
+    trained, alone = summary["verdicts"][0]["verdict"], priors["verdicts"][0]["verdict"]
+    assert f"- object_persistence: trained {trained}; priors alone (untrained) {alone}" in markdown

@@ -311,9 +311,13 @@ class VOEReportCallback(L.Callback):
     ``surprise_window`` (``surprise_window.surprise_window``: ``all``, the paper's, or
     ``{start: first_difference, frames: k}``) adds the tests of each video's surprise summed
     over that window beside those over all frames (None: all frames only; the CLI gives the
-    run's ``surprise_window``). After the test, ``summary`` holds the rows, ``report_dir``
-    the directory written and ``causality`` the report's causality check (no verdict where it
-    failed)."""
+    run's ``surprise_window``). With ``priors_alone`` (the positive control's config sets it)
+    the CLI's ``test`` first tests the same config at initialization on the same probes
+    (``null.priors_alone``: learned parts untrained, same seed, given structure as
+    configured) and hands its summary to ``untrained``; the report carries its verdicts and t
+    per variant beside the model's, labelled "priors alone (untrained)". After the test,
+    ``summary`` holds the rows, ``report_dir`` the directory written and ``causality`` the
+    report's causality check (no verdict where it failed)."""
 
     def __init__(
         self,
@@ -325,6 +329,7 @@ class VOEReportCallback(L.Callback):
         seed: int = 0,
         cue_audit: bool = True,
         surprise_window: str | dict[str, Any] | None = None,
+        priors_alone: bool = False,
     ) -> None:
         if max_prediction_examples < 0 or tsne_pairs < 0:
             raise ValueError("max_prediction_examples and tsne_pairs must be >= 0, got "
@@ -336,6 +341,9 @@ class VOEReportCallback(L.Callback):
         self.bootstrap, self.seed = bootstrap, seed
         self.cue_audit = cue_audit
         self.surprise_window = parse_window(surprise_window)
+        self.priors_alone = priors_alone
+        #: The untrained copy's summary.json document (``null.priors_alone``), set by the CLI.
+        self.untrained: dict[str, Any] | None = None
         self.summary: list[dict[str, Any]] | None = None
         self.report_dir: Path | None = None
         self.causality: Causality | None = None
@@ -457,7 +465,8 @@ class VOEReportCallback(L.Callback):
                                     trajectory_labels=labels, cue_audit=cue_audit,
                                     alpha=self.alpha, bootstrap=self.bootstrap,
                                     seed=self.seed, surprise=pl_module.SURPRISE,
-                                    source=self._source(trainer), window=self.surprise_window)
+                                    source=self._source(trainer), window=self.surprise_window,
+                                    priors_alone=self.untrained)
         self.report_dir = Path(out_dir) / "voe_report"
         self.causality = results.causality
         self._write_benchmark_metrics(trainer, outputs)

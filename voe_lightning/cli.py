@@ -20,12 +20,16 @@ import yaml
 from jsonargparse import ActionConfigFile, ArgumentParser, Namespace
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.utilities import rank_zero_warn
+from lightning.pytorch.utilities.seed import isolate_rng
 from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
 
-from voe_lightning import analysis, causality, cue_report, generate, preflight, runs, statistics
+from voe_lightning import (analysis, causality, cue_report, generate, null, preflight, runs,
+                           statistics)
+from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.interruption import InterruptCheckpoint
 from voe_lightning.model import SurpriseModel
 from voe_lightning.probe_datamodule import ProbeDataModule
+from voe_lightning.report.results import PRIORS_ALONE
 from voe_lightning.runs import read_checkpoint
 from voe_lightning.surprise_window import surprise_window
 
@@ -143,6 +147,33 @@ class VOECLI(LightningCLI):
 
     def before_test(self) -> None:
         self._refuse_untrained("test")
+        self._test_priors_alone()
+
+    def _test_priors_alone(self) -> None:
+        """Where a ``VOEReportCallback`` asks for ``priors_alone``: the run's config as tested
+        (the checkpoint's model arguments), at initialization under the run's seed, tested
+        first on the same probes (``null.priors_alone``, into ``<log dir>/priors_alone/``) and
+        handed to the callback for its report; this test's random state is kept as it was."""
+        callbacks = [callback for callback in self.trainer.callbacks
+                     if isinstance(callback, VOEReportCallback) and callback.priors_alone]
+        if not callbacks:
+            return
+        config = self.config["test"]
+        seed = config.get("seed_everything")
+        if isinstance(seed, bool) or not isinstance(seed, int):
+            raise ValueError(f"priors_alone tests the config at initialization under the run's "
+                             f"seed, and seed_everything is {seed!r}: give an integer")
+        saved = yaml.safe_load(self._parser("test").dump(config, skip_none=False))
+        own = set(inspect.signature(self.trainer.test).parameters) - self.subcommands()["test"]
+        for key in ("config", *own):  # ckpt_path, verbose...: the untrained copy has none
+            saved.pop(key, None)
+        out = Path(self.trainer.log_dir) / "priors_alone"
+        print(f"test: first the config at initialization (seed {seed}) on the same probes, "
+              f"its {PRIORS_ALONE} rows for the report, into {out}")
+        with isolate_rng():
+            untrained = null.priors_alone(functools.partial(_cli, run=False), saved, seed, out)
+        for callback in callbacks:
+            callback.untrained = untrained
 
     def after_fit(self) -> None:
         self._exit_if_not_causal("fit")
@@ -276,7 +307,7 @@ class VOECLI(LightningCLI):
             preflight.check_run(self.subcommand, config)
         if config and "weights_only" in config and config.get("weights_only") is None:
             config["weights_only"] = True  # torch>=2.4 may default to unpickling anything
-        if self.subcommand != "fit":
+        if self.subcommand in LIGHTNING_SUBCOMMANDS and self.subcommand != "fit":
             self.save_config_kwargs = {**self.save_config_kwargs, "keep_earlier": True,
                                        "config_filename": f"{self.subcommand}_config.yaml"}
         ckpt_path = config.get("ckpt_path") if config else None

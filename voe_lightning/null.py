@@ -9,7 +9,9 @@ of a config's model (``seed_everything`` = 0, 1, ...; learned parts at initializ
 structure as configured) with the config's test probes and report callback, each report in its
 own folder, then tables per concept/variant the distribution of t over initializations, the
 share significant and, per concept, the share with a VOE verdict; a trained run's t gets its
-percentile in that distribution.
+percentile in that distribution. ``priors_alone`` is one such initialization of a run's own
+config at its own seed, which ``test`` runs first where the report callback asks for it
+(``VOEReportCallback(priors_alone=True)``, the positive control's config).
 """
 
 from __future__ import annotations
@@ -20,14 +22,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from voe_lightning.report.results import read_summary
+from voe_lightning.runs import fresh_config_name
+from voe_lightning.store_shards import write_whole
 from voe_lightning.statistics_format import format_number
 
 
 def _untrained_report(build_cli: Callable[[list[str]], Any], configs: Sequence[Path],
-                      seed: int, out: Path, extra_args: Sequence[str]) -> dict[str, Any]:
-    """Test the configs' model at initialization under ``seed``; its report's summary."""
+                      seed: int, out: Path, extra_args: Sequence[str]) -> Path:
+    """Test the configs' model at initialization under ``seed``; its report's folder."""
     arguments = [word for config in configs for word in ("--config", str(config))]
     cli = build_cli([*arguments, "--seed_everything", str(seed),
                      "--trainer.logger.init_args.save_dir", str(out),
@@ -38,7 +43,23 @@ def _untrained_report(build_cli: Callable[[list[str]], Any], configs: Sequence[P
     if not reports:
         raise ValueError("the configs' trainer wrote no report: add "
                          "voe_lightning.callbacks.VOEReportCallback to its callbacks")
-    return read_summary(reports[-1])
+    return reports[-1]
+
+
+def priors_alone(build_cli: Callable[[list[str]], Any], config: Mapping[str, Any], seed: int,
+                 out: Path) -> dict[str, Any]:
+    """What a model's given structure scores before any training: the run's whole ``config``
+    (a plain dict, as saved; model arguments as tested) at initialization under the run's
+    ``seed``, tested on the same probes (``_untrained_report``: one initialization of the
+    null), its config and report under ``out`` (a new logger version each time). Returns
+    that report's summary.json document with its ``seed`` and ``report`` folder."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    config_path = out / fresh_config_name(out, "config")
+    write_whole({config_path: yaml.safe_dump(dict(config), sort_keys=False)})
+    report = _untrained_report(build_cli, [config_path], seed, out,
+                               ["--trainer.logger.init_args.version", "null"])
+    return {**read_summary(report), "seed": seed, "report": str(report)}
 
 
 def _percentile(value: float, null: np.ndarray) -> float:
@@ -122,14 +143,13 @@ def untrained_null(configs: list[Path], seeds: int = 20, out: Path = Path("runs/
     if seeds < 1:
         raise ValueError(f"seeds must be at least 1, got {seeds}")
     out = Path(out)
-    summaries = [_untrained_report(_build_cli, configs, seed, out, extra_args or ())
+    summaries = [read_summary(_untrained_report(_build_cli, configs, seed, out, extra_args or ()))
                  for seed in range(seeds)]
     rows = null_rows(summaries, None if trained is None else read_summary(trained))
     table = format_null(rows, summaries[0]["alpha"])
     document = {"configs": [str(c) for c in configs], "seeds": seeds, "rows": rows,
                 "initializations": [{"seed": seed, "rows": s["rows"], "verdicts": s["verdicts"]}
                                     for seed, s in enumerate(summaries)]}
-    (out / "null.json").write_text(json.dumps(document, indent=2) + "\n")
-    (out / "null.md").write_text(table)
+    write_whole({out / "null.json": json.dumps(document, indent=2) + "\n", out / "null.md": table})
     print(table, end="")
     return table

@@ -51,6 +51,7 @@ def write_report(
     surprise: str = VRNN_SURPRISE,
     source: Mapping[str, Any] | None = None,
     window: SurpriseWindow = SurpriseWindow(),
+    priors_alone: Mapping[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
     """Write ``out_dir/voe_report/`` (module docstring) and return the summary rows.
     ``predictions`` give predictions_<concept>.png, ``trajectories`` (see ``tsne_figure``)
@@ -58,7 +59,8 @@ def write_report(
     cues.md/csv/json, cue_correlations.csv and cue_scatter.png; ``echo`` prints the Markdown
     tables; ``surprise`` names what a frame's surprise is (the model's ``SURPRISE``);
     ``source`` (checkpoint, its global step, data root, concepts) goes into summary.json;
-    a ``window`` other than all frames adds its tables beside the paper's (``write_summary``)."""
+    a ``window`` other than all frames adds its tables beside the paper's, and ``priors_alone``
+    (an untrained copy's summary) its rows labelled "priors alone (untrained)" (``write_summary``)."""
     if len(results) == 0:
         raise ValueError("no probe results to report")
     out_dir = Path(out_dir)
@@ -68,7 +70,8 @@ def write_report(
     staging = Path(tempfile.mkdtemp(prefix=temporary_prefix(STAGING), dir=out_dir))
     try:
         rows = _write_files(results, staging, predictions, trajectories, trajectory_labels,
-                            cue_audit, alpha, bootstrap, seed, echo, surprise, source, window)
+                            cue_audit, alpha, bootstrap, seed, echo, surprise, source, window,
+                            priors_alone)
         report_dir = _replace_folder(staging, out_dir / "voe_report")
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -100,14 +103,15 @@ def _write_files(results: PairResults, report_dir: Path,
                  trajectories: Mapping[str, Any] | None, trajectory_labels: Sequence[str] | None,
                  cue_audit: cues.CueAudit | None, alpha: float, bootstrap: int, seed: int,
                  echo: bool, surprise: str, source: Mapping[str, Any] | None,
-                 window: SurpriseWindow) -> list[dict[str, Any]]:
+                 window: SurpriseWindow,
+                 priors_alone: Mapping[str, Any] | None) -> list[dict[str, Any]]:
     """Every file of the report (``write_report``) into ``report_dir``; the summary rows."""
     rows = summarize(results, alpha=alpha, bootstrap=bootstrap, seed=seed)
     window_rows = (None if window.all_frames else
                    summarize(results.windowed(window), alpha=alpha, bootstrap=bootstrap, seed=seed))
     markdown = write_summary(results, rows, report_dir, alpha=alpha, bootstrap=bootstrap,
                              surprise=surprise, source=source, window=window,
-                             window_rows=window_rows)
+                             window_rows=window_rows, priors_alone=priors_alone)
     correlations = None
     if cue_audit is not None:
         if len(cue_audit) != len(results):

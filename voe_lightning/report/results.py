@@ -23,7 +23,8 @@ from voe_lightning.specs import CONCEPTS, VARIANTS
 from voe_lightning.surprise_window import SurpriseWindow, video_surprise
 from voe_lightning.statistics import (ALPHA, QUADRUPLET_ROWS, QuadrupletTestResult, group_test,
                                      untested_reason)
-from voe_lightning.statistics_format import format_alpha, json_row, row_text, rows_alpha
+from voe_lightning.statistics_format import (format_alpha, format_t, json_row, row_text,
+                                             rows_alpha)
 from voe_lightning.verdicts import concept_verdicts, pair_groups
 
 #: Keys of the dict that ``VRNNLRUModel.probe_step`` (and so ``test_step``) returns.
@@ -393,17 +394,64 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURP
     return "\n".join(lines) + "\n"
 
 
+#: The label of a report's rows of its model's given structure alone (``null.priors_alone``).
+PRIORS_ALONE = "priors alone (untrained)"
+#: The columns of each of those rows summary.json keeps.
+PRIORS_ALONE_COLUMNS = ("concept", "variant", "n", "relative_surprise", "t", "df", "p_value",
+                        "significant")
+
+
+def priors_alone_document(untrained: Mapping[str, Any]) -> dict[str, Any]:
+    """summary.json's ``priors_alone``: of the ``untrained`` copy's summary (its report's
+    summary.json with ``seed`` and ``report``, ``null.priors_alone``), each row's test and
+    each concept's verdict, labelled ``PRIORS_ALONE``."""
+    return {"label": PRIORS_ALONE, "seed": untrained["seed"], "report": untrained["report"],
+            "rows": [{key: row.get(key) for key in PRIORS_ALONE_COLUMNS}
+                     for row in untrained["rows"]],
+            "verdicts": untrained["verdicts"]}
+
+
+def format_priors_alone(rows: Sequence[Mapping[str, Any]],
+                        verdicts: Sequence[Mapping[str, Any]], priors: Mapping[str, Any]) -> str:
+    """summary.md's section of ``priors`` (``priors_alone_document``) beside the trained
+    ``rows`` and ``verdicts`` (as summary.json holds them): t per concept/variant both ways,
+    then each concept's verdict both ways, so a reader sees which passes the training added."""
+    untrained = {(row["concept"], row["variant"]): row for row in priors["rows"]}
+    lines = [f"## {PRIORS_ALONE.capitalize()}", "",
+             f"The same config with its learned parts at initialization (seed {priors['seed']}) "
+             "and its given structure as configured, tested on the same probes: what the given "
+             f"priors score before any training (its whole report: {priors['report']}).", "",
+             f"| concept | variant | t trained | t {PRIORS_ALONE} |", "|---|---|---|---|"]
+    for row in rows:
+        alone = untrained.get((row["concept"], row["variant"]), {})
+        lines.append(f"| {row['concept']} | {row['variant']} | {_t_cell(row)} "
+                     f"| {_t_cell(alone)} |")
+    lines += ["", f"t(df) of the one-tailed paired test, * where p < {rows_alpha(rows):g}.", ""]
+    alone = {verdict["concept"]: verdict["verdict"] for verdict in priors["verdicts"]}
+    lines += [f"- {verdict['concept']}: trained {verdict['verdict']}; {PRIORS_ALONE} "
+              f"{alone.get(verdict['concept'], 'n/a')}" for verdict in verdicts]
+    return "\n".join(lines) + "\n"
+
+
+def _t_cell(row: Mapping[str, Any]) -> str:
+    """A row's t(df), starred where significant ('n/a' for no row or no test)."""
+    return format_t(row.get("t"), row.get("df")) + ("*" if row.get("significant") else "")
+
+
 def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], report_dir: Path, *,
                   alpha: float, bootstrap: int, surprise: str,
                   source: Mapping[str, Any] | None = None,
                   window: SurpriseWindow = SurpriseWindow(),
-                  window_rows: Sequence[Mapping[str, Any]] | None = None) -> str:
+                  window_rows: Sequence[Mapping[str, Any]] | None = None,
+                  priors_alone: Mapping[str, Any] | None = None) -> str:
     """Write pairs.csv, summary.json (with ``source``: what the report was made from, and
     pairs.csv's SHA-256, which ``PairResults.from_csv`` checks), summary.csv and summary.md
     (of ``summarize``'s ``rows``, over all frames, and the field's metrics of
     ``field_metric_rows``) into ``report_dir``; with a ``window``
     other than all frames, its ``window_rows`` go beside them: summary.json's ``window``,
-    summary_window.csv and a section of summary.md. Return the Markdown summary."""
+    summary_window.csv and a section of summary.md; ``priors_alone`` (the untrained copy's
+    summary, ``null.priors_alone``) gives summary.json's ``priors_alone`` and its section of
+    summary.md. Return the Markdown summary."""
     results.to_csv(report_dir / "pairs.csv")
     causality = results.causality
     document = {"source": dict(source or {}),
@@ -419,6 +467,10 @@ def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], repor
         _write_rows(handle, rows)
     markdown = format_source(document["source"]) + format_markdown(rows, surprise,
                                                                   causality=causality)
+    if priors_alone is not None:
+        document["priors_alone"] = priors_alone_document(priors_alone)
+        markdown += "\n" + format_priors_alone(document["rows"], document["verdicts"],
+                                                document["priors_alone"])
     if not window.all_frames:
         document["window"] = {"surprise_window": window.as_config(),
                               "video_surprise": f"sum over the {window.describe()} of {surprise}",
