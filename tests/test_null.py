@@ -7,10 +7,12 @@ import json
 from pathlib import Path
 
 import pytest
+import scipy.stats
 import yaml
+from PIL import Image
 
 from voe_lightning.cli import main
-from voe_lightning.null import format_null, null_rows
+from voe_lightning.null import format_null, null_figure, null_rows
 
 TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
 
@@ -40,7 +42,30 @@ def test_null_rows_by_hand():
     assert "p < 0.01" in table
 
 
-def test_analyze_null_tests_each_initialization_on_the_same_probes(tmp_path, monkeypatch):
+def test_the_null_figure_draws_each_t_against_the_critical_t():
+    """A row per concept/variant: the finite untrained t's as points, the critical t of the
+    row's df at alpha (scipy's) as the dashed mark, the trained t as the one diamond."""
+    summaries = [summary(1.0, 0.5, False), summary(3.0, "inf", True, significant=True),
+                 summary(-2.0, 0.0, False)]
+    for row in (row for each in summaries for row in each["rows"]):
+        row["df"] = 9 if row["variant"] == "standard" else 17.5
+    document = {"configs": ["configs/object_state.yaml"], "seeds": 3,
+                "rows": null_rows(summaries, summary(4.0, 2.5, True)),
+                "initializations": [{"seed": seed, "rows": s["rows"]}
+                                    for seed, s in enumerate(summaries)]}
+    [ax] = null_figure(document, 0.01).axes
+    points = [collection.get_offsets() for collection in ax.collections]
+    standard, trained_standard, pooled, trained_pooled = points
+    assert sorted(standard[:, 0]) == [-2.0, 1.0, 3.0] and abs(standard[:, 1]).max() <= 0.2
+    assert sorted(pooled[:, 0]) == [0.0, 0.5]  # the infinite t left out
+    assert trained_standard.tolist() == [[4.0, 0.0]] and trained_pooled.tolist() == [[2.5, 1.0]]
+    critical = [line.get_xdata()[0] for line in ax.lines if line.get_linestyle() == "--"]
+    assert critical == pytest.approx([scipy.stats.t.ppf(0.99, 9), scipy.stats.t.ppf(0.99, 17.5)])
+    assert [label.get_text() for label in ax.get_yticklabels()] == ["solidity / standard",
+                                                                    "solidity / pooled"]
+
+
+def test_analyze_null_tests_each_initialization_on_the_same_probes(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     main(["test", "--config", TINY, "--model", "voe_lightning.model.CueScorer",
           "--model.init_args.cue", "motion", "--trainer.enable_progress_bar", "false"])
@@ -55,6 +80,11 @@ def test_analyze_null_tests_each_initialization_on_the_same_probes(tmp_path, mon
     assert all((tmp_path / "null" / f"seed_{s}" / "version_0" / "voe_report" / "summary.json")
                .is_file() for s in (0, 1))
     assert table == (tmp_path / "null" / "null.md").read_text()
+    figure = tmp_path / "null" / "null.png"
+    assert f"wrote {figure}" in capsys.readouterr().out
+    with Image.open(figure) as image:
+        assert image.format == "PNG" and 500 <= image.width <= 2000 and 200 <= image.height <= 2000
+    assert 10_000 < figure.stat().st_size < 1_000_000
     assert "priors_alone" not in json.loads((trained / "summary.json").read_text())  # not asked
     assert all(row["initializations"] == 2 and "trained_percentile" in row
                for row in document["rows"])

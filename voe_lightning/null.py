@@ -9,7 +9,8 @@ of a config's model (``seed_everything`` = 0, 1, ...; learned parts at initializ
 structure as configured) with the config's test probes and report callback, each report in its
 own folder, then tables per concept/variant the distribution of t over initializations, the
 share significant and, per concept, the share with a VOE verdict; a trained run's t gets its
-percentile in that distribution. ``priors_alone`` is one such initialization of a run's own
+percentile in that distribution, and the plot (``null_figure``) shows each t against the
+critical t at alpha. ``priors_alone`` is one such initialization of a run's own
 config at its own seed, which ``test`` runs first where the report callback asks for it
 (``VOEReportCallback(priors_alone=True)``, the positive control's config).
 """
@@ -17,13 +18,17 @@ config at its own seed, which ``test`` runs first where the report callback asks
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import scipy.stats
 import yaml
+from matplotlib.figure import Figure
 
+from voe_lightning.report.figures import save_figure
 from voe_lightning.report.results import read_summary
 from voe_lightning.runs import fresh_config_name
 from voe_lightning.store_shards import write_whole
@@ -120,12 +125,54 @@ def format_null(rows: Sequence[Mapping[str, Any]], alpha: float) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _null_points(document: Mapping[str, Any], concept: str, variant: str
+                 ) -> tuple[np.ndarray, float]:
+    """The finite t of ``concept``/``variant`` at each initialization of a null.json
+    ``document``, and the median of their df."""
+    rows = [row for initialization in document["initializations"]
+            for row in initialization["rows"]
+            if (row["concept"], row["variant"]) == (concept, variant) and row.get("t") is not None]
+    t = np.asarray([float(row["t"]) for row in rows])
+    df = np.asarray([float(row["df"]) for row in rows if row.get("df") is not None])
+    return t[np.isfinite(t)], float(np.median(df)) if df.size else math.nan
+
+
+def null_figure(document: Mapping[str, Any], alpha: float) -> Figure:
+    """The null drawn: a row per concept/variant of a null.json ``document``, the untrained
+    initializations' t as points (jittered up and down, non-finite ones left out), the
+    one-tailed critical t at ``alpha`` for the row's df (``scipy.stats.t``) as a dashed mark,
+    and a trained run's t as a diamond where the row holds one."""
+    rows = document["rows"]
+    figure = Figure(figsize=(7.5, 1.5 + 0.4 * len(rows)), layout="constrained")
+    ax = figure.subplots()
+    jitter, trained = np.random.default_rng(0), [row for row in rows
+                                                 if math.isfinite(row.get("trained_t", math.nan))]
+    for index, row in enumerate(rows):
+        t, df = _null_points(document, row["concept"], row["variant"])
+        ax.scatter(t, index + jitter.uniform(-0.2, 0.2, t.size), s=14, color="0.45",
+                   alpha=0.8, label="untrained initializations" if index == 0 else None)
+        ax.plot([scipy.stats.t.ppf(1 - alpha, df)] * 2, [index - 0.35, index + 0.35], "k--",
+                lw=1.2, label=f"critical t (one-tailed, α = {alpha:g})" if index == 0 else None)
+        if row in trained:
+            ax.scatter([row["trained_t"]], [index], marker="D", s=40, color="C3", zorder=3,
+                       label="trained" if row is trained[0] else None)
+    ax.set_yticks(range(len(rows)), [f"{row['concept']} / {row['variant']}" for row in rows])
+    ax.set_ylim(len(rows) - 0.5, -0.5)
+    ax.axvline(0, color="0.8", lw=0.8, zorder=0)
+    ax.set_xlabel("t of the one-tailed paired test (inconsistent > consistent)")
+    ax.set_title(f"Untrained null: {document['seeds']} initializations of "
+                 f"{', '.join(Path(config).name for config in document['configs'])}")
+    figure.legend(loc="outside lower center", ncols=3, fontsize="small", frameon=False)
+    return figure
+
+
 def untrained_null(configs: list[Path], seeds: int = 20, out: Path = Path("runs/null"),
                    trained: Path | None = None, extra_args: list[str] | None = None,
                    _build_cli: Callable[[list[str]], Any] | None = None) -> str:
     """Test untrained initializations of a config's model on its test probes and table the
     distribution of each concept's statistic and verdict (module docstring); writes
-    ``out/null.json`` (every initialization's rows and verdicts) and ``out/null.md``.
+    ``out/null.json`` (every initialization's rows and verdicts), ``out/null.md`` and
+    ``out/null.png`` (``null_figure``, its path printed).
 
     Args:
         configs: the test configs, in order, after base.yaml (e.g. configs/quickstart.yaml),
@@ -152,4 +199,5 @@ def untrained_null(configs: list[Path], seeds: int = 20, out: Path = Path("runs/
                                     for seed, s in enumerate(summaries)]}
     write_whole({out / "null.json": json.dumps(document, indent=2) + "\n", out / "null.md": table})
     print(table, end="")
+    save_figure(null_figure(document, summaries[0]["alpha"]), out / "null.png")
     return table

@@ -60,7 +60,8 @@ def write_report(
     tables; ``surprise`` names what a frame's surprise is (the model's ``SURPRISE``);
     ``source`` (checkpoint, its global step, data root, concepts) goes into summary.json;
     a ``window`` other than all frames adds its tables beside the paper's, and ``priors_alone``
-    (an untrained copy's summary) its rows labelled "priors alone (untrained)" (``write_summary``)."""
+    (an untrained copy's summary) its rows labelled "priors alone (untrained)"
+    (``write_summary``)."""
     if len(results) == 0:
         raise ValueError("no probe results to report")
     out_dir = Path(out_dir)
