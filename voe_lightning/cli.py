@@ -20,8 +20,8 @@ import yaml
 from jsonargparse import ActionConfigFile, ArgumentParser, Namespace
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.utilities import rank_zero_warn
-from lightning.pytorch.utilities.seed import isolate_rng
 from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
+from lightning.pytorch.utilities.seed import isolate_rng
 
 from voe_lightning import (analysis, causality, cue_report, generate, null, preflight, runs,
                            statistics)
@@ -74,8 +74,10 @@ class VOECLI(LightningCLI):
     (``runs.report_folder``) for any other checkpoint, data root, concepts or external
     benchmark. ``validate``/``test`` save their config as ``<subcommand>_config.yaml``,
     keeping the run's training ``config.yaml`` and an earlier evaluation's config there
-    (``<subcommand>_config-2.yaml``, ``-3``...: ``runs.RunConfig``). ``--ckpt_path last``/``best`` name the newest
-    run of the config's logger name. A missing checkpoint (or a directory) is refused before
+    (theirs then ``<subcommand>_config-2.yaml``, ``-3``...: ``runs.RunConfig``). A ``test``
+    whose report callback asks for ``priors_alone`` first tests the config at initialization
+    (``_test_priors_alone``). ``--ckpt_path last``/``best`` name the newest run of the config's
+    logger name. A missing checkpoint (or a directory) is refused before
     any work starts, and so are a truncated or corrupt one, model arguments the user gives
     that differ from the checkpoint's (LightningCLI replaces the config's model arguments with
     the checkpoint's, so they would be ignored; evaluating it, the model's ``EVALUATION_ONLY``
