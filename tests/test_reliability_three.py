@@ -387,7 +387,7 @@ def test_a_truncated_or_corrupted_intphys2_video_is_refused_naming_it(tmp_path):
     data = intact.read_bytes()
     corrupted = bytearray(data)
     middle = data.index(b"mdat") + (len(data) - data.index(b"mdat")) // 2
-    corrupted[middle:middle + 40] = np.random.default_rng(0).integers(0, 256, 40, np.uint8).tobytes()
+    corrupted[middle:middle + 40] = np.random.default_rng(0).bytes(40)
     damaged = {f"cut_{size}": data[:size] for size in range(len(data) * 2 // 3, len(data))}
     damaged["corrupted"] = bytes(corrupted)
     for name, content in damaged.items():

@@ -294,10 +294,11 @@ def read_video(path: Path, sampling: ClipSampling) -> np.ndarray:
     """The sampled frames of an mp4 at full resolution, uint8 [T, h, w, 3], decoded with PyAV.
     Frames are picked while decoding (``_decode``), so a long video is never held whole. A
     damaged file is refused, never scored: one that does not open, that holds a packet FFmpeg
-    flags corrupt, that FFmpeg reports errors in while decoding (PyAV drops FFmpeg's log unless asked, and FFmpeg conceals a damaged
-    packet, so a truncated or corrupted mp4 would decode to other frames in silence), or that
-    decodes fewer frames than its header states. PyAV is imported here, so the package imports
-    without it (on a machine that trains on generated data alone)."""
+    flags corrupt, that FFmpeg reports errors in while decoding (PyAV drops FFmpeg's log
+    unless asked, and FFmpeg conceals a damaged packet, so a truncated or corrupted mp4 would
+    decode to other frames in silence), or that decodes fewer frames than its header states.
+    PyAV is imported here, so the package imports without it (on a machine that trains on
+    generated data alone)."""
     import av
     import av.logging
 
