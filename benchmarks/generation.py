@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 
-from voe_lightning import generate, specs, store, store_plan
+from voe_lightning import generate, specs, store_plan
 from voe_lightning.scenes.camera import VideoOptions
 from voe_lightning.scenes.rendering import get_renderer
 from voe_lightning.store_codec import COMPRESSION_LEVEL
@@ -81,7 +81,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     results = []
     with tempfile.TemporaryDirectory(prefix="voe_generation_benchmark_") as root:
         for concept in args.concepts:
-            generate.generate_shard(root, store_plan.ShardTask(concept, "train", 999, (("example", 10**6),)), video)  # warm-up
+            generate.generate_shard(
+                root, store_plan.ShardTask(concept, "train", 999, (("example", 10**6),)), video
+            )  # warm-up
             result = measure(concept, args.clips, args.pairs, video, Path(root))
             train, test = result["train"], result["test"]
             videos = train["videos"] + test["videos"]

@@ -35,16 +35,26 @@ def main() -> None:
     data, model_args = config["data"]["init_args"], config["model"]["init_args"]
     root = CONFIG.parents[1] / data["root"]
     if not (root / "manifest.json").exists():
-        raise SystemExit(f"no training clips at {root}; run `python -m voe_lightning fit "
-                         f"--config {CONFIG.relative_to(CONFIG.parents[1])}` (it generates "
-                         "them first) or `python -m voe_lightning generate` for that root")
+        raise SystemExit(
+            f"no training clips at {root}; run `python -m voe_lightning fit "
+            f"--config {CONFIG.relative_to(CONFIG.parents[1])}` (it generates "
+            "them first) or `python -m voe_lightning generate` for that root"
+        )
     train = ConcatDataset([open_split(root, concept, "train") for concept in specs.CONCEPTS])
-    loader = DataLoader(train, batch_size=data["batch_size"], shuffle=True, collate_fn=collate,
-                        drop_last=True, generator=torch.Generator().manual_seed(0))
+    loader = DataLoader(
+        train,
+        batch_size=data["batch_size"],
+        shuffle=True,
+        collate_fn=collate,
+        drop_last=True,
+        generator=torch.Generator().manual_seed(0),
+    )
     batches = [batch for batch, _ in zip(loader, range(args.warmup + args.steps))]
     max_steps = config["trainer"]["max_steps"]
-    print(f"positive control, batch {data['batch_size']}, hidden {model_args['hidden_size']}, "
-          f"{args.steps} timed steps")
+    print(
+        f"positive control, batch {data['batch_size']}, hidden {model_args['hidden_size']}, "
+        f"{args.steps} timed steps"
+    )
     print("| threads | step (s), median | steps/s | fit of max_steps |")
     print("|---|---|---|---|")
     for threads in args.threads:
@@ -64,8 +74,10 @@ def main() -> None:
                 times.append(time.perf_counter() - start)
         step = statistics.median(times)
         minutes, seconds = divmod(round(step * max_steps), 60)
-        print(f"| {threads} | {step:.3f} | {1 / step:.2f} | {max_steps} steps: "
-              f"{minutes} min {seconds:02d} s |")
+        print(
+            f"| {threads} | {step:.3f} | {1 / step:.2f} | {max_steps} steps: "
+            f"{minutes} min {seconds:02d} s |"
+        )
 
 
 if __name__ == "__main__":

@@ -23,8 +23,11 @@ def summarize(run: str) -> dict:
     scalars = read_scalars(run, r"(train/loss|val/kl|voe/.*/t)$")
     steps, loss = scalars["train/loss"]
     last_quarter = steps >= steps.max() * 0.75
-    row = {"loss": float(np.mean(loss[last_quarter])), "val/kl": float(scalars["val/kl"][1][-1]),
-           "validated at": int(scalars["val/kl"][0][-1])}
+    row = {
+        "loss": float(np.mean(loss[last_quarter])),
+        "val/kl": float(scalars["val/kl"][1][-1]),
+        "validated at": int(scalars["val/kl"][0][-1]),
+    }
     for tag, (_, values) in scalars.items():
         if tag.startswith("voe/"):
             row[tag.removeprefix("voe/").removesuffix("/t")] = float(values[-1])
@@ -42,8 +45,11 @@ def main() -> None:
     for key in keys:
         cells = [rows[label].get(key) for label in rows]
         shown = [f"{value:,.2f}" if isinstance(value, float) else str(value) for value in cells]
-        print(f"| {key if key in ('loss', 'val/kl', 'validated at') else 't ' + key} | "
-              + " | ".join(shown) + " |")
+        print(
+            f"| {key if key in ('loss', 'val/kl', 'validated at') else 't ' + key} | "
+            + " | ".join(shown)
+            + " |"
+        )
 
 
 if __name__ == "__main__":

@@ -29,8 +29,8 @@ from pathlib import Path
 
 import torch
 import yaml
-from torch.utils._python_dispatch import TorchDispatchMode
 from lightning.pytorch import Callback, Trainer
+from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils.data import SequentialSampler
 from torch.utils.flop_counter import FlopCounterMode
 
@@ -39,8 +39,16 @@ from voe_lightning.model import VRNNLRUModel
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 #: Set by the benchmark per path, not read from the configs.
-NOT_FROM_CONFIG = ("learning_rate", "adam_betas", "compile", "compile_model", "cuda_graph",
-                   "channels_last", "precision", "lr_warmup_steps")
+NOT_FROM_CONFIG = (
+    "learning_rate",
+    "adam_betas",
+    "compile",
+    "compile_model",
+    "cuda_graph",
+    "channels_last",
+    "precision",
+    "lr_warmup_steps",
+)
 PATHS = {
     "reference": dict(channels_last=False, precision="float32", compile="off", cuda_graph=False),
     "eager": dict(compile="off", cuda_graph=False),
@@ -49,7 +57,13 @@ PATHS = {
 }
 #: ATen ops that read a device tensor back to the host. Only calls from Python count: inside an
 #: ATen kernel they are the CPU kernel's own reads (the CPU's fused Adam reads each step count).
-SYNC_OPS = {"aten::_local_scalar_dense", "aten::item", "aten::is_nonzero", "aten::nonzero", "aten::masked_select"}
+SYNC_OPS = {
+    "aten::_local_scalar_dense",
+    "aten::item",
+    "aten::is_nonzero",
+    "aten::nonzero",
+    "aten::masked_select",
+}
 #: 2M steps x batch 10 (paper §4.1).
 PAPER_SEQUENCES = 2_000_000 * 10
 #: Read-back cadence of the counting fit (a few steps, each profiled) and of the timed fits
@@ -101,10 +115,15 @@ class StepCounts:
 
     def __init__(self, events, ops: int | None) -> None:
         names = collections.Counter(event.name for event in events)
-        self.syncs = sum(1 for event in events if event.name in SYNC_OPS and not _inside_aten(event))
+        self.syncs = sum(
+            1 for event in events if event.name in SYNC_OPS and not _inside_aten(event)
+        )
         self.kernels = ops
-        self.launches = sum(count for name, count in names.items()
-                            if name.startswith(("cudaLaunchKernel", "cuLaunchKernel", "cudaGraphLaunch")))
+        self.launches = sum(
+            count
+            for name, count in names.items()
+            if name.startswith(("cudaLaunchKernel", "cuLaunchKernel", "cudaGraphLaunch"))
+        )
 
 
 class StepProbe(Callback):
@@ -146,14 +165,26 @@ class StepProbe(Callback):
         self.end = time.perf_counter()
 
 
-def fit(model: VRNNLRUModel, clips: torch.Tensor, batch_size: int, steps: int, skip: int,
-        count: bool = False) -> StepProbe:
+def fit(
+    model: VRNNLRUModel,
+    clips: torch.Tensor,
+    batch_size: int,
+    steps: int,
+    skip: int,
+    count: bool = False,
+) -> StepProbe:
     """``steps`` training steps of ``model`` on ``clips`` through ``Trainer.fit``."""
     probe = StepProbe(skip, count)
     trainer = Trainer(
-        accelerator=model.device.type, devices=1, max_steps=steps, logger=False,
-        enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
-        log_every_n_steps=LOG_EVERY if count else TIMED_LOG_EVERY, callbacks=[probe],
+        accelerator=model.device.type,
+        devices=1,
+        max_steps=steps,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        log_every_n_steps=LOG_EVERY if count else TIMED_LOG_EVERY,
+        callbacks=[probe],
         gradient_clip_val=10.0,
     )
     batches = ResidentBatches(clips, SequentialSampler(range(len(clips))), batch_size)
@@ -172,14 +203,26 @@ def count_flops(model: VRNNLRUModel, clips: torch.Tensor, batch_size: int) -> fl
     return counter.get_total_flops()
 
 
-def benchmark(name: str, device: torch.device, paths: list[str], batch_size: int, steps: int,
-              rounds: int, frames: int) -> list[dict]:
+def benchmark(
+    name: str,
+    device: torch.device,
+    paths: list[str],
+    batch_size: int,
+    steps: int,
+    rounds: int,
+    frames: int,
+) -> list[dict]:
     """One row per path for one model size and batch, measured in interleaved rounds."""
     sizes, _ = config_sizes(name)
     height, width = sizes.get("image_size", (64, 64))
     generator = torch.Generator().manual_seed(0)
-    clips = torch.randint(0, 256, (batch_size * (steps + 2), frames, height, width, 3),
-                          dtype=torch.uint8, generator=generator).to(device)
+    clips = torch.randint(
+        0,
+        256,
+        (batch_size * (steps + 2), frames, height, width, 3),
+        dtype=torch.uint8,
+        generator=generator,
+    ).to(device)
     models, first_fit, counts = {}, {}, {}
     for path in paths:
         torch.manual_seed(0)
@@ -199,26 +242,37 @@ def benchmark(name: str, device: torch.device, paths: list[str], batch_size: int
         step = statistics.median(seconds[path])
         # The model reads back every LOG_EVERY steps and at the last step (LOG_EVERY + 1).
         plain = [counted for global_step, counted in counts[path][:-1] if global_step % LOG_EVERY]
-        read_back = [counted for global_step, counted in counts[path] if not global_step % LOG_EVERY]
+        read_back = [
+            counted for global_step, counted in counts[path] if not global_step % LOG_EVERY
+        ]
         model = models[path]
-        rows.append({
-            "model": name, "device": device.type, "path": path, "batch": batch_size,
-            "compiled": model.compiles, "graphed": model.captures,
-            "precision": "bf16-autocast" if model.uses_bf16 else "float32",
-            "layout": "NHWC" if model.hparams.channels_last else "NCHW",
-            "parameters": sum(p.numel() for p in model.parameters()),
-            "gflop_per_step": flops / 1e9,
-            "ms_per_step": step * 1e3,
-            "sequences_per_s": batch_size / step,
-            "syncs_per_step": statistics.mean(counted.syncs for counted in plain),
-            "syncs_per_read_back": statistics.mean(counted.syncs for counted in read_back),
-            "kernels_per_step": (None if model.compiles else
-                                 statistics.mean(counted.kernels for counted in plain)),
-            "launches_per_step": statistics.mean(counted.launches for counted in plain),
-            "first_fit_s": first_fit[path],
-            "achieved_gflops": flops / step / 1e9,
-            "paper_run_hours": PAPER_SEQUENCES / (batch_size / step) / 3600,
-        })
+        rows.append(
+            {
+                "model": name,
+                "device": device.type,
+                "path": path,
+                "batch": batch_size,
+                "compiled": model.compiles,
+                "graphed": model.captures,
+                "precision": "bf16-autocast" if model.uses_bf16 else "float32",
+                "layout": "NHWC" if model.hparams.channels_last else "NCHW",
+                "parameters": sum(p.numel() for p in model.parameters()),
+                "gflop_per_step": flops / 1e9,
+                "ms_per_step": step * 1e3,
+                "sequences_per_s": batch_size / step,
+                "syncs_per_step": statistics.mean(counted.syncs for counted in plain),
+                "syncs_per_read_back": statistics.mean(counted.syncs for counted in read_back),
+                "kernels_per_step": (
+                    None
+                    if model.compiles
+                    else statistics.mean(counted.kernels for counted in plain)
+                ),
+                "launches_per_step": statistics.mean(counted.launches for counted in plain),
+                "first_fit_s": first_fit[path],
+                "achieved_gflops": flops / step / 1e9,
+                "paper_run_hours": PAPER_SEQUENCES / (batch_size / step) / 3600,
+            }
+        )
     eager = next((row for row in rows if row["path"] == "eager"), None)
     for row in rows:
         row["vs_eager"] = row["sequences_per_s"] / eager["sequences_per_s"] if eager else None
@@ -226,35 +280,60 @@ def benchmark(name: str, device: torch.device, paths: list[str], batch_size: int
 
 
 def print_table(rows: list[dict], header_note: str) -> None:
-    header = (f"{'model':<11}{'path':<10}{'batch':>6}{'ms/step':>10}{'seq/s':>9}{'vs eager':>9}"
-              f"{'syncs/step':>11}{'syncs/read-back':>16}{'ATen kernels':>13}{'launches':>9}"
-              f"{'first fit (s)':>14}{'GFLOP/s':>9}{'20M seq (h)':>12}")
+    header = (
+        f"{'model':<11}{'path':<10}{'batch':>6}{'ms/step':>10}{'seq/s':>9}{'vs eager':>9}"
+        f"{'syncs/step':>11}{'syncs/read-back':>16}{'ATen kernels':>13}{'launches':>9}"
+        f"{'first fit (s)':>14}{'GFLOP/s':>9}{'20M seq (h)':>12}"
+    )
     print(f"\n{header_note}\n{header}\n" + "-" * len(header))
     for r in rows:
         ratio = f"{r['vs_eager']:.2f}x" if r["vs_eager"] is not None else "-"
         kernels = "-" if r["kernels_per_step"] is None else f"{r['kernels_per_step']:,.0f}"
-        print(f"{r['model']:<11}{r['path']:<10}{r['batch']:>6}{r['ms_per_step']:>10.1f}"
-              f"{r['sequences_per_s']:>9.1f}{ratio:>9}{r['syncs_per_step']:>11.2f}"
-              f"{r['syncs_per_read_back']:>16.2f}{kernels:>13}{r['launches_per_step']:>9,.0f}"
-              f"{r['first_fit_s']:>14.1f}{r['achieved_gflops']:>9.1f}{r['paper_run_hours']:>12.1f}")
+        print(
+            f"{r['model']:<11}{r['path']:<10}{r['batch']:>6}{r['ms_per_step']:>10.1f}"
+            f"{r['sequences_per_s']:>9.1f}{ratio:>9}{r['syncs_per_step']:>11.2f}"
+            f"{r['syncs_per_read_back']:>16.2f}{kernels:>13}{r['launches_per_step']:>9,.0f}"
+            f"{r['first_fit_s']:>14.1f}{r['achieved_gflops']:>9.1f}{r['paper_run_hours']:>12.1f}"
+        )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
-    parser.add_argument("--models", nargs="+", choices=("quickstart", "paper"),
-                        default=["quickstart", "paper"])
-    parser.add_argument("--paths", nargs="+", choices=tuple(PATHS), default=None,
-                        help="default: reference, eager, compiled (and graphed on a GPU)")
-    parser.add_argument("--batch-size", type=int, nargs="+", default=None,
-                        help="sequences per step (default: the config's, 8 quickstart / 10 paper)")
-    parser.add_argument("--steps", type=int, default=None,
-                        help="timed steps per path and round (default: 3 on a CPU, 30 on a GPU)")
+    parser.add_argument(
+        "--models", nargs="+", choices=("quickstart", "paper"), default=["quickstart", "paper"]
+    )
+    parser.add_argument(
+        "--paths",
+        nargs="+",
+        choices=tuple(PATHS),
+        default=None,
+        help="default: reference, eager, compiled (and graphed on a GPU)",
+    )
+    parser.add_argument(
+        "--batch-size",
+        type=int,
+        nargs="+",
+        default=None,
+        help="sequences per step (default: the config's, 8 quickstart / 10 paper)",
+    )
+    parser.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="timed steps per path and round (default: 3 on a CPU, 30 on a GPU)",
+    )
     parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds per model")
     parser.add_argument("--frames", type=int, default=15, help="frames per sequence (paper: 15)")
-    parser.add_argument("--threads", type=int, default=None, help="CPU threads (torch.set_num_threads)")
-    parser.add_argument("--json", type=Path, default=None,
-                        help='write {"machine": .., "paths": {"MODEL/PATH/bBATCH": {..}}} here')
+    parser.add_argument(
+        "--threads", type=int, default=None, help="CPU threads (torch.set_num_threads)"
+    )
+    parser.add_argument(
+        "--json",
+        type=Path,
+        default=None,
+        help='write {"machine": .., "paths": {"MODEL/PATH/bBATCH": {..}}} here',
+    )
     args = parser.parse_args()
     if args.threads is not None:
         torch.set_num_threads(args.threads)
@@ -266,20 +345,31 @@ def main() -> None:
         machine = torch.cuda.get_device_name(device)
     else:
         machine = f"CPU, {torch.get_num_threads()} threads"
-    paths = args.paths or ["reference", "eager", "compiled"] + (["graphed"] if device.type == "cuda" else [])
+    paths = args.paths or ["reference", "eager", "compiled"] + (
+        ["graphed"] if device.type == "cuda" else []
+    )
     steps = args.steps or (30 if device.type == "cuda" else 3)
     rows = []
     for name in args.models:
         for batch_size in args.batch_size or [config_sizes(name)[1]]:
             rows += benchmark(name, device, paths, batch_size, steps, args.rounds, args.frames)
-    print_table(rows, f"{machine}: T={args.frames} frames of 64x64, {args.rounds} interleaved "
-                      f"rounds of {steps} timed steps, medians; syncs counted with a read-back every {LOG_EVERY} steps, "
-                      f"timed with one every {TIMED_LOG_EVERY}")
+    print_table(
+        rows,
+        f"{machine}: T={args.frames} frames of 64x64, {args.rounds} interleaved "
+        f"rounds of {steps} timed steps, medians; syncs counted with a read-back every {LOG_EVERY} steps, "
+        f"timed with one every {TIMED_LOG_EVERY}",
+    )
     if args.json:
-        args.json.write_text(json.dumps({
-            "machine": machine, "torch": torch.__version__,
-            "paths": {f"{r['model']}/{r['path']}/b{r['batch']}": r for r in rows},
-        }, indent=2))
+        args.json.write_text(
+            json.dumps(
+                {
+                    "machine": machine,
+                    "torch": torch.__version__,
+                    "paths": {f"{r['model']}/{r['path']}/b{r['batch']}": r for r in rows},
+                },
+                indent=2,
+            )
+        )
         print(f"wrote {args.json}")
 
 

@@ -56,7 +56,8 @@ class ExternalDataModule(ProbeDataModule):
         if self._video is None:
             raise RuntimeError(
                 f"{type(self).__name__}: num_frames, height or width is left to the model; call "
-                "setup() under a trainer with the model, or give them")
+                "setup() under a trainer with the model, or give them"
+            )
         return self._video
 
     def _resolve_video(self, required: bool = True) -> None:
@@ -67,26 +68,44 @@ class ExternalDataModule(ProbeDataModule):
         model = getattr(self.trainer, "lightning_module", None)
         model_hparams = getattr(model, "hparams", {})
         height, width = model_hparams.get("image_size") or (None, None)
-        from_model = {"num_frames": model_hparams.get("training_frames"), "height": height,
-                      "width": width}
-        geometry = {name: from_model[name] if value is None else value
-                    for name, value in given.items()}
+        from_model = {
+            "num_frames": model_hparams.get("training_frames"),
+            "height": height,
+            "width": width,
+        }
+        geometry = {
+            name: from_model[name] if value is None else value for name, value in given.items()
+        }
         unresolved = [name for name, value in geometry.items() if value is None]
         if unresolved and required:
-            wanted = {"num_frames": "training_frames", "height": "image_size",
-                      "width": "image_size"}
-            source = "there is no model" if model is None else (
-                "the model's hyperparameters have no "
-                + " or ".join(dict.fromkeys(wanted[name] for name in unresolved)))
+            wanted = {
+                "num_frames": "training_frames",
+                "height": "image_size",
+                "width": "image_size",
+            }
+            source = (
+                "there is no model"
+                if model is None
+                else (
+                    "the model's hyperparameters have no "
+                    + " or ".join(dict.fromkeys(wanted[name] for name in unresolved))
+                )
+            )
             raise ValueError(
                 f"{type(self).__name__}: {', '.join(unresolved)} not given and {source} to "
-                "take them from; give " + ", ".join(f"--data.init_args.{n}" for n in unresolved))
+                "take them from; give " + ", ".join(f"--data.init_args.{n}" for n in unresolved)
+            )
         if not unresolved:
             indices = frame_indices(
-                self.source_frames, geometry["num_frames"], h.frame_stride, h.first_frame)
-            self._video = FrameSampling(tuple(indices.tolist()), geometry["height"],
-                                       geometry["width"], h.divergence_level,
-                                       h.divergence_fraction)
+                self.source_frames, geometry["num_frames"], h.frame_stride, h.first_frame
+            )
+            self._video = FrameSampling(
+                tuple(indices.tolist()),
+                geometry["height"],
+                geometry["width"],
+                h.divergence_level,
+                h.divergence_fraction,
+            )
 
     def probe_spec(self) -> Composite:
         v = self.video
@@ -113,8 +132,7 @@ class ExternalDataModule(ProbeDataModule):
         """Probe pairs or single videos in order, each on one DDP rank."""
         return self._loader(dataset, self.hparams.probe_batch_size, sampler=probe_sampler(dataset))
 
-    def _read_probes(self, split: str, decoder: Dataset, folder: Path | None,
-                     unit: str) -> Dataset:
+    def _read_probes(self, split: str, decoder: Dataset, folder: Path | None, unit: str) -> Dataset:
         """The probe records of ``split`` from the cache at ``folder`` when it is intact, else
         decoded by ``decoder`` (items: (records, table entry or None)) in worker processes and
         written there (``folder`` None: kept in memory). Fills ``_probes[split]`` and
@@ -128,18 +146,23 @@ class ExternalDataModule(ProbeDataModule):
             return cached
         meta: dict[str, Any] = {"table": {}}
         records = self._decode(decoder, meta, self._skips[split], split, unit)
-        self._probes[split] = (RecordList(list(records)) if folder is None
-                               else write_cache(folder, records, self.probe_spec(), meta))
+        self._probes[split] = (
+            RecordList(list(records))
+            if folder is None
+            else write_cache(folder, records, self.probe_spec(), meta)
+        )
         self._tables[split] = meta["table"]
         return self._probes[split]
 
-    def _decode(self, decoder: Dataset, meta: dict, skips: SkipLog, what: str,
-                unit: str) -> Iterator[TensorDict]:
+    def _decode(
+        self, decoder: Dataset, meta: dict, skips: SkipLog, what: str, unit: str
+    ) -> Iterator[TensorDict]:
         """The probe records, decoded by worker processes; fills ``meta`` (table, skipped
         counts) as it goes, complete once exhausted."""
         loader = worker_loader(decoder, self.hparams.num_workers)
-        for records, entry in tqdm(loader, desc=f"decoding {type(self).__name__} {what}",
-                                   unit=unit, leave=False):
+        for records, entry in tqdm(
+            loader, desc=f"decoding {type(self).__name__} {what}", unit=unit, leave=False
+        ):
             if entry is not None:
                 meta["table"][int(records[0]["seed"])] = entry
             yield from records

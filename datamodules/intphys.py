@@ -225,5 +225,6 @@ class IntPhysDataModule(ExternalDataModule):
         """The evaluated split's quadruplets (``quadruplets``) and skipped counts, for IntPhys'
         metrics (``voe_lightning.external.evaluation``)."""
         split = self.hparams.eval_split
-        return ExternalPairs("IntPhys", self.concept_names, split, self.quadruplets(split),
-                             self.skipped)
+        return ExternalPairs(
+            "IntPhys", self.concept_names, split, self.quadruplets(split), self.skipped
+        )

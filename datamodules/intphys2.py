@@ -18,16 +18,17 @@ from voe_lightning.external.cache import fingerprint
 from voe_lightning.external.evaluation import ExternalPairs
 from voe_lightning.external.intphys2 import (
     PRINCIPLES,
-    SPLITS,
-    ClipSampling,
     RECORD_VERSION,
+    SPLITS,
     VARIANT_NAMES,
+    ClipSampling,
     SceneDataset,
     Video,
     VideoDataset,
     pair_videos,
     read_metadata,
 )
+
 
 class IntPhys2DataModule(ExternalDataModule):
     """IntPhys 2 for ``validate``/``test`` (Possible/Impossible pairs of ``eval_split``, default
@@ -78,23 +79,26 @@ class IntPhys2DataModule(ExternalDataModule):
         cache_dir: str | None = None,
     ):
         super().__init__()
-        check_at_least({
-            "probe_batch_size": (probe_batch_size, 1),
-            "num_workers": (num_workers, 0),
-            "num_frames": (num_frames, 1),
-            "height": (height, 1),
-            "width": (width, 1),
-            "frame_stride": (frame_stride, 1),
-            "first_frame": (first_frame, 0),
-            "divergence_level": (divergence_level, 0),
-        })
+        check_at_least(
+            {
+                "probe_batch_size": (probe_batch_size, 1),
+                "num_workers": (num_workers, 0),
+                "num_frames": (num_frames, 1),
+                "height": (height, 1),
+                "width": (width, 1),
+                "frame_stride": (frame_stride, 1),
+                "first_frame": (first_frame, 0),
+                "divergence_level": (divergence_level, 0),
+            }
+        )
         check_fraction("divergence_fraction", divergence_fraction)
         for name, split in [("eval_split", eval_split), ("predict_split", predict_split)]:
             if split not in SPLITS:
                 raise ValueError(f"{name} must be one of {', '.join(SPLITS)}, got {split!r}")
         if eval_split == "HeldOut":
-            raise ValueError("eval_split='HeldOut' has no labels to pair videos by; use 'Main' "
-                             "or 'Debug'")
+            raise ValueError(
+                "eval_split='HeldOut' has no labels to pair videos by; use 'Main' or 'Debug'"
+            )
         self.save_hyperparameters()
         self._resolve_video(required=False)
         self._videos: dict[str, list[Video]] = {}
@@ -120,22 +124,32 @@ class IntPhys2DataModule(ExternalDataModule):
         pairs = pair_videos(read_metadata(h.root, split, True, h.lenient, skips), h.lenient, skips)
         folder = None
         if h.cache_dir is not None:
-            settings = {"what": split, "video": self.video.__dict__, "frame_stride": h.frame_stride,
-                        "first_frame": h.first_frame, "lenient": h.lenient,
-                        "records": RECORD_VERSION}
+            settings = {
+                "what": split,
+                "video": self.video.__dict__,
+                "frame_stride": h.frame_stride,
+                "first_frame": h.first_frame,
+                "lenient": h.lenient,
+                "records": RECORD_VERSION,
+            }
             sources = [Path(h.root) / split / "metadata.csv"] + [
-                v.path for pair in pairs for v in (pair.possible, pair.impossible)]
+                v.path for pair in pairs for v in (pair.possible, pair.impossible)
+            ]
             folder = Path(h.cache_dir) / "intphys2" / split / fingerprint(settings, sources)
-        return self._read_probes(split, SceneDataset(pairs, self.sampling, h.lenient, skips),
-                                 folder, "scene")
+        return self._read_probes(
+            split, SceneDataset(pairs, self.sampling, h.lenient, skips), folder, "scene"
+        )
 
     def pairs(self, split: str = "Main") -> dict[tuple[int, str], dict[str, Any]]:
         """(seed: the scene's index, variant: the pair's half) -> {scene, prefix, condition,
         principle, difficulty, camera, possible, impossible (video names), possible_row,
         impossible_row, divergence_frame}."""
         self.probes(split)
-        return {(seed, variant): entry for seed, scene in self._tables[split].items()
-                for variant, entry in scene.items()}
+        return {
+            (seed, variant): entry
+            for seed, scene in self._tables[split].items()
+            for variant, entry in scene.items()
+        }
 
     def videos(self, split: str = "HeldOut") -> list[Video]:
         """Every video of ``split`` in metadata order (labels read where the split has them)."""
@@ -146,8 +160,10 @@ class IntPhys2DataModule(ExternalDataModule):
     def probe_cases(self, split: str = "val") -> list[tuple[str, str]]:
         """The (principle, half) names present among the evaluation pairs."""
         table = self.pairs(self.hparams.eval_split)
-        return sorted({(e["principle"], variant) for (_, variant), e in table.items()},
-                      key=lambda case: (case[0], VARIANT_NAMES.index(case[1])))
+        return sorted(
+            {(e["principle"], variant) for (_, variant), e in table.items()},
+            key=lambda case: (case[0], VARIANT_NAMES.index(case[1])),
+        )
 
     # --- loaders ---------------------------------------------------------------------------------
     def val_dataloader(self) -> DataLoader:
@@ -157,13 +173,15 @@ class IntPhys2DataModule(ExternalDataModule):
         return self.val_dataloader()
 
     def predict_dataloader(self) -> DataLoader:
-        return self._probe_loader(VideoDataset(self.videos(self.hparams.predict_split),
-                                               self.sampling))
+        return self._probe_loader(
+            VideoDataset(self.videos(self.hparams.predict_split), self.sampling)
+        )
 
     # --- evaluation ------------------------------------------------------------------------------
     def external_pairs(self) -> ExternalPairs:
         """The evaluated split's pairs (``pairs``) and skipped counts, for IntPhys 2's metrics
         and videos.csv (``voe_lightning.external.evaluation``)."""
         split = self.hparams.eval_split
-        return ExternalPairs("IntPhys 2", self.concept_names, split, self.pairs(split),
-                             self.skipped)
+        return ExternalPairs(
+            "IntPhys 2", self.concept_names, split, self.pairs(split), self.skipped
+        )

@@ -68,7 +68,7 @@ class PhysicalConceptsDataModule(ExternalDataModule):
     def __init__(
         self,
         root: str = "data/physical_concepts",
-        concepts: list[str] = list(PROBE_CONCEPTS),
+        concepts: list[str] = list(PROBE_CONCEPTS),  # noqa: B006 (the CLI reads it; never mutated)
         batch_size: int = 10,
         probe_batch_size: int = 32,
         num_workers: int = 0,
@@ -139,8 +139,12 @@ class PhysicalConceptsDataModule(ExternalDataModule):
                 seed=h.seed,
             )
         else:
-            settings = {"part": part, "video": self.video.__dict__, "lenient": h.lenient,
-                        "records": RECORD_VERSION}
+            settings = {
+                "part": part,
+                "video": self.video.__dict__,
+                "lenient": h.lenient,
+                "records": RECORD_VERSION,
+            }
             folder = (
                 Path(h.cache_dir)
                 / "physical_concepts"
@@ -221,5 +225,4 @@ class PhysicalConceptsDataModule(ExternalDataModule):
     def external_pairs(self) -> ExternalPairs:
         """The concept names and skipped counts, for the per-concept quadruplet metrics
         (``voe_lightning.external.evaluation``); a pair's quadruplet is its ``seed``."""
-        return ExternalPairs("DeepMind Physical Concepts", self.concept_names,
-                             skipped=self.skipped)
+        return ExternalPairs("DeepMind Physical Concepts", self.concept_names, skipped=self.skipped)

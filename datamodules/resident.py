@@ -26,7 +26,8 @@ def resident_frames(dataset: Dataset, device: torch.device, num_workers: int = 0
             raise MemoryError(
                 f"the {len(dataset):,} training clips need {needed / 2**30:.1f} GiB on {device}, "
                 f"which has {free / 2**30:.1f} GiB free; set train_on_device: false (worker "
-                "processes load them) or train on fewer clips")
+                "processes load them) or train on fewer clips"
+            )
     frames = torch.empty((len(dataset), *first.shape), dtype=torch.uint8, device=device)
     start = 0
     loader = record_loader(dataset, 256, num_workers)

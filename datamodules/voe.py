@@ -18,9 +18,9 @@ from datamodules.arguments import check_at_least
 from datamodules.resident import ResidentBatches, resident_frames
 from voe_lightning import specs, store
 from voe_lightning.generate import ensure_dataset
-from voe_lightning.store_plan import check_seed_offset, seed_offset_root
 from voe_lightning.probe_datamodule import ProbeDataModule
 from voe_lightning.store import open_split, probe_sampler, record_loader
+from voe_lightning.store_plan import check_seed_offset, seed_offset_root
 
 
 class InterleavedSampler(Sampler[int]):
@@ -88,7 +88,7 @@ class VOEDataModule(ProbeDataModule):
 
     def __init__(
         self,
-        concepts: list[specs.Concept] = list(specs.CONCEPTS),
+        concepts: list[specs.Concept] = list(specs.CONCEPTS),  # noqa: B006 (the CLI reads it; never mutated)
         root: str = "data/voe",
         train_examples: int = 1000,
         train_controls: int | None = None,
@@ -129,8 +129,10 @@ class VOEDataModule(ProbeDataModule):
                 "seed": (seed, 0),
             }
         )
-        check_seed_offset(seed_offset, {"val": val_pairs, "test": test_pairs,
-                                        "generalization": generalization_pairs})
+        check_seed_offset(
+            seed_offset,
+            {"val": val_pairs, "test": test_pairs, "generalization": generalization_pairs},
+        )
         self.save_hyperparameters()
         self.concepts = list(dict.fromkeys(concepts))
         self._datasets: dict[str, Dataset] = {}
@@ -172,8 +174,11 @@ class VOEDataModule(ProbeDataModule):
 
     def probe_source(self) -> dict[str, Any]:
         """The data root, the seed offset and the store its probes are read from."""
-        return {**super().probe_source(), "seed_offset": self.hparams.seed_offset,
-                "probe_root": str(self._store_root("test"))}
+        return {
+            **super().probe_source(),
+            "seed_offset": self.hparams.seed_offset,
+            "probe_root": str(self._store_root("test")),
+        }
 
     def prepare_data(self) -> None:
         """Generate whatever part of the dataset is missing (a no-op when complete): under a
@@ -186,8 +191,11 @@ class VOEDataModule(ProbeDataModule):
         for split in splits:
             by_store.setdefault(self._store_root(split), []).append(split)
         for store_splits in by_store.values():
-            ensure_dataset(self.hparams.root, splits=store_splits,
-                           **self._generation_arguments(store_splits[0]))
+            ensure_dataset(
+                self.hparams.root,
+                splits=store_splits,
+                **self._generation_arguments(store_splits[0]),
+            )
 
     def setup(self, stage: str | None = None) -> None:
         splits = self._probe_splits(stage) or (
@@ -232,8 +240,9 @@ class VOEDataModule(ProbeDataModule):
         generator = torch.Generator().manual_seed(self.hparams.seed)
         batch_size = self.hparams.probe_batch_size
         dataset = self._datasets[split]
-        return self._loader(dataset, batch_size, generator=generator,
-                            sampler=probe_sampler(dataset))
+        return self._loader(
+            dataset, batch_size, generator=generator, sampler=probe_sampler(dataset)
+        )
 
     def val_dataloader(self) -> DataLoader:
         return self._probe_loader("val")

@@ -33,10 +33,13 @@ def rollout(model: ObjectStateModel, batch, side: str) -> dict:
     hook.remove()
     components = model.hparams.components
     start = components * 2 * STATE_SIZE
-    logits = torch.stack([o[..., start:start + components] for o in caught], dim=1)
-    return {"observations": observations, "weights": logits.softmax(-1),
-            "state": rectified_excess(out["state"], out["state_entropy"]),
-            "surprise": model._per_frame(out)}
+    logits = torch.stack([o[..., start : start + components] for o in caught], dim=1)
+    return {
+        "observations": observations,
+        "weights": logits.softmax(-1),
+        "state": rectified_excess(out["state"], out["state_entropy"]),
+        "surprise": model._per_frame(out),
+    }
 
 
 def main() -> None:
@@ -45,9 +48,15 @@ def main() -> None:
     parser.add_argument("--root", default="data/cpu")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    data = VOEDataModule(concepts=["solidity"], root=args.root, train_examples=2000,
-                         val_pairs=24, test_pairs=200, generalization_pairs=100,
-                         probe_batch_size=500)  # configs/cpu.yaml's data
+    data = VOEDataModule(
+        concepts=["solidity"],
+        root=args.root,
+        train_examples=2000,
+        val_pairs=24,
+        test_pairs=200,
+        generalization_pairs=100,
+        probe_batch_size=500,
+    )  # configs/cpu.yaml's data
     data.setup("fit")
     batch = next(iter(data.val_dataloader()))
     pairs = batch[batch["variant"] == specs.VARIANTS.index("counterbalanced")]
@@ -61,25 +70,35 @@ def main() -> None:
             moved = ((height[1:] - height[:-1]).abs() * seen[1:] * seen[:-1]).sum(0)
             block = int(moved.argmax())  # the slot whose seen height changes most
             other = inc["observations"]
-            differs = ((seen[:, block] != other.visible[b, :, block])
-                       | ((height[:, block] - other.state[b, :, block, 2]).abs() > 1e-4))
+            differs = (seen[:, block] != other.visible[b, :, block]) | (
+                (height[:, block] - other.state[b, :, block, 2]).abs() > 1e-4
+            )
             t = int(torch.nonzero(differs)[0])
-            rows.append([float(height[0, block] - height[t - 1, block]),
-                         float(other.state[b, t - 1, block, 2] - other.state[b, t, block, 2]),
-                         *inc["weights"][b, t - 1, block].tolist(),
-                         float(inc["state"][b, t, block]), float(con["surprise"][b, t]),
-                         float(inc["surprise"][b, t]), float(con["surprise"][b].sum()),
-                         float(inc["surprise"][b].sum())])
+            rows.append(
+                [
+                    float(height[0, block] - height[t - 1, block]),
+                    float(other.state[b, t - 1, block, 2] - other.state[b, t, block, 2]),
+                    *inc["weights"][b, t - 1, block].tolist(),
+                    float(inc["state"][b, t, block]),
+                    float(con["surprise"][b, t]),
+                    float(inc["surprise"][b, t]),
+                    float(con["surprise"][b].sum()),
+                    float(inc["surprise"][b].sum()),
+                ]
+            )
         r = np.array(rows).mean(0)
         k = model.hparams.components
-        left_out = "; falling_lands then leaves the stop out" if model.hparams.get(
-            "falling_lands") else ""
-        print(f"{checkpoint}: {len(rows)} pairs; the block fell {r[0]:.3f} m before the first "
-              f"differing frame, the inconsistent one then {r[1]:.3f} m; its weights as the "
-              f"dynamics give them (stop, move..., land{left_out}) "
-              f"{np.round(r[2:2 + k], 2).tolist()}, its state surprise there "
-              f"{r[2 + k]:.2f}; surprise at that frame {r[3 + k]:.2f} / {r[4 + k]:.2f}, over the "
-              f"videos {r[5 + k]:.2f} / {r[6 + k]:.2f} (consistent / inconsistent)")
+        left_out = (
+            "; falling_lands then leaves the stop out" if model.hparams.get("falling_lands") else ""
+        )
+        print(
+            f"{checkpoint}: {len(rows)} pairs; the block fell {r[0]:.3f} m before the first "
+            f"differing frame, the inconsistent one then {r[1]:.3f} m; its weights as the "
+            f"dynamics give them (stop, move..., land{left_out}) "
+            f"{np.round(r[2 : 2 + k], 2).tolist()}, its state surprise there "
+            f"{r[2 + k]:.2f}; surprise at that frame {r[3 + k]:.2f} / {r[4 + k]:.2f}, over the "
+            f"videos {r[5 + k]:.2f} / {r[6 + k]:.2f} (consistent / inconsistent)"
+        )
 
 
 if __name__ == "__main__":

@@ -22,12 +22,17 @@ def main() -> None:
     parser.add_argument("--split", default="test")
     parser.add_argument("--concepts", nargs="*", default=None, help="default: every concept")
     args = parser.parse_args()
-    pooled = [concept for concept in (args.concepts or specs.CONCEPTS)
-              if "counterbalanced" in specs.STANDARD_VARIANTS[concept]]
+    pooled = [
+        concept
+        for concept in (args.concepts or specs.CONCEPTS)
+        if "counterbalanced" in specs.STANDARD_VARIANTS[concept]
+    ]
     audit = cues.audit_split(args.root, args.split, pooled, progress=True)
-    print("| concept | cue | standard: consistent → inconsistent (midpoint) | counterbalanced: "
-          "consistent → inconsistent (midpoint) | per-video square d_z: standard / "
-          "counterbalanced |")
+    print(
+        "| concept | cue | standard: consistent → inconsistent (midpoint) | counterbalanced: "
+        "consistent → inconsistent (midpoint) | per-video square d_z: standard / "
+        "counterbalanced |"
+    )
     print("|---" * 5 + "|")
     for concept in pooled:
         variants = specs.STANDARD_VARIANTS[concept]
@@ -45,8 +50,13 @@ def main() -> None:
                 cells.append(f"{u_con.mean():+.2f} → {u_inc.mean():+.2f} ({midpoint:+.2f})")
                 term = u_inc**2 - u_con**2
                 effects.append(f"{term.mean() / term.std():+.2f}")
-            print(f"| {concept.replace('_', ' ')} | {cues.CUE_TITLES[cue]} | "
-                  + " | ".join(cells) + " | " + " / ".join(effects) + " |")
+            print(
+                f"| {concept.replace('_', ' ')} | {cues.CUE_TITLES[cue]} | "
+                + " | ".join(cells)
+                + " | "
+                + " / ".join(effects)
+                + " |"
+            )
 
 
 if __name__ == "__main__":

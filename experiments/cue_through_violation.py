@@ -37,10 +37,12 @@ from voe_lightning.report.results import PairResults
 from voe_lightning.store import open_split
 
 #: The physical differences of ``--given motion`` and ``--given reveal``, in column order.
-PHYSICAL = {"motion": ("path", "turn", "seen"),
-            "reveal": ("first inc", "first con", "seen inc", "seen con", "m"),
-            "settling": ("path con", "turn con", "path inc", "turn inc"),
-            "extent": cues.EXTENT_COLUMNS}
+PHYSICAL = {
+    "motion": ("path", "turn", "seen"),
+    "reveal": ("first inc", "first con", "seen inc", "seen con", "m"),
+    "settling": ("path con", "turn con", "path inc", "turn inc"),
+    "extent": cues.EXTENT_COLUMNS,
+}
 #: A falling plank has landed once a frame takes it down by less than this (m; it falls 0.3 to
 #: 0.8 m a frame before).
 LANDED = 0.2
@@ -72,8 +74,11 @@ def object_motion(objects, m: int) -> dict[str, float]:
     cosine = np.abs((orientation[1:] * orientation[:-1]).sum(-1)).clip(0.0, 1.0)
     turned = 2.0 * np.arccos(cosine) * both
     seen = (objects["visible_fraction"] > 0).numpy()
-    return {"path": float(moved[m:].sum()), "turn": float(turned[m:].sum()),
-            "seen": float(seen[m + 1:].sum())}
+    return {
+        "path": float(moved[m:].sum()),
+        "turn": float(turned[m:].sum()),
+        "seen": float(seen[m + 1 :].sum()),
+    }
 
 
 def landing_frame(height, m: int) -> int | None:
@@ -94,7 +99,7 @@ def plank_settling(objects, m: int) -> dict[str, float]:
     landed = landing_frame(position[:, 2], m)
     landed = len(position) - 1 if landed is None else landed
     moved = np.linalg.norm(np.diff(position[landed:], axis=0), axis=-1)
-    cosine = np.abs((orientation[landed + 1:] * orientation[landed:-1]).sum(-1)).clip(0.0, 1.0)
+    cosine = np.abs((orientation[landed + 1 :] * orientation[landed:-1]).sum(-1)).clip(0.0, 1.0)
     return {"path": float(moved.sum()), "turn": float((2.0 * np.arccos(cosine)).sum())}
 
 
@@ -104,7 +109,7 @@ def cube_reveal(objects, m: int) -> dict[str, float]:
     seen in."""
     present = objects["shape_label"][0] > 0
     cube = int(objects["size"][0].prod(-1).masked_fill(~present, torch.inf).argmin())
-    seen = (objects["visible_fraction"][m + 1:, cube] > 0).numpy()
+    seen = (objects["visible_fraction"][m + 1 :, cube] > 0).numpy()
     shown = np.flatnonzero(seen)
     return {"first": float(shown[0] if len(shown) else len(seen)), "seen": float(seen.sum())}
 
@@ -113,8 +118,12 @@ def pair_table(root: str, concept: str, given: str) -> dict[tuple[int, str], dic
     """Per test pair of ``concept``'s standard variants, by (seed, variant): each frame-local
     cue's difference and the physical quantities (``PHYSICAL[given]``, or ``rest``: how far
     apart the plank rests)."""
-    physical = {"motion": object_motion, "reveal": cube_reveal, "rest": plank_rest,
-                "settling": plank_settling}.get(given)  # extent: of the pair, not a video
+    physical = {
+        "motion": object_motion,
+        "reveal": cube_reveal,
+        "rest": plank_rest,
+        "settling": plank_settling,
+    }.get(given)  # extent: of the pair, not a video
     table = {}
     for record in open_split(root, concept, "test"):
         variant = specs.VARIANTS[int(record["variant"])]
@@ -126,21 +135,41 @@ def pair_table(root: str, concept: str, given: str) -> dict[tuple[int, str], dic
             video = record[side]
             score[side] = cues.score_videos(video["frames"][None], video["mask"][None], m)
             state[side] = physical(video["objects"], int(m)) if physical else {}
-        row = {cue: float(score["inconsistent"][cue][0] - score["consistent"][cue][0])
-               for cue in cues.FRAME_LOCAL_CUES}
+        row = {
+            cue: float(score["inconsistent"][cue][0] - score["consistent"][cue][0])
+            for cue in cues.FRAME_LOCAL_CUES
+        }
         if given == "motion":
-            row.update({key: state["inconsistent"][key] - state["consistent"][key]
-                        for key in PHYSICAL[given]})
+            row.update(
+                {
+                    key: state["inconsistent"][key] - state["consistent"][key]
+                    for key in PHYSICAL[given]
+                }
+            )
         elif given == "reveal":
-            row.update({f"{key} {side[:3]}": state[side][key] for side in cues.SIDES
-                        for key in ("first", "seen")}, m=float(m))
+            row.update(
+                {
+                    f"{key} {side[:3]}": state[side][key]
+                    for side in cues.SIDES
+                    for key in ("first", "seen")
+                },
+                m=float(m),
+            )
         elif given == "extent":
-            extent = cues.seen_extent(record["inconsistent"]["objects"]["visible_fraction"][None],
-                                      record["consistent"]["objects"]["visible_fraction"][None], m)
+            extent = cues.seen_extent(
+                record["inconsistent"]["objects"]["visible_fraction"][None],
+                record["consistent"]["objects"]["visible_fraction"][None],
+                m,
+            )
             row.update(zip(PHYSICAL[given], extent[0].tolist()))
         elif given == "settling":
-            row.update({f"{key} {side[:3]}": state[side][key] for side in cues.SIDES
-                        for key in ("path", "turn")})
+            row.update(
+                {
+                    f"{key} {side[:3]}": state[side][key]
+                    for side in cues.SIDES
+                    for key in ("path", "turn")
+                }
+            )
         else:
             row["size"] = abs(state["inconsistent"]["rest"] - state["consistent"]["rest"])
         table[(int(record["seed"]), variant)] = row
@@ -157,17 +186,22 @@ def run_pairs(run: str, concept: str, variant: str) -> tuple[np.ndarray, np.ndar
 
 def print_rest(runs: list[str], table: dict, cue: str) -> None:
     """Round eleven's table: object persistence, one cue, given the rest distance."""
-    print(f"| run | variant | n | r(d, {cue}) | r({cue}, size) | r(d, size) | "
-          f"partial r(d, {cue} given size) |")
+    print(
+        f"| run | variant | n | r(d, {cue}) | r({cue}, size) | r(d, size) | "
+        f"partial r(d, {cue} given size) |"
+    )
     print("|---|---|---|---|---|---|---|")
     for run in runs:
         for variant in specs.STANDARD_VARIANTS["object_persistence"]:
             seeds, d = run_pairs(run, "object_persistence", variant)
-            score, size = np.array([[table[(int(seed), variant)][key] for key in (cue, "size")]
-                                    for seed in seeds]).T
-            print(f"| {run} | {variant} | {len(d)} | {stats.pearsonr(d, score)[0]:+.2f} | "
-                  f"{stats.pearsonr(score, size)[0]:+.2f} | {stats.pearsonr(d, size)[0]:+.2f} | "
-                  f"{partial_r(d, score, [size]):+.2f} |")
+            score, size = np.array(
+                [[table[(int(seed), variant)][key] for key in (cue, "size")] for seed in seeds]
+            ).T
+            print(
+                f"| {run} | {variant} | {len(d)} | {stats.pearsonr(d, score)[0]:+.2f} | "
+                f"{stats.pearsonr(score, size)[0]:+.2f} | {stats.pearsonr(d, size)[0]:+.2f} | "
+                f"{partial_r(d, score, [size]):+.2f} |"
+            )
 
 
 def print_given(runs: list[str], tables: dict[str, dict], keys: tuple[str, ...]) -> None:
@@ -184,12 +218,21 @@ def print_given(runs: list[str], tables: dict[str, dict], keys: tuple[str, ...])
                 rows = [table[(int(seed), variant)] for seed in seeds]
                 column = {key: np.array([row[key] for row in rows]) for key in rows[0]}
                 given = [column[key] for key in keys]
-                cells = [f"{stats.pearsonr(d, column[cue])[0]:+.2f} -> "
-                         f"{partial_r(d, column[cue], given):+.2f}" for cue in cues.FRAME_LOCAL_CUES]
-                physical = " / ".join(f"{stats.pearsonr(d, column[key])[0]:+.2f}"
-                                      if np.ptp(column[key]) > 0 else "const" for key in keys)
-                print(f"| {Path(run).parent.name} | {concept} | {variant} | {len(d)} | "
-                      f"{' | '.join(cells)} | {physical} |")
+                cells = [
+                    f"{stats.pearsonr(d, column[cue])[0]:+.2f} -> "
+                    f"{partial_r(d, column[cue], given):+.2f}"
+                    for cue in cues.FRAME_LOCAL_CUES
+                ]
+                physical = " / ".join(
+                    f"{stats.pearsonr(d, column[key])[0]:+.2f}"
+                    if np.ptp(column[key]) > 0
+                    else "const"
+                    for key in keys
+                )
+                print(
+                    f"| {Path(run).parent.name} | {concept} | {variant} | {len(d)} | "
+                    f"{' | '.join(cells)} | {physical} |"
+                )
 
 
 def main() -> None:
@@ -197,18 +240,29 @@ def main() -> None:
     parser.add_argument("runs", nargs="+", help="run folders with voe_report/pairs.csv")
     parser.add_argument("--root", default="data/cpu")
     parser.add_argument("--given", default="rest", choices=("rest", *PHYSICAL))
-    parser.add_argument("--cue", default="motion_energy", choices=cues.FRAME_LOCAL_CUES,
-                        help="the cue of --given rest")
-    parser.add_argument("--concepts", nargs="+", choices=specs.CONCEPTS,
-                        default=["object_persistence", "continuity", "solidity", "containment"],
-                        help="the concepts of --given motion, reveal, settling or extent")
+    parser.add_argument(
+        "--cue",
+        default="motion_energy",
+        choices=cues.FRAME_LOCAL_CUES,
+        help="the cue of --given rest",
+    )
+    parser.add_argument(
+        "--concepts",
+        nargs="+",
+        choices=specs.CONCEPTS,
+        default=["object_persistence", "continuity", "solidity", "containment"],
+        help="the concepts of --given motion, reveal, settling or extent",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     if args.given == "rest":
         print_rest(args.runs, pair_table(args.root, "object_persistence", "rest"), args.cue)
     else:
-        print_given(args.runs, {concept: pair_table(args.root, concept, args.given)
-                                for concept in args.concepts}, PHYSICAL[args.given])
+        print_given(
+            args.runs,
+            {concept: pair_table(args.root, concept, args.given) for concept in args.concepts},
+            PHYSICAL[args.given],
+        )
 
 
 if __name__ == "__main__":

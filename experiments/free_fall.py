@@ -24,16 +24,24 @@ from voe_lightning.model.likelihood import gaussian_nll
 #: A block has landed within the interval when it fell less than this (free fall: 0.60 m).
 FREE_FALL = 0.55
 #: The state's parts, whose negative log-likelihood under each Gaussian is reported apart.
-PARTS = {"position": slice(0, 3), "orientation": slice(3, 7), "size": slice(7, 10),
-         "colour": slice(10, 13)}
+PARTS = {
+    "position": slice(0, 3),
+    "orientation": slice(3, 7),
+    "size": slice(7, 10),
+    "colour": slice(10, 13),
+}
 
 
-def part_nats(observed: torch.Tensor, means: torch.Tensor, log_std: torch.Tensor
-              ) -> torch.Tensor:
+def part_nats(observed: torch.Tensor, means: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
     """Each Gaussian's negative log-likelihood of each part of the seen state (``PARTS``):
     ``observed`` [..., 13], ``means`` and ``log_std`` [..., K, 13] -> [..., parts, K]."""
-    return torch.stack([gaussian_nll(observed[..., None, part], means[..., part],
-                                     log_std[..., part])[0] for part in PARTS.values()], -2)
+    return torch.stack(
+        [
+            gaussian_nll(observed[..., None, part], means[..., part], log_std[..., part])[0]
+            for part in PARTS.values()
+        ],
+        -2,
+    )
 
 
 def predicted_falls(model: ObjectStateModel, clips) -> dict[str, np.ndarray]:
@@ -61,15 +69,20 @@ def predicted_falls(model: ObjectStateModel, clips) -> dict[str, np.ndarray]:
         if len(falls) == 0:
             continue
         t = int(falls[0]) + 2  # the frame after the first frame of fall
-        if t >= height.shape[0] or not seen[t - 2: t + 1, block].all():
+        if t >= height.shape[0] or not seen[t - 2 : t + 1, block].all():
             continue
         seen_state, means, log_std, logits = (value[b, block] for value in caught[t - 1])
         fall = float(height[t - 1, block] - height[t, block])
         rows["free" if fall > FREE_FALL else "landed"].append(
-            [fall, *(height[t - 1, block] - means[:, 2]).tolist(),
-             *log_std[:, 2].exp().tolist(), *logits.softmax(-1).tolist(),
-             *part_nats(seen_state, means, log_std).flatten().tolist(),
-             *(-logits.log_softmax(-1)).tolist()])
+            [
+                fall,
+                *(height[t - 1, block] - means[:, 2]).tolist(),
+                *log_std[:, 2].exp().tolist(),
+                *logits.softmax(-1).tolist(),
+                *part_nats(seen_state, means, log_std).flatten().tolist(),
+                *(-logits.log_softmax(-1)).tolist(),
+            ]
+        )
     return {key: np.array(value) for key, value in rows.items() if value}
 
 
@@ -80,9 +93,16 @@ def main() -> None:
     parser.add_argument("--clips", type=int, default=2000, help="training clips read at most")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    data = VOEDataModule(concepts=["solidity"], root=args.root, train_examples=2000,
-                         val_pairs=24, test_pairs=200, generalization_pairs=100,
-                         batch_size=250, num_workers=0)  # configs/cpu.yaml's data
+    data = VOEDataModule(
+        concepts=["solidity"],
+        root=args.root,
+        train_examples=2000,
+        val_pairs=24,
+        test_pairs=200,
+        generalization_pairs=100,
+        batch_size=250,
+        num_workers=0,
+    )  # configs/cpu.yaml's data
     data.setup("fit")
     torch.manual_seed(0)
     batches, read = [], 0
@@ -99,12 +119,14 @@ def main() -> None:
         for key in ("free", "landed"):
             rows = np.concatenate([f[key] for f in falls if key in f])
             r = rows.mean(0)
-            print(f"  {key}: {len(rows)} blocks fell {r[0]:.3f} m (least {rows[:, 0].min():.3f});"
-                  f" per Gaussian (stop, move..., "
-                  f"land) predicted fall {np.round(r[1:1 + k], 3).tolist()}, SD "
-                  f"{np.round(r[1 + k:1 + 2 * k], 3).tolist()}, weight "
-                  f"{np.round(r[1 + 2 * k:1 + 3 * k], 2).tolist()}")
-            costs = r[1 + 3 * k:].reshape(len(PARTS) + 1, k)
+            print(
+                f"  {key}: {len(rows)} blocks fell {r[0]:.3f} m (least {rows[:, 0].min():.3f});"
+                f" per Gaussian (stop, move..., "
+                f"land) predicted fall {np.round(r[1 : 1 + k], 3).tolist()}, SD "
+                f"{np.round(r[1 + k : 1 + 2 * k], 3).tolist()}, weight "
+                f"{np.round(r[1 + 2 * k : 1 + 3 * k], 2).tolist()}"
+            )
+            costs = r[1 + 3 * k :].reshape(len(PARTS) + 1, k)
             for name, cost in zip([*PARTS, "-log weight"], costs):
                 print(f"    {name:12s} nats per Gaussian {np.round(cost, 2).tolist()}")
 

@@ -42,8 +42,9 @@ def main() -> None:
     parser.add_argument("--root", default="data/cpu")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    validation = {concept: one_batch(open_split(args.root, concept, "val"))
-                  for concept in specs.CONCEPTS}
+    validation = {
+        concept: one_batch(open_split(args.root, concept, "val")) for concept in specs.CONCEPTS
+    }
     training = {}
     for concept in specs.CONCEPTS:
         clips = open_split(args.root, concept, "train")
@@ -52,13 +53,17 @@ def main() -> None:
     print("|---|---|---|---|")
     for checkpoint in args.checkpoints:
         model = ObjectStateModel.load_from_checkpoint(checkpoint, map_location="cpu").eval()
-        held_out = {concept: float(video_nll(model, batch, "consistent").mean())
-                    for concept, batch in validation.items()}
+        held_out = {
+            concept: float(video_nll(model, batch, "consistent").mean())
+            for concept, batch in validation.items()
+        }
         seen = [float(video_nll(model, batch).mean()) for batch in training.values()]
         run = Path(checkpoint).parents[2].name
         per_concept = ", ".join(f"{concept} {value:.0f}" for concept, value in held_out.items())
-        print(f"| {run} | {np.mean(list(held_out.values())):.1f} | {np.mean(seen):.1f} | "
-              f"{per_concept} |")
+        print(
+            f"| {run} | {np.mean(list(held_out.values())):.1f} | {np.mean(seen):.1f} | "
+            f"{per_concept} |"
+        )
 
 
 if __name__ == "__main__":

@@ -47,8 +47,9 @@ def term_surprise(model: ObjectStateModel, batch, side: str) -> dict[str, float]
     observations = model._inputs(batch[side, "frames"], inputs["objects"], inputs.get("camera"))
     with torch.no_grad():
         out = model.rollout(observations)
-    terms = {name: rectified_excess(out[name], out[f"{name}_entropy"]).sum((1, 2))
-             for name in SLOT_TERMS}
+    terms = {
+        name: rectified_excess(out[name], out[f"{name}_entropy"]).sum((1, 2)) for name in SLOT_TERMS
+    }
     terms["appear"] = rectified_excess(out["appear"], out["appear_entropy"]).sum(1)
     return {name: float(value.mean()) for name, value in terms.items()}
 
@@ -58,17 +59,31 @@ def main() -> None:
     parser.add_argument("checkpoint")
     parser.add_argument("--concept", default="containment", choices=specs.CONCEPTS)
     parser.add_argument("--root", default="data/cpu")
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                        help="a constructor argument to use instead of the checkpoint's")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a constructor argument to use instead of the checkpoint's",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
-    overrides = {name: yaml.safe_load(value)  # true -> True, 0.5 -> 0.5, none -> "none"
-                 for name, value in (setting.split("=", 1) for setting in args.set)}
-    model = ObjectStateModel.load_from_checkpoint(args.checkpoint, map_location="cpu",
-                                                  **overrides).eval()
-    data = VOEDataModule(concepts=[args.concept], root=args.root, train_examples=2000,
-                         val_pairs=24, test_pairs=200, generalization_pairs=100,
-                         probe_batch_size=500)  # configs/cpu.yaml's data
+    overrides = {
+        name: yaml.safe_load(value)  # true -> True, 0.5 -> 0.5, none -> "none"
+        for name, value in (setting.split("=", 1) for setting in args.set)
+    }
+    model = ObjectStateModel.load_from_checkpoint(
+        args.checkpoint, map_location="cpu", **overrides
+    ).eval()
+    data = VOEDataModule(
+        concepts=[args.concept],
+        root=args.root,
+        train_examples=2000,
+        val_pairs=24,
+        test_pairs=200,
+        generalization_pairs=100,
+        probe_batch_size=500,
+    )  # configs/cpu.yaml's data
     data.setup("fit")
     for batch in data.val_dataloader():
         for variant in specs.STANDARD_VARIANTS.get(args.concept, ()):
@@ -76,9 +91,11 @@ def main() -> None:
             for side in ("consistent", "inconsistent"):
                 errors = largest_errors(model, chosen, side)
                 terms = term_surprise(model, chosen, side)
-                print(f"{variant:15s} {side:12s} hidden objects {len(errors):3d}, largest "
-                      f"belief error: median {np.median(errors) if errors else float('nan'):.2f} m"
-                      " | surprise " + " ".join(f"{k} {v:.1f}" for k, v in terms.items()))
+                print(
+                    f"{variant:15s} {side:12s} hidden objects {len(errors):3d}, largest "
+                    f"belief error: median {np.median(errors) if errors else float('nan'):.2f} m"
+                    " | surprise " + " ".join(f"{k} {v:.1f}" for k, v in terms.items())
+                )
 
 
 if __name__ == "__main__":

@@ -27,21 +27,26 @@ def without_landing_change(model: ObjectStateModel) -> torch.utils.hooks.Removab
 
     def hook(module, inputs, out):
         out = out.clone()
-        out[..., start:start + 7] = 0.0
+        out[..., start : start + 7] = 0.0
         return out
+
     return model.dynamics.register_forward_hook(hook)
 
 
 def relative(records: list, score) -> np.ndarray:
     """Per pair, ``score`` of the inconsistent video less that of the consistent one."""
-    return np.array([score(record, "inconsistent") - score(record, "consistent")
-                     for record in records])
+    return np.array(
+        [score(record, "inconsistent") - score(record, "consistent") for record in records]
+    )
 
 
 def motion(record, side: str) -> float:
     video = record[side]
-    return float(cues.score_videos(video["frames"][None], video["mask"][None],
-                                   record["manipulation_frame"].reshape(1))["motion_energy"][0])
+    return float(
+        cues.score_videos(
+            video["frames"][None], video["mask"][None], record["manipulation_frame"].reshape(1)
+        )["motion_energy"][0]
+    )
 
 
 def main() -> None:
@@ -64,16 +69,22 @@ def main() -> None:
 
         def surprise(record, side: str, model=model) -> float:
             video = record[side]
-            return float(model.surprise(video["frames"][None], None, record["camera"][None],
-                                        video["objects"][None]).sum())
+            return float(
+                model.surprise(
+                    video["frames"][None], None, record["camera"][None], video["objects"][None]
+                ).sum()
+            )
+
         for label in ("as trained", "no landing change"):
             handle = without_landing_change(model) if label != "as trained" else None
             d = relative(records, surprise)
             for variant in dict.fromkeys(variants):
                 mine = variants == variant
-                print(f"{checkpoint} {label:17s} {variant:15s} t "
-                      f"{stats.ttest_1samp(d[mine], 0.0).statistic:+.2f} ({np.mean(d[mine] > 0):.0%}),"
-                      f" r(d, motion) {stats.pearsonr(d[mine], moved[mine])[0]:+.2f}")
+                print(
+                    f"{checkpoint} {label:17s} {variant:15s} t "
+                    f"{stats.ttest_1samp(d[mine], 0.0).statistic:+.2f} ({np.mean(d[mine] > 0):.0%}),"
+                    f" r(d, motion) {stats.pearsonr(d[mine], moved[mine])[0]:+.2f}"
+                )
             if handle is not None:
                 handle.remove()
 

@@ -31,8 +31,9 @@ def run_difference(run: Path, audit: cues.CueAudit, seeds: np.ndarray) -> np.nda
     """The run's relative surprise per pair of ``audit`` (matched by concept, variant, seed),
     from its pairs.csv (``PairResults``, which checks the file)."""
     results = PairResults.from_csv(run / "voe_report" / "pairs.csv")
-    d = dict(zip(zip(results.concept, results.variant, results.seed.tolist()),
-                 results.relative_surprise))
+    d = dict(
+        zip(zip(results.concept, results.variant, results.seed.tolist()), results.relative_surprise)
+    )
     return np.array([d[key] for key in zip(audit.concepts, audit.variants, seeds.tolist())])
 
 
@@ -40,10 +41,22 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--root", default="data/cpu")
     parser.add_argument("--runs", nargs="*", type=Path, default=[])
-    parser.add_argument("--concepts", nargs="+", choices=specs.CONCEPTS, default=[
-        concept for concept in specs.CONCEPTS if "counterbalanced" in specs.STANDARD_VARIANTS[concept]])
-    parser.add_argument("--state_scale", type=float, default=cues.STATE_SCALE,
-                        help="metres (and radians) of state difference worth one object-frame")
+    parser.add_argument(
+        "--concepts",
+        nargs="+",
+        choices=specs.CONCEPTS,
+        default=[
+            concept
+            for concept in specs.CONCEPTS
+            if "counterbalanced" in specs.STANDARD_VARIANTS[concept]
+        ],
+    )
+    parser.add_argument(
+        "--state_scale",
+        type=float,
+        default=cues.STATE_SCALE,
+        help="metres (and radians) of state difference worth one object-frame",
+    )
     args = parser.parse_args()
     cues.STATE_SCALE = args.state_scale  # read by physics_perfect_surprise at each call
     from voe_lightning.store import open_split
@@ -55,22 +68,35 @@ def main() -> None:
         seeds += [int(records[k]["seed"]) for k in range(len(records))]
     audit, seeds = cues.CueAudit.concatenate(audits), np.array(seeds)
     observer = cues.tracked_cues(audit.model_correlations(audit.physics_perfect))
-    runs = {run: cues.tracked_cues(audit.model_correlations(run_difference(run, audit, seeds)))
-            for run in args.runs}
-    print(f"| concept | physics-perfect observer: standard / counterbalanced | within variants "
-          f"| given the seen extent | runs within variants: largest \\|r\\| | ≤ {BOUND} "
-          f"| given the seen extent | ≤ {BOUND} |")
+    runs = {
+        run: cues.tracked_cues(audit.model_correlations(run_difference(run, audit, seeds)))
+        for run in args.runs
+    }
+    print(
+        f"| concept | physics-perfect observer: standard / counterbalanced | within variants "
+        f"| given the seen extent | runs within variants: largest \\|r\\| | ≤ {BOUND} "
+        f"| given the seen extent | ≤ {BOUND} |"
+    )
     print("|---" * 8 + "|")
     for concept in args.concepts:
-        per_variant = " / ".join("{:.2f} ({})".format(*largest(observer, concept, variant))
-                                 for variant in specs.STANDARD_VARIANTS[concept])
-        cells = [per_variant] + ["{:.2f} ({})".format(*largest(observer, concept, name))
-                                 for name in (cues.WITHIN_VARIANTS, cues.GIVEN_EXTENT)]
+        per_variant = " / ".join(
+            "{:.2f} ({})".format(*largest(observer, concept, variant))
+            for variant in specs.STANDARD_VARIANTS[concept]
+        )
+        cells = [per_variant] + [
+            "{:.2f} ({})".format(*largest(observer, concept, name))
+            for name in (cues.WITHIN_VARIANTS, cues.GIVEN_EXTENT)
+        ]
         for name in (cues.WITHIN_VARIANTS, cues.GIVEN_EXTENT):
             values = [largest(rows, concept, name)[0] for rows in runs.values()]
-            cells += ([f"{min(values):.2f} to {max(values):.2f}",
-                       f"{sum(value <= BOUND for value in values)} of {len(values)}"]
-                      if values else ["", ""])
+            cells += (
+                [
+                    f"{min(values):.2f} to {max(values):.2f}",
+                    f"{sum(value <= BOUND for value in values)} of {len(values)}",
+                ]
+                if values
+                else ["", ""]
+            )
         print(f"| {concept.replace('_', ' ')} | " + " | ".join(cells) + " |")
 
 

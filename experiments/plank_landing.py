@@ -55,20 +55,27 @@ def landings(model: ObjectStateModel, frames, objects, camera) -> np.ndarray:
     for video, slot in enumerate(plank.tolist()):
         z = height[video, :, slot]
         landed = int(torch.nonzero((z - z[-1]).abs() < AT_REST)[0])
-        if landed >= 2 and observations.visible[video, landed - 2:landed + 1, slot].all():
-            before, last = observations.state[video, landed - 2:landed, slot]
-            rows.append((float(z[landed - 1]), float(z[landed]),
-                         float(predicted[video, landed, slot]),
-                         extrapolated(before, last, turn=False),
-                         extrapolated(before, last, turn=True)))
+        if landed >= 2 and observations.visible[video, landed - 2 : landed + 1, slot].all():
+            before, last = observations.state[video, landed - 2 : landed, slot]
+            rows.append(
+                (
+                    float(z[landed - 1]),
+                    float(z[landed]),
+                    float(predicted[video, landed, slot]),
+                    extrapolated(before, last, turn=False),
+                    extrapolated(before, last, turn=True),
+                )
+            )
     return np.array(rows).reshape(-1, 5)
 
 
 def report(name: str, rows: np.ndarray) -> None:
     before, rest, predicted, moved, turned = rows.mean(0)
-    print(f"{name:38s} {len(rows):3d} landings | before {before:.2f} m, at rest {rest:.2f} m, "
-          f"predicted {predicted:.2f} m | move repeated {moved:.2f} m, "
-          f"move and turn {turned:.2f} m")
+    print(
+        f"{name:38s} {len(rows):3d} landings | before {before:.2f} m, at rest {rest:.2f} m, "
+        f"predicted {predicted:.2f} m | move repeated {moved:.2f} m, "
+        f"move and turn {turned:.2f} m"
+    )
 
 
 def main() -> None:
@@ -87,22 +94,31 @@ def main() -> None:
         if chosen:
             batch = torch.stack(chosen)
             rows = landings(model, batch["frames"], batch["objects"], batch["camera"])
-            for ending, chosen_rows in (("flat", rows[rows[:, 1] < 0.15]),
-                                        ("propped", rows[rows[:, 1] >= 0.15])):
+            for ending, chosen_rows in (
+                ("flat", rows[rows[:, 1] < 0.15]),
+                ("propped", rows[rows[:, 1] >= 0.15]),
+            ):
                 if len(chosen_rows):
                     report(f"training {name}, {ending}", chosen_rows)
-    data = VOEDataModule(concepts=["object_persistence"], root=args.root, train_examples=2000,
-                         val_pairs=24, test_pairs=200, generalization_pairs=100,
-                         probe_batch_size=500)  # configs/cpu.yaml's data
+    data = VOEDataModule(
+        concepts=["object_persistence"],
+        root=args.root,
+        train_examples=2000,
+        val_pairs=24,
+        test_pairs=200,
+        generalization_pairs=100,
+        probe_batch_size=500,
+    )  # configs/cpu.yaml's data
     data.setup("fit")
     batch = next(iter(data.val_dataloader()))
     for variant in specs.STANDARD_VARIANTS["object_persistence"]:
         chosen = batch[batch["variant"] == specs.VARIANTS.index(variant)]
         for side in ("consistent", "inconsistent"):
             inputs = video_inputs(chosen, side)
-            report(f"probe {variant}, {side}",
-                   landings(model, chosen[side, "frames"], inputs["objects"],
-                            inputs.get("camera")))
+            report(
+                f"probe {variant}, {side}",
+                landings(model, chosen[side, "frames"], inputs["objects"], inputs.get("camera")),
+            )
 
 
 if __name__ == "__main__":

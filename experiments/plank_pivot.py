@@ -34,13 +34,14 @@ def after_landing(objects, m: int) -> tuple[np.ndarray, float] | None:
     landed = landing_frame(position[:, 2], m)
     if landed is None:
         return None
-    cosine = np.abs((orientation[landed + 1:] * orientation[landed:-1]).sum(-1)).clip(0.0, 1.0)
-    return 2.0 * np.arccos(cosine), float((position[landed + 1:, 2] - position[landed, 2]).max())
+    cosine = np.abs((orientation[landed + 1 :] * orientation[landed:-1]).sum(-1)).clip(0.0, 1.0)
+    return 2.0 * np.arccos(cosine), float((position[landed + 1 :, 2] - position[landed, 2]).max())
 
 
 def staged(setting: str):
     """``rendering.stage`` with the default geom's contact (``tcT``: solref time constant T s;
     ``drR``: damping ratio R) changed; ``default`` and ``dtS`` (a timestep) leave it."""
+
     def stage(rng, video, floor_pattern=None):
         spec = rendering.stage(rng, video, floor_pattern)
         if setting.startswith("tc"):
@@ -48,14 +49,19 @@ def staged(setting: str):
         elif setting.startswith("dr"):
             spec.default.geom.solref = [0.02, float(setting[2:])]
         return spec
+
     return stage
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--root", default="data/cpu")
-    parser.add_argument("--settings", nargs="*", default=[],
-                        help="default, tcT (solref time constant), drR (damping ratio), dtS (timestep)")
+    parser.add_argument(
+        "--settings",
+        nargs="*",
+        default=[],
+        help="default, tcT (solref time constant), drR (damping ratio), dtS (timestep)",
+    )
     parser.add_argument("--probes", type=int, default=40, help="standard probes per setting")
     args = parser.parse_args()
     turns, rises = [], []
@@ -66,10 +72,12 @@ def main() -> None:
                 turns.append(found[0])
                 rises.append(found[1])
     changes = sum(np.abs(np.diff(turn)).sum() for turn in turns)
-    print(f"{len(turns)} propped videos: frames turning > 0.05 rad after landing, median "
-          f"{np.median([(turn > 0.05).sum() for turn in turns]):.0f}; centre rising > 1 cm: "
-          f"{np.mean(np.array(rises) > 0.01):.0%}; sum |change of turn| / sum turn: "
-          f"{changes / sum(turn[1:].sum() for turn in turns):.2f}")
+    print(
+        f"{len(turns)} propped videos: frames turning > 0.05 rad after landing, median "
+        f"{np.median([(turn > 0.05).sum() for turn in turns]):.0f}; centre rising > 1 cm: "
+        f"{np.mean(np.array(rises) > 0.01):.0%}; sum |change of turn| / sum turn: "
+        f"{changes / sum(turn[1:].sum() for turn in turns):.2f}"
+    )
     for setting in args.settings:
         options = {"height": 32, "width": 32}
         if setting.startswith("dt"):
@@ -78,10 +86,15 @@ def main() -> None:
         with mock.patch.object(builder, "stage", staged(setting)):
             for seed in range(args.probes):
                 record = generate_probe("object_persistence", "standard", 5000 + seed, **options)
-                settled.append(plank_settling(record["consistent"]["objects"],
-                                              int(record["manipulation_frame"]))["turn"])
-        print(f"{setting}: median turn after landing {np.median(settled):.2f} rad over "
-              f"{len(settled)} standard probes")
+                settled.append(
+                    plank_settling(
+                        record["consistent"]["objects"], int(record["manipulation_frame"])
+                    )["turn"]
+                )
+        print(
+            f"{setting}: median turn after landing {np.median(settled):.2f} rad over "
+            f"{len(settled)} standard probes"
+        )
 
 
 if __name__ == "__main__":

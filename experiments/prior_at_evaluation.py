@@ -21,20 +21,36 @@ from voe_lightning.surprise_window import video_surprise
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("checkpoint")
-    parser.add_argument("--concepts", nargs="+", default=list(specs.CONCEPTS),
-                        choices=specs.CONCEPTS)
+    parser.add_argument(
+        "--concepts", nargs="+", default=list(specs.CONCEPTS), choices=specs.CONCEPTS
+    )
     parser.add_argument("--root", default="data/cpu")
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                        help="a constructor argument to use instead of the checkpoint's")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a constructor argument to use instead of the checkpoint's",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
-    overrides = {name: yaml.safe_load(value)  # true -> True, 0.392 -> 0.392
-                 for name, value in (setting.split("=", 1) for setting in args.set)}
-    model = ObjectStateModel.load_from_checkpoint(args.checkpoint, map_location="cpu",
-                                                  **overrides).eval()
-    data = VOEDataModule(concepts=args.concepts, root=args.root, train_examples=2000,
-                         val_pairs=24, test_pairs=200, generalization_pairs=100,
-                         generalization=False, probe_batch_size=100)  # configs/cpu.yaml's data
+    overrides = {
+        name: yaml.safe_load(value)  # true -> True, 0.392 -> 0.392
+        for name, value in (setting.split("=", 1) for setting in args.set)
+    }
+    model = ObjectStateModel.load_from_checkpoint(
+        args.checkpoint, map_location="cpu", **overrides
+    ).eval()
+    data = VOEDataModule(
+        concepts=args.concepts,
+        root=args.root,
+        train_examples=2000,
+        val_pairs=24,
+        test_pairs=200,
+        generalization_pairs=100,
+        generalization=False,
+        probe_batch_size=100,
+    )  # configs/cpu.yaml's data
     data.setup("test")
     surprise: dict[tuple[str, str], dict[str, list]] = {}
     with torch.no_grad():
@@ -48,8 +64,10 @@ def main() -> None:
     print(f"{args.checkpoint} with {overrides or 'its own arguments'}")
     for (concept, variant), sides in surprise.items():
         result = statistics.paired_test(sides["inconsistent"], sides["consistent"], bootstrap=0)
-        print(f"  {concept:18s} {variant:15s} n {result.n:3d}  t {result.t:+8.2f}  "
-              f"right {result.accuracy:.0%}")
+        print(
+            f"  {concept:18s} {variant:15s} n {result.n:3d}  t {result.t:+8.2f}  "
+            f"right {result.accuracy:.0%}"
+        )
 
 
 if __name__ == "__main__":

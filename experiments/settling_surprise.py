@@ -38,14 +38,14 @@ def propped_videos(root: str, pairs: int) -> tuple:
         if count.get(variant, pairs) < pairs:
             count[variant] += 1
             side = "consistent" if variant == "standard" else "inconsistent"
-            chosen.append((record[side], record["camera"], record["manipulation_frame"],
-                           variant))
+            chosen.append((record[side], record["camera"], record["manipulation_frame"], variant))
     videos, cameras, frames, variants = zip(*chosen)
     return torch.stack(videos), torch.stack(cameras), torch.stack(frames), variants
 
 
-def settling_rows(model: ObjectStateModel, videos, cameras, manipulation, variants
-                  ) -> dict[tuple[str, str], np.ndarray]:
+def settling_rows(
+    model: ObjectStateModel, videos, cameras, manipulation, variants
+) -> dict[tuple[str, str], np.ndarray]:
     """Per frame after landing, by variant and kind ("settling", "still"): the plank's state
     surprise, the mixture weights the dynamics gave it for that frame and each Gaussian's
     negative log-likelihood of each part of the state (``PARTS``) [N, 1 + K + 4 K]."""
@@ -63,7 +63,7 @@ def settling_rows(model: ObjectStateModel, videos, cameras, manipulation, varian
     hook.remove()
     components = model.hparams.components
     start = components * 2 * STATE_SIZE
-    weights = torch.stack([o[..., start:start + components] for o in caught], 1).softmax(-1)
+    weights = torch.stack([o[..., start : start + components] for o in caught], 1).softmax(-1)
     surprise = rectified_excess(out["state"], out["state_entropy"])
     state, seen = observations.state, observations.visible
     rows: dict[tuple[str, str], list] = {}
@@ -80,8 +80,12 @@ def settling_rows(model: ObjectStateModel, videos, cameras, manipulation, varian
             cosine = float((orientation[t] * orientation[t - 1]).sum().abs().clamp(max=1.0))
             kind = "settling" if moved > MOVES or 2 * np.arccos(cosine) > TURNS else "still"
             rows.setdefault((variants[b], kind), []).append(
-                [float(surprise[b, t, plank]), *weights[b, t - 1, plank].tolist(),
-                 *scored[t - 1][b, plank].flatten().tolist()])
+                [
+                    float(surprise[b, t, plank]),
+                    *weights[b, t - 1, plank].tolist(),
+                    *scored[t - 1][b, plank].flatten().tolist(),
+                ]
+            )
     return {key: np.array(values) for key, values in sorted(rows.items())}
 
 
@@ -97,12 +101,15 @@ def main() -> None:
         model = ObjectStateModel.load_from_checkpoint(checkpoint, map_location="cpu").eval()
         print(checkpoint)
         k = model.hparams.components
-        for (variant, kind), rows in settling_rows(model, videos, cameras, manipulation,
-                                                   variants).items():
-            print(f"  {variant:15s} {kind:8s} {len(rows):4d} frames: state surprise {rows[:, 0].mean():6.2f} "
-                  f"nats a frame (median {np.median(rows[:, 0]):.2f}); weights (stop, move..., "
-                  f"land) {np.round(rows[:, 1:1 + k].mean(0), 2).tolist()}")
-            for name, cost in zip(PARTS, rows[:, 1 + k:].mean(0).reshape(len(PARTS), k)):
+        for (variant, kind), rows in settling_rows(
+            model, videos, cameras, manipulation, variants
+        ).items():
+            print(
+                f"  {variant:15s} {kind:8s} {len(rows):4d} frames: state surprise {rows[:, 0].mean():6.2f} "
+                f"nats a frame (median {np.median(rows[:, 0]):.2f}); weights (stop, move..., "
+                f"land) {np.round(rows[:, 1 : 1 + k].mean(0), 2).tolist()}"
+            )
+            for name, cost in zip(PARTS, rows[:, 1 + k :].mean(0).reshape(len(PARTS), k)):
                 print(f"      {name:12s} nats per Gaussian {np.round(cost, 1).tolist()}")
 
 

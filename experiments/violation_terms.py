@@ -29,10 +29,12 @@ def term_surprise(model: ObjectStateModel, video, camera) -> dict[str, np.ndarra
     """Each term's surprise per frame [T] of one video (rectified excess, as ``_per_frame``
     sums them)."""
     with torch.no_grad():
-        out = model.rollout(model._inputs(video["frames"][None], video["objects"][None],
-                                          camera[None]))
-    terms = {name: rectified_excess(out[name], out[f"{name}_entropy"]).sum(-1)[0]
-             for name in SLOT_TERMS}
+        out = model.rollout(
+            model._inputs(video["frames"][None], video["objects"][None], camera[None])
+        )
+    terms = {
+        name: rectified_excess(out[name], out[f"{name}_entropy"]).sum(-1)[0] for name in SLOT_TERMS
+    }
     terms["appear"] = rectified_excess(out["appear"], out["appear_entropy"])[0]
     return {name: value.numpy() for name, value in terms.items()}
 
@@ -46,20 +48,30 @@ def pair_rows(model: ObjectStateModel, root: str, concept: str) -> dict[str, lis
         if variant not in rows:
             continue
         m = record["manipulation_frame"].reshape(1)
-        score = {side: cues.score_videos(record[side]["frames"][None],
-                                         record[side]["mask"][None], m)["foreground_pixels"][0]
-                 for side in cues.SIDES}
+        score = {
+            side: cues.score_videos(record[side]["frames"][None], record[side]["mask"][None], m)[
+                "foreground_pixels"
+            ][0]
+            for side in cues.SIDES
+        }
         fraction = {side: record[side]["objects"]["visible_fraction"] for side in cues.SIDES}
         terms = {side: term_surprise(model, record[side], record["camera"]) for side in cues.SIDES}
-        parted = np.flatnonzero(((fraction["inconsistent"] > 0) != (fraction["consistent"] > 0))
-                                .any(-1).numpy())
-        rows[variant].append({
-            "d": {name: terms["inconsistent"][name] - terms["consistent"][name]
-                  for name in terms["consistent"]},
-            "foreground": float(score["inconsistent"] - score["consistent"]),
-            "fractions": float((fraction["inconsistent"] - fraction["consistent"])[int(m) + 1:]
-                               .abs().sum()),
-            "parted": int(parted[0]) if len(parted) else None})
+        parted = np.flatnonzero(
+            ((fraction["inconsistent"] > 0) != (fraction["consistent"] > 0)).any(-1).numpy()
+        )
+        rows[variant].append(
+            {
+                "d": {
+                    name: terms["inconsistent"][name] - terms["consistent"][name]
+                    for name in terms["consistent"]
+                },
+                "foreground": float(score["inconsistent"] - score["consistent"]),
+                "fractions": float(
+                    (fraction["inconsistent"] - fraction["consistent"])[int(m) + 1 :].abs().sum()
+                ),
+                "parted": int(parted[0]) if len(parted) else None,
+            }
+        )
     return rows
 
 
@@ -76,21 +88,32 @@ def main() -> None:
             foreground = np.array([row["foreground"] for row in rows])
             fractions = np.array([row["fractions"] for row in rows])
             total = np.array([sum(v.sum() for v in row["d"].values()) for row in rows])
-            print(f"{concept} {variant} ({len(rows)} pairs): mean d {total.mean():.2f}, "
-                  f"r(d, foreground) {stats.pearsonr(total, foreground)[0]:+.2f}, "
-                  f"r(foreground, |visible fractions' difference|) "
-                  f"{stats.pearsonr(foreground, fractions)[0]:+.2f}")
+            print(
+                f"{concept} {variant} ({len(rows)} pairs): mean d {total.mean():.2f}, "
+                f"r(d, foreground) {stats.pearsonr(total, foreground)[0]:+.2f}, "
+                f"r(foreground, |visible fractions' difference|) "
+                f"{stats.pearsonr(foreground, fractions)[0]:+.2f}"
+            )
             for name in rows[0]["d"]:
                 term = np.array([row["d"][name].sum() for row in rows])
                 if np.ptp(term) > 0:
-                    print(f"  {name:15s} mean d {term.mean():8.2f}, r with foreground "
-                          f"{stats.pearsonr(term, foreground)[0]:+.2f}")
-            profile = [[sum(v[row["parted"] + k] for v in row["d"].values()) for row in rows
-                        if row["parted"] is not None
-                        and 0 <= row["parted"] + k < len(row["d"]["state"])] for k in PROFILE]
-            print("  mean d per frame from the first parted frame "
-                  f"({PROFILE.start} to {PROFILE.stop - 1}):",
-                  [round(float(np.mean(values)), 2) if values else None for values in profile])
+                    print(
+                        f"  {name:15s} mean d {term.mean():8.2f}, r with foreground "
+                        f"{stats.pearsonr(term, foreground)[0]:+.2f}"
+                    )
+            profile = [
+                [
+                    sum(v[row["parted"] + k] for v in row["d"].values())
+                    for row in rows
+                    if row["parted"] is not None and 0 <= row["parted"] + k < len(row["d"]["state"])
+                ]
+                for k in PROFILE
+            ]
+            print(
+                "  mean d per frame from the first parted frame "
+                f"({PROFILE.start} to {PROFILE.stop - 1}):",
+                [round(float(np.mean(values)), 2) if values else None for values in profile],
+            )
 
 
 if __name__ == "__main__":

@@ -21,10 +21,19 @@ def check_quadruplet_rows(probes, concept_names, variant_names, quadruplets: dic
     consistent = rng.normal(2.0, 0.1, frames)
     inconsistent = consistent + rng.uniform(0.5, 1.5, frames)
     results = PairResults.from_probe_outputs(
-        [{"concept": probes["concept"], "variant": probes["variant"], "seed": probes["seed"],
-          "manipulation_frame": probes["manipulation_frame"],
-          "surprise_consistent": consistent, "surprise_inconsistent": inconsistent}],
-        concept_names, variant_names)
+        [
+            {
+                "concept": probes["concept"],
+                "variant": probes["variant"],
+                "seed": probes["seed"],
+                "manipulation_frame": probes["manipulation_frame"],
+                "surprise_consistent": consistent,
+                "surprise_inconsistent": inconsistent,
+            }
+        ],
+        concept_names,
+        variant_names,
+    )
     rows = {(row["concept"], row["variant"]): row for row in summarize(results, bootstrap=0)}
     concepts, variants = np.array(results.concept), np.array(results.variant)
     for concept, count in quadruplets.items():
@@ -33,13 +42,16 @@ def check_quadruplet_rows(probes, concept_names, variant_names, quadruplets: dic
         if count < 2:  # one quadruplet: a row without a test
             assert row["p_value"] is None
             continue
-        halves = [np.flatnonzero((concepts == concept) & (variants == variant))
-                  for variant in ("standard", "counterbalanced")]
+        halves = [
+            np.flatnonzero((concepts == concept) & (variants == variant))
+            for variant in ("standard", "counterbalanced")
+        ]
         halves = [half[np.argsort(results.seed[half])] for half in halves]
         assert results.seed[halves[0]].tolist() == results.seed[halves[1]].tolist()
         inc, con = results.total_inconsistent, results.total_consistent
-        expected = quadruplet_test(inc[halves[0]], con[halves[0]], inc[halves[1]],
-                                   con[halves[1]], bootstrap=0)
+        expected = quadruplet_test(
+            inc[halves[0]], con[halves[0]], inc[halves[1]], con[halves[1]], bootstrap=0
+        )
         assert row["relative_surprise"] == pytest.approx(expected.relative_surprise)
         assert row["p_value"] == pytest.approx(expected.p_value)
     verdicts = {v.concept: v for v in concept_verdicts(list(rows.values()))}

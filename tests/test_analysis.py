@@ -54,8 +54,9 @@ def pair_results(groups, seed=0):
 def test_read_scalars_filters_tags_and_merges_resumed_runs(tmp_path):
     write_events(tmp_path / "version_0", {("solidity", "standard"): lambda s: s / 100.0})
     # A resumed run writes more events (one repeated step) into a second file of the same run.
-    write_events(tmp_path / "version_0", {("solidity", "standard"): lambda s: -1.0},
-                 steps=[400, 500])
+    write_events(
+        tmp_path / "version_0", {("solidity", "standard"): lambda s: -1.0}, steps=[400, 500]
+    )
     scalars = analysis.read_scalars(tmp_path)
     assert list(scalars) == ["voe/solidity/standard/relative_surprise"]
     steps, values = scalars["voe/solidity/standard/relative_surprise"]
@@ -81,16 +82,22 @@ def test_missing_runs_and_tags_are_named(tmp_path):
 
 
 def _curve_runs(root):
-    concepts = {("object_persistence", "standard"): 0.5,
-                ("object_persistence", "counterbalanced"): 0.3,
-                ("unchangeableness", "color"): 0.8}
-    write_events(root / "joint",
-                 {k: (lambda s, a=a: a * np.log1p(s / 50)) for k, a in concepts.items()})
+    concepts = {
+        ("object_persistence", "standard"): 0.5,
+        ("object_persistence", "counterbalanced"): 0.3,
+        ("unchangeableness", "color"): 0.8,
+    }
+    write_events(
+        root / "joint", {k: (lambda s, a=a: a * np.log1p(s / 50)) for k, a in concepts.items()}
+    )
     for (concept, variant), a in concepts.items():
-        write_events(root / f"separate_{concept}",
-                     {(concept, variant): (lambda s, a=a: 0.6 * a * np.log1p(s / 50))})
-    return [("joint", root / "joint")] + [("separate", root / f"separate_{c}")
-                                         for c in ("object_persistence", "unchangeableness")]
+        write_events(
+            root / f"separate_{concept}",
+            {(concept, variant): (lambda s, a=a: 0.6 * a * np.log1p(s / 50))},
+        )
+    return [("joint", root / "joint")] + [
+        ("separate", root / f"separate_{c}") for c in ("object_persistence", "unchangeableness")
+    ]
 
 
 def test_curves_figure_draws_every_run_and_variant(tmp_path):
@@ -98,10 +105,17 @@ def test_curves_figure_draws_every_run_and_variant(tmp_path):
     figure = analysis.relative_surprise_curves_figure(runs, {"joint": 0.2})
     visible = [ax for ax in figure.axes if ax.get_visible()]
     assert [ax.get_title() for ax in visible] == ["object_persistence", "unchangeableness"]
-    lines = {line.get_label(): line for line in visible[0].get_lines()
-             if not line.get_label().startswith("_")}
-    assert set(lines) == {"standard (joint)", "standard (separate)", "counterbalanced (joint)",
-                          "counterbalanced (separate)"}
+    lines = {
+        line.get_label(): line
+        for line in visible[0].get_lines()
+        if not line.get_label().startswith("_")
+    }
+    assert set(lines) == {
+        "standard (joint)",
+        "standard (separate)",
+        "counterbalanced (joint)",
+        "counterbalanced (separate)",
+    }
     assert lines["standard (joint)"].get_linestyle() == "-"
     assert lines["standard (separate)"].get_linestyle() == "--"
     np.testing.assert_allclose(lines["standard (joint)"].get_xdata(), np.arange(0, 500, 100) * 0.2)
@@ -113,9 +127,12 @@ def test_curves_of_three_runs_are_told_apart_by_style_and_marker(tmp_path):
     and a marker of their own, named in the title (the third once reused the first's)."""
     labels = ["VRNN-LRU", "object-centric", "object-free"]
     for index, label in enumerate(labels):
-        write_events(tmp_path / label, {("solidity", "standard"):
-                                        (lambda s, a=index: a + np.log1p(s / 50))})
-    figure = analysis.relative_surprise_curves_figure([(label, tmp_path / label) for label in labels])
+        write_events(
+            tmp_path / label, {("solidity", "standard"): (lambda s, a=index: a + np.log1p(s / 50))}
+        )
+    figure = analysis.relative_surprise_curves_figure(
+        [(label, tmp_path / label) for label in labels]
+    )
     lines = [line for line in figure.axes[0].get_lines() if not line.get_label().startswith("_")]
     styles = {(str(line.get_linestyle()), line.get_marker()) for line in lines}
     assert len(lines) == 3 and len(styles) == 3
@@ -125,8 +142,9 @@ def test_curves_of_three_runs_are_told_apart_by_style_and_marker(tmp_path):
 
 
 def test_sweep_rows_are_disjoint_evaluation_sets(tmp_path):
-    results = pair_results({("object_persistence", "standard"): (30, 1.0),
-                            ("continuity", "standard"): (31, 0.0)})
+    results = pair_results(
+        {("object_persistence", "standard"): (30, 1.0), ("continuity", "standard"): (31, 0.0)}
+    )
     rows = size_sweep.sweep_rows(results, train_size=100, eval_sets=3)
     assert len(rows) == 6 and {r["train_size"] for r in rows} == {100}
     persistence = [r for r in rows if r["concept"] == "object_persistence"]
@@ -142,10 +160,19 @@ def test_sweep_rows_are_disjoint_evaluation_sets(tmp_path):
 
 
 def test_size_sweep_figure_marks_significant_points_green():
-    rows = [{"train_size": size, "eval_set": i, "concept": "object_persistence",
-             "variant": "standard", "relative_surprise": effect, "significant": effect > 0.5,
-             "alpha": 0.01}
-            for size, effect in ((100, 0.1), (1000, 0.6), (10000, 0.9)) for i in range(2)]
+    rows = [
+        {
+            "train_size": size,
+            "eval_set": i,
+            "concept": "object_persistence",
+            "variant": "standard",
+            "relative_surprise": effect,
+            "significant": effect > 0.5,
+            "alpha": 0.01,
+        }
+        for size, effect in ((100, 0.1), (1000, 0.6), (10000, 0.9))
+        for i in range(2)
+    ]
     figure = size_sweep.size_sweep_figure(rows)
     ax = figure.axes[0]
     assert ax.get_xscale() == "log"
@@ -153,7 +180,9 @@ def test_size_sweep_figure_marks_significant_points_green():
     tab_green = (0.172, 0.627, 0.172)
     assert np.allclose(colors["significant (p < 0.01)"], tab_green, atol=0.01)  # the rows' alpha
     assert len(ax.collections[0].get_offsets()) == 4
-    older = size_sweep.size_sweep_figure([{k: v for k, v in r.items() if k != "alpha"} for r in rows])
+    older = size_sweep.size_sweep_figure(
+        [{k: v for k, v in r.items() if k != "alpha"} for r in rows]
+    )
     assert "significant" in {points.get_label() for points in older.axes[0].collections}
 
 
@@ -168,28 +197,64 @@ def test_run_size_sweep_drives_fit_then_test(tmp_path):
         callback = VOEReportCallback()
         if args[0] == "test":
             pairs = int(args[args.index("--data.test_pairs") + 1])
-            write_report(pair_results({("solidity", "standard"): (pairs, size / 100)}, seed=size),
-                         tmp_path / f"test_{size}", bootstrap=0, echo=False, alpha=0.05)
+            write_report(
+                pair_results({("solidity", "standard"): (pairs, size / 100)}, seed=size),
+                tmp_path / f"test_{size}",
+                bootstrap=0,
+                echo=False,
+                alpha=0.05,
+            )
             callback.report_dir = tmp_path / f"test_{size}" / "voe_report"
-        return types.SimpleNamespace(trainer=types.SimpleNamespace(
-            checkpoint_callback=checkpoint, callbacks=[callback]))
+        return types.SimpleNamespace(
+            trainer=types.SimpleNamespace(checkpoint_callback=checkpoint, callbacks=[callback])
+        )
 
     out = tmp_path / "sweep" / "sweep.json"
-    rows = size_sweep.run_size_sweep(["configs/base.yaml", "configs/x.yaml"], [10, 300],
-                                   eval_sets=2, pairs_per_set=6, out=out,
-                                   extra_args=["--data.root=data/sweep_{size}"],
-                                   test_args=["--data.generalization=true"], cli_main=fake_cli)
+    rows = size_sweep.run_size_sweep(
+        ["configs/base.yaml", "configs/x.yaml"],
+        [10, 300],
+        eval_sets=2,
+        pairs_per_set=6,
+        out=out,
+        extra_args=["--data.root=data/sweep_{size}"],
+        test_args=["--data.generalization=true"],
+        cli_main=fake_cli,
+    )
     # fit generates the store, so it must ask for the same number of test pairs as test
-    assert calls[0] == ["fit", "--config", "configs/base.yaml", "--config", "configs/x.yaml",
-                        "--data.train_examples", "10",
-                        "--data.test_pairs", "12", "--data.root=data/sweep_10"]
-    assert calls[1] == ["test", "--config", "configs/base.yaml", "--config", "configs/x.yaml",
-                        "--data.train_examples", "10",
-                        "--data.test_pairs", "12", "--data.root=data/sweep_10",
-                        "--ckpt_path", "/ckpt/10.ckpt", "--data.generalization=true"]
+    assert calls[0] == [
+        "fit",
+        "--config",
+        "configs/base.yaml",
+        "--config",
+        "configs/x.yaml",
+        "--data.train_examples",
+        "10",
+        "--data.test_pairs",
+        "12",
+        "--data.root=data/sweep_10",
+    ]
+    assert calls[1] == [
+        "test",
+        "--config",
+        "configs/base.yaml",
+        "--config",
+        "configs/x.yaml",
+        "--data.train_examples",
+        "10",
+        "--data.test_pairs",
+        "12",
+        "--data.root=data/sweep_10",
+        "--ckpt_path",
+        "/ckpt/10.ckpt",
+        "--data.generalization=true",
+    ]
     assert calls[3][0] == "test" and "--data.root=data/sweep_300" in calls[3]
-    assert [(r["train_size"], r["eval_set"], r["n"]) for r in rows] == [(10, 0, 6), (10, 1, 6),
-                                                                         (300, 0, 6), (300, 1, 6)]
+    assert [(r["train_size"], r["eval_set"], r["n"]) for r in rows] == [
+        (10, 0, 6),
+        (10, 1, 6),
+        (300, 0, 6),
+        (300, 1, 6),
+    ]
     assert json.loads(out.read_text()) == rows
     assert {r["alpha"] for r in rows} == {0.05}  # each evaluation set at its run's alpha
 
@@ -197,8 +262,9 @@ def test_run_size_sweep_drives_fit_then_test(tmp_path):
 def test_run_size_sweep_names_a_missing_report_callback(tmp_path):
     def no_report(args):
         checkpoint = types.SimpleNamespace(last_model_path="/ckpt/x.ckpt", best_model_path="")
-        return types.SimpleNamespace(trainer=types.SimpleNamespace(checkpoint_callback=checkpoint,
-                                                                   callbacks=[]))
+        return types.SimpleNamespace(
+            trainer=types.SimpleNamespace(checkpoint_callback=checkpoint, callbacks=[])
+        )
 
     with pytest.raises(RuntimeError, match="add voe_lightning.callbacks.VOEReportCallback"):
         size_sweep.run_size_sweep(["c.yaml"], [5], out=tmp_path / "s.json", cli_main=no_report)
@@ -207,10 +273,23 @@ def test_run_size_sweep_names_a_missing_report_callback(tmp_path):
 def test_sweep_command_runs_fit_and_test_through_the_cli_main(monkeypatch, tmp_path):
     """``analyze sweep`` gets the CLI's entry point from the CLI (size_sweep imports no CLI)."""
     received = {}
-    monkeypatch.setattr(size_sweep, "run_size_sweep", lambda *args, cli_main: received.update(
-        args=args, cli_main=cli_main) or [])
-    main(["analyze", "sweep", "--lightning_configs", "[configs/quickstart.yaml]",
-          "--sizes", "[5]", "--out", str(tmp_path / "sweep.json")])
+    monkeypatch.setattr(
+        size_sweep,
+        "run_size_sweep",
+        lambda *args, cli_main: received.update(args=args, cli_main=cli_main) or [],
+    )
+    main(
+        [
+            "analyze",
+            "sweep",
+            "--lightning_configs",
+            "[configs/quickstart.yaml]",
+            "--sizes",
+            "[5]",
+            "--out",
+            str(tmp_path / "sweep.json"),
+        ]
+    )
     assert received["cli_main"] is main and received["args"][1] == [5]
     with pytest.raises(TypeError, match="run it as `python -m voe_lightning analyze sweep`"):
         size_sweep.sweep([Path("configs/quickstart.yaml")], [5])
@@ -219,19 +298,61 @@ def test_sweep_command_runs_fit_and_test_through_the_cli_main(monkeypatch, tmp_p
 def test_command_line_writes_the_figures(tmp_path, capsys):
     runs = _curve_runs(tmp_path)
     curves_png = tmp_path / "figs" / "curves.png"
-    main(["analyze", "curves", "--runs", json.dumps([f"{label}={path}" for label, path in runs]),
-          "--step_scale", "{joint: 0.2}", "--out", str(curves_png)])
+    main(
+        [
+            "analyze",
+            "curves",
+            "--runs",
+            json.dumps([f"{label}={path}" for label, path in runs]),
+            "--step_scale",
+            "{joint: 0.2}",
+            "--out",
+            str(curves_png),
+        ]
+    )
     for size, effect in ((100, 0.1), (1000, 1.0)):
-        write_report(pair_results({("solidity", "standard"): (40, effect)}, seed=size),
-                     tmp_path / f"run_{size}" / "version_0", bootstrap=0, echo=False)
+        write_report(
+            pair_results({("solidity", "standard"): (40, effect)}, seed=size),
+            tmp_path / f"run_{size}" / "version_0",
+            bootstrap=0,
+            echo=False,
+        )
     sweep_png = tmp_path / "figs" / "sweep.png"
-    main(["analyze", "sweep-plot", "--runs.100", str(tmp_path / "run_100"),
-          "--runs.1000", str(tmp_path / "run_1000"), "--eval_sets", "4", "--out", str(sweep_png)])
-    rows = [{"train_size": 10, "eval_set": 0, "concept": "c", "variant": "v",
-             "relative_surprise": 1.0, "significant": True}]
+    main(
+        [
+            "analyze",
+            "sweep-plot",
+            "--runs.100",
+            str(tmp_path / "run_100"),
+            "--runs.1000",
+            str(tmp_path / "run_1000"),
+            "--eval_sets",
+            "4",
+            "--out",
+            str(sweep_png),
+        ]
+    )
+    rows = [
+        {
+            "train_size": 10,
+            "eval_set": 0,
+            "concept": "c",
+            "variant": "v",
+            "relative_surprise": 1.0,
+            "significant": True,
+        }
+    ]
     (tmp_path / "sweep.json").write_text(json.dumps(rows))
-    main(["analyze", "sweep-plot", "--results", str(tmp_path / "sweep.json"),
-          "--out", str(tmp_path / "s2.png")])
+    main(
+        [
+            "analyze",
+            "sweep-plot",
+            "--results",
+            str(tmp_path / "sweep.json"),
+            "--out",
+            str(tmp_path / "s2.png"),
+        ]
+    )
     for path in (curves_png, sweep_png, tmp_path / "s2.png"):
         with Image.open(path) as image:
             assert image.format == "PNG" and image.size[0] > 400
@@ -247,20 +368,31 @@ def test_command_line_writes_the_figures(tmp_path, capsys):
 
 def test_notebook_reproduces_the_figures_of_a_run_directory(tmp_path, monkeypatch):
     run = tmp_path / "lightning_logs" / "version_0"
-    results = pair_results({("object_persistence", "standard"): (12, 1.0),
-                            ("continuity", "standard"): (12, 0.0)})
+    results = pair_results(
+        {("object_persistence", "standard"): (12, 1.0), ("continuity", "standard"): (12, 0.0)}
+    )
     write_report(results, run, bootstrap=100, echo=False)
-    write_events(run, {("object_persistence", "standard"): lambda s: s / 400,
-                       ("continuity", "standard"): lambda s: 0.0})
+    write_events(
+        run,
+        {
+            ("object_persistence", "standard"): lambda s: s / 400,
+            ("continuity", "standard"): lambda s: 0.0,
+        },
+    )
     sweep = size_sweep.sweep_rows(results, 100, 2)
     (tmp_path / "sweep.json").write_text(json.dumps(sweep))
     monkeypatch.setenv("VOE_RUN_DIR", str(tmp_path))
     monkeypatch.setenv("VOE_SWEEP_RESULTS", str(tmp_path / "sweep.json"))
     notebook = nbformat.read(NOTEBOOK, as_version=4)
-    NotebookClient(notebook, timeout=120, kernel_name="python3",
-                   resources={"metadata": {"path": str(tmp_path)}}).execute()
-    outputs = [output for cell in notebook.cells if cell.cell_type == "code"
-               for output in cell.outputs]
+    NotebookClient(
+        notebook,
+        timeout=120,
+        kernel_name="python3",
+        resources={"metadata": {"path": str(tmp_path)}},
+    ).execute()
+    outputs = [
+        output for cell in notebook.cells if cell.cell_type == "code" for output in cell.outputs
+    ]
     images = [output for output in outputs if "image/png" in output.get("data", {})]
     assert len(images) >= 4  # histograms, per-frame, curves, sweep
     text = "".join(output.get("text", "") for output in outputs)
@@ -273,28 +405,48 @@ def test_compare_reads_each_verdicts_rows_beside_the_cue_audit(tmp_path, capsys)
     """`analyze compare`: a quadruplet concept contributes its quadruplet rows (the pairs'
     seeds match the halves), unchangeableness one per change (never the generalization
     variants); effects and verdicts match the reports."""
-    groups = {("solidity", "standard"): (40, 2.0), ("solidity", "counterbalanced"): (40, 2.0),
-              **{("unchangeableness", v): (30, 0.0)
-                 for v in specs.VERDICT_VARIANTS["unchangeableness"]},
-              ("unchangeableness", "shape_plus1"): (30, 3.0)}
+    groups = {
+        ("solidity", "standard"): (40, 2.0),
+        ("solidity", "counterbalanced"): (40, 2.0),
+        **{("unchangeableness", v): (30, 0.0) for v in specs.VERDICT_VARIANTS["unchangeableness"]},
+        ("unchangeableness", "shape_plus1"): (30, 3.0),
+    }
     write_report(pair_results(groups, seed=1), tmp_path / "a", bootstrap=0, echo=False)
-    write_report(pair_results({("solidity", "standard"): (40, 2.0),
-                               ("solidity", "counterbalanced"): (40, -2.0)}, seed=2),
-                 tmp_path / "b", bootstrap=0, echo=False)
+    write_report(
+        pair_results(
+            {("solidity", "standard"): (40, 2.0), ("solidity", "counterbalanced"): (40, -2.0)},
+            seed=2,
+        ),
+        tmp_path / "b",
+        bootstrap=0,
+        echo=False,
+    )
     rows = analysis.comparison_rows([("a", tmp_path / "a"), ("b", tmp_path / "b")])
     assert [(r["run"], r["concept"], r["variant"], r["n"]) for r in rows] == [
         ("a", "unchangeableness", "position_quadruplet", 30),
         ("a", "unchangeableness", "color_quadruplet", 30),
-        ("a", "unchangeableness", "shape_quadruplet", 30), ("a", "solidity", "quadruplet", 40),
-        ("b", "solidity", "quadruplet", 40)]
+        ("a", "unchangeableness", "shape_quadruplet", 30),
+        ("a", "solidity", "quadruplet", 40),
+        ("b", "solidity", "quadruplet", 40),
+    ]
     solidity_a, solidity_b = rows[3], rows[4]
     assert solidity_a["voe"] is True and solidity_b["voe"] is False  # b: a half's M < 0
     assert solidity_a["p_value"] < 1e-6 and solidity_a["cue_accuracy_min"] is None  # no audit
     assert solidity_a["tracked_cue_r"] is None
 
     out = tmp_path / "compare.md"
-    main(["analyze", "compare", "--runs+", f"a={tmp_path / 'a'}", "--runs+", f"b={tmp_path / 'b'}",
-          "--out", str(out)])
+    main(
+        [
+            "analyze",
+            "compare",
+            "--runs+",
+            f"a={tmp_path / 'a'}",
+            "--runs+",
+            f"b={tmp_path / 'b'}",
+            "--out",
+            str(out),
+        ]
+    )
     table = out.read_text()
     assert table == capsys.readouterr().out
     assert "| a | solidity | quadruplet | 40 |" in table and table.count("**yes**") == 1
@@ -306,13 +458,25 @@ def test_compare_reads_a_runs_own_report_before_a_newer_one_on_other_data(tmp_pa
     """`test` writes reports of external benchmarks or other data into sub-folders of the
     run; `analyze compare` of the run reads the run's own report, even when older."""
     run = tmp_path / "run"
-    write_report(pair_results({("solidity", "standard"): (40, 2.0),
-                               ("solidity", "counterbalanced"): (40, 2.0)}, seed=1),
-                 run, bootstrap=0, echo=False)
+    write_report(
+        pair_results(
+            {("solidity", "standard"): (40, 2.0), ("solidity", "counterbalanced"): (40, 2.0)},
+            seed=1,
+        ),
+        run,
+        bootstrap=0,
+        echo=False,
+    )
     (run / "config.yaml").write_text("data: {init_args: {root: data/x}}\n")
-    write_report(pair_results({("solidity", "standard"): (12, 2.0),
-                               ("solidity", "counterbalanced"): (12, 2.0)}, seed=2),
-                 run / "data_data_tpyo", bootstrap=0, echo=False)
+    write_report(
+        pair_results(
+            {("solidity", "standard"): (12, 2.0), ("solidity", "counterbalanced"): (12, 2.0)},
+            seed=2,
+        ),
+        run / "data_data_tpyo",
+        bootstrap=0,
+        echo=False,
+    )
     rows = analysis.comparison_rows([("run", run)])
     assert [(r["variant"], r["n"]) for r in rows] == [("quadruplet", 40)]
     assert rows[0]["report"] == str(run / "voe_report")

@@ -19,26 +19,33 @@ PAIRS, SIZE, REPETITIONS = 30, 32, 2000
 
 @pytest.fixture(scope="module")
 def audit():
-    records = [generate_probe(concept, variant, 910_000 + seed, height=SIZE, width=SIZE)
-               for concept, variants in specs.STANDARD_VARIANTS.items() for seed in range(PAIRS)
-               for variant in variants]  # a seed's halves one after the other: drawn once
+    records = [
+        generate_probe(concept, variant, 910_000 + seed, height=SIZE, width=SIZE)
+        for concept, variants in specs.STANDARD_VARIANTS.items()
+        for seed in range(PAIRS)
+        for variant in variants
+    ]  # a seed's halves one after the other: drawn once
     return cues.audit_records(records)
 
 
 @pytest.fixture(scope="module")
 def rows(audit):
-    return calibration.calibrate(audit, repetitions=REPETITIONS, deltas=np.zeros(1),
-                                 power_weights=())
+    return calibration.calibrate(
+        audit, repetitions=REPETITIONS, deltas=np.zeros(1), power_weights=()
+    )
 
 
 def _describe(row) -> str:
-    return (f"{row.concept}: {row.follower} of {row.cue}, sign {row.sign:+d}, weight "
-            f"{row.weight:g}: false VOE {100 * row.false_voe_rate:.2f}%")
+    return (
+        f"{row.concept}: {row.follower} of {row.cue}, sign {row.sign:+d}, weight "
+        f"{row.weight:g}: false VOE {100 * row.false_voe_rate:.2f}%"
+    )
 
 
 @pytest.mark.parametrize("concept", specs.CONCEPTS)
 def test_false_voe_stays_at_alpha_for_noise_and_every_cue_follower_the_stimuli_can_expose(
-        rows, concept):
+    rows, concept
+):
     """Every (cue, follower, sign, weight) whose cue term is not positive in every variant:
     the verdict must say VOE in at most alpha of repetitions, within the binomial error of
     REPETITIONS over all the rates at once (Bonferroni, p = .001)."""
@@ -73,8 +80,9 @@ def test_power_of_noise_alone_is_the_noncentral_t():
     n, repetitions = 20, 4000
     deltas = np.array([0.0, 0.5, 0.9])
     noise = {variant: np.zeros(1) for variant in specs.STANDARD_VARIANTS["unchangeableness"]}
-    rates = calibration.verdict_rates(noise, "unchangeableness", n, repetitions, ALPHA, deltas,
-                                      np.random.default_rng(1))
+    rates = calibration.verdict_rates(
+        noise, "unchangeableness", n, repetitions, ALPHA, deltas, np.random.default_rng(1)
+    )
     critical = stats.t.ppf(1 - ALPHA, n - 1)
     expected = stats.nct.sf(critical, n - 1, deltas * np.sqrt(2 * n)) ** 3
     error = 4 * np.sqrt(np.maximum(expected * (1 - expected), 1 / repetitions) / repetitions)
@@ -88,8 +96,9 @@ def test_quadruplet_concepts_calibrate_over_quadruplets_and_cancel_post_change_c
     only) has exactly opposite terms in a quadruplet's two halves."""
     n, repetitions = 20, 4000
     deltas = np.array([0.0, 0.6])
-    rates = calibration.quadruplet_voe([np.zeros(1), np.zeros(1)], n, repetitions, ALPHA,
-                                       deltas, np.random.default_rng(4)).mean(axis=1)
+    rates = calibration.quadruplet_voe(
+        [np.zeros(1), np.zeros(1)], n, repetitions, ALPHA, deltas, np.random.default_rng(4)
+    ).mean(axis=1)
     assert rates[0] <= calibration.false_voe_bound(repetitions, ALPHA)
     expected = stats.nct.sf(stats.t.ppf(1 - ALPHA, n - 1), n - 1, 0.6 * np.sqrt(2 * n))
     assert abs(rates[1] - expected) <= 4 * np.sqrt(expected * (1 - expected) / repetitions) + 0.01
@@ -100,14 +109,20 @@ def test_quadruplet_concepts_calibrate_over_quadruplets_and_cancel_post_change_c
                 for halves in quadruplets.values():
                     first, second = (terms[half] for half in halves)
                     assert first.size == PAIRS and np.array_equal(first, -second), (
-                        concept, halves, cue, follower)
+                        concept,
+                        halves,
+                        cue,
+                        follower,
+                    )
 
 
 def test_calibration_is_seeded_and_refuses_bad_arguments(audit):
-    first = calibration.calibrate(audit, repetitions=50, concepts=["solidity"],
-                                  followers=["linear"], weights=(1.0,), seed=3)
-    assert first == calibration.calibrate(audit, repetitions=50, concepts=["solidity"],
-                                          followers=["linear"], weights=(1.0,), seed=3)
+    first = calibration.calibrate(
+        audit, repetitions=50, concepts=["solidity"], followers=["linear"], weights=(1.0,), seed=3
+    )
+    assert first == calibration.calibrate(
+        audit, repetitions=50, concepts=["solidity"], followers=["linear"], weights=(1.0,), seed=3
+    )
     assert first[0].delta_80 is not None and first[1].delta_80 is not None  # power at weight 1
     table = calibration.calibration_markdown(first)
     assert "| solidity | 30 | linear |" in table and "(α = 0.01, 50 repetitions)" in table
@@ -122,14 +137,37 @@ def test_analyze_calibrate_prints_and_writes_the_table_of_a_store(tmp_path, caps
     from voe_lightning.generate import generate_dataset
 
     root = tmp_path / "store"
-    generate_dataset(root, concepts=["object_persistence"], train_examples=0,
-                     val_pairs=4, test_pairs=0,
-                     generalization_pairs=0, workers=1, num_frames=8, height=32,
-                     width=32, progress=False)
+    generate_dataset(
+        root,
+        concepts=["object_persistence"],
+        train_examples=0,
+        val_pairs=4,
+        test_pairs=0,
+        generalization_pairs=0,
+        workers=1,
+        num_frames=8,
+        height=32,
+        width=32,
+        progress=False,
+    )
     capsys.readouterr()
     out = tmp_path / "calibration.md"
-    table = main(["analyze", "calibrate", "--root", str(root), "--split", "val",
-                  "--repetitions", "40", "--progress", "false", "--out", str(out)])
+    table = main(
+        [
+            "analyze",
+            "calibrate",
+            "--root",
+            str(root),
+            "--split",
+            "val",
+            "--repetitions",
+            "40",
+            "--progress",
+            "false",
+            "--out",
+            str(out),
+        ]
+    )
     assert table == capsys.readouterr().out == out.read_text()
     assert f"## Calibration on the val pairs of {root} (α = 0.01, 40 repetitions)" in table
     assert table.count("| object_persistence | 4 |") == len(calibration.FOLLOWERS)

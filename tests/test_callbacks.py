@@ -14,8 +14,11 @@ from voe_lightning import specs, statistics
 from voe_lightning.callbacks import VOEProbeCallback, VOEReportCallback, voe_table
 from voe_lightning.probe_datamodule import ProbeDataModule
 
-CASES = [("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
-         ("unchangeableness", "color")]
+CASES = [
+    ("object_persistence", "standard"),
+    ("object_persistence", "counterbalanced"),
+    ("unchangeableness", "color"),
+]
 
 
 class _Probes(ProbeDataModule):
@@ -65,10 +68,12 @@ def test_probe_callback_logs_the_stratified_pooled_test_of_both_variants():
     reference = stats.ttest_ind(d1, -d2, equal_var=False, alternative="greater")
     logged = module.logged
     assert logged["voe/object_persistence/pooled/relative_surprise"] == pytest.approx(
-        (d1.mean() + d2.mean()) / 2, rel=1e-12)
+        (d1.mean() + d2.mean()) / 2, rel=1e-12
+    )
     assert logged["voe/object_persistence/pooled/t"] == pytest.approx(reference.statistic, rel=1e-9)
-    assert logged["voe/object_persistence/pooled/p_value"] == pytest.approx(reference.pvalue,
-                                                                           rel=1e-9)
+    assert logged["voe/object_persistence/pooled/p_value"] == pytest.approx(
+        reference.pvalue, rel=1e-9
+    )
     assert logged["voe/object_persistence/pooled/accuracy"] == np.mean(np.r_[d1, d2] > 0)
     assert logged["voe/object_persistence/pooled/n"] == d1.size + d2.size
     for statistic in VOEProbeCallback.STATISTICS:
@@ -83,7 +88,9 @@ def test_probe_callback_logs_the_stratified_pooled_test_of_both_variants():
     assert "verdict" in text and "pooled" in text
     assert "VOE (α = 0.05)" in text and "* < 0.05" in text  # the alpha in the table header
     # unchangeableness has only color's pairs (no seeds: no quadruplet rows): every half untested
-    assert "undecided: no test of position, position_counterbalanced, color_counterbalanced," in text
+    assert (
+        "undecided: no test of position, position_counterbalanced, color_counterbalanced," in text
+    )
 
 
 def test_callbacks_take_the_default_alpha_and_refuse_a_bad_one():

@@ -32,60 +32,132 @@ SEEDS = (0, 1)
 TOLERANCE = 1e-6
 # float32: bf16 kernels may round identical rows of a batch apart (3e-8 on one pair here, on
 # an AVX-512 EPYC), which is no information from the future but could pass 1e-6 elsewhere.
-VRNN = dict(image_size=(SIZE, SIZE), latent_size=8, mlp_sizes=(16, 16), memory_slots=5,
-            memory_slot_size=6, memory_read_heads=2, controller_size=12, encoder_blocks=3,
-            encoder_channels=(4, 4, 8), encoder_mlp_size=20, precision="float32")
+VRNN = dict(
+    image_size=(SIZE, SIZE),
+    latent_size=8,
+    mlp_sizes=(16, 16),
+    memory_slots=5,
+    memory_slot_size=6,
+    memory_read_heads=2,
+    controller_size=12,
+    encoder_blocks=3,
+    encoder_channels=(4, 4, 8),
+    encoder_mlp_size=20,
+    precision="float32",
+)
 # Ten object slots: the generalization variants show up to nine objects in one video.
-OBJECT_CENTRIC = dict(image_size=(SIZE, SIZE), num_slots=10, code_size=8,
-                      encoder_channels=(8, 8), state_size=16, relation_sizes=(16,),
-                      node_sizes=(16,), relation_size=16)
+OBJECT_CENTRIC = dict(
+    image_size=(SIZE, SIZE),
+    num_slots=10,
+    code_size=8,
+    encoder_channels=(8, 8),
+    state_size=16,
+    relation_sizes=(16,),
+    node_sizes=(16,),
+    relation_size=16,
+)
 
 # Sixteen frames: the probes have fifteen (padded to the model's length).
-VIDEOMAE = dict(image_size=SIZE, patch_size=8, num_frames=16, tubelet_size=2, hidden_size=16,
-                num_hidden_layers=1, num_attention_heads=2, intermediate_size=32,
-                decoder_num_attention_heads=2, decoder_hidden_size=16,
-                decoder_num_hidden_layers=1, decoder_intermediate_size=32)
+VIDEOMAE = dict(
+    image_size=SIZE,
+    patch_size=8,
+    num_frames=16,
+    tubelet_size=2,
+    hidden_size=16,
+    num_hidden_layers=1,
+    num_attention_heads=2,
+    intermediate_size=32,
+    decoder_num_attention_heads=2,
+    decoder_hidden_size=16,
+    decoder_num_hidden_layers=1,
+    decoder_intermediate_size=32,
+)
 # Windows of 4 frames, 2 seen, sliding by 1: every frame from the fourth is scored.
-VJEPA2 = dict(context_frames=2, window_frames=4, frame_step=1, window_stride=1,
-              config=dict(crop_size=SIZE, patch_size=8, tubelet_size=2, hidden_size=24,
-                          num_attention_heads=2, num_hidden_layers=1, mlp_ratio=2.0,
-                          pred_hidden_size=12, pred_num_attention_heads=2,
-                          pred_num_hidden_layers=1, pred_mlp_ratio=2.0,
-                          pred_zero_init_mask_tokens=False, num_pooler_layers=1))
+VJEPA2 = dict(
+    context_frames=2,
+    window_frames=4,
+    frame_step=1,
+    window_stride=1,
+    config=dict(
+        crop_size=SIZE,
+        patch_size=8,
+        tubelet_size=2,
+        hidden_size=24,
+        num_attention_heads=2,
+        num_hidden_layers=1,
+        mlp_ratio=2.0,
+        pred_hidden_size=12,
+        pred_num_attention_heads=2,
+        pred_num_hidden_layers=1,
+        pred_mlp_ratio=2.0,
+        pred_zero_init_mask_tokens=False,
+        num_pooler_layers=1,
+    ),
+)
 
 #: Every model family the package ships, untrained and tiny: one line adds a family.
 FAMILIES = [
     pytest.param(lambda: VRNNLRUModel(**VRNN), id="vrnn_lru"),
     pytest.param(lambda: ObjectCentricModel(**OBJECT_CENTRIC), id="object_centric"),
-    pytest.param(lambda: ObjectCentricModel(**OBJECT_CENTRIC, object_free=True),
-                 id="object_free"),
-    pytest.param(lambda: ObjectCentricModel(**OBJECT_CENTRIC, surprise_space="pixels"),
-                 id="object_centric_pixels"),
-    pytest.param(lambda: ObjectCentricModel(**OBJECT_CENTRIC, surprise="likelihood"),
-                 id="visibility_aware"),
-    pytest.param(lambda: ObjectCentricModel(**OBJECT_CENTRIC, surprise="likelihood",
-                                            surprise_space="pixels"),
-                 id="visibility_aware_pixels"),
-    pytest.param(lambda: ObjectCentricModel(**OBJECT_CENTRIC, object_free=True,
-                                            surprise="likelihood"),
-                 id="object_free_likelihood"),
+    pytest.param(lambda: ObjectCentricModel(**OBJECT_CENTRIC, object_free=True), id="object_free"),
+    pytest.param(
+        lambda: ObjectCentricModel(**OBJECT_CENTRIC, surprise_space="pixels"),
+        id="object_centric_pixels",
+    ),
+    pytest.param(
+        lambda: ObjectCentricModel(**OBJECT_CENTRIC, surprise="likelihood"), id="visibility_aware"
+    ),
+    pytest.param(
+        lambda: ObjectCentricModel(
+            **OBJECT_CENTRIC, surprise="likelihood", surprise_space="pixels"
+        ),
+        id="visibility_aware_pixels",
+    ),
+    pytest.param(
+        lambda: ObjectCentricModel(**OBJECT_CENTRIC, object_free=True, surprise="likelihood"),
+        id="object_free_likelihood",
+    ),
     pytest.param(lambda: ObjectStateModel(hidden_size=16, message_size=8), id="object_state"),
-    pytest.param(lambda: ObjectStateModel(hidden_size=16, message_size=8, components=3,
-                                          pivot_landing=False, landing_change=False),
-                 id="object_state_flat_landing"),
-    pytest.param(lambda: ObjectStateModel(hidden_size=16, message_size=8, components=1,
-                                          stop_component=False, landing_component=False,
-                                          pivot_landing=False, carry="none", hold_still=False,
-                                          slowing=False, falling_lands=False, fall_gain=0.0,
-                                          shared_identity=False),
-                 id="object_state_no_priors"),
+    pytest.param(
+        lambda: ObjectStateModel(
+            hidden_size=16, message_size=8, components=3, pivot_landing=False, landing_change=False
+        ),
+        id="object_state_flat_landing",
+    ),
+    pytest.param(
+        lambda: ObjectStateModel(
+            hidden_size=16,
+            message_size=8,
+            components=1,
+            stop_component=False,
+            landing_component=False,
+            pivot_landing=False,
+            carry="none",
+            hold_still=False,
+            slowing=False,
+            falling_lands=False,
+            fall_gain=0.0,
+            shared_identity=False,
+        ),
+        id="object_state_no_priors",
+    ),
     *[pytest.param(lambda cue=cue: CueScorer(cue), id=f"cue_{cue}") for cue in CUE_NAMES],
-    pytest.param(lambda: VideoMAEScorer(config=VIDEOMAE), id="videomae",
-                 marks=pytest.mark.skipif(importlib.util.find_spec("transformers") is None,
-                                          reason="VideoMAEScorer needs transformers")),
-    pytest.param(lambda: VJEPA2Scorer(**VJEPA2), id="vjepa2",
-                 marks=pytest.mark.skipif(importlib.util.find_spec("transformers") is None,
-                                          reason="VJEPA2Scorer needs transformers")),
+    pytest.param(
+        lambda: VideoMAEScorer(config=VIDEOMAE),
+        id="videomae",
+        marks=pytest.mark.skipif(
+            importlib.util.find_spec("transformers") is None,
+            reason="VideoMAEScorer needs transformers",
+        ),
+    ),
+    pytest.param(
+        lambda: VJEPA2Scorer(**VJEPA2),
+        id="vjepa2",
+        marks=pytest.mark.skipif(
+            importlib.util.find_spec("transformers") is None,
+            reason="VJEPA2Scorer needs transformers",
+        ),
+    ),
 ]
 
 
@@ -100,15 +172,20 @@ def probes() -> TensorDict:
     """A probe pair of every concept, variant and seed of ``SEEDS``, stacked into one batch
     (the generator's records as they are: masks, camera, and object states when they carry
     them)."""
-    records = [generate_probe(concept, variant, seed, height=SIZE, width=SIZE)
-               for concept in CONCEPTS for variant in PROBE_VARIANTS[concept] for seed in SEEDS]
+    records = [
+        generate_probe(concept, variant, seed, height=SIZE, width=SIZE)
+        for concept in CONCEPTS
+        for variant in PROBE_VARIANTS[concept]
+        for seed in SEEDS
+    ]
     return torch.stack(records)
 
 
 def _names(probes: TensorDict) -> list[str]:
-    return [f"{specs.CONCEPTS[int(concept)]}/{specs.VARIANTS[int(variant)]}/seed {int(seed)}"
-            for concept, variant, seed in zip(probes["concept"], probes["variant"],
-                                              probes["seed"])]
+    return [
+        f"{specs.CONCEPTS[int(concept)]}/{specs.VARIANTS[int(variant)]}/seed {int(seed)}"
+        for concept, variant, seed in zip(probes["concept"], probes["variant"], probes["seed"])
+    ]
 
 
 @pytest.mark.parametrize("family", FAMILIES)
@@ -120,16 +197,22 @@ def test_surprise_is_identical_through_the_manipulation_frame_of_every_probe(fam
     for index, name in enumerate(_names(probes)):
         seen = int(probes["manipulation_frame"][index]) + 1
         for key in ("frames", "mask"):  # the premise: byte-identical videos through m
-            assert torch.equal(probes["consistent", key][index, :seen],
-                               probes["inconsistent", key][index, :seen]), (name, key)
+            assert torch.equal(
+                probes["consistent", key][index, :seen], probes["inconsistent", key][index, :seen]
+            ), (name, key)
         consistent = out["surprise_consistent"][index, :seen]
         inconsistent = out["surprise_inconsistent"][index, :seen]
         scale = torch.maximum(consistent.abs(), inconsistent.abs()).clamp(min=1)
         differences[name] = float(((consistent - inconsistent).abs() / scale).max())
-    differ = [f"{name}: {difference:.3g}" for name, difference in differences.items()
-              if difference > TOLERANCE]
-    assert not differ, ("surprise differs through the manipulation frame (relative to "
-                        "max(|surprise|, 1)): " + "; ".join(differ))
+    differ = [
+        f"{name}: {difference:.3g}"
+        for name, difference in differences.items()
+        if difference > TOLERANCE
+    ]
+    assert not differ, (
+        "surprise differs through the manipulation frame (relative to "
+        "max(|surprise|, 1)): " + "; ".join(differ)
+    )
 
 
 B, T = 2, 6
@@ -140,12 +223,11 @@ def _random_video(seed: int) -> dict:
     frames (4 at frame 0, 9 at 1, 2 at 3 though smaller than the ids before it, 6 at 4) and
     object states whose visible fraction follows the mask."""
     generator = torch.Generator().manual_seed(seed)
-    frames = torch.randint(0, 256, (B, T, SIZE, SIZE, 3), dtype=torch.uint8,
-                           generator=generator)
+    frames = torch.randint(0, 256, (B, T, SIZE, SIZE, 3), dtype=torch.uint8, generator=generator)
     mask = torch.zeros(B, T, SIZE, SIZE, dtype=torch.uint8)
     for row, (object_id, first) in enumerate(((4, 0), (9, 1), (2, 3), (6, 4))):
         for t in range(first, T):
-            mask[:, t, 7 * row: 7 * row + 5, 3 + t: 11 + t] = object_id
+            mask[:, t, 7 * row : 7 * row + 5, 3 + t : 11 + t] = object_id
     camera = torch.randn(B, T, 6, generator=generator)
     return {"frames": frames, "mask": mask, "camera": camera, "objects": _objects(mask, seed)}
 
@@ -167,9 +249,13 @@ def _objects(mask: torch.Tensor, seed: int) -> TensorDict:
 def _splice(value, t: int, other=None):
     """A tensor or object states [B, T, ...] up to frame t, then ``other``'s after it (none:
     cut there)."""
+
     def splice(mine: torch.Tensor, theirs: torch.Tensor | None = None) -> torch.Tensor:
-        return mine[:, : t + 1] if theirs is None else torch.cat([mine[:, : t + 1],
-                                                                  theirs[:, t + 1:]], dim=1)
+        return (
+            mine[:, : t + 1]
+            if theirs is None
+            else torch.cat([mine[:, : t + 1], theirs[:, t + 1 :]], dim=1)
+        )
 
     if isinstance(value, TensorDict):
         return value.apply(splice, *(() if other is None else (other,)))
@@ -191,6 +277,10 @@ def test_nothing_after_frame_t_changes_surprise_up_to_t(family):
         cut = {name: _splice(value, t) for name, value in video.items()}
         altered = {name: _splice(value, t, other[name]) for name, value in video.items()}
         for name, changed in (("cut", cut), ("altered", altered)):
-            torch.testing.assert_close(model.surprise(**changed)[:, : t + 1],
-                                       surprise[:, : t + 1], atol=TOLERANCE, rtol=TOLERANCE,
-                                       msg=lambda message: f"{name} after frame {t}: {message}")
+            torch.testing.assert_close(
+                model.surprise(**changed)[:, : t + 1],
+                surprise[:, : t + 1],
+                atol=TOLERANCE,
+                rtol=TOLERANCE,
+                msg=lambda message, name=name, t=t: f"{name} after frame {t}: {message}",
+            )

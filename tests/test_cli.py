@@ -12,8 +12,8 @@ from pathlib import Path
 
 import nbformat
 import pytest
-import yaml
 import torch
+import yaml
 from nbclient import NotebookClient
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -25,12 +25,6 @@ from voe_lightning.specs import to_model_input
 from voe_lightning.store import collate, open_split
 
 CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
-
-
-@pytest.fixture()
-def workdir(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
 
 
 def _tags(run_dir: Path, kind: str = "scalars") -> set[str]:
@@ -55,10 +49,12 @@ def test_fit_then_test_writes_curves_checkpoint_and_report(workdir):
     report = run / "voe_report"  # beside the checkpoint's run, not in a new version
     summary = json.loads((report / "summary.json").read_text())["rows"]
     cases = {(row["concept"], row["variant"], row["n"]) for row in summary}
-    assert cases == {("object_persistence", "standard", 3),
-                     ("object_persistence", "counterbalanced", 3),
-                     ("object_persistence", "pooled", 6),
-                     ("object_persistence", "quadruplet", 3)}  # the test seeds' quadruplets
+    assert cases == {
+        ("object_persistence", "standard", 3),
+        ("object_persistence", "counterbalanced", 3),
+        ("object_persistence", "pooled", 6),
+        ("object_persistence", "quadruplet", 3),
+    }  # the test seeds' quadruplets
     for name in ("pairs.csv", "summary.md", "histograms.png", "surprise_per_frame.png"):
         assert (report / name).is_file(), name
     # The cue audit of the same test pairs, beside the model's rows.
@@ -85,22 +81,40 @@ def test_resume_continues_in_the_same_run(workdir):
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        cli = main(["fit", "--config", CONFIG, "--trainer.max_steps", "4", "--ckpt_path", str(checkpoint)])
+        cli = main(
+            ["fit", "--config", CONFIG, "--trainer.max_steps", "4", "--ckpt_path", str(checkpoint)]
+        )
     assert not [w for w in caught if "resumes in the checkpoint's run" in str(w.message)]
     assert cli.trainer.global_step == 4
     assert not (workdir / "runs" / "tiny" / "version_1").exists()
     # Another logger name cannot move a resumed run: it is named as not used, not dropped silently.
-    with pytest.warns(UserWarning, match=r"resumes in the checkpoint's run .*tiny.*'elsewhere' is not used"):
-        cli = main(["fit", "--config", CONFIG, "--trainer.max_steps", "6", "--ckpt_path", str(checkpoint),
-                    "--trainer.logger.init_args.name", "elsewhere"])
+    with pytest.warns(
+        UserWarning, match=r"resumes in the checkpoint's run .*tiny.*'elsewhere' is not used"
+    ):
+        cli = main(
+            [
+                "fit",
+                "--config",
+                CONFIG,
+                "--trainer.max_steps",
+                "6",
+                "--ckpt_path",
+                str(checkpoint),
+                "--trainer.logger.init_args.name",
+                "elsewhere",
+            ]
+        )
     assert cli.trainer.global_step == 6
     assert not (workdir / "runs" / "elsewhere").exists()
 
 
-@pytest.mark.parametrize("checkpoint_class,last_step", [
-    ("lightning.pytorch.callbacks.ModelCheckpoint", 2),  # Lightning: the last scheduled step
-    ("voe_lightning.callbacks.FinalStepCheckpoint", 3),  # ours: the step training ended at
-])
+@pytest.mark.parametrize(
+    "checkpoint_class,last_step",
+    [
+        ("lightning.pytorch.callbacks.ModelCheckpoint", 2),  # Lightning: the last scheduled step
+        ("voe_lightning.callbacks.FinalStepCheckpoint", 3),  # ours: the step training ended at
+    ],
+)
 def test_last_checkpoint_holds_the_step_training_ended_at(workdir, checkpoint_class, last_step):
     config = yaml.safe_load(Path(CONFIG).read_text())
     for callback in config["trainer"]["callbacks"]:
@@ -111,7 +125,9 @@ def test_last_checkpoint_holds_the_step_training_ended_at(workdir, checkpoint_cl
     main(["fit", "--config", "tiny.yaml", "--trainer.max_steps", "3"])
     checkpoints = workdir / "runs" / "tiny" / "version_0" / "checkpoints"
     assert torch.load(checkpoints / "last.ckpt", weights_only=True)["global_step"] == last_step
-    assert [path.name.split("-")[-1] for path in checkpoints.glob("epoch=*")] == [f"step={last_step}.ckpt"]
+    assert [path.name.split("-")[-1] for path in checkpoints.glob("epoch=*")] == [
+        f"step={last_step}.ckpt"
+    ]
 
 
 @pytest.mark.parametrize(
@@ -132,20 +148,37 @@ def test_bad_configs_are_refused_before_any_work(workdir, capsys, arguments, mes
 
 def test_module_entry_point_lists_every_subcommand_with_its_summary():
     result = subprocess.run(
-        [sys.executable, "-m", "voe_lightning", "--help"], capture_output=True, text=True, check=True
+        [sys.executable, "-m", "voe_lightning", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
     )
-    for subcommand in ("fit", "validate", "test", "predict", "generate", "audit",
-                       "check-causality", "analyze"):
+    for subcommand in (
+        "fit",
+        "validate",
+        "test",
+        "predict",
+        "generate",
+        "audit",
+        "check-causality",
+        "analyze",
+    ):
         assert re.search(rf"^ +{subcommand} +[A-Z]", result.stdout, re.MULTILINE), subcommand
 
 
 @pytest.mark.parametrize(
     "command,summary",
-    [(["generate"], "sharded store"), (["audit"], "Physics-blind cue scores"),
-     (["check-causality"], "causality protocol on generated probe pairs"),
-     (["analyze"], "curves, sweep, sweep-plot, compare"), (["analyze", "curves"], "Figure 6"),
-     (["analyze", "sweep"], "per training-set size"), (["analyze", "sweep-plot"], "Figure 3"),
-     (["analyze", "compare"], "verdicts"), (["analyze", "calibrate"], "Calibration of the VOE")],
+    [
+        (["generate"], "sharded store"),
+        (["audit"], "Physics-blind cue scores"),
+        (["check-causality"], "causality protocol on generated probe pairs"),
+        (["analyze"], "curves, sweep, sweep-plot, compare"),
+        (["analyze", "curves"], "Figure 6"),
+        (["analyze", "sweep"], "per training-set size"),
+        (["analyze", "sweep-plot"], "Figure 3"),
+        (["analyze", "compare"], "verdicts"),
+        (["analyze", "calibrate"], "Calibration of the VOE"),
+    ],
 )
 def test_each_command_has_a_help_with_its_summary_and_config(capsys, command, summary):
     with pytest.raises(SystemExit) as raised:
@@ -198,12 +231,27 @@ def test_predict_with_the_intphys_test_config_writes_the_answer_file(workdir):
     main(["fit", "--config", CONFIG, "--trainer.max_steps", "1"])
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
     configs = Path(__file__).parents[1] / "configs"
-    main(["predict", "--config", str(configs / "intphys_dev.yaml"),
-          "--config", str(configs / "overlays" / "intphys_test.yaml"),
-          "--ckpt_path", str(checkpoint),
-          "--data.init_args.root", str(workdir / "intphys"), "--data.init_args.num_frames", "5",
-          "--data.init_args.frames_per_movie", str(FRAMES), "--data.init_args.num_workers", "0",
-          "--data.init_args.cache_dir", "null"])
+    main(
+        [
+            "predict",
+            "--config",
+            str(configs / "intphys_dev.yaml"),
+            "--config",
+            str(configs / "overlays" / "intphys_test.yaml"),
+            "--ckpt_path",
+            str(checkpoint),
+            "--data.init_args.root",
+            str(workdir / "intphys"),
+            "--data.init_args.num_frames",
+            "5",
+            "--data.init_args.frames_per_movie",
+            str(FRAMES),
+            "--data.init_args.num_workers",
+            "0",
+            "--data.init_args.cache_dir",
+            "null",
+        ]
+    )
     lines = (workdir / "answer.txt").read_text().splitlines()
     assert len(lines) == 3 * 4  # three scenes of four movies
     path, score = lines[0].split()
@@ -245,7 +293,9 @@ def test_a_checkpoint_of_another_architecture_is_refused_naming_the_difference(w
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
     arguments = {k: v for k, v in cli.model.hparams.items() if not k.startswith("_")}
     other = VRNNLRUModel(**{**arguments, "latent_size": 12})
-    with pytest.raises(ValueError, match=rf"{checkpoint} was .*\(latent_size: checkpoint 8, config 12\)"):
+    with pytest.raises(
+        ValueError, match=rf"{checkpoint} was .*\(latent_size: checkpoint 8, config 12\)"
+    ):
         cli.trainer.validate(other, datamodule=cli.datamodule, ckpt_path=str(checkpoint))
 
 
@@ -269,15 +319,21 @@ def test_the_runs_one_alpha_reaches_every_callback_and_a_second_one_is_refused(w
     assert _alphas(default) == {"VOEProbeCallback": 0.01, "VOEReportCallback": 0.01}
     chosen = main(["validate", "--config", CONFIG, "--alpha", "0.05", *limit])
     assert _alphas(chosen) == {"VOEProbeCallback": 0.05, "VOEReportCallback": 0.05}
-    saved = yaml.safe_load((workdir / "runs" / "tiny" / "version_1" / "validate_config.yaml")
-                           .read_text())
+    saved = yaml.safe_load(
+        (workdir / "runs" / "tiny" / "version_1" / "validate_config.yaml").read_text()
+    )
     assert saved["alpha"] == 0.05  # the saved config says which alpha the run used
     second = workdir / "second_alpha.yaml"
-    second.write_text("trainer:\n  callbacks+:\n"
-                      "    - class_path: voe_lightning.callbacks.VOEReportCallback\n"
-                      "      init_args: {alpha: 0.05}\n")
-    with pytest.raises(ValueError, match=r"VOEReportCallback was given alpha 0.05, the run's "
-                                         r"alpha is 0.01: a run has one significance level"):
+    second.write_text(
+        "trainer:\n  callbacks+:\n"
+        "    - class_path: voe_lightning.callbacks.VOEReportCallback\n"
+        "      init_args: {alpha: 0.05}\n"
+    )
+    with pytest.raises(
+        ValueError,
+        match=r"VOEReportCallback was given alpha 0.05, the run's "
+        r"alpha is 0.01: a run has one significance level",
+    ):
         main(["validate", "--debug", "--config", CONFIG, "--config", str(second), *limit])
     with pytest.raises(ValueError, match=r"alpha must be a significance level in \(0, 1\)"):
         main(["validate", "--debug", "--config", CONFIG, "--alpha", "2", *limit])
@@ -285,9 +341,19 @@ def test_the_runs_one_alpha_reaches_every_callback_and_a_second_one_is_refused(w
 
 def test_training_does_not_depend_on_how_often_validation_runs(workdir):
     def weights(name, interval):
-        cli = main(["fit", "--config", CONFIG, "--trainer.max_steps", "6",
-                    "--trainer.val_check_interval", str(interval),
-                    "--trainer.logger.init_args.name", name])
+        cli = main(
+            [
+                "fit",
+                "--config",
+                CONFIG,
+                "--trainer.max_steps",
+                "6",
+                "--trainer.val_check_interval",
+                str(interval),
+                "--trainer.logger.init_args.name",
+                name,
+            ]
+        )
         return cli.model.state_dict()
 
     every_two, every_three = weights("a", 2), weights("b", 3)
@@ -312,17 +378,6 @@ def test_checkpoints_are_read_with_weights_only(workdir, monkeypatch, command):
     assert len(calls) >= 2 and all(value is True for value in calls), calls
 
 
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    """A one-step fit under runs/trained (not the config's logger name): its run directory."""
-    folder = tmp_path_factory.mktemp("trained")
-    with pytest.MonkeyPatch.context() as patch:
-        patch.chdir(folder)
-        main(["fit", "--config", CONFIG, "--trainer.max_steps", "1",
-              "--trainer.logger.init_args.name", "trained"])
-    return folder / "runs" / "trained" / "version_0"
-
-
 def copy_of(run: Path, workdir: Path) -> Path:
     """``run`` copied to ``workdir``/runs/trained/version_0 (tests write into it)."""
     target = workdir / "runs" / "trained" / "version_0"
@@ -331,16 +386,29 @@ def copy_of(run: Path, workdir: Path) -> Path:
 
 
 @pytest.mark.parametrize("subcommand, split", [("test", "test"), ("validate", "val")])
-def test_evaluation_generates_only_the_probes_it_needs_and_says_so(workdir, trained, capsys,
-                                                                    subcommand, split):
+def test_evaluation_generates_only_the_probes_it_needs_and_says_so(
+    workdir, trained, capsys, subcommand, split
+):
     """Issue 10 case 9: a mistyped --data.init_args.root must not render a whole dataset."""
     run = copy_of(trained, workdir)
-    main([subcommand, "--config", CONFIG, "--data.init_args.root", "data/tpyo",
-          "--trainer.fast_dev_run", "1", "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
+    main(
+        [
+            subcommand,
+            "--config",
+            CONFIG,
+            "--data.init_args.root",
+            "data/tpyo",
+            "--trainer.fast_dev_run",
+            "1",
+            "--ckpt_path",
+            str(run / "checkpoints" / "last.ckpt"),
+        ]
+    )
     generated = {path.name for path in (workdir / "data" / "tpyo" / "object_persistence").iterdir()}
     assert generated == {split}
     assert f"generating the {split} split of object_persistence under data/tpyo" in (
-        capsys.readouterr().out)
+        capsys.readouterr().out
+    )
 
 
 def test_test_of_a_checkpoint_writes_its_report_beside_it(workdir, trained):
@@ -362,8 +430,17 @@ def test_test_on_other_data_keeps_the_runs_own_report(workdir, trained, capsys):
     checkpoint = str(run / "checkpoints" / "last.ckpt")
     main(["test", "--config", CONFIG, "--ckpt_path", checkpoint])
     own = (run / "voe_report" / "summary.json").read_text()
-    main(["test", "--config", CONFIG, "--ckpt_path", checkpoint,
-          "--data.init_args.root", "data/tpyo"])
+    main(
+        [
+            "test",
+            "--config",
+            CONFIG,
+            "--ckpt_path",
+            checkpoint,
+            "--data.init_args.root",
+            "data/tpyo",
+        ]
+    )
     assert (run / "voe_report" / "summary.json").read_text() == own
     [other] = run.glob("data_data_tpyo-*")
     assert (other / "voe_report" / "summary.json").is_file()
@@ -376,8 +453,18 @@ def test_model_arguments_that_differ_from_the_checkpoint_are_refused(workdir, tr
     user gives that differs would be ignored; it is refused, naming the file and both values."""
     checkpoint = trained / "checkpoints" / "last.ckpt"
     with pytest.raises(ValueError) as raised:
-        main(["test", "--debug", "--config", CONFIG, "--ckpt_path", str(checkpoint),
-              "--model.init_args.latent_size", "16"])
+        main(
+            [
+                "test",
+                "--debug",
+                "--config",
+                CONFIG,
+                "--ckpt_path",
+                str(checkpoint),
+                "--model.init_args.latent_size",
+                "16",
+            ]
+        )
     assert str(checkpoint) in str(raised.value)
     assert "latent_size: config 16, checkpoint 8" in str(raised.value)
     assert not (workdir / "data").exists(), "refused before any work"
@@ -389,9 +476,16 @@ def test_training_only_arguments_may_differ_when_testing_a_checkpoint(workdir, t
     no conflict there (the checkpoint's are used), while `fit` of the checkpoint refuses them."""
     run = copy_of(trained, workdir)
     checkpoint = str(run / "checkpoints" / "last.ckpt")
-    training_only = ["--model.init_args.learning_rate", "0.5", "--model.init_args.lr_schedule",
-                     "cosine", "--model.init_args.kl_warmup_steps", "7",
-                     "--model.init_args.kl_free_bits", "0.2"]
+    training_only = [
+        "--model.init_args.learning_rate",
+        "0.5",
+        "--model.init_args.lr_schedule",
+        "cosine",
+        "--model.init_args.kl_warmup_steps",
+        "7",
+        "--model.init_args.kl_free_bits",
+        "0.2",
+    ]
     with pytest.raises(ValueError, match="lr_schedule: config 'cosine', checkpoint 'constant'"):
         main(["fit", "--debug", "--config", CONFIG, "--ckpt_path", checkpoint, *training_only])
     main(["test", "--config", CONFIG, "--ckpt_path", checkpoint, *training_only])
@@ -405,10 +499,20 @@ def trained_object_centric(tmp_path_factory):
     runs/oc: its config (the tiny one with this model) and its run directory."""
     folder = tmp_path_factory.mktemp("object_centric")
     config = yaml.safe_load(Path(CONFIG).read_text())
-    config["model"] = {"class_path": "voe_lightning.model.ObjectCentricModel", "init_args": {
-        "image_size": [32, 32], "num_slots": 4, "code_size": 8, "encoder_channels": [8, 8],
-        "state_size": 16, "relation_sizes": [16], "node_sizes": [16], "relation_size": 16,
-        "perception_steps": 1}}
+    config["model"] = {
+        "class_path": "voe_lightning.model.ObjectCentricModel",
+        "init_args": {
+            "image_size": [32, 32],
+            "num_slots": 4,
+            "code_size": 8,
+            "encoder_channels": [8, 8],
+            "state_size": 16,
+            "relation_sizes": [16],
+            "node_sizes": [16],
+            "relation_size": 16,
+            "perception_steps": 1,
+        },
+    }
     (folder / "oc.yaml").write_text(yaml.safe_dump(config))
     with pytest.MonkeyPatch.context() as patch:
         patch.chdir(folder)
@@ -416,15 +520,25 @@ def trained_object_centric(tmp_path_factory):
     return str(folder / "oc.yaml"), folder / "runs" / "oc" / "version_0"
 
 
-def test_an_evaluation_only_argument_scores_a_checkpoint_otherwise(workdir, trained_object_centric,
-                                                                  capsys):
+def test_an_evaluation_only_argument_scores_a_checkpoint_otherwise(
+    workdir, trained_object_centric, capsys
+):
     """A checkpoint trained with code-space surprise is tested with `surprise_space pixels`
     (``EVALUATION_ONLY``: it changes no parameter): the model is built with it, not the
     checkpoint's, scores the decoded frames, says so, and reports into a folder of its own."""
     config, trained_run = trained_object_centric
     run = copy_of(trained_run, workdir)
-    cli = main(["test", "--config", config, "--ckpt_path", str(run / "checkpoints" / "last.ckpt"),
-                "--model.init_args.surprise_space", "pixels"])
+    cli = main(
+        [
+            "test",
+            "--config",
+            config,
+            "--ckpt_path",
+            str(run / "checkpoints" / "last.ckpt"),
+            "--model.init_args.surprise_space",
+            "pixels",
+        ]
+    )
     assert "surprise_space: pixels (trained with codes)" in capsys.readouterr().out
     model = cli.model.eval()
     assert model.hparams.surprise_space == "pixels"
@@ -446,14 +560,24 @@ def test_an_evaluation_only_argument_scores_a_checkpoint_otherwise(workdir, trai
     assert not torch.allclose(surprise, model.surprise(frames, mask, camera))
 
 
-def test_an_evaluation_only_argument_as_trained_changes_nothing(workdir, trained_object_centric,
-                                                               capsys):
+def test_an_evaluation_only_argument_as_trained_changes_nothing(
+    workdir, trained_object_centric, capsys
+):
     """`surprise_space codes`, the checkpoint's own, is no difference: nothing is announced and
     the report is the run's own."""
     config, trained_run = trained_object_centric
     run = copy_of(trained_run, workdir)
-    cli = main(["test", "--config", config, "--ckpt_path", str(run / "checkpoints" / "last.ckpt"),
-                "--model.init_args.surprise_space", "codes"])
+    cli = main(
+        [
+            "test",
+            "--config",
+            config,
+            "--ckpt_path",
+            str(run / "checkpoints" / "last.ckpt"),
+            "--model.init_args.surprise_space",
+            "codes",
+        ]
+    )
     out = capsys.readouterr().out
     assert "evaluation-only" not in out and "scored otherwise" not in out
     assert cli.model.hparams.surprise_space == "codes"
@@ -463,25 +587,49 @@ def test_an_evaluation_only_argument_as_trained_changes_nothing(workdir, trained
 
 
 def test_other_model_arguments_are_refused_naming_those_evaluation_may_change(
-        workdir, trained_object_centric):
+    workdir, trained_object_centric
+):
     """Beside an evaluation-only argument, one that is not (``surprise`` shapes the dynamics)
     is still refused, and the message names what evaluating may change; in `fit` of the
     checkpoint an evaluation-only argument is an ordinary one, refused too."""
     config, run = trained_object_centric
     checkpoint = str(run / "checkpoints" / "last.ckpt")
     with pytest.raises(ValueError) as raised:
-        main(["test", "--debug", "--config", config, "--ckpt_path", checkpoint,
-              "--model.init_args.surprise_space", "pixels",
-              "--model.init_args.surprise", "likelihood"])
+        main(
+            [
+                "test",
+                "--debug",
+                "--config",
+                config,
+                "--ckpt_path",
+                checkpoint,
+                "--model.init_args.surprise_space",
+                "pixels",
+                "--model.init_args.surprise",
+                "likelihood",
+            ]
+        )
     message = str(raised.value)
     assert "surprise: config 'likelihood', checkpoint 'squared_error'" in message
     assert "surprise_space: config" not in message
-    assert ("take other values of ObjectCentricModel's training-only learning_rate, "
-            "perception_steps, code_loss_weight (ignored) and evaluation-only surprise_space "
-            "(used instead of the checkpoint's)") in message
+    assert (
+        "take other values of ObjectCentricModel's training-only learning_rate, "
+        "perception_steps, code_loss_weight (ignored) and evaluation-only surprise_space "
+        "(used instead of the checkpoint's)"
+    ) in message
     with pytest.raises(ValueError, match="surprise_space: config 'pixels', checkpoint 'codes'"):
-        main(["fit", "--debug", "--config", config, "--ckpt_path", checkpoint,
-              "--model.init_args.surprise_space", "pixels"])
+        main(
+            [
+                "fit",
+                "--debug",
+                "--config",
+                config,
+                "--ckpt_path",
+                checkpoint,
+                "--model.init_args.surprise_space",
+                "pixels",
+            ]
+        )
     assert not (workdir / "data").exists(), "refused before any work"
 
 
@@ -497,8 +645,18 @@ def test_a_study_config_on_top_of_base_tests_a_checkpoint(workdir, trained):
     run = copy_of(trained, workdir)
     checkpoint = str(run / "checkpoints" / "last.ckpt")
     with pytest.raises(ValueError, match="latent_size: config 16, checkpoint 8"):
-        main(["test", "--debug", "--config", "study.yaml", "--ckpt_path", checkpoint,
-              "--model.init_args.latent_size", "16"])
+        main(
+            [
+                "test",
+                "--debug",
+                "--config",
+                "study.yaml",
+                "--ckpt_path",
+                checkpoint,
+                "--model.init_args.latent_size",
+                "16",
+            ]
+        )
     main(["test", "--config", "study.yaml", "--ckpt_path", checkpoint])
     assert (run / "voe_report" / "summary.json").is_file()
 
@@ -511,8 +669,18 @@ def test_a_checkpoint_without_hyperparameters_that_does_not_fit_is_named(workdir
     stripped = workdir / "stripped.ckpt"
     torch.save(checkpoint, stripped)
     with pytest.raises(ValueError) as raised:
-        main(["test", "--debug", "--config", CONFIG, "--ckpt_path", str(stripped),
-              "--model.init_args.latent_size", "16"])
+        main(
+            [
+                "test",
+                "--debug",
+                "--config",
+                CONFIG,
+                "--ckpt_path",
+                str(stripped),
+                "--model.init_args.latent_size",
+                "16",
+            ]
+        )
     message = str(raised.value)
     assert str(stripped) in message and "no hyper_parameters" in message
     assert "size mismatch" not in message
@@ -538,9 +706,23 @@ def test_intphys_test_of_a_checkpoint_writes_beside_it_in_the_models_geometry(wo
     make_intphys(workdir / "intphys", "dev", labelled=True)
     run = copy_of(trained, workdir)
     config = str(Path(__file__).parents[1] / "configs" / "intphys_dev.yaml")
-    cli = main(["test", "--config", config, "--ckpt_path", str(run / "checkpoints" / "last.ckpt"),
-                "--data.root", str(workdir / "intphys"), "--data.frames_per_movie", str(FRAMES),
-                "--data.num_workers", "0", "--data.cache_dir", "null"])
+    cli = main(
+        [
+            "test",
+            "--config",
+            config,
+            "--ckpt_path",
+            str(run / "checkpoints" / "last.ckpt"),
+            "--data.root",
+            str(workdir / "intphys"),
+            "--data.frames_per_movie",
+            str(FRAMES),
+            "--data.num_workers",
+            "0",
+            "--data.cache_dir",
+            "null",
+        ]
+    )
     [report] = run.glob("intphys_dev-*/voe_report")  # the benchmark's own folder in the run
     assert (report / "benchmark_metrics.json").is_file()
     assert not (run / "voe_report").exists() and not (workdir / "runs" / "intphys_dev").exists()
@@ -553,15 +735,27 @@ def test_analyze_latents_counts_the_latents_that_carry_information(trained, caps
     latent of each checkpoint; its numbers are surprise split over latents."""
     checkpoint = trained / "checkpoints" / "last.ckpt"
     root = trained.parents[2] / "data" / "tiny"
-    table = main(["analyze", "latents", "--checkpoints", f"[one step={checkpoint}]",
-                  "--root", str(root), "--pairs", "2"])
+    table = main(
+        [
+            "analyze",
+            "latents",
+            "--checkpoints",
+            f"[one step={checkpoint}]",
+            "--root",
+            str(root),
+            "--pairs",
+            "2",
+        ]
+    )
     assert "| one step |" in capsys.readouterr().out
     row = table.splitlines()[2].split(" | ")
     assert row[-1].endswith("of 8 |")
-    model = VRNNLRUModel.load_from_checkpoint(checkpoint, map_location="cpu",
-                                              weights_only=True).eval()
-    frames = collate([open_split(root, "object_persistence", "test")[i]
-                      for i in range(2)])["consistent", "frames"]
+    model = VRNNLRUModel.load_from_checkpoint(
+        checkpoint, map_location="cpu", weights_only=True
+    ).eval()
+    frames = collate([open_split(root, "object_persistence", "test")[i] for i in range(2)])[
+        "consistent", "frames"
+    ]
     surprise = model.surprise(frames)
     usage = analysis.latent_usage(model, frames, threshold=0.0)
     assert float(row[1]) == pytest.approx(surprise.sum(dim=1).mean().item(), abs=0.06)

@@ -29,19 +29,27 @@ PACKAGE_COMMAND = re.compile(r"voe_lightning\s+(generate|audit|analyze)\b")
 def documented_commands(command: re.Pattern = COMMAND) -> list[tuple[str, ...]]:
     """Each documented ``command`` as its arguments after ``python -m voe_lightning``, without
     ``--ckpt_path`` (the checkpoint is not there), in order of first appearance."""
-    sources = [ROOT / "README.md", *sorted(path for path in (ROOT / "docs").rglob("*.md")
-                                           if ARCHIVE not in path.parents)]
+    sources = [
+        ROOT / "README.md",
+        *sorted(path for path in (ROOT / "docs").rglob("*.md") if ARCHIVE not in path.parents),
+    ]
     texts = [path.read_text() for path in sources]
-    texts += ["\n".join(re.sub(r"^#\s?", "", line) for line in path.read_text().splitlines()
-                        if line.startswith("#")) for path in sorted(CONFIGS.rglob("*.yaml"))]
+    texts += [
+        "\n".join(
+            re.sub(r"^#\s?", "", line)
+            for line in path.read_text().splitlines()
+            if line.startswith("#")
+        )
+        for path in sorted(CONFIGS.rglob("*.yaml"))
+    ]
     commands: dict[tuple[str, ...], None] = {}
     for text in texts:
         for line in re.sub(r"\\\n\s*", " ", text).splitlines():
             for match in command.finditer(line):
-                words = shlex.split(re.split(r"[`|#]", line[match.start(1):])[0])
+                words = shlex.split(re.split(r"[`|#]", line[match.start(1) :])[0])
                 while "--ckpt_path" in words:
                     index = words.index("--ckpt_path")
-                    del words[index:index + 2]
+                    del words[index : index + 2]
                 commands[tuple(words)] = None
     return list(commands)
 
@@ -58,7 +66,9 @@ def parsed(*arguments: str) -> dict:
 
 def compose(*names: str, subcommand: str = "fit") -> dict:
     """The parsed config of ``--config configs/NAME.yaml`` for each name, in order."""
-    return parsed(subcommand, *(word for name in names for word in ("--config", f"configs/{name}.yaml")))
+    return parsed(
+        subcommand, *(word for name in names for word in ("--config", f"configs/{name}.yaml"))
+    )
 
 
 def imported(class_path: str) -> type:
@@ -68,10 +78,14 @@ def imported(class_path: str) -> type:
 
 def callbacks(config: dict) -> dict[str, dict]:
     """The trainer's callbacks by class name (each must appear once)."""
-    names = [callback["class_path"].rsplit(".", 1)[1] for callback in config["trainer"]["callbacks"]]
+    names = [
+        callback["class_path"].rsplit(".", 1)[1] for callback in config["trainer"]["callbacks"]
+    ]
     assert len(names) == len(set(names)), names
-    return {name: callback.get("init_args") or {}
-            for name, callback in zip(names, config["trainer"]["callbacks"])}
+    return {
+        name: callback.get("init_args") or {}
+        for name, callback in zip(names, config["trainer"]["callbacks"])
+    }
 
 
 @pytest.fixture(autouse=True)
@@ -81,8 +95,9 @@ def in_repository(monkeypatch):
 
 
 def test_every_config_is_in_a_documented_command():
-    used = {word for command in documented_commands() for word in command
-            if word.startswith("configs/")}
+    used = {
+        word for command in documented_commands() for word in command if word.startswith("configs/")
+    }
     shipped = {str(path.relative_to(ROOT)) for path in CONFIGS.rglob("*.yaml")}
     assert used | {"configs/base.yaml"} == shipped
 
@@ -141,7 +156,9 @@ def test_later_configs_append_to_or_override_base():
     assert separate["data"]["init_args"]["train_examples"] == 10000
     assert separate["trainer"]["max_steps"] == 100000
     assert separate["trainer"]["logger"]["init_args"] == {
-        **compose("joint")["trainer"]["logger"]["init_args"], "name": "solidity"}
+        **compose("joint")["trainer"]["logger"]["init_args"],
+        "name": "solidity",
+    }
     assert separate["model"]["init_args"]["learning_rate"] == 5e-5
 
 
@@ -159,12 +176,28 @@ def test_paper_config_reads_the_memory_as_the_paper_does():
 #: configs/paper.yaml's model, pinned: the paper's sizes and stated choices, and the open ones
 #: its header names as departures (head_mixing, write_content).
 PAPER_MODEL = dict(
-    image_size=[64, 64], latent_size=256, mlp_sizes=[512, 512], memory_slots=15,
-    memory_slot_size=100, memory_read_heads=3, controller_size=128, usage_decay=0.95,
-    head_mixing="controller", write_content="projection", controller_sees_read=False,
-    least_used_slots=3, encoder_blocks=6, encoder_channels=[64, 64, 128], encoder_mlp_size=500,
-    prior_regularizer_weight=1e-4, learning_rate=5e-6, adam_betas=[0.9, 0.999],
-    lr_schedule="constant", kl_warmup_steps=0, kl_free_bits=0.0)
+    image_size=[64, 64],
+    latent_size=256,
+    mlp_sizes=[512, 512],
+    memory_slots=15,
+    memory_slot_size=100,
+    memory_read_heads=3,
+    controller_size=128,
+    usage_decay=0.95,
+    head_mixing="controller",
+    write_content="projection",
+    controller_sees_read=False,
+    least_used_slots=3,
+    encoder_blocks=6,
+    encoder_channels=[64, 64, 128],
+    encoder_mlp_size=500,
+    prior_regularizer_weight=1e-4,
+    learning_rate=5e-6,
+    adam_betas=[0.9, 0.999],
+    lr_schedule="constant",
+    kl_warmup_steps=0,
+    kl_free_bits=0.0,
+)
 
 
 def test_paper_config_pins_the_papers_choices_and_names_each_departure():
@@ -175,11 +208,20 @@ def test_paper_config_pins_the_papers_choices_and_names_each_departure():
     assert {name: arguments[name] for name in PAPER_MODEL} == PAPER_MODEL
     written = yaml.safe_load((CONFIGS / "paper.yaml").read_text())["model"]["init_args"]
     assert set(PAPER_MODEL) <= set(written)
-    header = "\n".join(line for line in (CONFIGS / "paper.yaml").read_text().splitlines()
-                       if line.startswith("#"))
-    for departure in ("head_mixing: controller", "write_content: projection", "log-std",
-                      "memory output", "sub-pixel", "stride of 2x1", "deterministic rollout",
-                      "bf16", "every 20,000 steps"):
+    header = "\n".join(
+        line for line in (CONFIGS / "paper.yaml").read_text().splitlines() if line.startswith("#")
+    )
+    for departure in (
+        "head_mixing: controller",
+        "write_content: projection",
+        "log-std",
+        "memory output",
+        "sub-pixel",
+        "stride of 2x1",
+        "deterministic rollout",
+        "bf16",
+        "every 20,000 steps",
+    ):
         assert departure in header, departure
 
 
@@ -188,4 +230,6 @@ def test_base_is_read_before_the_given_configs():
     give (the CLI's default config file), and a later base.yaml would change nothing."""
     alone = compose("quickstart")
     assert alone == compose("base", "quickstart")
-    assert {"VOEProbeCallback", "VOEReportCallback", "FinalStepCheckpoint"} <= callbacks(alone).keys()
+    assert {"VOEProbeCallback", "VOEReportCallback", "FinalStepCheckpoint"} <= callbacks(
+        alone
+    ).keys()

@@ -23,7 +23,9 @@ def test_probe_pair_rows_and_manipulation_outline(tmp_path):
     clip_rows = contact_sheet.record_rows(fake_clip("solidity", "no_object", 3))
     assert clip_rows[0].label == "control:\nno object" and clip_rows[0].marked_frame is None
 
-    path = contact_sheet.write_records_sheet([probe, fake_clip("solidity", "example", 1)], tmp_path / "s.png")
+    path = contact_sheet.write_records_sheet(
+        [probe, fake_clip("solidity", "example", 1)], tmp_path / "s.png"
+    )
     width, height = Image.open(path).size
     assert width > 15 * 64 and height > 3 * 64  # 15 frames a row, three rows
     red = _red_pixels(path)
@@ -33,7 +35,9 @@ def test_probe_pair_rows_and_manipulation_outline(tmp_path):
     strip_left = width - 12 - (15 * 66 - 2) * 1.5
     frame = (np.median(columns) - strip_left) / (66 * 1.5)
     assert int(frame) == int(probe["manipulation_frame"])
-    clips_only = contact_sheet.write_records_sheet([fake_clip("solidity", "example", 1)], tmp_path / "c.png")
+    clips_only = contact_sheet.write_records_sheet(
+        [fake_clip("solidity", "example", 1)], tmp_path / "c.png"
+    )
     assert len(_red_pixels(clips_only)) == 0
 
 
@@ -52,9 +56,12 @@ def test_store_sheet_shows_each_variant_and_kind(tmp_path, monkeypatch):
     path = contact_sheet.write_store_sheet(root, "unchangeableness", tmp_path / "u.png")
     assert path.exists()
     variants = specs.STANDARD_VARIANTS["unchangeableness"]
-    assert sorted(specs.variant_name(r) for r in shown[:len(variants)]) == sorted(variants)
-    assert [specs.CLIP_KINDS[int(r["kind"])] for r in shown[len(variants):]] == [
-        "example", "objects_only", "screen_only"]
+    assert sorted(specs.variant_name(r) for r in shown[: len(variants)]) == sorted(variants)
+    assert [specs.CLIP_KINDS[int(r["kind"])] for r in shown[len(variants) :]] == [
+        "example",
+        "objects_only",
+        "screen_only",
+    ]
 
 
 def test_concept_sheet_renders_the_real_scene(tmp_path):

@@ -11,9 +11,9 @@ import pytest
 import torch
 
 from voe_lightning import cues
-from voe_lightning.external.metrics import read_answer_file
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.cli import main
+from voe_lightning.external.metrics import read_answer_file
 from voe_lightning.model import CueScorer
 from voe_lightning.model.cue_scorer import CUE_NAMES
 from voe_lightning.prediction_writer import IntPhysAnswerWriter
@@ -38,8 +38,11 @@ def test_surprise_after_the_manipulation_sums_to_the_audit_score(cue):
 
 
 def test_unknown_cue_and_a_mask_cue_without_masks_are_refused():
-    with pytest.raises(ValueError, match=r"unknown cue 'colour'; valid cues are: foreground, "
-                                         r"motion, copy_last"):
+    with pytest.raises(
+        ValueError,
+        match=r"unknown cue 'colour'; valid cues are: foreground, "
+        r"motion, copy_last",
+    ):
         CueScorer("colour")
     with pytest.raises(ValueError, match=r"'foreground' counts object pixels and needs masks"):
         CueScorer("foreground").surprise(torch.zeros(1, 3, 4, 4, 3, dtype=torch.uint8))
@@ -47,14 +50,28 @@ def test_unknown_cue_and_a_mask_cue_without_masks_are_refused():
 
 def test_test_on_our_probes_runs_without_a_checkpoint(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    main(["test", "--config", TINY, "--model", "voe_lightning.model.CueScorer",
-          "--model.init_args.cue", "motion", "--trainer.enable_progress_bar", "false"])
+    main(
+        [
+            "test",
+            "--config",
+            TINY,
+            "--model",
+            "voe_lightning.model.CueScorer",
+            "--model.init_args.cue",
+            "motion",
+            "--trainer.enable_progress_bar",
+            "false",
+        ]
+    )
     report = tmp_path / "runs" / "tiny" / "version_0" / "voe_report"
     assert (report / "summary.json").is_file() and (report / "cues.csv").is_file()
     # the pairs share every frame through the manipulation, so its relative surprise is the
     # motion cue's difference, pair by pair
-    rows = [row for row in csv.DictReader(open(report / "cue_correlations.csv"))
-            if row["cue"] == "motion_energy" and row["variant"] == "pooled"]
+    rows = [
+        row
+        for row in csv.DictReader(open(report / "cue_correlations.csv"))
+        if row["cue"] == "motion_energy" and row["variant"] == "pooled"
+    ]
     assert float(rows[0]["r"]) == pytest.approx(1.0)
 
 
@@ -71,16 +88,25 @@ def test_test_on_the_other_benchmarks_runs_without_a_checkpoint(dataset, tmp_pat
         import test_physical_concepts as fixtures
 
         root = fixtures.make_dataset(tmp_path / "data")
-    trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False,
-                        enable_model_summary=False,
-                        callbacks=[VOEReportCallback(out_dir=str(tmp_path), bootstrap=0)])
+    trainer = L.Trainer(
+        accelerator="cpu",
+        logger=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=[VOEReportCallback(out_dir=str(tmp_path), bootstrap=0)],
+    )
     trainer.test(CueScorer("linear_extrapolation"), datamodule=fixtures.datamodule(root))
     metrics = json.loads((tmp_path / "voe_report" / "benchmark_metrics.json").read_text())
     assert metrics["metrics"]
     if dataset == "intphys":
-        trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False,
-                            enable_model_summary=False,
-                            callbacks=[IntPhysAnswerWriter(tmp_path / "answer.txt")])
-        trainer.predict(CueScorer("motion"), datamodule=fixtures.datamodule(root),
-                        return_predictions=False)
+        trainer = L.Trainer(
+            accelerator="cpu",
+            logger=False,
+            enable_progress_bar=False,
+            enable_model_summary=False,
+            callbacks=[IntPhysAnswerWriter(tmp_path / "answer.txt")],
+        )
+        trainer.predict(
+            CueScorer("motion"), datamodule=fixtures.datamodule(root), return_predictions=False
+        )
         assert len(read_answer_file(tmp_path / "answer.txt")) == 12

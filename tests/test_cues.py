@@ -23,7 +23,10 @@ T, H, W = 6, 16, 16
 def _score(frames, mask=None, m=2):
     frames = torch.as_tensor(np.asarray(frames, np.uint8))[None]
     mask = None if mask is None else torch.as_tensor(np.asarray(mask, np.uint8))[None]
-    return {cue: float(value[0]) for cue, value in cues.score_videos(frames, mask, torch.tensor([m])).items()}
+    return {
+        cue: float(value[0])
+        for cue, value in cues.score_videos(frames, mask, torch.tensor([m])).items()
+    }
 
 
 def _square_appears(at):
@@ -79,19 +82,30 @@ def _pair(concept, variant, seed, masks=True):
     inconsistent = np.clip(inconsistent + rng.integers(0, 3, inconsistent.shape), 0, 255)
     if not masks:
         mask, inconsistent_mask = np.zeros_like(mask), np.zeros_like(mask)
-    video = lambda f, k: {"frames": torch.from_numpy(f.astype(np.uint8)), "mask": torch.from_numpy(k)}
-    return TensorDict({
-        "consistent": video(consistent, mask), "inconsistent": video(inconsistent, inconsistent_mask),
-        "concept": torch.tensor(specs.CONCEPTS.index(concept)),
-        "variant": torch.tensor(specs.VARIANTS.index(variant)),
-        "manipulation_frame": torch.tensor(2), "seed": torch.tensor(seed),
-    }, batch_size=[])
+
+    def video(f, k):
+        return {"frames": torch.from_numpy(f.astype(np.uint8)), "mask": torch.from_numpy(k)}
+
+    return TensorDict(
+        {
+            "consistent": video(consistent, mask),
+            "inconsistent": video(inconsistent, inconsistent_mask),
+            "concept": torch.tensor(specs.CONCEPTS.index(concept)),
+            "variant": torch.tensor(specs.VARIANTS.index(variant)),
+            "manipulation_frame": torch.tensor(2),
+            "seed": torch.tensor(seed),
+        },
+        batch_size=[],
+    )
 
 
 @pytest.fixture(scope="module")
 def audit():
-    records = [_pair("object_persistence", v, 10 * i + s)
-               for i, v in enumerate(["standard", "counterbalanced"]) for s in range(6)]
+    records = [
+        _pair("object_persistence", v, 10 * i + s)
+        for i, v in enumerate(["standard", "counterbalanced"])
+        for s in range(6)
+    ]
     records += [_pair("unchangeableness", "color", 100 + s, masks=False) for s in range(5)]
     return cues.audit_records(records, batch_size=4)
 
@@ -101,8 +115,11 @@ def test_rows_agree_with_scipy_and_pool_both_variants_stratified(audit):
     test of both variants: scipy's Welch test of d_standard against -d_counterbalanced."""
     rows = {(r["concept"], r["variant"], r["cue"]): r for r in audit.rows()}
     assert [(c, v) for c, v, _ in audit.groups()] == [
-        ("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
-        ("object_persistence", "pooled"), ("unchangeableness", "color")]
+        ("object_persistence", "standard"),
+        ("object_persistence", "counterbalanced"),
+        ("object_persistence", "pooled"),
+        ("unchangeableness", "color"),
+    ]
     persistence = audit.concepts == "object_persistence"
     standard = persistence & (audit.variants == "standard")
     counterbalanced = persistence & (audit.variants == "counterbalanced")
@@ -122,13 +139,16 @@ def test_rows_agree_with_scipy_and_pool_both_variants_stratified(audit):
         assert pooled["t"] == pytest.approx(welch.statistic, rel=1e-10)
         assert pooled["p_two_sided"] == pytest.approx(welch.pvalue, rel=1e-8)
         assert pooled["relative_surprise"] == pytest.approx(
-            (d[standard].mean() + d[counterbalanced].mean()) / 2, rel=1e-12)
+            (d[standard].mean() + d[counterbalanced].mean()) / 2, rel=1e-12
+        )
 
 
 def test_accuracy_counts_ties_half(audit):
     rows = {(r["concept"], r["variant"], r["cue"]): r for r in audit.rows()}
-    d = (audit.scores["inconsistent"]["foreground_pixels"]
-         - audit.scores["consistent"]["foreground_pixels"])[audit.variants == "standard"]
+    d = (
+        audit.scores["inconsistent"]["foreground_pixels"]
+        - audit.scores["consistent"]["foreground_pixels"]
+    )[audit.variants == "standard"]
     assert (d == 0).any() and (d < 0).any()  # some pairs tie: the square appears at 3 in both
     expected = np.mean(d > 0) + 0.5 * np.mean(d == 0)
     assert rows[("object_persistence", "standard", "foreground_pixels")]["accuracy"] == expected
@@ -148,7 +168,9 @@ def test_pairs_without_masks_skip_the_mask_cue_with_a_note(audit, tmp_path):
 def test_model_correlations_agree_with_scipy_and_expose_a_cue_follower(audit, tmp_path):
     """A 'model' whose relative surprise is the motion cue's d plus noise has r near 1 with
     that cue in every group, the pooled one too; r agrees with scipy.stats.pearsonr."""
-    motion = audit.scores["inconsistent"]["motion_energy"] - audit.scores["consistent"]["motion_energy"]
+    motion = (
+        audit.scores["inconsistent"]["motion_energy"] - audit.scores["consistent"]["motion_energy"]
+    )
     follower = 3.0 * motion + np.random.default_rng(0).normal(0.0, 1e-3, len(audit))
     rows = {(r["concept"], r["variant"], r["cue"]): r for r in audit.model_correlations(follower)}
     for concept, variant, selected in audit.groups():
@@ -160,8 +182,11 @@ def test_model_correlations_agree_with_scipy_and_expose_a_cue_follower(audit, tm
     assert rows[("unchangeableness", "color", "foreground_pixels")]["r"] is None
     assert "not scored" in rows[("unchangeableness", "color", "foreground_pixels")]["note"]
     constant = audit.model_correlations(np.ones(len(audit)))
-    assert all(r["r"] is None and "constant" in r["note"] for r in constant
-               if r["concept"] == "object_persistence")
+    assert all(
+        r["r"] is None and "constant" in r["note"]
+        for r in constant
+        if r["concept"] == "object_persistence"
+    )
     with pytest.raises(ValueError, match="one value per scored pair"):
         audit.model_correlations(np.ones(3))
     cue_report.write_audit(audit.rows(), tmp_path, correlation_rows=list(rows.values()))
@@ -172,13 +197,14 @@ def test_model_correlations_agree_with_scipy_and_expose_a_cue_follower(audit, tm
         assert len(list(csv.DictReader(handle))) == len(rows)
 
 
-def test_the_pooled_correlation_within_variants_is_the_partial_correlation_given_the_variant(
-        audit):
+def test_the_pooled_correlation_within_variants_is_the_partial_correlation_given_the_variant(audit):
     """A model whose effect is larger in one variant, while pair by pair it follows no cue, has
     a large pooled r with a cue whose mean differs between the variants too, and an r near 0
     within variants; that r is the partial correlation given the variant (the correlation of
     the residuals of regressing both on the variant), its p from t with n - 3 df."""
-    motion = audit.scores["inconsistent"]["motion_energy"] - audit.scores["consistent"]["motion_energy"]
+    motion = (
+        audit.scores["inconsistent"]["motion_energy"] - audit.scores["consistent"]["motion_energy"]
+    )
     rng = np.random.default_rng(1)
     shift = np.where(audit.variants == "counterbalanced", 1.0, -1.0)
     cue = motion + 100 * shift * motion.std()  # variants far apart in the cue's mean
@@ -192,14 +218,17 @@ def test_the_pooled_correlation_within_variants_is_the_partial_correlation_given
             continue
         assert rows[(concept, "pooled", "motion_energy")]["r"] > 0.9
         within = rows[(concept, cues.WITHIN_VARIANTS, "motion_energy")]
-        design = np.stack([audit.variants[selected] == label
-                           for label in np.unique(audit.variants[selected])], 1).astype(float)
-        residual = [values - design @ np.linalg.lstsq(design, values, rcond=None)[0]
-                    for values in (model[selected], cue[selected])]
+        design = np.stack(
+            [audit.variants[selected] == label for label in np.unique(audit.variants[selected])], 1
+        ).astype(float)
+        residual = [
+            values - design @ np.linalg.lstsq(design, values, rcond=None)[0]
+            for values in (model[selected], cue[selected])
+        ]
         reference = stats.pearsonr(*residual).statistic
         assert within["r"] == pytest.approx(reference, rel=1e-9) and abs(within["r"]) < 0.7
         df = within["n"] - 3
-        t = reference * np.sqrt(df / (1 - reference ** 2))
+        t = reference * np.sqrt(df / (1 - reference**2))
         assert within["p_two_sided"] == pytest.approx(2 * stats.t.sf(abs(t), df), rel=1e-9)
 
 
@@ -223,9 +252,13 @@ def test_the_physics_perfect_observer_pays_for_what_it_sees_differ():
     frame 2 (1); at frame 3 object 1, seen in both, is 0.1 m away (2 STATE_SCALEs) and turned
     0.05 rad about z (1; its quaternion's sign flipped, the same rotation), while object 0,
     hidden in both, is somewhere else (0). The difference at frame 1 is not after m (0)."""
+
     def objects():
-        return {"position": torch.zeros(1, 4, 2, 3), "visible_fraction": torch.zeros(1, 4, 2),
-                "orientation": torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(1, 4, 2, 1)}
+        return {
+            "position": torch.zeros(1, 4, 2, 3),
+            "visible_fraction": torch.zeros(1, 4, 2),
+            "orientation": torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(1, 4, 2, 1),
+        }
 
     consistent, inconsistent = objects(), objects()
     consistent["visible_fraction"][0, :, 1] = 0.1
@@ -253,8 +286,9 @@ def _extent_audit(rng, pairs=200):
     foreground = sign * parted * rng.uniform(50, 150, 2 * pairs)
     scores = {side: {cue: np.zeros(2 * pairs) for cue in cues.CUES} for side in cues.SIDES}
     scores["inconsistent"]["foreground_pixels"] = foreground
-    return cues.CueAudit(np.full(2 * pairs, "object_persistence", dtype=object), variants,
-                         scores, extent), foreground
+    return cues.CueAudit(
+        np.full(2 * pairs, "object_persistence", dtype=object), variants, scores, extent
+    ), foreground
 
 
 def test_given_the_seen_extent_a_model_that_sees_the_violation_grow_follows_no_cue():
@@ -281,15 +315,18 @@ def test_given_the_seen_extent_a_model_that_sees_the_violation_grow_follows_no_c
     reference = stats.pearsonr(*residual).statistic
     assert given["r"] == pytest.approx(reference, rel=1e-9) and abs(given["r"]) < 0.2
     df = len(audit) - 1 - 2 * 3  # per variant a mean and the extent's rank (parted = |seen|)
-    t = reference * np.sqrt(df / (1 - reference ** 2))
+    t = reference * np.sqrt(df / (1 - reference**2))
     assert given["p_two_sided"] == pytest.approx(2 * stats.t.sf(abs(t), df), rel=1e-9)
     follower = foreground / foreground.std() + rng.normal(0.0, 0.1, len(audit))
     rows = {(r["variant"], r["cue"]): r for r in audit.model_correlations(follower)}
     assert rows[(cues.GIVEN_EXTENT, "foreground_pixels")]["r"] > 0.5
     assert "within variants, given the seen extent" in cue_report.format_correlations(
-        audit.model_correlations(sees))
-    assert not any(r["variant"] == cues.GIVEN_EXTENT for r in dataclasses.replace(
-        audit, extent=None).model_correlations(sees))
+        audit.model_correlations(sees)
+    )
+    assert not any(
+        r["variant"] == cues.GIVEN_EXTENT
+        for r in dataclasses.replace(audit, extent=None).model_correlations(sees)
+    )
 
 
 def test_the_physics_perfect_row_is_the_observers_r_within_variants_whatever_the_model():
@@ -314,8 +351,10 @@ def test_the_physics_perfect_row_is_the_observers_r_within_variants_whatever_the
         assert row["r"] == pytest.approx(reference, rel=1e-9) and abs(reference) > 0.3
     assert rows[(cues.WITHIN_VARIANTS, "foreground_pixels")]["r"] == pytest.approx(1.0)
     assert "Physics-perfect observer" in cue_report.format_correlations(rows.values())
-    assert not any(r["variant"] == cues.PHYSICS_PERFECT for r in dataclasses.replace(
-        audit, physics_perfect=None).model_correlations(observer))
+    assert not any(
+        r["variant"] == cues.PHYSICS_PERFECT
+        for r in dataclasses.replace(audit, physics_perfect=None).model_correlations(observer)
+    )
 
 
 def test_the_audit_reads_the_seen_extent_from_the_records_objects():
@@ -323,18 +362,34 @@ def test_the_audit_reads_the_seen_extent_from_the_records_objects():
     and physics-perfect surprise (of the two videos), in the records' order, across batches."""
     from voe_lightning.scenes import generate_probe
 
-    records = [generate_probe("containment", variant, seed, height=32, width=32)
-               for variant in ("standard", "counterbalanced") for seed in range(2)]
+    records = [
+        generate_probe("containment", variant, seed, height=32, width=32)
+        for variant in ("standard", "counterbalanced")
+        for seed in range(2)
+    ]
     audit = cues.audit_records(records, batch_size=3)
-    expected = np.concatenate([cues.seen_extent(
-        record["inconsistent"]["objects"]["visible_fraction"][None],
-        record["consistent"]["objects"]["visible_fraction"][None],
-        record["manipulation_frame"].reshape(1)) for record in records])
+    expected = np.concatenate(
+        [
+            cues.seen_extent(
+                record["inconsistent"]["objects"]["visible_fraction"][None],
+                record["consistent"]["objects"]["visible_fraction"][None],
+                record["manipulation_frame"].reshape(1),
+            )
+            for record in records
+        ]
+    )
     np.testing.assert_array_equal(audit.extent, expected)
     assert (audit.extent[:, 0] > 0).all()  # the cube shows in one video, not the other
-    observer = np.concatenate([cues.physics_perfect_surprise(
-        record["inconsistent"]["objects"][None], record["consistent"]["objects"][None],
-        record["manipulation_frame"].reshape(1)) for record in records])
+    observer = np.concatenate(
+        [
+            cues.physics_perfect_surprise(
+                record["inconsistent"]["objects"][None],
+                record["consistent"]["objects"][None],
+                record["manipulation_frame"].reshape(1),
+            )
+            for record in records
+        ]
+    )
     np.testing.assert_allclose(audit.physics_perfect, observer, rtol=1e-12)
     assert (audit.physics_perfect >= audit.extent[:, 0]).all()  # and more where states differ
 
@@ -345,14 +400,22 @@ def test_the_report_shows_a_cue_follower_in_its_correlations_and_scatter(audit, 
     from voe_lightning.report import write_report
     from voe_lightning.report.results import PairResults
 
-    motion = audit.scores["inconsistent"]["motion_energy"] - audit.scores["consistent"]["motion_energy"]
+    motion = (
+        audit.scores["inconsistent"]["motion_energy"] - audit.scores["consistent"]["motion_energy"]
+    )
     noise = np.random.default_rng(0).normal(0.0, 0.05 * motion.std(), len(audit))
     follower = 3.0 * motion + noise
     per_frame = np.zeros((len(audit), 4))
     inconsistent = per_frame.copy()
     inconsistent[:, -1] = follower
-    results = PairResults(audit.concepts, audit.variants, np.arange(len(audit)),
-                          np.full(len(audit), 2), per_frame, inconsistent)
+    results = PairResults(
+        audit.concepts,
+        audit.variants,
+        np.arange(len(audit)),
+        np.full(len(audit), 2),
+        per_frame,
+        inconsistent,
+    )
     np.testing.assert_allclose(results.relative_surprise, follower)
     write_report(results, tmp_path, cue_audit=audit, bootstrap=0, echo=False)
     report = tmp_path / "voe_report"
@@ -364,13 +427,21 @@ def test_the_report_shows_a_cue_follower_in_its_correlations_and_scatter(audit, 
     # `analyze compare` names the cue each verdict row's surprise tracks most.
     from voe_lightning import analysis
 
-    compared = {(r["concept"], r["variant"]): r for r in analysis.comparison_rows([("f", tmp_path)])}
+    compared = {
+        (r["concept"], r["variant"]): r for r in analysis.comparison_rows([("f", tmp_path)])
+    }
     persistence = compared[("object_persistence", "pooled")]
     assert persistence["tracked_cue"] == "motion_energy" and persistence["tracked_cue_r"] > 0.9
     markdown = analysis.comparison_markdown(list(compared.values()))
     assert f"| motion ({persistence['tracked_cue_r']:+.2f}) |" in markdown
-    shuffled = PairResults(audit.concepts[::-1], audit.variants[::-1], np.arange(len(audit)),
-                           np.full(len(audit), 2), per_frame, inconsistent)
+    shuffled = PairResults(
+        audit.concepts[::-1],
+        audit.variants[::-1],
+        np.arange(len(audit)),
+        np.full(len(audit), 2),
+        per_frame,
+        inconsistent,
+    )
     with pytest.raises(ValueError, match="not the model's pairs in the same order"):
         write_report(shuffled, tmp_path, cue_audit=audit, bootstrap=0, echo=False)
 
@@ -379,22 +450,39 @@ def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
     root = tmp_path / "store"
     # 2 test pairs per variant, 8 frames: with 6 frames (0.5 s apart) unchangeableness' screen
     # is sometimes never down for two frames in a row and its sampler gives up.
-    generate_dataset(root, concepts=["object_persistence", "unchangeableness"], train_examples=0,
-                     val_pairs=4, test_pairs=2,
-                     generalization_pairs=0, workers=1, num_frames=8, height=32,
-                     width=32, progress=False)
+    generate_dataset(
+        root,
+        concepts=["object_persistence", "unchangeableness"],
+        train_examples=0,
+        val_pairs=4,
+        test_pairs=2,
+        generalization_pairs=0,
+        workers=1,
+        num_frames=8,
+        height=32,
+        width=32,
+        progress=False,
+    )
     capsys.readouterr()
     out = tmp_path / "out"
-    rows = main(["audit", "--root", str(root), "--split", "val", "--progress", "false",
-                 "--out", str(out)])
+    rows = main(
+        ["audit", "--root", str(root), "--split", "val", "--progress", "false", "--out", str(out)]
+    )
     printed = capsys.readouterr().out
     assert "Cue audit of" in printed and "pooled" in printed and "novelty" in printed
     groups = list(dict.fromkeys((r["concept"], r["variant"], r["n"]) for r in rows))
-    assert groups == [("object_persistence", "standard", 4), ("object_persistence", "counterbalanced", 4),
-                      ("object_persistence", "pooled", 8), ("object_persistence", "quadruplet", 4)
-                      ] + [("unchangeableness", v, 4)
-                           for v in (*specs.VERDICT_VARIANTS["unchangeableness"],
-                                     *specs.QUADRUPLETS["unchangeableness"])]
+    assert groups == [
+        ("object_persistence", "standard", 4),
+        ("object_persistence", "counterbalanced", 4),
+        ("object_persistence", "pooled", 8),
+        ("object_persistence", "quadruplet", 4),
+    ] + [
+        ("unchangeableness", v, 4)
+        for v in (
+            *specs.VERDICT_VARIANTS["unchangeableness"],
+            *specs.QUADRUPLETS["unchangeableness"],
+        )
+    ]
     # The store's seeds match each quadruplet's halves (unchangeableness: one per change): the
     # frame-local cues read frames from m on only, so D = 0 in every one (pixel novelty
     # remembers the frames before m).
@@ -419,12 +507,16 @@ def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
     assert not any(variant == cues.PHYSICS_PERFECT for _, variant, _ in observer)
     scored = cues.audit_split(root, "val")
     chosen = (scored.concepts == "object_persistence") & (scored.variants == "standard")
-    motion = (scored.scores["inconsistent"]["motion_energy"]
-              - scored.scores["consistent"]["motion_energy"])[chosen]
+    motion = (
+        scored.scores["inconsistent"]["motion_energy"]
+        - scored.scores["consistent"]["motion_energy"]
+    )[chosen]
     expected = stats.pearsonr(scored.physics_perfect[chosen], motion).statistic
     row = observer[("object_persistence", "standard", "motion_energy")]
     assert float(row["r"]) == pytest.approx(expected, rel=1e-9)
-    assert "physics_perfect_correlations" in document and "physics_perfect_correlations.csv" in printed
+    assert (
+        "physics_perfect_correlations" in document and "physics_perfect_correlations.csv" in printed
+    )
 
     config = tmp_path / "audit.yaml"  # --config: the same arguments from a file
     config.write_text(f"root: {root}\nconcepts: [unchangeableness]\nprogress: false\n")
@@ -437,7 +529,10 @@ def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
     assert "Got value: train" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["audit", "--root", str(root), "--alpha", "1.5"])
-    assert "alpha must be a significance level in (0, 1), e.g. 0.01; got 1.5" in capsys.readouterr().err
+    assert (
+        "alpha must be a significance level in (0, 1), e.g. 0.01; got 1.5"
+        in capsys.readouterr().err
+    )
     with pytest.raises(SystemExit):
         main(["audit", "--root", str(tmp_path / "nowhere"), "--progress", "false"])
     assert "no dataset at" in capsys.readouterr().err

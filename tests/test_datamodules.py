@@ -6,11 +6,15 @@ from types import SimpleNamespace
 
 import pytest
 import torch
-
-from datamodules import ConceptDataModule, IntPhysDataModule, PhysicalConceptsDataModule, VOEDataModule
-from datamodules.voe import InterleavedSampler
 from test_store import fake_clip, fake_probe
 
+from datamodules import (
+    ConceptDataModule,
+    IntPhysDataModule,
+    PhysicalConceptsDataModule,
+    VOEDataModule,
+)
+from datamodules.voe import InterleavedSampler
 from voe_lightning import generate, specs, store, store_plan, store_shards
 
 
@@ -76,8 +80,11 @@ def test_datamodule_generates_and_serves_spec_batches(tmp_path):
     assert len(test_loaders) == 2  # test probes and the three-pillar generalization probes
     generalization = next(iter(test_loaders[1]))
     assert {specs.VARIANTS[v] for v in generalization["variant"].tolist()} == {"three_pillars"}
-    assert datamodule.probe_cases("val") == [("continuity", "standard"), ("continuity", "counterbalanced"),
-                                             ("continuity", "paper")]
+    assert datamodule.probe_cases("val") == [
+        ("continuity", "standard"),
+        ("continuity", "counterbalanced"),
+        ("continuity", "paper"),
+    ]
     assert torch.all(generalization["concept"] == specs.CONCEPTS.index("continuity"))
 
 
@@ -99,7 +106,9 @@ def test_prepare_data_regenerates_a_checksum_corrupt_shard(tmp_path, monkeypatch
         datamodule.prepare_data()
     assert store_plan.verify(tmp_path) == []
     first = store.open_split(tmp_path, "continuity", "train")[0]
-    expected = fake_clip("continuity", specs.CLIP_KINDS[int(first["kind"])], 0, num_frames=4, height=16, width=16)
+    expected = fake_clip(
+        "continuity", specs.CLIP_KINDS[int(first["kind"])], 0, num_frames=4, height=16, width=16
+    )
     assert torch.equal(first["frames"], expected["frames"])
 
 
@@ -114,14 +123,20 @@ def test_prepare_data_regenerates_a_checksum_corrupt_shard(tmp_path, monkeypatch
 )  # fmt: skip
 def test_constructors_refuse_bad_arguments_by_name(module, argument, value):
     """Issue 10 case 11: caught when the DataModule is built, naming the argument."""
-    with pytest.raises(ValueError, match=rf"^{argument} must be an integer of at least \d+, got {value}$"):
+    with pytest.raises(
+        ValueError, match=rf"^{argument} must be an integer of at least \d+, got {value}$"
+    ):
         module(**{argument: value})
 
 
 def test_constructors_refuse_a_bad_fraction_and_missing_generalization_pairs():
-    with pytest.raises(ValueError, match=r"divergence_fraction must be a number in \[0, 1\], got 2"):
+    with pytest.raises(
+        ValueError, match=r"divergence_fraction must be a number in \[0, 1\], got 2"
+    ):
         IntPhysDataModule(divergence_fraction=2)
-    with pytest.raises(ValueError, match="generalization_pairs must be an integer of at least 1, got 0"):
+    with pytest.raises(
+        ValueError, match="generalization_pairs must be an integer of at least 1, got 0"
+    ):
         ConceptDataModule(generalization=True, generalization_pairs=0)
 
 
@@ -130,21 +145,28 @@ def test_benchmark_geometry_left_out_is_the_models_or_is_asked_for(module, tmp_p
     """Issue 10 case 15: num_frames, height and width default to the model's, resolved in
     setup from trainer.lightning_module's hyperparameters; neither given is an error."""
     datamodule = module(root=str(tmp_path))
-    with pytest.raises(ValueError, match=r"num_frames, height, width not given and there is no "
-                       r"model to take them from; give --data.init_args.num_frames, "):
+    with pytest.raises(
+        ValueError,
+        match=r"num_frames, height, width not given and there is no "
+        r"model to take them from; give --data.init_args.num_frames, ",
+    ):
         datamodule.setup("test")
     model = SimpleNamespace(hparams={"image_size": [16, 24]})  # a checkpoint from before
     datamodule.trainer = SimpleNamespace(lightning_module=model)
-    with pytest.raises(ValueError, match=r"num_frames not given and the model's hyperparameters "
-                       r"have no training_frames to take them from; give --data.init_args.num_"):
+    with pytest.raises(
+        ValueError,
+        match=r"num_frames not given and the model's hyperparameters "
+        r"have no training_frames to take them from; give --data.init_args.num_",
+    ):
         datamodule.setup("test")
 
 
 def test_intphys_takes_the_models_geometry_in_setup(tmp_path):
     from test_intphys import FRAMES, make_intphys
 
-    datamodule = IntPhysDataModule(root=str(make_intphys(tmp_path, "dev", labelled=True)),
-                                   frames_per_movie=FRAMES, height=8)
+    datamodule = IntPhysDataModule(
+        root=str(make_intphys(tmp_path, "dev", labelled=True)), frames_per_movie=FRAMES, height=8
+    )
     model = SimpleNamespace(hparams={"image_size": [16, 24], "training_frames": 4})
     datamodule.trainer = SimpleNamespace(lightning_module=model)
     datamodule.setup("test")
@@ -154,22 +176,36 @@ def test_intphys_takes_the_models_geometry_in_setup(tmp_path):
 
 
 def test_a_seed_offset_reads_fresh_probes_from_their_own_store_and_trains_on_the_roots(
-        tmp_path, monkeypatch):
+    tmp_path, monkeypatch
+):
     """Issue 48 part 5: the probe splits of ``seed_offset`` N are generated into and read from
     root/seed_offset_<N>, the training clips from the root, whose store is left as it was."""
     monkeypatch.setattr(generate, "generate_clip", fake_clip)
     monkeypatch.setattr(generate, "generate_probe", fake_probe)
-    options = dict(concept="continuity", root=str(tmp_path), train_examples=4, val_pairs=2,
-                   test_pairs=3, generalization_pairs=1, generate_workers=1, num_frames=4,
-                   height=16, width=16, batch_size=4)
+    options = dict(
+        concept="continuity",
+        root=str(tmp_path),
+        train_examples=4,
+        val_pairs=2,
+        test_pairs=3,
+        generalization_pairs=1,
+        generate_workers=1,
+        num_frames=4,
+        height=16,
+        width=16,
+        batch_size=4,
+    )
     ConceptDataModule(**options).prepare_data()
     before = {path: path.read_bytes() for path in tmp_path.rglob("*") if path.is_file()}
     datamodule = ConceptDataModule(**options, seed_offset=1000)
     datamodule.prepare_data()
     assert {path: path.read_bytes() for path in before} == before
     fresh = tmp_path / "seed_offset_1000"
-    assert datamodule.probe_source() == {"data_root": str(tmp_path), "seed_offset": 1000,
-                                         "probe_root": str(fresh)}
+    assert datamodule.probe_source() == {
+        "data_root": str(tmp_path),
+        "seed_offset": 1000,
+        "probe_root": str(fresh),
+    }
     assert not (fresh / "continuity" / "train").exists() and store_plan.verify(fresh) == []
     datamodule.setup("fit")
     train = [int(seed) for batch in datamodule.train_dataloader() for seed in batch["seed"]]
@@ -178,17 +214,24 @@ def test_a_seed_offset_reads_fresh_probes_from_their_own_store_and_trains_on_the
     assert sorted(set(val)) == [store_plan.SEED_STARTS["val"] + 1000 + k for k in range(2)]
     datamodule.setup("test")
     test = next(iter(datamodule.test_dataloader()))
-    assert set(test["seed"].tolist()) == {store_plan.SEED_STARTS["test"] + 1000 + k
-                                          for k in range(3)}
+    assert set(test["seed"].tolist()) == {
+        store_plan.SEED_STARTS["test"] + 1000 + k for k in range(3)
+    }
 
 
 def test_a_seed_offset_past_a_splits_range_is_refused_when_built():
     last = store_plan.SEED_RANGE - 3
     pairs = dict(val_pairs=3, test_pairs=3, generalization_pairs=1)
     ConceptDataModule(**pairs, seed_offset=last)
-    with pytest.raises(ValueError, match=r"the test split would need seeds up to 3_000_000_000 "
-                       r".*seed_offset plus the count must be at most 1_000_000_000"):
+    with pytest.raises(
+        ValueError,
+        match=r"the test split would need seeds up to 3_000_000_000 "
+        r".*seed_offset plus the count must be at most 1_000_000_000",
+    ):
         ConceptDataModule(**{**pairs, "test_pairs": 4}, seed_offset=last)
-    with pytest.raises(ValueError, match=r"seed_offset must be an integer in \[0, 999_999_999\]"
-                       r".*got -5"):
+    with pytest.raises(
+        ValueError,
+        match=r"seed_offset must be an integer in \[0, 999_999_999\]"
+        r".*got -5",
+    ):
         VOEDataModule(seed_offset=-5)

@@ -30,8 +30,7 @@ from voe_lightning.report.results import PairResults, summarize
 from voe_lightning.statistics import QUADRUPLET_ROWS
 
 CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
-DDP = ["--trainer.strategy", "ddp_spawn", "--trainer.devices", "2",
-       "--trainer.accelerator", "cpu"]
+DDP = ["--trainer.strategy", "ddp_spawn", "--trainer.devices", "2", "--trainer.accelerator", "cpu"]
 STATISTICS = ("relative_surprise", "t", "p_value", "accuracy", "n")
 #: Least float32 noise of a video's surprise S between two batch compositions, relative to S
 #: (a float32 step of S is 1.2e-7 of it): measured 7.7e-8 between these DDP ranks and one
@@ -45,12 +44,21 @@ ABSOLUTE_NOISE = 1e-6  # for a video whose S is near 0
 LOGGED_ROUNDING = 1e-6
 # 3 pairs per variant of 3 + 6 variants: 27 pairs, which do not divide over two ranks. Each
 # pair must still be scored once (Lightning's default sampler would repeat one).
-DATA = ["--data", "datamodules.VOEDataModule",
-        "--data.concepts", "[continuity, unchangeableness]",
-        "--data.init_args.num_frames", "8",  # unchangeableness' screen needs two frames down
-        "--data.init_args.val_pairs", "3", "--data.init_args.test_pairs", "3",
-        # float32: bf16 autocast (where the CPU has it) rounds differently per batch size.
-        "--model.init_args.precision", "float32"]
+DATA = [
+    "--data",
+    "datamodules.VOEDataModule",
+    "--data.concepts",
+    "[continuity, unchangeableness]",
+    "--data.init_args.num_frames",
+    "8",  # unchangeableness' screen needs two frames down
+    "--data.init_args.val_pairs",
+    "3",
+    "--data.init_args.test_pairs",
+    "3",
+    # float32: bf16 autocast (where the CPU has it) rounds differently per batch size.
+    "--model.init_args.precision",
+    "float32",
+]
 
 
 # Two gloo ranks that set up a SurpriseModel, gather objects (as the report does) and exit.
@@ -78,17 +86,33 @@ def _voe_scalars(run: Path) -> dict[str, float]:
     """The last logged value of every ``voe/...`` scalar of a TensorBoard run."""
     accumulator = EventAccumulator(str(run))
     accumulator.Reload()
-    return {tag: accumulator.Scalars(tag)[-1].value
-            for tag in accumulator.Tags()["scalars"] if tag.startswith("voe/")}
+    return {
+        tag: accumulator.Scalars(tag)[-1].value
+        for tag in accumulator.Tags()["scalars"]
+        if tag.startswith("voe/")
+    }
 
 
 def _ddp(subcommand: str, *arguments: str, cwd: Path) -> None:
     """``python -m voe_lightning`` in two gloo processes; fails the test with its output."""
     environment = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     result = subprocess.run(
-        [sys.executable, "-m", "voe_lightning", subcommand, "--config", CONFIG, *DATA, *DDP,
-         *arguments],
-        cwd=cwd, env=environment, capture_output=True, text=True, timeout=600,
+        [
+            sys.executable,
+            "-m",
+            "voe_lightning",
+            subcommand,
+            "--config",
+            CONFIG,
+            *DATA,
+            *DDP,
+            *arguments,
+        ],
+        cwd=cwd,
+        env=environment,
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-5000:]
     assert "distributed_backend=gloo" in result.stdout + result.stderr  # really two processes
@@ -100,9 +124,13 @@ def _report(report: Path) -> tuple[dict[tuple[str, str], dict], dict[tuple, tupl
     (concept, variant, seed), from a voe_report directory."""
     rows = json.loads((report / "summary.json").read_text())["rows"]
     with open(report / "pairs.csv", newline="") as handle:
-        pairs = {(r["concept"], r["variant"], int(r["seed"])):
-                 (float(r["surprise_consistent"]), float(r["surprise_inconsistent"]))
-                 for r in csv.DictReader(handle)}
+        pairs = {
+            (r["concept"], r["variant"], int(r["seed"])): (
+                float(r["surprise_consistent"]),
+                float(r["surprise_inconsistent"]),
+            )
+            for r in csv.DictReader(handle)
+        }
     return {(row["concept"], row["variant"]): row for row in rows}, pairs
 
 
@@ -112,12 +140,14 @@ def _validation_pairs(cli, one_at_a_time: bool = False) -> PairResults:
     model, datamodule = cli.model.eval(), cli.datamodule
     batches = datamodule.val_dataloader()
     if one_at_a_time:
-        batches = [batch[index:index + 1] for batch in batches
-                   for index in range(batch.batch_size[0])]
+        batches = [
+            batch[index : index + 1] for batch in batches for index in range(batch.batch_size[0])
+        ]
     with torch.no_grad():
         outputs = [model.probe_step(batch) for batch in batches]
-    return PairResults.from_probe_outputs(outputs, datamodule.concept_names,
-                                          datamodule.variant_names)
+    return PairResults.from_probe_outputs(
+        outputs, datamodule.concept_names, datamodule.variant_names
+    )
 
 
 def _batch_noise(batched: PairResults, alone: PairResults) -> float:
@@ -138,8 +168,9 @@ def _rows(pairs: PairResults) -> dict[tuple[str, str], dict]:
     return {(row["concept"], row["variant"]): row for row in summarize(pairs, bootstrap=0)}
 
 
-def _tolerances(pairs: PairResults, statistics: tuple[str, ...], noise: float
-                ) -> dict[tuple[str, str], dict[str, float]]:
+def _tolerances(
+    pairs: PairResults, statistics: tuple[str, ...], noise: float
+) -> dict[tuple[str, str], dict[str, float]]:
     """How far float noise in each video's surprise S (``noise`` of S) can move each row's
     statistics: the sum over videos of the largest change when that video's S moves by its
     noise up or down (the first-order bound of every video off at once), doubled."""
@@ -165,7 +196,8 @@ def _tolerances(pairs: PairResults, statistics: tuple[str, ...], noise: float
 
 def _assert_close(actual: float, expected: float, tolerance: float, what) -> None:
     assert abs(actual - expected) <= tolerance + LOGGED_ROUNDING * abs(expected), (
-        f"{what}: {actual} vs {expected}, tolerance {tolerance:.3g} from float noise of S")
+        f"{what}: {actual} vs {expected}, tolerance {tolerance:.3g} from float noise of S"
+    )
 
 
 def test_ddp_fit_and_test_match_a_single_process(tmp_path, monkeypatch):
@@ -182,8 +214,11 @@ def test_ddp_fit_and_test_match_a_single_process(tmp_path, monkeypatch):
     # validating that checkpoint on the same pairs must log the same statistics, each pair
     # once (n), up to the float noise of the per-pair surprise of that single process.
     cli = main(["validate", "--config", CONFIG, *DATA, "--ckpt_path", str(checkpoint)])
-    single = {tag: float(value) for tag, value in cli.trainer.callback_metrics.items()
-              if tag.startswith("voe/")}
+    single = {
+        tag: float(value)
+        for tag, value in cli.trainer.callback_metrics.items()
+        if tag.startswith("voe/")
+    }
     assert single.keys() == ddp_fit.keys()
     validation = _validation_pairs(cli)
     assert len(validation) == 27
@@ -212,8 +247,9 @@ def test_ddp_fit_and_test_match_a_single_process(tmp_path, monkeypatch):
     for key, surprise in pairs.items():
         assert ddp_pairs[key] == pytest.approx(surprise, rel=noise, abs=ABSOLUTE_NOISE), key
     compared = ("relative_surprise", "sd", "t", "df", "p_value", "accuracy", "auroc", "d_z")
-    tolerances = _tolerances(PairResults.from_csv(run / "voe_report" / "pairs.csv"), compared,
-                             noise)
+    tolerances = _tolerances(
+        PairResults.from_csv(run / "voe_report" / "pairs.csv"), compared, noise
+    )
     for key, row in rows.items():
         assert ddp_rows[key]["n"] == row["n"], key
         for statistic, allowed in tolerances[key].items():
@@ -228,6 +264,10 @@ def test_cpu_ddp_ranks_exit_cleanly(tmp_path):
     script = tmp_path / "ranks.py"
     script.write_text(EXIT_SCRIPT)
     for _ in range(6):
-        result = subprocess.run([sys.executable, str(script), str(find_free_network_port())],
-                                capture_output=True, text=True, timeout=120)
+        result = subprocess.run(
+            [sys.executable, str(script), str(find_free_network_port())],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert result.returncode == 0, result.stderr[-3000:]

@@ -9,17 +9,24 @@ import pytest
 import torch
 import torch.nn.functional as F
 from tensordict import TensorDict
+from videos import moving_squares
 
 from voe_lightning import specs
 from voe_lightning.model import Encoder, VRNNLRUModel
-from voe_lightning.model.vrnn_lru import bf16_is_fast
 from voe_lightning.model.networks import Bottleneck, PixelShuffle
-from videos import moving_squares
+from voe_lightning.model.vrnn_lru import bf16_is_fast
 
 B, T, H, W = 8, 5, 32, 32
 TINY = dict(
-    image_size=(H, W), latent_size=8, mlp_sizes=(32, 32), memory_slots=5, memory_slot_size=8,
-    memory_read_heads=2, controller_size=16, encoder_blocks=3, encoder_channels=(8, 8, 16),
+    image_size=(H, W),
+    latent_size=8,
+    mlp_sizes=(32, 32),
+    memory_slots=5,
+    memory_slot_size=8,
+    memory_read_heads=2,
+    controller_size=16,
+    encoder_blocks=3,
+    encoder_channels=(8, 8, 16),
     encoder_mlp_size=32,
 )
 REFERENCE = dict(channels_last=False, precision="float32")
@@ -72,7 +79,9 @@ def test_channels_last_backward_on_rgb_input_does_not_crash():
         "for _ in range(3): e(x).sum().backward()\n"
         "print('ok')\n"
     )
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 0 and result.stdout.strip() == "ok", result.stderr[-2000:]
 
 
@@ -80,7 +89,9 @@ def test_precision_switch_resolves_and_refuses_unknown_values():
     assert not VRNNLRUModel(**TINY, precision="float32").uses_bf16
     assert VRNNLRUModel(**TINY, precision="bf16").uses_bf16
     assert VRNNLRUModel(**TINY).uses_bf16 == bf16_is_fast(torch.device("cpu"))
-    with pytest.raises(ValueError, match="unknown precision 'fp16'; valid choices are: auto, bf16, float32"):
+    with pytest.raises(
+        ValueError, match="unknown precision 'fp16'; valid choices are: auto, bf16, float32"
+    ):
         VRNNLRUModel(**TINY, precision="fp16")
 
 
@@ -95,7 +106,9 @@ def test_float32_switch_overrides_an_outer_bf16_autocast():
 def test_channels_last_float32_surprise_equals_the_reference():
     reference, fast = pair(dict(channels_last=True, precision="float32"))
     video = moving_squares(B, 2)
-    torch.testing.assert_close(fast.surprise(video), reference.surprise(video), rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(
+        fast.surprise(video), reference.surprise(video), rtol=1e-4, atol=1e-5
+    )
 
 
 def test_bf16_surprise_agrees_with_float32():

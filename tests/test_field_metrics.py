@@ -52,10 +52,12 @@ def test_auroc_agrees_with_scikit_learn():
     for reduction in REDUCTIONS:
         scores = np.r_[reduce_surprise(possible, reduction), reduce_surprise(impossible, reduction)]
         assert metrics[f"auroc_{reduction}"] == pytest.approx(
-            metrics_module.roc_auc_score(labels, scores))
+            metrics_module.roc_auc_score(labels, scores)
+        )
     called_impossible = np.r_[possible.max(1), impossible.max(1)] > metrics["threshold"]
     assert metrics["absolute_accuracy"] == pytest.approx(
-        metrics_module.accuracy_score(labels, called_impossible))
+        metrics_module.accuracy_score(labels, called_impossible)
+    )
 
 
 def test_bad_input_is_refused_in_one_line():
@@ -75,19 +77,28 @@ def test_a_context_sweep_gives_each_context_length_its_own_set():
 
 
 def test_the_formatter_writes_every_column_and_n_a_for_a_note():
-    table = format_field_metrics({"a/standard": field_metrics(POSSIBLE, IMPOSSIBLE),
-                                  "b/standard": {"n_pairs": 2, "note": "not finite"}},
-                                 "concept/variant")
+    table = format_field_metrics(
+        {
+            "a/standard": field_metrics(POSSIBLE, IMPOSSIBLE),
+            "b/standard": {"n_pairs": 2, "note": "not finite"},
+        },
+        "concept/variant",
+    )
     lines = table.splitlines()
     assert lines[0].count("|") == lines[1].count("|") == lines[2].count("|") == 11
-    assert lines[2] == ("| a/standard | 4 | 37.5% | 37.5% | 62.5% | 37.5% | 4.1 | 0.406 | 0.406 "
-                        "| 0.500 |")
+    assert lines[2] == (
+        "| a/standard | 4 | 37.5% | 37.5% | 62.5% | 37.5% | 4.1 | 0.406 | 0.406 | 0.500 |"
+    )
     assert lines[3].startswith("| b/standard | 2 | n/a |")
 
 
 def test_quadruplet_benchmarks_get_the_set_from_per_frame_surprise():
-    totals = quadruplet_metrics([0, 0, 1, 1], reduce_surprise(POSSIBLE, "sum"),
-                                reduce_surprise(IMPOSSIBLE, "sum"), bootstrap=0)
+    totals = quadruplet_metrics(
+        [0, 0, 1, 1],
+        reduce_surprise(POSSIBLE, "sum"),
+        reduce_surprise(IMPOSSIBLE, "sum"),
+        bootstrap=0,
+    )
     frames = quadruplet_metrics([0, 0, 1, 1], POSSIBLE, IMPOSSIBLE, bootstrap=0)
     assert "field_metrics" not in totals
     assert frames.pop("field_metrics") == field_metrics(POSSIBLE, IMPOSSIBLE)
@@ -97,17 +108,22 @@ def test_quadruplet_benchmarks_get_the_set_from_per_frame_surprise():
 def test_the_report_writes_the_set_per_group_into_summary_json_and_md(tmp_path):
     rng = np.random.default_rng(1)
     consistent = rng.random((8, 5))
-    results = PairResults(concept=["solidity"] * 8, variant=["standard", "counterbalanced"] * 4,
-                          seed=np.arange(8), manipulation_frame=np.full(8, 1),
-                          surprise_consistent=consistent,
-                          surprise_inconsistent=consistent + rng.random((8, 5)))
+    results = PairResults(
+        concept=["solidity"] * 8,
+        variant=["standard", "counterbalanced"] * 4,
+        seed=np.arange(8),
+        manipulation_frame=np.full(8, 1),
+        surprise_consistent=consistent,
+        surprise_inconsistent=consistent + rng.random((8, 5)),
+    )
     write_report(results, tmp_path, echo=False, bootstrap=0)
     summary = json.loads((tmp_path / "voe_report" / "summary.json").read_text())
     metrics = summary["field_metrics"]
     assert list(metrics) == ["solidity/standard", "solidity/counterbalanced", "solidity/pooled"]
     standard = results.select(np.arange(8) % 2 == 0)
     assert metrics["solidity/standard"] == pytest.approx(
-        field_metrics(standard.surprise_consistent, standard.surprise_inconsistent))
+        field_metrics(standard.surprise_consistent, standard.surprise_inconsistent)
+    )
     assert metrics["solidity/pooled"]["relative_accuracy_sum"] == 1.0
     markdown = (tmp_path / "voe_report" / "summary.md").read_text()
     assert format_field_metrics(metrics, "concept/variant") in markdown
@@ -118,18 +134,34 @@ def test_analyze_context_sweep_tables_the_set_of_each_context_lengths_report(tmp
     runs = {}
     for context in (4, 8):
         consistent = rng.random((4, 5))
-        results = PairResults(concept=["continuity"] * 4, variant=["standard"] * 4,
-                              seed=np.arange(4), manipulation_frame=np.full(4, 1),
-                              surprise_consistent=consistent,
-                              surprise_inconsistent=consistent + rng.random((4, 5)) - 0.3)
+        results = PairResults(
+            concept=["continuity"] * 4,
+            variant=["standard"] * 4,
+            seed=np.arange(4),
+            manipulation_frame=np.full(4, 1),
+            surprise_consistent=consistent,
+            surprise_inconsistent=consistent + rng.random((4, 5)) - 0.3,
+        )
         write_report(results, tmp_path / f"c{context}", echo=False, bootstrap=0)
         runs[context] = results
-    table = main(["analyze", "context-sweep", "--runs",
-                  json.dumps({str(c): str(tmp_path / f"c{c}") for c in runs}),
-                  "--out", str(tmp_path / "sweep.md")])
+    table = main(
+        [
+            "analyze",
+            "context-sweep",
+            "--runs",
+            json.dumps({str(c): str(tmp_path / f"c{c}") for c in runs}),
+            "--out",
+            str(tmp_path / "sweep.md"),
+        ]
+    )
     expected = format_field_metrics(
-        {f"continuity/standard @ {c}": field_metrics(r.surprise_consistent,
-                                                     r.surprise_inconsistent)
-         for c, r in runs.items()}, "concept/variant @ context length")
+        {
+            f"continuity/standard @ {c}": field_metrics(
+                r.surprise_consistent, r.surprise_inconsistent
+            )
+            for c, r in runs.items()
+        },
+        "concept/variant @ context length",
+    )
     assert table == expected == (tmp_path / "sweep.md").read_text()
     assert expected in capsys.readouterr().out

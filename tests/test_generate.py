@@ -14,8 +14,15 @@ import pytest
 import torch
 from test_store import fake_clip, fake_probe
 
-from voe_lightning import generate, generate_manifest, scenes, specs, store, store_plan
-from voe_lightning import store_shards
+from voe_lightning import (
+    generate,
+    generate_manifest,
+    scenes,
+    specs,
+    store,
+    store_plan,
+    store_shards,
+)
 from voe_lightning.cli import main
 
 SMALL = dict(
@@ -63,14 +70,21 @@ def _plan(**overrides):
 
 def test_plan_matches_controls_one_to_one_and_keeps_splits_disjoint():
     tasks = _plan(train_examples=10)
-    train = [item for t in tasks if t.concept == "object_persistence" and t.split == "train" for item in t.items]
+    train = [
+        item
+        for t in tasks
+        if t.concept == "object_persistence" and t.split == "train"
+        for item in t.items
+    ]
     kinds = [kind for kind, _ in train]
     assert kinds.count("example") == 10
     assert kinds.count("plank_beside_object") == kinds.count("plank_on_empty_floor") == 5
     assert set(kinds[:4]) == set(specs.CLIP_KINDS_BY_CONCEPT["object_persistence"])  # interleaved
     for concept in specs.CONCEPTS:
         seeds = {
-            split: {seed for t in tasks if t.concept == concept and t.split == split for seed in t.seeds}
+            split: {
+                seed for t in tasks if t.concept == concept and t.split == split for seed in t.seeds
+            }
             for split in store.SPLITS
         }
         for split, own in seeds.items():
@@ -78,10 +92,16 @@ def test_plan_matches_controls_one_to_one_and_keeps_splits_disjoint():
             assert all(start <= seed < start + store_plan.SEED_RANGE for seed in own)
             assert all(not own & other for name, other in seeds.items() if name != split)
     # A probe split gives every variant the same seeds: a seed names a quadruplet.
-    test = [item for t in tasks if t.concept == "object_persistence" and t.split == "test"
-            for item in t.items]
-    by_variant = {v: sorted(seed for name, seed in test if name == v)
-                  for v in specs.STANDARD_VARIANTS["object_persistence"]}
+    test = [
+        item
+        for t in tasks
+        if t.concept == "object_persistence" and t.split == "test"
+        for item in t.items
+    ]
+    by_variant = {
+        v: sorted(seed for name, seed in test if name == v)
+        for v in specs.STANDARD_VARIANTS["object_persistence"]
+    }
     start = store_plan.SEED_STARTS["test"]
     assert by_variant == {v: list(range(start, start + 4)) for v in by_variant}
     unchangeableness = [t for t in tasks if t.concept == "unchangeableness"]
@@ -98,7 +118,10 @@ def test_slices_cover_every_shard_exactly_once(tmp_path, calls):
         generate.generate_dataset(tmp_path, CONCEPTS, shard_index=k, num_shards=3, **SMALL)
         for k in range(3)
     ]
-    assert sum(s.shards_generated for s in summaries) == summaries[0].shards_planned + summaries[1].shards_planned + summaries[2].shards_planned
+    assert (
+        sum(s.shards_generated for s in summaries)
+        == summaries[0].shards_planned + summaries[1].shards_planned + summaries[2].shards_planned
+    )
     assert len(calls) == len(set(calls))  # no record rendered twice
     assert store_plan.verify(tmp_path) == []
     assert generate.generate_dataset(tmp_path, CONCEPTS, **SMALL).shards_generated == 0
@@ -114,7 +137,9 @@ def test_round_trip_resume_and_repair(tmp_path, calls):
     for index in range(len(train)):
         record = train[index]
         kind = specs.CLIP_KINDS[int(record["kind"])]
-        expected = fake_clip("continuity", kind, int(record["seed"]), num_frames=6, height=24, width=24)
+        expected = fake_clip(
+            "continuity", kind, int(record["seed"]), num_frames=6, height=24, width=24
+        )
         assert all(torch.equal(record[k], expected[k]) for k in expected.keys(True, True))
     test = store.open_split(tmp_path, "unchangeableness", "test")
     variants = specs.STANDARD_VARIANTS["unchangeableness"]
@@ -123,7 +148,10 @@ def test_round_trip_resume_and_repair(tmp_path, calls):
     before = test[6]
 
     calls.clear()  # rerun: nothing to do
-    assert generate.generate_dataset(tmp_path, CONCEPTS, **SMALL).shards_skipped == first.shards_planned
+    assert (
+        generate.generate_dataset(tmp_path, CONCEPTS, **SMALL).shards_skipped
+        == first.shards_planned
+    )
     assert calls == []
     assert generate.ensure_dataset(tmp_path, concepts=CONCEPTS, **SMALL) is None
 
@@ -154,7 +182,10 @@ def test_ensure_dataset_generates_only_what_is_missing(tmp_path, calls):
     assert summary.shards_generated == 1 and len(calls) == made + 3
     # Another concept joins the same root; the first is left alone.
     generate.ensure_dataset(tmp_path, concepts=("containment",), **SMALL)
-    assert set(json.loads((tmp_path / "manifest.json").read_text())["concepts"]) == {"continuity", "containment"}
+    assert set(json.loads((tmp_path / "manifest.json").read_text())["concepts"]) == {
+        "continuity",
+        "containment",
+    }
     with pytest.raises(TypeError, match="frames_per_video"):
         generate.ensure_dataset(tmp_path, frames_per_video=3)
 
@@ -162,8 +193,10 @@ def test_ensure_dataset_generates_only_what_is_missing(tmp_path, calls):
 def test_the_counts_old_keyword_names_still_work_with_a_deprecation(tmp_path, calls):
     """Issue 26: the counts are val_pairs, test_pairs, generalization_pairs everywhere; the old
     ``*_pairs_per_variant`` keywords of generate_dataset and ensure_dataset still work."""
-    old = {f"{name}_per_variant" if name.endswith("_pairs") else name: value
-           for name, value in SMALL.items()}
+    old = {
+        f"{name}_per_variant" if name.endswith("_pairs") else name: value
+        for name, value in SMALL.items()
+    }
     with pytest.warns(DeprecationWarning, match="val_pairs_per_variant is now called val_pairs"):
         first = generate.ensure_dataset(tmp_path, concepts=("continuity",), **old)
     with pytest.warns(DeprecationWarning, match="test_pairs_per_variant is now called test_pairs"):
@@ -179,8 +212,10 @@ def test_ensure_dataset_of_some_splits_leaves_the_rest_to_a_later_run(tmp_path, 
     generate.ensure_dataset(tmp_path, concepts=("continuity",), splits=("test",), **SMALL)
     assert {kind for _, kind, _, seed in calls} == {"probe"} and len(calls) == 3 * 3
     assert {path.name for path in (tmp_path / "continuity").iterdir()} == {"test"}
-    assert generate.ensure_dataset(tmp_path, concepts=("continuity",), splits=("test",),
-                                   **SMALL) is None
+    assert (
+        generate.ensure_dataset(tmp_path, concepts=("continuity",), splits=("test",), **SMALL)
+        is None
+    )
     generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
     assert len(calls) == 8 + 2 * 3 + 3 * 3 + 1 and store_plan.verify(tmp_path) == []
     with pytest.raises(ValueError, match="unknown split 'tests'; valid splits are: train"):
@@ -189,17 +224,26 @@ def test_ensure_dataset_of_some_splits_leaves_the_rest_to_a_later_run(tmp_path, 
 
 def test_other_settings_are_refused_unless_overwritten(tmp_path, calls):
     generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
-    with pytest.raises(generate_manifest.ManifestMismatchError, match=r"video.height: stored 24, asked 32"):
+    with pytest.raises(
+        generate_manifest.ManifestMismatchError, match=r"video.height: stored 24, asked 32"
+    ):
         generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32})
-    with pytest.raises(generate_manifest.ManifestMismatchError, match=r"kinds.example: stored 4, asked 5"):
+    with pytest.raises(
+        generate_manifest.ManifestMismatchError, match=r"kinds.example: stored 4, asked 5"
+    ):
         generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "train_examples": 5})
-    summary = generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32, "overwrite": True})
+    summary = generate.generate_dataset(
+        tmp_path, ("continuity",), **{**SMALL, "height": 32, "overwrite": True}
+    )
     assert summary.shards_skipped == 0 and store_plan.verify(tmp_path) == []
     assert store.open_split(tmp_path, "continuity", "train")[0]["frames"].shape == (6, 32, 24, 3)
 
 
 def test_bad_input_names_the_value_and_the_choices(tmp_path, calls, capsys):
-    with pytest.raises(ValueError, match="unknown concept 'gravity'; valid concepts are: object_persistence, unchangeableness, continuity, solidity, containment"):
+    with pytest.raises(
+        ValueError,
+        match="unknown concept 'gravity'; valid concepts are: object_persistence, unchangeableness, continuity, solidity, containment",
+    ):
         generate.generate_dataset(tmp_path, ("continuity", "gravity"), **SMALL)
     with pytest.raises(ValueError, match="train_examples must be a non-negative integer, got -1"):
         generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "train_examples": -1})
@@ -207,8 +251,17 @@ def test_bad_input_names_the_value_and_the_choices(tmp_path, calls, capsys):
         main(["generate", "--root", str(tmp_path), "--concepts", "[continuity, gravity]"])
     assert "Got value: gravity" in capsys.readouterr().err  # refused with the valid names
     with pytest.raises(SystemExit):
-        main(["generate", "--root", str(tmp_path), "--concepts", "[continuity]",
-              "--train_examples", "-1"])
+        main(
+            [
+                "generate",
+                "--root",
+                str(tmp_path),
+                "--concepts",
+                "[continuity]",
+                "--train_examples",
+                "-1",
+            ]
+        )
     assert "error: train_examples must be a non-negative integer, got -1" in capsys.readouterr().err
     assert not (tmp_path / "manifest.json").exists()
     not_a_folder = tmp_path / "file"
@@ -241,7 +294,9 @@ def test_command_line_generates_with_real_scenes_in_two_workers(tmp_path):
     assert summary.shards_generated == summary.shards_planned == 11
     assert store_plan.verify(root) == []
     val = store.open_split(root, "continuity", "val")[0]
-    expected = scenes.generate_probe("continuity", "standard", store_plan.SEED_STARTS["val"], height=32, width=32)
+    expected = scenes.generate_probe(
+        "continuity", "standard", store_plan.SEED_STARTS["val"], height=32, width=32
+    )
     assert torch.equal(val["inconsistent", "frames"], expected["inconsistent", "frames"])
     assert main(argv).shards_generated == 0
 
@@ -249,35 +304,68 @@ def test_command_line_generates_with_real_scenes_in_two_workers(tmp_path):
 def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch):
     """Issue 10 case 1: seeds alone do not make a shard the planned one."""
     generate.generate_dataset(tmp_path, CONCEPTS, **SMALL)
-    planned = len(store_plan.plan_shards({"continuity": store_plan.split_counts("continuity", 4, 4, 2, 3, 1)}, 3))
+    planned = len(
+        store_plan.plan_shards(
+            {"continuity": store_plan.split_counts("continuity", 4, 4, 2, 3, 1)}, 3
+        )
+    )
     # Record spec: same seeds, other video size, manifest lost.
     (tmp_path / "manifest.json").unlink()
-    with pytest.warns(UserWarning, match=r"frames is uint8\[6, 24, 24, 3\], expected uint8\[6, 32, 24, 3\]"):
+    with pytest.warns(
+        UserWarning, match=r"frames is uint8\[6, 24, 24, 3\], expected uint8\[6, 32, 24, 3\]"
+    ):
         summary = generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32})
     assert summary.shards_generated == planned and summary.shards_skipped == 0
     assert store.open_split(tmp_path, "continuity", "train")[0]["frames"].shape == (6, 32, 24, 3)
     assert store_plan.verify(tmp_path) == []
     # Kinds per record: same seeds, other kind counts.
     (tmp_path / "manifest.json").unlink()
-    with pytest.warns(UserWarning, match=r"train/shard-00000.voe: does not belong here: its names is"):
-        generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6})
-    kinds = [specs.CLIP_KINDS[int(r["kind"])] for r in store.open_split(tmp_path, "continuity", "train")]
+    with pytest.warns(
+        UserWarning, match=r"train/shard-00000.voe: does not belong here: its names is"
+    ):
+        generate.generate_dataset(
+            tmp_path,
+            ("continuity",),
+            **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6},
+        )
+    kinds = [
+        specs.CLIP_KINDS[int(r["kind"])] for r in store.open_split(tmp_path, "continuity", "train")
+    ]
     assert kinds.count("example") == 2
     # Concept: a shard of another concept with the same seeds (three variants) in its place.
-    generate.generate_dataset(tmp_path, ("containment", "unchangeableness"), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6})
+    generate.generate_dataset(
+        tmp_path,
+        ("containment", "unchangeableness"),
+        **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6},
+    )
     foreign = store.shard_path(tmp_path, "continuity", "test", 0)
     foreign.write_bytes(store.shard_path(tmp_path, "unchangeableness", "test", 0).read_bytes())
     assert store_plan.verify(tmp_path) == [foreign]
-    with pytest.warns(UserWarning, match=r"its concept is 'unchangeableness', expected 'continuity'"):
-        assert generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6}).shards_generated == 1
+    with pytest.warns(
+        UserWarning, match=r"its concept is 'unchangeableness', expected 'continuity'"
+    ):
+        assert (
+            generate.generate_dataset(
+                tmp_path,
+                ("continuity",),
+                **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6},
+            ).shards_generated
+            == 1
+        )
     assert specs.concept_name(store.open_split(tmp_path, "continuity", "test")[0]) == "continuity"
     # Generator version: a scene change makes every shard stale.
     version = store_plan.GENERATOR_VERSION
     monkeypatch.setattr(store_plan, "GENERATOR_VERSION", version + 1)
-    assert len(store_plan.verify(tmp_path)) == len(store_plan.manifest_plan(store.read_manifest(tmp_path))[0])
+    assert len(store_plan.verify(tmp_path)) == len(
+        store_plan.manifest_plan(store.read_manifest(tmp_path))[0]
+    )
     options = {**SMALL, "height": 32, "train_examples": 2, "train_controls": 6}
-    with pytest.warns(UserWarning, match=f"its generator_version is {version}, expected {version + 1}"):
-        summary = generate.ensure_dataset(tmp_path, concepts=("continuity", "containment", "unchangeableness"), **options)
+    with pytest.warns(
+        UserWarning, match=f"its generator_version is {version}, expected {version + 1}"
+    ):
+        summary = generate.ensure_dataset(
+            tmp_path, concepts=("continuity", "containment", "unchangeableness"), **options
+        )
     assert summary.shards_skipped == 0 and store_plan.verify(tmp_path) == []
     assert store.read_manifest(tmp_path)["generator_version"] == store_plan.GENERATOR_VERSION
 
@@ -295,15 +383,19 @@ def test_shards_without_object_states_are_regenerated(tmp_path, calls):
         records = [reader[i] for i in range(len(reader))]
         meta = reader.index.meta
         reader.close()
-        stripped = [r.exclude("objects", ("consistent", "objects"), ("inconsistent", "objects"))
-                    for r in records]
+        stripped = [
+            r.exclude("objects", ("consistent", "objects"), ("inconsistent", "objects"))
+            for r in records
+        ]
         store_shards.write_shard(path, stripped, meta)
     stale = {store.shard_path(tmp_path, "continuity", split, 0) for split in ("train", "test")}
     assert set(store_plan.verify(tmp_path)) == stale
     with pytest.warns(UserWarning, match=r"its records' (consistent/)?objects/color is missing"):
         summary = generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
     assert summary.shards_generated == 2 and store_plan.verify(tmp_path) == []
-    assert ("objects", "position") in store.open_split(tmp_path, "continuity", "train")[0].keys(True)
+    assert ("objects", "position") in store.open_split(tmp_path, "continuity", "train")[0].keys(
+        True
+    )
 
 
 def _children(pid: int) -> list[int]:
@@ -350,7 +442,9 @@ def test_workers_die_with_a_killed_parent(tmp_path):
     try:
         deadline = time.monotonic() + 120
         while not list(root.glob("continuity/train/shard-*.voe")):  # the workers are rendering
-            assert parent.poll() is None and time.monotonic() < deadline, "generate never wrote a shard"
+            assert parent.poll() is None and time.monotonic() < deadline, (
+                "generate never wrote a shard"
+            )
             time.sleep(0.1)
         children = _children(parent.pid)
         assert len(children) >= 2  # two workers (and the resource tracker)
@@ -392,7 +486,9 @@ def test_a_malformed_manifest_is_named_and_overwritten_on_request(tmp_path, call
         store_plan.verify(tmp_path)
     calls.clear()
     summary = generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "overwrite": True})
-    assert summary.shards_skipped == summary.shards_planned and calls == []  # the shards still belong
+    assert (
+        summary.shards_skipped == summary.shards_planned and calls == []
+    )  # the shards still belong
     assert store_plan.verify(tmp_path) == [] and store.read_manifest(tmp_path)["shard_size"] == 3
 
 
@@ -402,31 +498,48 @@ PROBES_ONLY = {**SMALL, "train_examples": 0}
 
 
 def _store_files(root: Path) -> dict[str, bytes]:
-    return {str(path.relative_to(root)): path.read_bytes()
-            for path in sorted(root.rglob("*")) if path.is_file()}
+    return {
+        str(path.relative_to(root)): path.read_bytes()
+        for path in sorted(root.rglob("*"))
+        if path.is_file()
+    }
 
 
 def test_an_offset_shifts_the_probe_seeds_within_their_split_and_never_the_clips():
     tasks = _plan()
     shifted = store_plan.plan_shards(
-        {c: store_plan.split_counts(c, 10, 10, 3, 4, 2) for c in specs.CONCEPTS}, 4, OFFSET)
+        {c: store_plan.split_counts(c, 10, 10, 3, 4, 2) for c in specs.CONCEPTS}, 4, OFFSET
+    )
     for task, moved in zip(tasks, shifted, strict=True):
-        assert moved.items == task.items if task.split == "train" else moved.seeds == [
-            seed + OFFSET for seed in task.seeds]
+        assert (
+            moved.items == task.items
+            if task.split == "train"
+            else moved.seeds == [seed + OFFSET for seed in task.seeds]
+        )
         assert ("seed_offset" in store_plan.shard_meta(moved)) == (task.split != "train")
         assert "seed_offset" not in store_plan.shard_meta(task)  # stores before offsets stay
     last = store_plan.SEED_RANGE - 4  # 4 test pairs per variant fit exactly
-    edge = store_plan.plan_shards({"solidity": store_plan.split_counts("solidity", 0, 0, 0, 4, 0)},
-                                  4, last)
-    assert max(seed for t in edge for seed in t.seeds) == store_plan.SEED_STARTS["generalization"] - 1
-    with pytest.raises(ValueError, match=r"solidity: the test split would need seeds up to "
-                       r"3_000_000_000 .*past the last seed of its range, 2_999_999_999: "
-                       r"seed_offset plus the count must be at most 1_000_000_000"):
-        store_plan.plan_shards({"solidity": store_plan.split_counts("solidity", 0, 0, 0, 5, 0)},
-                               4, last)
+    edge = store_plan.plan_shards(
+        {"solidity": store_plan.split_counts("solidity", 0, 0, 0, 4, 0)}, 4, last
+    )
+    assert (
+        max(seed for t in edge for seed in t.seeds) == store_plan.SEED_STARTS["generalization"] - 1
+    )
+    with pytest.raises(
+        ValueError,
+        match=r"solidity: the test split would need seeds up to "
+        r"3_000_000_000 .*past the last seed of its range, 2_999_999_999: "
+        r"seed_offset plus the count must be at most 1_000_000_000",
+    ):
+        store_plan.plan_shards(
+            {"solidity": store_plan.split_counts("solidity", 0, 0, 0, 5, 0)}, 4, last
+        )
     for bad in (-1, store_plan.SEED_RANGE, 1.5, True):
-        with pytest.raises(ValueError, match=rf"seed_offset must be an integer in \[0, "
-                           rf"999_999_999\].*got {bad!r}"):
+        with pytest.raises(
+            ValueError,
+            match=rf"seed_offset must be an integer in \[0, "
+            rf"999_999_999\].*got {bad!r}",
+        ):
             store_plan.check_seed_offset(bad)
 
 
@@ -434,34 +547,50 @@ def test_an_offset_store_is_its_own_beside_the_root_resumable_and_checked(tmp_pa
     generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
     before = _store_files(tmp_path)
     calls.clear()
-    summary = generate.generate_dataset(tmp_path, ("continuity",), **PROBES_ONLY,
-                                        seed_offset=OFFSET)
+    summary = generate.generate_dataset(
+        tmp_path, ("continuity",), **PROBES_ONLY, seed_offset=OFFSET
+    )
     fresh = tmp_path / f"seed_offset_{OFFSET}"
     assert summary.root == fresh and store_plan.verify(fresh) == []
-    assert {str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*") if p.is_file()
-            and fresh not in p.parents} == set(before)  # the root's store is untouched
+    assert {
+        str(p.relative_to(tmp_path))
+        for p in tmp_path.rglob("*")
+        if p.is_file() and fresh not in p.parents
+    } == set(before)  # the root's store is untouched
     assert _store_files(tmp_path).items() >= before.items()
     assert {kind for _, kind, _, _ in calls} == {"probe"}  # no training clips in it
     manifest = store.read_manifest(fresh)
     assert manifest["seed_offset"] == OFFSET
     assert manifest["concepts"]["continuity"]["splits"]["test"]["seed_start"] == (
-        store_plan.SEED_STARTS["test"] + OFFSET)
+        store_plan.SEED_STARTS["test"] + OFFSET
+    )
     for split in ("val", "test", "generalization"):
         seeds = [int(r["seed"]) for r in store.open_split(fresh, "continuity", split)]
         old = [int(r["seed"]) for r in store.open_split(tmp_path, "continuity", split)]
         assert seeds == [seed + OFFSET for seed in old]
-        assert store_shards.ShardReader(store.shard_path(fresh, "continuity", split, 0)
-                                        ).index.meta["seed_offset"] == OFFSET
+        assert (
+            store_shards.ShardReader(store.shard_path(fresh, "continuity", split, 0)).index.meta[
+                "seed_offset"
+            ]
+            == OFFSET
+        )
     # Resumable: a rerun keeps it; a lost shard is rendered again at the offset's seeds.
     lost = store.shard_path(fresh, "continuity", "test", 0)
     lost.unlink()
     again = generate.generate_dataset(tmp_path, ("continuity",), **PROBES_ONLY, seed_offset=OFFSET)
     assert again.shards_generated == 1 and store_plan.verify(fresh) == []
-    assert generate.ensure_dataset(tmp_path, concepts=("continuity",), seed_offset=OFFSET,
-                                   **PROBES_ONLY) is None
+    assert (
+        generate.ensure_dataset(
+            tmp_path, concepts=("continuity",), seed_offset=OFFSET, **PROBES_ONLY
+        )
+        is None
+    )
     # Training clips are not shifted: an offset store refuses them, before any work.
-    with pytest.raises(ValueError, match=rf"seed_offset {OFFSET} draws fresh probes only, into "
-                       rf"{fresh}.*give train_examples 0 and train_controls 0, got 4 and 4"):
+    with pytest.raises(
+        ValueError,
+        match=rf"seed_offset {OFFSET} draws fresh probes only, into "
+        rf"{fresh}.*give train_examples 0 and train_controls 0, got 4 and 4",
+    ):
         generate.generate_dataset(tmp_path, ("continuity",), **SMALL, seed_offset=OFFSET)
 
 
@@ -470,14 +599,17 @@ def test_a_store_of_another_offset_is_refused_and_its_shards_found(tmp_path, cal
     moved = tmp_path / "b" / "seed_offset_7"  # a store copied to another offset's place
     moved.parent.mkdir()
     (tmp_path / "a" / f"seed_offset_{OFFSET}").rename(moved)
-    with pytest.raises(generate_manifest.ManifestMismatchError,
-                       match=rf"seed_offset: stored {OFFSET}, asked 7"):
+    with pytest.raises(
+        generate_manifest.ManifestMismatchError, match=rf"seed_offset: stored {OFFSET}, asked 7"
+    ):
         generate.generate_dataset(tmp_path / "b", ("continuity",), **PROBES_ONLY, seed_offset=7)
-    with pytest.raises(generate_manifest.ManifestMismatchError,
-                       match=rf"seed_offset: stored {OFFSET}, asked 0"):
+    with pytest.raises(
+        generate_manifest.ManifestMismatchError, match=rf"seed_offset: stored {OFFSET}, asked 0"
+    ):
         generate.generate_dataset(moved, ("continuity",), **PROBES_ONLY)
-    summary = generate.generate_dataset(tmp_path / "b", ("continuity",), **PROBES_ONLY,
-                                        seed_offset=7, overwrite=True)
+    summary = generate.generate_dataset(
+        tmp_path / "b", ("continuity",), **PROBES_ONLY, seed_offset=7, overwrite=True
+    )
     assert summary.root == moved and summary.shards_skipped == 0
     assert store.read_manifest(moved)["seed_offset"] == 7 and store_plan.verify(moved) == []
     # A shard of the store at offset 0 in the offset store's place is found by what it is.
@@ -501,11 +633,15 @@ def test_command_line_draws_fresh_real_probes_at_an_offset(tmp_path, capsys):
     assert summary.root == root / f"seed_offset_{OFFSET}"
     assert str(summary.root) in capsys.readouterr().out  # says where
     seed = store_plan.SEED_STARTS["test"] + OFFSET
-    for old, new in zip(store.open_split(root, "solidity", "test"),
-                        store.open_split(summary.root, "solidity", "test"), strict=True):
+    for old, new in zip(
+        store.open_split(root, "solidity", "test"),
+        store.open_split(summary.root, "solidity", "test"),
+        strict=True,
+    ):
         variant = specs.VARIANTS[int(new["variant"])]
-        expected = scenes.generate_probe("solidity", variant, seed, num_frames=6, height=32,
-                                         width=32)
+        expected = scenes.generate_probe(
+            "solidity", variant, seed, num_frames=6, height=32, width=32
+        )
         assert int(new["seed"]) == seed
         assert torch.equal(new["consistent", "frames"], expected["consistent", "frames"])
         assert not torch.equal(new["consistent", "frames"], old["consistent", "frames"])

@@ -34,14 +34,22 @@ def datamodules_references(path: Path) -> list[str]:
             names = [node.value]
         else:
             continue
-        found += [f"line {node.lineno}: {name!r}" for name in names if NAMES_DATAMODULES.match(name)]
+        found += [
+            f"line {node.lineno}: {name!r}" for name in names if NAMES_DATAMODULES.match(name)
+        ]
     return found
 
 
 def test_no_module_of_voe_lightning_imports_datamodules():
     files = module_files()
-    assert {"voe_lightning.cli", "voe_lightning.external.intphys", "voe_lightning.model.base"} <= files.keys()
-    offenders = {name: refs for name, path in files.items() if (refs := datamodules_references(path))}
+    assert {
+        "voe_lightning.cli",
+        "voe_lightning.external.intphys",
+        "voe_lightning.model.base",
+    } <= files.keys()
+    offenders = {
+        name: refs for name, path in files.items() if (refs := datamodules_references(path))
+    }
     assert offenders == {}
 
 
@@ -57,8 +65,10 @@ def package_imports(name: str, path: Path, modules: set[str]) -> set[str]:
         elif isinstance(node, ast.ImportFrom):
             base = package.rsplit(".", node.level - 1)[0] if node.level else ""
             module = ".".join(part for part in (base, node.module) if part)
-            candidates = [f"{module}.{alias.name}" if f"{module}.{alias.name}" in modules else module
-                          for alias in node.names]
+            candidates = [
+                f"{module}.{alias.name}" if f"{module}.{alias.name}" in modules else module
+                for alias in node.names
+            ]
         else:
             continue
         for candidate in candidates:

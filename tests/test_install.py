@@ -21,8 +21,9 @@ def run_with_python3(shim: str, tmp_path: Path) -> subprocess.CompletedProcess:
     python3.write_text(f"#!/usr/bin/env bash\nREAL={sys.executable}\n{shim}\n")
     python3.chmod(python3.stat().st_mode | stat.S_IXUSR)
     env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
-    return subprocess.run(["bash", str(INSTALL)], env=env, capture_output=True, text=True,
-                          timeout=120)
+    return subprocess.run(
+        ["bash", str(INSTALL)], env=env, capture_output=True, text=True, timeout=120
+    )
 
 
 @pytest.mark.skipif(sys.platform != "linux", reason="install.sh is for Debian/Ubuntu")
@@ -39,8 +40,7 @@ def test_pips_refusal_of_a_system_managed_python_comes_with_the_fix(tmp_path):
     """A Python marked EXTERNALLY-MANAGED (PEP 668) makes `pip install` fail with pip's
     'externally-managed-environment' error (here from the shim, which stands in for pip)."""
     refusal = "error: externally-managed-environment"
-    shim = (f'if [ "$3" = "install" ]; then echo "{refusal}" >&2; exit 1; fi\n'
-            'exec "$REAL" "$@"')
+    shim = f'if [ "$3" = "install" ]; then echo "{refusal}" >&2; exit 1; fi\nexec "$REAL" "$@"'
     result = run_with_python3(shim, tmp_path)
     assert result.returncode == 1, result.stderr
     assert refusal in result.stderr  # pip's own message is kept

@@ -14,16 +14,16 @@ import lightning as L
 import numpy as np
 import pytest
 import torch
+from benchmark_quadruplets import check_quadruplet_rows
 from PIL import Image
 
 import voe_lightning.external.intphys as intphys
-from benchmark_quadruplets import check_quadruplet_rows
 from datamodules.intphys import IntPhysDataModule
 from voe_lightning import specs
 from voe_lightning.external.base import BenchmarkDataError
 from voe_lightning.external.evaluation import external_metrics
-from voe_lightning.external.metrics import read_answer_file, score_answers
 from voe_lightning.external.intphys import read_png
+from voe_lightning.external.metrics import read_answer_file, score_answers
 from voe_lightning.model import SurpriseModel
 from voe_lightning.prediction_writer import IntPhysAnswerWriter
 
@@ -157,12 +157,19 @@ def test_dev_probes_load_with_spec_shapes_and_pairs_recovered_from_divergence(da
         )
         assert np.array_equal(con[2].numpy(), expected)
     assert [dm.variant_names[int(r["variant"])] for r in records[:2]] == [
-        "standard", "counterbalanced"]
+        "standard",
+        "counterbalanced",
+    ]
     assert [entry["condition"] for entry in table.values()] == [
-        "visible_static", "occluded_dynamic_1", "unspecified"]
+        "visible_static",
+        "occluded_dynamic_1",
+        "unspecified",
+    ]
     assert dm.probe_cases() == [
-        ("O1_object_permanence", "standard"), ("O1_object_permanence", "counterbalanced"),
-        ("O2_shape_constancy", "standard"), ("O2_shape_constancy", "counterbalanced"),
+        ("O1_object_permanence", "standard"),
+        ("O1_object_permanence", "counterbalanced"),
+        ("O2_shape_constancy", "standard"),
+        ("O2_shape_constancy", "counterbalanced"),
     ]
     assert dm.skipped == {}
 
@@ -240,12 +247,20 @@ class MeanIntensityModel(SurpriseModel):
 def predict(dm, path):
     """``predict`` of ``dm``'s predict split with the answer writer at ``path``: movie path ->
     total surprise, as predict_step returned it."""
-    trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False,
-                        enable_model_summary=False, callbacks=[IntPhysAnswerWriter(path)])
+    trainer = L.Trainer(
+        accelerator="cpu",
+        logger=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=[IntPhysAnswerWriter(path)],
+    )
     batches = trainer.predict(MeanIntensityModel(), datamodule=dm)
     movies = dm.movies(dm.hparams.predict_split)
-    return {movies[index].name: value for batch in batches
-            for index, value in zip(batch["index"].tolist(), batch["surprise"].tolist())}
+    return {
+        movies[index].name: value
+        for batch in batches
+        for index, value in zip(batch["index"].tolist(), batch["surprise"].tolist())
+    }
 
 
 def test_answer_file_for_the_unlabelled_test_set(dataset_root, tmp_path):
@@ -269,8 +284,9 @@ def test_answer_file_for_the_unlabelled_test_set(dataset_root, tmp_path):
 def test_answer_file_scores_equal_the_surprise_metrics_on_dev(dataset_root, tmp_path):
     dm = datamodule(dataset_root, predict_split="dev")
     surprise = predict(dm, tmp_path / "answer.txt")
-    from_surprise = external_metrics(dm.external_pairs(), fake_outputs(dm, surprise),
-                                     bootstrap=0)["metrics"]
+    from_surprise = external_metrics(dm.external_pairs(), fake_outputs(dm, surprise), bootstrap=0)[
+        "metrics"
+    ]
     answers = read_answer_file(tmp_path / "answer.txt")
     labels = {m.name: m.is_possible for m in dm.movies("dev")}
     official = score_answers(answers, labels)
@@ -280,15 +296,26 @@ def test_answer_file_scores_equal_the_surprise_metrics_on_dev(dataset_root, tmp_
                 assert values[metric] == pytest.approx(from_surprise[concept][condition][metric])
 
 
-def test_predict_under_ddp_scores_each_movie_once_and_writes_the_same_answer(dataset_root, tmp_path):
+def test_predict_under_ddp_scores_each_movie_once_and_writes_the_same_answer(
+    dataset_root, tmp_path
+):
     """Two CPU processes (ddp_spawn over gloo) split the movies unevenly in batches (6 each,
     batches of 5 + 1); the writer gathers them into the answer one process writes."""
     predict(datamodule(dataset_root), tmp_path / "single.txt")
-    trainer = L.Trainer(accelerator="cpu", devices=2, strategy="ddp_spawn", logger=False,
-                        enable_progress_bar=False, enable_model_summary=False,
-                        callbacks=[IntPhysAnswerWriter(tmp_path / "ddp.txt")])
-    trainer.predict(MeanIntensityModel(), datamodule=datamodule(dataset_root, probe_batch_size=5),
-                    return_predictions=False)
+    trainer = L.Trainer(
+        accelerator="cpu",
+        devices=2,
+        strategy="ddp_spawn",
+        logger=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=[IntPhysAnswerWriter(tmp_path / "ddp.txt")],
+    )
+    trainer.predict(
+        MeanIntensityModel(),
+        datamodule=datamodule(dataset_root, probe_batch_size=5),
+        return_predictions=False,
+    )
     assert (tmp_path / "ddp.txt").read_text() == (tmp_path / "single.txt").read_text()
 
 
@@ -454,7 +481,14 @@ def break_label_count(root):
 
 @pytest.mark.parametrize(
     "breakage",
-    [break_missing_frame, break_movie_count, break_png, break_png_bomb, break_label, break_label_count],
+    [
+        break_missing_frame,
+        break_movie_count,
+        break_png,
+        break_png_bomb,
+        break_label,
+        break_label_count,
+    ],
 )
 def test_bad_input_raises_naming_the_file_or_is_skipped_and_counted_when_lenient(
     dataset_root, tmp_path, breakage
@@ -476,9 +510,7 @@ def test_bad_input_raises_naming_the_file_or_is_skipped_and_counted_when_lenient
     assert metrics["skipped"] == {reason: 1}
 
 
-def test_lenient_loading_writes_nothing_to_the_temp_directory(
-    dataset_root, tmp_path, monkeypatch
-):
+def test_lenient_loading_writes_nothing_to_the_temp_directory(dataset_root, tmp_path, monkeypatch):
     """Issue 10 case 12: skips are counted without voe_skipped_<uuid> folders in the temp dir."""
     root = fresh_copy(dataset_root, tmp_path)
     break_png(root)
@@ -518,5 +550,9 @@ def test_a_report_tests_each_block_over_its_scenes_quadruplets(dataset_root):
     dm = datamodule(dataset_root)
     dm.setup("test")
     probes = torch.cat(list(dm.test_dataloader()))
-    check_quadruplet_rows(probes, dm.concept_names, dm.variant_names,
-                          {"O1_object_permanence": 2, "O2_shape_constancy": 1})
+    check_quadruplet_rows(
+        probes,
+        dm.concept_names,
+        dm.variant_names,
+        {"O1_object_permanence": 2, "O2_shape_constancy": 1},
+    )

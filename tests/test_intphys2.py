@@ -10,7 +10,6 @@ import random
 import shutil
 import subprocess
 import sys
-
 from pathlib import Path
 
 import av
@@ -18,19 +17,29 @@ import numpy as np
 import pytest
 import torch
 import yaml
-
 from benchmark_quadruplets import check_quadruplet_rows
+
 from datamodules.intphys2 import IntPhys2DataModule
+from voe_lightning.cli import main
 from voe_lightning.external.base import BenchmarkDataError
 from voe_lightning.external.evaluation import VIDEO_COLUMNS, external_metrics
 from voe_lightning.external.metrics import intphys2_metrics
-from voe_lightning.cli import main
 
 FRAMES, SIZE = 8, 16
 #: num_frames=4 spread over 8 frames samples source frames [0, 2, 5, 7].
 SAMPLED = [0, 2, 5, 7]
-COLUMNS = ["SceneIndex", "name", "file_name", "game_name", "condition", "env", "type", "occluder",
-           "Difficulty", "Camera"]
+COLUMNS = [
+    "SceneIndex",
+    "name",
+    "file_name",
+    "game_name",
+    "condition",
+    "env",
+    "type",
+    "occluder",
+    "Difficulty",
+    "Camera",
+]
 #: scene -> (condition, principle, difficulty, camera); one scene per principle.
 SCENES = {
     "3": ("permanence", "Permanence", "Easy", "Static"),
@@ -73,12 +82,24 @@ def scene_rows(split_dir, number, scene, frames=FRAMES, id_column="file_name"):
         for kind in ("Possible", "Impossible"):
             name = f"s{scene}_{prefix}_{kind.lower()}"
             worlds = [world if kind == "Possible" or t < switch else other for t in range(frames)]
-            write_mp4(split_dir / "Videos" / f"{name}.mp4",
-                      [frame(number, w, t) for t, w in enumerate(worlds)])
-            rows.append({"SceneIndex": scene, "name": name, id_column: f"{name}.mp4",
-                         "game_name": "g", "condition": condition, "env": "e",
-                         "type": f"{prefix}_{kind}", "occluder": "o", "Difficulty": difficulty,
-                         "Camera": camera})
+            write_mp4(
+                split_dir / "Videos" / f"{name}.mp4",
+                [frame(number, w, t) for t, w in enumerate(worlds)],
+            )
+            rows.append(
+                {
+                    "SceneIndex": scene,
+                    "name": name,
+                    id_column: f"{name}.mp4",
+                    "game_name": "g",
+                    "condition": condition,
+                    "env": "e",
+                    "type": f"{prefix}_{kind}",
+                    "occluder": "o",
+                    "Difficulty": difficulty,
+                    "Camera": camera,
+                }
+            )
     return rows
 
 
@@ -89,21 +110,31 @@ def write_metadata(split_dir, rows, columns=COLUMNS):
         writer.writerows(rows)
 
 
-@pytest.fixture(scope="module")
-def root(tmp_path_factory):
-    root = tmp_path_factory.mktemp("intphys2")
-    rows = [row for number, scene in enumerate(SCENES) for row in
-            scene_rows(root / "Main", number, scene)]
+def make_root(root: Path) -> Path:
+    """A tiny IntPhys 2 layout under ``root``: Main (shuffled rows), Debug and HeldOut."""
+    rows = [
+        row
+        for number, scene in enumerate(SCENES)
+        for row in scene_rows(root / "Main", number, scene)
+    ]
     random.Random(0).shuffle(rows)
     write_metadata(root / "Main", rows)
     debug = scene_rows(root / "Debug", 7, "3", frames=12, id_column="filename")
     for row in debug:
         row["Difficulty"] = ""
-    write_metadata(root / "Debug", debug, ["SceneIndex", "name", "filename", "condition", "type",
-                                           "Difficulty", "Camera"])
+    write_metadata(
+        root / "Debug",
+        debug,
+        ["SceneIndex", "name", "filename", "condition", "type", "Difficulty", "Camera"],
+    )
     held_out = scene_rows(root / "HeldOut", 9, "25")
     write_metadata(root / "HeldOut", held_out, ["file_name"])
     return root
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    return make_root(tmp_path_factory.mktemp("intphys2"))
 
 
 def datamodule(root, **options):
@@ -121,31 +152,45 @@ def test_shuffled_rows_pair_by_scene_and_prefix_for_every_principle(root):
     dm.setup("test")
     table = dm.pairs("Main")
     assert len(table) == 8
-    assert sorted({e["principle"] for e in table.values()}) == sorted(p for _, p, _, _ in
-                                                                       SCENES.values())
-    for seed, entry in table.items():
+    assert sorted({e["principle"] for e in table.values()}) == sorted(
+        p for _, p, _, _ in SCENES.values()
+    )
+    for entry in table.values():
         assert entry["possible"] == f"s{entry['scene']}_{entry['prefix']}_possible"
         assert entry["impossible"] == f"s{entry['scene']}_{entry['prefix']}_impossible"
         assert entry["divergence_frame"] == PREFIXES[entry["prefix"]][3]
     # scenes come in (condition, scene) order whatever the rows' order; a seed names the
     # scene, the variant its pair (standard: prefix 1, counterbalanced: prefix 2)
-    assert [(seed, variant, table[seed, variant]["condition"], table[seed, variant]["prefix"])
-            for seed, variant in sorted(table)][:2] == [
-        (0, "counterbalanced", "continuity_swap", "2"), (0, "standard", "continuity_swap", "1")]
+    assert [
+        (seed, variant, table[seed, variant]["condition"], table[seed, variant]["prefix"])
+        for seed, variant in sorted(table)
+    ][:2] == [
+        (0, "counterbalanced", "continuity_swap", "2"),
+        (0, "standard", "continuity_swap", "1"),
+    ]
     assert {(v, e["prefix"]) for (_, v), e in table.items()} == {
-        ("standard", "1"), ("counterbalanced", "2")}
+        ("standard", "1"),
+        ("counterbalanced", "2"),
+    }
     assert sorted({seed for seed, _ in table}) == [0, 1, 2, 3]
     batch = next(iter(dm.test_dataloader()))
     assert batch["consistent", "frames"].shape == (3, 4, SIZE, SIZE, 3)
     for record in batch:
         assert dm.probe_spec().is_in(record)
     entry = table[int(batch["seed"][0]), dm.variant_names[int(batch["variant"][0])]]
-    expected = np.stack([frame(list(SCENES).index(entry["scene"]), PREFIXES[entry["prefix"]][0], t)
-                         for t in SAMPLED])
+    expected = np.stack(
+        [
+            frame(list(SCENES).index(entry["scene"]), PREFIXES[entry["prefix"]][0], t)
+            for t in SAMPLED
+        ]
+    )
     assert np.array_equal(batch["consistent", "frames"][0].numpy(), expected)  # lossless decode
     assert dm.concept_names[int(batch["concept"][0])] == entry["principle"]
-    assert dm.probe_cases() == [(p, v) for p in sorted(p for _, p, _, _ in SCENES.values())
-                                for v in ("standard", "counterbalanced")]
+    assert dm.probe_cases() == [
+        (p, v)
+        for p in sorted(p for _, p, _, _ in SCENES.values())
+        for v in ("standard", "counterbalanced")
+    ]
 
 
 def test_debug_filename_column_and_frame_step_of_longer_videos(root):
@@ -178,34 +223,66 @@ def _edit_main(root, edit):
     write_metadata(root / "Main", edit(rows))
 
 
-@pytest.mark.parametrize("case, reason, message", [
-    ("malformed_group", "malformed_group",
-     r"scene 3 \(permanence\), prefix 1: 2 Possible and 1 Impossible videos \(line \d+ "),
-    ("missing_file", "missing_file", r"metadata.csv, line \d+: file_name 'gone.mp4' names .*gone"),
-    ("unlisted_file", "unlisted_file", r"extra.mp4 has no row in .*metadata.csv"),
-    ("unknown_condition", "unknown_condition", r"line \d+: unknown condition 'gravity'"),
-    ("unknown_type", "unknown_type", r"line \d+: unknown type '3_Possible'"),
-    ("undecodable", "undecodable_video", r"s25_2_possible.mp4 does not decode"),
-])
+@pytest.mark.parametrize(
+    "case, reason, message",
+    [
+        (
+            "malformed_group",
+            "malformed_group",
+            r"scene 3 \(permanence\), prefix 1: 2 Possible and 1 Impossible videos \(line \d+ ",
+        ),
+        (
+            "missing_file",
+            "missing_file",
+            r"metadata.csv, line \d+: file_name 'gone.mp4' names .*gone",
+        ),
+        ("unlisted_file", "unlisted_file", r"extra.mp4 has no row in .*metadata.csv"),
+        ("unknown_condition", "unknown_condition", r"line \d+: unknown condition 'gravity'"),
+        ("unknown_type", "unknown_type", r"line \d+: unknown type '3_Possible'"),
+        ("undecodable", "undecodable_video", r"s25_2_possible.mp4 does not decode"),
+    ],
+)
 def test_bad_input_raises_naming_it_or_is_skipped_and_counted_when_lenient(
-        root, tmp_path, case, reason, message):
+    root, tmp_path, case, reason, message
+):
     data = copy(root, tmp_path)
     videos = data / "Main" / "Videos"
     if case == "malformed_group":
         shutil.copy(videos / "s3_1_possible.mp4", videos / "s3_1_again.mp4")
-        _edit_main(data, lambda rows: rows + [{**next(r for r in rows if r["name"] ==
-                                                      "s3_1_possible"),
-                                               "name": "again", "file_name": "s3_1_again.mp4"}])
+        _edit_main(
+            data,
+            lambda rows: (
+                rows
+                + [
+                    {
+                        **next(r for r in rows if r["name"] == "s3_1_possible"),
+                        "name": "again",
+                        "file_name": "s3_1_again.mp4",
+                    }
+                ]
+            ),
+        )
     elif case == "missing_file":
         _edit_main(data, lambda rows: rows + [{**rows[0], "name": "gone", "file_name": "gone.mp4"}])
     elif case == "unlisted_file":
         shutil.copy(videos / "s3_1_possible.mp4", videos / "extra.mp4")
     elif case == "unknown_condition":
-        _edit_main(data, lambda rows: [{**r, "condition": "gravity"} if r["SceneIndex"] == "25"
-                                       else r for r in rows])
+        _edit_main(
+            data,
+            lambda rows: [
+                {**r, "condition": "gravity"} if r["SceneIndex"] == "25" else r for r in rows
+            ],
+        )
     elif case == "unknown_type":
-        _edit_main(data, lambda rows: [{**r, "type": "3_Possible"} if r["type"] == "1_Possible"
-                                       and r["SceneIndex"] == "25" else r for r in rows])
+        _edit_main(
+            data,
+            lambda rows: [
+                {**r, "type": "3_Possible"}
+                if r["type"] == "1_Possible" and r["SceneIndex"] == "25"
+                else r
+                for r in rows
+            ],
+        )
     else:
         (videos / "s25_2_possible.mp4").write_bytes(b"not a video")
     with pytest.raises(BenchmarkDataError, match=message) as error:
@@ -216,8 +293,14 @@ def test_bad_input_raises_naming_it_or_is_skipped_and_counted_when_lenient(
     assert dm.skipped.get(reason) == (4 if case == "unknown_condition" else 1)  # 4 rows
     # the rest is kept: the scene's other pair (a video that does not decode loses its scene
     # whole: the scene is decoded as one quadruplet) and every other scene
-    lost = {"malformed_group": 1, "missing_file": 0, "unlisted_file": 0, "unknown_condition": 2,
-            "unknown_type": 1, "undecodable": 2}[case]
+    lost = {
+        "malformed_group": 1,
+        "missing_file": 0,
+        "unlisted_file": 0,
+        "unknown_condition": 2,
+        "unknown_type": 1,
+        "undecodable": 2,
+    }[case]
     assert len(dm.probes("Main")) == 8 - lost
     if case == "unknown_type":  # its scene and prefix now hold only an Impossible
         assert dm.skipped["malformed_group"] == 1
@@ -240,20 +323,26 @@ def test_metrics_match_a_hand_computation(root):
     """Per-frame surprise per (principle, prefix): prefix 1 pairs as below, prefix 2 pairs all
     possible [0, 0, 0, 0] vs impossible [0, 0, 0, 1] (right by mean and max)."""
     prefix_1 = {  # possible, impossible
-        "Permanence": ([0, 1, 0, 1], [0, 0, 3, 0]),    # mean right, max right
+        "Permanence": ([0, 1, 0, 1], [0, 0, 3, 0]),  # mean right, max right
         "Immutability": ([2, 2, 2, 2], [0, 0, 0, 4]),  # mean wrong, max right
-        "Continuity": ([1, 1, 1, 1], [1, 1, 1, 1]),    # ties
-        "Solidity": ([0, 0, 0, 5], [0, 2, 0, 0]),      # both wrong
+        "Continuity": ([1, 1, 1, 1], [1, 1, 1, 1]),  # ties
+        "Solidity": ([0, 0, 0, 5], [0, 2, 0, 0]),  # both wrong
     }
     dm = datamodule(root)
     table = dm.pairs("Main")
     seeds = sorted(table)
-    sides = [prefix_1[table[s]["principle"]] if table[s]["prefix"] == "1"
-             else ([0, 0, 0, 0], [0, 0, 0, 1]) for s in seeds]
-    outputs = {"seed": np.array([seed for seed, _ in seeds]),
-               "variant": np.array([dm.variant_names.index(v) for _, v in seeds]),
-               "surprise_consistent": np.array([p for p, _ in sides], np.float32),
-               "surprise_inconsistent": np.array([i for _, i in sides], np.float32)}
+    sides = [
+        prefix_1[table[s]["principle"]]
+        if table[s]["prefix"] == "1"
+        else ([0, 0, 0, 0], [0, 0, 0, 1])
+        for s in seeds
+    ]
+    outputs = {
+        "seed": np.array([seed for seed, _ in seeds]),
+        "variant": np.array([dm.variant_names.index(v) for _, v in seeds]),
+        "surprise_consistent": np.array([p for p, _ in sides], np.float32),
+        "surprise_inconsistent": np.array([i for _, i in sides], np.float32),
+    }
     report = external_metrics(dm.external_pairs(), outputs, bootstrap=0)
     metrics = report["metrics"]
     # possible maxima {1, 2, 1, 5, 0, 0, 0, 0}: 90th percentile at 0.9 * 7 = 6.3 -> 2 + 0.3 * 3
@@ -273,23 +362,47 @@ def test_metrics_match_a_hand_computation(root):
     assert immutability["relative_accuracy_max"] == 1.0
     assert immutability["absolute_accuracy"] == 0.75  # possible 2, 0 right; impossible 4 only
     assert set(metrics["principle_difficulty_camera"]) == {
-        "/".join((p, d, c)) for _, p, d, c in SCENES.values()}
+        "/".join((p, d, c)) for _, p, d, c in SCENES.values()
+    }
     assert metrics["principle_difficulty_camera"]["Solidity/Hard/Moving"]["n_pairs"] == 2
-    same = intphys2_metrics(*zip(*[(table[s]["principle"], table[s]["difficulty"],
-                                    table[s]["camera"]) for s in seeds]),
-                            outputs["surprise_consistent"], outputs["surprise_inconsistent"],
-                            bootstrap=0)
+    same = intphys2_metrics(
+        *zip(*[(table[s]["principle"], table[s]["difficulty"], table[s]["camera"]) for s in seeds]),
+        outputs["surprise_consistent"],
+        outputs["surprise_inconsistent"],
+        bootstrap=0,
+    )
     assert same["all"] == overall
 
 
 def _run(root, tmp_path, subcommand, *extra):
-    return main([subcommand, "--config", CONFIG, *extra,
-                 "--model", "voe_lightning.model.CueScorer", "--model.init_args.cue", "motion",
-                 "--data.init_args.root", str(root), "--data.init_args.num_frames", "4",
-                 "--data.init_args.height", str(SIZE), "--data.init_args.width", str(SIZE),
-                 "--data.init_args.num_workers", "0", "--data.init_args.cache_dir", "null",
-                 "--trainer.logger.init_args.save_dir", str(tmp_path / "runs"),
-                 "--trainer.enable_progress_bar", "false"])
+    return main(
+        [
+            subcommand,
+            "--config",
+            CONFIG,
+            *extra,
+            "--model",
+            "voe_lightning.model.CueScorer",
+            "--model.init_args.cue",
+            "motion",
+            "--data.init_args.root",
+            str(root),
+            "--data.init_args.num_frames",
+            "4",
+            "--data.init_args.height",
+            str(SIZE),
+            "--data.init_args.width",
+            str(SIZE),
+            "--data.init_args.num_workers",
+            "0",
+            "--data.init_args.cache_dir",
+            "null",
+            "--trainer.logger.init_args.save_dir",
+            str(tmp_path / "runs"),
+            "--trainer.enable_progress_bar",
+            "false",
+        ]
+    )
 
 
 def test_cue_scorer_runs_test_and_predict_without_a_checkpoint(root, tmp_path):
@@ -302,39 +415,77 @@ def test_cue_scorer_runs_test_and_predict_without_a_checkpoint(root, tmp_path):
     by_name = {row["name"]: row for row in rows}
     # motion per frame: the impossible video's object jumps once, so its max exceeds the possible's
     for prefix in PREFIXES:
-        assert (float(by_name[f"s25_{prefix}_impossible"]["surprise_max"])
-                > float(by_name[f"s25_{prefix}_possible"]["surprise_max"]))
+        assert float(by_name[f"s25_{prefix}_impossible"]["surprise_max"]) > float(
+            by_name[f"s25_{prefix}_possible"]["surprise_max"]
+        )
     assert {row["label"] for row in rows} == {"possible", "impossible"}
     # the physics-blind baselines' rows stand beside the model's, on the same pairs
     blind = list(csv.DictReader(open(report / "cues.csv")))
-    assert {row["cue"] for row in blind} >= {"motion_energy", "copy_last_error",
-                                             "linear_extrapolation_error", "pixel_novelty"}
-    motion = {(row["concept"], row["variant"]): int(row["n"]) for row in blind
-              if row["cue"] == "motion_energy" and row["variant"] in ("standard", "counterbalanced")}
-    assert motion == {(principle, variant): 1 for _, principle, _, _ in SCENES.values()
-                      for variant in ("standard", "counterbalanced")}
+    assert {row["cue"] for row in blind} >= {
+        "motion_energy",
+        "copy_last_error",
+        "linear_extrapolation_error",
+        "pixel_novelty",
+    }
+    motion = {
+        (row["concept"], row["variant"]): int(row["n"])
+        for row in blind
+        if row["cue"] == "motion_energy" and row["variant"] in ("standard", "counterbalanced")
+    }
+    assert motion == {
+        (principle, variant): 1
+        for _, principle, _, _ in SCENES.values()
+        for variant in ("standard", "counterbalanced")
+    }
 
     config = tmp_path / "heldout.yaml"
     jsonl = tmp_path / "heldout.jsonl"
-    config.write_text(yaml.safe_dump({"trainer": {"callbacks+": [{
-        "class_path": "voe_lightning.prediction_writer.IntPhys2LeaderboardWriter",
-        "init_args": {"threshold": str(report / "benchmark_metrics.json"), "path": str(jsonl)}}]}}))
+    config.write_text(
+        yaml.safe_dump(
+            {
+                "trainer": {
+                    "callbacks+": [
+                        {
+                            "class_path": "voe_lightning.prediction_writer.IntPhys2LeaderboardWriter",
+                            "init_args": {
+                                "threshold": str(report / "benchmark_metrics.json"),
+                                "path": str(jsonl),
+                            },
+                        }
+                    ]
+                }
+            }
+        )
+    )
     _run(root, tmp_path, "predict", "--config", str(config))
     lines = [json.loads(line) for line in jsonl.read_text().splitlines()]
-    assert [line["row_id"] for line in lines] == [f"s25_{p}_{k}" for p in PREFIXES
-                                                  for k in ("possible", "impossible")]
-    assert all(line["model_answer"] in (0, 1) and line["data_name"] == "IntPhys2"
-               and line["task"] == "HeldOut" for line in lines)
+    assert [line["row_id"] for line in lines] == [
+        f"s25_{p}_{k}" for p in PREFIXES for k in ("possible", "impossible")
+    ]
+    assert all(
+        line["model_answer"] in (0, 1)
+        and line["data_name"] == "IntPhys2"
+        and line["task"] == "HeldOut"
+        for line in lines
+    )
 
 
 def test_the_package_and_its_datamodules_import_without_pyav():
     """PyAV is needed only to decode IntPhys 2's videos: a machine that trains on generated data
     (a lent GPU with no package index, say) must start without it."""
-    blocked = ("import sys; sys.modules['av'] = None; "
-               "import voe_lightning.cli, datamodules, voe_lightning.external.intphys2")
+    blocked = (
+        "import sys; sys.modules['av'] = None; "
+        "import voe_lightning.cli, datamodules, voe_lightning.external.intphys2"
+    )
     root = Path(__file__).resolve().parents[1]
-    result = subprocess.run([sys.executable, "-c", blocked], cwd=root, capture_output=True,
-                            text=True, check=False, env={**os.environ, "PYTHONPATH": str(root)})
+    result = subprocess.run(
+        [sys.executable, "-c", blocked],
+        cwd=root,
+        capture_output=True,
+        text=True,
+        check=False,
+        env={**os.environ, "PYTHONPATH": str(root)},
+    )
     assert result.returncode == 0, result.stderr
 
 
@@ -345,5 +496,9 @@ def test_a_report_tests_each_scenes_two_pairs_together(root):
     dm = datamodule(root)
     dm.setup("test")
     probes = torch.cat(list(dm.test_dataloader()))
-    check_quadruplet_rows(probes, dm.concept_names, dm.variant_names,
-                          {principle: 1 for _, principle, _, _ in SCENES.values()})
+    check_quadruplet_rows(
+        probes,
+        dm.concept_names,
+        dm.variant_names,
+        {principle: 1 for _, principle, _, _ in SCENES.values()},
+    )

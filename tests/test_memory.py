@@ -12,7 +12,9 @@ LATENT, SLOTS, UNITS, HEADS, CONTROLLER = 6, 5, 4, 3, 8
 
 def make_memory(**kwargs) -> LRUMemory:
     torch.manual_seed(0)
-    options = dict(num_slots=SLOTS, slot_size=UNITS, num_read_heads=HEADS, controller_size=CONTROLLER)
+    options = dict(
+        num_slots=SLOTS, slot_size=UNITS, num_read_heads=HEADS, controller_size=CONTROLLER
+    )
     options.update(kwargs)
     return LRUMemory(LATENT, **options)
 
@@ -79,9 +81,7 @@ def test_usage_decays_by_gamma():
     read = memory.read(state, torch.randn(3, LATENT))
     write_weights, _ = memory.write_weights(state, read.hidden)
     new = memory.write(state, read, torch.randn(3, LATENT))
-    torch.testing.assert_close(
-        new.usage - read.weights.sum(1) - write_weights, gamma * state.usage
-    )
+    torch.testing.assert_close(new.usage - read.weights.sum(1) - write_weights, gamma * state.usage)
 
 
 def test_closed_write_gate_writes_to_least_used_slot():
@@ -130,7 +130,9 @@ def test_least_used_weights_mark_n_slots_and_clear_only_the_least_used(least_use
         least, *others = by_usage[row, :least_used_slots].tolist()
         torch.testing.assert_close(new.memory[row, least], content[row])
         for slot in others:  # marked but not cleared: the content is added
-            torch.testing.assert_close(new.memory[row, slot], state.memory[row, slot] + content[row])
+            torch.testing.assert_close(
+                new.memory[row, slot], state.memory[row, slot] + content[row]
+            )
 
 
 def test_least_used_slot_ties_go_to_the_lowest_index():
@@ -169,10 +171,13 @@ def test_batch_rows_do_not_interact():
         torch.testing.assert_close(alone[0], batched[row], rtol=1e-5, atol=1e-6)
 
 
-@pytest.mark.parametrize("options", [
-    *({"head_mixing": mixing} for mixing in HEAD_MIXINGS),
-    {"controller_sees_read": False, "least_used_slots": HEADS},  # the paper's reading
-])
+@pytest.mark.parametrize(
+    "options",
+    [
+        *({"head_mixing": mixing} for mixing in HEAD_MIXINGS),
+        {"controller_sees_read": False, "least_used_slots": HEADS},  # the paper's reading
+    ],
+)
 def test_gradients_reach_every_parameter(options):
     memory = make_memory(**options)
     latents = torch.randn(2, 4, LATENT, requires_grad=True)
@@ -202,9 +207,13 @@ def test_controller_without_read_input():
     state = random_state(memory)
     latent = torch.randn(3, LATENT)
     other_read = state._replace(read=torch.randn_like(state.read))
-    torch.testing.assert_close(memory.read(state, latent).hidden, memory.read(other_read, latent).hidden)
+    torch.testing.assert_close(
+        memory.read(state, latent).hidden, memory.read(other_read, latent).hidden
+    )
     seeing = make_memory()
-    assert not torch.allclose(seeing.read(state, latent).hidden, seeing.read(other_read, latent).hidden)
+    assert not torch.allclose(
+        seeing.read(state, latent).hidden, seeing.read(other_read, latent).hidden
+    )
 
 
 def test_bad_choices_are_refused_naming_valid_ones():
@@ -219,8 +228,11 @@ def test_bad_choices_are_refused_naming_valid_ones():
     with pytest.raises(ValueError, match="num_slots"):
         make_memory(num_slots=0)
     for bad in (0, SLOTS + 1, 1.5, True):
-        with pytest.raises(ValueError, match=f"least_used_slots must be an integer from 1 to the "
-                                             f"number of memory slots \\({SLOTS}\\)"):
+        with pytest.raises(
+            ValueError,
+            match=f"least_used_slots must be an integer from 1 to the "
+            f"number of memory slots \\({SLOTS}\\)",
+        ):
             make_memory(least_used_slots=bad)
     with pytest.raises(TypeError, match="controller_sees_read must be True or False"):
         make_memory(controller_sees_read="no")

@@ -85,8 +85,11 @@ def test_paper_memory_options_reach_the_memory_and_train():
     paper._step(TensorDict(frames=frames(), batch_size=[B]))["loss"].backward()
     for name, parameter in paper.named_parameters():
         assert parameter.grad is not None and parameter.grad.abs().sum() > 0, name
-    with pytest.raises(ValueError, match="least_used_slots must be an integer from 1 to the "
-                                         "number of memory slots \\(5\\), got 6"):
+    with pytest.raises(
+        ValueError,
+        match="least_used_slots must be an integer from 1 to the "
+        "number of memory slots \\(5\\), got 6",
+    ):
         tiny_model(least_used_slots=6)
 
 
@@ -95,7 +98,9 @@ def test_kl_matches_torch_distributions_and_is_non_negative():
     mean_q, log_std_q, mean_p, log_std_p = torch.randn(4, 3, 7, generator=generator)
     q = Independent(Normal(mean_q, log_std_q.exp()), 1)
     p = Independent(Normal(mean_p, log_std_p.exp()), 1)
-    torch.testing.assert_close(gaussian_kl(mean_q, log_std_q, mean_p, log_std_p), kl_divergence(q, p))
+    torch.testing.assert_close(
+        gaussian_kl(mean_q, log_std_q, mean_p, log_std_p), kl_divergence(q, p)
+    )
     standard = Independent(Normal(torch.zeros(3, 7), torch.ones(3, 7)), 1)
     torch.testing.assert_close(standard_normal_kl(mean_p, log_std_p), kl_divergence(p, standard))
     torch.testing.assert_close(gaussian_kl(mean_q, log_std_q, mean_q, log_std_q), torch.zeros(3))
@@ -119,8 +124,9 @@ def test_surprise_is_deterministic_per_frame_kl():
     # float32, as bf16 autocast (the default where the CPU has AVX512-BF16) may round a row
     # differently when oneDNN picks another kernel for another batch size.
     exact = tiny_model(precision="float32")
-    torch.testing.assert_close(exact.surprise(video[1:]), exact.surprise(video)[1:],
-                               rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(
+        exact.surprise(video[1:]), exact.surprise(video)[1:], rtol=1e-5, atol=1e-5
+    )
     # Deterministic mode equals a rollout fed with posterior means.
     expected = model.rollout(specs.to_model_input(video), deterministic=True).kl
     torch.testing.assert_close(surprise, expected)
@@ -152,7 +158,9 @@ def test_loss_decreases_on_a_fixed_batch():
 
 class _Clips(torch.utils.data.Dataset):
     def __init__(self, count: int):
-        self.records = [TensorDict(frames=frames(1, seed=i)[0], batch_size=[]) for i in range(count)]
+        self.records = [
+            TensorDict(frames=frames(1, seed=i)[0], batch_size=[]) for i in range(count)
+        ]
 
     def __len__(self):
         return len(self.records)
@@ -167,8 +175,13 @@ def test_nan_loss_stops_training_naming_step_and_term(tmp_path):
         model.decoder.logits[0].bias.fill_(float("nan"))  # only the reconstruction term breaks
     loader = DataLoader(_Clips(4), batch_size=2, collate_fn=torch.stack)
     trainer = Trainer(
-        max_steps=2, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-        enable_model_summary=False, default_root_dir=tmp_path, accelerator="cpu",
+        max_steps=2,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        default_root_dir=tmp_path,
+        accelerator="cpu",
     )
     with pytest.raises(FloatingPointError, match="global step 0: reconstruction=nan \\(") as error:
         trainer.fit(model, loader)
@@ -179,8 +192,13 @@ def test_training_logs_loss_terms(tmp_path):
     model = tiny_model()
     loader = DataLoader(_Clips(4), batch_size=2, collate_fn=torch.stack)
     trainer = Trainer(
-        max_steps=2, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-        enable_model_summary=False, default_root_dir=tmp_path, accelerator="cpu",
+        max_steps=2,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        default_root_dir=tmp_path,
+        accelerator="cpu",
     )
     trainer.fit(model, loader)
     logged = trainer.callback_metrics
@@ -198,8 +216,13 @@ def test_probe_step_on_a_spec_batch():
     batch = specs.probe_spec(T, H, W).expand(3).rand()
     result = model.probe_step(batch)
     assert set(result) == {
-        "concept", "variant", "seed", "manipulation_frame", "first_difference",
-        "surprise_consistent", "surprise_inconsistent",
+        "concept",
+        "variant",
+        "seed",
+        "manipulation_frame",
+        "first_difference",
+        "surprise_consistent",
+        "surprise_inconsistent",
     }
     for key in ("concept", "variant", "seed", "manipulation_frame"):
         assert torch.equal(result[key], batch[key])
@@ -265,7 +288,9 @@ def test_the_training_frame_count_is_recorded_for_the_benchmark_datamodules():
     assert model.hparams.training_frames is None
     model.on_train_batch_start({"frames": frames(steps=T)}, 0)
     assert model.hparams.training_frames == T
-    with pytest.warns(UserWarning, match=rf"training_frames was {T}, the training clips have {T + 1}"):
+    with pytest.warns(
+        UserWarning, match=rf"training_frames was {T}, the training clips have {T + 1}"
+    ):
         model.on_train_batch_start({"frames": frames(steps=T + 1)}, 0)
     assert model.hparams.training_frames == T + 1
 
@@ -277,14 +302,20 @@ def test_kl_warmup_scales_only_the_training_kl(tmp_path):
     assert model.kl_weight == pytest.approx(0.25)  # global step 0
     loader = DataLoader(_Clips(4), batch_size=2, collate_fn=torch.stack)
     trainer = Trainer(
-        max_steps=2, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-        enable_model_summary=False, default_root_dir=tmp_path, accelerator="cpu",
+        max_steps=2,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        default_root_dir=tmp_path,
+        accelerator="cpu",
     )
     trainer.fit(model, loader)
     logged = trainer.callback_metrics  # the last step's terms: global step 1, weight 2 / 4
     torch.testing.assert_close(
         logged["train/loss"],
-        logged["train/reconstruction"] + 0.5 * logged["train/kl"]
+        logged["train/reconstruction"]
+        + 0.5 * logged["train/kl"]
         + logged["train/prior_regularizer"],
     )
     assert tiny_model(kl_warmup_steps=0).kl_weight == 1.0
@@ -320,10 +351,12 @@ def test_free_bits_clamp_each_latents_batch_mean_kl_in_the_loss_only():
         torch.tensor(T * 8 * 1e6),
     )
     parameters = [p for p in model.parameters() if p.requires_grad]
-    with_floor = torch.autograd.grad(terms["loss"], parameters, retain_graph=True,
-                                     allow_unused=True)
-    without_kl = torch.autograd.grad(terms["reconstruction"] + terms["prior_regularizer"],
-                                     parameters, allow_unused=True)
+    with_floor = torch.autograd.grad(
+        terms["loss"], parameters, retain_graph=True, allow_unused=True
+    )
+    without_kl = torch.autograd.grad(
+        terms["reconstruction"] + terms["prior_regularizer"], parameters, allow_unused=True
+    )
     for a, b in zip(with_floor, without_kl, strict=True):
         if a is None or b is None:
             assert a is None and b is None
@@ -335,8 +368,13 @@ def test_cosine_schedule_decays_to_zero_at_max_steps(tmp_path):
     model = tiny_model(lr_schedule="cosine", learning_rate=1e-3)
     loader = DataLoader(_Clips(4), batch_size=2, collate_fn=torch.stack)
     trainer = Trainer(
-        max_steps=4, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-        enable_model_summary=False, default_root_dir=tmp_path, accelerator="cpu",
+        max_steps=4,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        default_root_dir=tmp_path,
+        accelerator="cpu",
     )
     trainer.fit(model, loader)
     schedule = trainer.lr_scheduler_configs[0]
@@ -346,11 +384,14 @@ def test_cosine_schedule_decays_to_zero_at_max_steps(tmp_path):
     assert tiny_model().configure_optimizers().keys() == {"optimizer"}  # constant: no schedule
 
 
-@pytest.mark.parametrize("argument,value,message", [
-    ("lr_schedule", "linear", "constant, cosine"),
-    ("kl_warmup_steps", -1, "kl_warmup_steps must be >= 0"),
-    ("kl_free_bits", -0.5, "kl_free_bits must be >= 0 nats, got -0.5"),
-])
+@pytest.mark.parametrize(
+    "argument,value,message",
+    [
+        ("lr_schedule", "linear", "constant, cosine"),
+        ("kl_warmup_steps", -1, "kl_warmup_steps must be >= 0"),
+        ("kl_free_bits", -0.5, "kl_free_bits must be >= 0 nats, got -0.5"),
+    ],
+)
 def test_bad_recipe_arguments_are_refused(argument, value, message):
     with pytest.raises(ValueError, match=message):
         tiny_model(**{argument: value})

@@ -18,17 +18,21 @@ TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
 
 
 def summary(t_standard, t_pooled, voe, significant=False):
-    rows = [{"concept": "solidity", "variant": "standard", "t": t_standard,
-             "significant": significant},
-            {"concept": "solidity", "variant": "pooled", "t": t_pooled, "significant": False},
-            {"concept": "solidity", "variant": "generalization", "t": None,
-             "significant": None}]
+    rows = [
+        {"concept": "solidity", "variant": "standard", "t": t_standard, "significant": significant},
+        {"concept": "solidity", "variant": "pooled", "t": t_pooled, "significant": False},
+        {"concept": "solidity", "variant": "generalization", "t": None, "significant": None},
+    ]
     return {"alpha": 0.01, "rows": rows, "verdicts": [{"concept": "solidity", "voe": voe}]}
 
 
 def test_null_rows_by_hand():
-    summaries = [summary(1.0, 0.5, False), summary(3.0, "inf", True, significant=True),
-                 summary(-2.0, 0.0, False), summary(3.0, 1.0, False)]
+    summaries = [
+        summary(1.0, 0.5, False),
+        summary(3.0, "inf", True, significant=True),
+        summary(-2.0, 0.0, False),
+        summary(3.0, 1.0, False),
+    ]
     trained = summary(3.0, 9.0, True)
     standard, pooled = null_rows(summaries, trained)
     assert (standard["variant"], standard["initializations"]) == ("standard", 4)
@@ -45,14 +49,19 @@ def test_null_rows_by_hand():
 def test_the_null_figure_draws_each_t_against_the_critical_t():
     """A row per concept/variant: the finite untrained t's as points, the critical t of the
     row's df at alpha (scipy's) as the dashed mark, the trained t as the one diamond."""
-    summaries = [summary(1.0, 0.5, False), summary(3.0, "inf", True, significant=True),
-                 summary(-2.0, 0.0, False)]
+    summaries = [
+        summary(1.0, 0.5, False),
+        summary(3.0, "inf", True, significant=True),
+        summary(-2.0, 0.0, False),
+    ]
     for row in (row for each in summaries for row in each["rows"]):
         row["df"] = 9 if row["variant"] == "standard" else 17.5
-    document = {"configs": ["configs/object_state.yaml"], "seeds": 3,
-                "rows": null_rows(summaries, summary(4.0, 2.5, True)),
-                "initializations": [{"seed": seed, "rows": s["rows"]}
-                                    for seed, s in enumerate(summaries)]}
+    document = {
+        "configs": ["configs/object_state.yaml"],
+        "seeds": 3,
+        "rows": null_rows(summaries, summary(4.0, 2.5, True)),
+        "initializations": [{"seed": seed, "rows": s["rows"]} for seed, s in enumerate(summaries)],
+    }
     [ax] = null_figure(document, 0.01).axes
     points = [collection.get_offsets() for collection in ax.collections]
     standard, trained_standard, pooled, trained_pooled = points
@@ -61,24 +70,52 @@ def test_the_null_figure_draws_each_t_against_the_critical_t():
     assert trained_standard.tolist() == [[4.0, 0.0]] and trained_pooled.tolist() == [[2.5, 1.0]]
     critical = [line.get_xdata()[0] for line in ax.lines if line.get_linestyle() == "--"]
     assert critical == pytest.approx([scipy.stats.t.ppf(0.99, 9), scipy.stats.t.ppf(0.99, 17.5)])
-    assert [label.get_text() for label in ax.get_yticklabels()] == ["solidity / standard",
-                                                                    "solidity / pooled"]
+    assert [label.get_text() for label in ax.get_yticklabels()] == [
+        "solidity / standard",
+        "solidity / pooled",
+    ]
 
 
 def test_analyze_null_tests_each_initialization_on_the_same_probes(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    main(["test", "--config", TINY, "--model", "voe_lightning.model.CueScorer",
-          "--model.init_args.cue", "motion", "--trainer.enable_progress_bar", "false"])
+    main(
+        [
+            "test",
+            "--config",
+            TINY,
+            "--model",
+            "voe_lightning.model.CueScorer",
+            "--model.init_args.cue",
+            "motion",
+            "--trainer.enable_progress_bar",
+            "false",
+        ]
+    )
     trained = tmp_path / "runs" / "tiny" / "version_0" / "voe_report"
-    table = main(["analyze", "null", "--configs", f"[{TINY}]", "--seeds", "2",
-                  "--out", str(tmp_path / "null"), "--trained", str(trained),
-                  "--extra_args", '["--trainer.enable_progress_bar", "false"]'])
+    table = main(
+        [
+            "analyze",
+            "null",
+            "--configs",
+            f"[{TINY}]",
+            "--seeds",
+            "2",
+            "--out",
+            str(tmp_path / "null"),
+            "--trained",
+            str(trained),
+            "--extra_args",
+            '["--trainer.enable_progress_bar", "false"]',
+        ]
+    )
     document = json.loads((tmp_path / "null" / "null.json").read_text())
     assert [i["seed"] for i in document["initializations"]] == [0, 1]
     first, second = ([row["t"] for row in i["rows"]] for i in document["initializations"])
     assert first != second  # two initializations of the network, not one
-    assert all((tmp_path / "null" / f"seed_{s}" / "version_0" / "voe_report" / "summary.json")
-               .is_file() for s in (0, 1))
+    assert all(
+        (tmp_path / "null" / f"seed_{s}" / "version_0" / "voe_report" / "summary.json").is_file()
+        for s in (0, 1)
+    )
     assert table == (tmp_path / "null" / "null.md").read_text()
     figure = tmp_path / "null" / "null.png"
     assert f"wrote {figure}" in capsys.readouterr().out
@@ -86,8 +123,9 @@ def test_analyze_null_tests_each_initialization_on_the_same_probes(tmp_path, mon
         assert image.format == "PNG" and 500 <= image.width <= 2000 and 200 <= image.height <= 2000
     assert 10_000 < figure.stat().st_size < 1_000_000
     assert "priors_alone" not in json.loads((trained / "summary.json").read_text())  # not asked
-    assert all(row["initializations"] == 2 and "trained_percentile" in row
-               for row in document["rows"])
+    assert all(
+        row["initializations"] == 2 and "trained_percentile" in row for row in document["rows"]
+    )
     with pytest.raises(SystemExit):
         main(["analyze", "null", "--configs", f"[{TINY}]", "--seeds", "0"])
 
@@ -95,8 +133,9 @@ def test_analyze_null_tests_each_initialization_on_the_same_probes(tmp_path, mon
 def control_config(folder: Path) -> str:
     """The tiny run with configs/object_state.yaml's model (its priors as given, small sizes)
     and callbacks (the report's priors_alone among them): its path."""
-    control = yaml.safe_load((Path(__file__).parents[1] / "configs" / "object_state.yaml")
-                             .read_text())
+    control = yaml.safe_load(
+        (Path(__file__).parents[1] / "configs" / "object_state.yaml").read_text()
+    )
     config = yaml.safe_load(Path(TINY).read_text())
     config["model"] = control["model"]
     config["model"]["init_args"].update(hidden_size=16, message_size=8, withhold_frames=2)
@@ -116,7 +155,8 @@ def test_the_controls_report_carries_its_priors_alone(tmp_path, monkeypatch, cap
     run = tmp_path / "runs" / "tiny" / "version_0"
     main(["test", "--config", config, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
     assert f"its priors alone (untrained) rows for the report, into {run / 'priors_alone'}" in (
-        capsys.readouterr().out)
+        capsys.readouterr().out
+    )
     summary = json.loads((run / "voe_report" / "summary.json").read_text())
     priors = summary["priors_alone"]
     assert (priors["label"], priors["seed"]) == ("priors alone (untrained)", 0)
@@ -126,7 +166,8 @@ def test_the_controls_report_carries_its_priors_alone(tmp_path, monkeypatch, cap
     assert [v["concept"] for v in priors["verdicts"]] == ["object_persistence"]
     main(["analyze", "null", "--configs", f"[{config}]", "--seeds", "1", "--out", "untrained"])
     [initialization] = json.loads((tmp_path / "untrained" / "null.json").read_text())[
-        "initializations"]
+        "initializations"
+    ]
     assert [row["t"] for row in priors["rows"]] == [row["t"] for row in initialization["rows"]]
     assert [row["t"] for row in priors["rows"]] != [row["t"] for row in summary["rows"]]
     markdown = (run / "voe_report" / "summary.md").read_text()

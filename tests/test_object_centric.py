@@ -13,12 +13,24 @@ from voe_lightning.model import ObjectCentricModel, SurpriseModel
 from voe_lightning.model.object_centric import SURPRISES
 from voe_lightning.model.slots import MAX_MASK_JUMP, centroid_moves, object_slots
 from voe_lightning.scenes import (
-    CLIP_KINDS_BY_CONCEPT, CONCEPTS, PROBE_VARIANTS, generate_clip, generate_probe,
+    CLIP_KINDS_BY_CONCEPT,
+    CONCEPTS,
+    PROBE_VARIANTS,
+    generate_clip,
+    generate_probe,
 )
 
 CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
-TINY = dict(image_size=(32, 32), num_slots=4, code_size=8, encoder_channels=(8, 8),
-            state_size=16, relation_sizes=(16,), node_sizes=(16,), relation_size=16)
+TINY = dict(
+    image_size=(32, 32),
+    num_slots=4,
+    code_size=8,
+    encoder_channels=(8, 8),
+    state_size=16,
+    relation_sizes=(16,),
+    node_sizes=(16,),
+    relation_size=16,
+)
 B, T = 2, 5
 
 
@@ -33,15 +45,16 @@ def _video(ids=(3, 5), seed=0):
     frames = torch.randint(0, 256, (B, T, 32, 32, 3), dtype=torch.uint8, generator=generator)
     mask = torch.zeros(B, T, 32, 32, dtype=torch.uint8)
     for number, object_id in enumerate(ids):
-        mask[:, :, 6 * number: 6 * number + 5, 2 + number: 12 + number] = object_id
+        mask[:, :, 6 * number : 6 * number + 5, 2 + number : 12 + number] = object_id
     mask[:, 2][mask[:, 2] == 5] = 0
     camera = torch.randn(B, T, 6, generator=generator)
     return frames, mask, camera
 
 
 def _batch(frames, mask, camera):
-    return TensorDict(frames=frames, mask=mask, camera=camera, seed=torch.tensor([11, 12]),
-                      batch_size=[B])
+    return TensorDict(
+        frames=frames, mask=mask, camera=camera, seed=torch.tensor([11, 12]), batch_size=[B]
+    )
 
 
 def test_slots_follow_ids_and_keep_an_occluded_object():
@@ -71,12 +84,16 @@ def test_shapes_and_each_stage_trains_only_its_networks():
     expected = model.expected_frames(frames, mask, camera)
     assert expected.shape == (B, T, 3, 32, 32) and 0 <= expected.min() <= expected.max() <= 1
     courses = model.trajectories(frames, mask, camera)
-    assert {k: tuple(v.shape) for k, v in courses.items()} == {"codes": (B, T, 40),
-                                                               "predicted": (B, T, 40)}
+    assert {k: tuple(v.shape) for k, v in courses.items()} == {
+        "codes": (B, T, 40),
+        "predicted": (B, T, 40),
+    }
     batch = _batch(frames, mask, camera)
     # Without a trainer global_step is 0: perception_steps 1 is stage one, 0 is stage two.
-    for steps, trained, frozen in ((1, model.perception, model.dynamics),
-                                   (0, model.dynamics, model.perception)):
+    for steps, trained, frozen in (
+        (1, model.perception, model.dynamics),
+        (0, model.dynamics, model.perception),
+    ):
         model.zero_grad(set_to_none=True)
         model.hparams.perception_steps = steps
         model.training_step(batch, 0).backward()
@@ -129,8 +146,7 @@ def test_permuting_the_object_slots_permutes_predictions_and_keeps_surprise():
     predicted, surprise = _permuted(model, frames, mask, camera, [0, 1, 2])
     swapped, swapped_surprise = _permuted(model, frames, mask, camera, [2, 0, 1])
     # Slot 1 + k holds the object that held slot 1 + order[k] before.
-    torch.testing.assert_close(swapped[:, :, 1:4], predicted[:, :, [3, 1, 2]], atol=1e-5,
-                               rtol=1e-5)
+    torch.testing.assert_close(swapped[:, :, 1:4], predicted[:, :, [3, 1, 2]], atol=1e-5, rtol=1e-5)
     torch.testing.assert_close(swapped_surprise, surprise, atol=1e-4, rtol=1e-5)
     assert surprise[:, 1:].gt(0).all() and surprise[:, 0].eq(0).all()
 
@@ -141,18 +157,26 @@ def test_padding_slots_change_nothing():
     many.load_state_dict(few.state_dict())  # the same weights: slots are not parameters
     out_few = few._predict(frames, mask, camera)
     out_many = many._predict(frames, mask, camera)
-    torch.testing.assert_close(out_many["predicted"][:, :, :3], out_few["predicted"], atol=1e-5,
-                               rtol=1e-5)
-    torch.testing.assert_close(many.surprise(frames, mask, camera),
-                               few.surprise(frames, mask, camera), atol=1e-4, rtol=1e-5)
+    torch.testing.assert_close(
+        out_many["predicted"][:, :, :3], out_few["predicted"], atol=1e-5, rtol=1e-5
+    )
+    torch.testing.assert_close(
+        many.surprise(frames, mask, camera),
+        few.surprise(frames, mask, camera),
+        atol=1e-4,
+        rtol=1e-5,
+    )
 
 
 def test_bad_inputs_are_refused_naming_the_video():
     model = _model(num_slots=1)
     frames, mask, camera = _video()
     batch = _batch(frames, mask, camera)
-    with pytest.raises(ValueError, match=r"video 0 of the batch \(seed 11\) shows 2 objects "
-                                         r"\(mask ids \[3, 5\]\), more than num_slots=1"):
+    with pytest.raises(
+        ValueError,
+        match=r"video 0 of the batch \(seed 11\) shows 2 objects "
+        r"\(mask ids \[3, 5\]\), more than num_slots=1",
+    ):
         model.training_step(batch, 0)
     del batch["mask"]
     with pytest.raises(ValueError, match=r"needs each video's object-id mask .*seed 11"):
@@ -163,11 +187,16 @@ def test_bad_inputs_are_refused_naming_the_video():
         _model().surprise(frames, torch.zeros_like(mask), camera)
     with pytest.raises(ValueError, match="use_camera is set but no camera pose"):
         _model().surprise(frames, mask)
-    probes = TensorDict(consistent=TensorDict(frames=frames, mask=mask, batch_size=[B]),
-                        inconsistent=TensorDict(frames=frames, batch_size=[B]),
-                        camera=camera, seed=torch.tensor([21, 22]), concept=torch.zeros(B),
-                        variant=torch.zeros(B), manipulation_frame=torch.ones(B),
-                        batch_size=[B])
+    probes = TensorDict(
+        consistent=TensorDict(frames=frames, mask=mask, batch_size=[B]),
+        inconsistent=TensorDict(frames=frames, batch_size=[B]),
+        camera=camera,
+        seed=torch.tensor([21, 22]),
+        concept=torch.zeros(B),
+        variant=torch.zeros(B),
+        manipulation_frame=torch.ones(B),
+        batch_size=[B],
+    )
     with pytest.raises(ValueError, match=r"seed 21"):
         _model().probe_step(probes)
 
@@ -177,9 +206,12 @@ def test_a_mask_id_that_jumps_between_frames_is_refused_naming_the_video():
     jumped = mask.clone()
     jumped[1, 3:][jumped[1, 3:] == 3] = 0
     jumped[1, 3:, 26:31, 20:30] = 3  # id 3 teleports to the far corner at frame 3
-    with pytest.raises(ValueError, match=r"video 1 of the batch \(seed 12\): mask id 3 jumps "
-                                         r"0\.[5-9]\d of the frame diagonal between frames 2 "
-                                         r"and 3"):
+    with pytest.raises(
+        ValueError,
+        match=r"video 1 of the batch \(seed 12\): mask id 3 jumps "
+        r"0\.[5-9]\d of the frame diagonal between frames 2 "
+        r"and 3",
+    ):
         object_slots(jumped, num_slots=4, seeds=torch.tensor([11, 12]))
     frames, _, camera = _video()
     with pytest.raises(ValueError, match="raise max_mask_jump where objects really move"):
@@ -192,8 +224,11 @@ def test_a_mask_id_that_jumps_between_frames_is_refused_naming_the_video():
     renumbered = mask.clone()
     for t in range(T):
         renumbered[:, t][renumbered[:, t] == 3] = 10 + t
-    with pytest.raises(ValueError, match=r"shows 6 objects .* no frame shows more than 2 at once: "
-                                         r"if the ids number each frame's objects"):
+    with pytest.raises(
+        ValueError,
+        match=r"shows 6 objects .* no frame shows more than 2 at once: "
+        r"if the ids number each frame's objects",
+    ):
         object_slots(renumbered, num_slots=4)
     with pytest.raises(ValueError, match=r"more than num_slots=1; raise num_slots"):
         object_slots(mask, num_slots=1)
@@ -205,7 +240,7 @@ def test_a_sample_of_a_clips_frames_is_no_jump():
     frames, mask, camera = _video()
     moving = torch.zeros_like(mask)
     for t in range(T):
-        moving[:, t, 2:7, 2 + 6 * t: 7 + 6 * t] = 3  # 6 pixels a frame: 0.13 of the diagonal
+        moving[:, t, 2:7, 2 + 6 * t : 7 + 6 * t] = 3  # 6 pixels a frame: 0.13 of the diagonal
     with pytest.raises(ValueError, match="mask id 3 jumps 0.5"):
         object_slots(moving[:, [0, 4]], num_slots=4)
     object_slots(moving[:, [0, 4]], num_slots=4, max_jump=None)
@@ -238,9 +273,16 @@ def test_the_generators_masks_follow_one_object_per_id():
 
 
 def test_object_free_twin_needs_no_mask_and_matches_the_parameter_count():
-    sizes = dict(image_size=(64, 64), num_slots=10, code_size=32,
-                 encoder_channels=(16, 32, 32, 64), state_size=64, relation_sizes=(64,),
-                 node_sizes=(64,), relation_size=64)
+    sizes = dict(
+        image_size=(64, 64),
+        num_slots=10,
+        code_size=32,
+        encoder_channels=(16, 32, 32, 64),
+        state_size=64,
+        relation_sizes=(64,),
+        node_sizes=(64,),
+        relation_size=64,
+    )
     objects, twin = _model(**sizes), _model(**sizes, object_free=True)
     count = [sum(p.numel() for p in m.parameters()) for m in (objects, twin)]
     assert abs(count[1] - count[0]) <= 0.1 * count[0], count
@@ -257,30 +299,53 @@ def test_checkpoint_of_the_twin_is_refused_naming_the_difference():
     assert isinstance(model, SurpriseModel)
 
 
-@pytest.mark.parametrize("object_free, surprise", [(False, "squared_error"),
-                                                    (True, "squared_error"),
-                                                    (False, "likelihood")])
+@pytest.mark.parametrize(
+    "object_free, surprise",
+    [(False, "squared_error"), (True, "squared_error"), (False, "likelihood")],
+)
 def test_fit_both_stages_then_test_through_the_cli(tmp_path, monkeypatch, object_free, surprise):
     monkeypatch.chdir(tmp_path)
-    model = ["--model", "voe_lightning.model.ObjectCentricModel", "--model.image_size=[32, 32]",
-             "--model.num_slots=4", "--model.code_size=8", "--model.encoder_channels=[8, 8]",
-             "--model.state_size=16", "--model.relation_sizes=[16]", "--model.node_sizes=[16]",
-             "--model.relation_size=16", "--model.perception_steps=1",
-             f"--model.object_free={object_free}", f"--model.surprise={surprise}"]
+    model = [
+        "--model",
+        "voe_lightning.model.ObjectCentricModel",
+        "--model.image_size=[32, 32]",
+        "--model.num_slots=4",
+        "--model.code_size=8",
+        "--model.encoder_channels=[8, 8]",
+        "--model.state_size=16",
+        "--model.relation_sizes=[16]",
+        "--model.node_sizes=[16]",
+        "--model.relation_size=16",
+        "--model.perception_steps=1",
+        f"--model.object_free={object_free}",
+        f"--model.surprise={surprise}",
+    ]
     main(["fit", "--config", CONFIG, *model, "--trainer.logger.init_args.name=oc"])
     run = tmp_path / "runs" / "oc" / "version_0"
     checkpoint = torch.load(run / "checkpoints" / "last.ckpt", weights_only=True)
     assert checkpoint["global_step"] == 2  # one perception step, one dynamics step
     assert checkpoint["hyper_parameters"]["training_frames"] == 6
-    main(["test", "--config", CONFIG, *model, "--trainer.logger.init_args.name=oc",
-          "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
+    main(
+        [
+            "test",
+            "--config",
+            CONFIG,
+            *model,
+            "--trainer.logger.init_args.name=oc",
+            "--ckpt_path",
+            str(run / "checkpoints" / "last.ckpt"),
+        ]
+    )
     summary = json.loads((run / "voe_report" / "summary.json").read_text())
     assert summary["video_surprise"] == f"sum over frames of {SURPRISES[(surprise, 'codes')]}"
     assert "object codes" in (run / "voe_report" / "summary.md").read_text()
     rows = summary["rows"]
     assert {(r["concept"], r["variant"], r["n"]) for r in rows} == {
-        ("object_persistence", "standard", 3), ("object_persistence", "counterbalanced", 3),
-        ("object_persistence", "pooled", 6), ("object_persistence", "quadruplet", 3)}
+        ("object_persistence", "standard", 3),
+        ("object_persistence", "counterbalanced", 3),
+        ("object_persistence", "pooled", 6),
+        ("object_persistence", "quadruplet", 3),
+    }
     assert (run / "voe_report" / "predictions_object_persistence.png").is_file()
 
 
@@ -291,28 +356,55 @@ def test_the_object_free_twin_is_scored_on_intphys_by_the_benchmark_configs(tmp_
     from test_intphys import FRAMES, make_intphys
 
     monkeypatch.chdir(tmp_path)
-    model = ["--model", "voe_lightning.model.ObjectCentricModel", "--model.image_size=[32, 32]",
-             "--model.code_size=8", "--model.encoder_channels=[8, 8]", "--model.state_size=16",
-             "--model.relation_sizes=[16]", "--model.node_sizes=[16]",
-             "--model.relation_size=16", "--model.perception_steps=1", "--model.object_free=true",
-             "--model.use_camera=false"]  # IntPhys has no camera poses
+    model = [
+        "--model",
+        "voe_lightning.model.ObjectCentricModel",
+        "--model.image_size=[32, 32]",
+        "--model.code_size=8",
+        "--model.encoder_channels=[8, 8]",
+        "--model.state_size=16",
+        "--model.relation_sizes=[16]",
+        "--model.node_sizes=[16]",
+        "--model.relation_size=16",
+        "--model.perception_steps=1",
+        "--model.object_free=true",
+        "--model.use_camera=false",
+    ]  # IntPhys has no camera poses
     main(["fit", "--config", CONFIG, *model, "--trainer.logger.init_args.name=twin"])
     run = tmp_path / "runs" / "twin" / "version_0"
     checkpoint = str(run / "checkpoints" / "last.ckpt")
     configs = Path(__file__).parents[1] / "configs"
-    data = ["--data.init_args.root", str(tmp_path / "intphys"), "--data.init_args.frames_per_movie",
-            str(FRAMES), "--data.init_args.num_workers", "0", "--data.init_args.cache_dir", "null"]
+    data = [
+        "--data.init_args.root",
+        str(tmp_path / "intphys"),
+        "--data.init_args.frames_per_movie",
+        str(FRAMES),
+        "--data.init_args.num_workers",
+        "0",
+        "--data.init_args.cache_dir",
+        "null",
+    ]
     make_intphys(tmp_path / "intphys", "dev", labelled=True)
-    cli = main(["test", "--config", str(configs / "intphys_dev.yaml"), "--ckpt_path", checkpoint,
-                *data])
+    cli = main(
+        ["test", "--config", str(configs / "intphys_dev.yaml"), "--ckpt_path", checkpoint, *data]
+    )
     assert isinstance(cli.model, ObjectCentricModel) and cli.model.hparams.object_free
     [report] = run.glob("intphys_dev-*/voe_report")  # the benchmark's own folder in the run
     metrics = json.loads((report / "benchmark_metrics.json").read_text())
     assert metrics  # IntPhys' own error rates of this checkpoint
     make_intphys(tmp_path / "intphys", "test", labelled=False)
-    main(["predict", "--config", str(configs / "intphys_dev.yaml"),
-          "--config", str(configs / "overlays" / "intphys_test.yaml"), "--ckpt_path", checkpoint,
-          *data])
+    main(
+        [
+            "predict",
+            "--config",
+            str(configs / "intphys_dev.yaml"),
+            "--config",
+            str(configs / "overlays" / "intphys_test.yaml"),
+            "--ckpt_path",
+            checkpoint,
+            *data,
+        ]
+    )
     lines = (tmp_path / "answer.txt").read_text().splitlines()
     assert len(lines) == 3 * 4 and all(0.0 <= float(line.split()[1]) <= 1.0 for line in lines)
 
@@ -325,8 +417,10 @@ def test_configs_build_models_of_matching_size(monkeypatch):
     for name, configs in (
         ("object_centric", ("base", "object_centric")),
         ("object_free", ("base", "object_centric", "overlays/object_free")),
-        ("physical_concepts_object_centric",
-         ("base", "physical_concepts", "overlays/physical_concepts_object_centric")),
+        (
+            "physical_concepts_object_centric",
+            ("base", "physical_concepts", "overlays/physical_concepts_object_centric"),
+        ),
     ):
         model = compose(*configs)["model"]
         assert model["class_path"] == "voe_lightning.model.ObjectCentricModel"
@@ -345,18 +439,34 @@ def test_fit_and_test_on_physical_concepts_freeform_and_probes(tmp_path, monkeyp
     root = make_dataset(tmp_path / "physical_concepts")
     configs = Path(__file__).parents[1] / "configs"
     arguments = [
-        *(word for name in ("base", "physical_concepts", "overlays/physical_concepts_object_centric")
-          for word in ("--config", str(configs / f"{name}.yaml"))),
-        "--trainer.max_steps=2", "--trainer.val_check_interval=2",
+        *(
+            word
+            for name in ("base", "physical_concepts", "overlays/physical_concepts_object_centric")
+            for word in ("--config", str(configs / f"{name}.yaml"))
+        ),
+        "--trainer.max_steps=2",
+        "--trainer.val_check_interval=2",
         "--trainer.logger.init_args.name=pc",
-        "--model.image_size=[32, 32]", "--model.num_slots=4", "--model.code_size=8",
-        "--model.encoder_channels=[8, 8]", "--model.state_size=16",
-        "--model.relation_sizes=[16]", "--model.node_sizes=[16]", "--model.relation_size=16",
+        "--model.image_size=[32, 32]",
+        "--model.num_slots=4",
+        "--model.code_size=8",
+        "--model.encoder_channels=[8, 8]",
+        "--model.state_size=16",
+        "--model.relation_sizes=[16]",
+        "--model.node_sizes=[16]",
+        "--model.relation_size=16",
         "--model.perception_steps=1",
-        f"--data.root={root}", "--data.concepts=[continuity, solidity]",
-        "--data.num_frames=5", "--data.height=32", "--data.width=32", "--data.batch_size=2",
-        "--data.probe_batch_size=4", "--data.val_quadruplets_per_concept=1",
-        "--data.num_workers=0", f"--data.cache_dir={tmp_path / 'cache'}"]
+        f"--data.root={root}",
+        "--data.concepts=[continuity, solidity]",
+        "--data.num_frames=5",
+        "--data.height=32",
+        "--data.width=32",
+        "--data.batch_size=2",
+        "--data.probe_batch_size=4",
+        "--data.val_quadruplets_per_concept=1",
+        "--data.num_workers=0",
+        f"--data.cache_dir={tmp_path / 'cache'}",
+    ]
     main(["fit", *arguments])
     run = tmp_path / "runs" / "pc" / "version_0"
     assert torch.load(run / "checkpoints" / "last.ckpt", weights_only=True)["global_step"] == 2

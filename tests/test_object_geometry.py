@@ -28,7 +28,10 @@ def states(*objects: tuple[tuple[float, float, float], tuple[float, float, float
     state = torch.zeros(1, len(objects), 13)
     for index, (centre, half, _) in enumerate(objects):
         state[0, index, :3], state[0, index, 3], state[0, index, 7:10] = (
-            torch.tensor(centre), 1.0, torch.tensor(half))
+            torch.tensor(centre),
+            1.0,
+            torch.tensor(half),
+        )
     shape = F.one_hot(torch.tensor([[label for *_, label in objects]]), len(specs.OBJECT_SHAPES))
     return state, shape.float(), torch.ones(1, len(objects), dtype=torch.bool)
 
@@ -36,13 +39,16 @@ def states(*objects: tuple[tuple[float, float, float], tuple[float, float, float
 def test_quaternion_matrices_are_mujocos_and_a_missing_orientation_is_none():
     """The geometry's rotation (one matrix product of a quaternion's pairwise products) is
     MuJoCo's own ``mju_quat2Mat`` for unit quaternions; an absent slot's zeros give zeros."""
-    quaternions = torch.randn(64, 4, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    quaternions = torch.randn(
+        64, 4, generator=torch.Generator().manual_seed(0), dtype=torch.float64
+    )
     quaternions = quaternions / quaternions.norm(dim=-1, keepdim=True)
     expected = np.empty((64, 9))
     for quaternion, matrix in zip(quaternions.numpy(), expected):
         mujoco.mju_quat2Mat(matrix, quaternion)
-    np.testing.assert_allclose(quaternion_matrix(quaternions).flatten(1).numpy(), expected,
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        quaternion_matrix(quaternions).flatten(1).numpy(), expected, atol=1e-12
+    )
     assert torch.equal(quaternion_matrix(torch.zeros(2, 4)), torch.zeros(2, 3, 3))
 
 
@@ -77,6 +83,7 @@ def test_what_the_control_expected_is_drawn_as_each_object_looks_turned():
         """Columns and rows with a pixel of exactly that colour."""
         painted = (image - colour[:, None, None]).abs().amax(0) < 1e-6
         return int(painted.any(0).sum()), int(painted.any(1).sum())
+
     columns, rows = extent(red)
     assert columns >= 30 and rows <= 4, (columns, rows)
     columns, rows = extent(blue)
@@ -84,8 +91,9 @@ def test_what_the_control_expected_is_drawn_as_each_object_looks_turned():
 
 
 def test_below_the_floor_is_unseen_and_geometry_passes_gradients_to_positions():
-    state, shape, known = states(((0.0, 0.0, -0.5), (0.1, 0.1, 0.1), BOX),
-                                 ((0.0, 0.0, 0.0), (0.1, 0.1, 0.1), BOX))
+    state, shape, known = states(
+        ((0.0, 0.0, -0.5), (0.1, 0.1, 0.1), BOX), ((0.0, 0.0, 0.0), (0.1, 0.1, 0.1), BOX)
+    )
     state.requires_grad_(True)
     p = seen_by_geometry(state, shape, known, CAMERA)
     assert p[0, 0] < 0.05 and p[0, 1] > 0.95
@@ -105,8 +113,15 @@ def test_geometry_of_the_true_states_agrees_with_the_rendered_masks(concept):
             for side in ("consistent", "inconsistent"):
                 objects = record[side, "objects"]
                 label = objects["shape_label"].long()
-                state = torch.cat([objects["position"], objects["orientation"],
-                                   objects["size"], objects["color"]], dim=-1).float()
+                state = torch.cat(
+                    [
+                        objects["position"],
+                        objects["orientation"],
+                        objects["size"],
+                        objects["color"],
+                    ],
+                    dim=-1,
+                ).float()
                 shape = F.one_hot(label, len(specs.OBJECT_SHAPES)).float()
                 present = label > 0
                 camera = record["camera"].float().reshape(-1, 6).expand(len(state), 6)
@@ -121,20 +136,23 @@ def test_geometry_of_the_true_states_agrees_with_the_rendered_masks(concept):
 def test_nothing_is_predicted_below_the_floor():
     """A box whose centre would sink below its half-height is raised to rest on the floor, a
     tilted one by its tilted extent; an object above the floor is left where it is."""
-    state, _, _ = states(((0.0, 0.0, -0.8), (0.1, 0.2, 0.3), BOX),
-                         ((0.5, 0.0, 1.2), (0.1, 0.1, 0.1), BOX))
+    state, _, _ = states(
+        ((0.0, 0.0, -0.8), (0.1, 0.2, 0.3), BOX), ((0.5, 0.0, 1.2), (0.1, 0.1, 0.1), BOX)
+    )
     tilted = state.clone()
     tilted[0, 0, 3:7] = torch.tensor([0.9238795, 0.3826834, 0.0, 0.0])  # 45 degrees about x
     for given, lowest in ((state, 0.3), (tilted, (0.2 + 0.3) * 0.70710678)):
         raised = on_or_above_floor(given)
         assert float(raised[0, 0, 2]) == pytest.approx(lowest, abs=1e-5)
         torch.testing.assert_close(raised[0, 1], given[0, 1])
-        torch.testing.assert_close(raised[..., [0, 1, *range(3, 13)]],
-                                   given[..., [0, 1, *range(3, 13)]])
+        torch.testing.assert_close(
+            raised[..., [0, 1, *range(3, 13)]], given[..., [0, 1, *range(3, 13)]]
+        )
 
 
-def _dropped(half: tuple[float, float, float], tilt: float, yaw: float
-             ) -> tuple[torch.Tensor, torch.Tensor]:
+def _dropped(
+    half: tuple[float, float, float], tilt: float, yaw: float
+) -> tuple[torch.Tensor, torch.Tensor]:
     """A box of half-sizes ``half`` tilted ``tilt`` degrees about its x axis, yawed ``yaw``,
     released with its lowest corner 1 cm above a floor: its state then and after MuJoCo has
     let it fall and come to rest (3 s), each [13]."""
@@ -164,9 +182,16 @@ def _dropped(half: tuple[float, float, float], tilt: float, yaw: float
     return released, state()
 
 
-@pytest.mark.parametrize("half, tilt", [((0.8, 1.2, 0.03), 60.0), ((0.8, 1.2, 0.03), 75.0),
-                                        ((0.2, 0.2, 0.2), 25.0), ((0.2, 0.2, 0.2), 65.0),
-                                        ((0.1, 0.1, 0.1), 0.0)])
+@pytest.mark.parametrize(
+    "half, tilt",
+    [
+        ((0.8, 1.2, 0.03), 60.0),
+        ((0.8, 1.2, 0.03), 75.0),
+        ((0.2, 0.2, 0.2), 25.0),
+        ((0.2, 0.2, 0.2), 65.0),
+        ((0.1, 0.1, 0.1), 0.0),
+    ],
+)
 def test_a_landing_box_comes_to_rest_as_lying_on_floor_lays_it(half, tilt):
     """What MuJoCo does with a tilted box dropped onto the floor: a steep plank falls flat (not
     onto its end), a cube tilted less than 45 degrees settles back on that face and one tilted
@@ -191,10 +216,15 @@ def _pitched_plank(pitch: float, half=(0.6, 1.2, 0.03)) -> torch.Tensor:
     """A plank's state [13] pitched ``pitch`` degrees about x (its +y end up), its lowest edge
     on the floor along the x axis from (0, 0, 0) to (-1.2, 0, 0)."""
     angle = np.deg2rad(pitch)
-    centre = (-half[0], half[1] * np.cos(angle) - half[2] * np.sin(angle),
-              half[1] * np.sin(angle) + half[2] * np.cos(angle))
-    return torch.tensor([*centre, np.cos(angle / 2), np.sin(angle / 2), 0.0, 0.0, *half,
-                         0.5, 0.5, 0.5], dtype=torch.float32)
+    centre = (
+        -half[0],
+        half[1] * np.cos(angle) - half[2] * np.sin(angle),
+        half[1] * np.sin(angle) + half[2] * np.cos(angle),
+    )
+    return torch.tensor(
+        [*centre, np.cos(angle / 2), np.sin(angle / 2), 0.0, 0.0, *half, 0.5, 0.5, 0.5],
+        dtype=torch.float32,
+    )
 
 
 def _pitch(state: torch.Tensor) -> float:
@@ -209,10 +239,12 @@ def test_a_plank_pivots_onto_what_is_believed_below_it(near_edge):
     falls flat onto the floor, swinging out from the edge, once the cube is forgotten; a cube
     beside the plank and one above it hold nothing up."""
     plank = _pitched_plank(40.0)
-    state, shape, known = states(((0.0, 0.0, 0.0), (0.1, 0.1, 0.1), BOX),
-                                 ((-0.6, near_edge + 0.25, 0.25), (0.25, 0.25, 0.25), BOX),
-                                 ((3.0, 1.0, 0.25), (0.25, 0.25, 0.25), BOX),  # beside
-                                 ((-0.6, 0.6, 2.5), (0.2, 0.2, 0.2), BOX))    # above
+    state, shape, known = states(
+        ((0.0, 0.0, 0.0), (0.1, 0.1, 0.1), BOX),
+        ((-0.6, near_edge + 0.25, 0.25), (0.25, 0.25, 0.25), BOX),
+        ((3.0, 1.0, 0.25), (0.25, 0.25, 0.25), BOX),  # beside
+        ((-0.6, 0.6, 2.5), (0.2, 0.2, 0.2), BOX),
+    )  # above
     state[0, 0] = plank
     turned = pivoted_down(state, state, shape, known)[0, 0]
     assert _pitch(turned) == pytest.approx(np.degrees(np.arctan2(0.5, near_edge)), abs=0.1)
@@ -235,16 +267,20 @@ def test_a_pivoting_plank_comes_to_rest_as_mujoco_rests_object_persistence_plank
         sides = {}
         for side in ("consistent", "inconsistent"):
             objects = record[side, "objects"]
-            sides[side] = torch.cat([objects["position"], objects["orientation"],
-                                     objects["size"], objects["color"]], dim=-1).float()
+            sides[side] = torch.cat(
+                [objects["position"], objects["orientation"], objects["size"], objects["color"]],
+                dim=-1,
+            ).float()
         objects = record["consistent", "objects"]
         plank = int(objects["size"][0].amax(-1).argmax())
         hidden = int(record["manipulated_ids"][0])  # slots are indexed by mask id
         shown = [plank, hidden]
-        state = torch.stack([sides["consistent"][frame, plank],
-                             sides["consistent"][0, hidden]])[None]
-        shape = F.one_hot(objects["shape_label"][0, shown].long()[None],
-                          len(specs.OBJECT_SHAPES)).float()
+        state = torch.stack([sides["consistent"][frame, plank], sides["consistent"][0, hidden]])[
+            None
+        ]
+        shape = F.one_hot(
+            objects["shape_label"][0, shown].long()[None], len(specs.OBJECT_SHAPES)
+        ).float()
         known = torch.ones(1, 2, dtype=torch.bool)
         propped = pivoted_down(state, state, shape, known)[0, 0]
         rest = sides["consistent"][-1, plank]
@@ -284,12 +320,14 @@ def test_a_cube_rests_in_the_container_as_mujoco_puts_it(variant, rests):
         record = scenes.generate_probe("containment", variant, seed)
         frame = int(record["manipulation_frame"])
         objects = record["consistent", "objects"]
-        state = torch.cat([objects["position"], objects["orientation"], objects["size"],
-                           objects["color"]], dim=-1).float()[frame]
+        state = torch.cat(
+            [objects["position"], objects["orientation"], objects["size"], objects["color"]], dim=-1
+        ).float()[frame]
         label = objects["shape_label"][frame].long()
         cube = int(record["manipulated_ids"][0])
         container = int((label == COMPOUND).nonzero()[0])
-        on = resting_on(state[None], F.one_hot(label, len(specs.OBJECT_SHAPES)).float()[None],
-                        (label > 0)[None])[0]
+        on = resting_on(
+            state[None], F.one_hot(label, len(specs.OBJECT_SHAPES)).float()[None], (label > 0)[None]
+        )[0]
         assert bool(on[cube, container]) == rests, (seed, state[cube, :3], state[container, :3])
         assert int(on[cube].sum()) == int(rests)

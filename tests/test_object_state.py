@@ -21,7 +21,6 @@ from voe_lightning.model.object_geometry import (
     lying_on_floor,
     on_or_above_floor,
     seen_by_geometry,
-    view,
 )
 from voe_lightning.model.object_state import Observations, slowed, withheld_spans
 from voe_lightning.model.optimization import adam
@@ -32,9 +31,21 @@ CAMERA = torch.tensor([0.0, 0.0, 0.4, 4.0, 90.0, -20.0])
 BALL, SCREEN = 1, 2  # mask ids
 #: Every prior and option off: one Gaussian, plain training (each test turns on what it tests;
 #: ``ObjectStateModel()`` is the published control).
-PLAIN = dict(components=1, stop_component=False, landing_component=False, pivot_landing=False,
-             carry="none", hold_still=False, slowing=False, falling_lands=False, fall_gain=0.0,
-             shared_identity=False, withhold=0.0, hard_assignment=False, lr_schedule="constant")
+PLAIN = dict(
+    components=1,
+    stop_component=False,
+    landing_component=False,
+    pivot_landing=False,
+    carry="none",
+    hold_still=False,
+    slowing=False,
+    falling_lands=False,
+    fall_gain=0.0,
+    shared_identity=False,
+    withhold=0.0,
+    hard_assignment=False,
+    lr_schedule="constant",
+)
 
 
 def plain(**arguments) -> ObjectStateModel:
@@ -59,28 +70,33 @@ def scripted_clips(count: int, seed: int, hide: str = "none") -> TensorDict:
     if hide == "teleport":
         x = x + 0.6 * (behind & ~hidden)
     visible = ~hidden & ~(behind & (hide == "vanish"))
-    objects["position"][:, :, BALL] = torch.stack([x, torch.full_like(x, 0.5),
-                                                   torch.full_like(x, 0.1)], dim=-1)
+    objects["position"][:, :, BALL] = torch.stack(
+        [x, torch.full_like(x, 0.5), torch.full_like(x, 0.1)], dim=-1
+    )
     objects["position"][:, :, SCREEN, 0] = screen[:, None]
     objects["position"][:, :, SCREEN, 2] = 0.3
-    for index, (shape, size, color) in {BALL: ("sphere", 0.1, (0.9, 0.1, 0.1)),
-                                         SCREEN: ("box", 0.25, (0.2, 0.2, 0.9))}.items():
+    for index, (shape, size, color) in {
+        BALL: ("sphere", 0.1, (0.9, 0.1, 0.1)),
+        SCREEN: ("box", 0.25, (0.2, 0.2, 0.9)),
+    }.items():
         objects["orientation"][:, :, index, 0] = 1.0
         objects["size"][:, :, index] = size
         objects["shape_label"][:, :, index] = specs.OBJECT_SHAPES.index(shape)
         objects["color"][:, :, index] = torch.tensor(color)
     objects["visible_fraction"][:, :, BALL] = 0.01 * visible
     objects["visible_fraction"][:, :, SCREEN] = 0.1
-    return TensorDict({
-        "frames": torch.zeros(count, FRAMES, 8, 8, 3, dtype=torch.uint8),
-        "camera": CAMERA.expand(count, FRAMES, 6).clone(),
-        "objects": objects,
-    }, batch_size=[count])
+    return TensorDict(
+        {
+            "frames": torch.zeros(count, FRAMES, 8, 8, 3, dtype=torch.uint8),
+            "camera": CAMERA.expand(count, FRAMES, 6).clone(),
+            "objects": objects,
+        },
+        batch_size=[count],
+    )
 
 
 def video_surprise(model: ObjectStateModel, clips: TensorDict) -> torch.Tensor:
-    return model.surprise(clips["frames"], camera=clips["camera"],
-                          objects=clips["objects"]).sum(-1)
+    return model.surprise(clips["frames"], camera=clips["camera"], objects=clips["objects"]).sum(-1)
 
 
 def test_hidden_states_never_reach_the_model():
@@ -94,13 +110,17 @@ def test_hidden_states_never_reach_the_model():
     altered["objects", "shape_label"][hidden] = specs.OBJECT_SHAPES.index("capsule")
     surprise = model.surprise(clips["frames"], camera=clips["camera"], objects=clips["objects"])
     assert surprise.shape == (4, FRAMES) and bool((surprise[:, 0] == 0).all())
-    assert torch.equal(surprise, model.surprise(altered["frames"], camera=altered["camera"],
-                                                objects=altered["objects"]))
-    expected = model.expected_frames(clips["frames"], camera=clips["camera"],
-                                     objects=clips["objects"])
+    assert torch.equal(
+        surprise,
+        model.surprise(altered["frames"], camera=altered["camera"], objects=altered["objects"]),
+    )
+    expected = model.expected_frames(
+        clips["frames"], camera=clips["camera"], objects=clips["objects"]
+    )
     assert expected.shape == (4, FRAMES, 3, 8, 8) and 0 <= expected.min() <= expected.max() <= 1
-    assert model.trajectories(clips["frames"], camera=clips["camera"],
-                              objects=clips["objects"])["slots"].shape == (4, FRAMES, 16)
+    assert model.trajectories(clips["frames"], camera=clips["camera"], objects=clips["objects"])[
+        "slots"
+    ].shape == (4, FRAMES, 16)
 
 
 def test_withheld_observations_reach_only_the_score():
@@ -114,8 +134,10 @@ def test_withheld_observations_reach_only_the_score():
     assert 0.4 < float((lengths > 0).float().mean()) < 0.6 and int(lengths.max()) <= 4
     starts = withheld.float().argmax(1)
     span = torch.arange(FRAMES)[None, :, None]
-    assert torch.equal(withheld, (lengths > 0)[:, None] & (span >= starts[:, None])
-                       & (span < (starts + lengths)[:, None]))
+    assert torch.equal(
+        withheld,
+        (lengths > 0)[:, None] & (span >= starts[:, None]) & (span < (starts + lengths)[:, None]),
+    )
     assert withheld_spans(torch.Size([2, FRAMES, 3]), 0.0, 4, torch.device("cpu")) is None
 
     model = plain(hidden_size=16, message_size=8)
@@ -136,17 +158,22 @@ def test_withheld_observations_reach_only_the_score():
     assert bool((out["state"][:, 1:3, ball] != out_moved["state"][:, 1:3, ball]).all())
 
 
-def _two_objects(first_x: torch.Tensor, second_x: torch.Tensor, visible: torch.Tensor
-                 ) -> Observations:
+def _two_objects(
+    first_x: torch.Tensor, second_x: torch.Tensor, visible: torch.Tensor
+) -> Observations:
     """Observations of two 0.2 m cubes 0.1 m above the floor at the given x per frame [T]."""
     steps = first_x.shape[0]
     state = torch.zeros(1, steps, 2, 13)
     state[..., 2], state[..., 3], state[..., 7:10] = 0.1, 1.0, 0.1  # z, w, half-sizes
     state[0, :, 0, 0], state[0, :, 1, 0] = first_x, second_x
-    return Observations(ids=torch.tensor([[1, 2]]), state=state * visible[..., None],
-                        shape=F.one_hot(torch.full((1, steps, 2), 2), 7).float(),
-                        fraction=visible.float(), visible=visible,
-                        camera=CAMERA.expand(1, steps, 6))
+    return Observations(
+        ids=torch.tensor([[1, 2]]),
+        state=state * visible[..., None],
+        shape=F.one_hot(torch.full((1, steps, 2), 2), 7).float(),
+        fraction=visible.float(),
+        visible=visible,
+        camera=CAMERA.expand(1, steps, 6),
+    )
 
 
 @pytest.mark.parametrize("carry", ["support", "none"])
@@ -161,18 +188,22 @@ def test_a_cube_hidden_in_a_sliding_container_keeps_its_place_in_it(carry):
     state[..., 3] = 1.0
     state[0, :, 0, :3] = torch.stack([slide, torch.zeros(steps), torch.full((steps,), 0.25)], -1)
     state[0, :, 0, 7:10] = torch.tensor([0.35, 0.25, 0.25])  # an open container
-    state[0, :, 1, :3] = torch.stack([slide + 0.1, torch.zeros(steps),
-                                      torch.full((steps,), 0.13)], -1)
+    state[0, :, 1, :3] = torch.stack(
+        [slide + 0.1, torch.zeros(steps), torch.full((steps,), 0.13)], -1
+    )
     state[0, :, 1, 7:10] = 0.09  # a cube on its bottom
     visible = torch.ones(1, steps, 2, dtype=torch.bool)
     visible[0, 1:, 1] = False
     labels = torch.tensor([specs.OBJECT_SHAPES.index("compound"), specs.OBJECT_SHAPES.index("box")])
     observations = Observations(
-        ids=torch.tensor([[1, 2]]), state=state * visible[..., None],
-        shape=F.one_hot(labels, 7).float().expand(1, steps, 2, 7), fraction=visible.float(),
-        visible=visible, camera=torch.tensor([0.0, 0.0, 0.4, 3.0, 90.0, -30.0]).expand(1, steps, 6))
-    model = plain(hidden_size=16, message_size=8, components=3, stop_component=True,
-                  carry=carry)
+        ids=torch.tensor([[1, 2]]),
+        state=state * visible[..., None],
+        shape=F.one_hot(labels, 7).float().expand(1, steps, 2, 7),
+        fraction=visible.float(),
+        visible=visible,
+        camera=torch.tensor([0.0, 0.0, 0.4, 3.0, 90.0, -30.0]).expand(1, steps, 6),
+    )
+    model = plain(hidden_size=16, message_size=8, components=3, stop_component=True, carry=carry)
     last = model.dynamics[-1]
     torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
     with torch.no_grad():
@@ -180,9 +211,12 @@ def test_a_cube_hidden_in_a_sliding_container_keeps_its_place_in_it(carry):
     cube_x = out["belief"][0, 1:, 1, 0]
     expected = slide[1:] + 0.1 if carry == "support" else torch.full((steps - 1,), 0.1)
     torch.testing.assert_close(cube_x, expected)
-    geometry = seen_by_geometry(out["predicted"][0, 1:], observations.shape[0, 1:],
-                                torch.ones(steps - 1, 2, dtype=torch.bool),
-                                observations.camera[0, 1:])[:, 1]
+    geometry = seen_by_geometry(
+        out["predicted"][0, 1:],
+        observations.shape[0, 1:],
+        torch.ones(steps - 1, 2, dtype=torch.bool),
+        observations.camera[0, 1:],
+    )[:, 1]
     assert (geometry < 0.1).all() == (carry == "support"), geometry
 
 
@@ -195,8 +229,7 @@ def test_what_lay_still_stays_still_unseen(hold_still):
     steps = 7
     visible = torch.ones(1, steps, 2, dtype=torch.bool)
     visible[0, 3:] = False
-    observations = _two_objects(0.1 * torch.arange(steps + 0.0), torch.full((steps,), 0.5),
-                                visible)
+    observations = _two_objects(0.1 * torch.arange(steps + 0.0), torch.full((steps,), 0.5), visible)
     model = plain(hidden_size=16, message_size=8, hold_still=hold_still)
     last = model.dynamics[-1]
     torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
@@ -239,13 +272,23 @@ def test_slowing_brakes_only_along_the_floor_and_never_turns_back():
     """``slowed``: the opposing part of the change shortens the move along the floor, a change
     that speeds up or turns it leaves the move as it was, the vertical move is untouched, and a
     brake larger than the move stops it (no reversal); no gradient is lost at standstill."""
-    move = torch.tensor([[0.3, 0.4, -0.2], [0.3, 0.4, -0.2], [0.1, 0.0, 0.0], [0.0, 0.0, 0.0],
-                         [0.2, 0.0, 0.0]], requires_grad=True)
-    change = torch.tensor([[-0.03, -0.04, 0.5], [0.03, 0.04, 0.0], [-0.5, 0.0, 0.0],
-                           [-0.1, 0.0, 0.0], [0.0, 0.3, 0.0]])
+    move = torch.tensor(
+        [[0.3, 0.4, -0.2], [0.3, 0.4, -0.2], [0.1, 0.0, 0.0], [0.0, 0.0, 0.0], [0.2, 0.0, 0.0]],
+        requires_grad=True,
+    )
+    change = torch.tensor(
+        [
+            [-0.03, -0.04, 0.5],
+            [0.03, 0.04, 0.0],
+            [-0.5, 0.0, 0.0],
+            [-0.1, 0.0, 0.0],
+            [0.0, 0.3, 0.0],
+        ]
+    )
     next_move = slowed(move, change)
-    expected = torch.tensor([[0.27, 0.36, -0.2], [0.3, 0.4, -0.2], [0.0, 0.0, 0.0],
-                             [0.0, 0.0, 0.0], [0.2, 0.0, 0.0]])
+    expected = torch.tensor(
+        [[0.27, 0.36, -0.2], [0.3, 0.4, -0.2], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.2, 0.0, 0.0]]
+    )
     torch.testing.assert_close(next_move, expected)
     next_move.sum().backward()
     assert torch.isfinite(move.grad).all()
@@ -258,11 +301,19 @@ def test_nothing_stops_in_mid_air(falling_lands):
     while a cube sliding along the floor is still held where it is; without it, both are
     held. The left-out Gaussian leaves the likelihood finite."""
     steps = 5
-    observations = _two_objects(torch.zeros(steps), 0.1 * torch.arange(steps + 0.0),
-                                torch.ones(1, steps, 2, dtype=torch.bool))
+    observations = _two_objects(
+        torch.zeros(steps),
+        0.1 * torch.arange(steps + 0.0),
+        torch.ones(1, steps, 2, dtype=torch.bool),
+    )
     observations.state[0, :, 0, 2] = 2.0 - 0.2 * torch.arange(steps + 0.0)
-    model = plain(hidden_size=16, message_size=8, components=2, stop_component=True,
-                  falling_lands=falling_lands)
+    model = plain(
+        hidden_size=16,
+        message_size=8,
+        components=2,
+        stop_component=True,
+        falling_lands=falling_lands,
+    )
     last = model.dynamics[-1]
     torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
     with torch.no_grad():
@@ -282,12 +333,16 @@ def test_what_falls_falls_faster(fall_gain):
     gain, while a cube sliding along the floor and one rising keep their last move; without
     it, every one keeps its last move."""
     steps = 5
-    observations = _two_objects(torch.zeros(steps), 0.1 * torch.arange(steps + 0.0),
-                                torch.ones(1, steps, 2, dtype=torch.bool))
+    observations = _two_objects(
+        torch.zeros(steps),
+        0.1 * torch.arange(steps + 0.0),
+        torch.ones(1, steps, 2, dtype=torch.bool),
+    )
     drop = 0.05 * torch.arange(steps + 0.0) * (torch.arange(steps + 0.0) + 1)  # 0, .1, .3, .6
     observations.state[0, :, 0, 2] = 2.0 - drop
-    rising = _two_objects(torch.zeros(steps), torch.zeros(steps),
-                          torch.ones(1, steps, 2, dtype=torch.bool))
+    rising = _two_objects(
+        torch.zeros(steps), torch.zeros(steps), torch.ones(1, steps, 2, dtype=torch.bool)
+    )
     rising.state[0, :, 0, 2] = 0.1 + 0.1 * torch.arange(steps + 0.0)
     model = plain(hidden_size=16, message_size=8, fall_gain=fall_gain)
     last = model.dynamics[-1]
@@ -312,13 +367,23 @@ def test_shared_identity_makes_every_gaussian_predict_the_object_it_is(shared):
     Gaussians disagree about them."""
     torch.manual_seed(0)
     steps = 4
-    observations = _two_objects(0.1 * torch.arange(steps + 0.0), torch.full((steps,), 0.5),
-                                torch.ones(1, steps, 2, dtype=torch.bool))
+    observations = _two_objects(
+        0.1 * torch.arange(steps + 0.0),
+        torch.full((steps,), 0.5),
+        torch.ones(1, steps, 2, dtype=torch.bool),
+    )
     observations.state[0, :, :, 10:] = torch.tensor([0.2, 0.4, 0.6])
     observations.state[0, -1, 0, 10:] = torch.tensor([0.9, 0.1, 0.1])  # recoloured when seen
-    model = plain(hidden_size=16, message_size=8, components=4, stop_component=True,
-                  landing_component=True, pivot_landing=True,
-                  hard_assignment=True, shared_identity=shared)
+    model = plain(
+        hidden_size=16,
+        message_size=8,
+        components=4,
+        stop_component=True,
+        landing_component=True,
+        pivot_landing=True,
+        hard_assignment=True,
+        shared_identity=shared,
+    )
     caught = []
 
     def spy(observed, means, log_std, logits, hard=False):
@@ -331,8 +396,9 @@ def test_shared_identity_makes_every_gaussian_predict_the_object_it_is(shared):
         identity = means[..., 7:]  # [B, S, K, 6]
         spread = log_std[..., 7:]
         if shared:
-            torch.testing.assert_close(identity, observations.state[:, t - 1, :, None, 7:]
-                                       .expand_as(identity))
+            torch.testing.assert_close(
+                identity, observations.state[:, t - 1, :, None, 7:].expand_as(identity)
+            )
             torch.testing.assert_close(spread, spread[:, :, :1].expand_as(spread))
             costs = gaussian_nll(observed[..., None, 7:], identity, spread)[0]
             torch.testing.assert_close(costs, costs[:, :, :1].expand_as(costs))
@@ -349,11 +415,21 @@ def test_without_a_landing_change_the_landing_gaussian_is_the_geometrys(landing_
     the landing mean moves too."""
     torch.manual_seed(0)
     steps = 4
-    observations = _two_objects(0.1 * torch.arange(steps + 0.0), torch.full((steps,), 0.5),
-                                torch.ones(1, steps, 2, dtype=torch.bool))
-    model = plain(hidden_size=16, message_size=8, components=4, stop_component=True,
-                  landing_component=True, pivot_landing=True, hard_assignment=True,
-                  landing_change=landing_change)
+    observations = _two_objects(
+        0.1 * torch.arange(steps + 0.0),
+        torch.full((steps,), 0.5),
+        torch.ones(1, steps, 2, dtype=torch.bool),
+    )
+    model = plain(
+        hidden_size=16,
+        message_size=8,
+        components=4,
+        stop_component=True,
+        landing_component=True,
+        pivot_landing=True,
+        hard_assignment=True,
+        landing_change=landing_change,
+    )
     caught = []
 
     def spy(observed, means, log_std, logits, hard=False):
@@ -383,8 +459,11 @@ def test_the_stop_component_holds_an_object_where_it_is(favoured):
     object is, the second where its inertia takes it; the belief follows the one the logits
     favour, and the state's NLL is that mixture's."""
     steps = 5
-    observations = _two_objects(0.1 * torch.arange(steps + 0.0), torch.full((steps,), 2.0),
-                                torch.ones(1, steps, 2, dtype=torch.bool))
+    observations = _two_objects(
+        0.1 * torch.arange(steps + 0.0),
+        torch.full((steps,), 2.0),
+        torch.ones(1, steps, 2, dtype=torch.bool),
+    )
     model = plain(hidden_size=16, message_size=8, components=2, stop_component=True)
     last = model.dynamics[-1]
     torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
@@ -417,17 +496,19 @@ def test_the_landing_component_lays_a_falling_plank_flat_on_the_floor(favoured):
     state[..., 7:10] = torch.tensor([0.6, 0.9, 0.03])
     state[0, :, 0, 2] = torch.tensor([2.4, 2.0, 1.6, 1.2])  # falling 0.4 m a frame
     observations = Observations(
-        ids=torch.tensor([[1]]), state=state, shape=F.one_hot(torch.full((1, steps, 1), 2),
-                                                             7).float(),
-        fraction=torch.ones(1, steps, 1), visible=torch.ones(1, steps, 1, dtype=torch.bool),
-        camera=CAMERA.expand(1, steps, 6))
-    model = plain(hidden_size=16, message_size=8, components=2,
-                  landing_component=True)
+        ids=torch.tensor([[1]]),
+        state=state,
+        shape=F.one_hot(torch.full((1, steps, 1), 2), 7).float(),
+        fraction=torch.ones(1, steps, 1),
+        visible=torch.ones(1, steps, 1, dtype=torch.bool),
+        camera=CAMERA.expand(1, steps, 6),
+    )
+    model = plain(hidden_size=16, message_size=8, components=2, landing_component=True)
     last = model.dynamics[-1]
     torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
     with torch.no_grad():
         last.bias[2 * 2 * 13 + favoured] = 5.0  # the favoured component's logit
-        last.bias[13 + 7:2 * 13] = 0.3  # a change of the landing one's size and colour
+        last.bias[13 + 7 : 2 * 13] = 0.3  # a change of the landing one's size and colour
         predicted = model.rollout(observations)["predicted"][0, 2:, 0]
     fallen = state[0, 1:-1, 0].clone()
     fallen[:, 2] -= 0.4  # the last move repeated
@@ -440,11 +521,15 @@ def test_hard_assignment_scores_training_by_the_best_gaussian_and_surprise_by_th
     """``hard_assignment``: in training the state term is the best-explaining Gaussian's alone
     (at least the mixture's), in evaluation the whole mixture's, as without the option."""
     steps = 5
-    observations = _two_objects(0.1 * torch.arange(steps + 0.0), torch.full((steps,), 2.0),
-                                torch.ones(1, steps, 2, dtype=torch.bool))
+    observations = _two_objects(
+        0.1 * torch.arange(steps + 0.0),
+        torch.full((steps,), 2.0),
+        torch.ones(1, steps, 2, dtype=torch.bool),
+    )
     torch.manual_seed(0)
-    hard = plain(hidden_size=16, message_size=8, components=2, stop_component=True,
-                 hard_assignment=True)
+    hard = plain(
+        hidden_size=16, message_size=8, components=2, stop_component=True, hard_assignment=True
+    )
     torch.manual_seed(0)
     soft = plain(hidden_size=16, message_size=8, components=2, stop_component=True)
     with torch.no_grad():
@@ -459,14 +544,20 @@ def test_hard_assignment_scores_training_by_the_best_gaussian_and_surprise_by_th
 def test_the_stop_and_landing_components_need_others_and_carry_a_known_choice():
     with pytest.raises(ValueError, match="stop_component needs components >= 2"):
         plain(components=1, stop_component=True)
-    with pytest.raises(ValueError, match="landing_component needs components >= 3 .*one for "
-                                         "stopping.*got components=2"):
+    with pytest.raises(
+        ValueError,
+        match="landing_component needs components >= 3 .*one for stopping.*got components=2",
+    ):
         plain(components=2, stop_component=True, landing_component=True)
-    with pytest.raises(ValueError, match="pivot_landing needs landing_component: true.*got "
-                                         "landing_component=false"):
+    with pytest.raises(
+        ValueError, match="pivot_landing needs landing_component: true.*got landing_component=false"
+    ):
         plain(components=3, pivot_landing=True)
-    with pytest.raises(ValueError, match=r"carry must be one of \('none', 'support'\).*got "
-                                         r"'velocity'"):
+    with pytest.raises(
+        ValueError,
+        match=r"carry must be one of \('none', 'support'\).*got "
+        r"'velocity'",
+    ):
         plain(carry="velocity")
     with pytest.raises(ValueError, match="carry: support needs stop_component: true"):
         plain(components=3, carry="support")
@@ -502,8 +593,9 @@ def test_the_mixture_likelihood_is_scipys_and_its_entropy_the_expected_surprisal
     value = torch.randn(5, 4, generator=generator, dtype=torch.float64)
     nll, _ = mixture_nll(value, means, log_std, logits)
     log_weight = scipy.special.log_softmax(logits.numpy(), axis=-1)
-    log_density = scipy.stats.norm.logpdf(value.numpy()[:, None], means.numpy(),
-                                          np.exp(log_std.numpy())).sum(-1)
+    log_density = scipy.stats.norm.logpdf(
+        value.numpy()[:, None], means.numpy(), np.exp(log_std.numpy())
+    ).sum(-1)
     expected = -scipy.special.logsumexp(log_weight + log_density, axis=-1)
     np.testing.assert_allclose(nll.numpy(), expected, rtol=1e-10)
     hard, _ = mixture_nll(value, means, log_std, logits, hard=True)  # the best component's
@@ -519,14 +611,19 @@ def test_the_mixture_likelihood_is_scipys_and_its_entropy_the_expected_surprisal
     component = rng.choice(3, size=20000, p=np.exp(log_weight[0]))
     draws = rng.normal(spread[0].numpy()[component], np.exp(log_std[0].numpy())[component])
     draws = torch.from_numpy(draws)
-    surprisal, _ = mixture_nll(draws, spread.expand(20000, -1, -1),
-                               log_std[:1].expand(20000, -1, -1), logits[:1].expand(20000, -1))
+    surprisal, _ = mixture_nll(
+        draws,
+        spread.expand(20000, -1, -1),
+        log_std[:1].expand(20000, -1, -1),
+        logits[:1].expand(20000, -1),
+    )
     assert float(entropy) == pytest.approx(float(surprisal.mean()), abs=0.05)
 
 
 @pytest.mark.parametrize("components", [1, 3])
 def test_after_training_it_tracks_a_hidden_ball_and_a_vanishing_or_teleport_surprises_it(
-        components):
+    components,
+):
     """Trained on physical clips only, the model tracks the hidden ball: where it reappears,
     it is expected to be seen, and where, far better than by the untrained model; and the same
     ball vanishing behind the screen or reappearing too far on is more surprising than
@@ -540,16 +637,16 @@ def test_after_training_it_tracks_a_hidden_ball_and_a_vanishing_or_teleport_surp
     optimization = adam(model.parameters(), 3e-3, "cosine", max_steps=300)
     optimizer, schedule = optimization["optimizer"], optimization["lr_scheduler"]["scheduler"]
     consistent = scripted_clips(32, seed=7)
-    inconsistent = {hide: scripted_clips(32, seed=7, hide=hide)
-                    for hide in ("vanish", "teleport")}
+    inconsistent = {hide: scripted_clips(32, seed=7, hide=hide) for hide in ("vanish", "teleport")}
     visible = consistent["objects", "visible_fraction"][:, :, BALL] > 0
     reappears = visible[:, 1:] & ~visible[:, :-1]  # [N, T - 1]: seen again at t + 1
 
     @torch.no_grad()
     def reappearance() -> tuple[float, float]:
         """Mean p(seen) and position error (m) of the ball where it reappears."""
-        observations = model._inputs(consistent["frames"], consistent["objects"],
-                                     consistent["camera"])
+        observations = model._inputs(
+            consistent["frames"], consistent["objects"], consistent["camera"]
+        )
         out = model.rollout(observations)
         ball = 0  # both are seen at frame 0: slots follow the ids
         assert bool((observations.ids[:, ball] == BALL).all())
@@ -582,16 +679,27 @@ def test_fit_then_test_through_the_cli_writes_a_report(tmp_path, monkeypatch):
 
     monkeypatch.chdir(tmp_path)
     config = str(Path(__file__).parent / "configs" / "tiny.yaml")
-    model = ["--model", "voe_lightning.model.ObjectStateModel",
-             "--model.init_args.hidden_size", "16", "--model.init_args.message_size", "8"]
+    model = [
+        "--model",
+        "voe_lightning.model.ObjectStateModel",
+        "--model.init_args.hidden_size",
+        "16",
+        "--model.init_args.message_size",
+        "8",
+    ]
     main(["fit", "--config", config, *model])
     run = tmp_path / "runs" / "tiny" / "version_0"
-    main(["test", "--config", config, *model,
-          "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
+    main(
+        ["test", "--config", config, *model, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")]
+    )
     report = run / "voe_report"
     assert "excess surprisal" in (report / "summary.md").read_text()
-    for name in ("pairs.csv", "cues.md", "predictions_object_persistence.png",
-                 "tsne_object_persistence.png"):
+    for name in (
+        "pairs.csv",
+        "cues.md",
+        "predictions_object_persistence.png",
+        "tsne_object_persistence.png",
+    ):
         assert (report / name).stat().st_size > 0, name
 
 

@@ -7,10 +7,10 @@ import importlib
 import pytest
 import torch
 import yaml
+from test_cli import CONFIG, copy_of
+from test_configs import parsed
 
 from datamodules import JointDataModule, VOEDataModule
-from test_cli import CONFIG, copy_of, trained, workdir  # noqa: F401 (fixtures)
-from test_configs import parsed
 from voe_lightning import specs
 from voe_lightning.cli import main
 from voe_lightning.model import VRNNLRUModel
@@ -32,8 +32,10 @@ def test_the_joint_datamodule_is_the_voe_datamodule_with_its_defaults():
 def test_a_saved_config_naming_the_old_classes_parses(workdir):
     config = yaml.safe_load(open(CONFIG))
     config["model"]["class_path"] = "voe_lightning.model.VOEModel"
-    config["data"] = {"class_path": "datamodules.JointDataModule",
-                      "init_args": {"root": "data/tiny", "train_examples": 4, "val_pairs": 2}}
+    config["data"] = {
+        "class_path": "datamodules.JointDataModule",
+        "init_args": {"root": "data/tiny", "train_examples": 4, "val_pairs": 2},
+    }
     (workdir / "old.yaml").write_text(yaml.safe_dump(config))
     full = parsed("fit", "--config", str(workdir / "old.yaml"))
     assert full["model"]["init_args"]["latent_size"] == 8
@@ -48,7 +50,8 @@ def test_a_checkpoint_saved_under_the_old_model_name_tests(workdir, trained, cla
     assert stored["hyper_parameters"]["_class_path"].endswith(".VRNNLRUModel")
     stored["hyper_parameters"]["_class_path"] = class_path
     torch.save(stored, checkpoint)
-    assert isinstance(VRNNLRUModel.load_from_checkpoint(checkpoint, weights_only=True),
-                      VRNNLRUModel)
+    assert isinstance(
+        VRNNLRUModel.load_from_checkpoint(checkpoint, weights_only=True), VRNNLRUModel
+    )
     main(["test", "--config", CONFIG, "--ckpt_path", str(checkpoint)])
     assert (run / "voe_report" / "summary.json").is_file()

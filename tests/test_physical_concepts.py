@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from benchmark_quadruplets import check_quadruplet_rows
 from tfrecord.writer import TFRecordWriter
 
 import voe_lightning.external.physical_concepts as physical_concepts
 from datamodules.physical_concepts import PhysicalConceptsDataModule
-from benchmark_quadruplets import check_quadruplet_rows
 from voe_lightning.external.base import BenchmarkDataError
 from voe_lightning.external.evaluation import external_metrics
 from voe_lightning.external.physical_concepts import read_records
@@ -192,8 +192,12 @@ def test_probe_quadruplets_become_pairs_recovered_from_divergence(dataset_root):
         assert probe["camera"][:, 0].tolist() == [100 * pair + t for t in SAMPLED]
         assert set(probe["consistent", "mask"].unique().tolist()) == {0, 1 + pair}
     assert [dm.concept_names[c] for c in probes["concept"].unique().tolist()] == CONCEPTS
-    assert dm.probe_cases() == [("continuity", "standard"), ("continuity", "counterbalanced"),
-                                ("solidity", "standard"), ("solidity", "counterbalanced")]
+    assert dm.probe_cases() == [
+        ("continuity", "standard"),
+        ("continuity", "counterbalanced"),
+        ("solidity", "standard"),
+        ("solidity", "counterbalanced"),
+    ]
     validation = torch.cat(list(dm.val_dataloader()))
     assert validation.batch_size == torch.Size([4])  # 1 quadruplet per concept
 
@@ -365,12 +369,16 @@ def test_bad_arguments_name_the_valid_choices(tmp_path):
         datamodule(tmp_path).setup("test")
 
 
-@pytest.mark.parametrize("content", [b"", gzip.compress(b"")], ids=["zero_bytes", "gzip_of_nothing"])
+@pytest.mark.parametrize(
+    "content", [b"", gzip.compress(b"")], ids=["zero_bytes", "gzip_of_nothing"]
+)
 def test_an_empty_shard_is_an_error_or_a_counted_skip(tmp_path, content):
     """Issue 10 case 6: an empty file is not a shard of zero records."""
     path = tmp_path / "data.tfrecord-00000-of-00001"
     path.write_bytes(content)
-    with pytest.raises(BenchmarkDataError, match=rf"{path}: empty \({len(content)} bytes, no records\)"):
+    with pytest.raises(
+        BenchmarkDataError, match=rf"{path}: empty \({len(content)} bytes, no records\)"
+    ):
         list(read_records(path))
     skipped = []
     assert list(read_records(path, skip=skipped.append)) == []
@@ -384,5 +392,6 @@ def test_a_report_tests_each_concept_over_its_quadruplets(dataset_root):
     dm = datamodule(dataset_root)
     dm.setup("test")
     probes = torch.cat(list(dm.test_dataloader()))
-    check_quadruplet_rows(probes, dm.concept_names, dm.variant_names,
-                          {concept: 4 for concept in CONCEPTS})  # 2 shards x 2 records
+    check_quadruplet_rows(
+        probes, dm.concept_names, dm.variant_names, {concept: 4 for concept in CONCEPTS}
+    )  # 2 shards x 2 records

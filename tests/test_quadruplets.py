@@ -17,8 +17,11 @@ from voe_lightning.scenes import generate_probe
 SPLICE_SEEDS = int(os.environ.get("VOE_QUADRUPLET_SEEDS", "50"))
 SIZE = 32
 #: (concept, quadruplet row, its two halves) for every quadruplet.
-QUADRUPLETS = [(concept, row, halves) for concept, rows in specs.QUADRUPLETS.items()
-               for row, halves in rows.items()]
+QUADRUPLETS = [
+    (concept, row, halves)
+    for concept, rows in specs.QUADRUPLETS.items()
+    for row, halves in rows.items()
+]
 IDS = [row if row != specs.QUADRUPLET else concept for concept, row, _ in QUADRUPLETS]
 
 
@@ -36,15 +39,17 @@ def _check_splice(first, second, where: str) -> None:
     for key in first["consistent"].keys(include_nested=True, leaves_only=True):
         a, ab = first["consistent"][key], first["inconsistent"][key]
         b, ba = second["consistent"][key], second["inconsistent"][key]
-        assert torch.equal(ab[m + 1:], b[m + 1:]), f"{where}: AB is not B after m in {key}"
-        assert torch.equal(ba[m + 1:], a[m + 1:]), f"{where}: BA is not A after m in {key}"
+        assert torch.equal(ab[m + 1 :], b[m + 1 :]), f"{where}: AB is not B after m in {key}"
+        assert torch.equal(ba[m + 1 :], a[m + 1 :]), f"{where}: BA is not A after m in {key}"
         assert torch.equal(ab[: m + 1], a[: m + 1]), f"{where}: AB is not A through m in {key}"
         assert torch.equal(ba[: m + 1], b[: m + 1]), f"{where}: BA is not B through m in {key}"
     for key in ("frames", "mask"):
         assert torch.equal(first["consistent", key][m], second["consistent", key][m]), (
-            f"{where}: A and B differ at m in {key}")
+            f"{where}: A and B differ at m in {key}"
+        )
     assert not torch.equal(first["consistent", "frames"], second["consistent", "frames"]), (
-        f"{where}: A and B are one video")
+        f"{where}: A and B are one video"
+    )
 
 
 @pytest.mark.parametrize(("concept", "row", "halves"), QUADRUPLETS, ids=IDS)
@@ -85,8 +90,12 @@ def test_post_change_scorers_give_every_quadruplet_d_zero_exactly(quadruplets):
     quadruplet, so the quadruplet test says every d = 0, p = 1."""
     concept, _, (first, second) = quadruplets
     torch.manual_seed(0)
-    net = torch.nn.Sequential(torch.nn.Conv2d(3, 8, 3, padding=1), torch.nn.Tanh(),
-                              torch.nn.Conv2d(8, 1, 3, stride=2), torch.nn.Softplus()).double()
+    net = torch.nn.Sequential(
+        torch.nn.Conv2d(3, 8, 3, padding=1),
+        torch.nn.Tanh(),
+        torch.nn.Conv2d(8, 1, 3, stride=2),
+        torch.nn.Softplus(),
+    ).double()
 
     def scorers(batch, video):
         frames, mask = _after_m(batch, video)
@@ -100,11 +109,15 @@ def test_post_change_scorers_give_every_quadruplet_d_zero_exactly(quadruplets):
 
     for q in range(len(first)):
         # S[half][video]: each score of quadruplet q's four videos (half 0: A, AB; 1: B, BA).
-        s = [{video: scorers(half[q: q + 1], video) for video in ("consistent", "inconsistent")}
-             for half in (first, second)]
+        s = [
+            {video: scorers(half[q : q + 1], video) for video in ("consistent", "inconsistent")}
+            for half in (first, second)
+        ]
         for name in s[0]["consistent"]:
-            d = ((s[0]["inconsistent"][name] - s[0]["consistent"][name])
-                 + (s[1]["inconsistent"][name] - s[1]["consistent"][name])).item()
+            d = (
+                (s[0]["inconsistent"][name] - s[0]["consistent"][name])
+                + (s[1]["inconsistent"][name] - s[1]["consistent"][name])
+            ).item()
             assert d == 0.0, (concept, q, name, d)  # NaN fails too
             assert s[0]["inconsistent"][name] == s[1]["consistent"][name], (concept, q, name)
 
@@ -113,8 +126,9 @@ def test_the_quadruplet_test_of_a_post_change_scorer_is_null(quadruplets):
     """The audit's own quadruplet rows of its frame-local cues, which read frames m.. only
     (linear extrapolation counted from m + 2): M = 0, p = 1."""
     concept, name, (first, second) = quadruplets
-    audit = cues.CueAudit.concatenate([cues.CueAudit.score_batch(first),
-                                       cues.CueAudit.score_batch(second)])
+    audit = cues.CueAudit.concatenate(
+        [cues.CueAudit.score_batch(first), cues.CueAudit.score_batch(second)]
+    )
     rows = [row for row in audit.rows() if row["variant"] in statistics.QUADRUPLET_ROWS]
     assert {(row["concept"], row["variant"]) for row in rows} == {(concept, name)}
     assert rows[0]["n"] == len(first)

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from test_cli import CONFIG, copy_of
 
-from test_cli import CONFIG, copy_of, trained, workdir  # noqa: F401 (fixtures)
 from voe_lightning import generate, generate_manifest, specs, store
 from voe_lightning.cli import main
 from voe_lightning.model.base import SurpriseModel
@@ -70,14 +70,22 @@ def _refused(capsys, arguments: list[str]) -> str:
 
 
 # ----------------------------------------------------------------------------- 1: checkpoints
-@pytest.mark.parametrize("arguments", [
-    ["test", "--config", CONFIG],
-    ["predict", "--config", str(CONFIGS / "intphys_dev.yaml"),
-     "--config", str(CONFIGS / "overlays" / "intphys_test.yaml"),
-     "--data.init_args.root", "nowhere"],
-])
-def test_a_trainable_model_without_checkpoint_is_refused_naming_the_fix(workdir, capsys,
-                                                                        arguments):
+@pytest.mark.parametrize(
+    "arguments",
+    [
+        ["test", "--config", CONFIG],
+        [
+            "predict",
+            "--config",
+            str(CONFIGS / "intphys_dev.yaml"),
+            "--config",
+            str(CONFIGS / "overlays" / "intphys_test.yaml"),
+            "--data.init_args.root",
+            "nowhere",
+        ],
+    ],
+)
+def test_a_trainable_model_without_checkpoint_is_refused_naming_the_fix(workdir, capsys, arguments):
     line = _refused(capsys, arguments)
     assert "untrained weights of VRNNLRUModel" in line and "--ckpt_path" in line
     assert not (workdir / "data").exists() and not list(workdir.rglob("voe_report"))
@@ -91,41 +99,75 @@ def test_a_model_without_parameters_needs_no_checkpoint(workdir):
     assert source["concepts"] == ["object_persistence"] and source["data_root"] == "data/tiny"
 
 
-def test_last_is_the_newest_run_and_the_report_names_what_it_was_made_from(workdir, trained,
-                                                                            capsys):
+def test_last_is_the_newest_run_and_the_report_names_what_it_was_made_from(
+    workdir, trained, capsys
+):
     older = copy_of(trained, workdir)
     newer = older.parent / "version_1"
     shutil.copytree(older, newer)
     os.utime(newer / "checkpoints" / "last.ckpt", (time.time() + 5, time.time() + 5))
-    main(["test", "--config", CONFIG, "--trainer.logger.init_args.name", "trained",
-          "--ckpt_path", "last"])
+    main(
+        [
+            "test",
+            "--config",
+            CONFIG,
+            "--trainer.logger.init_args.name",
+            "trained",
+            "--ckpt_path",
+            "last",
+        ]
+    )
     assert f"--ckpt_path last: {Path('runs/trained/version_1/checkpoints/last.ckpt')} (step 1)" in (
-        capsys.readouterr().out)
+        capsys.readouterr().out
+    )
     assert not (older / "voe_report").exists()
     source = json.loads((newer / "voe_report" / "summary.json").read_text())["source"]
-    assert source == {"config": str(Path("runs/trained/version_1/test_config.yaml")),
-                      "checkpoint": str(Path("runs/trained/version_1/checkpoints/last.ckpt")),
-                      "global_step": 1, "datamodule": "datamodules.voe.ConceptDataModule",
-                      "data_root": "data/tiny", "seed_offset": 0, "probe_root": "data/tiny",
-                      "concepts": ["object_persistence"]}
+    assert source == {
+        "config": str(Path("runs/trained/version_1/test_config.yaml")),
+        "checkpoint": str(Path("runs/trained/version_1/checkpoints/last.ckpt")),
+        "global_step": 1,
+        "datamodule": "datamodules.voe.ConceptDataModule",
+        "data_root": "data/tiny",
+        "seed_offset": 0,
+        "probe_root": "data/tiny",
+        "concepts": ["object_persistence"],
+    }
     # fit --ckpt_path last resumes that run (Lightning alone would start again from step 0).
-    cli = main(["fit", "--config", CONFIG, "--trainer.logger.init_args.name", "trained",
-                "--ckpt_path", "last", "--trainer.max_steps", "2"])
+    cli = main(
+        [
+            "fit",
+            "--config",
+            CONFIG,
+            "--trainer.logger.init_args.name",
+            "trained",
+            "--ckpt_path",
+            "last",
+            "--trainer.max_steps",
+            "2",
+        ]
+    )
     assert cli.trainer.global_step == 2
     assert sorted(path.name for path in older.parent.iterdir()) == ["version_0", "version_1"]
 
 
-@pytest.mark.parametrize("word, message", [
-    ("last", "no checkpoint of logger name 'nothing': looked for "
-             f"{Path('runs/nothing/*/checkpoints/last.ckpt')}"),
-    ("best", "monitor no metric"),
-])
-def test_last_or_best_without_such_a_checkpoint_is_refused(workdir, trained, capsys, word,
-                                                           message):
+@pytest.mark.parametrize(
+    "word, message",
+    [
+        (
+            "last",
+            "no checkpoint of logger name 'nothing': looked for "
+            f"{Path('runs/nothing/*/checkpoints/last.ckpt')}",
+        ),
+        ("best", "monitor no metric"),
+    ],
+)
+def test_last_or_best_without_such_a_checkpoint_is_refused(workdir, trained, capsys, word, message):
     copy_of(trained, workdir)
     name = "nothing" if word == "last" else "trained"
-    line = _refused(capsys, ["test", "--config", CONFIG, "--ckpt_path", word,
-                             "--trainer.logger.init_args.name", name])
+    line = _refused(
+        capsys,
+        ["test", "--config", CONFIG, "--ckpt_path", word, "--trainer.logger.init_args.name", name],
+    )
     assert message in line
     assert not (workdir / "data").exists()
 
@@ -148,8 +190,17 @@ def test_a_retest_on_another_concept_gets_its_own_folder_and_no_stale_files(work
     main(["test", "--config", CONFIG, "--ckpt_path", checkpoint])
     assert not (own / "stale.png").exists(), "a rewritten report keeps no earlier file"
     own_summary = (own / "summary.json").read_text()
-    main(["test", "--config", CONFIG, "--ckpt_path", checkpoint,
-          "--data.init_args.concept", "continuity"])
+    main(
+        [
+            "test",
+            "--config",
+            CONFIG,
+            "--ckpt_path",
+            checkpoint,
+            "--data.init_args.concept",
+            "continuity",
+        ]
+    )
     assert (own / "summary.json").read_text() == own_summary
     [other] = [path for path in run.glob("concepts_continuity-*/voe_report")]
     source = json.loads((other / "summary.json").read_text())["source"]
@@ -158,13 +209,16 @@ def test_a_retest_on_another_concept_gets_its_own_folder_and_no_stale_files(work
     assert not list(run.glob(".voe_report*")) and not list(other.parent.glob(".voe_report*"))
 
 
-@pytest.mark.parametrize("first, second", [("alt/one", "alt_one"), ("a/b", "/a/b"),
-                                           ("../x", "x"), ("data/x", "data/x/")])
+@pytest.mark.parametrize(
+    "first, second", [("alt/one", "alt_one"), ("a/b", "/a/b"), ("../x", "x"), ("data/x", "data/x/")]
+)
 def test_two_data_roots_never_share_a_report_folder(tmp_path, monkeypatch, first, second):
     monkeypatch.chdir(tmp_path)
     checkpoint = tmp_path / "runs" / "r" / "version_0" / "checkpoints" / "last.ckpt"
-    folders = [report_folder(checkpoint, root, None, None, "data/trained", None)
-               for root in (first, second)]
+    folders = [
+        report_folder(checkpoint, root, None, None, "data/trained", None)
+        for root in (first, second)
+    ]
     same = Path(first).resolve() == Path(second).resolve()
     assert (folders[0] == folders[1]) == same
     assert report_folder(checkpoint, "data/trained", ["a"], None, "data/trained", ["a"]) is None
@@ -173,17 +227,31 @@ def test_two_data_roots_never_share_a_report_folder(tmp_path, monkeypatch, first
 # ----------------------------------------------------------------------------- 4: preemption
 @pytest.mark.parametrize("signal_name, code", [("SIGTERM", 143), ("SIGINT", 130)])
 def test_a_signal_during_fit_saves_a_resumable_checkpoint_and_exits_non_zero(
-        workdir, capsys, signal_name, code):
+    workdir, capsys, signal_name, code
+):
     config = workdir / "signal.yaml"
-    config.write_text(yaml.safe_dump({"trainer": {"callbacks+": [{
-        "class_path": "test_reliability.SignalAtStep",
-        "init_args": {"step": 3, "signal_name": signal_name}}]}}))
+    config.write_text(
+        yaml.safe_dump(
+            {
+                "trainer": {
+                    "callbacks+": [
+                        {
+                            "class_path": "test_reliability.SignalAtStep",
+                            "init_args": {"step": 3, "signal_name": signal_name},
+                        }
+                    ]
+                }
+            }
+        )
+    )
     with pytest.raises(SystemExit) as raised:
         main(["fit", "--config", CONFIG, "--config", str(config), "--trainer.max_steps", "6"])
     assert raised.value.code == code
     checkpoint = Path("runs/tiny/version_0/checkpoints/last.ckpt")
-    assert (f"fit stopped by {signal_name} at step 3; saved a resumable checkpoint {checkpoint}"
-            in capsys.readouterr().err)
+    assert (
+        f"fit stopped by {signal_name} at step 3; saved a resumable checkpoint {checkpoint}"
+        in capsys.readouterr().err
+    )
     assert torch.load(checkpoint, weights_only=True)["global_step"] == 3
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     cli = main(["fit", "--config", CONFIG, "--trainer.max_steps", "6", "--ckpt_path", "last"])
@@ -192,8 +260,7 @@ def test_a_signal_during_fit_saves_a_resumable_checkpoint_and_exits_non_zero(
 
 
 # ----------------------------------------------------------------------------- 5: manifest
-def test_concurrent_generate_runs_for_two_concepts_keep_both_in_the_manifest(tmp_path,
-                                                                             monkeypatch):
+def test_concurrent_generate_runs_for_two_concepts_keep_both_in_the_manifest(tmp_path, monkeypatch):
     """Each run reads the manifest, pauses (as rendering would), then writes it back."""
     read = store.read_manifest
 
@@ -204,11 +271,19 @@ def test_concurrent_generate_runs_for_two_concepts_keep_both_in_the_manifest(tmp
 
     monkeypatch.setattr(store, "read_manifest", slow_read)
     video = VideoOptions(num_frames=6, height=32, width=32)
-    entries = {concept: generate._prepare(tmp_path, [concept], 2, None, 1, 1, 1, 4, 6, 32, 32, 0)
-               .entries[concept] for concept in ("continuity", "containment")}
-    runs = [threading.Thread(target=generate_manifest.reconcile_manifest,
-                             args=(tmp_path, video, 4, {concept: entry}, False))
-            for concept, entry in entries.items()]
+    entries = {
+        concept: generate._prepare(tmp_path, [concept], 2, None, 1, 1, 1, 4, 6, 32, 32, 0).entries[
+            concept
+        ]
+        for concept in ("continuity", "containment")
+    }
+    runs = [
+        threading.Thread(
+            target=generate_manifest.reconcile_manifest,
+            args=(tmp_path, video, 4, {concept: entry}, False),
+        )
+        for concept, entry in entries.items()
+    ]
     for run in runs:
         run.start()
     for run in runs:
@@ -219,18 +294,25 @@ def test_concurrent_generate_runs_for_two_concepts_keep_both_in_the_manifest(tmp
 # ----------------------------------------------------------------------------- 6: report files
 def _results(pairs: int = 4) -> PairResults:
     rng = np.random.default_rng(0)
-    return PairResults(concept=["continuity"] * pairs, variant=["standard"] * pairs,
-                       seed=np.arange(pairs), manipulation_frame=np.full(pairs, 2),
-                       surprise_consistent=rng.random((pairs, 5)),
-                       surprise_inconsistent=rng.random((pairs, 5)) + 0.1)
+    return PairResults(
+        concept=["continuity"] * pairs,
+        variant=["standard"] * pairs,
+        seed=np.arange(pairs),
+        manipulation_frame=np.full(pairs, 2),
+        surprise_consistent=rng.random((pairs, 5)),
+        surprise_inconsistent=rng.random((pairs, 5)) + 0.1,
+    )
 
 
-@pytest.mark.parametrize("damage, message", [
-    (lambda text: text[:-4] + "\n", "its SHA-256 is not the one .*summary.json recorded"),
-    (lambda text: "\n".join(text.splitlines()[:-1]) + "\n", "holds 3 pairs"),  # a row lost
-    (lambda text: text[: len(text) // 2], "no value for"),  # cut mid-row
-    (lambda text: text.replace(",2,", ",two,", 1), "manipulation_frame is 'two', not a number"),
-])
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (lambda text: text[:-4] + "\n", "its SHA-256 is not the one .*summary.json recorded"),
+        (lambda text: "\n".join(text.splitlines()[:-1]) + "\n", "holds 3 pairs"),  # a row lost
+        (lambda text: text[: len(text) // 2], "no value for"),  # cut mid-row
+        (lambda text: text.replace(",2,", ",two,", 1), "manipulation_frame is 'two', not a number"),
+    ],
+)
 def test_a_damaged_pairs_csv_is_named_as_corrupt(tmp_path, damage, message):
     write_report(_results(), tmp_path, bootstrap=10, echo=False)
     pairs = tmp_path / "voe_report" / "pairs.csv"
@@ -256,12 +338,19 @@ def test_an_interrupted_report_leaves_the_previous_one_whole(tmp_path, monkeypat
 
 
 # ----------------------------------------------------------------------------- one-line errors
-@pytest.mark.parametrize("arguments, message", [
-    (["--data.init_args.test_pairs", "0"], "test_pairs must be an integer of at least 1, got 0"),
-    (["--ckpt_path", "missing.ckpt"], "--ckpt_path 'missing.ckpt' does not exist"),
-])
-def test_a_bad_argument_is_one_line_and_debug_shows_the_traceback(workdir, capsys, arguments,
-                                                                   message):
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        (
+            ["--data.init_args.test_pairs", "0"],
+            "test_pairs must be an integer of at least 1, got 0",
+        ),
+        (["--ckpt_path", "missing.ckpt"], "--ckpt_path 'missing.ckpt' does not exist"),
+    ],
+)
+def test_a_bad_argument_is_one_line_and_debug_shows_the_traceback(
+    workdir, capsys, arguments, message
+):
     assert message in _refused(capsys, ["fit", "--config", CONFIG, *arguments])
     with pytest.raises((ValueError, OSError)):
         main(["fit", "--config", CONFIG, *arguments, "--debug"])
@@ -269,24 +358,43 @@ def test_a_bad_argument_is_one_line_and_debug_shows_the_traceback(workdir, capsy
 
 
 # ----------------------------------------------------------------------------- cross-checks
-@pytest.mark.parametrize("arguments, message", [
-    (["--data.init_args.batch_size", "64"],
-     "data.init_args.batch_size 64 is larger than the 8 training clips"),
-    (["--data.init_args.height", "48"],
-     "model.init_args.image_size [32, 32] differs from the data's height x width 48 x 32"),
-    (["--trainer.max_steps", "-2"], "trainer.max_steps -2: give a number of steps >= 0"),
-])
-def test_arguments_that_contradict_each_other_are_refused_before_rendering(workdir, capsys,
-                                                                           arguments, message):
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        (
+            ["--data.init_args.batch_size", "64"],
+            "data.init_args.batch_size 64 is larger than the 8 training clips",
+        ),
+        (
+            ["--data.init_args.height", "48"],
+            "model.init_args.image_size [32, 32] differs from the data's height x width 48 x 32",
+        ),
+        (["--trainer.max_steps", "-2"], "trainer.max_steps -2: give a number of steps >= 0"),
+    ],
+)
+def test_arguments_that_contradict_each_other_are_refused_before_rendering(
+    workdir, capsys, arguments, message
+):
     assert message in _refused(capsys, ["fit", "--config", CONFIG, *arguments])
     assert not (workdir / "data").exists()
 
 
 def test_a_fit_that_would_never_validate_says_so(workdir):
-    with pytest.warns(UserWarning, match="val_check_interval 5 is larger than trainer.max_steps "
-                                         "1: no validation will run"):
-        main(["fit", "--config", CONFIG, "--trainer.max_steps", "1",
-              "--trainer.val_check_interval", "5"])
+    with pytest.warns(
+        UserWarning,
+        match="val_check_interval 5 is larger than trainer.max_steps 1: no validation will run",
+    ):
+        main(
+            [
+                "fit",
+                "--config",
+                CONFIG,
+                "--trainer.max_steps",
+                "1",
+                "--trainer.val_check_interval",
+                "5",
+            ]
+        )
 
 
 def test_a_truncated_summary_json_is_named(tmp_path, capsys):
@@ -305,17 +413,27 @@ def _retired(checkpoint: Path, workdir: Path) -> Path:
     return workdir / "old.ckpt"
 
 
-@pytest.mark.parametrize("arguments, message", [
-    (["--config", "broken.yaml"], "--config broken.yaml is not valid YAML at line 3, column 1"),
-    (["--trainer.logger.init_args.name", "n" * 300], "is 300 bytes long; a folder name may "
-                                                     "have at most 255"),
-    (["--trainer.logger.init_args.save_dir", "a_file/runs"],
-     f"cannot write the run folder {Path('a_file/runs/tiny')}: a_file is not a writable folder"),
-    (["--data.init_args.root", "a_file"], "data.init_args.root a_file is a file, not a dataset "
-                                          "folder"),
-])
-def test_a_bad_file_or_folder_is_named_in_one_line_before_any_work(workdir, capsys, arguments,
-                                                                   message):
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        (["--config", "broken.yaml"], "--config broken.yaml is not valid YAML at line 3, column 1"),
+        (
+            ["--trainer.logger.init_args.name", "n" * 300],
+            "is 300 bytes long; a folder name may have at most 255",
+        ),
+        (
+            ["--trainer.logger.init_args.save_dir", "a_file/runs"],
+            f"cannot write the run folder {Path('a_file/runs/tiny')}: a_file is not a writable folder",
+        ),
+        (
+            ["--data.init_args.root", "a_file"],
+            "data.init_args.root a_file is a file, not a dataset folder",
+        ),
+    ],
+)
+def test_a_bad_file_or_folder_is_named_in_one_line_before_any_work(
+    workdir, capsys, arguments, message
+):
     (workdir / "broken.yaml").write_text("trainer:\n  max_steps: [1\n")
     (workdir / "a_file").write_text("not a folder")
     assert message in _refused(capsys, ["fit", "--config", CONFIG, *arguments])
@@ -329,15 +447,20 @@ def test_a_checkpoint_argument_the_model_no_longer_takes_is_named(workdir, train
 
 
 def test_predict_with_a_datamodule_that_cannot_predict_is_one_line(workdir, trained, capsys):
-    line = _refused(capsys, ["predict", "--config", CONFIG,
-                             "--ckpt_path", str(trained / "checkpoints" / "last.ckpt")])
+    line = _refused(
+        capsys,
+        ["predict", "--config", CONFIG, "--ckpt_path", str(trained / "checkpoints" / "last.ckpt")],
+    )
     assert "datamodules.ConceptDataModule has none" in line
     assert not (workdir / "data").exists()
 
 
 def test_a_shard_too_large_for_memory_is_warned_of(tmp_path):
-    with pytest.warns(UserWarning, match=r"4096 x 4096 x 15 frames with shard_size 100 hold "
-                                         r"about 187.5 GiB per shard"):
+    with pytest.warns(
+        UserWarning,
+        match=r"4096 x 4096 x 15 frames with shard_size 100 hold "
+        r"about 187.5 GiB per shard",
+    ):
         generate._prepare(tmp_path, ["continuity"], 1, None, 1, 1, 0, 100, 15, 4096, 4096, 0)
 
 
@@ -351,27 +474,60 @@ def test_a_setting_a_scene_cannot_render_is_one_line_before_anything_renders(tmp
     """Solidity's probes need a frame 1 to 1.6 s in with two after it (num_frames >= 5 over
     3 s): generate says so in one line before rendering any shard, of solidity or of a concept
     listed before it."""
-    line = _refused(capsys, ["generate", "--root", str(tmp_path), "--concepts",
-                             "[continuity, solidity]",
-                             "--num_frames", "4", "--height", "32", "--width", "32",
-                             "--train_examples", "1", "--val_pairs", "1", "--test_pairs", "1",
-                             "--generalization_pairs", "0", "--workers", "1",
-                             "--progress", "false"])
+    line = _refused(
+        capsys,
+        [
+            "generate",
+            "--root",
+            str(tmp_path),
+            "--concepts",
+            "[continuity, solidity]",
+            "--num_frames",
+            "4",
+            "--height",
+            "32",
+            "--width",
+            "32",
+            "--train_examples",
+            "1",
+            "--val_pairs",
+            "1",
+            "--test_pairs",
+            "1",
+            "--generalization_pairs",
+            "0",
+            "--workers",
+            "1",
+            "--progress",
+            "false",
+        ],
+    )
     assert "use num_frames >= 5" in line
     assert not list(tmp_path.rglob("*.voe"))  # no shard of either concept rendered
 
 
 def test_a_checkpoint_retested_on_fresh_probes_says_where_and_keeps_the_training_store(
-        workdir, trained, capsys):
+    workdir, trained, capsys
+):
     """Issue 48 part 5: ``--data.init_args.seed_offset N`` generates the test probes into
     data/tiny/seed_offset_<N> (never the training store), and the report, in a folder of its
     own, records the offset in summary.json and summary.md's first line."""
     run = copy_of(trained, workdir)
-    main(["test", "--config", CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt"),
-          "--data.init_args.seed_offset", "1000"])
+    main(
+        [
+            "test",
+            "--config",
+            CONFIG,
+            "--ckpt_path",
+            str(run / "checkpoints" / "last.ckpt"),
+            "--data.init_args.seed_offset",
+            "1000",
+        ]
+    )
     fresh = Path("data/tiny/seed_offset_1000")
     assert f"generating the test split of object_persistence under {fresh}" in (
-        capsys.readouterr().out)
+        capsys.readouterr().out
+    )
     assert sorted(path.name for path in Path("data/tiny").iterdir()) == [fresh.name]
     assert not (run / "voe_report").exists()  # the place of the run's own report
     [report] = [path for path in run.rglob("voe_report") if path.parent != run]
@@ -381,7 +537,8 @@ def test_a_checkpoint_retested_on_fresh_probes_says_where_and_keeps_the_training
     assert summary["source"]["probe_root"] == str(fresh)
     assert (report / "summary.md").read_text().splitlines()[0] == (
         f"Tested: checkpoint {run / 'checkpoints' / 'last.ckpt'} (step 1); the probes of "
-        f"{fresh} (seed offset 1000).")
+        f"{fresh} (seed offset 1000)."
+    )
     seeds = PairResults.from_csv(report / "pairs.csv").seed
     assert set(seeds.tolist()) == {2_000_001_000 + k for k in range(3)}
 
@@ -397,4 +554,5 @@ def test_a_run_saved_before_an_argument_existed_resumes_without_it(tmp_path):
     assert record_differences(saved, given) == []
     given["data"]["init_args"]["root"] = "data/other"
     assert record_differences(saved, given) == [
-        "data.init_args.root: the run trained with 'data/tiny', given 'data/other'"]
+        "data.init_args.root: the run trained with 'data/tiny', given 'data/other'"
+    ]

@@ -19,12 +19,12 @@ import pytest
 import torch
 import yaml
 from rich.console import Console
+from test_analysis import _curve_runs
+from test_cli import CONFIG, copy_of
+from test_intphys2 import FRAMES, SIZE, frame, make_root
+from test_reliability import _refused, _results
 from tfrecord.writer import TFRecordWriter
 
-from test_analysis import _curve_runs
-from test_cli import CONFIG, copy_of, trained, workdir  # noqa: F401 (fixtures)
-from test_intphys2 import FRAMES, SIZE, frame, root  # noqa: F401 (root: a fixture)
-from test_reliability import _refused, _results
 from voe_lightning import store_shards
 from voe_lightning.callbacks import voe_table
 from voe_lightning.causality import check_prefix
@@ -32,7 +32,6 @@ from voe_lightning.cli import NOT_CAUSAL_EXIT, main
 from voe_lightning.external.base import BenchmarkDataError, FrameSampling
 from voe_lightning.external.intphys import read_label
 from voe_lightning.external.intphys2 import ClipSampling, read_metadata, read_video
-from voe_lightning.external.physical_concepts import read_records
 from voe_lightning.external.metrics import (
     plausibility_from_surprise,
     read_answer_file,
@@ -40,11 +39,29 @@ from voe_lightning.external.metrics import (
     score_answers,
     write_answer_file,
 )
+from voe_lightning.external.physical_concepts import read_records
 from voe_lightning.report import write_report
 
-TINY_STORE = ["--num_frames", "6", "--height", "32", "--width", "32", "--train_examples", "1",
-              "--val_pairs", "2", "--test_pairs", "2", "--generalization_pairs", "0",
-              "--workers", "1", "--progress", "false"]
+TINY_STORE = [
+    "--num_frames",
+    "6",
+    "--height",
+    "32",
+    "--width",
+    "32",
+    "--train_examples",
+    "1",
+    "--val_pairs",
+    "2",
+    "--test_pairs",
+    "2",
+    "--generalization_pairs",
+    "0",
+    "--workers",
+    "1",
+    "--progress",
+    "false",
+]
 CALLABLE = ["--model", "voe_lightning.model.CallableModel", "--model.init_args.function"]
 
 
@@ -77,10 +94,20 @@ def test_a_model_that_reads_the_future_gets_no_verdict_and_a_non_zero_exit(workd
     summary = json.loads((report / "summary.json").read_text())
     assert summary["causality"]["causal"] is False
     assert [v["verdict"] for v in summary["verdicts"]] == [
-        "no verdict: the model reads frames after t"]
+        "no verdict: the model reads frames after t"
+    ]
     assert "no verdict: the model reads frames after t" in (report / "summary.md").read_text()
-    main(["test", "--config", CONFIG, *CALLABLE, "test_reliability_three.reads_the_next_frame",
-          "--allow_non_causal", "true"])  # exits 0, the verdict still withheld
+    main(
+        [
+            "test",
+            "--config",
+            CONFIG,
+            *CALLABLE,
+            "test_reliability_three.reads_the_next_frame",
+            "--allow_non_causal",
+            "true",
+        ]
+    )  # exits 0, the verdict still withheld
     assert "(--allow_non_causal)" in capsys.readouterr().err
 
 
@@ -88,11 +115,17 @@ def test_a_causal_model_passes_the_check_and_keeps_its_verdict(workdir, capsys):
     main(["test", "--config", CONFIG, *CALLABLE, "test_reliability_three.brightness"])
     [report] = workdir.rglob("voe_report")
     summary = json.loads((report / "summary.json").read_text())
-    assert summary["causality"] == {"causal": True, "pairs": 6, "non_causal_pairs": 0,
-                                    "largest_difference": 0.0, "first_frame": None}
+    assert summary["causality"] == {
+        "causal": True,
+        "pairs": 6,
+        "non_causal_pairs": 0,
+        "largest_difference": 0.0,
+        "first_frame": None,
+    }
     assert "no verdict" not in summary["verdicts"][0]["verdict"]
     assert "identical through manipulation_frame (where the two videos are) in all 6 pairs" in (
-        capsys.readouterr().out)
+        capsys.readouterr().out
+    )
 
 
 def test_the_prefix_check_counts_pairs_and_ignores_float_noise_and_later_frames():
@@ -107,17 +140,32 @@ def test_the_prefix_check_counts_pairs_and_ignores_float_noise_and_later_frames(
     assert check_prefix(consistent, consistent, torch.tensor([3, 3, 3])).causal
 
 
-def test_validation_of_a_model_that_reads_the_future_warns_and_withholds_the_verdict(workdir,
-                                                                                      capsys):
+def test_validation_of_a_model_that_reads_the_future_warns_and_withholds_the_verdict(
+    workdir, capsys
+):
     with pytest.warns(UserWarning, match="causality: the model is not causal"):
         with pytest.raises(SystemExit) as raised:
-            main(["validate", "--config", CONFIG, *CALLABLE,
-                  "test_reliability_three.reads_the_next_frame"])
+            main(
+                [
+                    "validate",
+                    "--config",
+                    CONFIG,
+                    *CALLABLE,
+                    "test_reliability_three.reads_the_next_frame",
+                ]
+            )
     assert raised.value.code == NOT_CAUSAL_EXIT
     assert "error: validate: causality: the model is not causal" in capsys.readouterr().err
     causality = check_prefix(torch.zeros(2, 3), torch.ones(2, 3), torch.tensor([1, 1]))
-    results = {("continuity", "standard"): {"relative_surprise": 2.0, "t": 9.0, "p_value": 1e-4,
-                                            "accuracy": 1.0, "n": 9}}
+    results = {
+        ("continuity", "standard"): {
+            "relative_surprise": 2.0,
+            "t": 9.0,
+            "p_value": 1e-4,
+            "accuracy": 1.0,
+            "n": 9,
+        }
+    }
     console = Console(width=200, record=True)
     console.print(voe_table(results, "VOE", causality=causality))
     text = " ".join(console.export_text().split())  # the caption wraps at the table's width
@@ -125,17 +173,29 @@ def test_validation_of_a_model_that_reads_the_future_warns_and_withholds_the_ver
 
 
 def test_check_causality_runs_a_users_model_through_the_protocol(capsys):
-    check = ["check-causality", "--concepts", "[object_persistence]", "--seeds", "1",
-             "--num_frames", "6", *CALLABLE]
+    check = [
+        "check-causality",
+        "--concepts",
+        "[object_persistence]",
+        "--seeds",
+        "1",
+        "--num_frames",
+        "6",
+        *CALLABLE,
+    ]
     assert main([*check, "test_reliability_three.brightness"]) is True
     printed = capsys.readouterr().out
-    assert ("object_persistence, pairs through the manipulation frame: causal (surprise "
-            "identical in all 2 pairs)") in printed
+    assert (
+        "object_persistence, pairs through the manipulation frame: causal (surprise "
+        "identical in all 2 pairs)"
+    ) in printed
     assert "object_persistence, videos cut after each frame t: causal" in printed
     line = _refused(capsys, [*check, "test_reliability_three.reads_the_next_frame"])
-    assert ("CallableModel is not causal: its surprise at frame t reads later frames in "
-            "object_persistence (pairs through the manipulation frame), object_persistence "
-            "(videos cut after each frame t)") in line
+    assert (
+        "CallableModel is not causal: its surprise at frame t reads later frames in "
+        "object_persistence (pairs through the manipulation frame), object_persistence "
+        "(videos cut after each frame t)"
+    ) in line
 
 
 # ----------------------------------------------------------------------------- 2: written whole
@@ -143,8 +203,16 @@ def test_check_causality_runs_a_users_model_through_the_protocol(capsys):
 def tiny_store(tmp_path_factory):
     """A generated store of object persistence and solidity, two pairs per probe split."""
     root = tmp_path_factory.mktemp("store")
-    main(["generate", "--root", str(root), "--concepts", "[object_persistence, solidity]",
-          *TINY_STORE])
+    main(
+        [
+            "generate",
+            "--root",
+            str(root),
+            "--concepts",
+            "[object_persistence, solidity]",
+            *TINY_STORE,
+        ]
+    )
     return root
 
 
@@ -167,7 +235,8 @@ def _contents(folder):
 
 
 def test_a_full_disk_during_audit_names_the_file_and_keeps_the_previous_audit(
-        tiny_store, tmp_path, monkeypatch, capsys):
+    tiny_store, tmp_path, monkeypatch, capsys
+):
     out = tmp_path / "audit"
     audit = ["audit", "--root", str(tiny_store), "--out", str(out), "--progress", "false"]
     main(audit)
@@ -192,33 +261,52 @@ def test_a_full_disk_keeps_the_previous_answer_file_whole(tmp_path, monkeypatch)
 
 
 # ----------------------------------------------------------------------------- 3: audit verifies
-@pytest.mark.parametrize("source, message", [
-    ("solidity/test", "its concept is 'solidity', expected 'object_persistence'"),
-    ("object_persistence/val", "its split is 'val', expected 'test'"),
-])
-def test_audit_refuses_a_shard_of_another_concept_or_split(tiny_store, tmp_path, capsys, source,
-                                                           message):
+@pytest.mark.parametrize(
+    "source, message",
+    [
+        ("solidity/test", "its concept is 'solidity', expected 'object_persistence'"),
+        ("object_persistence/val", "its split is 'val', expected 'test'"),
+    ],
+)
+def test_audit_refuses_a_shard_of_another_concept_or_split(
+    tiny_store, tmp_path, capsys, source, message
+):
     root = tmp_path / "store"
     shutil.copytree(tiny_store, root)
     shard = root / "object_persistence" / "test" / "shard-00000.voe"
     shutil.copyfile(root / source / "shard-00000.voe", shard)
-    line = _refused(capsys, ["audit", "--root", str(root), "--concepts", "[object_persistence]",
-                             "--progress", "false"])
+    line = _refused(
+        capsys,
+        ["audit", "--root", str(root), "--concepts", "[object_persistence]", "--progress", "false"],
+    )
     assert f"corrupt shard {shard}: does not belong here: {message}" in line
     assert not (root / "cue_audit").exists()
 
 
 # ----------------------------------------------------------------------------- 4: a run's record
-@pytest.mark.parametrize("argument, value, message", [
-    ("concept", "continuity", "the run trained with 'object_persistence', given 'continuity'"),
-    ("batch_size", "1", "the run trained with 2, given 1"),
-])
-def test_a_resumed_fit_on_other_data_is_refused_and_the_record_kept(workdir, trained, capsys,
-                                                                     argument, value, message):
+@pytest.mark.parametrize(
+    "argument, value, message",
+    [
+        ("concept", "continuity", "the run trained with 'object_persistence', given 'continuity'"),
+        ("batch_size", "1", "the run trained with 2, given 1"),
+    ],
+)
+def test_a_resumed_fit_on_other_data_is_refused_and_the_record_kept(
+    workdir, trained, capsys, argument, value, message
+):
     run = copy_of(trained, workdir)
     record = (run / "config.yaml").read_bytes()
-    resume = ["fit", "--config", CONFIG, "--trainer.logger.init_args.name", "trained",
-              "--ckpt_path", "last", "--trainer.max_steps", "2"]
+    resume = [
+        "fit",
+        "--config",
+        CONFIG,
+        "--trainer.logger.init_args.name",
+        "trained",
+        "--ckpt_path",
+        "last",
+        "--trainer.max_steps",
+        "2",
+    ]
     line = _refused(capsys, [*resume, f"--data.init_args.{argument}", value])
     assert f"resumes the run {run.relative_to(workdir)}, which trained on other data" in line
     assert f"data.init_args.{argument}: {message}" in line
@@ -232,9 +320,23 @@ def test_a_resumed_fit_on_other_data_is_refused_and_the_record_kept(workdir, tra
 def test_a_branch_continues_on_other_data_in_a_new_version(workdir, trained, capsys):
     run = copy_of(trained, workdir)
     record = (run / "config.yaml").read_bytes()
-    cli = main(["fit", "--config", CONFIG, "--trainer.logger.init_args.name", "trained",
-                "--ckpt_path", "last", "--trainer.max_steps", "2", "--branch", "true",
-                "--data.init_args.concept", "continuity"])
+    cli = main(
+        [
+            "fit",
+            "--config",
+            CONFIG,
+            "--trainer.logger.init_args.name",
+            "trained",
+            "--ckpt_path",
+            "last",
+            "--trainer.max_steps",
+            "2",
+            "--branch",
+            "true",
+            "--data.init_args.concept",
+            "continuity",
+        ]
+    )
     assert cli.trainer.global_step == 2
     branch = run.parent / "version_1"
     assert "fit --branch: continues from" in capsys.readouterr().out
@@ -242,6 +344,8 @@ def test_a_branch_continues_on_other_data_in_a_new_version(workdir, trained, cap
     assert branched["data"]["init_args"]["concept"] == "continuity"
     assert (run / "config.yaml").read_bytes() == record
     assert (branch / "checkpoints" / "last.ckpt").is_file()
+
+
 def test_nothing_is_written_through_a_link_out_of_the_run_folder(workdir, trained, capsys):
     run = copy_of(trained, workdir)
     elsewhere = workdir / "elsewhere.txt"
@@ -251,9 +355,20 @@ def test_nothing_is_written_through_a_link_out_of_the_run_folder(workdir, traine
     assert (run / "test_config.yaml").is_symlink() and (run / "test_config-2.yaml").is_file()
     (run / "config.yaml").unlink()
     (run / "config.yaml").symlink_to(elsewhere)
-    line = _refused(capsys, ["fit", "--config", CONFIG, "--trainer.max_steps", "1",
-                             "--trainer.logger.init_args.name", "trained",
-                             "--trainer.logger.init_args.version", "version_0"])
+    line = _refused(
+        capsys,
+        [
+            "fit",
+            "--config",
+            CONFIG,
+            "--trainer.max_steps",
+            "1",
+            "--trainer.logger.init_args.name",
+            "trained",
+            "--trainer.logger.init_args.version",
+            "version_0",
+        ],
+    )
     assert f"{run.relative_to(workdir) / 'config.yaml'} is a symbolic link to {elsewhere}" in line
     assert elsewhere.read_text() == "someone else's file\n"
 
@@ -266,8 +381,10 @@ def test_a_retest_keeps_the_earlier_evaluations_config(workdir, trained):
     for subcommand in ("validate", "test"):
         main([subcommand, *checkpoint])
         main([subcommand, *checkpoint, "--seed_everything", "7"])
-        first, second = (yaml.safe_load((run / f"{subcommand}_config{suffix}.yaml").read_text())
-                         for suffix in ("", "-2"))
+        first, second = (
+            yaml.safe_load((run / f"{subcommand}_config{suffix}.yaml").read_text())
+            for suffix in ("", "-2")
+        )
         assert (first["seed_everything"], second["seed_everything"]) == (0, 7)
     source = json.loads((run / "voe_report" / "summary.json").read_text())["source"]
     assert Path(source["config"]).resolve() == (run / "test_config-2.yaml").resolve()
@@ -277,29 +394,61 @@ def test_a_retest_keeps_the_earlier_evaluations_config(workdir, trained):
 def test_the_official_score_of_a_written_answer_file_is_the_reports(tmp_path):
     """Surprise sums that tie exactly (0 + 4 = 2 + 2, 0 + 6 = 3 + 3) are ties of plausibility
     sums in memory; six decimals (1 + 0.333333 < 0.666667 + 0.666667) made them errors."""
-    surprise = {"O1/a/1": 0.0, "O1/a/2": 4.0, "O1/a/3": 2.0, "O1/a/4": 2.0,
-                "O1/b/1": 0.0, "O1/b/2": 6.0, "O1/b/3": 3.0, "O1/b/4": 3.0}
+    surprise = {
+        "O1/a/1": 0.0,
+        "O1/a/2": 4.0,
+        "O1/a/3": 2.0,
+        "O1/a/4": 2.0,
+        "O1/b/1": 0.0,
+        "O1/b/2": 6.0,
+        "O1/b/3": 3.0,
+        "O1/b/4": 3.0,
+    }
     labels = {movie: movie.endswith(("/1", "/2")) for movie in surprise}
     possible = [[surprise[f"O1/{s}/{m}"] for m in (1, 2)] for s in "ab"]
     impossible = [[surprise[f"O1/{s}/{m}"] for m in (3, 4)] for s in "ab"]
     path = write_answer_file(tmp_path / "answer.txt", surprise)
     official = score_answers(read_answer_file(path), labels)["O1"]["all"]
     assert official["relative_error_rate"] == relative_error_rate(possible, impossible) == 0.0
-    assert official["relative_error_rate_ties_half"] == relative_error_rate(
-        possible, impossible, tie_weight=0.5) == 0.5
-    assert read_answer_file(path) == {movie: float(value) for movie, value in zip(
-        sorted(surprise), plausibility_from_surprise([surprise[m] for m in sorted(surprise)]))}
+    assert (
+        official["relative_error_rate_ties_half"]
+        == relative_error_rate(possible, impossible, tie_weight=0.5)
+        == 0.5
+    )
+    assert read_answer_file(path) == {
+        movie: float(value)
+        for movie, value in zip(
+            sorted(surprise), plausibility_from_surprise([surprise[m] for m in sorted(surprise)])
+        )
+    }
 
 
 def test_an_out_path_is_the_path_written(tmp_path, capsys):
     runs = _curve_runs(tmp_path)
     out = tmp_path / "figure"  # no suffix: matplotlib alone would write figure.png
-    main(["analyze", "curves", "--runs", json.dumps([f"{label}={path}" for label, path in runs]),
-          "--out", str(out)])
+    main(
+        [
+            "analyze",
+            "curves",
+            "--runs",
+            json.dumps([f"{label}={path}" for label, path in runs]),
+            "--out",
+            str(out),
+        ]
+    )
     assert f"wrote {out}\n" in capsys.readouterr().out
     assert out.read_bytes().startswith(b"\x89PNG") and not out.with_suffix(".png").exists()
-    line = _refused(capsys, ["analyze", "curves", "--runs", json.dumps([str(runs[0][1])]),
-                             "--out", str(tmp_path / "figure.docx")])
+    line = _refused(
+        capsys,
+        [
+            "analyze",
+            "curves",
+            "--runs",
+            json.dumps([str(runs[0][1])]),
+            "--out",
+            str(tmp_path / "figure.docx"),
+        ],
+    )
     assert f"cannot write a figure as {tmp_path / 'figure.docx'}: '.docx' is no image" in line
 
 
@@ -322,37 +471,57 @@ def test_an_error_in_a_dataloader_worker_is_the_same_one_line(tiny_store, tmp_pa
     data = bytearray(shard.read_bytes())
     data[40] ^= 0xFF  # inside the first record: the index is intact
     shard.write_bytes(bytes(data))
-    audit = ["audit", "--root", str(root), "--concepts", "[object_persistence]",
-             "--progress", "false"]
+    audit = [
+        "audit",
+        "--root",
+        str(root),
+        "--concepts",
+        "[object_persistence]",
+        "--progress",
+        "false",
+    ]
     lines = [_refused(capsys, [*audit, "--num_workers", workers]) for workers in ("0", "1")]
-    assert lines[0] == lines[1] == f"error: corrupt shard {shard}: record 0 checksum mismatch " \
-        "(rerun generate with this store's settings, or the fit/test using it, whose " \
+    assert (
+        lines[0] == lines[1] == f"error: corrupt shard {shard}: record 0 checksum mismatch "
+        "(rerun generate with this store's settings, or the fit/test using it, whose "
         "prepare_data regenerates bad shards)"
+    )
 
 
 # ----------------------------------------------------------------------------- 6: weak cases
-def test_intphys2_metadata_with_a_byte_order_mark_reads_and_a_latin1_byte_is_named(root,
-                                                                                   tmp_path):
+def test_intphys2_metadata_with_a_byte_order_mark_reads_and_a_latin1_byte_is_named(tmp_path):
+    root = make_root(tmp_path / "intphys2_tiny")
     folder = shutil.copytree(root, tmp_path / "intphys2")
     metadata = folder / "Main" / "metadata.csv"
     text = metadata.read_text()
     metadata.write_bytes(b"\xef\xbb\xbf" + text.encode())  # as a spreadsheet saves it
-    labels = [(video.name, video.scene, video.condition, video.is_possible)
-              for video in read_metadata(root, "Main")]
-    assert [(video.name, video.scene, video.condition, video.is_possible)
-            for video in read_metadata(folder, "Main")] == labels
+    labels = [
+        (video.name, video.scene, video.condition, video.is_possible)
+        for video in read_metadata(root, "Main")
+    ]
+    assert [
+        (video.name, video.scene, video.condition, video.is_possible)
+        for video in read_metadata(folder, "Main")
+    ] == labels
     metadata.write_bytes(text.replace("\n", "\ncaf\xe9,", 1).encode("latin-1"))
     with pytest.raises(BenchmarkDataError, match=f"{metadata} is not UTF-8 text: line 2 holds"):
         read_metadata(folder, "Main")
 
 
-@pytest.mark.parametrize("name, text, read", [
-    ("status.json", '{"header": {"is_possible": true,\n "scene": "caf\xe9"}}\n',
-     lambda path: read_label(path.parent)),
-    ("answer.txt", "O1/a/1 0.5\nO1/caf\xe9/2 0.5\n", read_answer_file),
-])
-def test_a_benchmark_text_file_is_read_as_utf8_and_a_latin1_byte_is_named(tmp_path, name, text,
-                                                                          read):
+@pytest.mark.parametrize(
+    "name, text, read",
+    [
+        (
+            "status.json",
+            '{"header": {"is_possible": true,\n "scene": "caf\xe9"}}\n',
+            lambda path: read_label(path.parent),
+        ),
+        ("answer.txt", "O1/a/1 0.5\nO1/caf\xe9/2 0.5\n", read_answer_file),
+    ],
+)
+def test_a_benchmark_text_file_is_read_as_utf8_and_a_latin1_byte_is_named(
+    tmp_path, name, text, read
+):
     """IntPhys' status.json and answer.txt as metadata.csv: UTF-8 whatever the locale, and a
     byte UTF-8 cannot decode names the file and its line (Python's error names neither)."""
     path = tmp_path / name
@@ -360,8 +529,12 @@ def test_a_benchmark_text_file_is_read_as_utf8_and_a_latin1_byte_is_named(tmp_pa
     if name == "status.json":
         assert read(path) is True
     path.write_bytes(text.encode("latin-1"))
-    with pytest.raises(BenchmarkDataError, match=re.escape(
-            f"{path} is not UTF-8 text: line 2 holds the byte 0xe9, which UTF-8 cannot decode")):
+    with pytest.raises(
+        BenchmarkDataError,
+        match=re.escape(
+            f"{path} is not UTF-8 text: line 2 holds the byte 0xe9, which UTF-8 cannot decode"
+        ),
+    ):
         read(path)
 
 
@@ -387,7 +560,7 @@ def test_a_truncated_or_corrupted_intphys2_video_is_refused_naming_it(tmp_path):
     data = intact.read_bytes()
     corrupted = bytearray(data)
     middle = data.index(b"mdat") + (len(data) - data.index(b"mdat")) // 2
-    corrupted[middle:middle + 40] = np.random.default_rng(0).bytes(40)
+    corrupted[middle : middle + 40] = np.random.default_rng(0).bytes(40)
     damaged = {f"cut_{size}": data[:size] for size in range(len(data) * 2 // 3, len(data))}
     damaged["corrupted"] = bytes(corrupted)
     for name, content in damaged.items():
@@ -413,21 +586,32 @@ class PoisonWeights(L.Callback):
 
 
 def test_a_non_finite_loss_is_one_line(workdir, capsys):
-    (workdir / "poison.yaml").write_text(yaml.safe_dump({"trainer": {"callbacks+": [
-        {"class_path": "test_reliability_three.PoisonWeights"}]}}))
+    (workdir / "poison.yaml").write_text(
+        yaml.safe_dump(
+            {"trainer": {"callbacks+": [{"class_path": "test_reliability_three.PoisonWeights"}]}}
+        )
+    )
     line = _refused(capsys, ["fit", "--config", CONFIG, "--config", "poison.yaml"])
     assert "non-finite loss at global step 1" in line
 
 
-@pytest.mark.parametrize("arguments, message", [
-    (["--config", "configs_folder"], "--config configs_folder is a directory, not a YAML file"),
-    (["--model", "nonexistent_pkg.Model"], "--model nonexistent_pkg.Model cannot be imported "
-                                           "(No module named 'nonexistent_pkg')"),
-    (["--data", "datamodules.NoSuchDataModule"], "--data datamodules.NoSuchDataModule cannot be "
-                                                 "imported"),
-])
-def test_a_config_folder_or_a_class_that_cannot_be_imported_is_one_line(workdir, capsys,
-                                                                        arguments, message):
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        (["--config", "configs_folder"], "--config configs_folder is a directory, not a YAML file"),
+        (
+            ["--model", "nonexistent_pkg.Model"],
+            "--model nonexistent_pkg.Model cannot be imported (No module named 'nonexistent_pkg')",
+        ),
+        (
+            ["--data", "datamodules.NoSuchDataModule"],
+            "--data datamodules.NoSuchDataModule cannot be imported",
+        ),
+    ],
+)
+def test_a_config_folder_or_a_class_that_cannot_be_imported_is_one_line(
+    workdir, capsys, arguments, message
+):
     (workdir / "configs_folder").mkdir()
     line = _refused(capsys, ["fit", "--config", CONFIG, *arguments])
     assert message in line and len(line) < 300
@@ -435,8 +619,9 @@ def test_a_config_folder_or_a_class_that_cannot_be_imported_is_one_line(workdir,
 
 @pytest.mark.parametrize("function", ["returns_none", "returns_a_ragged_list"])
 def test_a_callable_returning_no_array_is_one_line(workdir, capsys, function):
-    line = _refused(capsys, ["test", "--config", CONFIG, *CALLABLE,
-                             f"test_reliability_three.{function}"])
+    line = _refused(
+        capsys, ["test", "--config", CONFIG, *CALLABLE, f"test_reliability_three.{function}"]
+    )
     assert f"test_reliability_three.{function} returned a" in line
     assert "that is no array of numbers" in line and "expected surprise [B, T] = [" in line
 
@@ -449,8 +634,9 @@ def returns_a_ragged_list(frames):
     return [[0.0] * (index + 1) for index in range(frames.shape[0])]
 
 
-def test_audit_of_an_empty_split_or_a_manifest_edited_by_hand_is_one_line(tiny_store, tmp_path,
-                                                                          capsys):
+def test_audit_of_an_empty_split_or_a_manifest_edited_by_hand_is_one_line(
+    tiny_store, tmp_path, capsys
+):
     audit = ["audit", "--root", str(tiny_store), "--progress", "false"]
     line = _refused(capsys, [*audit, "--split", "generalization"])
     assert "the generalization split of" in line and "holds no probe pairs" in line
@@ -459,8 +645,10 @@ def test_audit_of_an_empty_split_or_a_manifest_edited_by_hand_is_one_line(tiny_s
     del manifest["video"]["num_frames"]  # a default of 15 would blame the intact shards
     (root / "manifest.json").write_text(json.dumps(manifest))
     line = _refused(capsys, ["audit", "--root", str(root), "--progress", "false"])
-    assert f"{root / 'manifest.json'}: the manifest describes no valid plan (KeyError: " \
+    assert (
+        f"{root / 'manifest.json'}: the manifest describes no valid plan (KeyError: "
         "'video.num_frames')" in line
+    )
 
 
 def test_what_a_killed_writer_staged_is_removed_on_the_next_write(tmp_path):
@@ -491,8 +679,11 @@ def test_a_physical_concepts_record_with_a_huge_length_field_is_named(tmp_path):
     path = tmp_path / "data.tfrecord-00000-of-00001"
     with gzip.open(path, "wb") as stream:
         stream.write(length + TFRecordWriter.masked_crc(length) + b"\0" * 16)
-    with pytest.raises(BenchmarkDataError, match=rf"{path}: record 0: length field "
-                                                 r"1,152,921,504,606,846,976 bytes, more than"):
+    with pytest.raises(
+        BenchmarkDataError,
+        match=rf"{path}: record 0: length field "
+        r"1,152,921,504,606,846,976 bytes, more than",
+    ):
         list(read_records(path))
 
 
@@ -503,6 +694,14 @@ def test_generate_repairs_an_empty_folder_in_place_of_a_shard(tiny_store, tmp_pa
     shard.unlink()
     shard.mkdir()
     with pytest.warns(UserWarning, match=f"{shard}: a folder, not a shard file"):
-        main(["generate", "--root", str(root), "--concepts", "[object_persistence, solidity]",
-              *TINY_STORE])
+        main(
+            [
+                "generate",
+                "--root",
+                str(root),
+                "--concepts",
+                "[object_persistence, solidity]",
+                *TINY_STORE,
+            ]
+        )
     assert shard.read_bytes() == intact

@@ -16,8 +16,8 @@ from tensordict import TensorDict
 from torch.utils.data import DataLoader
 
 from voe_lightning import specs
-from voe_lightning.model.base import SurpriseModel
 from voe_lightning.callbacks import VOEReportCallback
+from voe_lightning.model.base import SurpriseModel
 from voe_lightning.probe_datamodule import ProbeDataModule
 from voe_lightning.report import write_report
 from voe_lightning.report.figures import PredictionExample
@@ -30,11 +30,23 @@ T, H, W = 6, 16, 16
 def synthetic_results(seed=0):
     """Three tested groups (one zero-variance) and one group with a single pair."""
     rng = np.random.default_rng(seed)
-    groups = [("object_persistence", "standard", 10, 1.0),
-              ("object_persistence", "counterbalanced", 9, 0.0),
-              ("continuity", "standard", 1, 1.0), ("solidity", "standard", 4, None)]
-    columns = {k: [] for k in ("concept", "variant", "seed", "manipulation_frame",
-                               "surprise_consistent", "surprise_inconsistent")}
+    groups = [
+        ("object_persistence", "standard", 10, 1.0),
+        ("object_persistence", "counterbalanced", 9, 0.0),
+        ("continuity", "standard", 1, 1.0),
+        ("solidity", "standard", 4, None),
+    ]
+    columns = {
+        k: []
+        for k in (
+            "concept",
+            "variant",
+            "seed",
+            "manipulation_frame",
+            "surprise_consistent",
+            "surprise_inconsistent",
+        )
+    }
     for concept, variant, n, effect in groups:
         for i in range(n):
             manipulation = int(rng.integers(2, 4))
@@ -44,9 +56,10 @@ def synthetic_results(seed=0):
             if effect is None:  # every pair differs by exactly 0.5 just after the manipulation
                 inconsistent[manipulation + 1] += 0.5
             else:
-                inconsistent[manipulation + 1:] += rng.normal(effect, 0.5, T - manipulation - 1)
-            for key, value in zip(columns, (concept, variant, 100 + i, manipulation,
-                                            consistent, inconsistent)):
+                inconsistent[manipulation + 1 :] += rng.normal(effect, 0.5, T - manipulation - 1)
+            for key, value in zip(
+                columns, (concept, variant, 100 + i, manipulation, consistent, inconsistent)
+            ):
                 columns[key].append(value)
     # Listed out of specs order on purpose: groups come back in specs order.
     order = np.r_[np.arange(19, 24), np.arange(0, 19)]
@@ -65,11 +78,15 @@ def report(tmp_path_factory):
     rng = np.random.default_rng(1)
     frames = np.zeros((T, H, W, 3), np.uint8)
     frames[:, 4:10, 4:10] = [255, 0, 255]
-    predictions = [PredictionExample("object_persistence", "standard", 100, 3, frames,
-                                     rng.random((T, 3, H, W)))]
-    trajectories = {video: {"prior": rng.normal(size=(2, T, 8)),
-                            "memory": rng.normal(size=(2, T, 3, 4))}
-                    for video in ("consistent", "inconsistent")}
+    predictions = [
+        PredictionExample(
+            "object_persistence", "standard", 100, 3, frames, rng.random((T, 3, H, W))
+        )
+    ]
+    trajectories = {
+        video: {"prior": rng.normal(size=(2, T, 8)), "memory": rng.normal(size=(2, T, 3, 4))}
+        for video in ("consistent", "inconsistent")
+    }
     rows = write_report(results, out, predictions, trajectories, bootstrap=200, echo=False)
     return out / "voe_report", results, rows
 
@@ -77,15 +94,20 @@ def report(tmp_path_factory):
 def test_summary_rows_are_paired_tests_in_specs_order(report):
     directory, results, rows = report
     assert [(r["concept"], r["variant"]) for r in rows] == [
-        ("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
-        ("object_persistence", "pooled"), ("object_persistence", "quadruplet"),
-        ("continuity", "standard"), ("solidity", "standard")]
+        ("object_persistence", "standard"),
+        ("object_persistence", "counterbalanced"),
+        ("object_persistence", "pooled"),
+        ("object_persistence", "quadruplet"),
+        ("continuity", "standard"),
+        ("solidity", "standard"),
+    ]
     for row, (_, variant, pairs) in zip(rows, results.groups(pooled=True)):
         if row["n"] < 2:
             continue
         if variant == "pooled":
-            expected = pooled_test(pairs.total_inconsistent, pairs.total_consistent,
-                                   pairs.variant, bootstrap=200)
+            expected = pooled_test(
+                pairs.total_inconsistent, pairs.total_consistent, pairs.variant, bootstrap=200
+            )
         elif variant == "quadruplet":
             expected = _quadruplets_by_hand(results)
         else:
@@ -101,18 +123,25 @@ def _quadruplets_by_hand(results):
     totals = {}
     for i, (concept, variant) in enumerate(zip(results.concept, results.variant)):
         if concept == "object_persistence":
-            totals[variant, int(results.seed[i])] = (results.total_inconsistent[i],
-                                                     results.total_consistent[i])
-    first, second = ([totals[variant, seed] for seed in range(100, 109)]
-                     for variant in ("standard", "counterbalanced"))
+            totals[variant, int(results.seed[i])] = (
+                results.total_inconsistent[i],
+                results.total_consistent[i],
+            )
+    first, second = (
+        [totals[variant, seed] for seed in range(100, 109)]
+        for variant in ("standard", "counterbalanced")
+    )
     return quadruplet_test(*np.array(first).T, *np.array(second).T, bootstrap=200)
 
 
 def test_pooled_row_is_the_stratified_test_of_both_variants(report):
     """M = (M1 + M2) / 2, SE = 0.5 sqrt(s1^2/n1 + s2^2/n2), Welch-Satterthwaite df, by hand."""
     directory, results, rows = report
-    d1, d2 = (pairs.relative_surprise for concept, variant, pairs in results.groups()
-              if concept == "object_persistence")
+    d1, d2 = (
+        pairs.relative_surprise
+        for concept, variant, pairs in results.groups()
+        if concept == "object_persistence"
+    )
     pooled = rows[2]
     assert pooled["n"] == 10 + 9 == d1.size + d2.size
     v1, v2 = d1.var(ddof=1) / d1.size, d2.var(ddof=1) / d2.size
@@ -130,14 +159,17 @@ def test_pooled_row_is_the_stratified_test_of_both_variants(report):
 
 def test_a_pooled_row_with_a_variant_of_one_pair_is_explained_not_tested(tmp_path):
     results = synthetic_results()
-    counterbalanced = [(c, v) == ("object_persistence", "counterbalanced")
-                       for c, v in zip(results.concept, results.variant)]
+    counterbalanced = [
+        (c, v) == ("object_persistence", "counterbalanced")
+        for c, v in zip(results.concept, results.variant)
+    ]
     keep = ~np.array(counterbalanced)
     keep[counterbalanced.index(True)] = True  # one counterbalanced pair only
     rows = write_report(results.select(keep), tmp_path, bootstrap=0, echo=False)
     pooled = next(r for r in rows if r["variant"] == "pooled")
     assert pooled["t"] is None and pooled["note"] == (
-        "no pooled test: counterbalanced has 1 pair (each variant needs at least 2)")
+        "no pooled test: counterbalanced has 1 pair (each variant needs at least 2)"
+    )
 
 
 def test_summary_states_each_concepts_verdict(report):
@@ -148,14 +180,21 @@ def test_summary_states_each_concepts_verdict(report):
     quadruplet = rows[3]
     assert quadruplet["variant"] == "quadruplet" and quadruplet["n"] == 9
     assert verdicts["object_persistence"]["voe"] is (
-        quadruplet["p_value"] < ALPHA and quadruplet["first_half"] > 0
-        and quadruplet["second_half"] > 0)
+        quadruplet["p_value"] < ALPHA
+        and quadruplet["first_half"] > 0
+        and quadruplet["second_half"] > 0
+    )
     assert "quadruplet test" in verdicts["object_persistence"]["rule"]
     # continuity and solidity lack their counterbalanced pairs: no pooled test, no verdict.
-    assert verdicts["continuity"]["voe"] is None and "counterbalanced" in verdicts["continuity"]["verdict"]
+    assert (
+        verdicts["continuity"]["voe"] is None
+        and "counterbalanced" in verdicts["continuity"]["verdict"]
+    )
     markdown = (directory / "summary.md").read_text()
-    assert f"- object_persistence: {'**VOE**' if verdicts['object_persistence']['voe'] else 'no VOE'}" \
+    assert (
+        f"- object_persistence: {'**VOE**' if verdicts['object_persistence']['voe'] else 'no VOE'}"
         in markdown
+    )
     assert "- solidity: undecided: no test of counterbalanced, pooled" in markdown
 
 
@@ -201,8 +240,16 @@ def test_pairs_csv_round_trips_exactly(report):
     directory, results, _ = report
     with open(directory / "pairs.csv", newline="") as handle:
         header = next(csv.reader(handle))
-    assert header[:8] == ["concept", "variant", "seed", "manipulation_frame", "surprise_consistent",
-                          "surprise_inconsistent", "relative_surprise", "first_difference"]
+    assert header[:8] == [
+        "concept",
+        "variant",
+        "seed",
+        "manipulation_frame",
+        "surprise_consistent",
+        "surprise_inconsistent",
+        "relative_surprise",
+        "first_difference",
+    ]
     assert len(header) == 8 + 2 * T and header[-1] == f"surprise_inconsistent_t{T - 1:02d}"
     again = PairResults.from_csv(directory / "pairs.csv")
     assert again.concept == results.concept and again.variant == results.variant
@@ -215,17 +262,26 @@ def test_pairs_csv_round_trips_exactly(report):
 
 def test_every_figure_is_written(report):
     directory, _, _ = report
-    for name in ("histograms.png", "surprise_per_frame.png", "predictions_object_persistence.png",
-                 "tsne_object_persistence.png"):
+    for name in (
+        "histograms.png",
+        "surprise_per_frame.png",
+        "predictions_object_persistence.png",
+        "tsne_object_persistence.png",
+    ):
         _png_ok(directory / name)
 
 
 def test_bad_results_are_refused(tmp_path):
     with pytest.raises(ValueError, match="no probe results"):
         PairResults.from_probe_outputs([])
-    output = {"concept": torch.tensor([0, 7]), "variant": torch.tensor([0, 0]),
-              "seed": torch.tensor([1, 2]), "manipulation_frame": torch.tensor([3, 3]),
-              "surprise_consistent": torch.zeros(2, T), "surprise_inconsistent": torch.ones(2, T)}
+    output = {
+        "concept": torch.tensor([0, 7]),
+        "variant": torch.tensor([0, 0]),
+        "seed": torch.tensor([1, 2]),
+        "manipulation_frame": torch.tensor([3, 3]),
+        "surprise_consistent": torch.zeros(2, T),
+        "surprise_inconsistent": torch.ones(2, T),
+    }
     with pytest.raises(ValueError, match=r"concept indices \[7\] are outside the 5 concept names"):
         PairResults.from_probe_outputs([output])
     with pytest.raises(KeyError, match="lacks \\['seed'\\]"):
@@ -247,18 +303,23 @@ def _probe(concept, variant, seed):
     x = int(rng.integers(0, W - 6))
     for t in range(T):
         top = 2 + 3 * min(t, 2)
-        frames[t, top:top + 5, x:x + 5] = color
+        frames[t, top : top + 5, x : x + 5] = color
     inconsistent = frames.copy()
     inconsistent[manipulation:] = 90
     mask = torch.zeros(T, H, W, dtype=torch.uint8)
-    record = TensorDict({
-        "consistent": {"frames": torch.from_numpy(frames), "mask": mask},
-        "inconsistent": {"frames": torch.from_numpy(inconsistent), "mask": mask.clone()},
-        "camera": torch.zeros(T, 6), "concept": torch.tensor(specs.CONCEPTS.index(concept)),
-        "variant": torch.tensor(specs.VARIANTS.index(variant)),
-        "manipulation_frame": torch.tensor(manipulation),
-        "manipulated_ids": torch.zeros(4, dtype=torch.int64), "seed": torch.tensor(seed),
-    }, batch_size=[])
+    record = TensorDict(
+        {
+            "consistent": {"frames": torch.from_numpy(frames), "mask": mask},
+            "inconsistent": {"frames": torch.from_numpy(inconsistent), "mask": mask.clone()},
+            "camera": torch.zeros(T, 6),
+            "concept": torch.tensor(specs.CONCEPTS.index(concept)),
+            "variant": torch.tensor(specs.VARIANTS.index(variant)),
+            "manipulation_frame": torch.tensor(manipulation),
+            "manipulated_ids": torch.zeros(4, dtype=torch.int64),
+            "seed": torch.tensor(seed),
+        },
+        batch_size=[],
+    )
     assert specs.probe_spec(T, H, W, objects=False).is_in(record)
     return record
 
@@ -269,8 +330,9 @@ class UnnamedProbeData(L.LightningDataModule):
     def __init__(self, cases):
         super().__init__()
         self.cases = cases
-        self.records = [_probe(c, v, 10 * i + j)
-                        for i, (c, v) in enumerate(cases) for j in range(5)]
+        self.records = [
+            _probe(c, v, 10 * i + j) for i, (c, v) in enumerate(cases) for j in range(5)
+        ]
 
     def test_dataloader(self):
         return DataLoader(self.records, batch_size=4, collate_fn=torch.stack)
@@ -301,8 +363,10 @@ class PersistenceModel(SurpriseModel):
 
     def trajectories(self, frames, mask=None, camera=None):
         x = specs.to_model_input(frames).flatten(2)
-        return {"prior": self.expected_frames(frames).flatten(2),
-                "memory": x.cumsum(1) / torch.arange(1, x.shape[1] + 1)[:, None]}
+        return {
+            "prior": self.expected_frames(frames).flatten(2),
+            "memory": x.cumsum(1) / torch.arange(1, x.shape[1] + 1)[:, None],
+        }
 
     def test_step(self, batch, batch_idx):
         output = {key: batch[key] for key in ("concept", "variant", "seed", "manipulation_frame")}
@@ -312,12 +376,21 @@ class PersistenceModel(SurpriseModel):
 
 
 def _trainer(tmp_path, callback):
-    return L.Trainer(default_root_dir=tmp_path, callbacks=[callback], logger=False,
-                     enable_progress_bar=False, enable_model_summary=False, accelerator="cpu")
+    return L.Trainer(
+        default_root_dir=tmp_path,
+        callbacks=[callback],
+        logger=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        accelerator="cpu",
+    )
 
 
-CASES = [("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
-         ("unchangeableness", "color")]
+CASES = [
+    ("object_persistence", "standard"),
+    ("object_persistence", "counterbalanced"),
+    ("unchangeableness", "color"),
+]
 
 
 def test_callback_writes_the_report_of_a_test_run(tmp_path):
@@ -326,8 +399,12 @@ def test_callback_writes_the_report_of_a_test_run(tmp_path):
     directory = tmp_path / "run" / "voe_report"
     assert callback.report_dir == directory
     groups = [(r["concept"], r["variant"], r["n"]) for r in callback.summary]
-    assert groups == [CASES[0] + (5,), CASES[1] + (5,), ("object_persistence", "pooled", 10),
-                      CASES[2] + (5,)]
+    assert groups == [
+        CASES[0] + (5,),
+        CASES[1] + (5,),
+        ("object_persistence", "pooled", 10),
+        CASES[2] + (5,),
+    ]
     assert all(r["significant"] and r["accuracy"] == 1.0 for r in callback.summary)
     # The cue audit scored the very pairs the model was tested on: same groups, same n.
     with open(directory / "cues.csv", newline="") as handle:
@@ -335,14 +412,24 @@ def test_callback_writes_the_report_of_a_test_run(tmp_path):
     assert {(r["concept"], r["variant"], int(r["n"])) for r in cue_rows} == set(groups)
     motion = {r["variant"]: r for r in cue_rows if r["cue"] == "motion_energy"}
     # These probes change at m itself and are static after it: cues see only t > m, so tied.
-    assert float(motion["standard"]["accuracy"]) == 0.5 and "every d = 0" in motion["standard"]["note"]
+    assert (
+        float(motion["standard"]["accuracy"]) == 0.5 and "every d = 0" in motion["standard"]["note"]
+    )
     foreground = [r for r in cue_rows if r["cue"] == "foreground_pixels"]
     assert all(r["t"] == "" and "no object mask" in r["note"] for r in foreground)  # zero masks
     cue_markdown = (directory / "cues.md").read_text()
     assert "| object_persistence | **pooled** | 10 | 100% / +" in cue_markdown  # model cell first
-    for name in ("summary.json", "summary.csv", "summary.md", "pairs.csv", "histograms.png",
-                 "surprise_per_frame.png", "predictions_object_persistence.png",
-                 "predictions_unchangeableness.png", "tsne_object_persistence.png"):
+    for name in (
+        "summary.json",
+        "summary.csv",
+        "summary.md",
+        "pairs.csv",
+        "histograms.png",
+        "surprise_per_frame.png",
+        "predictions_object_persistence.png",
+        "predictions_unchangeableness.png",
+        "tsne_object_persistence.png",
+    ):
         assert (directory / name).is_file(), name
     pairs = PairResults.from_csv(directory / "pairs.csv")
     assert len(pairs) == 15 and set(pairs.seed) == {10 * i + j for i in range(3) for j in range(5)}
@@ -350,8 +437,9 @@ def test_callback_writes_the_report_of_a_test_run(tmp_path):
 
 def test_callback_refuses_missing_outputs_names_and_probes(tmp_path):
     with pytest.raises(TypeError, match="test_step to return the probe_step dict"):
-        _trainer(tmp_path, VOEReportCallback()).test(PersistenceModel(return_outputs=False),
-                                                     datamodule=ProbeData(CASES[:1]))
+        _trainer(tmp_path, VOEReportCallback()).test(
+            PersistenceModel(return_outputs=False), datamodule=ProbeData(CASES[:1])
+        )
     with pytest.raises(TypeError, match="needs a ProbeDataModule .* got UnnamedProbeData"):
         unnamed = UnnamedProbeData(CASES[:1])
         _trainer(tmp_path, VOEReportCallback()).test(PersistenceModel(), datamodule=unnamed)

@@ -51,8 +51,9 @@ def test_probe_pairs_are_valid(concept, variant):
             # The penetration is hidden behind the container's front face: whatever of the
             # block shows in the video where it sinks (standard: inconsistent) also shows in
             # the one where it rests (the counterbalanced pair is the mirror).
-            sinks, rests = ((inconsistent, consistent) if variant == "standard"
-                            else (consistent, inconsistent))
+            sinks, rests = (
+                (inconsistent, consistent) if variant == "standard" else (consistent, inconsistent)
+            )
             for t in range(m, consistent["mask"].shape[0]):
                 for i in ids:
                     extra = (sinks["mask"][t] == i) & (rests["mask"][t] != i)
@@ -80,7 +81,9 @@ def check_objects_agree_with_mask(video, where: str) -> None:
     assert torch.equal(objects["visible_fraction"], share), f"{where}: visible_fraction != mask"
     present = objects["shape_label"] > 0
     shown = share > 0
-    assert not (shown & ~present).any(), f"{where}: ids {mask.unique().tolist()} shown without states"
+    assert not (shown & ~present).any(), (
+        f"{where}: ids {mask.unique().tolist()} shown without states"
+    )
     assert not present[:, 0].any(), f"{where}: the background holds an object"
     for name in ("position", "orientation", "size", "color"):
         assert not objects[name][~present].any(), f"{where}: absent objects have a {name}"
@@ -130,9 +133,11 @@ def test_object_states_follow_the_hidden_changes(seed):
 
     record = generate_probe("solidity", "counterbalanced", seed)
     m, block = int(record["manipulation_frame"]), int(record["manipulated_ids"][0])
-    size = [record[video, "objects", "size"][:, block, 2] for video in ("consistent", "inconsistent")]
+    size = [
+        record[video, "objects", "size"][:, block, 2] for video in ("consistent", "inconsistent")
+    ]
     assert (size[0] == size[0][0]).all() and torch.equal(size[1][: m + 1], size[0][: m + 1])
-    assert (size[1][m + 1:] > size[0][0]).all(), "after the change, the tall block's states"
+    assert (size[1][m + 1 :] > size[0][0]).all(), "after the change, the tall block's states"
     states = record["consistent", "objects"]
     container = int((states["shape_label"][0] == specs.OBJECT_SHAPES.index("compound")).nonzero())
     torch.testing.assert_close(states["position"][:, container, 2], states["size"][:, container, 2])
@@ -142,7 +147,8 @@ def test_object_states_follow_the_hidden_changes(seed):
         m = int(record["manipulation_frame"])
         for object_id in [i for i in record["manipulated_ids"].tolist() if i]:
             before, after = (
-                record[video, "objects", key][:, object_id] for video in ("consistent", "inconsistent")
+                record[video, "objects", key][:, object_id]
+                for video in ("consistent", "inconsistent")
             )
             assert torch.equal(before[: m + 1], after[: m + 1])
             assert not torch.isclose(before[m + 1 :], after[m + 1 :]).all(dim=-1).any()
@@ -227,8 +233,11 @@ def test_different_seeds_render_different_clips():
 
 #: Each concept's balanced pools: the two halves of each of its quadruplets (unchangeableness:
 #: one per change), tested by the quadruplet row.
-BALANCED_POOLS = [(concept, row, halves) for concept, quadruplets in specs.QUADRUPLETS.items()
-                  for row, halves in quadruplets.items()]
+BALANCED_POOLS = [
+    (concept, row, halves)
+    for concept, quadruplets in specs.QUADRUPLETS.items()
+    for row, halves in quadruplets.items()
+]
 
 
 @pytest.mark.parametrize("concept,row,halves", BALANCED_POOLS)

@@ -99,8 +99,10 @@ def test_counterbalanced_mirrors_the_standard_foreground_cue():
         for seed in range(6):
             record = generate_probe("containment", variant, seed)
             m = int(record["manipulation_frame"])
-            visible = [int((record[side, "mask"][m + 1 :] > 0).sum()) for side in
-                       ("inconsistent", "consistent")]
+            visible = [
+                int((record[side, "mask"][m + 1 :] > 0).sum())
+                for side in ("inconsistent", "consistent")
+            ]
             per_pair.append(visible[0] - visible[1])
         differences[variant] = np.array(per_pair)
     assert (differences["standard"] > 0).all()
@@ -109,13 +111,17 @@ def test_counterbalanced_mirrors_the_standard_foreground_cue():
 
 def test_every_kind_draws_its_camera_from_the_concept_range():
     for kind in ("example", "cube_behind_container", "cube_random_position"):
-        cameras = {tuple(generate_clip("containment", kind, seed)["camera"][0].tolist())
-                   for seed in range(3)}
+        cameras = {
+            tuple(generate_clip("containment", kind, seed)["camera"][0].tolist())
+            for seed in range(3)
+        }
         assert len(cameras) == 3, f"{kind} uses a fixed camera"
         assert all(containment.CAMERA.contains(np.array(pose)) for pose in cameras)
     for variant in ("standard", "counterbalanced"):
-        cameras = {tuple(generate_probe("containment", variant, seed)["camera"][0].tolist())
-                   for seed in range(3)}
+        cameras = {
+            tuple(generate_probe("containment", variant, seed)["camera"][0].tolist())
+            for seed in range(3)
+        }
         assert len(cameras) == 3, f"{variant} probes use a fixed camera"
         assert all(containment.CAMERA.contains(np.array(pose)) for pose in cameras)
 
@@ -144,12 +150,15 @@ def test_probe_parameters_lie_inside_the_examples_with_real_mass():
     assert containment.EXAMPLE_RANGES.contains(containment.PROBE_RANGES)
     assert containment.EXAMPLE_RANGES.contains(containment.BEHIND_RANGES)
     draws = {}
-    for name, ranges in (("example", containment.EXAMPLE_RANGES),
-                         ("standard", containment.PROBE_RANGES),
-                         ("behind", containment.BEHIND_RANGES)):
+    for name, ranges in (
+        ("example", containment.EXAMPLE_RANGES),
+        ("standard", containment.PROBE_RANGES),
+        ("behind", containment.BEHIND_RANGES),
+    ):
         rng = np.random.default_rng(0)
-        rows = [layout_parameters(*containment.sample_layout(rng, VIDEO, ranges))
-                for _ in range(600)]
+        rows = [
+            layout_parameters(*containment.sample_layout(rng, VIDEO, ranges)) for _ in range(600)
+        ]
         draws[name] = {key: np.array([row[key] for row in rows]) for key in rows[0]}
     examples = draws["example"]
     for name in ("standard", "behind"):
@@ -232,4 +241,3 @@ def test_no_room_off_the_slide_is_a_rejection_not_a_hang():
     layout.shift, layout.half_y = 0.2, 0.1  # a small container: room to spare
     containment.place_off_path(rng, layout)
     assert -0.75 <= layout.cube_start[0] <= 0.75
-

@@ -71,7 +71,7 @@ def _column(mask: torch.Tensor, object_id: int) -> float:
 def _comes_out(video, ball: int, m: int) -> float:
     """Column of the ball where it first shows after the manipulation frame m."""
     seen = ball_visible(video["mask"], ball)
-    back = m + 1 + int(np.argmax(seen[m + 1:]))
+    back = m + 1 + int(np.argmax(seen[m + 1 :]))
     assert seen[back], "the ball shows again after m"
     return _column(video["mask"][back], ball)
 
@@ -84,8 +84,9 @@ def test_quadruplet_ball_skips_the_gap_or_comes_back_out_of_the_first_pillar(see
     the last pillar at m; BA: it comes out of the first pillar into the gap again."""
     first, second = (generate_probe("continuity", v, seed) for v in ("standard", "counterbalanced"))
     m, ball = int(first["manipulation_frame"]), int(first["manipulated_ids"][0])
-    a, ab, b, ba = (record[side] for record in (first, second)
-                    for side in ("consistent", "inconsistent"))
+    a, ab, b, ba = (
+        record[side] for record in (first, second) for side in ("consistent", "inconsistent")
+    )
     pillars = sorted(_column(a["mask"][0], pillar) for pillar in (1, 2))
     start = _column(a["mask"][int(np.argmax(ball_visible(a["mask"], ball)))], ball)
     upstream, downstream = pillars if start < pillars[0] else pillars[::-1]
@@ -97,8 +98,9 @@ def test_quadruplet_ball_skips_the_gap_or_comes_back_out_of_the_first_pillar(see
     assert not ball_visible(a["mask"], ball)[m] and not ball_visible(b["mask"], ball)[m]
     assert in_gap(_comes_out(a, ball, m)) and in_gap(_comes_out(ba, ball, m))
     assert sign * (_comes_out(ab, ball, m) - downstream) > 0, "AB's ball comes out past the gap"
-    assert not any(in_gap(_column(mask, ball)) for mask in ab["mask"][m + 1:]
-                   if (mask == ball).any()), "AB's ball is never seen in the gap after m"
+    assert not any(
+        in_gap(_column(mask, ball)) for mask in ab["mask"][m + 1 :] if (mask == ball).any()
+    ), "AB's ball is never seen in the gap after m"
     assert any(in_gap(_column(mask, ball)) for mask in b["mask"][:m] if (mask == ball).any())
 
 
@@ -185,8 +187,9 @@ def test_gap_block_shows_the_ball_only_before_and_after_the_pillars():
 
 def test_gap_block_draws_its_camera_like_the_examples():
     """No fixed probe camera for the control (it used to be the probes' one)."""
-    cameras = np.stack([generate_clip("continuity", "gap_block", seed)["camera"][0].numpy()
-                        for seed in range(4)])
+    cameras = np.stack(
+        [generate_clip("continuity", "gap_block", seed)["camera"][0].numpy() for seed in range(4)]
+    )
     assert all(continuity.CAMERA.contains(camera) for camera in cameras)
     assert len(np.unique(cameras[:, 3])) == len(cameras), "the camera distance varies"
 

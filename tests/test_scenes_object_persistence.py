@@ -7,8 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from voe_lightning.scenes import VideoOptions, generate_clip, generate_probe
-from voe_lightning.scenes import object_persistence
+from voe_lightning.scenes import VideoOptions, generate_clip, generate_probe, object_persistence
 from voe_lightning.scenes.camera import CAMERA_PARAMETERS
 from voe_lightning.scenes.sampling import RejectedSample
 
@@ -155,7 +154,9 @@ def test_change_happens_on_a_frame_while_hidden(variant):
         record = generate_probe(CONCEPT, variant, seed)
         m = int(record["manipulation_frame"])
         for key in ("frames", "mask"):
-            assert torch.equal(record["consistent", key][: m + 1], record["inconsistent", key][: m + 1])
+            assert torch.equal(
+                record["consistent", key][: m + 1], record["inconsistent", key][: m + 1]
+            )
         assert 1 <= m <= record["consistent", "mask"].shape[0] - 3
 
 
@@ -179,11 +180,23 @@ def test_every_clip_kind_drops_the_plank_from_the_same_heights():
     from scipy.stats import ks_2samp
 
     kinds = ("example", "plank_beside_object", "plank_on_empty_floor")
-    heights = {kind: np.array([object_persistence.clip_layout(np.random.default_rng(seed), kind)
-                               ["plank_center"][2] for seed in range(300)]) for kind in kinds}
+    heights = {
+        kind: np.array(
+            [
+                object_persistence.clip_layout(np.random.default_rng(seed), kind)["plank_center"][2]
+                for seed in range(300)
+            ]
+        )
+        for kind in kinds
+    }
     for kind in kinds[1:]:
         np.testing.assert_allclose(heights[kind], heights["example"])
-    shifted = np.array([object_persistence.clip_layout(np.random.default_rng(1000 + seed),
-                                                       "plank_on_empty_floor")["plank_center"][2]
-                        for seed in range(300)])
+    shifted = np.array(
+        [
+            object_persistence.clip_layout(
+                np.random.default_rng(1000 + seed), "plank_on_empty_floor"
+            )["plank_center"][2]
+            for seed in range(300)
+        ]
+    )
     assert ks_2samp(heights["example"], shifted).pvalue > 0.01

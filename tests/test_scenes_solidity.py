@@ -102,8 +102,10 @@ def test_the_two_blocks_hang_level_and_only_the_tall_one_can_protrude(seed):
     at_change = tops[0] - fall
     assert solidity.CLEARANCE[0] <= at_change - heights["tall"] - floor <= solidity.CLEARANCE[1]
     eye = solidity.camera_position(params["camera"])
-    hidden = [solidity._hidden_height(eye, box, x, y)
-              for x, y in solidity._footprint(block, block["offset"])]
+    hidden = [
+        solidity._hidden_height(eye, box, x, y)
+        for x, y in solidity._footprint(block, block["offset"])
+    ]
     assert at_change - heights["short"] <= min(hidden) - solidity.MARGIN + 1e-12
     assert floor + heights["short"] <= min(hidden) - solidity.MARGIN + 1e-12
     protrusion = floor + heights["tall"] - max(hidden)
@@ -146,8 +148,8 @@ def test_no_pixel_is_new_to_one_past_only(seed):
     (a, ab), (b, ba) = pairs
     assert np.array_equal(a[0][0], b[0][0]) and block not in visible_ids(a[1][0])
     for frames, masks, _ in (a, ab, b, ba):
-        elsewhere = masks[m + 1:] != block
-        assert (frames[m + 1:] == frames[0])[elsewhere].all()
+        elsewhere = masks[m + 1 :] != block
+        assert (frames[m + 1 :] == frames[0])[elsewhere].all()
     videos = torch.from_numpy(np.stack([video[0] for video in (a, ab, b, ba)]))
     novelty = cues.score_videos(videos, None, torch.full((4,), m))["pixel_novelty"]
     halves = novelty[1] - novelty[0], novelty[3] - novelty[2]
@@ -280,7 +282,10 @@ def test_bad_names_list_valid_ones(call, match):
 def test_probes_refuse_videos_without_a_frame_for_the_change(variant):
     """With 4 frames over 3 s no frame comes 1.2 to 1.6 s in with two more after it: a clear
     error names the frames and the count that works, instead of 1,000 failed draws; 5 work."""
-    with pytest.raises(ValueError, match=r"1\.2 to 1\.6 s in.*got 4 frames 0\.75 s apart.*"
-                                         r"num_frames >= 5"):
+    with pytest.raises(
+        ValueError,
+        match=r"1\.2 to 1\.6 s in.*got 4 frames 0\.75 s apart.*"
+        r"num_frames >= 5",
+    ):
         generate_probe("solidity", variant, 0, num_frames=4, height=32, width=32)
     assert solidity.manipulation_frames(VideoOptions(num_frames=5)) == [2]

@@ -58,9 +58,17 @@ def test_position_probe_moves_objects_but_keeps_their_look(seed, variant):
     last = -1
     assert ids_at(consistent["mask"], last) == ids_at(inconsistent["mask"], last) == row_ids(record)
     for mask_id in ids:
-        where = lambda video: np.argwhere(video["mask"][last].numpy() == mask_id).mean(0)
+
+        def where(video, mask_id=mask_id):
+            return np.argwhere(video["mask"][last].numpy() == mask_id).mean(0)
+
         assert abs(where(consistent)[1] - where(inconsistent)[1]) > 3, "object did not move"
-        assert np.abs(mean_color(consistent, last, mask_id) - mean_color(inconsistent, last, mask_id)).max() < 40
+        assert (
+            np.abs(
+                mean_color(consistent, last, mask_id) - mean_color(inconsistent, last, mask_id)
+            ).max()
+            < 40
+        )
 
 
 @halves("color")
@@ -107,11 +115,15 @@ def test_the_two_halves_start_with_the_two_values_of_the_property(change):
     differ before the screen comes down only where the changed objects stand: in the property
     the change swaps, nowhere else."""
     for seed in SEEDS:
-        a, b = (generate_probe("unchangeableness", v, seed)
-                for v in (change, f"{change}_counterbalanced"))
+        a, b = (
+            generate_probe("unchangeableness", v, seed)
+            for v in (change, f"{change}_counterbalanced")
+        )
         assert changed(a) == changed(b) and row_ids(a) == row_ids(b)
-        frames, masks = ([video[key][0].numpy() for video in (a["consistent"], b["consistent"])]
-                         for key in ("frames", "mask"))
+        frames, masks = (
+            [video[key][0].numpy() for video in (a["consistent"], b["consistent"])]
+            for key in ("frames", "mask")
+        )
         differs = (frames[0] != frames[1]).any(-1)
         assert differs.any(), f"seed {seed}: A and B look alike before the change"
         where_changed = np.isin(masks[0], changed(a)) | np.isin(masks[1], changed(a))
@@ -288,7 +300,9 @@ def test_probe_parameters_lie_inside_the_examples_with_real_mass(counts):
             )
             if high > low:
                 inside = (examples[name] >= values.min()) & (examples[name] <= values.max())
-                assert inside.mean() >= 0.05, f"only {inside.mean():.2f} of examples near probe {name}"
+                assert inside.mean() >= 0.05, (
+                    f"only {inside.mean():.2f} of examples near probe {name}"
+                )
 
 
 def test_example_screens_are_often_placed_and_sized_like_the_probes():
@@ -299,6 +313,9 @@ def test_example_screens_are_often_placed_and_sized_like_the_probes():
     like_probes = np.ones(len(example_screens["screen_dx"]), bool)
     for name in ("screen_dx", "screen_dy", "screen_width", "screen_height"):
         values = probe_screens[name]
-        like_probes &= (example_screens[name] >= values.min()) & (example_screens[name] <= values.max())
-    assert like_probes.mean() >= 0.05, f"only {like_probes.mean():.2f} of example screens like probes'"
-
+        like_probes &= (example_screens[name] >= values.min()) & (
+            example_screens[name] <= values.max()
+        )
+    assert like_probes.mean() >= 0.05, (
+        f"only {like_probes.mean():.2f} of example screens like probes'"
+    )

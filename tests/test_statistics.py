@@ -50,8 +50,11 @@ def test_paired_test_agrees_with_scipy(n, effect, seed):
 def test_tensors_and_lists_are_accepted_and_dict_is_flat():
     inconsistent, consistent = _surprise(20, 0.5, 4)
     from_numpy = paired_test(inconsistent, consistent, bootstrap=100)
-    from_torch = paired_test(torch.tensor(inconsistent, dtype=torch.float64),
-                             torch.tensor(consistent, dtype=torch.float64), bootstrap=100)
+    from_torch = paired_test(
+        torch.tensor(inconsistent, dtype=torch.float64),
+        torch.tensor(consistent, dtype=torch.float64),
+        bootstrap=100,
+    )
     from_list = paired_test(list(inconsistent), list(consistent), bootstrap=100)
     assert from_numpy == from_torch == from_list
     row = from_numpy.as_dict()
@@ -149,8 +152,10 @@ def test_identical_surprise_is_not_significant_and_says_why():
 def _stream(inconsistent, consistent, batch):
     metric = PairedSurpriseStats()
     for start in range(0, len(inconsistent), batch):
-        metric.update(torch.tensor(inconsistent[start:start + batch]),
-                      torch.tensor(consistent[start:start + batch]))
+        metric.update(
+            torch.tensor(inconsistent[start : start + batch]),
+            torch.tensor(consistent[start : start + batch]),
+        )
     return metric
 
 
@@ -185,16 +190,22 @@ def test_streaming_states_merge_exactly_like_ddp():
     for rank in ranks:
         merged.merge_state(rank)
     summed = PairedSurpriseStats()
-    summed.merge_state({name: sum(getattr(r, name) for r in ranks)
-                        for name in ("n", "sum_d", "sum_d_squared", "positive")})
+    summed.merge_state(
+        {
+            name: sum(getattr(r, name) for r in ranks)
+            for name in ("n", "sum_d", "sum_d_squared", "positive")
+        }
+    )
     for metric in (merged, summed):
         assert metric.n.item() == whole.n.item() == 250
         assert metric.positive.item() == whole.positive.item()
         assert metric.sum_d.item() == pytest.approx(whole.sum_d.item(), rel=1e-14)
         values = metric.compute()
         _assert_matches_scipy(values, inconsistent, consistent)
-    assert all(state.dtype == torch.float64 for state in (merged.n, merged.sum_d,
-                                                           merged.sum_d_squared, merged.positive))
+    assert all(
+        state.dtype == torch.float64
+        for state in (merged.n, merged.sum_d, merged.sum_d_squared, merged.positive)
+    )
 
 
 def test_streaming_states_survive_dtype_casts_and_reset():
@@ -215,8 +226,10 @@ def test_streaming_degenerate_inputs():
     with pytest.raises(ValueError, match=r"shape \[B\]"):
         metric.update(torch.zeros(2, 15), torch.zeros(2, 15))
     equal = PairedSurpriseStats()
-    equal.update(torch.tensor([1.1, 2.1, 3.1], dtype=torch.float64),
-                 torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
+    equal.update(
+        torch.tensor([1.1, 2.1, 3.1], dtype=torch.float64),
+        torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64),
+    )
     values = equal.compute()  # d = 0.1 up to rounding: exactly the zero-variance rule
     assert values["t"].item() == math.inf and values["p_value"].item() == 0.0
 
@@ -232,9 +245,11 @@ def test_pooled_verdict_needs_the_pool_and_both_variants_significant():
     from voe_lightning.verdicts import concept_verdicts
 
     def verdict(standard, counterbalanced, pooled, alpha=0.01):
-        results = {("continuity", "standard"): standard,
-                   ("continuity", "counterbalanced"): counterbalanced,
-                   ("continuity", "pooled"): pooled}
+        results = {
+            ("continuity", "standard"): standard,
+            ("continuity", "counterbalanced"): counterbalanced,
+            ("continuity", "pooled"): pooled,
+        }
         return concept_verdicts(results, alpha)[0]
 
     assert verdict(_result(0.001, 2.0), _result(0.005, 0.1), _result(0.001, 1.0)).voe is True
@@ -261,11 +276,17 @@ def test_unchangeableness_verdict_needs_each_change_quadruplet():
     from voe_lightning.verdicts import concept_verdicts
 
     def quadruplet_row(p, first=1.0, second=0.5):
-        return {"p_value": p, "relative_surprise": first + second, "first_half": first,
-                "second_half": second}
+        return {
+            "p_value": p,
+            "relative_surprise": first + second,
+            "first_half": first,
+            "second_half": second,
+        }
 
-    results = {("unchangeableness", f"{change}_quadruplet"): quadruplet_row(0.001)
-               for change in specs.UNCHANGEABLENESS_CHANGES}
+    results = {
+        ("unchangeableness", f"{change}_quadruplet"): quadruplet_row(0.001)
+        for change in specs.UNCHANGEABLENESS_CHANGES
+    }
     results[("unchangeableness", "color_plus1")] = _result(0.9, -1.0)  # generalization: ignored
     results[("unchangeableness", "position")] = _result(0.9, -1.0)  # a half: beside the test
     assert concept_verdicts(results)[0].voe is True
@@ -275,17 +296,19 @@ def test_unchangeableness_verdict_needs_each_change_quadruplet():
     assert concept_verdicts(results, alpha=0.05)[0].voe is True
     results[("unchangeableness", "color_quadruplet")] = quadruplet_row(0.001, 2.0, -0.5)
     assert concept_verdicts(results, alpha=0.05)[0].text() == (
-        "no VOE: color_counterbalanced half M = -0.5 <= 0")
+        "no VOE: color_counterbalanced half M = -0.5 <= 0"
+    )
     del results[("unchangeableness", "position_quadruplet")]
     missing = concept_verdicts(results)[0]
     assert missing.voe is None and "no test of position_quadruplet" in missing.text()
 
-    halves = {("unchangeableness", v): _result(0.005, 1.0)
-              for v in specs.VERDICT_VARIANTS["unchangeableness"]}
+    halves = {
+        ("unchangeableness", v): _result(0.005, 1.0)
+        for v in specs.VERDICT_VARIANTS["unchangeableness"]
+    }
     assert concept_verdicts(halves)[0].voe is True
     halves[("unchangeableness", "shape_counterbalanced")] = _result(0.02, 0.4)
-    assert concept_verdicts(halves)[0].text() == (
-        "no VOE: shape_counterbalanced p = .020 >= 0.01")
+    assert concept_verdicts(halves)[0].text() == ("no VOE: shape_counterbalanced p = .020 >= 0.01")
 
 
 def test_the_verdict_rule_takes_arrays_as_concept_verdicts_takes_rows():
@@ -294,8 +317,10 @@ def test_the_verdict_rule_takes_arrays_as_concept_verdicts_takes_rows():
     from voe_lightning.verdicts import concept_verdicts, verdict_rule
 
     rng = np.random.default_rng(3)
-    cases = {"solidity": ("standard", "counterbalanced", "pooled"),
-             "unchangeableness": specs.VERDICT_VARIANTS["unchangeableness"]}
+    cases = {
+        "solidity": ("standard", "counterbalanced", "pooled"),
+        "unchangeableness": specs.VERDICT_VARIANTS["unchangeableness"],
+    }
     for concept, variants in cases.items():
         p = rng.uniform(0, 0.02, (len(variants), 60))
         vectorized = verdict_rule(p, 0.01)
@@ -317,9 +342,10 @@ def _hand_stratified(d1, d2):
     return mean, standard_error, df, stats.t.sf(mean / standard_error, df)
 
 
-@pytest.mark.parametrize("sizes, effects, seed", [((12, 9), (1.5, -1.0), 0),
-                                                  ((48, 48), (0.4, 0.2), 1),
-                                                  ((3, 200), (-0.3, 0.6), 2)])
+@pytest.mark.parametrize(
+    "sizes, effects, seed",
+    [((12, 9), (1.5, -1.0), 0), ((48, 48), (0.4, 0.2), 1), ((3, 200), (-0.3, 0.6), 2)],
+)
 def test_pooled_test_is_the_stratified_test_computed_by_hand(sizes, effects, seed):
     rng = np.random.default_rng(seed)
     # The variants' means differ by design (opposite cues) and so do their spreads.
@@ -365,13 +391,16 @@ def test_streaming_pooled_values_equal_the_one_shot_pooled_test():
     for size, effect in zip(sizes, effects):
         consistent = rng.gamma(2.0, 5.0, size)
         parts.append((consistent + rng.normal(effect, 2.0, size), consistent))
-    streamed = [{k: v.item() for k, v in _stream(inc, con, batch=7).compute().items()}
-                for inc, con in parts]
+    streamed = [
+        {k: v.item() for k, v in _stream(inc, con, batch=7).compute().items()} for inc, con in parts
+    ]
     pooled = pooled_values(streamed)
-    one_shot = statistics.pooled_test(np.r_[parts[0][0], parts[1][0]],
-                                      np.r_[parts[0][1], parts[1][1]],
-                                      ["standard"] * sizes[0] + ["counterbalanced"] * sizes[1],
-                                      bootstrap=0)
+    one_shot = statistics.pooled_test(
+        np.r_[parts[0][0], parts[1][0]],
+        np.r_[parts[0][1], parts[1][1]],
+        ["standard"] * sizes[0] + ["counterbalanced"] * sizes[1],
+        bootstrap=0,
+    )
     assert pooled["n"] == one_shot.n == sum(sizes)
     for key in ("relative_surprise", "t", "df", "p_value", "accuracy"):
         assert pooled[key] == pytest.approx(getattr(one_shot, key), rel=1e-9), key
@@ -385,14 +414,17 @@ def test_stratified_degenerate_and_refused_inputs():
     assert math.isnan(nothing.t) and nothing.p_value == 1.0
     # One variant without spread: the other's alone gives SE and df = n - 1.
     one = statistics.stratified_test([(5, 1.0, 0.0), (8, 0.2, 0.5)])
-    assert one.df == pytest.approx(7.0) and one.standard_error == pytest.approx(0.5 * math.sqrt(0.5 / 8))
+    assert one.df == pytest.approx(7.0) and one.standard_error == pytest.approx(
+        0.5 * math.sqrt(0.5 / 8)
+    )
     with pytest.raises(ValueError, match="at least 2 strata"):
         statistics.stratified_test([(5, 1.0, 1.0)])
     with pytest.raises(ValueError, match="at least 2 probe pairs, got n=1"):
         statistics.stratified_test([(5, 1.0, 1.0), (1, 0.3, 0.0)])
     with pytest.raises(ValueError, match="counterbalanced has 1 pair"):
-        statistics.pooled_test([1.0, 2.0, 3.0], [0.0, 0.0, 0.0],
-                               ["standard", "standard", "counterbalanced"])
+        statistics.pooled_test(
+            [1.0, 2.0, 3.0], [0.0, 0.0, 0.0], ["standard", "standard", "counterbalanced"]
+        )
     with pytest.raises(ValueError, match="at least 2 variants"):
         statistics.pooled_test([1.0, 2.0, 3.0], [0.0, 0.0, 0.0], ["standard"] * 3)
 
@@ -410,11 +442,23 @@ def test_one_alpha_in_code_and_base_config_and_bad_values_are_named():
 
 
 def test_json_row_writes_non_finite_values_as_strings_float_reads_back():
-    row = {"concept": "solidity", "t": float("inf"), "d_z": float("-inf"), "p": float("nan"),
-           "n": 3, "M": 0.5}
+    row = {
+        "concept": "solidity",
+        "t": float("inf"),
+        "d_z": float("-inf"),
+        "p": float("nan"),
+        "n": 3,
+        "M": 0.5,
+    }
     encoded = json.loads(json.dumps(statistics_format.json_row(row), allow_nan=False))
-    assert encoded == {"concept": "solidity", "t": "inf", "d_z": "-inf", "p": "nan", "n": 3,
-                       "M": 0.5}
+    assert encoded == {
+        "concept": "solidity",
+        "t": "inf",
+        "d_z": "-inf",
+        "p": "nan",
+        "n": 3,
+        "M": 0.5,
+    }
     assert float(encoded["t"]) == math.inf and math.isnan(float(encoded["p"]))
 
 
@@ -422,10 +466,13 @@ def test_one_row_formatter_writes_each_number_alike_in_every_style():
     """statistics_format.row_text is the one place a row's numbers become text: the report,
     figures, cue cells, the comparison and the console table only choose a precision."""
     d = np.array([1.0, 2.0, 0.5, -0.2, 1.5, 0.9])
-    row = {"concept": "solidity", "variant": "pooled",
-           **statistics.pooled_test(d + 1.0, np.ones(6),
-                                    ["standard"] * 3 + ["counterbalanced"] * 3,
-                                    bootstrap=0).as_dict()}
+    row = {
+        "concept": "solidity",
+        "variant": "pooled",
+        **statistics.pooled_test(
+            d + 1.0, np.ones(6), ["standard"] * 3 + ["counterbalanced"] * 3, bootstrap=0
+        ).as_dict(),
+    }
     report = statistics_format.row_text(row)
     assert report.t.startswith(f"t({row['df']:.1f}) = ")  # a real-valued df, one decimal
     assert report.accuracy == f"{100 * row['accuracy']:.1f}%" and report.sig in ("yes *", "no")
@@ -434,19 +481,40 @@ def test_one_row_formatter_writes_each_number_alike_in_every_style():
     assert brief.accuracy == f"{100 * row['accuracy']:.0f}%" and brief.t == report.t
     console = statistics_format.row_text(
         {key: row[key] for key in ("n", "relative_surprise", "t", "p_value", "accuracy")},
-        statistics_format.CONSOLE, alpha=0.5)
+        statistics_format.CONSOLE,
+        alpha=0.5,
+    )
     assert (console.n, console.mean, console.t, console.accuracy) == (
-        "6", f"{row['relative_surprise']:.3f}", f"{row['t']:.2f}", f"{row['accuracy']:.2f}")
+        "6",
+        f"{row['relative_surprise']:.3f}",
+        f"{row['t']:.2f}",
+        f"{row['accuracy']:.2f}",
+    )
     assert console.p == f"{row['p_value']:.3g}" and console.star == "*"
     # a row read back from summary.json, non-finite values as strings
     untested = statistics_format.row_text({"n": 1, "t": None, "p_value": None, "accuracy": None})
     assert (untested.t, untested.p, untested.sig, untested.accuracy) == ("n/a",) * 4
-    degenerate = statistics_format.row_text(statistics_format.json_row(
-        {"n": 3, "relative_surprise": 1.0, "t": math.inf, "df": 2, "p_value": 0.0, "d_z": math.inf,
-         "relative_surprise_ci_low": math.nan, "relative_surprise_ci_high": math.nan,
-         "significant": True}))
+    degenerate = statistics_format.row_text(
+        statistics_format.json_row(
+            {
+                "n": 3,
+                "relative_surprise": 1.0,
+                "t": math.inf,
+                "df": 2,
+                "p_value": 0.0,
+                "d_z": math.inf,
+                "relative_surprise_ci_low": math.nan,
+                "relative_surprise_ci_high": math.nan,
+                "significant": True,
+            }
+        )
+    )
     assert (degenerate.t, degenerate.p, degenerate.d_z, degenerate.mean_interval) == (
-        "t(2) = +inf", "< .001", "+inf", "1")
+        "t(2) = +inf",
+        "< .001",
+        "+inf",
+        "1",
+    )
 
 
 # ----------------------------------------------------------------------------- quadruplet test
@@ -469,8 +537,9 @@ def test_quadruplet_test_agrees_with_scipy_over_d(n, effect, seed):
     assert result.accuracy == np.mean(d > 0)
     assert result.first_half == pytest.approx(np.mean(ab - a), rel=1e-12)
     assert result.second_half == pytest.approx(np.mean(ba - b), rel=1e-12)
-    with pytest.raises(ValueError, match=f"one pair per quadruplet alike; got {n} first and "
-                                         f"{n - 1} second"):
+    with pytest.raises(
+        ValueError, match=f"one pair per quadruplet alike; got {n} first and {n - 1} second"
+    ):
         statistics.quadruplet_test(ab, a, ba[1:], b[1:])
 
 
@@ -482,17 +551,31 @@ def test_quadruplets_match_by_seed_and_the_report_tests_them():
     from voe_lightning.verdicts import concept_verdicts, pair_groups, quadruplets
 
     concepts = ["object_persistence"] * 7 + ["continuity"] * 2
-    variants = ["standard", "counterbalanced", "counterbalanced", "standard", "standard",
-                "counterbalanced", "counterbalanced", "standard", "counterbalanced"]
+    variants = [
+        "standard",
+        "counterbalanced",
+        "counterbalanced",
+        "standard",
+        "standard",
+        "counterbalanced",
+        "counterbalanced",
+        "standard",
+        "counterbalanced",
+    ]
     seeds = [5, 7, 5, 7, 9, 3, 11, 5, 6]  # continuity's two pairs: no common seed
-    (concept, row, first, second), = quadruplets(concepts, variants, seeds)
+    ((concept, row, first, second),) = quadruplets(concepts, variants, seeds)
     assert (concept, row) == ("object_persistence", "quadruplet")
     assert first.tolist() == [0, 3] and second.tolist() == [2, 1]  # seeds 5, 7
     groups = pair_groups(concepts, variants, seeds=seeds)
     assert [(c, v) for c, v, _ in groups] == [
-        ("object_persistence", "standard"), ("object_persistence", "counterbalanced"),
-        ("object_persistence", "pooled"), ("object_persistence", "quadruplet"),
-        ("continuity", "standard"), ("continuity", "counterbalanced"), ("continuity", "pooled")]
+        ("object_persistence", "standard"),
+        ("object_persistence", "counterbalanced"),
+        ("object_persistence", "pooled"),
+        ("object_persistence", "quadruplet"),
+        ("continuity", "standard"),
+        ("continuity", "counterbalanced"),
+        ("continuity", "pooled"),
+    ]
     assert groups[3][2].tolist() == [0, 3, 2, 1]
     with pytest.raises(ValueError, match="object_persistence/standard holds seed 5 more than"):
         quadruplets(concepts + ["object_persistence"], variants + ["standard"], seeds + [5])
@@ -500,22 +583,36 @@ def test_quadruplets_match_by_seed_and_the_report_tests_them():
     changes = ["color_counterbalanced", "position", "color", "position_counterbalanced", "shape"]
     matched = quadruplets(["unchangeableness"] * 5, changes, [4, 4, 4, 4, 4])
     assert [(row, a.tolist(), b.tolist()) for _, row, a, b in matched] == [
-        ("position_quadruplet", [1], [3]), ("color_quadruplet", [2], [0])]
+        ("position_quadruplet", [1], [3]),
+        ("color_quadruplet", [2], [0]),
+    ]
     assert [v for _, v, _ in pair_groups(["unchangeableness"] * 5, changes, seeds=[4] * 5)] == [
-        "position", "position_counterbalanced", "color", "color_counterbalanced", "shape",
-        "position_quadruplet", "color_quadruplet"]
+        "position",
+        "position_counterbalanced",
+        "color",
+        "color_counterbalanced",
+        "shape",
+        "position_quadruplet",
+        "color_quadruplet",
+    ]
 
     rng = np.random.default_rng(0)
     frames = rng.uniform(0, 1, (len(seeds), 2, 4))
-    results = PairResults(concept=concepts, variant=variants, seed=seeds,
-                          manipulation_frame=[1] * len(seeds), surprise_consistent=frames[:, 0],
-                          surprise_inconsistent=frames[:, 1] + 1.0)
+    results = PairResults(
+        concept=concepts,
+        variant=variants,
+        seed=seeds,
+        manipulation_frame=[1] * len(seeds),
+        surprise_consistent=frames[:, 0],
+        surprise_inconsistent=frames[:, 1] + 1.0,
+    )
     rows = {(row["concept"], row["variant"]): row for row in summarize(results, bootstrap=0)}
     row = rows[("object_persistence", "quadruplet")]
     total_con, total_inc = frames[:, 0].sum(1), frames[:, 1].sum(1) + 4.0
     d = total_inc - total_con
-    assert row["n"] == 2 and row["relative_surprise"] == pytest.approx(d[[0, 3]].sum() / 2
-                                                                       + d[[2, 1]].sum() / 2)
+    assert row["n"] == 2 and row["relative_surprise"] == pytest.approx(
+        d[[0, 3]].sum() / 2 + d[[2, 1]].sum() / 2
+    )
     assert row["first_half"] == pytest.approx(d[[0, 3]].mean())
     assert rows[("continuity", "pooled")]["first_half"] is None
     verdict = concept_verdicts(list(rows.values()))[0]
@@ -526,15 +623,24 @@ def test_quadruplet_verdict_needs_the_test_and_both_halves():
     from voe_lightning.verdicts import concept_verdicts, quadruplet_rule
 
     def verdict(p, first, second):
-        row = {"p_value": p, "relative_surprise": first + second, "first_half": first,
-               "second_half": second}
-        return concept_verdicts({("object_persistence", "standard"): _result(0.9, -1.0),
-                                 ("object_persistence", "quadruplet"): row})[0]
+        row = {
+            "p_value": p,
+            "relative_surprise": first + second,
+            "first_half": first,
+            "second_half": second,
+        }
+        return concept_verdicts(
+            {
+                ("object_persistence", "standard"): _result(0.9, -1.0),
+                ("object_persistence", "quadruplet"): row,
+            }
+        )[0]
 
     assert verdict(0.001, 1.0, 0.5).voe is True  # a weak variant row does not decide it
     assert verdict(0.001, 3.0, -0.5).text() == "no VOE: counterbalanced half M = -0.5 <= 0"
     assert verdict(0.02, 1.0, 0.5).text() == "no VOE: quadruplet p = .020 >= 0.01"
     assert verdict(None, 1.0, 1.0).voe is None
-    rules = quadruplet_rule(np.array([0.001, 0.001, 0.5]), np.array([1.0, -1.0, 1.0]),
-                            np.array([1.0, 1.0, 1.0]), 0.01)
+    rules = quadruplet_rule(
+        np.array([0.001, 0.001, 0.5]), np.array([1.0, -1.0, 1.0]), np.array([1.0, 1.0, 1.0]), 0.01
+    )
     assert rules.tolist() == [True, False, False]

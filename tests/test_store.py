@@ -51,7 +51,12 @@ def fake_clip(concept, kind, seed, num_frames=15, height=64, width=64, **_):
     frames, mask = _video(rng, num_frames, height, width)
     camera = rng.normal(size=(num_frames, 6))
     return specs.clip_record(
-        frames, mask, camera, specs.CONCEPTS.index(concept), specs.CLIP_KINDS.index(kind), seed,
+        frames,
+        mask,
+        camera,
+        specs.CONCEPTS.index(concept),
+        specs.CLIP_KINDS.index(kind),
+        seed,
         _objects(rng, mask),
     )
 
@@ -68,8 +73,14 @@ def fake_probe(concept, variant, seed, num_frames=15, height=64, width=64, **_):
     gone_mask[manipulation:] = 0
     gone_objects[manipulation:] = np.zeros((), specs.OBJECT_STATE_DTYPE)
     return specs.probe_record(
-        (frames, mask, objects), (gone_frames, gone_mask, gone_objects), np.zeros(6),
-        specs.CONCEPTS.index(concept), specs.VARIANTS.index(variant), manipulation, seed, [1],
+        (frames, mask, objects),
+        (gone_frames, gone_mask, gone_objects),
+        np.zeros(6),
+        specs.CONCEPTS.index(concept),
+        specs.VARIANTS.index(variant),
+        manipulation,
+        seed,
+        [1],
     )
 
 
@@ -86,7 +97,10 @@ def test_round_trip_is_lossless_for_random_clips_and_probes(tmp_path):
     probes = [specs.probe_spec().rand() for _ in range(3)]
     store_shards.write_shard(tmp_path / "clips.voe", clips)
     store_shards.write_shard(tmp_path / "probes.voe", probes, {"note": "kept"})
-    clip_reader, probe_reader = store_shards.ShardReader(tmp_path / "clips.voe"), store_shards.ShardReader(tmp_path / "probes.voe")
+    clip_reader, probe_reader = (
+        store_shards.ShardReader(tmp_path / "clips.voe"),
+        store_shards.ShardReader(tmp_path / "probes.voe"),
+    )
     assert len(clip_reader) == 4 and len(probe_reader) == 3
     for i in (2, 0, 3, 1):  # random order
         assert _equal(clip_reader[i], clips[i])
@@ -130,12 +144,20 @@ def _split_root(tmp_path, count=10, shard_size=4, concept="continuity"):
     manifest = {
         "shard_size": shard_size,
         "video": {"num_frames": 15, "height": 64, "width": 64},
-        "concepts": {concept: {"splits": {s: {"record_type": store.SPLIT_RECORD_TYPE[s], "count": 0} for s in store.SPLITS}}},
+        "concepts": {
+            concept: {
+                "splits": {
+                    s: {"record_type": store.SPLIT_RECORD_TYPE[s], "count": 0} for s in store.SPLITS
+                }
+            }
+        },
     }
     manifest["concepts"][concept]["splits"]["train"]["count"] = count
     clips = [fake_clip(concept, "example", seed) for seed in range(count)]
     for index, start in enumerate(range(0, count, shard_size)):
-        store_shards.write_shard(store.shard_path(tmp_path, concept, "train", index), clips[start : start + shard_size])
+        store_shards.write_shard(
+            store.shard_path(tmp_path, concept, "train", index), clips[start : start + shard_size]
+        )
     store.write_manifest(tmp_path, manifest)
     return clips
 
@@ -150,13 +172,19 @@ def test_open_split_reads_every_record_from_dataloader_workers(tmp_path):
     clone = pickle.loads(pickle.dumps(dataset))
     assert clone._readers == {} and _equal(clone[9], clips[9])
     loader = DataLoader(
-        dataset, batch_size=3, num_workers=2, collate_fn=store.collate, multiprocessing_context="fork"
+        dataset,
+        batch_size=3,
+        num_workers=2,
+        collate_fn=store.collate,
+        multiprocessing_context="fork",
     )
     batches = list(loader)
     assert batches[0].batch_size == torch.Size([3])
     seeds = torch.cat([batch["seed"] for batch in batches]).tolist()
     assert seeds == list(range(10))
-    assert torch.equal(torch.cat([b["frames"] for b in batches]), torch.stack([c["frames"] for c in clips]))
+    assert torch.equal(
+        torch.cat([b["frames"] for b in batches]), torch.stack([c["frames"] for c in clips])
+    )
     assert len(store.open_split(tmp_path, "continuity", "generalization")) == 0
 
 
@@ -199,7 +227,9 @@ def test_failed_write_names_the_path_and_leaves_no_temporary(tmp_path, monkeypat
 
 def test_open_split_rejects_bad_names(tmp_path):
     _split_root(tmp_path)
-    with pytest.raises(ValueError, match="valid concepts are: object_persistence, unchangeableness"):
+    with pytest.raises(
+        ValueError, match="valid concepts are: object_persistence, unchangeableness"
+    ):
         store.open_split(tmp_path, "gravity", "train")
     with pytest.raises(ValueError, match="valid splits are: train, val, test, generalization"):
         store.open_split(tmp_path, "continuity", "training")
@@ -233,10 +263,12 @@ def test_a_benchmark_cache_folder_respects_the_umask(tmp_path, umask, mode):
     shared cache must open for others as the umask allows."""
     previous = os.umask(umask)
     try:
-        cache = write_cache(tmp_path / "cache", [fake_clip("continuity", "example", 0)],
-                            specs.clip_spec())
+        cache = write_cache(
+            tmp_path / "cache", [fake_clip("continuity", "example", 0)], specs.clip_spec()
+        )
     finally:
         os.umask(previous)
     assert stat.S_IMODE(cache.root.stat().st_mode) == mode
-    assert all(stat.S_IMODE(path.stat().st_mode) in (mode, mode & 0o666)
-               for path in cache.root.rglob("*"))
+    assert all(
+        stat.S_IMODE(path.stat().st_mode) in (mode, mode & 0o666) for path in cache.root.rglob("*")
+    )

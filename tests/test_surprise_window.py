@@ -35,9 +35,15 @@ def _toy() -> PairResults:
     """Two standard pairs of five frames: the videos differ from frame 2 and frame 3."""
     consistent = np.array([[1.0, 2.0, 3.0, 4.0, 5.0], [1.0, 1.0, 1.0, 1.0, 1.0]])
     inconsistent = np.array([[1.0, 2.0, 7.0, 4.0, 15.0], [1.0, 1.0, 1.0, 6.0, 9.0]])
-    return PairResults(concept=["continuity"] * 2, variant=["standard"] * 2, seed=[0, 1],
-                       manipulation_frame=[1, 1], surprise_consistent=consistent,
-                       surprise_inconsistent=inconsistent, first_difference=[2, 3])
+    return PairResults(
+        concept=["continuity"] * 2,
+        variant=["standard"] * 2,
+        seed=[0, 1],
+        manipulation_frame=[1, 1],
+        surprise_consistent=consistent,
+        surprise_inconsistent=inconsistent,
+        first_difference=[2, 3],
+    )
 
 
 def test_a_window_sums_the_frames_from_the_first_difference_by_hand():
@@ -56,8 +62,14 @@ def test_a_window_sums_the_frames_from_the_first_difference_by_hand():
     # a window past the last frame keeps what there is; without first_difference, m + 1
     late = results.windowed(SurpriseWindow(frames=10))
     np.testing.assert_array_equal(late.relative_surprise, [14.0, 13.0])
-    unknown = PairResults(results.concept, results.variant, results.seed, [2, 0],
-                          results.surprise_consistent, results.surprise_inconsistent)
+    unknown = PairResults(
+        results.concept,
+        results.variant,
+        results.seed,
+        [2, 0],
+        results.surprise_consistent,
+        results.surprise_inconsistent,
+    )
     assert unknown.first_difference.tolist() == [3, 1]
 
 
@@ -68,16 +80,23 @@ def test_a_videos_surprise_is_made_in_one_place_for_tensors_and_arrays():
     window = SurpriseWindow(2)
     windowed = video_surprise(per_frame, window, torch.tensor([1, 5]))
     assert windowed.tolist() == [1.0 + 2.0, 11.0]  # frames 1-2; frame 5 only (the video ends)
-    assert np.array_equal(video_surprise(per_frame.double().numpy(), window, [1, 5]),
-                          windowed.double().numpy())
+    assert np.array_equal(
+        video_surprise(per_frame.double().numpy(), window, [1, 5]), windowed.double().numpy()
+    )
     with pytest.raises(ValueError, match="needs each pair's first difference"):
         video_surprise(per_frame, window)
 
 
-@pytest.mark.parametrize("value", ["some", {"start": "manipulation_frame", "frames": 3},
-                                   {"start": "first_difference", "frames": 0},
-                                   {"start": "first_difference", "frames": 2.5},
-                                   {"start": "first_difference"}])
+@pytest.mark.parametrize(
+    "value",
+    [
+        "some",
+        {"start": "manipulation_frame", "frames": 3},
+        {"start": "first_difference", "frames": 0},
+        {"start": "first_difference", "frames": 2.5},
+        {"start": "first_difference"},
+    ],
+)
 def test_a_window_that_is_not_one_is_refused_naming_what_is_valid(value):
     with pytest.raises(ValueError, match=r"surprise_window .* valid: 'all'.*first_difference"):
         surprise_window(value)
@@ -93,8 +112,14 @@ def test_the_report_names_its_window_beside_all_frames(tmp_path, monkeypatch):
     """``test --surprise_window`` (a parameter-free scorer: no checkpoint) writes the paper's
     rows over all frames and, beside them, the window's, each naming what it summed."""
     monkeypatch.chdir(tmp_path)
-    model = ["--model", "voe_lightning.model.CueScorer", "--model.init_args.cue", "motion",
-             "--trainer.enable_progress_bar", "false"]
+    model = [
+        "--model",
+        "voe_lightning.model.CueScorer",
+        "--model.init_args.cue",
+        "motion",
+        "--trainer.enable_progress_bar",
+        "false",
+    ]
     main(["test", "--config", TINY, *model])
     report = tmp_path / "runs" / "tiny" / "version_0" / "voe_report"
     assert "Surprise window: all frames (the paper's)." in (report / "summary.md").read_text()
@@ -103,8 +128,16 @@ def test_the_report_names_its_window_beside_all_frames(tmp_path, monkeypatch):
     assert not (report / "summary_window.csv").exists()
     all_rows = summary["rows"]
 
-    main(["test", "--config", TINY, *model,
-          "--surprise_window", "{start: first_difference, frames: 2}"])
+    main(
+        [
+            "test",
+            "--config",
+            TINY,
+            *model,
+            "--surprise_window",
+            "{start: first_difference, frames: 2}",
+        ]
+    )
     report = tmp_path / "runs" / "tiny" / "version_1" / "voe_report"
     markdown = (report / "summary.md").read_text()
     assert "## Surprise window: 2 frames from the pair's first difference" in markdown
@@ -118,7 +151,8 @@ def test_the_report_names_its_window_beside_all_frames(tmp_path, monkeypatch):
     window = summary["window"]
     assert window["video_surprise"].startswith("sum over the 2 frames from the pair's first")
     assert [row["relative_surprise"] for row in window["rows"]] == pytest.approx(
-        [row["relative_surprise"] for row in expected])
+        [row["relative_surprise"] for row in expected]
+    )
     with open(report / "summary_window.csv", newline="") as handle:
         assert len(list(csv.DictReader(handle))) == len(expected)
     # the first differences are the probes' own: after the manipulation frame
@@ -149,15 +183,18 @@ def test_validation_curves_log_the_window_beside_all_frames():
 
     results, module = _toy(), Module()
     trainer = SimpleNamespace(datamodule=Probes(), sanity_checking=False)
-    callback = VOEProbeCallback(print_table=False,
-                                surprise_window={"start": "first_difference", "frames": 2})
+    callback = VOEProbeCallback(
+        print_table=False, surprise_window={"start": "first_difference", "frames": 2}
+    )
     callback.on_validation_epoch_start(trainer, module)
-    outputs = {"concept": torch.tensor([specs.CONCEPTS.index("continuity")] * 2),
-               "variant": torch.tensor([specs.VARIANTS.index("standard")] * 2),
-               "manipulation_frame": torch.tensor([1, 1]),
-               "first_difference": torch.tensor([2, 3]),
-               "surprise_consistent": torch.from_numpy(results.surprise_consistent),
-               "surprise_inconsistent": torch.from_numpy(results.surprise_inconsistent)}
+    outputs = {
+        "concept": torch.tensor([specs.CONCEPTS.index("continuity")] * 2),
+        "variant": torch.tensor([specs.VARIANTS.index("standard")] * 2),
+        "manipulation_frame": torch.tensor([1, 1]),
+        "first_difference": torch.tensor([2, 3]),
+        "surprise_consistent": torch.from_numpy(results.surprise_consistent),
+        "surprise_inconsistent": torch.from_numpy(results.surprise_inconsistent),
+    }
     callback.on_validation_batch_end(trainer, module, outputs, None, 0)
     callback.on_validation_epoch_end(trainer, module)
     assert module.logged["voe/continuity/standard/relative_surprise"] == pytest.approx(13.5)

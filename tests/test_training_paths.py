@@ -12,19 +12,28 @@ from lightning.pytorch import Callback, Trainer
 from tensordict import TensorDict
 from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils.data import DataLoader, SequentialSampler
+from videos import moving_squares
 
 from datamodules import ConceptDataModule
 from datamodules.resident import ResidentBatches
 from voe_lightning.model import VRNNLRUModel
 from voe_lightning.model.optimization import adam
 from voe_lightning.model.training_monitor import FiniteMonitor
-from videos import moving_squares
 
 B, T, H, W = 4, 5, 32, 32
 TINY = dict(
-    image_size=(H, W), latent_size=16, mlp_sizes=(32, 32), memory_slots=5, memory_slot_size=8,
-    memory_read_heads=2, controller_size=16, encoder_blocks=3, encoder_channels=(8, 8, 16),
-    encoder_mlp_size=32, learning_rate=1e-3, precision="float32",
+    image_size=(H, W),
+    latent_size=16,
+    mlp_sizes=(32, 32),
+    memory_slots=5,
+    memory_slot_size=8,
+    memory_read_heads=2,
+    controller_size=16,
+    encoder_blocks=3,
+    encoder_channels=(8, 8, 16),
+    encoder_mlp_size=32,
+    learning_rate=1e-3,
+    precision="float32",
 )
 
 
@@ -38,9 +47,15 @@ def model(**overrides) -> VRNNLRUModel:
 
 
 def trainer(steps: int, **overrides) -> Trainer:
-    settings = dict(max_steps=steps, logger=False, enable_checkpointing=False,
-                    enable_progress_bar=False, enable_model_summary=False, accelerator="cpu",
-                    gradient_clip_val=10.0)
+    settings = dict(
+        max_steps=steps,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        accelerator="cpu",
+        gradient_clip_val=10.0,
+    )
     return Trainer(**(settings | overrides))
 
 
@@ -77,8 +92,12 @@ def test_compiled_and_graph_fallback_training_follow_eager_over_100_steps():
     assert sum(losses["eager"][-10:]) < 0.8 * sum(losses["eager"][:10])  # it did train
     frames, noise = clips(B, seed=4), torch.randn(T, B, TINY["latent_size"])
     weight = torch.ones(())
-    torch.testing.assert_close(graphed._training_loss(frames, noise, weight),
-                               graphed.training_terms(frames, noise, weight), rtol=0, atol=0)
+    torch.testing.assert_close(
+        graphed._training_loss(frames, noise, weight),
+        graphed.training_terms(frames, noise, weight),
+        rtol=0,
+        atol=0,
+    )
     probes = clips(B, seed=5)
     surprise = {name: network.eval().surprise(probes).sum(1) for name, network in paths.items()}
     torch.testing.assert_close(surprise["graphed"], surprise["eager"], rtol=0.01, atol=1e-3)
@@ -140,9 +159,13 @@ def test_a_nan_is_named_with_its_step_at_the_next_read_back():
 def test_the_finite_monitor_keeps_the_first_bad_step_and_its_terms():
     monitor = FiniteMonitor(("a", "b"))
     monitor.check()  # nothing seen yet
-    for step, terms in enumerate([[1.0, 2.0], [3.0, 4.0], [float("inf"), 5.0], [float("nan"), 6.0]]):
+    for step, terms in enumerate(
+        [[1.0, 2.0], [3.0, 4.0], [float("inf"), 5.0], [float("nan"), 6.0]]
+    ):
         monitor.update(torch.tensor(terms), torch.tensor(step))
-    with pytest.raises(FloatingPointError, match=r"global step 2: a=inf \(all terms: \{'a': inf, 'b': 5.0\}"):
+    with pytest.raises(
+        FloatingPointError, match=r"global step 2: a=inf \(all terms: \{'a': inf, 'b': 5.0\}"
+    ):
         monitor.check()
     network = model()
     network._finite.update(torch.tensor([float("nan"), 1.0, 1.0]), torch.tensor(3))
@@ -170,7 +193,9 @@ def test_the_learning_rate_warms_up_linearly_as_a_tensor_for_fused_adam():
         schedule.step()
     assert rates == pytest.approx([2.5e-4, 5e-4, 7.5e-4, 1e-3, 1e-3, 1e-3])
     cosine = adam(parameters, 1e-3, "cosine", 8, warmup_steps=2)["lr_scheduler"]["scheduler"]
-    assert cosine.lr_lambdas[0](0) == pytest.approx(0.5) and cosine.lr_lambdas[0](4) == pytest.approx(0.5)
+    assert cosine.lr_lambdas[0](0) == pytest.approx(0.5) and cosine.lr_lambdas[0](
+        4
+    ) == pytest.approx(0.5)
     with pytest.raises(ValueError, match="lr_warmup_steps must be >= 0, got -1"):
         model(lr_warmup_steps=-1)
 
@@ -178,7 +203,9 @@ def test_the_learning_rate_warms_up_linearly_as_a_tensor_for_fused_adam():
 def test_compile_settings_resolve_by_device_and_refuse_unknown_values():
     assert not model().compiles  # auto: off on a CPU
     assert model(compile="frame").compiles and model(compile_model=True).compiles
-    with pytest.raises(ValueError, match="unknown compile 'graph'; valid choices are: auto, off, frame"):
+    with pytest.raises(
+        ValueError, match="unknown compile 'graph'; valid choices are: auto, off, frame"
+    ):
         model(compile="graph")
 
 
@@ -208,11 +235,23 @@ def test_resident_batches_follow_the_sampler_and_split_ranks(monkeypatch):
 
 def test_train_on_device_serves_the_loaders_clips_in_its_order(tmp_path):
     """The DataModule's resident batches hold exactly the frames its DataLoader would give."""
-    arguments = dict(concept="solidity", root=str(tmp_path / "data"), train_examples=4,
-                     val_pairs=1, test_pairs=1, generalization_pairs=1, batch_size=2,
-                     generate_workers=1, num_frames=5, height=32, width=32)
-    standard, resident = ConceptDataModule(**arguments), ConceptDataModule(**arguments,
-                                                                            train_on_device=True)
+    arguments = dict(
+        concept="solidity",
+        root=str(tmp_path / "data"),
+        train_examples=4,
+        val_pairs=1,
+        test_pairs=1,
+        generalization_pairs=1,
+        batch_size=2,
+        generate_workers=1,
+        num_frames=5,
+        height=32,
+        width=32,
+    )
+    standard, resident = (
+        ConceptDataModule(**arguments),
+        ConceptDataModule(**arguments, train_on_device=True),
+    )
     for datamodule in (standard, resident):
         datamodule.prepare_data()
         datamodule.setup("fit")

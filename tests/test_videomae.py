@@ -14,10 +14,21 @@ from voe_lightning.cli import main  # noqa: E402
 from voe_lightning.model.videomae import VideoMAEScorer  # noqa: E402
 
 TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
-CONFIG = dict(image_size=32, patch_size=8, num_frames=6, tubelet_size=2, hidden_size=16,
-              num_hidden_layers=1, num_attention_heads=2, intermediate_size=32,
-              decoder_num_attention_heads=2, decoder_hidden_size=16, decoder_num_hidden_layers=1,
-              decoder_intermediate_size=32, norm_pix_loss=False)
+CONFIG = dict(
+    image_size=32,
+    patch_size=8,
+    num_frames=6,
+    tubelet_size=2,
+    hidden_size=16,
+    num_hidden_layers=1,
+    num_attention_heads=2,
+    intermediate_size=32,
+    decoder_num_attention_heads=2,
+    decoder_hidden_size=16,
+    decoder_num_hidden_layers=1,
+    decoder_intermediate_size=32,
+    norm_pix_loss=False,
+)
 
 
 def video(seed=0, frames=6):
@@ -47,12 +58,15 @@ def test_surprise_is_per_frame_causal_and_frozen():
     assert surprise.shape == (2, 6) and (surprise[:, [0, 1, 2, 4]] == 0).all()
     assert (surprise[:, [3, 5]] > 0).all()
     for t in range(5):  # frames after t change nothing up to t; a cut video is padded
-        spliced = torch.cat([frames[:, :t + 1], other[:, t + 1:]], dim=1)
-        assert torch.allclose(scorer.surprise(spliced)[:, :t + 1], surprise[:, :t + 1])
-        assert torch.allclose(scorer.surprise(frames[:, :t + 1]), surprise[:, :t + 1])
+        spliced = torch.cat([frames[:, : t + 1], other[:, t + 1 :]], dim=1)
+        assert torch.allclose(scorer.surprise(spliced)[:, : t + 1], surprise[:, : t + 1])
+        assert torch.allclose(scorer.surprise(frames[:, : t + 1]), surprise[:, : t + 1])
     assert scorer.expected_frames(frames).shape == (2, 6, 3, 32, 32)
-    with pytest.raises(ValueError, match=r"videos of 8 frames are longer than this VideoMAE's "
-                                         r"num_frames 6"):
+    with pytest.raises(
+        ValueError,
+        match=r"videos of 8 frames are longer than this VideoMAE's "
+        r"num_frames 6",
+    ):
         scorer.surprise(video(frames=8))
 
 
@@ -70,7 +84,17 @@ def test_test_on_our_probes_runs_without_a_checkpoint(tmp_path, monkeypatch):
     torch.manual_seed(0)
     VideoMAEScorer(config=CONFIG).model.save_pretrained(tmp_path / "videomae")
     monkeypatch.chdir(tmp_path)
-    main(["test", "--config", TINY, "--model", "voe_lightning.model.videomae.VideoMAEScorer",
-          "--model.init_args.pretrained", str(tmp_path / "videomae"),
-          "--trainer.enable_progress_bar", "false"])
+    main(
+        [
+            "test",
+            "--config",
+            TINY,
+            "--model",
+            "voe_lightning.model.videomae.VideoMAEScorer",
+            "--model.init_args.pretrained",
+            str(tmp_path / "videomae"),
+            "--trainer.enable_progress_bar",
+            "false",
+        ]
+    )
     assert (tmp_path / "runs" / "tiny" / "version_0" / "voe_report" / "summary.json").is_file()

@@ -12,9 +12,20 @@ from voe_lightning.model.code_likelihood import TERMS, excess_surprisal, frame_t
 
 HEIGHT, WIDTH, FRAMES = 16, 20, 11
 BALL, SCREEN = 1, 2  # mask ids
-TINY = dict(image_size=(HEIGHT, WIDTH), num_slots=2, code_size=6, encoder_channels=(8, 8),
-            state_size=24, relation_sizes=(24,), node_sizes=(24,), relation_size=24,
-            use_camera=False, perception_frames=4, learning_rate=3e-3, code_loss_weight=0.1)
+TINY = dict(
+    image_size=(HEIGHT, WIDTH),
+    num_slots=2,
+    code_size=6,
+    encoder_channels=(8, 8),
+    state_size=24,
+    relation_sizes=(24,),
+    node_sizes=(24,),
+    relation_size=24,
+    use_camera=False,
+    perception_frames=4,
+    learning_rate=3e-3,
+    code_loss_weight=0.1,
+)
 
 
 def scripted_clips(count: int, seed: int, change: str = "none") -> TensorDict:
@@ -39,13 +50,16 @@ def scripted_clips(count: int, seed: int, change: str = "none") -> TensorDict:
     mask = torch.zeros(count, FRAMES, HEIGHT, WIDTH, dtype=torch.uint8)
     mask[:, :, 7:9] = torch.where(ball, BALL, 0)[:, :, None].to(torch.uint8)
     mask[cover[:, None, None].expand(-1, FRAMES, HEIGHT, -1)] = SCREEN
-    colours = torch.tensor([[0, 0, 0], [230, 30, 30], [40, 40, 220], [220, 220, 40]],
-                           dtype=torch.uint8)
+    colours = torch.tensor(
+        [[0, 0, 0], [230, 30, 30], [40, 40, 220], [220, 220, 40]], dtype=torch.uint8
+    )
     painted = mask.long()
     if change == "recolour":
         painted = torch.where((painted == SCREEN) & behind[..., None, None], 3, painted)
-    return TensorDict({"frames": colours[painted], "mask": mask,
-                       "seed": torch.arange(count) + 1000 * seed}, batch_size=[count])
+    return TensorDict(
+        {"frames": colours[painted], "mask": mask, "seed": torch.arange(count) + 1000 * seed},
+        batch_size=[count],
+    )
 
 
 def _model(**overrides) -> ObjectCentricModel:
@@ -87,9 +101,10 @@ def test_the_scripted_ball_hides_behind_the_screen_and_comes_out():
     assert bool(seen[:, 0].all()) and bool(hidden_then_seen.any(-1).all())
     first = (seen != gone).float().argmax(-1)  # the first frame the two differ
     for index in range(8):  # the same clip up to the reappearance, never seen again after
-        assert torch.equal(clips["frames"][index, :first[index]],
-                           vanish["frames"][index, :first[index]])
-        assert not gone[index, first[index]:].any()
+        assert torch.equal(
+            clips["frames"][index, : first[index]], vanish["frames"][index, : first[index]]
+        )
+        assert not gone[index, first[index] :].any()
 
 
 def test_shapes_terms_and_refusals():
@@ -116,8 +131,9 @@ def test_shapes_terms_and_refusals():
     assert bool((terms["code"][0][:, :, BALL][hidden] == 0).all())
     assert bool((terms["visibility"][0][:, :, BALL][hidden] > 0).all())
     model.hparams.surprise_space = "codes"
-    torch.testing.assert_close(model.surprise(clips["frames"], clips["mask"])[:, 1:],
-                               excess_surprisal(terms))
+    torch.testing.assert_close(
+        model.surprise(clips["frames"], clips["mask"])[:, 1:], excess_surprisal(terms)
+    )
     with pytest.raises(ValueError, match="surprise must be 'squared_error' or 'likelihood'"):
         ObjectCentricModel(**TINY, surprise="kl")
     with pytest.raises(ValueError, match="surprise_space 'codes' or 'pixels'.*'frames'"):

@@ -20,10 +20,23 @@ from voe_lightning.model.vjepa2 import VJEPA2Scorer, window_ends  # noqa: E402
 
 TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
 #: A tiny V-JEPA 2 (random mask tokens, so the predictor's outputs differ by position).
-CONFIG = dict(crop_size=32, patch_size=8, frames_per_clip=4, tubelet_size=2, hidden_size=24,
-              num_attention_heads=2, num_hidden_layers=1, mlp_ratio=2.0, pred_hidden_size=12,
-              pred_num_attention_heads=2, pred_num_hidden_layers=1, pred_mlp_ratio=2.0,
-              pred_num_mask_tokens=2, pred_zero_init_mask_tokens=False, num_pooler_layers=1)
+CONFIG = dict(
+    crop_size=32,
+    patch_size=8,
+    frames_per_clip=4,
+    tubelet_size=2,
+    hidden_size=24,
+    num_attention_heads=2,
+    num_hidden_layers=1,
+    mlp_ratio=2.0,
+    pred_hidden_size=12,
+    pred_num_attention_heads=2,
+    pred_num_hidden_layers=1,
+    pred_mlp_ratio=2.0,
+    pred_num_mask_tokens=2,
+    pred_zero_init_mask_tokens=False,
+    num_pooler_layers=1,
+)
 #: Windows of 4 subsampled frames, the first 2 seen, every 2nd frame, starting every 2.
 WINDOWS = dict(context_frames=2, window_frames=4, frame_step=2, window_stride=2)
 
@@ -35,8 +48,7 @@ def scorer(**overrides) -> VJEPA2Scorer:
 
 def video(seed=0, frames=17, size=32):
     generator = torch.Generator().manual_seed(seed)
-    return torch.randint(0, 256, (2, frames, size, size, 3), dtype=torch.uint8,
-                         generator=generator)
+    return torch.randint(0, 256, (2, frames, size, size, 3), dtype=torch.uint8, generator=generator)
 
 
 def test_windows_by_hand():
@@ -61,9 +73,11 @@ def test_surprise_is_each_windows_l1_error_at_its_last_frame():
     context = network.encoder(pixel_values_videos=x[:, :2]).last_hidden_state  # 1 tubelet
     whole = network.get_vision_features(x)  # 2 tubelets of 16 patches
     positions = torch.arange(32).expand(2, -1)
-    predicted = network.predictor(encoder_hidden_states=context,
-                                  context_mask=[positions[:, :16]],
-                                  target_mask=[positions[:, 16:]]).last_hidden_state
+    predicted = network.predictor(
+        encoder_hidden_states=context,
+        context_mask=[positions[:, :16]],
+        target_mask=[positions[:, 16:]],
+    ).last_hidden_state
     expected = (predicted - F.layer_norm(whole, (24,))[:, 16:]).abs().mean(dim=(1, 2))
     torch.testing.assert_close(surprise[:, 10], expected)
 
@@ -78,9 +92,9 @@ def test_a_window_reads_its_own_frames_and_nothing_later():
     assert torch.equal(changed[:, [10, 14]], surprise[:, [10, 14]])
     assert not torch.equal(changed[:, 6], surprise[:, 6])
     for t in range(16):  # frames after t change nothing up to t; a cut video scores as far
-        spliced = torch.cat([frames[:, :t + 1], other[:, t + 1:]], dim=1)
-        torch.testing.assert_close(model.surprise(spliced)[:, :t + 1], surprise[:, :t + 1])
-        torch.testing.assert_close(model.surprise(frames[:, :t + 1]), surprise[:, :t + 1])
+        spliced = torch.cat([frames[:, : t + 1], other[:, t + 1 :]], dim=1)
+        torch.testing.assert_close(model.surprise(spliced)[:, : t + 1], surprise[:, : t + 1])
+        torch.testing.assert_close(model.surprise(frames[:, : t + 1]), surprise[:, : t + 1])
 
 
 def test_frozen_resized_and_swept_over_context_length():
@@ -98,12 +112,15 @@ def test_frozen_resized_and_swept_over_context_length():
     assert longer.expected_frames(video(frames=8)).shape == (2, 8, 3, 32, 32)
 
 
-@pytest.mark.parametrize("overrides, message", [
-    (dict(context_frames=4), r"context_frames must be in 1..window_frames - 1 = 3, got 4"),
-    (dict(context_frames=1), r"context_frames 1 is not a multiple of the model's tubelet_size"),
-    (dict(window_frames=5, context_frames=2), r"window_frames 5 is not a multiple"),
-    (dict(frame_step=0), r"frame_step must be at least 1, got 0"),
-])
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        (dict(context_frames=4), r"context_frames must be in 1..window_frames - 1 = 3, got 4"),
+        (dict(context_frames=1), r"context_frames 1 is not a multiple of the model's tubelet_size"),
+        (dict(window_frames=5, context_frames=2), r"window_frames 5 is not a multiple"),
+        (dict(frame_step=0), r"frame_step must be at least 1, got 0"),
+    ],
+)
 def test_window_settings_the_protocol_cannot_use_are_refused(overrides, message):
     with pytest.raises(ValueError, match=message):
         scorer(**overrides)
@@ -121,8 +138,23 @@ def test_a_saved_model_loads_from_its_local_folder(tmp_path):
 def test_test_on_our_probes_runs_without_a_checkpoint(tmp_path, monkeypatch):
     scorer().model.save_pretrained(tmp_path / "vjepa2")
     monkeypatch.chdir(tmp_path)
-    main(["test", "--config", TINY, "--model", "voe_lightning.model.VJEPA2Scorer",
-          "--model.init_args.pretrained", str(tmp_path / "vjepa2"),
-          "--model.init_args.context_frames", "2", "--model.init_args.window_frames", "4",
-          "--model.init_args.frame_step", "1", "--trainer.enable_progress_bar", "false"])
+    main(
+        [
+            "test",
+            "--config",
+            TINY,
+            "--model",
+            "voe_lightning.model.VJEPA2Scorer",
+            "--model.init_args.pretrained",
+            str(tmp_path / "vjepa2"),
+            "--model.init_args.context_frames",
+            "2",
+            "--model.init_args.window_frames",
+            "4",
+            "--model.init_args.frame_step",
+            "1",
+            "--trainer.enable_progress_bar",
+            "false",
+        ]
+    )
     assert (tmp_path / "runs" / "tiny" / "version_0" / "voe_report" / "summary.json").is_file()

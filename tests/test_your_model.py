@@ -57,23 +57,40 @@ def user_module(tmp_path, monkeypatch):
     sys.modules.pop("my_video_models", None)
 
 
-@pytest.mark.parametrize("model", [
-    ["--model", "my_video_models.Brightness"],
-    ["--model", "voe_lightning.model.CallableModel",
-     "--model.init_args.function", "my_video_models.frame_change"],
-], ids=["subclass", "callable"])
+@pytest.mark.parametrize(
+    "model",
+    [
+        ["--model", "my_video_models.Brightness"],
+        [
+            "--model",
+            "voe_lightning.model.CallableModel",
+            "--model.init_args.function",
+            "my_video_models.frame_change",
+        ],
+    ],
+    ids=["subclass", "callable"],
+)
 def test_a_model_from_outside_the_package_is_tested_without_a_checkpoint(user_module, model):
     main(["test", "--config", TINY, *model, "--trainer.enable_progress_bar", "false"])
-    summary = json.loads((user_module / "runs" / "tiny" / "version_0" / "voe_report"
-                          / "summary.json").read_text())
-    assert {row["variant"] for row in summary["rows"]} == {"standard", "counterbalanced",
-                                                           "pooled", "quadruplet"}
+    summary = json.loads(
+        (user_module / "runs" / "tiny" / "version_0" / "voe_report" / "summary.json").read_text()
+    )
+    assert {row["variant"] for row in summary["rows"]} == {
+        "standard",
+        "counterbalanced",
+        "pooled",
+        "quadruplet",
+    }
 
 
 def test_a_callable_of_the_wrong_shape_or_path_is_named(user_module):
-    with pytest.raises(ValueError, match=r"my_video_models.wrong_shape returned surprise of "
-                                         r"shape \(2,\) for frames \(2, 3, 4, 4, 3\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"my_video_models.wrong_shape returned surprise of "
+        r"shape \(2,\) for frames \(2, 3, 4, 4, 3\)",
+    ):
         CallableModel("my_video_models.wrong_shape").surprise(
-            torch.zeros(2, 3, 4, 4, 3, dtype=torch.uint8))
+            torch.zeros(2, 3, 4, 4, 3, dtype=torch.uint8)
+        )
     with pytest.raises(ValueError, match=r"function 'my_video_models.missing' cannot be imported"):
         CallableModel("my_video_models.missing")

@@ -28,8 +28,8 @@ from voe_lightning.model import VRNNLRUModel
 from voe_lightning.null import untrained_null
 from voe_lightning.report.figures import panel_grid, save_figure
 from voe_lightning.report.results import PairResults, read_summary
-from voe_lightning.statistics import POOLED, QUADRUPLET_ROWS
 from voe_lightning.size_sweep import sweep, sweep_plot
+from voe_lightning.statistics import POOLED, QUADRUPLET_ROWS
 from voe_lightning.statistics_format import BRIEF, format_alpha, row_text
 from voe_lightning.store import collate, open_split, read_manifest
 
@@ -49,18 +49,34 @@ RELATIVE_SURPRISE_TAG = re.compile(r"^voe/(?P<concept>[^/]+)/(?P<variant>[^/]+)/
 #: Line styles of the paper's Figure 6; other run labels cycle through the rest.
 PAPER_LINESTYLES = {"joint": "-", "separate": "--"}
 #: Line styles and markers of the other runs, in order; each run of a figure gets its own.
-_LINESTYLES = (("-", "solid"), ("--", "dashed"), (":", "dotted"), ("-.", "dash-dot"),
-               ((0, (5, 1, 1, 1, 1, 1)), "dash-dot-dot"), ((0, (8, 3)), "long-dashed"))
-_MARKERS = (("o", "circles"), ("s", "squares"), ("^", "triangles"), ("D", "diamonds"),
-            ("v", "down-triangles"), ("P", "pluses"), ("X", "crosses"), ("*", "stars"))
+_LINESTYLES = (
+    ("-", "solid"),
+    ("--", "dashed"),
+    (":", "dotted"),
+    ("-.", "dash-dot"),
+    ((0, (5, 1, 1, 1, 1, 1)), "dash-dot-dot"),
+    ((0, (8, 3)), "long-dashed"),
+)
+_MARKERS = (
+    ("o", "circles"),
+    ("s", "squares"),
+    ("^", "triangles"),
+    ("D", "diamonds"),
+    ("v", "down-triangles"),
+    ("P", "pluses"),
+    ("X", "crosses"),
+    ("*", "stars"),
+)
 
 
 def _event_dirs(run_dir: Path) -> list[Path]:
     return sorted({path.parent for path in run_dir.rglob("events.out.tfevents.*")})
 
 
-def read_scalars(run_dir: str | Path, pattern: re.Pattern | str = RELATIVE_SURPRISE_TAG,
-                 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def read_scalars(
+    run_dir: str | Path,
+    pattern: re.Pattern | str = RELATIVE_SURPRISE_TAG,
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Scalars whose tag matches ``pattern`` from every event file under ``run_dir``, as
     tag -> (steps, values) sorted by step (a later event wins on a repeated step, as when a
     run is resumed)."""
@@ -72,7 +88,8 @@ def read_scalars(run_dir: str | Path, pattern: re.Pattern | str = RELATIVE_SURPR
     directories = _event_dirs(run_dir)
     if not directories:
         raise FileNotFoundError(
-            f"no TensorBoard event files (events.out.tfevents.*) under {run_dir}")
+            f"no TensorBoard event files (events.out.tfevents.*) under {run_dir}"
+        )
     pattern = re.compile(pattern) if isinstance(pattern, str) else pattern
     collected: dict[str, dict[int, tuple[float, float]]] = {}
     for directory in directories:
@@ -84,8 +101,10 @@ def read_scalars(run_dir: str | Path, pattern: re.Pattern | str = RELATIVE_SURPR
                 for event in accumulator.Scalars(tag):
                     if event.step not in by_step or event.wall_time >= by_step[event.step][0]:
                         by_step[event.step] = (event.wall_time, event.value)
-    return {tag: (np.array(sorted(by_step)), np.array([by_step[s][1] for s in sorted(by_step)]))
-            for tag, by_step in sorted(collected.items())}
+    return {
+        tag: (np.array(sorted(by_step)), np.array([by_step[s][1] for s in sorted(by_step)]))
+        for tag, by_step in sorted(collected.items())
+    }
 
 
 def read_relative_surprise(
@@ -136,8 +155,10 @@ def relative_surprise_curves_figure(
     for label, run_dir in runs:
         found = read_relative_surprise(run_dir)
         if not found:
-            raise ValueError(f"{run_dir} has no voe/<concept>/<variant>/relative_surprise scalars "
-                             "(was the VOE probe callback enabled during fit?)")
+            raise ValueError(
+                f"{run_dir} has no voe/<concept>/<variant>/relative_surprise scalars "
+                "(was the VOE probe callback enabled during fit?)"
+            )
         curves.setdefault(label, {}).update(found)
     labels = list(curves)
     styles = _run_styles(labels)
@@ -145,16 +166,23 @@ def relative_surprise_curves_figure(
     figure, axes = panel_grid(len(concepts), 5.0, 3.6, max_cols=3)
     colors = {}
     for ax, concept in zip(axes, concepts):
-        variants = list(dict.fromkeys(
-            v for label in labels for c, v in curves[label] if c == concept))
+        variants = list(
+            dict.fromkeys(v for label in labels for c, v in curves[label] if c == concept)
+        )
         for variant_index, variant in enumerate(variants):
             color = colors.setdefault((concept, variant), f"C{variant_index}")
             for label in labels:
                 if (concept, variant) in curves[label]:
                     steps, values = curves[label][(concept, variant)]
-                    ax.plot(steps * step_scale.get(label, 1.0), values, color=color,
-                            linestyle=styles[label][0], marker=styles[label][1], markersize=3,
-                            label=f"{variant} ({label})")
+                    ax.plot(
+                        steps * step_scale.get(label, 1.0),
+                        values,
+                        color=color,
+                        linestyle=styles[label][0],
+                        marker=styles[label][1],
+                        markersize=3,
+                        label=f"{variant} ({label})",
+                    )
         ax.axhline(0.0, color="black", linewidth=0.8)
         ax.set_title(concept, fontsize=10)
         ax.set_xlabel("training step" + (" (scaled)" if step_scale else ""))
@@ -168,15 +196,14 @@ def relative_surprise_curves_figure(
 # ----------------------------------------------------------------------------- comparison
 
 
-
-
 def _latest_report(run_dir: str | Path) -> Path:
     """The newest voe_report under ``run_dir``, preferring a training run's own (beside its
     config.yaml) to those `test` writes into sub-folders for external benchmarks, other data,
     concepts, checkpoints or evaluation-only model arguments (``<run>/<what differs>-<hash>/``,
     ``runs.report_folder``)."""
-    reports = sorted(Path(run_dir).rglob("voe_report/summary.json"),
-                     key=lambda path: path.stat().st_mtime)
+    reports = sorted(
+        Path(run_dir).rglob("voe_report/summary.json"), key=lambda path: path.stat().st_mtime
+    )
     if not reports:
         raise FileNotFoundError(f"no voe_report/summary.json under {run_dir} (run test first)")
     own = [path for path in reports if (path.parent.parent / "config.yaml").is_file()]
@@ -204,7 +231,8 @@ def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, An
             with open(report / "cue_correlations.csv", newline="") as handle:
                 tracked = tracked_cues(
                     {**row, "r": float(row["r"]) if row["r"] not in ("", "None") else None}
-                    for row in csv.DictReader(handle))
+                    for row in csv.DictReader(handle)
+                )
         by_concept: dict[str, list[dict]] = {}
         for row in summary["rows"]:
             by_concept.setdefault(row["concept"], []).append(row)
@@ -212,16 +240,27 @@ def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, An
             concept_rows = by_concept[verdict["concept"]]
             quadruplet = [row for row in concept_rows if row["variant"] in QUADRUPLET_ROWS]
             pooled = [row for row in concept_rows if row["variant"] == POOLED]
-            standard = [row for row in concept_rows
-                        if row["variant"] not in specs.GENERALIZATION_VARIANT_NAMES]
+            standard = [
+                row
+                for row in concept_rows
+                if row["variant"] not in specs.GENERALIZATION_VARIANT_NAMES
+            ]
             for row in quadruplet or pooled or standard:  # generalization variants: never
                 accuracies = cue_accuracy.get((row["concept"], row["variant"]), [])
                 cue = tracked.get((row["concept"], row["variant"]), {"cue": None, "r": None})
-                rows.append({"run": label, "report": str(report), **row,
-                             "voe": verdict["voe"], "verdict": verdict["verdict"],
-                             "cue_accuracy_min": min(accuracies, default=None),
-                             "cue_accuracy_max": max(accuracies, default=None),
-                             "tracked_cue": cue["cue"], "tracked_cue_r": cue["r"]})
+                rows.append(
+                    {
+                        "run": label,
+                        "report": str(report),
+                        **row,
+                        "voe": verdict["voe"],
+                        "verdict": verdict["verdict"],
+                        "cue_accuracy_min": min(accuracies, default=None),
+                        "cue_accuracy_max": max(accuracies, default=None),
+                        "tracked_cue": cue["cue"],
+                        "tracked_cue_r": cue["r"],
+                    }
+                )
     return rows
 
 
@@ -230,18 +269,29 @@ def comparison_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
     VOE column's header names the runs' alpha (each run's verdict is at its own)."""
     alphas = {row.get("alpha") for row in rows if row.get("alpha") is not None}
     voe = f"VOE ({format_alpha(alphas.pop())})" if len(alphas) == 1 else "VOE (each run's α)"
-    lines = ["| run | concept | variant | n | M | t(df) | p | accuracy | frame-local cues: "
-             f"accuracy | surprise tracks (r) | {voe} |", "|" + "---|" * 11]
+    lines = [
+        "| run | concept | variant | n | M | t(df) | p | accuracy | frame-local cues: "
+        f"accuracy | surprise tracks (r) | {voe} |",
+        "|" + "---|" * 11,
+    ]
     for row in rows:
         text = row_text(row, BRIEF)
         statistics = f"| {text.mean} | {text.t} | {text.p} | {text.accuracy} "
-        cues = ("n/a" if row["cue_accuracy_min"] is None else
-                f"{100 * row['cue_accuracy_min']:.0f}–{100 * row['cue_accuracy_max']:.0f}%")
-        tracks = ("n/a" if row["tracked_cue_r"] is None else
-                  f"{CUE_TITLES[row['tracked_cue']]} ({row['tracked_cue_r']:+.2f})")
+        cues = (
+            "n/a"
+            if row["cue_accuracy_min"] is None
+            else f"{100 * row['cue_accuracy_min']:.0f}–{100 * row['cue_accuracy_max']:.0f}%"
+        )
+        tracks = (
+            "n/a"
+            if row["tracked_cue_r"] is None
+            else f"{CUE_TITLES[row['tracked_cue']]} ({row['tracked_cue_r']:+.2f})"
+        )
         voe = "n/a" if row["voe"] is None else ("**yes**" if row["voe"] else "no")
-        lines.append(f"| {row['run']} | {row['concept']} | {row['variant']} | {row['n']} "
-                     f"{statistics}| {cues} | {tracks} | {voe} |")
+        lines.append(
+            f"| {row['run']} | {row['concept']} | {row['variant']} | {row['n']} "
+            f"{statistics}| {cues} | {tracks} | {voe} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -264,8 +314,9 @@ def curves(runs: list[str], out: Path, step_scale: dict[str, float] | None = Non
         step_scale: a factor per label multiplying its steps, e.g. {joint: 0.2} for examples
             per concept.
     """
-    return save_figure(relative_surprise_curves_figure([_labelled(run) for run in runs], step_scale),
-                  out)
+    return save_figure(
+        relative_surprise_curves_figure([_labelled(run) for run in runs], step_scale), out
+    )
 
 
 def compare(runs: list[str], out: Path | None = None) -> str:
@@ -300,13 +351,20 @@ def context_sweep_table(runs: dict[int, str], out: Path | None = None) -> str:
         results = PairResults.from_csv(_latest_report(run) / "pairs.csv")
         for concept, variant, pairs in results.groups(pooled=True):
             by_group.setdefault(f"{concept}/{variant}", {})[int(context)] = (
-                pairs.surprise_consistent, pairs.surprise_inconsistent)
+                pairs.surprise_consistent,
+                pairs.surprise_inconsistent,
+            )
     missing = sorted(group for group, sides in by_group.items() if len(sides) != len(runs))
     if missing:
-        raise ValueError(f"{', '.join(missing[:3])} not in every run's report: test every "
-                         "context length on the same probes")
-    rows = {f"{group} @ {context}": metrics for group, sides in by_group.items()
-            for context, metrics in context_sweep(sides).items()}
+        raise ValueError(
+            f"{', '.join(missing[:3])} not in every run's report: test every "
+            "context length on the same probes"
+        )
+    rows = {
+        f"{group} @ {context}": metrics
+        for group, sides in by_group.items()
+        for context, metrics in context_sweep(sides).items()
+    }
     table = format_field_metrics(rows, "concept/variant @ context length")
     print(table, end="")
     if out:
@@ -326,13 +384,22 @@ def latent_usage(
     prior: posterior collapse)."""
     per_latent = model.latent_kl(frames).mean(dim=0)  # [T, latents]
     later = per_latent[1:].mean(dim=0)
-    return {"kl_per_sequence": per_latent.sum().item(), "first_frame": per_latent[0].sum().item(),
-            "per_later_frame": per_latent[1:].sum(dim=-1).mean().item(),
-            "latents_in_use": int((later > threshold).sum()), "latents": later.numel()}
+    return {
+        "kl_per_sequence": per_latent.sum().item(),
+        "first_frame": per_latent[0].sum().item(),
+        "per_later_frame": per_latent[1:].sum(dim=-1).mean().item(),
+        "latents_in_use": int((later > threshold).sum()),
+        "latents": later.numel(),
+    }
 
 
-def latents(checkpoints: list[str], root: Path, pairs: int = 16, threshold: float = 0.01,
-            out: Path | None = None) -> str:
+def latents(
+    checkpoints: list[str],
+    root: Path,
+    pairs: int = 16,
+    threshold: float = 0.01,
+    out: Path | None = None,
+) -> str:
     """How many latents of VRNN-LRU checkpoints carry information, as a Markdown table: KL per
     sequence, of the first frame and per later frame, and the latents above ``threshold``, on
     the consistent videos of the first ``pairs`` test pairs of each concept in ``root``.
@@ -352,20 +419,27 @@ def latents(checkpoints: list[str], root: Path, pairs: int = 16, threshold: floa
     videos = []
     for concept in (c for c in specs.CONCEPTS if c in manifest["concepts"]):
         split = open_split(root, concept, "test")
-        videos.append(collate([split[i] for i in range(min(pairs, len(split)))])["consistent",
-                                                                                  "frames"])
+        videos.append(
+            collate([split[i] for i in range(min(pairs, len(split)))])["consistent", "frames"]
+        )
     frames = torch.cat(videos)
-    lines = ["| checkpoint | KL / sequence | first frame | per later frame | latents in use |",
-             "|---|---|---|---|---|"]
+    lines = [
+        "| checkpoint | KL / sequence | first frame | per later frame | latents in use |",
+        "|---|---|---|---|---|",
+    ]
     for label, path in map(_labelled, checkpoints):
         model = VRNNLRUModel.load_from_checkpoint(path, map_location="cpu", weights_only=True)
         model.eval()
         usage = latent_usage(model, frames, threshold)
-        lines.append(f"| {label} | {usage['kl_per_sequence']:.1f} | {usage['first_frame']:.1f} | "
-                     f"{usage['per_later_frame']:.2f} | "
-                     f"{usage['latents_in_use']} of {usage['latents']} |")
-    table = "\n".join(lines) + f"\n\n{len(frames)} consistent test videos of {root}; in use: " \
+        lines.append(
+            f"| {label} | {usage['kl_per_sequence']:.1f} | {usage['first_frame']:.1f} | "
+            f"{usage['per_later_frame']:.2f} | "
+            f"{usage['latents_in_use']} of {usage['latents']} |"
+        )
+    table = (
+        "\n".join(lines) + f"\n\n{len(frames)} consistent test videos of {root}; in use: "
         f"more than {threshold:g} nats per frame after the first.\n"
+    )
     print(table, end="")
     if out:
         Path(out).write_text(table)
@@ -373,9 +447,16 @@ def latents(checkpoints: list[str], root: Path, pairs: int = 16, threshold: floa
 
 
 #: ``analyze``'s subcommands, as jsonargparse's ``auto_cli`` takes them (``_help``: the summary).
-COMMANDS = {"_help": "Figures and tables over runs: curves, sweep, sweep-plot, compare, "
-                     "context-sweep, latents; untrained initializations of a config: null; and "
-                     "the verdict's calibration on a store: calibrate.",
-            "curves": curves, "sweep": sweep, "sweep-plot": sweep_plot, "compare": compare,
-            "context-sweep": context_sweep_table, "latents": latents, "null": untrained_null,
-            "calibrate": calibration.calibrate_store}
+COMMANDS = {
+    "_help": "Figures and tables over runs: curves, sweep, sweep-plot, compare, "
+    "context-sweep, latents; untrained initializations of a config: null; and "
+    "the verdict's calibration on a store: calibrate.",
+    "curves": curves,
+    "sweep": sweep,
+    "sweep-plot": sweep_plot,
+    "compare": compare,
+    "context-sweep": context_sweep_table,
+    "latents": latents,
+    "null": untrained_null,
+    "calibrate": calibration.calibrate_store,
+}

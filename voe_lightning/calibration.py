@@ -101,8 +101,9 @@ WEIGHTS: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0)
 DELTAS: np.ndarray = np.round(np.arange(0.0, 3.0001, 0.02), 2)
 
 
-def cue_terms(audit: cues.CueAudit, concept: str, cue: str, follower: str
-              ) -> dict[str, np.ndarray] | None:
+def cue_terms(
+    audit: cues.CueAudit, concept: str, cue: str, follower: str
+) -> dict[str, np.ndarray] | None:
     """Per variant of ``concept`` (its verdict's variants), the follower's term of each of the
     audit's pairs, scaled to unit SD over all those pairs; None where the cue is not scored for
     every pair or does not vary (nothing to follow). For a quadruplet concept, the two
@@ -125,10 +126,16 @@ def cue_terms(audit: cues.CueAudit, concept: str, cue: str, follower: str
     if concept in specs.QUADRUPLET_CONCEPTS:
         every = np.full(len(audit), np.nan)
         every[rows] = term
-        return {variant: every[half] for row, halves in specs.QUADRUPLETS[concept].items()
-                for variant, half in zip(halves, _matched(audit, concept, row))}
-    return {variant: term[audit.variants[rows] == variant] for variant in variants
-            if (audit.variants[rows] == variant).any()}
+        return {
+            variant: every[half]
+            for row, halves in specs.QUADRUPLETS[concept].items()
+            for variant, half in zip(halves, _matched(audit, concept, row))
+        }
+    return {
+        variant: term[audit.variants[rows] == variant]
+        for variant in variants
+        if (audit.variants[rows] == variant).any()
+    }
 
 
 def _matched(audit: cues.CueAudit, concept: str, row: str) -> tuple[np.ndarray, np.ndarray]:
@@ -136,19 +143,32 @@ def _matched(audit: cues.CueAudit, concept: str, row: str) -> tuple[np.ndarray, 
     aligned (``verdicts.quadruplets``); a ValueError when its pairs carry no seeds or match
     none."""
     if audit.seeds is None:
-        raise ValueError(f"{concept} is tested over quadruplets, matched by seed, but the "
-                         "audited pairs carry no seeds")
-    found = [(first, second) for c, name, first, second
-             in quadruplets(audit.concepts, audit.variants, audit.seeds) if (c, name) == (concept, row)]
+        raise ValueError(
+            f"{concept} is tested over quadruplets, matched by seed, but the "
+            "audited pairs carry no seeds"
+        )
+    found = [
+        (first, second)
+        for c, name, first, second in quadruplets(audit.concepts, audit.variants, audit.seeds)
+        if (c, name) == (concept, row)
+    ]
     if not found:
         halves = " and a ".join(specs.QUADRUPLETS[concept][row])
-        raise ValueError(f"no {concept} {row}s among the audited pairs: no seed holds both a "
-                         f"{halves} pair")
+        raise ValueError(
+            f"no {concept} {row}s among the audited pairs: no seed holds both a {halves} pair"
+        )
     return found[0]
 
 
-def verdict_rates(terms: Mapping[str, np.ndarray], concept: str, pairs: int, repetitions: int,
-                  alpha: float, deltas: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+def verdict_rates(
+    terms: Mapping[str, np.ndarray],
+    concept: str,
+    pairs: int,
+    repetitions: int,
+    alpha: float,
+    deltas: np.ndarray,
+    rng: np.random.Generator,
+) -> np.ndarray:
     """The share of ``repetitions`` whose verdict for ``concept`` is VOE, at each of ``deltas``,
     for relative surprise delta + term + N(0, 1) per pair; ``terms`` per variant (all zero: pure
     noise). Each repetition resamples ``pairs`` pairs per variant (a quadruplet concept:
@@ -156,12 +176,17 @@ def verdict_rates(terms: Mapping[str, np.ndarray], concept: str, pairs: int, rep
     variants = specs.VERDICT_VARIANTS[concept]
     missing = [variant for variant in variants if variant not in terms]
     if missing:
-        raise ValueError(f"{concept} needs cue terms of every variant {variants}; missing "
-                         f"{missing}")
+        raise ValueError(
+            f"{concept} needs cue terms of every variant {variants}; missing {missing}"
+        )
     if concept in specs.QUADRUPLET_CONCEPTS:
-        return np.all([quadruplet_voe([terms[v] for v in halves], pairs, repetitions, alpha,
-                                      deltas, rng)
-                       for halves in specs.QUADRUPLETS[concept].values()], axis=0).mean(axis=1)
+        return np.all(
+            [
+                quadruplet_voe([terms[v] for v in halves], pairs, repetitions, alpha, deltas, rng)
+                for halves in specs.QUADRUPLETS[concept].values()
+            ],
+            axis=0,
+        ).mean(axis=1)
     moments = {}
     for variant in variants:
         pool = terms[variant]
@@ -170,20 +195,29 @@ def verdict_rates(terms: Mapping[str, np.ndarray], concept: str, pairs: int, rep
         moments[variant] = (d.mean(axis=1), d.var(axis=1, ddof=1))
     shifted = np.asarray(deltas, dtype=np.float64)[:, None]  # [deltas, 1] over [repetitions]
     means = {variant: mean[None] + shifted for variant, (mean, _) in moments.items()}
-    p_values = [statistics.t_and_p(means[v], np.sqrt(moments[v][1] / pairs), pairs - 1)[1]
-                for v in variants]
+    p_values = [
+        statistics.t_and_p(means[v], np.sqrt(moments[v][1] / pairs), pairs - 1)[1] for v in variants
+    ]
     return verdict_rule(p_values, alpha).mean(axis=1)
 
 
-def quadruplet_voe(halves: Sequence[np.ndarray], count: int, repetitions: int, alpha: float,
-                   deltas: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+def quadruplet_voe(
+    halves: Sequence[np.ndarray],
+    count: int,
+    repetitions: int,
+    alpha: float,
+    deltas: np.ndarray,
+    rng: np.random.Generator,
+) -> np.ndarray:
     """Whether one quadruplet's test says VOE [deltas, repetitions]: each repetition resamples
     ``count`` quadruplets (their two ``halves``' terms, aligned) and adds delta + N(0, 1) to
     each half's d; VOE by ``quadruplet_rule`` on D = the sum of the halves."""
     first, second = (np.asarray(half, dtype=np.float64) for half in halves)
     if first.shape != second.shape:
-        raise ValueError(f"a quadruplet's two halves must align; got {first.size} first and "
-                         f"{second.size} second terms")
+        raise ValueError(
+            f"a quadruplet's two halves must align; got {first.size} first and "
+            f"{second.size} second terms"
+        )
     index = rng.integers(0, first.size, (repetitions, count))
     drawn = [half[index] + rng.standard_normal((repetitions, count)) for half in (first, second)]
     total = drawn[0] + drawn[1]
@@ -249,19 +283,25 @@ def calibrate(
     rows = []
     for concept in concepts:
         variants = specs.VERDICT_VARIANTS[concept]
-        sizes = ({row: _matched(audit, concept, row)[0].size for row in specs.QUADRUPLETS[concept]}
-                 if concept in specs.QUADRUPLET_CONCEPTS else
-                 {v: int(((audit.concepts == concept) & (audit.variants == v)).sum())
-                  for v in variants})
+        sizes = (
+            {row: _matched(audit, concept, row)[0].size for row in specs.QUADRUPLETS[concept]}
+            if concept in specs.QUADRUPLET_CONCEPTS
+            else {
+                v: int(((audit.concepts == concept) & (audit.variants == v)).sum())
+                for v in variants
+            }
+        )
         if min(sizes.values()) < 2:
-            raise ValueError(f"{concept} needs at least 2 audited pairs of each of {variants}; "
-                             f"the audit has {sizes}")
+            raise ValueError(
+                f"{concept} needs at least 2 audited pairs of each of {variants}; "
+                f"the audit has {sizes}"
+            )
         n = pairs or min(sizes.values())
         if n < 2:
             raise ValueError(f"pairs must be >= 2 per variant, got {pairs}")
         rng = np.random.default_rng([seed, specs.CONCEPTS.index(concept)])
 
-        def row(cue, follower, sign, weight, terms):
+        def row(cue, follower, sign, weight, terms, concept=concept, n=n, rng=rng):
             power = cue is None or weight in power_weights
             grid = grid_with_zero if power else zero
             rates = verdict_rates(terms, concept, n, repetitions, alpha, grid, rng)
@@ -272,8 +312,20 @@ def calibrate(
                 delta_80 = float(grid[at]) if at is not None else math.nan
                 power_80 = float(rates[at]) if at is not None else math.nan
             right = cue is not None and all(float(np.mean(term)) > 0 for term in terms.values())
-            return CalibrationRow(concept, cue, follower, sign, weight, n, repetitions, alpha,
-                                  float(rates[0]), delta_80, power_80, right)
+            return CalibrationRow(
+                concept,
+                cue,
+                follower,
+                sign,
+                weight,
+                n,
+                repetitions,
+                alpha,
+                float(rates[0]),
+                delta_80,
+                power_80,
+                right,
+            )
 
         rows.append(row(None, None, 1, 0.0, {v: np.zeros(1) for v in variants}))
         for cue in cue_names:
@@ -283,13 +335,19 @@ def calibrate(
                     continue
                 for sign in (1, -1):
                     for weight in weights:
-                        rows.append(row(cue, follower, sign, weight,
-                                        {v: sign * weight * term for v, term in terms.items()}))
+                        rows.append(
+                            row(
+                                cue,
+                                follower,
+                                sign,
+                                weight,
+                                {v: sign * weight * term for v, term in terms.items()},
+                            )
+                        )
     return rows
 
 
-def false_voe_bound(repetitions: int, alpha: float, tests: int = 1,
-                    error: float = 1e-3) -> float:
+def false_voe_bound(repetitions: int, alpha: float, tests: int = 1, error: float = 1e-3) -> float:
     """The largest false-VOE rate a calibrated verdict (true rate <= alpha) shows in
     ``repetitions`` with probability 1 - ``error`` over ``tests`` rates at once (Bonferroni):
     the binomial quantile, as a rate."""
@@ -315,41 +373,58 @@ def calibration_markdown(rows: Sequence[CalibrationRow], title: str = "Calibrati
     alpha, repetitions = rows[0].alpha, rows[0].repetitions
     tested = [row for row in rows if row.cue is not None]
     bound = false_voe_bound(repetitions, alpha, max(1, len(rows)))
-    lines = [f"## {title} ({format_alpha(alpha)}, {repetitions} repetitions)", "",
-             "| concept | pairs per variant (quadruplets) | cue follower | false VOE at δ = 0: worst (cue, "
-             "sign, weight) | δ (power) at 80% VOE: noise only | δ (power) at 80% VOE: worst "
-             "cue at weight 1 (cue, sign) |", "|" + "---|" * 6]
+    lines = [
+        f"## {title} ({format_alpha(alpha)}, {repetitions} repetitions)",
+        "",
+        "| concept | pairs per variant (quadruplets) | cue follower | false VOE at δ = 0: worst (cue, "
+        "sign, weight) | δ (power) at 80% VOE: noise only | δ (power) at 80% VOE: worst "
+        "cue at weight 1 (cue, sign) |",
+        "|" + "---|" * 6,
+    ]
     for concept in dict.fromkeys(row.concept for row in rows):
         noise = next(row for row in rows if row.concept == concept and row.cue is None)
         for follower in dict.fromkeys(row.follower for row in tested if row.concept == concept):
             mine = [row for row in tested if (row.concept, row.follower) == (concept, follower)]
             worst = max(mine, key=lambda row: row.false_voe_rate)
             at_one = [row for row in mine if row.weight == 1.0 and row.delta_80 is not None]
-            hardest = max(at_one, key=lambda row: (math.inf if math.isnan(row.delta_80)
-                                                   else row.delta_80)) if at_one else None
-            hard = ("n/a" if hardest is None else
-                    f"{_power(hardest)} ({cues.CUE_TITLES[hardest.cue]}, {hardest.sign:+d})")
+            hardest = (
+                max(at_one, key=lambda row: math.inf if math.isnan(row.delta_80) else row.delta_80)
+                if at_one
+                else None
+            )
+            hard = (
+                "n/a"
+                if hardest is None
+                else f"{_power(hardest)} ({cues.CUE_TITLES[hardest.cue]}, {hardest.sign:+d})"
+            )
             false_voe = f"{100 * worst.false_voe_rate:.2f}%"
             if worst.false_voe_rate > 0:
-                false_voe += ((" †" if worst.right_on_every_variant else "")
-                              + (" **> bound**" if worst.false_voe_rate > bound else "")
-                              + f" ({cues.CUE_TITLES[worst.cue]}, {worst.sign:+d}, "
-                              f"{worst.weight:g})")
-            lines.append(f"| {concept} | {noise.pairs} | {follower} | {false_voe} "
-                         f"| {_power(noise)} | {hard} |")
-    lines += ["", f"Synthetic relative surprise d = δ + weight · sign · f(cue) + N(0, 1) per pair "
-              "(δ and weight in noise SDs; f scaled to unit SD over the concept's pairs), from "
-              "the real cue scores of the audited probes; each repetition resamples the pairs "
-              "of each variant and tests as the report does (verdict: `verdicts.verdict_rule`; "
-              "a quadruplet concept resamples its quadruplets and decides by the quadruplet "
-              "test, `verdicts.quadruplet_rule`). "
-              f"False VOE must stay at or below α; with {repetitions} repetitions and "
-              f"{len(rows)} rates, {100 * bound:.2f}% is the binomial bound (p = .001, "
-              "Bonferroni) a calibrated verdict stays under. δ: the smallest of a grid of "
-              "steps of 0.02 at which the verdict says VOE in at least 80% of repetitions, "
-              "and that share. †: the cue term is positive on average in every variant of "
-              "these pairs (the variants do not mirror the cue), so the follower looks like VOE "
-              "to any test of d: the stimuli's fault, not the verdict's."]
+                false_voe += (
+                    (" †" if worst.right_on_every_variant else "")
+                    + (" **> bound**" if worst.false_voe_rate > bound else "")
+                    + f" ({cues.CUE_TITLES[worst.cue]}, {worst.sign:+d}, "
+                    f"{worst.weight:g})"
+                )
+            lines.append(
+                f"| {concept} | {noise.pairs} | {follower} | {false_voe} "
+                f"| {_power(noise)} | {hard} |"
+            )
+    lines += [
+        "",
+        f"Synthetic relative surprise d = δ + weight · sign · f(cue) + N(0, 1) per pair "
+        "(δ and weight in noise SDs; f scaled to unit SD over the concept's pairs), from "
+        "the real cue scores of the audited probes; each repetition resamples the pairs "
+        "of each variant and tests as the report does (verdict: `verdicts.verdict_rule`; "
+        "a quadruplet concept resamples its quadruplets and decides by the quadruplet "
+        "test, `verdicts.quadruplet_rule`). "
+        f"False VOE must stay at or below α; with {repetitions} repetitions and "
+        f"{len(rows)} rates, {100 * bound:.2f}% is the binomial bound (p = .001, "
+        "Bonferroni) a calibrated verdict stays under. δ: the smallest of a grid of "
+        "steps of 0.02 at which the verdict says VOE in at least 80% of repetitions, "
+        "and that share. †: the cue term is positive on average in every variant of "
+        "these pairs (the variants do not mirror the cue), so the follower looks like VOE "
+        "to any test of d: the stimuli's fault, not the verdict's.",
+    ]
     return "\n".join(lines) + "\n"
 
 

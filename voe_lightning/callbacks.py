@@ -26,7 +26,6 @@ from voe_lightning.external.evaluation import evaluate
 from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.probe_datamodule import probe_datamodule
 from voe_lightning.report import write_report
-from voe_lightning.runs import RunConfig
 from voe_lightning.report.figures import PredictionExample
 from voe_lightning.report.results import (
     FIRST_DIFFERENCE,
@@ -34,13 +33,14 @@ from voe_lightning.report.results import (
     PairResults,
     as_numpy,
 )
+from voe_lightning.runs import RunConfig
 from voe_lightning.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
-from voe_lightning.store_shards import write_whole
 from voe_lightning.statistics_format import CONSOLE, format_alpha, row_text
+from voe_lightning.store_shards import write_whole
 from voe_lightning.streaming_statistics import PairedSurpriseStats, pooled_values
-from voe_lightning.verdicts import concept_verdicts, pair_groups
 from voe_lightning.surprise_window import SurpriseWindow, video_surprise
 from voe_lightning.surprise_window import surprise_window as parse_window
+from voe_lightning.verdicts import concept_verdicts, pair_groups
 
 
 def _names(trainer: L.Trainer, user: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -67,15 +67,21 @@ class VOEProbeCallback(L.Callback):
 
     STATISTICS = ("relative_surprise", "t", "p_value", "accuracy", "n")
 
-    def __init__(self, print_table: bool = True, alpha: float | None = None,
-                 surprise_window: str | dict[str, Any] | None = None):
+    def __init__(
+        self,
+        print_table: bool = True,
+        alpha: float | None = None,
+        surprise_window: str | dict[str, Any] | None = None,
+    ):
         super().__init__()
         self.print_table = print_table
         self.alpha = ALPHA if alpha is None else check_alpha(alpha)
         window = parse_window(surprise_window)
         #: The windows whose statistics are logged, by log prefix: all frames first.
-        self.windows = {"voe": SurpriseWindow(), **({} if window.all_frames
-                                                    else {"voe_window": window})}
+        self.windows = {
+            "voe": SurpriseWindow(),
+            **({} if window.all_frames else {"voe_window": window}),
+        }
         self.metrics: dict[tuple[str, str, str], PairedSurpriseStats] = {}
         self.last: dict[tuple[str, str], dict[str, float]] = {}
         self.causality: Causality | None = None
@@ -102,19 +108,28 @@ class VOEProbeCallback(L.Callback):
         if not outputs:
             return
         concept_names, variant_names = _names(trainer, type(self).__name__)
-        self._causality = self._causality.merge(check_prefix(
-            outputs["surprise_consistent"], outputs["surprise_inconsistent"],
-            outputs["manipulation_frame"], outputs.get("first_difference")))
+        self._causality = self._causality.merge(
+            check_prefix(
+                outputs["surprise_consistent"],
+                outputs["surprise_inconsistent"],
+                outputs["manipulation_frame"],
+                outputs.get("first_difference"),
+            )
+        )
         groups = defaultdict(list)
-        for index, (c, v) in enumerate(zip(outputs["concept"].tolist(), outputs["variant"].tolist())):
+        for index, (c, v) in enumerate(
+            zip(outputs["concept"].tolist(), outputs["variant"].tolist())
+        ):
             groups[(concept_names[c], variant_names[v])].append(index)
         for prefix, window in self.windows.items():
-            inconsistent, consistent = (_window_sum(outputs, side, window)
-                                        for side in ("inconsistent", "consistent"))
+            inconsistent, consistent = (
+                _window_sum(outputs, side, window) for side in ("inconsistent", "consistent")
+            )
             for case, rows in groups.items():
                 rows = torch.tensor(rows, device=inconsistent.device)
-                self._metric((prefix, *case), pl_module.device).update(inconsistent[rows],
-                                                                       consistent[rows])
+                self._metric((prefix, *case), pl_module.device).update(
+                    inconsistent[rows], consistent[rows]
+                )
 
     def on_validation_epoch_end(self, trainer, pl_module) -> None:
         if trainer.sanity_checking:
@@ -127,8 +142,11 @@ class VOEProbeCallback(L.Callback):
             results = self._results(prefix)
             for (concept, variant), values in results.items():
                 for statistic in self.STATISTICS:
-                    pl_module.log(f"{prefix}/{concept}/{variant}/{statistic}", values[statistic],
-                                  sync_dist=False)
+                    pl_module.log(
+                        f"{prefix}/{concept}/{variant}/{statistic}",
+                        values[statistic],
+                        sync_dist=False,
+                    )
             if prefix == "voe":
                 self.last = results
 
@@ -148,7 +166,8 @@ class VOEProbeCallback(L.Callback):
         for concept, variant, _ in pair_groups(concepts, variants):
             if variant == POOLED:
                 results[(concept, variant)] = pooled_values(
-                    [computed[(concept, v)] for v in POOLED_VARIANTS])
+                    [computed[(concept, v)] for v in POOLED_VARIANTS]
+                )
             else:
                 results[(concept, variant)] = computed[(concept, variant)]
         return results
@@ -159,20 +178,28 @@ class VOEProbeCallback(L.Callback):
             if not console.is_terminal:  # logs and pipes: do not cut the table at 80 columns
                 console.width = 120
             title = f"VOE on validation probes, step {trainer.global_step}"
-            console.print(voe_table(self.last, title=title, alpha=self.alpha,
-                                    causality=self.causality))
+            console.print(
+                voe_table(self.last, title=title, alpha=self.alpha, causality=self.causality)
+            )
 
 
 def _window_sum(outputs: Mapping[str, Any], side: str, window: SurpriseWindow) -> torch.Tensor:
     """Each ``side`` video's surprise of probe ``outputs`` over ``window`` from its pair's first
     difference (``manipulation_frame`` + 1 where the outputs lack it), [B]."""
-    first = (None if window.all_frames else outputs["first_difference"]
-             if "first_difference" in outputs else outputs["manipulation_frame"] + 1)
+    first = (
+        None
+        if window.all_frames
+        else outputs["first_difference"]
+        if "first_difference" in outputs
+        else outputs["manipulation_frame"] + 1
+    )
     return video_surprise(outputs[f"surprise_{side}"], window, first)
 
 
 def voe_table(
-    results: dict[tuple[str, str], dict[str, float]], title: str, alpha: float = ALPHA,
+    results: dict[tuple[str, str], dict[str, float]],
+    title: str,
+    alpha: float = ALPHA,
     causality: Causality | None = None,
 ) -> Table:
     """A rich table of relative surprise, t, p and accuracy per concept/variant (pooled rows
@@ -180,10 +207,20 @@ def voe_table(
     (``verdicts.concept_verdicts``, withheld where ``causality`` failed, whose line is the
     caption) on its first row."""
     verdicts = {v.concept: v for v in concept_verdicts(results, alpha, causality)}
-    table = Table(title=f"{title} ({format_alpha(alpha)})",
-                  caption=causality.line() if causality is not None else None)
-    for column in ("concept", "variant", "n", "relative surprise", "t",
-                   f"p (one-tailed, * < {alpha:g})", "accuracy", "verdict"):
+    table = Table(
+        title=f"{title} ({format_alpha(alpha)})",
+        caption=causality.line() if causality is not None else None,
+    )
+    for column in (
+        "concept",
+        "variant",
+        "n",
+        "relative surprise",
+        "t",
+        f"p (one-tailed, * < {alpha:g})",
+        "accuracy",
+        "verdict",
+    ):
         justify = "left" if column in ("concept", "variant", "verdict") else "right"
         table.add_column(column, justify=justify, overflow="fold")
     keys = list(results)
@@ -263,12 +300,16 @@ class ExpectationImages(L.Callback):
         if experiment is None or not hasattr(experiment, "add_image"):
             return
         for concept, example in self.examples.items():
-            video = {key: _first_frames(value, self.max_frames)[None].to(pl_module.device)
-                     for key, value in example.items()}
+            video = {
+                key: _first_frames(value, self.max_frames)[None].to(pl_module.device)
+                for key, value in example.items()
+            }
             frames = example["frames"][: self.max_frames]
             with torch.no_grad():
                 expected = pl_module.expected_frames(video.pop("frames"), **video)[0]
-            strip = torch.cat([specs.to_model_input(frames), expected.float().cpu().clamp(0, 1)], dim=-2)
+            strip = torch.cat(
+                [specs.to_model_input(frames), expected.float().cpu().clamp(0, 1)], dim=-2
+            )
             # [T, 3, 2H, W] -> [3, 2H, T*W]: input row above expectation row.
             image = strip.permute(1, 2, 0, 3).reshape(3, strip.shape[-2], -1)
             experiment.add_image(f"expected/{concept}", image, global_step=trainer.global_step)
@@ -277,8 +318,9 @@ class ExpectationImages(L.Callback):
 # ----------------------------------------------------------------------------- report
 
 
-def _stacked(videos: list[dict[str, torch.Tensor]], device: torch.device
-             ) -> dict[str, torch.Tensor]:
+def _stacked(
+    videos: list[dict[str, torch.Tensor]], device: torch.device
+) -> dict[str, torch.Tensor]:
     """Kept videos (frames and, where the batch had them, mask and camera) as one batch."""
     return {key: torch.stack([video[key] for video in videos]).to(device) for key in videos[0]}
 
@@ -332,8 +374,10 @@ class VOEReportCallback(L.Callback):
         priors_alone: bool = False,
     ) -> None:
         if max_prediction_examples < 0 or tsne_pairs < 0:
-            raise ValueError("max_prediction_examples and tsne_pairs must be >= 0, got "
-                             f"{max_prediction_examples} and {tsne_pairs}")
+            raise ValueError(
+                "max_prediction_examples and tsne_pairs must be >= 0, got "
+                f"{max_prediction_examples} and {tsne_pairs}"
+            )
         self.out_dir = out_dir
         self.max_prediction_examples = max_prediction_examples
         self.tsne_pairs = tsne_pairs
@@ -359,18 +403,22 @@ class VOEReportCallback(L.Callback):
 
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         if not isinstance(pl_module, SurpriseModel):
-            raise TypeError(f"VOEReportCallback needs a SurpriseModel (surprise, expected_frames "
-                            f"and trajectories, voe_lightning.model.base); got "
-                            f"{type(pl_module).__name__}")
+            raise TypeError(
+                f"VOEReportCallback needs a SurpriseModel (surprise, expected_frames "
+                f"and trajectories, voe_lightning.model.base); got "
+                f"{type(pl_module).__name__}"
+            )
         self.summary, self.report_dir, self._failed, self._ended = None, None, False, False
         self.causality = None
 
-    def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule,
-                     exception: BaseException) -> None:
+    def on_exception(
+        self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException
+    ) -> None:
         self._failed = True
 
-    def on_load_checkpoint(self, trainer: L.Trainer, pl_module: L.LightningModule,
-                           checkpoint: dict[str, Any]) -> None:
+    def on_load_checkpoint(
+        self, trainer: L.Trainer, pl_module: L.LightningModule, checkpoint: dict[str, Any]
+    ) -> None:
         self._checkpoint_step = checkpoint.get("global_step")
 
     def _source(self, trainer: L.Trainer) -> dict[str, Any]:
@@ -379,14 +427,19 @@ class VOEReportCallback(L.Callback):
         ours, the seed offset and probe store too), the concepts of its test pairs, and the
         config file the CLI saved for this run (``runs.RunConfig``; None: none saved)."""
         datamodule = probe_datamodule(trainer, type(self).__name__)
-        configs = [callback.config_path for callback in trainer.callbacks
-                   if isinstance(callback, RunConfig) and callback.config_path is not None]
-        return {"config": str(configs[0]) if configs else None,
-                "checkpoint": str(trainer.ckpt_path) if trainer.ckpt_path else None,
-                "global_step": self._checkpoint_step if trainer.ckpt_path else None,
-                "datamodule": f"{type(datamodule).__module__}.{type(datamodule).__qualname__}",
-                **datamodule.probe_source(),
-                "concepts": sorted({concept for concept, _ in datamodule.probe_cases("test")})}
+        configs = [
+            callback.config_path
+            for callback in trainer.callbacks
+            if isinstance(callback, RunConfig) and callback.config_path is not None
+        ]
+        return {
+            "config": str(configs[0]) if configs else None,
+            "checkpoint": str(trainer.ckpt_path) if trainer.ckpt_path else None,
+            "global_step": self._checkpoint_step if trainer.ckpt_path else None,
+            "datamodule": f"{type(datamodule).__module__}.{type(datamodule).__qualname__}",
+            **datamodule.probe_source(),
+            "concepts": sorted({concept for concept, _ in datamodule.probe_cases("test")}),
+        }
 
     def teardown(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         # Lightning skips the whole test loop (and on_test_end) when the loaders are empty.
@@ -397,40 +450,65 @@ class VOEReportCallback(L.Callback):
     def _no_results() -> None:
         raise RuntimeError(
             "VOEReportCallback collected no probe results: the test dataloaders yielded no "
-            "probe pairs (does the DataModule have test probes for its concepts?)")
+            "probe pairs (does the DataModule have test probes for its concepts?)"
+        )
 
     def on_test_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._reset()
         self._concept_names, self._variant_names = _names(trainer, type(self).__name__)
 
-    def on_test_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs: Any,
-                          batch: Any, batch_idx: int, dataloader_idx: int = 0) -> None:
+    def on_test_batch_end(
+        self,
+        trainer: L.Trainer,
+        pl_module: L.LightningModule,
+        outputs: Any,
+        batch: Any,
+        batch_idx: int,
+        dataloader_idx: int = 0,
+    ) -> None:
         if not isinstance(outputs, Mapping):
-            raise TypeError(f"VOEReportCallback needs test_step to return the probe_step dict "
-                            f"with {list(PROBE_OUTPUT_KEYS)}; got {type(outputs).__name__}")
+            raise TypeError(
+                f"VOEReportCallback needs test_step to return the probe_step dict "
+                f"with {list(PROBE_OUTPUT_KEYS)}; got {type(outputs).__name__}"
+            )
         missing = [key for key in PROBE_OUTPUT_KEYS if key not in outputs]
         if missing:
             raise KeyError(f"test_step output lacks {missing} (needs {list(PROBE_OUTPUT_KEYS)})")
-        stored = {key: as_numpy(outputs[key], None)
-                  for key in (*PROBE_OUTPUT_KEYS, FIRST_DIFFERENCE) if key in outputs}
+        stored = {
+            key: as_numpy(outputs[key], None)
+            for key in (*PROBE_OUTPUT_KEYS, FIRST_DIFFERENCE)
+            if key in outputs
+        }
         self._outputs.append(stored)
         if self.cue_audit:
-            self._cues.append(cues.CueAudit.score_batch(batch, self._concept_names,
-                                                        self._variant_names))
+            self._cues.append(
+                cues.CueAudit.score_batch(batch, self._concept_names, self._variant_names)
+            )
         self._keep_examples(stored, batch)
 
     def _keep_examples(self, stored: Mapping[str, np.ndarray], batch: Any) -> None:
-        persistence = (self._concept_names.index("object_persistence")
-                       if "object_persistence" in self._concept_names else None)
+        persistence = (
+            self._concept_names.index("object_persistence")
+            if "object_persistence" in self._concept_names
+            else None
+        )
         for i, (concept, variant) in enumerate(zip(stored["concept"], stored["variant"])):
             concept, variant = int(concept), int(variant)
-            meta = {"concept": concept, "variant": variant, "seed": int(stored["seed"][i]),
-                    "manipulation_frame": int(stored["manipulation_frame"][i])}
+            meta = {
+                "concept": concept,
+                "variant": variant,
+                "seed": int(stored["seed"][i]),
+                "manipulation_frame": int(stored["manipulation_frame"][i]),
+            }
             kept = self._examples.setdefault((concept, variant), [])
-            videos = {side: {"frames": batch[side, "frames"][i].cpu().clone()}
-                      | {name: value[i].cpu().clone()
-                         for name, value in video_inputs(batch, side).items()}
-                      for side in ("consistent", "inconsistent")}
+            videos = {
+                side: {"frames": batch[side, "frames"][i].cpu().clone()}
+                | {
+                    name: value[i].cpu().clone()
+                    for name, value in video_inputs(batch, side).items()
+                }
+                for side in ("consistent", "inconsistent")
+            }
             if len(kept) < self.max_prediction_examples:
                 kept.append(meta | {"inconsistent": videos["inconsistent"]})
             tsne = self._tsne.setdefault(variant, []) if concept == persistence else None
@@ -447,12 +525,14 @@ class VOEReportCallback(L.Callback):
         outputs = [output for rank in gathered for output in rank[0]]
         if not outputs:
             self._no_results()
-        results = PairResults.from_probe_outputs(outputs, self._concept_names,
-                                                 self._variant_names)
+        results = PairResults.from_probe_outputs(outputs, self._concept_names, self._variant_names)
         examples = [e for rank in gathered for kept in rank[1].values() for e in kept]
         tsne = [e for rank in gathered for kept in rank[2].values() for e in kept]
-        cue_audit = (cues.CueAudit.concatenate(a for rank in gathered for a in rank[3])
-                     if self.cue_audit else None)
+        cue_audit = (
+            cues.CueAudit.concatenate(a for rank in gathered for a in rank[3])
+            if self.cue_audit
+            else None
+        )
         was_training = pl_module.training
         pl_module.eval()
         try:
@@ -461,12 +541,21 @@ class VOEReportCallback(L.Callback):
                 trajectories, labels = self._trajectories(pl_module, tsne)
         finally:
             pl_module.train(was_training)
-        self.summary = write_report(results, out_dir, predictions, trajectories,
-                                    trajectory_labels=labels, cue_audit=cue_audit,
-                                    alpha=self.alpha, bootstrap=self.bootstrap,
-                                    seed=self.seed, surprise=pl_module.SURPRISE,
-                                    source=self._source(trainer), window=self.surprise_window,
-                                    priors_alone=self.untrained)
+        self.summary = write_report(
+            results,
+            out_dir,
+            predictions,
+            trajectories,
+            trajectory_labels=labels,
+            cue_audit=cue_audit,
+            alpha=self.alpha,
+            bootstrap=self.bootstrap,
+            seed=self.seed,
+            surprise=pl_module.SURPRISE,
+            source=self._source(trainer),
+            window=self.surprise_window,
+            priors_alone=self.untrained,
+        )
         self.report_dir = Path(out_dir) / "voe_report"
         self.causality = results.causality
         self._write_benchmark_metrics(trainer, outputs)
@@ -478,27 +567,39 @@ class VOEReportCallback(L.Callback):
         pairs = probe_datamodule(trainer, type(self).__name__).external_pairs()
         if pairs is None:
             return
-        merged = {key: np.concatenate([output[key] for output in outputs])
-                  for key in PROBE_OUTPUT_KEYS}
+        merged = {
+            key: np.concatenate([output[key] for output in outputs]) for key in PROBE_OUTPUT_KEYS
+        }
         metrics, files = evaluate(pairs, merged, alpha=self.alpha, bootstrap=self.bootstrap)
         path = self.report_dir / "benchmark_metrics.json"
-        write_whole({path: json.dumps(metrics, indent=2, default=lambda v: v.item()) + "\n",
-                     **{self.report_dir / name: text for name, text in files.items()}})
+        write_whole(
+            {
+                path: json.dumps(metrics, indent=2, default=lambda v: v.item()) + "\n",
+                **{self.report_dir / name: text for name, text in files.items()},
+            }
+        )
         print(f"benchmark metrics written to {path}")
         for name in files:
             print(f"{name} written to {self.report_dir / name}")
 
-    def _predictions(self, pl_module: L.LightningModule,
-                     examples: list[dict[str, Any]]) -> list[PredictionExample]:
+    def _predictions(
+        self, pl_module: L.LightningModule, examples: list[dict[str, Any]]
+    ) -> list[PredictionExample]:
         if not examples:
             return []
         video = _stacked([e["inconsistent"] for e in examples], pl_module.device)
         expected = pl_module.expected_frames(**video).float().cpu().numpy()
-        return [PredictionExample(
-            concept=self._concept_names[e["concept"]], variant=self._variant_names[e["variant"]],
-            seed=e["seed"], manipulation_frame=e["manipulation_frame"],
-            frames=e["inconsistent"]["frames"].numpy(), expected=expected[i])
-            for i, e in enumerate(examples)]
+        return [
+            PredictionExample(
+                concept=self._concept_names[e["concept"]],
+                variant=self._variant_names[e["variant"]],
+                seed=e["seed"],
+                manipulation_frame=e["manipulation_frame"],
+                frames=e["inconsistent"]["frames"].numpy(),
+                expected=expected[i],
+            )
+            for i, e in enumerate(examples)
+        ]
 
     def _trajectories(self, pl_module: L.LightningModule, tsne: list[dict[str, Any]]):
         # Interleave variants (standard, counterbalanced, standard, ...) up to tsne_pairs.
@@ -506,17 +607,24 @@ class VOEReportCallback(L.Callback):
         for e in tsne:
             by_variant.setdefault(e["variant"], []).append(e)
         order = sorted(by_variant, key=lambda v: self._variant_names[v] != "standard")
-        chosen = [by_variant[v][i] for i in range(self.tsne_pairs) for v in order
-                  if i < len(by_variant[v])][: self.tsne_pairs]
+        chosen = [
+            by_variant[v][i]
+            for i in range(self.tsne_pairs)
+            for v in order
+            if i < len(by_variant[v])
+        ][: self.tsne_pairs]
         if len(chosen) < 2:
             if self.tsne_pairs:
-                rank_zero_warn("fewer than 2 object-persistence probe pairs in the test set; "
-                               "tsne_object_persistence.png not written")
+                rank_zero_warn(
+                    "fewer than 2 object-persistence probe pairs in the test set; "
+                    "tsne_object_persistence.png not written"
+                )
             return None, None
         trajectories = {}
         for video in ("consistent", "inconsistent"):
-            courses = pl_module.trajectories(**_stacked([e[video] for e in chosen],
-                                                        pl_module.device))
+            courses = pl_module.trajectories(
+                **_stacked([e[video] for e in chosen], pl_module.device)
+            )
             trajectories[video] = {k: v.float().cpu().numpy() for k, v in courses.items()}
         labels = [f"{self._variant_names[e['variant']]} (seed {e['seed']})" for e in chosen]
         return trajectories, labels

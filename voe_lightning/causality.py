@@ -46,30 +46,44 @@ class Causality:
     def merge(self, other: Causality) -> Causality:
         """The finding over both sets of pairs."""
         frames = [f for f in (self.first_frame, other.first_frame) if f is not None]
-        return Causality(self.pairs + other.pairs, self.non_causal + other.non_causal,
-                         max(self.largest_difference, other.largest_difference),
-                         min(frames) if frames else None)
+        return Causality(
+            self.pairs + other.pairs,
+            self.non_causal + other.non_causal,
+            max(self.largest_difference, other.largest_difference),
+            min(frames) if frames else None,
+        )
 
     def line(self) -> str:
         """One line for reports, tables and errors."""
         if self.causal:
-            return (f"causality: per-frame surprise identical through manipulation_frame "
-                    f"(where the two videos are) in all {self.pairs} pairs")
-        return (f"causality: the model is not causal: per-frame surprise differs where the two "
-                f"videos are identical (through manipulation_frame) in {self.non_causal} of "
-                f"{self.pairs} pairs, by up to {self.largest_difference:.6g}, first at frame "
-                f"{self.first_frame}; no verdict: {NOT_CAUSAL}")
+            return (
+                f"causality: per-frame surprise identical through manipulation_frame "
+                f"(where the two videos are) in all {self.pairs} pairs"
+            )
+        return (
+            f"causality: the model is not causal: per-frame surprise differs where the two "
+            f"videos are identical (through manipulation_frame) in {self.non_causal} of "
+            f"{self.pairs} pairs, by up to {self.largest_difference:.6g}, first at frame "
+            f"{self.first_frame}; no verdict: {NOT_CAUSAL}"
+        )
 
     def counted(self, unit: str) -> str:
         """The finding in a few words, counting ``unit`` (pairs, cuts)."""
         if self.causal:
             return f"causal (surprise identical in all {self.pairs} {unit})"
-        return (f"NOT causal: surprise differs in {self.non_causal} of {self.pairs} {unit}, by "
-                f"up to {self.largest_difference:.6g}, first at frame {self.first_frame}")
+        return (
+            f"NOT causal: surprise differs in {self.non_causal} of {self.pairs} {unit}, by "
+            f"up to {self.largest_difference:.6g}, first at frame {self.first_frame}"
+        )
 
     def as_dict(self) -> dict[str, Any]:
-        return {"causal": self.causal, "pairs": self.pairs, "non_causal_pairs": self.non_causal,
-                "largest_difference": self.largest_difference, "first_frame": self.first_frame}
+        return {
+            "causal": self.causal,
+            "pairs": self.pairs,
+            "non_causal_pairs": self.non_causal,
+            "largest_difference": self.largest_difference,
+            "first_frame": self.first_frame,
+        }
 
 
 def _numpy(values: Any) -> np.ndarray:
@@ -79,8 +93,12 @@ def _numpy(values: Any) -> np.ndarray:
     return np.asarray(values, dtype=np.float64)
 
 
-def check_prefix(surprise_consistent: Any, surprise_inconsistent: Any, manipulation_frame: Any,
-                 first_difference: Any = None) -> Causality:
+def check_prefix(
+    surprise_consistent: Any,
+    surprise_inconsistent: Any,
+    manipulation_frame: Any,
+    first_difference: Any = None,
+) -> Causality:
     """Compare a batch of pairs' per-frame surprise [N, T] through each pair's
     ``manipulation_frame`` (inclusive), and before its ``first_difference`` where given (a
     benchmark's pair may differ earlier: only frames both videos share are compared)."""
@@ -91,16 +109,20 @@ def check_prefix(surprise_consistent: Any, surprise_inconsistent: Any, manipulat
         shared = np.minimum(shared, _numpy(first_difference).astype(np.int64))
     in_prefix = np.arange(steps)[None, :] < shared[:, None]  # [N, T]
     difference = np.abs(consistent - inconsistent)
-    noise = np.maximum(ABSOLUTE_NOISE,
-                       RELATIVE_NOISE * np.maximum(np.abs(consistent), np.abs(inconsistent)))
+    noise = np.maximum(
+        ABSOLUTE_NOISE, RELATIVE_NOISE * np.maximum(np.abs(consistent), np.abs(inconsistent))
+    )
     differs = in_prefix & ~(difference <= noise)  # NaN on one side only differs too
     differs &= ~(np.isnan(consistent) & np.isnan(inconsistent))
     if not differs.any():
         return Causality(pairs=len(consistent))
     frames = np.flatnonzero(differs.any(axis=0))
-    return Causality(pairs=len(consistent), non_causal=int(differs.any(axis=1).sum()),
-                     largest_difference=float(np.nanmax(np.where(differs, difference, 0.0))),
-                     first_frame=int(frames[0]))
+    return Causality(
+        pairs=len(consistent),
+        non_causal=int(differs.any(axis=1).sum()),
+        largest_difference=float(np.nanmax(np.where(differs, difference, 0.0))),
+        first_frame=int(frames[0]),
+    )
 
 
 def check_model(model: SurpriseModel, probes: Any) -> tuple[Causality, Causality]:
@@ -111,17 +133,21 @@ def check_model(model: SurpriseModel, probes: Any) -> tuple[Causality, Causality
     per video and frame)."""
     with torch.no_grad():
         scored = model.probe_step(probes)
-        prefix = check_prefix(scored["surprise_consistent"], scored["surprise_inconsistent"],
-                              scored["manipulation_frame"], scored.get("first_difference"))
+        prefix = check_prefix(
+            scored["surprise_consistent"],
+            scored["surprise_inconsistent"],
+            scored["manipulation_frame"],
+            scored.get("first_difference"),
+        )
         frames = probes["inconsistent", "frames"]
         inputs = video_inputs(probes, "inconsistent")
         whole = model.surprise(frames, **inputs)
         cut = Causality()
         for t in range(frames.shape[1] - 1):
-            part = model.surprise(frames[:, : t + 1], **{name: _through(value, t)
-                                                         for name, value in inputs.items()})
-            cut = cut.merge(check_prefix(whole[:, : t + 1], part,
-                                         torch.full((len(frames),), t)))
+            part = model.surprise(
+                frames[:, : t + 1], **{name: _through(value, t) for name, value in inputs.items()}
+            )
+            cut = cut.merge(check_prefix(whole[:, : t + 1], part, torch.full((len(frames),), t)))
     return prefix, cut
 
 
@@ -133,8 +159,13 @@ def _through(value: Any, t: int) -> Any:
     return value[:, : t + 1]
 
 
-def check_causality(model: SurpriseModel, concepts: list[specs.Concept] | None = None,
-                    seeds: int = 2, size: int = 32, num_frames: int = 15) -> bool:
+def check_causality(
+    model: SurpriseModel,
+    concepts: list[specs.Concept] | None = None,
+    seeds: int = 2,
+    size: int = 32,
+    num_frames: int = 15,
+) -> bool:
     """Run a model through the causality protocol on generated probe pairs.
 
     Surprise at frame t may read frames up to t only: per concept, each pair's per-frame
@@ -158,15 +189,23 @@ def check_causality(model: SurpriseModel, concepts: list[specs.Concept] | None =
     model.eval()
     failed = []
     for concept in concepts or specs.CONCEPTS:
-        probes = torch.stack([generate_probe(concept, variant, seed, height=size, width=size,
-                                             num_frames=num_frames)
-                              for variant in PROBE_VARIANTS[concept] for seed in range(seeds)])
+        probes = torch.stack(
+            [
+                generate_probe(
+                    concept, variant, seed, height=size, width=size, num_frames=num_frames
+                )
+                for variant in PROBE_VARIANTS[concept]
+                for seed in range(seeds)
+            ]
+        )
         checks = ("pairs through the manipulation frame", "videos cut after each frame t")
         for check, unit, found in zip(checks, ("pairs", "cuts"), check_model(model, probes)):
             print(f"{concept}, {check}: {found.counted(unit)}")
             if not found.causal:
                 failed.append(f"{concept} ({check})")
     if failed:
-        raise ValueError(f"{type(model).__name__} is not causal: its surprise at frame t reads "
-                         f"later frames in {', '.join(failed)}")
+        raise ValueError(
+            f"{type(model).__name__} is not causal: its surprise at frame t reads "
+            f"later frames in {', '.join(failed)}"
+        )
     return True

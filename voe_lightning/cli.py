@@ -23,8 +23,16 @@ from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
 from lightning.pytorch.utilities.seed import isolate_rng
 
-from voe_lightning import (analysis, causality, cue_report, generate, null, preflight, runs,
-                           statistics)
+from voe_lightning import (
+    analysis,
+    causality,
+    cue_report,
+    generate,
+    null,
+    preflight,
+    runs,
+    statistics,
+)
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.interruption import InterruptCheckpoint
 from voe_lightning.model import SurpriseModel
@@ -93,19 +101,35 @@ class VOECLI(LightningCLI):
         """The run's one significance level, ``alpha`` (configs/base.yaml sets it), its
         ``surprise_window``, ``branch`` (a resumed fit in a new version) and
         ``allow_non_causal``."""
-        parser.add_argument("--alpha", type=float, default=statistics.ALPHA,
-                            help="significance level of every test, verdict and table of the "
-                            "run; each callback with an alpha argument gets it")
-        parser.add_argument("--surprise_window", type=Union[str, dict, None], default="all",
-                            help="frames a video's surprise sums in the report: all (the "
-                            "paper's) or {start: first_difference, frames: k}, reported beside "
-                            "all frames; each callback with a surprise_window argument gets it")
-        parser.add_argument("--branch", type=bool, default=False,
-                            help="fit --ckpt_path: continue from the checkpoint in a new version "
-                            "of its run's logger name (other data allowed), keeping the run")
-        parser.add_argument("--allow_non_causal", type=bool, default=False,
-                            help="exit 0 though the model's surprise is not causal (it differs "
-                            "where a probe pair's videos are identical); verdicts stay withheld")
+        parser.add_argument(
+            "--alpha",
+            type=float,
+            default=statistics.ALPHA,
+            help="significance level of every test, verdict and table of the "
+            "run; each callback with an alpha argument gets it",
+        )
+        parser.add_argument(
+            "--surprise_window",
+            type=Union[str, dict, None],  # noqa: UP007 (jsonargparse's type)
+            default="all",
+            help="frames a video's surprise sums in the report: all (the "
+            "paper's) or {start: first_difference, frames: k}, reported beside "
+            "all frames; each callback with a surprise_window argument gets it",
+        )
+        parser.add_argument(
+            "--branch",
+            type=bool,
+            default=False,
+            help="fit --ckpt_path: continue from the checkpoint in a new version "
+            "of its run's logger name (other data allowed), keeping the run",
+        )
+        parser.add_argument(
+            "--allow_non_causal",
+            type=bool,
+            default=False,
+            help="exit 0 though the model's surprise is not causal (it differs "
+            "where a probe pair's videos are identical); verdicts stay withheld",
+        )
 
     def _add_subcommands(self, parser: Any, **kwargs: Any) -> None:
         """Lightning's subcommands, then those of ``COMMANDS``, each listed with its summary."""
@@ -133,12 +157,25 @@ class VOECLI(LightningCLI):
         try:
             super()._run_subcommand(subcommand)
         except SIGTERMException as stopped:
-            interrupt = next((callback for callback in self.trainer.callbacks
-                              if isinstance(callback, InterruptCheckpoint)), InterruptCheckpoint())
-            saved = (f"saved a resumable checkpoint {interrupt.saved}: continue with "
-                     f"`fit --ckpt_path {interrupt.saved}`" if interrupt.saved else "nothing saved")
-            print(f"{subcommand} stopped by {interrupt.signal_name or 'SIGTERM'} at step "
-                  f"{self.trainer.global_step}; {saved}", file=sys.stderr)
+            interrupt = next(
+                (
+                    callback
+                    for callback in self.trainer.callbacks
+                    if isinstance(callback, InterruptCheckpoint)
+                ),
+                InterruptCheckpoint(),
+            )
+            saved = (
+                f"saved a resumable checkpoint {interrupt.saved}: continue with "
+                f"`fit --ckpt_path {interrupt.saved}`"
+                if interrupt.saved
+                else "nothing saved"
+            )
+            print(
+                f"{subcommand} stopped by {interrupt.signal_name or 'SIGTERM'} at step "
+                f"{self.trainer.global_step}; {saved}",
+                file=sys.stderr,
+            )
             raise SystemExit(interrupt.exit_code()) from stopped
 
     def before_fit(self) -> None:
@@ -156,22 +193,29 @@ class VOECLI(LightningCLI):
         (the checkpoint's model arguments), at initialization under the run's seed, tested
         first on the same probes (``null.priors_alone``, into ``<log dir>/priors_alone/``) and
         handed to the callback for its report; this test's random state is kept as it was."""
-        callbacks = [callback for callback in self.trainer.callbacks
-                     if isinstance(callback, VOEReportCallback) and callback.priors_alone]
+        callbacks = [
+            callback
+            for callback in self.trainer.callbacks
+            if isinstance(callback, VOEReportCallback) and callback.priors_alone
+        ]
         if not callbacks:
             return
         config = self.config["test"]
         seed = config.get("seed_everything")
         if isinstance(seed, bool) or not isinstance(seed, int):
-            raise ValueError(f"priors_alone tests the config at initialization under the run's "
-                             f"seed, and seed_everything is {seed!r}: give an integer")
+            raise ValueError(
+                f"priors_alone tests the config at initialization under the run's "
+                f"seed, and seed_everything is {seed!r}: give an integer"
+            )
         saved = yaml.safe_load(self._parser("test").dump(config, skip_none=False))
         own = set(inspect.signature(self.trainer.test).parameters) - self.subcommands()["test"]
         for key in ("config", *own):  # ckpt_path, verbose...: the untrained copy has none
             saved.pop(key, None)
         out = Path(self.trainer.log_dir) / "priors_alone"
-        print(f"test: first the config at initialization (seed {seed}) on the same probes, "
-              f"its {PRIORS_ALONE} rows for the report, into {out}")
+        print(
+            f"test: first the config at initialization (seed {seed}) on the same probes, "
+            f"its {PRIORS_ALONE} rows for the report, into {out}"
+        )
         with isolate_rng():
             untrained = null.priors_alone(functools.partial(_cli, run=False), saved, seed, out)
         for callback in callbacks:
@@ -197,10 +241,12 @@ class VOECLI(LightningCLI):
             if self.config[subcommand].get("allow_non_causal"):
                 print(f"{subcommand}: {causality.line()} (--allow_non_causal)", file=sys.stderr)
                 return
-            print(f"error: {subcommand}: {causality.line()}"
-                  + (f" (report: {where})" if where else "")
-                  + "; --allow_non_causal true exits 0 with the verdicts withheld",
-                  file=sys.stderr)
+            print(
+                f"error: {subcommand}: {causality.line()}"
+                + (f" (report: {where})" if where else "")
+                + "; --allow_non_causal true exits 0 with the verdicts withheld",
+                file=sys.stderr,
+            )
             raise SystemExit(NOT_CAUSAL_EXIT)
 
     def before_predict(self) -> None:
@@ -217,7 +263,8 @@ class VOECLI(LightningCLI):
                 f"{subcommand} without --ckpt_path would use the untrained weights of "
                 f"{type(self.model).__name__} ({trainable:,} trainable parameters): give "
                 "--ckpt_path PATH.ckpt, or --ckpt_path last for the newest checkpoint of the "
-                "config's logger name (only a model without trainable parameters needs none)")
+                "config's logger name (only a model without trainable parameters needs none)"
+            )
 
     def parse_arguments(self, parser: Any, args: Any) -> None:
         """Parse, then resolve --ckpt_path to one file (``_checkpoint``), read it (naming it if
@@ -272,17 +319,25 @@ class VOECLI(LightningCLI):
             raise ValueError(
                 f"{ckpt_path} was trained with other model arguments than given here, and the "
                 "model's arguments come from the checkpoint, so these would be ignored: "
-                + "; ".join(conflicts) + ". Leave them out or give the checkpoint's values"
-                + _may_differ(model_class) + "."
+                + "; ".join(conflicts)
+                + ". Leave them out or give the checkpoint's values"
+                + _may_differ(model_class)
+                + "."
             )
-        self.evaluation_arguments = {name: value
-                                     for name, value in _differences(given, trained).items()
-                                     if name in evaluation_only}
+        self.evaluation_arguments = {
+            name: value
+            for name, value in _differences(given, trained).items()
+            if name in evaluation_only
+        }
         if self.evaluation_arguments:
-            print(f"{subcommand} scores {ckpt_path} with evaluation-only model arguments other "
-                  "than it was trained with: " + "; ".join(
-                      f"{name}: {value} (trained with {trained[name]})"
-                      for name, value in self.evaluation_arguments.items()))
+            print(
+                f"{subcommand} scores {ckpt_path} with evaluation-only model arguments other "
+                "than it was trained with: "
+                + "; ".join(
+                    f"{name}: {value} (trained with {trained[name]})"
+                    for name, value in self.evaluation_arguments.items()
+                )
+            )
 
     @staticmethod
     def _checkpoint(config: Any, ckpt_path: str) -> Path:
@@ -292,9 +347,11 @@ class VOECLI(LightningCLI):
             return runs.checkpoint_file(ckpt_path)
         init_args = getattr(config["trainer"].get("logger"), "init_args", None) or {}
         if not init_args.get("save_dir") or not init_args.get("name"):
-            raise ValueError(f"--ckpt_path {ckpt_path} names the newest run of the logger's "
-                             "save_dir and name, and the config's trainer.logger has none: give "
-                             "a .ckpt file")
+            raise ValueError(
+                f"--ckpt_path {ckpt_path} names the newest run of the logger's "
+                "save_dir and name, and the config's trainer.logger has none: give "
+                "a .ckpt file"
+            )
         return runs.run_checkpoint(ckpt_path, init_args["save_dir"], init_args["name"])
 
     def before_instantiate_classes(self) -> None:
@@ -310,8 +367,11 @@ class VOECLI(LightningCLI):
         if config and "weights_only" in config and config.get("weights_only") is None:
             config["weights_only"] = True  # torch>=2.4 may default to unpickling anything
         if self.subcommand in LIGHTNING_SUBCOMMANDS and self.subcommand != "fit":
-            self.save_config_kwargs = {**self.save_config_kwargs, "keep_earlier": True,
-                                       "config_filename": f"{self.subcommand}_config.yaml"}
+            self.save_config_kwargs = {
+                **self.save_config_kwargs,
+                "keep_earlier": True,
+                "config_filename": f"{self.subcommand}_config.yaml",
+            }
         ckpt_path = config.get("ckpt_path") if config else None
         if ckpt_path and ckpt_path not in runs.LIGHTNING_CHECKPOINT_WORDS:
             checkpoint = Path(ckpt_path)  # an existing file: parse_arguments resolved it
@@ -325,30 +385,42 @@ class VOECLI(LightningCLI):
         run, and for ``validate``/``test``/``predict`` at the folder ``runs.report_folder``
         gives this checkpoint, data root, concepts and benchmark there."""
         init_args = getattr(config["trainer"].get("logger"), "init_args", None)
-        if init_args is None or not all(key in init_args for key in ("save_dir", "name", "version")):
+        if init_args is None or not all(
+            key in init_args for key in ("save_dir", "name", "version")
+        ):
             return
         run_dir = checkpoint.parent.parent
         version = run_dir.name
         if self.subcommand == "fit" and config.get("branch"):
-            print(f"fit --branch: continues from {checkpoint} in a new version of "
-                  f"{run_dir.parent} (the run {run_dir} and its record are kept as they are)")
+            print(
+                f"fit --branch: continues from {checkpoint} in a new version of "
+                f"{run_dir.parent} (the run {run_dir} and its record are kept as they are)"
+            )
             version = None  # the logger's next version
         elif self.subcommand == "fit":
             self._keep_record(config, checkpoint, run_dir)
-        if (self.subcommand == "fit" and not config.get("branch")
-                and init_args.get("name") not in (None, run_dir.parent.name)):
+        if (
+            self.subcommand == "fit"
+            and not config.get("branch")
+            and init_args.get("name") not in (None, run_dir.parent.name)
+        ):
             rank_zero_warn(
                 f"fit --ckpt_path resumes in the checkpoint's run {run_dir}, so its curves and "
                 f"checkpoints continue there; the logger name {init_args['name']!r} is not "
                 "used. A later test of this run replaces its voe_report/: copy it first to keep it."
             )
-        folder = (_report_folder(config, checkpoint, self.evaluation_arguments)
-                  if self.subcommand != "fit" else None)
+        folder = (
+            _report_folder(config, checkpoint, self.evaluation_arguments)
+            if self.subcommand != "fit"
+            else None
+        )
         if folder is not None:
             version = f"{version}/{folder}"
-            print(f"{self.subcommand} of {checkpoint} on other data, concepts or another "
-                  f"checkpoint than the run's own, or scored otherwise: its logs and report go "
-                  f"to {run_dir / folder}, and the run's own voe_report/ is kept")
+            print(
+                f"{self.subcommand} of {checkpoint} on other data, concepts or another "
+                f"checkpoint than the run's own, or scored otherwise: its logs and report go "
+                f"to {run_dir / folder}, and the run's own voe_report/ is kept"
+            )
         init_args["save_dir"] = str(run_dir.parent.parent)
         init_args["name"] = run_dir.parent.name
         init_args["version"] = version
@@ -364,7 +436,8 @@ class VOECLI(LightningCLI):
             raise ValueError(
                 f"fit --ckpt_path {checkpoint} resumes the run {run_dir}, which trained on other "
                 f"data than given: {'; '.join(differences)}. Resume with the run's values, "
-                "or add --branch true to continue from it in a new version")
+                "or add --branch true to continue from it in a new version"
+            )
         step = "" if self.checkpoint_step is None else f"_step{self.checkpoint_step}"
         name = runs.fresh_config_name(run_dir, f"config_resumed{step}")
         self.save_config_kwargs = {**self.save_config_kwargs, "config_filename": name}
@@ -379,12 +452,15 @@ def _refuse_retired_arguments(ckpt_path: str, trained: dict) -> None:
     parameters = inspect.signature(model_class.__init__).parameters
     if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values()):
         return
-    retired = sorted(name for name in trained if not name.startswith("_") and name not in parameters)
+    retired = sorted(
+        name for name in trained if not name.startswith("_") and name not in parameters
+    )
     if retired:
         raise ValueError(
             f"{ckpt_path} holds model arguments {model_class.__name__} no longer takes: "
             f"{', '.join(retired)} (a checkpoint of an older version?); test it with the version "
-            "that wrote it")
+            "that wrote it"
+        )
 
 
 def _callbacks_taking(config: Any, argument: str) -> list[tuple[str, Any]]:
@@ -437,8 +513,7 @@ def _report_folder(config: Any, checkpoint: Path, evaluation: dict[str, Any]) ->
     data_class = _import(data.class_path) if getattr(data, "class_path", None) else None
     # An external benchmark's DataModule describes its pairs for its own metrics; ours do not.
     benchmark = None
-    if (data_class is not None
-            and data_class.external_pairs is not ProbeDataModule.external_pairs):
+    if data_class is not None and data_class.external_pairs is not ProbeDataModule.external_pairs:
         logger_args = getattr(config["trainer"].get("logger"), "init_args", None) or {}
         benchmark = logger_args.get("name") or data_class.__name__
     try:
@@ -446,10 +521,15 @@ def _report_folder(config: Any, checkpoint: Path, evaluation: dict[str, Any]) ->
         trained_args = trained["data"]["init_args"]
     except (OSError, yaml.YAMLError, KeyError, TypeError):
         trained_args = {}
-    return runs.report_folder(checkpoint, runs.probe_root(data_args),
-                              runs.concepts_of(data_args), benchmark,
-                              runs.probe_root(trained_args), runs.concepts_of(trained_args),
-                              evaluation)
+    return runs.report_folder(
+        checkpoint,
+        runs.probe_root(data_args),
+        runs.concepts_of(data_args),
+        benchmark,
+        runs.probe_root(trained_args),
+        runs.concepts_of(trained_args),
+        evaluation,
+    )
 
 
 def _differences(given: Any, trained: dict) -> dict[str, Any]:
@@ -459,8 +539,11 @@ def _differences(given: Any, trained: dict) -> dict[str, Any]:
         return {}
     arguments = given.get("init_args")
     arguments = arguments.as_dict() if isinstance(arguments, Namespace) else {}
-    return {name: value for name, value in arguments.items()
-            if name in trained and _plain(value) != _plain(trained[name])}
+    return {
+        name: value
+        for name, value in arguments.items()
+        if name in trained and _plain(value) != _plain(trained[name])
+    }
 
 
 def _conflicts(given: Any, trained: dict, ignored: tuple[str, ...] = ()) -> list[str]:
@@ -468,8 +551,11 @@ def _conflicts(given: Any, trained: dict, ignored: tuple[str, ...] = ()) -> list
     after a model class that differs from the checkpoint's."""
     if not isinstance(given, Namespace) or not trained:
         return []
-    conflicts = [f"{name}: config {value!r}, checkpoint {trained[name]!r}"
-                 for name, value in _differences(given, trained).items() if name not in ignored]
+    conflicts = [
+        f"{name}: config {value!r}, checkpoint {trained[name]!r}"
+        for name, value in _differences(given, trained).items()
+        if name not in ignored
+    ]
     class_path, trained_class_path = given.get("class_path"), trained.get("_class_path")
     if class_path and trained_class_path and _import(class_path) is not _import(trained_class_path):
         conflicts.insert(0, f"class_path: config {class_path!r}, checkpoint {trained_class_path!r}")
@@ -481,14 +567,20 @@ def _may_differ(model_class: type[SurpriseModel] | None) -> str:
     give otherwise, its training-only and evaluation-only ones ("" for none)."""
     if model_class is None:
         return ""
-    kinds = [f"{kind} {', '.join(names)} ({effect})" for kind, names, effect in (
-        ("training-only", model_class.TRAINING_ONLY, "ignored"),
-        ("evaluation-only", model_class.EVALUATION_ONLY, "used instead of the checkpoint's"),
-    ) if names]
+    kinds = [
+        f"{kind} {', '.join(names)} ({effect})"
+        for kind, names, effect in (
+            ("training-only", model_class.TRAINING_ONLY, "ignored"),
+            ("evaluation-only", model_class.EVALUATION_ONLY, "used instead of the checkpoint's"),
+        )
+        if names
+    ]
     if not kinds:
         return ""
-    return (f"; validate, test and predict of it take other values of {model_class.__name__}'s "
-            + " and ".join(kinds))
+    return (
+        f"; validate, test and predict of it take other values of {model_class.__name__}'s "
+        + " and ".join(kinds)
+    )
 
 
 def _plain(value: Any) -> Any:
@@ -508,8 +600,11 @@ def _add_command(subcommands: Any, name: str, command: Any) -> None:
     nested = isinstance(command, dict)
     description = command["_help"] if nested else inspect.getdoc(command).split("\n\nArgs:")[0]
     parser = ArgumentParser(description=description)
-    parser.add_argument("--config", action=ActionConfigFile,
-                        help="a YAML file of these arguments (see --print_config)")
+    parser.add_argument(
+        "--config",
+        action=ActionConfigFile,
+        help="a YAML file of these arguments (see --print_config)",
+    )
     subcommands.add_subcommand(name, parser, help=description.splitlines()[0])
     if not nested:
         parser.add_function_arguments(command, as_group=False, sub_configs=True)
@@ -546,8 +641,10 @@ def _call(command: Any, arguments: Namespace) -> Any:
         return _call(command[name], arguments[name])
     entry_points = {"_cli_main": main, "_build_cli": functools.partial(_cli, run=False)}
     parameters = inspect.signature(command).parameters
-    return command(**{name: _built(value) for name, value in vars(arguments).items()},
-                   **{key: value for key, value in entry_points.items() if key in parameters})
+    return command(
+        **{name: _built(value) for name, value in vars(arguments).items()},
+        **{key: value for key, value in entry_points.items() if key in parameters},
+    )
 
 
 def _built(value: Any) -> Any:
@@ -597,8 +694,10 @@ def _check_yaml(words: list[str]) -> None:
     for name in files:
         if Path(name).is_dir():
             found = sorted(Path(name).glob("*.yaml"))
-            raise ValueError(f"--config {name} is a directory, not a YAML file; give one file"
-                             + (f", e.g. {found[0]}" if found else ""))
+            raise ValueError(
+                f"--config {name} is a directory, not a YAML file; give one file"
+                + (f", e.g. {found[0]}" if found else "")
+            )
         try:
             document = yaml.compose(Path(name).read_text(), Loader=yaml.SafeLoader)
         except OSError:
@@ -609,31 +708,40 @@ def _check_yaml(words: list[str]) -> None:
             problem = getattr(error, "problem", None) or error
             raise ValueError(f"--config {name} is not valid YAML{where}: {problem}") from None
         if document is not None and _expanded_size(document, {}) > MAX_CONFIG_VALUES:
-            raise ValueError(f"--config {name} expands to more than {MAX_CONFIG_VALUES:,} values "
-                             "through its YAML aliases (*name repeating &name): refused; a "
-                             "config needs no more")
+            raise ValueError(
+                f"--config {name} expands to more than {MAX_CONFIG_VALUES:,} values "
+                "through its YAML aliases (*name repeating &name): refused; a "
+                "config needs no more"
+            )
 
 
 #: Flags whose value may be a class's import path, with an example of one.
-CLASS_FLAGS = {"--model": "voe_lightning.model.VRNNLRUModel",
-               "--data": "my_package.MyDataModule"}
+CLASS_FLAGS = {"--model": "voe_lightning.model.VRNNLRUModel", "--data": "my_package.MyDataModule"}
 
 
 def _check_classes(words: list[str]) -> None:
     """Refuse a ``--model``/``--data`` import path (``package.module.Class``; not a file)
     that cannot be imported, naming it and why (the parser prints its usage over the cause)."""
     given = [(flag, value) for flag, value in zip(words, words[1:]) if flag in CLASS_FLAGS]
-    given += [tuple(word.split("=", 1)) for word in words
-              if "=" in word and word.split("=", 1)[0] in CLASS_FLAGS]
+    given += [
+        tuple(word.split("=", 1))
+        for word in words
+        if "=" in word and word.split("=", 1)[0] in CLASS_FLAGS
+    ]
     for flag, value in given:
-        if (not re.fullmatch(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)+", value) or Path(value).exists()
-                or Path(value).suffix in (".yaml", ".yml", ".json")):
+        if (
+            not re.fullmatch(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)+", value)
+            or Path(value).exists()
+            or Path(value).suffix in (".yaml", ".yml", ".json")
+        ):
             continue
         try:
             _import(value)
         except (ImportError, AttributeError) as error:
-            raise ValueError(f"{flag} {value} cannot be imported ({error}); give a class's "
-                             f"import path, e.g. {CLASS_FLAGS[flag]}") from None
+            raise ValueError(
+                f"{flag} {value} cannot be imported ({error}); give a class's "
+                f"import path, e.g. {CLASS_FLAGS[flag]}"
+            ) from None
 
 
 def _expanded_size(node: yaml.Node, sizes: dict[int, int]) -> int:
@@ -641,18 +749,25 @@ def _expanded_size(node: yaml.Node, sizes: dict[int, int]) -> int:
     distinct node (``sizes``: by id), so a billion-value alias bomb costs microseconds."""
     if id(node) not in sizes:
         sizes[id(node)] = 1  # a node that contains itself counts once
-        children = ([part for pair in node.value for part in pair]
-                    if isinstance(node, yaml.MappingNode)
-                    else node.value if isinstance(node, yaml.SequenceNode) else [])
+        children = (
+            [part for pair in node.value for part in pair]
+            if isinstance(node, yaml.MappingNode)
+            else node.value
+            if isinstance(node, yaml.SequenceNode)
+            else []
+        )
         sizes[id(node)] = 1 + sum(_expanded_size(child, sizes) for child in children)
     return sizes[id(node)]
 
 
 #: How torch's DataLoader re-raises in this process an error a worker process raised: the
 #: worker's whole traceback as its message, whose last line is "module.Type: message".
-WORKER_ERROR = re.compile(r"Caught \w+ in DataLoader worker process \d+\.\n"
-                          r"Original Traceback \(most recent call last\):\n.*\n"
-                          r"(?P<type>[\w.]+): (?P<message>.*?)\n?\Z", re.S)
+WORKER_ERROR = re.compile(
+    r"Caught \w+ in DataLoader worker process \d+\.\n"
+    r"Original Traceback \(most recent call last\):\n.*\n"
+    r"(?P<type>[\w.]+): (?P<message>.*?)\n?\Z",
+    re.S,
+)
 
 
 def _user_message(error: BaseException) -> str | None:
@@ -694,14 +809,21 @@ def _cli(args: list[str] | None, run: bool = True) -> VOECLI:
         seed_everything_default=0,
         save_config_callback=runs.RunConfig,
         save_config_kwargs={"overwrite": True},
-        parser_kwargs={"prog": "python -m voe_lightning",
-                       "description": "Probe video models' intuitive physics by violation of "
-                       "expectation: generate the data, train and test, audit cues, analyze runs. "
-                       "A bad argument or input is one line, 'error: ...'; --debug anywhere "
-                       f"(or {DEBUG_VARIABLE}=1) shows its traceback.",
-                       **({name: {"default_config_files": [str(BASE_CONFIG)]}
-                           for name in LIGHTNING_SUBCOMMANDS} if run
-                          else {"default_config_files": [str(BASE_CONFIG)]})},
+        parser_kwargs={
+            "prog": "python -m voe_lightning",
+            "description": "Probe video models' intuitive physics by violation of "
+            "expectation: generate the data, train and test, audit cues, analyze runs. "
+            "A bad argument or input is one line, 'error: ...'; --debug anywhere "
+            f"(or {DEBUG_VARIABLE}=1) shows its traceback.",
+            **(
+                {
+                    name: {"default_config_files": [str(BASE_CONFIG)]}
+                    for name in LIGHTNING_SUBCOMMANDS
+                }
+                if run
+                else {"default_config_files": [str(BASE_CONFIG)]}
+            ),
+        },
         args=args,
         run=run,
     )

@@ -5,9 +5,9 @@ row, frames left to right. From freshly rendered records or from a store."""
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import matplotlib
 
@@ -40,7 +40,9 @@ def record_rows(record: TensorDictBase) -> list[Row]:
     if "consistent" in record.keys():
         variant = specs.variant_name(record)
         mark = int(record["manipulation_frame"])
-        title = f"{concept} probe, {variant} (seed {int(record['seed'])}); outlined: manipulation frame"
+        title = (
+            f"{concept} probe, {variant} (seed {int(record['seed'])}); outlined: manipulation frame"
+        )
         return [
             Row("consistent", record["consistent", "frames"].numpy(), mark, title),
             Row("inconsistent", record["inconsistent", "frames"].numpy(), mark),
@@ -58,7 +60,9 @@ def _strip(frames: np.ndarray) -> np.ndarray:
     return strip
 
 
-def draw_rows(rows: Sequence[Row], path: str | os.PathLike, title: str | None = None, scale: float = 1.5) -> Path:
+def draw_rows(
+    rows: Sequence[Row], path: str | os.PathLike, title: str | None = None, scale: float = 1.5
+) -> Path:
     """Draw ``rows`` (all of one video size) into a PNG at ``path``; returns the path."""
     if not rows:
         raise ValueError("a contact sheet needs at least one row")
@@ -74,16 +78,31 @@ def draw_rows(rows: Sequence[Row], path: str | os.PathLike, title: str | None = 
     figure = plt.figure(figsize=(fig_width / dpi, fig_height / dpi), dpi=dpi)
     top = fig_height - (34 if title else 8)
     if title:
-        figure.text(0.5, 1 - 14 / fig_height, title, ha="center", va="center", fontsize=11, weight="bold")
+        figure.text(
+            0.5, 1 - 14 / fig_height, title, ha="center", va="center", fontsize=11, weight="bold"
+        )
     for row in rows:
         if row.frames.shape != (num_frames, height, width, 3):
-            raise ValueError(f"row {row.label!r} has frames {row.frames.shape}, expected {(num_frames, height, width, 3)}")
+            raise ValueError(
+                f"row {row.label!r} has frames {row.frames.shape}, expected {(num_frames, height, width, 3)}"
+            )
         if row.section is not None:
             top -= section_height
-            figure.text(label_width / fig_width, (top + 6) / fig_height, row.section, fontsize=9, va="bottom")
+            figure.text(
+                label_width / fig_width,
+                (top + 6) / fig_height,
+                row.section,
+                fontsize=9,
+                va="bottom",
+            )
         top -= row_height
         axes = figure.add_axes(
-            [label_width / fig_width, (top + 3) / fig_height, strip_width * scale / fig_width, height * scale / fig_height]
+            [
+                label_width / fig_width,
+                (top + 3) / fig_height,
+                strip_width * scale / fig_width,
+                height * scale / fig_height,
+            ]
         )
         axes.imshow(_strip(row.frames), interpolation="nearest")
         axes.set_xticks([t * (width + GAP) + width / 2 for t in range(num_frames)])
@@ -95,7 +114,11 @@ def draw_rows(rows: Sequence[Row], path: str | os.PathLike, title: str | None = 
         axes.text(-8, height / 2, row.label, ha="right", va="center", fontsize=9)
         if row.marked_frame is not None:
             left = row.marked_frame * (width + GAP) - 1
-            axes.add_patch(Rectangle((left, -0.5), width + 1, height, fill=False, edgecolor=MARK_COLOR, linewidth=2))
+            axes.add_patch(
+                Rectangle(
+                    (left, -0.5), width + 1, height, fill=False, edgecolor=MARK_COLOR, linewidth=2
+                )
+            )
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=dpi)
@@ -103,7 +126,9 @@ def draw_rows(rows: Sequence[Row], path: str | os.PathLike, title: str | None = 
     return path
 
 
-def write_records_sheet(records: Sequence[TensorDictBase], path: str | os.PathLike, title: str | None = None) -> Path:
+def write_records_sheet(
+    records: Sequence[TensorDictBase], path: str | os.PathLike, title: str | None = None
+) -> Path:
     """A contact sheet of probe pairs and/or clips, in the order given."""
     return draw_rows([row for record in records for row in record_rows(record)], path, title)
 
@@ -124,12 +149,19 @@ def write_concept_sheet(
     if include_generalization:
         variants += specs.GENERALIZATION_VARIANTS[concept]
     records = [generate_probe(concept, variant, seed, **video_options) for variant in variants]
-    records += [generate_clip(concept, kind, seed, **video_options) for kind in specs.CLIP_KINDS_BY_CONCEPT[concept]]
+    records += [
+        generate_clip(concept, kind, seed, **video_options)
+        for kind in specs.CLIP_KINDS_BY_CONCEPT[concept]
+    ]
     return write_records_sheet(records, path, title=concept.replace("_", " "))
 
 
 def write_store_sheet(
-    root: str | os.PathLike, concept: str, path: str | os.PathLike, probe_split: str = "test", scan: int = 256
+    root: str | os.PathLike,
+    concept: str,
+    path: str | os.PathLike,
+    probe_split: str = "test",
+    scan: int = 256,
 ) -> Path:
     """A contact sheet of ``concept`` from the store at ``root``: the first pair of each probe
     variant in ``probe_split`` and the first clip of each kind in train (looking at most
@@ -149,5 +181,7 @@ def write_store_sheet(
                 seen.add(name)
                 records.append(record)
     if not records:
-        raise ValueError(f"the store at {root} holds no {concept} records in {probe_split} or train")
+        raise ValueError(
+            f"the store at {root} holds no {concept} records in {probe_split} or train"
+        )
     return write_records_sheet(records, path, title=concept.replace("_", " "))

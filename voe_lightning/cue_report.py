@@ -25,11 +25,17 @@ from voe_lightning.cues import (
     PHYSICS_PERFECT,
     audit_split,
 )
-from voe_lightning.store_shards import write_whole
 from voe_lightning.statistics_format import BRIEF, format_alpha, json_row, row_text, rows_alpha
+from voe_lightning.store_shards import write_whole
 
-__all__ = ["audit", "cue_table", "format_correlations", "format_markdown", "format_physics_perfect",
-           "write_audit"]
+__all__ = [
+    "audit",
+    "cue_table",
+    "format_correlations",
+    "format_markdown",
+    "format_physics_perfect",
+    "write_audit",
+]
 
 #: How a compact table's cell writes accuracy and d_z: '61% / +0.52'.
 CELL_STYLE = replace(BRIEF, d_z="+.2f")
@@ -72,11 +78,18 @@ def format_markdown(
     cells that separate the pairs (two-sided p < alpha) are bold; model cells with one-tailed
     p < alpha carry *. Notes (skipped cues, degenerate tests) follow the table."""
     model = model_rows is not None
-    header = (["concept", "variant", "n"] + (["model (surprise)"] if model else [])
-              + [CUE_TITLES[cue] for cue in CUES])
+    header = (
+        ["concept", "variant", "n"]
+        + (["model (surprise)"] if model else [])
+        + [CUE_TITLES[cue] for cue in CUES]
+    )
     alpha = rows_alpha(cue_rows)
-    lines = [f"## {title} ({format_alpha(alpha)})", "",
-             "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines = [
+        f"## {title} ({format_alpha(alpha)})",
+        "",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+    ]
     for concept, variant, n, cells in _table_cells(cue_rows, model_rows):
         texts = []
         for index, (text, separates) in enumerate(cells):
@@ -86,17 +99,26 @@ def format_markdown(
                 texts.append(f"**{text}**" if separates else text)
         name = f"**{variant}**" if variant in _TESTED_TOGETHER else variant
         lines.append(f"| {concept} | {name} | {n} | " + " | ".join(texts) + " |")
-    lines += ["", "Each cell: accuracy / d_z of d = score(inconsistent) - score(consistent) on "
-              "the same pairs (cue accuracy counts ties as half: 50% is chance). Cues are "
-              "physics-blind: " + ", ".join(f"{CUE_TITLES[c]} = {c}" for c in CUES) + ". "
-              f"**Bold**: the cue separates the pairs (two-sided p < {alpha:g}), so a model "
-              "could do as well without physics."
-              + (f" Model: accuracy / d_z of surprise, * one-tailed p < {alpha:g}; pooled rows "
-                 "(cues' too) are the stratified test of the two variants." if model else
-                 " Pooled rows are the stratified test of the two variants.")
-              + " Full statistics in cues.csv."]
-    notes = [f"{r['concept']}/{r['variant']}, {CUE_TITLES[r['cue']]}: {r['note']}"
-             for r in cue_rows if r.get("note") and "bootstrap" not in r["note"]]
+    lines += [
+        "",
+        "Each cell: accuracy / d_z of d = score(inconsistent) - score(consistent) on "
+        "the same pairs (cue accuracy counts ties as half: 50% is chance). Cues are "
+        "physics-blind: " + ", ".join(f"{CUE_TITLES[c]} = {c}" for c in CUES) + ". "
+        f"**Bold**: the cue separates the pairs (two-sided p < {alpha:g}), so a model "
+        "could do as well without physics."
+        + (
+            f" Model: accuracy / d_z of surprise, * one-tailed p < {alpha:g}; pooled rows "
+            "(cues' too) are the stratified test of the two variants."
+            if model
+            else " Pooled rows are the stratified test of the two variants."
+        )
+        + " Full statistics in cues.csv.",
+    ]
+    notes = [
+        f"{r['concept']}/{r['variant']}, {CUE_TITLES[r['cue']]}: {r['note']}"
+        for r in cue_rows
+        if r.get("note") and "bootstrap" not in r["note"]
+    ]
     lines += [f"- {note}" for note in notes]
     return "\n".join(lines) + "\n"
 
@@ -107,8 +129,12 @@ def _correlation_table(correlation_rows: Sequence[Mapping[str, Any]], title: str
     by_key = {(r["concept"], r["variant"], r["cue"]): r for r in correlation_rows}
     header = ["concept", "variant", "n"] + [CUE_TITLES[cue] for cue in CUES]
     alpha = rows_alpha(correlation_rows)
-    lines = [f"## {title} ({format_alpha(alpha)})", "",
-             "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines = [
+        f"## {title} ({format_alpha(alpha)})",
+        "",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+    ]
     for concept, variant in dict.fromkeys((r["concept"], r["variant"]) for r in correlation_rows):
         cells = []
         for cue in CUES:
@@ -124,32 +150,39 @@ def _correlation_table(correlation_rows: Sequence[Mapping[str, Any]], title: str
     return lines
 
 
-def format_correlations(correlation_rows: Sequence[Mapping[str, Any]],
-                        title: str = "Does the model's surprise track a cue, pair by pair?") -> str:
+def format_correlations(
+    correlation_rows: Sequence[Mapping[str, Any]],
+    title: str = "Does the model's surprise track a cue, pair by pair?",
+) -> str:
     """Markdown table of ``CueAudit.model_correlations``: r per concept/variant (and pooled)
     and cue, bold where two-sided p < alpha, and how to read it."""
     alpha = rows_alpha(correlation_rows)
     lines = _correlation_table(correlation_rows, title)
-    lines += ["", ("Each cell: Pearson's r across pairs between the model's relative surprise "
-              "S(inconsistent) - S(consistent) and the cue's score(inconsistent) - "
-              f"score(consistent); **bold**: two-sided p < {alpha:g}. A model whose pooled "
-              "accuracy is at chance but whose r with a cue is large follows that cue in each "
-              "variant, and the variants cancel; physics would not depend on the cue. "
-              "*Pooled within variants*: r after centring each variant's pairs on their own "
-              "means; the pooled r is also large when the model's effect and the cue's merely "
-              "differ in size between the variants, physics-perfect or not. "
-              "*Within variants, given the seen extent* (records with object states): r after "
-              "regressing both, in each variant, on how much of the violation is seen, in "
-              "object-frames (seen in one video only; frames until the first; seen, "
-              "inconsistent less consistent): a model whose surprise grows with the violation "
-              "it sees correlates with the cues that count those frames in pixels, physics or "
-              "not; one that follows the pixels still does. "
-              "*Physics-perfect observer, within variants* (records with object states): not "
-              "the model's r but that of an observer that expects what the consistent video "
-              "shows and pays for each object-frame seen in one video only and for how far "
-              "apart the states of an object seen in both are: what perfect physics alone gives "
-              "on these pairs, the reference to read a model's row against. Full values in "
-              "cue_correlations.csv.")]
+    lines += [
+        "",
+        (
+            "Each cell: Pearson's r across pairs between the model's relative surprise "
+            "S(inconsistent) - S(consistent) and the cue's score(inconsistent) - "
+            f"score(consistent); **bold**: two-sided p < {alpha:g}. A model whose pooled "
+            "accuracy is at chance but whose r with a cue is large follows that cue in each "
+            "variant, and the variants cancel; physics would not depend on the cue. "
+            "*Pooled within variants*: r after centring each variant's pairs on their own "
+            "means; the pooled r is also large when the model's effect and the cue's merely "
+            "differ in size between the variants, physics-perfect or not. "
+            "*Within variants, given the seen extent* (records with object states): r after "
+            "regressing both, in each variant, on how much of the violation is seen, in "
+            "object-frames (seen in one video only; frames until the first; seen, "
+            "inconsistent less consistent): a model whose surprise grows with the violation "
+            "it sees correlates with the cues that count those frames in pixels, physics or "
+            "not; one that follows the pixels still does. "
+            "*Physics-perfect observer, within variants* (records with object states): not "
+            "the model's r but that of an observer that expects what the consistent video "
+            "shows and pays for each object-frame seen in one video only and for how far "
+            "apart the states of an object seen in both are: what perfect physics alone gives "
+            "on these pairs, the reference to read a model's row against. Full values in "
+            "cue_correlations.csv."
+        ),
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -158,17 +191,23 @@ def format_physics_perfect(correlation_rows: Sequence[Mapping[str, Any]]) -> str
     (``CueAudit.model_correlations`` of ``CueAudit.physics_perfect``): what perfect physics
     alone gives on a store's probes, per variant and pooled, and how to read it."""
     alpha = rows_alpha(correlation_rows)
-    lines = _correlation_table(correlation_rows,
-                               "What does perfect physics correlate with, pair by pair?")
-    lines += ["", ("Each cell: Pearson's r across pairs between a physics-perfect observer's "
-              "relative surprise and the cue's score(inconsistent) - score(consistent); "
-              f"**bold**: two-sided p < {alpha:g}. The observer (`cues.physics_perfect_surprise`) "
-              "expects what the consistent video shows and pays for each object-frame seen in "
-              "one video only and for how far apart the states of an object seen in both are. "
-              "Perfect physics alone gives these correlations on these probes: a model's (the "
-              "`test` report's) are read against them, and a large r within one variant is no "
-              "evidence of cue following where the observer's is large too. Full values in "
-              "physics_perfect_correlations.csv.")]
+    lines = _correlation_table(
+        correlation_rows, "What does perfect physics correlate with, pair by pair?"
+    )
+    lines += [
+        "",
+        (
+            "Each cell: Pearson's r across pairs between a physics-perfect observer's "
+            "relative surprise and the cue's score(inconsistent) - score(consistent); "
+            f"**bold**: two-sided p < {alpha:g}. The observer (`cues.physics_perfect_surprise`) "
+            "expects what the consistent video shows and pays for each object-frame seen in "
+            "one video only and for how far apart the states of an object seen in both are. "
+            "Perfect physics alone gives these correlations on these probes: a model's (the "
+            "`test` report's) are read against them, and a large r within one variant is no "
+            "evidence of cue following where the observer's is large too. Full values in "
+            "physics_perfect_correlations.csv."
+        ),
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -181,22 +220,38 @@ def cue_table(
     from rich.table import Table
 
     alpha = rows_alpha(cue_rows)
-    table = Table(title=f"{title} ({format_alpha(alpha)})",
-                  caption="accuracy (ties half) / d_z; red: the cue separates the pairs "
-                  f"(two-sided p < {alpha:g})")
-    for column in ["concept", "variant", "n"] + (["model"] if model_rows is not None else []) + [
-            CUE_TITLES[cue] for cue in CUES]:
+    table = Table(
+        title=f"{title} ({format_alpha(alpha)})",
+        caption="accuracy (ties half) / d_z; red: the cue separates the pairs "
+        f"(two-sided p < {alpha:g})",
+    )
+    for column in (
+        ["concept", "variant", "n"]
+        + (["model"] if model_rows is not None else [])
+        + [CUE_TITLES[cue] for cue in CUES]
+    ):
         table.add_column(column, justify="left" if column in ("concept", "variant") else "right")
     groups = _table_cells(cue_rows, model_rows)
     for index, (concept, variant, n, cells) in enumerate(groups):
         styled = []
         for column, (text, separates) in enumerate(cells):
             is_model = model_rows is not None and column == 0
-            styled.append(text + " *" if is_model and separates
-                          else f"[red]{text}[/red]" if separates else text)
+            styled.append(
+                text + " *"
+                if is_model and separates
+                else f"[red]{text}[/red]"
+                if separates
+                else text
+            )
         last = index + 1 == len(groups) or groups[index + 1][0] != concept
-        table.add_row(concept, variant, str(n), *styled,
-                      style="bold" if variant in _TESTED_TOGETHER else None, end_section=last)
+        table.add_row(
+            concept,
+            variant,
+            str(n),
+            *styled,
+            style="bold" if variant in _TESTED_TOGETHER else None,
+            end_section=last,
+        )
     return table
 
 
@@ -218,16 +273,16 @@ def write_audit(
     out = Path(out_dir)
     markdown = format_markdown(cue_rows, model_rows, title)
     files = {}
-    for rows, formatter, name in ((correlation_rows, format_correlations, "cue_correlations"),
-                                  (physics_perfect_rows, format_physics_perfect,
-                                   "physics_perfect_correlations")):
+    for rows, formatter, name in (
+        (correlation_rows, format_correlations, "cue_correlations"),
+        (physics_perfect_rows, format_physics_perfect, "physics_perfect_correlations"),
+    ):
         if rows is not None:
             markdown += "\n" + formatter(rows)
             files[out / f"{name}.csv"] = _csv_text(rows, CORRELATION_COLUMNS)
     files[out / "cues.md"] = markdown
     files[out / "cues.csv"] = _csv_text(cue_rows, CUE_COLUMNS)
-    document = {**metadata, "cues": list(CUES),
-                "rows": [json_row(row) for row in cue_rows]}
+    document = {**metadata, "cues": list(CUES), "rows": [json_row(row) for row in cue_rows]}
     if correlation_rows is not None:
         document["model_correlations"] = [json_row(row) for row in correlation_rows]
     if physics_perfect_rows is not None:
@@ -282,12 +337,22 @@ def audit(
     rows = scores.rows(alpha=alpha)
     reference = None
     if scores.physics_perfect is not None:  # its own row of the report is its within-variants r
-        reference = [row for row in scores.model_correlations(scores.physics_perfect, alpha=alpha)
-                     if row["variant"] != PHYSICS_PERFECT]
+        reference = [
+            row
+            for row in scores.model_correlations(scores.physics_perfect, alpha=alpha)
+            if row["variant"] != PHYSICS_PERFECT
+        ]
     title = f"Cue audit of {root} ({split} split, {len(scores)} pairs)"
-    out = write_audit(rows, out or Path(root) / "cue_audit" / split, title=title, root=str(root),
-                      split=split, alpha=alpha, num_pairs=len(scores),
-                      physics_perfect_rows=reference)
+    out = write_audit(
+        rows,
+        out or Path(root) / "cue_audit" / split,
+        title=title,
+        root=str(root),
+        split=split,
+        alpha=alpha,
+        num_pairs=len(scores),
+        physics_perfect_rows=reference,
+    )
     console = Console()
     if not console.is_terminal:  # logs and pipes: do not cut the table at 80 columns
         console.width = 140

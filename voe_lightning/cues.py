@@ -58,22 +58,32 @@ __all__ = [
 ]
 
 #: The physics-blind scorers, in table order; ``MASK_CUES`` need object masks.
-CUES: tuple[str, ...] = ("foreground_pixels", "motion_energy", "copy_last_error",
-                         "linear_extrapolation_error", "pixel_novelty")
+CUES: tuple[str, ...] = (
+    "foreground_pixels",
+    "motion_energy",
+    "copy_last_error",
+    "linear_extrapolation_error",
+    "pixel_novelty",
+)
 MASK_CUES: tuple[str, ...] = ("foreground_pixels",)
 #: The cues that read each frame on its own; the fairness gate holds them at chance on every
 #: pooled row (pixel novelty needs a memory of the video).
 FRAME_LOCAL_CUES: tuple[str, ...] = CUES[:4]
 #: Short column titles of the compact tables.
-CUE_TITLES = {"foreground_pixels": "foreground", "motion_energy": "motion",
-              "copy_last_error": "copy-last", "linear_extrapolation_error": "lin. extrap.",
-              "pixel_novelty": "novelty"}
+CUE_TITLES = {
+    "foreground_pixels": "foreground",
+    "motion_energy": "motion",
+    "copy_last_error": "copy-last",
+    "linear_extrapolation_error": "lin. extrap.",
+    "pixel_novelty": "novelty",
+}
 SIDES = ("consistent", "inconsistent")
 #: Columns of cues.csv, in order (``None`` cells mean "no test", explained in ``note``).
-CUE_COLUMNS = (("concept", "variant", "cue")
-               + tuple(f for f in statistics.QuadrupletTestResult.__dataclass_fields__
-                       if f != "note")
-               + ("p_two_sided", "note"))
+CUE_COLUMNS = (
+    ("concept", "variant", "cue")
+    + tuple(f for f in statistics.QuadrupletTestResult.__dataclass_fields__ if f != "note")
+    + ("p_two_sided", "note")
+)
 #: Columns of cue_correlations.csv (``CueAudit.model_correlations``).
 CORRELATION_COLUMNS = ("concept", "variant", "cue", "n", "r", "p_two_sided", "alpha", "note")
 #: The variant name of a pooled group's correlation within its variants (``model_correlations``).
@@ -106,7 +116,7 @@ def frame_scores(
     def per_frame(values: torch.Tensor) -> torch.Tensor:
         """Values of the last frames [B, T - k] as [B, T], 0 for the first k frames."""
         padded = torch.zeros(batch, num_frames, dtype=torch.float64, device=frames.device)
-        padded[:, num_frames - values.shape[1]:] = values.double()
+        padded[:, num_frames - values.shape[1] :] = values.double()
         return padded
 
     difference = x[:, 1:] - x[:, :-1]
@@ -120,11 +130,15 @@ def frame_scores(
     scores = {
         "motion_energy": per_frame(difference.abs().mean(dim=(2, 3, 4))),
         "copy_last_error": per_frame(difference.square().mean(dim=(2, 3, 4))),
-        "linear_extrapolation_error": per_frame((x[:, 2:] - predicted).square().mean(dim=(2, 3, 4))),
+        "linear_extrapolation_error": per_frame(
+            (x[:, 2:] - predicted).square().mean(dim=(2, 3, 4))
+        ),
         "pixel_novelty": novelty,
         "foreground_pixels": (
             torch.full((batch, num_frames), math.nan, dtype=torch.float64, device=frames.device)
-            if mask is None else (mask > 0).sum(dim=(2, 3)).double()),
+            if mask is None
+            else (mask > 0).sum(dim=(2, 3)).double()
+        ),
     }
     return {cue: scores[cue] for cue in CUES}
 
@@ -161,15 +175,20 @@ def score_videos(
     batch, num_frames = frames.shape[:2]
     m = torch.as_tensor(manipulation_frame, device=frames.device).reshape(-1).long()
     if m.numel() != batch or bool(((m < 0) | (m >= num_frames)).any()):
-        raise ValueError(f"manipulation_frame must hold {batch} values in [0, {num_frames - 1}], "
-                         f"got {m.tolist()}")
+        raise ValueError(
+            f"manipulation_frame must hold {batch} values in [0, {num_frames - 1}], "
+            f"got {m.tolist()}"
+        )
     per_frame = frame_scores(frames, mask, first=int(m.min()) + 1)
-    return {cue: (values * counted_frames(cue, m, num_frames)).sum(dim=1)
-            for cue, values in per_frame.items()}
+    return {
+        cue: (values * counted_frames(cue, m, num_frames)).sum(dim=1)
+        for cue, values in per_frame.items()
+    }
 
 
-def seen_extent(inconsistent: torch.Tensor, consistent: torch.Tensor,
-                manipulation_frame: torch.Tensor) -> np.ndarray:
+def seen_extent(
+    inconsistent: torch.Tensor, consistent: torch.Tensor, manipulation_frame: torch.Tensor
+) -> np.ndarray:
     """How much of each pair's difference is seen, in object-frames rather than pixels, from the
     two videos' ``objects`` ``visible_fraction`` [B, T, K], after the manipulation frame [B]:
     the object-frames seen in one video and not the other, the frames until the first of them
@@ -188,8 +207,9 @@ def seen_extent(inconsistent: torch.Tensor, consistent: torch.Tensor,
     return torch.stack([parted.sum(1), first, counted[0] - counted[1]], 1).double().cpu().numpy()
 
 
-def physics_perfect_surprise(inconsistent: Any, consistent: Any,
-                             manipulation_frame: torch.Tensor) -> np.ndarray:
+def physics_perfect_surprise(
+    inconsistent: Any, consistent: Any, manipulation_frame: torch.Tensor
+) -> np.ndarray:
     """The relative surprise of an observer with perfect physics and perception, from the two
     videos' ``objects`` (``position`` [B, T, K, 3], ``orientation`` [B, T, K, 4],
     ``visible_fraction`` [B, T, K]): it expects what the consistent video shows (physics from
@@ -242,11 +262,14 @@ class CueAudit:
         ``concept``/``variant`` indices decode with the given name tuples. A pair whose masks
         are all zero in both videos gets NaN ``foreground_pixels`` (no masks to count)."""
         m = batch["manipulation_frame"]
-        scores = {side: score_videos(batch[side]["frames"], _mask(batch[side]), m)
-                  for side in SIDES}
+        scores = {
+            side: score_videos(batch[side]["frames"], _mask(batch[side]), m) for side in SIDES
+        }
         masks = [_mask(batch[side]) for side in SIDES]
         if all(mask is not None for mask in masks):
-            unmasked = ~torch.stack([(mask != 0).flatten(1).any(dim=1) for mask in masks]).any(dim=0)
+            unmasked = ~torch.stack([(mask != 0).flatten(1).any(dim=1) for mask in masks]).any(
+                dim=0
+            )
             for side in SIDES:
                 for cue in MASK_CUES:
                     scores[side][cue][unmasked] = math.nan
@@ -258,8 +281,10 @@ class CueAudit:
         return cls(
             np.array([concept_names[int(i)] for i in batch["concept"].reshape(-1)], dtype=object),
             np.array([variant_names[int(i)] for i in batch["variant"].reshape(-1)], dtype=object),
-            {side: {cue: values.cpu().numpy() for cue, values in by_cue.items()}
-             for side, by_cue in scores.items()},
+            {
+                side: {cue: values.cpu().numpy() for cue, values in by_cue.items()}
+                for side, by_cue in scores.items()
+            },
             extent,
             physics_perfect,
             batch["seed"].reshape(-1).cpu().numpy() if "seed" in batch.keys() else None,
@@ -274,11 +299,18 @@ class CueAudit:
         return cls(
             np.concatenate([a.concepts for a in audits]),
             np.concatenate([a.variants for a in audits]),
-            {side: {cue: np.concatenate([a.scores[side][cue] for a in audits]) for cue in CUES}
-             for side in SIDES},
-            *(np.concatenate(parts) if all(part is not None for part in parts) else None
-              for parts in ([a.extent for a in audits], [a.physics_perfect for a in audits],
-                            [a.seeds for a in audits])),
+            {
+                side: {cue: np.concatenate([a.scores[side][cue] for a in audits]) for cue in CUES}
+                for side in SIDES
+            },
+            *(
+                np.concatenate(parts) if all(part is not None for part in parts) else None
+                for parts in (
+                    [a.extent for a in audits],
+                    [a.physics_perfect for a in audits],
+                    [a.seeds for a in audits],
+                )
+            ),
         )
 
     def groups(self) -> list[tuple[str, str, np.ndarray]]:
@@ -297,19 +329,30 @@ class CueAudit:
                 inconsistent = self.scores["inconsistent"][cue][selected]
                 consistent = self.scores["consistent"][cue][selected]
                 row: dict[str, Any] = dict.fromkeys(CUE_COLUMNS)
-                row.update(concept=concept, variant=variant, cue=cue,
-                           n=len(self.concepts[selected]) // (2 if variant in QUADRUPLET_ROWS else 1))
+                row.update(
+                    concept=concept,
+                    variant=variant,
+                    cue=cue,
+                    n=len(self.concepts[selected]) // (2 if variant in QUADRUPLET_ROWS else 1),
+                )
                 unscored = int(np.isnan(inconsistent).sum() + np.isnan(consistent).sum())
                 untested = statistics.untested_reason(variant, self.variants[selected])
                 if unscored:
-                    row["note"] = (f"{cue} skipped: {unscored} of {2 * row['n']} videos have no "
-                                   "object mask (all zero or absent)")
+                    row["note"] = (
+                        f"{cue} skipped: {unscored} of {2 * row['n']} videos have no "
+                        "object mask (all zero or absent)"
+                    )
                 elif untested:
                     row["note"] = untested
                 else:
-                    result = statistics.group_test(variant, inconsistent, consistent,
-                                                   self.variants[selected], alpha=alpha,
-                                                   bootstrap=bootstrap)
+                    result = statistics.group_test(
+                        variant,
+                        inconsistent,
+                        consistent,
+                        self.variants[selected],
+                        alpha=alpha,
+                        bootstrap=bootstrap,
+                    )
                     row.update(result.as_dict())
                     d = _differences(variant, inconsistent - consistent)
                     row["accuracy"] = float(np.mean(d > 0) + 0.5 * np.mean(d == 0))
@@ -317,8 +360,9 @@ class CueAudit:
                 rows.append(row)
         return rows
 
-    def model_correlations(self, model_difference: np.ndarray,
-                           alpha: float = statistics.ALPHA) -> list[dict[str, Any]]:
+    def model_correlations(
+        self, model_difference: np.ndarray, alpha: float = statistics.ALPHA
+    ) -> list[dict[str, Any]]:
         """How closely a model tracks each cue pair by pair: per group (``groups``) and cue,
         Pearson's r across pairs between the model's relative surprise d (``model_difference``,
         one per pair, in this audit's order) and the cue's d, with its two-sided p
@@ -334,10 +378,13 @@ class CueAudit:
         variants, what physics alone gives on these pairs; columns ``CORRELATION_COLUMNS``."""
         model_difference = np.asarray(model_difference, dtype=np.float64)
         if model_difference.shape != (len(self),):
-            raise ValueError(f"model_difference must hold one value per scored pair ({len(self)}), "
-                             f"got shape {model_difference.shape}")
-        differences = {cue: self.scores["inconsistent"][cue] - self.scores["consistent"][cue]
-                       for cue in CUES}
+            raise ValueError(
+                f"model_difference must hold one value per scored pair ({len(self)}), "
+                f"got shape {model_difference.shape}"
+            )
+        differences = {
+            cue: self.scores["inconsistent"][cue] - self.scores["consistent"][cue] for cue in CUES
+        }
         rows = []
         for concept, variant, selected in self.groups():
             if variant in QUADRUPLET_ROWS:  # correlations are pair by pair
@@ -351,14 +398,18 @@ class CueAudit:
                 if self.physics_perfect is not None:
                     readings.append((PHYSICS_PERFECT, self.physics_perfect, within))
             for name, surprise, covariates in readings:
-                labels = (self.variants[selected] if covariates is not None
-                          else np.zeros(int(selected.sum())))
+                labels = (
+                    self.variants[selected]
+                    if covariates is not None
+                    else np.zeros(int(selected.sum()))
+                )
                 model, spent = _residuals(surprise[selected], labels, covariates)
                 for cue in CUES:
                     cue_d, _ = _residuals(differences[cue][selected], labels, covariates)
                     row = dict.fromkeys(CORRELATION_COLUMNS)
-                    row.update(concept=concept, variant=name, cue=cue, n=int(selected.sum()),
-                               alpha=alpha)
+                    row.update(
+                        concept=concept, variant=name, cue=cue, n=int(selected.sum()), alpha=alpha
+                    )
                     df = row["n"] - 1 - spent  # the regressors spent, a mean per group at least
                     if np.isnan(cue_d).any() or np.isnan(model).any():
                         row["note"] = f"{cue} or the model's surprise is not scored for every pair"
@@ -368,9 +419,14 @@ class CueAudit:
                         row["note"] = "constant across pairs: r undefined"
                     else:
                         result = stats.pearsonr(model, cue_d)
-                        row.update(r=float(result.statistic), p_two_sided=float(
-                            _partial_p(result.statistic, df) if covariates is not None
-                            else result.pvalue))
+                        row.update(
+                            r=float(result.statistic),
+                            p_two_sided=float(
+                                _partial_p(result.statistic, df)
+                                if covariates is not None
+                                else result.pvalue
+                            ),
+                        )
                     rows.append(row)
         return rows
 
@@ -384,8 +440,9 @@ def _differences(variant: str, d: np.ndarray) -> np.ndarray:
     return d[:half] + d[half:]
 
 
-def _residuals(values: np.ndarray, labels: np.ndarray, covariates: np.ndarray | None = None
-               ) -> tuple[np.ndarray, int]:
+def _residuals(
+    values: np.ndarray, labels: np.ndarray, covariates: np.ndarray | None = None
+) -> tuple[np.ndarray, int]:
     """``values`` less their least-squares fit, within each label's group (a variant's pairs),
     on a mean and the group's ``covariates`` [N, k] (none: the mean alone), and the number of
     regressors spent (the design's rank, summed over groups). A correlation over them is the
@@ -424,8 +481,11 @@ def tracked_cues(
     tracked: dict[tuple[str, str], Mapping[str, Any]] = {}
     for row in correlation_rows:
         key = (row["concept"], row["variant"])
-        if row["cue"] in FRAME_LOCAL_CUES and row["r"] is not None and (
-                key not in tracked or abs(row["r"]) > abs(tracked[key]["r"])):
+        if (
+            row["cue"] in FRAME_LOCAL_CUES
+            and row["r"] is not None
+            and (key not in tracked or abs(row["r"]) > abs(tracked[key]["r"]))
+        ):
             tracked[key] = row
     return tracked
 
@@ -454,7 +514,9 @@ def audit_records(
     """Score probe pairs: unbatched probe records as in ``specs.probe_spec`` (stacked
     ``batch_size`` at a time) or, when ``batch_size`` is 0, batches a loader already made."""
     if batch_size < 0:
-        raise ValueError(f"batch_size must be >= 0 (0: records are batches already), got {batch_size}")
+        raise ValueError(
+            f"batch_size must be >= 0 (0: records are batches already), got {batch_size}"
+        )
     batches = records if batch_size == 0 else _batches(records, batch_size)
     if progress:
         from tqdm.auto import tqdm
@@ -480,19 +542,27 @@ def audit_split(
 
     if store.SPLIT_RECORD_TYPE.get(split) != "probe":
         probe_splits = [s for s, kind in store.SPLIT_RECORD_TYPE.items() if kind == "probe"]
-        raise ValueError(f"split {split!r} holds no probe pairs; probe splits are: "
-                         f"{', '.join(probe_splits)}")
+        raise ValueError(
+            f"split {split!r} holds no probe pairs; probe splits are: {', '.join(probe_splits)}"
+        )
     manifest = store.read_manifest(root)
     if manifest is None:
-        raise FileNotFoundError(f"no dataset at {root} (create one with `python -m voe_lightning "
-                                f"generate --root {root}`)")
+        raise FileNotFoundError(
+            f"no dataset at {root} (create one with `python -m voe_lightning "
+            f"generate --root {root}`)"
+        )
     concepts = list(dict.fromkeys(concepts or manifest["concepts"]))
     store_plan.check_split(root, manifest, concepts, split)
-    parts = [part for part in (store.open_split(root, concept, split) for concept in concepts)
-             if len(part)]
+    parts = [
+        part
+        for part in (store.open_split(root, concept, split) for concept in concepts)
+        if len(part)
+    ]
     if not parts:
-        raise ValueError(f"the {split} split of {root} holds no probe pairs for "
-                         f"{', '.join(concepts)}; audit another split, or generate this one")
+        raise ValueError(
+            f"the {split} split of {root} holds no probe pairs for "
+            f"{', '.join(concepts)}; audit another split, or generate this one"
+        )
     dataset = ConcatDataset(parts)
     loader = store.record_loader(dataset, batch_size, num_workers)
     return audit_records(loader, batch_size=0, progress=progress, total=len(loader))

@@ -54,8 +54,10 @@ def relative_accuracy(surprise_possible: Any, surprise_impossible: Any) -> tuple
     possible = np.asarray(surprise_possible, dtype=np.float64).ravel()
     impossible = np.asarray(surprise_impossible, dtype=np.float64).ravel()
     if possible.shape != impossible.shape or possible.size == 0:
-        raise ValueError(f"need one possible and one impossible surprise per pair (>0 pairs), got "
-                         f"{possible.size} and {impossible.size}")
+        raise ValueError(
+            f"need one possible and one impossible surprise per pair (>0 pairs), got "
+            f"{possible.size} and {impossible.size}"
+        )
     ties = int((possible == impossible).sum())
     return float(((possible < impossible).sum() + 0.5 * ties) / possible.size), ties
 
@@ -65,8 +67,9 @@ def surprise_threshold(max_surprise_possible: Any, percentile: float = PERCENTIL
     is called impossible."""
     values = np.asarray(max_surprise_possible, dtype=np.float64).ravel()
     if values.size == 0 or not np.isfinite(values).all():
-        raise ValueError(f"a threshold needs finite max surprise of >0 possible videos, got "
-                         f"{values.size} values")
+        raise ValueError(
+            f"a threshold needs finite max surprise of >0 possible videos, got {values.size} values"
+        )
     return float(np.percentile(values, percentile))
 
 
@@ -76,18 +79,23 @@ def absolute_accuracy(max_surprise: Any, is_possible: Any, threshold: float) -> 
     return float((called_possible == np.asarray(is_possible, dtype=bool).ravel()).mean())
 
 
-def _per_frame_pairs(frames_possible: Any, frames_impossible: Any
-                     ) -> tuple[np.ndarray, np.ndarray]:
+def _per_frame_pairs(frames_possible: Any, frames_impossible: Any) -> tuple[np.ndarray, np.ndarray]:
     possible = np.asarray(frames_possible, dtype=np.float64)
     impossible = np.asarray(frames_impossible, dtype=np.float64)
     if possible.ndim != 2 or possible.shape != impossible.shape or possible.shape[0] == 0:
-        raise ValueError(f"per-frame surprise must be [N, T] on both sides (N > 0), got "
-                         f"{possible.shape} and {impossible.shape}")
+        raise ValueError(
+            f"per-frame surprise must be [N, T] on both sides (N > 0), got "
+            f"{possible.shape} and {impossible.shape}"
+        )
     return possible, impossible
 
 
-def field_metrics(frames_possible: Any, frames_impossible: Any, threshold: float | None = None,
-                  percentile: float = PERCENTILE) -> dict[str, Any]:
+def field_metrics(
+    frames_possible: Any,
+    frames_impossible: Any,
+    threshold: float | None = None,
+    percentile: float = PERCENTILE,
+) -> dict[str, Any]:
     """The metric set (module docstring) of matched pairs from per-frame surprise [N, T] of
     each pair's possible and impossible video: ``relative_accuracy_<r>``, ``ties_<r>`` and
     ``auroc_<r>`` per reduction r, ``absolute_accuracy`` at ``threshold`` (None: the
@@ -99,8 +107,9 @@ def field_metrics(frames_possible: Any, frames_impossible: Any, threshold: float
     result: dict[str, Any] = {"n_pairs": possible.shape[0]}
     for reduction in REDUCTIONS:
         low, high = reduce_surprise(possible, reduction), reduce_surprise(impossible, reduction)
-        result[f"relative_accuracy_{reduction}"], result[f"ties_{reduction}"] = (
-            relative_accuracy(low, high))
+        result[f"relative_accuracy_{reduction}"], result[f"ties_{reduction}"] = relative_accuracy(
+            low, high
+        )
         result[f"auroc_{reduction}"] = ranked_auroc(high, low)
     maxima = np.concatenate([possible.max(axis=-1), impossible.max(axis=-1)])
     labels = np.arange(maxima.size) < possible.shape[0]
@@ -109,15 +118,18 @@ def field_metrics(frames_possible: Any, frames_impossible: Any, threshold: float
     return result
 
 
-def context_sweep(per_context: Mapping[int, tuple[Any, Any]], percentile: float = PERCENTILE
-                  ) -> dict[int, dict[str, Any]]:
+def context_sweep(
+    per_context: Mapping[int, tuple[Any, Any]], percentile: float = PERCENTILE
+) -> dict[int, dict[str, Any]]:
     """``field_metrics`` per context length of a windowed model, from {context length:
     (per-frame surprise of the possible videos, of the impossible ones)}; each context length
     gets its own threshold, as each is its own model of the videos."""
     if not per_context:
         raise ValueError("a context sweep needs at least one context length")
-    return {int(context): field_metrics(*sides, percentile=percentile)
-            for context, sides in sorted(per_context.items())}
+    return {
+        int(context): field_metrics(*sides, percentile=percentile)
+        for context, sides in sorted(per_context.items())
+    }
 
 
 def format_field_metrics(rows: Mapping[str, Mapping[str, Any]], label: str = "group") -> str:
@@ -125,21 +137,29 @@ def format_field_metrics(rows: Mapping[str, Mapping[str, Any]], label: str = "gr
     line saying what the columns are; ``label`` heads the names' column. A row without a
     metric (a note instead) shows n/a there."""
     reductions = " | ".join(REDUCTIONS)
-    header = (f"| {label} | n | relative accuracy: {reductions} | absolute accuracy "
-              f"| threshold | AUROC: {reductions} |")
+    header = (
+        f"| {label} | n | relative accuracy: {reductions} | absolute accuracy "
+        f"| threshold | AUROC: {reductions} |"
+    )
     lines = [header, "|" + "---|" * (4 + 2 * len(REDUCTIONS))]
     for name, metrics in rows.items():
-        relative = " | ".join(format_number(metrics.get(f"relative_accuracy_{r}"), ".1%")
-                              for r in REDUCTIONS)
+        relative = " | ".join(
+            format_number(metrics.get(f"relative_accuracy_{r}"), ".1%") for r in REDUCTIONS
+        )
         area = " | ".join(format_number(metrics.get(f"auroc_{r}"), ".3f") for r in REDUCTIONS)
-        lines.append(f"| {name} | {metrics['n_pairs']} | {relative} "
-                     f"| {format_number(metrics.get('absolute_accuracy'), '.1%')} "
-                     f"| {format_number(metrics.get('threshold'), '.3g')} | {area} |")
-    lines += ["", "Relative accuracy: share of pairs whose possible (consistent) video is less "
-              "surprising than its impossible one, surprise the sum, mean or max over frames, "
-              "ties half; absolute accuracy: share of videos called right when a video is "
-              "impossible if its max surprise exceeds the threshold, the "
-              f"{PERCENTILE:g}th percentile of the possible videos' max surprise; AUROC of sum, "
-              "mean and max surprise for telling impossible videos from possible ones "
-              "(Garrido et al. 2025)."]
+        lines.append(
+            f"| {name} | {metrics['n_pairs']} | {relative} "
+            f"| {format_number(metrics.get('absolute_accuracy'), '.1%')} "
+            f"| {format_number(metrics.get('threshold'), '.3g')} | {area} |"
+        )
+    lines += [
+        "",
+        "Relative accuracy: share of pairs whose possible (consistent) video is less "
+        "surprising than its impossible one, surprise the sum, mean or max over frames, "
+        "ties half; absolute accuracy: share of videos called right when a video is "
+        "impossible if its max surprise exceeds the threshold, the "
+        f"{PERCENTILE:g}th percentile of the possible videos' max surprise; AUROC of sum, "
+        "mean and max surprise for telling impossible videos from possible ones "
+        "(Garrido et al. 2025).",
+    ]
     return "\n".join(lines) + "\n"

@@ -13,9 +13,9 @@ import inspect
 import os
 import time
 import warnings
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Sequence
 
 from tqdm.auto import tqdm
 
@@ -43,7 +43,6 @@ DEFAULT_TEST_PAIRS = 2_000
 DEFAULT_GENERALIZATION_PAIRS = 500
 
 
-
 @dataclass
 class GenerationSummary:
     """What a generate call did."""
@@ -57,7 +56,6 @@ class GenerationSummary:
     seconds: float
 
 
-
 # --- rendering ----------------------------------------------------------------------------------
 def render_record(concept: str, split: str, name: str, seed: int, video: VideoOptions):
     """Render one record of ``split``: a clip of kind ``name`` or a probe pair of variant ``name``."""
@@ -67,7 +65,9 @@ def render_record(concept: str, split: str, name: str, seed: int, video: VideoOp
     return generate_probe(concept, name, seed, **options)
 
 
-def generate_shard(root: str | os.PathLike, task: ShardTask, video: VideoOptions) -> tuple[int, int]:
+def generate_shard(
+    root: str | os.PathLike, task: ShardTask, video: VideoOptions
+) -> tuple[int, int]:
     """Render and write one shard; returns (records, bytes). Runs in a worker process."""
     records = []
     for name, seed in task.items:
@@ -144,7 +144,8 @@ def _prepare(
             f"seed_offset {seed_offset} draws fresh probes only, into "
             f"{seed_offset_root(root, seed_offset)} (the training clips are not shifted and stay "
             f"in {root}); give train_examples 0 and train_controls 0, got {train_examples} and "
-            f"{train_controls}")
+            f"{train_controls}"
+        )
     counts = {
         "train_examples": train_examples,
         "train_controls": train_controls,
@@ -158,18 +159,23 @@ def _prepare(
     if not isinstance(shard_size, int) or shard_size < 1:
         raise ValueError(f"shard_size must be a positive integer, got {shard_size!r}")
     if not isinstance(num_frames, int) or num_frames < 2:
-        raise ValueError(f"num_frames must be an integer of at least 2 (a probe changes after "
-                         f"its first frame), got {num_frames!r}")
+        raise ValueError(
+            f"num_frames must be an integer of at least 2 (a probe changes after "
+            f"its first frame), got {num_frames!r}"
+        )
     video = VideoOptions(num_frames=num_frames, height=height, width=width)
     if val_pairs or test_pairs:  # before a shard of any concept renders
         for concept in concepts:
             check_video(concept, num_frames=num_frames, height=height, width=width)
     _warn_of_shard_memory(video, shard_size)
     concept_counts = {concept: split_counts(concept, **counts) for concept in concepts}
-    entries = {concept: generate_manifest.concept_entry(c, seed_offset)
-               for concept, c in concept_counts.items()}
-    return _Request(seed_offset_root(root, seed_offset), video, shard_size, concept_counts,
-                    entries, seed_offset)
+    entries = {
+        concept: generate_manifest.concept_entry(c, seed_offset)
+        for concept, c in concept_counts.items()
+    }
+    return _Request(
+        seed_offset_root(root, seed_offset), video, shard_size, concept_counts, entries, seed_offset
+    )
 
 
 def _warn_of_shard_memory(video: VideoOptions, shard_size: int) -> None:
@@ -183,13 +189,15 @@ def _warn_of_shard_memory(video: VideoOptions, shard_size: int) -> None:
             f"{video.height} x {video.width} x {video.num_frames} frames with shard_size "
             f"{shard_size} hold about {shard_bytes / 2**30:.1f} GiB per shard in each worker's "
             f"memory ({memory / 2**30:.0f} GiB here): lower shard_size, height or width",
-            stacklevel=3)
+            stacklevel=3,
+        )
 
 
 #: The counts' old keyword names in generate_dataset and ensure_dataset (issue 26: one name
 #: for one count, the one configs and ``generate --val_pairs`` use).
-OLD_COUNT_NAMES = {f"{split}_pairs_per_variant": f"{split}_pairs"
-                   for split in ("val", "test", "generalization")}
+OLD_COUNT_NAMES = {
+    f"{split}_pairs_per_variant": f"{split}_pairs" for split in ("val", "test", "generalization")
+}
 
 
 def _accepts_old_count_names(function):
@@ -201,8 +209,11 @@ def _accepts_old_count_names(function):
             if old in kwargs:
                 if new in kwargs:
                     raise TypeError(f"give {new} only ({old} is its old name), not both")
-                warnings.warn(f"{function.__name__}: {old} is now called {new}",
-                              DeprecationWarning, stacklevel=2)
+                warnings.warn(
+                    f"{function.__name__}: {old} is now called {new}",
+                    DeprecationWarning,
+                    stacklevel=2,
+                )
                 kwargs[new] = kwargs.pop(old)
         return function(*args, **kwargs)
 
@@ -261,8 +272,9 @@ def generate_dataset(
     started = time.perf_counter()
     if root.exists() and not root.is_dir():
         raise NotADirectoryError(f"dataset root {root} exists and is not a directory")
-    generate_manifest.reconcile_manifest(root, video, shard_size, request.entries, overwrite,
-                                         request.seed_offset)
+    generate_manifest.reconcile_manifest(
+        root, video, shard_size, request.entries, overwrite, request.seed_offset
+    )
     tasks = _planned(request, splits)[shard_index::num_shards]
     layouts = record_layouts(video)
     todo, replaced = [], []
@@ -277,7 +289,8 @@ def generate_dataset(
     if replaced:
         warnings.warn(
             f"regenerating {len(replaced)} shard(s) of {root} that do not match the plan:\n  "
-            + "\n  ".join(replaced[:20]) + ("\n  ..." if len(replaced) > 20 else ""),
+            + "\n  ".join(replaced[:20])
+            + ("\n  ..." if len(replaced) > 20 else ""),
             stacklevel=2,
         )
     total_videos = sum(task.num_videos for task in tasks)
@@ -325,9 +338,11 @@ def ensure_dataset(root: str | os.PathLike, **options) -> GenerationSummary | No
     splits = _checked_splits(bound.arguments["splits"])
     if _is_complete(request, splits):
         return None
-    print(f"generating the {', '.join(splits)} split{'s' if len(splits) > 1 else ''} of "
-          f"{', '.join(request.concept_counts)} under {request.root} (missing or incomplete "
-          "there)")
+    print(
+        f"generating the {', '.join(splits)} split{'s' if len(splits) > 1 else ''} of "
+        f"{', '.join(request.concept_counts)} under {request.root} (missing or incomplete "
+        "there)"
+    )
     return generate_dataset(root, **options)
 
 
@@ -339,19 +354,22 @@ def _checked_splits(splits: Iterable[str]) -> list[str]:
     return [split for split in store.SPLITS if split in wanted]
 
 
-def _planned(request: "_Request", splits: Sequence[str]) -> list[ShardTask]:
+def _planned(request: _Request, splits: Sequence[str]) -> list[ShardTask]:
     """The planned shards of ``splits``."""
-    return [task for task in plan_shards(request.concept_counts, request.shard_size,
-                                         request.seed_offset)
-            if task.split in splits]
+    return [
+        task
+        for task in plan_shards(request.concept_counts, request.shard_size, request.seed_offset)
+        if task.split in splits
+    ]
 
 
-def _is_complete(request: "_Request", splits: Sequence[str]) -> bool:
+def _is_complete(request: _Request, splits: Sequence[str]) -> bool:
     """Whether the store holds every planned shard of ``splits``, intact (checksums included:
     a corrupt record must be repaired before training, not met in the middle of it)."""
     manifest = store.read_manifest(request.root)
-    if not generate_manifest.matches(manifest, request.video, request.shard_size,
-                                     request.entries, request.seed_offset):
+    if not generate_manifest.matches(
+        manifest, request.video, request.shard_size, request.entries, request.seed_offset
+    ):
         return False
     layouts = record_layouts(request.video)
     for task in _planned(request, splits):
@@ -365,7 +383,7 @@ def _is_complete(request: "_Request", splits: Sequence[str]) -> bool:
 # --- command line -------------------------------------------------------------------------------
 def generate(
     root: Path,
-    concepts: list[specs.Concept] = list(specs.CONCEPTS),
+    concepts: list[specs.Concept] = list(specs.CONCEPTS),  # noqa: B006 (the CLI reads it; never mutated)
     train_examples: int | None = None,
     train_controls: int | None = None,
     val_pairs: int = DEFAULT_VAL_PAIRS,

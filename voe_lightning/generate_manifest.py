@@ -68,8 +68,10 @@ _SETTING_KEYS = ("format", "video", "shard_size", "seed_starts", "seed_offset", 
 
 def _stored_settings(manifest: dict) -> dict:
     """The settings a stored manifest records (a manifest before offsets: seed offset 0)."""
-    return {**{k: manifest.get(k) for k in _SETTING_KEYS},
-            "seed_offset": manifest_seed_offset(manifest)}
+    return {
+        **{k: manifest.get(k) for k in _SETTING_KEYS},
+        "seed_offset": manifest_seed_offset(manifest),
+    }
 
 
 def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
@@ -82,7 +84,11 @@ def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
 
 
 def reconcile_manifest(
-    root: Path, video: VideoOptions, shard_size: int, entries: dict[str, dict], overwrite: bool,
+    root: Path,
+    video: VideoOptions,
+    shard_size: int,
+    entries: dict[str, dict],
+    overwrite: bool,
     seed_offset: int = 0,
 ) -> dict:
     """The manifest for this run: the stored one, extended with new concepts, or a new one.
@@ -94,7 +100,11 @@ def reconcile_manifest(
 
 
 def _reconcile_locked(
-    root: Path, video: VideoOptions, shard_size: int, entries: dict[str, dict], overwrite: bool,
+    root: Path,
+    video: VideoOptions,
+    shard_size: int,
+    entries: dict[str, dict],
+    overwrite: bool,
     seed_offset: int,
 ) -> dict:
     """``reconcile_manifest``'s work, with the manifest lock held."""
@@ -107,17 +117,19 @@ def _reconcile_locked(
         old = None  # replaced; the shards are checked against the new plan one by one
     if old is not None:
         setting_changes = _differences(_stored_settings(old), settings)
-        changed = {
-            c for c in entries if c in old["concepts"] and old["concepts"][c] != entries[c]
-        }
+        changed = {c for c in entries if c in old["concepts"] and old["concepts"][c] != entries[c]}
         concept_changes = [
-            d for c in sorted(changed) for d in _differences(old["concepts"][c], entries[c], f"{c}.")
+            d
+            for c in sorted(changed)
+            for d in _differences(old["concepts"][c], entries[c], f"{c}.")
         ]
         if setting_changes or concept_changes:
             if not overwrite:
                 # follow from the per-kind counts and the seed offset
                 derived = (".count:", ".seed_start:", ".seed_stop:")
-                shown = [d for d in setting_changes + concept_changes if not any(s in d for s in derived)]
+                shown = [
+                    d for d in setting_changes + concept_changes if not any(s in d for s in derived)
+                ]
                 raise ManifestMismatchError(
                     f"{root / store.MANIFEST_NAME} was generated with other settings:\n  "
                     + "\n  ".join(shown or setting_changes + concept_changes)
@@ -130,8 +142,11 @@ def _reconcile_locked(
             kept = {c: e for c, e in old["concepts"].items() if c not in doomed}
             old = {**old, **settings, "concepts": kept}
     merged = {**(old["concepts"] if old else {}), **entries}
-    if (old is not None and merged == old["concepts"]
-            and old.get("generator_version") == store_plan.GENERATOR_VERSION):
+    if (
+        old is not None
+        and merged == old["concepts"]
+        and old.get("generator_version") == store_plan.GENERATOR_VERSION
+    ):
         return old
     manifest = {
         **settings,
@@ -147,9 +162,13 @@ def _reconcile_locked(
     return manifest
 
 
-
-def matches(manifest: dict | None, video: VideoOptions, shard_size: int,
-            entries: dict[str, dict], seed_offset: int = 0) -> bool:
+def matches(
+    manifest: dict | None,
+    video: VideoOptions,
+    shard_size: int,
+    entries: dict[str, dict],
+    seed_offset: int = 0,
+) -> bool:
     """Whether the stored ``manifest`` is what a request of these settings and concept
     ``entries`` would write, at this ``GENERATOR_VERSION`` (None, no manifest, never is)."""
     if manifest is None or manifest.get("generator_version") != store_plan.GENERATOR_VERSION:

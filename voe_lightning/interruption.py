@@ -34,8 +34,9 @@ class InterruptCheckpoint(L.Callback):
         terminate = signal.getsignal(signal.SIGTERM)
         if not callable(terminate) or threading.current_thread() is not threading.main_thread():
             return  # no Lightning handler to hand over to, or handlers cannot be set here
-        self._previous = {number: signal.getsignal(number)
-                          for number in (signal.SIGTERM, signal.SIGINT)}
+        self._previous = {
+            number: signal.getsignal(number) for number in (signal.SIGTERM, signal.SIGINT)
+        }
 
         def on_signal(number: int, frame: Any) -> None:
             if self.signal_name is None:
@@ -49,8 +50,9 @@ class InterruptCheckpoint(L.Callback):
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._restore_handlers()
 
-    def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule,
-                     exception: BaseException) -> None:
+    def on_exception(
+        self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException
+    ) -> None:
         self._restore_handlers()
         if not isinstance(exception, SIGTERMException):
             return
@@ -62,8 +64,10 @@ class InterruptCheckpoint(L.Callback):
     def checkpoint_path(trainer: L.Trainer) -> Path:
         """last.ckpt in the ModelCheckpoint's folder, else in ``<log_dir>/checkpoints``."""
         callback = trainer.checkpoint_callback
-        folder = getattr(callback, "dirpath", None) or Path(
-            trainer.log_dir or trainer.default_root_dir) / "checkpoints"
+        folder = (
+            getattr(callback, "dirpath", None)
+            or Path(trainer.log_dir or trainer.default_root_dir) / "checkpoints"
+        )
         return Path(folder) / LAST_CHECKPOINT
 
     def _restore_handlers(self) -> None:

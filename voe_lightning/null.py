@@ -31,28 +31,48 @@ from matplotlib.figure import Figure
 from voe_lightning.report.figures import save_figure
 from voe_lightning.report.results import read_summary
 from voe_lightning.runs import fresh_config_name
-from voe_lightning.store_shards import write_whole
 from voe_lightning.statistics_format import format_number
+from voe_lightning.store_shards import write_whole
 
 
-def _untrained_report(build_cli: Callable[[list[str]], Any], configs: Sequence[Path],
-                      seed: int, out: Path, extra_args: Sequence[str]) -> Path:
+def _untrained_report(
+    build_cli: Callable[[list[str]], Any],
+    configs: Sequence[Path],
+    seed: int,
+    out: Path,
+    extra_args: Sequence[str],
+) -> Path:
     """Test the configs' model at initialization under ``seed``; its report's folder."""
     arguments = [word for config in configs for word in ("--config", str(config))]
-    cli = build_cli([*arguments, "--seed_everything", str(seed),
-                     "--trainer.logger.init_args.save_dir", str(out),
-                     "--trainer.logger.init_args.name", f"seed_{seed}", *extra_args])
+    cli = build_cli(
+        [
+            *arguments,
+            "--seed_everything",
+            str(seed),
+            "--trainer.logger.init_args.save_dir",
+            str(out),
+            "--trainer.logger.init_args.name",
+            f"seed_{seed}",
+            *extra_args,
+        ]
+    )
     cli.trainer.test(cli.model, datamodule=cli.datamodule)
-    reports = [callback.report_dir for callback in cli.trainer.callbacks
-               if getattr(callback, "report_dir", None) is not None]
+    reports = [
+        callback.report_dir
+        for callback in cli.trainer.callbacks
+        if getattr(callback, "report_dir", None) is not None
+    ]
     if not reports:
-        raise ValueError("the configs' trainer wrote no report: add "
-                         "voe_lightning.callbacks.VOEReportCallback to its callbacks")
+        raise ValueError(
+            "the configs' trainer wrote no report: add "
+            "voe_lightning.callbacks.VOEReportCallback to its callbacks"
+        )
     return reports[-1]
 
 
-def priors_alone(build_cli: Callable[[list[str]], Any], config: Mapping[str, Any], seed: int,
-                 out: Path) -> dict[str, Any]:
+def priors_alone(
+    build_cli: Callable[[list[str]], Any], config: Mapping[str, Any], seed: int, out: Path
+) -> dict[str, Any]:
     """What a model's given structure scores before any training: the run's whole ``config``
     (a plain dict, as saved; model arguments as tested) at initialization under the run's
     ``seed``, tested on the same probes (``_untrained_report``: one initialization of the
@@ -62,8 +82,9 @@ def priors_alone(build_cli: Callable[[list[str]], Any], config: Mapping[str, Any
     out.mkdir(parents=True, exist_ok=True)
     config_path = out / fresh_config_name(out, "config")
     write_whole({config_path: yaml.safe_dump(dict(config), sort_keys=False)})
-    report = _untrained_report(build_cli, [config_path], seed, out,
-                               ["--trainer.logger.init_args.version", "null"])
+    report = _untrained_report(
+        build_cli, [config_path], seed, out, ["--trainer.logger.init_args.version", "null"]
+    )
     return {**read_summary(report), "seed": seed, "report": str(report)}
 
 
@@ -72,8 +93,9 @@ def _percentile(value: float, null: np.ndarray) -> float:
     return float(100 * ((null < value).mean() + 0.5 * (null == value).mean()))
 
 
-def null_rows(summaries: Sequence[Mapping[str, Any]],
-              trained: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
+def null_rows(
+    summaries: Sequence[Mapping[str, Any]], trained: Mapping[str, Any] | None = None
+) -> list[dict[str, Any]]:
     """Per concept/variant of the untrained ``summaries`` (report summary.json documents, one
     per initialization): how many were tested, t's median, minimum and maximum, the share
     significant, the concept's share of VOE verdicts and, given a ``trained`` summary, its t and
@@ -89,16 +111,22 @@ def null_rows(summaries: Sequence[Mapping[str, Any]],
                 significant.setdefault(key, []).append(bool(row["significant"]))
         for verdict in summary["verdicts"]:
             voe.setdefault(verdict["concept"], []).append(bool(verdict["voe"]))
-    trained_t = {(row["concept"], row["variant"]): row.get("t")
-                 for row in (trained or {}).get("rows", [])}
+    trained_t = {
+        (row["concept"], row["variant"]): row.get("t") for row in (trained or {}).get("rows", [])
+    }
     rows = []
     for (concept, variant), values in t_values.items():
         null = np.asarray(values)
-        row = {"concept": concept, "variant": variant, "initializations": null.size,
-               "t_median": float(np.median(null)), "t_min": float(null.min()),
-               "t_max": float(null.max()),
-               "significant_share": float(np.mean(significant[concept, variant])),
-               "voe_share": float(np.mean(voe.get(concept, [False])))}
+        row = {
+            "concept": concept,
+            "variant": variant,
+            "initializations": null.size,
+            "t_median": float(np.median(null)),
+            "t_min": float(null.min()),
+            "t_max": float(null.max()),
+            "significant_share": float(np.mean(significant[concept, variant])),
+            "voe_share": float(np.mean(voe.get(concept, [False]))),
+        }
         if trained_t.get((concept, variant)) is not None:
             row["trained_t"] = float(trained_t[concept, variant])
             row["trained_percentile"] = _percentile(row["trained_t"], null)
@@ -108,30 +136,44 @@ def null_rows(summaries: Sequence[Mapping[str, Any]],
 
 def format_null(rows: Sequence[Mapping[str, Any]], alpha: float) -> str:
     """``null_rows`` as a Markdown table with a line saying what the columns are."""
-    lines = ["| concept | variant | inits | t median [min, max] | significant | concept VOE "
-             "| trained t | percentile |", "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| concept | variant | inits | t median [min, max] | significant | concept VOE "
+        "| trained t | percentile |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for row in rows:
-        spread = (f"{format_number(row['t_median'], '+.2f')} [{format_number(row['t_min'], '+.2f')}"
-                  f", {format_number(row['t_max'], '+.2f')}]")
-        lines.append(f"| {row['concept']} | {row['variant']} | {row['initializations']} "
-                     f"| {spread} | {row['significant_share']:.0%} | {row['voe_share']:.0%} "
-                     f"| {format_number(row.get('trained_t'), '+.2f')} "
-                     f"| {format_number(row.get('trained_percentile'), '.0f')} |")
-    lines += ["", f"Untrained initializations of one config tested on the same probes: t of "
-              f"the one-tailed paired test per initialization; significant: share with p < "
-              f"{alpha:g}; concept VOE: share of initializations whose verdict for the concept "
-              "is VOE; percentile: where the trained run's t falls among the untrained ones "
-              "(ties half)."]
+        spread = (
+            f"{format_number(row['t_median'], '+.2f')} [{format_number(row['t_min'], '+.2f')}"
+            f", {format_number(row['t_max'], '+.2f')}]"
+        )
+        lines.append(
+            f"| {row['concept']} | {row['variant']} | {row['initializations']} "
+            f"| {spread} | {row['significant_share']:.0%} | {row['voe_share']:.0%} "
+            f"| {format_number(row.get('trained_t'), '+.2f')} "
+            f"| {format_number(row.get('trained_percentile'), '.0f')} |"
+        )
+    lines += [
+        "",
+        f"Untrained initializations of one config tested on the same probes: t of "
+        f"the one-tailed paired test per initialization; significant: share with p < "
+        f"{alpha:g}; concept VOE: share of initializations whose verdict for the concept "
+        "is VOE; percentile: where the trained run's t falls among the untrained ones "
+        "(ties half).",
+    ]
     return "\n".join(lines) + "\n"
 
 
-def _null_points(document: Mapping[str, Any], concept: str, variant: str
-                 ) -> tuple[np.ndarray, float]:
+def _null_points(
+    document: Mapping[str, Any], concept: str, variant: str
+) -> tuple[np.ndarray, float]:
     """The finite t of ``concept``/``variant`` at each initialization of a null.json
     ``document``, and the median of their df."""
-    rows = [row for initialization in document["initializations"]
-            for row in initialization["rows"]
-            if (row["concept"], row["variant"]) == (concept, variant) and row.get("t") is not None]
+    rows = [
+        row
+        for initialization in document["initializations"]
+        for row in initialization["rows"]
+        if (row["concept"], row["variant"]) == (concept, variant) and row.get("t") is not None
+    ]
     t = np.asarray([float(row["t"]) for row in rows])
     df = np.asarray([float(row["df"]) for row in rows if row.get("df") is not None])
     return t[np.isfinite(t)], float(np.median(df)) if df.size else math.nan
@@ -145,30 +187,57 @@ def null_figure(document: Mapping[str, Any], alpha: float) -> Figure:
     rows = document["rows"]
     figure = Figure(figsize=(7.5, 1.5 + 0.4 * len(rows)), layout="constrained")
     ax = figure.subplots()
-    jitter, trained = np.random.default_rng(0), [row for row in rows
-                                                 if math.isfinite(row.get("trained_t", math.nan))]
+    jitter, trained = (
+        np.random.default_rng(0),
+        [row for row in rows if math.isfinite(row.get("trained_t", math.nan))],
+    )
     for index, row in enumerate(rows):
         t, df = _null_points(document, row["concept"], row["variant"])
-        ax.scatter(t, index + jitter.uniform(-0.2, 0.2, t.size), s=14, color="0.45",
-                   alpha=0.8, label="untrained initializations" if index == 0 else None)
-        ax.plot([scipy.stats.t.ppf(1 - alpha, df)] * 2, [index - 0.35, index + 0.35], "k--",
-                lw=1.2, label=f"critical t (one-tailed, α = {alpha:g})" if index == 0 else None)
+        ax.scatter(
+            t,
+            index + jitter.uniform(-0.2, 0.2, t.size),
+            s=14,
+            color="0.45",
+            alpha=0.8,
+            label="untrained initializations" if index == 0 else None,
+        )
+        ax.plot(
+            [scipy.stats.t.ppf(1 - alpha, df)] * 2,
+            [index - 0.35, index + 0.35],
+            "k--",
+            lw=1.2,
+            label=f"critical t (one-tailed, α = {alpha:g})" if index == 0 else None,
+        )
         if row in trained:
-            ax.scatter([row["trained_t"]], [index], marker="D", s=40, color="C3", zorder=3,
-                       label="trained" if row is trained[0] else None)
+            ax.scatter(
+                [row["trained_t"]],
+                [index],
+                marker="D",
+                s=40,
+                color="C3",
+                zorder=3,
+                label="trained" if row is trained[0] else None,
+            )
     ax.set_yticks(range(len(rows)), [f"{row['concept']} / {row['variant']}" for row in rows])
     ax.set_ylim(len(rows) - 0.5, -0.5)
     ax.axvline(0, color="0.8", lw=0.8, zorder=0)
     ax.set_xlabel("t of the one-tailed paired test (inconsistent > consistent)")
-    ax.set_title(f"Untrained null: {document['seeds']} initializations of "
-                 f"{', '.join(Path(config).name for config in document['configs'])}")
+    ax.set_title(
+        f"Untrained null: {document['seeds']} initializations of "
+        f"{', '.join(Path(config).name for config in document['configs'])}"
+    )
     figure.legend(loc="outside lower center", ncols=3, fontsize="small", frameon=False)
     return figure
 
 
-def untrained_null(configs: list[Path], seeds: int = 20, out: Path = Path("runs/null"),
-                   trained: Path | None = None, extra_args: list[str] | None = None,
-                   _build_cli: Callable[[list[str]], Any] | None = None) -> str:
+def untrained_null(
+    configs: list[Path],
+    seeds: int = 20,
+    out: Path = Path("runs/null"),
+    trained: Path | None = None,
+    extra_args: list[str] | None = None,
+    _build_cli: Callable[[list[str]], Any] | None = None,
+) -> str:
     """Test untrained initializations of a config's model on its test probes and table the
     distribution of each concept's statistic and verdict (module docstring); writes
     ``out/null.json`` (every initialization's rows and verdicts), ``out/null.md`` and
@@ -185,18 +254,28 @@ def untrained_null(configs: list[Path], seeds: int = 20, out: Path = Path("runs/
             the CLI passes its own, so this module does not import the CLI.
     """
     if _build_cli is None:
-        raise TypeError("untrained_null builds its runs through _build_cli: run it as `python -m "
-                        "voe_lightning analyze null`")
+        raise TypeError(
+            "untrained_null builds its runs through _build_cli: run it as `python -m "
+            "voe_lightning analyze null`"
+        )
     if seeds < 1:
         raise ValueError(f"seeds must be at least 1, got {seeds}")
     out = Path(out)
-    summaries = [read_summary(_untrained_report(_build_cli, configs, seed, out, extra_args or ()))
-                 for seed in range(seeds)]
+    summaries = [
+        read_summary(_untrained_report(_build_cli, configs, seed, out, extra_args or ()))
+        for seed in range(seeds)
+    ]
     rows = null_rows(summaries, None if trained is None else read_summary(trained))
     table = format_null(rows, summaries[0]["alpha"])
-    document = {"configs": [str(c) for c in configs], "seeds": seeds, "rows": rows,
-                "initializations": [{"seed": seed, "rows": s["rows"], "verdicts": s["verdicts"]}
-                                    for seed, s in enumerate(summaries)]}
+    document = {
+        "configs": [str(c) for c in configs],
+        "seeds": seeds,
+        "rows": rows,
+        "initializations": [
+            {"seed": seed, "rows": s["rows"], "verdicts": s["verdicts"]}
+            for seed, s in enumerate(summaries)
+        ],
+    }
     write_whole({out / "null.json": json.dumps(document, indent=2) + "\n", out / "null.md": table})
     print(table, end="")
     save_figure(null_figure(document, summaries[0]["alpha"]), out / "null.png")

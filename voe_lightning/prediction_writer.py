@@ -20,9 +20,9 @@ from voe_lightning.store_shards import write_whole
 
 class IntPhysAnswerWriter(BasePredictionWriter):
     """Writes the IntPhys challenge's ``answer.txt`` to ``path`` at the end of ``predict``: one
-    line per movie of the predict dataset (its ``names[index]``, e.g. ``O1/0001/1``) with a
-    plausibility from the movie's total surprise (``external.metrics.write_answer_file``). Both writers write
-their file whole (``store_shards.write_whole``): a full disk keeps the previous one."""
+        line per movie of the predict dataset (its ``names[index]``, e.g. ``O1/0001/1``) with a
+        plausibility from the movie's total surprise (``external.metrics.write_answer_file``). Both writers write
+    their file whole (``store_shards.write_whole``): a full disk keeps the previous one."""
 
     def __init__(self, path: str | os.PathLike = "answer.txt"):
         super().__init__(write_interval="epoch")
@@ -41,13 +41,17 @@ their file whole (``store_shards.write_whole``): a full disk keeps the previous 
             rank_zero_info(f"wrote {self.path} ({len(scores)} movies)")
 
 
-def gathered_scores(trainer: L.Trainer, predictions: Sequence[Any], key: str
-                    ) -> dict[str, float] | None:
+def gathered_scores(
+    trainer: L.Trainer, predictions: Sequence[Any], key: str
+) -> dict[str, float] | None:
     """On rank zero, video name -> ``predictions``' ``key`` of every video of the predict
     dataset (``names[index]``), gathered from every DDP rank; None on the other ranks. A
     video scored twice or never is refused."""
-    scores = [(index, value) for batch in predictions
-              for index, value in zip(batch["index"].tolist(), batch[key].tolist())]
+    scores = [
+        (index, value)
+        for batch in predictions
+        for index, value in zip(batch["index"].tolist(), batch[key].tolist())
+    ]
     if trainer.world_size > 1:  # each rank scored its own videos: gather them on rank 0
         gathered: list[Any] = [None] * trainer.world_size
         torch.distributed.all_gather_object(gathered, scores)
@@ -58,7 +62,8 @@ def gathered_scores(trainer: L.Trainer, predictions: Sequence[Any], key: str
     if sorted(index for index, _ in scores) != list(range(len(names))):
         raise RuntimeError(
             f"predict scored {len(scores)} videos ({len({i for i, _ in scores})} distinct) of "
-            f"the {len(names)} in the predict dataset; every video needs exactly one score")
+            f"the {len(names)} in the predict dataset; every video needs exactly one score"
+        )
     return {names[index]: value for index, value in sorted(scores)}
 
 
@@ -71,12 +76,16 @@ def intphys2_threshold(threshold: float | str) -> float:
     try:
         return float(json.loads(path.read_text())["metrics"]["threshold"]["value"])
     except FileNotFoundError:
-        raise FileNotFoundError(f"threshold file {path} does not exist; give a number or the "
-                                "benchmark_metrics.json of a test on IntPhys 2 Main") from None
+        raise FileNotFoundError(
+            f"threshold file {path} does not exist; give a number or the "
+            "benchmark_metrics.json of a test on IntPhys 2 Main"
+        ) from None
     except (ValueError, KeyError, TypeError) as error:
-        raise ValueError(f"{path} holds no metrics.threshold.value ({type(error).__name__}: "
-                         f"{error}); expected the benchmark_metrics.json of a test on IntPhys 2 "
-                         "Main") from None
+        raise ValueError(
+            f"{path} holds no metrics.threshold.value ({type(error).__name__}: "
+            f"{error}); expected the benchmark_metrics.json of a test on IntPhys 2 "
+            "Main"
+        ) from None
 
 
 class IntPhys2LeaderboardWriter(BasePredictionWriter):
@@ -87,19 +96,37 @@ class IntPhys2LeaderboardWriter(BasePredictionWriter):
     benchmark_metrics.json of a ``test`` on Main (the 90th percentile of the possible videos'
     max surprise there). ``data_name`` and ``task`` are written as given."""
 
-    def __init__(self, threshold: float | str, path: str | os.PathLike = "intphys2_heldout.jsonl",
-                 data_name: str = "IntPhys2", task: str = "HeldOut"):
+    def __init__(
+        self,
+        threshold: float | str,
+        path: str | os.PathLike = "intphys2_heldout.jsonl",
+        data_name: str = "IntPhys2",
+        task: str = "HeldOut",
+    ):
         super().__init__(write_interval="epoch")
         self.threshold = intphys2_threshold(threshold)
         self.path, self.data_name, self.task = Path(path), data_name, task
 
-    def write_on_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule,
-                           predictions: Sequence[Any], batch_indices: Sequence[Any]) -> None:
+    def write_on_epoch_end(
+        self,
+        trainer: L.Trainer,
+        pl_module: L.LightningModule,
+        predictions: Sequence[Any],
+        batch_indices: Sequence[Any],
+    ) -> None:
         scores = gathered_scores(trainer, predictions, "surprise_max")
         if scores is None:
             return
-        lines = [json.dumps({"data_name": self.data_name, "task": self.task, "row_id": name,
-                             "model_answer": int(value <= self.threshold)})
-                 for name, value in scores.items()]
+        lines = [
+            json.dumps(
+                {
+                    "data_name": self.data_name,
+                    "task": self.task,
+                    "row_id": name,
+                    "model_answer": int(value <= self.threshold),
+                }
+            )
+            for name, value in scores.items()
+        ]
         write_whole({self.path: "".join(line + "\n" for line in lines)})
         rank_zero_info(f"wrote {self.path} ({len(scores)} videos, threshold {self.threshold:g})")

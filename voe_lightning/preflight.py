@@ -28,27 +28,38 @@ def check_run(subcommand: str, config: Any) -> None:
     model = getattr(config.get("model"), "init_args", None) or {}
     max_steps = trainer.get("max_steps")
     if isinstance(max_steps, int) and max_steps < -1:
-        raise ValueError(f"trainer.max_steps {max_steps}: give a number of steps >= 0, or -1 "
-                         "for no limit")
+        raise ValueError(
+            f"trainer.max_steps {max_steps}: give a number of steps >= 0, or -1 for no limit"
+        )
     _check_image_size(model, data)
     root = data.get("root")
     if root is not None and Path(root).exists() and not Path(root).is_dir():
-        raise NotADirectoryError(f"data.init_args.root {root} is a file, not a dataset folder: "
-                                 "give a folder (generate makes it where it does not exist)")
+        raise NotADirectoryError(
+            f"data.init_args.root {root} is a file, not a dataset folder: "
+            "give a folder (generate makes it where it does not exist)"
+        )
     data_class = getattr(config.get("data"), "class_path", None)
     if subcommand == "predict" and data_class and not _predicts(data_class):
-        raise ValueError(f"predict needs a DataModule with a predict_dataloader, and {data_class} "
-                         "has none: use one that has (e.g. configs/overlays/intphys_test.yaml's), "
-                         "or test")
+        raise ValueError(
+            f"predict needs a DataModule with a predict_dataloader, and {data_class} "
+            "has none: use one that has (e.g. configs/overlays/intphys_test.yaml's), "
+            "or test"
+        )
     if subcommand != "fit":
         return
     interval = trainer.get("val_check_interval")
-    if (isinstance(interval, int) and isinstance(max_steps, int) and max_steps > 0
-            and interval > max_steps and _callback_configured(trainer, "VOEProbeCallback")):
+    if (
+        isinstance(interval, int)
+        and isinstance(max_steps, int)
+        and max_steps > 0
+        and interval > max_steps
+        and _callback_configured(trainer, "VOEProbeCallback")
+    ):
         rank_zero_warn(
             f"trainer.val_check_interval {interval} is larger than trainer.max_steps "
             f"{max_steps}: no validation will run, so VOEProbeCallback logs no VOE "
-            f"statistics; use val_check_interval <= {max_steps} to have them")
+            f"statistics; use val_check_interval <= {max_steps} to have them"
+        )
     _check_batch_size(data)
 
 
@@ -59,19 +70,24 @@ def check_logger(config: Any) -> None:
     logger = getattr((config.get("trainer") or {}).get("logger"), "init_args", None) or {}
     if not logger.get("save_dir"):
         return
-    parts = [str(part) for part in (logger.get("name"), logger.get("version"))
-             if part not in (None, "")]
+    parts = [
+        str(part) for part in (logger.get("name"), logger.get("version")) if part not in (None, "")
+    ]
     for part in "/".join(parts).split("/"):
         if len(part.encode()) > NAME_MAX:
-            raise ValueError(f"trainer.logger.init_args name or version {part[:40]}... is "
-                             f"{len(part.encode())} bytes long; a folder name may have at most "
-                             f"{NAME_MAX}: choose a shorter one")
+            raise ValueError(
+                f"trainer.logger.init_args name or version {part[:40]}... is "
+                f"{len(part.encode())} bytes long; a folder name may have at most "
+                f"{NAME_MAX}: choose a shorter one"
+            )
     folder = Path(logger["save_dir"], *parts)
     existing = next(path for path in (folder, *folder.parents) if path.exists())
     if not os.access(existing, os.W_OK | os.X_OK) or not existing.is_dir():
-        raise PermissionError(f"cannot write the run folder {folder}: {existing} is not a "
-                              "writable folder; choose another trainer.logger.init_args.save_dir "
-                              "or make it writable")
+        raise PermissionError(
+            f"cannot write the run folder {folder}: {existing} is not a "
+            "writable folder; choose another trainer.logger.init_args.save_dir "
+            "or make it writable"
+        )
 
 
 def _check_image_size(model: Any, data: Any) -> None:
@@ -85,7 +101,8 @@ def _check_image_size(model: Any, data: Any) -> None:
         raise ValueError(
             f"model.init_args.image_size {list(image_size)} differs from the data's height x "
             f"width {height} x {width}: set both to one size (e.g. --data.init_args.height "
-            f"{image_size[0]} --data.init_args.width {image_size[1]})")
+            f"{image_size[0]} --data.init_args.width {image_size[1]})"
+        )
 
 
 def _check_batch_size(data: Any) -> None:
@@ -102,7 +119,8 @@ def _check_batch_size(data: Any) -> None:
         raise ValueError(
             f"data.init_args.batch_size {batch_size} is larger than the {clips} training clips "
             f"({examples} examples + {controls} controls x {len(concepts)} concept(s)), so "
-            f"every batch would be dropped and nothing trained: use batch_size <= {clips}")
+            f"every batch would be dropped and nothing trained: use batch_size <= {clips}"
+        )
 
 
 def _predicts(class_path: str) -> bool:
@@ -114,5 +132,7 @@ def _predicts(class_path: str) -> bool:
 
 def _callback_configured(trainer: Any, name: str) -> bool:
     """Whether a callback whose class is named ``name`` is among the trainer's callbacks."""
-    return any(str(getattr(callback, "class_path", "")).rsplit(".", 1)[-1] == name
-               for callback in trainer.get("callbacks") or [])
+    return any(
+        str(getattr(callback, "class_path", "")).rsplit(".", 1)[-1] == name
+        for callback in trainer.get("callbacks") or []
+    )

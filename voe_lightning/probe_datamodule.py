@@ -53,5 +53,6 @@ def probe_datamodule(trainer: L.Trainer, user: str) -> ProbeDataModule:
         raise TypeError(
             f"{user} decodes probe indices with trainer.datamodule.concept_names and "
             f".variant_names, so it needs a ProbeDataModule (voe_lightning.probe_datamodule); "
-            f"got {type(datamodule).__name__}")
+            f"got {type(datamodule).__name__}"
+        )
     return datamodule

@@ -36,11 +36,15 @@ def checkpoint_file(ckpt_path: str) -> Path:
         found = sorted(path.rglob("*.ckpt"), key=lambda file: file.stat().st_mtime)
         listed = ", ".join(str(file) for file in found[-3:][::-1])
         hint = f"the newest under it: {listed}" if found else "it holds no *.ckpt file"
-        raise IsADirectoryError(f"--ckpt_path {ckpt_path} is a directory, not a checkpoint file; "
-                                f"give one .ckpt file ({hint})")
+        raise IsADirectoryError(
+            f"--ckpt_path {ckpt_path} is a directory, not a checkpoint file; "
+            f"give one .ckpt file ({hint})"
+        )
     if not path.is_file():
-        raise FileNotFoundError(f"--ckpt_path {ckpt_path!r} does not exist (give a .ckpt file, "
-                                "or last/best for the newest run of the config's logger name)")
+        raise FileNotFoundError(
+            f"--ckpt_path {ckpt_path!r} does not exist (give a .ckpt file, "
+            "or last/best for the newest run of the config's logger name)"
+        )
     return path
 
 
@@ -55,24 +59,29 @@ def run_checkpoint(word: str, save_dir: str | Path, name: str) -> Path:
         raise FileNotFoundError(
             f"--ckpt_path {word}: no checkpoint of logger name {name!r}: looked for "
             f"{Path(save_dir) / name / pattern}. Give a .ckpt file, or the logger name "
-            "(--trainer.logger.init_args.name) of a trained run")
+            "(--trainer.logger.init_args.name) of a trained run"
+        )
     last = runs[-1]
     if word == "last":
         return last
     states = read_checkpoint(last).get("callbacks") or {}
-    monitored = [state for state in states.values()
-                 if isinstance(state, dict) and state.get("monitor")]
+    monitored = [
+        state for state in states.values() if isinstance(state, dict) and state.get("monitor")
+    ]
     if not monitored:
         raise ValueError(
             f"--ckpt_path best: the checkpoints of {last.parent} monitor no metric "
             "(ModelCheckpoint monitor is None), so none is best; give --ckpt_path last or a "
-            ".ckpt file")
+            ".ckpt file"
+        )
     best = Path(monitored[0].get("best_model_path") or "")
     for candidate in (best, last.parent / best.name):
         if best.name and candidate.is_file():
             return candidate
-    raise FileNotFoundError(f"--ckpt_path best: {last} records the best checkpoint as "
-                            f"{str(best) or 'none'}, which does not exist")
+    raise FileNotFoundError(
+        f"--ckpt_path best: {last} records the best checkpoint as "
+        f"{str(best) or 'none'}, which does not exist"
+    )
 
 
 def read_checkpoint(path: str | Path) -> dict:
@@ -84,8 +93,9 @@ def read_checkpoint(path: str | Path) -> dict:
         raise  # names the file already
     except (OSError, EOFError, RuntimeError, pickle.UnpicklingError) as error:
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
-        raise ValueError(f"cannot read the checkpoint {path}: it is truncated or corrupt "
-                         f"({reason})") from error
+        raise ValueError(
+            f"cannot read the checkpoint {path}: it is truncated or corrupt ({reason})"
+        ) from error
 
 
 def concepts_of(data_arguments: Any) -> tuple[str, ...] | None:
@@ -109,10 +119,15 @@ def probe_root(data_arguments: Any) -> str | None:
     return str(seed_offset_root(data_arguments["root"], seed_offset))
 
 
-def report_folder(checkpoint: Path, root: str | None, concepts: Iterable[str] | None,
-                  benchmark: str | None, trained_root: str | None,
-                  trained_concepts: Iterable[str] | None,
-                  evaluation: Mapping[str, Any] | None = None) -> str | None:
+def report_folder(
+    checkpoint: Path,
+    root: str | None,
+    concepts: Iterable[str] | None,
+    benchmark: str | None,
+    trained_root: str | None,
+    trained_concepts: Iterable[str] | None,
+    evaluation: Mapping[str, Any] | None = None,
+) -> str | None:
     """The folder, inside a checkpoint's run, of the logs and report of one (checkpoint, data
     root, concepts, benchmark, ``evaluation``: the evaluation-only model arguments given
     otherwise than the checkpoint's, name -> value); None for the run's own (its last.ckpt
@@ -122,23 +137,32 @@ def report_folder(checkpoint: Path, root: str | None, concepts: Iterable[str] | 
     resolved checkpoint, root, concepts and evaluation-only arguments."""
     concepts = tuple(sorted(concepts)) if concepts is not None else None
     trained_concepts = tuple(sorted(trained_concepts)) if trained_concepts is not None else None
-    other_root = root is not None and (trained_root is None
-                                       or Path(root).resolve() != Path(trained_root).resolve())
+    other_root = root is not None and (
+        trained_root is None or Path(root).resolve() != Path(trained_root).resolve()
+    )
     other_concepts = concepts is not None and concepts != trained_concepts
     parts = [benchmark] if benchmark else []
     if checkpoint.name != LAST_CHECKPOINT:
         parts.append(f"ckpt_{checkpoint.stem}")
     if other_root:
-        parts.append("data_" + "_".join(part for part in Path(root).parts
-                                        if part not in ("/", "..", ".")))
+        parts.append(
+            "data_" + "_".join(part for part in Path(root).parts if part not in ("/", "..", "."))
+        )
     if other_concepts:
         parts.append("concepts_" + "+".join(concepts))
     scored = [f"{name}_{value}" for name, value in sorted((evaluation or {}).items())]
     parts += scored
     if not parts:
         return None
-    key = "\n".join([str(checkpoint.resolve()), str(Path(root).resolve()) if root else "",
-                     ",".join(concepts or ()), benchmark or "", *scored])
+    key = "\n".join(
+        [
+            str(checkpoint.resolve()),
+            str(Path(root).resolve()) if root else "",
+            ",".join(concepts or ()),
+            benchmark or "",
+            *scored,
+        ]
+    )
     readable = re.sub(r"[^A-Za-z0-9_.+=-]", "_", "-".join(parts))[:80]
     return f"{readable}-{hashlib.sha256(key.encode()).hexdigest()[:8]}"
 
@@ -163,19 +187,31 @@ def record_differences(run_config: Path, given: Mapping[str, Any]) -> list[str]:
         return []
     if not isinstance(saved, dict):
         return []
-    old = {key: value for section in RECORD_SECTIONS
-           for key, value in _flat(saved.get(section), section).items()}
-    new = {key: value for section in RECORD_SECTIONS
-           for key, value in _flat(given.get(section), section).items()}
-    return [f"{key}: the run trained with {old.get(key)!r}, given {new.get(key)!r}"
-            for key in sorted(old) if old[key] != new.get(key)]
+    old = {
+        key: value
+        for section in RECORD_SECTIONS
+        for key, value in _flat(saved.get(section), section).items()
+    }
+    new = {
+        key: value
+        for section in RECORD_SECTIONS
+        for key, value in _flat(given.get(section), section).items()
+    }
+    return [
+        f"{key}: the run trained with {old.get(key)!r}, given {new.get(key)!r}"
+        for key in sorted(old)
+        if old[key] != new.get(key)
+    ]
 
 
 def _flat(value: Any, prefix: str) -> dict[str, Any]:
     """A nested dict's leaves by dotted key (tuples as lists: a value as YAML holds it)."""
     if isinstance(value, Mapping):
-        return {key: leaf for name, item in value.items()
-                for key, leaf in _flat(item, f"{prefix}.{name}").items()}
+        return {
+            key: leaf
+            for name, item in value.items()
+            for key, leaf in _flat(item, f"{prefix}.{name}").items()
+        }
     return {prefix: list(value) if isinstance(value, tuple) else value}
 
 
@@ -193,8 +229,10 @@ def check_inside(path: Path, folder: Path) -> None:
     """Refuse to write ``path`` through a symbolic link that leads out of ``folder`` (a link
     in a run folder would have the run overwrite a file elsewhere)."""
     if path.is_symlink() and not path.resolve().is_relative_to(folder.resolve()):
-        raise ValueError(f"{path} is a symbolic link to {path.resolve()}, outside the run folder "
-                         f"{folder}: nothing is written through it; remove the link")
+        raise ValueError(
+            f"{path} is a symbolic link to {path.resolve()}, outside the run folder "
+            f"{folder}: nothing is written through it; remove the link"
+        )
 
 
 class RunConfig(SaveConfigCallback):

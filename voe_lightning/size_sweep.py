@@ -23,8 +23,9 @@ from voe_lightning.statistics import ALPHA, paired_test
 __all__ = ["run_size_sweep", "size_sweep_figure", "sweep", "sweep_plot", "sweep_rows"]
 
 
-def sweep_rows(results: PairResults, train_size: int, eval_sets: int,
-               alpha: float = ALPHA) -> list[dict[str, Any]]:
+def sweep_rows(
+    results: PairResults, train_size: int, eval_sets: int, alpha: float = ALPHA
+) -> list[dict[str, Any]]:
     """Split each concept/variant's test pairs (ordered by seed) into ``eval_sets`` disjoint
     evaluation sets and test each: one row per (concept, variant, evaluation set)."""
     if eval_sets < 1:
@@ -32,18 +33,30 @@ def sweep_rows(results: PairResults, train_size: int, eval_sets: int,
     rows = []
     for concept, variant, pairs in results.groups():
         if len(pairs) < 2 * eval_sets:
-            raise ValueError(f"{concept}/{variant} has {len(pairs)} test pairs, too few for "
-                             f"{eval_sets} evaluation sets of at least 2 pairs")
+            raise ValueError(
+                f"{concept}/{variant} has {len(pairs)} test pairs, too few for "
+                f"{eval_sets} evaluation sets of at least 2 pairs"
+            )
         order = np.argsort(pairs.seed, kind="stable")
         for index, chunk in enumerate(np.array_split(order, eval_sets)):
             subset = pairs.select(chunk)
-            test = paired_test(subset.total_inconsistent, subset.total_consistent,
-                               alpha=alpha, bootstrap=0)
-            rows.append({"train_size": int(train_size), "eval_set": index, "concept": concept,
-                         "variant": variant, "n": test.n,
-                         "relative_surprise": test.relative_surprise, "t": test.t,
-                         "p_value": test.p_value, "significant": test.significant,
-                         "alpha": alpha})
+            test = paired_test(
+                subset.total_inconsistent, subset.total_consistent, alpha=alpha, bootstrap=0
+            )
+            rows.append(
+                {
+                    "train_size": int(train_size),
+                    "eval_set": index,
+                    "concept": concept,
+                    "variant": variant,
+                    "n": test.n,
+                    "relative_surprise": test.relative_surprise,
+                    "t": test.t,
+                    "p_value": test.p_value,
+                    "significant": test.significant,
+                    "alpha": alpha,
+                }
+            )
     return rows
 
 
@@ -55,20 +68,31 @@ def size_sweep_figure(rows: Sequence[Mapping[str, Any]]) -> Figure:
     keys = list(dict.fromkeys((row["concept"], row["variant"]) for row in rows))
     figure, axes = panel_grid(len(keys), 4.6, 3.6, max_cols=3)
     alphas = {row.get("alpha") for row in rows}  # rows of older sweeps do not say
-    significant_label = ("significant" if len(alphas) > 1 or None in alphas
-                         else f"significant (p < {alphas.pop():g})")
+    significant_label = (
+        "significant"
+        if len(alphas) > 1 or None in alphas
+        else f"significant (p < {alphas.pop():g})"
+    )
     sizes = sorted({row["train_size"] for row in rows})
     logarithmic = len(sizes) > 1 and sizes[0] > 0 and sizes[-1] / sizes[0] >= 10
     for ax, (concept, variant) in zip(axes, keys):
         mine = [row for row in rows if (row["concept"], row["variant"]) == (concept, variant)]
-        for significant, color, label in ((True, "tab:green", significant_label),
-                                          (False, "tab:gray", "not significant")):
+        for significant, color, label in (
+            (True, "tab:green", significant_label),
+            (False, "tab:gray", "not significant"),
+        ):
             chosen = [row for row in mine if bool(row["significant"]) == significant]
             if chosen:
-                ax.scatter([row["train_size"] for row in chosen],
-                           [row["relative_surprise"] for row in chosen],
-                           color=color, edgecolor="black", linewidth=0.4, s=30, label=label,
-                           zorder=3)
+                ax.scatter(
+                    [row["train_size"] for row in chosen],
+                    [row["relative_surprise"] for row in chosen],
+                    color=color,
+                    edgecolor="black",
+                    linewidth=0.4,
+                    s=30,
+                    label=label,
+                    zorder=3,
+                )
         ax.axhline(0.0, color="black", linewidth=0.8)
         if logarithmic:
             ax.set_xscale("log")
@@ -88,8 +112,10 @@ def _report_dir(cli: Any) -> Path:
     for callback in getattr(trainer, "callbacks", []):
         if isinstance(callback, VOEReportCallback) and callback.report_dir is not None:
             return callback.report_dir
-    raise RuntimeError("the test run wrote no VOE report: add voe_lightning.callbacks."
-                       "VOEReportCallback to the config's trainer.callbacks")
+    raise RuntimeError(
+        "the test run wrote no VOE report: add voe_lightning.callbacks."
+        "VOEReportCallback to the config's trainer.callbacks"
+    )
 
 
 def _report_alpha(report_dir: Path) -> float:
@@ -135,13 +161,24 @@ def run_size_sweep(
     rows: list[dict[str, Any]] = []
     for size in sizes:
         # test_pairs goes to fit too: fit generates the store, test must find the same one.
-        common = [*(word for config in configs for word in ("--config", str(config))),
-                  "--data.train_examples", str(size),
-                  "--data.test_pairs", str(eval_sets * pairs_per_set),
-                  *(arg.format(size=size) for arg in extra_args)]
+        common = [
+            *(word for config in configs for word in ("--config", str(config))),
+            "--data.train_examples",
+            str(size),
+            "--data.test_pairs",
+            str(eval_sets * pairs_per_set),
+            *(arg.format(size=size) for arg in extra_args),
+        ]
         fit = cli_main(["fit", *common])
-        test = cli_main(["test", *common, "--ckpt_path", _checkpoint(fit),
-                         *(arg.format(size=size) for arg in test_args)])
+        test = cli_main(
+            [
+                "test",
+                *common,
+                "--ckpt_path",
+                _checkpoint(fit),
+                *(arg.format(size=size) for arg in test_args),
+            ]
+        )
         report = _report_dir(test)
         results = PairResults.from_csv(report / "pairs.csv")
         rows.extend(sweep_rows(results, size, eval_sets, alpha=_report_alpha(report)))
@@ -176,17 +213,28 @@ def sweep(
             this module does not import the CLI (jsonargparse offers no optional ``_`` argument).
     """
     if _cli_main is None:
-        raise TypeError("sweep runs fit and test through _cli_main: run it as `python -m "
-                        "voe_lightning analyze sweep`, or pass voe_lightning.cli.main")
-    rows = run_size_sweep(lightning_configs, sizes, eval_sets, pairs_per_set, out, extra_args,
-                          test_args, cli_main=_cli_main)
+        raise TypeError(
+            "sweep runs fit and test through _cli_main: run it as `python -m "
+            "voe_lightning analyze sweep`, or pass voe_lightning.cli.main"
+        )
+    rows = run_size_sweep(
+        lightning_configs,
+        sizes,
+        eval_sets,
+        pairs_per_set,
+        out,
+        extra_args,
+        test_args,
+        cli_main=_cli_main,
+    )
     if plot:
         save_figure(size_sweep_figure(rows), plot)
     return rows
 
 
-def sweep_plot(out: Path, results: Path | None = None, runs: dict[int, Path] | None = None,
-               eval_sets: int = 5) -> Path:
+def sweep_plot(
+    out: Path, results: Path | None = None, runs: dict[int, Path] | None = None, eval_sets: int = 5
+) -> Path:
     """Reliability of relative surprise vs training-set size (paper Figure 3), as a PNG.
 
     Args:
@@ -206,6 +254,12 @@ def sweep_plot(out: Path, results: Path | None = None, runs: dict[int, Path] | N
             pairs = sorted(Path(run_dir).rglob("voe_report/pairs.csv"))
             if not pairs:
                 raise FileNotFoundError(f"no voe_report/pairs.csv under {run_dir} (run test first)")
-            rows.extend(sweep_rows(PairResults.from_csv(pairs[-1]), size, eval_sets,
-                                   alpha=_report_alpha(pairs[-1].parent)))
+            rows.extend(
+                sweep_rows(
+                    PairResults.from_csv(pairs[-1]),
+                    size,
+                    eval_sets,
+                    alpha=_report_alpha(pairs[-1].parent),
+                )
+            )
     return save_figure(size_sweep_figure(rows), out)

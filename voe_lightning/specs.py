@@ -4,7 +4,8 @@ these."""
 
 from __future__ import annotations
 
-from typing import Literal, Sequence, get_args
+from collections.abc import Sequence
+from typing import Literal, get_args
 
 import numpy as np
 import torch
@@ -115,7 +116,13 @@ OBJECT_SLOTS = MAX_OBJECT_ID + 1
 #: marks a slot with no object; an object made of several primitives (a container) is
 #: ``compound``.
 OBJECT_SHAPES: tuple[str, ...] = (
-    "none", "sphere", "box", "cylinder", "capsule", "ellipsoid", "compound",
+    "none",
+    "sphere",
+    "box",
+    "cylinder",
+    "capsule",
+    "ellipsoid",
+    "compound",
 )
 
 
@@ -148,8 +155,10 @@ def quadruplet_half(concept: str, variant: str) -> tuple[str, int]:
         if variant in halves:
             return row, halves.index(variant)
     valid = [v for halves in QUADRUPLETS.get(concept, {}).values() for v in halves]
-    raise ValueError(f"{variant!r} is no half of a {concept} quadruplet; valid halves are: "
-                     f"{', '.join(valid) or 'none'}")
+    raise ValueError(
+        f"{variant!r} is no half of a {concept} quadruplet; valid halves are: "
+        f"{', '.join(valid) or 'none'}"
+    )
 
 
 def _video_spec(num_frames: int, height: int, width: int, objects: bool) -> dict:

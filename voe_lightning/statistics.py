@@ -91,8 +91,9 @@ _ZERO_VARIANCE_RTOL = 1e-12
 def check_alpha(alpha: Any) -> float:
     """``alpha`` as a float if it is a significance level in (0, 1); a ValueError otherwise."""
     if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0.0 < alpha < 1.0:
-        raise ValueError(f"alpha must be a significance level in (0, 1), e.g. {ALPHA}; "
-                         f"got {alpha!r}")
+        raise ValueError(
+            f"alpha must be a significance level in (0, 1), e.g. {ALPHA}; got {alpha!r}"
+        )
     return float(alpha)
 
 
@@ -220,8 +221,9 @@ def stratified_test(strata: Sequence[tuple[int, float, float]]) -> StratifiedTes
         raise ValueError(f"a stratified test needs at least 2 strata (variants), got {len(strata)}")
     for n, mean, variance in strata:
         _check_moments(n, mean, variance)
-    variances = [0.0 if _is_zero_variance(n, mean, variance) else variance
-                 for n, mean, variance in strata]
+    variances = [
+        0.0 if _is_zero_variance(n, mean, variance) else variance for n, mean, variance in strata
+    ]
     ns, means = [n for n, _, _ in strata], [mean for _, mean, _ in strata]
     mean, standard_error, df = (float(x) for x in stratified_moments(ns, means, variances))
     if standard_error == 0.0:
@@ -307,17 +309,23 @@ def ranked_auroc(positive: np.ndarray, negative: np.ndarray) -> float:
     return float(binary_auroc(torch.from_numpy(ranks), target))
 
 
-def _bootstrap_mean_interval(parts: Sequence[np.ndarray], resamples: int, seed: int
-                             ) -> tuple[float, float]:
+def _bootstrap_mean_interval(
+    parts: Sequence[np.ndarray], resamples: int, seed: int
+) -> tuple[float, float]:
     """BCa 95% interval of the mean of the parts' means, each part resampled on its own (one
     part: the mean of d; a pooled row's variants: the stratified mean)."""
+
     def mean_of_means(*samples: np.ndarray, axis: int = -1) -> np.ndarray:
         return np.mean([np.mean(sample, axis=axis) for sample in samples], axis=0)
 
     size = sum(part.size for part in parts)
     result = stats.bootstrap(
-        tuple(parts), mean_of_means, n_resamples=resamples, confidence_level=0.95,
-        method="BCa", rng=np.random.default_rng(seed),
+        tuple(parts),
+        mean_of_means,
+        n_resamples=resamples,
+        confidence_level=0.95,
+        method="BCa",
+        rng=np.random.default_rng(seed),
         batch=max(1, min(resamples, 2_000_000 // size)),
     )
     low, high = result.confidence_interval
@@ -332,9 +340,20 @@ def _check_options(alpha: float, bootstrap: int) -> None:
         raise ValueError(f"bootstrap must be a number of resamples >= 0, got {bootstrap}")
 
 
-def _result(inc: np.ndarray, con: np.ndarray, parts: Sequence[np.ndarray], mean: float,
-            t: float, df: float, p_value: float, note: str, d_z_interval: tuple[float, float],
-            alpha: float, bootstrap: int, seed: int) -> PairedTestResult:
+def _result(
+    inc: np.ndarray,
+    con: np.ndarray,
+    parts: Sequence[np.ndarray],
+    mean: float,
+    t: float,
+    df: float,
+    p_value: float,
+    note: str,
+    d_z_interval: tuple[float, float],
+    alpha: float,
+    bootstrap: int,
+    seed: int,
+) -> PairedTestResult:
     """The report row of a test of d = inc - con, whatever test gave M, t, df and p: d_z is M
     over the SD of every pair's d, accuracy and AUROC count every pair; ``parts`` are what the
     bootstrap of M resamples separately."""
@@ -388,8 +407,20 @@ def paired_test(
     if d.size < 2:
         raise ValueError(f"a paired t-test needs at least 2 probe pairs, got n={d.size}")
     test = t_test_from_moments(d.size, float(np.mean(d)), float(np.var(d, ddof=1)))
-    return _result(inc, con, [d], test.mean, test.t, test.df, test.p_value, test.note,
-                   effect_size_interval(test.t, d.size), alpha, bootstrap, seed)
+    return _result(
+        inc,
+        con,
+        [d],
+        test.mean,
+        test.t,
+        test.df,
+        test.p_value,
+        test.note,
+        effect_size_interval(test.t, d.size),
+        alpha,
+        bootstrap,
+        seed,
+    )
 
 
 def pooled_test(
@@ -411,24 +442,37 @@ def pooled_test(
     d = relative_surprise(inc, con)
     strata = np.asarray(strata, dtype=object)
     if strata.shape != d.shape:
-        raise ValueError(f"strata must name one variant per pair ({d.size}); got shape "
-                         f"{strata.shape}")
+        raise ValueError(
+            f"strata must name one variant per pair ({d.size}); got shape {strata.shape}"
+        )
     names = list(dict.fromkeys(strata.tolist()))
     reason = untested_reason(POOLED, strata.tolist())
     if reason or len(names) < 2:
-        raise ValueError(reason or f"a pooled test needs pairs of at least 2 variants, got "
-                         f"{names}")
+        raise ValueError(reason or f"a pooled test needs pairs of at least 2 variants, got {names}")
     parts = [d[strata == name] for name in names]
-    test = stratified_test([(part.size, float(np.mean(part)), float(np.var(part, ddof=1)))
-                            for part in parts])
+    test = stratified_test(
+        [(part.size, float(np.mean(part)), float(np.var(part, ddof=1))) for part in parts]
+    )
     sd = float(np.std(d, ddof=1))
     if test.standard_error > 0.0 and sd > 0.0:
         half = float(stats.t.ppf(0.975, test.df)) * test.standard_error
         d_z_interval = ((test.mean - half) / sd, (test.mean + half) / sd)
     else:
         d_z_interval = (test.t, test.t)
-    return _result(inc, con, parts, test.mean, test.t, test.df, test.p_value, test.note,
-                   d_z_interval, alpha, bootstrap, seed)
+    return _result(
+        inc,
+        con,
+        parts,
+        test.mean,
+        test.t,
+        test.df,
+        test.p_value,
+        test.note,
+        d_z_interval,
+        alpha,
+        bootstrap,
+        seed,
+    )
 
 
 @dataclass(frozen=True)
@@ -455,18 +499,27 @@ def quadruplet_test(
     from the surprise of each quadruplet's first pair (AB, A) and second pair (BA, B), aligned
     by quadruplet. Agrees with ``scipy.stats.ttest_1samp(D, 0, alternative="greater")``;
     ``bootstrap`` and ``seed`` as in ``paired_test``."""
-    halves = [relative_surprise(first_inconsistent, first_consistent),
-              relative_surprise(second_inconsistent, second_consistent)]
+    halves = [
+        relative_surprise(first_inconsistent, first_consistent),
+        relative_surprise(second_inconsistent, second_consistent),
+    ]
     if halves[0].shape != halves[1].shape:
-        raise ValueError(f"the two halves must hold one pair per quadruplet alike; got "
-                         f"{halves[0].size} first and {halves[1].size} second pairs")
-    inconsistent = (as_float64(first_inconsistent, "first inconsistent surprise")
-                    + as_float64(second_inconsistent, "second inconsistent surprise"))
-    consistent = (as_float64(first_consistent, "first consistent surprise")
-                  + as_float64(second_consistent, "second consistent surprise"))
+        raise ValueError(
+            f"the two halves must hold one pair per quadruplet alike; got "
+            f"{halves[0].size} first and {halves[1].size} second pairs"
+        )
+    inconsistent = as_float64(first_inconsistent, "first inconsistent surprise") + as_float64(
+        second_inconsistent, "second inconsistent surprise"
+    )
+    consistent = as_float64(first_consistent, "first consistent surprise") + as_float64(
+        second_consistent, "second consistent surprise"
+    )
     result = paired_test(inconsistent, consistent, alpha, bootstrap, seed)
-    return QuadrupletTestResult(**result.as_dict(), first_half=float(np.mean(halves[0])),
-                                second_half=float(np.mean(halves[1])))
+    return QuadrupletTestResult(
+        **result.as_dict(),
+        first_half=float(np.mean(halves[0])),
+        second_half=float(np.mean(halves[1])),
+    )
 
 
 def untested_reason(variant: str, variants: Sequence[str]) -> str:
@@ -487,16 +540,24 @@ def untested_reason(variant: str, variants: Sequence[str]) -> str:
     return ""
 
 
-def group_test(variant: str, inconsistent: Any, consistent: Any, variants: Sequence[str],
-               alpha: float = ALPHA, bootstrap: int = 2000, seed: int = 0) -> PairedTestResult:
+def group_test(
+    variant: str,
+    inconsistent: Any,
+    consistent: Any,
+    variants: Sequence[str],
+    alpha: float = ALPHA,
+    bootstrap: int = 2000,
+    seed: int = 0,
+) -> PairedTestResult:
     """The test of one row of ``verdicts.pair_groups``: ``pooled_test`` over the pairs' ``variants``
     for the ``POOLED`` row, ``quadruplet_test`` for a quadruplet row (``QUADRUPLET_ROWS``; its
     pairs: the first halves, then the second halves, aligned), ``paired_test`` for any other."""
     if variant in QUADRUPLET_ROWS:
         half = len(variants) // 2
         inc, con = np.asarray(inconsistent), np.asarray(consistent)
-        return quadruplet_test(inc[:half], con[:half], inc[half:], con[half:], alpha, bootstrap,
-                               seed)
+        return quadruplet_test(
+            inc[:half], con[:half], inc[half:], con[half:], alpha, bootstrap, seed
+        )
     if variant == POOLED:
         return pooled_test(inconsistent, consistent, variants, alpha, bootstrap, seed)
     return paired_test(inconsistent, consistent, alpha, bootstrap, seed)

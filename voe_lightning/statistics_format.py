@@ -88,8 +88,9 @@ def format_t(t: float | None, df: float | None, spec: str = ".2f") -> str:
     if t is None:
         return "n/a"
     df = float(df) if df in _NON_FINITE else df
-    whole = (df is None or (isinstance(df, float) and not math.isfinite(df))
-             or float(df).is_integer())
+    whole = (
+        df is None or (isinstance(df, float) and not math.isfinite(df)) or float(df).is_integer()
+    )
     degrees = format_number(df, ".0f") if whole else f"{df:.1f}"
     return f"t({degrees}) = {format_number(t, spec)}"
 
@@ -156,8 +157,9 @@ class RowText:
         return "*" if self.significant else ""
 
 
-def row_text(row: Mapping[str, Any], style: RowStyle = REPORT,
-             alpha: float | None = None) -> RowText:
+def row_text(
+    row: Mapping[str, Any], style: RowStyle = REPORT, alpha: float | None = None
+) -> RowText:
     """The cells of one statistics row in ``style``. A row is significant by its own
     ``significant`` field, or, lacking one (the streaming form), when p < ``alpha``
     (None: the row's ``alpha``, else ``statistics.ALPHA``)."""
@@ -173,30 +175,41 @@ def row_text(row: Mapping[str, Any], style: RowStyle = REPORT,
     return RowText(
         n=format_number(get("n"), style.n),
         mean=format_number(get("relative_surprise"), style.mean),
-        mean_interval=format_interval(get("relative_surprise"), get("relative_surprise_ci_low"),
-                                      get("relative_surprise_ci_high"), style.mean),
-        t=(format_t(get("t"), get("df"), style.t) if style.t_with_df
-           else format_number(get("t"), style.t)),
+        mean_interval=format_interval(
+            get("relative_surprise"),
+            get("relative_surprise_ci_low"),
+            get("relative_surprise_ci_high"),
+            style.mean,
+        ),
+        t=(
+            format_t(get("t"), get("df"), style.t)
+            if style.t_with_df
+            else format_number(get("t"), style.t)
+        ),
         p=format_p(p) if style.p is None else format_number(p, style.p),
         p_phrase="n/a" if p is None else format_p_phrase(p),
         significant=significant,
         sig="n/a" if not tested else ("yes *" if significant else "no"),
         d_z=format_number(get("d_z"), style.d_z),
-        d_z_interval=format_interval(get("d_z"), get("d_z_ci_low"), get("d_z_ci_high"),
-                                     style.d_z),
+        d_z_interval=format_interval(get("d_z"), get("d_z_ci_low"), get("d_z_ci_high"), style.d_z),
         accuracy=format_number(accuracy, style.accuracy),
         auroc=format_number(get("auroc"), style.auroc),
-        halves=("" if get("first_half") is None else
-                f"{format_number(get('first_half'), style.mean)} / "
-                f"{format_number(get('second_half'), style.mean)}"),
+        halves=(
+            ""
+            if get("first_half") is None
+            else f"{format_number(get('first_half'), style.mean)} / "
+            f"{format_number(get('second_half'), style.mean)}"
+        ),
     )
 
 
 def json_row(row: Mapping[str, Any]) -> dict[str, Any]:
     """A statistics row as strict JSON: non-finite floats become the strings 'inf', '-inf' and
     'nan' (``float()`` reads them back; the row's note says why they are not finite)."""
+
     def value(v: Any) -> Any:
         if isinstance(v, float) and not math.isfinite(v):
             return _NON_FINITE[0] if math.isnan(v) else _NON_FINITE[1 if v > 0 else 2]
         return v
+
     return {key: value(v) for key, v in row.items()}

@@ -13,8 +13,8 @@ from __future__ import annotations
 import json
 import os
 from collections import OrderedDict
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import torch
@@ -24,7 +24,6 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 
 from voe_lightning import specs
 from voe_lightning.store_shards import CorruptShardError, ShardReader, atomic_write
-
 
 #: Splits of every concept: training clips, validation and test probes, generalization probes.
 SPLITS: tuple[str, ...] = ("train", "val", "test", "generalization")
@@ -88,7 +87,8 @@ class SplitDataset(Dataset):
             reader = ShardReader(self.paths[shard])
             if len(reader) != self.shard_sizes[shard]:
                 raise CorruptShardError(
-                    reader.path, f"holds {len(reader)} records, the manifest says {self.shard_sizes[shard]}"
+                    reader.path,
+                    f"holds {len(reader)} records, the manifest says {self.shard_sizes[shard]}",
                 )
             self._readers[shard] = reader
             while len(self._readers) > _MAX_OPEN_SHARDS:
@@ -178,7 +178,9 @@ def read_manifest(root: str | os.PathLike) -> dict | None:
     ]
     if wrong:
         expected = ", ".join(f"{key}: {kind.__name__}" for key, kind in MANIFEST_KEYS.items())
-        raise ManifestError(f"{path} is not a voe_lightning manifest: bad {', '.join(wrong)}; expected {expected}; {fix}")
+        raise ManifestError(
+            f"{path} is not a voe_lightning manifest: bad {', '.join(wrong)}; expected {expected}; {fix}"
+        )
     return manifest
 
 

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 import torch
@@ -35,10 +35,15 @@ class Leaf:
         return int(np.dtype(self.dtype).itemsize * math.prod(self.shape))
 
     def to_json(self) -> dict:
-        return {"key": list(self.key), "dtype": self.dtype, "shape": list(self.shape), "codec": self.codec}
+        return {
+            "key": list(self.key),
+            "dtype": self.dtype,
+            "shape": list(self.shape),
+            "codec": self.codec,
+        }
 
     @staticmethod
-    def from_json(entry: dict) -> "Leaf":
+    def from_json(entry: dict) -> Leaf:
         return Leaf(tuple(entry["key"]), entry["dtype"], tuple(entry["shape"]), entry["codec"])
 
 

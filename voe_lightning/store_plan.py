@@ -7,9 +7,9 @@ neither imports the other's planner."""
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Sequence
 
 from voe_lightning import specs, store, store_shards
 from voe_lightning.scenes.camera import VideoOptions
@@ -100,9 +100,7 @@ def split_counts(
         "train": {kinds[0]: train_examples, **split_evenly(train_controls, kinds[1:])},
         "val": {v: val_pairs for v in specs.STANDARD_VARIANTS[concept]},
         "test": {v: test_pairs for v in specs.STANDARD_VARIANTS[concept]},
-        "generalization": {
-            v: generalization_pairs for v in specs.GENERALIZATION_VARIANTS[concept]
-        },
+        "generalization": {v: generalization_pairs for v in specs.GENERALIZATION_VARIANTS[concept]},
     }
 
 
@@ -110,10 +108,15 @@ def check_seed_offset(seed_offset: object, pairs: dict[str, int] | None = None) 
     """Raise a ValueError unless ``seed_offset`` is an integer in [0, SEED_RANGE): a probe
     split's seeds start that far into its billion-wide range; with ``pairs`` (probe split ->
     pairs per variant), unless each split's pairs fit in what is left (``seed_range``)."""
-    if (isinstance(seed_offset, bool) or not isinstance(seed_offset, int)
-            or not 0 <= seed_offset < SEED_RANGE):
-        raise ValueError(f"seed_offset must be an integer in [0, {SEED_RANGE - 1:_}] (each "
-                         f"split's seeds span {SEED_RANGE:_}), got {seed_offset!r}")
+    if (
+        isinstance(seed_offset, bool)
+        or not isinstance(seed_offset, int)
+        or not 0 <= seed_offset < SEED_RANGE
+    ):
+        raise ValueError(
+            f"seed_offset must be an integer in [0, {SEED_RANGE - 1:_}] (each "
+            f"split's seeds span {SEED_RANGE:_}), got {seed_offset!r}"
+        )
     for split, count in (pairs or {}).items():
         seed_range(split, {"pairs": count}, seed_offset)
 
@@ -140,7 +143,8 @@ def seed_range(split: str, counts: dict[str, int], seed_offset: int = 0) -> tupl
             f"the {split} split would need seeds up to {stop - 1:_} (seed_offset "
             f"{0 if clips else seed_offset:_}, {stop - start:_} records"
             f"{'' if clips else ' per variant'}), past the last seed of its range, {limit - 1:_}: "
-            f"seed_offset plus the count must be at most {SEED_RANGE:_}")
+            f"seed_offset plus the count must be at most {SEED_RANGE:_}"
+        )
     return start, stop
 
 
@@ -159,8 +163,9 @@ def split_seeds(split: str, names: Sequence[str], seed_offset: int = 0) -> list[
     return seeds
 
 
-def plan_shards(concept_counts: dict[str, dict[str, dict[str, int]]], shard_size: int,
-                seed_offset: int = 0) -> list[ShardTask]:
+def plan_shards(
+    concept_counts: dict[str, dict[str, dict[str, int]]], shard_size: int, seed_offset: int = 0
+) -> list[ShardTask]:
     """The deterministic list of every shard of the dataset, concept by concept, split by
     split; the probe splits' seeds shifted by ``seed_offset`` (``seed_range`` checks they stay
     in their split's range)."""
@@ -175,8 +180,11 @@ def plan_shards(concept_counts: dict[str, dict[str, dict[str, int]]], shard_size
             names = interleave(counts[split])
             items = list(zip(names, split_seeds(split, names, offset)))
             for index, start in enumerate(range(0, len(items), shard_size)):
-                tasks.append(ShardTask(concept, split, index,
-                                       tuple(items[start : start + shard_size]), offset))
+                tasks.append(
+                    ShardTask(
+                        concept, split, index, tuple(items[start : start + shard_size]), offset
+                    )
+                )
     return tasks
 
 
@@ -203,14 +211,21 @@ def manifest_seed_offset(manifest: dict) -> int:
 def record_layouts(video: VideoOptions) -> dict[str, dict]:
     """Per record type (clip, probe): the leaves, dtypes and shapes its shards must store."""
     size = (video.num_frames, video.height, video.width)
-    return {"clip": store_shards.spec_layout(specs.clip_spec(*size)), "probe": store_shards.spec_layout(specs.probe_spec(*size))}
+    return {
+        "clip": store_shards.spec_layout(specs.clip_spec(*size)),
+        "probe": store_shards.spec_layout(specs.probe_spec(*size)),
+    }
 
 
 def check_task(root: Path, task: ShardTask, layouts: dict[str, dict], full: bool = True) -> None:
     """Raise CorruptShardError naming the shard of ``task`` and why, unless it is intact and
     holds exactly the planned records (concept, split, names, seeds, shapes, generator)."""
     store_shards.check_shard(
-        task.path(root), task.seeds, full, shard_meta(task), layouts[store.SPLIT_RECORD_TYPE[task.split]]
+        task.path(root),
+        task.seeds,
+        full,
+        shard_meta(task),
+        layouts[store.SPLIT_RECORD_TYPE[task.split]],
     )
 
 
@@ -218,8 +233,9 @@ def manifest_plan(manifest: dict) -> tuple[list[ShardTask], VideoOptions]:
     """The shard plan and video options a manifest describes."""
     try:
         # Every setting stated: a default filled in would blame intact shards of another size.
-        missing = [field.name for field in fields(VideoOptions)
-                   if field.name not in manifest["video"]]
+        missing = [
+            field.name for field in fields(VideoOptions) if field.name not in manifest["video"]
+        ]
         if missing:
             raise KeyError(f"video.{missing[0]}")
         video = VideoOptions(**manifest["video"])
@@ -236,10 +252,14 @@ def manifest_plan(manifest: dict) -> tuple[list[ShardTask], VideoOptions]:
                 split_entry = entry["splits"][split]
                 stored = split_entry["kinds" if split == "train" else "variants"]
                 # JSON sorted the names; the plan interleaves them in their canonical order
-                order = [n for n in canonical[split] if n in stored] + sorted(set(stored) - set(canonical[split]))
+                order = [n for n in canonical[split] if n in stored] + sorted(
+                    set(stored) - set(canonical[split])
+                )
                 concept_counts[concept][split] = {name: stored[name] for name in order}
-        return (plan_shards(concept_counts, manifest["shard_size"], manifest_seed_offset(manifest)),
-                video)
+        return (
+            plan_shards(concept_counts, manifest["shard_size"], manifest_seed_offset(manifest)),
+            video,
+        )
     except (KeyError, TypeError, AttributeError, ValueError) as error:
         raise store.ManifestError(
             f"the manifest describes no valid plan ({type(error).__name__}: {error}); "
@@ -247,8 +267,13 @@ def manifest_plan(manifest: dict) -> tuple[list[ShardTask], VideoOptions]:
         ) from error
 
 
-def bad_shards(root: str | os.PathLike, manifest: dict, concepts: Sequence[str] | None = None,
-               split: str | None = None, full: bool = True) -> list[tuple[Path, str]]:
+def bad_shards(
+    root: str | os.PathLike,
+    manifest: dict,
+    concepts: Sequence[str] | None = None,
+    split: str | None = None,
+    full: bool = True,
+) -> list[tuple[Path, str]]:
     """(path, reason) of every shard of the manifest's plan that is missing, corrupt or foreign,
     of ``concepts`` and ``split`` where given (None: all); without ``full``, index only (what
     each shard is and holds, not every record's checksum: a reader checks those as it reads)."""
@@ -259,8 +284,10 @@ def bad_shards(root: str | os.PathLike, manifest: dict, concepts: Sequence[str] 
     layouts = record_layouts(video)
     bad = []
     for task in tasks:
-        if ((concepts is not None and task.concept not in concepts)
-                or split not in (None, task.split)):
+        if (concepts is not None and task.concept not in concepts) or split not in (
+            None,
+            task.split,
+        ):
             continue
         try:
             check_task(Path(root), task, layouts, full)
@@ -269,8 +296,9 @@ def bad_shards(root: str | os.PathLike, manifest: dict, concepts: Sequence[str] 
     return bad
 
 
-def check_split(root: str | os.PathLike, manifest: dict, concepts: Sequence[str],
-                split: str) -> None:
+def check_split(
+    root: str | os.PathLike, manifest: dict, concepts: Sequence[str], split: str
+) -> None:
     """Refuse to read ``split`` of ``concepts`` unless every shard of it is the one the
     manifest plans (``bad_shards``, index only): a CorruptShardError names the first other one
     (another concept's, split's or version's, other seeds, missing) and what it is."""

@@ -16,9 +16,10 @@ import socket
 import struct
 import tempfile
 import zlib
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import torch
@@ -82,8 +83,9 @@ def atomic_write(path: str | os.PathLike, chunks: Iterable[bytes]) -> int:
     return write_whole({path: chunks})[Path(path)]
 
 
-def write_whole(files: Mapping[str | os.PathLike, Iterable[bytes] | bytes | str]
-                ) -> dict[Path, int]:
+def write_whole(
+    files: Mapping[str | os.PathLike, Iterable[bytes] | bytes | str],
+) -> dict[Path, int]:
     """Write several files as ``atomic_write`` does one, as a set: every file is staged (its
     temporary file in its own folder, written and fsynced) before any replaces its old
     version, so a write that fails (a full disk) leaves every previous file whole, and the
@@ -95,8 +97,13 @@ def write_whole(files: Mapping[str | os.PathLike, Iterable[bytes] | bytes | str]
     try:
         for name, content in files.items():
             path = Path(name)
-            chunks = ([content.encode()] if isinstance(content, str)
-                      else [content] if isinstance(content, bytes) else content)
+            chunks = (
+                [content.encode()]
+                if isinstance(content, str)
+                else [content]
+                if isinstance(content, bytes)
+                else content
+            )
             staged[path], sizes[path] = _stage(path, chunks)
         for path in list(staged):
             try:
@@ -104,8 +111,9 @@ def write_whole(files: Mapping[str | os.PathLike, Iterable[bytes] | bytes | str]
                     path.rmdir()
                 os.replace(staged[path], path)
             except OSError as error:
-                raise OSError(error.errno, f"cannot write {path}: {error.strerror or error}",
-                              str(path)) from error
+                raise OSError(
+                    error.errno, f"cannot write {path}: {error.strerror or error}", str(path)
+                ) from error
             del staged[path]
         return sizes
     finally:
@@ -155,8 +163,9 @@ def _stage(path: Path, chunks: Iterable[bytes]) -> tuple[str, int]:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         remove_stale(path.parent, path.name)
-        handle, temporary = tempfile.mkstemp(prefix=temporary_prefix(path.name), suffix=".tmp",
-                                             dir=path.parent)
+        handle, temporary = tempfile.mkstemp(
+            prefix=temporary_prefix(path.name), suffix=".tmp", dir=path.parent
+        )
         os.fchmod(handle, 0o666 & ~current_umask())
         size = 0
         with os.fdopen(handle, "wb") as file:
@@ -200,7 +209,9 @@ def write_shard(
         sort_keys=True,
     ).encode()
     trailer = meta_bytes + table.tobytes()
-    footer = _FOOTER.pack(offset, len(meta_bytes), len(records), zlib.crc32(trailer), 0, _FOOTER_MAGIC)
+    footer = _FOOTER.pack(
+        offset, len(meta_bytes), len(records), zlib.crc32(trailer), 0, _FOOTER_MAGIC
+    )
     return atomic_write(path, [_MAGIC, *blobs, trailer, footer])
 
 
@@ -303,14 +314,19 @@ def check_shard(
         for key, value in (expected_meta or {}).items():
             if index.meta.get(key) != value:
                 stored = repr(index.meta[key]) if key in index.meta else "missing"
-                raise CorruptShardError(path, f"does not belong here: its {key} is {stored}, expected {value!r}")
+                raise CorruptShardError(
+                    path, f"does not belong here: its {key} is {stored}, expected {value!r}"
+                )
         if expected_seeds is not None and index.seeds != [int(s) for s in expected_seeds]:
             raise CorruptShardError(
-                path, f"holds {len(index)} records with other seeds than the {len(expected_seeds)} planned"
+                path,
+                f"holds {len(index)} records with other seeds than the {len(expected_seeds)} planned",
             )
         if expected_layout is not None and index.layout != expected_layout:
             stored, expected = index.layout, expected_layout
-            first = sorted(k for k in set(stored) | set(expected) if stored.get(k) != expected.get(k))[0]
+            first = sorted(
+                k for k in set(stored) | set(expected) if stored.get(k) != expected.get(k)
+            )[0]
             raise CorruptShardError(
                 path,
                 f"does not belong here: its records' {first} is {_describe_leaf(stored.get(first))}, "
@@ -318,7 +334,9 @@ def check_shard(
             )
         if full and len(index):
             start = int(index.table["offset"].min())
-            data = os.pread(fd, int(index.table["offset"][-1] + index.table["length"][-1]) - start, start)
+            data = os.pread(
+                fd, int(index.table["offset"][-1] + index.table["length"][-1]) - start, start
+            )
             for number, (offset, length, crc, _) in enumerate(index.table.tolist()):
                 if zlib.crc32(data[offset - start : offset - start + length]) != crc:
                     raise CorruptShardError(path, f"record {number} checksum mismatch")
@@ -356,7 +374,9 @@ class ShardReader:
     def __getitem__(self, number: int) -> TensorDict:
         index = self._ensure_open()
         if not 0 <= number < len(index):
-            raise IndexError(f"record {number} out of range for {len(index)} records in {self.path}")
+            raise IndexError(
+                f"record {number} out of range for {len(index)} records in {self.path}"
+            )
         offset, length, crc, _ = index.table[number].tolist()
         blob = os.pread(self._fd, length, offset)
         if len(blob) != length or zlib.crc32(blob) != crc:

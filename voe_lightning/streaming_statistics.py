@@ -38,8 +38,7 @@ class PairedSurpriseStats(Metric):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         for name in ("n", "sum_d", "sum_d_squared", "positive"):
-            self.add_state(name, default=torch.zeros((), dtype=torch.float64),
-                           dist_reduce_fx="sum")
+            self.add_state(name, default=torch.zeros((), dtype=torch.float64), dist_reduce_fx="sum")
 
     def update(
         self, surprise_inconsistent: torch.Tensor, surprise_consistent: torch.Tensor
@@ -53,7 +52,8 @@ class PairedSurpriseStats(Metric):
                 f"got inconsistent {tuple(inc.shape)} and consistent {tuple(con.shape)}"
             )
         d = inc.to(device=self.sum_d.device, dtype=torch.float64) - con.to(
-            device=self.sum_d.device, dtype=torch.float64)
+            device=self.sum_d.device, dtype=torch.float64
+        )
         bad = ~torch.isfinite(d)
         if bad.any():
             raise ValueError(
@@ -87,8 +87,18 @@ def pooled_values(variant_values: Sequence[Mapping[str, float]]) -> dict[str, fl
     """The pooled row of the streaming form from its variants' ``PairedSurpriseStats`` values
     (n, relative_surprise, variance, accuracy): ``stratified_test``'s M, t, df and p, and the
     share of all their pairs with d > 0."""
-    test = stratified_test([(int(round(float(v["n"]))), float(v["relative_surprise"]),
-                             float(v["variance"])) for v in variant_values])
+    test = stratified_test(
+        [
+            (int(round(float(v["n"]))), float(v["relative_surprise"]), float(v["variance"]))
+            for v in variant_values
+        ]
+    )
     positive = sum(float(v["accuracy"]) * float(v["n"]) for v in variant_values)
-    return {"relative_surprise": test.mean, "t": test.t, "p_value": test.p_value,
-            "df": test.df, "accuracy": positive / test.n, "n": float(test.n)}
+    return {
+        "relative_surprise": test.mean,
+        "t": test.t,
+        "p_value": test.p_value,
+        "df": test.df,
+        "accuracy": positive / test.n,
+        "n": float(test.n),
+    }

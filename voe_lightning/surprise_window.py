@@ -27,10 +27,12 @@ class SurpriseWindow:
     frames: int | None = None
 
     def __post_init__(self) -> None:
-        if self.frames is not None and (isinstance(self.frames, bool)
-                                        or not isinstance(self.frames, int) or self.frames < 1):
-            raise ValueError(f"a surprise window's frames must be an integer >= 1, got "
-                             f"{self.frames!r}")
+        if self.frames is not None and (
+            isinstance(self.frames, bool) or not isinstance(self.frames, int) or self.frames < 1
+        ):
+            raise ValueError(
+                f"a surprise window's frames must be an integer >= 1, got {self.frames!r}"
+            )
 
     @property
     def all_frames(self) -> bool:
@@ -58,8 +60,9 @@ class SurpriseWindow:
         return ((frame >= start) & (frame < start + self.frames)).astype(np.float64)
 
 
-def video_surprise(per_frame: Any, window: SurpriseWindow = SurpriseWindow(),
-                   first_difference: Any = None) -> Any:
+def video_surprise(
+    per_frame: Any, window: SurpriseWindow = SurpriseWindow(), first_difference: Any = None
+) -> Any:
     """Each video's surprise from its per-frame surprise [..., T] (a tensor or an array): the
     sum over its frames (the paper's, docs/architecture.md §7), or over ``window``'s frames
     counted from each pair's ``first_difference`` [N] (needed then). The one place a video's
@@ -68,10 +71,12 @@ def video_surprise(per_frame: Any, window: SurpriseWindow = SurpriseWindow(),
     if window.all_frames:
         return per_frame.sum(-1)
     if first_difference is None:
-        raise ValueError(f"a surprise window of {window.describe()} needs each pair's first "
-                         "difference")
-    first = (first_difference.cpu() if isinstance(first_difference, torch.Tensor)
-             else first_difference)
+        raise ValueError(
+            f"a surprise window of {window.describe()} needs each pair's first difference"
+        )
+    first = (
+        first_difference.cpu() if isinstance(first_difference, torch.Tensor) else first_difference
+    )
     weights = window.frame_weights(per_frame.shape[-1], first)
     if isinstance(per_frame, torch.Tensor):
         weights = torch.as_tensor(weights, dtype=per_frame.dtype, device=per_frame.device)
@@ -85,8 +90,7 @@ def surprise_window(value: Any) -> SurpriseWindow:
         return value
     if value is None or value == ALL:
         return SurpriseWindow()
-    valid = (f"valid: '{ALL}' (the paper's) or {{start: {FIRST_DIFFERENCE}, frames: k}} "
-             "with k >= 1")
+    valid = f"valid: '{ALL}' (the paper's) or {{start: {FIRST_DIFFERENCE}, frames: k}} with k >= 1"
     if not isinstance(value, Mapping):
         raise ValueError(f"surprise_window {value!r} is not a window; {valid}")
     if set(value) != {"start", "frames"} or value["start"] != FIRST_DIFFERENCE:

@@ -21,12 +21,20 @@ from voe_lightning.causality import NOT_CAUSAL, Causality
 from voe_lightning.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
 from voe_lightning.statistics_format import format_number, format_p
 
-__all__ = ["Verdict", "concept_verdicts", "pair_groups", "quadruplet_rule", "quadruplets",
-           "verdict_rule"]
+__all__ = [
+    "Verdict",
+    "concept_verdicts",
+    "pair_groups",
+    "quadruplet_rule",
+    "quadruplets",
+    "verdict_rule",
+]
 
 
 def pair_groups(
-    concepts: Sequence[str], variants: Sequence[str], pooled: bool = True,
+    concepts: Sequence[str],
+    variants: Sequence[str],
+    pooled: bool = True,
     seeds: Sequence[int] | None = None,
 ) -> list[tuple[str, str, np.ndarray]]:
     """(concept, variant, row selector) for every concept/variant among the pairs, in
@@ -42,12 +50,20 @@ def pair_groups(
 
     def order(key: tuple[str, str]) -> tuple[int, int, int]:
         concept, variant = key
-        return (specs.CONCEPTS.index(concept) if concept in specs.CONCEPTS else len(specs.CONCEPTS),
-                specs.VARIANTS.index(variant) if variant in specs.VARIANTS else len(specs.VARIANTS),
-                keys.index(key))
+        return (
+            specs.CONCEPTS.index(concept) if concept in specs.CONCEPTS else len(specs.CONCEPTS),
+            specs.VARIANTS.index(variant) if variant in specs.VARIANTS else len(specs.VARIANTS),
+            keys.index(key),
+        )
 
-    matched = [(concept, row, np.concatenate([first, second])) for concept, row, first, second
-               in quadruplets(concepts, variants, seeds)] if pooled and seeds is not None else []
+    matched = (
+        [
+            (concept, row, np.concatenate([first, second]))
+            for concept, row, first, second in quadruplets(concepts, variants, seeds)
+        ]
+        if pooled and seeds is not None
+        else []
+    )
     groups = []
     ordered = sorted(keys, key=order)
     for concept in dict.fromkeys(concept for concept, _ in ordered):
@@ -60,8 +76,9 @@ def pair_groups(
     return groups
 
 
-def quadruplets(concepts: Sequence[str], variants: Sequence[str], seeds: Sequence[int]
-                ) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+def quadruplets(
+    concepts: Sequence[str], variants: Sequence[str], seeds: Sequence[int]
+) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
     """(concept, row, first, second) for every quadruplet among the pairs: the row indices of its
     first-half (A, AB) and second-half (B, BA) pairs of every seed both hold, in seed order; a
     seed names a quadruplet. Ours are ``specs.QUADRUPLETS``; any other concept (a benchmark's,
@@ -78,8 +95,13 @@ def quadruplets(concepts: Sequence[str], variants: Sequence[str], seeds: Sequenc
             by_seed = [_rows_by_seed(concepts, variants, seeds, concept, v) for v in halves]
             common = sorted(set(by_seed[0]) & set(by_seed[1]))
             if common:
-                matched.append((concept, row, *(np.array([half[s] for s in common], dtype=np.int64)
-                                                for half in by_seed)))
+                matched.append(
+                    (
+                        concept,
+                        row,
+                        *(np.array([half[s] for s in common], dtype=np.int64) for half in by_seed),
+                    )
+                )
     return matched
 
 
@@ -90,14 +112,17 @@ def quadruplets_of(concept: str) -> dict[str, tuple[str, str]]:
     return specs.QUADRUPLETS.get(concept, {specs.QUADRUPLET: specs.QUADRUPLET_VARIANTS})
 
 
-def _rows_by_seed(concepts: np.ndarray, variants: np.ndarray, seeds: np.ndarray, concept: str,
-                  variant: str) -> dict[int, int]:
+def _rows_by_seed(
+    concepts: np.ndarray, variants: np.ndarray, seeds: np.ndarray, concept: str, variant: str
+) -> dict[int, int]:
     """seed -> row index of ``concept``'s ``variant`` pairs; a ValueError on a repeated seed."""
     rows = np.flatnonzero((concepts == concept) & (variants == variant))
     unique, counts = np.unique(seeds[rows], return_counts=True)
     if (counts > 1).any():
-        raise ValueError(f"{concept}/{variant} holds seed {int(unique[counts > 1][0])} "
-                         "more than once: a seed must name one quadruplet")
+        raise ValueError(
+            f"{concept}/{variant} holds seed {int(unique[counts > 1][0])} "
+            "more than once: a seed must name one quadruplet"
+        )
     return dict(zip(seeds[rows].tolist(), rows.tolist()))
 
 
@@ -136,23 +161,29 @@ def quadruplet_rule(p_value: Any, first_half: Any, second_half: Any, alpha: floa
     """VOE when the quadruplet test has p < alpha and both halves' mean differences are above 0
     (arrays broadcast, as the calibration's repetitions): a model whose surprise only rises in
     one half, the violation that adds an object or the one that removes it, shows no VOE."""
-    return ((np.asarray(p_value, dtype=np.float64) < alpha) & (np.asarray(first_half) > 0)
-            & (np.asarray(second_half) > 0))
+    return (
+        (np.asarray(p_value, dtype=np.float64) < alpha)
+        & (np.asarray(first_half) > 0)
+        & (np.asarray(second_half) > 0)
+    )
 
 
-def _quadruplet_verdict(concept: str, results: Mapping[tuple[str, str], Mapping[str, Any]],
-                        alpha: float) -> Verdict:
+def _quadruplet_verdict(
+    concept: str, results: Mapping[tuple[str, str], Mapping[str, Any]], alpha: float
+) -> Verdict:
     """The verdict of a concept from its quadruplet rows (``quadruplet_rule`` on each of
     ``specs.QUADRUPLETS[concept]``; all must pass)."""
     rows = quadruplets_of(concept)
     several = len(rows) > 1
-    rule = (f"p < {alpha:g} in the quadruplet test{' of each change' if several else ''}, "
-            "both halves M > 0")
-    untested = [row for row in rows if results.get((concept, row), {}).get("p_value")
-                is None]
+    rule = (
+        f"p < {alpha:g} in the quadruplet test{' of each change' if several else ''}, "
+        "both halves M > 0"
+    )
+    untested = [row for row in rows if results.get((concept, row), {}).get("p_value") is None]
     if untested:
-        return Verdict(concept, None, rule, f"no test of {', '.join(untested)} (needs >= 2 "
-                       "quadruplets each)")
+        return Verdict(
+            concept, None, rule, f"no test of {', '.join(untested)} (needs >= 2 quadruplets each)"
+        )
     failed, voe = [], True
     for row, halves in rows.items():
         p_value = results[(concept, row)]["p_value"]
@@ -160,8 +191,11 @@ def _quadruplet_verdict(concept: str, results: Mapping[tuple[str, str], Mapping[
         voe &= bool(quadruplet_rule(p_value, *means, alpha))
         if not p_value < alpha:
             failed.append(f"{row} p = {format_p(p_value)} >= {alpha:g}")
-        failed += [f"{name} half M = {format_number(mean)} <= 0"
-                   for name, mean in zip(halves, means) if not mean > 0]
+        failed += [
+            f"{name} half M = {format_number(mean)} <= 0"
+            for name, mean in zip(halves, means)
+            if not mean > 0
+        ]
     return Verdict(concept, voe, rule, "" if voe else "; ".join(failed))
 
 
@@ -189,17 +223,25 @@ def concept_verdicts(
         present = [v for c, v in results if c == concept and v != POOLED]
         required = list(specs.VERDICT_VARIANTS.get(concept, present))
         if set(POOLED_VARIANTS) <= set(required):
-            rule = (f"p < {alpha:g} in the stratified pooled test and in both standard and "
-                    "counterbalanced")
+            rule = (
+                f"p < {alpha:g} in the stratified pooled test and in both standard and "
+                "counterbalanced"
+            )
             needed = [*POOLED_VARIANTS, POOLED]
         else:
             rule = f"p < {alpha:g} in every variant ({', '.join(required)})"
             needed = required
-        untested = [variant for variant in needed
-                    if results.get((concept, variant), {}).get("p_value") is None]
+        untested = [
+            variant
+            for variant in needed
+            if results.get((concept, variant), {}).get("p_value") is None
+        ]
         if untested:
-            verdicts.append(Verdict(concept, None, rule,
-                                    f"no test of {', '.join(untested)} (needs >= 2 pairs each)"))
+            verdicts.append(
+                Verdict(
+                    concept, None, rule, f"no test of {', '.join(untested)} (needs >= 2 pairs each)"
+                )
+            )
             continue
         values = {variant: results[(concept, variant)] for variant in needed}
         voe = bool(verdict_rule([values[variant]["p_value"] for variant in needed], alpha))

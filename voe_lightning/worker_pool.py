@@ -12,9 +12,10 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 _PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
@@ -25,7 +26,6 @@ def default_workers() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:
         return os.cpu_count() or 1
-
 
 
 def run(function: Callable[[Any], Any], arguments: Sequence, workers: int, died: str) -> Iterator:
@@ -67,7 +67,10 @@ def _die_with_parent(parent: int) -> None:
     (prctl PR_SET_PDEATHSIG); elsewhere a daemon thread polls the parent id once a second."""
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-        linked = sys.platform.startswith("linux") and libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) == 0
+        linked = (
+            sys.platform.startswith("linux")
+            and libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) == 0
+        )
     except (OSError, AttributeError):
         linked = False
     if os.getppid() != parent:  # died before the link was made

@@ -46,11 +46,12 @@ def read_text(path: Path, reason: str = "bad_input", hint: str = "save it as UTF
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as error:
-        line = data[:error.start].count(b"\n") + 1
+        line = data[: error.start].count(b"\n") + 1
         raise BenchmarkDataError(
             f"{path} is not UTF-8 text: line {line} holds the byte "
             f"0x{data[error.start]:02x}, which UTF-8 cannot decode ({error.reason}); {hint}",
-            reason) from None
+            reason,
+        ) from None
 
 
 # --- skipped input ------------------------------------------------------------------------------

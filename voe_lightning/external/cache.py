@@ -128,7 +128,9 @@ def write_cache(
     directory = Path(directory)
     directory.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
-    os.chmod(staging, 0o777 & ~store_shards.current_umask())  # mkdtemp makes it 0700 whatever the umask
+    os.chmod(
+        staging, 0o777 & ~store_shards.current_umask()
+    )  # mkdtemp makes it 0700 whatever the umask
     try:
         count, shards, buffer = 0, 0, []
         for record in records:
@@ -147,7 +149,9 @@ def write_cache(
             "format": store_shards.FORMAT,
             "video": {"num_frames": num_frames, "height": height, "width": width},
             "shard_size": shard_size,
-            "concepts": {CONCEPT: {"splits": {SPLIT: {"record_type": record_type, "count": count}}}},
+            "concepts": {
+                CONCEPT: {"splits": {SPLIT: {"record_type": record_type, "count": count}}}
+            },
         }
         store.write_manifest(staging, manifest)
         if directory.exists():  # an older or incomplete cache

@@ -35,12 +35,27 @@ from voe_lightning.external.metrics import (
     pair_surprise,
 )
 
-__all__ = ["BENCHMARKS", "VIDEO_COLUMNS", "ExternalPairs", "evaluate", "external_files",
-           "external_metrics"]
+__all__ = [
+    "BENCHMARKS",
+    "VIDEO_COLUMNS",
+    "ExternalPairs",
+    "evaluate",
+    "external_files",
+    "external_metrics",
+]
 
 #: Columns of IntPhys 2's videos.csv, one row per scored video.
-VIDEO_COLUMNS = ("name", "principle", "difficulty", "camera", "label", "seed", "half",
-                 "surprise_mean", "surprise_max")
+VIDEO_COLUMNS = (
+    "name",
+    "principle",
+    "difficulty",
+    "camera",
+    "label",
+    "seed",
+    "half",
+    "surprise_mean",
+    "surprise_max",
+)
 
 
 @dataclass(frozen=True)
@@ -71,14 +86,12 @@ def _intphys(pairs: ExternalPairs, outputs: Mapping[str, Any], **options: Any) -
     entries = [pairs.table[q] for q in quadruplet.tolist()]
     groups = [pairs.concept_names[INTPHYS_BLOCKS.index(e["block"])] for e in entries]
     visibility = [
-        e["condition"].split("_")[0] if e["condition"] != "unspecified" else None
-        for e in entries
+        e["condition"].split("_")[0] if e["condition"] != "unspecified" else None for e in entries
     ]
     return {
         "benchmark": pairs.benchmark,
         "split": pairs.split,
-        "metrics": grouped_metrics(groups, quadruplet, possible, impossible, visibility,
-                                   **options),
+        "metrics": grouped_metrics(groups, quadruplet, possible, impossible, visibility, **options),
         "incomplete_quadruplets": incomplete_quadruplets(quadruplet.tolist()),
         "ambiguous_pairings": len(
             {int(q) for q, e in zip(quadruplet, entries) if e["ambiguous_pairing"]}
@@ -87,8 +100,9 @@ def _intphys(pairs: ExternalPairs, outputs: Mapping[str, Any], **options: Any) -
     }
 
 
-def _physical_concepts(pairs: ExternalPairs, outputs: Mapping[str, Any],
-                       **options: Any) -> dict[str, Any]:
+def _physical_concepts(
+    pairs: ExternalPairs, outputs: Mapping[str, Any], **options: Any
+) -> dict[str, Any]:
     """Per concept: relative and absolute error rate and AUROC over quadruplets (IntPhys'
     definitions) and the paired t-test over matched pairs."""
     seeds, possible, impossible = pair_surprise(outputs)
@@ -104,8 +118,10 @@ def _physical_concepts(pairs: ExternalPairs, outputs: Mapping[str, Any],
 
 def _intphys2_keys(outputs: Mapping[str, Any]) -> list[tuple[int, str]]:
     """Each scored pair's (seed: its scene, half: its variant's name)."""
-    return [(int(seed), INTPHYS2_HALVES[int(variant)])
-            for seed, variant in zip(outputs["seed"], outputs["variant"])]
+    return [
+        (int(seed), INTPHYS2_HALVES[int(variant)])
+        for seed, variant in zip(outputs["seed"], outputs["variant"])
+    ]
 
 
 def _intphys2_entries(pairs: ExternalPairs, outputs: Mapping[str, Any]) -> list[Mapping[str, Any]]:
@@ -126,9 +142,13 @@ def _intphys2(pairs: ExternalPairs, outputs: Mapping[str, Any], **options: Any) 
         "benchmark": pairs.benchmark,
         "split": pairs.split,
         "metrics": intphys2_metrics(
-            [e["principle"] for e in entries], [e["difficulty"] for e in entries],
-            [e["camera"] for e in entries], outputs["surprise_consistent"],
-            outputs["surprise_inconsistent"], **options),
+            [e["principle"] for e in entries],
+            [e["difficulty"] for e in entries],
+            [e["camera"] for e in entries],
+            outputs["surprise_consistent"],
+            outputs["surprise_inconsistent"],
+            **options,
+        ),
         "skipped": dict(pairs.skipped),
     }
 
@@ -140,17 +160,26 @@ def _intphys2_files(pairs: ExternalPairs, outputs: Mapping[str, Any]) -> dict[st
     text = io.StringIO()
     writer = csv.DictWriter(text, VIDEO_COLUMNS, lineterminator="\n")
     writer.writeheader()
-    for (seed, half), entry, *sides in zip(_intphys2_keys(outputs),
-                                           _intphys2_entries(pairs, outputs),
-                                           outputs["surprise_consistent"],
-                                           outputs["surprise_inconsistent"]):
+    for (seed, half), entry, *sides in zip(
+        _intphys2_keys(outputs),
+        _intphys2_entries(pairs, outputs),
+        outputs["surprise_consistent"],
+        outputs["surprise_inconsistent"],
+    ):
         for label, frames in zip(("possible", "impossible"), sides):
-            writer.writerow({
-                "name": entry[label], "principle": entry["principle"],
-                "difficulty": entry["difficulty"], "camera": entry["camera"], "label": label,
-                "seed": seed, "half": half,
-                "surprise_mean": float(np.mean(frames, dtype=np.float64)),
-                "surprise_max": float(np.max(frames))})
+            writer.writerow(
+                {
+                    "name": entry[label],
+                    "principle": entry["principle"],
+                    "difficulty": entry["difficulty"],
+                    "camera": entry["camera"],
+                    "label": label,
+                    "seed": seed,
+                    "half": half,
+                    "surprise_mean": float(np.mean(frames, dtype=np.float64)),
+                    "surprise_max": float(np.max(frames)),
+                }
+            )
     return {"videos.csv": text.getvalue()}
 
 
@@ -167,13 +196,16 @@ BENCHMARKS: dict[str, tuple[Metrics, Files | None]] = {
 
 def _evaluation(pairs: ExternalPairs) -> tuple[Metrics, Files | None]:
     if pairs.benchmark not in BENCHMARKS:
-        raise ValueError(f"no evaluation of the external benchmark {pairs.benchmark!r}; known: "
-                         f"{', '.join(BENCHMARKS)}")
+        raise ValueError(
+            f"no evaluation of the external benchmark {pairs.benchmark!r}; known: "
+            f"{', '.join(BENCHMARKS)}"
+        )
     return BENCHMARKS[pairs.benchmark]
 
 
-def external_metrics(pairs: ExternalPairs, outputs: Mapping[str, Any],
-                     **options: Any) -> dict[str, Any]:
+def external_metrics(
+    pairs: ExternalPairs, outputs: Mapping[str, Any], **options: Any
+) -> dict[str, Any]:
     """The benchmark's own metrics of the merged ``probe_step`` outputs (concept, seed,
     surprise_consistent, surprise_inconsistent [N, T]); ``options``: alpha, bootstrap."""
     return _evaluation(pairs)[0](pairs, outputs, **options)
@@ -185,7 +217,8 @@ def external_files(pairs: ExternalPairs, outputs: Mapping[str, Any]) -> dict[str
     return {} if files is None else files(pairs, outputs)
 
 
-def evaluate(pairs: ExternalPairs, outputs: Mapping[str, Any],
-             **options: Any) -> tuple[dict[str, Any], dict[str, str]]:
+def evaluate(
+    pairs: ExternalPairs, outputs: Mapping[str, Any], **options: Any
+) -> tuple[dict[str, Any], dict[str, str]]:
     """``external_metrics`` and ``external_files`` of one test run."""
     return external_metrics(pairs, outputs, **options), external_files(pairs, outputs)

@@ -255,8 +255,9 @@ def _scan_scene(
                 "(header.is_possible); expected 2 and 2",
                 "wrong_label_count",
             )
-    return Quadruplet(index, block, f"{block}/{scene.name}", condition_of(scene.name),
-                      tuple(movies))
+    return Quadruplet(
+        index, block, f"{block}/{scene.name}", condition_of(scene.name), tuple(movies)
+    )
 
 
 def scan_train(

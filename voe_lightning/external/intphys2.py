@@ -107,11 +107,19 @@ class Pair:
     def entry(self, divergence: int) -> dict[str, Any]:
         """The pair's row of the pairing table (kept in the cache's manifest)."""
         p = self.possible
-        return {"scene": p.scene, "prefix": p.prefix, "condition": p.condition,
-                "principle": p.principle, "difficulty": p.difficulty, "camera": p.camera,
-                "possible": p.name, "impossible": self.impossible.name,
-                "possible_row": p.row, "impossible_row": self.impossible.row,
-                "divergence_frame": divergence}
+        return {
+            "scene": p.scene,
+            "prefix": p.prefix,
+            "condition": p.condition,
+            "principle": p.principle,
+            "difficulty": p.difficulty,
+            "camera": p.camera,
+            "possible": p.name,
+            "impossible": self.impossible.name,
+            "possible_row": p.row,
+            "impossible_row": self.impossible.row,
+            "divergence_frame": divergence,
+        }
 
 
 @dataclass(frozen=True)
@@ -138,12 +146,15 @@ class ClipSampling:
 # --- metadata ------------------------------------------------------------------------------------
 def split_folder(root: str | os.PathLike, split: str) -> Path:
     if split not in SPLITS:
-        raise ValueError(f"unknown IntPhys 2 split {split!r}; valid splits are: {', '.join(SPLITS)}")
+        raise ValueError(
+            f"unknown IntPhys 2 split {split!r}; valid splits are: {', '.join(SPLITS)}"
+        )
     folder = Path(root) / split
     if not folder.is_dir():
         raise FileNotFoundError(
             f"no IntPhys 2 {split} split at {folder}; expected {folder}/metadata.csv and "
-            f"{folder}/Videos/<name>.mp4")
+            f"{folder}/Videos/<name>.mp4"
+        )
     return folder
 
 
@@ -156,43 +167,52 @@ def _resolve(folder: Path, file_name: str) -> Path:
     return folder / relative if len(relative.parts) > 1 else folder / "Videos" / relative
 
 
-def _row_video(folder: Path, csv_path: Path, number: int, row: dict[str, str],
-               id_column: str, labelled: bool) -> Video:
+def _row_video(
+    folder: Path, csv_path: Path, number: int, row: dict[str, str], id_column: str, labelled: bool
+) -> Video:
     where = f"{csv_path}, line {number}"
     file_name = (row.get(id_column) or "").strip()
     if not file_name:
-        raise BenchmarkDataError(f"{where}: empty {id_column}; expected a video file name",
-                                 "bad_row")
+        raise BenchmarkDataError(
+            f"{where}: empty {id_column}; expected a video file name", "bad_row"
+        )
     path = _resolve(folder, file_name)
     if not path.is_file():
         raise BenchmarkDataError(
-            f"{where}: {id_column} {file_name!r} names {path}, which does not exist",
-            "missing_file")
+            f"{where}: {id_column} {file_name!r} names {path}, which does not exist", "missing_file"
+        )
     name = (row.get("name") or "").strip() or path.stem
     difficulty = (row.get("Difficulty") or "").strip().capitalize() or "unspecified"
     if difficulty not in DIFFICULTIES:
         raise BenchmarkDataError(
             f"{where}: unknown Difficulty {row.get('Difficulty')!r}; expected one of Easy, Medium, "
-            "Hard (or empty)", "unknown_difficulty")
+            "Hard (or empty)",
+            "unknown_difficulty",
+        )
     camera = (row.get("Camera") or "").strip() or "unspecified"
     if not labelled:
         return Video(path, name, number, difficulty=difficulty, camera=camera)
     condition = (row.get("condition") or "").strip()
     if condition not in CONDITIONS:
         raise BenchmarkDataError(
-            f"{where}: unknown condition {condition!r}; expected one of "
-            f"{', '.join(CONDITIONS)}", "unknown_condition")
+            f"{where}: unknown condition {condition!r}; expected one of {', '.join(CONDITIONS)}",
+            "unknown_condition",
+        )
     kind = _TYPE.match((row.get("type") or "").strip())
     if kind is None:
         raise BenchmarkDataError(
             f"{where}: unknown type {row.get('type')!r}; expected 1_Possible, 1_Impossible, "
-            "2_Possible or 2_Impossible", "unknown_type")
+            "2_Possible or 2_Impossible",
+            "unknown_type",
+        )
     scene = (row.get("SceneIndex") or "").strip()
     if not scene:
-        raise BenchmarkDataError(f"{where}: empty SceneIndex; expected the scene's index",
-                                 "bad_row")
-    return Video(path, name, number, scene, kind[1], condition, difficulty, camera,
-                 kind[2] == "Possible")
+        raise BenchmarkDataError(
+            f"{where}: empty SceneIndex; expected the scene's index", "bad_row"
+        )
+    return Video(
+        path, name, number, scene, kind[1], condition, difficulty, camera, kind[2] == "Possible"
+    )
 
 
 def read_metadata(
@@ -227,7 +247,9 @@ def read_metadata(
         if id_column is None or missing:
             raise BenchmarkDataError(
                 f"{csv_path} has columns {columns}; expected {' or '.join(ID_COLUMNS)}"
-                + (f" and {', '.join(LABEL_COLUMNS)}" if labelled else ""), "bad_metadata")
+                + (f" and {', '.join(LABEL_COLUMNS)}" if labelled else ""),
+                "bad_metadata",
+            )
         videos, listed = [], set()
         for number, row in enumerate(reader, start=2):  # line 1 is the header
             if (row.get(id_column) or "").strip():  # a bad row still names its file
@@ -238,14 +260,19 @@ def read_metadata(
                 refuse(error)
     for path in sorted((folder / "Videos").glob("*.mp4")):
         if path.resolve() not in listed:
-            refuse(BenchmarkDataError(
-                f"{path} has no row in {csv_path}; every video needs one", "unlisted_file"))
+            refuse(
+                BenchmarkDataError(
+                    f"{path} has no row in {csv_path}; every video needs one", "unlisted_file"
+                )
+            )
     return videos
 
 
 def _scene_key(scene: str) -> tuple:
     """Natural order of SceneIndex values (``2`` < ``10`` < ``10_0``)."""
-    return tuple((0, int(part)) if part.isdigit() else (1, part) for part in re.split(r"[_.]", scene))
+    return tuple(
+        (0, int(part)) if part.isdigit() else (1, part) for part in re.split(r"[_.]", scene)
+    )
 
 
 def pair_videos(
@@ -265,12 +292,15 @@ def pair_videos(
         possible = [v for v in group if v.is_possible]
         impossible = [v for v in group if not v.is_possible]
         if len(possible) != 1 or len(impossible) != 1:
-            rows = ", ".join(f"line {v.row} ({v.name}, {prefix}_"
-                             f"{'Possible' if v.is_possible else 'Impossible'})" for v in group)
+            rows = ", ".join(
+                f"line {v.row} ({v.name}, {prefix}_{'Possible' if v.is_possible else 'Impossible'})"
+                for v in group
+            )
             error = BenchmarkDataError(
                 f"scene {scene} ({condition}), prefix {prefix}: {len(possible)} Possible and "
                 f"{len(impossible)} Impossible videos ({rows}); expected exactly one of each",
-                "malformed_group")
+                "malformed_group",
+            )
             if not lenient:
                 raise error
             if skips is not None:
@@ -316,7 +346,8 @@ def read_video(path: Path, sampling: ClipSampling) -> np.ndarray:
     except (av.FFmpegError, OSError, ValueError) as error:
         raise BenchmarkDataError(
             f"{path} does not decode ({type(error).__name__}: {error}); expected an mp4 video",
-            "undecodable_video") from None
+            "undecodable_video",
+        ) from None
     finally:
         av.logging.set_level(level)
         av.logging.set_skip_repeated(skip_repeated)
@@ -324,14 +355,19 @@ def read_video(path: Path, sampling: ClipSampling) -> np.ndarray:
     if errors:
         raise BenchmarkDataError(
             f"{path} is damaged: FFmpeg reports {errors[0]!r} decoding it ({len(errors)} "
-            "error(s)); expected an intact mp4 video", "undecodable_video")
+            "error(s)); expected an intact mp4 video",
+            "undecodable_video",
+        )
     if count < stated:
         raise BenchmarkDataError(
             f"{path} is truncated or damaged: {count} of the {stated} frames its header states "
-            "decode; expected an intact mp4 video", "undecodable_video")
+            "decode; expected an intact mp4 video",
+            "undecodable_video",
+        )
     if len(frames) != sampling.num_frames:
-        raise BenchmarkDataError(f"{path} has no decodable frames; expected an mp4 video",
-                                 "undecodable_video")
+        raise BenchmarkDataError(
+            f"{path} has no decodable frames; expected an mp4 video", "undecodable_video"
+        )
     return np.stack(frames)
 
 
@@ -347,13 +383,16 @@ def _decode(path: Path, sampling: ClipSampling) -> tuple[list[np.ndarray], int, 
         kept, count = [], 0
         with av.open(str(path)) as container:
             if not container.streams.video:
-                raise BenchmarkDataError(f"{path} holds no video stream; expected an mp4 video",
-                                         "undecodable_video")
+                raise BenchmarkDataError(
+                    f"{path} holds no video stream; expected an mp4 video", "undecodable_video"
+                )
             for number, packet in enumerate(container.demux(container.streams.video[0])):
                 if packet.is_corrupt:  # cut short: FFmpeg only warns, and decodes what is left
                     raise BenchmarkDataError(
                         f"{path} is damaged: its video packet {number} is corrupt (cut "
-                        "short?); expected an intact mp4 video", "undecodable_video")
+                        "short?); expected an intact mp4 video",
+                        "undecodable_video",
+                    )
                 for frame in packet.decode():
                     if count in wanted:
                         kept.append(frame.to_ndarray(format="rgb24"))
@@ -373,8 +412,9 @@ class SceneDataset(Dataset):
     each pair -> the pair's entry). With ``lenient``, a scene with a pair that fails to decode
     is logged and yields ([], None)."""
 
-    def __init__(self, pairs: Sequence[Pair], sampling: ClipSampling, lenient: bool,
-                 skips: SkipLog):
+    def __init__(
+        self, pairs: Sequence[Pair], sampling: ClipSampling, lenient: bool, skips: SkipLog
+    ):
         self.scenes, self.sampling = scene_pairs(pairs), sampling
         self.lenient, self.skips = lenient, skips
 
@@ -389,28 +429,40 @@ class SceneDataset(Dataset):
                 raise
             self.skips.add(error.reason, str(error))
             return [], None
-        return ([record for record, _ in decoded],
-                {VARIANT_NAMES[pair.half]: entry
-                 for pair, (_, entry) in zip(self.scenes[index], decoded)})
+        return (
+            [record for record, _ in decoded],
+            {
+                VARIANT_NAMES[pair.half]: entry
+                for pair, (_, entry) in zip(self.scenes[index], decoded)
+            },
+        )
 
     def decode(self, pair: Pair) -> tuple[TensorDict, dict[str, Any]]:
         video = self.sampling.video
         possible = video.resize(read_video(pair.possible.path, self.sampling))
         impossible = video.resize(read_video(pair.impossible.path, self.sampling))
-        divergence = first_divergence(possible, impossible, video.divergence_level,
-                                      video.divergence_fraction)
+        divergence = first_divergence(
+            possible, impossible, video.divergence_level, video.divergence_fraction
+        )
         num_frames = self.sampling.num_frames
         if divergence >= num_frames:
             raise BenchmarkDataError(
                 f"{pair.possible.path} and {pair.impossible.path} (scene {pair.possible.scene}, "
                 f"prefix {pair.possible.prefix}) do not differ in any of their {num_frames} "
                 "sampled frames; sample more frames (num_frames, frame_stride) or lower "
-                "divergence_level / divergence_fraction", "no_divergence")
+                "divergence_level / divergence_fraction",
+                "no_divergence",
+            )
         zeros = np.zeros((num_frames, video.height, video.width), np.uint8)
         record = specs.probe_record(
-            (possible, zeros), (impossible, zeros), np.zeros((num_frames, 6), np.float32),
-            concept=PRINCIPLES.index(pair.possible.principle), variant=pair.half,
-            manipulation_frame=divergence, seed=pair.index)
+            (possible, zeros),
+            (impossible, zeros),
+            np.zeros((num_frames, 6), np.float32),
+            concept=PRINCIPLES.index(pair.possible.principle),
+            variant=pair.half,
+            manipulation_frame=divergence,
+            seed=pair.index,
+        )
         return record, pair.entry(divergence)
 
 
@@ -430,5 +482,7 @@ class VideoDataset(Dataset):
 
     def __getitem__(self, index: int) -> TensorDict:
         frames = self.sampling.video.resize(read_video(self.videos[index].path, self.sampling))
-        return TensorDict({"frames": torch.from_numpy(frames),
-                           "index": torch.tensor(index, dtype=torch.int64)}, batch_size=[])
+        return TensorDict(
+            {"frames": torch.from_numpy(frames), "index": torch.tensor(index, dtype=torch.int64)},
+            batch_size=[],
+        )

@@ -114,9 +114,14 @@ def quadruplet_metrics(
     and, given per-frame surprise, the field's metric set (``field_metrics``)."""
     quadruplet = np.asarray(quadruplet).ravel()
     frames = _per_frame_or_none(surprise_possible, surprise_impossible)
-    possible, impossible = ((reduce_surprise(side, "sum") for side in frames) if frames
-                            else (np.asarray(side, dtype=np.float64).ravel()
-                                  for side in (surprise_possible, surprise_impossible)))
+    possible, impossible = (
+        (reduce_surprise(side, "sum") for side in frames)
+        if frames
+        else (
+            np.asarray(side, dtype=np.float64).ravel()
+            for side in (surprise_possible, surprise_impossible)
+        )
+    )
     if not quadruplet.size == possible.size == impossible.size:
         raise ValueError(
             f"one quadruplet id per pair: got {quadruplet.size} ids, {possible.size} possible "
@@ -148,8 +153,9 @@ def quadruplet_metrics(
     return result
 
 
-def _paired_test(impossible: np.ndarray, possible: np.ndarray, alpha: float, bootstrap: int
-                 ) -> dict[str, Any]:
+def _paired_test(
+    impossible: np.ndarray, possible: np.ndarray, alpha: float, bootstrap: int
+) -> dict[str, Any]:
     """The one-tailed paired t-test of S(impossible) - S(possible) over pairs, as a dict (a note
     instead below 2 pairs)."""
     if possible.size < 2:
@@ -157,12 +163,14 @@ def _paired_test(impossible: np.ndarray, possible: np.ndarray, alpha: float, boo
     return paired_test(impossible, possible, alpha=alpha, bootstrap=bootstrap).as_dict()
 
 
-def _per_frame_or_none(surprise_possible: Any, surprise_impossible: Any
-                       ) -> tuple[np.ndarray, np.ndarray] | None:
+def _per_frame_or_none(
+    surprise_possible: Any, surprise_impossible: Any
+) -> tuple[np.ndarray, np.ndarray] | None:
     """Both sides as float64 per-frame surprise [N, T] when they are two-dimensional, else
     None (totals)."""
-    sides = tuple(np.asarray(side, dtype=np.float64)
-                  for side in (surprise_possible, surprise_impossible))
+    sides = tuple(
+        np.asarray(side, dtype=np.float64) for side in (surprise_possible, surprise_impossible)
+    )
     return sides if all(side.ndim == 2 for side in sides) else None
 
 
@@ -172,8 +180,10 @@ def pair_surprise(outputs: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray, n
     from collected
     ``probe_step`` outputs (seed, surprise_consistent, surprise_inconsistent [N, T])."""
     seeds = torch.as_tensor(outputs["seed"]).cpu().numpy().ravel()
-    possible, impossible = (torch.as_tensor(outputs[f"surprise_{side}"]).double().cpu().numpy()
-                            for side in ("consistent", "inconsistent"))
+    possible, impossible = (
+        torch.as_tensor(outputs[f"surprise_{side}"]).double().cpu().numpy()
+        for side in ("consistent", "inconsistent")
+    )
     return seeds, possible, impossible
 
 
@@ -349,8 +359,12 @@ def video_pair_metrics(
     absolute ``threshold``, with the paired t-test of S(impossible) - S(possible) over pairs
     (S summed over frames, as in our probe reports)."""
     result = field_metrics(frames_possible, frames_impossible, threshold)
-    result["paired_test"] = _paired_test(reduce_surprise(frames_impossible, "sum"),
-                                         reduce_surprise(frames_possible, "sum"), alpha, bootstrap)
+    result["paired_test"] = _paired_test(
+        reduce_surprise(frames_impossible, "sum"),
+        reduce_surprise(frames_possible, "sum"),
+        alpha,
+        bootstrap,
+    )
     return result
 
 
@@ -371,19 +385,26 @@ def intphys2_metrics(
     impossible = np.asarray(frames_impossible, dtype=np.float64)
     keys = list(zip(principle, difficulty, camera))
     if len(keys) != len(possible) or len(possible) != len(impossible):
-        raise ValueError(f"one principle, difficulty and camera per pair: got {len(keys)} "
-                         f"labels for {len(possible)} and {len(impossible)} pairs")
+        raise ValueError(
+            f"one principle, difficulty and camera per pair: got {len(keys)} "
+            f"labels for {len(possible)} and {len(impossible)} pairs"
+        )
     threshold = surprise_threshold(possible.max(axis=-1), percentile)
 
     def metrics(rows: np.ndarray) -> dict[str, Any]:
         return video_pair_metrics(possible[rows], impossible[rows], threshold, **options)
 
     return {
-        "threshold": {"value": threshold, "percentile": percentile,
-                      "of": "max per-frame surprise of the possible videos"},
+        "threshold": {
+            "value": threshold,
+            "percentile": percentile,
+            "of": "max per-frame surprise of the possible videos",
+        },
         "all": metrics(np.ones(len(keys), bool)),
-        "principle": {p: metrics(np.array([k[0] == p for k in keys]))
-                      for p in sorted({k[0] for k in keys})},
-        "principle_difficulty_camera": {"/".join(key): metrics(np.array([k == key for k in keys]))
-                                        for key in sorted(set(keys))},
+        "principle": {
+            p: metrics(np.array([k[0] == p for k in keys])) for p in sorted({k[0] for k in keys})
+        },
+        "principle_difficulty_camera": {
+            "/".join(key): metrics(np.array([k == key for k in keys])) for key in sorted(set(keys))
+        },
     }

@@ -60,23 +60,32 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
     # ----------------------------------------------------------------------------- protocol
     @abstractmethod
     def surprise(
-        self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-        camera: torch.Tensor | None = None, objects: TensorDictBase | None = None,
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
     ) -> torch.Tensor:
         """Per-frame surprise [B, T] (float32); a video's surprise is its sum over frames."""
 
     @abstractmethod
     def expected_frames(
-        self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-        camera: torch.Tensor | None = None, objects: TensorDictBase | None = None,
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
     ) -> torch.Tensor:
         """What the model expected each frame to be given the previous ones [B, T, 3, H, W]
         in [0, 1]."""
 
     @abstractmethod
     def trajectories(
-        self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-        camera: torch.Tensor | None = None, objects: TensorDictBase | None = None,
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
     ) -> dict[str, torch.Tensor]:
         """Named time courses [B, T, D] of the model's state (the t-SNE figure draws them)."""
 
@@ -92,8 +101,10 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
     @staticmethod
     def _frames_of(batch: TensorDictBase | dict) -> torch.Tensor:
         if "frames" not in batch.keys():
-            raise KeyError("a training batch needs 'frames' (uint8 [B,T,H,W,3]); got keys "
-                           f"{list(batch.keys())}")
+            raise KeyError(
+                "a training batch needs 'frames' (uint8 [B,T,H,W,3]); got keys "
+                f"{list(batch.keys())}"
+            )
         return batch["frames"]
 
     # ----------------------------------------------------------------------------- training
@@ -111,8 +122,10 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
         recorded = self.hparams.get("training_frames")
         if recorded != frames:
             if recorded is not None:
-                rank_zero_warn(f"training_frames was {recorded}, the training clips have "
-                               f"{frames}: recording {frames}")
+                rank_zero_warn(
+                    f"training_frames was {recorded}, the training clips have "
+                    f"{frames}: recording {frames}"
+                )
             self.hparams.training_frames = frames
 
     # ----------------------------------------------------------------------------- probes
@@ -124,8 +137,11 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
         consistent = batch["consistent", "frames"]
         inconsistent = batch["inconsistent", "frames"]
         sides = [video_inputs(batch, "consistent"), video_inputs(batch, "inconsistent")]
-        inputs = {name: torch.cat([side[name] for side in sides], dim=0)
-                  for name in sides[0] if all(name in side for side in sides)}
+        inputs = {
+            name: torch.cat([side[name] for side in sides], dim=0)
+            for name in sides[0]
+            if all(name in side for side in sides)
+        }
         surprise = self.surprise(torch.cat([consistent, inconsistent], dim=0), **inputs)
         surprise_consistent, surprise_inconsistent = surprise.split(consistent.shape[0], dim=0)
         return {
@@ -171,8 +187,11 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
         ``surprise_max``) with its ``index`` in the predict dataset, for a prediction writer;
         its mask and camera go along when the batch has them."""
         surprise = self.surprise(self._frames_of(batch), **video_inputs(batch)).double()
-        return {"index": batch["index"], "surprise": video_surprise(surprise),
-                "surprise_max": surprise.max(-1).values}
+        return {
+            "index": batch["index"],
+            "surprise": video_surprise(surprise),
+            "surprise_max": surprise.max(-1).values,
+        }
 
     # ----------------------------------------------------------------------------- checkpoints
     def _model_input(self, frames: torch.Tensor, image_size: tuple[int, int]) -> torch.Tensor:
@@ -213,7 +232,8 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
         if differences:
             raise ValueError(
                 f"{source} was trained with another model architecture than this model's ("
-                + "; ".join(differences) + f"). Build the model with the checkpoint's arguments "
+                + "; ".join(differences)
+                + f"). Build the model with the checkpoint's arguments "
                 f"({type(self).__name__}.load_from_checkpoint, or its run's config.yaml)."
             )
 

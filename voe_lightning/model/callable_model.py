@@ -20,8 +20,10 @@ def import_callable(path: str) -> Callable:
     try:
         function = getattr(importlib.import_module(module_name), name)
     except (ImportError, AttributeError, ValueError) as error:
-        raise ValueError(f"function {path!r} cannot be imported ({error}); give the dotted path "
-                         "of a callable, e.g. my_package.models.surprise") from None
+        raise ValueError(
+            f"function {path!r} cannot be imported ({error}); give the dotted path "
+            "of a callable, e.g. my_package.models.surprise"
+        ) from None
     if not callable(function):
         raise ValueError(f"function {path!r} is a {type(function).__name__}, not a callable")
     return function
@@ -45,30 +47,46 @@ class CallableModel(SurpriseModel):
         self.save_hyperparameters()
         self.function = import_callable(function)
 
-    def surprise(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                 camera: torch.Tensor | None = None, objects: TensorDictBase | None = None
-                 ) -> torch.Tensor:
+    def surprise(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> torch.Tensor:
         returned = self.function(frames.to(self.device))
         try:
             surprise = torch.as_tensor(returned)
         except (TypeError, ValueError, RuntimeError) as error:  # None, a ragged list
-            raise ValueError(f"{self.hparams.function} returned a {type(returned).__name__} that "
-                             f"is no array of numbers ({error}); expected surprise [B, T] = "
-                             f"{list(frames.shape[:2])}") from None
+            raise ValueError(
+                f"{self.hparams.function} returned a {type(returned).__name__} that "
+                f"is no array of numbers ({error}); expected surprise [B, T] = "
+                f"{list(frames.shape[:2])}"
+            ) from None
         if tuple(surprise.shape) != tuple(frames.shape[:2]):
-            raise ValueError(f"{self.hparams.function} returned surprise of shape "
-                             f"{tuple(surprise.shape)} for frames {tuple(frames.shape)}; expected "
-                             f"[B, T] = {list(frames.shape[:2])}")
+            raise ValueError(
+                f"{self.hparams.function} returned surprise of shape "
+                f"{tuple(surprise.shape)} for frames {tuple(frames.shape)}; expected "
+                f"[B, T] = {list(frames.shape[:2])}"
+            )
         return surprise.float()
 
-    def expected_frames(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                        camera: torch.Tensor | None = None,
-                        objects: TensorDictBase | None = None) -> torch.Tensor:
+    def expected_frames(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> torch.Tensor:
         return specs.to_model_input(frames)
 
-    def trajectories(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                     camera: torch.Tensor | None = None, objects: TensorDictBase | None = None
-                     ) -> dict[str, torch.Tensor]:
+    def trajectories(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> dict[str, torch.Tensor]:
         """Surprise and its running total, a course [B, T, 2] (the report's t-SNE figure
         projects courses onto two components)."""
         value = self.surprise(frames)

@@ -16,8 +16,12 @@ TERMS = ("visibility", "code", "appear", "newcomer_code")
 CODE_TERMS = ("code", "newcomer_code")
 
 
-def frame_terms(prediction: dict[str, torch.Tensor], codes: torch.Tensor, seen: torch.Tensor,
-                visible: torch.Tensor) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
+def frame_terms(
+    prediction: dict[str, torch.Tensor],
+    codes: torch.Tensor,
+    seen: torch.Tensor,
+    visible: torch.Tensor,
+) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
     """(negative log-likelihood, entropy of the prediction) of each term of ``TERMS`` for the
     frames 1..T-1, each [B, T - 1, S] (``appear`` [B, T - 1]; 0 where a term does not apply),
     from ``prediction`` (``SlotDynamics.rollout``: step t predicts t + 1), the perceived
@@ -29,18 +33,28 @@ def frame_terms(prediction: dict[str, torch.Tensor], codes: torch.Tensor, seen: 
     new = (seen[:, 1:] & ~seen[:, :-1]).float()
     terms = {
         "visibility": (bernoulli_nll(prediction["seen_logit"][:, :-1], shown), known),
-        "code": (gaussian_nll(codes[:, 1:], prediction["mean"][:, :-1],
-                              prediction["log_std"][:, :-1]), known * shown),
+        "code": (
+            gaussian_nll(codes[:, 1:], prediction["mean"][:, :-1], prediction["log_std"][:, :-1]),
+            known * shown,
+        ),
         "appear": (bernoulli_nll(prediction["appear_logit"][:, :-1], new.amax(-1)), 1.0),
-        "newcomer_code": (gaussian_nll(codes[:, 1:], prediction["newcomer_mean"][:, :-1, None],
-                                       prediction["newcomer_log_std"][:, :-1, None]), new),
+        "newcomer_code": (
+            gaussian_nll(
+                codes[:, 1:],
+                prediction["newcomer_mean"][:, :-1, None],
+                prediction["newcomer_log_std"][:, :-1, None],
+            ),
+            new,
+        ),
     }
-    return {name: (nll * weight, entropy * weight)
-            for name, ((nll, entropy), weight) in terms.items()}
+    return {
+        name: (nll * weight, entropy * weight) for name, ((nll, entropy), weight) in terms.items()
+    }
 
 
-def negative_log_likelihood(terms: dict[str, tuple[torch.Tensor, torch.Tensor]]
-                            ) -> dict[str, torch.Tensor]:
+def negative_log_likelihood(
+    terms: dict[str, tuple[torch.Tensor, torch.Tensor]],
+) -> dict[str, torch.Tensor]:
     """Each term's negative log-likelihood summed over slots, [B, T - 1]."""
     return {name: _per_frame(nll) for name, (nll, _) in terms.items()}
 

@@ -42,18 +42,28 @@ class CueScorer(SurpriseModel):
         self.save_hyperparameters()
         self.cue_name = CUE_NAMES.get(cue, cue)
 
-    def surprise(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                 camera: torch.Tensor | None = None, objects: TensorDictBase | None = None
-                 ) -> torch.Tensor:
+    def surprise(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> torch.Tensor:
         if self.cue_name in cues.MASK_CUES and mask is None:
-            raise ValueError(f"cue {self.hparams.cue!r} counts object pixels and needs masks; "
-                             "this data has none: choose motion, copy_last, "
-                             "linear_extrapolation or novelty")
+            raise ValueError(
+                f"cue {self.hparams.cue!r} counts object pixels and needs masks; "
+                "this data has none: choose motion, copy_last, "
+                "linear_extrapolation or novelty"
+            )
         return cues.frame_scores(frames, mask)[self.cue_name].float()
 
-    def expected_frames(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                        camera: torch.Tensor | None = None,
-                        objects: TensorDictBase | None = None) -> torch.Tensor:
+    def expected_frames(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> torch.Tensor:
         """The frame the cue compares frame t with: the linear extrapolation of the two before
         it for ``linear_extrapolation``, else the previous frame (frame 0: itself)."""
         x = specs.to_model_input(frames)
@@ -63,9 +73,13 @@ class CueScorer(SurpriseModel):
         before = torch.cat([previous[:, :1], previous[:, :-1]], dim=1)
         return (2.0 * previous - before).clamp(0.0, 1.0)
 
-    def trajectories(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                     camera: torch.Tensor | None = None, objects: TensorDictBase | None = None
-                     ) -> dict[str, torch.Tensor]:
+    def trajectories(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> dict[str, torch.Tensor]:
         """The cue's per-frame value and its running total, a course [B, T, 2] (the report's
         t-SNE figure projects courses onto two components)."""
         value = self.surprise(frames, mask)

@@ -81,8 +81,7 @@ class SlotDynamics(nn.Module):
         self.use_camera, self.visibility = use_camera, visibility
         self.log_min_std = math.log(min_std)
         node_in = state_size + 2 * code_size + (1 if visibility else 0)
-        self.relation = (mlp([2 * node_in, *relation_sizes, relation_size])
-                         if interactions else None)
+        self.relation = mlp([2 * node_in, *relation_sizes, relation_size]) if interactions else None
         node_inputs = node_in + (relation_size if interactions else 0)
         node_inputs += CAMERA_FEATURES if use_camera else 0
         self.node = nn.Sequential(mlp([node_inputs, *node_sizes, state_size]), nn.ReLU())
@@ -102,11 +101,14 @@ class SlotDynamics(nn.Module):
             return hidden.new_zeros(*hidden.shape[:2], self.code_size)
         codes = torch.stack(buffer, dim=2)  # [B, S, t, C]
         scores = torch.einsum("bsc,bstc->bst", self.query(hidden), self.key(codes))
-        weights = torch.softmax(scores / self.code_size ** 0.5, dim=-1)
+        weights = torch.softmax(scores / self.code_size**0.5, dim=-1)
         return torch.einsum("bst,bstc->bsc", weights, codes)
 
     def forward(
-        self, codes: torch.Tensor, seen: torch.Tensor, camera: torch.Tensor | None = None,
+        self,
+        codes: torch.Tensor,
+        seen: torch.Tensor,
+        camera: torch.Tensor | None = None,
         visible: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Codes [B, T, S, C] and whether each slot was seen by each step [B, T, S] (padding
@@ -115,42 +117,62 @@ class SlotDynamics(nn.Module):
         [B, T, S] (the slot's mask is not empty at t) is required: see the class docstring."""
         return self._run(codes, seen, camera, visible)[0]
 
-    def rollout(self, codes: torch.Tensor, seen: torch.Tensor, visible: torch.Tensor,
-                camera: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def rollout(
+        self,
+        codes: torch.Tensor,
+        seen: torch.Tensor,
+        visible: torch.Tensor,
+        camera: torch.Tensor | None = None,
+    ) -> dict[str, torch.Tensor]:
         """The distributions a ``visibility`` model predicts at each step t for step t + 1:
         ``mean`` and ``log_std`` of each slot's code [B, T, S, C], its ``seen_logit``
         [B, T, S]; ``appear_logit`` [B, T] (some new object appears), ``newcomer_mean`` and
         ``newcomer_log_std`` [B, T, C] (its code)."""
         if not self.visibility:
-            raise ValueError("rollout needs the visibility heads: build SlotDynamics with "
-                             "visibility=True")
+            raise ValueError(
+                "rollout needs the visibility heads: build SlotDynamics with visibility=True"
+            )
         mean, hidden = self._run(codes, seen, camera, visible)
         context = (hidden * seen[..., None]).sum(2) / seen.sum(2, keepdim=True).clamp(min=1)
         if self.use_camera:
             poses = torch.cat([camera[:, 1:], camera[:, -1:]], dim=1)  # of the frame predicted
             context = torch.cat([context, camera_features(poses)], dim=-1)
         appear_logit, newcomer_mean, newcomer_log_std = self.appearance(context).split(
-            [1, self.code_size, self.code_size], dim=-1)
-        return {"mean": mean, "log_std": self._floored(self.spread(hidden)),
-                "seen_logit": self.seen_logit(torch.cat([hidden, mean], -1)).squeeze(-1),
-                "appear_logit": appear_logit.squeeze(-1), "newcomer_mean": newcomer_mean,
-                "newcomer_log_std": self._floored(newcomer_log_std)}
+            [1, self.code_size, self.code_size], dim=-1
+        )
+        return {
+            "mean": mean,
+            "log_std": self._floored(self.spread(hidden)),
+            "seen_logit": self.seen_logit(torch.cat([hidden, mean], -1)).squeeze(-1),
+            "appear_logit": appear_logit.squeeze(-1),
+            "newcomer_mean": newcomer_mean,
+            "newcomer_log_std": self._floored(newcomer_log_std),
+        }
 
     def _floored(self, log_std: torch.Tensor) -> torch.Tensor:
         """A log-std at least ``log(min_std)``, smoothly."""
         return self.log_min_std + F.softplus(log_std - self.log_min_std)
 
-    def _run(self, codes: torch.Tensor, seen: torch.Tensor, camera: torch.Tensor | None,
-             visible: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+    def _run(
+        self,
+        codes: torch.Tensor,
+        seen: torch.Tensor,
+        camera: torch.Tensor | None,
+        visible: torch.Tensor | None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Step through time: predictions [B, T, S, C] and LSTM states [B, T, S, H]."""
         batch, steps, slots, _ = codes.shape
         if self.use_camera and camera is None:
-            raise ValueError("use_camera is set but no camera pose was given (batch key "
-                             "'camera', float [B, T, 6]); data without camera poses (IntPhys) "
-                             "needs a model trained with use_camera: false")
+            raise ValueError(
+                "use_camera is set but no camera pose was given (batch key "
+                "'camera', float [B, T, 6]); data without camera poses (IntPhys) "
+                "needs a model trained with use_camera: false"
+            )
         if self.visibility and visible is None:
-            raise ValueError("a visibility-aware SlotDynamics needs `visible` [B, T, S], "
-                             "whether each slot's mask is not empty at each frame")
+            raise ValueError(
+                "a visibility-aware SlotDynamics needs `visible` [B, T, S], "
+                "whether each slot's mask is not empty at each frame"
+            )
         hidden = codes.new_zeros(batch * slots, self.state_size)
         cell = torch.zeros_like(hidden)
         weight = seen.float()  # [B, T, S]
@@ -174,8 +196,13 @@ class SlotDynamics(nn.Module):
             node = torch.cat(parts, dim=-1)  # [B, S, N]
             inputs = [node]
             if self.relation is not None:
-                pairs = torch.cat([node[:, :, None].expand(-1, -1, slots, -1),
-                                   node[:, None, :].expand(-1, slots, -1, -1)], dim=-1)
+                pairs = torch.cat(
+                    [
+                        node[:, :, None].expand(-1, -1, slots, -1),
+                        node[:, None, :].expand(-1, slots, -1, -1),
+                    ],
+                    dim=-1,
+                )
                 messages = self.relation(pairs) * pair_weight[:, t, ..., None]  # [B, Si, Sj, R]
                 inputs.append(messages.sum(dim=2))
             if self.use_camera:

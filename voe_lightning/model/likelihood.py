@@ -14,8 +14,9 @@ import torch.nn.functional as F
 LOG_2PI = math.log(2 * math.pi)
 
 
-def gaussian_nll(value: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor
-                 ) -> tuple[torch.Tensor, torch.Tensor]:
+def gaussian_nll(
+    value: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
     """-log N(value; mean, exp(log_std)^2) and the entropy of that Gaussian, each summed over
     the last dimension."""
     z = (value - mean) * torch.exp(-log_std)
@@ -25,13 +26,19 @@ def gaussian_nll(value: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor
 
 def bernoulli_nll(logit: torch.Tensor, value: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """-log Bernoulli(value; sigmoid(logit)) and the entropy of that Bernoulli."""
-    return (F.binary_cross_entropy_with_logits(logit, value, reduction="none"),
-            F.binary_cross_entropy_with_logits(logit, torch.sigmoid(logit), reduction="none"))
+    return (
+        F.binary_cross_entropy_with_logits(logit, value, reduction="none"),
+        F.binary_cross_entropy_with_logits(logit, torch.sigmoid(logit), reduction="none"),
+    )
 
 
-def mixture_nll(value: torch.Tensor, means: torch.Tensor, log_std: torch.Tensor,
-                logits: torch.Tensor | None, hard: bool = False
-                ) -> tuple[torch.Tensor, torch.Tensor]:
+def mixture_nll(
+    value: torch.Tensor,
+    means: torch.Tensor,
+    log_std: torch.Tensor,
+    logits: torch.Tensor | None,
+    hard: bool = False,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """-log of ``value`` [..., D] under a mixture of diagonal Gaussians (``means`` and
     ``log_std`` [..., K, D], component ``logits`` [..., K] or None for one), and the mixture's
     entropy as sum_k pi_k (H_k - log pi_k): exact for well separated components, at most
@@ -42,12 +49,15 @@ def mixture_nll(value: torch.Tensor, means: torch.Tensor, log_std: torch.Tensor,
         return nll.squeeze(-1), entropy.squeeze(-1)
     log_weight = F.log_softmax(logits, dim=-1)
     joint = log_weight - nll
-    return (-(joint.amax(-1) if hard else torch.logsumexp(joint, dim=-1)),
-            (log_weight.exp() * (entropy - log_weight)).sum(-1))
+    return (
+        -(joint.amax(-1) if hard else torch.logsumexp(joint, dim=-1)),
+        (log_weight.exp() * (entropy - log_weight)).sum(-1),
+    )
 
 
-def categorical_nll(logits: torch.Tensor, one_hot: torch.Tensor
-                    ) -> tuple[torch.Tensor, torch.Tensor]:
+def categorical_nll(
+    logits: torch.Tensor, one_hot: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
     """-log Categorical(one_hot; softmax(logits)) over the last dimension, and its entropy."""
     log_p = F.log_softmax(logits, dim=-1)
     return -(log_p * one_hot).sum(-1), -(log_p.exp() * log_p).sum(-1)

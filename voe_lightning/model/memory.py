@@ -116,9 +116,14 @@ class LRUMemory(nn.Module):
             if value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value}")
         if not isinstance(controller_sees_read, bool):
-            raise TypeError(f"controller_sees_read must be True or False, got {controller_sees_read!r}")
-        if (not isinstance(least_used_slots, int) or isinstance(least_used_slots, bool)
-                or not 1 <= least_used_slots <= num_slots):
+            raise TypeError(
+                f"controller_sees_read must be True or False, got {controller_sees_read!r}"
+            )
+        if (
+            not isinstance(least_used_slots, int)
+            or isinstance(least_used_slots, bool)
+            or not 1 <= least_used_slots <= num_slots
+        ):
             raise ValueError(
                 f"least_used_slots must be an integer from 1 to the number of memory slots "
                 f"({num_slots}), got {least_used_slots!r}"
@@ -158,7 +163,10 @@ class LRUMemory(nn.Module):
         )
 
     def initial_state(
-        self, batch_size: int, device: torch.device | None = None, dtype: torch.dtype = torch.float32
+        self,
+        batch_size: int,
+        device: torch.device | None = None,
+        dtype: torch.dtype = torch.float32,
     ) -> MemoryState:
         """Empty memory, zero usage, no previous read, zero controller state."""
 
@@ -202,9 +210,13 @@ class LRUMemory(nn.Module):
                 mixture = torch.full_like(weights[..., 0], 1.0 / self.num_read_heads)
             read = torch.einsum("bh,bhu->bu", mixture, head_reads)
         mixed_weights = torch.einsum("bh,bhs->bs", mixture, weights)
-        return Read(read=read, weights=weights, mixed_weights=mixed_weights, hidden=hidden, cell=cell)
+        return Read(
+            read=read, weights=weights, mixed_weights=mixed_weights, hidden=hidden, cell=cell
+        )
 
-    def write_weights(self, state: MemoryState, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def write_weights(
+        self, state: MemoryState, hidden: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """``(w^w_t, c_{t-1})``: the write weights, and the one-hot least-used slot ``c_{t-1}``
         that the write clears. ``w^lu_{t-1}`` marks the ``least_used_slots`` slots of smallest
         usage; ties go to the lowest index (a stable sort), so the choice is deterministic."""
@@ -212,7 +224,9 @@ class LRUMemory(nn.Module):
         least_used = torch.zeros_like(state.usage).scatter_(
             -1, by_usage[:, : self.least_used_slots], 1.0
         )
-        cleared = torch.zeros_like(state.usage).scatter_(-1, by_usage[:, :1], 1.0)  # one-hot, no host sync
+        cleared = torch.zeros_like(state.usage).scatter_(
+            -1, by_usage[:, :1], 1.0
+        )  # one-hot, no host sync
         gate = torch.sigmoid(self.write_gate(hidden).float())  # [B, 1]
         weights = gate * state.mixed_read_weights + (1.0 - gate) * least_used
         return weights, cleared
@@ -221,7 +235,9 @@ class LRUMemory(nn.Module):
         """Clear the least-used slot, write ``a_t`` (from ``z_t``), update usage."""
         weights, cleared = self.write_weights(state, read.hidden)
         if self.write_projection is not None:
-            content = self.write_projection(torch.cat([read.hidden, latent.to(read.hidden.dtype)], -1))
+            content = self.write_projection(
+                torch.cat([read.hidden, latent.to(read.hidden.dtype)], -1)
+            )
         else:
             content = latent
         content = content.float()

@@ -26,23 +26,33 @@ from voe_lightning.model.slots import (
 
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
 ARCHITECTURE = (
-    "image_size", "num_slots", "code_size", "encoder_channels", "variational", "state_size",
-    "relation_sizes", "node_sizes", "relation_size", "use_camera", "object_free",
-    "object_free_code_size", "surprise",
+    "image_size",
+    "num_slots",
+    "code_size",
+    "encoder_channels",
+    "variational",
+    "state_size",
+    "relation_sizes",
+    "node_sizes",
+    "relation_size",
+    "use_camera",
+    "object_free",
+    "object_free_code_size",
+    "surprise",
 )
 #: What a frame's surprise is, per ``surprise`` and ``surprise_space``, for reports.
 SURPRISES = {
     ("squared_error", "codes"): "the squared error of the predicted object codes (summed over "
-                                "the slots seen)",
+    "the slots seen)",
     ("likelihood", "codes"): "the rectified excess surprisal of the object codes (each term's "
-                             "negative log-likelihood less its entropy, where positive: every "
-                             "known object's visibility, its code where seen, and any newcomer's "
-                             "appearance)",
+    "negative log-likelihood less its entropy, where positive: every "
+    "known object's visibility, its code where seen, and any newcomer's "
+    "appearance)",
     ("squared_error", "pixels"): "the squared pixel error of the frame decoded from the "
-                                 "predicted object codes (PLATO-style pixel-space surprise)",
+    "predicted object codes (PLATO-style pixel-space surprise)",
     ("likelihood", "pixels"): "the squared pixel error of the frame decoded from the predicted "
-                              "object codes, each weighed by its predicted visibility "
-                              "(pixel-space surprise)",
+    "object codes, each weighed by its predicted visibility "
+    "(pixel-space surprise)",
 }
 
 
@@ -162,15 +172,21 @@ class ObjectCentricModel(SurpriseModel):
         if max_mask_jump is not None and max_mask_jump <= 0:
             raise ValueError(f"max_mask_jump must be > 0 or None (no check), got {max_mask_jump}")
         if perception_steps < 0 or learning_rate <= 0:
-            raise ValueError(f"perception_steps must be >= 0 and learning_rate > 0, got "
-                             f"{perception_steps}, {learning_rate}")
+            raise ValueError(
+                f"perception_steps must be >= 0 and learning_rate > 0, got "
+                f"{perception_steps}, {learning_rate}"
+            )
         if (surprise, surprise_space) not in SURPRISES:
-            raise ValueError(f"surprise must be 'squared_error' or 'likelihood' and "
-                             f"surprise_space 'codes' or 'pixels', got {surprise!r} and "
-                             f"{surprise_space!r}")
+            raise ValueError(
+                f"surprise must be 'squared_error' or 'likelihood' and "
+                f"surprise_space 'codes' or 'pixels', got {surprise!r} and "
+                f"{surprise_space!r}"
+            )
         if min_code_std <= 0 or (code_loss_weight is not None and code_loss_weight <= 0):
-            raise ValueError(f"min_code_std must be > 0 and code_loss_weight > 0 or None, got "
-                             f"{min_code_std}, {code_loss_weight}")
+            raise ValueError(
+                f"min_code_std must be > 0 and code_loss_weight > 0 or None, got "
+                f"{min_code_std}, {code_loss_weight}"
+            )
         #: What a frame's surprise is, for reports.
         self.SURPRISE = SURPRISES[(surprise, surprise_space)]
         self.image_size = (int(image_size[0]), int(image_size[1]))
@@ -180,8 +196,13 @@ class ObjectCentricModel(SurpriseModel):
         self.perception, self.dynamics = build_networks(self.hparams, self.code_size)
 
     # ----------------------------------------------------------------------------- slots
-    def slots(self, frames: torch.Tensor, mask: torch.Tensor | None,
-              seeds: torch.Tensor | None = None, consecutive: bool = True) -> Slots:
+    def slots(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None,
+        seeds: torch.Tensor | None = None,
+        consecutive: bool = True,
+    ) -> Slots:
         """The slots of uint8 videos [B, T, H, W, 3] (see ``slots.object_slots``; frames not
         ``consecutive`` are a sample of a clip's frames, where ids may move far between two)."""
         if self.hparams.object_free:
@@ -196,9 +217,9 @@ class ObjectCentricModel(SurpriseModel):
         mean, log_std = self.perception.encode(x.flatten(0, 1), slots.masks.flatten(0, 1))
         return mean.unflatten(0, (batch, steps)), log_std.unflatten(0, (batch, steps))
 
-    def render(self, codes: torch.Tensor, seen: torch.Tensor,
-               log_visibility: torch.Tensor | None = None
-               ) -> tuple[torch.Tensor, torch.Tensor]:
+    def render(
+        self, codes: torch.Tensor, seen: torch.Tensor, log_visibility: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Codes [B, T, S, C] -> frames [B, T, 3, H, W] composed of the slots seen by each
         frame (``seen`` [B, T, S]) and log composition weights [B, T, S, H, W]; a slot's
         ``log_visibility`` [B, T, S], if given, is added to its mask logits (a slot expected
@@ -208,16 +229,19 @@ class ObjectCentricModel(SurpriseModel):
         if log_visibility is not None:
             logits = logits + log_visibility.flatten(0, 1)[..., None, None]
         frame, log_weights = compose(rgb, logits, seen.flatten(0, 1))
-        return (frame.view(batch, steps, *frame.shape[1:]),
-                log_weights.view(batch, steps, slots, *log_weights.shape[2:]))
+        return (
+            frame.view(batch, steps, *frame.shape[1:]),
+            log_weights.view(batch, steps, slots, *log_weights.shape[2:]),
+        )
 
     @property
     def visibility_aware(self) -> bool:
         """Whether the dynamics predict visibility and spread (``surprise: likelihood``)."""
         return self.hparams.surprise == "likelihood"
 
-    def _dynamics(self, codes: torch.Tensor, slots: Slots, camera: torch.Tensor | None
-                  ) -> dict[str, torch.Tensor]:
+    def _dynamics(
+        self, codes: torch.Tensor, slots: Slots, camera: torch.Tensor | None
+    ) -> dict[str, torch.Tensor]:
         """The dynamics over perceived ``codes``: ``predicted`` [B, T, S, C] (index t is the
         code expected at t + 1) and, when visibility-aware, ``rollout``'s distributions, the
         slots' ``visible`` [B, T, S] and the likelihood ``terms`` of frames 1..T-1."""
@@ -226,11 +250,16 @@ class ObjectCentricModel(SurpriseModel):
         visible = slots.masks.flatten(-2).sum(-1) > 0
         prediction = self.dynamics.rollout(codes, slots.seen, visible, camera)
         terms = code_likelihood.frame_terms(prediction, codes, slots.seen, visible)
-        return {"predicted": prediction["mean"], "prediction": prediction, "visible": visible,
-                "terms": terms}
+        return {
+            "predicted": prediction["mean"],
+            "prediction": prediction,
+            "visible": visible,
+            "terms": terms,
+        }
 
-    def _predict(self, frames: torch.Tensor, mask: torch.Tensor | None,
-                 camera: torch.Tensor | None) -> dict[str, torch.Tensor]:
+    def _predict(
+        self, frames: torch.Tensor, mask: torch.Tensor | None, camera: torch.Tensor | None
+    ) -> dict[str, torch.Tensor]:
         """Deterministic pass: perceived codes, predicted codes aligned with them (index t is
         the code expected at t from frames < t; index 0 is the perceived code), the slots
         each frame is composed of (``present``; visibility-aware: those known before it) with
@@ -246,8 +275,15 @@ class ObjectCentricModel(SurpriseModel):
             present = torch.cat([slots.seen[:, :1], slots.seen[:, :-1]], dim=1)
             logits = out["prediction"]["seen_logit"][:, :-1]
             log_visibility = F.pad(F.logsigmoid(logits), (0, 0, 1, 0))  # frame 0: as seen
-        return {**out, "x": x, "codes": codes, "predicted": aligned, "seen": slots.seen,
-                "present": present, "log_visibility": log_visibility}
+        return {
+            **out,
+            "x": x,
+            "codes": codes,
+            "predicted": aligned,
+            "seen": slots.seen,
+            "present": present,
+            "log_visibility": log_visibility,
+        }
 
     # ----------------------------------------------------------------------------- training
     @property
@@ -285,8 +321,12 @@ class ObjectCentricModel(SurpriseModel):
         if not self.hparams.variational:
             kl = torch.zeros_like(kl)
         mask = self.hparams.mask_loss_weight * mask
-        return {"loss": reconstruction + mask + kl, "reconstruction": reconstruction,
-                "mask": mask, "kl": kl}
+        return {
+            "loss": reconstruction + mask + kl,
+            "reconstruction": reconstruction,
+            "mask": mask,
+            "kl": kl,
+        }
 
     def dynamics_terms(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """Dynamics loss per clip (mean over the batch), against the frozen perception's codes
@@ -303,11 +343,15 @@ class ObjectCentricModel(SurpriseModel):
         out = self._dynamics(codes, slots, camera)
         clips = x.shape[0]
         if self.visibility_aware:
-            terms = {name: nll.sum() / clips for name, nll
-                     in code_likelihood.negative_log_likelihood(out["terms"]).items()}
+            terms = {
+                name: nll.sum() / clips
+                for name, nll in code_likelihood.negative_log_likelihood(out["terms"]).items()
+            }
             weight = self.hparams.code_loss_weight or 1 / self.code_size
-            loss = sum(value * (weight if name in code_likelihood.CODE_TERMS else 1.0)
-                       for name, value in terms.items())
+            loss = sum(
+                value * (weight if name in code_likelihood.CODE_TERMS else 1.0)
+                for name, value in terms.items()
+            )
             return {"loss": loss, **terms}
         error = (out["predicted"][:, :-1] - codes[:, 1:]).pow(2).sum(-1) * slots.seen[:, 1:]
         prediction = error.sum() / clips
@@ -343,9 +387,13 @@ class ObjectCentricModel(SurpriseModel):
         return super().probe_step(batch)
 
     @torch.no_grad()
-    def surprise(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                 camera: torch.Tensor | None = None,
-                 objects: TensorDictBase | None = None) -> torch.Tensor:
+    def surprise(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> torch.Tensor:
         """Per-frame surprise [B, T] (float32), see the class docstring."""
         out = self._predict(frames, mask, camera)
         if self.hparams.surprise_space == "pixels":
@@ -360,9 +408,13 @@ class ObjectCentricModel(SurpriseModel):
         return surprise.float()
 
     @torch.no_grad()
-    def expected_frames(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                        camera: torch.Tensor | None = None,
-                 objects: TensorDictBase | None = None) -> torch.Tensor:
+    def expected_frames(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> torch.Tensor:
         """The decoded, composed predicted codes [B, T, 3, H, W] in [0, 1] (frame 0: the
         reconstruction of the first frame; visibility-aware, each slot weighed by its
         predicted visibility)."""
@@ -370,15 +422,21 @@ class ObjectCentricModel(SurpriseModel):
         return self.render(out["predicted"], out["present"], out["log_visibility"])[0]
 
     @torch.no_grad()
-    def trajectories(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                     camera: torch.Tensor | None = None,
-                 objects: TensorDictBase | None = None) -> dict[str, torch.Tensor]:
+    def trajectories(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> dict[str, torch.Tensor]:
         """``codes`` (perceived) and ``predicted`` [B, T, S * C], the slots' codes flattened
         per frame (slots not yet seen and padding slots zeroed)."""
         out = self._predict(frames, mask, camera)
         keep = out["seen"][..., None].float()
-        return {"codes": (out["codes"] * keep).flatten(2),
-                "predicted": (out["predicted"] * keep).flatten(2)}
+        return {
+            "codes": (out["codes"] * keep).flatten(2),
+            "predicted": (out["predicted"] * keep).flatten(2),
+        }
 
 
 def _seeds(batch: TensorDictBase | dict) -> torch.Tensor | None:
@@ -388,14 +446,24 @@ def _seeds(batch: TensorDictBase | dict) -> torch.Tensor | None:
 
 def build_networks(hparams: dict, code_size: int) -> tuple[Perception, SlotDynamics]:
     """The perception and dynamics networks for the model's arguments and ``code_size``."""
-    perception = Perception(hparams["image_size"], code_size, hparams["encoder_channels"],
-                            hparams["variational"], hparams["channels_last"])
-    dynamics = SlotDynamics(code_size, hparams["state_size"], hparams["relation_sizes"],
-                            hparams["node_sizes"], hparams["relation_size"],
-                            interactions=not hparams["object_free"],
-                            use_camera=hparams["use_camera"],
-                            visibility=hparams["surprise"] == "likelihood",
-                            min_std=hparams["min_code_std"])
+    perception = Perception(
+        hparams["image_size"],
+        code_size,
+        hparams["encoder_channels"],
+        hparams["variational"],
+        hparams["channels_last"],
+    )
+    dynamics = SlotDynamics(
+        code_size,
+        hparams["state_size"],
+        hparams["relation_sizes"],
+        hparams["node_sizes"],
+        hparams["relation_size"],
+        interactions=not hparams["object_free"],
+        use_camera=hparams["use_camera"],
+        visibility=hparams["surprise"] == "likelihood",
+        min_std=hparams["min_code_std"],
+    )
     return perception, dynamics
 
 
@@ -408,8 +476,9 @@ def matching_code_size(hparams: dict) -> int:
     """The object-free twin's code size whose parameter count is closest to that of the
     object-centric model with the same arguments (built on the meta device: no memory)."""
     with torch.device("meta"):
-        target = parameter_count(build_networks({**hparams, "object_free": False},
-                                                hparams["code_size"]))
+        target = parameter_count(
+            build_networks({**hparams, "object_free": False}, hparams["code_size"])
+        )
 
         def count(size: int) -> int:
             return parameter_count(build_networks(hparams, size))

@@ -33,18 +33,28 @@ REST_TOLERANCE = 0.05
 SOFTNESS = 0.01
 #: How far a corner of each shape's box (``specs.OBJECT_SHAPES``) must be drawn in to lie inside
 #: the shape: a sphere's by sqrt(3), a cylinder's or capsule's by sqrt(2), a box's not at all.
-ROUNDNESS = tuple({"sphere": math.sqrt(3), "ellipsoid": math.sqrt(3), "cylinder": math.sqrt(2),
-                   "capsule": math.sqrt(2)}.get(name, 1.0) for name in specs.OBJECT_SHAPES)
+ROUNDNESS = tuple(
+    {
+        "sphere": math.sqrt(3),
+        "ellipsoid": math.sqrt(3),
+        "cylinder": math.sqrt(2),
+        "capsule": math.sqrt(2),
+    }.get(name, 1.0)
+    for name in specs.OBJECT_SHAPES
+)
 
 
 def camera_axes(camera: torch.Tensor) -> tuple[torch.Tensor, ...]:
     """Eye position, right, up and forward unit vectors [B, 3] of MuJoCo's free camera at
     poses [B, 6] (the torch twin of ``scenes.camera.camera_axes``)."""
     azimuth, elevation = torch.deg2rad(camera[:, 4]), torch.deg2rad(camera[:, 5])
-    forward = torch.stack([elevation.cos() * azimuth.cos(), elevation.cos() * azimuth.sin(),
-                           elevation.sin()], dim=-1)
-    up = torch.stack([-elevation.sin() * azimuth.cos(), -elevation.sin() * azimuth.sin(),
-                      elevation.cos()], dim=-1)
+    forward = torch.stack(
+        [elevation.cos() * azimuth.cos(), elevation.cos() * azimuth.sin(), elevation.sin()], dim=-1
+    )
+    up = torch.stack(
+        [-elevation.sin() * azimuth.cos(), -elevation.sin() * azimuth.sin(), elevation.cos()],
+        dim=-1,
+    )
     eye = camera[:, :3] - camera[:, 3:4] * forward
     return eye, torch.linalg.cross(forward, up), up, forward
 
@@ -53,9 +63,17 @@ def _product_map() -> torch.Tensor:
     """The rotation matrix of a quaternion (w, x, y, z), less the identity, as a linear map of
     its sixteen pairwise products q_a q_b [16, 9] (row 4a + b; column: the entry, row-major)."""
     w, x, y, z = range(4)
-    entries = [((y, y, -2), (z, z, -2)), ((x, y, 2), (w, z, -2)), ((x, z, 2), (w, y, 2)),
-               ((x, y, 2), (w, z, 2)), ((x, x, -2), (z, z, -2)), ((y, z, 2), (w, x, -2)),
-               ((x, z, 2), (w, y, -2)), ((y, z, 2), (w, x, 2)), ((x, x, -2), (y, y, -2))]
+    entries = [
+        ((y, y, -2), (z, z, -2)),
+        ((x, y, 2), (w, z, -2)),
+        ((x, z, 2), (w, y, 2)),
+        ((x, y, 2), (w, z, 2)),
+        ((x, x, -2), (z, z, -2)),
+        ((y, z, 2), (w, x, -2)),
+        ((x, z, 2), (w, y, -2)),
+        ((y, z, 2), (w, x, 2)),
+        ((x, x, -2), (y, y, -2)),
+    ]
     mapping = torch.zeros(16, 9)
     for entry, terms in enumerate(entries):
         for a, b, coefficient in terms:
@@ -131,10 +149,15 @@ def quaternion_product(first: torch.Tensor, second: torch.Tensor) -> torch.Tenso
     """The rotation [..., 4] that applies ``second``, then ``first`` (w, x, y, z)."""
     w1, x1, y1, z1 = first.unbind(-1)
     w2, x2, y2, z2 = second.unbind(-1)
-    return torch.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-                        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-                        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], dim=-1)
+    return torch.stack(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ],
+        dim=-1,
+    )
 
 
 def _unit_quaternion(state: torch.Tensor) -> torch.Tensor:
@@ -143,13 +166,13 @@ def _unit_quaternion(state: torch.Tensor) -> torch.Tensor:
     return quaternion / quaternion.norm(dim=-1, keepdim=True).clamp(min=1e-6)
 
 
-def _resting_face(rotation: torch.Tensor, half: torch.Tensor
-                  ) -> tuple[torch.Tensor, torch.Tensor]:
+def _resting_face(rotation: torch.Tensor, half: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """The box axis [..., 1] an object comes to rest on, the one furthest inside its tipping
     angle (tilted less than the angle at which the centre passes over the box's narrowest
     edge), and that axis [..., 3] in the world, pointing up."""
-    narrowest_other = torch.stack([half[..., [1, 2]].amin(-1), half[..., [0, 2]].amin(-1),
-                                   half[..., [0, 1]].amin(-1)], dim=-1)
+    narrowest_other = torch.stack(
+        [half[..., [1, 2]].amin(-1), half[..., [0, 2]].amin(-1), half[..., [0, 1]].amin(-1)], dim=-1
+    )
     tipping = torch.atan2(narrowest_other, half)
     tilt = torch.acos(rotation[..., 2, :].abs().clamp(max=1.0))
     nearest = (tipping - tilt).argmax(-1, keepdim=True)
@@ -210,16 +233,18 @@ def resting_on(belief: torch.Tensor, shape: torch.Tensor, known: torch.Tensor) -
 
 def _rotate(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
     """Quaternions [..., 4] turning by ``angle`` [...] about unit ``axis`` [..., 3]."""
-    return torch.cat([torch.cos(angle / 2)[..., None], axis * torch.sin(angle / 2)[..., None]],
-                     dim=-1)
+    return torch.cat(
+        [torch.cos(angle / 2)[..., None], axis * torch.sin(angle / 2)[..., None]], dim=-1
+    )
 
 
 def _dot(first: torch.Tensor, second: torch.Tensor) -> torch.Tensor:
     return (first * second).sum(-1)
 
 
-def pivoted_down(state: torch.Tensor, belief: torch.Tensor, shape: torch.Tensor,
-                 known: torch.Tensor) -> torch.Tensor:
+def pivoted_down(
+    state: torch.Tensor, belief: torch.Tensor, shape: torch.Tensor, known: torch.Tensor
+) -> torch.Tensor:
     """``state`` [B, S, 13] with each object turned about the lowest corner of its box, the way
     it would topple (onto ``_resting_face``), until its underside meets the top of another
     known object at its ``belief`` (``support_tops``; nine points of each top: the corners and
@@ -246,15 +271,21 @@ def pivoted_down(state: torch.Tensor, belief: torch.Tensor, shape: torch.Tensor,
         outward = torch.linalg.cross(vertical, across)  # horizontal, away from the hinge line
         outward = outward * torch.where(_dot(centre - hinge, outward)[..., None] < 0, -1.0, 1.0)
         others = 1.0 - F.one_hot(nearest[..., 0], 3).to(half)  # the underside's two axes
-        reach = [(_dot(rotation.transpose(-1, -2), d[..., None, :]).abs() * half * others).sum(-1)
-                 for d in (across, along)]
+        reach = [
+            (_dot(rotation.transpose(-1, -2), d[..., None, :]).abs() * half * others).sum(-1)
+            for d in (across, along)
+        ]
         # the nine top points of every other object [B, S, 9, 3], from each hinge [B, S, S, 9, 3]
         grid = torch.tensor([-1.0, 0.0, 1.0], dtype=state.dtype, device=state.device)
         offsets = torch.stack(torch.meshgrid(grid, grid, indexing="ij"), -1).reshape(9, 2)
         extents = world_half_extents(belief)
-        points = torch.cat([belief[..., None, :2] + offsets * extents[..., None, :2],
-                            support_tops(belief, shape)[..., None, None].expand(-1, -1, 9, 1)],
-                           dim=-1)
+        points = torch.cat(
+            [
+                belief[..., None, :2] + offsets * extents[..., None, :2],
+                support_tops(belief, shape)[..., None, None].expand(-1, -1, 9, 1),
+            ],
+            dim=-1,
+        )
         relative = points[:, None] - hinge[:, :, None, None]
 
         def per_pair(values: torch.Tensor) -> torch.Tensor:  # [B, S, ...] -> [B, S, 1, 1, ...]
@@ -264,33 +295,46 @@ def pivoted_down(state: torch.Tensor, belief: torch.Tensor, shape: torch.Tensor,
         height, out = relative[..., 2], _dot(relative, per_pair(outward))
         distance = torch.hypot(out, height) - per_pair(_dot(face, along))
         depth = _dot(relative, per_pair(up))  # above (+) or below (-) the underside
-        met = ((side.abs() <= per_pair(reach[0])) & (distance.abs() <= per_pair(reach[1]))
-               & (height > 0) & (out > 0) & (depth <= per_pair(2 * thickness) + REST_TOLERANCE)
-               & known[:, None, :, None]
-               & ~torch.eye(known.shape[1], dtype=torch.bool, device=known.device)[..., None])
+        met = (
+            (side.abs() <= per_pair(reach[0]))
+            & (distance.abs() <= per_pair(reach[1]))
+            & (height > 0)
+            & (out > 0)
+            & (depth <= per_pair(2 * thickness) + REST_TOLERANCE)
+            & known[:, None, :, None]
+            & ~torch.eye(known.shape[1], dtype=torch.bool, device=known.device)[..., None]
+        )
         slope = torch.where(depth >= 0, per_pair(tilt), torch.atan2(height, out))
-        rest = torch.where(met, slope.clamp(max=per_pair(tilt)),
-                           torch.zeros_like(slope)).amax(-1).amax(-1)
+        rest = (
+            torch.where(met, slope.clamp(max=per_pair(tilt)), torch.zeros_like(slope))
+            .amax(-1)
+            .amax(-1)
+        )
         turn = _rotate(across, tilt - rest)
         propped = met.any(-1).any(-1)
     turned = hinge + (quaternion_matrix(turn) * (centre - hinge)[..., None, :]).sum(-1)
-    turned = torch.cat([turned[..., :2],
-                        torch.where(propped, turned[..., 2], thickness)[..., None]],
-                       dim=-1)
-    return torch.cat([turned, _upright(quaternion_product(turn, quaternion)), half,
-                      state[..., 10:]], dim=-1)
+    turned = torch.cat(
+        [turned[..., :2], torch.where(propped, turned[..., 2], thickness)[..., None]], dim=-1
+    )
+    return torch.cat(
+        [turned, _upright(quaternion_product(turn, quaternion)), half, state[..., 10:]], dim=-1
+    )
 
 
 def sample_points(state: torch.Tensor, shape: torch.Tensor) -> torch.Tensor:
     """The tested points of each object [B, S, 9, 3] (world): its centre and the corners of its
     box drawn in (CORNER_INSET), and for a round shape further, into the shape itself (a
     sphere's box corners stick out of it)."""
-    signs = torch.tensor([[0.0, 0.0, 0.0]] + [[x, y, z] for x in (-1.0, 1.0)
-                                              for y in (-1.0, 1.0) for z in (-1.0, 1.0)],
-                         dtype=state.dtype, device=state.device)
+    signs = torch.tensor(
+        [[0.0, 0.0, 0.0]]
+        + [[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)],
+        dtype=state.dtype,
+        device=state.device,
+    )
     inset = CORNER_INSET / torch.tensor(ROUNDNESS, dtype=state.dtype, device=state.device)
-    inset = (shape * inset).sum(-1, keepdim=True) + CORNER_INSET * (shape.sum(-1, keepdim=True)
-                                                                    == 0)
+    inset = (shape * inset).sum(-1, keepdim=True) + CORNER_INSET * (
+        shape.sum(-1, keepdim=True) == 0
+    )
     local = signs * (inset * state[..., 7:10])[..., None, :]  # [B, S, 9, 3]
     return state[..., None, :3] + torch.einsum("bsij,bspj->bspi", _rotations(state), local)
 
@@ -304,26 +348,40 @@ def occluder_boxes(state: torch.Tensor, shape: torch.Tensor) -> tuple[torch.Tens
     hx, hy, hz = half.unbind(-1)
     wall = torch.minimum(half.amin(-1), torch.full_like(hx, WALL))
     zero = torch.zeros_like(hx)
-    centres = torch.stack([
-        torch.stack([zero, zero, -hz + wall], -1),
-        torch.stack([zero, hy - wall, zero], -1), torch.stack([zero, wall - hy, zero], -1),
-        torch.stack([hx - wall, zero, zero], -1), torch.stack([wall - hx, zero, zero], -1),
-    ], dim=-2)
-    halves = torch.stack([
-        torch.stack([hx, hy, wall], -1),
-        torch.stack([hx, wall, hz], -1), torch.stack([hx, wall, hz], -1),
-        torch.stack([wall, hy, hz], -1), torch.stack([wall, hy, hz], -1),
-    ], dim=-2)
+    centres = torch.stack(
+        [
+            torch.stack([zero, zero, -hz + wall], -1),
+            torch.stack([zero, hy - wall, zero], -1),
+            torch.stack([zero, wall - hy, zero], -1),
+            torch.stack([hx - wall, zero, zero], -1),
+            torch.stack([wall - hx, zero, zero], -1),
+        ],
+        dim=-2,
+    )
+    halves = torch.stack(
+        [
+            torch.stack([hx, hy, wall], -1),
+            torch.stack([hx, wall, hz], -1),
+            torch.stack([hx, wall, hz], -1),
+            torch.stack([wall, hy, hz], -1),
+            torch.stack([wall, hy, hz], -1),
+        ],
+        dim=-2,
+    )
     compound = (shape.argmax(-1) == COMPOUND) & (shape.amax(-1) > 0)  # [B, S]
     solid_centres = torch.zeros_like(centres)
     solid_halves = torch.cat([half[..., None, :], torch.zeros_like(halves[..., 1:, :])], -2)
     real = compound[..., None] | (torch.arange(5, device=compound.device) == 0)  # solid: 1 box
-    return (torch.where(compound[..., None, None], centres, solid_centres),
-            torch.where(compound[..., None, None], halves, solid_halves), real)
+    return (
+        torch.where(compound[..., None, None], centres, solid_centres),
+        torch.where(compound[..., None, None], halves, solid_halves),
+        real,
+    )
 
 
-def sight_blocked(eye: torch.Tensor, points: torch.Tensor, state: torch.Tensor,
-                  shape: torch.Tensor) -> torch.Tensor:
+def sight_blocked(
+    eye: torch.Tensor, points: torch.Tensor, state: torch.Tensor, shape: torch.Tensor
+) -> torch.Tensor:
     """How surely each object j's boxes block the sight line from ``eye`` [B, 3] to each point
     [B, S, P, 3] [B, S, P, S_j] (soft, in [0, 1]): a slab test in each box's frame, softened
     by SOFTNESS over how far the line runs through the box before reaching the point."""
@@ -350,8 +408,9 @@ def sight_blocked(eye: torch.Tensor, points: torch.Tensor, state: torch.Tensor,
     return 1 - (1 - blocked).prod(-1)
 
 
-def seen_by_geometry(state: torch.Tensor, shape: torch.Tensor, known: torch.Tensor,
-                     camera: torch.Tensor) -> torch.Tensor:
+def seen_by_geometry(
+    state: torch.Tensor, shape: torch.Tensor, known: torch.Tensor, camera: torch.Tensor
+) -> torch.Tensor:
     """How likely each slot is to be seen by geometry alone [B, S], from the slots' states
     [B, S, 13] and shapes [B, S, SHAPES] at poses [B, 6]: whether some of its image box is in
     the frame, times the best, over the tested points of its box, of the chance that the point
@@ -359,21 +418,23 @@ def seen_by_geometry(state: torch.Tensor, shape: torch.Tensor, known: torch.Tens
     would say."""
     seen_as = view(state, camera)
     centre, half = seen_as[..., 3:5], seen_as[..., 5:7]
-    overlap = (torch.minimum(centre + half, torch.ones_like(centre))
-               - torch.maximum(centre - half, -torch.ones_like(centre)))
+    overlap = torch.minimum(centre + half, torch.ones_like(centre)) - torch.maximum(
+        centre - half, -torch.ones_like(centre)
+    )
     in_frame = torch.sigmoid(overlap / (2 * SOFTNESS)).prod(-1)
     in_frame = in_frame * torch.sigmoid((seen_as[..., 2] - 0.05) / SOFTNESS)  # before the eye
     points = sample_points(state, shape)  # [B, S, P, 3]
     above_floor = torch.sigmoid(points[..., 2] / SOFTNESS)
     blocked = sight_blocked(camera_axes(camera)[0], points, state, shape)  # [B, S, P, J]
     slots = known.shape[1]
-    others = (known[:, None, :] & ~torch.eye(slots, dtype=torch.bool, device=known.device))
+    others = known[:, None, :] & ~torch.eye(slots, dtype=torch.bool, device=known.device)
     clear = (1 - blocked * others[:, :, None].float()).prod(-1)
     return in_frame * (above_floor * clear).amax(-1)
 
 
-def draw_ellipses(state: torch.Tensor, opacity: torch.Tensor, camera: torch.Tensor,
-                  image_size: tuple[int, int]) -> torch.Tensor:
+def draw_ellipses(
+    state: torch.Tensor, opacity: torch.Tensor, camera: torch.Tensor, image_size: tuple[int, int]
+) -> torch.Tensor:
     """Object states [B, T, S, 13] drawn as ellipses of their colour on grey [B, T, 3, H, W],
     each filling the image-plane bounding box of the object's box as it is turned (``view``):
     a rod seen side-on is a thin streak, not a disc as long as the rod. ``opacity`` [B, T, S]
@@ -392,12 +453,19 @@ def draw_ellipses(state: torch.Tensor, opacity: torch.Tensor, camera: torch.Tens
     order = seen_as[..., 2].argsort(dim=-1, descending=True)
     for index in range(slots):
         slot = order[..., index]  # [B, T]: the farthest remaining slot of each frame
+
         def take(values, slot=slot):
             return values.gather(2, slot[..., None]).squeeze(2)
-        inside = (((rows[:, None] - take(row)[..., None, None])
-                   / take(half_height)[..., None, None]).pow(2)
-                  + ((columns[None] - take(column)[..., None, None])
-                     / take(half_width)[..., None, None]).pow(2) <= 1).float()
+
+        inside = (
+            ((rows[:, None] - take(row)[..., None, None]) / take(half_height)[..., None, None]).pow(
+                2
+            )
+            + (
+                (columns[None] - take(column)[..., None, None]) / take(half_width)[..., None, None]
+            ).pow(2)
+            <= 1
+        ).float()
         alpha = (inside * take(opacity)[..., None, None])[:, :, None]
         colour = state.gather(2, slot[..., None, None].expand(-1, -1, 1, state.shape[-1]))[:, :, 0]
         image = image * (1 - alpha) + colour[..., 10:13, None, None] * alpha

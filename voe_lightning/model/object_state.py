@@ -69,9 +69,22 @@ SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape"
 
 #: Constructor arguments that shape the parameters, or the priors they were trained with: a
 #: checkpoint must agree on all of them.
-ARCHITECTURE = ("hidden_size", "message_size", "use_camera", "components", "stop_component",
-                "landing_component", "pivot_landing", "landing_change", "carry", "hold_still",
-                "slowing", "falling_lands", "fall_gain", "shared_identity")
+ARCHITECTURE = (
+    "hidden_size",
+    "message_size",
+    "use_camera",
+    "components",
+    "stop_component",
+    "landing_component",
+    "pivot_landing",
+    "landing_change",
+    "carry",
+    "hold_still",
+    "slowing",
+    "falling_lands",
+    "fall_gain",
+    "shared_identity",
+)
 #: Per-slot inputs of the dynamics with ``landing_component``: how high the lowest point of the
 #: object's box is above the floor at its belief and where its inertia would take it.
 FLOOR_FEATURES = 2
@@ -107,18 +120,26 @@ def observe(objects: TensorDictBase, camera: torch.Tensor) -> Observations:
     order = (first * count + torch.arange(count, device=seen.device)).argsort(dim=1)
     slots = int((first <= steps - 1).sum(1).max())
     ids = order[:, :slots]  # [B, S]
-    picked = {name: value.gather(2, ids[:, None].expand(-1, steps, -1).reshape(
-                  *ids.shape[:1], steps, slots, *([1] * (value.dim() - 3))
-              ).expand(-1, -1, -1, *value.shape[3:]))
-              for name, value in objects.items()}  # [B, T, S, ...]
+    picked = {
+        name: value.gather(
+            2,
+            ids[:, None]
+            .expand(-1, steps, -1)
+            .reshape(*ids.shape[:1], steps, slots, *([1] * (value.dim() - 3)))
+            .expand(-1, -1, -1, *value.shape[3:]),
+        )
+        for name, value in objects.items()
+    }  # [B, T, S, ...]
     visible = picked["visible_fraction"] > 0
     label = picked["shape_label"].long()
     orientation = picked["orientation"].float()
     orientation = orientation * torch.where(orientation[..., :1] < 0, -1.0, 1.0)  # w >= 0
     identity = torch.tensor([1.0, 0.0, 0.0, 0.0], device=orientation.device)
     orientation = torch.where((label == SPHERE)[..., None], identity, orientation)
-    state = torch.cat([picked["position"].float(), orientation, picked["size"].float(),
-                       picked["color"].float()], dim=-1)
+    state = torch.cat(
+        [picked["position"].float(), orientation, picked["size"].float(), picked["color"].float()],
+        dim=-1,
+    )
     keep = visible[..., None].float()
     return Observations(
         ids=ids,
@@ -169,51 +190,76 @@ class Mixture:
 
     def most_probable(self) -> torch.Tensor:
         """Each slot's most probable component's mean [B, S, 13]."""
-        top = (self.logits.argmax(-1) if self.logits is not None
-               else self.means.new_zeros(self.means.shape[:2], dtype=torch.long))
+        top = (
+            self.logits.argmax(-1)
+            if self.logits is not None
+            else self.means.new_zeros(self.means.shape[:2], dtype=torch.long)
+        )
         return self.means.gather(2, top[..., None, None].expand(-1, -1, 1, STATE_SIZE))[:, :, 0]
 
 
 def _check_arguments(h) -> None:
     """Refuse constructor arguments that make no model, naming the value and what is valid."""
     if h.hidden_size < 1 or h.message_size < 1:
-        raise ValueError(f"hidden_size and message_size must be >= 1, got {h.hidden_size}, "
-                         f"{h.message_size}")
+        raise ValueError(
+            f"hidden_size and message_size must be >= 1, got {h.hidden_size}, {h.message_size}"
+        )
     if h.min_std <= 0 or h.learning_rate <= 0:
-        raise ValueError(f"min_std and learning_rate must be > 0, got {h.min_std}, "
-                         f"{h.learning_rate}")
+        raise ValueError(
+            f"min_std and learning_rate must be > 0, got {h.min_std}, {h.learning_rate}"
+        )
     if h.components < 1:
-        raise ValueError(f"components must be >= 1 (Gaussians in the mixture over a slot's next "
-                         f"state), got {h.components}")
+        raise ValueError(
+            f"components must be >= 1 (Gaussians in the mixture over a slot's next "
+            f"state), got {h.components}"
+        )
     if h.stop_component and h.components < 2:
-        raise ValueError(f"stop_component needs components >= 2 (one Gaussian for stopping, the "
-                         f"others for moving on), got components={h.components}")
+        raise ValueError(
+            f"stop_component needs components >= 2 (one Gaussian for stopping, the "
+            f"others for moving on), got components={h.components}"
+        )
     if h.landing_component and h.components < 2 + h.stop_component:
-        raise ValueError(f"landing_component needs components >= {2 + h.stop_component} (one "
-                         f"Gaussian for landing{', one for stopping' if h.stop_component else ''}"
-                         f", the others for moving on), got components={h.components}")
+        raise ValueError(
+            f"landing_component needs components >= {2 + h.stop_component} (one "
+            f"Gaussian for landing{', one for stopping' if h.stop_component else ''}"
+            f", the others for moving on), got components={h.components}"
+        )
     if not h.landing_change and not h.landing_component:
-        raise ValueError("landing_change: false needs landing_component: true (it is the "
-                         "landing Gaussian's learned change that it leaves out)")
+        raise ValueError(
+            "landing_change: false needs landing_component: true (it is the "
+            "landing Gaussian's learned change that it leaves out)"
+        )
     if h.pivot_landing and not h.landing_component:
-        raise ValueError("pivot_landing needs landing_component: true (it says where the "
-                         "landing Gaussian lays an object), got landing_component=false")
+        raise ValueError(
+            "pivot_landing needs landing_component: true (it says where the "
+            "landing Gaussian lays an object), got landing_component=false"
+        )
     if not 0 <= h.withhold <= 1 or h.withhold_frames < 1:
-        raise ValueError(f"withhold must be in [0, 1] (a share of each clip's objects) and "
-                         f"withhold_frames >= 1, got {h.withhold}, {h.withhold_frames}")
+        raise ValueError(
+            f"withhold must be in [0, 1] (a share of each clip's objects) and "
+            f"withhold_frames >= 1, got {h.withhold}, {h.withhold_frames}"
+        )
     if h.carry not in CARRIES:
-        raise ValueError(f"carry must be one of {CARRIES} (what a carrier passes on to the "
-                         f"objects resting on it), got {h.carry!r}")
+        raise ValueError(
+            f"carry must be one of {CARRIES} (what a carrier passes on to the "
+            f"objects resting on it), got {h.carry!r}"
+        )
     if h.falling_lands and not h.stop_component:
-        raise ValueError("falling_lands needs stop_component: true (it leaves the stopping "
-                         "Gaussian out for a falling object), got stop_component=false")
+        raise ValueError(
+            "falling_lands needs stop_component: true (it leaves the stopping "
+            "Gaussian out for a falling object), got stop_component=false"
+        )
     if not 0 <= h.fall_gain <= MAX_MOVE:
-        raise ValueError(f"fall_gain must be in [0, {MAX_MOVE}] (m a frame by which a falling "
-                         f"object's downward move grows; 0.392 at 15 frames over 3 s), got "
-                         f"{h.fall_gain}")
+        raise ValueError(
+            f"fall_gain must be in [0, {MAX_MOVE}] (m a frame by which a falling "
+            f"object's downward move grows; 0.392 at 15 frames over 3 s), got "
+            f"{h.fall_gain}"
+        )
     if h.carry == "support" and not h.stop_component:
-        raise ValueError("carry: support needs stop_component: true (it moves the stopping "
-                         "Gaussian with what the object rests on), got stop_component=false")
+        raise ValueError(
+            "carry: support needs stop_component: true (it moves the stopping "
+            "Gaussian with what the object rests on), got stop_component=false"
+        )
     optimization.check_schedule(h.lr_schedule)
 
 
@@ -270,11 +316,18 @@ class ObjectStateModel(SurpriseModel):
     """
 
     ARCHITECTURE = ARCHITECTURE
-    TRAINING_ONLY = ("learning_rate", "lr_schedule", "withhold", "withhold_frames",
-                     "hard_assignment")
-    SURPRISE = ("the rectified excess surprisal of the seen object states (each term's negative "
-                "log-likelihood less its entropy, where positive: the visibility, state and shape "
-                "of every known object, and any newcomer's appearance)")
+    TRAINING_ONLY = (
+        "learning_rate",
+        "lr_schedule",
+        "withhold",
+        "withhold_frames",
+        "hard_assignment",
+    )
+    SURPRISE = (
+        "the rectified excess surprisal of the seen object states (each term's negative "
+        "log-likelihood less its entropy, where positive: the visibility, state and shape "
+        "of every known object, and any newcomer's appearance)"
+    )
 
     def __init__(
         self,
@@ -307,8 +360,14 @@ class ObjectStateModel(SurpriseModel):
         self.message = PairNetwork(hidden, hidden, hidden, message)
         self.update = nn.GRUCell(FEATURES + message + CAMERA_FEATURES, hidden)
         floor = FLOOR_FEATURES if landing_component else 0
-        self.dynamics = mlp([hidden + message + CAMERA_FEATURES + floor, hidden, hidden,
-                             self._dynamics_outputs(components)])
+        self.dynamics = mlp(
+            [
+                hidden + message + CAMERA_FEATURES + floor,
+                hidden,
+                hidden,
+                self._dynamics_outputs(components),
+            ]
+        )
         self.occlusion = PairNetwork(hidden, 0, hidden, message)
         self.visibility = mlp([hidden + message + VIEW + 3 + CAMERA_FEATURES, hidden, 1])
         #: How much the visibility logit starts from geometry (``seen_by_geometry``); learned.
@@ -329,14 +388,16 @@ class ObjectStateModel(SurpriseModel):
         return components * 2 * STATE_SIZE + (components if components > 1 else 0) + SHAPES
 
     # ----------------------------------------------------------------------------- inputs
-    def _inputs(self, frames: torch.Tensor, objects: TensorDictBase | None,
-                camera: torch.Tensor | None) -> Observations:
+    def _inputs(
+        self, frames: torch.Tensor, objects: TensorDictBase | None, camera: torch.Tensor | None
+    ) -> Observations:
         if objects is None:
             raise ValueError(
                 "the object-state model (the positive control) reads each video's object "
                 f"states (batch key 'objects', specs.objects_spec), but a batch of "
                 f"{tuple(frames.shape[:2])} videos came without them; use the package's "
-                "generated records (GENERATOR_VERSION 3 or later)")
+                "generated records (GENERATOR_VERSION 3 or later)"
+            )
         steps = frames.shape[1]
         if camera is None or not self.hparams.use_camera:
             camera = torch.tensor([0.0, 0.0, 0.4, 4.0, 90.0, -20.0], device=self.device)
@@ -361,16 +422,26 @@ class ObjectStateModel(SurpriseModel):
 
         centre, half = seen_as[..., BOX_CENTRE], seen_as[..., BOX_HALF]
         # the share of i's image box along right and up that j's spans
-        overlap = ((other(half) + own(half) - other_minus_self(centre).abs())
-                   / (2 * own(half)).clamp(min=1e-3)).clamp(0, 1)
-        return torch.cat([
-            other_minus_self(state[..., POSITION]),
-            other_minus_self(seen_as[..., CAMERA_XYZ]),
-            other_minus_self(centre),
-            other(state[..., SIZE]), own(state[..., SIZE]), other(half), own(half),
-            overlap, overlap.prod(-1, keepdim=True),
-            other(state[..., ORIENTATION]), other(shape),
-        ], dim=-1)
+        overlap = (
+            (other(half) + own(half) - other_minus_self(centre).abs())
+            / (2 * own(half)).clamp(min=1e-3)
+        ).clamp(0, 1)
+        return torch.cat(
+            [
+                other_minus_self(state[..., POSITION]),
+                other_minus_self(seen_as[..., CAMERA_XYZ]),
+                other_minus_self(centre),
+                other(state[..., SIZE]),
+                own(state[..., SIZE]),
+                other(half),
+                own(half),
+                overlap,
+                overlap.prod(-1, keepdim=True),
+                other(state[..., ORIENTATION]),
+                other(shape),
+            ],
+            dim=-1,
+        )
 
     @staticmethod
     def _pair_weight(known: torch.Tensor) -> torch.Tensor:
@@ -379,13 +450,20 @@ class ObjectStateModel(SurpriseModel):
         eye = torch.eye(known.shape[1], dtype=torch.bool, device=known.device)
         return (weight & ~eye).float()[..., None]
 
-    def _messages(self, network: "PairNetwork", own: torch.Tensor, other: torch.Tensor | None,
-                  pairs: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
+    def _messages(
+        self,
+        network: PairNetwork,
+        own: torch.Tensor,
+        other: torch.Tensor | None,
+        pairs: torch.Tensor,
+        known: torch.Tensor,
+    ) -> torch.Tensor:
         """Sum over the other known slots j of network(own_i, other_j, pair_ij) [B, S, M]."""
         return (network(own, other, pairs) * self._pair_weight(known)).sum(2)
 
-    def rollout(self, observations: Observations, withheld: torch.Tensor | None = None
-                ) -> dict[str, torch.Tensor]:
+    def rollout(
+        self, observations: Observations, withheld: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
         """Run the slots through a batch's frames. Returns, per frame and slot [B, T, S], the
         negative log-likelihood of the visibility, state and shape seen (0 where they do not
         apply) and the entropy of each prediction (``<term>_entropy``), ``appear`` and
@@ -409,8 +487,7 @@ class ObjectStateModel(SurpriseModel):
         given_before = known  # what reached the model at the frame before (none before 0)
         holding = None  # which slots stay where they rest (``Holding``); none before frame 1
         still = torch.ones_like(known)  # not seen moving across the floor when last seen twice
-        terms = {key: [] for name in SLOT_TERMS + ("appear",)
-                 for key in (name, f"{name}_entropy")}
+        terms = {key: [] for name in SLOT_TERMS + ("appear",) for key in (name, f"{name}_entropy")}
         beliefs, predictions, probability, knowns, states = [], [], [], [], []
         for t in range(steps):
             pose = obs.camera[:, t]
@@ -422,13 +499,15 @@ class ObjectStateModel(SurpriseModel):
             if t == 0:
                 predicted = belief
                 for key in terms:
-                    terms[key].append(obs.state.new_zeros(
-                        batch, *(() if key.startswith("appear") else (slots,))))
+                    terms[key].append(
+                        obs.state.new_zeros(batch, *(() if key.startswith("appear") else (slots,)))
+                    )
                 probability.append(obs.state.new_zeros(batch, slots))
             else:
                 slots_before = Slots(hidden, belief, shape, velocity, acceleration, known, still)
                 predicted, step_terms, seen_probability, holding = self._predict(
-                    slots_before, known & ~given_before, pose, pose_features, obs, t)
+                    slots_before, known & ~given_before, pose, pose_features, obs, t
+                )
                 for key, value in step_terms.items():
                     terms[key].append(value)
                 probability.append(seen_probability)
@@ -438,18 +517,19 @@ class ObjectStateModel(SurpriseModel):
             # own prediction
             if holding is not None:
                 hidden_now = (~given)[..., None]
-                correction = ((obs.state[:, t, :, POSITION] - predicted[..., POSITION])
-                              * given[..., None]).detach()
+                correction = (
+                    (obs.state[:, t, :, POSITION] - predicted[..., POSITION]) * given[..., None]
+                ).detach()
                 carried = torch.einsum("bij,bjk->bik", holding.rests, correction) * hidden_now
-                predicted = torch.where(holding.holds[..., None] & hidden_now, holding.state,
-                                        predicted) + F.pad(carried, (0, STATE_SIZE - 3))
+                predicted = torch.where(
+                    holding.holds[..., None] & hidden_now, holding.state, predicted
+                ) + F.pad(carried, (0, STATE_SIZE - 3))
             previous = belief
             belief = torch.where(given[..., None], obs.state[:, t], predicted)
             # the last move: seen in both frames, what was seen; else what was predicted (a
             # reappearing object's jump from its predicted place is a correction, not a move)
             steady = (given & given_before)[..., None]
-            move = (torch.where(steady, belief, predicted)[..., POSITION]
-                    - previous[..., POSITION])
+            move = torch.where(steady, belief, predicted)[..., POSITION] - previous[..., POSITION]
             moving = move * (known & ~new)[..., None].float()  # known before t
             acceleration, velocity = moving - velocity, moving
             still = torch.where(steady[..., 0], velocity[..., :2].norm(dim=-1) < MOVING, still)
@@ -457,8 +537,17 @@ class ObjectStateModel(SurpriseModel):
             known = known | visible
             given_before = given
             seen_as = view(belief, pose)
-            features = torch.cat([belief, shape, (obs.fraction[:, t] * given)[..., None],
-                                  seen_as, velocity, given[..., None].float()], dim=-1)
+            features = torch.cat(
+                [
+                    belief,
+                    shape,
+                    (obs.fraction[:, t] * given)[..., None],
+                    seen_as,
+                    velocity,
+                    given[..., None].float(),
+                ],
+                dim=-1,
+            )
             pairs = self._pairs(belief, shape, seen_as)
             message = self._messages(self.message, hidden, hidden, pairs, known)
             step_input = torch.cat([features, message, pose_features], dim=-1)
@@ -477,9 +566,15 @@ class ObjectStateModel(SurpriseModel):
             "hidden": torch.stack(states, dim=1),
         }
 
-    def _predict(self, slots: Slots, unseen: torch.Tensor, pose: torch.Tensor,
-                 pose_features: torch.Tensor, obs: Observations, t: int
-                 ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor, Holding | None]:
+    def _predict(
+        self,
+        slots: Slots,
+        unseen: torch.Tensor,
+        pose: torch.Tensor,
+        pose_features: torch.Tensor,
+        obs: Observations,
+        t: int,
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor, Holding | None]:
         """Frame t's predictions from the slots after frame t-1: the predicted states [B, S, 13]
         (the most probable Gaussian's mean, or where ``_holding`` holds a slot not given at t-1,
         ``unseen`` [B, S]), the terms of what frame t shows (``rollout``), p(visible) [B, S] and
@@ -497,13 +592,26 @@ class ObjectStateModel(SurpriseModel):
         terms = {}
         for name, (nll, entropy), weight in (
             ("visibility", bernoulli_nll(logit, seen), keep),
-            ("state", mixture_nll(obs.state[:, t], mixture.means, mixture.log_std,
-                                  mixture.logits, hard=hard), seen * keep),
+            (
+                "state",
+                mixture_nll(
+                    obs.state[:, t], mixture.means, mixture.log_std, mixture.logits, hard=hard
+                ),
+                seen * keep,
+            ),
             ("shape", categorical_nll(shape_logits, obs.shape[:, t]), seen * keep),
         ):
             terms[name], terms[f"{name}_entropy"] = nll * weight, entropy * weight
-        terms.update(self._appearance(slots.hidden, slots.known, pose, visible & ~slots.known,
-                                      obs.state[:, t], obs.shape[:, t]))
+        terms.update(
+            self._appearance(
+                slots.hidden,
+                slots.known,
+                pose,
+                visible & ~slots.known,
+                obs.state[:, t],
+                obs.shape[:, t],
+            )
+        )
         return predicted, terms, torch.sigmoid(logit) * keep, holding
 
     def _inertia(self, slots: Slots, falling: torch.Tensor) -> torch.Tensor:
@@ -517,8 +625,14 @@ class ObjectStateModel(SurpriseModel):
             move = move - F.pad(falling[..., None] * self.hparams.fall_gain, (2, 0))
         return F.pad(move.clamp(-MAX_MOVE, MAX_MOVE), (0, STATE_SIZE - 3))
 
-    def _mixture(self, slots: Slots, message: torch.Tensor, pose_features: torch.Tensor,
-                 inertia: torch.Tensor, falling: torch.Tensor) -> tuple[Mixture, torch.Tensor]:
+    def _mixture(
+        self,
+        slots: Slots,
+        message: torch.Tensor,
+        pose_features: torch.Tensor,
+        inertia: torch.Tensor,
+        falling: torch.Tensor,
+    ) -> tuple[Mixture, torch.Tensor]:
         """The mixture over each slot's next state and its shape's logits [B, S, 7]: each mean
         the belief moved on by inertia (none for the stopping Gaussian) plus a learned change,
         never below the floor; the last one laid down (``_landing``); the stopping Gaussian
@@ -528,8 +642,14 @@ class ObjectStateModel(SurpriseModel):
         if self.hparams.landing_component:  # how high the box's lowest point is, now and next
             inputs.append(torch.stack([lowest_point(belief), lowest_point(belief + inertia)], -1))
         change, log_std, logits, shape_logits = self.dynamics(torch.cat(inputs, dim=-1)).split(
-            [components * STATE_SIZE, components * STATE_SIZE,
-             components if components > 1 else 0, SHAPES], -1)
+            [
+                components * STATE_SIZE,
+                components * STATE_SIZE,
+                components if components > 1 else 0,
+                SHAPES,
+            ],
+            -1,
+        )
         change = change.unflatten(-1, (components, STATE_SIZE))  # [B, S, K, 13]
         log_std = log_std.unflatten(-1, (components, STATE_SIZE))
         if not self.hparams.landing_change:  # the landing Gaussian: where inertia takes it
@@ -539,8 +659,9 @@ class ObjectStateModel(SurpriseModel):
             change = torch.cat([change[..., POSE], torch.zeros_like(change[..., IDENTITY])], -1)
             shared = log_std[..., :1, IDENTITY].expand(*log_std.shape[:-1], -1)
             log_std = torch.cat([log_std[..., POSE], shared], -1)
-        moved = ((belief[:, :, None] + self.inertia_kept * inertia[:, :, None])
-                 + MAX_MOVE * torch.tanh(change / MAX_MOVE))
+        moved = (
+            belief[:, :, None] + self.inertia_kept * inertia[:, :, None]
+        ) + MAX_MOVE * torch.tanh(change / MAX_MOVE)
         means = on_or_above_floor(moved)
         if self.hparams.landing_component:
             landing = self._landing(moved[:, :, -1], slots)[:, :, None]
@@ -561,8 +682,9 @@ class ObjectStateModel(SurpriseModel):
             return pivoted_down(on_or_above_floor(landing), slots.belief, slots.shape, slots.known)
         return lying_on_floor(landing)
 
-    def _holding(self, slots: Slots, mixture: Mixture, unseen: torch.Tensor
-                 ) -> tuple[torch.Tensor, Mixture, Holding | None]:
+    def _holding(
+        self, slots: Slots, mixture: Mixture, unseen: torch.Tensor
+    ) -> tuple[torch.Tensor, Mixture, Holding | None]:
         """The predicted states [B, S, 13], the mixture with its stopping Gaussian carried by
         what each slot rests on (``carry: support``), and the ``Holding``: an unseen slot
         resting on a known one, or last seen still on the floor (``hold_still``), is held
@@ -587,8 +709,9 @@ class ObjectStateModel(SurpriseModel):
         predicted = torch.where((unseen & holds)[..., None], holding.state, predicted)
         return predicted, mixture, holding
 
-    def _visibility_logit(self, slots: Slots, predicted: torch.Tensor, pose: torch.Tensor,
-                          pose_features: torch.Tensor) -> torch.Tensor:
+    def _visibility_logit(
+        self, slots: Slots, predicted: torch.Tensor, pose: torch.Tensor, pose_features: torch.Tensor
+    ) -> torch.Tensor:
         """The logit [B, S] that each slot is seen at t: sight lines to every known box at its
         predicted state (``seen_by_geometry``) times a learned weight, plus a learned term from
         its view against the others'. No gradient reaches the states from it: a hidden object's
@@ -599,13 +722,20 @@ class ObjectStateModel(SurpriseModel):
         pairs = self._pairs(placed, slots.shape, seen_as)
         occluders = self._messages(self.occlusion, slots.hidden, None, pairs, slots.known)
         geometry = seen_by_geometry(placed, slots.shape, slots.known, pose).clamp(0.02, 0.98)
-        learned = self.visibility(torch.cat(
-            [slots.hidden, occluders, seen_as, placed[..., SIZE], pose_features], dim=-1))
+        learned = self.visibility(
+            torch.cat([slots.hidden, occluders, seen_as, placed[..., SIZE], pose_features], dim=-1)
+        )
         return learned.squeeze(-1) + self.geometry_weight * torch.logit(geometry)
 
-    def _appearance(self, hidden: torch.Tensor, known: torch.Tensor, pose: torch.Tensor,
-                    new: torch.Tensor, state: torch.Tensor, shape: torch.Tensor
-                    ) -> dict[str, torch.Tensor]:
+    def _appearance(
+        self,
+        hidden: torch.Tensor,
+        known: torch.Tensor,
+        pose: torch.Tensor,
+        new: torch.Tensor,
+        state: torch.Tensor,
+        shape: torch.Tensor,
+    ) -> dict[str, torch.Tensor]:
         """The appearance terms of frame t and their entropies: ``appear`` [B], a Bernoulli of
         whether any new object appears, given the mean state of the known slots and the pose;
         ``newcomer_state`` and ``newcomer_shape`` [B, S], each newcomer's state (Gaussian) and
@@ -633,8 +763,10 @@ class ObjectStateModel(SurpriseModel):
         -40 nats a frame at 1 cm precision), and so does its excess, if less, where the model
         predicts better than its floor of precision; either way the video showing more would
         read as less surprising, whatever its physics."""
+
         def excess(name: str) -> torch.Tensor:
             return rectified_excess(out[name], out[f"{name}_entropy"])
+
         return sum(excess(name).sum(-1) for name in SLOT_TERMS) + excess("appear")
 
     # ----------------------------------------------------------------------------- training
@@ -642,12 +774,18 @@ class ObjectStateModel(SurpriseModel):
         frames = self._frames_of(batch)
         inputs = video_inputs(batch)
         observations = self._inputs(frames, inputs.get("objects"), inputs.get("camera"))
-        withheld = withheld_spans(observations.visible.shape, self.hparams.withhold,
-                                  self.hparams.withhold_frames, observations.visible.device)
+        withheld = withheld_spans(
+            observations.visible.shape,
+            self.hparams.withhold,
+            self.hparams.withhold_frames,
+            observations.visible.device,
+        )
         out = self.rollout(observations, withheld)
         clips = frames.shape[0]
-        terms = {name: out[name].sum() / clips  # the negative log-likelihood of the clips
-                 for name in SLOT_TERMS + ("appear",)}
+        terms = {
+            name: out[name].sum() / clips  # the negative log-likelihood of the clips
+            for name in SLOT_TERMS + ("appear",)
+        }
         terms["loss"] = sum(terms.values())
         self._check_finite(terms)
         self.log("train/loss", terms["loss"], prog_bar=True, batch_size=clips)
@@ -657,37 +795,53 @@ class ObjectStateModel(SurpriseModel):
         return terms["loss"]
 
     def configure_optimizers(self) -> dict:
-        return optimization.adam(self.parameters(), self.hparams.learning_rate,
-                                 self.hparams.lr_schedule,
-                                 getattr(self._trainer, "max_steps", None))
+        return optimization.adam(
+            self.parameters(),
+            self.hparams.learning_rate,
+            self.hparams.lr_schedule,
+            getattr(self._trainer, "max_steps", None),
+        )
 
     # ----------------------------------------------------------------------------- protocol
     @torch.no_grad()
-    def surprise(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                 camera: torch.Tensor | None = None,
-                 objects: TensorDictBase | None = None) -> torch.Tensor:
+    def surprise(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> torch.Tensor:
         """Per-frame surprise [B, T] (float32): the NLL of what is seen (class docstring)."""
         out = self.rollout(self._inputs(frames, objects, camera))
         return self._per_frame(out).float()
 
     @torch.no_grad()
-    def expected_frames(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                        camera: torch.Tensor | None = None,
-                        objects: TensorDictBase | None = None) -> torch.Tensor:
+    def expected_frames(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> torch.Tensor:
         """What the model expected [B, T, 3, H, W]: each known slot's expected state drawn as an
         ellipse of its colour where and as large as its box is seen, as opaque as the predicted
         probability that it is seen (frame 0: what is seen), nearer objects over farther."""
         observations = self._inputs(frames, objects, camera)
         out = self.rollout(observations)
         belief = torch.cat([out["belief"][:, :1], out["predicted"][:, 1:]], dim=1)
-        opacity = torch.cat([observations.visible[:, :1].float(),
-                             out["visible_probability"][:, 1:]], dim=1)
+        opacity = torch.cat(
+            [observations.visible[:, :1].float(), out["visible_probability"][:, 1:]], dim=1
+        )
         return draw_ellipses(belief, opacity, observations.camera, frames.shape[2:4])
 
     @torch.no_grad()
-    def trajectories(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                     camera: torch.Tensor | None = None,
-                     objects: TensorDictBase | None = None) -> dict[str, torch.Tensor]:
+    def trajectories(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> dict[str, torch.Tensor]:
         """``slots`` [B, T, H]: the mean recurrent state of the known slots at each frame."""
         out = self.rollout(self._inputs(frames, objects, camera))
         weight = out["known"].float()[..., None]
@@ -706,8 +860,9 @@ def slowed(move: torch.Tensor, change: torch.Tensor) -> torch.Tensor:
     return torch.cat([along_floor * kept, move[..., 2:]], dim=-1)
 
 
-def withheld_spans(shape: torch.Size, share: float, longest: int, device: torch.device
-                   ) -> torch.Tensor | None:
+def withheld_spans(
+    shape: torch.Size, share: float, longest: int, device: torch.device
+) -> torch.Tensor | None:
     """Training's withheld observations, bool [B, T, S]: each (clip, slot) with probability
     ``share`` gets one span of 1 to ``longest`` frames, starting at a frame from 1 on, during
     which the model is not told what it sees. An object truly hidden in a clip has no target
@@ -735,8 +890,9 @@ class PairNetwork(nn.Module):
         self.pair = nn.Linear(PAIR_FEATURES, hidden_size, bias=False)
         self.out = nn.Linear(hidden_size, output_size)
 
-    def forward(self, own: torch.Tensor, other: torch.Tensor | None, pairs: torch.Tensor
-                ) -> torch.Tensor:
+    def forward(
+        self, own: torch.Tensor, other: torch.Tensor | None, pairs: torch.Tensor
+    ) -> torch.Tensor:
         """own [B, S, O], other [B, S, P] (or None), pairs [B, S, S, F] -> [B, S, S, out]."""
         first = self.own(own)[:, :, None] + self.pair(pairs)
         if self.other is not None:

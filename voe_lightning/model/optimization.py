@@ -15,15 +15,22 @@ LR_SCHEDULES = ("constant", "cosine")
 def check_schedule(lr_schedule: str, warmup_steps: int = 0) -> None:
     """Refuse an unknown schedule, naming the valid ones, or a negative warm-up."""
     if lr_schedule not in LR_SCHEDULES:
-        raise ValueError(f"unknown lr_schedule {lr_schedule!r}; valid choices are: "
-                         f"{', '.join(LR_SCHEDULES)}")
+        raise ValueError(
+            f"unknown lr_schedule {lr_schedule!r}; valid choices are: {', '.join(LR_SCHEDULES)}"
+        )
     if warmup_steps < 0:
         raise ValueError(f"lr_warmup_steps must be >= 0, got {warmup_steps}")
 
 
-def adam(parameters: Iterable[torch.nn.Parameter], learning_rate: float, lr_schedule: str,
-         max_steps: int | None, betas: tuple[float, float] = (0.9, 0.999),
-         warmup_steps: int = 0, fused: bool = False) -> dict:
+def adam(
+    parameters: Iterable[torch.nn.Parameter],
+    learning_rate: float,
+    lr_schedule: str,
+    max_steps: int | None,
+    betas: tuple[float, float] = (0.9, 0.999),
+    warmup_steps: int = 0,
+    fused: bool = False,
+) -> dict:
     """Lightning's ``configure_optimizers`` value: Adam, and a per-step scheduler for
     ``cosine`` (from ``learning_rate`` to 0 at ``max_steps``) or a warm-up (the rate rises
     linearly over ``warmup_steps``). ``fused``: one fused kernel per step and the rate a tensor
@@ -37,8 +44,10 @@ def adam(parameters: Iterable[torch.nn.Parameter], learning_rate: float, lr_sche
     if lr_schedule == "constant" and not warmup_steps:
         return {"optimizer": optimizer}
     if lr_schedule == "cosine" and (max_steps is None or max_steps < 1):
-        raise ValueError("lr_schedule 'cosine' decays to 0 at trainer.max_steps; set it "
-                         f"(got max_steps={max_steps})")
+        raise ValueError(
+            "lr_schedule 'cosine' decays to 0 at trainer.max_steps; set it "
+            f"(got max_steps={max_steps})"
+        )
 
     def rate(step: int) -> float:
         warm = min(1.0, (step + 1) / warmup_steps) if warmup_steps else 1.0

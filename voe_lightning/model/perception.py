@@ -36,8 +36,9 @@ class Perception(nn.Module):
         height, width = image_size
         scale = 2 ** len(channels)
         if height % scale or width % scale:
-            raise ValueError(f"image_size {tuple(image_size)} must be divisible by 2**"
-                             f"len(channels) = {scale}")
+            raise ValueError(
+                f"image_size {tuple(image_size)} must be divisible by 2**len(channels) = {scale}"
+            )
         self.code_size, self.variational = code_size, variational
         self.memory_format = torch.channels_last if channels_last else torch.contiguous_format
         self.grid = (channels[-1], height // scale, width // scale)
@@ -51,8 +52,11 @@ class Perception(nn.Module):
         self.from_code = nn.Sequential(nn.Linear(code_size, flat), nn.ReLU())
         layers = []
         for out in [*reversed(channels[:-1]), channels[0]]:
-            layers += [nn.Upsample(scale_factor=2), nn.Conv2d(previous, out, 3, padding=1),
-                       nn.ReLU()]
+            layers += [
+                nn.Upsample(scale_factor=2),
+                nn.Conv2d(previous, out, 3, padding=1),
+                nn.ReLU(),
+            ]
             previous = out
         self.decoder = nn.Sequential(*layers, nn.Conv2d(previous, 4, 3, padding=1))
 
@@ -78,8 +82,9 @@ class Perception(nn.Module):
         return torch.sigmoid(out[:, :, :3]), out[:, :, 3]
 
 
-def compose(rgb: torch.Tensor, mask_logits: torch.Tensor, present: torch.Tensor
-            ) -> tuple[torch.Tensor, torch.Tensor]:
+def compose(
+    rgb: torch.Tensor, mask_logits: torch.Tensor, present: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
     """A frame from its slots: weights = softmax over the present slots' mask logits
     [N, S, H, W] (absent slots weigh 0), frame = sum_k weight_k * rgb_k [N, 3, H, W]; returns
     (frame, log weights)."""

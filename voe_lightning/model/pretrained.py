@@ -23,8 +23,10 @@ def transformers_module(scorer: str, extra: str, version: str) -> Any:
     try:
         import transformers
     except ImportError:
-        raise ImportError(f"{scorer} needs Hugging Face transformers: pip install "
-                          f"'voe_lightning[{extra}]' (or transformers>={version})") from None
+        raise ImportError(
+            f"{scorer} needs Hugging Face transformers: pip install "
+            f"'voe_lightning[{extra}]' (or transformers>={version})"
+        ) from None
     return transformers
 
 
@@ -34,23 +36,32 @@ class PretrainedScorer(SurpriseModel):
     eval mode with no gradients; ``normalized`` maps [0, 1] input to the ImageNet statistics.
     Subclasses implement ``surprise`` and ``expected_frames``."""
 
-    def __init__(self, model_class: Any, config_class: Any, pretrained: str | None,
-                 config: dict[str, Any] | None):
+    def __init__(
+        self,
+        model_class: Any,
+        config_class: Any,
+        pretrained: str | None,
+        config: dict[str, Any] | None,
+    ):
         super().__init__()
         name = type(self).__name__
         if (pretrained is None) == (config is None):
-            raise ValueError(f"give {name} either pretrained (a local folder) or config "
-                             f"({config_class.__name__} arguments), got pretrained="
-                             f"{pretrained!r}, config={config!r}")
+            raise ValueError(
+                f"give {name} either pretrained (a local folder) or config "
+                f"({config_class.__name__} arguments), got pretrained="
+                f"{pretrained!r}, config={config!r}"
+            )
         if pretrained is not None:
             self.model = model_class.from_pretrained(pretrained, local_files_only=True)
         else:
             self.model = model_class(config_class(**config))
         self.model.eval().requires_grad_(False)
-        self.register_buffer("mean", torch.tensor(IMAGENET_MEAN)[None, None, :, None, None],
-                             persistent=False)
-        self.register_buffer("std", torch.tensor(IMAGENET_STD)[None, None, :, None, None],
-                             persistent=False)
+        self.register_buffer(
+            "mean", torch.tensor(IMAGENET_MEAN)[None, None, :, None, None], persistent=False
+        )
+        self.register_buffer(
+            "std", torch.tensor(IMAGENET_STD)[None, None, :, None, None], persistent=False
+        )
 
     def train(self, mode: bool = True) -> PretrainedScorer:
         """Stays in eval mode (no dropout): a frozen scorer."""
@@ -60,9 +71,13 @@ class PretrainedScorer(SurpriseModel):
         """[B, T, 3, H, W] in [0, 1] -> the network's ImageNet-normalized input."""
         return (x - self.mean) / self.std
 
-    def trajectories(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                     camera: torch.Tensor | None = None, objects: TensorDictBase | None = None
-                     ) -> dict[str, torch.Tensor]:
+    def trajectories(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> dict[str, torch.Tensor]:
         """Surprise and its running total, a course [B, T, 2]."""
         value = self.surprise(frames)
         return {"surprise": torch.stack([value, value.cumsum(dim=1)], dim=-1)}

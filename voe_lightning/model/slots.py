@@ -46,13 +46,19 @@ def require_mask(
             "one; use records with masks, or the object-free twin (object_free: true)"
         )
     if tuple(mask.shape) != expected:
-        raise ValueError(f"mask must be shaped {list(expected)} like the frames, got "
-                         f"{list(mask.shape)} ({video_name(0, seeds)})")
+        raise ValueError(
+            f"mask must be shaped {list(expected)} like the frames, got "
+            f"{list(mask.shape)} ({video_name(0, seeds)})"
+        )
     return mask
 
 
-def object_slots(mask: torch.Tensor, num_slots: int, seeds: torch.Tensor | None = None,
-                 max_jump: float | None = MAX_MASK_JUMP) -> Slots:
+def object_slots(
+    mask: torch.Tensor,
+    num_slots: int,
+    seeds: torch.Tensor | None = None,
+    max_jump: float | None = MAX_MASK_JUMP,
+) -> Slots:
     """Assign the ids of ``mask`` uint8 [B, T, H, W] to ``num_slots`` object slots plus the
     background slot, causally (see ``Slots``). An id keeps its slot from the frame it is first
     seen to the end of the video: an object that vanishes (say, behind an occluder) and
@@ -71,9 +77,11 @@ def object_slots(mask: torch.Tensor, num_slots: int, seeds: torch.Tensor | None 
             per_frame = max(int((torch.unique(frame) != 0).sum()) for frame in mask[index])
             hint = "raise num_slots"
             if per_frame <= num_slots:
-                hint = (f"no frame shows more than {per_frame} at once: if the ids number each "
-                        "frame's objects rather than the video's, renumber them by object "
-                        "(each id one object for the whole video); otherwise raise num_slots")
+                hint = (
+                    f"no frame shows more than {per_frame} at once: if the ids number each "
+                    "frame's objects rather than the video's, renumber them by object "
+                    "(each id one object for the whole video); otherwise raise num_slots"
+                )
             raise ValueError(
                 f"{video_name(index, seeds)} shows {found.numel()} objects (mask ids "
                 f"{found.tolist()}), more than num_slots={num_slots}; {hint}"
@@ -106,14 +114,20 @@ def centroid_moves(masks: torch.Tensor) -> torch.Tensor:
     pixels = weights.sum((-2, -1))  # [B, T, K]
     rows = torch.arange(height, device=masks.device, dtype=torch.float32)
     columns = torch.arange(width, device=masks.device, dtype=torch.float32)
-    centre = torch.stack([(weights.sum(-1) * rows).sum(-1), (weights.sum(-2) * columns).sum(-1)],
-                         dim=-1) / pixels.clamp(min=1)[..., None]  # [B, T, K, 2]
+    centre = (
+        torch.stack([(weights.sum(-1) * rows).sum(-1), (weights.sum(-2) * columns).sum(-1)], dim=-1)
+        / pixels.clamp(min=1)[..., None]
+    )  # [B, T, K, 2]
     move = (centre[:, 1:] - centre[:, :-1]).norm(dim=-1) / (height**2 + width**2) ** 0.5
     return torch.where((pixels[:, 1:] > 0) & (pixels[:, :-1] > 0), move, torch.zeros_like(move))
 
 
-def refuse_jumps(masks: torch.Tensor, ids: torch.Tensor, seeds: torch.Tensor | None,
-                 max_jump: float = MAX_MASK_JUMP) -> None:
+def refuse_jumps(
+    masks: torch.Tensor,
+    ids: torch.Tensor,
+    seeds: torch.Tensor | None,
+    max_jump: float = MAX_MASK_JUMP,
+) -> None:
     """Refuse an object id whose mask centroid moves more than ``max_jump`` of the frame
     diagonal between consecutive frames that both show it (masks bool [B, T, K, H, W]): a slot
     must follow one object, or the dynamics learn teleports."""

@@ -12,11 +12,14 @@ import torch
 
 def non_finite_message(step: int, names: Sequence[str], values: Sequence[float]) -> str:
     """The error of a non-finite training loss: the step, the offending terms, all terms."""
-    bad = ", ".join(f"{name}={value:.4g}" for name, value in zip(names, values)
-                    if not math.isfinite(value))
-    return (f"non-finite loss at global step {step}: {bad} (all terms: "
-            f"{dict(zip(names, values))}); stopping before a garbage checkpoint is written. "
-            "Try a lower learning_rate or float32 precision.")
+    bad = ", ".join(
+        f"{name}={value:.4g}" for name, value in zip(names, values) if not math.isfinite(value)
+    )
+    return (
+        f"non-finite loss at global step {step}: {bad} (all terms: "
+        f"{dict(zip(names, values))}); stopping before a garbage checkpoint is written. "
+        "Try a lower learning_rate or float32 precision."
+    )
 
 
 class FiniteMonitor:

@@ -37,12 +37,15 @@ class VideoMAEScorer(PretrainedScorer):
 
     def __init__(self, pretrained: str | None = None, config: dict[str, Any] | None = None):
         transformers = transformers_module("VideoMAEScorer", "videomae", "4.45")
-        super().__init__(transformers.VideoMAEForPreTraining, transformers.VideoMAEConfig,
-                         pretrained, config)
+        super().__init__(
+            transformers.VideoMAEForPreTraining, transformers.VideoMAEConfig, pretrained, config
+        )
         settings = self.model.config
         if settings.num_frames % settings.tubelet_size:
-            raise ValueError(f"num_frames {settings.num_frames} is not a multiple of tubelet_size "
-                             f"{settings.tubelet_size}")
+            raise ValueError(
+                f"num_frames {settings.num_frames} is not a multiple of tubelet_size "
+                f"{settings.tubelet_size}"
+            )
         self.save_hyperparameters()
         self.hparams.image_size = (settings.image_size, settings.image_size)
         self.hparams.training_frames = settings.num_frames
@@ -53,8 +56,10 @@ class VideoMAEScorer(PretrainedScorer):
         x = self._model_input(frames, tuple(self.hparams.image_size))
         total = self.model.config.num_frames
         if x.shape[1] > total:
-            raise ValueError(f"videos of {x.shape[1]} frames are longer than this VideoMAE's "
-                             f"num_frames {total}; sample at most {total} frames")
+            raise ValueError(
+                f"videos of {x.shape[1]} frames are longer than this VideoMAE's "
+                f"num_frames {total}; sample at most {total} frames"
+            )
         return torch.cat([x, x[:, -1:].expand(-1, total - x.shape[1], -1, -1, -1)], dim=1)
 
     def patches(self, x: torch.Tensor, normalize: bool = True) -> torch.Tensor:
@@ -64,12 +69,15 @@ class VideoMAEScorer(PretrainedScorer):
         settings = self.model.config
         b, t, c, h, w = x.shape
         ts, p = settings.tubelet_size, settings.patch_size
-        patches = (x.view(b, t // ts, ts, c, h // p, p, w // p, p)
-                   .permute(0, 1, 4, 6, 2, 5, 7, 3)
-                   .reshape(b, t // ts, (h // p) * (w // p), ts * p * p, c))
+        patches = (
+            x.view(b, t // ts, ts, c, h // p, p, w // p, p)
+            .permute(0, 1, 4, 6, 2, 5, 7, 3)
+            .reshape(b, t // ts, (h // p) * (w // p), ts * p * p, c)
+        )
         if settings.norm_pix_loss and normalize:
             patches = (patches - patches.mean(dim=-2, keepdim=True)) / (
-                patches.var(dim=-2, unbiased=True, keepdim=True).sqrt() + 1e-6)
+                patches.var(dim=-2, unbiased=True, keepdim=True).sqrt() + 1e-6
+            )
         return patches.flatten(-2)
 
     def _predictions(self, x: torch.Tensor) -> list[torch.Tensor]:
@@ -88,9 +96,13 @@ class VideoMAEScorer(PretrainedScorer):
         return predictions
 
     # ----------------------------------------------------------------------------- protocol
-    def surprise(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                 camera: torch.Tensor | None = None, objects: TensorDictBase | None = None
-                 ) -> torch.Tensor:
+    def surprise(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> torch.Tensor:
         length, ts = frames.shape[1], self.model.config.tubelet_size
         x = self._padded(frames)
         targets = self.patches(x)
@@ -102,9 +114,13 @@ class VideoMAEScorer(PretrainedScorer):
             surprise[:, (k + 1) * ts - 1] = error
         return surprise
 
-    def expected_frames(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                        camera: torch.Tensor | None = None,
-                        objects: TensorDictBase | None = None) -> torch.Tensor:
+    def expected_frames(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> torch.Tensor:
         """Each tubelet as reconstructed from the earlier ones (the first: as seen), in [0, 1];
         a ``norm_pix_loss`` model's reconstruction is shown with each patch's own mean and
         spread, as its loss compares them."""
@@ -117,9 +133,13 @@ class VideoMAEScorer(PretrainedScorer):
         for k, predicted in enumerate(self._predictions(x), start=1):
             if settings.norm_pix_loss:
                 raw = seen[:, k].unflatten(-1, (ts * p * p, c))
-                predicted = (predicted.unflatten(-1, (ts * p * p, c))
-                             * raw.std(dim=-2, keepdim=True) + raw.mean(dim=-2, keepdim=True))
-            tubelet = (predicted.reshape(b, h // p, w // p, ts, p, p, c)
-                       .permute(0, 3, 6, 1, 4, 2, 5).reshape(b, ts, c, h, w))
-            expected[:, k * ts:(k + 1) * ts] = tubelet.float().clamp(0, 1)
-        return expected[:, :frames.shape[1]]
+                predicted = predicted.unflatten(-1, (ts * p * p, c)) * raw.std(
+                    dim=-2, keepdim=True
+                ) + raw.mean(dim=-2, keepdim=True)
+            tubelet = (
+                predicted.reshape(b, h // p, w // p, ts, p, p, c)
+                .permute(0, 3, 6, 1, 4, 2, 5)
+                .reshape(b, ts, c, h, w)
+            )
+            expected[:, k * ts : (k + 1) * ts] = tubelet.float().clamp(0, 1)
+        return expected[:, : frames.shape[1]]

@@ -56,31 +56,42 @@ class VJEPA2Scorer(PretrainedScorer):
 
     SURPRISE = "V-JEPA 2's L1 error of the predicted features of a window's last frames"
 
-    def __init__(self, context_frames: int, pretrained: str | None = None,
-                 config: dict[str, Any] | None = None, window_frames: int = 48,
-                 frame_step: int = 10, window_stride: int = 2):
+    def __init__(
+        self,
+        context_frames: int,
+        pretrained: str | None = None,
+        config: dict[str, Any] | None = None,
+        window_frames: int = 48,
+        frame_step: int = 10,
+        window_stride: int = 2,
+    ):
         transformers = transformers_module("VJEPA2Scorer", "vjepa2", "4.53")
         super().__init__(transformers.VJEPA2Model, transformers.VJEPA2Config, pretrained, config)
         self.save_hyperparameters()
         settings = self.model.config
-        check_windows(context_frames, window_frames, frame_step, window_stride,
-                      settings.tubelet_size)
+        check_windows(
+            context_frames, window_frames, frame_step, window_stride, settings.tubelet_size
+        )
         self.hparams.image_size = (settings.crop_size, settings.crop_size)
 
     # ----------------------------------------------------------------------------- helpers
     def _subsampled(self, frames: torch.Tensor) -> torch.Tensor:
         """uint8 [B, T, H, W, 3] -> every ``frame_step``-th frame as the network's input
         [B, T', 3, S, S] (resized, centre-cropped to S = crop_size, ImageNet-normalized)."""
-        x = specs.to_model_input(frames.to(self.device))[:, ::self.hparams.frame_step]
+        x = specs.to_model_input(frames.to(self.device))[:, :: self.hparams.frame_step]
         b, t, c, h, w = x.shape
         size = self.model.config.crop_size
         if (h, w) != (size, size):
             scale = size / min(h, w)
-            resized = F.interpolate(x.flatten(0, 1), size=(max(size, round(h * scale)),
-                                                            max(size, round(w * scale))),
-                                    mode="bilinear", antialias=True, align_corners=False)
+            resized = F.interpolate(
+                x.flatten(0, 1),
+                size=(max(size, round(h * scale)), max(size, round(w * scale))),
+                mode="bilinear",
+                antialias=True,
+                align_corners=False,
+            )
             top, left = (resized.shape[-2] - size) // 2, (resized.shape[-1] - size) // 2
-            x = resized[..., top:top + size, left:left + size].unflatten(0, (b, t))
+            x = resized[..., top : top + size, left : left + size].unflatten(0, (b, t))
         return self.normalized(x)
 
     def _window_error(self, window: torch.Tensor, context_frames: int) -> torch.Tensor:
@@ -93,61 +104,88 @@ class VJEPA2Scorer(PretrainedScorer):
         target = F.layer_norm(target, target.shape[-1:])
         seen, total, batch = context.shape[1], target.shape[1], window.shape[0]
         positions = torch.arange(total, device=window.device).expand(batch, -1)
-        predicted = self.model.predictor(encoder_hidden_states=context,
-                                         context_mask=[positions[:, :seen]],
-                                         target_mask=[positions[:, seen:]]).last_hidden_state
+        predicted = self.model.predictor(
+            encoder_hidden_states=context,
+            context_mask=[positions[:, :seen]],
+            target_mask=[positions[:, seen:]],
+        ).last_hidden_state
         return (predicted.float() - target[:, seen:].float()).abs().mean(dim=(1, 2))
 
-    def surprise_per_context(self, frames: torch.Tensor, context_lengths: list[int]
-                             ) -> dict[int, torch.Tensor]:
+    def surprise_per_context(
+        self, frames: torch.Tensor, context_lengths: list[int]
+    ) -> dict[int, torch.Tensor]:
         """Per-frame surprise [B, T] for each context length (the published sweep over
         context length), the windows and everything else as configured."""
         x = self._subsampled(frames)
         result = {}
         for context in context_lengths:
-            check_windows(context, self.hparams.window_frames, self.hparams.frame_step,
-                          self.hparams.window_stride, self.model.config.tubelet_size)
+            check_windows(
+                context,
+                self.hparams.window_frames,
+                self.hparams.frame_step,
+                self.hparams.window_stride,
+                self.model.config.tubelet_size,
+            )
             surprise = torch.zeros(frames.shape[0], frames.shape[1], device=x.device)
-            for start, last in window_ends(x.shape[1], self.hparams.window_frames,
-                                           self.hparams.window_stride, self.hparams.frame_step):
-                window = x[:, start:start + self.hparams.window_frames]
+            for start, last in window_ends(
+                x.shape[1],
+                self.hparams.window_frames,
+                self.hparams.window_stride,
+                self.hparams.frame_step,
+            ):
+                window = x[:, start : start + self.hparams.window_frames]
                 surprise[:, last] = self._window_error(window, context)
             result[context] = surprise
         return result
 
     # ----------------------------------------------------------------------------- protocol
-    def surprise(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                 camera: torch.Tensor | None = None, objects: TensorDictBase | None = None
-                 ) -> torch.Tensor:
+    def surprise(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> torch.Tensor:
         context = self.hparams.context_frames
         return self.surprise_per_context(frames, [context])[context]
 
-    def expected_frames(self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-                        camera: torch.Tensor | None = None,
-                        objects: TensorDictBase | None = None) -> torch.Tensor:
+    def expected_frames(
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
+    ) -> torch.Tensor:
         """The frames as seen: V-JEPA 2 predicts features, not pixels."""
         return specs.to_model_input(frames.to(self.device))
 
 
-def check_windows(context_frames: int, window_frames: int, frame_step: int, window_stride: int,
-                  tubelet_size: int) -> None:
+def check_windows(
+    context_frames: int, window_frames: int, frame_step: int, window_stride: int, tubelet_size: int
+) -> None:
     """Refuse, in one line, window settings the protocol cannot use."""
     for name, value in (("frame_step", frame_step), ("window_stride", window_stride)):
         if value < 1:
             raise ValueError(f"{name} must be at least 1, got {value}")
     if not 0 < context_frames < window_frames:
-        raise ValueError(f"context_frames must be in 1..window_frames - 1 = {window_frames - 1}, "
-                         f"got {context_frames}")
+        raise ValueError(
+            f"context_frames must be in 1..window_frames - 1 = {window_frames - 1}, "
+            f"got {context_frames}"
+        )
     for name, value in (("context_frames", context_frames), ("window_frames", window_frames)):
         if value % tubelet_size:
-            raise ValueError(f"{name} {value} is not a multiple of the model's tubelet_size "
-                             f"{tubelet_size}")
+            raise ValueError(
+                f"{name} {value} is not a multiple of the model's tubelet_size {tubelet_size}"
+            )
 
 
-def window_ends(subsampled_frames: int, window_frames: int, window_stride: int, frame_step: int
-                ) -> list[tuple[int, int]]:
+def window_ends(
+    subsampled_frames: int, window_frames: int, window_stride: int, frame_step: int
+) -> list[tuple[int, int]]:
     """Each window's first subsampled frame and the video frame its surprise is given to (its
     last frame, in the original video's frame numbers): windows start at 0, window_stride, ...
     while they fit in ``subsampled_frames``."""
-    return [(start, (start + window_frames - 1) * frame_step)
-            for start in range(0, subsampled_frames - window_frames + 1, window_stride)]
+    return [
+        (start, (start + window_frames - 1) * frame_step)
+        for start in range(0, subsampled_frames - window_frames + 1, window_stride)
+    ]

@@ -119,7 +119,9 @@ class VRNNCore(nn.Module):
         self.prior = mlp(memory.read_size, mlp_sizes, 2 * latent_size)
         # Posterior correction from [enc(x_t), r_t, prior_t]; the enc(x_t) part of the first
         # layer is applied to all frames at once before the time loop.
-        self.posterior = mlp(embedding_size + memory.read_size + 2 * latent_size, mlp_sizes, 2 * latent_size)
+        self.posterior = mlp(
+            embedding_size + memory.read_size + 2 * latent_size, mlp_sizes, 2 * latent_size
+        )
         self._compiled_step = None
 
     def _split(self, stats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -127,7 +129,10 @@ class VRNNCore(nn.Module):
         return mean, log_std
 
     def step(
-        self, state: MemoryState, z: torch.Tensor, frame_part: torch.Tensor,
+        self,
+        state: MemoryState,
+        z: torch.Tensor,
+        frame_part: torch.Tensor,
         noise: torch.Tensor | None,
     ) -> tuple[MemoryState, FrameStep]:
         """One time step from the memory ``state`` and the last latent ``z`` [B, latent_size]:
@@ -145,11 +150,24 @@ class VRNNCore(nn.Module):
         )
         correction_mean, correction_log_std = self._split(self.posterior[1:](hidden))
         posterior_mean = prior_mean + correction_mean
-        posterior_log_std = (prior_log_std + correction_log_std).clamp(-LOG_STD_LIMIT, LOG_STD_LIMIT)
-        z = posterior_mean if noise is None else posterior_mean + torch.exp(posterior_log_std) * noise
+        posterior_log_std = (prior_log_std + correction_log_std).clamp(
+            -LOG_STD_LIMIT, LOG_STD_LIMIT
+        )
+        z = (
+            posterior_mean
+            if noise is None
+            else posterior_mean + torch.exp(posterior_log_std) * noise
+        )
         state = self.memory.write(state, read, z)
-        return state, FrameStep(prior_mean, prior_log_std, posterior_mean, posterior_log_std, z,
-                                LRUMemory.flat_memory(state), read.read)
+        return state, FrameStep(
+            prior_mean,
+            prior_log_std,
+            posterior_mean,
+            posterior_log_std,
+            z,
+            LRUMemory.flat_memory(state),
+            read.read,
+        )
 
     def draw_noise(
         self, batch: int, steps: int, device: torch.device, generator: torch.Generator | None = None
@@ -195,8 +213,10 @@ class VRNNCore(nn.Module):
             state, output = step(state, z, frame_part[:, t], None if deterministic else noise[t])
             z = output.z
             frames.append(output)
-        stacked = {name: torch.stack(values, dim=1)
-                   for name, values in zip(FrameStep._fields, zip(*frames))}
+        stacked = {
+            name: torch.stack(values, dim=1)
+            for name, values in zip(FrameStep._fields, zip(*frames))
+        }
         kl = gaussian_kl(
             stacked["posterior_mean"],
             stacked["posterior_log_std"],

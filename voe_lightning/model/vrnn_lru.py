@@ -12,8 +12,8 @@ import torch.nn.functional as F
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
-from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model import optimization
+from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model.memory import LRUMemory
 from voe_lightning.model.networks import Decoder, Encoder
 from voe_lightning.model.training_monitor import FiniteMonitor
@@ -106,8 +106,15 @@ class VRNNLRUModel(SurpriseModel):
 
     ARCHITECTURE = ARCHITECTURE
     TRAINING_ONLY = (
-        "learning_rate", "adam_betas", "lr_schedule", "kl_warmup_steps", "kl_free_bits",
-        "lr_warmup_steps", "compile", "cuda_graph", "compile_model",
+        "learning_rate",
+        "adam_betas",
+        "lr_schedule",
+        "kl_warmup_steps",
+        "kl_free_bits",
+        "lr_warmup_steps",
+        "compile",
+        "cuda_graph",
+        "compile_model",
     )
     VALIDATION_METRIC = "val/kl"
     SURPRISE = "KL(posterior || prior)"
@@ -146,12 +153,16 @@ class VRNNLRUModel(SurpriseModel):
         super().__init__()
         self.save_hyperparameters()
         if precision not in PRECISIONS:
-            raise ValueError(f"unknown precision {precision!r}; valid choices are: {', '.join(PRECISIONS)}")
+            raise ValueError(
+                f"unknown precision {precision!r}; valid choices are: {', '.join(PRECISIONS)}"
+            )
         if learning_rate <= 0:
             raise ValueError(f"learning_rate must be positive, got {learning_rate}")
         optimization.check_schedule(lr_schedule, lr_warmup_steps)
         if compile not in COMPILE_MODES:
-            raise ValueError(f"unknown compile {compile!r}; valid choices are: {', '.join(COMPILE_MODES)}")
+            raise ValueError(
+                f"unknown compile {compile!r}; valid choices are: {', '.join(COMPILE_MODES)}"
+            )
         if kl_warmup_steps < 0:
             raise ValueError(f"kl_warmup_steps must be >= 0, got {kl_warmup_steps}")
         if kl_free_bits < 0:
@@ -162,11 +173,18 @@ class VRNNLRUModel(SurpriseModel):
             )
         self.image_size = (int(image_size[0]), int(image_size[1]))
         self.encoder = Encoder(
-            self.image_size, encoder_blocks, encoder_channels, encoder_mlp_size,
+            self.image_size,
+            encoder_blocks,
+            encoder_channels,
+            encoder_mlp_size,
             channels_last=channels_last,
         )
         self.decoder = Decoder(
-            latent_size, self.image_size, encoder_blocks, encoder_channels, encoder_mlp_size,
+            latent_size,
+            self.image_size,
+            encoder_blocks,
+            encoder_channels,
+            encoder_mlp_size,
             channels_last=channels_last,
         )
         memory = LRUMemory(
@@ -226,8 +244,10 @@ class VRNNLRUModel(SurpriseModel):
             return {"encoder": self.encoder, "decoder": self.decoder}
         if self._compiled is None:
             self.core.compile_step()
-            self._compiled = {"encoder": torch.compile(self.encoder),
-                              "decoder": torch.compile(self.decoder)}
+            self._compiled = {
+                "encoder": torch.compile(self.encoder),
+                "decoder": torch.compile(self.decoder),
+            }
         return self._compiled
 
     def decode(self, z: torch.Tensor) -> torch.Tensor:
@@ -236,7 +256,10 @@ class VRNNLRUModel(SurpriseModel):
             return self._networks()["decoder"](z)
 
     def rollout(
-        self, x: torch.Tensor, deterministic: bool = False, generator: torch.Generator | None = None,
+        self,
+        x: torch.Tensor,
+        deterministic: bool = False,
+        generator: torch.Generator | None = None,
         noise: torch.Tensor | None = None,
     ) -> VRNNOutput:
         """Encode all frames at once, then step the recurrent core through time (sampling with
@@ -244,11 +267,15 @@ class VRNNLRUModel(SurpriseModel):
         with self._autocast(networks=True):
             embeddings = self._networks()["encoder"](x)
         with self._autocast(networks=False):
-            return self.core(embeddings.float(), deterministic=deterministic, generator=generator,
-                             noise=noise)
+            return self.core(
+                embeddings.float(), deterministic=deterministic, generator=generator, noise=noise
+            )
 
     def forward(
-        self, x: torch.Tensor, deterministic: bool = False, generator: torch.Generator | None = None,
+        self,
+        x: torch.Tensor,
+        deterministic: bool = False,
+        generator: torch.Generator | None = None,
         noise: torch.Tensor | None = None,
     ) -> tuple[VRNNOutput, torch.Tensor]:
         """Model input [B, T, 3, H, W] in [0, 1] -> (rollout, Bernoulli logits [B, T, 3, H, W])."""
@@ -256,7 +283,10 @@ class VRNNLRUModel(SurpriseModel):
         return output, self.decode(output.z)
 
     def loss_terms(
-        self, x: torch.Tensor, output: VRNNOutput, logits: torch.Tensor,
+        self,
+        x: torch.Tensor,
+        output: VRNNOutput,
+        logits: torch.Tensor,
         kl_weight: torch.Tensor | float | None = None,
     ) -> dict[str, torch.Tensor]:
         """Per-sequence loss terms averaged over the batch (float32): reconstruction =
@@ -274,8 +304,9 @@ class VRNNLRUModel(SurpriseModel):
             standard_normal_kl(output.prior_mean, output.prior_log_std).sum(dim=1).mean()
         )
         return {
-            "loss": (reconstruction + kl_weight * self.kl_objective(output, kl)
-                     + prior_regularizer),
+            "loss": (
+                reconstruction + kl_weight * self.kl_objective(output, kl) + prior_regularizer
+            ),
             "reconstruction": reconstruction,
             "kl": kl,
             "prior_regularizer": prior_regularizer,
@@ -303,15 +334,17 @@ class VRNNLRUModel(SurpriseModel):
         terms = self.loss_terms(x, output, logits, kl_weight)
         return torch.stack([terms[name] for name in ("loss", *LOSS_TERMS)])
 
-    def _training_loss(self, frames: torch.Tensor, noise: torch.Tensor,
-                       kl_weight: torch.Tensor) -> torch.Tensor:
+    def _training_loss(
+        self, frames: torch.Tensor, noise: torch.Tensor, kl_weight: torch.Tensor
+    ) -> torch.Tensor:
         """:meth:`training_terms`, replayed from CUDA graphs when :attr:`captures` (captured at
         the first batch; a batch of another shape runs uncaptured)."""
         if not self.captures:
             return self.training_terms(frames, noise, kl_weight)
         if self._graphed is None:
             graphed = torch.cuda.make_graphed_callables(
-                _TrainingTerms(self), (frames, noise, kl_weight), allow_unused_input=True)
+                _TrainingTerms(self), (frames, noise, kl_weight), allow_unused_input=True
+            )
             self._graphed = (frames.shape, graphed)
         shape, graphed = self._graphed
         if frames.shape != shape:
@@ -336,8 +369,10 @@ class VRNNLRUModel(SurpriseModel):
         if self._read_back_now():
             self._finite.check()
             logged = terms.detach().clone()  # a captured graph's output is overwritten next step
-            self.log_dict({f"train/{name}": value for name, value in zip(("loss", *LOSS_TERMS), logged)},
-                          batch_size=frames.shape[0])
+            self.log_dict(
+                {f"train/{name}": value for name, value in zip(("loss", *LOSS_TERMS), logged)},
+                batch_size=frames.shape[0],
+            )
         return terms[0]
 
     def _read_back_now(self) -> bool:
@@ -382,8 +417,11 @@ class VRNNLRUModel(SurpriseModel):
 
     @torch.no_grad()
     def expected_frames(
-        self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-        camera: torch.Tensor | None = None, objects: TensorDictBase | None = None,
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
     ) -> torch.Tensor:
         """What the model expected each frame to be given the previous ones (paper Figure 5):
         sigmoid(decoder(prior mean)) [B, T, 3, H, W], deterministic rollout (pixels alone)."""
@@ -392,8 +430,11 @@ class VRNNLRUModel(SurpriseModel):
 
     @torch.no_grad()
     def trajectories(
-        self, frames: torch.Tensor, mask: torch.Tensor | None = None,
-        camera: torch.Tensor | None = None, objects: TensorDictBase | None = None,
+        self,
+        frames: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        camera: torch.Tensor | None = None,
+        objects: TensorDictBase | None = None,
     ) -> dict[str, torch.Tensor]:
         """Time courses for t-SNE (paper Appendix B): ``prior`` [B, T, 2Z] (mean then log-std)
         and ``memory`` [B, T, slots * units] after each step's write, deterministic rollout
@@ -427,11 +468,15 @@ class VRNNLRUModel(SurpriseModel):
 
     # ----------------------------------------------------------------------------- optimizer
     def configure_optimizers(self) -> dict:
-        return optimization.adam(self.parameters(), self.hparams.learning_rate,
-                                 self.hparams.lr_schedule,
-                                 getattr(self._trainer, "max_steps", None),
-                                 tuple(self.hparams.adam_betas),
-                                 warmup_steps=self.hparams.lr_warmup_steps, fused=True)
+        return optimization.adam(
+            self.parameters(),
+            self.hparams.learning_rate,
+            self.hparams.lr_schedule,
+            getattr(self._trainer, "max_steps", None),
+            tuple(self.hparams.adam_betas),
+            warmup_steps=self.hparams.lr_warmup_steps,
+            fused=True,
+        )
 
 
 class _TrainingTerms(torch.nn.Module):
@@ -442,7 +487,9 @@ class _TrainingTerms(torch.nn.Module):
         super().__init__()
         self.model = model
 
-    def forward(self, frames: torch.Tensor, noise: torch.Tensor, kl_weight: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, frames: torch.Tensor, noise: torch.Tensor, kl_weight: torch.Tensor
+    ) -> torch.Tensor:
         return self.model.training_terms(frames, noise, kl_weight)
 
 

@@ -29,10 +29,10 @@ from pathlib import Path
 from typing import Any
 
 from voe_lightning import cue_report, cues
-from voe_lightning.store_shards import current_umask, remove_stale, temporary_prefix
-from voe_lightning.statistics import ALPHA
 from voe_lightning.report.figures import PredictionExample, write_figures
 from voe_lightning.report.results import VRNN_SURPRISE, PairResults, summarize, write_summary
+from voe_lightning.statistics import ALPHA
+from voe_lightning.store_shards import current_umask, remove_stale, temporary_prefix
 from voe_lightning.surprise_window import SurpriseWindow
 
 
@@ -70,9 +70,22 @@ def write_report(
         remove_stale(out_dir, name)
     staging = Path(tempfile.mkdtemp(prefix=temporary_prefix(STAGING), dir=out_dir))
     try:
-        rows = _write_files(results, staging, predictions, trajectories, trajectory_labels,
-                            cue_audit, alpha, bootstrap, seed, echo, surprise, source, window,
-                            priors_alone)
+        rows = _write_files(
+            results,
+            staging,
+            predictions,
+            trajectories,
+            trajectory_labels,
+            cue_audit,
+            alpha,
+            bootstrap,
+            seed,
+            echo,
+            surprise,
+            source,
+            window,
+            priors_alone,
+        )
         report_dir = _replace_folder(staging, out_dir / "voe_report")
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -99,37 +112,82 @@ def _replace_folder(new: Path, target: Path) -> Path:
     return target
 
 
-def _write_files(results: PairResults, report_dir: Path,
-                 predictions: Sequence[PredictionExample] | None,
-                 trajectories: Mapping[str, Any] | None, trajectory_labels: Sequence[str] | None,
-                 cue_audit: cues.CueAudit | None, alpha: float, bootstrap: int, seed: int,
-                 echo: bool, surprise: str, source: Mapping[str, Any] | None,
-                 window: SurpriseWindow,
-                 priors_alone: Mapping[str, Any] | None) -> list[dict[str, Any]]:
+def _write_files(
+    results: PairResults,
+    report_dir: Path,
+    predictions: Sequence[PredictionExample] | None,
+    trajectories: Mapping[str, Any] | None,
+    trajectory_labels: Sequence[str] | None,
+    cue_audit: cues.CueAudit | None,
+    alpha: float,
+    bootstrap: int,
+    seed: int,
+    echo: bool,
+    surprise: str,
+    source: Mapping[str, Any] | None,
+    window: SurpriseWindow,
+    priors_alone: Mapping[str, Any] | None,
+) -> list[dict[str, Any]]:
     """Every file of the report (``write_report``) into ``report_dir``; the summary rows."""
     rows = summarize(results, alpha=alpha, bootstrap=bootstrap, seed=seed)
-    window_rows = (None if window.all_frames else
-                   summarize(results.windowed(window), alpha=alpha, bootstrap=bootstrap, seed=seed))
-    markdown = write_summary(results, rows, report_dir, alpha=alpha, bootstrap=bootstrap,
-                             surprise=surprise, source=source, window=window,
-                             window_rows=window_rows, priors_alone=priors_alone)
+    window_rows = (
+        None
+        if window.all_frames
+        else summarize(results.windowed(window), alpha=alpha, bootstrap=bootstrap, seed=seed)
+    )
+    markdown = write_summary(
+        results,
+        rows,
+        report_dir,
+        alpha=alpha,
+        bootstrap=bootstrap,
+        surprise=surprise,
+        source=source,
+        window=window,
+        window_rows=window_rows,
+        priors_alone=priors_alone,
+    )
     correlations = None
     if cue_audit is not None:
         if len(cue_audit) != len(results):
-            raise ValueError(f"the cue audit scored {len(cue_audit)} pairs, the model "
-                             f"{len(results)}: they must be the same pairs")
-        if (tuple(cue_audit.concepts) != results.concept
-                or tuple(cue_audit.variants) != results.variant):
+            raise ValueError(
+                f"the cue audit scored {len(cue_audit)} pairs, the model "
+                f"{len(results)}: they must be the same pairs"
+            )
+        if (
+            tuple(cue_audit.concepts) != results.concept
+            or tuple(cue_audit.variants) != results.variant
+        ):
             raise ValueError("the cue audit's pairs are not the model's pairs in the same order")
         cue_rows = cue_audit.rows(alpha=alpha)
         correlations = cue_audit.model_correlations(results.relative_surprise, alpha=alpha)
         title = "Cue audit on the model's test pairs"
-        cue_report.write_audit(cue_rows, report_dir, model_rows=rows, title=title,
-                         correlation_rows=correlations, alpha=alpha, num_pairs=len(cue_audit))
-        markdown += ("\n" + cue_report.format_markdown(cue_rows, rows, title)
-                     + "\n" + cue_report.format_correlations(correlations))
-    write_figures(results, rows, report_dir, predictions, trajectories, trajectory_labels,
-                  seed=seed, cue_audit=cue_audit, correlation_rows=correlations)
+        cue_report.write_audit(
+            cue_rows,
+            report_dir,
+            model_rows=rows,
+            title=title,
+            correlation_rows=correlations,
+            alpha=alpha,
+            num_pairs=len(cue_audit),
+        )
+        markdown += (
+            "\n"
+            + cue_report.format_markdown(cue_rows, rows, title)
+            + "\n"
+            + cue_report.format_correlations(correlations)
+        )
+    write_figures(
+        results,
+        rows,
+        report_dir,
+        predictions,
+        trajectories,
+        trajectory_labels,
+        seed=seed,
+        cue_audit=cue_audit,
+        correlation_rows=correlations,
+    )
     if echo:
         _print_markdown(markdown)
     return rows

@@ -47,9 +47,11 @@ def save_figure(figure: Figure, path: str | Path) -> Path:
     path = Path(path)
     kind = path.suffix[1:].lower() or "png"
     if kind not in figure.canvas.get_supported_filetypes():
-        raise ValueError(f"cannot write a figure as {path}: {path.suffix!r} is no image format "
-                         f"matplotlib writes; use .png, or one of "
-                         f"{', '.join(sorted(figure.canvas.get_supported_filetypes()))}")
+        raise ValueError(
+            f"cannot write a figure as {path}: {path.suffix!r} is no image format "
+            f"matplotlib writes; use .png, or one of "
+            f"{', '.join(sorted(figure.canvas.get_supported_filetypes()))}"
+        )
     image = io.BytesIO()
     figure.savefig(image, format=kind, dpi=110)
     write_whole({path: image.getvalue()})
@@ -74,8 +76,10 @@ def _stats_text(row: Mapping[str, Any]) -> str:
         return f"n = {row['n']}: no test"
     text = row_text(row, BRIEF)
     star = " *" if text.significant else ""
-    return (f"M = {text.mean}\n{text.t}, {text.p_phrase}{star}\n"
-            f"d_z = {text.d_z}, acc. = {text.accuracy}")
+    return (
+        f"M = {text.mean}\n{text.t}, {text.p_phrase}{star}\n"
+        f"d_z = {text.d_z}, acc. = {text.accuracy}"
+    )
 
 
 def histogram_figure(results: PairResults, rows: Sequence[Mapping[str, Any]]) -> Figure:
@@ -90,8 +94,13 @@ def histogram_figure(results: PairResults, rows: Sequence[Mapping[str, Any]]) ->
         shown = d[np.abs(d - d.mean()) <= OUTLIER_SD * sd] if sd > 0 else d
         row = by_key[(concept, variant)]
         color = "tab:green" if row.get("significant") else "tab:gray"
-        counts, _, _ = ax.hist(shown, bins=max(5, min(40, int(np.sqrt(shown.size)) * 2)),
-                               color=color, alpha=0.75, edgecolor="white")
+        counts, _, _ = ax.hist(
+            shown,
+            bins=max(5, min(40, int(np.sqrt(shown.size)) * 2)),
+            color=color,
+            alpha=0.75,
+            edgecolor="white",
+        )
         ax.set_ylim(0, max(counts.max(), 1) * 1.75)  # headroom for the statistics box
         ax.axvline(0.0, color="black", linewidth=1)
         ax.axvline(d.mean(), color="black", linewidth=1, linestyle="--")
@@ -99,12 +108,21 @@ def histogram_figure(results: PairResults, rows: Sequence[Mapping[str, Any]]) ->
         ax.set_xlabel("d = S(inconsistent) - S(consistent)")
         ax.set_ylabel("probe pairs")
         hidden = d.size - shown.size
-        ax.text(0.98, 0.97, _stats_text(row) + f"\n{hidden} of {d.size} beyond 3 SD hidden",
-                transform=ax.transAxes, ha="right", va="top", fontsize=8,
-                bbox=dict(boxstyle="round", facecolor="white", alpha=0.85, edgecolor="0.7"))
-    title = ("Relative surprise per probe pair (dashed: mean of all pairs). Outliers > 3 SD "
-             "removed for display only; tests use all pairs; "
-             f"* p < {rows_alpha(rows):g} one-tailed")
+        ax.text(
+            0.98,
+            0.97,
+            _stats_text(row) + f"\n{hidden} of {d.size} beyond 3 SD hidden",
+            transform=ax.transAxes,
+            ha="right",
+            va="top",
+            fontsize=8,
+            bbox=dict(boxstyle="round", facecolor="white", alpha=0.85, edgecolor="0.7"),
+        )
+    title = (
+        "Relative surprise per probe pair (dashed: mean of all pairs). Outliers > 3 SD "
+        "removed for display only; tests use all pairs; "
+        f"* p < {rows_alpha(rows):g} one-tailed"
+    )
     figure.suptitle(textwrap.fill(title, width=int(14 * figure.get_figwidth())), fontsize=10)
     return figure
 
@@ -119,7 +137,7 @@ def _aligned(surprise: np.ndarray, manipulation: np.ndarray) -> tuple[np.ndarray
     aligned = np.full((n, offsets.size), np.nan)
     for i in range(n):
         start = -int(manipulation[i]) - first
-        aligned[i, start:start + frames] = surprise[i]
+        aligned[i, start : start + frames] = surprise[i]
     return offsets, aligned
 
 
@@ -147,8 +165,7 @@ def per_frame_figure(results: PairResults) -> Figure:
             offsets, aligned = _aligned(surprise, pairs.manipulation_frame)
             mean, half = _mean_and_band(aligned)
             ax.plot(offsets, mean, color=color, marker="o", markersize=3, label=label)
-            ax.fill_between(offsets, mean - half, mean + half, color=color, alpha=0.2,
-                            linewidth=0)
+            ax.fill_between(offsets, mean - half, mean + half, color=color, alpha=0.2, linewidth=0)
         ax.axvline(0, color="black", linestyle="--", linewidth=1)
         ax.set_title(f"{concept} / {variant} (n = {len(pairs)})", fontsize=10)
         ax.set_xlabel("frame relative to manipulation (dashed)")
@@ -189,15 +206,17 @@ def predictions_figure(examples: Sequence[PredictionExample], max_frames: int = 
                     for spine in ax.spines.values():
                         spine.set_edgecolor("red")
                         spine.set_linewidth(2.5)
-            axes[0, column].set_title(f"t={t}", fontsize=8,
-                                      color="red" if t == example.manipulation_frame else "black")
+            axes[0, column].set_title(
+                f"t={t}", fontsize=8, color="red" if t == example.manipulation_frame else "black"
+            )
         axes[0, 0].set_ylabel("input", fontsize=9)
         axes[1, 0].set_ylabel("expected", fontsize=9)
-        title = (f"{example.concept} / {example.variant}, seed {example.seed}: inconsistent "
-                 "probe (top) and what the model expected from the frames before (bottom); red: "
-                 "manipulation frame")
-        subfigure.suptitle(textwrap.fill(title, width=int(14 * figure.get_figwidth())),
-                           fontsize=9)
+        title = (
+            f"{example.concept} / {example.variant}, seed {example.seed}: inconsistent "
+            "probe (top) and what the model expected from the frames before (bottom); red: "
+            "manipulation frame"
+        )
+        subfigure.suptitle(textwrap.fill(title, width=int(14 * figure.get_figwidth())), fontsize=9)
     return figure
 
 
@@ -205,9 +224,14 @@ def _arrowhead(ax: Any, curve: np.ndarray, color: str) -> None:
     """An arrowhead at the curve's last point, pointing along its last non-zero step."""
     moved = np.flatnonzero(np.any(curve[:-1] != curve[-1], axis=1))
     if moved.size:
-        ax.annotate("", xy=curve[-1], xytext=curve[moved[-1]],
-                    arrowprops=dict(arrowstyle="-|>", color=color, lw=1.5, mutation_scale=20,
-                                    shrinkA=0, shrinkB=0))
+        ax.annotate(
+            "",
+            xy=curve[-1],
+            xytext=curve[moved[-1]],
+            arrowprops=dict(
+                arrowstyle="-|>", color=color, lw=1.5, mutation_scale=20, shrinkA=0, shrinkB=0
+            ),
+        )
 
 
 #: Panel titles of the t-SNE figure by trajectory kind (others: the kind, capitalised).
@@ -230,9 +254,11 @@ def tsne_figure(
 
     kinds = list(trajectories.get("consistent", {}))
     if not kinds or kinds != list(trajectories.get("inconsistent", {})):
-        raise KeyError("trajectories need the same kinds for both videos, e.g. "
-                       "dict(consistent=dict(prior, memory), inconsistent=dict(prior, memory)); "
-                       f"got {({video: list(v) for video, v in trajectories.items()})}")
+        raise KeyError(
+            "trajectories need the same kinds for both videos, e.g. "
+            "dict(consistent=dict(prior, memory), inconsistent=dict(prior, memory)); "
+            f"got { ({video: list(v) for video, v in trajectories.items()}) }"
+        )
     figure = Figure(figsize=(5.5 * len(kinds), 5), layout="constrained")
     axes = np.atleast_1d(figure.subplots(1, len(kinds)))
     for ax, kind in zip(axes, kinds):
@@ -241,36 +267,53 @@ def tsne_figure(
         inconsistent = as_numpy(trajectories["inconsistent"][kind], np.float64)
         n, frames = consistent.shape[:2]
         if inconsistent.shape != consistent.shape:
-            raise ValueError(f"{kind}: consistent {consistent.shape} and inconsistent "
-                             f"{inconsistent.shape} trajectories disagree")
+            raise ValueError(
+                f"{kind}: consistent {consistent.shape} and inconsistent "
+                f"{inconsistent.shape} trajectories disagree"
+            )
         points = np.concatenate([consistent, inconsistent]).reshape(2 * n * frames, -1)
         perplexity = min(30.0, (points.shape[0] - 1) / 3.0)
         method = "exact" if points.shape[0] <= 2000 else "barnes_hut"  # exact: faster when small
-        embedded = TSNE(n_components=2, perplexity=perplexity, init="pca", method=method,
-                        random_state=seed).fit_transform(points).reshape(2, n, frames, 2)
+        embedded = (
+            TSNE(
+                n_components=2, perplexity=perplexity, init="pca", method=method, random_state=seed
+            )
+            .fit_transform(points)
+            .reshape(2, n, frames, 2)
+        )
         # Consistent curves wide and pale underneath, so a shared stretch shows both colours.
         for video, palette, name, width, alpha in (
-                (0, TSNE_CONSISTENT_COLORS, "consistent", 5.0, 0.45),
-                (1, TSNE_INCONSISTENT_COLORS, "inconsistent", 1.6, 1.0)):
+            (0, TSNE_CONSISTENT_COLORS, "consistent", 5.0, 0.45),
+            (1, TSNE_INCONSISTENT_COLORS, "inconsistent", 1.6, 1.0),
+        ):
             for i in range(n):
                 color = palette[i % len(palette)]
                 curve = embedded[video, i]
                 label = f"{labels[i] if labels else f'pair {i + 1}'} {name}"
-                ax.plot(curve[:, 0], curve[:, 1], color=color, linewidth=width, alpha=alpha,
-                        label=label, solid_capstyle="round")
+                ax.plot(
+                    curve[:, 0],
+                    curve[:, 1],
+                    color=color,
+                    linewidth=width,
+                    alpha=alpha,
+                    label=label,
+                    solid_capstyle="round",
+                )
                 ax.plot(*curve[0], "o", color=color, markersize=6)
                 _arrowhead(ax, curve, color)
         ax.set_title(f"{title} (t-SNE; dot = first frame, arrow = last)", fontsize=10)
         ax.set_xticks([])
         ax.set_yticks([])
     axes[-1].legend(fontsize=8, loc="best")
-    figure.suptitle("Object persistence probes: consistent blue/cyan, inconsistent red/magenta",
-                    fontsize=10)
+    figure.suptitle(
+        "Object persistence probes: consistent blue/cyan, inconsistent red/magenta", fontsize=10
+    )
     return figure
 
 
-def cue_scatter_figure(results: PairResults, cue_audit: Any,
-                       correlation_rows: Sequence[Mapping[str, Any]]) -> Figure | None:
+def cue_scatter_figure(
+    results: PairResults, cue_audit: Any, correlation_rows: Sequence[Mapping[str, Any]]
+) -> Figure | None:
     """Per pair, the model's relative surprise against the difference of the frame-local cue
     it tracks most (largest |r| of ``CueAudit.model_correlations``), one panel per group a
     verdict reads (pooled rows; every variant of a concept without one), points coloured by
@@ -278,9 +321,11 @@ def cue_scatter_figure(results: PairResults, cue_audit: Any,
     from voe_lightning.cues import CUE_TITLES, tracked_cues
 
     pooled = {r["concept"] for r in correlation_rows if r["variant"] == POOLED}
-    panels = {key: row for key, row in tracked_cues(correlation_rows).items()
-              if key[1] == POOLED or (key[0] not in pooled
-                                      and key[1] not in GENERALIZATION_VARIANT_NAMES)}
+    panels = {
+        key: row
+        for key, row in tracked_cues(correlation_rows).items()
+        if key[1] == POOLED or (key[0] not in pooled and key[1] not in GENERALIZATION_VARIANT_NAMES)
+    }
     if not panels:
         return None
     concepts, variants = np.array(results.concept), np.array(results.variant)
@@ -297,14 +342,19 @@ def cue_scatter_figure(results: PairResults, cue_audit: Any,
             ax.scatter(cue_d[points], d[points], s=10, alpha=0.7, label=name)
         ax.axhline(0.0, color="black", linewidth=0.8)
         ax.axvline(0.0, color="black", linewidth=0.8, linestyle=":")
-        ax.set_title(f"{concept} / {variant}\nr = {row['r']:+.2f}, "
-                     f"{format_p_phrase(row['p_two_sided'])} (two-sided)", fontsize=9)
+        ax.set_title(
+            f"{concept} / {variant}\nr = {row['r']:+.2f}, "
+            f"{format_p_phrase(row['p_two_sided'])} (two-sided)",
+            fontsize=9,
+        )
         ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 3))
         ax.set_xlabel(f"{CUE_TITLES[cue]}: score(inc.) - score(con.)", fontsize=8)
         ax.set_ylabel("model: S(inc.) - S(con.)", fontsize=8)
         ax.legend(fontsize=7, loc="best")
-    figure.suptitle("Does surprise track a physics-blind cue? Each point a probe pair "
-                    "(the frame-local cue with the largest |r| per panel)")
+    figure.suptitle(
+        "Does surprise track a physics-blind cue? Each point a probe pair "
+        "(the frame-local cue with the largest |r| per panel)"
+    )
     return figure
 
 
@@ -338,5 +388,7 @@ def write_figures(
     for concept, examples in by_concept.items():
         _save(predictions_figure(examples), report_dir / f"predictions_{concept}.png")
     if trajectories is not None:
-        _save(tsne_figure(trajectories, trajectory_labels, seed=seed),
-              report_dir / "tsne_object_persistence.png")
+        _save(
+            tsne_figure(trajectories, trajectory_labels, seed=seed),
+            report_dir / "tsne_object_persistence.png",
+        )

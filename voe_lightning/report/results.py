@@ -20,16 +20,26 @@ from voe_lightning.causality import Causality, check_prefix
 from voe_lightning.field_metrics import field_metrics, format_field_metrics
 from voe_lightning.model.vrnn_lru import VRNNLRUModel
 from voe_lightning.specs import CONCEPTS, VARIANTS
+from voe_lightning.statistics import (
+    ALPHA,
+    QUADRUPLET_ROWS,
+    QuadrupletTestResult,
+    group_test,
+    untested_reason,
+)
+from voe_lightning.statistics_format import format_alpha, format_t, json_row, row_text, rows_alpha
 from voe_lightning.surprise_window import SurpriseWindow, video_surprise
-from voe_lightning.statistics import (ALPHA, QUADRUPLET_ROWS, QuadrupletTestResult, group_test,
-                                     untested_reason)
-from voe_lightning.statistics_format import (format_alpha, format_t, json_row, row_text,
-                                             rows_alpha)
 from voe_lightning.verdicts import concept_verdicts, pair_groups
 
 #: Keys of the dict that ``VRNNLRUModel.probe_step`` (and so ``test_step``) returns.
-PROBE_OUTPUT_KEYS = ("concept", "variant", "seed", "manipulation_frame",
-                     "surprise_consistent", "surprise_inconsistent")
+PROBE_OUTPUT_KEYS = (
+    "concept",
+    "variant",
+    "seed",
+    "manipulation_frame",
+    "surprise_consistent",
+    "surprise_inconsistent",
+)
 #: A key ``probe_step`` also returns, which a model's own probe step may leave out: the first
 #: frame at which each pair's videos differ (``PairResults`` then takes manipulation_frame + 1).
 FIRST_DIFFERENCE = "first_difference"
@@ -64,26 +74,39 @@ class PairResults:
         set_(self, "variant", tuple(str(v) for v in self.variant))
         if self.first_difference is None:
             set_(self, "first_difference", as_numpy(self.manipulation_frame, np.int64) + 1)
-        for name, dtype in (("seed", np.int64), ("manipulation_frame", np.int64),
-                            ("first_difference", np.int64),
-                            ("surprise_consistent", np.float64),
-                            ("surprise_inconsistent", np.float64)):
+        for name, dtype in (
+            ("seed", np.int64),
+            ("manipulation_frame", np.int64),
+            ("first_difference", np.int64),
+            ("surprise_consistent", np.float64),
+            ("surprise_inconsistent", np.float64),
+        ):
             set_(self, name, as_numpy(getattr(self, name), dtype))
         n = len(self.concept)
         if self.surprise_consistent.ndim != 2 or self.surprise_consistent.shape[0] != n:
-            raise ValueError(f"surprise_consistent must be [N={n}, T]; got "
-                             f"{self.surprise_consistent.shape}")
-        shapes = {"variant": (len(self.variant),), "seed": self.seed.shape,
-                  "manipulation_frame": self.manipulation_frame.shape,
-                  "first_difference": self.first_difference.shape,
-                  "surprise_inconsistent": self.surprise_inconsistent.shape}
-        expected = {"variant": (n,), "seed": (n,), "manipulation_frame": (n,),
-                    "first_difference": (n,),
-                    "surprise_inconsistent": self.surprise_consistent.shape}
+            raise ValueError(
+                f"surprise_consistent must be [N={n}, T]; got {self.surprise_consistent.shape}"
+            )
+        shapes = {
+            "variant": (len(self.variant),),
+            "seed": self.seed.shape,
+            "manipulation_frame": self.manipulation_frame.shape,
+            "first_difference": self.first_difference.shape,
+            "surprise_inconsistent": self.surprise_inconsistent.shape,
+        }
+        expected = {
+            "variant": (n,),
+            "seed": (n,),
+            "manipulation_frame": (n,),
+            "first_difference": (n,),
+            "surprise_inconsistent": self.surprise_consistent.shape,
+        }
         wrong = {k: v for k, v in shapes.items() if v != expected[k]}
         if wrong:
-            raise ValueError(f"per-pair fields disagree with {n} pairs of "
-                             f"{self.num_frames} frames: {wrong} (expected {expected})")
+            raise ValueError(
+                f"per-pair fields disagree with {n} pairs of "
+                f"{self.num_frames} frames: {wrong} (expected {expected})"
+            )
 
     @property
     def num_frames(self) -> int:
@@ -110,17 +133,27 @@ class PairResults:
     def causality(self) -> Causality:
         """Whether per-frame surprise is identical where each pair's videos are
         (``causality.check_prefix``): a report gives no verdict when it is not."""
-        return check_prefix(self.surprise_consistent, self.surprise_inconsistent,
-                            self.manipulation_frame, self.first_difference)
+        return check_prefix(
+            self.surprise_consistent,
+            self.surprise_inconsistent,
+            self.manipulation_frame,
+            self.first_difference,
+        )
 
     def windowed(self, window: SurpriseWindow) -> PairResults:
         """These pairs with every frame outside ``window`` (counted from each pair's first
         difference) scoring 0, so each video's surprise is its sum over the window: the one
         place a window enters the statistics."""
         weights = window.frame_weights(self.num_frames, self.first_difference)
-        return PairResults(self.concept, self.variant, self.seed, self.manipulation_frame,
-                           self.surprise_consistent * weights,
-                           self.surprise_inconsistent * weights, self.first_difference)
+        return PairResults(
+            self.concept,
+            self.variant,
+            self.seed,
+            self.manipulation_frame,
+            self.surprise_consistent * weights,
+            self.surprise_inconsistent * weights,
+            self.first_difference,
+        )
 
     @classmethod
     def from_probe_outputs(
@@ -140,8 +173,10 @@ class PairResults:
         for index, output in enumerate(outputs):
             missing = [key for key in PROBE_OUTPUT_KEYS if key not in output]
             if missing:
-                raise KeyError(f"probe output {index} lacks {missing}; probe_step must return "
-                               f"{list(PROBE_OUTPUT_KEYS)}")
+                raise KeyError(
+                    f"probe output {index} lacks {missing}; probe_step must return "
+                    f"{list(PROBE_OUTPUT_KEYS)}"
+                )
             for key in keys:
                 columns[key].append(as_numpy(output[key], None))
         merged = {key: np.concatenate(values) for key, values in columns.items()}
@@ -149,8 +184,9 @@ class PairResults:
         def decode(indices: np.ndarray, names: Sequence[str], what: str) -> tuple[str, ...]:
             bad = sorted({int(i) for i in indices if not 0 <= int(i) < len(names)})
             if bad:
-                raise ValueError(f"{what} indices {bad} are outside the {len(names)} "
-                                 f"{what} names {tuple(names)}")
+                raise ValueError(
+                    f"{what} indices {bad} are outside the {len(names)} {what} names {tuple(names)}"
+                )
             return tuple(names[int(i)] for i in indices)
 
         return cls(
@@ -182,15 +218,29 @@ class PairResults:
         ``pooled``, also each concept's ``pooled`` group (standard + counterbalanced) and a
         group per quadruplet of ``specs.QUADRUPLETS`` (its first halves, then its second halves,
         matched by seed; ``verdicts.pair_groups``)."""
-        return [(concept, variant, self.select(rows)) for concept, variant, rows
-                in pair_groups(self.concept, self.variant, pooled=pooled, seeds=self.seed)]
+        return [
+            (concept, variant, self.select(rows))
+            for concept, variant, rows in pair_groups(
+                self.concept, self.variant, pooled=pooled, seeds=self.seed
+            )
+        ]
 
     def csv_columns(self) -> list[str]:
         frames = [f"t{t:02d}" for t in range(self.num_frames)]
-        return (["concept", "variant", "seed", "manipulation_frame", "surprise_consistent",
-                 "surprise_inconsistent", "relative_surprise", FIRST_DIFFERENCE]
-                + [f"surprise_consistent_{f}" for f in frames]
-                + [f"surprise_inconsistent_{f}" for f in frames])
+        return (
+            [
+                "concept",
+                "variant",
+                "seed",
+                "manipulation_frame",
+                "surprise_consistent",
+                "surprise_inconsistent",
+                "relative_surprise",
+                FIRST_DIFFERENCE,
+            ]
+            + [f"surprise_consistent_{f}" for f in frames]
+            + [f"surprise_inconsistent_{f}" for f in frames]
+        )
 
     def to_csv(self, path: str | Path) -> None:
         """pairs.csv: one row per pair; floats written with full precision (repr)."""
@@ -200,11 +250,19 @@ class PairResults:
             totals = zip(self.total_consistent, self.total_inconsistent)
             for i, (con, inc) in enumerate(totals):
                 writer.writerow(
-                    [self.concept[i], self.variant[i], int(self.seed[i]),
-                     int(self.manipulation_frame[i]), repr(float(con)), repr(float(inc)),
-                     repr(float(inc - con)), int(self.first_difference[i])]
+                    [
+                        self.concept[i],
+                        self.variant[i],
+                        int(self.seed[i]),
+                        int(self.manipulation_frame[i]),
+                        repr(float(con)),
+                        repr(float(inc)),
+                        repr(float(inc - con)),
+                        int(self.first_difference[i]),
+                    ]
                     + [repr(float(x)) for x in self.surprise_consistent[i]]
-                    + [repr(float(x)) for x in self.surprise_inconsistent[i]])
+                    + [repr(float(x)) for x in self.surprise_inconsistent[i]]
+                )
 
     @classmethod
     def from_csv(cls, path: str | Path) -> PairResults:
@@ -221,8 +279,10 @@ class PairResults:
         con_cols = [c for c in columns if c.startswith("surprise_consistent_t")]
         inc_cols = [c for c in columns if c.startswith("surprise_inconsistent_t")]
         if not con_cols or len(con_cols) != len(inc_cols):
-            raise ValueError(f"{path} lacks per-frame surprise columns "
-                             "surprise_consistent_tNN / surprise_inconsistent_tNN")
+            raise ValueError(
+                f"{path} lacks per-frame surprise columns "
+                "surprise_consistent_tNN / surprise_inconsistent_tNN"
+            )
         for line, row in enumerate(rows, start=2):
             _check_pair_row(path, line, row, con_cols, inc_cols)
         if path.with_name("summary.json").is_file():
@@ -234,13 +294,19 @@ class PairResults:
             manipulation_frame=[int(r["manipulation_frame"]) for r in rows],
             surprise_consistent=[[float(r[c]) for c in con_cols] for r in rows],
             surprise_inconsistent=[[float(r[c]) for c in inc_cols] for r in rows],
-            first_difference=([int(r[FIRST_DIFFERENCE]) for r in rows]
-                              if FIRST_DIFFERENCE in columns else None),
+            first_difference=(
+                [int(r[FIRST_DIFFERENCE]) for r in rows] if FIRST_DIFFERENCE in columns else None
+            ),
         )
 
 
-def _check_pair_row(path: Path, line: int, row: Mapping[str, str | None],
-                    con_cols: Sequence[str], inc_cols: Sequence[str]) -> None:
+def _check_pair_row(
+    path: Path,
+    line: int,
+    row: Mapping[str, str | None],
+    con_cols: Sequence[str],
+    inc_cols: Sequence[str],
+) -> None:
     """Refuse, naming ``path`` and ``line``, a pairs.csv row with a missing or non-numeric
     value or whose totals are not the sums of its per-frame surprise."""
     corrupt = f"{path} is corrupt (truncated?) at line {line}"
@@ -251,8 +317,15 @@ def _check_pair_row(path: Path, line: int, row: Mapping[str, str | None],
         raise ValueError(f"{corrupt}: no value for {', '.join(missing)}")
     numbers = {}
     optional = [FIRST_DIFFERENCE] if FIRST_DIFFERENCE in row else []
-    for name in ("seed", "manipulation_frame", *optional, "surprise_consistent",
-                 "surprise_inconsistent", *con_cols, *inc_cols):
+    for name in (
+        "seed",
+        "manipulation_frame",
+        *optional,
+        "surprise_consistent",
+        "surprise_inconsistent",
+        *con_cols,
+        *inc_cols,
+    ):
         try:
             numbers[name] = float(row[name])
         except ValueError:
@@ -270,12 +343,16 @@ def _check_against_summary(path: Path, num_rows: int) -> None:
     corrupt = f"{path} is corrupt (truncated?)"
     rewrite = "run test again to rewrite it"
     if summary.get("num_pairs") is not None and summary["num_pairs"] != num_rows:
-        raise ValueError(f"{corrupt}: it holds {num_rows} pairs, {path.with_name('summary.json')} "
-                         f"counts {summary['num_pairs']}; {rewrite}")
+        raise ValueError(
+            f"{corrupt}: it holds {num_rows} pairs, {path.with_name('summary.json')} "
+            f"counts {summary['num_pairs']}; {rewrite}"
+        )
     recorded = summary.get("pairs_csv_sha256")
     if recorded is not None and recorded != _sha256(path):
-        raise ValueError(f"{corrupt}: its SHA-256 is not the one "
-                         f"{path.with_name('summary.json')} recorded; {rewrite}")
+        raise ValueError(
+            f"{corrupt}: its SHA-256 is not the one "
+            f"{path.with_name('summary.json')} recorded; {rewrite}"
+        )
 
 
 def _sha256(path: Path) -> str:
@@ -288,8 +365,9 @@ def read_summary(report_dir: str | Path) -> dict[str, Any]:
     try:
         summary = json.loads(path.read_text())
     except ValueError as error:
-        raise ValueError(f"{path} is corrupt (truncated?): {error}; run test again to rewrite "
-                         "it") from None
+        raise ValueError(
+            f"{path} is corrupt (truncated?): {error}; run test again to rewrite it"
+        ) from None
     if not isinstance(summary, dict) or not isinstance(summary.get("rows"), list):
         raise ValueError(f"{path} is not a voe_report summary (no rows); run test again")
     return summary
@@ -312,9 +390,17 @@ def summarize(
         if reason:
             row.update(n=len(pairs) // (2 if variant in QUADRUPLET_ROWS else 1), note=reason)
         else:
-            row.update(group_test(variant, pairs.total_inconsistent, pairs.total_consistent,
-                                  pairs.variant, alpha=alpha, bootstrap=bootstrap,
-                                  seed=seed).as_dict())
+            row.update(
+                group_test(
+                    variant,
+                    pairs.total_inconsistent,
+                    pairs.total_consistent,
+                    pairs.variant,
+                    alpha=alpha,
+                    bootstrap=bootstrap,
+                    seed=seed,
+                ).as_dict()
+            )
         rows.append(row)
     return rows
 
@@ -328,13 +414,16 @@ def field_metric_rows(results: PairResults) -> dict[str, dict[str, Any]]:
     for concept, variant, pairs in results.groups(pooled=True):
         sides = (pairs.surprise_consistent, pairs.surprise_inconsistent)
         rows[f"{concept}/{variant}"] = (
-            field_metrics(*sides) if all(np.isfinite(side).all() for side in sides)
-            else {"n_pairs": len(pairs), "note": "surprise is not finite: no metrics"})
+            field_metrics(*sides)
+            if all(np.isfinite(side).all() for side in sides)
+            else {"n_pairs": len(pairs), "note": "surprise is not finite: no metrics"}
+        )
     return rows
 
 
-def format_verdicts(rows: Sequence[Mapping[str, Any]],
-                    causality: Causality | None = None) -> list[str]:
+def format_verdicts(
+    rows: Sequence[Mapping[str, Any]], causality: Causality | None = None
+) -> list[str]:
     """Markdown lines of the ``causality`` check and each concept's VOE verdict
     (``verdicts.concept_verdicts``, withheld when the check failed)."""
     lines = [causality.line(), ""] if causality is not None else []
@@ -348,16 +437,21 @@ def format_verdicts(rows: Sequence[Mapping[str, Any]],
 VRNN_SURPRISE = VRNNLRUModel.SURPRISE
 
 
-def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURPRISE,
-                    window: SurpriseWindow = SurpriseWindow(),
-                    causality: Causality | None = None) -> str:
+def format_markdown(
+    rows: Sequence[Mapping[str, Any]],
+    surprise: str = VRNN_SURPRISE,
+    window: SurpriseWindow = SurpriseWindow(),
+    causality: Causality | None = None,
+) -> str:
     """The summary as a Markdown table (paper notation, alpha in its header), notes as
     footnotes below it, then the ``causality`` check and each concept's VOE verdict;
     ``surprise`` names what a frame's surprise is, ``window`` the frames a video's surprise
     sums."""
     alpha = rows_alpha(rows)
-    header = (f"| concept | variant | n | M [95% CI] | t(df) | p | sig. ({format_alpha(alpha)}) "
-              "| d_z [95% CI] | accuracy | AUROC | halves M |")
+    header = (
+        f"| concept | variant | n | M [95% CI] | t(df) | p | sig. ({format_alpha(alpha)}) "
+        "| d_z [95% CI] | accuracy | AUROC | halves M |"
+    )
     lines = [header, "|" + "---|" * (header.count("|") - 1)]
     notes = []
     for row in rows:
@@ -369,27 +463,37 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURP
         lines.append(
             f"| {row['concept']} | {row['variant']}{marker} | {text.n} | {text.mean_interval} "
             f"| {text.t} | {text.p} | {text.sig} | {text.d_z_interval} | {text.accuracy} "
-            f"| {text.auroc} | {text.halves} |")
+            f"| {text.auroc} | {text.halves} |"
+        )
     lines.append("")
-    frames = ("frames" if window.all_frames else f"the {window.describe()} (the first frame "
-              "at which its two videos differ)")
-    lines.append("M: mean relative surprise d = S(inconsistent) - S(consistent), S = sum over "
-                 f"{frames} of {surprise}; one-tailed paired t-test, H1: M > 0; "
-                 f"sig.: p < {alpha:g} (* as in the paper); accuracy: share of pairs "
-                 "with d > 0; pooled: the stratified test of a concept's standard and "
-                 "counterbalanced pairs, M the mean of the two variants' M, its SE from both, "
-                 "Welch-Satterthwaite df; its d_z is M over the SD of d of all its pairs; "
-                 "quadruplet (unchangeableness: one per change, <change>_quadruplet): per seed "
-                 "D = [S(AB) - S(A)] + [S(BA) - S(B)] over its first-half (A, AB) and "
-                 "second-half, counterbalanced (B, BA) pairs, whose inconsistent videos hold "
-                 "exactly the consistent ones' frames after the change; M, t and accuracy "
-                 "of D, halves M: the means of S(AB) - S(A) / S(BA) - S(B).")
+    frames = (
+        "frames"
+        if window.all_frames
+        else f"the {window.describe()} (the first frame at which its two videos differ)"
+    )
+    lines.append(
+        "M: mean relative surprise d = S(inconsistent) - S(consistent), S = sum over "
+        f"{frames} of {surprise}; one-tailed paired t-test, H1: M > 0; "
+        f"sig.: p < {alpha:g} (* as in the paper); accuracy: share of pairs "
+        "with d > 0; pooled: the stratified test of a concept's standard and "
+        "counterbalanced pairs, M the mean of the two variants' M, its SE from both, "
+        "Welch-Satterthwaite df; its d_z is M over the SD of d of all its pairs; "
+        "quadruplet (unchangeableness: one per change, <change>_quadruplet): per seed "
+        "D = [S(AB) - S(A)] + [S(BA) - S(B)] over its first-half (A, AB) and "
+        "second-half, counterbalanced (B, BA) pairs, whose inconsistent videos hold "
+        "exactly the consistent ones' frames after the change; M, t and accuracy "
+        "of D, halves M: the means of S(AB) - S(A) / S(BA) - S(B)."
+    )
     lines.extend(f"[{i}] {note}" for i, note in enumerate(notes, start=1))
-    lines += ["", f"Verdicts: a concept with quadruplets shows VOE only when each of its "
-              f"quadruplet tests is significant (p < {alpha:g}) with both halves' M above 0; another "
-              "only when its pooled test and each of its two variants are significant; "
-              "without a counterbalanced pair, when every probe variant is. Generalization "
-              "variants do not enter.", ""]
+    lines += [
+        "",
+        f"Verdicts: a concept with quadruplets shows VOE only when each of its "
+        f"quadruplet tests is significant (p < {alpha:g}) with both halves' M above 0; another "
+        "only when its pooled test and each of its two variants are significant; "
+        "without a counterbalanced pair, when every probe variant is. Generalization "
+        "variants do not enter.",
+        "",
+    ]
     lines += format_verdicts(rows, causality)
     return "\n".join(lines) + "\n"
 
@@ -397,39 +501,60 @@ def format_markdown(rows: Sequence[Mapping[str, Any]], surprise: str = VRNN_SURP
 #: The label of a report's rows of its model's given structure alone (``null.priors_alone``).
 PRIORS_ALONE = "priors alone (untrained)"
 #: The columns of each of those rows summary.json keeps.
-PRIORS_ALONE_COLUMNS = ("concept", "variant", "n", "relative_surprise", "t", "df", "p_value",
-                        "significant")
+PRIORS_ALONE_COLUMNS = (
+    "concept",
+    "variant",
+    "n",
+    "relative_surprise",
+    "t",
+    "df",
+    "p_value",
+    "significant",
+)
 
 
 def priors_alone_document(untrained: Mapping[str, Any]) -> dict[str, Any]:
     """summary.json's ``priors_alone``: of the ``untrained`` copy's summary (its report's
     summary.json with ``seed`` and ``report``, ``null.priors_alone``), each row's test and
     each concept's verdict, labelled ``PRIORS_ALONE``."""
-    return {"label": PRIORS_ALONE, "seed": untrained["seed"], "report": untrained["report"],
-            "rows": [{key: row.get(key) for key in PRIORS_ALONE_COLUMNS}
-                     for row in untrained["rows"]],
-            "verdicts": untrained["verdicts"]}
+    return {
+        "label": PRIORS_ALONE,
+        "seed": untrained["seed"],
+        "report": untrained["report"],
+        "rows": [{key: row.get(key) for key in PRIORS_ALONE_COLUMNS} for row in untrained["rows"]],
+        "verdicts": untrained["verdicts"],
+    }
 
 
-def format_priors_alone(rows: Sequence[Mapping[str, Any]],
-                        verdicts: Sequence[Mapping[str, Any]], priors: Mapping[str, Any]) -> str:
+def format_priors_alone(
+    rows: Sequence[Mapping[str, Any]],
+    verdicts: Sequence[Mapping[str, Any]],
+    priors: Mapping[str, Any],
+) -> str:
     """summary.md's section of ``priors`` (``priors_alone_document``) beside the trained
     ``rows`` and ``verdicts`` (as summary.json holds them): t per concept/variant both ways,
     then each concept's verdict both ways, so a reader sees which passes the training added."""
     untrained = {(row["concept"], row["variant"]): row for row in priors["rows"]}
-    lines = [f"## {PRIORS_ALONE.capitalize()}", "",
-             f"The same config with its learned parts at initialization (seed {priors['seed']}) "
-             "and its given structure as configured, tested on the same probes: what the given "
-             f"priors score before any training (its whole report: {priors['report']}).", "",
-             f"| concept | variant | t trained | t {PRIORS_ALONE} |", "|---|---|---|---|"]
+    lines = [
+        f"## {PRIORS_ALONE.capitalize()}",
+        "",
+        f"The same config with its learned parts at initialization (seed {priors['seed']}) "
+        "and its given structure as configured, tested on the same probes: what the given "
+        f"priors score before any training (its whole report: {priors['report']}).",
+        "",
+        f"| concept | variant | t trained | t {PRIORS_ALONE} |",
+        "|---|---|---|---|",
+    ]
     for row in rows:
         alone = untrained.get((row["concept"], row["variant"]), {})
-        lines.append(f"| {row['concept']} | {row['variant']} | {_t_cell(row)} "
-                     f"| {_t_cell(alone)} |")
+        lines.append(f"| {row['concept']} | {row['variant']} | {_t_cell(row)} | {_t_cell(alone)} |")
     lines += ["", f"t(df) of the one-tailed paired test, * where p < {rows_alpha(rows):g}.", ""]
     alone = {verdict["concept"]: verdict["verdict"] for verdict in priors["verdicts"]}
-    lines += [f"- {verdict['concept']}: trained {verdict['verdict']}; {PRIORS_ALONE} "
-              f"{alone.get(verdict['concept'], 'n/a')}" for verdict in verdicts]
+    lines += [
+        f"- {verdict['concept']}: trained {verdict['verdict']}; {PRIORS_ALONE} "
+        f"{alone.get(verdict['concept'], 'n/a')}"
+        for verdict in verdicts
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -438,12 +563,19 @@ def _t_cell(row: Mapping[str, Any]) -> str:
     return format_t(row.get("t"), row.get("df")) + ("*" if row.get("significant") else "")
 
 
-def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], report_dir: Path, *,
-                  alpha: float, bootstrap: int, surprise: str,
-                  source: Mapping[str, Any] | None = None,
-                  window: SurpriseWindow = SurpriseWindow(),
-                  window_rows: Sequence[Mapping[str, Any]] | None = None,
-                  priors_alone: Mapping[str, Any] | None = None) -> str:
+def write_summary(
+    results: PairResults,
+    rows: Sequence[Mapping[str, Any]],
+    report_dir: Path,
+    *,
+    alpha: float,
+    bootstrap: int,
+    surprise: str,
+    source: Mapping[str, Any] | None = None,
+    window: SurpriseWindow = SurpriseWindow(),
+    window_rows: Sequence[Mapping[str, Any]] | None = None,
+    priors_alone: Mapping[str, Any] | None = None,
+) -> str:
     """Write pairs.csv, summary.json (with ``source``: what the report was made from, and
     pairs.csv's SHA-256, which ``PairResults.from_csv`` checks), summary.csv and summary.md
     (of ``summarize``'s ``rows``, over all frames, and the field's metrics of
@@ -454,36 +586,47 @@ def write_summary(results: PairResults, rows: Sequence[Mapping[str, Any]], repor
     summary.md. Return the Markdown summary."""
     results.to_csv(report_dir / "pairs.csv")
     causality = results.causality
-    document = {"source": dict(source or {}),
-                "alpha": alpha, "bootstrap_resamples": bootstrap, "num_pairs": len(results),
-                "pairs_csv_sha256": _sha256(report_dir / "pairs.csv"),
-                "num_frames": results.num_frames,
-                "video_surprise": f"sum over frames of {surprise}",
-                "surprise_window": window.as_config(),
-                "causality": causality.as_dict(),
-                **_tables(rows, alpha, causality),
-                "field_metrics": field_metric_rows(results)}
+    document = {
+        "source": dict(source or {}),
+        "alpha": alpha,
+        "bootstrap_resamples": bootstrap,
+        "num_pairs": len(results),
+        "pairs_csv_sha256": _sha256(report_dir / "pairs.csv"),
+        "num_frames": results.num_frames,
+        "video_surprise": f"sum over frames of {surprise}",
+        "surprise_window": window.as_config(),
+        "causality": causality.as_dict(),
+        **_tables(rows, alpha, causality),
+        "field_metrics": field_metric_rows(results),
+    }
     with open(report_dir / "summary.csv", "w", newline="") as handle:
         _write_rows(handle, rows)
-    markdown = format_source(document["source"]) + format_markdown(rows, surprise,
-                                                                  causality=causality)
+    markdown = format_source(document["source"]) + format_markdown(
+        rows, surprise, causality=causality
+    )
     if priors_alone is not None:
         document["priors_alone"] = priors_alone_document(priors_alone)
-        markdown += "\n" + format_priors_alone(document["rows"], document["verdicts"],
-                                                document["priors_alone"])
+        markdown += "\n" + format_priors_alone(
+            document["rows"], document["verdicts"], document["priors_alone"]
+        )
     if not window.all_frames:
-        document["window"] = {"surprise_window": window.as_config(),
-                              "video_surprise": f"sum over the {window.describe()} of {surprise}",
-                              **_tables(window_rows, alpha, causality)}
+        document["window"] = {
+            "surprise_window": window.as_config(),
+            "video_surprise": f"sum over the {window.describe()} of {surprise}",
+            **_tables(window_rows, alpha, causality),
+        }
         with open(report_dir / "summary_window.csv", "w", newline="") as handle:
             _write_rows(handle, window_rows)
-        markdown += (f"\n## Surprise window: {window.describe()}\n\nBeside the paper's sums "
-                     "over all frames above, never instead of them.\n\n"
-                     + format_markdown(window_rows, surprise, window, causality))
+        markdown += (
+            f"\n## Surprise window: {window.describe()}\n\nBeside the paper's sums "
+            "over all frames above, never instead of them.\n\n"
+            + format_markdown(window_rows, surprise, window, causality)
+        )
     else:
         markdown += "\nSurprise window: all frames (the paper's).\n"
-    markdown += ("\n## The field's metrics (all frames)\n\n"
-                 + format_field_metrics(document["field_metrics"], "concept/variant"))
+    markdown += "\n## The field's metrics (all frames)\n\n" + format_field_metrics(
+        document["field_metrics"], "concept/variant"
+    )
     (report_dir / "summary.json").write_text(json.dumps(document, indent=2) + "\n")
     (report_dir / "summary.md").write_text(markdown)
     return markdown
@@ -496,23 +639,30 @@ def format_source(source: Mapping[str, Any]) -> str:
     parts = []
     if source.get("checkpoint"):
         step = source.get("global_step")
-        parts.append(f"checkpoint {source['checkpoint']}"
-                     + (f" (step {step})" if step is not None else ""))
+        parts.append(
+            f"checkpoint {source['checkpoint']}" + (f" (step {step})" if step is not None else "")
+        )
     where = source.get("probe_root") or source.get("data_root")
     if where:
         offset = source.get("seed_offset")
-        parts.append(f"the probes of {where}"
-                     + (f" (seed offset {offset})" if offset is not None else ""))
+        parts.append(
+            f"the probes of {where}" + (f" (seed offset {offset})" if offset is not None else "")
+        )
     return f"Tested: {'; '.join(parts)}.\n\n" if parts else ""
 
 
-def _tables(rows: Sequence[Mapping[str, Any]], alpha: float,
-            causality: Causality) -> dict[str, Any]:
+def _tables(
+    rows: Sequence[Mapping[str, Any]], alpha: float, causality: Causality
+) -> dict[str, Any]:
     """summary.json's ``rows`` (strict JSON) and ``verdicts`` of ``summarize``'s rows (none
     given where ``causality`` failed)."""
-    return {"rows": [json_row(row) for row in rows],
-            "verdicts": [{"concept": v.concept, "voe": v.voe, "verdict": v.text(),
-                          "rule": v.rule} for v in concept_verdicts(rows, alpha, causality)]}
+    return {
+        "rows": [json_row(row) for row in rows],
+        "verdicts": [
+            {"concept": v.concept, "voe": v.voe, "verdict": v.text(), "rule": v.rule}
+            for v in concept_verdicts(rows, alpha, causality)
+        ],
+    }
 
 
 def _write_rows(handle: Any, rows: Sequence[Mapping[str, Any]]) -> None:

@@ -3,7 +3,7 @@ each records) and the palette of distinct colours scenes draw from."""
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import mujoco
 import numpy as np
@@ -18,7 +18,9 @@ SHAPES = {
     "ellipsoid": mujoco.mjtGeom.mjGEOM_ELLIPSOID,
 }
 #: ``objects/shape_label`` of an object of one geom, by MuJoCo geom type.
-SHAPE_LABELS = {int(geom_type): specs.OBJECT_SHAPES.index(name) for name, geom_type in SHAPES.items()}
+SHAPE_LABELS = {
+    int(geom_type): specs.OBJECT_SHAPES.index(name) for name, geom_type in SHAPES.items()
+}
 
 #: Distinct, saturated object colours (the paper's figures use such colours on a plain floor).
 PALETTE: dict[str, tuple[float, float, float]] = {

@@ -4,8 +4,8 @@ compiles the whole into a ``Simulation``."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -101,7 +101,7 @@ class SceneBuilder:
         """Add an object of one primitive geom."""
         return self.add(name, [Geom(shape, size)], pos, color, **kwargs)
 
-    def build(self) -> "Simulation":
+    def build(self) -> Simulation:
         """Compile the scene into a simulation at time 0."""
         model = self.spec.compile()
         return Simulation(model, self.objects, self.video, self.camera)

@@ -86,7 +86,7 @@ class CameraRange:
         low, high = np.array(list(self.ranges().values()), np.float64).T
         return bool(((values >= low - tolerance) & (values <= high + tolerance)).all())
 
-    def narrow(self, **ranges: tuple[float, float]) -> "CameraRange":
+    def narrow(self, **ranges: tuple[float, float]) -> CameraRange:
         """A sub-range for probes; refuses a range that leaves this one."""
         for name, (low, high) in ranges.items():
             outer_low, outer_high = self.ranges()[name]
@@ -137,7 +137,9 @@ def pixel_of(camera: CameraPose, video: VideoOptions, point) -> tuple[int, int]:
     return int(np.floor(row)), int(np.floor(column))
 
 
-def x_at_column(camera: CameraPose, video: VideoOptions, column: float, y: float, z: float) -> float:
+def x_at_column(
+    camera: CameraPose, video: VideoOptions, column: float, y: float, z: float
+) -> float:
     """The world x where the line (·, y, z) crosses image column ``column`` (the camera's right
     axis is horizontal, so this is the root of a linear equation)."""
     position, right, _, forward = camera_axes(camera)

@@ -20,10 +20,10 @@ import numpy as np
 from tensordict import TensorDict
 
 from voe_lightning import specs
+from voe_lightning.scenes import recording
 from voe_lightning.scenes.appearance import distinct_colors
 from voe_lightning.scenes.builder import Geom, SceneBuilder, yaw_quat
 from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions
-from voe_lightning.scenes import recording
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
 
@@ -179,7 +179,7 @@ class LayoutRanges:
     shift: tuple[float, float]
     drop: tuple[float, float]
 
-    def contains(self, other: "LayoutRanges") -> bool:
+    def contains(self, other: LayoutRanges) -> bool:
         """Whether every range of ``other`` lies inside this one's."""
         return all(
             getattr(self, f.name)[0] <= getattr(other, f.name)[0]
@@ -308,8 +308,10 @@ def quadruplet(seed: int, video: VideoOptions) -> tuple:
         behind = replace(inside)
         drop_behind(rng, behind)
         scene_seed = int(rng.integers(2**63))  # one draw of colours for both scenes
-        sims = [build(np.random.default_rng(scene_seed), video, camera, layout)
-                for layout in (inside, behind)]
+        sims = [
+            build(np.random.default_rng(scene_seed), video, camera, layout)
+            for layout in (inside, behind)
+        ]
         videos = [sim.record(video.num_frames) for sim in sims]
         check_hidden_and_carried(sims[0], inside, frame, videos, inside.cube_start)
         cube = sims[0].mask_id("cube")
@@ -373,8 +375,13 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
         if kind == "cube_random_position" and (masks[frame] == cube).sum() < enough:
             raise RejectedSample("the randomly placed cube is hidden or out of view")
         return specs.clip_record(
-            frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
-            specs.CLIP_KINDS.index(kind), seed, objects,
+            frames,
+            masks,
+            camera.as_array(),
+            specs.CONCEPTS.index(CONCEPT),
+            specs.CLIP_KINDS.index(kind),
+            seed,
+            objects,
         )
 
     return draw_until_valid(make, rng_for(seed, CONCEPT, kind))

@@ -20,6 +20,7 @@ import numpy as np
 from tensordict import TensorDict
 
 from voe_lightning import specs
+from voe_lightning.scenes import recording
 from voe_lightning.scenes.appearance import distinct_colors
 from voe_lightning.scenes.builder import SceneBuilder
 from voe_lightning.scenes.camera import (
@@ -32,7 +33,6 @@ from voe_lightning.scenes.camera import (
     view_edges,
     x_at_column,
 )
-from voe_lightning.scenes import recording
 from voe_lightning.scenes.recording import join, quadruplet_record, record_tracking, splice
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation
@@ -222,7 +222,10 @@ def probe_layout(
     # Start anywhere from half in view at the edge to just before the first pillar; end wholly
     # in view past the last one; the speed follows.
     before = first_x - direction * (first_w / 2 + radius + 0.05)
-    past, inside = last_x + direction * (last_w / 2 + radius + 0.1), downstream - 1.2 * direction * radius
+    past, inside = (
+        last_x + direction * (last_w / 2 + radius + 0.1),
+        downstream - 1.2 * direction * radius,
+    )
     if direction * (before - upstream) < 0 or direction * (inside - past) < 0:
         raise RejectedSample("the pillars leave no room in view before or after them")
     start = upstream + float(rng.random()) * (before - upstream)
@@ -231,7 +234,6 @@ def probe_layout(
     if not PROBE_SPEED[0] <= speed <= PROBE_SPEED[1]:
         raise RejectedSample(f"the ball would roll at {speed:.2f} m/s, outside {PROBE_SPEED}")
     return Layout(pillars, height, radius, (start, depth, radius), (direction * speed, 0.0))
-
 
 
 def example_layout(rng: np.random.Generator, duration: float) -> Layout:
@@ -371,8 +373,14 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
         sim, consistent, inconsistent, vanish = _standard(rng, variant, video, camera)
         ball = sim.mask_id("ball")
         return specs.probe_record(
-            consistent, inconsistent, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
-            specs.VARIANTS.index(variant), vanish, seed, [ball],
+            consistent,
+            inconsistent,
+            camera.as_array(),
+            specs.CONCEPTS.index(CONCEPT),
+            specs.VARIANTS.index(variant),
+            vanish,
+            seed,
+            [ball],
         )
 
     return draw_until_valid(make, rng_for(seed, CONCEPT, variant))
@@ -405,8 +413,13 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
                 if low < column(sim, position) < high and pixels[t]:
                     raise RejectedSample("the ball shows above the gap block")
         return specs.clip_record(
-            frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
-            specs.CLIP_KINDS.index(kind), seed, objects,
+            frames,
+            masks,
+            camera.as_array(),
+            specs.CONCEPTS.index(CONCEPT),
+            specs.CLIP_KINDS.index(kind),
+            seed,
+            objects,
         )
 
     return draw_until_valid(make, rng_for(seed, CONCEPT, kind))

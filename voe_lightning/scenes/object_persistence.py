@@ -18,10 +18,10 @@ import numpy as np
 from tensordict import TensorDict
 
 from voe_lightning import specs
+from voe_lightning.scenes import recording
 from voe_lightning.scenes.appearance import distinct_colors
 from voe_lightning.scenes.builder import SceneBuilder, yaw_quat
 from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions
-from voe_lightning.scenes import recording
 from voe_lightning.scenes.recording import join, quadruplet_record, record_with_ghost
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
@@ -345,8 +345,13 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
         if sim.mask_id("plank") not in visible_ids(masks[-1]):
             raise RejectedSample("the plank landed out of view")
         return specs.clip_record(
-            frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
-            specs.CLIP_KINDS.index(kind), seed, objects,
+            frames,
+            masks,
+            camera.as_array(),
+            specs.CONCEPTS.index(CONCEPT),
+            specs.CLIP_KINDS.index(kind),
+            seed,
+            objects,
         )
 
     return draw_until_valid(make, rng)

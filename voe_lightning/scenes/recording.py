@@ -8,16 +8,14 @@ with ``record_with_ghost`` for a second history of one motion)."""
 
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
-
 from tensordict import TensorDict
 
 from voe_lightning import specs
 from voe_lightning.scenes.sampling import RejectedSample
 from voe_lightning.scenes.simulation import Simulation, visible_ids
-
 
 #: A rendered video: uint8 frames [T, H, W, 3], masks [T, H, W] and object states [T, OBJECT_SLOTS]
 #: of ``specs.OBJECT_STATE_DTYPE``, as ``Simulation.record`` gives them.
@@ -67,8 +65,14 @@ def quadruplet_record(concept: str, variant: str, seed: int, drawn: tuple) -> Te
     _, half = specs.quadruplet_half(concept, variant)
     consistent, inconsistent = (tuple(np.copy(part) for part in video) for video in pairs[half])
     return specs.probe_record(
-        consistent, inconsistent, camera, specs.CONCEPTS.index(concept),
-        specs.VARIANTS.index(variant), frame, seed, np.atleast_1d(manipulated).tolist(),
+        consistent,
+        inconsistent,
+        camera,
+        specs.CONCEPTS.index(concept),
+        specs.VARIANTS.index(variant),
+        frame,
+        seed,
+        np.atleast_1d(manipulated).tolist(),
     )
 
 
@@ -113,7 +117,9 @@ def record_pair(
     change to the inconsistent branch, and both branches run to the end (``splice``)."""
     total = sim.video.num_frames
     if not 0 < manipulation_frame < total:
-        raise ValueError(f"manipulation_frame must be in [1, {total - 1}], got {manipulation_frame}")
+        raise ValueError(
+            f"manipulation_frame must be in [1, {total - 1}], got {manipulation_frame}"
+        )
     prefix = sim.record(manipulation_frame, script)
     twin = sim.fork()
     manipulate(twin)

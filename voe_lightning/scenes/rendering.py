@@ -71,7 +71,9 @@ class Renderer:
     Valid because every such model carries the same textures and only primitive geoms."""
 
     def __init__(self, height: int, width: int):
-        template = stage(np.random.default_rng(0), VideoOptions(height=height, width=width)).compile()
+        template = stage(
+            np.random.default_rng(0), VideoOptions(height=height, width=width)
+        ).compile()
         self.height, self.width = height, width
         # Choose the backend from MUJOCO_GL now, not from whatever it was when mujoco was imported.
         backend = os.environ.get("MUJOCO_GL", "egl")

@@ -4,7 +4,7 @@ a sample that breaks a probe's constraints until one holds (deterministic for on
 from __future__ import annotations
 
 import hashlib
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from tensordict import TensorDict

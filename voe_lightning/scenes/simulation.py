@@ -5,8 +5,8 @@ branch, and renders frames, object-id masks and the objects' states (``specs.obj
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
 
 import mujoco
 import numpy as np
@@ -49,7 +49,7 @@ class Simulation:
         self.camera = camera
         #: Optional ``controller(sim)`` run before every physics step, for smooth scripted motion
         #: of mocap bodies (screens, rods); ``sim.data.time`` gives the time.
-        self.controller: Callable[["Simulation"], None] | None = None
+        self.controller: Callable[[Simulation], None] | None = None
         self.geom_mask_id = np.zeros(model.ngeom + 1, np.uint8)  # index -1 -> background
         for obj in objects.values():
             for geom_name in obj.geom_names:
@@ -146,7 +146,7 @@ class Simulation:
         mujoco.mj_setState(self.model, self.data, state, STATE_KIND)
         mujoco.mj_forward(self.model, self.data)
 
-    def fork(self) -> "Simulation":
+    def fork(self) -> Simulation:
         """An independent copy (model included) in the same state, for the inconsistent branch."""
         twin = Simulation.__new__(Simulation)
         twin.model = copy.copy(self.model)
@@ -196,7 +196,7 @@ class Simulation:
     def record(
         self,
         num_frames: int,
-        script: Callable[["Simulation", int], None] | None = None,
+        script: Callable[[Simulation, int], None] | None = None,
         first_frame: int = 0,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Render ``num_frames`` frames, stepping one frame interval after each: (frames, masks,

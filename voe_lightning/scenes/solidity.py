@@ -17,18 +17,16 @@ controls show the container alone, or the block falling behind it and ending hid
 from __future__ import annotations
 
 import functools
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from tensordict import TensorDict
 
 from voe_lightning import specs
+from voe_lightning.scenes import recording
 from voe_lightning.scenes.appearance import distinct_colors
 from voe_lightning.scenes.builder import Geom, SceneBuilder, yaw_quat
-from voe_lightning.scenes.camera import (
-    CameraPose, CameraRange, VideoOptions, height_above_view
-)
-from voe_lightning.scenes import recording
+from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions, height_above_view
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
 
@@ -216,7 +214,8 @@ def manipulation_frames(video: VideoOptions) -> list[int]:
     follow."""
     release = [m * video.steps_per_frame - _fall_steps(video) for m in range(video.num_frames - 2)]
     return [
-        m for m, step in enumerate(release)
+        m
+        for m, step in enumerate(release)
         if m >= 1 and PROBE_HOLD[0] - 1e-9 <= step * video.timestep <= PROBE_HOLD[1] + 1e-9
     ]
 
@@ -249,9 +248,17 @@ def check_video(video: VideoOptions) -> None:
         return
     frame_time = video.steps_per_frame * video.timestep
     enough = next(
-        n for n in range(video.num_frames + 1, 10 * video.num_frames + 100)
-        if manipulation_frames(VideoOptions(n, video.height, video.width, video.duration,
-                                            min(video.timestep, video.duration / n)))
+        n
+        for n in range(video.num_frames + 1, 10 * video.num_frames + 100)
+        if manipulation_frames(
+            VideoOptions(
+                n,
+                video.height,
+                video.width,
+                video.duration,
+                min(video.timestep, video.duration / n),
+            )
+        )
     )
     raise ValueError(
         f"{CONCEPT} probes need a frame {PROBE_HOLD[0] + FALL_TIME:g} to "
@@ -290,14 +297,23 @@ def draw_quadruplet(rng: np.random.Generator, video: VideoOptions = VideoOptions
         heights = {"tall": top - clearance - floor, "short": float(rng.uniform(low, high))}
         drops = {name: top + fall - height - box["height"] for name, height in heights.items()}
         lift = _lift_out_of_view(camera, block, box["height"] + drops["tall"])
-        if all(EXAMPLE_HEIGHTS[0] <= height / depth <= EXAMPLE_HEIGHTS[1]
-               for height in heights.values()) and all(
-                EXAMPLE_DROP[0] <= drop <= EXAMPLE_DROP[1] for drop in drops.values()
-        ) and EXAMPLE_LIFT[0] <= lift <= EXAMPLE_LIFT[1]:
+        if (
+            all(
+                EXAMPLE_HEIGHTS[0] <= height / depth <= EXAMPLE_HEIGHTS[1]
+                for height in heights.values()
+            )
+            and all(EXAMPLE_DROP[0] <= drop <= EXAMPLE_DROP[1] for drop in drops.values())
+            and EXAMPLE_LIFT[0] <= lift <= EXAMPLE_LIFT[1]
+        ):
             release = manipulation_frame * video.steps_per_frame - _fall_steps(video)
             return {
-                "box": box, "block": block, "camera": camera, "heights": heights,
-                "drops": drops, "lift": lift, "hold": release * video.timestep,
+                "box": box,
+                "block": block,
+                "camera": camera,
+                "heights": heights,
+                "drops": drops,
+                "lift": lift,
+                "hold": release * video.timestep,
                 "manipulation_frame": manipulation_frame,
             }
     raise RuntimeError(f"no {CONCEPT} probe quadruplet parameters in 1000 draws")
@@ -473,21 +489,22 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
         sim = builder.build()
         if kind != "no_object":
             released = release_frame(params["hold"], video)
-            sim.controller = hand_controller(
-                sim, params["lift"], released * video.steps_per_frame
-            )
+            sim.controller = hand_controller(sim, params["lift"], released * video.steps_per_frame)
         frames, masks, objects = sim.record(video.num_frames)
         if kind != "no_object" and sim.mask_id("block") not in set().union(
             *map(visible_ids, masks[: released + 1])
         ):
             raise RejectedSample("the block is not seen before it falls")
-        if kind == "object_behind_container" and sim.mask_id("block") in visible_ids(
-            masks[-1]
-        ):
+        if kind == "object_behind_container" and sim.mask_id("block") in visible_ids(masks[-1]):
             raise RejectedSample("the block behind the container is still seen at the end")
         return specs.clip_record(
-            frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
-            specs.CLIP_KINDS.index(kind), seed, objects,
+            frames,
+            masks,
+            camera.as_array(),
+            specs.CONCEPTS.index(CONCEPT),
+            specs.CLIP_KINDS.index(kind),
+            seed,
+            objects,
         )
 
     return draw_until_valid(make, rng)

@@ -20,6 +20,7 @@ import numpy as np
 from tensordict import TensorDict
 
 from voe_lightning import specs
+from voe_lightning.scenes import recording
 from voe_lightning.scenes.appearance import COLOR_NAMES, distinct_colors
 from voe_lightning.scenes.builder import Geom, SceneBuilder, yaw_quat
 from voe_lightning.scenes.camera import (
@@ -30,7 +31,6 @@ from voe_lightning.scenes.camera import (
     height_above_view,
     image_point,
 )
-from voe_lightning.scenes import recording
 from voe_lightning.scenes.recording import record_pair
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
@@ -153,7 +153,9 @@ class ScreenMotion:
         if frame <= self.start or frame >= self.end:
             progress = 0.0
         elif frame < self.down:
-            progress = 0.5 - 0.5 * math.cos(math.pi * (frame - self.start) / (self.down - self.start))
+            progress = 0.5 - 0.5 * math.cos(
+                math.pi * (frame - self.start) / (self.down - self.start)
+            )
         elif frame <= self.up:
             progress = 1.0
         else:
@@ -299,8 +301,13 @@ class ProbeScene:
     change: Callable[[Simulation], None]
 
 
-def _draw_change(change: str, rng: np.random.Generator, builder: SceneBuilder,
-                 layout: ProbeLayout, names: list[str]) -> tuple[Callable, list[int], list[str]]:
+def _draw_change(
+    change: str,
+    rng: np.random.Generator,
+    builder: SceneBuilder,
+    layout: ProbeLayout,
+    names: list[str],
+) -> tuple[Callable, list[int], list[str]]:
     """(the change of ``change``'s property, the ids it touches, the bodies to take out once
     built) for the row ``names`` of ``layout``; a shape change adds its twins to ``builder``."""
     draws, xs, row_y, count = layout.draws, layout.xs, layout.row_y, len(names)
@@ -331,8 +338,13 @@ def _draw_change(change: str, rng: np.random.Generator, builder: SceneBuilder,
     for index, twin_name in zip(reshaped, twins):
         original = draws[index]
         others = [s for s in OBJECT_SHAPES if s != original.shape]
-        twin = ObjectDraw(others[rng.integers(len(others))], original.radius,
-                          float(rng.random()), original.yaw, original.color)
+        twin = ObjectDraw(
+            others[rng.integers(len(others))],
+            original.radius,
+            float(rng.random()),
+            original.yaw,
+            original.color,
+        )
         add_object(builder, twin_name, twin, float(xs[index]), row_y, names[index])
 
     def apply(sim: Simulation) -> None:
@@ -343,8 +355,9 @@ def _draw_change(change: str, rng: np.random.Generator, builder: SceneBuilder,
     return apply, [builder.objects[names[i]].mask_id for i in reshaped], twins
 
 
-def probe_scene(change: str, extra: int, video: VideoOptions, rng: np.random.Generator
-                ) -> ProbeScene:
+def probe_scene(
+    change: str, extra: int, video: VideoOptions, rng: np.random.Generator
+) -> ProbeScene:
     """Draw and build a probe's scene: 2-4 objects in a row (``extra`` more for a
     generalization probe), the screen, a change frame while it is fully down and the change
     of ``change``'s property (``_draw_change``)."""
@@ -392,8 +405,9 @@ def quadruplet(change: str, seed: int, video: VideoOptions) -> tuple:
         scene = probe_scene(change, 0, video, rng)
         second = scene.sim.fork()
         scene.change(second)
-        videos = [sim.record(video.num_frames, scene.layout.screen.script)
-                  for sim in (scene.sim, second)]
+        videos = [
+            sim.record(video.num_frames, scene.layout.screen.script) for sim in (scene.sim, second)
+        ]
         pairs = recording.quadruplet(*videos, scene.frame)
         for pair in pairs:
             _check_pair(*pair, scene)
@@ -402,8 +416,9 @@ def quadruplet(change: str, seed: int, video: VideoOptions) -> tuple:
     return draw_until_valid(make, rng_for(seed, CONCEPT, change, "quadruplet"))
 
 
-def _generalization_probe(change: str, extra: int, variant: str, seed: int,
-                          video: VideoOptions, rng: np.random.Generator) -> TensorDict:
+def _generalization_probe(
+    change: str, extra: int, variant: str, seed: int, video: VideoOptions, rng: np.random.Generator
+) -> TensorDict:
     """A plain pair of ``extra`` more objects than training: the row, changed behind the
     screen at the change frame in the inconsistent video (``recording.record_pair``)."""
     scene = probe_scene(change, extra, video, rng)
@@ -412,8 +427,14 @@ def _generalization_probe(change: str, extra: int, variant: str, seed: int,
     )
     _check_pair(consistent, inconsistent, scene)
     return specs.probe_record(
-        consistent, inconsistent, scene.layout.camera.as_array(), specs.CONCEPTS.index(CONCEPT),
-        specs.VARIANTS.index(variant), scene.frame, seed, scene.manipulated,
+        consistent,
+        inconsistent,
+        scene.layout.camera.as_array(),
+        specs.CONCEPTS.index(CONCEPT),
+        specs.VARIANTS.index(variant),
+        scene.frame,
+        seed,
+        scene.manipulated,
     )
 
 
@@ -475,7 +496,9 @@ def scatter_objects(
             if (
                 math.dist((x, y), camera.lookat[:2]) < 2.5
                 and _clear_of_screen(screen, draw, x, y)
-                and all(math.hypot(x - px, y - py) > draw.reach + pr + 0.08 for px, py, pr in placed)
+                and all(
+                    math.hypot(x - px, y - py) > draw.reach + pr + 0.08 for px, py, pr in placed
+                )
             ):
                 break
         else:
@@ -505,8 +528,13 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
         sim = builder.build()
         frames, masks, objects = sim.record(video.num_frames, screen.script if screen else None)
         return specs.clip_record(
-            frames, masks, camera.as_array(), specs.CONCEPTS.index(CONCEPT),
-            specs.CLIP_KINDS.index(kind), seed, objects,
+            frames,
+            masks,
+            camera.as_array(),
+            specs.CONCEPTS.index(CONCEPT),
+            specs.CLIP_KINDS.index(kind),
+            seed,
+            objects,
         )
 
     return draw_until_valid(make, rng_for(seed, CONCEPT, kind))
