@@ -13,10 +13,11 @@ from pathlib import Path
 
 import torch
 
-from voe_lightning import generate, specs, store_plan
+from voe_lightning import specs
+from voe_lightning.data import generate, store_plan
+from voe_lightning.data.store_codec import COMPRESSION_LEVEL
 from voe_lightning.scenes.camera import VideoOptions
 from voe_lightning.scenes.rendering import get_renderer
-from voe_lightning.store_codec import COMPRESSION_LEVEL
 
 
 def _cpu_name() -> str:

@@ -19,8 +19,8 @@ import yaml
 from torch.utils.data import ConcatDataset, DataLoader
 
 from voe_lightning import specs
+from voe_lightning.data.store import collate, open_split
 from voe_lightning.model import ObjectStateModel
-from voe_lightning.store import collate, open_split
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "object_state.yaml"
 

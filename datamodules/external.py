@@ -15,6 +15,7 @@ from torchrl.data import Composite
 from tqdm import tqdm
 
 from voe_lightning import specs
+from voe_lightning.data.store import probe_sampler, record_loader
 from voe_lightning.external.base import (
     FrameSampling,
     RecordList,
@@ -26,7 +27,6 @@ from voe_lightning.external.base import (
 )
 from voe_lightning.external.cache import open_cache, write_cache
 from voe_lightning.probe_datamodule import ProbeDataModule
-from voe_lightning.store import probe_sampler, record_loader
 
 
 class ExternalDataModule(ProbeDataModule):

@@ -1,6 +1,6 @@
 """IntPhys (Riochet et al. 2018) as a LightningDataModule: training movies as clips, the
 labelled dev quadruplets as probe pairs, and single movies for ``predict`` (answer.txt, see
-``voe_lightning.prediction_writer``); the reading is ``voe_lightning.external.intphys``."""
+``voe_lightning.callbacks.prediction_writer``); the reading is ``voe_lightning.external.intphys``."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ class IntPhysDataModule(ExternalDataModule):
     """IntPhys for ``fit`` (training movies of ``train/`` as clips, dev probes for validation),
     ``validate``/``test`` (probe pairs of ``eval_split``, default the labelled dev set) and
     ``predict`` (single movies of ``predict_split``, default the unlabelled test set, scored
-    into answer.txt by ``voe_lightning.prediction_writer.IntPhysAnswerWriter``).
+    into answer.txt by ``voe_lightning.callbacks.prediction_writer.IntPhysAnswerWriter``).
 
     Args:
         root: folder holding ``dev/``, ``test/`` and optionally ``train/``.

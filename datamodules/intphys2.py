@@ -1,7 +1,7 @@
 """IntPhys 2 (Bordes et al. 2025) as a LightningDataModule: the labelled Possible/Impossible
 pairs of a split for ``validate``/``test`` (with the benchmark's metrics and videos.csv in the
 report), and single videos for ``predict`` (the leaderboard's jsonl, see
-``voe_lightning.prediction_writer.IntPhys2LeaderboardWriter``); the reading is
+``voe_lightning.callbacks.prediction_writer.IntPhys2LeaderboardWriter``); the reading is
 ``voe_lightning.external.intphys2``."""
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ from tensordict import TensorDict
 from torch.utils.data import Dataset, Sampler
 from tqdm import tqdm
 
-from voe_lightning.store import record_loader
+from voe_lightning.data.store import record_loader
 
 
 def resident_frames(dataset: Dataset, device: torch.device, num_workers: int = 0) -> torch.Tensor:

@@ -16,11 +16,12 @@ from torch.utils.data import ConcatDataset, DataLoader, Dataset, Sampler
 
 from datamodules.arguments import check_at_least
 from datamodules.resident import ResidentBatches, resident_frames
-from voe_lightning import specs, store
-from voe_lightning.generate import ensure_dataset
+from voe_lightning import specs
+from voe_lightning.data import store
+from voe_lightning.data.generate import ensure_dataset
+from voe_lightning.data.store import open_split, probe_sampler, record_loader
+from voe_lightning.data.store_plan import check_seed_offset, seed_offset_root
 from voe_lightning.probe_datamodule import ProbeDataModule
-from voe_lightning.store import open_split, probe_sampler, record_loader
-from voe_lightning.store_plan import check_seed_offset, seed_offset_root
 
 
 class InterleavedSampler(Sampler[int]):

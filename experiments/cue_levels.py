@@ -13,7 +13,8 @@ import argparse
 
 import numpy as np
 
-from voe_lightning import cues, specs
+from voe_lightning import specs
+from voe_lightning.audit import cues
 
 
 def main() -> None:

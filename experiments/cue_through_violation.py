@@ -32,9 +32,10 @@ import numpy as np
 import torch
 from scipy import stats
 
-from voe_lightning import cues, specs
+from voe_lightning import specs
+from voe_lightning.audit import cues
+from voe_lightning.data.store import open_split
 from voe_lightning.report.results import PairResults
-from voe_lightning.store import open_split
 
 #: The physical differences of ``--given motion`` and ``--given reveal``, in column order.
 PHYSICAL = {

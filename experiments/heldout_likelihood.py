@@ -14,10 +14,10 @@ import torch
 from torch.utils.data import DataLoader, Subset
 
 from voe_lightning import specs
+from voe_lightning.data.store import collate, open_split
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.base import video_inputs
 from voe_lightning.model.object_state import SLOT_TERMS
-from voe_lightning.store import collate, open_split
 
 #: Every how many training clips one is scored.
 TRAIN_STRIDE = 40

@@ -14,10 +14,11 @@ import numpy as np
 import torch
 from scipy import stats
 
-from voe_lightning import cues, specs
+from voe_lightning import specs
+from voe_lightning.audit import cues
+from voe_lightning.data.store import open_split
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.object_state import STATE_SIZE
-from voe_lightning.store import open_split
 
 
 def without_landing_change(model: ObjectStateModel) -> torch.utils.hooks.RemovableHandle:

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from voe_lightning import cues, specs
+from voe_lightning import specs
+from voe_lightning.audit import cues
 from voe_lightning.report.results import PairResults
 
 #: The issue's bound on a model's |r| with every frame-local cue.
@@ -59,7 +60,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     cues.STATE_SCALE = args.state_scale  # read by physics_perfect_surprise at each call
-    from voe_lightning.store import open_split
+    from voe_lightning.data.store import open_split
 
     audits, seeds = [], []
     for concept in args.concepts:

@@ -17,10 +17,10 @@ import torch
 
 from datamodules import VOEDataModule
 from voe_lightning import specs
+from voe_lightning.data.store import open_split
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.base import video_inputs
 from voe_lightning.model.object_geometry import on_or_above_floor
-from voe_lightning.store import open_split
 
 #: A plank is at rest from the first frame within this distance (m) of its final height.
 AT_REST = 0.03

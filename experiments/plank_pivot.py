@@ -15,8 +15,8 @@ import numpy as np
 from cue_through_violation import landing_frame, plank_settling
 
 from voe_lightning import specs
+from voe_lightning.data.store import open_split
 from voe_lightning.scenes import builder, generate_probe, rendering
-from voe_lightning.store import open_split
 
 
 def propped(record):

@@ -13,9 +13,10 @@ import torch
 import yaml
 
 from datamodules import VOEDataModule
-from voe_lightning import specs, statistics
+from voe_lightning import specs
 from voe_lightning.model import ObjectStateModel
-from voe_lightning.surprise_window import video_surprise
+from voe_lightning.stats import statistics
+from voe_lightning.stats.surprise_window import video_surprise
 
 
 def main() -> None:

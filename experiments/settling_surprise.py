@@ -20,10 +20,10 @@ from cue_through_violation import landing_frame
 from free_fall import PARTS, part_nats
 
 from voe_lightning import specs
+from voe_lightning.data.store import open_split
 from voe_lightning.model import ObjectStateModel, object_state
 from voe_lightning.model.likelihood import rectified_excess
 from voe_lightning.model.object_state import STATE_SIZE
-from voe_lightning.store import open_split
 
 #: After landing, a frame in which the plank moves or turns by more than these still settles.
 MOVES, TURNS = 0.01, 0.01

@@ -15,11 +15,12 @@ import numpy as np
 import torch
 from scipy import stats
 
-from voe_lightning import cues, specs
+from voe_lightning import specs
+from voe_lightning.audit import cues
+from voe_lightning.data.store import open_split
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.likelihood import rectified_excess
 from voe_lightning.model.object_state import SLOT_TERMS
-from voe_lightning.store import open_split
 
 #: Frames of the per-frame profile, from the first frame the two videos part.
 PROFILE = range(-2, 10)

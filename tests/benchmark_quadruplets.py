@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from voe_lightning.report.results import PairResults, summarize
-from voe_lightning.statistics import QUADRUPLET, quadruplet_test
-from voe_lightning.verdicts import concept_verdicts
+from voe_lightning.stats.statistics import QUADRUPLET, quadruplet_test
+from voe_lightning.stats.verdicts import concept_verdicts
 
 
 def check_quadruplet_rows(probes, concept_names, variant_names, quadruplets: dict[str, int]):

@@ -13,12 +13,12 @@ from nbclient import NotebookClient
 from PIL import Image
 from torch.utils.tensorboard import SummaryWriter
 
-from voe_lightning import analysis, size_sweep, specs
+from voe_lightning import specs
 from voe_lightning.callbacks import VOEReportCallback
-from voe_lightning.cli import main
+from voe_lightning.cli import analysis, main, size_sweep
 from voe_lightning.report import write_report
 from voe_lightning.report.results import PairResults
-from voe_lightning.statistics import paired_test
+from voe_lightning.stats.statistics import paired_test
 
 NOTEBOOK = Path(__file__).parent.parent / "notebooks" / "voe_report.ipynb"
 T = 5

@@ -1,5 +1,5 @@
 """The verdict is calibrated (docs/architecture.md §8): on synthetic surprise made of the real cue
-scores of generated probes (``voe_lightning.calibration``), a model with no physics says VOE in at
+scores of generated probes (``voe_lightning.audit.calibration``), a model with no physics says VOE in at
 most alpha of repetitions per concept, whether it is noise or follows a frame-local cue linearly or
 not, wherever the stimuli let any test tell it apart; its power at a true effect is the
 noncentral t's. Probes are few and small (30 pairs per variant, 32x32) for a 2-core CPU."""
@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from voe_lightning import calibration, cues, specs
+from voe_lightning import specs
+from voe_lightning.audit import calibration, cues
 from voe_lightning.scenes import generate_probe
-from voe_lightning.statistics import ALPHA
+from voe_lightning.stats.statistics import ALPHA
 
 PAIRS, SIZE, REPETITIONS = 30, 32, 2000
 
@@ -134,7 +135,7 @@ def test_calibration_is_seeded_and_refuses_bad_arguments(audit):
 
 def test_analyze_calibrate_prints_and_writes_the_table_of_a_store(tmp_path, capsys):
     from voe_lightning.cli import main
-    from voe_lightning.generate import generate_dataset
+    from voe_lightning.data.generate import generate_dataset
 
     root = tmp_path / "store"
     generate_dataset(

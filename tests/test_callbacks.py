@@ -10,9 +10,10 @@ import torch
 from rich.console import Console
 from scipy import stats
 
-from voe_lightning import specs, statistics
+from voe_lightning import specs
 from voe_lightning.callbacks import VOEProbeCallback, VOEReportCallback, voe_table
 from voe_lightning.probe_datamodule import ProbeDataModule
+from voe_lightning.stats import statistics
 
 CASES = [
     ("object_persistence", "standard"),

@@ -17,12 +17,11 @@ import yaml
 from nbclient import NotebookClient
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from voe_lightning import analysis
-from voe_lightning.cli import main
+from voe_lightning.cli import analysis, main
+from voe_lightning.data.store import collate, open_split
 from voe_lightning.model import VRNNLRUModel
 from voe_lightning.model.object_centric import SURPRISES
 from voe_lightning.specs import to_model_input
-from voe_lightning.store import collate, open_split
 
 CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
 

@@ -6,7 +6,8 @@ import pytest
 from PIL import Image
 from test_store import fake_clip, fake_probe
 
-from voe_lightning import contact_sheet, generate, specs
+from voe_lightning import specs
+from voe_lightning.data import contact_sheet, generate
 
 
 def _red_pixels(path) -> np.ndarray:

@@ -10,13 +10,13 @@ import lightning as L
 import pytest
 import torch
 
-from voe_lightning import cues
+from voe_lightning.audit import cues
 from voe_lightning.callbacks import VOEReportCallback
+from voe_lightning.callbacks.prediction_writer import IntPhysAnswerWriter
 from voe_lightning.cli import main
 from voe_lightning.external.metrics import read_answer_file
 from voe_lightning.model import CueScorer
 from voe_lightning.model.cue_scorer import CUE_NAMES
-from voe_lightning.prediction_writer import IntPhysAnswerWriter
 
 TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
 

@@ -13,9 +13,10 @@ import torch
 from scipy import stats
 from tensordict import TensorDict
 
-from voe_lightning import cue_report, cues, specs
+from voe_lightning import specs
+from voe_lightning.audit import cue_report, cues
 from voe_lightning.cli import main
-from voe_lightning.generate import generate_dataset
+from voe_lightning.data.generate import generate_dataset
 
 T, H, W = 6, 16, 16
 
@@ -425,7 +426,7 @@ def test_the_report_shows_a_cue_follower_in_its_correlations_and_scatter(audit, 
     pooled = [r for r in correlations if r["variant"] == "pooled" and r["cue"] == "motion_energy"]
     assert len(pooled) == 1 and pooled[0]["r"] > 0.9
     # `analyze compare` names the cue each verdict row's surprise tracks most.
-    from voe_lightning import analysis
+    from voe_lightning.cli import analysis
 
     compared = {
         (r["concept"], r["variant"]): r for r in analysis.comparison_rows([("f", tmp_path)])

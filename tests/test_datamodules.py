@@ -15,7 +15,8 @@ from datamodules import (
     VOEDataModule,
 )
 from datamodules.voe import InterleavedSampler
-from voe_lightning import generate, specs, store, store_plan, store_shards
+from voe_lightning import specs
+from voe_lightning.data import generate, store, store_plan, store_shards
 
 
 def test_interleaved_sampler_takes_equal_counts_per_part_and_alternates():

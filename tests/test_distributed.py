@@ -27,7 +27,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from voe_lightning import specs
 from voe_lightning.cli import main
 from voe_lightning.report.results import PairResults, summarize
-from voe_lightning.statistics import QUADRUPLET_ROWS
+from voe_lightning.stats.statistics import QUADRUPLET_ROWS
 
 CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
 DDP = ["--trainer.strategy", "ddp_spawn", "--trainer.devices", "2", "--trainer.accelerator", "cpu"]

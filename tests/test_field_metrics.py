@@ -1,4 +1,4 @@
-"""The field's metric set (voe_lightning.field_metrics) against hand computations and
+"""The field's metric set (voe_lightning.stats.field_metrics) against hand computations and
 scikit-learn, and where it is written: our probe report's summary.json and summary.md, and the
 quadruplet benchmarks' metrics."""
 
@@ -9,14 +9,14 @@ import pytest
 
 from voe_lightning.cli import main
 from voe_lightning.external.metrics import quadruplet_metrics
-from voe_lightning.field_metrics import (
+from voe_lightning.report import PairResults, write_report
+from voe_lightning.stats.field_metrics import (
     REDUCTIONS,
     context_sweep,
     field_metrics,
     format_field_metrics,
     reduce_surprise,
 )
-from voe_lightning.report import PairResults, write_report
 
 # Four pairs of three frames (possible, impossible), chosen so the reductions disagree.
 POSSIBLE = [[0, 1, 0], [2, 2, 2], [1, 1, 1], [0, 0, 5]]

@@ -14,16 +14,9 @@ import pytest
 import torch
 from test_store import fake_clip, fake_probe
 
-from voe_lightning import (
-    generate,
-    generate_manifest,
-    scenes,
-    specs,
-    store,
-    store_plan,
-    store_shards,
-)
+from voe_lightning import scenes, specs
 from voe_lightning.cli import main
+from voe_lightning.data import generate, generate_manifest, store, store_plan, store_shards
 
 SMALL = dict(
     train_examples=4,

@@ -9,6 +9,7 @@ import re
 from pathlib import Path
 
 import voe_lightning
+from voe_lightning.old_paths import OLD_PATHS
 
 NAMES_DATAMODULES = re.compile(r"^datamodules(\.|$)")
 
@@ -82,8 +83,24 @@ def package_imports(name: str, path: Path, modules: set[str]) -> set[str]:
 def test_no_module_of_voe_lightning_is_in_an_import_circle():
     files = module_files()
     graph = {name: package_imports(name, path, set(files)) for name, path in files.items()}
-    assert graph["voe_lightning.generate"] >= {"voe_lightning.store", "voe_lightning.store_plan"}
+    assert graph["voe_lightning.data.generate"] >= {
+        "voe_lightning.data.store",
+        "voe_lightning.data.store_plan",
+    }
     try:
         graphlib.TopologicalSorter(graph).prepare()
     except graphlib.CycleError as error:
         raise AssertionError(f"import circle: {' -> '.join(error.args[1])}") from None
+
+
+def test_no_module_of_voe_lightning_imports_an_old_module_path():
+    """The old flat paths (``voe_lightning.statistics``) are for saved configs and other people's
+    code; the package itself imports the modules where they are."""
+    files = module_files()
+    assert not OLD_PATHS.keys() & files.keys()  # an old path is no file
+    offenders = {
+        name: old
+        for name, path in files.items()
+        if (old := package_imports(name, path, set(files) | OLD_PATHS.keys()) & OLD_PATHS.keys())
+    }
+    assert offenders == {}

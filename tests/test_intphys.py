@@ -20,12 +20,12 @@ from PIL import Image
 import voe_lightning.external.intphys as intphys
 from datamodules.intphys import IntPhysDataModule
 from voe_lightning import specs
+from voe_lightning.callbacks.prediction_writer import IntPhysAnswerWriter
 from voe_lightning.external.base import BenchmarkDataError
 from voe_lightning.external.evaluation import external_metrics
 from voe_lightning.external.intphys import read_png
 from voe_lightning.external.metrics import read_answer_file, score_answers
 from voe_lightning.model import SurpriseModel
-from voe_lightning.prediction_writer import IntPhysAnswerWriter
 
 FRAMES, SIZE = 20, 32
 #: num_frames=5 of 20 samples source frames [0, 5, 10, 14, 19].

@@ -446,7 +446,7 @@ def test_cue_scorer_runs_test_and_predict_without_a_checkpoint(root, tmp_path):
                 "trainer": {
                     "callbacks+": [
                         {
-                            "class_path": "voe_lightning.prediction_writer.IntPhys2LeaderboardWriter",
+                            "class_path": "voe_lightning.callbacks.prediction_writer.IntPhys2LeaderboardWriter",
                             "init_args": {
                                 "threshold": str(report / "benchmark_metrics.json"),
                                 "path": str(jsonl),

@@ -1,8 +1,11 @@
 """Renamed classes keep their old names (issue 26): LightningCLI's saved ``config.yaml`` of
 earlier runs names ``voe_lightning.model.VOEModel`` and ``datamodules.JointDataModule``, and
-their checkpoints name the model class in ``hyper_parameters['_class_path']``."""
+their checkpoints name the model class in ``hyper_parameters['_class_path']``. Moved modules
+keep their old paths (issue 49): ``voe_lightning.statistics`` is ``voe_lightning.stats.statistics``,
+and a saved config's ``voe_lightning.prediction_writer.IntPhysAnswerWriter`` still loads."""
 
 import importlib
+import pickle
 
 import pytest
 import torch
@@ -12,8 +15,20 @@ from test_configs import parsed
 
 from datamodules import JointDataModule, VOEDataModule
 from voe_lightning import specs
+from voe_lightning.callbacks import (
+    ExpectationImages,
+    FinalStepCheckpoint,
+    InterruptCheckpoint,
+    IntPhys2LeaderboardWriter,
+    IntPhysAnswerWriter,
+    VOEProbeCallback,
+    VOEReportCallback,
+    voe_table,
+)
 from voe_lightning.cli import main
 from voe_lightning.model import VRNNLRUModel
+from voe_lightning.old_paths import OLD_PATHS
+from voe_lightning.stats.surprise_window import SurpriseWindow
 
 OLD_MODEL_PATHS = ("voe_lightning.model.VOEModel", "voe_lightning.model.module.VOEModel")
 
@@ -55,3 +70,52 @@ def test_a_checkpoint_saved_under_the_old_model_name_tests(workdir, trained, cla
     )
     main(["test", "--config", CONFIG, "--ckpt_path", str(checkpoint)])
     assert (run / "voe_report" / "summary.json").is_file()
+
+
+@pytest.mark.parametrize("old, new", sorted(OLD_PATHS.items()))
+def test_an_old_module_path_is_the_module_at_its_new_path(old, new):
+    assert importlib.import_module(old) is importlib.import_module(new)
+    assert importlib.import_module(new).__spec__.name == new  # the old path changes nothing
+
+
+def test_an_old_module_path_imports_from_the_package():
+    from voe_lightning import cues, generate, statistics, store
+    from voe_lightning.audit import cues as new_cues
+    from voe_lightning.data import generate as new_generate
+    from voe_lightning.data import store as new_store
+    from voe_lightning.stats import statistics as new_statistics
+
+    assert (cues, generate, statistics, store) == (
+        new_cues,
+        new_generate,
+        new_statistics,
+        new_store,
+    )
+    assert statistics.paired_test is new_statistics.paired_test
+
+
+OLD_CLASS_PATHS = {
+    "voe_lightning.callbacks.VOEProbeCallback": VOEProbeCallback,
+    "voe_lightning.callbacks.VOEReportCallback": VOEReportCallback,
+    "voe_lightning.callbacks.ExpectationImages": ExpectationImages,
+    "voe_lightning.callbacks.FinalStepCheckpoint": FinalStepCheckpoint,
+    "voe_lightning.callbacks.voe_table": voe_table,
+    "voe_lightning.interruption.InterruptCheckpoint": InterruptCheckpoint,
+    "voe_lightning.prediction_writer.IntPhysAnswerWriter": IntPhysAnswerWriter,
+    "voe_lightning.prediction_writer.IntPhys2LeaderboardWriter": IntPhys2LeaderboardWriter,
+    "voe_lightning.surprise_window.SurpriseWindow": SurpriseWindow,
+    "voe_lightning.cli.main": main,
+}
+
+
+@pytest.mark.parametrize("class_path", sorted(OLD_CLASS_PATHS))
+def test_an_old_class_path_loads_the_class(class_path):
+    module_name, _, name = class_path.rpartition(".")
+    assert getattr(importlib.import_module(module_name), name) is OLD_CLASS_PATHS[class_path]
+
+
+def test_an_object_pickled_under_its_old_module_path_unpickles():
+    new = pickle.dumps(SurpriseWindow(4), protocol=0)  # protocol 0 writes the module as text
+    old = new.replace(b"voe_lightning.stats.surprise_window", b"voe_lightning.surprise_window")
+    assert old != new
+    assert pickle.loads(old) == SurpriseWindow(4)

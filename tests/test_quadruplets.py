@@ -11,8 +11,10 @@ import os
 import pytest
 import torch
 
-from voe_lightning import cues, specs, statistics
+from voe_lightning import specs
+from voe_lightning.audit import cues
 from voe_lightning.scenes import generate_probe
+from voe_lightning.stats import statistics
 
 SPLICE_SEEDS = int(os.environ.get("VOE_QUADRUPLET_SEEDS", "50"))
 SIZE = 32

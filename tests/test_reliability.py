@@ -18,8 +18,9 @@ import torch
 import yaml
 from test_cli import CONFIG, copy_of
 
-from voe_lightning import generate, generate_manifest, specs, store
+from voe_lightning import specs
 from voe_lightning.cli import main
+from voe_lightning.data import generate, generate_manifest, store
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.report import write_report
 from voe_lightning.report.results import PairResults

@@ -25,10 +25,10 @@ from test_intphys2 import FRAMES, SIZE, frame, make_root
 from test_reliability import _refused, _results
 from tfrecord.writer import TFRecordWriter
 
-from voe_lightning import store_shards
 from voe_lightning.callbacks import voe_table
 from voe_lightning.causality import check_prefix
 from voe_lightning.cli import NOT_CAUSAL_EXIT, main
+from voe_lightning.data import store_shards
 from voe_lightning.external.base import BenchmarkDataError, FrameSampling
 from voe_lightning.external.intphys import read_label
 from voe_lightning.external.intphys2 import ClipSampling, read_metadata, read_video

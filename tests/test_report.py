@@ -22,7 +22,7 @@ from voe_lightning.probe_datamodule import ProbeDataModule
 from voe_lightning.report import write_report
 from voe_lightning.report.figures import PredictionExample
 from voe_lightning.report.results import SUMMARY_COLUMNS, PairResults
-from voe_lightning.statistics import ALPHA, paired_test, pooled_test, quadruplet_test
+from voe_lightning.stats.statistics import ALPHA, paired_test, pooled_test, quadruplet_test
 
 T, H, W = 6, 16, 16
 

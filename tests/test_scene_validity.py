@@ -13,7 +13,8 @@ import pytest
 import torch
 from scipy import stats
 
-from voe_lightning import cues, specs
+from voe_lightning import specs
+from voe_lightning.audit import cues
 from voe_lightning.scenes import (
     CLIP_KINDS_BY_CONCEPT,
     CONCEPTS,

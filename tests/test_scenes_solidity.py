@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from voe_lightning import cues
+from voe_lightning.audit import cues
 from voe_lightning.scenes import VideoOptions, generate_clip, generate_probe, solidity
 from voe_lightning.scenes.builder import Geom, SceneBuilder
 from voe_lightning.scenes.simulation import visible_ids

@@ -14,9 +14,10 @@ import yaml
 from scipy import stats
 from sklearn.metrics import roc_auc_score
 
-from voe_lightning import specs, statistics, statistics_format
-from voe_lightning.statistics import PairedTestResult, effect_size_interval, paired_test
-from voe_lightning.streaming_statistics import PairedSurpriseStats, pooled_values
+from voe_lightning import specs
+from voe_lightning.stats import statistics, statistics_format
+from voe_lightning.stats.statistics import PairedTestResult, effect_size_interval, paired_test
+from voe_lightning.stats.streaming_statistics import PairedSurpriseStats, pooled_values
 
 
 def _surprise(n, effect, seed):
@@ -242,7 +243,7 @@ def _result(p, mean):
 
 
 def test_pooled_verdict_needs_the_pool_and_both_variants_significant():
-    from voe_lightning.verdicts import concept_verdicts
+    from voe_lightning.stats.verdicts import concept_verdicts
 
     def verdict(standard, counterbalanced, pooled, alpha=0.01):
         results = {
@@ -273,7 +274,7 @@ def test_unchangeableness_verdict_needs_each_change_quadruplet():
     significant with both halves above 0; the halves' own rows and the generalization
     variants are reported beside it. Without quadruplet rows (the training-time table pairs
     no seeds) every half must be significant."""
-    from voe_lightning.verdicts import concept_verdicts
+    from voe_lightning.stats.verdicts import concept_verdicts
 
     def quadruplet_row(p, first=1.0, second=0.5):
         return {
@@ -314,7 +315,7 @@ def test_unchangeableness_verdict_needs_each_change_quadruplet():
 def test_the_verdict_rule_takes_arrays_as_concept_verdicts_takes_rows():
     """The calibration applies the rule to thousands of repetitions at once: element by
     element it must decide as ``concept_verdicts`` does."""
-    from voe_lightning.verdicts import concept_verdicts, verdict_rule
+    from voe_lightning.stats.verdicts import concept_verdicts, verdict_rule
 
     rng = np.random.default_rng(3)
     cases = {
@@ -548,7 +549,7 @@ def test_quadruplets_match_by_seed_and_the_report_tests_them():
     seed without its other half is left out (a concept without a common seed gets no
     quadruplet group); a seed twice in one variant is refused."""
     from voe_lightning.report.results import PairResults, summarize
-    from voe_lightning.verdicts import concept_verdicts, pair_groups, quadruplets
+    from voe_lightning.stats.verdicts import concept_verdicts, pair_groups, quadruplets
 
     concepts = ["object_persistence"] * 7 + ["continuity"] * 2
     variants = [
@@ -620,7 +621,7 @@ def test_quadruplets_match_by_seed_and_the_report_tests_them():
 
 
 def test_quadruplet_verdict_needs_the_test_and_both_halves():
-    from voe_lightning.verdicts import concept_verdicts, quadruplet_rule
+    from voe_lightning.stats.verdicts import concept_verdicts, quadruplet_rule
 
     def verdict(p, first, second):
         row = {

@@ -11,7 +11,8 @@ import torch
 from tensordict import TensorDict
 from torch.utils.data import DataLoader
 
-from voe_lightning import generate, scenes, specs, store, store_plan, store_shards
+from voe_lightning import scenes, specs
+from voe_lightning.data import generate, store, store_plan, store_shards
 from voe_lightning.external.cache import write_cache
 
 

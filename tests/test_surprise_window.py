@@ -1,4 +1,4 @@
-"""The surprise window (``voe_lightning.surprise_window``): each pair's first difference from
+"""The surprise window (``voe_lightning.stats.surprise_window``): each pair's first difference from
 its frames, a video's surprise summed over the window by hand on a toy pair, the configs it
 accepts and refuses, and a test run whose report names the window beside all frames."""
 
@@ -12,7 +12,7 @@ import torch
 
 from voe_lightning.cli import main
 from voe_lightning.report.results import PairResults, summarize
-from voe_lightning.surprise_window import (
+from voe_lightning.stats.surprise_window import (
     SurpriseWindow,
     first_difference,
     surprise_window,

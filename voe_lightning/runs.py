@@ -18,7 +18,7 @@ import torch
 import yaml
 from lightning.pytorch.cli import SaveConfigCallback
 
-from voe_lightning.store_plan import seed_offset_root
+from voe_lightning.data.store_plan import seed_offset_root
 
 #: ``--ckpt_path`` words that name a checkpoint of the newest run of the config's logger name.
 RUN_CHECKPOINT_WORDS = ("last", "best")

@@ -1,4 +1,4 @@
-"""A benchmark's decoded records cached as a store (``voe_lightning.store``: ``manifest.json``
+"""A benchmark's decoded records cached as a store (``voe_lightning.data.store``: ``manifest.json``
 and its shards), so epochs never re-decode the source; a cache that is incomplete, stale or
 damaged warns and counts as none, and is rebuilt."""
 
@@ -18,8 +18,8 @@ import numpy as np
 from tensordict import TensorDictBase
 from torchrl.data import Composite
 
-from voe_lightning import store, store_shards
-from voe_lightning.store import CorruptShardError, SplitDataset
+from voe_lightning.data import store, store_shards
+from voe_lightning.data.store import CorruptShardError, SplitDataset
 
 #: The store concept and split under which a cache keeps its one record set.
 CONCEPT, SPLIT = "benchmark", "records"

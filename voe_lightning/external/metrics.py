@@ -17,14 +17,14 @@ scores a plausibility P(x) per movie, in quadruplets of two possible and two imp
 
 The DeepMind Physical Concepts probes come in the same 2 + 2 quadruplets and get the same
 metrics per concept. Matched possible/impossible pairs also get our one-tailed paired t-test
-(``voe_lightning.statistics.paired_test``, inconsistent = impossible).
+(``voe_lightning.stats.statistics.paired_test``, inconsistent = impossible).
 
 The quadruplet benchmarks' pairs also get the field's metric set (``field_metrics``) under
 ``field_metrics``, each group its own threshold.
 
 IntPhys 2 (Bordes et al. 2025) is scored as the V-JEPA intuitive-physics evaluation (Garrido et
 al. 2025) scores it, over Possible/Impossible pairs of one scene and prefix
-(``intphys2_metrics``): the field's metric set (``voe_lightning.field_metrics``: relative
+(``intphys2_metrics``): the field's metric set (``voe_lightning.stats.field_metrics``: relative
 accuracy and AUROC with sum, mean and max surprise, absolute accuracy) at one threshold for
 every group, the 90th percentile of the possible videos' max surprise over the whole split, so
 the group rows are what the one classifier gets there, and the same threshold turns Held-Out
@@ -50,15 +50,15 @@ from typing import Any
 import numpy as np
 import torch
 
+from voe_lightning.data.store_shards import write_whole
 from voe_lightning.external.base import read_text
-from voe_lightning.field_metrics import (
+from voe_lightning.stats.field_metrics import (
     PERCENTILE,
     field_metrics,
     reduce_surprise,
     surprise_threshold,
 )
-from voe_lightning.statistics import ALPHA, paired_test, ranked_auroc
-from voe_lightning.store_shards import write_whole
+from voe_lightning.stats.statistics import ALPHA, paired_test, ranked_auroc
 
 #: A movie path in an IntPhys answer file: <block>/<scene>/<movie 1-4>.
 ANSWER_PATH = re.compile(r"^(O[123])/([^/\s]+)/([1-4])$")

@@ -15,7 +15,7 @@ from tensordict import TensorDictBase
 
 from voe_lightning import specs
 from voe_lightning.model.training_monitor import non_finite_message
-from voe_lightning.surprise_window import first_difference, video_surprise
+from voe_lightning.stats.surprise_window import first_difference, video_surprise
 
 
 def _destroy_process_group() -> None:
@@ -133,7 +133,7 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
         """Surprise of both videos of each probe pair (one pass: rows never interact); each
         video's mask and the pair's camera go to the model when the batch has them. Also the
         pair's ``first_difference``, the first frame at which its videos differ, where a
-        surprise window starts (``voe_lightning.surprise_window``)."""
+        surprise window starts (``voe_lightning.stats.surprise_window``)."""
         consistent = batch["consistent", "frames"]
         inconsistent = batch["inconsistent", "frames"]
         sides = [video_inputs(batch, "consistent"), video_inputs(batch, "inconsistent")]

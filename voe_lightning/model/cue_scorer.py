@@ -1,4 +1,4 @@
-"""Physics-blind baselines as a model family: one frame-local cue of ``voe_lightning.cues`` as
+"""Physics-blind baselines as a model family: one frame-local cue of ``voe_lightning.audit.cues`` as
 a parameter-free ``SurpriseModel``, so ``test`` and ``predict`` score it like any model, with no
 checkpoint, on our probes and on every benchmark, and its rows stand beside a model's."""
 
@@ -7,7 +7,8 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDictBase
 
-from voe_lightning import cues, specs
+from voe_lightning import specs
+from voe_lightning.audit import cues
 from voe_lightning.model.base import SurpriseModel
 
 #: Short names of ``CueScorer``'s cues (``cues.CUES``' names are accepted too).

@@ -9,7 +9,7 @@ a surprise window, its rows beside them and in ``summary_window.csv``), ``pairs.
 per probe pair, with per-frame surprise and its first difference, so anyone can redo the
 statistics), ``cues.md``/``cues.csv``/``cues.json`` (the cue audit on the same pairs, beside the
 model's rows, then how the model's relative surprise correlates with each cue's difference;
-see ``voe_lightning.cues``), ``cue_correlations.csv`` and ``cue_scatter.png`` (those
+see ``voe_lightning.audit.cues``), ``cue_correlations.csv`` and ``cue_scatter.png`` (those
 correlations in full and drawn), ``histograms.png``, ``surprise_per_frame.png``,
 ``predictions_<concept>.png`` and ``tsne_object_persistence.png``.
 
@@ -28,12 +28,12 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from voe_lightning import cue_report, cues
+from voe_lightning.audit import cue_report, cues
+from voe_lightning.data.store_shards import current_umask, remove_stale, temporary_prefix
 from voe_lightning.report.figures import PredictionExample, write_figures
 from voe_lightning.report.results import VRNN_SURPRISE, PairResults, summarize, write_summary
-from voe_lightning.statistics import ALPHA
-from voe_lightning.store_shards import current_umask, remove_stale, temporary_prefix
-from voe_lightning.surprise_window import SurpriseWindow
+from voe_lightning.stats.statistics import ALPHA
+from voe_lightning.stats.surprise_window import SurpriseWindow
 
 
 def write_report(

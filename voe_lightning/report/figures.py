@@ -15,11 +15,11 @@ import numpy as np
 from matplotlib.figure import Figure
 from scipy import stats
 
+from voe_lightning.data.store_shards import write_whole
 from voe_lightning.report.results import PairResults, as_numpy
 from voe_lightning.specs import GENERALIZATION_VARIANT_NAMES
-from voe_lightning.statistics import POOLED
-from voe_lightning.statistics_format import BRIEF, format_p_phrase, row_text, rows_alpha
-from voe_lightning.store_shards import write_whole
+from voe_lightning.stats.statistics import POOLED
+from voe_lightning.stats.statistics_format import BRIEF, format_p_phrase, row_text, rows_alpha
 
 #: Histograms hide pairs whose d lies beyond this many SD from the mean (display only).
 OUTLIER_SD = 3.0
@@ -318,7 +318,7 @@ def cue_scatter_figure(
     it tracks most (largest |r| of ``CueAudit.model_correlations``), one panel per group a
     verdict reads (pooled rows; every variant of a concept without one), points coloured by
     variant: a cue-follower lines up along the cue, its variants on either side of 0."""
-    from voe_lightning.cues import CUE_TITLES, tracked_cues
+    from voe_lightning.audit.cues import CUE_TITLES, tracked_cues
 
     pooled = {r["concept"] for r in correlation_rows if r["variant"] == POOLED}
     panels = {

@@ -17,19 +17,25 @@ import numpy as np
 import torch
 
 from voe_lightning.causality import Causality, check_prefix
-from voe_lightning.field_metrics import field_metrics, format_field_metrics
 from voe_lightning.model.vrnn_lru import VRNNLRUModel
 from voe_lightning.specs import CONCEPTS, VARIANTS
-from voe_lightning.statistics import (
+from voe_lightning.stats.field_metrics import field_metrics, format_field_metrics
+from voe_lightning.stats.statistics import (
     ALPHA,
     QUADRUPLET_ROWS,
     QuadrupletTestResult,
     group_test,
     untested_reason,
 )
-from voe_lightning.statistics_format import format_alpha, format_t, json_row, row_text, rows_alpha
-from voe_lightning.surprise_window import SurpriseWindow, video_surprise
-from voe_lightning.verdicts import concept_verdicts, pair_groups
+from voe_lightning.stats.statistics_format import (
+    format_alpha,
+    format_t,
+    json_row,
+    row_text,
+    rows_alpha,
+)
+from voe_lightning.stats.surprise_window import SurpriseWindow, video_surprise
+from voe_lightning.stats.verdicts import concept_verdicts, pair_groups
 
 #: Keys of the dict that ``VRNNLRUModel.probe_step`` (and so ``test_step``) returns.
 PROBE_OUTPUT_KEYS = (

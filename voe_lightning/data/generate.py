@@ -19,10 +19,11 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
-from voe_lightning import generate_manifest, specs, store, store_shards, worker_pool
+from voe_lightning.data import generate_manifest, store, store_shards, worker_pool
+from voe_lightning import specs
 from voe_lightning.scenes import check_video, generate_clip, generate_probe
 from voe_lightning.scenes.camera import VideoOptions
-from voe_lightning.store_plan import (
+from voe_lightning.data.store_plan import (
     ShardTask,
     check_seed_offset,
     check_task,
@@ -443,7 +444,7 @@ def generate(
         f"{summary.shards_skipped} already complete, {summary.seconds:.1f} s"
     )
     if contact_sheets:
-        from voe_lightning.contact_sheet import write_store_sheet
+        from voe_lightning.data.contact_sheet import write_store_sheet
 
         for concept in dict.fromkeys(concepts):
             path = summary.root / "contact_sheets" / f"{concept}.png"

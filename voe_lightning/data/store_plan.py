@@ -11,7 +11,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 
-from voe_lightning import specs, store, store_shards
+from voe_lightning import specs
+from voe_lightning.data import store, store_shards
 from voe_lightning.scenes.camera import VideoOptions
 
 #: First seed of each split; the ranges are a billion wide, so splits never share a seed.

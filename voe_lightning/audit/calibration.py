@@ -36,9 +36,11 @@ from typing import Any, Literal
 import numpy as np
 from scipy import stats
 
-from voe_lightning import cues, specs, statistics
-from voe_lightning.statistics_format import format_alpha, json_row
-from voe_lightning.verdicts import quadruplet_rule, quadruplets, verdict_rule
+from voe_lightning import specs
+from voe_lightning.audit import cues
+from voe_lightning.stats import statistics
+from voe_lightning.stats.statistics_format import format_alpha, json_row
+from voe_lightning.stats.verdicts import quadruplet_rule, quadruplets, verdict_rule
 
 __all__ = [
     "DELTAS",
@@ -452,7 +454,7 @@ def calibrate_store(
     """Calibration of the VOE verdict on synthetic cue-following surprise, as a Markdown table.
 
     Scores the cues of a probe split (as ``audit`` does), then simulates models that follow
-    them without physics (``voe_lightning.calibration``): the false-VOE rate at no effect and
+    them without physics (``voe_lightning.audit.calibration``): the false-VOE rate at no effect and
     the effect at which the verdict says VOE in 80% of repetitions, per concept and follower.
 
     Args:

@@ -14,8 +14,8 @@ import torch
 from lightning.pytorch.callbacks import BasePredictionWriter
 from lightning.pytorch.utilities import rank_zero_info
 
+from voe_lightning.data.store_shards import write_whole
 from voe_lightning.external.metrics import write_answer_file
-from voe_lightning.store_shards import write_whole
 
 
 class IntPhysAnswerWriter(BasePredictionWriter):

@@ -166,7 +166,7 @@ def write_store_sheet(
     """A contact sheet of ``concept`` from the store at ``root``: the first pair of each probe
     variant in ``probe_split`` and the first clip of each kind in train (looking at most
     ``scan`` records into each split; splits are interleaved, so the first few suffice)."""
-    from voe_lightning.store import open_split
+    from voe_lightning.data.store import open_split
 
     records = []
     for split, field, names in (

@@ -4,7 +4,7 @@ consistent videos of a concept's pooled pairs is a low-level cue in the stimuli,
 physics, so these rows stand beside every model result (``test`` writes them to
 ``voe_report/cues.*``) and ``python -m voe_lightning audit --root DIR`` runs them on any probe split
 of a store. Here: the scores and their tests (``CueAudit``); the tables and files they are written
-to, and the ``audit`` command, are in ``voe_lightning.cue_report``.
+to, and the ``audit`` command, are in ``voe_lightning.audit.cue_report``.
 
 Every score is computed on the frames after ``manipulation_frame`` (the two videos of a pair are
 identical up to and including it), per video, with frames x_t in [0, 1]:
@@ -39,8 +39,9 @@ from scipy import stats
 
 # verdicts as a module: importing verdicts first reaches this module half-initialized
 # (verdicts -> causality -> model -> cue_scorer -> cues), so its names are read at call time.
-from voe_lightning import specs, statistics, verdicts
-from voe_lightning.statistics import QUADRUPLET_ROWS
+from voe_lightning import specs
+from voe_lightning.stats import statistics, verdicts
+from voe_lightning.stats.statistics import QUADRUPLET_ROWS
 
 __all__ = [
     "CUES",
@@ -538,7 +539,7 @@ def audit_split(
     against the manifest first (``store_plan.check_split``: a foreign one is refused)."""
     from torch.utils.data import ConcatDataset
 
-    from voe_lightning import store, store_plan
+    from voe_lightning.data import store, store_plan
 
     if store.SPLIT_RECORD_TYPE.get(split) != "probe":
         probe_splits = [s for s, kind in store.SPLIT_RECORD_TYPE.items() if kind == "probe"]

@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.report.figures import panel_grid, save_figure
 from voe_lightning.report.results import PairResults, read_summary
-from voe_lightning.statistics import ALPHA, paired_test
+from voe_lightning.stats.statistics import ALPHA, paired_test
 
 __all__ = ["run_size_sweep", "size_sweep_figure", "sweep", "sweep_plot", "sweep_rows"]
 

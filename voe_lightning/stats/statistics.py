@@ -1,10 +1,10 @@
 """Violation-of-expectation statistics (docs/architecture.md §8): the one-tailed paired t-test
 of S(inconsistent) - S(consistent), as infant looking-time studies use it, in the one-shot form
 reports use (``paired_test``, ``pooled_test``). The streaming torchmetrics form of the
-training-time callbacks (``voe_lightning.streaming_statistics``) shares ``t_test_from_moments``
+training-time callbacks (``voe_lightning.stats.streaming_statistics``) shares ``t_test_from_moments``
 and ``stratified_test``, so both decide degenerate cases the same way. Which rows a table has
-and the verdict they give are in ``voe_lightning.verdicts``; how a row is written, in
-``voe_lightning.statistics_format``.
+and the verdict they give are in ``voe_lightning.stats.verdicts``; how a row is written, in
+``voe_lightning.stats.statistics_format``.
 
 Degenerate inputs, decided once here:
 

@@ -1,12 +1,8 @@
-"""Callbacks, one concern each: VOE statistics of the validation probes over training, image
-strips of what the model expected to see, the VOE report of a ``test`` run, and a checkpoint
-of the final training step."""
+"""``VOEReportCallback``: the VOE report of a ``test`` run (tables, figures, summary.json)."""
 
 from __future__ import annotations
 
-import functools
 import json
-from collections import defaultdict
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -14,14 +10,12 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
-from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.utilities import rank_zero_warn
-from rich.console import Console
-from rich.table import Table
-from tensordict import TensorDictBase
 
-from voe_lightning import cues, specs
-from voe_lightning.causality import Causality, check_prefix
+from voe_lightning.audit import cues
+from voe_lightning.callbacks.common import gather_objects, probe_names
+from voe_lightning.causality import Causality
+from voe_lightning.data.store_shards import write_whole
 from voe_lightning.external.evaluation import evaluate
 from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.probe_datamodule import probe_datamodule
@@ -34,288 +28,8 @@ from voe_lightning.report.results import (
     as_numpy,
 )
 from voe_lightning.runs import RunConfig
-from voe_lightning.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
-from voe_lightning.statistics_format import CONSOLE, format_alpha, row_text
-from voe_lightning.store_shards import write_whole
-from voe_lightning.streaming_statistics import PairedSurpriseStats, pooled_values
-from voe_lightning.surprise_window import SurpriseWindow, video_surprise
-from voe_lightning.surprise_window import surprise_window as parse_window
-from voe_lightning.verdicts import concept_verdicts, pair_groups
-
-
-def _names(trainer: L.Trainer, user: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """The DataModule's concept and variant names (refused unless it is a ProbeDataModule)."""
-    datamodule = probe_datamodule(trainer, user)
-    return tuple(datamodule.concept_names), tuple(datamodule.variant_names)
-
-
-class VOEProbeCallback(L.Callback):
-    """Every validation run (set its frequency with ``trainer.val_check_interval``, in training
-    steps) streams each probe pair's relative surprise into one PairedSurpriseStats per
-    concept/variant, then logs ``voe/<concept>/<variant>/{relative_surprise,t,p_value,accuracy,n}``.
-    A concept with a standard and a counterbalanced variant also gets
-    ``voe/<concept>/pooled/...``: the stratified test of its two variants
-    (``streaming_statistics.pooled_values``, from their float64 sums, so exact under DDP as
-    they are).
-    At the end of ``fit`` it prints the last table with each concept's verdict at ``alpha``
-    (None: ``statistics.ALPHA``; the CLI gives the run's ``alpha`` from configs/base.yaml).
-    A ``surprise_window`` other than all frames (``surprise_window.surprise_window``; the CLI
-    gives the run's) logs the same statistics of each video's surprise summed over that window
-    beside them, as ``voe_window/...``. Each validation run also checks causality
-    (``causality.check_prefix``): ``causality`` holds the last run's finding; where surprise
-    differs through the pairs' manipulation frame it warns, and the table gives no verdict."""
-
-    STATISTICS = ("relative_surprise", "t", "p_value", "accuracy", "n")
-
-    def __init__(
-        self,
-        print_table: bool = True,
-        alpha: float | None = None,
-        surprise_window: str | dict[str, Any] | None = None,
-    ):
-        super().__init__()
-        self.print_table = print_table
-        self.alpha = ALPHA if alpha is None else check_alpha(alpha)
-        window = parse_window(surprise_window)
-        #: The windows whose statistics are logged, by log prefix: all frames first.
-        self.windows = {
-            "voe": SurpriseWindow(),
-            **({} if window.all_frames else {"voe_window": window}),
-        }
-        self.metrics: dict[tuple[str, str, str], PairedSurpriseStats] = {}
-        self.last: dict[tuple[str, str], dict[str, float]] = {}
-        self.causality: Causality | None = None
-        self._causality = Causality()
-
-    def on_validation_epoch_start(self, trainer, pl_module) -> None:
-        cases = probe_datamodule(trainer, type(self).__name__).probe_cases("val")
-        # Create every metric up front so all DDP ranks hold the same states.
-        for prefix in self.windows:
-            for case in cases:
-                self._metric((prefix, *case), pl_module.device)
-        for metric in self.metrics.values():
-            metric.reset()
-        self._causality = Causality()
-
-    def _metric(self, key: tuple[str, str, str], device: torch.device) -> PairedSurpriseStats:
-        if key not in self.metrics:
-            self.metrics[key] = PairedSurpriseStats().to(device)
-        return self.metrics[key]
-
-    def on_validation_batch_end(
-        self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0
-    ) -> None:
-        if not outputs:
-            return
-        concept_names, variant_names = _names(trainer, type(self).__name__)
-        self._causality = self._causality.merge(
-            check_prefix(
-                outputs["surprise_consistent"],
-                outputs["surprise_inconsistent"],
-                outputs["manipulation_frame"],
-                outputs.get("first_difference"),
-            )
-        )
-        groups = defaultdict(list)
-        for index, (c, v) in enumerate(
-            zip(outputs["concept"].tolist(), outputs["variant"].tolist())
-        ):
-            groups[(concept_names[c], variant_names[v])].append(index)
-        for prefix, window in self.windows.items():
-            inconsistent, consistent = (
-                _window_sum(outputs, side, window) for side in ("inconsistent", "consistent")
-            )
-            for case, rows in groups.items():
-                rows = torch.tensor(rows, device=inconsistent.device)
-                self._metric((prefix, *case), pl_module.device).update(
-                    inconsistent[rows], consistent[rows]
-                )
-
-    def on_validation_epoch_end(self, trainer, pl_module) -> None:
-        if trainer.sanity_checking:
-            return
-        # Every rank's pairs (under DDP each rank scored its own), as the statistics are.
-        self.causality = functools.reduce(Causality.merge, _gather(self._causality))
-        if not self.causality.causal:
-            rank_zero_warn(f"validation at step {trainer.global_step}: {self.causality.line()}")
-        for prefix in self.windows:
-            results = self._results(prefix)
-            for (concept, variant), values in results.items():
-                for statistic in self.STATISTICS:
-                    pl_module.log(
-                        f"{prefix}/{concept}/{variant}/{statistic}",
-                        values[statistic],
-                        sync_dist=False,
-                    )
-            if prefix == "voe":
-                self.last = results
-
-    def _results(self, prefix: str) -> dict[tuple[str, str], dict[str, float]]:
-        """The statistics of the window logged under ``prefix``, per concept/variant with the
-        pooled rows, of the cases with at least two pairs so far."""
-        computed = {}
-        for (window, *case), metric in self.metrics.items():
-            if window != prefix:
-                continue
-            try:  # called on every rank alike: compute() syncs the states under DDP
-                computed[tuple(case)] = {k: float(v) for k, v in metric.compute().items()}
-            except ValueError:  # fewer than two pairs of this case so far
-                continue
-        results = {}
-        concepts, variants = zip(*computed) if computed else ((), ())
-        for concept, variant, _ in pair_groups(concepts, variants):
-            if variant == POOLED:
-                results[(concept, variant)] = pooled_values(
-                    [computed[(concept, v)] for v in POOLED_VARIANTS]
-                )
-            else:
-                results[(concept, variant)] = computed[(concept, variant)]
-        return results
-
-    def on_fit_end(self, trainer, pl_module) -> None:
-        if self.print_table and self.last and trainer.is_global_zero:
-            console = Console()
-            if not console.is_terminal:  # logs and pipes: do not cut the table at 80 columns
-                console.width = 120
-            title = f"VOE on validation probes, step {trainer.global_step}"
-            console.print(
-                voe_table(self.last, title=title, alpha=self.alpha, causality=self.causality)
-            )
-
-
-def _window_sum(outputs: Mapping[str, Any], side: str, window: SurpriseWindow) -> torch.Tensor:
-    """Each ``side`` video's surprise of probe ``outputs`` over ``window`` from its pair's first
-    difference (``manipulation_frame`` + 1 where the outputs lack it), [B]."""
-    first = (
-        None
-        if window.all_frames
-        else outputs["first_difference"]
-        if "first_difference" in outputs
-        else outputs["manipulation_frame"] + 1
-    )
-    return video_surprise(outputs[f"surprise_{side}"], window, first)
-
-
-def voe_table(
-    results: dict[tuple[str, str], dict[str, float]],
-    title: str,
-    alpha: float = ALPHA,
-    causality: Causality | None = None,
-) -> Table:
-    """A rich table of relative surprise, t, p and accuracy per concept/variant (pooled rows
-    bold: the stratified test), alpha in its title and p header, with each concept's verdict
-    (``verdicts.concept_verdicts``, withheld where ``causality`` failed, whose line is the
-    caption) on its first row."""
-    verdicts = {v.concept: v for v in concept_verdicts(results, alpha, causality)}
-    table = Table(
-        title=f"{title} ({format_alpha(alpha)})",
-        caption=causality.line() if causality is not None else None,
-    )
-    for column in (
-        "concept",
-        "variant",
-        "n",
-        "relative surprise",
-        "t",
-        f"p (one-tailed, * < {alpha:g})",
-        "accuracy",
-        "verdict",
-    ):
-        justify = "left" if column in ("concept", "variant", "verdict") else "right"
-        table.add_column(column, justify=justify, overflow="fold")
-    keys = list(results)
-    for index, ((concept, variant), values) in enumerate(results.items()):
-        cells = row_text(values, CONSOLE, alpha)
-        first = index == 0 or keys[index - 1][0] != concept
-        last = index + 1 == len(keys) or keys[index + 1][0] != concept
-        verdict = verdicts[concept]
-        text = verdict.text() if first else ""
-        if first and verdict.voe is not None:
-            text = f"[green]{text}[/green]" if verdict.voe else f"[red]{text}[/red]"
-        table.add_row(
-            concept if first else "",
-            variant,
-            cells.n,
-            cells.mean,
-            cells.t,
-            cells.p + cells.star,
-            cells.accuracy,
-            text,
-            style="bold" if variant == POOLED else None,
-            end_section=last,
-        )
-    return table
-
-
-class FinalStepCheckpoint(ModelCheckpoint):
-    """Lightning's ``ModelCheckpoint`` that also saves the step training ends at. Lightning's
-    keeps ``last.ckpt`` at the last *scheduled* step, so ``max_steps: 3600`` with
-    ``every_n_train_steps: 2000`` would leave the step-2,000 model there for ``test``."""
-
-    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        super().on_train_end(trainer, pl_module)
-        # Lightning's own rule: not under fast_dev_run, not outside fit, not a step already saved.
-        if not self._should_skip_saving_checkpoint(trainer):
-            candidates = self._monitor_candidates(trainer)
-            self._save_topk_checkpoint(trainer, candidates)
-            self._save_last_checkpoint(trainer, candidates)
-
-
-def _first_frames(video_input: Any, count: int) -> Any:
-    """The first ``count`` frames of one video's input: a tensor [T, ...], or a TensorDict of
-    per-frame leaves (``objects``, whose batch dims end before T)."""
-    if isinstance(video_input, TensorDictBase):
-        return video_input.apply(lambda leaf: leaf[:count])
-    return video_input[:count]
-
-
-class ExpectationImages(L.Callback):
-    """At each validation run, logs to TensorBoard, for one fixed inconsistent validation probe
-    per concept, the input frames above ``expected_frames`` (given the probe's mask and camera):
-    what the model expected to see given the previous frames (the paper's Figure 5)."""
-
-    def __init__(self, max_frames: int = 15):
-        super().__init__()
-        self.max_frames = max_frames
-        self.examples: dict[str, torch.Tensor] = {}
-
-    def on_validation_batch_end(
-        self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0
-    ) -> None:
-        concept_names, _ = _names(trainer, type(self).__name__)
-        frames = batch["inconsistent", "frames"]
-        inputs = video_inputs(batch, "inconsistent")
-        for index, concept in enumerate(batch["concept"].tolist()):
-            name = concept_names[concept]
-            if name not in self.examples:  # the first probe of each concept, fixed over training
-                self.examples[name] = {
-                    key: value[index].detach().cpu()
-                    for key, value in {"frames": frames, **inputs}.items()
-                }
-
-    def on_validation_epoch_end(self, trainer, pl_module) -> None:
-        if trainer.sanity_checking or not trainer.is_global_zero or not self.examples:
-            return
-        experiment = getattr(trainer.logger, "experiment", None)
-        if experiment is None or not hasattr(experiment, "add_image"):
-            return
-        for concept, example in self.examples.items():
-            video = {
-                key: _first_frames(value, self.max_frames)[None].to(pl_module.device)
-                for key, value in example.items()
-            }
-            frames = example["frames"][: self.max_frames]
-            with torch.no_grad():
-                expected = pl_module.expected_frames(video.pop("frames"), **video)[0]
-            strip = torch.cat(
-                [specs.to_model_input(frames), expected.float().cpu().clamp(0, 1)], dim=-2
-            )
-            # [T, 3, 2H, W] -> [3, 2H, T*W]: input row above expectation row.
-            image = strip.permute(1, 2, 0, 3).reshape(3, strip.shape[-2], -1)
-            experiment.add_image(f"expected/{concept}", image, global_step=trainer.global_step)
-
-
-# ----------------------------------------------------------------------------- report
+from voe_lightning.stats.statistics import ALPHA, check_alpha
+from voe_lightning.stats.surprise_window import surprise_window as parse_window
 
 
 def _stacked(
@@ -323,17 +37,6 @@ def _stacked(
 ) -> dict[str, torch.Tensor]:
     """Kept videos (frames and, where the batch had them, mask and camera) as one batch."""
     return {key: torch.stack([video[key] for video in videos]).to(device) for key in videos[0]}
-
-
-def _gather(value: Any) -> list[Any]:
-    """All ranks' values under torch.distributed (DDP test), else [value]."""
-    import torch.distributed as dist
-
-    if dist.is_available() and dist.is_initialized() and dist.get_world_size() > 1:
-        gathered: list[Any] = [None] * dist.get_world_size()
-        dist.all_gather_object(gathered, value)
-        return gathered
-    return [value]
 
 
 class VOEReportCallback(L.Callback):
@@ -344,7 +47,7 @@ class VOEReportCallback(L.Callback):
     object-persistence pairs, standard and counterbalanced alternately, for the t-SNE figure
     (``pl_module.trajectories``). Tests are at ``alpha`` (None: ``statistics.ALPHA``; the CLI
     gives the run's ``alpha`` from configs/base.yaml). With ``cue_audit`` it scores the physics-blind cues of every
-    test batch's pairs (``voe_lightning.cues``, on the batch's device), so the cue rows of
+    test batch's pairs (``voe_lightning.audit.cues``, on the batch's device), so the cue rows of
     cues.md/cues.csv share the model's pairs and n. Names are decoded with the
     ProbeDataModule's ``concept_names`` / ``variant_names``. summary.json's ``source`` names
     the config file saved for the run, the checkpoint tested, its global step, the DataModule,
@@ -455,7 +158,7 @@ class VOEReportCallback(L.Callback):
 
     def on_test_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._reset()
-        self._concept_names, self._variant_names = _names(trainer, type(self).__name__)
+        self._concept_names, self._variant_names = probe_names(trainer, type(self).__name__)
 
     def on_test_batch_end(
         self,
@@ -516,7 +219,7 @@ class VOEReportCallback(L.Callback):
                 tsne.append(meta | videos)
 
     def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        gathered = _gather((self._outputs, self._examples, self._tsne, self._cues))
+        gathered = gather_objects((self._outputs, self._examples, self._tsne, self._cues))
         self._ended = True  # on every rank; only rank zero writes the report
         # trainer.log_dir broadcasts under DDP: every rank must ask for it.
         out_dir = self.out_dir or trainer.log_dir or trainer.default_root_dir

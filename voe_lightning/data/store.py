@@ -23,7 +23,7 @@ from tensordict import TensorDict, TensorDictBase
 from torch.utils.data import DataLoader, Dataset, Sampler
 
 from voe_lightning import specs
-from voe_lightning.store_shards import CorruptShardError, ShardReader, atomic_write
+from voe_lightning.data.store_shards import CorruptShardError, ShardReader, atomic_write
 
 #: Splits of every concept: training clips, validation and test probes, generalization probes.
 SPLITS: tuple[str, ...] = ("train", "val", "test", "generalization")

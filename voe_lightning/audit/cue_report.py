@@ -3,7 +3,7 @@ accuracy / d_z beside the model's (Markdown for summary and cues.md, rich for th
 tables of how the model's surprise, and a physics-perfect observer's, correlate with each cue
 pair by pair, the files cues.md, cues.csv, cue_correlations.csv,
 physics_perfect_correlations.csv and cues.json, and ``python -m voe_lightning audit``. The scores
-and their tests are ``voe_lightning.cues``; each cell's numbers are written by
+and their tests are ``voe_lightning.audit.cues``; each cell's numbers are written by
 ``statistics_format.row_text``, as every statistics table's are."""
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Literal
 
-from voe_lightning import specs, statistics
-from voe_lightning.cues import (
+from voe_lightning import specs
+from voe_lightning.audit.cues import (
     CORRELATION_COLUMNS,
     CUE_COLUMNS,
     CUE_TITLES,
@@ -25,8 +25,15 @@ from voe_lightning.cues import (
     PHYSICS_PERFECT,
     audit_split,
 )
-from voe_lightning.statistics_format import BRIEF, format_alpha, json_row, row_text, rows_alpha
-from voe_lightning.store_shards import write_whole
+from voe_lightning.data.store_shards import write_whole
+from voe_lightning.stats import statistics
+from voe_lightning.stats.statistics_format import (
+    BRIEF,
+    format_alpha,
+    json_row,
+    row_text,
+    rows_alpha,
+)
 
 __all__ = [
     "audit",

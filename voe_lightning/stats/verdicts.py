@@ -5,8 +5,8 @@ are the halves of quadruplets, one per seed (``specs.QUADRUPLETS``), its quadrup
 (``quadruplets``); and per concept, whether it shows VOE (``concept_verdicts``: each of its
 quadruplet tests with both halves above 0 where it has them, else every test its verdict reads
 significant at alpha, ``verdict_rule``).
-The tests themselves are in ``voe_lightning.statistics``; the verdict's calibration in
-``voe_lightning.calibration``."""
+The tests themselves are in ``voe_lightning.stats.statistics``; the verdict's calibration in
+``voe_lightning.audit.calibration``."""
 
 from __future__ import annotations
 
@@ -16,10 +16,12 @@ from typing import Any
 
 import numpy as np
 
+# The module, not its names: the causality check imports the model package, whose cue scorer's
+# cues import this module, so whichever of the two loads first finds the other half-loaded.
+from voe_lightning import causality as causality_check
 from voe_lightning import specs
-from voe_lightning.causality import NOT_CAUSAL, Causality
-from voe_lightning.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
-from voe_lightning.statistics_format import format_number, format_p
+from voe_lightning.stats.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
+from voe_lightning.stats.statistics_format import format_number, format_p
 
 __all__ = [
     "Verdict",
@@ -152,7 +154,7 @@ def verdict_rule(p_values: Sequence[Any], alpha: float) -> Any:
     concept with a counterbalanced pair these are the stratified pooled test and each variant's
     own: requiring each variant significant, not only M > 0, is an intersection-union test, so
     a model that follows a cue pointing the wrong way in one variant says VOE in at most alpha
-    of repetitions (``voe_lightning.calibration``); M > 0 alone lets it through whenever noise
+    of repetitions (``voe_lightning.audit.calibration``); M > 0 alone lets it through whenever noise
     lifts that variant's M above zero."""
     return np.all(np.asarray(p_values, dtype=np.float64) < alpha, axis=0)
 
@@ -202,7 +204,7 @@ def _quadruplet_verdict(
 def concept_verdicts(
     results: Mapping[tuple[str, str], Mapping[str, Any]] | Sequence[Mapping[str, Any]],
     alpha: float = ALPHA,
-    causality: Causality | None = None,
+    causality: causality_check.Causality | None = None,
 ) -> list[Verdict]:
     """Per concept, in the order first seen: ``quadruplet_rule`` on each of its quadruplet rows
     where it has any (a report's rows; the training-time table, which pairs no seeds, has
@@ -254,5 +256,8 @@ def concept_verdicts(
                 failed.append(f"{variant} p = {format_p(p_value)} >= {alpha:g}")
         verdicts.append(Verdict(concept, voe, rule, "" if voe else "; ".join(failed)))
     if causality is not None and not causality.causal:
-        return [Verdict(v.concept, None, v.rule, NOT_CAUSAL, withheld=True) for v in verdicts]
+        return [
+            Verdict(v.concept, None, v.rule, causality_check.NOT_CAUSAL, withheld=True)
+            for v in verdicts
+        ]
     return verdicts

@@ -23,27 +23,22 @@ from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
 from lightning.pytorch.utilities.seed import isolate_rng
 
-from voe_lightning import (
-    analysis,
-    causality,
-    cue_report,
-    generate,
-    null,
-    preflight,
-    runs,
-    statistics,
-)
+from voe_lightning import causality, runs
+from voe_lightning.audit import cue_report
 from voe_lightning.callbacks import VOEReportCallback
-from voe_lightning.interruption import InterruptCheckpoint
+from voe_lightning.callbacks.interruption import InterruptCheckpoint
+from voe_lightning.cli import analysis, null, preflight
+from voe_lightning.data import generate
 from voe_lightning.model import SurpriseModel
 from voe_lightning.probe_datamodule import ProbeDataModule
 from voe_lightning.report.results import PRIORS_ALONE
 from voe_lightning.runs import read_checkpoint
-from voe_lightning.surprise_window import surprise_window
+from voe_lightning.stats import statistics
+from voe_lightning.stats.surprise_window import surprise_window
 
 #: Trainer, logger, callbacks and model class every fit/validate/test/predict starts from, so
 #: ``--config configs/joint.yaml`` alone is a whole run; later ``--config`` files override it.
-BASE_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "base.yaml"
+BASE_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "base.yaml"
 #: ``--help``'s summary of Lightning's subcommands (their docstrings' first lines stop mid-sentence).
 LIGHTNING_SUBCOMMANDS = {
     "fit": "Train a model, logging the VOE statistics of the validation probes.",

@@ -2,11 +2,11 @@
 separate vs joint runs on one figure (paper Figure 6), the per-concept verdicts of tested runs
 side by side, the field's metric set of a windowed model over context length, and how many of a
 VRNN-LRU's latents carry information; with the training-set-size
-sweep (``voe_lightning.size_sweep``, paper Figure 3) and the calibration of the verdict
-(``voe_lightning.calibration``), the subcommands of ``analyze`` (``COMMANDS``).
+sweep (``voe_lightning.cli.size_sweep``, paper Figure 3) and the calibration of the verdict
+(``voe_lightning.audit.calibration``), the subcommands of ``analyze`` (``COMMANDS``).
 ``python -m voe_lightning analyze
 curves|sweep|sweep-plot|compare|context-sweep|latents|null|calibrate``; ``null`` is
-``voe_lightning.null``'s.
+``voe_lightning.cli.null``'s.
 """
 
 from __future__ import annotations
@@ -21,17 +21,18 @@ import numpy as np
 import torch
 from matplotlib.figure import Figure
 
-from voe_lightning import calibration, specs
-from voe_lightning.cues import CUE_TITLES, FRAME_LOCAL_CUES, tracked_cues
-from voe_lightning.field_metrics import context_sweep, format_field_metrics
+from voe_lightning import specs
+from voe_lightning.audit import calibration
+from voe_lightning.audit.cues import CUE_TITLES, FRAME_LOCAL_CUES, tracked_cues
+from voe_lightning.cli.null import untrained_null
+from voe_lightning.cli.size_sweep import sweep, sweep_plot
+from voe_lightning.data.store import collate, open_split, read_manifest
 from voe_lightning.model import VRNNLRUModel
-from voe_lightning.null import untrained_null
 from voe_lightning.report.figures import panel_grid, save_figure
 from voe_lightning.report.results import PairResults, read_summary
-from voe_lightning.size_sweep import sweep, sweep_plot
-from voe_lightning.statistics import POOLED, QUADRUPLET_ROWS
-from voe_lightning.statistics_format import BRIEF, format_alpha, row_text
-from voe_lightning.store import collate, open_split, read_manifest
+from voe_lightning.stats.field_metrics import context_sweep, format_field_metrics
+from voe_lightning.stats.statistics import POOLED, QUADRUPLET_ROWS
+from voe_lightning.stats.statistics_format import BRIEF, format_alpha, row_text
 
 __all__ = [
     "COMMANDS",

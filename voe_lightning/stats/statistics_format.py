@@ -18,7 +18,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from voe_lightning.statistics import ALPHA
+from voe_lightning.stats.statistics import ALPHA
 
 __all__ = [
     "BRIEF",

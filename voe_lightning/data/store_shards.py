@@ -26,7 +26,7 @@ import torch
 import zstandard
 from tensordict import TensorDict, TensorDictBase
 
-from voe_lightning.store_codec import Leaf, decode, encode, record_schema, zstd_codecs
+from voe_lightning.data.store_codec import Leaf, decode, encode, record_schema, zstd_codecs
 
 #: Version of the shard format, written into every shard's metadata and the manifest.
 FORMAT = "voe_lightning.store/1"

@@ -25,9 +25,9 @@ from typing import Any
 
 import numpy as np
 
-from voe_lightning.statistics import ranked_auroc
-from voe_lightning.statistics_format import format_number
-from voe_lightning.surprise_window import video_surprise
+from voe_lightning.stats.statistics import ranked_auroc
+from voe_lightning.stats.statistics_format import format_number
+from voe_lightning.stats.surprise_window import video_surprise
 
 #: The ways a video's per-frame surprise is reduced to one number, each with its metrics.
 REDUCTIONS = ("sum", "mean", "max")

@@ -1,0 +1,223 @@
+"""``VOEProbeCallback``: VOE statistics of the validation probes over training, and the
+console table of them (``voe_table``) that ``fit`` prints at its end."""
+
+from __future__ import annotations
+
+import functools
+from collections import defaultdict
+from collections.abc import Mapping
+from typing import Any
+
+import lightning as L
+import torch
+from lightning.pytorch.utilities import rank_zero_warn
+from rich.console import Console
+from rich.table import Table
+
+from voe_lightning.callbacks.common import gather_objects, probe_names
+from voe_lightning.causality import Causality, check_prefix
+from voe_lightning.probe_datamodule import probe_datamodule
+from voe_lightning.stats.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
+from voe_lightning.stats.statistics_format import CONSOLE, format_alpha, row_text
+from voe_lightning.stats.streaming_statistics import PairedSurpriseStats, pooled_values
+from voe_lightning.stats.surprise_window import SurpriseWindow, video_surprise
+from voe_lightning.stats.surprise_window import surprise_window as parse_window
+from voe_lightning.stats.verdicts import concept_verdicts, pair_groups
+
+
+class VOEProbeCallback(L.Callback):
+    """Every validation run (set its frequency with ``trainer.val_check_interval``, in training
+    steps) streams each probe pair's relative surprise into one PairedSurpriseStats per
+    concept/variant, then logs ``voe/<concept>/<variant>/{relative_surprise,t,p_value,accuracy,n}``.
+    A concept with a standard and a counterbalanced variant also gets
+    ``voe/<concept>/pooled/...``: the stratified test of its two variants
+    (``streaming_statistics.pooled_values``, from their float64 sums, so exact under DDP as
+    they are).
+    At the end of ``fit`` it prints the last table with each concept's verdict at ``alpha``
+    (None: ``statistics.ALPHA``; the CLI gives the run's ``alpha`` from configs/base.yaml).
+    A ``surprise_window`` other than all frames (``surprise_window.surprise_window``; the CLI
+    gives the run's) logs the same statistics of each video's surprise summed over that window
+    beside them, as ``voe_window/...``. Each validation run also checks causality
+    (``causality.check_prefix``): ``causality`` holds the last run's finding; where surprise
+    differs through the pairs' manipulation frame it warns, and the table gives no verdict."""
+
+    STATISTICS = ("relative_surprise", "t", "p_value", "accuracy", "n")
+
+    def __init__(
+        self,
+        print_table: bool = True,
+        alpha: float | None = None,
+        surprise_window: str | dict[str, Any] | None = None,
+    ):
+        super().__init__()
+        self.print_table = print_table
+        self.alpha = ALPHA if alpha is None else check_alpha(alpha)
+        window = parse_window(surprise_window)
+        #: The windows whose statistics are logged, by log prefix: all frames first.
+        self.windows = {
+            "voe": SurpriseWindow(),
+            **({} if window.all_frames else {"voe_window": window}),
+        }
+        self.metrics: dict[tuple[str, str, str], PairedSurpriseStats] = {}
+        self.last: dict[tuple[str, str], dict[str, float]] = {}
+        self.causality: Causality | None = None
+        self._causality = Causality()
+
+    def on_validation_epoch_start(self, trainer, pl_module) -> None:
+        cases = probe_datamodule(trainer, type(self).__name__).probe_cases("val")
+        # Create every metric up front so all DDP ranks hold the same states.
+        for prefix in self.windows:
+            for case in cases:
+                self._metric((prefix, *case), pl_module.device)
+        for metric in self.metrics.values():
+            metric.reset()
+        self._causality = Causality()
+
+    def _metric(self, key: tuple[str, str, str], device: torch.device) -> PairedSurpriseStats:
+        if key not in self.metrics:
+            self.metrics[key] = PairedSurpriseStats().to(device)
+        return self.metrics[key]
+
+    def on_validation_batch_end(
+        self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0
+    ) -> None:
+        if not outputs:
+            return
+        concept_names, variant_names = probe_names(trainer, type(self).__name__)
+        self._causality = self._causality.merge(
+            check_prefix(
+                outputs["surprise_consistent"],
+                outputs["surprise_inconsistent"],
+                outputs["manipulation_frame"],
+                outputs.get("first_difference"),
+            )
+        )
+        groups = defaultdict(list)
+        for index, (c, v) in enumerate(
+            zip(outputs["concept"].tolist(), outputs["variant"].tolist())
+        ):
+            groups[(concept_names[c], variant_names[v])].append(index)
+        for prefix, window in self.windows.items():
+            inconsistent, consistent = (
+                _window_sum(outputs, side, window) for side in ("inconsistent", "consistent")
+            )
+            for case, rows in groups.items():
+                rows = torch.tensor(rows, device=inconsistent.device)
+                self._metric((prefix, *case), pl_module.device).update(
+                    inconsistent[rows], consistent[rows]
+                )
+
+    def on_validation_epoch_end(self, trainer, pl_module) -> None:
+        if trainer.sanity_checking:
+            return
+        # Every rank's pairs (under DDP each rank scored its own), as the statistics are.
+        self.causality = functools.reduce(Causality.merge, gather_objects(self._causality))
+        if not self.causality.causal:
+            rank_zero_warn(f"validation at step {trainer.global_step}: {self.causality.line()}")
+        for prefix in self.windows:
+            results = self._results(prefix)
+            for (concept, variant), values in results.items():
+                for statistic in self.STATISTICS:
+                    pl_module.log(
+                        f"{prefix}/{concept}/{variant}/{statistic}",
+                        values[statistic],
+                        sync_dist=False,
+                    )
+            if prefix == "voe":
+                self.last = results
+
+    def _results(self, prefix: str) -> dict[tuple[str, str], dict[str, float]]:
+        """The statistics of the window logged under ``prefix``, per concept/variant with the
+        pooled rows, of the cases with at least two pairs so far."""
+        computed = {}
+        for (window, *case), metric in self.metrics.items():
+            if window != prefix:
+                continue
+            try:  # called on every rank alike: compute() syncs the states under DDP
+                computed[tuple(case)] = {k: float(v) for k, v in metric.compute().items()}
+            except ValueError:  # fewer than two pairs of this case so far
+                continue
+        results = {}
+        concepts, variants = zip(*computed) if computed else ((), ())
+        for concept, variant, _ in pair_groups(concepts, variants):
+            if variant == POOLED:
+                results[(concept, variant)] = pooled_values(
+                    [computed[(concept, v)] for v in POOLED_VARIANTS]
+                )
+            else:
+                results[(concept, variant)] = computed[(concept, variant)]
+        return results
+
+    def on_fit_end(self, trainer, pl_module) -> None:
+        if self.print_table and self.last and trainer.is_global_zero:
+            console = Console()
+            if not console.is_terminal:  # logs and pipes: do not cut the table at 80 columns
+                console.width = 120
+            title = f"VOE on validation probes, step {trainer.global_step}"
+            console.print(
+                voe_table(self.last, title=title, alpha=self.alpha, causality=self.causality)
+            )
+
+
+def _window_sum(outputs: Mapping[str, Any], side: str, window: SurpriseWindow) -> torch.Tensor:
+    """Each ``side`` video's surprise of probe ``outputs`` over ``window`` from its pair's first
+    difference (``manipulation_frame`` + 1 where the outputs lack it), [B]."""
+    first = (
+        None
+        if window.all_frames
+        else outputs["first_difference"]
+        if "first_difference" in outputs
+        else outputs["manipulation_frame"] + 1
+    )
+    return video_surprise(outputs[f"surprise_{side}"], window, first)
+
+
+def voe_table(
+    results: dict[tuple[str, str], dict[str, float]],
+    title: str,
+    alpha: float = ALPHA,
+    causality: Causality | None = None,
+) -> Table:
+    """A rich table of relative surprise, t, p and accuracy per concept/variant (pooled rows
+    bold: the stratified test), alpha in its title and p header, with each concept's verdict
+    (``verdicts.concept_verdicts``, withheld where ``causality`` failed, whose line is the
+    caption) on its first row."""
+    verdicts = {v.concept: v for v in concept_verdicts(results, alpha, causality)}
+    table = Table(
+        title=f"{title} ({format_alpha(alpha)})",
+        caption=causality.line() if causality is not None else None,
+    )
+    for column in (
+        "concept",
+        "variant",
+        "n",
+        "relative surprise",
+        "t",
+        f"p (one-tailed, * < {alpha:g})",
+        "accuracy",
+        "verdict",
+    ):
+        justify = "left" if column in ("concept", "variant", "verdict") else "right"
+        table.add_column(column, justify=justify, overflow="fold")
+    keys = list(results)
+    for index, ((concept, variant), values) in enumerate(results.items()):
+        cells = row_text(values, CONSOLE, alpha)
+        first = index == 0 or keys[index - 1][0] != concept
+        last = index + 1 == len(keys) or keys[index + 1][0] != concept
+        verdict = verdicts[concept]
+        text = verdict.text() if first else ""
+        if first and verdict.voe is not None:
+            text = f"[green]{text}[/green]" if verdict.voe else f"[red]{text}[/red]"
+        table.add_row(
+            concept if first else "",
+            variant,
+            cells.n,
+            cells.mean,
+            cells.t,
+            cells.p + cells.star,
+            cells.accuracy,
+            text,
+            style="bold" if variant == POOLED else None,
+            end_section=last,
+        )
+    return table
