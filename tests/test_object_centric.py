@@ -474,7 +474,12 @@ def test_fit_and_test_on_physical_concepts_freeform_and_probes(tmp_path, monkeyp
     report = next(run.rglob("voe_report"))
     rows = json.loads((report / "summary.json").read_text())["rows"]
     assert {row["concept"] for row in rows} == {"continuity", "solidity"}
-    assert {row["n"] for row in rows} == {8}  # 2 shards x 2 quadruplets x 2 pairs a concept
+    # 2 shards x 2 quadruplets a concept: each half's 4 pairs, pooled 8, the quadruplet test's 4
+    sizes = {(row["concept"], row["variant"]): row["n"] for row in rows}
+    for concept in ("continuity", "solidity"):
+        assert {
+            v: sizes[(concept, v)] for v in ("standard", "counterbalanced", "pooled", "quadruplet")
+        } == {"standard": 4, "counterbalanced": 4, "pooled": 8, "quadruplet": 4}
     metrics = json.loads((report / "benchmark_metrics.json").read_text())["metrics"]
     assert {"absolute_error_rate", "auroc"} <= metrics["solidity"]["all"].keys()
 
