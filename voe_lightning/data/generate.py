@@ -19,10 +19,8 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
-from voe_lightning.data import generate_manifest, store, store_shards, worker_pool
 from voe_lightning import specs
-from voe_lightning.scenes import check_video, generate_clip, generate_probe
-from voe_lightning.scenes.camera import VideoOptions
+from voe_lightning.data import generate_manifest, store, store_shards, worker_pool
 from voe_lightning.data.store_plan import (
     ShardTask,
     check_seed_offset,
@@ -33,6 +31,8 @@ from voe_lightning.data.store_plan import (
     shard_meta,
     split_counts,
 )
+from voe_lightning.scenes import check_video, generate_clip, generate_probe
+from voe_lightning.scenes.camera import VideoOptions
 
 DEFAULT_SHARD_SIZE = 256
 #: Paper scale (§A): 100,000 examples and 100,000 controls per concept, 2,000 validation and

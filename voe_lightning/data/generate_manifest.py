@@ -13,9 +13,9 @@ from pathlib import Path
 import voe_lightning
 from voe_lightning import specs
 from voe_lightning.data import store, store_plan
-from voe_lightning.scenes.camera import VideoOptions
 from voe_lightning.data.store_plan import SEED_STARTS, manifest_seed_offset, seed_range
 from voe_lightning.data.store_shards import FORMAT
+from voe_lightning.scenes.camera import VideoOptions
 
 
 class ManifestMismatchError(ValueError):
