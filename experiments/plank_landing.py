@@ -20,7 +20,7 @@ from voe_lightning import specs
 from voe_lightning.data.store import open_split
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.base import video_inputs
-from voe_lightning.model.object_geometry import on_or_above_floor
+from voe_lightning.model.object_state.geometry import on_or_above_floor
 
 #: A plank is at rest from the first frame within this distance (m) of its final height.
 AT_REST = 0.03

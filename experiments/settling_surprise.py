@@ -21,9 +21,10 @@ from free_fall import PARTS, part_nats
 
 from voe_lightning import specs
 from voe_lightning.data.store import open_split
-from voe_lightning.model import ObjectStateModel, object_state
+from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.likelihood import rectified_excess
 from voe_lightning.model.object_state import STATE_SIZE
+from voe_lightning.model.object_state import model as object_state_model
 
 #: After landing, a frame in which the plank moves or turns by more than these still settles.
 MOVES, TURNS = 0.01, 0.01
@@ -50,7 +51,7 @@ def settling_rows(
     surprise, the mixture weights the dynamics gave it for that frame and each Gaussian's
     negative log-likelihood of each part of the state (``PARTS``) [N, 1 + K + 4 K]."""
     caught, scored = [], []
-    nll = object_state.mixture_nll
+    nll = object_state_model.mixture_nll
 
     def spy(observed, means, log_std, logits, hard=False):
         scored.append(part_nats(observed, means, log_std))  # [B, S, parts, K]
@@ -58,7 +59,7 @@ def settling_rows(
 
     hook = model.dynamics.register_forward_hook(lambda _, __, out: caught.append(out))
     observations = model._inputs(videos["frames"], videos["objects"], cameras)
-    with torch.no_grad(), mock.patch.object(object_state, "mixture_nll", spy):
+    with torch.no_grad(), mock.patch.object(object_state_model, "mixture_nll", spy):
         out = model.rollout(observations)
     hook.remove()
     components = model.hparams.components

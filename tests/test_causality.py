@@ -20,9 +20,9 @@ from voe_lightning.model import (
     SurpriseModel,
     VRNNLRUModel,
 )
-from voe_lightning.model.cue_scorer import CUE_NAMES
-from voe_lightning.model.videomae import VideoMAEScorer
-from voe_lightning.model.vjepa2 import VJEPA2Scorer
+from voe_lightning.model.scorers.cue_scorer import CUE_NAMES
+from voe_lightning.model.scorers.videomae import VideoMAEScorer
+from voe_lightning.model.scorers.vjepa2 import VJEPA2Scorer
 from voe_lightning.scenes import CONCEPTS, PROBE_VARIANTS, generate_probe
 
 SIZE = 32

@@ -16,7 +16,7 @@ from voe_lightning.callbacks.prediction_writer import IntPhysAnswerWriter
 from voe_lightning.cli import main
 from voe_lightning.external.metrics import read_answer_file
 from voe_lightning.model import CueScorer
-from voe_lightning.model.cue_scorer import CUE_NAMES
+from voe_lightning.model.scorers.cue_scorer import CUE_NAMES
 
 TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
 

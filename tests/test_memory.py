@@ -5,7 +5,7 @@ flow, and the controller sees the last read only when asked."""
 import pytest
 import torch
 
-from voe_lightning.model.memory import HEAD_MIXINGS, LRUMemory, MemoryState
+from voe_lightning.model.vrnn_lru.memory import HEAD_MIXINGS, LRUMemory, MemoryState
 
 LATENT, SLOTS, UNITS, HEADS, CONTROLLER = 6, 5, 4, 3, 8
 

@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 
 from voe_lightning import scenes, specs
-from voe_lightning.model.object_geometry import (
+from voe_lightning.model.object_state.geometry import (
     draw_ellipses,
     lying_on_floor,
     on_or_above_floor,

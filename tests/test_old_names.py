@@ -26,7 +26,16 @@ from voe_lightning.callbacks import (
     voe_table,
 )
 from voe_lightning.cli import main
-from voe_lightning.model import VRNNLRUModel
+from voe_lightning.model import (
+    CallableModel,
+    CueScorer,
+    LRUMemory,
+    ObjectCentricModel,
+    ObjectStateModel,
+    VideoMAEScorer,
+    VJEPA2Scorer,
+    VRNNLRUModel,
+)
 from voe_lightning.old_paths import OLD_PATHS
 from voe_lightning.stats.surprise_window import SurpriseWindow
 
@@ -94,6 +103,103 @@ def test_an_old_module_path_imports_from_the_package():
     assert statistics.paired_test is new_statistics.paired_test
 
 
+#: The flat modules of ``voe_lightning.model`` before its families had sub-packages (issue 49).
+OLD_MODEL_MODULES = (
+    "base",
+    "callable_model",
+    "code_likelihood",
+    "cue_scorer",
+    "dynamics",
+    "likelihood",
+    "memory",
+    "module",
+    "networks",
+    "object_centric",
+    "object_geometry",
+    "object_state",
+    "optimization",
+    "perception",
+    "pretrained",
+    "slots",
+    "training_monitor",
+    "videomae",
+    "vjepa2",
+    "vrnn",
+    "vrnn_lru",
+)
+#: Old modules whose name is now a family's package, with the names each defined: the package
+#: exports them.
+OLD_MODULE_NAMES = {
+    "voe_lightning.model.vrnn_lru": (
+        "ARCHITECTURE",
+        "COMPILE_MODES",
+        "LOSS_TERMS",
+        "PRECISIONS",
+        "VOEModel",
+        "VRNNLRUModel",
+        "bf16_is_fast",
+    ),
+    "voe_lightning.model.object_centric": (
+        "ARCHITECTURE",
+        "SURPRISES",
+        "ObjectCentricModel",
+        "build_networks",
+        "matching_code_size",
+        "parameter_count",
+    ),
+    "voe_lightning.model.object_state": (
+        "ARCHITECTURE",
+        "BOX_CENTRE",
+        "BOX_HALF",
+        "CAMERA_XYZ",
+        "CARRIES",
+        "COLOR",
+        "FEATURES",
+        "FLOOR_FEATURES",
+        "Holding",
+        "IDENTITY",
+        "LEFT_OUT",
+        "MAX_MOVE",
+        "MOVING",
+        "Mixture",
+        "ORIENTATION",
+        "ObjectStateModel",
+        "Observations",
+        "PAIR_FEATURES",
+        "POSE",
+        "POSITION",
+        "PairNetwork",
+        "SHAPES",
+        "SIZE",
+        "SLOT_TERMS",
+        "SPHERE",
+        "STATE_SIZE",
+        "Slots",
+        "observe",
+        "slowed",
+        "withheld_spans",
+    ),
+}
+
+
+@pytest.mark.parametrize("name", OLD_MODEL_MODULES)
+def test_every_old_model_module_path_imports(name):
+    """Each is an old path of ``OLD_PATHS``, a shared module still there, or now a package."""
+    path = f"voe_lightning.model.{name}"
+    module = importlib.import_module(path)
+    assert path in OLD_PATHS or path in OLD_MODULE_NAMES or module.__name__ == path
+    assert (path in OLD_MODULE_NAMES) == hasattr(module, "__path__")
+
+
+@pytest.mark.parametrize("old", sorted(OLD_MODULE_NAMES))
+def test_an_old_module_that_is_now_a_package_exports_its_names(old):
+    package = importlib.import_module(old)
+    assert set(OLD_MODULE_NAMES[old]) <= set(package.__all__)
+    for name in OLD_MODULE_NAMES[old]:
+        value = getattr(package, name)
+        assert getattr(value, "__module__", old).startswith(old)  # defined in the package
+
+
 OLD_CLASS_PATHS = {
     "voe_lightning.callbacks.VOEProbeCallback": VOEProbeCallback,
     "voe_lightning.callbacks.VOEReportCallback": VOEReportCallback,
@@ -105,6 +211,14 @@ OLD_CLASS_PATHS = {
     "voe_lightning.prediction_writer.IntPhys2LeaderboardWriter": IntPhys2LeaderboardWriter,
     "voe_lightning.surprise_window.SurpriseWindow": SurpriseWindow,
     "voe_lightning.cli.main": main,
+    "voe_lightning.model.vrnn_lru.VRNNLRUModel": VRNNLRUModel,
+    "voe_lightning.model.memory.LRUMemory": LRUMemory,
+    "voe_lightning.model.object_state.ObjectStateModel": ObjectStateModel,
+    "voe_lightning.model.object_centric.ObjectCentricModel": ObjectCentricModel,
+    "voe_lightning.model.cue_scorer.CueScorer": CueScorer,
+    "voe_lightning.model.callable_model.CallableModel": CallableModel,
+    "voe_lightning.model.videomae.VideoMAEScorer": VideoMAEScorer,
+    "voe_lightning.model.vjepa2.VJEPA2Scorer": VJEPA2Scorer,
 }
 
 

@@ -11,7 +11,7 @@ import torch
 pytest.importorskip("transformers")
 
 from voe_lightning.cli import main  # noqa: E402
-from voe_lightning.model.videomae import VideoMAEScorer  # noqa: E402
+from voe_lightning.model.scorers.videomae import VideoMAEScorer  # noqa: E402
 
 TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
 CONFIG = dict(
@@ -90,7 +90,7 @@ def test_test_on_our_probes_runs_without_a_checkpoint(tmp_path, monkeypatch):
             "--config",
             TINY,
             "--model",
-            "voe_lightning.model.videomae.VideoMAEScorer",
+            "voe_lightning.model.VideoMAEScorer",
             "--model.init_args.pretrained",
             str(tmp_path / "videomae"),
             "--trainer.enable_progress_bar",

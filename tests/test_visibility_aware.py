@@ -8,7 +8,7 @@ import torch
 from tensordict import TensorDict
 
 from voe_lightning.model import ObjectCentricModel
-from voe_lightning.model.code_likelihood import TERMS, excess_surprisal, frame_terms
+from voe_lightning.model.object_centric.code_likelihood import TERMS, excess_surprisal, frame_terms
 
 HEIGHT, WIDTH, FRAMES = 16, 20, 11
 BALL, SCREEN = 1, 2  # mask ids

@@ -16,7 +16,7 @@ pytest.importorskip("transformers")
 
 from voe_lightning import specs  # noqa: E402
 from voe_lightning.cli import main  # noqa: E402
-from voe_lightning.model.vjepa2 import VJEPA2Scorer, window_ends  # noqa: E402
+from voe_lightning.model.scorers.vjepa2 import VJEPA2Scorer, window_ends  # noqa: E402
 
 TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
 #: A tiny V-JEPA 2 (random mask tokens, so the predictor's outputs differ by position).

@@ -42,6 +42,19 @@ OLD_PATHS = {
         "null": "cli.null",
         "size_sweep": "cli.size_sweep",
         "preflight": "cli.preflight",
+        "model.module": "model.vrnn_lru.model",
+        "model.memory": "model.vrnn_lru.memory",
+        "model.networks": "model.vrnn_lru.networks",
+        "model.vrnn": "model.vrnn_lru.vrnn",
+        "model.object_geometry": "model.object_state.geometry",
+        "model.slots": "model.object_centric.slots",
+        "model.perception": "model.object_centric.perception",
+        "model.code_likelihood": "model.object_centric.code_likelihood",
+        "model.callable_model": "model.scorers.callable_model",
+        "model.cue_scorer": "model.scorers.cue_scorer",
+        "model.pretrained": "model.scorers.pretrained",
+        "model.videomae": "model.scorers.videomae",
+        "model.vjepa2": "model.scorers.vjepa2",
     }.items()
 }
 

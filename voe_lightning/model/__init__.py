@@ -9,16 +9,13 @@ maintained library's predictive models (``VideoMAEScorer``, transformers' VideoM
 ``VJEPA2Scorer``, V-JEPA 2 scored as the V-JEPA intuitive-physics evaluation scores it)."""
 
 from voe_lightning.model.base import SurpriseModel
-from voe_lightning.model.callable_model import CallableModel
-from voe_lightning.model.cue_scorer import CueScorer
-from voe_lightning.model.memory import LRUMemory, MemoryState, Read
-from voe_lightning.model.networks import Decoder, Encoder
 from voe_lightning.model.object_centric import ObjectCentricModel
 from voe_lightning.model.object_state import ObjectStateModel
-from voe_lightning.model.videomae import VideoMAEScorer
-from voe_lightning.model.vjepa2 import VJEPA2Scorer
-from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, gaussian_kl, standard_normal_kl
+from voe_lightning.model.scorers import CallableModel, CueScorer, VideoMAEScorer, VJEPA2Scorer
 from voe_lightning.model.vrnn_lru import VOEModel, VRNNLRUModel  # VOEModel: its old name
+from voe_lightning.model.vrnn_lru.memory import LRUMemory, MemoryState, Read
+from voe_lightning.model.vrnn_lru.networks import Decoder, Encoder
+from voe_lightning.model.vrnn_lru.vrnn import VRNNCore, VRNNOutput, gaussian_kl, standard_normal_kl
 
 __all__ = [
     "SurpriseModel",

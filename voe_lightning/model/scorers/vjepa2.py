@@ -31,7 +31,7 @@ import torch.nn.functional as F
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
-from voe_lightning.model.pretrained import PretrainedScorer, transformers_module
+from voe_lightning.model.scorers.pretrained import PretrainedScorer, transformers_module
 
 
 class VJEPA2Scorer(PretrainedScorer):

@@ -14,10 +14,10 @@ from tensordict import TensorDictBase
 from voe_lightning import specs
 from voe_lightning.model import optimization
 from voe_lightning.model.base import SurpriseModel
-from voe_lightning.model.memory import LRUMemory
-from voe_lightning.model.networks import Decoder, Encoder
 from voe_lightning.model.training_monitor import FiniteMonitor
-from voe_lightning.model.vrnn import VRNNCore, VRNNOutput, standard_normal_kl
+from voe_lightning.model.vrnn_lru.memory import LRUMemory
+from voe_lightning.model.vrnn_lru.networks import Decoder, Encoder
+from voe_lightning.model.vrnn_lru.vrnn import VRNNCore, VRNNOutput, standard_normal_kl
 
 LOSS_TERMS = ("reconstruction", "kl", "prior_regularizer")
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
@@ -65,7 +65,7 @@ class VRNNLRUModel(SurpriseModel):
             15 slots x 100 units, 3 read heads, 128-unit LSTM controller).
         usage_decay: gamma of the LRU usage (0.95).
         head_mixing, write_content, controller_sees_read, least_used_slots: the memory's open
-            choices, see :class:`~voe_lightning.model.memory.LRUMemory`. The paper's reading
+            choices, see :class:`~voe_lightning.model.vrnn_lru.memory.LRUMemory`. The paper's reading
             (``configs/paper.yaml``): ``controller_sees_read=False`` (its LSTM sees the previous
             latent and its own state) and ``least_used_slots`` = the read heads (Santoro et
             al.'s n); the defaults (True, 1) keep earlier configs and checkpoints unchanged.

@@ -11,7 +11,7 @@ from typing import Any
 import torch
 from tensordict import TensorDictBase
 
-from voe_lightning.model.pretrained import PretrainedScorer, transformers_module
+from voe_lightning.model.scorers.pretrained import PretrainedScorer, transformers_module
 
 
 class VideoMAEScorer(PretrainedScorer):

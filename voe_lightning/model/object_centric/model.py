@@ -12,11 +12,11 @@ from tensordict import TensorDictBase
 from torch import nn
 
 from voe_lightning import specs
-from voe_lightning.model import code_likelihood
 from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.model.dynamics import SlotDynamics
-from voe_lightning.model.perception import Perception, compose
-from voe_lightning.model.slots import (
+from voe_lightning.model.object_centric import code_likelihood
+from voe_lightning.model.object_centric.perception import Perception, compose
+from voe_lightning.model.object_centric.slots import (
     MAX_MASK_JUMP,
     Slots,
     object_slots,

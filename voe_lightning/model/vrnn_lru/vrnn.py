@@ -12,7 +12,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from voe_lightning.model.memory import LRUMemory, MemoryState
+from voe_lightning.model.vrnn_lru.memory import LRUMemory, MemoryState
 
 #: Log standard deviations are clipped to this range (paper §4).
 LOG_STD_LIMIT = 10.0

@@ -25,7 +25,7 @@ from voe_lightning.model.likelihood import (
     mixture_nll,
     rectified_excess,
 )
-from voe_lightning.model.object_geometry import (
+from voe_lightning.model.object_state.geometry import (
     REST_TOLERANCE,
     VIEW,
     draw_ellipses,
