@@ -20,7 +20,7 @@ from datamodules import VOEDataModule
 from voe_lightning import specs
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.likelihood import gaussian_nll
-from voe_lightning.model.object_state import model as object_state_model
+from voe_lightning.model.object_state import rollout
 
 #: A block has landed within the interval when it fell less than this (free fall: 0.60 m).
 FREE_FALL = 0.55
@@ -57,9 +57,9 @@ def predicted_falls(model: ObjectStateModel, clips) -> dict[str, np.ndarray]:
         caught.append((observed, means, log_std, logits))
         return nll(observed, means, log_std, logits, hard=hard)
 
-    nll = object_state_model.mixture_nll
+    nll = rollout.mixture_nll
     observations = model._inputs(clips["frames"], clips["objects"], clips.get("camera"))
-    with torch.no_grad(), mock.patch.object(object_state_model, "mixture_nll", spy):
+    with torch.no_grad(), mock.patch.object(rollout, "mixture_nll", spy):
         model.rollout(observations)
     rows: dict[str, list] = {"free": [], "landed": []}
     for b in range(observations.state.shape[0]):

@@ -23,8 +23,7 @@ from voe_lightning import specs
 from voe_lightning.data.store import open_split
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.likelihood import rectified_excess
-from voe_lightning.model.object_state import STATE_SIZE
-from voe_lightning.model.object_state import model as object_state_model
+from voe_lightning.model.object_state import STATE_SIZE, rollout
 
 #: After landing, a frame in which the plank moves or turns by more than these still settles.
 MOVES, TURNS = 0.01, 0.01
@@ -51,7 +50,7 @@ def settling_rows(
     surprise, the mixture weights the dynamics gave it for that frame and each Gaussian's
     negative log-likelihood of each part of the state (``PARTS``) [N, 1 + K + 4 K]."""
     caught, scored = [], []
-    nll = object_state_model.mixture_nll
+    nll = rollout.mixture_nll
 
     def spy(observed, means, log_std, logits, hard=False):
         scored.append(part_nats(observed, means, log_std))  # [B, S, parts, K]
@@ -59,7 +58,7 @@ def settling_rows(
 
     hook = model.dynamics.register_forward_hook(lambda _, __, out: caught.append(out))
     observations = model._inputs(videos["frames"], videos["objects"], cameras)
-    with torch.no_grad(), mock.patch.object(object_state_model, "mixture_nll", spy):
+    with torch.no_grad(), mock.patch.object(rollout, "mixture_nll", spy):
         out = model.rollout(observations)
     hook.remove()
     components = model.hparams.components

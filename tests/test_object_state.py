@@ -17,8 +17,7 @@ from tensordict import TensorDict
 from voe_lightning import specs
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.likelihood import gaussian_nll, mixture_nll
-from voe_lightning.model.object_state import Observations, slowed, withheld_spans
-from voe_lightning.model.object_state import model as object_state_model
+from voe_lightning.model.object_state import Observations, rollout, slowed, withheld_spans
 from voe_lightning.model.object_state.geometry import (
     lying_on_floor,
     on_or_above_floor,
@@ -391,7 +390,7 @@ def test_shared_identity_makes_every_gaussian_predict_the_object_it_is(shared):
         caught.append((observed, means, log_std))
         return mixture_nll(observed, means, log_std, logits, hard=hard)
 
-    with torch.no_grad(), mock.patch.object(object_state_model, "mixture_nll", spy):
+    with torch.no_grad(), mock.patch.object(rollout, "mixture_nll", spy):
         model.rollout(observations)
     for t, (observed, means, log_std) in enumerate(caught[1:], start=1):
         identity = means[..., 7:]  # [B, S, K, 6]
@@ -439,7 +438,7 @@ def test_without_a_landing_change_the_landing_gaussian_is_the_geometrys(landing_
 
     def landing_and_moving() -> tuple[torch.Tensor, torch.Tensor]:
         caught.clear()
-        with torch.no_grad(), mock.patch.object(object_state_model, "mixture_nll", spy):
+        with torch.no_grad(), mock.patch.object(rollout, "mixture_nll", spy):
             model.rollout(observations)
         means = torch.stack(caught[1:])  # [T - 1, B, S, K, 13]
         return means[..., -1, :7], means[..., 1, :7]

@@ -1,22 +1,30 @@
 """The positive control, an object-state learner with perfect perception: the LightningModule
-(``model.py``) and the 3D geometry of boxes, sight lines and the floor (``geometry.py``).
-``voe_lightning.model.object_state`` was one module: its names load from here."""
+(``model.py``), its run through the frames (``rollout.py``), the mixture over each object's next
+state and the priors that shape it (``mixture.py``), what each object makes of the others
+(``pairs.py``), the named parts of a state and the observations (``state.py``), its constructor
+arguments (``arguments.py``) and the 3D geometry of boxes, sight lines and the floor
+(``geometry.py``). ``voe_lightning.model.object_state`` was one module: its names load from
+here."""
 
-from voe_lightning.model.object_state.model import (
-    ARCHITECTURE,
-    BOX_CENTRE,
-    BOX_HALF,
-    CAMERA_XYZ,
-    CARRIES,
-    COLOR,
-    FEATURES,
-    FLOOR_FEATURES,
-    IDENTITY,
+from voe_lightning.model.object_state.arguments import ARCHITECTURE, CARRIES
+from voe_lightning.model.object_state.mixture import (
     LEFT_OUT,
     MAX_MOVE,
     MOVING,
+    Holding,
+    Mixture,
+    slowed,
+)
+from voe_lightning.model.object_state.model import ObjectStateModel
+from voe_lightning.model.object_state.pairs import PAIR_FEATURES, PairNetwork
+from voe_lightning.model.object_state.rollout import FEATURES, FLOOR_FEATURES
+from voe_lightning.model.object_state.state import (
+    BOX_CENTRE,
+    BOX_HALF,
+    CAMERA_XYZ,
+    COLOR,
+    IDENTITY,
     ORIENTATION,
-    PAIR_FEATURES,
     POSE,
     POSITION,
     SHAPES,
@@ -24,14 +32,9 @@ from voe_lightning.model.object_state.model import (
     SLOT_TERMS,
     SPHERE,
     STATE_SIZE,
-    Holding,
-    Mixture,
-    ObjectStateModel,
     Observations,
-    PairNetwork,
     Slots,
     observe,
-    slowed,
     withheld_spans,
 )
 

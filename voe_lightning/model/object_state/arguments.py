@@ -1,0 +1,113 @@
+"""The positive control's constructor arguments: those a checkpoint must agree on
+(``ARCHITECTURE``) and the checks that refuse the ones that make no model."""
+
+from __future__ import annotations
+
+from voe_lightning.model import optimization
+from voe_lightning.model.object_state.mixture import MAX_MOVE
+
+#: Constructor arguments that shape the parameters, or the priors they were trained with: a
+#: checkpoint must agree on all of them.
+ARCHITECTURE = (
+    "hidden_size",
+    "message_size",
+    "use_camera",
+    "components",
+    "stop_component",
+    "landing_component",
+    "pivot_landing",
+    "landing_change",
+    "carry",
+    "hold_still",
+    "slowing",
+    "falling_lands",
+    "fall_gain",
+    "shared_identity",
+)
+#: What a carrier passes on (``carry``): nothing, or, to what rests on it, its whole move.
+CARRIES = ("none", "support")
+
+
+def check_arguments(h) -> None:
+    """Refuse constructor arguments that make no model, naming the value and what is valid."""
+    _check_sizes(h)
+    _check_mixture(h)
+    _check_withholding(h)
+    _check_priors(h)
+    optimization.check_schedule(h.lr_schedule)
+
+
+def _check_sizes(h) -> None:
+    """Refuse sizes, precisions and learning rates that are not positive."""
+    if h.hidden_size < 1 or h.message_size < 1:
+        raise ValueError(
+            f"hidden_size and message_size must be >= 1, got {h.hidden_size}, {h.message_size}"
+        )
+    if h.min_std <= 0 or h.learning_rate <= 0:
+        raise ValueError(
+            f"min_std and learning_rate must be > 0, got {h.min_std}, {h.learning_rate}"
+        )
+
+
+def _check_mixture(h) -> None:
+    """Refuse too few Gaussians, and landing options without the landing Gaussian."""
+    if h.components < 1:
+        raise ValueError(
+            f"components must be >= 1 (Gaussians in the mixture over a slot's next "
+            f"state), got {h.components}"
+        )
+    if h.stop_component and h.components < 2:
+        raise ValueError(
+            f"stop_component needs components >= 2 (one Gaussian for stopping, the "
+            f"others for moving on), got components={h.components}"
+        )
+    if h.landing_component and h.components < 2 + h.stop_component:
+        raise ValueError(
+            f"landing_component needs components >= {2 + h.stop_component} (one "
+            f"Gaussian for landing{', one for stopping' if h.stop_component else ''}"
+            f", the others for moving on), got components={h.components}"
+        )
+    if not h.landing_change and not h.landing_component:
+        raise ValueError(
+            "landing_change: false needs landing_component: true (it is the "
+            "landing Gaussian's learned change that it leaves out)"
+        )
+    if h.pivot_landing and not h.landing_component:
+        raise ValueError(
+            "pivot_landing needs landing_component: true (it says where the "
+            "landing Gaussian lays an object), got landing_component=false"
+        )
+
+
+def _check_withholding(h) -> None:
+    """Refuse a withheld share outside [0, 1] or spans shorter than a frame."""
+    if not 0 <= h.withhold <= 1 or h.withhold_frames < 1:
+        raise ValueError(
+            f"withhold must be in [0, 1] (a share of each clip's objects) and "
+            f"withhold_frames >= 1, got {h.withhold}, {h.withhold_frames}"
+        )
+
+
+def _check_priors(h) -> None:
+    """Refuse a carry that is not one of ``CARRIES`` and priors without the Gaussian they use."""
+    if h.carry not in CARRIES:
+        raise ValueError(
+            f"carry must be one of {CARRIES} (what a carrier passes on to the "
+            f"objects resting on it), got {h.carry!r}"
+        )
+    if h.falling_lands and not h.stop_component:
+        raise ValueError(
+            "falling_lands needs stop_component: true (it leaves the stopping "
+            "Gaussian out for a falling object), got stop_component=false"
+        )
+    if not 0 <= h.fall_gain <= MAX_MOVE:
+        raise ValueError(
+            f"fall_gain must be in [0, {MAX_MOVE}] (m a frame by which a falling "
+            f"object's downward move grows; 0.392 at 15 frames over 3 s), got "
+            f"{h.fall_gain}"
+        )
+    if h.carry == "support" and not h.stop_component:
+        raise ValueError(
+            "carry: support needs stop_component: true (it moves the stopping "
+            "Gaussian with what the object rests on), got stop_component=false"
+        )

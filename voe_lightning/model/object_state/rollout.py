@@ -1,0 +1,347 @@
+"""The positive control's run through a batch's frames (``SlotRollout.rollout``): per frame, the
+predictions from the slots after the frame before, the likelihood terms of what the frame shows,
+and the slots after it."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import torch
+import torch.nn.functional as F
+
+from voe_lightning.model.dynamics import camera_features
+from voe_lightning.model.likelihood import (
+    bernoulli_nll,
+    categorical_nll,
+    gaussian_nll,
+    mixture_nll,
+)
+from voe_lightning.model.object_state.geometry import (
+    VIEW,
+    lowest_point,
+    on_or_above_floor,
+    seen_by_geometry,
+    view,
+)
+from voe_lightning.model.object_state.mixture import (
+    LEFT_OUT,
+    MAX_MOVE,
+    MOVING,
+    Holding,
+    Mixture,
+    carry_held,
+    hold,
+    inertial_move,
+    landing_mean,
+)
+from voe_lightning.model.object_state.pairs import messages, pair_features
+from voe_lightning.model.object_state.state import (
+    IDENTITY,
+    POSE,
+    POSITION,
+    SHAPES,
+    SIZE,
+    SLOT_TERMS,
+    STATE_SIZE,
+    Observations,
+    Slots,
+    empty_slots,
+)
+
+#: Per-slot features the recurrent core reads: the state, its shape (one-hot), its visible share,
+#: its view, its velocity and whether it is seen.
+FEATURES = STATE_SIZE + SHAPES + 1 + VIEW + 3 + 1
+#: Per-slot inputs of the dynamics with ``landing_component``: how high the lowest point of the
+#: object's box is above the floor at its belief and where its inertia would take it.
+FLOOR_FEATURES = 2
+
+
+class SlotRollout:
+    """The rollout of ``ObjectStateModel``, whose networks and hyperparameters it reads."""
+
+    def rollout(
+        self, observations: Observations, withheld: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
+        """Run the slots through a batch's frames. Returns, per frame and slot [B, T, S], the
+        negative log-likelihood of the visibility, state and shape seen (0 where they do not
+        apply) and the entropy of each prediction (``<term>_entropy``), ``appear`` and
+        ``appear_entropy`` [B, T] (the appearance term), the beliefs after each frame and the
+        states predicted for it (frame 0: none) [B, T, S, 13], the predicted visibility
+        probability [B, T, S], ``known`` [B, T, S] (seen at some frame <= t) and the slots'
+        recurrent states [B, T, S, H].
+
+        ``withheld`` (bool [B, T, S], training only): frames at which a known slot's
+        observation is kept from the model, which rolls it forward as if it were hidden, while
+        what it shows is still scored: a hidden object's rollout learns from targets
+        (``withheld_spans``)."""
+        obs = observations
+        slots = empty_slots(obs, self.hparams.hidden_size)
+        given_before = slots.known  # what reached the model at the frame before (none before 0)
+        frames = []
+        for t in range(obs.visible.shape[1]):
+            pose = obs.camera[:, t]
+            pose_features = camera_features(pose)[:, None].expand(-1, slots.known.shape[1], -1)
+            # what reaches the model: the seen slots, less a known one's withheld observation
+            given = obs.visible[:, t]
+            if withheld is not None:
+                given = given & ~(withheld[:, t] & slots.known)
+            if t == 0:
+                predicted, terms, probability, holding = self._nothing_predicted(obs, slots)
+            else:
+                unseen = slots.known & ~given_before
+                predicted, terms, probability, holding = self._predict(
+                    slots, unseen, pose, pose_features, obs, t
+                )
+            slots = self._observe(slots, predicted, holding, (given, given_before), obs, t)
+            given_before = given
+            frames.append(
+                {
+                    **terms,
+                    "belief": slots.belief,
+                    "predicted": predicted,
+                    "visible_probability": probability,
+                    "known": slots.known,
+                    "hidden": slots.hidden,
+                }
+            )
+        return {key: torch.stack([frame[key] for frame in frames], dim=1) for key in frames[0]}
+
+    @staticmethod
+    def _nothing_predicted(
+        obs: Observations, slots: Slots
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor, None]:
+        """Frame 0's predictions, terms and p(visible): zeros, as nothing came before it."""
+        batch, count = slots.known.shape
+        terms = {
+            key: obs.state.new_zeros(batch, *(() if name == "appear" else (count,)))
+            for name in SLOT_TERMS + ("appear",)
+            for key in (name, f"{name}_entropy")
+        }
+        return slots.belief, terms, obs.state.new_zeros(batch, count), None
+
+    def _observe(
+        self,
+        slots: Slots,
+        predicted: torch.Tensor,
+        holding: Holding | None,
+        given: tuple[torch.Tensor, torch.Tensor],
+        obs: Observations,
+        t: int,
+    ) -> Slots:
+        """The slots after frame t: the slots ``given`` at t (and at t-1) take what is seen, the
+        others their prediction or, held, where they rest (``carry_held``); then each recurrent
+        state steps."""
+        given, given_before = given
+        visible = obs.visible[:, t]
+        new = visible & ~slots.known
+        if holding is not None:
+            predicted = carry_held(predicted, holding, given, obs.state[:, t])
+        belief = torch.where(given[..., None], obs.state[:, t], predicted)
+        # the last move: seen in both frames, what was seen; else what was predicted (a
+        # reappearing object's jump from its predicted place is a correction, not a move)
+        steady = (given & given_before)[..., None]
+        move = torch.where(steady, belief, predicted)[..., POSITION] - slots.belief[..., POSITION]
+        velocity = move * (slots.known & ~new)[..., None].float()  # known before t
+        still = torch.where(steady[..., 0], velocity[..., :2].norm(dim=-1) < MOVING, slots.still)
+        known = slots.known | visible
+        seen = Slots(
+            hidden=slots.hidden,
+            belief=belief,
+            shape=torch.where(given[..., None], obs.shape[:, t], slots.shape),
+            velocity=velocity,
+            acceleration=velocity - slots.velocity,
+            known=known,
+            still=still,
+        )
+        hidden = self._recur(seen, given, obs.fraction[:, t], obs.camera[:, t])
+        return replace(seen, hidden=hidden * known[..., None], belief=belief * known[..., None])
+
+    def _recur(
+        self, slots: Slots, given: torch.Tensor, fraction: torch.Tensor, pose: torch.Tensor
+    ) -> torch.Tensor:
+        """Each slot's next recurrent state [B, S, H]: a GRU step on what it now believes."""
+        seen_as = view(slots.belief, pose)
+        features = torch.cat(
+            [
+                slots.belief,
+                slots.shape,
+                (fraction * given)[..., None],
+                seen_as,
+                slots.velocity,
+                given[..., None].float(),
+            ],
+            dim=-1,
+        )
+        pairs = pair_features(slots.belief, slots.shape, seen_as)
+        message = messages(self.message, slots.hidden, slots.hidden, pairs, slots.known)
+        pose_features = camera_features(pose)[:, None].expand(-1, slots.known.shape[1], -1)
+        step_input = torch.cat([features, message, pose_features], dim=-1)
+        hidden = slots.hidden
+        return self.update(step_input.flatten(0, 1), hidden.flatten(0, 1)).view_as(hidden)
+
+    def _predict(
+        self,
+        slots: Slots,
+        unseen: torch.Tensor,
+        pose: torch.Tensor,
+        pose_features: torch.Tensor,
+        obs: Observations,
+        t: int,
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor, Holding | None]:
+        """Frame t's predictions from the slots after frame t-1: the predicted states [B, S, 13]
+        (the most probable Gaussian's mean, or where ``hold`` holds a slot not given at t-1,
+        ``unseen`` [B, S]), the terms of what frame t shows (``rollout``), p(visible) [B, S] and
+        the ``Holding`` of every known slot (None without ``carry: support`` or ``hold_still``)."""
+        h = self.hparams
+        pairs = pair_features(slots.belief, slots.shape, view(slots.belief, pose))
+        message = messages(self.message, slots.hidden, slots.hidden, pairs, slots.known)
+        falling = slots.velocity[..., 2] < -MOVING  # [B, S]: its last move took it down
+        inertia = inertial_move(slots, falling, h.slowing, h.fall_gain)
+        mixture, shape_logits = self._mixture(slots, message, pose_features, inertia, falling)
+        predicted, mixture, holding = hold(slots, mixture, unseen, h.carry, h.hold_still)
+        logit = self._visibility_logit(slots, predicted, pose, pose_features)
+        hard = self.training and h.hard_assignment
+        terms = slot_terms(slots, mixture, shape_logits, logit, obs, t, hard)
+        visible = obs.visible[:, t]
+        terms.update(
+            self._appearance(
+                slots.hidden,
+                slots.known,
+                pose,
+                visible & ~slots.known,
+                obs.state[:, t],
+                obs.shape[:, t],
+            )
+        )
+        return predicted, terms, torch.sigmoid(logit) * slots.known.float(), holding
+
+    def _mixture(
+        self,
+        slots: Slots,
+        message: torch.Tensor,
+        pose_features: torch.Tensor,
+        inertia: torch.Tensor,
+        falling: torch.Tensor,
+    ) -> tuple[Mixture, torch.Tensor]:
+        """The mixture over each slot's next state and its shape's logits [B, S, 7]: each mean
+        the belief moved on by inertia (none for the stopping Gaussian) plus a learned change,
+        never below the floor; the last one laid down (``landing_mean``); the stopping Gaussian
+        left out for what falls (``falling_lands``)."""
+        belief, components = slots.belief, self.hparams.components
+        change, log_std, logits, shape_logits = self._dynamics(
+            slots, message, pose_features, inertia
+        )
+        moved = (
+            belief[:, :, None] + self.inertia_kept * inertia[:, :, None]
+        ) + MAX_MOVE * torch.tanh(change / MAX_MOVE)
+        means = on_or_above_floor(moved)
+        if self.hparams.landing_component:
+            landing = landing_mean(moved[:, :, -1], slots, self.hparams.pivot_landing)
+            means = torch.cat([means[:, :, :-1], landing[:, :, None]], dim=2)
+        log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
+        logits = logits if components > 1 else None
+        if self.hparams.falling_lands:  # nothing stops in mid-air: it lands or falls on
+            stopping = torch.arange(components, device=falling.device) == 0
+            logits = logits.masked_fill(falling[..., None] & stopping, LEFT_OUT)
+        return Mixture(means, log_std, logits), shape_logits
+
+    def _dynamics(
+        self,
+        slots: Slots,
+        message: torch.Tensor,
+        pose_features: torch.Tensor,
+        inertia: torch.Tensor,
+    ) -> tuple[torch.Tensor, ...]:
+        """The dynamics' change and log-std [B, S, K, 13], components' and shape's logits."""
+        belief, components = slots.belief, self.hparams.components
+        inputs = [slots.hidden, message, pose_features]
+        if self.hparams.landing_component:  # how high the box's lowest point is, now and next
+            inputs.append(torch.stack([lowest_point(belief), lowest_point(belief + inertia)], -1))
+        change, log_std, logits, shape_logits = self.dynamics(torch.cat(inputs, dim=-1)).split(
+            [
+                components * STATE_SIZE,
+                components * STATE_SIZE,
+                components if components > 1 else 0,
+                SHAPES,
+            ],
+            -1,
+        )
+        change = change.unflatten(-1, (components, STATE_SIZE))  # [B, S, K, 13]
+        log_std = log_std.unflatten(-1, (components, STATE_SIZE))
+        if not self.hparams.landing_change:  # the landing Gaussian: where inertia takes it
+            landing_identity = F.pad(change[:, :, -1:, IDENTITY], (IDENTITY.start, 0))
+            change = torch.cat([change[:, :, :-1], landing_identity], dim=2)
+        if self.hparams.shared_identity:  # size and colour kept, under one spread for all
+            change = torch.cat([change[..., POSE], torch.zeros_like(change[..., IDENTITY])], -1)
+            shared = log_std[..., :1, IDENTITY].expand(*log_std.shape[:-1], -1)
+            log_std = torch.cat([log_std[..., POSE], shared], -1)
+        return change, log_std, logits, shape_logits
+
+    def _visibility_logit(
+        self, slots: Slots, predicted: torch.Tensor, pose: torch.Tensor, pose_features: torch.Tensor
+    ) -> torch.Tensor:
+        """The logit [B, S] that each slot is seen at t: sight lines to every known box at its
+        predicted state (``seen_by_geometry``) times a learned weight, plus a learned term from
+        its view against the others'. No gradient reaches the states from it: a hidden object's
+        place is what the dynamics learned from seen motion predicts, not one bent to explain
+        why it is not seen (with it, a cube behind a container drifted in, where walls hide it)."""
+        placed = predicted.detach()
+        seen_as = view(placed, pose)
+        pairs = pair_features(placed, slots.shape, seen_as)
+        occluders = messages(self.occlusion, slots.hidden, None, pairs, slots.known)
+        geometry = seen_by_geometry(placed, slots.shape, slots.known, pose).clamp(0.02, 0.98)
+        learned = self.visibility(
+            torch.cat([slots.hidden, occluders, seen_as, placed[..., SIZE], pose_features], dim=-1)
+        )
+        return learned.squeeze(-1) + self.geometry_weight * torch.logit(geometry)
+
+    def _appearance(
+        self,
+        hidden: torch.Tensor,
+        known: torch.Tensor,
+        pose: torch.Tensor,
+        new: torch.Tensor,
+        state: torch.Tensor,
+        shape: torch.Tensor,
+    ) -> dict[str, torch.Tensor]:
+        """The appearance terms of frame t and their entropies: ``appear`` [B], a Bernoulli of
+        whether any new object appears, given the mean state of the known slots and the pose;
+        ``newcomer_state`` and ``newcomer_shape`` [B, S], each newcomer's state (Gaussian) and
+        shape (categorical)."""
+        weight = known.float()[..., None]
+        context = (hidden * weight).sum(1) / weight.sum(1).clamp(min=1)
+        out = self.appearance(torch.cat([context, camera_features(pose)], dim=-1))
+        logit, mean, log_std, shape_logits = out.split([1, STATE_SIZE, STATE_SIZE, SHAPES], -1)
+        log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
+        newcomers = new.float()
+        terms = {}
+        for name, (nll, entropy), weight in (
+            ("appear", bernoulli_nll(logit.squeeze(-1), new.any(-1).float()), 1.0),
+            ("newcomer_state", gaussian_nll(state, mean[:, None], log_std[:, None]), newcomers),
+            ("newcomer_shape", categorical_nll(shape_logits[:, None], shape), newcomers),
+        ):
+            terms[name], terms[f"{name}_entropy"] = nll * weight, entropy * weight
+        return terms
+
+
+def slot_terms(
+    slots: Slots,
+    mixture: Mixture,
+    shape_logits: torch.Tensor,
+    logit: torch.Tensor,
+    obs: Observations,
+    t: int,
+    hard: bool,
+) -> dict[str, torch.Tensor]:
+    """Frame t's per-slot terms [B, S] and their entropies: each known slot's visibility and,
+    seen, its state (the mixture; ``hard``: its best-explaining Gaussian) and shape."""
+    seen, keep = obs.visible[:, t].float(), slots.known.float()
+    state = mixture_nll(obs.state[:, t], mixture.means, mixture.log_std, mixture.logits, hard=hard)
+    terms = {}
+    for name, (nll, entropy), weight in (
+        ("visibility", bernoulli_nll(logit, seen), keep),
+        ("state", state, seen * keep),
+        ("shape", categorical_nll(shape_logits, obs.shape[:, t]), seen * keep),
+    ):
+        terms[name], terms[f"{name}_entropy"] = nll * weight, entropy * weight
+    return terms
