@@ -6,7 +6,9 @@ and the positive control with perfect perception (``ObjectStateModel``: object s
 dynamics, the likelihood of what is seen as surprise), and the physics-blind cues as
 parameter-free models (``CueScorer``), any callable frames -> surprise (``CallableModel``) and a
 maintained library's predictive models (``VideoMAEScorer``, transformers' VideoMAE;
-``VJEPA2Scorer``, V-JEPA 2 scored as the V-JEPA intuitive-physics evaluation scores it)."""
+``VJEPA2Scorer``, V-JEPA 2 scored as the V-JEPA intuitive-physics evaluation scores it).
+Each family is a sub-package (``vrnn_lru/``, ``object_centric/``, ``object_state/``,
+``scorers/``) over the modules here that more than one uses."""
 
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model.object_centric import ObjectCentricModel
