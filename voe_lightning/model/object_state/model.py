@@ -158,6 +158,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     def _inputs(
         self, frames: torch.Tensor, objects: TensorDictBase | None, camera: torch.Tensor | None
     ) -> Observations:
+        """The batch's ``Observations``, at a fixed pose without a camera or ``use_camera``."""
         if objects is None:
             raise ValueError(
                 "the object-state model (the positive control) reads each video's object "
