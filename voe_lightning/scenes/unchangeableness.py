@@ -28,11 +28,11 @@ from voe_lightning.scenes.camera import (
     CameraRange,
     VideoOptions,
     floor_point,
-    height_above_view,
     image_point,
 )
 from voe_lightning.scenes.recording import record_pair
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
+from voe_lightning.scenes.screen import SCREEN_THICKNESS, Screen, draw_screen
 from voe_lightning.scenes.simulation import Simulation, visible_ids
 
 CONCEPT = "unchangeableness"
@@ -42,11 +42,8 @@ OBJECT_SHAPES = ("sphere", "box", "cylinder", "capsule")
 CHANGES = specs.UNCHANGEABLENESS_CHANGES
 #: Widest row of probe objects (m): the camera must see all of them, plus1/plus2 included.
 ROW_MAX_WIDTH = 1.8
-SCREEN_THICKNESS = 0.04
 #: The screen's lowest point when down: just above the floor, so nothing shows beneath it.
 SCREEN_FLOOR_GAP = 0.002
-#: Wooden screen tone; each screen scales it a little so it never matches an object colour.
-SCREEN_COLOR = (0.52, 0.38, 0.24)
 #: Manipulated ids a probe record can carry (probe_record pads to this many).
 MAX_MANIPULATED_IDS = 4
 #: Objects a shape probe changes at most.
@@ -134,91 +131,6 @@ def add_object(
 
 def resting_position(draw: ObjectDraw, x: float, y: float) -> tuple[float, float, float]:
     return (x, y, draw.geoms()[1])
-
-
-# --- the screen ----------------------------------------------------------------------------------
-@dataclass
-class ScreenMotion:
-    """A screen lowered from ``top`` (its bottom edge's height) to ``bottom`` over frames
-    [start, down], held, and raised back over [up, end] with smooth cosine easing."""
-
-    top: float
-    bottom: float
-    start: float
-    down: float
-    up: float
-    end: float
-
-    def bottom_height(self, frame: float) -> float:
-        if frame <= self.start or frame >= self.end:
-            progress = 0.0
-        elif frame < self.down:
-            progress = 0.5 - 0.5 * math.cos(
-                math.pi * (frame - self.start) / (self.down - self.start)
-            )
-        elif frame <= self.up:
-            progress = 1.0
-        else:
-            progress = 0.5 + 0.5 * math.cos(math.pi * (frame - self.up) / (self.end - self.up))
-        return self.top + (self.bottom - self.top) * progress
-
-    def hidden_frames(self) -> list[int]:
-        """Frames f with the screen fully down at f - 1 and f: when a hidden change can happen."""
-        return [f for f in range(1, math.floor(self.up) + 1) if f - 1 >= self.down]
-
-
-def draw_motion(rng: np.random.Generator, video: VideoOptions, top: float, bottom: float):
-    """Random timing of the lowering and raising, scaled to the video's length."""
-    scale = video.num_frames / 15.0
-    start = rng.uniform(0.3, 2.0) * scale
-    down = start + rng.uniform(3.5, 4.5) * scale
-    up = down + rng.uniform(2.0, 3.0) * scale
-    end = up + rng.uniform(3.5, 4.5) * scale
-    return ScreenMotion(top, bottom, start, down, up, end)
-
-
-@dataclass
-class Screen:
-    """A large thin box (mocap) spanning ``width`` x ``height`` at (x, y), moved per frame."""
-
-    x: float
-    y: float
-    width: float
-    height: float
-    color: tuple[float, float, float]
-    motion: ScreenMotion
-
-    def add_to(self, builder: SceneBuilder) -> None:
-        size = [self.width / 2, SCREEN_THICKNESS / 2, self.height / 2]
-        builder.add_primitive(
-            "screen", "box", size, self.position(0), self.color, free=False, mocap=True
-        )
-
-    def position(self, frame: float) -> tuple[float, float, float]:
-        return (self.x, self.y, self.motion.bottom_height(frame) + self.height / 2)
-
-    def script(self, sim: Simulation, frame: int) -> None:
-        """Per-frame script for Simulation.record / record_pair: place the screen."""
-        sim.move("screen", self.position(frame))
-
-
-def draw_screen_color(rng: np.random.Generator) -> tuple[float, float, float]:
-    return tuple(float(c) for c in np.clip(np.array(SCREEN_COLOR) * rng.uniform(0.8, 1.25), 0, 1))
-
-
-def draw_screen(
-    rng: np.random.Generator,
-    camera: CameraPose,
-    video: VideoOptions,
-    x: float,
-    y: float,
-    width: float,
-    height: float,
-    bottom: float,
-) -> Screen:
-    """A screen at (x, y) that starts just out of view above and is lowered to ``bottom``."""
-    top = min(height_above_view(camera, x, y), 4.0) + float(rng.uniform(0.05, 0.3))
-    return Screen(x, y, width, height, draw_screen_color(rng), draw_motion(rng, video, top, bottom))
 
 
 # --- probes --------------------------------------------------------------------------------------
