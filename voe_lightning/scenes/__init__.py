@@ -3,7 +3,8 @@ consistent/inconsistent probe pairs. One module per concept holds all of its sce
 toolkit of one module per idea: ``camera`` (video options, camera poses and ranges, projection),
 ``appearance`` (shapes, colours), ``rendering`` (the stage every scene is built on, the
 renderer), ``builder`` (MjSpec scene builder), ``simulation``, ``recording`` (probe pairs forked
-at the hidden change) and ``sampling`` (seeded draws)."""
+at the hidden change), ``sampling`` (seeded draws), ``container`` (the open box of solidity and
+containment) and ``screen`` (unchangeableness's lowered screen)."""
 
 from __future__ import annotations
 

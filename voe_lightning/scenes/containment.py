@@ -22,8 +22,9 @@ from tensordict import TensorDict
 from voe_lightning import specs
 from voe_lightning.scenes import recording
 from voe_lightning.scenes.appearance import distinct_colors
-from voe_lightning.scenes.builder import Geom, SceneBuilder, yaw_quat
+from voe_lightning.scenes.builder import SceneBuilder, yaw_quat
 from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions
+from voe_lightning.scenes.container import container_geoms
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
 
@@ -67,18 +68,6 @@ class Layout:
     move_end: float
 
 
-def container_geoms(half_x: float, half_y: float, height: float) -> list[Geom]:
-    """An open box: a bottom and four walls (inner half-sizes ``half_x`` x ``half_y``)."""
-    outer_x, outer_y, half_z = half_x + WALL, half_y + WALL, height / 2
-    return [
-        Geom("box", (outer_x, outer_y, WALL / 2), (0.0, 0.0, WALL / 2)),
-        Geom("box", (outer_x, WALL / 2, half_z), (0.0, -half_y - WALL / 2, half_z)),
-        Geom("box", (outer_x, WALL / 2, half_z), (0.0, half_y + WALL / 2, half_z)),
-        Geom("box", (WALL / 2, half_y, half_z), (-half_x - WALL / 2, 0.0, half_z)),
-        Geom("box", (WALL / 2, half_y, half_z), (half_x + WALL / 2, 0.0, half_z)),
-    ]
-
-
 def smoothstep(x: float) -> float:
     """0 before 0, 1 after 1, a cosine ease in between (starts and stops at rest); the
     container's speed is its derivative."""
@@ -97,7 +86,7 @@ def build(
     x0, y0 = layout.container_xy
     builder.add(
         "container",
-        container_geoms(layout.half_x, layout.half_y, layout.height),
+        container_geoms(layout.half_x, layout.half_y, layout.height, WALL),
         (x0, y0, 0.0),
         container_color,
         free=False,

@@ -25,8 +25,9 @@ from tensordict import TensorDict
 from voe_lightning import specs
 from voe_lightning.scenes import recording
 from voe_lightning.scenes.appearance import distinct_colors
-from voe_lightning.scenes.builder import Geom, SceneBuilder, yaw_quat
+from voe_lightning.scenes.builder import SceneBuilder, yaw_quat
 from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions, height_above_view
+from voe_lightning.scenes.container import container_geoms, hides, outer_gap
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
 
@@ -104,14 +105,7 @@ def _depth(box: dict) -> float:
 
 def _add_container(builder: SceneBuilder, box: dict, color: str) -> None:
     """The container as one fixed object of five box geoms (bottom and four walls)."""
-    ix, iy, w, h = box["inner_x"], box["inner_y"], box["wall"], box["height"]
-    geoms = [
-        Geom("box", (ix + 2 * w, iy + 2 * w, w), (0.0, 0.0, w)),
-        Geom("box", (ix + 2 * w, w, h / 2), (0.0, -(iy + w), h / 2)),
-        Geom("box", (ix + 2 * w, w, h / 2), (0.0, iy + w, h / 2)),
-        Geom("box", (w, iy, h / 2), (-(ix + w), 0.0, h / 2)),
-        Geom("box", (w, iy, h / 2), (ix + w, 0.0, h / 2)),
-    ]
+    geoms = container_geoms(box["inner_x"], box["inner_y"], box["height"], 2 * box["wall"])
     builder.add("container", geoms, (0.0, 0.0, 0.0), color, free=False)
 
 
@@ -423,34 +417,14 @@ def _behind_container(rng: np.random.Generator, box: dict, block: dict, camera: 
     start = along * box["inner_y"] + across * rng.uniform(-0.5, 0.5) * box["inner_x"]
     radius = float(np.hypot(*block["half"][:2]))
     behind = 0.0
-    while _outer_gap(box, start + behind * along) <= radius:
+    while outer_gap(_outer(box), start + behind * along) <= radius:
         behind += 0.02
     return start + (behind + rng.uniform(0.03, 0.15)) * along
 
 
-def _outer_gap(box: dict, xy) -> float:
-    """Distance from ``xy`` to the container's outer footprint (0 inside it)."""
-    outer_x, outer_y = box["inner_x"] + 2 * box["wall"], box["inner_y"] + 2 * box["wall"]
-    return float(np.hypot(max(abs(xy[0]) - outer_x, 0.0), max(abs(xy[1]) - outer_y, 0.0)))
-
-
-def _hidden_by_container(
-    eye: np.ndarray, box: dict, points: np.ndarray, margin: float = 0.03
-) -> bool:
-    """Whether the segment from ``eye`` to every point [N, 3] passes through the container's
-    outer box (shrunk by ``margin``): an open box hides what lies behind it like a solid one."""
-    half = np.array([box["inner_x"] + 2 * box["wall"], box["inner_y"] + 2 * box["wall"]]) - margin
-    low = np.array([-half[0], -half[1], 0.0])
-    high = np.array([half[0], half[1], box["height"] - margin])
-    for point in points:
-        direction = point - eye
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t1, t2 = (low - eye) / direction, (high - eye) / direction
-        near = np.nanmax(np.minimum(t1, t2))
-        far = np.nanmin(np.maximum(t1, t2))
-        if not (near <= far and 0.0 < far and near < 1.0):
-            return False
-    return True
+def _outer(box: dict) -> tuple[float, float]:
+    """The container's outer half-sizes (x, y)."""
+    return box["inner_x"] + 2 * box["wall"], box["inner_y"] + 2 * box["wall"]
 
 
 def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
@@ -480,7 +454,7 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
                 points = np.array(
                     [[x, y, z] for x, y in corners for z in (0.0, 2 * block["half"][2])]
                 )
-                if _hidden_by_container(eye, box, points):
+                if hides(eye, _outer(box), box["height"], points, margin=0.03):
                     break
                 block = _draw_block(rng, box, EXAMPLE_HEIGHTS)
             else:
