@@ -37,7 +37,7 @@ import numpy as np
 from scipy import stats
 
 from voe_lightning import specs
-from voe_lightning.audit import cues
+from voe_lightning.audit import cues, video_cues
 from voe_lightning.stats import statistics
 from voe_lightning.stats.statistics_format import format_alpha, json_row
 from voe_lightning.stats.verdicts import quadruplet_rule, quadruplets, verdict_rule
@@ -260,7 +260,7 @@ def calibrate(
     repetitions: int = 2000,
     alpha: float = statistics.ALPHA,
     concepts: Sequence[str] | None = None,
-    cue_names: Sequence[str] = cues.FRAME_LOCAL_CUES,
+    cue_names: Sequence[str] = video_cues.FRAME_LOCAL_CUES,
     followers: Sequence[str] = tuple(FOLLOWERS),
     weights: Sequence[float] = WEIGHTS,
     deltas: np.ndarray = DELTAS,

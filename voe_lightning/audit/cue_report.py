@@ -21,10 +21,10 @@ from voe_lightning.audit.cues import (
     CORRELATION_COLUMNS,
     CUE_COLUMNS,
     CUE_TITLES,
-    CUES,
     PHYSICS_PERFECT,
     audit_split,
 )
+from voe_lightning.audit.video_cues import CUES
 from voe_lightning.data.store_shards import write_whole
 from voe_lightning.stats import statistics
 from voe_lightning.stats.statistics_format import (

@@ -23,7 +23,8 @@ from matplotlib.figure import Figure
 
 from voe_lightning import specs
 from voe_lightning.audit import calibration
-from voe_lightning.audit.cues import CUE_TITLES, FRAME_LOCAL_CUES, tracked_cues
+from voe_lightning.audit.cues import CUE_TITLES, tracked_cues
+from voe_lightning.audit.video_cues import FRAME_LOCAL_CUES
 from voe_lightning.cli.null import untrained_null
 from voe_lightning.cli.size_sweep import sweep, sweep_plot
 from voe_lightning.data.store import collate, open_split, read_manifest

@@ -16,8 +16,6 @@ from typing import Any
 
 import numpy as np
 
-# The module, not its names: the causality check imports the model package, whose cue scorer's
-# cues import this module, so whichever of the two loads first finds the other half-loaded.
 from voe_lightning import causality as causality_check
 from voe_lightning import specs
 from voe_lightning.stats.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha

@@ -8,7 +8,7 @@ import torch
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
-from voe_lightning.audit import cues
+from voe_lightning.audit import video_cues as cues
 from voe_lightning.model.base import SurpriseModel
 
 #: Short names of ``CueScorer``'s cues (``cues.CUES``' names are accepted too).
