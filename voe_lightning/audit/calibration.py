@@ -40,6 +40,7 @@ from voe_lightning import specs
 from voe_lightning.audit import cues, video_cues
 from voe_lightning.stats import statistics
 from voe_lightning.stats.statistics_format import format_alpha, json_row
+from voe_lightning.stats.t_tests import t_and_p
 from voe_lightning.stats.verdicts import quadruplet_rule, quadruplets, verdict_rule
 
 __all__ = [
@@ -197,9 +198,7 @@ def verdict_rates(
         moments[variant] = (d.mean(axis=1), d.var(axis=1, ddof=1))
     shifted = np.asarray(deltas, dtype=np.float64)[:, None]  # [deltas, 1] over [repetitions]
     means = {variant: mean[None] + shifted for variant, (mean, _) in moments.items()}
-    p_values = [
-        statistics.t_and_p(means[v], np.sqrt(moments[v][1] / pairs), pairs - 1)[1] for v in variants
-    ]
+    p_values = [t_and_p(means[v], np.sqrt(moments[v][1] / pairs), pairs - 1)[1] for v in variants]
     return verdict_rule(p_values, alpha).mean(axis=1)
 
 
@@ -225,7 +224,7 @@ def quadruplet_voe(
     total = drawn[0] + drawn[1]
     shifted = np.asarray(deltas, dtype=np.float64)[:, None]  # [deltas, 1] over [repetitions]
     error = np.sqrt(total.var(axis=1, ddof=1) / count)
-    p_values = statistics.t_and_p(total.mean(axis=1)[None] + 2 * shifted, error, count - 1)[1]
+    p_values = t_and_p(total.mean(axis=1)[None] + 2 * shifted, error, count - 1)[1]
     first_mean, second_mean = (half.mean(axis=1)[None] + shifted for half in drawn)
     return quadruplet_rule(p_values, first_mean, second_mean, alpha)
 

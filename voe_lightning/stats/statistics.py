@@ -1,20 +1,14 @@
 """Violation-of-expectation statistics (docs/architecture.md §8): the one-tailed paired t-test
 of S(inconsistent) - S(consistent), as infant looking-time studies use it, in the one-shot form
-reports use (``paired_test``, ``pooled_test``). The streaming torchmetrics form of the
-training-time callbacks (``voe_lightning.stats.streaming_statistics``) shares ``t_test_from_moments``
-and ``stratified_test``, so both decide degenerate cases the same way. Which rows a table has
-and the verdict they give are in ``voe_lightning.stats.verdicts``; how a row is written, in
-``voe_lightning.stats.statistics_format``.
+reports use (``paired_test``, ``pooled_test``), on the t-tests from moments of
+``voe_lightning.stats.t_tests``, which the streaming torchmetrics form of the training-time
+callbacks (``voe_lightning.stats.streaming_statistics``) shares, so both decide degenerate cases
+the same way. Which rows a table has and the verdict they give are in
+``voe_lightning.stats.verdicts``; how a row is written, in ``voe_lightning.stats.statistics_format``.
 
-Degenerate inputs, decided once here:
-
-- fewer than two pairs: ``ValueError`` (no variance, no test);
-- a NaN or infinite surprise: ``ValueError`` naming how many pairs are affected;
-- zero variance of the differences (every pair has the same d): the t statistic is the limit
-  of M / (s / sqrt(n)) as s -> 0, so t = +inf, p = 0 when M > 0 and t = -inf, p = 1 when M < 0
-  (d_z and its interval are +-inf likewise). When every d is exactly 0 there is no evidence
-  for H1 at all: t and d_z are undefined (NaN) and p is set to 1 (not significant). Every such
-  result carries a ``note`` saying so, which the report prints beside the row.
+A NaN or infinite surprise is a ``ValueError`` naming how many pairs are affected
+(``as_float64``); fewer than two pairs and zero variance are decided in
+``voe_lightning.stats.t_tests``.
 
 A concept with a counterbalanced pair is also tested ``pooled`` (docs/architecture.md §8): a
 stratified test of the mean of its variants' mean differences,
@@ -46,6 +40,14 @@ from scipy import optimize, stats
 from torchmetrics.functional.classification import binary_auroc
 
 from voe_lightning.specs import QUADRUPLET, QUADRUPLET_ROWS
+from voe_lightning.stats.t_tests import (
+    StratifiedTest,
+    TTest,
+    stratified_moments,
+    stratified_test,
+    t_and_p,
+    t_test_from_moments,
+)
 
 __all__ = [
     "ALPHA",
@@ -82,10 +84,6 @@ POOLED_VARIANTS: tuple[str, str] = ("standard", "counterbalanced")
 #: so that five concepts' verdicts together stay near .05 (docs/architecture.md §8).
 #: configs/base.yaml states it as the run's ``alpha``; a test checks the two agree.
 ALPHA = 0.01
-
-#: A variance below this fraction of the mean square is treated as exactly zero (the streaming
-#: form computes it from sums, where equal differences leave rounding residue of about 1e-16).
-_ZERO_VARIANCE_RTOL = 1e-12
 
 
 def check_alpha(alpha: Any) -> float:
@@ -131,108 +129,6 @@ def relative_surprise(inconsistent: Any, consistent: Any) -> np.ndarray:
     return inc - con
 
 
-@dataclass(frozen=True)
-class TTest:
-    """One-tailed paired t-test (H1: mean d > 0) from the moments of d."""
-
-    n: int
-    mean: float
-    sd: float
-    t: float
-    df: int
-    p_value: float
-    note: str
-
-
-def t_and_p(mean: Any, standard_error: Any, df: Any) -> tuple[Any, Any]:
-    """t = M / SE and its one-tailed p (H1: M > 0) from scipy's t distribution; numpy arrays
-    broadcast (the calibration tests thousands of repetitions at once) as scalars do."""
-    t = np.divide(mean, standard_error)
-    return t, stats.t.sf(t, df)
-
-
-def _is_zero_variance(n: int, mean: float, variance: float) -> bool:
-    """Whether a variance is zero up to the rounding residue of sums (``_ZERO_VARIANCE_RTOL``)."""
-    return variance <= _ZERO_VARIANCE_RTOL * (variance * (n - 1) / n + mean * mean)
-
-
-def _degenerate(mean: float) -> tuple[float, float, str]:
-    """t, p and note of a test whose standard error is zero (module docstring)."""
-    if mean > 0:
-        return math.inf, 0.0, f"zero variance: every d = {mean:.6g} > 0, so t = +inf, p = 0"
-    if mean < 0:
-        return -math.inf, 1.0, f"zero variance: every d = {mean:.6g} < 0, so t = -inf, p = 1"
-    return math.nan, 1.0, "every d = 0: no difference at all; t and d_z undefined, p set to 1"
-
-
-def _check_moments(n: int, mean: float, variance: float) -> None:
-    if n < 2:
-        raise ValueError(f"a paired t-test needs at least 2 probe pairs, got n={n}")
-    if not (math.isfinite(mean) and math.isfinite(variance)):
-        raise ValueError(f"moments of the differences are not finite: mean={mean}, var={variance}")
-
-
-def t_test_from_moments(n: int, mean: float, variance: float) -> TTest:
-    """The one-tailed paired t-test from n, the mean and the (ddof=1) variance of d, with the
-    degenerate cases of the module docstring. p comes from scipy's t distribution."""
-    _check_moments(n, mean, variance)
-    df = n - 1
-    if _is_zero_variance(n, mean, variance):
-        t, p, note = _degenerate(mean)
-        return TTest(n, 0.0 if math.isnan(t) else mean, 0.0, t, df, p, note)
-    sd = math.sqrt(variance)
-    t, p = t_and_p(mean, sd / math.sqrt(n), df)
-    return TTest(n, mean, sd, float(t), df, float(p), "")
-
-
-@dataclass(frozen=True)
-class StratifiedTest:
-    """The pooled test of a concept's variants (strata): ``mean`` is the unweighted mean of
-    their mean differences, ``standard_error`` its SE, ``df`` Welch-Satterthwaite's (a real
-    number), ``p_value`` one-tailed (H1: mean > 0); ``n`` counts the pairs of every stratum."""
-
-    n: int
-    mean: float
-    standard_error: float
-    t: float
-    df: float
-    p_value: float
-    note: str
-
-
-def stratified_moments(n: Any, mean: Any, variance: Any) -> tuple[Any, Any, Any]:
-    """The mean of k strata's mean differences, its standard error (1/k) sqrt(sum s_i^2/n_i)
-    and the Welch-Satterthwaite df (sum s_i^2/n_i)^2 / sum (s_i^2/n_i)^2/(n_i - 1), from each
-    stratum's n, mean and (ddof=1) variance along axis 0 (arrays broadcast over the rest)."""
-    n, mean, variance = (np.asarray(x, dtype=np.float64) for x in (n, mean, variance))
-    n = n.reshape(n.shape + (1,) * (variance.ndim - n.ndim))  # one n per stratum
-    squared_errors = variance / n
-    total = squared_errors.sum(axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        df = total * total / (squared_errors * squared_errors / (n - 1)).sum(axis=0)
-    return mean.mean(axis=0), np.sqrt(total) / n.shape[0], df
-
-
-def stratified_test(strata: Sequence[tuple[int, float, float]]) -> StratifiedTest:
-    """The stratified test from each stratum's (n, mean, variance) of d (module docstring).
-    A stratum whose variance is zero up to rounding counts as zero; when every one is, the
-    degenerate rule of the module docstring decides (t = +-inf, or NaN with p = 1)."""
-    if len(strata) < 2:
-        raise ValueError(f"a stratified test needs at least 2 strata (variants), got {len(strata)}")
-    for n, mean, variance in strata:
-        _check_moments(n, mean, variance)
-    variances = [
-        0.0 if _is_zero_variance(n, mean, variance) else variance for n, mean, variance in strata
-    ]
-    ns, means = [n for n, _, _ in strata], [mean for _, mean, _ in strata]
-    mean, standard_error, df = (float(x) for x in stratified_moments(ns, means, variances))
-    if standard_error == 0.0:
-        t, p, note = _degenerate(mean)
-        return StratifiedTest(sum(ns), mean, 0.0, t, math.nan, p, note)
-    t, p = t_and_p(mean, standard_error, df)
-    return StratifiedTest(sum(ns), mean, standard_error, float(t), df, float(p), "")
-
-
 def effect_size_interval(t: float, n: int, confidence: float = 0.95) -> tuple[float, float]:
     """Confidence interval of d_z = M / s from the noncentral t distribution: t * sqrt(n) ~
     nct(df=n-1, nc=delta * sqrt(n)); the bounds are the nc at which the observed t is the
@@ -274,7 +170,7 @@ class PairedTestResult:
     d > 0 (the relative accuracy); ``auroc`` is the area under the ROC curve for telling
     inconsistent from consistent videos by surprise alone (unpaired); the
     ``relative_surprise_ci_*`` bounds are a bootstrap (BCa) interval of M. ``note`` explains
-    any degenerate case (module docstring); it is empty otherwise."""
+    any degenerate case (``voe_lightning.stats.t_tests``); it is empty otherwise."""
 
     n: int
     relative_surprise: float

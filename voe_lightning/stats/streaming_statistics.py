@@ -2,8 +2,8 @@
 (docs/architecture.md §8): ``PairedSurpriseStats`` keeps n, sum d and sum d^2 as float64
 torchmetrics states, so a DDP reduction gives exactly the one-pass result; ``pooled_values``
 pools a concept's variants into its stratified row. The tests are those of
-``voe_lightning.stats.statistics``, so the streaming and one-shot forms decide degenerate cases
-alike."""
+``voe_lightning.stats.t_tests``, as the one-shot ones of ``voe_lightning.stats.statistics`` are,
+so the streaming and one-shot forms decide degenerate cases alike."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from typing import Any
 import torch
 from torchmetrics import Metric
 
-from voe_lightning.stats.statistics import stratified_test, t_test_from_moments
+from voe_lightning.stats.t_tests import stratified_test, t_test_from_moments
 
 __all__ = ["PairedSurpriseStats", "pooled_values"]
 
