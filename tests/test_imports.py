@@ -77,7 +77,17 @@ def package_imports(name: str, path: Path, modules: set[str]) -> set[str]:
                 candidate = candidate.rpartition(".")[0]
             if candidate and candidate != name:
                 found.add(candidate)
+                found |= enclosing_packages(candidate, name, modules)
     return found
+
+
+def enclosing_packages(imported: str, importer: str, modules: set[str]) -> set[str]:
+    """The packages whose ``__init__`` importing ``imported`` runs first (``a`` and ``a.b`` for
+    ``a.b.c``), less those that enclose ``importer``: they have started already."""
+    parts = imported.split(".")
+    outer = {".".join(parts[:i]) for i in range(1, len(parts))}
+    running = {".".join(importer.split(".")[:i]) for i in range(1, importer.count(".") + 2)}
+    return (outer & modules) - running
 
 
 def test_no_module_of_voe_lightning_is_in_an_import_circle():

@@ -1,4 +1,4 @@
-"""Physics-blind baselines as a model family: one frame-local cue of ``voe_lightning.audit.cues`` as
+"""Physics-blind baselines as a model family: one frame-local cue of ``voe_lightning.audit.video_cues`` as
 a parameter-free ``SurpriseModel``, so ``test`` and ``predict`` score it like any model, with no
 checkpoint, on our probes and on every benchmark, and its rows stand beside a model's."""
 
@@ -8,10 +8,10 @@ import torch
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
-from voe_lightning.audit import video_cues as cues
+from voe_lightning.audit import video_cues
 from voe_lightning.model.base import SurpriseModel
 
-#: Short names of ``CueScorer``'s cues (``cues.CUES``' names are accepted too).
+#: Short names of ``CueScorer``'s cues (``video_cues.CUES``' names are accepted too).
 CUE_NAMES: dict[str, str] = {
     "foreground": "foreground_pixels",
     "motion": "motion_energy",
@@ -22,7 +22,7 @@ CUE_NAMES: dict[str, str] = {
 
 
 class CueScorer(SurpriseModel):
-    """Per-frame surprise = a physics-blind cue's value at that frame (``cues.frame_scores``:
+    """Per-frame surprise = a physics-blind cue's value at that frame (``video_cues.frame_scores``:
     frame t's value reads frames up to t only): ``motion`` (mean absolute difference to the
     previous frame), ``copy_last`` (its squared error), ``linear_extrapolation`` (squared error
     of clip(2 x_{t-1} - x_{t-2})), ``novelty`` (colour distance to the nearest colour seen at
@@ -50,13 +50,13 @@ class CueScorer(SurpriseModel):
         camera: torch.Tensor | None = None,
         objects: TensorDictBase | None = None,
     ) -> torch.Tensor:
-        if self.cue_name in cues.MASK_CUES and mask is None:
+        if self.cue_name in video_cues.MASK_CUES and mask is None:
             raise ValueError(
                 f"cue {self.hparams.cue!r} counts object pixels and needs masks; "
                 "this data has none: choose motion, copy_last, "
                 "linear_extrapolation or novelty"
             )
-        return cues.frame_scores(frames, mask)[self.cue_name].float()
+        return video_cues.frame_scores(frames, mask)[self.cue_name].float()
 
     def expected_frames(
         self,
