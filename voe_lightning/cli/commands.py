@@ -1,0 +1,112 @@
+"""The subcommands in the one parser: Lightning's (``fit``, ``validate``, ``test``,
+``predict``), listed with a summary of their own, and the package's (``COMMANDS``: ``generate``,
+``audit``, ``check-causality``, ``analyze``), each built by jsonargparse from its function's
+signature and docstring and run by calling that function."""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from typing import Any
+
+from jsonargparse import ActionConfigFile, ActionSubCommands, ArgumentParser, Namespace
+from lightning.pytorch.cli import LightningArgumentParser
+
+from voe_lightning import causality
+from voe_lightning.audit import cue_report
+from voe_lightning.cli import analysis
+from voe_lightning.cli.class_paths import import_object
+from voe_lightning.cli.run_arguments import base_alpha
+from voe_lightning.data import generate
+
+#: ``--help``'s summary of Lightning's subcommands (their docstrings' first lines stop mid-sentence).
+LIGHTNING_SUBCOMMANDS = {
+    "fit": "Train a model, logging the VOE statistics of the validation probes.",
+    "validate": "The VOE statistics of a checkpoint on the validation probes.",
+    "test": "The VOE report of a checkpoint on the test probes.",
+    "predict": "Per-video surprise of a checkpoint, e.g. IntPhys' answer.txt.",
+}
+
+#: The subcommands beside Lightning's: name -> the function it calls, or a dict of its own
+#: subcommands (as jsonargparse's ``auto_cli`` takes them, ``_help`` being the summary).
+COMMANDS: dict[str, Any] = {
+    "generate": generate.generate,
+    "audit": cue_report.audit,
+    "check-causality": causality.check_causality,
+    "analyze": analysis.COMMANDS,
+}
+
+
+class Subcommands(ActionSubCommands):
+    """jsonargparse's subcommands, Lightning's listed with their ``LIGHTNING_SUBCOMMANDS``
+    summary instead of their docstring's first line."""
+
+    def add_subcommand(self, name: str, parser: ArgumentParser, **kwargs: Any) -> ArgumentParser:
+        if name in LIGHTNING_SUBCOMMANDS:
+            kwargs["help"] = LIGHTNING_SUBCOMMANDS[name]
+        return super().add_subcommand(name, parser, **kwargs)
+
+
+class SubcommandsParser(LightningArgumentParser):
+    """LightningArgumentParser whose subcommands are ``Subcommands``, kept as ``subcommands``
+    so that ``add_commands`` adds the package's beside Lightning's."""
+
+    def add_subcommands(self, *args: Any, **kwargs: Any) -> ActionSubCommands:
+        kwargs.setdefault("action", Subcommands)
+        self.subcommands = super().add_subcommands(*args, **kwargs)
+        return self.subcommands
+
+
+def add_commands(parser: SubcommandsParser) -> None:
+    """Add the subcommands of ``COMMANDS`` to ``parser``, after Lightning's."""
+    for name, command in COMMANDS.items():
+        _add_command(parser.subcommands, name, command)
+
+
+def _add_command(subcommands: ActionSubCommands, name: str, command: Any) -> None:
+    """Add a ``COMMANDS`` entry as subcommand ``name``: its flags from the function's signature
+    with their help from its docstring's Args, or a dict's functions as its own subcommands."""
+    nested = isinstance(command, dict)
+    description = command["_help"] if nested else inspect.getdoc(command).split("\n\nArgs:")[0]
+    parser = ArgumentParser(description=description)
+    parser.add_argument(
+        "--config",
+        action=ActionConfigFile,
+        help="a YAML file of these arguments (see --print_config)",
+    )
+    subcommands.add_subcommand(name, parser, help=description.splitlines()[0])
+    if not nested:
+        parser.add_function_arguments(command, as_group=False, sub_configs=True)
+        if "alpha" in inspect.signature(command).parameters:
+            parser.set_defaults(alpha=base_alpha())
+        return
+    inner = parser.add_subcommands()
+    for inner_name, function in command.items():
+        if inner_name != "_help":
+            _add_command(inner, inner_name, function)
+
+
+def call(command: Any, arguments: Namespace, entry_points: dict[str, Callable]) -> Any:
+    """Call the function of a ``COMMANDS`` entry that its parsed ``arguments`` select, with
+    those of ``entry_points`` its signature asks for: one that runs other commands (``analyze
+    sweep``) gets the CLI's ``main`` as ``_cli_main``, one that builds runs without running
+    them (``analyze null``) ``_build_cli``."""
+    arguments = arguments.clone()
+    arguments.pop("config", None)
+    if isinstance(command, dict):
+        name = arguments.pop("subcommand")
+        return call(command[name], arguments[name], entry_points)
+    parameters = inspect.signature(command).parameters
+    return command(
+        **{name: _built(value) for name, value in vars(arguments).items()},
+        **{key: value for key, value in entry_points.items() if key in parameters},
+    )
+
+
+def _built(value: Any) -> Any:
+    """A parsed ``class_path``/``init_args`` value (``check-causality --model``) as the object
+    it describes; any other value as it is."""
+    if not (isinstance(value, Namespace) and "class_path" in value):
+        return value
+    init_args = value.get("init_args")
+    return import_object(value["class_path"])(**(init_args.as_dict() if init_args else {}))

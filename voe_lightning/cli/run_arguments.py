@@ -1,0 +1,108 @@
+"""The run-wide arguments beside the trainer's, model's and data's: ``configs/base.yaml``, read
+first by every run; one significance level (``alpha``) and one ``surprise_window`` for the
+whole run, handed to each callback that takes one; ``branch`` and ``allow_non_causal``."""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+from typing import Any, Union
+
+import yaml
+from jsonargparse import Namespace
+
+from voe_lightning.cli.class_paths import import_object
+from voe_lightning.stats import statistics
+from voe_lightning.stats.surprise_window import surprise_window
+
+#: Trainer, logger, callbacks and model class every fit/validate/test/predict starts from, so
+#: ``--config configs/joint.yaml`` alone is a whole run; later ``--config`` files override it.
+BASE_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "base.yaml"
+
+
+def add_run_arguments(parser: Any) -> None:
+    """Add the run's one significance level, ``alpha`` (configs/base.yaml sets it), its
+    ``surprise_window``, ``branch`` (a resumed fit in a new version) and ``allow_non_causal``."""
+    parser.add_argument(
+        "--alpha",
+        type=float,
+        default=statistics.ALPHA,
+        help="significance level of every test, verdict and table of the "
+        "run; each callback with an alpha argument gets it",
+    )
+    parser.add_argument(
+        "--surprise_window",
+        type=Union[str, dict, None],  # noqa: UP007 (jsonargparse's type)
+        default="all",
+        help="frames a video's surprise sums in the report: all (the "
+        "paper's) or {start: first_difference, frames: k}, reported beside "
+        "all frames; each callback with a surprise_window argument gets it",
+    )
+    parser.add_argument(
+        "--branch",
+        type=bool,
+        default=False,
+        help="fit --ckpt_path: continue from the checkpoint in a new version "
+        "of its run's logger name (other data allowed), keeping the run",
+    )
+    parser.add_argument(
+        "--allow_non_causal",
+        type=bool,
+        default=False,
+        help="exit 0 though the model's surprise is not causal (it differs "
+        "where a probe pair's videos are identical); verdicts stay withheld",
+    )
+
+
+def base_alpha() -> float:
+    """The ``alpha`` of configs/base.yaml (``statistics.ALPHA`` where the file or the key is
+    missing): the default significance level of the commands beside Lightning's too."""
+    try:
+        alpha = yaml.safe_load(BASE_CONFIG.read_text()).get("alpha", statistics.ALPHA)
+    except (OSError, AttributeError):
+        return statistics.ALPHA
+    try:
+        return statistics.check_alpha(alpha)
+    except ValueError as error:
+        raise ValueError(f"{BASE_CONFIG}: {error}") from None
+
+
+def give_surprise_window(config: Any) -> None:
+    """Hand the run's ``surprise_window`` (checked) to every configured callback that takes
+    one and was not given one."""
+    window = surprise_window(config.get("surprise_window")).as_config()
+    for _, init_args in _callbacks_taking(config, "surprise_window"):
+        if init_args.get("surprise_window") is None:
+            init_args["surprise_window"] = window
+
+
+def give_alpha(config: Any) -> None:
+    """Hand the run's ``alpha`` to every configured callback that takes one and was not given
+    one; refuse a callback whose own alpha differs (one alpha per run, docs/architecture.md
+    §8)."""
+    alpha = statistics.check_alpha(config["alpha"])
+    for class_path, init_args in _callbacks_taking(config, "alpha"):
+        given = init_args.get("alpha")
+        if given is None:
+            init_args["alpha"] = alpha
+        elif given != alpha:
+            raise ValueError(
+                f"{class_path} was given alpha {given}, the run's alpha is {alpha}: a run has one "
+                "significance level. Set it once, as the top-level `alpha:` of a config (e.g. "
+                "configs/base.yaml) or --alpha, and leave the callbacks' alpha out."
+            )
+
+
+def _callbacks_taking(config: Any, argument: str) -> list[tuple[str, Any]]:
+    """(class path, init_args) of each configured callback whose class takes ``argument``."""
+    taking = []
+    for callback in config["trainer"].get("callbacks") or []:
+        class_path = getattr(callback, "class_path", None)
+        if class_path is None:
+            continue
+        if argument not in inspect.signature(import_object(class_path).__init__).parameters:
+            continue
+        if callback.get("init_args") is None:
+            callback["init_args"] = Namespace()
+        taking.append((class_path, callback["init_args"]))
+    return taking

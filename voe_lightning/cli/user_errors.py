@@ -1,0 +1,135 @@
+"""A bad argument or input as one line, ``error: ...``, exit status 2: the checks of the
+command line's words before it is parsed (``--config`` files, ``--model``/``--data`` import
+paths), and which errors are the user's (``USER_ERRORS``), even raised in a DataLoader worker."""
+
+from __future__ import annotations
+
+import builtins
+import importlib
+import os
+import re
+import traceback
+from pathlib import Path
+
+import yaml
+from lightning.pytorch.utilities.exceptions import MisconfigurationException
+
+from voe_lightning.cli.class_paths import import_object
+
+#: Environment variable that, like ``--debug`` anywhere on the command line, shows the traceback
+#: of a refused argument or input instead of its one-line error.
+DEBUG_VARIABLE = "VOE_DEBUG"
+#: Errors that mean a bad argument or input, or a run that cannot go on (a non-finite loss,
+#: ``SurpriseModel._check_finite``): printed as one line, exit status 2.
+USER_ERRORS = (ValueError, OSError, MisconfigurationException, FloatingPointError)
+#: The most values a ``--config`` file may expand to through its YAML aliases (a paper config
+#: holds a few hundred; nested anchors can make 700 bytes hold 10^9, which would hang).
+MAX_CONFIG_VALUES = 100_000
+#: Flags whose value may be a class's import path, with an example of one.
+CLASS_FLAGS = {"--model": "voe_lightning.model.VRNNLRUModel", "--data": "my_package.MyDataModule"}
+#: How torch's DataLoader re-raises in this process an error a worker process raised: the
+#: worker's whole traceback as its message, whose last line is "module.Type: message".
+WORKER_ERROR = re.compile(
+    r"Caught \w+ in DataLoader worker process \d+\.\n"
+    r"Original Traceback \(most recent call last\):\n.*\n"
+    r"(?P<type>[\w.]+): (?P<message>.*?)\n?\Z",
+    re.S,
+)
+
+
+def check_yaml(words: list[str]) -> None:
+    """Refuse a ``--config`` file that is not valid YAML, naming it (jsonargparse's message
+    gives the line and column of "<unicode string>"), or that expands to more than
+    ``MAX_CONFIG_VALUES`` values through its aliases."""
+    files = [word.split("=", 1)[1] for word in words if word.startswith("--config=")]
+    files += [after for word, after in zip(words, words[1:]) if word == "--config"]
+    for name in files:
+        if Path(name).is_dir():
+            found = sorted(Path(name).glob("*.yaml"))
+            raise ValueError(
+                f"--config {name} is a directory, not a YAML file; give one file"
+                + (f", e.g. {found[0]}" if found else "")
+            )
+        try:
+            document = yaml.compose(Path(name).read_text(), Loader=yaml.SafeLoader)
+        except OSError:
+            continue  # the parser names a missing file itself
+        except yaml.YAMLError as error:
+            mark = getattr(error, "problem_mark", None)
+            where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+            problem = getattr(error, "problem", None) or error
+            raise ValueError(f"--config {name} is not valid YAML{where}: {problem}") from None
+        if document is not None and _expanded_size(document, {}) > MAX_CONFIG_VALUES:
+            raise ValueError(
+                f"--config {name} expands to more than {MAX_CONFIG_VALUES:,} values "
+                "through its YAML aliases (*name repeating &name): refused; a "
+                "config needs no more"
+            )
+
+
+def check_classes(words: list[str]) -> None:
+    """Refuse a ``--model``/``--data`` import path (``package.module.Class``; not a file)
+    that cannot be imported, naming it and why (the parser prints its usage over the cause)."""
+    given = [(flag, value) for flag, value in zip(words, words[1:]) if flag in CLASS_FLAGS]
+    given += [
+        tuple(word.split("=", 1))
+        for word in words
+        if "=" in word and word.split("=", 1)[0] in CLASS_FLAGS
+    ]
+    for flag, value in given:
+        if (
+            not re.fullmatch(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)+", value)
+            or Path(value).exists()
+            or Path(value).suffix in (".yaml", ".yml", ".json")
+        ):
+            continue
+        try:
+            import_object(value)
+        except (ImportError, AttributeError) as error:
+            raise ValueError(
+                f"{flag} {value} cannot be imported ({error}); give a class's "
+                f"import path, e.g. {CLASS_FLAGS[flag]}"
+            ) from None
+
+
+def _expanded_size(node: yaml.Node, sizes: dict[int, int]) -> int:
+    """How many values the YAML ``node`` holds with every alias expanded, counted once per
+    distinct node (``sizes``: by id), so a billion-value alias bomb costs microseconds."""
+    if id(node) not in sizes:
+        sizes[id(node)] = 1  # a node that contains itself counts once
+        children = (
+            [part for pair in node.value for part in pair]
+            if isinstance(node, yaml.MappingNode)
+            else node.value
+            if isinstance(node, yaml.SequenceNode)
+            else []
+        )
+        sizes[id(node)] = 1 + sum(_expanded_size(child, sizes) for child in children)
+    return sizes[id(node)]
+
+
+def user_message(error: BaseException) -> str | None:
+    """The message of the error the user's value caused (None: not one of ``USER_ERRORS``, a
+    bug whose traceback shows): jsonargparse wraps a class's ValueError in one of its own
+    that lists every type it tried, so unwrap those; a DataLoader worker's error is the
+    worker's own one line, as in the main process (torch re-raises it with the worker's
+    traceback as its message, or as a RuntimeError where its type takes other arguments)."""
+    while error.__cause__ is not None and _raised_in(error, "jsonargparse"):
+        error = error.__cause__
+    worker = WORKER_ERROR.match(str(error.args[0]) if error.args else "")
+    if worker is None:
+        return str(error) if isinstance(error, USER_ERRORS) else None
+    module, _, name = worker["type"].rpartition(".")
+    try:
+        original = getattr(importlib.import_module(module) if module else builtins, name, None)
+    except ImportError:
+        original = None
+    if isinstance(original, type) and issubclass(original, USER_ERRORS):
+        return worker["message"]
+    return None
+
+
+def _raised_in(error: BaseException, package: str) -> bool:
+    """Whether ``error`` was raised by code of ``package``."""
+    frames = traceback.extract_tb(error.__traceback__)
+    return bool(frames) and f"{os.sep}{package}{os.sep}" in frames[-1].filename
