@@ -21,7 +21,7 @@ from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.probe_datamodule import probe_datamodule
 from voe_lightning.report import write_report
 from voe_lightning.report.figures import PredictionExample
-from voe_lightning.report.results import (
+from voe_lightning.report.pairs import (
     FIRST_DIFFERENCE,
     PROBE_OUTPUT_KEYS,
     PairResults,

@@ -31,7 +31,7 @@ from voe_lightning.cli import analysis, null, preflight
 from voe_lightning.data import generate
 from voe_lightning.model import SurpriseModel
 from voe_lightning.probe_datamodule import ProbeDataModule
-from voe_lightning.report.results import PRIORS_ALONE
+from voe_lightning.report.priors_alone import PRIORS_ALONE
 from voe_lightning.runs import read_checkpoint
 from voe_lightning.stats import statistics
 from voe_lightning.stats.surprise_window import surprise_window

@@ -31,7 +31,10 @@ from typing import Any
 from voe_lightning.audit import cue_report, cues
 from voe_lightning.data.store_shards import current_umask, remove_stale, temporary_prefix
 from voe_lightning.report.figures import PredictionExample, write_figures
-from voe_lightning.report.results import VRNN_SURPRISE, PairResults, summarize, write_summary
+from voe_lightning.report.markdown import VRNN_SURPRISE
+from voe_lightning.report.pairs import PairResults
+from voe_lightning.report.summary import write_summary
+from voe_lightning.report.tables import summarize
 from voe_lightning.stats.statistics import ALPHA
 from voe_lightning.stats.surprise_window import SurpriseWindow
 
