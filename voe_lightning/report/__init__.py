@@ -1,6 +1,8 @@
 """The paper's Results section for one run (paper §5, Figures 4-5, Appendices B-C), written to
 ``<run dir>/voe_report/`` by ``write_report`` or, during ``test``, by
-``voe_lightning.callbacks.VOEReportCallback``; the numbers are in ``results``, the figures in
+``voe_lightning.callbacks.VOEReportCallback``: the per-pair results in ``pairs``, the
+statistics rows in ``tables``, summary.md's text in ``markdown`` (and ``priors_alone``'s
+section), the summary files in ``summary`` (read back by ``summary_file``), the figures in
 ``figures``.
 
 Files: ``summary.json``/``summary.csv``/``summary.md`` (one row per concept/variant, a
