@@ -3,6 +3,7 @@ stratified pooled_test for pooled rows) at the run's alpha, pairs.csv round trip
 Trainer.test with a small frame-persistence model."""
 
 import csv
+import importlib
 import json
 import math
 
@@ -13,6 +14,7 @@ import torch
 from PIL import Image
 from scipy import stats
 from tensordict import TensorDict
+from test_imports import module_files, package_imports
 from torch.utils.data import DataLoader
 
 from voe_lightning import specs
@@ -445,3 +447,23 @@ def test_callback_refuses_missing_outputs_names_and_probes(tmp_path):
         _trainer(tmp_path, VOEReportCallback()).test(PersistenceModel(), datamodule=unnamed)
     with pytest.raises(RuntimeError, match="collected no probe results"):
         _trainer(tmp_path, VOEReportCallback()).test(PersistenceModel(), datamodule=ProbeData([]))
+
+
+def test_the_former_results_module_names_the_objects_of_the_modules_now_holding_them():
+    """``voe_lightning.report.results``, split by idea (issue 49), keeps its public names for
+    other people's code, each the very object of its new module; the package imports those."""
+    from voe_lightning.report import results
+
+    homes = [
+        importlib.import_module(f"voe_lightning.report.{name}")
+        for name in ("pairs", "tables", "markdown", "priors_alone", "summary", "summary_file")
+    ]
+    assert {"PairResults", "summarize", "write_summary", "read_summary"} <= set(results.__all__)
+    for name in results.__all__:
+        assert any(getattr(home, name, None) is getattr(results, name) for home in homes), name
+    files = module_files()
+    assert not {
+        name
+        for name, path in files.items()
+        if "voe_lightning.report.results" in package_imports(name, path, set(files))
+    }

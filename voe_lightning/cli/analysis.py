@@ -30,7 +30,8 @@ from voe_lightning.cli.size_sweep import sweep, sweep_plot
 from voe_lightning.data.store import collate, open_split, read_manifest
 from voe_lightning.model import VRNNLRUModel
 from voe_lightning.report.figures import panel_grid, save_figure
-from voe_lightning.report.results import PairResults, read_summary
+from voe_lightning.report.pairs import PairResults
+from voe_lightning.report.summary_file import read_summary
 from voe_lightning.stats.field_metrics import context_sweep, format_field_metrics
 from voe_lightning.stats.statistics import POOLED, QUADRUPLET_ROWS
 from voe_lightning.stats.statistics_format import BRIEF, format_alpha, row_text

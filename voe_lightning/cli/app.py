@@ -34,7 +34,7 @@ from voe_lightning.cli.run_arguments import BASE_CONFIG
 from voe_lightning.cli.user_errors import DEBUG_VARIABLE
 from voe_lightning.model import SurpriseModel
 from voe_lightning.probe_datamodule import ProbeDataModule
-from voe_lightning.report.results import PRIORS_ALONE
+from voe_lightning.report.priors_alone import PRIORS_ALONE
 from voe_lightning.runs import read_checkpoint
 
 #: Exit status of a fit/validate/test whose probe surprise failed the causality check (the

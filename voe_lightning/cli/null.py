@@ -30,7 +30,7 @@ from matplotlib.figure import Figure
 
 from voe_lightning.data.store_shards import write_whole
 from voe_lightning.report.figures import save_figure
-from voe_lightning.report.results import read_summary
+from voe_lightning.report.summary_file import read_summary
 from voe_lightning.runs import fresh_config_name
 from voe_lightning.stats.statistics_format import format_number
 

@@ -17,7 +17,8 @@ from matplotlib.figure import Figure
 
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.report.figures import panel_grid, save_figure
-from voe_lightning.report.results import PairResults, read_summary
+from voe_lightning.report.pairs import PairResults
+from voe_lightning.report.summary_file import read_summary
 from voe_lightning.stats.statistics import ALPHA, paired_test
 
 __all__ = ["run_size_sweep", "size_sweep_figure", "sweep", "sweep_plot", "sweep_rows"]

@@ -1,6 +1,8 @@
 """The paper's Results section for one run (paper §5, Figures 4-5, Appendices B-C), written to
 ``<run dir>/voe_report/`` by ``write_report`` or, during ``test``, by
-``voe_lightning.callbacks.VOEReportCallback``; the numbers are in ``results``, the figures in
+``voe_lightning.callbacks.VOEReportCallback``: the per-pair results in ``pairs``, the
+statistics rows in ``tables``, summary.md's text in ``markdown`` (and ``priors_alone``'s
+section), the summary files in ``summary`` (read back by ``summary_file``), the figures in
 ``figures``.
 
 Files: ``summary.json``/``summary.csv``/``summary.md`` (one row per concept/variant, a
@@ -31,7 +33,10 @@ from typing import Any
 from voe_lightning.audit import cue_report, cues
 from voe_lightning.data.store_shards import current_umask, remove_stale, temporary_prefix
 from voe_lightning.report.figures import PredictionExample, write_figures
-from voe_lightning.report.results import VRNN_SURPRISE, PairResults, summarize, write_summary
+from voe_lightning.report.markdown import VRNN_SURPRISE
+from voe_lightning.report.pairs import PairResults
+from voe_lightning.report.summary import write_summary
+from voe_lightning.report.tables import summarize
 from voe_lightning.stats.statistics import ALPHA
 from voe_lightning.stats.surprise_window import SurpriseWindow
 

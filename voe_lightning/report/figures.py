@@ -16,7 +16,7 @@ from matplotlib.figure import Figure
 from scipy import stats
 
 from voe_lightning.data.store_shards import write_whole
-from voe_lightning.report.results import PairResults, as_numpy
+from voe_lightning.report.pairs import PairResults, as_numpy
 from voe_lightning.specs import GENERALIZATION_VARIANT_NAMES
 from voe_lightning.stats.statistics import POOLED
 from voe_lightning.stats.statistics_format import BRIEF, format_p_phrase, row_text, rows_alpha
