@@ -1,14 +1,11 @@
 """Shared test settings and fixtures: headless rendering, a working folder, one tiny trained run."""
 
 import os
-from pathlib import Path
 
 import pytest
+from locations import TINY_CONFIG
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-
-#: The tiny run's config (one concept, 6 frames of 32x32, a small model).
-TINY_CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
 
 
 @pytest.fixture()

@@ -11,14 +11,14 @@ import re
 import shlex
 import sys
 from functools import cache
-from pathlib import Path
 
 import pytest
 import yaml
+from locations import REPO
 
 from voe_lightning.cli import main
 
-ROOT = Path(__file__).parents[1]
+ROOT = REPO
 CONFIGS = ROOT / "configs"
 #: Study history: its commands ran on the code of their day (docs/study/archive/*.md say so).
 ARCHIVE = ROOT / "docs" / "study" / "archive"

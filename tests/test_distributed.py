@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from locations import TINY_CONFIG
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from voe_lightning import specs
@@ -29,7 +30,7 @@ from voe_lightning.cli import main
 from voe_lightning.report.results import PairResults, summarize
 from voe_lightning.stats.statistics import QUADRUPLET_ROWS
 
-CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
+CONFIG = TINY_CONFIG
 DDP = ["--trainer.strategy", "ddp_spawn", "--trainer.devices", "2", "--trainer.accelerator", "cpu"]
 STATISTICS = ("relative_surprise", "t", "p_value", "accuracy", "n")
 #: Least float32 noise of a video's surprise S between two batch compositions, relative to S
@@ -200,6 +201,7 @@ def _assert_close(actual: float, expected: float, tolerance: float, what) -> Non
     )
 
 
+@pytest.mark.slow
 def test_ddp_fit_and_test_match_a_single_process(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     _ddp("fit", cwd=tmp_path)
@@ -256,6 +258,7 @@ def test_ddp_fit_and_test_match_a_single_process(tmp_path, monkeypatch):
             _assert_close(ddp_rows[key][statistic], row[statistic], allowed, (key, statistic))
 
 
+@pytest.mark.slow
 def test_cpu_ddp_ranks_exit_cleanly(tmp_path):
     """A SurpriseModel's setup makes each gloo rank destroy its process group at exit: six
     runs without one abort (without it, each aborts with probability about one half)."""

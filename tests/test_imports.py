@@ -1,6 +1,7 @@
 """The library never depends on the DataModules: no module of ``voe_lightning`` imports
 ``datamodules``, not even by name in a string (``importlib``, a dispatch table); and no module of
-the package is in an import circle, not even through an import inside a function."""
+the package is in an import circle, not even through an import inside a function or a
+package's ``__init__``; and none is over 500 lines."""
 
 import ast
 import graphlib
@@ -114,3 +115,13 @@ def test_no_module_of_voe_lightning_imports_an_old_module_path():
         if (old := package_imports(name, path, set(files) | OLD_PATHS.keys()) & OLD_PATHS.keys())
     }
     assert offenders == {}
+
+
+def test_no_module_of_voe_lightning_is_over_500_lines():
+    """One idea per module: a module past 500 lines holds two (CONTRIBUTING.md)."""
+    files = module_files()
+    long = {
+        name: n for name, path in files.items() if (n := len(path.read_text().splitlines())) > 500
+    }
+    assert len(files) > 100
+    assert long == {}

@@ -9,8 +9,9 @@ import sys
 from pathlib import Path
 
 import pytest
+from locations import REPO
 
-INSTALL = Path(__file__).resolve().parents[1] / "scripts" / "install.sh"
+INSTALL = REPO / "scripts" / "install.sh"
 
 
 def run_with_python3(shim: str, tmp_path: Path) -> subprocess.CompletedProcess:

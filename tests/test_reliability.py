@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from locations import REPO
 from test_cli import CONFIG, copy_of
 
 from voe_lightning import specs
@@ -27,7 +28,7 @@ from voe_lightning.report.results import PairResults
 from voe_lightning.runs import report_folder
 from voe_lightning.scenes.camera import VideoOptions
 
-CONFIGS = Path(__file__).parents[1] / "configs"
+CONFIGS = REPO / "configs"
 
 
 class MeanBrightness(SurpriseModel):
@@ -182,6 +183,7 @@ def test_a_directory_as_checkpoint_is_named_as_one(workdir, trained, capsys):
 
 
 # ----------------------------------------------------------------------------- 2, 3: folders
+@pytest.mark.slow
 def test_a_retest_on_another_concept_gets_its_own_folder_and_no_stale_files(workdir, trained):
     run = copy_of(trained, workdir)
     checkpoint = str(run / "checkpoints" / "last.ckpt")

@@ -115,7 +115,7 @@ class ObjectCentricModel(SurpriseModel):
             size, the mean over a code's dimensions, so a code weighs about as much as a
             visibility bit. Summed over its dimensions, the code's gradient drowns the
             visibility's in the shared recurrent state: on scripted occlusion clips
-            (tests/test_visibility_aware.py), a hidden ball was expected back with p = 0.59 at
+            (tests/model/object_centric/test_visibility_aware.py), a hidden ball was expected back with p = 0.59 at
             weight 1 and 0.80 at 0.1 after the same 600 training steps.
         object_free: the twin without objects: a single slot whose code is of the whole frame
             (mask all ones, no masks needed, no interactions).

@@ -9,12 +9,13 @@ from pathlib import Path
 import pytest
 import scipy.stats
 import yaml
+from locations import REPO, TINY_CONFIG
 from PIL import Image
 
 from voe_lightning.cli import main
 from voe_lightning.cli.null import format_null, null_figure, null_rows
 
-TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
+TINY = TINY_CONFIG
 
 
 def summary(t_standard, t_pooled, voe, significant=False):
@@ -133,9 +134,7 @@ def test_analyze_null_tests_each_initialization_on_the_same_probes(tmp_path, mon
 def control_config(folder: Path) -> str:
     """The tiny run with configs/object_state.yaml's model (its priors as given, small sizes)
     and callbacks (the report's priors_alone among them): its path."""
-    control = yaml.safe_load(
-        (Path(__file__).parents[1] / "configs" / "object_state.yaml").read_text()
-    )
+    control = yaml.safe_load((REPO / "configs" / "object_state.yaml").read_text())
     config = yaml.safe_load(Path(TINY).read_text())
     config["model"] = control["model"]
     config["model"]["init_args"].update(hidden_size=16, message_size=8, withhold_frames=2)
@@ -145,6 +144,7 @@ def control_config(folder: Path) -> str:
     return str(path)
 
 
+@pytest.mark.slow
 def test_the_controls_report_carries_its_priors_alone(tmp_path, monkeypatch, capsys):
     """A tested control checkpoint's summary.json and summary.md hold, labelled, the t and
     verdicts of the same config untrained at the run's seed: exactly what ``analyze null``

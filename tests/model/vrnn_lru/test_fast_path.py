@@ -69,6 +69,7 @@ def test_channels_last_encoder_takes_frames_without_a_copy():
     assert seen[0].data_ptr() == x.data_ptr()
 
 
+@pytest.mark.slow
 def test_channels_last_backward_on_rgb_input_does_not_crash():
     # torch 2.13's oneDNN backward of a 1x1 stride-2 conv on channels-last 3-channel input
     # crashes the process (64x64, 128 channels); run it in a child so a regression fails cleanly.

@@ -78,6 +78,7 @@ def train(network: VRNNLRUModel, steps: int) -> list[float]:
     return recorder.losses
 
 
+@pytest.mark.slow
 def test_compiled_and_graph_fallback_training_follow_eager_over_100_steps():
     """Same weights, clips and noise: the compiled path's losses stay within 3% of eager's at
     every one of 100 steps (float sums in another order), then per-video surprise within 1%.

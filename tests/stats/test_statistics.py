@@ -5,12 +5,12 @@ alpha."""
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 import yaml
+from locations import REPO
 from scipy import stats
 from sklearn.metrics import roc_auc_score
 
@@ -434,7 +434,7 @@ def test_stratified_degenerate_and_refused_inputs():
 
 
 def test_one_alpha_in_code_and_base_config_and_bad_values_are_named():
-    base = yaml.safe_load((Path(__file__).parents[1] / "configs" / "base.yaml").read_text())
+    base = yaml.safe_load((REPO / "configs" / "base.yaml").read_text())
     assert base["alpha"] == statistics.ALPHA == 0.01
     for bad in (0, 1, 1.5, -0.1, "0.05", True):
         with pytest.raises(ValueError, match=r"alpha must be a significance level in \(0, 1\)"):

@@ -296,6 +296,7 @@ def test_answer_file_scores_equal_the_surprise_metrics_on_dev(dataset_root, tmp_
                 assert values[metric] == pytest.approx(from_surprise[concept][condition][metric])
 
 
+@pytest.mark.slow
 def test_predict_under_ddp_scores_each_movie_once_and_writes_the_same_answer(
     dataset_root, tmp_path
 ):

@@ -395,6 +395,7 @@ CASES = [
 ]
 
 
+@pytest.mark.slow
 def test_callback_writes_the_report_of_a_test_run(tmp_path):
     callback = VOEReportCallback(out_dir=str(tmp_path / "run"), bootstrap=100)
     _trainer(tmp_path, callback).test(PersistenceModel(), datamodule=ProbeData(CASES))

@@ -1,5 +1,5 @@
 """Unchangeableness scenes (paper §3, §5): what each change's quadruplet changes behind the
-screen, in both of its halves (that they splice exactly: tests/test_quadruplets.py), the extra
+screen, in both of its halves (that they splice exactly: tests/stats/test_quadruplets.py), the extra
 objects of the generalization probes, and how examples and controls differ."""
 
 import numpy as np

@@ -4,11 +4,11 @@ accepts and refuses, and a test run whose report names the window beside all fra
 
 import csv
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from locations import TINY_CONFIG
 
 from voe_lightning.cli import main
 from voe_lightning.report.results import PairResults, summarize
@@ -19,7 +19,7 @@ from voe_lightning.stats.surprise_window import (
     video_surprise,
 )
 
-TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
+TINY = TINY_CONFIG
 
 
 def test_the_first_difference_is_the_first_frame_at_which_a_pairs_videos_differ():

@@ -2,7 +2,6 @@
 object forward, and is surprised by a vanishing or a teleport after learning from clips."""
 
 import math
-from pathlib import Path
 from unittest import mock
 
 import numpy as np
@@ -12,6 +11,7 @@ import scipy.stats
 import torch
 import torch.nn.functional as F
 import yaml
+from locations import REPO, TINY_CONFIG
 from tensordict import TensorDict
 
 from voe_lightning import specs
@@ -25,7 +25,7 @@ from voe_lightning.model.object_state.geometry import (
 )
 from voe_lightning.model.optimization import adam
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 FRAMES = 10
 CAMERA = torch.tensor([0.0, 0.0, 0.4, 4.0, 90.0, -20.0])
 BALL, SCREEN = 1, 2  # mask ids
@@ -621,6 +621,7 @@ def test_the_mixture_likelihood_is_scipys_and_its_entropy_the_expected_surprisal
 
 
 @pytest.mark.parametrize("components", [1, 3])
+@pytest.mark.slow
 def test_after_training_it_tracks_a_hidden_ball_and_a_vanishing_or_teleport_surprises_it(
     components,
 ):
@@ -673,12 +674,11 @@ def test_after_training_it_tracks_a_hidden_ball_and_a_vanishing_or_teleport_surp
 def test_fit_then_test_through_the_cli_writes_a_report(tmp_path, monkeypatch):
     """The positive control trains on generated clips (their object states) and is tested
     with the same callbacks, report and cue audit as every family."""
-    from pathlib import Path
 
     from voe_lightning.cli import main
 
     monkeypatch.chdir(tmp_path)
-    config = str(Path(__file__).parent / "configs" / "tiny.yaml")
+    config = TINY_CONFIG
     model = [
         "--model",
         "voe_lightning.model.ObjectStateModel",

@@ -419,6 +419,7 @@ def _alive(pid: int) -> bool:
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc to find the workers")
+@pytest.mark.slow
 def test_workers_die_with_a_killed_parent(tmp_path):
     """Issue 10 case 2: kill -9 of generate leaves no worker (nor resource tracker) rendering.
     Shards of 40 records take seconds each, so an orphan worker would outlive the 1.5 s

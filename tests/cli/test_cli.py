@@ -14,6 +14,7 @@ import nbformat
 import pytest
 import torch
 import yaml
+from locations import REPO, TINY_CONFIG
 from nbclient import NotebookClient
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -23,7 +24,7 @@ from voe_lightning.model import VRNNLRUModel
 from voe_lightning.model.object_centric import SURPRISES
 from voe_lightning.specs import to_model_input
 
-CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
+CONFIG = TINY_CONFIG
 
 
 def _tags(run_dir: Path, kind: str = "scalars") -> set[str]:
@@ -32,6 +33,7 @@ def _tags(run_dir: Path, kind: str = "scalars") -> set[str]:
     return set(accumulator.Tags()[kind])
 
 
+@pytest.mark.slow
 def test_fit_then_test_writes_curves_checkpoint_and_report(workdir):
     main(["fit", "--config", CONFIG])
     run = workdir / "runs" / "tiny" / "version_0"
@@ -64,7 +66,7 @@ def test_fit_then_test_writes_curves_checkpoint_and_report(workdir):
     assert "- object_persistence: " in (report / "summary.md").read_text()  # the verdict
 
     # The notebook reproduces the figures from this real run's directory.
-    notebook = nbformat.read(Path(__file__).parents[1] / "notebooks" / "voe_report.ipynb", 4)
+    notebook = nbformat.read(REPO / "notebooks" / "voe_report.ipynb", 4)
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("VOE_RUN_DIR", str(run))
         patch.delenv("VOE_SWEEP_RESULTS", raising=False)
@@ -145,6 +147,7 @@ def test_bad_configs_are_refused_before_any_work(workdir, capsys, arguments, mes
     assert not (workdir / "data").exists(), "no data may be generated for a refused config"
 
 
+@pytest.mark.slow
 def test_module_entry_point_lists_every_subcommand_with_its_summary():
     result = subprocess.run(
         [sys.executable, "-m", "voe_lightning", "--help"],
@@ -229,7 +232,7 @@ def test_predict_with_the_intphys_test_config_writes_the_answer_file(workdir):
     make_intphys(workdir / "intphys", "test", labelled=False)
     main(["fit", "--config", CONFIG, "--trainer.max_steps", "1"])
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
-    configs = Path(__file__).parents[1] / "configs"
+    configs = REPO / "configs"
     main(
         [
             "predict",
@@ -257,6 +260,7 @@ def test_predict_with_the_intphys_test_config_writes_the_answer_file(workdir):
     assert path.startswith("O1/") and 0.0 <= float(score) <= 1.0
 
 
+@pytest.mark.slow
 def test_size_sweep_trains_and_tests_through_the_real_cli(workdir):
     rows = main(
         [
@@ -704,7 +708,7 @@ def test_intphys_test_of_a_checkpoint_writes_beside_it_in_the_models_geometry(wo
 
     make_intphys(workdir / "intphys", "dev", labelled=True)
     run = copy_of(trained, workdir)
-    config = str(Path(__file__).parents[1] / "configs" / "intphys_dev.yaml")
+    config = str(REPO / "configs" / "intphys_dev.yaml")
     cli = main(
         [
             "test",

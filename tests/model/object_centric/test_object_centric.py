@@ -2,10 +2,10 @@
 training stages, slot symmetry, padding, refusals, parameter parity, and fit + test by CLI."""
 
 import json
-from pathlib import Path
 
 import pytest
 import torch
+from locations import REPO, TINY_CONFIG
 from tensordict import TensorDict
 
 from voe_lightning.cli import main
@@ -20,7 +20,7 @@ from voe_lightning.scenes import (
     generate_probe,
 )
 
-CONFIG = str(Path(__file__).parent / "configs" / "tiny.yaml")
+CONFIG = TINY_CONFIG
 TINY = dict(
     image_size=(32, 32),
     num_slots=4,
@@ -373,7 +373,7 @@ def test_the_object_free_twin_is_scored_on_intphys_by_the_benchmark_configs(tmp_
     main(["fit", "--config", CONFIG, *model, "--trainer.logger.init_args.name=twin"])
     run = tmp_path / "runs" / "twin" / "version_0"
     checkpoint = str(run / "checkpoints" / "last.ckpt")
-    configs = Path(__file__).parents[1] / "configs"
+    configs = REPO / "configs"
     data = [
         "--data.init_args.root",
         str(tmp_path / "intphys"),
@@ -437,7 +437,7 @@ def test_fit_and_test_on_physical_concepts_freeform_and_probes(tmp_path, monkeyp
 
     monkeypatch.chdir(tmp_path)
     root = make_dataset(tmp_path / "physical_concepts")
-    configs = Path(__file__).parents[1] / "configs"
+    configs = REPO / "configs"
     arguments = [
         *(
             word

@@ -5,15 +5,15 @@ that returns the wrong shape is named."""
 
 import json
 import sys
-from pathlib import Path
 
 import pytest
 import torch
+from locations import TINY_CONFIG
 
 from voe_lightning.cli import main
 from voe_lightning.model import CallableModel
 
-TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
+TINY = TINY_CONFIG
 USER_MODULE = '''
 import torch
 

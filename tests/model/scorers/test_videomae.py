@@ -3,17 +3,17 @@ its reconstruction targets are the ones the library's own loss uses, surprise is
 shaped per frame, a folder saved with save_pretrained loads without the network, and ``test``
 scores it on our probes with no checkpoint."""
 
-from pathlib import Path
-
 import pytest
 import torch
 
 pytest.importorskip("transformers")
 
+from locations import TINY_CONFIG
+
 from voe_lightning.cli import main  # noqa: E402
 from voe_lightning.model.scorers.videomae import VideoMAEScorer  # noqa: E402
 
-TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
+TINY = TINY_CONFIG
 CONFIG = dict(
     image_size=32,
     patch_size=8,

@@ -4,11 +4,11 @@ rows follow the cue it is made of), IntPhys and Physical Concepts (IntPhys 2: te
 
 import csv
 import json
-from pathlib import Path
 
 import lightning as L
 import pytest
 import torch
+from locations import TINY_CONFIG
 
 from voe_lightning.audit import cues
 from voe_lightning.callbacks import VOEReportCallback
@@ -18,7 +18,7 @@ from voe_lightning.external.metrics import read_answer_file
 from voe_lightning.model import CueScorer
 from voe_lightning.model.scorers.cue_scorer import CUE_NAMES
 
-TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
+TINY = TINY_CONFIG
 
 
 @pytest.mark.parametrize("cue", list(CUE_NAMES))

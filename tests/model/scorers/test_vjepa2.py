@@ -6,19 +6,19 @@ features of the whole window, causal and frozen; a folder saved with save_pretra
 without the network, and ``test`` scores it on our probes with no checkpoint. The causality
 protocol test (tests/test_causality.py) runs it with every other family."""
 
-from pathlib import Path
-
 import pytest
 import torch
 import torch.nn.functional as F
 
 pytest.importorskip("transformers")
 
+from locations import TINY_CONFIG
+
 from voe_lightning import specs  # noqa: E402
 from voe_lightning.cli import main  # noqa: E402
 from voe_lightning.model.scorers.vjepa2 import VJEPA2Scorer, window_ends  # noqa: E402
 
-TINY = str(Path(__file__).parent / "configs" / "tiny.yaml")
+TINY = TINY_CONFIG
 #: A tiny V-JEPA 2 (random mask tokens, so the predictor's outputs differ by position).
 CONFIG = dict(
     crop_size=32,

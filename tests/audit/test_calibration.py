@@ -44,6 +44,7 @@ def _describe(row) -> str:
 
 
 @pytest.mark.parametrize("concept", specs.CONCEPTS)
+@pytest.mark.slow
 def test_false_voe_stays_at_alpha_for_noise_and_every_cue_follower_the_stimuli_can_expose(
     rows, concept
 ):

@@ -18,6 +18,7 @@ import pytest
 import torch
 import yaml
 from benchmark_quadruplets import check_quadruplet_rows
+from locations import REPO
 
 from datamodules.intphys2 import IntPhys2DataModule
 from voe_lightning.cli import main
@@ -50,7 +51,7 @@ SCENES = {
 #: prefix -> (the possible video's object, the impossible one's object after the switch,
 #: switch source frame, first sampled frame that differs)
 PREFIXES = {"1": ("A", "B", 4, 2), "2": ("B", "A", 6, 3)}
-CONFIG = str(Path(__file__).resolve().parents[1] / "configs" / "intphys2.yaml")
+CONFIG = str(REPO / "configs" / "intphys2.yaml")
 
 
 def write_mp4(path, frames):
@@ -470,6 +471,7 @@ def test_cue_scorer_runs_test_and_predict_without_a_checkpoint(root, tmp_path):
     )
 
 
+@pytest.mark.slow
 def test_the_package_and_its_datamodules_import_without_pyav():
     """PyAV is needed only to decode IntPhys 2's videos: a machine that trains on generated data
     (a lent GPU with no package index, say) must start without it."""
@@ -477,7 +479,7 @@ def test_the_package_and_its_datamodules_import_without_pyav():
         "import sys; sys.modules['av'] = None; "
         "import voe_lightning.cli, datamodules, voe_lightning.external.intphys2"
     )
-    root = Path(__file__).resolve().parents[1]
+    root = REPO
     result = subprocess.run(
         [sys.executable, "-c", blocked],
         cwd=root,

@@ -168,6 +168,7 @@ def _reappearance(model: ObjectCentricModel, clips: TensorDict) -> tuple[float, 
     return float(probability.mean()), float(terms["code"][0][:, :, BALL][back].mean())
 
 
+@pytest.mark.slow
 def test_after_training_a_hidden_ball_is_expected_back_and_a_vanishing_surprises(trained):
     """Trained on physical clips only, the model expects the hidden ball to come out again,
     where the untrained one does not, and its code there is likelier; the same ball vanishing

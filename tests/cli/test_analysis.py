@@ -9,6 +9,7 @@ from pathlib import Path
 import nbformat
 import numpy as np
 import pytest
+from locations import REPO
 from nbclient import NotebookClient
 from PIL import Image
 from torch.utils.tensorboard import SummaryWriter
@@ -20,7 +21,7 @@ from voe_lightning.report import write_report
 from voe_lightning.report.results import PairResults
 from voe_lightning.stats.statistics import paired_test
 
-NOTEBOOK = Path(__file__).parent.parent / "notebooks" / "voe_report.ipynb"
+NOTEBOOK = REPO / "notebooks" / "voe_report.ipynb"
 T = 5
 
 
@@ -366,6 +367,7 @@ def test_command_line_writes_the_figures(tmp_path, capsys):
     assert "either results" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_notebook_reproduces_the_figures_of_a_run_directory(tmp_path, monkeypatch):
     run = tmp_path / "lightning_logs" / "version_0"
     results = pair_results(
