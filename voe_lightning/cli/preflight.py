@@ -4,7 +4,6 @@ nothing, log no VOE statistics or fail only after the data is rendered."""
 
 from __future__ import annotations
 
-import importlib
 import os
 from pathlib import Path
 from typing import Any
@@ -13,6 +12,7 @@ import lightning as L
 from lightning.pytorch.utilities import rank_zero_warn
 
 from voe_lightning import specs
+from voe_lightning.cli.class_paths import import_object
 from voe_lightning.runs import concepts_of
 
 #: The longest file or folder name (bytes) common file systems take.
@@ -125,8 +125,7 @@ def _check_batch_size(data: Any) -> None:
 
 def _predicts(class_path: str) -> bool:
     """Whether the DataModule class ``class_path`` names implements predict_dataloader."""
-    module_name, _, name = class_path.rpartition(".")
-    data_class = getattr(importlib.import_module(module_name), name)
+    data_class = import_object(class_path)
     return data_class.predict_dataloader is not L.LightningDataModule.predict_dataloader
 
 
