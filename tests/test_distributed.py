@@ -30,7 +30,6 @@ from voe_lightning.cli import main
 from voe_lightning.report.results import PairResults, summarize
 from voe_lightning.stats.statistics import QUADRUPLET_ROWS
 
-CONFIG = TINY_CONFIG
 DDP = ["--trainer.strategy", "ddp_spawn", "--trainer.devices", "2", "--trainer.accelerator", "cpu"]
 STATISTICS = ("relative_surprise", "t", "p_value", "accuracy", "n")
 #: Least float32 noise of a video's surprise S between two batch compositions, relative to S
@@ -104,7 +103,7 @@ def _ddp(subcommand: str, *arguments: str, cwd: Path) -> None:
             "voe_lightning",
             subcommand,
             "--config",
-            CONFIG,
+            TINY_CONFIG,
             *DATA,
             *DDP,
             *arguments,
@@ -215,7 +214,7 @@ def test_ddp_fit_and_test_match_a_single_process(tmp_path, monkeypatch):
     # The last validation of the DDP fit ran on the checkpoint's weights: a single process
     # validating that checkpoint on the same pairs must log the same statistics, each pair
     # once (n), up to the float noise of the per-pair surprise of that single process.
-    cli = main(["validate", "--config", CONFIG, *DATA, "--ckpt_path", str(checkpoint)])
+    cli = main(["validate", "--config", TINY_CONFIG, *DATA, "--ckpt_path", str(checkpoint)])
     single = {
         tag: float(value)
         for tag, value in cli.trainer.callback_metrics.items()
@@ -241,7 +240,7 @@ def test_ddp_fit_and_test_match_a_single_process(tmp_path, monkeypatch):
     # up to what that noise can change.
     _ddp("test", "--ckpt_path", str(checkpoint), cwd=tmp_path)
     ddp_rows, ddp_pairs = _report(run / "voe_report")
-    main(["test", "--config", CONFIG, *DATA, "--ckpt_path", str(checkpoint)])
+    main(["test", "--config", TINY_CONFIG, *DATA, "--ckpt_path", str(checkpoint)])
     rows, pairs = _report(run / "voe_report")
     assert rows.keys() == ddp_rows.keys()
     assert rows[("continuity", "pooled")]["n"] == 6 and len(pairs) == 27

@@ -10,7 +10,8 @@ import pickle
 import pytest
 import torch
 import yaml
-from test_cli import CONFIG, copy_of
+from locations import TINY_CONFIG
+from test_cli import copy_of
 from test_configs import parsed
 
 from datamodules import JointDataModule, VOEDataModule
@@ -54,7 +55,7 @@ def test_the_joint_datamodule_is_the_voe_datamodule_with_its_defaults():
 
 
 def test_a_saved_config_naming_the_old_classes_parses(workdir):
-    config = yaml.safe_load(open(CONFIG))
+    config = yaml.safe_load(open(TINY_CONFIG))
     config["model"]["class_path"] = "voe_lightning.model.VOEModel"
     config["data"] = {
         "class_path": "datamodules.JointDataModule",
@@ -77,7 +78,7 @@ def test_a_checkpoint_saved_under_the_old_model_name_tests(workdir, trained, cla
     assert isinstance(
         VRNNLRUModel.load_from_checkpoint(checkpoint, weights_only=True), VRNNLRUModel
     )
-    main(["test", "--config", CONFIG, "--ckpt_path", str(checkpoint)])
+    main(["test", "--config", TINY_CONFIG, "--ckpt_path", str(checkpoint)])
     assert (run / "voe_report" / "summary.json").is_file()
 
 

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from locations import REPO
-from test_cli import CONFIG, copy_of
+from locations import REPO, TINY_CONFIG
+from test_cli import copy_of
 
 from voe_lightning import specs
 from voe_lightning.cli import main
@@ -75,7 +75,7 @@ def _refused(capsys, arguments: list[str]) -> str:
 @pytest.mark.parametrize(
     "arguments",
     [
-        ["test", "--config", CONFIG],
+        ["test", "--config", TINY_CONFIG],
         [
             "predict",
             "--config",
@@ -94,7 +94,7 @@ def test_a_trainable_model_without_checkpoint_is_refused_naming_the_fix(workdir,
 
 
 def test_a_model_without_parameters_needs_no_checkpoint(workdir):
-    main(["test", "--config", CONFIG, "--model", "test_reliability.MeanBrightness"])
+    main(["test", "--config", TINY_CONFIG, "--model", "test_reliability.MeanBrightness"])
     [report] = workdir.rglob("voe_report")
     source = json.loads((report / "summary.json").read_text())["source"]
     assert source["checkpoint"] is None and source["global_step"] is None
@@ -112,7 +112,7 @@ def test_last_is_the_newest_run_and_the_report_names_what_it_was_made_from(
         [
             "test",
             "--config",
-            CONFIG,
+            TINY_CONFIG,
             "--trainer.logger.init_args.name",
             "trained",
             "--ckpt_path",
@@ -139,7 +139,7 @@ def test_last_is_the_newest_run_and_the_report_names_what_it_was_made_from(
         [
             "fit",
             "--config",
-            CONFIG,
+            TINY_CONFIG,
             "--trainer.logger.init_args.name",
             "trained",
             "--ckpt_path",
@@ -168,7 +168,15 @@ def test_last_or_best_without_such_a_checkpoint_is_refused(workdir, trained, cap
     name = "nothing" if word == "last" else "trained"
     line = _refused(
         capsys,
-        ["test", "--config", CONFIG, "--ckpt_path", word, "--trainer.logger.init_args.name", name],
+        [
+            "test",
+            "--config",
+            TINY_CONFIG,
+            "--ckpt_path",
+            word,
+            "--trainer.logger.init_args.name",
+            name,
+        ],
     )
     assert message in line
     assert not (workdir / "data").exists()
@@ -176,7 +184,7 @@ def test_last_or_best_without_such_a_checkpoint_is_refused(workdir, trained, cap
 
 def test_a_directory_as_checkpoint_is_named_as_one(workdir, trained, capsys):
     run = copy_of(trained, workdir)
-    line = _refused(capsys, ["test", "--config", CONFIG, "--ckpt_path", str(run)])
+    line = _refused(capsys, ["test", "--config", TINY_CONFIG, "--ckpt_path", str(run)])
     assert f"--ckpt_path {run} is a directory, not a checkpoint file" in line
     assert str(run / "checkpoints" / "last.ckpt") in line
     assert "does not exist" not in line
@@ -187,17 +195,17 @@ def test_a_directory_as_checkpoint_is_named_as_one(workdir, trained, capsys):
 def test_a_retest_on_another_concept_gets_its_own_folder_and_no_stale_files(workdir, trained):
     run = copy_of(trained, workdir)
     checkpoint = str(run / "checkpoints" / "last.ckpt")
-    main(["test", "--config", CONFIG, "--ckpt_path", checkpoint])
+    main(["test", "--config", TINY_CONFIG, "--ckpt_path", checkpoint])
     own = run / "voe_report"
     (own / "stale.png").write_bytes(b"from an earlier report")
-    main(["test", "--config", CONFIG, "--ckpt_path", checkpoint])
+    main(["test", "--config", TINY_CONFIG, "--ckpt_path", checkpoint])
     assert not (own / "stale.png").exists(), "a rewritten report keeps no earlier file"
     own_summary = (own / "summary.json").read_text()
     main(
         [
             "test",
             "--config",
-            CONFIG,
+            TINY_CONFIG,
             "--ckpt_path",
             checkpoint,
             "--data.init_args.concept",
@@ -249,7 +257,7 @@ def test_a_signal_during_fit_saves_a_resumable_checkpoint_and_exits_non_zero(
     )
     before = signal.getsignal(signal.SIGINT)  # SIG_IGN in a job started with & or nohup
     with pytest.raises(SystemExit) as raised:
-        main(["fit", "--config", CONFIG, "--config", str(config), "--trainer.max_steps", "6"])
+        main(["fit", "--config", TINY_CONFIG, "--config", str(config), "--trainer.max_steps", "6"])
     assert raised.value.code == code
     checkpoint = Path("runs/tiny/version_0/checkpoints/last.ckpt")
     assert (
@@ -258,7 +266,7 @@ def test_a_signal_during_fit_saves_a_resumable_checkpoint_and_exits_non_zero(
     )
     assert torch.load(checkpoint, weights_only=True)["global_step"] == 3
     assert signal.getsignal(signal.SIGINT) is before  # the handler the fit found, put back
-    cli = main(["fit", "--config", CONFIG, "--trainer.max_steps", "6", "--ckpt_path", "last"])
+    cli = main(["fit", "--config", TINY_CONFIG, "--trainer.max_steps", "6", "--ckpt_path", "last"])
     assert cli.trainer.global_step == 6
     assert not (workdir / "runs" / "tiny" / "version_1").exists()
 
@@ -355,9 +363,9 @@ def test_an_interrupted_report_leaves_the_previous_one_whole(tmp_path, monkeypat
 def test_a_bad_argument_is_one_line_and_debug_shows_the_traceback(
     workdir, capsys, arguments, message
 ):
-    assert message in _refused(capsys, ["fit", "--config", CONFIG, *arguments])
+    assert message in _refused(capsys, ["fit", "--config", TINY_CONFIG, *arguments])
     with pytest.raises((ValueError, OSError)):
-        main(["fit", "--config", CONFIG, *arguments, "--debug"])
+        main(["fit", "--config", TINY_CONFIG, *arguments, "--debug"])
     assert not (workdir / "data").exists()
 
 
@@ -379,7 +387,7 @@ def test_a_bad_argument_is_one_line_and_debug_shows_the_traceback(
 def test_arguments_that_contradict_each_other_are_refused_before_rendering(
     workdir, capsys, arguments, message
 ):
-    assert message in _refused(capsys, ["fit", "--config", CONFIG, *arguments])
+    assert message in _refused(capsys, ["fit", "--config", TINY_CONFIG, *arguments])
     assert not (workdir / "data").exists()
 
 
@@ -392,7 +400,7 @@ def test_a_fit_that_would_never_validate_says_so(workdir):
             [
                 "fit",
                 "--config",
-                CONFIG,
+                TINY_CONFIG,
                 "--trainer.max_steps",
                 "1",
                 "--trainer.val_check_interval",
@@ -440,20 +448,26 @@ def test_a_bad_file_or_folder_is_named_in_one_line_before_any_work(
 ):
     (workdir / "broken.yaml").write_text("trainer:\n  max_steps: [1\n")
     (workdir / "a_file").write_text("not a folder")
-    assert message in _refused(capsys, ["fit", "--config", CONFIG, *arguments])
+    assert message in _refused(capsys, ["fit", "--config", TINY_CONFIG, *arguments])
     assert not (workdir / "data").exists()
 
 
 def test_a_checkpoint_argument_the_model_no_longer_takes_is_named(workdir, trained, capsys):
     old = _retired(trained / "checkpoints" / "last.ckpt", workdir)
-    line = _refused(capsys, ["test", "--config", CONFIG, "--ckpt_path", str(old)])
+    line = _refused(capsys, ["test", "--config", TINY_CONFIG, "--ckpt_path", str(old)])
     assert f"{old} holds model arguments VRNNLRUModel no longer takes: retired_argument" in line
 
 
 def test_predict_with_a_datamodule_that_cannot_predict_is_one_line(workdir, trained, capsys):
     line = _refused(
         capsys,
-        ["predict", "--config", CONFIG, "--ckpt_path", str(trained / "checkpoints" / "last.ckpt")],
+        [
+            "predict",
+            "--config",
+            TINY_CONFIG,
+            "--ckpt_path",
+            str(trained / "checkpoints" / "last.ckpt"),
+        ],
     )
     assert "datamodules.ConceptDataModule has none" in line
     assert not (workdir / "data").exists()
@@ -521,7 +535,7 @@ def test_a_checkpoint_retested_on_fresh_probes_says_where_and_keeps_the_training
         [
             "test",
             "--config",
-            CONFIG,
+            TINY_CONFIG,
             "--ckpt_path",
             str(run / "checkpoints" / "last.ckpt"),
             "--data.init_args.seed_offset",

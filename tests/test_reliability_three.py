@@ -18,9 +18,10 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from locations import TINY_CONFIG
 from rich.console import Console
 from test_analysis import _curve_runs
-from test_cli import CONFIG, copy_of
+from test_cli import copy_of
 from test_intphys2 import FRAMES, SIZE, frame, make_root
 from test_reliability import _refused, _results
 from tfrecord.writer import TFRecordWriter
@@ -79,7 +80,15 @@ def brightness(frames: torch.Tensor) -> torch.Tensor:
 # ----------------------------------------------------------------------------- 1: causality
 def test_a_model_that_reads_the_future_gets_no_verdict_and_a_non_zero_exit(workdir, capsys):
     with pytest.raises(SystemExit) as raised:
-        main(["test", "--config", CONFIG, *CALLABLE, "test_reliability_three.reads_the_next_frame"])
+        main(
+            [
+                "test",
+                "--config",
+                TINY_CONFIG,
+                *CALLABLE,
+                "test_reliability_three.reads_the_next_frame",
+            ]
+        )
     assert raised.value.code == NOT_CAUSAL_EXIT
     printed = capsys.readouterr()
     assert "causality: the model is not causal" in printed.out  # summary.md as printed
@@ -101,7 +110,7 @@ def test_a_model_that_reads_the_future_gets_no_verdict_and_a_non_zero_exit(workd
         [
             "test",
             "--config",
-            CONFIG,
+            TINY_CONFIG,
             *CALLABLE,
             "test_reliability_three.reads_the_next_frame",
             "--allow_non_causal",
@@ -112,7 +121,7 @@ def test_a_model_that_reads_the_future_gets_no_verdict_and_a_non_zero_exit(workd
 
 
 def test_a_causal_model_passes_the_check_and_keeps_its_verdict(workdir, capsys):
-    main(["test", "--config", CONFIG, *CALLABLE, "test_reliability_three.brightness"])
+    main(["test", "--config", TINY_CONFIG, *CALLABLE, "test_reliability_three.brightness"])
     [report] = workdir.rglob("voe_report")
     summary = json.loads((report / "summary.json").read_text())
     assert summary["causality"] == {
@@ -149,7 +158,7 @@ def test_validation_of_a_model_that_reads_the_future_warns_and_withholds_the_ver
                 [
                     "validate",
                     "--config",
-                    CONFIG,
+                    TINY_CONFIG,
                     *CALLABLE,
                     "test_reliability_three.reads_the_next_frame",
                 ]
@@ -299,7 +308,7 @@ def test_a_resumed_fit_on_other_data_is_refused_and_the_record_kept(
     resume = [
         "fit",
         "--config",
-        CONFIG,
+        TINY_CONFIG,
         "--trainer.logger.init_args.name",
         "trained",
         "--ckpt_path",
@@ -324,7 +333,7 @@ def test_a_branch_continues_on_other_data_in_a_new_version(workdir, trained, cap
         [
             "fit",
             "--config",
-            CONFIG,
+            TINY_CONFIG,
             "--trainer.logger.init_args.name",
             "trained",
             "--ckpt_path",
@@ -351,7 +360,7 @@ def test_nothing_is_written_through_a_link_out_of_the_run_folder(workdir, traine
     elsewhere = workdir / "elsewhere.txt"
     elsewhere.write_text("someone else's file\n")
     (run / "test_config.yaml").symlink_to(elsewhere)
-    main(["test", "--config", CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
+    main(["test", "--config", TINY_CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
     assert (run / "test_config.yaml").is_symlink() and (run / "test_config-2.yaml").is_file()
     (run / "config.yaml").unlink()
     (run / "config.yaml").symlink_to(elsewhere)
@@ -360,7 +369,7 @@ def test_nothing_is_written_through_a_link_out_of_the_run_folder(workdir, traine
         [
             "fit",
             "--config",
-            CONFIG,
+            TINY_CONFIG,
             "--trainer.max_steps",
             "1",
             "--trainer.logger.init_args.name",
@@ -377,7 +386,7 @@ def test_a_retest_keeps_the_earlier_evaluations_config(workdir, trained):
     """validate and test of a run's checkpoint save their config beside the earlier one's
     (``-2``), not over it; the report names the config it was made with."""
     run = copy_of(trained, workdir)
-    checkpoint = ["--config", CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")]
+    checkpoint = ["--config", TINY_CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")]
     for subcommand in ("validate", "test"):
         main([subcommand, *checkpoint])
         main([subcommand, *checkpoint, "--seed_everything", "7"])
@@ -591,7 +600,7 @@ def test_a_non_finite_loss_is_one_line(workdir, capsys):
             {"trainer": {"callbacks+": [{"class_path": "test_reliability_three.PoisonWeights"}]}}
         )
     )
-    line = _refused(capsys, ["fit", "--config", CONFIG, "--config", "poison.yaml"])
+    line = _refused(capsys, ["fit", "--config", TINY_CONFIG, "--config", "poison.yaml"])
     assert "non-finite loss at global step 1" in line
 
 
@@ -613,14 +622,14 @@ def test_a_config_folder_or_a_class_that_cannot_be_imported_is_one_line(
     workdir, capsys, arguments, message
 ):
     (workdir / "configs_folder").mkdir()
-    line = _refused(capsys, ["fit", "--config", CONFIG, *arguments])
+    line = _refused(capsys, ["fit", "--config", TINY_CONFIG, *arguments])
     assert message in line and len(line) < 300
 
 
 @pytest.mark.parametrize("function", ["returns_none", "returns_a_ragged_list"])
 def test_a_callable_returning_no_array_is_one_line(workdir, capsys, function):
     line = _refused(
-        capsys, ["test", "--config", CONFIG, *CALLABLE, f"test_reliability_three.{function}"]
+        capsys, ["test", "--config", TINY_CONFIG, *CALLABLE, f"test_reliability_three.{function}"]
     )
     assert f"test_reliability_three.{function} returned a" in line
     assert "that is no array of numbers" in line and "expected surprise [B, T] = [" in line

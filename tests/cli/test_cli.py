@@ -24,8 +24,6 @@ from voe_lightning.model import VRNNLRUModel
 from voe_lightning.model.object_centric import SURPRISES
 from voe_lightning.specs import to_model_input
 
-CONFIG = TINY_CONFIG
-
 
 def _tags(run_dir: Path, kind: str = "scalars") -> set[str]:
     accumulator = EventAccumulator(str(run_dir))
@@ -35,7 +33,7 @@ def _tags(run_dir: Path, kind: str = "scalars") -> set[str]:
 
 @pytest.mark.slow
 def test_fit_then_test_writes_curves_checkpoint_and_report(workdir):
-    main(["fit", "--config", CONFIG])
+    main(["fit", "--config", TINY_CONFIG])
     run = workdir / "runs" / "tiny" / "version_0"
     assert (run / "checkpoints" / "last.ckpt").is_file()
     tags = _tags(run)
@@ -46,7 +44,7 @@ def test_fit_then_test_writes_curves_checkpoint_and_report(workdir):
     assert {"train/loss", "train/reconstruction", "train/kl", "train/prior_regularizer"} <= tags
     assert "expected/object_persistence" in _tags(run, "images")  # input above expectation
 
-    main(["test", "--config", CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
+    main(["test", "--config", TINY_CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
     report = run / "voe_report"  # beside the checkpoint's run, not in a new version
     summary = json.loads((report / "summary.json").read_text())["rows"]
     cases = {(row["concept"], row["variant"], row["n"]) for row in summary}
@@ -78,12 +76,20 @@ def test_fit_then_test_writes_curves_checkpoint_and_report(workdir):
 
 
 def test_resume_continues_in_the_same_run(workdir):
-    main(["fit", "--config", CONFIG])
+    main(["fit", "--config", TINY_CONFIG])
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         cli = main(
-            ["fit", "--config", CONFIG, "--trainer.max_steps", "4", "--ckpt_path", str(checkpoint)]
+            [
+                "fit",
+                "--config",
+                TINY_CONFIG,
+                "--trainer.max_steps",
+                "4",
+                "--ckpt_path",
+                str(checkpoint),
+            ]
         )
     assert not [w for w in caught if "resumes in the checkpoint's run" in str(w.message)]
     assert cli.trainer.global_step == 4
@@ -96,7 +102,7 @@ def test_resume_continues_in_the_same_run(workdir):
             [
                 "fit",
                 "--config",
-                CONFIG,
+                TINY_CONFIG,
                 "--trainer.max_steps",
                 "6",
                 "--ckpt_path",
@@ -117,7 +123,7 @@ def test_resume_continues_in_the_same_run(workdir):
     ],
 )
 def test_last_checkpoint_holds_the_step_training_ended_at(workdir, checkpoint_class, last_step):
-    config = yaml.safe_load(Path(CONFIG).read_text())
+    config = yaml.safe_load(Path(TINY_CONFIG).read_text())
     for callback in config["trainer"]["callbacks"]:
         if callback["class_path"].endswith("FinalStepCheckpoint"):
             callback["class_path"] = checkpoint_class
@@ -141,7 +147,7 @@ def test_last_checkpoint_holds_the_step_training_ended_at(workdir, checkpoint_cl
 )
 def test_bad_configs_are_refused_before_any_work(workdir, capsys, arguments, message):
     with pytest.raises((SystemExit, FileNotFoundError)) as raised:
-        main(["fit", "--config", CONFIG, *arguments])
+        main(["fit", "--config", TINY_CONFIG, *arguments])
     captured = capsys.readouterr()
     assert message in captured.err + captured.out + str(raised.value)
     assert not (workdir / "data").exists(), "no data may be generated for a refused config"
@@ -199,7 +205,7 @@ def test_test_on_intphys_dev_reports_the_benchmark_metrics(workdir, trained):
         [
             "test",
             "--config",
-            CONFIG,
+            TINY_CONFIG,
             "--ckpt_path",
             str(run / "checkpoints" / "last.ckpt"),
             "--data",
@@ -230,7 +236,7 @@ def test_predict_with_the_intphys_test_config_writes_the_answer_file(workdir):
     from test_intphys import FRAMES, make_intphys
 
     make_intphys(workdir / "intphys", "test", labelled=False)
-    main(["fit", "--config", CONFIG, "--trainer.max_steps", "1"])
+    main(["fit", "--config", TINY_CONFIG, "--trainer.max_steps", "1"])
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
     configs = REPO / "configs"
     main(
@@ -267,7 +273,7 @@ def test_size_sweep_trains_and_tests_through_the_real_cli(workdir):
             "analyze",
             "sweep",
             "--lightning_configs",
-            json.dumps([CONFIG]),
+            json.dumps([TINY_CONFIG]),
             "--sizes",
             "[4, 8]",
             "--eval_sets",
@@ -292,7 +298,7 @@ def test_size_sweep_trains_and_tests_through_the_real_cli(workdir):
 def test_a_checkpoint_of_another_architecture_is_refused_naming_the_difference(workdir):
     # The CLI takes the model's arguments from --ckpt_path; code that builds its own model and
     # restores a checkpoint into it must get a clear error, not a state_dict size mismatch.
-    cli = main(["fit", "--config", CONFIG, "--trainer.max_steps", "1"])
+    cli = main(["fit", "--config", TINY_CONFIG, "--trainer.max_steps", "1"])
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"
     arguments = {k: v for k, v in cli.model.hparams.items() if not k.startswith("_")}
     other = VRNNLRUModel(**{**arguments, "latent_size": 12})
@@ -303,7 +309,7 @@ def test_a_checkpoint_of_another_architecture_is_refused_naming_the_difference(w
 
 
 def test_validate_reports_the_voe_statistics(workdir):
-    cli = main(["validate", "--config", CONFIG])
+    cli = main(["validate", "--config", TINY_CONFIG])
     metrics = cli.trainer.callback_metrics
     assert "voe/object_persistence/standard/relative_surprise" in metrics
     assert metrics["voe/object_persistence/pooled/n"] == 4  # 2 val pairs per variant
@@ -317,10 +323,10 @@ def test_the_runs_one_alpha_reaches_every_callback_and_a_second_one_is_refused(w
     """configs/base.yaml's top-level alpha (or --alpha) is every callback's; a callback given
     another alpha of its own is refused, naming both."""
     limit = ["--trainer.limit_val_batches", "0"]  # the callbacks are built, nothing runs
-    default = main(["validate", "--config", CONFIG, *limit])
+    default = main(["validate", "--config", TINY_CONFIG, *limit])
     assert default.config["validate"]["alpha"] == 0.01
     assert _alphas(default) == {"VOEProbeCallback": 0.01, "VOEReportCallback": 0.01}
-    chosen = main(["validate", "--config", CONFIG, "--alpha", "0.05", *limit])
+    chosen = main(["validate", "--config", TINY_CONFIG, "--alpha", "0.05", *limit])
     assert _alphas(chosen) == {"VOEProbeCallback": 0.05, "VOEReportCallback": 0.05}
     saved = yaml.safe_load(
         (workdir / "runs" / "tiny" / "version_1" / "validate_config.yaml").read_text()
@@ -337,9 +343,9 @@ def test_the_runs_one_alpha_reaches_every_callback_and_a_second_one_is_refused(w
         match=r"VOEReportCallback was given alpha 0.05, the run's "
         r"alpha is 0.01: a run has one significance level",
     ):
-        main(["validate", "--debug", "--config", CONFIG, "--config", str(second), *limit])
+        main(["validate", "--debug", "--config", TINY_CONFIG, "--config", str(second), *limit])
     with pytest.raises(ValueError, match=r"alpha must be a significance level in \(0, 1\)"):
-        main(["validate", "--debug", "--config", CONFIG, "--alpha", "2", *limit])
+        main(["validate", "--debug", "--config", TINY_CONFIG, "--alpha", "2", *limit])
 
 
 def test_training_does_not_depend_on_how_often_validation_runs(workdir):
@@ -348,7 +354,7 @@ def test_training_does_not_depend_on_how_often_validation_runs(workdir):
             [
                 "fit",
                 "--config",
-                CONFIG,
+                TINY_CONFIG,
                 "--trainer.max_steps",
                 "6",
                 "--trainer.val_check_interval",
@@ -377,7 +383,7 @@ def test_checkpoints_are_read_with_weights_only(workdir, monkeypatch, command):
     checkpoint = workdir / "model.ckpt"
     checkpoint.write_bytes(b"not read")
     with pytest.raises((Exception, SystemExit)):
-        main([command, "--config", CONFIG, "--ckpt_path", str(checkpoint)])
+        main([command, "--config", TINY_CONFIG, "--ckpt_path", str(checkpoint)])
     assert len(calls) >= 2 and all(value is True for value in calls), calls
 
 
@@ -398,7 +404,7 @@ def test_evaluation_generates_only_the_probes_it_needs_and_says_so(
         [
             subcommand,
             "--config",
-            CONFIG,
+            TINY_CONFIG,
             "--data.init_args.root",
             "data/tpyo",
             "--trainer.fast_dev_run",
@@ -419,7 +425,7 @@ def test_test_of_a_checkpoint_writes_its_report_beside_it(workdir, trained):
     config's logger name, and the run's training config.yaml is kept."""
     run = copy_of(trained, workdir)
     training_config = (run / "config.yaml").read_text()
-    main(["test", "--config", CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
+    main(["test", "--config", TINY_CONFIG, "--ckpt_path", str(run / "checkpoints" / "last.ckpt")])
     assert (run / "voe_report" / "summary.json").is_file()
     assert not (workdir / "runs" / "tiny").exists()
     assert (run / "config.yaml").read_text() == training_config
@@ -431,13 +437,13 @@ def test_test_on_other_data_keeps_the_runs_own_report(workdir, trained, capsys):
     and writes its report beside the run's own, never over it, saying where."""
     run = copy_of(trained, workdir)
     checkpoint = str(run / "checkpoints" / "last.ckpt")
-    main(["test", "--config", CONFIG, "--ckpt_path", checkpoint])
+    main(["test", "--config", TINY_CONFIG, "--ckpt_path", checkpoint])
     own = (run / "voe_report" / "summary.json").read_text()
     main(
         [
             "test",
             "--config",
-            CONFIG,
+            TINY_CONFIG,
             "--ckpt_path",
             checkpoint,
             "--data.init_args.root",
@@ -461,7 +467,7 @@ def test_model_arguments_that_differ_from_the_checkpoint_are_refused(workdir, tr
                 "test",
                 "--debug",
                 "--config",
-                CONFIG,
+                TINY_CONFIG,
                 "--ckpt_path",
                 str(checkpoint),
                 "--model.init_args.latent_size",
@@ -490,8 +496,8 @@ def test_training_only_arguments_may_differ_when_testing_a_checkpoint(workdir, t
         "0.2",
     ]
     with pytest.raises(ValueError, match="lr_schedule: config 'cosine', checkpoint 'constant'"):
-        main(["fit", "--debug", "--config", CONFIG, "--ckpt_path", checkpoint, *training_only])
-    main(["test", "--config", CONFIG, "--ckpt_path", checkpoint, *training_only])
+        main(["fit", "--debug", "--config", TINY_CONFIG, "--ckpt_path", checkpoint, *training_only])
+    main(["test", "--config", TINY_CONFIG, "--ckpt_path", checkpoint, *training_only])
     assert (run / "voe_report" / "summary.json").is_file()
     assert "lr_schedule: constant" in (run / "hparams.yaml").read_text()
 
@@ -501,7 +507,7 @@ def trained_object_centric(tmp_path_factory):
     """A tiny object-centric model fitted with code-space surprise, one step per stage, under
     runs/oc: its config (the tiny one with this model) and its run directory."""
     folder = tmp_path_factory.mktemp("object_centric")
-    config = yaml.safe_load(Path(CONFIG).read_text())
+    config = yaml.safe_load(Path(TINY_CONFIG).read_text())
     config["model"] = {
         "class_path": "voe_lightning.model.ObjectCentricModel",
         "init_args": {
@@ -640,7 +646,7 @@ def test_a_study_config_on_top_of_base_tests_a_checkpoint(workdir, trained):
     """A study config as in configs/ (logger and model sections without class_path, callbacks
     from base.yaml, which the CLI reads first) tests a checkpoint, and a model argument that
     differs from the checkpoint's is still refused."""
-    study = yaml.safe_load(Path(CONFIG).read_text())
+    study = yaml.safe_load(Path(TINY_CONFIG).read_text())
     study["trainer"].pop("callbacks")
     study["trainer"]["logger"] = {"init_args": {"name": "study"}}
     study["model"] = {"init_args": {"latent_size": 8}}
@@ -677,7 +683,7 @@ def test_a_checkpoint_without_hyperparameters_that_does_not_fit_is_named(workdir
                 "test",
                 "--debug",
                 "--config",
-                CONFIG,
+                TINY_CONFIG,
                 "--ckpt_path",
                 str(stripped),
                 "--model.init_args.latent_size",
@@ -696,7 +702,7 @@ def test_a_truncated_checkpoint_is_named(workdir, trained, kept):
     truncated = workdir / "truncated.ckpt"
     truncated.write_bytes(data[: int(len(data) * kept)])
     with pytest.raises(ValueError, match=rf"{truncated}.* truncated or corrupt"):
-        main(["test", "--debug", "--config", CONFIG, "--ckpt_path", str(truncated)])
+        main(["test", "--debug", "--config", TINY_CONFIG, "--ckpt_path", str(truncated)])
     assert not (workdir / "data").exists(), "refused before any work"
 
 

@@ -19,8 +19,6 @@ from voe_lightning.stats.surprise_window import (
     video_surprise,
 )
 
-TINY = TINY_CONFIG
-
 
 def test_the_first_difference_is_the_first_frame_at_which_a_pairs_videos_differ():
     consistent = torch.zeros(3, 5, 2, 2, 3, dtype=torch.uint8)
@@ -120,7 +118,7 @@ def test_the_report_names_its_window_beside_all_frames(tmp_path, monkeypatch):
         "--trainer.enable_progress_bar",
         "false",
     ]
-    main(["test", "--config", TINY, *model])
+    main(["test", "--config", TINY_CONFIG, *model])
     report = tmp_path / "runs" / "tiny" / "version_0" / "voe_report"
     assert "Surprise window: all frames (the paper's)." in (report / "summary.md").read_text()
     summary = json.loads((report / "summary.json").read_text())
@@ -132,7 +130,7 @@ def test_the_report_names_its_window_beside_all_frames(tmp_path, monkeypatch):
         [
             "test",
             "--config",
-            TINY,
+            TINY_CONFIG,
             *model,
             "--surprise_window",
             "{start: first_difference, frames: 2}",

@@ -20,7 +20,6 @@ from voe_lightning.scenes import (
     generate_probe,
 )
 
-CONFIG = TINY_CONFIG
 TINY = dict(
     image_size=(32, 32),
     num_slots=4,
@@ -320,7 +319,7 @@ def test_fit_both_stages_then_test_through_the_cli(tmp_path, monkeypatch, object
         f"--model.object_free={object_free}",
         f"--model.surprise={surprise}",
     ]
-    main(["fit", "--config", CONFIG, *model, "--trainer.logger.init_args.name=oc"])
+    main(["fit", "--config", TINY_CONFIG, *model, "--trainer.logger.init_args.name=oc"])
     run = tmp_path / "runs" / "oc" / "version_0"
     checkpoint = torch.load(run / "checkpoints" / "last.ckpt", weights_only=True)
     assert checkpoint["global_step"] == 2  # one perception step, one dynamics step
@@ -329,7 +328,7 @@ def test_fit_both_stages_then_test_through_the_cli(tmp_path, monkeypatch, object
         [
             "test",
             "--config",
-            CONFIG,
+            TINY_CONFIG,
             *model,
             "--trainer.logger.init_args.name=oc",
             "--ckpt_path",
@@ -370,7 +369,7 @@ def test_the_object_free_twin_is_scored_on_intphys_by_the_benchmark_configs(tmp_
         "--model.object_free=true",
         "--model.use_camera=false",
     ]  # IntPhys has no camera poses
-    main(["fit", "--config", CONFIG, *model, "--trainer.logger.init_args.name=twin"])
+    main(["fit", "--config", TINY_CONFIG, *model, "--trainer.logger.init_args.name=twin"])
     run = tmp_path / "runs" / "twin" / "version_0"
     checkpoint = str(run / "checkpoints" / "last.ckpt")
     configs = REPO / "configs"

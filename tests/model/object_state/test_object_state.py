@@ -25,7 +25,6 @@ from voe_lightning.model.object_state.geometry import (
 )
 from voe_lightning.model.optimization import adam
 
-ROOT = REPO
 FRAMES = 10
 CAMERA = torch.tensor([0.0, 0.0, 0.4, 4.0, 90.0, -20.0])
 BALL, SCREEN = 1, 2  # mask ids
@@ -706,7 +705,7 @@ def test_fit_then_test_through_the_cli_writes_a_report(tmp_path, monkeypatch):
 def test_the_defaults_are_the_published_control():
     """``ObjectStateModel()`` is the positive control of the README: every argument of
     ``configs/object_state.yaml``'s model is its default, so the config adds nothing to it."""
-    configured = yaml.safe_load((ROOT / "configs" / "object_state.yaml").read_text())
+    configured = yaml.safe_load((REPO / "configs" / "object_state.yaml").read_text())
     arguments = configured["model"]["init_args"]
     defaults = ObjectStateModel().hparams
     assert {name: defaults[name] for name in arguments} == arguments

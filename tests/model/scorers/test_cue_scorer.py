@@ -18,8 +18,6 @@ from voe_lightning.external.metrics import read_answer_file
 from voe_lightning.model import CueScorer
 from voe_lightning.model.scorers.cue_scorer import CUE_NAMES
 
-TINY = TINY_CONFIG
-
 
 @pytest.mark.parametrize("cue", list(CUE_NAMES))
 def test_surprise_after_the_manipulation_sums_to_the_audit_score(cue):
@@ -54,7 +52,7 @@ def test_test_on_our_probes_runs_without_a_checkpoint(tmp_path, monkeypatch):
         [
             "test",
             "--config",
-            TINY,
+            TINY_CONFIG,
             "--model",
             "voe_lightning.model.CueScorer",
             "--model.init_args.cue",

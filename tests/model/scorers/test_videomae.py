@@ -13,7 +13,6 @@ from locations import TINY_CONFIG
 from voe_lightning.cli import main  # noqa: E402
 from voe_lightning.model.scorers.videomae import VideoMAEScorer  # noqa: E402
 
-TINY = TINY_CONFIG
 CONFIG = dict(
     image_size=32,
     patch_size=8,
@@ -88,7 +87,7 @@ def test_test_on_our_probes_runs_without_a_checkpoint(tmp_path, monkeypatch):
         [
             "test",
             "--config",
-            TINY,
+            TINY_CONFIG,
             "--model",
             "voe_lightning.model.VideoMAEScorer",
             "--model.init_args.pretrained",

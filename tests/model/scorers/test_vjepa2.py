@@ -18,7 +18,6 @@ from voe_lightning import specs  # noqa: E402
 from voe_lightning.cli import main  # noqa: E402
 from voe_lightning.model.scorers.vjepa2 import VJEPA2Scorer, window_ends  # noqa: E402
 
-TINY = TINY_CONFIG
 #: A tiny V-JEPA 2 (random mask tokens, so the predictor's outputs differ by position).
 CONFIG = dict(
     crop_size=32,
@@ -142,7 +141,7 @@ def test_test_on_our_probes_runs_without_a_checkpoint(tmp_path, monkeypatch):
         [
             "test",
             "--config",
-            TINY,
+            TINY_CONFIG,
             "--model",
             "voe_lightning.model.VJEPA2Scorer",
             "--model.init_args.pretrained",

@@ -13,7 +13,6 @@ from locations import TINY_CONFIG
 from voe_lightning.cli import main
 from voe_lightning.model import CallableModel
 
-TINY = TINY_CONFIG
 USER_MODULE = '''
 import torch
 
@@ -71,7 +70,7 @@ def user_module(tmp_path, monkeypatch):
     ids=["subclass", "callable"],
 )
 def test_a_model_from_outside_the_package_is_tested_without_a_checkpoint(user_module, model):
-    main(["test", "--config", TINY, *model, "--trainer.enable_progress_bar", "false"])
+    main(["test", "--config", TINY_CONFIG, *model, "--trainer.enable_progress_bar", "false"])
     summary = json.loads(
         (user_module / "runs" / "tiny" / "version_0" / "voe_report" / "summary.json").read_text()
     )
