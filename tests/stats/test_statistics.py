@@ -645,3 +645,40 @@ def test_quadruplet_verdict_needs_the_test_and_both_halves():
         np.array([0.001, 0.001, 0.5]), np.array([1.0, -1.0, 1.0]), np.array([1.0, 1.0, 1.0]), 0.01
     )
     assert rules.tolist() == [True, False, False]
+
+
+def test_each_quadruplet_half_is_tested_on_its_own_beside_the_verdict():
+    from voe_lightning.stats.verdicts import concept_verdicts
+
+    def verdict(standard_p, counterbalanced_p):
+        rows = {
+            ("object_persistence", "standard"): {**_result(standard_p, 2.0), "t": 5.0, "df": 9},
+            ("object_persistence", "counterbalanced"): {
+                **_result(counterbalanced_p, 0.2),
+                "t": 1.9,
+                "df": 9,
+            },
+            ("object_persistence", "quadruplet"): {
+                "p_value": 1e-6,
+                "relative_surprise": 2.2,
+                "first_half": 2.0,
+                "second_half": 0.2,
+            },
+        }
+        return concept_verdicts(rows, alpha=0.01)[0]
+
+    weak = verdict(1e-5, 0.03)
+    assert weak.voe is True and weak.halves_significant is False
+    assert weak.halves == "standard t(9) = 5.00, p < .001; counterbalanced t(9) = 1.90, p = .030"
+    assert verdict(1e-5, 0.005).halves_significant is True
+    lone = concept_verdicts(
+        {
+            ("object_persistence", "quadruplet"): {
+                "p_value": 1e-6,
+                "relative_surprise": 1.0,
+                "first_half": 0.5,
+                "second_half": 0.5,
+            }
+        }
+    )[0]
+    assert lone.halves_significant is None and lone.halves == ""

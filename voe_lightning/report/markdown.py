@@ -25,7 +25,11 @@ def format_verdicts(
     lines = [causality.line(), ""] if causality is not None else []
     for verdict in concept_verdicts(rows, rows_alpha(rows), causality):
         text = "**VOE**" if verdict.voe else verdict.text()
-        lines.append(f"- {verdict.concept}: {text} (rule: {verdict.rule})")
+        line = f"- {verdict.concept}: {text} (rule: {verdict.rule})"
+        if verdict.halves:
+            both = "both significant" if verdict.halves_significant else "not both significant"
+            line += f"; halves on their own ({both}): {verdict.halves}"
+        lines.append(line)
     return lines
 
 
@@ -103,7 +107,8 @@ def format_source(source: Mapping[str, Any]) -> str:
     where = source.get("probe_root") or source.get("data_root")
     if where:
         offset = source.get("seed_offset")
+        split = "the validation probes" if source.get("probe_split") == "val" else "the probes"
         parts.append(
-            f"the probes of {where}" + (f" (seed offset {offset})" if offset is not None else "")
+            f"{split} of {where}" + (f" (seed offset {offset})" if offset is not None else "")
         )
     return f"Tested: {'; '.join(parts)}.\n\n" if parts else ""

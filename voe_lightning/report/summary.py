@@ -98,7 +98,14 @@ def _tables(
     return {
         "rows": [json_row(row) for row in rows],
         "verdicts": [
-            {"concept": v.concept, "voe": v.voe, "verdict": v.text(), "rule": v.rule}
+            {
+                "concept": v.concept,
+                "voe": v.voe,
+                "verdict": v.text(),
+                "rule": v.rule,
+                "halves_significant": v.halves_significant,
+                "halves": v.halves,
+            }
             for v in concept_verdicts(rows, alpha, causality)
         ],
     }

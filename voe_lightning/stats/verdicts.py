@@ -19,7 +19,12 @@ import numpy as np
 from voe_lightning import causality as causality_check
 from voe_lightning import specs
 from voe_lightning.stats.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
-from voe_lightning.stats.statistics_format import format_number, format_p
+from voe_lightning.stats.statistics_format import (
+    format_number,
+    format_p,
+    format_p_phrase,
+    format_t,
+)
 
 __all__ = [
     "Verdict",
@@ -137,6 +142,11 @@ class Verdict:
     rule: str
     reason: str
     withheld: bool = False
+    #: Whether every quadruplet half is significant on its own at alpha (its variant's own
+    #: paired test): stricter than the verdict's rule; None without quadruplets or tests.
+    halves_significant: bool | None = None
+    #: Each half's own test, e.g. "standard t(199) = 41.50, p < .001; counterbalanced ...".
+    halves: str = ""
 
     def text(self) -> str:
         if self.withheld:
@@ -196,7 +206,28 @@ def _quadruplet_verdict(
             for name, mean in zip(halves, means)
             if not mean > 0
         ]
-    return Verdict(concept, voe, rule, "" if voe else "; ".join(failed))
+    significant, halves = _halves_on_their_own(concept, results, alpha)
+    return Verdict(concept, voe, rule, "" if voe else "; ".join(failed), False, significant, halves)
+
+
+def _halves_on_their_own(
+    concept: str, results: Mapping[tuple[str, str], Mapping[str, Any]], alpha: float
+) -> tuple[bool | None, str]:
+    """Whether each half of each of ``concept``'s quadruplets is significant at ``alpha`` by
+    its own paired test (its variant's row), and the text of those tests; (None, '') where a
+    half has no test."""
+    tests = []
+    for halves in quadruplets_of(concept).values():
+        for half in halves:
+            row = results.get((concept, half), {})
+            if row.get("p_value") is None:
+                return None, ""
+            tests.append((half, row))
+    text = "; ".join(
+        f"{half} {format_t(row.get('t'), row.get('df'))}, {format_p_phrase(row['p_value'])}"
+        for half, row in tests
+    )
+    return all(row["p_value"] < alpha for _, row in tests), text
 
 
 def concept_verdicts(
