@@ -54,6 +54,10 @@ class InterleavedSampler(Sampler[int]):
         return iter(interleaved.reshape(-1).tolist())
 
 
+#: The probe splits ``test`` can report on (``VOEDataModule``'s ``test_split``).
+TEST_SPLITS = ("test", "val")
+
+
 class VOEDataModule(ProbeDataModule):
     """Examples + controls of ``concepts`` for training (equal counts per concept, interleaved),
     their validation probe pairs for ``fit`` and test probe pairs (plus the generalization probes
@@ -79,6 +83,9 @@ class VOEDataModule(ProbeDataModule):
         generate_workers: processes rendering missing data (default: all cores).
         num_frames, height, width: video geometry (paper: 15 frames of 64x64).
         seed: seed of the training order.
+        test_split: the probe split ``test`` reports on: ``"test"`` (the final report) or
+            ``"val"`` (the validation probes' quadruplets, for tuning; generalization probes
+            are then left out), in a report folder of its own.
         seed_offset: draw the validation, test and generalization probes this far into their
             splits' seed ranges (0: the store's own): a fresh test set of any size no one has
             seen, generated or read in ``root/seed_offset_<N>`` (``store_plan.seed_offset_root``,
@@ -107,8 +114,14 @@ class VOEDataModule(ProbeDataModule):
         width: int = specs.WIDTH,
         seed: int = 0,
         seed_offset: int = 0,
+        test_split: str = "test",
     ):
         super().__init__()
+        if test_split not in TEST_SPLITS:
+            raise ValueError(
+                f"test_split must be one of {TEST_SPLITS} (the probes test reports on), "
+                f"got {test_split!r}"
+            )
         if not concepts:
             raise ValueError(f"concepts must name at least one of: {', '.join(specs.CONCEPTS)}")
         for concept in concepts:
@@ -162,8 +175,8 @@ class VOEDataModule(ProbeDataModule):
 
     def _probe_splits(self, stage: str | None) -> list[str] | None:
         """The probe splits ``validate`` or ``test`` reads (None for other stages)."""
-        splits = {"validate": ["val"], "test": ["test"]}.get(stage)
-        if stage == "test" and self.hparams.generalization:
+        splits = {"validate": ["val"], "test": [self.hparams.test_split]}.get(stage)
+        if stage == "test" and self.hparams.generalization and self.hparams.test_split == "test":
             splits.append("generalization")
         return splits
 
@@ -179,6 +192,7 @@ class VOEDataModule(ProbeDataModule):
             **super().probe_source(),
             "seed_offset": self.hparams.seed_offset,
             "probe_root": str(self._store_root("test")),
+            "probe_split": self.hparams.test_split,
         }
 
     def prepare_data(self) -> None:
@@ -249,8 +263,11 @@ class VOEDataModule(ProbeDataModule):
         return self._probe_loader("val")
 
     def test_dataloader(self) -> DataLoader | list[DataLoader]:
-        loaders = [self._probe_loader("test")]
-        if self.hparams.generalization and self._datasets.get("generalization") is not None:
+        loaders = [self._probe_loader(self.hparams.test_split)]
+        if (
+            "generalization" in self._probe_splits("test")
+            and self._datasets.get("generalization") is not None
+        ):
             loaders.append(self._probe_loader("generalization"))
         return loaders if len(loaders) > 1 else loaders[0]
 

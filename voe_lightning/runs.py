@@ -127,11 +127,13 @@ def report_folder(
     trained_root: str | None,
     trained_concepts: Iterable[str] | None,
     evaluation: Mapping[str, Any] | None = None,
+    split: str = "test",
 ) -> str | None:
     """The folder, inside a checkpoint's run, of the logs and report of one (checkpoint, data
     root, concepts, benchmark, ``evaluation``: the evaluation-only model arguments given
-    otherwise than the checkpoint's, name -> value); None for the run's own (its last.ckpt
-    on the data and concepts it was trained on, scored as trained), which goes into the run
+    otherwise than the checkpoint's, name -> value; the probe ``split`` reported on); None for
+    the run's own (its last.ckpt on the data and concepts it was trained on, scored as
+    trained, on its test probes), which goes into the run
     itself. Any other gets a folder of its own, named for people (what differs) and, so no
     two ever share one (``alt/one`` and ``alt_one``, ``a/b`` and ``/a/b``), a hash of the
     resolved checkpoint, root, concepts and evaluation-only arguments."""
@@ -150,6 +152,8 @@ def report_folder(
         )
     if other_concepts:
         parts.append("concepts_" + "+".join(concepts))
+    if split != "test":
+        parts.append(f"{split}_probes")
     scored = [f"{name}_{value}" for name, value in sorted((evaluation or {}).items())]
     parts += scored
     if not parts:
@@ -161,6 +165,7 @@ def report_folder(
             ",".join(concepts or ()),
             benchmark or "",
             *scored,
+            *([split] if split != "test" else []),
         ]
     )
     readable = re.sub(r"[^A-Za-z0-9_.+=-]", "_", "-".join(parts))[:80]

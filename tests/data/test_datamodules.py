@@ -17,6 +17,7 @@ from datamodules import (
 from datamodules.voe import InterleavedSampler
 from voe_lightning import specs
 from voe_lightning.data import generate, store, store_plan, store_shards
+from voe_lightning.runs import report_folder
 
 
 def test_interleaved_sampler_takes_equal_counts_per_part_and_alternates():
@@ -206,6 +207,7 @@ def test_a_seed_offset_reads_fresh_probes_from_their_own_store_and_trains_on_the
         "data_root": str(tmp_path),
         "seed_offset": 1000,
         "probe_root": str(fresh),
+        "probe_split": "test",
     }
     assert not (fresh / "continuity" / "train").exists() and store_plan.verify(fresh) == []
     datamodule.setup("fit")
@@ -218,6 +220,43 @@ def test_a_seed_offset_reads_fresh_probes_from_their_own_store_and_trains_on_the
     assert set(test["seed"].tolist()) == {
         store_plan.SEED_STARTS["test"] + 1000 + k for k in range(3)
     }
+
+
+def test_test_split_val_reports_on_the_validation_probes_in_a_folder_of_its_own(
+    tmp_path, monkeypatch
+):
+    """Tuning reads the validation probes' quadruplets through ``test`` (``test_split: val``),
+    never the test probes, and its report cannot land in the run's own folder."""
+    monkeypatch.setattr(generate, "generate_clip", fake_clip)
+    monkeypatch.setattr(generate, "generate_probe", fake_probe)
+    options = dict(
+        concept="continuity",
+        root=str(tmp_path),
+        train_examples=2,
+        val_pairs=2,
+        test_pairs=3,
+        generalization_pairs=1,
+        generalization=True,
+        generate_workers=1,
+        num_frames=4,
+        height=16,
+        width=16,
+    )
+    datamodule = ConceptDataModule(**options, test_split="val")
+    datamodule.prepare_data()
+    datamodule.setup("test")
+    loader = datamodule.test_dataloader()  # one loader: no generalization probes with val
+    seeds = {int(seed) for batch in loader for seed in batch["seed"]}
+    assert seeds == {store_plan.SEED_STARTS["val"] + k for k in range(2)}
+    assert datamodule.probe_source()["probe_split"] == "val"
+    checkpoint = tmp_path / "runs" / "r" / "version_0" / "checkpoints" / "last.ckpt"
+    root = str(tmp_path)
+    assert report_folder(checkpoint, root, None, None, root, None) is None
+    assert report_folder(checkpoint, root, None, None, root, None, split="val").startswith(
+        "val_probes-"
+    )
+    with pytest.raises(ValueError, match=r"test_split must be one of \('test', 'val'\).*'train'"):
+        ConceptDataModule(**options, test_split="train")
 
 
 def test_a_seed_offset_past_a_splits_range_is_refused_when_built():

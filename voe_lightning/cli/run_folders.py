@@ -122,4 +122,5 @@ def _report_folder(config: Any, checkpoint: Path, evaluation: dict[str, Any]) ->
         runs.probe_root(trained_args),
         runs.concepts_of(trained_args),
         evaluation,
+        data_args.get("test_split") or "test",
     )
