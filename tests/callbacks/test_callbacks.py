@@ -14,6 +14,7 @@ from voe_lightning import specs
 from voe_lightning.callbacks import VOEProbeCallback, VOEReportCallback, voe_table
 from voe_lightning.probe_datamodule import ProbeDataModule
 from voe_lightning.stats import statistics
+from voe_lightning.stats.verdicts import concept_verdicts
 
 CASES = [
     ("object_persistence", "standard"),
@@ -105,3 +106,44 @@ def test_probe_callback_refuses_a_datamodule_without_names():
     trainer = SimpleNamespace(datamodule=SimpleNamespace(probe_cases=lambda split="val": CASES))
     with pytest.raises(TypeError, match="VOEProbeCallback .* needs a ProbeDataModule"):
         VOEProbeCallback().on_validation_epoch_start(trainer, _Module())
+
+
+def test_probe_callback_logs_the_quadruplet_test_the_verdict_reads():
+    """Validation probes carry seeds: each seed's standard and counterbalanced pairs are one
+    quadruplet, tested over training as the report tests it (scipy's one-sample t of D)."""
+    rng = np.random.default_rng(1)
+    trainer = SimpleNamespace(datamodule=_Probes(), sanity_checking=False)
+    callback, module = VOEProbeCallback(print_table=False), _Module()
+    callback.on_validation_epoch_start(trainer, module)
+    quads = 6
+    consistent = rng.gamma(2.0, 1.0, (2 * quads, 5))
+    inconsistent = consistent + rng.normal(1.0, 1.0, (2 * quads, 5))
+    inconsistent[:, :2] = consistent[:, :2]
+    order = rng.permutation(2 * quads)  # halves and seeds arrive in any order
+    outputs = {
+        "concept": torch.full((2 * quads,), specs.CONCEPTS.index("object_persistence"))[order],
+        "variant": torch.tensor(
+            [specs.VARIANTS.index("standard")] * quads
+            + [specs.VARIANTS.index("counterbalanced")] * quads
+        )[order],
+        "seed": torch.tensor(list(range(quads)) * 2)[order],
+        "manipulation_frame": torch.ones(2 * quads, dtype=torch.int64),
+        "surprise_consistent": torch.from_numpy(consistent[order]),
+        "surprise_inconsistent": torch.from_numpy(inconsistent[order]),
+    }
+    callback.on_validation_batch_end(trainer, module, outputs, None, 0)
+    callback.on_validation_epoch_end(trainer, module)
+    d = inconsistent.sum(1) - consistent.sum(1)
+    quadruplet = d[:quads] + d[quads:]
+    reference = stats.ttest_1samp(quadruplet, 0, alternative="greater")
+    logged = module.logged
+    assert logged["voe/object_persistence/quadruplet/t"] == pytest.approx(reference.statistic)
+    assert logged["voe/object_persistence/quadruplet/p_value"] == pytest.approx(reference.pvalue)
+    assert logged["voe/object_persistence/quadruplet/n"] == quads
+    assert logged["voe/object_persistence/quadruplet/first_half"] == pytest.approx(d[:quads].mean())
+    assert logged["voe/object_persistence/quadruplet/second_half"] == pytest.approx(
+        d[quads:].mean()
+    )
+    assert list(callback.last)[-1] == ("object_persistence", "quadruplet")
+    verdict = {v.concept: v for v in concept_verdicts(callback.last)}["object_persistence"]
+    assert "quadruplet test" in verdict.rule

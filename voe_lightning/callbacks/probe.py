@@ -9,6 +9,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import lightning as L
+import numpy as np
 import torch
 from lightning.pytorch.utilities import rank_zero_warn
 from rich.console import Console
@@ -17,12 +18,21 @@ from rich.table import Table
 from voe_lightning.callbacks.common import gather_objects, probe_names
 from voe_lightning.causality import Causality, check_prefix
 from voe_lightning.probe_datamodule import probe_datamodule
-from voe_lightning.stats.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
+from voe_lightning.stats.statistics import (
+    ALPHA,
+    POOLED,
+    POOLED_VARIANTS,
+    check_alpha,
+    quadruplet_test,
+)
 from voe_lightning.stats.statistics_format import CONSOLE, format_alpha, row_text
 from voe_lightning.stats.streaming_statistics import PairedSurpriseStats, pooled_values
 from voe_lightning.stats.surprise_window import SurpriseWindow, video_surprise
 from voe_lightning.stats.surprise_window import surprise_window as parse_window
-from voe_lightning.stats.verdicts import concept_verdicts, pair_groups
+from voe_lightning.stats.verdicts import concept_verdicts, pair_groups, quadruplets
+
+#: A quadruplet row's means of its halves, logged beside its statistics.
+HALVES = ("first_half", "second_half")
 
 
 class VOEProbeCallback(L.Callback):
@@ -32,7 +42,9 @@ class VOEProbeCallback(L.Callback):
     A concept with a standard and a counterbalanced variant also gets
     ``voe/<concept>/pooled/...``: the stratified test of its two variants
     (``streaming_statistics.pooled_values``, from their float64 sums, so exact under DDP as
-    they are).
+    they are); and each quadruplet the validation probes hold (matched by seed,
+    ``verdicts.quadruplets``), ``voe/<concept>/<quadruplet row>/...`` with its halves' means
+    (``first_half``, ``second_half``): the quadruplet test the verdict reads, as the report's.
     At the end of ``fit`` it prints the last table with each concept's verdict at ``alpha``
     (None: ``statistics.ALPHA``; the CLI gives the run's ``alpha`` from configs/base.yaml).
     A ``surprise_window`` other than all frames (``surprise_window.surprise_window``; the CLI
@@ -62,6 +74,9 @@ class VOEProbeCallback(L.Callback):
         self.last: dict[tuple[str, str], dict[str, float]] = {}
         self.causality: Causality | None = None
         self._causality = Causality()
+        #: Per log prefix, this validation run's pairs (concept, variant, seed, S(inc), S(con)),
+        #: which the quadruplet rows match by seed.
+        self._pairs: dict[str, list[tuple[str, str, int, float, float]]] = {}
 
     def on_validation_epoch_start(self, trainer, pl_module) -> None:
         cases = probe_datamodule(trainer, type(self).__name__).probe_cases("val")
@@ -72,6 +87,7 @@ class VOEProbeCallback(L.Callback):
         for metric in self.metrics.values():
             metric.reset()
         self._causality = Causality()
+        self._pairs = {prefix: [] for prefix in self.windows}
 
     def _metric(self, key: tuple[str, str, str], device: torch.device) -> PairedSurpriseStats:
         if key not in self.metrics:
@@ -92,15 +108,25 @@ class VOEProbeCallback(L.Callback):
                 outputs.get("first_difference"),
             )
         )
+        names = [
+            (concept_names[c], variant_names[v])
+            for c, v in zip(outputs["concept"].tolist(), outputs["variant"].tolist())
+        ]
         groups = defaultdict(list)
-        for index, (c, v) in enumerate(
-            zip(outputs["concept"].tolist(), outputs["variant"].tolist())
-        ):
-            groups[(concept_names[c], variant_names[v])].append(index)
+        for index, case in enumerate(names):
+            groups[case].append(index)
+        seeds = outputs["seed"].tolist() if "seed" in outputs else None
         for prefix, window in self.windows.items():
             inconsistent, consistent = (
                 _window_sum(outputs, side, window) for side in ("inconsistent", "consistent")
             )
+            if seeds is not None:  # probes without seeds have no quadruplets to match
+                self._pairs.setdefault(prefix, []).extend(
+                    (concept, variant, seed, inc, con)
+                    for (concept, variant), seed, inc, con in zip(
+                        names, seeds, inconsistent.double().tolist(), consistent.double().tolist()
+                    )
+                )
             for case, rows in groups.items():
                 rows = torch.tensor(rows, device=inconsistent.device)
                 self._metric((prefix, *case), pl_module.device).update(
@@ -115,9 +141,11 @@ class VOEProbeCallback(L.Callback):
         if not self.causality.causal:
             rank_zero_warn(f"validation at step {trainer.global_step}: {self.causality.line()}")
         for prefix in self.windows:
-            results = self._results(prefix)
+            results = self._with_quadruplets(self._results(prefix), prefix)
             for (concept, variant), values in results.items():
-                for statistic in self.STATISTICS:
+                for statistic in self.STATISTICS + HALVES:
+                    if statistic not in values:
+                        continue
                     pl_module.log(
                         f"{prefix}/{concept}/{variant}/{statistic}",
                         values[statistic],
@@ -147,6 +175,35 @@ class VOEProbeCallback(L.Callback):
             else:
                 results[(concept, variant)] = computed[(concept, variant)]
         return results
+
+    def _with_quadruplets(
+        self, results: dict[tuple[str, str], dict[str, float]], prefix: str
+    ) -> dict[tuple[str, str], dict[str, float]]:
+        """``results`` with each concept's quadruplet rows (every rank's pairs matched by seed,
+        ``quadruplet_test``; two quadruplets at least) after its own rows."""
+        pairs = [pair for rank in gather_objects(self._pairs.get(prefix, [])) for pair in rank]
+        if not pairs:
+            return results
+        concepts, variants, seeds, inconsistent, consistent = (np.array(x) for x in zip(*pairs))
+        rows: dict[str, list[tuple[str, dict[str, float]]]] = defaultdict(list)
+        for concept, row, first, second in quadruplets(concepts, variants, seeds):
+            if first.size < 2:
+                continue
+            test = quadruplet_test(
+                inconsistent[first],
+                consistent[first],
+                inconsistent[second],
+                consistent[second],
+                self.alpha,
+                bootstrap=0,
+            )
+            values = {k: test.as_dict()[k] for k in self.STATISTICS + HALVES}
+            rows[concept].append((row, {k: float(v) for k, v in values.items()}))
+        ordered = {}
+        for concept in dict.fromkeys(concept for concept, _ in results):
+            ordered.update({key: value for key, value in results.items() if key[0] == concept})
+            ordered.update({(concept, row): values for row, values in rows.get(concept, [])})
+        return ordered
 
     def on_fit_end(self, trainer, pl_module) -> None:
         if self.print_table and self.last and trainer.is_global_zero:
