@@ -709,3 +709,44 @@ def test_the_defaults_are_the_published_control():
     arguments = configured["model"]["init_args"]
     defaults = ObjectStateModel().hparams
     assert {name: defaults[name] for name in arguments} == arguments
+
+
+def test_the_three_givens_of_the_learner_can_each_be_removed():
+    """``sight_lines``, ``floor`` and ``inertia`` false: no sight-line geometry is computed and
+    no weight of it exists, no mean is lifted onto the floor, and with no learned change each
+    mean is the belief where it was (with inertia: moved on by the last move)."""
+    steps = 4
+    observations = _two_objects(
+        0.3 * torch.arange(steps + 0.0),
+        torch.full((steps,), 0.5),
+        torch.ones(1, steps, 2, dtype=torch.bool),
+    )
+
+    def means_of(model: ObjectStateModel, **patches) -> list[torch.Tensor]:
+        last = [m for m in model.dynamics.modules() if isinstance(m, torch.nn.Linear)][-1]
+        torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)  # no learned change
+        caught = []
+
+        def spy(observed, means, log_std, logits, hard=False):
+            caught.append(means[0, :, 0])
+            return mixture_nll(observed, means, log_std, logits, hard=hard)
+
+        with torch.no_grad(), mock.patch.multiple(rollout, mixture_nll=spy, **patches):
+            model.rollout(observations)
+        return caught  # frames 1.. (frame 0 predicts nothing)
+
+    torch.manual_seed(0)
+    removed = plain(hidden_size=16, message_size=8, sight_lines=False, floor=False, inertia=False)
+    assert not hasattr(removed, "geometry_weight")
+    refuse = mock.Mock(side_effect=AssertionError("a removed given was used"))
+    for t, means in enumerate(
+        means_of(removed, seen_by_geometry=refuse, on_or_above_floor=refuse), start=1
+    ):
+        torch.testing.assert_close(means, observations.state[0, t - 1])
+    kept = plain(hidden_size=16, message_size=8)
+    assert hasattr(kept, "geometry_weight")
+    for t, means in enumerate(means_of(kept), start=1):
+        moved = means[0, 0] - observations.state[0, t - 1, 0, 0]
+        assert moved == pytest.approx(0.3 if t > 1 else 0.0)  # the last move, seen from t-2
+    with pytest.raises(ValueError, match="slowing and fall_gain .* need inertia: true"):
+        plain(inertia=False, slowing=True)

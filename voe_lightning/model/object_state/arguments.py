@@ -23,6 +23,9 @@ ARCHITECTURE = (
     "falling_lands",
     "fall_gain",
     "shared_identity",
+    "sight_lines",
+    "floor",
+    "inertia",
 )
 #: What a carrier passes on (``carry``): nothing, or, to what rests on it, its whole move.
 CARRIES = ("none", "support")
@@ -105,6 +108,11 @@ def _check_priors(h) -> None:
             f"fall_gain must be in [0, {MAX_MOVE}] (m a frame by which a falling "
             f"object's downward move grows; 0.392 at 15 frames over 3 s), got "
             f"{h.fall_gain}"
+        )
+    if not h.inertia and (h.slowing or h.fall_gain):
+        raise ValueError(
+            "slowing and fall_gain shape the inertial move, so they need inertia: true, got "
+            f"inertia=false with slowing={h.slowing}, fall_gain={h.fall_gain}"
         )
     if h.carry == "support" and not h.stop_component:
         raise ValueError(

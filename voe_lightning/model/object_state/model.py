@@ -72,6 +72,11 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
             0.392 at the generator's 15 frames over 3 s; 0: off).
         shared_identity: every Gaussian predicts the size and colour last believed, with one
             learned spread.
+        sight_lines: the visibility logit adds sight lines from the camera to every known
+            object's box at its predicted state (``seen_by_geometry``; false: learned alone).
+        floor: no Gaussian's mean is below the floor (``on_or_above_floor``).
+        inertia: each mean starts from the belief moved on by the last move
+            (``inertial_move``; false: the network predicts the whole move).
         withhold: share of each training clip's objects withheld for a span of frames
             (``withheld_spans``; 0: never).
         withhold_frames: the longest withheld span, in frames.
@@ -113,6 +118,9 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         falling_lands: bool = True,
         fall_gain: float = 0.392,
         shared_identity: bool = True,
+        sight_lines: bool = True,
+        floor: bool = True,
+        inertia: bool = True,
         withhold: float = 0.5,
         withhold_frames: int = 8,
         hard_assignment: bool = True,
@@ -137,8 +145,9 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         )
         self.occlusion = PairNetwork(hidden, 0, hidden, message)
         self.visibility = mlp([hidden + message + VIEW + 3 + CAMERA_FEATURES, hidden, 1])
-        #: How much the visibility logit starts from geometry (``seen_by_geometry``); learned.
-        self.geometry_weight = nn.Parameter(torch.ones(()))
+        if sight_lines:
+            #: How much the visibility logit starts from geometry (``seen_by_geometry``); learned.
+            self.geometry_weight = nn.Parameter(torch.ones(()))
         self.appearance = mlp([hidden + CAMERA_FEATURES, hidden, 1 + 2 * STATE_SIZE + SHAPES])
         self.log_min_std = math.log(min_std)
         #: Per component, how much of the inertia its mean takes (``stop_component``: none for

@@ -196,7 +196,11 @@ class SlotRollout:
         pairs = pair_features(slots.belief, slots.shape, view(slots.belief, pose))
         message = messages(self.message, slots.hidden, slots.hidden, pairs, slots.known)
         falling = slots.velocity[..., 2] < -MOVING  # [B, S]: its last move took it down
-        inertia = inertial_move(slots, falling, h.slowing, h.fall_gain)
+        inertia = (
+            inertial_move(slots, falling, h.slowing, h.fall_gain)
+            if h.inertia
+            else torch.zeros_like(slots.belief)
+        )
         mixture, shape_logits = self._mixture(slots, message, pose_features, inertia, falling)
         predicted, mixture, holding = hold(slots, mixture, unseen, h.carry, h.hold_still)
         logit = self._visibility_logit(slots, predicted, pose, pose_features)
@@ -234,7 +238,7 @@ class SlotRollout:
         moved = (
             belief[:, :, None] + self.inertia_kept * inertia[:, :, None]
         ) + MAX_MOVE * torch.tanh(change / MAX_MOVE)
-        means = on_or_above_floor(moved)
+        means = on_or_above_floor(moved) if self.hparams.floor else moved
         if self.hparams.landing_component:
             landing = landing_mean(moved[:, :, -1], slots, self.hparams.pivot_landing)
             means = torch.cat([means[:, :, :-1], landing[:, :, None]], dim=2)
@@ -280,20 +284,22 @@ class SlotRollout:
     def _visibility_logit(
         self, slots: Slots, predicted: torch.Tensor, pose: torch.Tensor, pose_features: torch.Tensor
     ) -> torch.Tensor:
-        """The logit [B, S] that each slot is seen at t: sight lines to every known box at its
-        predicted state (``seen_by_geometry``) times a learned weight, plus a learned term from
-        its view against the others'. No gradient reaches the states from it: a hidden object's
+        """The logit [B, S] that each slot is seen at t: a learned term from its view against
+        the others' plus, with ``sight_lines``, sight lines to every known box at its predicted
+        state (``seen_by_geometry``) times a learned weight. No gradient reaches the states from it: a hidden object's
         place is what the dynamics learned from seen motion predicts, not one bent to explain
         why it is not seen (with it, a cube behind a container drifted in, where walls hide it)."""
         placed = predicted.detach()
         seen_as = view(placed, pose)
         pairs = pair_features(placed, slots.shape, seen_as)
         occluders = messages(self.occlusion, slots.hidden, None, pairs, slots.known)
-        geometry = seen_by_geometry(placed, slots.shape, slots.known, pose).clamp(0.02, 0.98)
         learned = self.visibility(
             torch.cat([slots.hidden, occluders, seen_as, placed[..., SIZE], pose_features], dim=-1)
-        )
-        return learned.squeeze(-1) + self.geometry_weight * torch.logit(geometry)
+        ).squeeze(-1)
+        if not self.hparams.sight_lines:
+            return learned
+        geometry = seen_by_geometry(placed, slots.shape, slots.known, pose).clamp(0.02, 0.98)
+        return learned + self.geometry_weight * torch.logit(geometry)
 
     def _appearance(
         self,
