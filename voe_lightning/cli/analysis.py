@@ -451,7 +451,7 @@ def latents(
 
 #: ``analyze``'s subcommands, as jsonargparse's ``auto_cli`` takes them (``_help``: the summary).
 COMMANDS = {
-    "_help": "Figures and tables over runs: curves, sweep, sweep-plot, compare, "
+    "_help": "Figures and tables over runs: curves, emergence, sweep, sweep-plot, compare, "
     "context-sweep, latents; untrained initializations of a config: null; and "
     "the verdict's calibration on a store: calibrate.",
     "curves": curves,

@@ -14,7 +14,7 @@ from lightning.pytorch.cli import LightningArgumentParser
 
 from voe_lightning import causality
 from voe_lightning.audit import cue_report
-from voe_lightning.cli import analysis
+from voe_lightning.cli import analysis, emergence
 from voe_lightning.cli.class_paths import import_object
 from voe_lightning.cli.run_arguments import base_alpha
 from voe_lightning.data import generate
@@ -33,7 +33,7 @@ COMMANDS: dict[str, Any] = {
     "generate": generate.generate,
     "audit": cue_report.audit,
     "check-causality": causality.check_causality,
-    "analyze": analysis.COMMANDS,
+    "analyze": {**analysis.COMMANDS, "emergence": emergence.emergence},
 }
 
 
