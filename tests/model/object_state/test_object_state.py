@@ -711,9 +711,9 @@ def test_the_defaults_are_the_published_control():
     assert {name: defaults[name] for name in arguments} == arguments
 
 
-def test_the_three_givens_of_the_learner_can_each_be_removed():
-    """``sight_lines``, ``floor`` and ``inertia`` false: no sight-line geometry is computed and
-    no weight of it exists, no mean is lifted onto the floor, and with no learned change each
+def test_the_givens_of_the_learner_can_each_be_removed():
+    """``sight_lines``, ``floor``, ``inertia`` and ``projection`` false: no sight-line geometry
+    or image-plane projection is computed and no weight of it exists, no mean is lifted onto the floor, and with no learned change each
     mean is the belief where it was (with inertia: moved on by the last move)."""
     steps = 4
     observations = _two_objects(
@@ -736,11 +736,18 @@ def test_the_three_givens_of_the_learner_can_each_be_removed():
         return caught  # frames 1.. (frame 0 predicts nothing)
 
     torch.manual_seed(0)
-    removed = plain(hidden_size=16, message_size=8, sight_lines=False, floor=False, inertia=False)
+    removed = plain(
+        hidden_size=16,
+        message_size=8,
+        sight_lines=False,
+        floor=False,
+        inertia=False,
+        projection=False,
+    )
     assert not hasattr(removed, "geometry_weight")
     refuse = mock.Mock(side_effect=AssertionError("a removed given was used"))
     for t, means in enumerate(
-        means_of(removed, seen_by_geometry=refuse, on_or_above_floor=refuse), start=1
+        means_of(removed, seen_by_geometry=refuse, on_or_above_floor=refuse, view=refuse), start=1
     ):
         torch.testing.assert_close(means, observations.state[0, t - 1])
     kept = plain(hidden_size=16, message_size=8)

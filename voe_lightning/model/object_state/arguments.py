@@ -26,6 +26,7 @@ ARCHITECTURE = (
     "sight_lines",
     "floor",
     "inertia",
+    "projection",
 )
 #: What a carrier passes on (``carry``): nothing, or, to what rests on it, its whole move.
 CARRIES = ("none", "support")

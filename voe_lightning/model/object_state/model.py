@@ -77,6 +77,8 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         floor: no Gaussian's mean is below the floor (``on_or_above_floor``).
         inertia: each mean starts from the belief moved on by the last move
             (``inertial_move``; false: the network predicts the whole move).
+        projection: the networks read each object's camera coordinates and image-plane box
+            (``view``) and the pairs' image overlaps (false: only the states and the pose).
         withhold: share of each training clip's objects withheld for a span of frames
             (``withheld_spans``; 0: never).
         withhold_frames: the longest withheld span, in frames.
@@ -121,6 +123,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         sight_lines: bool = True,
         floor: bool = True,
         inertia: bool = True,
+        projection: bool = True,
         withhold: float = 0.5,
         withhold_frames: int = 8,
         hard_assignment: bool = True,

@@ -156,11 +156,19 @@ class SlotRollout:
         hidden = self._recur(seen, given, obs.fraction[:, t], obs.camera[:, t])
         return replace(seen, hidden=hidden * known[..., None], belief=belief * known[..., None])
 
+    def _view(self, state: torch.Tensor, pose: torch.Tensor) -> torch.Tensor:
+        """Where each slot is seen from ``pose`` [B, S, VIEW] (``view``: camera coordinates and
+        image-plane box); zeros without ``projection``, where only the pose itself (each
+        network's camera features) says where the camera is."""
+        if self.hparams.projection:
+            return view(state, pose)
+        return state.new_zeros(*state.shape[:-1], VIEW)
+
     def _recur(
         self, slots: Slots, given: torch.Tensor, fraction: torch.Tensor, pose: torch.Tensor
     ) -> torch.Tensor:
         """Each slot's next recurrent state [B, S, H]: a GRU step on what it now believes."""
-        seen_as = view(slots.belief, pose)
+        seen_as = self._view(slots.belief, pose)
         features = torch.cat(
             [
                 slots.belief,
@@ -193,7 +201,7 @@ class SlotRollout:
         ``unseen`` [B, S]), the terms of what frame t shows (``rollout``), p(visible) [B, S] and
         the ``Holding`` of every known slot (None without ``carry: support`` or ``hold_still``)."""
         h = self.hparams
-        pairs = pair_features(slots.belief, slots.shape, view(slots.belief, pose))
+        pairs = pair_features(slots.belief, slots.shape, self._view(slots.belief, pose))
         message = messages(self.message, slots.hidden, slots.hidden, pairs, slots.known)
         falling = slots.velocity[..., 2] < -MOVING  # [B, S]: its last move took it down
         inertia = (
@@ -290,7 +298,7 @@ class SlotRollout:
         place is what the dynamics learned from seen motion predicts, not one bent to explain
         why it is not seen (with it, a cube behind a container drifted in, where walls hide it)."""
         placed = predicted.detach()
-        seen_as = view(placed, pose)
+        seen_as = self._view(placed, pose)
         pairs = pair_features(placed, slots.shape, seen_as)
         occluders = messages(self.occlusion, slots.hidden, None, pairs, slots.known)
         learned = self.visibility(
