@@ -1,8 +1,8 @@
 """What each rung and removal of docs/study/learned_physics.md shows: from tested runs' reports,
 a Markdown table with per concept each run's verdict, its quadruplet t (unchangeableness: per
 change) and halves' M, and whether both halves are significant on their own; then per run the
-count of verdicts and of concepts whose halves all stand alone, and, where the report has one,
-the same for its untrained copy (priors alone).
+count of verdicts and of concepts whose halves all stand alone, where the report has one the
+same for its untrained copy (priors alone), and the largest correlation of its d with a cue's.
 
     python experiments/learned_physics.py LABEL=REPORT_DIR [LABEL=REPORT_DIR ...]
 """
@@ -10,6 +10,7 @@ the same for its untrained copy (priors alone).
 from __future__ import annotations
 
 import argparse
+import csv
 from pathlib import Path
 from typing import Any
 
@@ -70,7 +71,27 @@ def table(runs: list[tuple[str, Path]]) -> str:
             + " | ".join(counts(a) if a else "" for a in alone)
             + " |"
         )
+    lines.append("| largest cue correlation |" + " | ".join(largest_cue(p) for _, p in runs) + " |")
     return "\n".join(lines) + "\n\n† a half not significant on its own at the report's alpha.\n"
+
+
+def largest_cue(report_dir: Path) -> str:
+    """The largest |r| between the model's d and a physics-blind cue's d over the report's
+    variant rows (cue_correlations.csv; a pooled row mixes variants whose cue d have opposite
+    signs), with where it is."""
+    path = report_dir / "cue_correlations.csv"
+    if not path.exists():
+        return "n/a"
+    with open(path) as handle:
+        rows = [
+            row
+            for row in csv.DictReader(handle)
+            if row["r"] not in ("", "nan") and row["variant"] != "pooled"  # a pool mixes signs
+        ]
+    if not rows:
+        return "n/a"
+    top = max(rows, key=lambda row: abs(float(row["r"])))
+    return f"r = {float(top['r']):+.2f} ({top['concept']}/{top['variant']}, {top['cue']})"
 
 
 def main() -> None:

@@ -50,7 +50,13 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
 
     Given, not learned (priors, each an argument here): the floor, the stopping, landing and
     pivoting geometry, support carrying, holding still, slowing, falling lands, the fall's
-    gain and shared identity.
+    gain and shared identity; the package's learned result (``configs/learned_states.yaml``)
+    turns every one off. Given to every configuration, and each removable to measure what it
+    costs (docs/study/learned_physics.md): the sight lines of the visibility (``sight_lines``),
+    the floor under every mean (``floor``), the inertial baseline (``inertia``) and the
+    image-plane projection the networks read (``projection``). Never removable: one slot per
+    tracker id, the states of the objects while seen, the camera pose, the mixture's bound
+    on a frame's move (``MAX_MOVE``).
 
     Args:
         hidden_size: recurrent state per slot and width of the MLPs.
