@@ -8,6 +8,7 @@ import torch
 from locations import TINY_CONFIG
 
 from voe_lightning.cli import main
+from voe_lightning.model import CallableModel
 
 CALLABLE = ["--model", "voe_lightning.model.CallableModel", "--model.init_args.function"]
 
@@ -15,6 +16,30 @@ CALLABLE = ["--model", "voe_lightning.model.CallableModel", "--model.init_args.f
 def zeros(frames: torch.Tensor) -> torch.Tensor:
     """A constant scorer: no surprise anywhere."""
     return torch.zeros(frames.shape[:2])
+
+
+def brightness(frames: torch.Tensor) -> torch.Tensor:
+    """A float64 motion-blind scorer: a frame's mean brightness."""
+    return frames.double().mean(dim=(2, 3, 4))
+
+
+def brightness_plus_1e9(frames: torch.Tensor) -> torch.Tensor:
+    """The same plus 1e9, which cancels in every d."""
+    return brightness(frames) + 1e9
+
+
+def brightness_plus_1e9_as_list(frames: torch.Tensor) -> list:
+    """The same as Python floats (float64 values without a dtype)."""
+    return brightness_plus_1e9(frames).tolist()
+
+
+def bright_pixels_plus_2_40(frames: torch.Tensor) -> torch.Tensor:
+    """An int64 count beyond float32's integers (2^24)."""
+    return (frames > 127).sum(dim=(2, 3, 4)) + 2**40
+
+
+def half_brightness(frames: torch.Tensor) -> torch.Tensor:
+    return brightness(frames).half()
 
 
 # ------------------------------------------------------------------- 1: a figure not drawn
@@ -27,3 +52,23 @@ def test_a_model_without_surprise_gets_its_report_without_the_tsne_figure(workdi
     assert [row["n"] for row in summary["rows"]] == [3, 3, 6, 3]  # the statistics, all there
     assert not (report / "tsne_object_persistence.png").exists()
     assert (report / "histograms.png").exists() and (report / "pairs.csv").exists()
+
+
+# ------------------------------------------------------------- 2: a callable's float64 surprise
+def test_a_callables_float64_or_integer_surprise_is_kept_in_float64():
+    frames = torch.randint(0, 256, (2, 4, 8, 8, 3), dtype=torch.uint8)
+
+    def d(function):  # S(second video) - S(first), as the report computes it (in float64)
+        surprise = CallableModel(f"test_reliability_five.{function}").surprise(frames)
+        return surprise, (surprise[1].double().sum() - surprise[0].double().sum()).item()
+
+    plain, plain_d = d("brightness")
+    assert plain.dtype == torch.float64 and plain_d != 0.0
+    for function in ("brightness_plus_1e9", "brightness_plus_1e9_as_list"):
+        offset, offset_d = d(function)
+        assert offset.dtype == torch.float64, function
+        assert offset_d == pytest.approx(plain_d, rel=1e-6), function  # float32: 0 or +-64
+    counts, _ = d("bright_pixels_plus_2_40")
+    assert counts.dtype == torch.float64
+    assert torch.equal(counts - 2**40, (frames > 127).sum(dim=(2, 3, 4)).double())
+    assert d("half_brightness")[0].dtype == torch.float16  # a floating dtype as given
