@@ -7,8 +7,11 @@ import pytest
 import torch
 from locations import TINY_CONFIG
 
+from voe_lightning.callbacks import VOEProbeCallback
 from voe_lightning.cli import main
 from voe_lightning.model import CallableModel
+from voe_lightning.stats.statistics import paired_test
+from voe_lightning.stats.streaming_statistics import PairedSurpriseStats
 
 CALLABLE = ["--model", "voe_lightning.model.CallableModel", "--model.init_args.function"]
 
@@ -72,3 +75,26 @@ def test_a_callables_float64_or_integer_surprise_is_kept_in_float64():
     assert counts.dtype == torch.float64
     assert torch.equal(counts - 2**40, (frames > 127).sum(dim=(2, 3, 4)).double())
     assert d("half_brightness")[0].dtype == torch.float16  # a floating dtype as given
+
+
+# ------------------------------------------------------------ 3: an overflowed streaming variance
+def test_the_streaming_test_refuses_moments_beyond_float64_as_the_one_shot_does():
+    inconsistent, consistent = [2e200, -1e200], [0.0, 0.0]  # scipy: t = 0, p = .5
+    with pytest.raises(ValueError, match="moments of the differences are not finite"):
+        paired_test(inconsistent, consistent, bootstrap=0)
+    metric = PairedSurpriseStats()
+    metric.update(torch.tensor(inconsistent, dtype=torch.float64), torch.tensor(consistent))
+    with pytest.raises(
+        ValueError,
+        match=r"moments of the differences are not finite: over n=2 pairs, sum d = 1e\+200, "
+        r"sum d\^2 = inf; ",
+    ):
+        metric.compute()  # was t = +inf, p = 0: the zero-variance rule on max(0, inf - inf)
+    one_pair = PairedSurpriseStats()
+    one_pair.update(torch.tensor([1.0]), torch.tensor([0.0]))
+    callback = VOEProbeCallback(print_table=False)
+    callback.metrics = {("voe", "object_persistence", "counterbalanced"): one_pair}
+    assert callback._results("voe") == {}  # too few pairs so far: passed over
+    callback.metrics[("voe", "object_persistence", "standard")] = metric
+    with pytest.raises(ValueError, match="moments of the differences are not finite"):
+        callback._results("voe")  # refused, not passed over as too few pairs
