@@ -2,13 +2,15 @@
 none, without saying so; docs/reliability.md lists each case with its test."""
 
 import json
+from types import SimpleNamespace
 
 import pytest
 import torch
 from locations import TINY_CONFIG
 
-from voe_lightning.callbacks import VOEProbeCallback
+from voe_lightning.callbacks import IntPhys2LeaderboardWriter, VOEProbeCallback
 from voe_lightning.cli import main
+from voe_lightning.external.intphys2 import Video, VideoDataset
 from voe_lightning.model import CallableModel
 from voe_lightning.stats.statistics import paired_test
 from voe_lightning.stats.streaming_statistics import PairedSurpriseStats
@@ -98,3 +100,35 @@ def test_the_streaming_test_refuses_moments_beyond_float64_as_the_one_shot_does(
     callback.metrics[("voe", "object_persistence", "standard")] = metric
     with pytest.raises(ValueError, match="moments of the differences are not finite"):
         callback._results("voe")  # refused, not passed over as too few pairs
+
+
+# ------------------------------------------------------------ 4, 5: the IntPhys 2 leaderboard
+def _leaderboard(tmp_path, names, surprise_max):
+    """The jsonl IntPhys2LeaderboardWriter writes of HeldOut videos ``names`` (metadata.csv
+    lines 2, 3, ...) scored ``surprise_max``, threshold 1."""
+    videos = [Video(tmp_path / f"{i}.mp4", name, i + 2) for i, name in enumerate(names)]
+    dataset = VideoDataset(videos, sampling=None)
+    trainer = SimpleNamespace(
+        world_size=1, is_global_zero=True, predict_dataloaders=SimpleNamespace(dataset=dataset)
+    )
+    writer = IntPhys2LeaderboardWriter(threshold=1.0, path=tmp_path / "heldout.jsonl")
+    batch = {"index": torch.arange(len(names)), "surprise_max": torch.tensor(surprise_max)}
+    writer.write_on_epoch_end(trainer, None, [batch], [])
+    return [json.loads(line) for line in writer.path.read_text().splitlines()]
+
+
+def test_the_leaderboard_refuses_two_videos_of_one_name_listing_both(tmp_path):
+    assert [
+        line["model_answer"] for line in _leaderboard(tmp_path, "abcd", [0.5, 2.0, 1.0, 3.0])
+    ] == [
+        1,
+        0,
+        1,
+        0,
+    ]
+    (tmp_path / "heldout.jsonl").unlink()
+    with pytest.raises(ValueError, match="names 2 videos 'b'") as refused:
+        _leaderboard(tmp_path, ["a", "b", "c", "b"], [0.5, 2.0, 1.0, 3.0])  # was 3 lines
+    assert f"{tmp_path / '1.mp4'} (metadata.csv line 3)" in str(refused.value)
+    assert f"{tmp_path / '3.mp4'} (metadata.csv line 5)" in str(refused.value)
+    assert not (tmp_path / "heldout.jsonl").exists()
