@@ -2,6 +2,7 @@
 none, without saying so; docs/reliability.md lists each case with its test."""
 
 import json
+import math
 from types import SimpleNamespace
 
 import pytest
@@ -11,6 +12,7 @@ from locations import TINY_CONFIG
 from voe_lightning.callbacks import IntPhys2LeaderboardWriter, VOEProbeCallback
 from voe_lightning.cli import main
 from voe_lightning.external.intphys2 import Video, VideoDataset
+from voe_lightning.external.metrics import write_answer_file
 from voe_lightning.model import CallableModel
 from voe_lightning.stats.statistics import paired_test
 from voe_lightning.stats.streaming_statistics import PairedSurpriseStats
@@ -131,4 +133,15 @@ def test_the_leaderboard_refuses_two_videos_of_one_name_listing_both(tmp_path):
         _leaderboard(tmp_path, ["a", "b", "c", "b"], [0.5, 2.0, 1.0, 3.0])  # was 3 lines
     assert f"{tmp_path / '1.mp4'} (metadata.csv line 3)" in str(refused.value)
     assert f"{tmp_path / '3.mp4'} (metadata.csv line 5)" in str(refused.value)
+    assert not (tmp_path / "heldout.jsonl").exists()
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf])
+def test_the_leaderboard_refuses_non_finite_surprise_as_answer_txt_does(tmp_path, bad):
+    with pytest.raises(ValueError, match="surprise must be finite"):
+        write_answer_file(tmp_path / "answer.txt", {f"O1/0001/{m}": bad for m in range(1, 5)})
+    with pytest.raises(
+        ValueError, match=f"1 of 4 videos have a non-finite surprise_max \\('b': {bad}\\)"
+    ):
+        _leaderboard(tmp_path, "abcd", [0.5, bad, 1.0, 3.0])  # NaN was model_answer 0
     assert not (tmp_path / "heldout.jsonl").exists()

@@ -4,6 +4,7 @@ from every DDP rank: IntPhys' answer.txt and the IntPhys 2 leaderboard's jsonl."
 from __future__ import annotations
 
 import json
+import math
 import os
 from collections import defaultdict
 from collections.abc import Callable, Sequence
@@ -136,6 +137,13 @@ class IntPhys2LeaderboardWriter(BasePredictionWriter):
         scores = gathered_scores(trainer, predictions, "surprise_max")
         if scores is None:
             return
+        bad = [name for name, value in scores.items() if not math.isfinite(value)]
+        if bad:
+            raise ValueError(
+                f"cannot write {self.path}: {len(bad)} of {len(scores)} videos have a "
+                f"non-finite surprise_max ({bad[0]!r}: {scores[bad[0]]}); a model_answer "
+                "needs finite surprise, as answer.txt does"
+            )
         lines = [
             json.dumps(
                 {
