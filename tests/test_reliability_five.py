@@ -5,9 +5,12 @@ import json
 import math
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 import torch
 from locations import TINY_CONFIG
+from PIL import Image
+from test_intphys import SCENES, datamodule, make_intphys
 
 from voe_lightning.callbacks import IntPhys2LeaderboardWriter, VOEProbeCallback
 from voe_lightning.cli import main
@@ -145,3 +148,24 @@ def test_the_leaderboard_refuses_non_finite_surprise_as_answer_txt_does(tmp_path
     ):
         _leaderboard(tmp_path, "abcd", [0.5, bad, 1.0, 3.0])  # NaN was model_answer 0
     assert not (tmp_path / "heldout.jsonl").exists()
+
+
+# ------------------------------------------------------------------ 6: the IntPhys decoded cache
+def test_the_intphys_cache_sees_frames_rewritten_in_place(tmp_path):
+    root = make_intphys(tmp_path / "intphys")
+    scene, (_, _, folders) = next(iter(SCENES.items()))
+    cache = str(tmp_path / "cache")
+
+    def probes(**options):
+        return torch.cat(list(datamodule(root, **options).test_dataloader()))
+
+    before = probes(cache_dir=cache)
+    for number in (11, 15):  # two sampled frames of the impossible movie, in place
+        path = root / "dev" / scene / folders[2] / "scene" / f"scene_{number:03d}.png"
+        image = np.asarray(Image.open(path)).copy()
+        image[:6, :6] = 255
+        Image.fromarray(image).save(path)
+    uncached = probes(cache_dir=None)
+    assert not (uncached["inconsistent", "frames"] == before["inconsistent", "frames"]).all()
+    cached = probes(cache_dir=cache)  # was the stale frames: scene/'s size and mtime held
+    assert (cached == uncached).all()
