@@ -1,8 +1,11 @@
 """Issue 59: nothing silently wrong, round five. Seven inputs that gave a wrong result, or
 none, without saying so; docs/reliability.md lists each case with its test."""
 
+import contextlib
 import json
 import math
+import os
+import threading
 from types import SimpleNamespace
 
 import numpy as np
@@ -11,6 +14,7 @@ import torch
 from locations import TINY_CONFIG
 from PIL import Image
 from test_intphys import SCENES, datamodule, make_intphys
+from test_reliability import _refused
 
 from voe_lightning.callbacks import IntPhys2LeaderboardWriter, VOEProbeCallback
 from voe_lightning.cli import main
@@ -169,3 +173,46 @@ def test_the_intphys_cache_sees_frames_rewritten_in_place(tmp_path):
     assert not (uncached["inconsistent", "frames"] == before["inconsistent", "frames"]).all()
     cached = probes(cache_dir=cache)  # was the stale frames: scene/'s size and mtime held
     assert (cached == uncached).all()
+
+
+# ------------------------------------------------------------- 7: --config read before parsing
+@contextlib.contextmanager
+def _unblocked(fifo):
+    """Opens ``fifo``'s write end over and over while the block runs, so code that opens it to
+    read gets an empty file instead of hanging the test."""
+    stop = threading.Event()
+
+    def open_and_close():
+        while not stop.wait(0.2):
+            with contextlib.suppress(OSError):  # no reader yet
+                os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+
+    thread = threading.Thread(target=open_and_close, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+
+
+def test_a_config_that_is_a_pipe_or_device_is_refused_before_it_is_opened(workdir, capsys):
+    os.mkfifo(workdir / "config.yaml")
+    with _unblocked(workdir / "config.yaml"):  # was a hang
+        line = _refused(capsys, ["fit", "--config", "config.yaml"])
+    assert line == (
+        "error: --config config.yaml is a pipe (FIFO), not a regular file: give a YAML file "
+        "(a pipe, device or /dev/stdin would be read whole before the parser reads it again)"
+    )
+    line = _refused(capsys, ["fit", "--config", "/dev/zero"])  # was 24 GB read, then killed
+    assert line.startswith("error: --config /dev/zero is a character device, not a regular file")
+
+
+def test_a_config_larger_than_any_config_is_refused_unread(workdir, capsys):
+    big = workdir / "big.yaml"
+    big.write_text("# " + "x" * (1 << 20) + "\n")
+    line = _refused(capsys, ["fit", "--config", "big.yaml"])
+    assert line == (
+        "error: --config big.yaml is 1,048,579 bytes, more than the 1,048,576 a config may "
+        "be (the package's own are under 5 KB): give a YAML config file"
+    )
