@@ -196,10 +196,11 @@ def _unblocked(fifo):
         thread.join()
 
 
-def test_a_config_that_is_a_pipe_or_device_is_refused_before_it_is_opened(workdir, capsys):
+@pytest.mark.parametrize("given", ["--config config.yaml", "-c config.yaml", "--conf=config.yaml"])
+def test_a_config_that_is_a_pipe_or_device_is_refused_before_it_is_opened(workdir, capsys, given):
     os.mkfifo(workdir / "config.yaml")
     with _unblocked(workdir / "config.yaml"):  # was a hang
-        line = _refused(capsys, ["fit", "--config", "config.yaml"])
+        line = _refused(capsys, ["fit", *given.split()])
     assert line == (
         "error: --config config.yaml is a pipe (FIFO), not a regular file: give a YAML file "
         "(a pipe, device or /dev/stdin would be read whole before the parser reads it again)"

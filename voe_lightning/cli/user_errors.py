@@ -51,9 +51,7 @@ def check_yaml(words: list[str]) -> None:
     """Refuse a ``--config`` file that is not valid YAML, naming it (jsonargparse's message
     gives the line and column of "<unicode string>"), or that expands to more than
     ``MAX_CONFIG_VALUES`` values through its aliases."""
-    files = [word.split("=", 1)[1] for word in words if word.startswith("--config=")]
-    files += [after for word, after in zip(words, words[1:]) if word == "--config"]
-    for name in files:
+    for name in _config_files(words):
         text = _config_text(name)
         if text is None:
             continue  # the parser names a missing file itself
@@ -70,6 +68,17 @@ def check_yaml(words: list[str]) -> None:
                 "through its YAML aliases (*name repeating &name): refused; a "
                 "config needs no more"
             )
+
+
+def _config_files(words: list[str]) -> list[str]:
+    """The files given as ``--config F`` or ``--config=F``, by ``-c`` too and by the prefixes
+    of ``--config`` argparse takes for it (``--conf``)."""
+    files = []
+    for word, after in zip(words, [*words[1:], None]):
+        flag, equals, value = word.partition("=")
+        if flag == "-c" or (len(flag) > 3 and "--config".startswith(flag)):
+            files += [value] if equals else [after] if after is not None else []
+    return files
 
 
 def _config_text(name: str) -> str | None:
