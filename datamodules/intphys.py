@@ -27,6 +27,7 @@ from voe_lightning.external.intphys import (
     MovieDataset,
     QuadrupletDataset,
     TrainClipDataset,
+    frame_file,
     scan_quadruplets,
     scan_train,
 )
@@ -128,6 +129,11 @@ class IntPhysDataModule(ExternalDataModule):
             "records": RECORD_VERSION,
         }
 
+    def _frames(self, movie: Path) -> list[Path]:
+        """A movie's frame files, the sources a cache fingerprints: a frame rewritten in place
+        changes its file's size or mtime, never its folder's."""
+        return [frame_file(movie, i) for i in range(1, self.hparams.frames_per_movie + 1)]
+
     def _cache_folder(self, what: str, sources: list[Path]) -> Path | None:
         if self.hparams.cache_dir is None:
             return None
@@ -145,7 +151,7 @@ class IntPhysDataModule(ExternalDataModule):
             p
             for q in quadruplets
             for m in q.movies
-            for p in (m.path / "scene", m.path / "status.json")
+            for p in (*self._frames(m.path), m.path / "status.json")
         ]
         decoder = QuadrupletDataset(quadruplets, self.video, h.lenient, skips)
         return self._read_probes(split, decoder, self._cache_folder(split, sources), "scene")
@@ -163,7 +169,7 @@ class IntPhysDataModule(ExternalDataModule):
         h = self.hparams
         skips = self._skips["train"] = SkipLog()
         movies = scan_train(h.root, h.frames_per_movie, h.lenient, skips)
-        folder = self._cache_folder("train", [m / "scene" for m in movies])
+        folder = self._cache_folder("train", [p for m in movies for p in self._frames(m)])
         if folder is None:
             self._train = TrainClipDataset(movies, self.video, h.lenient, skips, substitute=True)
             return

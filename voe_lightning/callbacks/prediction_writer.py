@@ -4,8 +4,10 @@ from every DDP rank: IntPhys' answer.txt and the IntPhys 2 leaderboard's jsonl."
 from __future__ import annotations
 
 import json
+import math
 import os
-from collections.abc import Sequence
+from collections import defaultdict
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +48,7 @@ def gathered_scores(
 ) -> dict[str, float] | None:
     """On rank zero, video name -> ``predictions``' ``key`` of every video of the predict
     dataset (``names[index]``), gathered from every DDP rank; None on the other ranks. A
-    video scored twice or never is refused."""
+    video scored twice or never, or two videos of one name, are refused."""
     scores = [
         (index, value)
         for batch in predictions
@@ -58,13 +60,31 @@ def gathered_scores(
         scores = [score for rank in gathered for score in rank]
     if not trainer.is_global_zero:
         return None
-    names = trainer.predict_dataloaders.dataset.names
+    dataset = trainer.predict_dataloaders.dataset
+    names = dataset.names
+    _check_distinct(names, getattr(dataset, "describe", lambda index: f"video {index}"))
     if sorted(index for index, _ in scores) != list(range(len(names))):
         raise RuntimeError(
             f"predict scored {len(scores)} videos ({len({i for i, _ in scores})} distinct) of "
             f"the {len(names)} in the predict dataset; every video needs exactly one score"
         )
     return {names[index]: value for index, value in sorted(scores)}
+
+
+def _check_distinct(names: Sequence[str], describe: Callable[[int], str]) -> None:
+    """Refuse two videos of one name (the one a score is written under), naming each video
+    (``describe(index)``): keyed by name, one would overwrite the other's score."""
+    found: dict[str, list[int]] = defaultdict(list)
+    for index, name in enumerate(names):
+        found[name].append(index)
+    repeated = {name: indices for name, indices in found.items() if len(indices) > 1}
+    if repeated:
+        name, indices = next(iter(repeated.items()))
+        raise ValueError(
+            f"the predict dataset names {len(indices)} videos {name!r}: "
+            f"{', '.join(describe(i) for i in indices)} ({len(repeated)} name(s) repeated); "
+            "each video needs a name of its own"
+        )
 
 
 def intphys2_threshold(threshold: float | str) -> float:
@@ -117,6 +137,13 @@ class IntPhys2LeaderboardWriter(BasePredictionWriter):
         scores = gathered_scores(trainer, predictions, "surprise_max")
         if scores is None:
             return
+        bad = [name for name, value in scores.items() if not math.isfinite(value)]
+        if bad:
+            raise ValueError(
+                f"cannot write {self.path}: {len(bad)} of {len(scores)} videos have a "
+                f"non-finite surprise_max ({bad[0]!r}: {scores[bad[0]]}); a model_answer "
+                "needs finite surprise, as answer.txt does"
+            )
         lines = [
             json.dumps(
                 {

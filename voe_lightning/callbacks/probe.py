@@ -26,7 +26,11 @@ from voe_lightning.stats.statistics import (
     quadruplet_test,
 )
 from voe_lightning.stats.statistics_format import CONSOLE, format_alpha, row_text
-from voe_lightning.stats.streaming_statistics import PairedSurpriseStats, pooled_values
+from voe_lightning.stats.streaming_statistics import (
+    PairedSurpriseStats,
+    TooFewPairs,
+    pooled_values,
+)
 from voe_lightning.stats.surprise_window import SurpriseWindow, video_surprise
 from voe_lightning.stats.surprise_window import surprise_window as parse_window
 from voe_lightning.stats.verdicts import concept_verdicts, pair_groups, quadruplets
@@ -163,7 +167,7 @@ class VOEProbeCallback(L.Callback):
                 continue
             try:  # called on every rank alike: compute() syncs the states under DDP
                 computed[tuple(case)] = {k: float(v) for k, v in metric.compute().items()}
-            except ValueError:  # fewer than two pairs of this case so far
+            except TooFewPairs:  # fewer than two pairs of this case so far
                 continue
         results = {}
         concepts, variants = zip(*computed) if computed else ((), ())

@@ -14,7 +14,7 @@ import torch
 from lightning.pytorch.utilities import rank_zero_warn
 
 from voe_lightning.model.base import video_inputs
-from voe_lightning.report.figures import PredictionExample
+from voe_lightning.report.figures import PredictionExample, tsne_unfit
 
 #: Kept videos per (concept, variant) index for the predictions, per variant index for t-SNE.
 Kept = tuple[dict[tuple[int, int], list[dict[str, Any]]], dict[int, list[dict[str, Any]]]]
@@ -80,7 +80,7 @@ class ExampleVideos:
     ) -> tuple[list[PredictionExample], dict[str, Any] | None, list[str] | None]:
         """Every rank's ``kept`` videos (``gathered``) run through the model in eval mode
         without gradients: the prediction examples, the t-SNE trajectories and their labels
-        (None, None for fewer than two pairs)."""
+        (None, None, with a warning, for fewer than two pairs or courses t-SNE cannot embed)."""
         examples, tsne = [], []
         for rank_examples, rank_tsne in gathered:
             examples += [e for kept in rank_examples.values() for e in kept]
@@ -128,10 +128,7 @@ class ExampleVideos:
         ][: self.tsne_pairs]
         if len(chosen) < 2:
             if self.tsne_pairs:
-                rank_zero_warn(
-                    "fewer than 2 object-persistence probe pairs in the test set; "
-                    "tsne_object_persistence.png not written"
-                )
+                _skip_tsne("fewer than 2 object-persistence probe pairs in the test set")
             return None, None
         trajectories = {}
         for video in ("consistent", "inconsistent"):
@@ -139,5 +136,13 @@ class ExampleVideos:
                 **_stacked([e[video] for e in chosen], pl_module.device)
             )
             trajectories[video] = {k: v.float().cpu().numpy() for k, v in courses.items()}
+        if reason := tsne_unfit(trajectories):
+            _skip_tsne(reason)
+            return None, None
         labels = [f"{self.variant_names[e['variant']]} (seed {e['seed']})" for e in chosen]
         return trajectories, labels
+
+
+def _skip_tsne(reason: str) -> None:
+    """Warn that the t-SNE figure is left out, and why; the report is written without it."""
+    rank_zero_warn(f"{reason}; tsne_object_persistence.png not written")

@@ -8,6 +8,7 @@ import builtins
 import importlib
 import os
 import re
+import stat
 import traceback
 from pathlib import Path
 
@@ -25,6 +26,15 @@ USER_ERRORS = (ValueError, OSError, MisconfigurationException, FloatingPointErro
 #: The most values a ``--config`` file may expand to through its YAML aliases (a paper config
 #: holds a few hundred; nested anchors can make 700 bytes hold 10^9, which would hang).
 MAX_CONFIG_VALUES = 100_000
+#: The largest ``--config`` file read (the package's configs hold under 5 KB).
+MAX_CONFIG_BYTES = 1 << 20
+#: What a path that is no regular file or folder is, by its ``stat`` mode.
+FILE_KINDS = (
+    (stat.S_ISFIFO, "a pipe (FIFO)"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
 #: Flags whose value may be a class's import path, with an example of one.
 CLASS_FLAGS = {"--model": "voe_lightning.model.VRNNLRUModel", "--data": "my_package.MyDataModule"}
 #: How torch's DataLoader re-raises in this process an error a worker process raised: the
@@ -41,19 +51,12 @@ def check_yaml(words: list[str]) -> None:
     """Refuse a ``--config`` file that is not valid YAML, naming it (jsonargparse's message
     gives the line and column of "<unicode string>"), or that expands to more than
     ``MAX_CONFIG_VALUES`` values through its aliases."""
-    files = [word.split("=", 1)[1] for word in words if word.startswith("--config=")]
-    files += [after for word, after in zip(words, words[1:]) if word == "--config"]
-    for name in files:
-        if Path(name).is_dir():
-            found = sorted(Path(name).glob("*.yaml"))
-            raise ValueError(
-                f"--config {name} is a directory, not a YAML file; give one file"
-                + (f", e.g. {found[0]}" if found else "")
-            )
-        try:
-            document = yaml.compose(Path(name).read_text(), Loader=yaml.SafeLoader)
-        except OSError:
+    for name in _config_files(words):
+        text = _config_text(name)
+        if text is None:
             continue  # the parser names a missing file itself
+        try:
+            document = yaml.compose(text, Loader=yaml.SafeLoader)
         except yaml.YAMLError as error:
             mark = getattr(error, "problem_mark", None)
             where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
@@ -65,6 +68,47 @@ def check_yaml(words: list[str]) -> None:
                 "through its YAML aliases (*name repeating &name): refused; a "
                 "config needs no more"
             )
+
+
+def _config_files(words: list[str]) -> list[str]:
+    """The files given as ``--config F`` or ``--config=F``, by ``-c`` too and by the prefixes
+    of ``--config`` argparse takes for it (``--conf``)."""
+    files = []
+    for word, after in zip(words, [*words[1:], None]):
+        flag, equals, value = word.partition("=")
+        if flag == "-c" or (len(flag) > 3 and "--config".startswith(flag)):
+            files += [value] if equals else [after] if after is not None else []
+    return files
+
+
+def _config_text(name: str) -> str | None:
+    """A ``--config`` file's text, its type and size checked before it is opened (a folder, a
+    pipe or device, a file over ``MAX_CONFIG_BYTES`` refused); None when it cannot be read."""
+    try:
+        status = os.stat(name)
+    except OSError:
+        return None
+    if stat.S_ISDIR(status.st_mode):
+        found = sorted(Path(name).glob("*.yaml"))
+        raise ValueError(
+            f"--config {name} is a directory, not a YAML file; give one file"
+            + (f", e.g. {found[0]}" if found else "")
+        )
+    if not stat.S_ISREG(status.st_mode):
+        kind = next((k for is_kind, k in FILE_KINDS if is_kind(status.st_mode)), "a special file")
+        raise ValueError(
+            f"--config {name} is {kind}, not a regular file: give a YAML file (a pipe, "
+            "device or /dev/stdin would be read whole before the parser reads it again)"
+        )
+    if status.st_size > MAX_CONFIG_BYTES:
+        raise ValueError(
+            f"--config {name} is {status.st_size:,} bytes, more than the {MAX_CONFIG_BYTES:,} "
+            "a config may be (the package's own are under 5 KB): give a YAML config file"
+        )
+    try:
+        return Path(name).read_text()
+    except OSError:
+        return None
 
 
 def check_classes(words: list[str]) -> None:

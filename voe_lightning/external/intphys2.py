@@ -477,6 +477,10 @@ class VideoDataset(Dataset):
     def names(self) -> list[str]:
         return [video.name for video in self.videos]
 
+    def describe(self, index: int) -> str:
+        """Video ``index`` as a user finds it: its file and metadata.csv line."""
+        return f"{self.videos[index].path} (metadata.csv line {self.videos[index].row})"
+
     def __len__(self) -> int:
         return len(self.videos)
 

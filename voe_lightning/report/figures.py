@@ -241,6 +241,50 @@ TSNE_CONSISTENT_COLORS = ("cyan", "blue", "teal", "navy")
 TSNE_INCONSISTENT_COLORS = ("red", "magenta", "darkred", "purple")
 
 
+def _tsne_kinds(trajectories: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """The trajectory kinds, checked the same for both videos."""
+    kinds = list(trajectories.get("consistent", {}))
+    if not kinds or kinds != list(trajectories.get("inconsistent", {})):
+        raise KeyError(
+            "trajectories need the same kinds for both videos, e.g. "
+            "dict(consistent=dict(prior, memory), inconsistent=dict(prior, memory)); "
+            f"got { ({video: list(v) for video, v in trajectories.items()}) }"
+        )
+    return kinds
+
+
+def _tsne_points(trajectories: Mapping[str, Mapping[str, Any]], kind: str) -> np.ndarray:
+    """One kind's courses of both videos as points [2 N T, features], for t-SNE to embed."""
+    consistent = as_numpy(trajectories["consistent"][kind], np.float64)
+    inconsistent = as_numpy(trajectories["inconsistent"][kind], np.float64)
+    if inconsistent.shape != consistent.shape:
+        raise ValueError(
+            f"{kind}: consistent {consistent.shape} and inconsistent "
+            f"{inconsistent.shape} trajectories disagree"
+        )
+    n, frames = consistent.shape[:2]
+    return np.concatenate([consistent, inconsistent]).reshape(2 * n * frames, -1)
+
+
+def tsne_unfit(trajectories: Mapping[str, Mapping[str, Any]]) -> str | None:
+    """Why t-SNE cannot embed these trajectories (NaN or infinite values; squared distances 0,
+    or beyond float64), or None: the report then skips the figure, never the statistics."""
+    for kind in _tsne_kinds(trajectories):
+        points = _tsne_points(trajectories, kind)
+        if not np.isfinite(points).all():
+            return f"the model's {kind!r} trajectories hold NaN or infinite values"
+        ranges = np.ptp(points, axis=0)
+        with np.errstate(over="ignore", under="ignore"):
+            square = float(np.square(ranges).sum())
+        if not 0.0 < square < math.inf:
+            return (
+                f"the model's {kind!r} trajectories differ by at most {ranges.max():g} over "
+                "every frame of every probe; t-SNE embeds points whose squared distances "
+                "lie above 0 and within float64"
+            )
+    return None
+
+
 def tsne_figure(
     trajectories: Mapping[str, Mapping[str, Any]],
     labels: Sequence[str] | None = None,
@@ -252,26 +296,13 @@ def tsne_figure(
     (consistent/inconsistent), each curve from a dot (first frame) to an arrowhead (last)."""
     from sklearn.manifold import TSNE
 
-    kinds = list(trajectories.get("consistent", {}))
-    if not kinds or kinds != list(trajectories.get("inconsistent", {})):
-        raise KeyError(
-            "trajectories need the same kinds for both videos, e.g. "
-            "dict(consistent=dict(prior, memory), inconsistent=dict(prior, memory)); "
-            f"got { ({video: list(v) for video, v in trajectories.items()}) }"
-        )
+    kinds = _tsne_kinds(trajectories)
     figure = Figure(figsize=(5.5 * len(kinds), 5), layout="constrained")
     axes = np.atleast_1d(figure.subplots(1, len(kinds)))
     for ax, kind in zip(axes, kinds):
         title = TSNE_TITLES.get(kind, kind.capitalize())
-        consistent = as_numpy(trajectories["consistent"][kind], np.float64)
-        inconsistent = as_numpy(trajectories["inconsistent"][kind], np.float64)
-        n, frames = consistent.shape[:2]
-        if inconsistent.shape != consistent.shape:
-            raise ValueError(
-                f"{kind}: consistent {consistent.shape} and inconsistent "
-                f"{inconsistent.shape} trajectories disagree"
-            )
-        points = np.concatenate([consistent, inconsistent]).reshape(2 * n * frames, -1)
+        points = _tsne_points(trajectories, kind)
+        n, frames = np.shape(trajectories["consistent"][kind])[:2]
         perplexity = min(30.0, (points.shape[0] - 1) / 3.0)
         method = "exact" if points.shape[0] <= 2000 else "barnes_hut"  # exact: faster when small
         embedded = (

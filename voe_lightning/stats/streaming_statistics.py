@@ -7,6 +7,7 @@ so the streaming and one-shot forms decide degenerate cases alike."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -15,7 +16,11 @@ from torchmetrics import Metric
 
 from voe_lightning.stats.t_tests import stratified_test, t_test_from_moments
 
-__all__ = ["PairedSurpriseStats", "pooled_values"]
+__all__ = ["PairedSurpriseStats", "TooFewPairs", "pooled_values"]
+
+
+class TooFewPairs(ValueError):
+    """``PairedSurpriseStats.compute`` of fewer than 2 pairs: no test yet (callbacks wait)."""
 
 
 class PairedSurpriseStats(Metric):
@@ -68,9 +73,16 @@ class PairedSurpriseStats(Metric):
     def compute(self) -> dict[str, torch.Tensor]:
         n = int(round(float(self.n)))
         if n < 2:
-            raise ValueError(f"PairedSurpriseStats needs at least 2 probe pairs, got n={n}")
-        mean = float(self.sum_d) / n
-        variance = max(0.0, (float(self.sum_d_squared) - n * mean * mean) / (n - 1))
+            raise TooFewPairs(f"PairedSurpriseStats needs at least 2 probe pairs, got n={n}")
+        sum_d, sum_squares = float(self.sum_d), float(self.sum_d_squared)
+        if not (math.isfinite(sum_d) and math.isfinite(sum_squares)):
+            raise ValueError(
+                f"moments of the differences are not finite: over n={n} pairs, sum d = "
+                f"{sum_d:g}, sum d^2 = {sum_squares:g}; the streaming t-test needs both "
+                "within float64 (|d| below about 1e154)"
+            )
+        mean = sum_d / n
+        variance = max(0.0, (sum_squares - n * mean * mean) / (n - 1))
         test = t_test_from_moments(n, mean, variance)
         values = {
             "relative_surprise": test.mean,

@@ -29,6 +29,15 @@ def import_callable(path: str) -> Callable:
     return function
 
 
+def _as_surprise(returned: object) -> torch.Tensor:
+    """The callable's surprise as a tensor: a floating dtype as given, any other (integers,
+    Python numbers) as float64, so the report's float64 sums lose nothing to rounding."""
+    if isinstance(returned, (list, tuple)):
+        return torch.as_tensor(returned, dtype=torch.float64)
+    surprise = torch.as_tensor(returned)
+    return surprise if surprise.is_floating_point() else surprise.double()
+
+
 class CallableModel(SurpriseModel):
     """Wraps ``function(frames) -> surprise``: frames uint8 [B, T, H, W, 3] on this module's
     device, per-frame surprise [B, T] (frame t's from frames up to t only, the protocol's
@@ -56,7 +65,7 @@ class CallableModel(SurpriseModel):
     ) -> torch.Tensor:
         returned = self.function(frames.to(self.device))
         try:
-            surprise = torch.as_tensor(returned)
+            surprise = _as_surprise(returned)
         except (TypeError, ValueError, RuntimeError) as error:  # None, a ragged list
             raise ValueError(
                 f"{self.hparams.function} returned a {type(returned).__name__} that "
@@ -69,7 +78,7 @@ class CallableModel(SurpriseModel):
                 f"{tuple(surprise.shape)} for frames {tuple(frames.shape)}; expected "
                 f"[B, T] = {list(frames.shape[:2])}"
             )
-        return surprise.float()
+        return surprise
 
     def expected_frames(
         self,
