@@ -59,7 +59,7 @@ def half_brightness(frames: torch.Tensor) -> torch.Tensor:
 # ------------------------------------------------------------------- 1: a figure not drawn
 def test_a_model_without_surprise_gets_its_report_without_the_tsne_figure(workdir):
     with pytest.warns(UserWarning, match="differ by at most 0 over every frame") as warned:
-        main(["test", "--config", TINY_CONFIG, *CALLABLE, "test_reliability_five.zeros"])
+        main(["test", "--config", TINY_CONFIG, *CALLABLE, "test_silent_wrong_results.zeros"])
     assert any(str(w.message).endswith("tsne_object_persistence.png not written") for w in warned)
     [report] = workdir.rglob("voe_report")
     summary = json.loads((report / "summary.json").read_text())
@@ -73,7 +73,7 @@ def test_a_callables_float64_or_integer_surprise_is_kept_in_float64():
     frames = torch.randint(0, 256, (2, 4, 8, 8, 3), dtype=torch.uint8)
 
     def d(function):  # S(second video) - S(first), as the report computes it (in float64)
-        surprise = CallableModel(f"test_reliability_five.{function}").surprise(frames)
+        surprise = CallableModel(f"test_silent_wrong_results.{function}").surprise(frames)
         return surprise, (surprise[1].double().sum() - surprise[0].double().sum()).item()
 
     plain, plain_d = d("brightness")
