@@ -77,8 +77,8 @@ def table(runs: list[tuple[str, Path]]) -> str:
 
 def largest_cue(report_dir: Path) -> str:
     """The largest |r| between the model's d and a physics-blind cue's d over the report's
-    variant rows (cue_correlations.csv; a pooled row mixes variants whose cue d have opposite
-    signs), with where it is."""
+    probe-variant rows (cue_correlations.csv; not the pooled rows, which mix variants whose cue
+    d have opposite signs, nor the within-variant ones), with where it is."""
     path = report_dir / "cue_correlations.csv"
     if not path.exists():
         return "n/a"
@@ -86,7 +86,7 @@ def largest_cue(report_dir: Path) -> str:
         rows = [
             row
             for row in csv.DictReader(handle)
-            if row["r"] not in ("", "nan") and row["variant"] != "pooled"  # a pool mixes signs
+            if row["r"] not in ("", "nan") and row["variant"] in specs.VARIANTS
         ]
     if not rows:
         return "n/a"
