@@ -1,5 +1,5 @@
-"""The causality check every report and validation run makes (docs/architecture.md, §6 of
-DESIGN): a probe pair's two videos are byte-identical through ``manipulation_frame``, so a
+"""The causality check every report and validation run makes (docs/architecture.md §7, DESIGN.md
+§5): a probe pair's two videos are byte-identical through ``manipulation_frame``, so a
 causal model's per-frame surprise is identical there. Where it differs beyond float noise, the
 model reads frames after t (a user's callable scoring frame t from t..t+1, or giving every frame
 the video's total), its relative surprise may carry the answer, and no verdict is given.
