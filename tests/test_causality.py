@@ -96,6 +96,19 @@ VJEPA2 = dict(
 )
 
 #: Every model family the package ships, untrained and tiny: one line adds a family.
+#: The object-state learner's priors off (configs/learned_states.yaml) and its givens removed.
+NO_PRIORS = dict(
+    stop_component=False,
+    landing_component=False,
+    pivot_landing=False,
+    carry="none",
+    hold_still=False,
+    slowing=False,
+    falling_lands=False,
+    fall_gain=0.0,
+    shared_identity=False,
+)
+NO_GIVENS = dict(sight_lines=False, floor=False, inertia=False, projection=False)
 FAMILIES = [
     pytest.param(lambda: VRNNLRUModel(**VRNN), id="vrnn_lru"),
     pytest.param(lambda: ObjectCentricModel(**OBJECT_CENTRIC), id="object_centric"),
@@ -125,40 +138,11 @@ FAMILIES = [
         id="object_state_flat_landing",
     ),
     pytest.param(
-        lambda: ObjectStateModel(
-            hidden_size=16,
-            message_size=8,
-            components=1,
-            stop_component=False,
-            landing_component=False,
-            pivot_landing=False,
-            carry="none",
-            hold_still=False,
-            slowing=False,
-            falling_lands=False,
-            fall_gain=0.0,
-            shared_identity=False,
-        ),
+        lambda: ObjectStateModel(hidden_size=16, message_size=8, components=1, **NO_PRIORS),
         id="object_state_no_priors",
     ),
     pytest.param(  # configs/learned_states.yaml's learner with its four givens removed too
-        lambda: ObjectStateModel(
-            hidden_size=16,
-            message_size=8,
-            stop_component=False,
-            landing_component=False,
-            pivot_landing=False,
-            carry="none",
-            hold_still=False,
-            slowing=False,
-            falling_lands=False,
-            fall_gain=0.0,
-            shared_identity=False,
-            sight_lines=False,
-            floor=False,
-            inertia=False,
-            projection=False,
-        ),
+        lambda: ObjectStateModel(hidden_size=16, message_size=8, **NO_PRIORS, **NO_GIVENS),
         id="object_state_nothing_given",
     ),
     *[pytest.param(lambda cue=cue: CueScorer(cue), id=f"cue_{cue}") for cue in CUE_NAMES],
