@@ -132,6 +132,7 @@ def test_last_is_the_newest_run_and_the_report_names_what_it_was_made_from(
         "data_root": "data/tiny",
         "seed_offset": 0,
         "probe_root": "data/tiny",
+        "probe_split": "test",
         "concepts": ["object_persistence"],
     }
     # fit --ckpt_path last resumes that run (Lightning alone would start again from step 0).
