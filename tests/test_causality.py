@@ -145,6 +145,12 @@ FAMILIES = [
         lambda: ObjectStateModel(hidden_size=16, message_size=8, **NO_PRIORS, **NO_GIVENS),
         id="object_state_nothing_given",
     ),
+    pytest.param(  # configs/learned_masks.yaml's learner: what the masks and frames show
+        lambda: ObjectStateModel(
+            perception="masks", hidden_size=16, message_size=8, **NO_PRIORS, **NO_GIVENS
+        ),
+        id="object_state_masks",
+    ),
     *[pytest.param(lambda cue=cue: CueScorer(cue), id=f"cue_{cue}") for cue in CUE_NAMES],
     pytest.param(
         lambda: VideoMAEScorer(config=VIDEOMAE),

@@ -16,8 +16,8 @@ from voe_lightning.model.object_state.mixture import (
     slowed,
 )
 from voe_lightning.model.object_state.model import ObjectStateModel
-from voe_lightning.model.object_state.pairs import PAIR_FEATURES, PairNetwork
-from voe_lightning.model.object_state.rollout import FEATURES, FLOOR_FEATURES
+from voe_lightning.model.object_state.pairs import PairNetwork
+from voe_lightning.model.object_state.rollout import FLOOR_FEATURES
 from voe_lightning.model.object_state.state import (
     BOX_CENTRE,
     BOX_HALF,
@@ -45,7 +45,6 @@ __all__ = [
     "CAMERA_XYZ",
     "CARRIES",
     "COLOR",
-    "FEATURES",
     "FLOOR_FEATURES",
     "Holding",
     "IDENTITY",
@@ -56,7 +55,6 @@ __all__ = [
     "ORIENTATION",
     "ObjectStateModel",
     "Observations",
-    "PAIR_FEATURES",
     "POSE",
     "POSITION",
     "PairNetwork",

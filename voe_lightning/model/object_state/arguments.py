@@ -9,6 +9,7 @@ from voe_lightning.model.object_state.mixture import MAX_MOVE
 #: Constructor arguments that shape the parameters, or the priors they were trained with: a
 #: checkpoint must agree on all of them.
 ARCHITECTURE = (
+    "perception",
     "hidden_size",
     "message_size",
     "use_camera",
@@ -30,15 +31,48 @@ ARCHITECTURE = (
 )
 #: What a carrier passes on (``carry``): nothing, or, to what rests on it, its whole move.
 CARRIES = ("none", "support")
+#: What the learner perceives of each object (``perception``): its 3D state, or what its mask
+#: and the frames show.
+PERCEPTIONS = ("states", "masks")
+#: The arguments that give geometry or a prior about a 3D state, each with its value off.
+GEOMETRY_OFF = {
+    "stop_component": False,
+    "landing_component": False,
+    "pivot_landing": False,
+    "carry": "none",
+    "hold_still": False,
+    "slowing": False,
+    "falling_lands": False,
+    "fall_gain": 0.0,
+    "shared_identity": False,
+    "sight_lines": False,
+    "floor": False,
+    "projection": False,
+}
 
 
 def check_arguments(h) -> None:
     """Refuse constructor arguments that make no model, naming the value and what is valid."""
+    _check_perception(h)
     _check_sizes(h)
     _check_mixture(h)
     _check_withholding(h)
     _check_priors(h)
     optimization.check_schedule(h.lr_schedule)
+
+
+def _check_perception(h) -> None:
+    """Refuse a perception not in ``PERCEPTIONS``, and 3D geometry or priors without 3D states."""
+    if h.perception not in PERCEPTIONS:
+        raise ValueError(f"perception must be one of {PERCEPTIONS}, got {h.perception!r}")
+    if h.perception == "masks":
+        on = {name: h[name] for name, off in GEOMETRY_OFF.items() if h[name] != off}
+        if on:
+            raise ValueError(
+                f"perception: masks gives no 3D state, so no 3D geometry or prior applies; set "
+                f"{', '.join(f'{name}: {off}' for name, off in GEOMETRY_OFF.items() if name in on)}"
+                f" (got {on})"
+            )
 
 
 def _check_sizes(h) -> None:

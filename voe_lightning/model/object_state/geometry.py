@@ -440,17 +440,40 @@ def draw_ellipses(
     a rod seen side-on is a thin streak, not a disc as long as the rod. ``opacity`` [B, T, S]
     in [0, 1]; painted far to near."""
     batch, steps, slots = state.shape[:3]
-    height, width = image_size
     seen_as = view(state.flatten(0, 1), camera.flatten(0, 1)).view(batch, steps, slots, VIEW)
+    return paint_ellipses(
+        seen_as[..., 3:5],
+        seen_as[..., 5:7],
+        state[..., 10:13],
+        opacity,
+        seen_as[..., 2],
+        image_size,
+    )
+
+
+def paint_ellipses(
+    centre: torch.Tensor,
+    half: torch.Tensor,
+    colour: torch.Tensor,
+    opacity: torch.Tensor,
+    depth: torch.Tensor,
+    image_size: tuple[int, int],
+) -> torch.Tensor:
+    """Ellipses on grey [B, T, 3, H, W], one per slot, each filling its image-plane box
+    (``centre`` and ``half``-extents [B, T, S, 2], ``view``'s units) in its ``colour``
+    [B, T, S, 3], as opaque as ``opacity`` [B, T, S], painted far to near (``depth``
+    [B, T, S])."""
+    batch, steps, slots = centre.shape[:3]
+    height, width = image_size
     focal = height / 2  # the image plane's [-1, 1] across the field of view, in pixels
-    column = width / 2 + seen_as[..., 3] * focal
-    row = height / 2 - seen_as[..., 4] * focal
+    column = width / 2 + centre[..., 0] * focal
+    row = height / 2 - centre[..., 1] * focal
     # half a pixel at least, so that a thin object still shows
-    half_width, half_height = (seen_as[..., 5:7] * focal).clamp(min=0.5).unbind(-1)
-    rows = torch.arange(height, device=state.device, dtype=torch.float32) + 0.5
-    columns = torch.arange(width, device=state.device, dtype=torch.float32) + 0.5
-    image = torch.full((batch, steps, 3, height, width), 0.5, device=state.device)
-    order = seen_as[..., 2].argsort(dim=-1, descending=True)
+    half_width, half_height = (half * focal).clamp(min=0.5).unbind(-1)
+    rows = torch.arange(height, device=centre.device, dtype=torch.float32) + 0.5
+    columns = torch.arange(width, device=centre.device, dtype=torch.float32) + 0.5
+    image = torch.full((batch, steps, 3, height, width), 0.5, device=centre.device)
+    order = depth.argsort(dim=-1, descending=True)
     for index in range(slots):
         slot = order[..., index]  # [B, T]: the farthest remaining slot of each frame
 
@@ -467,6 +490,10 @@ def draw_ellipses(
             <= 1
         ).float()
         alpha = (inside * take(opacity)[..., None, None])[:, :, None]
-        colour = state.gather(2, slot[..., None, None].expand(-1, -1, 1, state.shape[-1]))[:, :, 0]
-        image = image * (1 - alpha) + colour[..., 10:13, None, None] * alpha
+        image = image * (1 - alpha) + take_colour(colour, slot)[..., None, None] * alpha
     return image.clamp(0, 1)
+
+
+def take_colour(colour: torch.Tensor, slot: torch.Tensor) -> torch.Tensor:
+    """Each frame's ``slot`` [B, T] of ``colour`` [B, T, S, 3]: [B, T, 3]."""
+    return colour.gather(2, slot[..., None, None].expand(-1, -1, 1, 3))[:, :, 0]

@@ -63,7 +63,8 @@ class Mixture:
             if self.logits is not None
             else self.means.new_zeros(self.means.shape[:2], dtype=torch.long)
         )
-        return self.means.gather(2, top[..., None, None].expand(-1, -1, 1, STATE_SIZE))[:, :, 0]
+        size = self.means.shape[-1]
+        return self.means.gather(2, top[..., None, None].expand(-1, -1, 1, size))[:, :, 0]
 
 
 def slowed(move: torch.Tensor, change: torch.Tensor) -> torch.Tensor:
@@ -81,15 +82,16 @@ def slowed(move: torch.Tensor, change: torch.Tensor) -> torch.Tensor:
 def inertial_move(
     slots: Slots, falling: torch.Tensor, slowing: bool, fall_gain: float
 ) -> torch.Tensor:
-    """Where its last move takes each slot [B, S, 13] (positions only): that move, slowed as
-    it was slowing (``slowing``) and, falling, grown by ``fall_gain``; bounded by
-    ``MAX_MOVE``, so a hidden object's rollout cannot feed on itself and diverge."""
+    """Where its last move takes each slot [B, S, state] (positions only, the state's first
+    part): that move, slowed as it was slowing (``slowing``) and, falling, grown by
+    ``fall_gain``; bounded by ``MAX_MOVE``, so a hidden object's rollout cannot feed on itself
+    and diverge."""
     move = slots.velocity
     if slowing:
         move = slowed(slots.velocity, slots.acceleration)
     if fall_gain:  # what falls, falls faster
         move = move - F.pad(falling[..., None] * fall_gain, (2, 0))
-    return F.pad(move.clamp(-MAX_MOVE, MAX_MOVE), (0, STATE_SIZE - 3))
+    return F.pad(move.clamp(-MAX_MOVE, MAX_MOVE), (0, slots.belief.shape[-1] - move.shape[-1]))
 
 
 def landing_mean(moved: torch.Tensor, slots: Slots, pivot: bool) -> torch.Tensor:

@@ -17,17 +17,21 @@ from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.model.dynamics import CAMERA_FEATURES, mlp
 from voe_lightning.model.likelihood import rectified_excess
 from voe_lightning.model.object_state.arguments import ARCHITECTURE, check_arguments
-from voe_lightning.model.object_state.geometry import VIEW, draw_ellipses
-from voe_lightning.model.object_state.pairs import PairNetwork
-from voe_lightning.model.object_state.rollout import FEATURES, FLOOR_FEATURES, SlotRollout
+from voe_lightning.model.object_state.geometry import VIEW, draw_ellipses, paint_ellipses
+from voe_lightning.model.object_state.masks import MASKS, observe_masks
+from voe_lightning.model.object_state.pairs import PairNetwork, pair_feature_size
+from voe_lightning.model.object_state.rollout import FLOOR_FEATURES, SlotRollout, slot_feature_size
 from voe_lightning.model.object_state.state import (
     SHAPES,
     SLOT_TERMS,
-    STATE_SIZE,
+    STATES,
     Observations,
     observe,
     withheld_spans,
 )
+
+#: What the learner perceives (``perception``): its state layout.
+LAYOUTS = {"states": STATES, "masks": MASKS}
 
 
 class ObjectStateModel(SlotRollout, SurpriseModel):
@@ -60,7 +64,14 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     tracker id, the states of the objects while seen, the camera pose, the mixture's bound
     on a frame's move (``MAX_MOVE``).
 
+    With ``perception: masks`` (the mask rung, ``configs/learned_masks.yaml``) it reads no 3D
+    state: per mask id, the image-plane centroid, half-extents, area and mean colour of its
+    pixels in the record's ``mask`` and ``frames`` (``masks.observe_masks``), which it predicts
+    as it predicts a 3D state; no geometry or prior applies to them.
+
     Args:
+        perception: ``"states"`` (perfect 3D perception, ``specs.objects_spec``) or
+            ``"masks"`` (what the mask and frames show of each id, no 3D state).
         hidden_size: recurrent state per slot and width of the MLPs.
         message_size: size of the summed pair messages.
         use_camera: the core and visibility read the camera pose (else a fixed default pose).
@@ -113,6 +124,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
 
     def __init__(
         self,
+        perception: str = "states",
         hidden_size: int = 128,
         message_size: int = 64,
         use_camera: bool = True,
@@ -143,23 +155,27 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         self.save_hyperparameters()
         check_arguments(self.hparams)
         hidden, message = hidden_size, message_size
-        self.message = PairNetwork(hidden, hidden, hidden, message)
-        self.update = nn.GRUCell(FEATURES + message + CAMERA_FEATURES, hidden)
+        self.layout = layout = LAYOUTS[perception]
+        pairs = pair_feature_size(layout)
+        self.message = PairNetwork(hidden, hidden, pairs, hidden, message)
+        self.update = nn.GRUCell(slot_feature_size(layout) + message + CAMERA_FEATURES, hidden)
         floor = FLOOR_FEATURES if landing_component else 0
         self.dynamics = mlp(
             [
                 hidden + message + CAMERA_FEATURES + floor,
                 hidden,
                 hidden,
-                self._dynamics_outputs(components),
+                self._dynamics_outputs(components, layout.size),
             ]
         )
-        self.occlusion = PairNetwork(hidden, 0, hidden, message)
-        self.visibility = mlp([hidden + message + VIEW + 3 + CAMERA_FEATURES, hidden, 1])
+        self.occlusion = PairNetwork(hidden, 0, pairs, hidden, message)
+        self.visibility = mlp(
+            [hidden + message + VIEW + layout.extent_size + CAMERA_FEATURES, hidden, 1]
+        )
         if sight_lines:
             #: How much the visibility logit starts from geometry (``seen_by_geometry``); learned.
             self.geometry_weight = nn.Parameter(torch.ones(()))
-        self.appearance = mlp([hidden + CAMERA_FEATURES, hidden, 1 + 2 * STATE_SIZE + SHAPES])
+        self.appearance = mlp([hidden + CAMERA_FEATURES, hidden, 1 + 2 * layout.size + SHAPES])
         self.log_min_std = math.log(min_std)
         #: Per component, how much of the inertia its mean takes (``stop_component``: none for
         #: the first).
@@ -169,16 +185,35 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         self.register_buffer("inertia_kept", keeps, persistent=False)
 
     @staticmethod
-    def _dynamics_outputs(components: int) -> int:
+    def _dynamics_outputs(components: int, state_size: int) -> int:
         """Per slot: each component's change and log-std, the components' logits (none for
         one component) and the shape's logits."""
-        return components * 2 * STATE_SIZE + (components if components > 1 else 0) + SHAPES
+        return components * 2 * state_size + (components if components > 1 else 0) + SHAPES
 
     # ----------------------------------------------------------------------------- inputs
     def _inputs(
-        self, frames: torch.Tensor, objects: TensorDictBase | None, camera: torch.Tensor | None
+        self,
+        frames: torch.Tensor,
+        objects: TensorDictBase | None,
+        camera: torch.Tensor | None,
+        mask: torch.Tensor | None = None,
     ) -> Observations:
-        """The batch's ``Observations``, at a fixed pose without a camera or ``use_camera``."""
+        """The batch's ``Observations`` as ``perception`` reads them, at a fixed pose without
+        a camera or ``use_camera``."""
+        steps = frames.shape[1]
+        if camera is None or not self.hparams.use_camera:
+            camera = torch.tensor([0.0, 0.0, 0.4, 4.0, 90.0, -20.0], device=self.device)
+            camera = camera.expand(frames.shape[0], steps, 6)
+        if self.hparams.perception == "masks":
+            if mask is None:
+                raise ValueError(
+                    "the object-state model with perception: masks reads each video's object-"
+                    f"id mask (batch key 'mask'), but a batch of {tuple(frames.shape[:2])} "
+                    "videos came without one"
+                )
+            return observe_masks(
+                mask.to(self.device), frames.to(self.device), camera.to(self.device)
+            )
         if objects is None:
             raise ValueError(
                 "the object-state model (the positive control) reads each video's object "
@@ -186,10 +221,6 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
                 f"{tuple(frames.shape[:2])} videos came without them; use the package's "
                 "generated records (GENERATOR_VERSION 3 or later)"
             )
-        steps = frames.shape[1]
-        if camera is None or not self.hparams.use_camera:
-            camera = torch.tensor([0.0, 0.0, 0.4, 4.0, 90.0, -20.0], device=self.device)
-            camera = camera.expand(frames.shape[0], steps, 6)
         return observe(objects.to(self.device), camera.to(self.device))
 
     def _per_frame(self, out: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -210,7 +241,9 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
         frames = self._frames_of(batch)
         inputs = video_inputs(batch)
-        observations = self._inputs(frames, inputs.get("objects"), inputs.get("camera"))
+        observations = self._inputs(
+            frames, inputs.get("objects"), inputs.get("camera"), inputs.get("mask")
+        )
         withheld = withheld_spans(
             observations.visible.shape,
             self.hparams.withhold,
@@ -249,7 +282,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         objects: TensorDictBase | None = None,
     ) -> torch.Tensor:
         """Per-frame surprise [B, T] (float32): the NLL of what is seen (class docstring)."""
-        out = self.rollout(self._inputs(frames, objects, camera))
+        out = self.rollout(self._inputs(frames, objects, camera, mask))
         return self._per_frame(out).float()
 
     @torch.no_grad()
@@ -263,12 +296,16 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         """What the model expected [B, T, 3, H, W]: each known slot's expected state drawn as an
         ellipse of its colour where and as large as its box is seen, as opaque as the predicted
         probability that it is seen (frame 0: what is seen), nearer objects over farther."""
-        observations = self._inputs(frames, objects, camera)
+        observations = self._inputs(frames, objects, camera, mask)
         out = self.rollout(observations)
         belief = torch.cat([out["belief"][:, :1], out["predicted"][:, 1:]], dim=1)
         opacity = torch.cat(
             [observations.visible[:, :1].float(), out["visible_probability"][:, 1:]], dim=1
         )
+        if self.hparams.perception == "masks":  # an ellipse in its pixels' box, larger first
+            centre, half = belief[..., MASKS.position], belief[..., MASKS.extent][..., :2]
+            colour, area = belief[..., MASKS.color], belief[..., MASKS.extent][..., 2]
+            return paint_ellipses(centre, half, colour, opacity, area, frames.shape[2:4])
         return draw_ellipses(belief, opacity, observations.camera, frames.shape[2:4])
 
     @torch.no_grad()
@@ -280,6 +317,6 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         objects: TensorDictBase | None = None,
     ) -> dict[str, torch.Tensor]:
         """``slots`` [B, T, H]: the mean recurrent state of the known slots at each frame."""
-        out = self.rollout(self._inputs(frames, objects, camera))
+        out = self.rollout(self._inputs(frames, objects, camera, mask))
         weight = out["known"].float()[..., None]
         return {"slots": (out["hidden"] * weight).sum(2) / weight.sum(2).clamp(min=1)}

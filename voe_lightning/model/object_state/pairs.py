@@ -11,21 +11,34 @@ from voe_lightning.model.object_state.state import (
     BOX_CENTRE,
     BOX_HALF,
     CAMERA_XYZ,
-    ORIENTATION,
-    POSITION,
     SHAPES,
-    SIZE,
+    StateLayout,
 )
 
-#: Pair features: the other object's position, camera coordinates and image-box centre relative
-#: to this one's, both sizes, both image-box half-extents, how much of this one's image box the
-#: other's covers (along right, up, and both), the other's orientation and shape.
-PAIR_FEATURES = 3 + 3 + 2 + 3 + 3 + 2 + 2 + 3 + 4 + SHAPES
+
+def pair_feature_size(layout: StateLayout) -> int:
+    """Pair features (``pair_features``): the other object's position, camera coordinates and
+    image-box centre relative to this one's, both extents, both image-box half-extents, how
+    much of this one's image box the other's covers (along right, up, and both), the other's
+    orientation (where perception gives one) and shape."""
+    return (
+        layout.position_size
+        + 3
+        + 2
+        + 2 * layout.extent_size
+        + 2
+        + 2
+        + 3
+        + layout.orientation_size
+        + SHAPES
+    )
 
 
-def pair_features(state: torch.Tensor, shape: torch.Tensor, seen_as: torch.Tensor) -> torch.Tensor:
-    """Pair features [B, S_i, S_j, PAIR_FEATURES] of slot j seen from slot i (``seen_as``:
-    each slot's ``view``)."""
+def pair_features(
+    state: torch.Tensor, shape: torch.Tensor, seen_as: torch.Tensor, layout: StateLayout
+) -> torch.Tensor:
+    """Pair features [B, S_i, S_j, ``pair_feature_size``] of slot j seen from slot i
+    (``seen_as``: each slot's ``view``), from states laid out as ``layout`` says."""
     slots = state.shape[1]
 
     def other_minus_self(values):
@@ -42,18 +55,19 @@ def pair_features(state: torch.Tensor, shape: torch.Tensor, seen_as: torch.Tenso
     overlap = (
         (other(half) + own(half) - other_minus_self(centre).abs()) / (2 * own(half)).clamp(min=1e-3)
     ).clamp(0, 1)
+    turned = [] if layout.orientation is None else [other(state[..., layout.orientation])]
     return torch.cat(
         [
-            other_minus_self(state[..., POSITION]),
+            other_minus_self(state[..., layout.position]),
             other_minus_self(seen_as[..., CAMERA_XYZ]),
             other_minus_self(centre),
-            other(state[..., SIZE]),
-            own(state[..., SIZE]),
+            other(state[..., layout.extent]),
+            own(state[..., layout.extent]),
             other(half),
             own(half),
             overlap,
             overlap.prod(-1, keepdim=True),
-            other(state[..., ORIENTATION]),
+            *turned,
             other(shape),
         ],
         dim=-1,
@@ -71,11 +85,13 @@ class PairNetwork(nn.Module):
     """An MLP over [own_i, other_j, pair_ij] for every slot pair, with its first layer split
     by input: the slots' parts are computed once per slot, not once per pair (S times less)."""
 
-    def __init__(self, own_size: int, other_size: int, hidden_size: int, output_size: int):
+    def __init__(
+        self, own_size: int, other_size: int, pair_size: int, hidden_size: int, output_size: int
+    ):
         super().__init__()
         self.own = nn.Linear(own_size, hidden_size)
         self.other = nn.Linear(other_size, hidden_size, bias=False) if other_size else None
-        self.pair = nn.Linear(PAIR_FEATURES, hidden_size, bias=False)
+        self.pair = nn.Linear(pair_size, hidden_size, bias=False)
         self.out = nn.Linear(hidden_size, output_size)
 
     def forward(

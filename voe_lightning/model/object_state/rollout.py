@@ -38,19 +38,21 @@ from voe_lightning.model.object_state.pairs import messages, pair_features
 from voe_lightning.model.object_state.state import (
     IDENTITY,
     POSE,
-    POSITION,
     SHAPES,
-    SIZE,
     SLOT_TERMS,
-    STATE_SIZE,
     Observations,
     Slots,
+    StateLayout,
     empty_slots,
 )
 
-#: Per-slot features the recurrent core reads: the state, its shape (one-hot), its visible share,
-#: its view, its velocity and whether it is seen.
-FEATURES = STATE_SIZE + SHAPES + 1 + VIEW + 3 + 1
+
+def slot_feature_size(layout: StateLayout) -> int:
+    """Per-slot features the recurrent core reads: the state, its shape (one-hot), its visible
+    share, its view, its velocity and whether it is seen."""
+    return layout.size + SHAPES + 1 + VIEW + layout.position_size + 1
+
+
 #: Per-slot inputs of the dynamics with ``landing_component``: how high the lowest point of the
 #: object's box is above the floor at its belief and where its inertia would take it.
 FLOOR_FEATURES = 2
@@ -66,7 +68,7 @@ class SlotRollout:
         negative log-likelihood of the visibility, state and shape seen (0 where they do not
         apply) and the entropy of each prediction (``<term>_entropy``), ``appear`` and
         ``appear_entropy`` [B, T] (the appearance term), the beliefs after each frame and the
-        states predicted for it (frame 0: none) [B, T, S, 13], the predicted visibility
+        states predicted for it (frame 0: none) [B, T, S, state], the predicted visibility
         probability [B, T, S], ``known`` [B, T, S] (seen at some frame <= t) and the slots'
         recurrent states [B, T, S, H].
 
@@ -75,7 +77,7 @@ class SlotRollout:
         what it shows is still scored: a hidden object's rollout learns from targets
         (``withheld_spans``)."""
         obs = observations
-        slots = empty_slots(obs, self.hparams.hidden_size)
+        slots = empty_slots(obs, self.hparams.hidden_size, self.layout)
         given_before = slots.known  # what reached the model at the frame before (none before 0)
         frames = []
         for t in range(obs.visible.shape[1]):
@@ -140,7 +142,8 @@ class SlotRollout:
         # the last move: seen in both frames, what was seen; else what was predicted (a
         # reappearing object's jump from its predicted place is a correction, not a move)
         steady = (given & given_before)[..., None]
-        move = torch.where(steady, belief, predicted)[..., POSITION] - slots.belief[..., POSITION]
+        position = self.layout.position
+        move = torch.where(steady, belief, predicted)[..., position] - slots.belief[..., position]
         velocity = move * (slots.known & ~new)[..., None].float()  # known before t
         still = torch.where(steady[..., 0], velocity[..., :2].norm(dim=-1) < MOVING, slots.still)
         known = slots.known | visible
@@ -180,7 +183,7 @@ class SlotRollout:
             ],
             dim=-1,
         )
-        pairs = pair_features(slots.belief, slots.shape, seen_as)
+        pairs = pair_features(slots.belief, slots.shape, seen_as, self.layout)
         message = messages(self.message, slots.hidden, slots.hidden, pairs, slots.known)
         pose_features = camera_features(pose)[:, None].expand(-1, slots.known.shape[1], -1)
         step_input = torch.cat([features, message, pose_features], dim=-1)
@@ -196,14 +199,15 @@ class SlotRollout:
         obs: Observations,
         t: int,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor, Holding | None]:
-        """Frame t's predictions from the slots after frame t-1: the predicted states [B, S, 13]
+        """Frame t's predictions from the slots after frame t-1: the predicted states [B, S, state]
         (the most probable Gaussian's mean, or where ``hold`` holds a slot not given at t-1,
         ``unseen`` [B, S]), the terms of what frame t shows (``rollout``), p(visible) [B, S] and
         the ``Holding`` of every known slot (None without ``carry: support`` or ``hold_still``)."""
         h = self.hparams
-        pairs = pair_features(slots.belief, slots.shape, self._view(slots.belief, pose))
+        seen_as = self._view(slots.belief, pose)
+        pairs = pair_features(slots.belief, slots.shape, seen_as, self.layout)
         message = messages(self.message, slots.hidden, slots.hidden, pairs, slots.known)
-        falling = slots.velocity[..., 2] < -MOVING  # [B, S]: its last move took it down
+        falling = self._falling(slots)
         inertia = (
             inertial_move(slots, falling, h.slowing, h.fall_gain)
             if h.inertia
@@ -226,6 +230,12 @@ class SlotRollout:
             )
         )
         return predicted, terms, torch.sigmoid(logit) * slots.known.float(), holding
+
+    def _falling(self, slots: Slots) -> torch.Tensor:
+        """Which slots' last move took them down [B, S] (none where perception gives no height)."""
+        if self.layout.up is None:
+            return torch.zeros_like(slots.known)
+        return slots.velocity[..., self.layout.up] < -MOVING
 
     def _mixture(
         self,
@@ -264,22 +274,22 @@ class SlotRollout:
         pose_features: torch.Tensor,
         inertia: torch.Tensor,
     ) -> tuple[torch.Tensor, ...]:
-        """The dynamics' change and log-std [B, S, K, 13], components' and shape's logits."""
-        belief, components = slots.belief, self.hparams.components
+        """The dynamics' change and log-std [B, S, K, state], components' and shape's logits."""
+        belief, components, size = slots.belief, self.hparams.components, self.layout.size
         inputs = [slots.hidden, message, pose_features]
         if self.hparams.landing_component:  # how high the box's lowest point is, now and next
             inputs.append(torch.stack([lowest_point(belief), lowest_point(belief + inertia)], -1))
         change, log_std, logits, shape_logits = self.dynamics(torch.cat(inputs, dim=-1)).split(
             [
-                components * STATE_SIZE,
-                components * STATE_SIZE,
+                components * size,
+                components * size,
                 components if components > 1 else 0,
                 SHAPES,
             ],
             -1,
         )
-        change = change.unflatten(-1, (components, STATE_SIZE))  # [B, S, K, 13]
-        log_std = log_std.unflatten(-1, (components, STATE_SIZE))
+        change = change.unflatten(-1, (components, size))  # [B, S, K, state]
+        log_std = log_std.unflatten(-1, (components, size))
         if not self.hparams.landing_change:  # the landing Gaussian: where inertia takes it
             landing_identity = F.pad(change[:, :, -1:, IDENTITY], (IDENTITY.start, 0))
             change = torch.cat([change[:, :, :-1], landing_identity], dim=2)
@@ -299,10 +309,11 @@ class SlotRollout:
         why it is not seen (with it, a cube behind a container drifted in, where walls hide it)."""
         placed = predicted.detach()
         seen_as = self._view(placed, pose)
-        pairs = pair_features(placed, slots.shape, seen_as)
+        pairs = pair_features(placed, slots.shape, seen_as, self.layout)
         occluders = messages(self.occlusion, slots.hidden, None, pairs, slots.known)
+        extent = placed[..., self.layout.extent]
         learned = self.visibility(
-            torch.cat([slots.hidden, occluders, seen_as, placed[..., SIZE], pose_features], dim=-1)
+            torch.cat([slots.hidden, occluders, seen_as, extent, pose_features], dim=-1)
         ).squeeze(-1)
         if not self.hparams.sight_lines:
             return learned
@@ -325,7 +336,8 @@ class SlotRollout:
         weight = known.float()[..., None]
         context = (hidden * weight).sum(1) / weight.sum(1).clamp(min=1)
         out = self.appearance(torch.cat([context, camera_features(pose)], dim=-1))
-        logit, mean, log_std, shape_logits = out.split([1, STATE_SIZE, STATE_SIZE, SHAPES], -1)
+        size = self.layout.size
+        logit, mean, log_std, shape_logits = out.split([1, size, size, SHAPES], -1)
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
         newcomers = new.float()
         terms = {}

@@ -27,6 +27,37 @@ SPHERE = specs.OBJECT_SHAPES.index("sphere")
 SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape")
 
 
+@dataclass(frozen=True)
+class StateLayout:
+    """What a slot's state holds, by perception: its ``size``, where it is (``position``: what
+    moves, whose change is the velocity), how big it is (``extent``), its ``color``, how it is
+    turned (``orientation``) and which part of the position is height (``up``); None where
+    perception gives none."""
+
+    size: int
+    position: slice
+    extent: slice
+    color: slice
+    orientation: slice | None
+    up: int | None
+
+    @property
+    def position_size(self) -> int:
+        return self.position.stop - self.position.start
+
+    @property
+    def extent_size(self) -> int:
+        return self.extent.stop - self.extent.start
+
+    @property
+    def orientation_size(self) -> int:
+        return 0 if self.orientation is None else self.orientation.stop - self.orientation.start
+
+
+#: Perfect 3D perception's state (``observe``).
+STATES = StateLayout(STATE_SIZE, POSITION, SIZE, COLOR, ORIENTATION, up=2)
+
+
 @dataclass
 class Observations:
     """What perfect perception reports of a batch of videos, per video over the mask ids
@@ -42,29 +73,35 @@ class Observations:
     camera: torch.Tensor
 
 
+def slot_ids(seen: torch.Tensor) -> torch.Tensor:
+    """The ids [B, S] that are each video's slots, from which ids are ``seen`` (bool
+    [B, T, K], per frame and id; id 0 the background): the ids it shows, in the order they are
+    first seen (then by id), padded with ids it never shows, so a slot that joins later takes a
+    later place."""
+    steps, count = seen.shape[1:]
+    first = torch.where(seen.any(1), seen.float().argmax(1), steps)  # [B, K]; T: never
+    first[:, 0] = steps + 1  # the background is no object
+    order = (first * count + torch.arange(count, device=seen.device)).argsort(dim=1)
+    return order[:, : int((first <= steps - 1).sum(1).max())]
+
+
+def by_slot(value: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+    """Per-id ``value`` [B, T, K, ...] taken at each video's slot ``ids`` [B, S]: [B, T, S, ...]."""
+    index = ids[:, None].expand(-1, value.shape[1], -1)
+    index = index.reshape(*index.shape, *([1] * (value.dim() - 3))).expand(
+        -1, -1, -1, *value.shape[3:]
+    )
+    return value.gather(2, index)
+
+
 def observe(objects: TensorDictBase, camera: torch.Tensor) -> Observations:
     """The visible objects' states of batched ``objects`` (``specs.objects_spec`` [B, T, K]):
     every state of an object is zeroed at the frames where it has no visible pixel, so nothing
     hidden reaches the model. Each video's slots are the mask ids it shows, in the order they
     are first seen (then by id), padded with ids it never shows: a slot that joins later takes
     a later place, and empty slots add exact zeros, so nothing before it changes."""
-    seen = objects["visible_fraction"] > 0  # [B, T, K]
-    steps, count = seen.shape[1:]
-    first = torch.where(seen.any(1), seen.float().argmax(1), steps)  # [B, K]; T: never
-    first[:, 0] = steps + 1  # the background is no object
-    order = (first * count + torch.arange(count, device=seen.device)).argsort(dim=1)
-    slots = int((first <= steps - 1).sum(1).max())
-    ids = order[:, :slots]  # [B, S]
-    picked = {
-        name: value.gather(
-            2,
-            ids[:, None]
-            .expand(-1, steps, -1)
-            .reshape(*ids.shape[:1], steps, slots, *([1] * (value.dim() - 3)))
-            .expand(-1, -1, -1, *value.shape[3:]),
-        )
-        for name, value in objects.items()
-    }  # [B, T, S, ...]
+    ids = slot_ids(objects["visible_fraction"] > 0)
+    picked = {name: by_slot(value, ids) for name, value in objects.items()}  # [B, T, S, ...]
     visible = picked["visible_fraction"] > 0
     label = picked["shape_label"].long()
     orientation = picked["orientation"].float()
@@ -102,15 +139,15 @@ class Slots:
     still: torch.Tensor
 
 
-def empty_slots(observations: Observations, hidden_size: int) -> Slots:
+def empty_slots(observations: Observations, hidden_size: int, layout: StateLayout) -> Slots:
     """The slots before frame 0: none known, all zeros, each ``still``."""
     batch, _, count = observations.visible.shape
     zeros = observations.state.new_zeros
-    velocity = zeros(batch, count, 3)
+    velocity = zeros(batch, count, layout.position_size)
     known = torch.zeros(batch, count, dtype=torch.bool, device=observations.state.device)
     return Slots(
         hidden=zeros(batch, count, hidden_size),
-        belief=zeros(batch, count, STATE_SIZE),
+        belief=zeros(batch, count, layout.size),
         shape=zeros(batch, count, SHAPES),
         velocity=velocity,
         acceleration=velocity,  # the change of the last move

@@ -1,0 +1,82 @@
+"""The mask rung of the learner (``perception: masks``): what it reads of a video is measured
+from the mask and frames alone, as a brute-force count of each id's pixels gives it, in the
+slots the 3D perception would make; no 3D geometry or prior is accepted with it; and it learns."""
+
+import numpy as np
+import pytest
+import torch
+
+from voe_lightning.model import ObjectStateModel
+from voe_lightning.model.object_state.arguments import GEOMETRY_OFF
+from voe_lightning.model.object_state.masks import MASKS, observe_masks
+from voe_lightning.model.object_state.state import observe
+from voe_lightning.scenes import generate_clip
+
+
+def brute_force(mask: np.ndarray, frames: np.ndarray, object_id: int) -> np.ndarray:
+    """The ``MASKS`` state of ``object_id`` in one frame, pixel by pixel (zeros if absent)."""
+    height, width = mask.shape
+    rows, columns = np.nonzero(mask == object_id)
+    if len(rows) == 0:
+        return np.zeros(MASKS.size)
+    x = (columns + 0.5 - width / 2) / (height / 2)
+    y = (height / 2 - rows - 0.5) / (height / 2)
+    half_pixel = 1 / height
+    colour = frames[rows, columns].astype(np.float64).mean(0) / 255
+    return np.array(
+        [
+            x.mean(),
+            y.mean(),
+            (x.max() - x.min()) / 2 + half_pixel,
+            (y.max() - y.min()) / 2 + half_pixel,
+            len(rows) / (height * width),
+            *colour,
+        ]
+    )
+
+
+@pytest.mark.parametrize("concept", ["containment", "unchangeableness"])
+def test_each_slot_reads_what_its_ids_pixels_show_and_nothing_while_hidden(concept):
+    clip = generate_clip(concept, "example", seed=3)
+    batch = clip[None]
+    observed = observe_masks(batch["mask"], batch["frames"], batch["camera"])
+    by_states = observe(batch["objects"], batch["camera"])
+    # the same slots, in the same order, as perfect perception's (a tracker's ids)
+    assert torch.equal(observed.ids, by_states.ids)
+    assert torch.equal(observed.visible, by_states.visible)
+    mask, frames = batch["mask"][0].numpy(), batch["frames"][0].numpy()
+    for slot, object_id in enumerate(observed.ids[0].tolist()):
+        for t in range(mask.shape[0]):
+            expected = brute_force(mask[t], frames[t], object_id)
+            np.testing.assert_allclose(observed.state[0, t, slot].numpy(), expected, atol=1e-5)
+    assert observed.visible.any(1).all() and not observed.visible.all()  # someone hides
+    assert (observed.state[~observed.visible] == 0).all()
+    assert (observed.shape == 0).all()  # no shape label: a camera gives none
+
+
+def test_3d_geometry_and_priors_are_refused_without_3d_states():
+    with pytest.raises(ValueError, match="perception: masks gives no 3D state.*sight_lines"):
+        ObjectStateModel(perception="masks", **{**GEOMETRY_OFF, "sight_lines": True})
+    with pytest.raises(ValueError, match=r"perception must be one of \('states', 'masks'\)"):
+        ObjectStateModel(perception="pixels")
+
+
+def test_the_mask_rung_learns_from_masks_and_frames():
+    """A few Adam steps on real clips lower its negative log-likelihood; a batch without a mask
+    is refused, naming the key it needs."""
+    torch.manual_seed(0)
+    model = ObjectStateModel(perception="masks", hidden_size=32, message_size=16, **GEOMETRY_OFF)
+    clips = torch.stack(
+        [generate_clip(c, "example", seed=s) for c in ("continuity", "solidity") for s in (0, 1)]
+    )
+    optimizer = torch.optim.Adam(model.parameters(), lr=3e-3)
+    losses = []
+    for step in range(30):
+        optimizer.zero_grad()
+        loss = model.training_step(clips, step)
+        loss.backward()
+        optimizer.step()
+        losses.append(loss.item())
+    assert losses[-1] < losses[0] - 50, losses
+    with pytest.raises(ValueError, match="batch key 'mask'"):
+        model.surprise(clips["frames"], objects=clips["objects"], camera=clips["camera"])

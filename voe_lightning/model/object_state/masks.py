@@ -1,0 +1,86 @@
+"""The mask rung of the learner's perception: what a camera and a tracker give, with no 3D state.
+Per frame and visible mask id, measured from the record's ``mask`` and ``frames`` alone
+(``observe_masks``): the image-plane centroid and half-extents of its pixels, its area (share of
+the frame) and its mean colour."""
+
+from __future__ import annotations
+
+import torch
+
+from voe_lightning import specs
+from voe_lightning.model.object_state.state import (
+    SHAPES,
+    Observations,
+    StateLayout,
+    by_slot,
+    slot_ids,
+)
+
+#: A mask-perceived state: centroid (x right, y up, the image plane's [-1, 1] across the height,
+#: as ``geometry.view``'s image box), half-extents of the pixels' box, area, mean colour (RGB).
+MASKS = StateLayout(
+    8, position=slice(0, 2), extent=slice(2, 5), color=slice(5, 8), orientation=None, up=None
+)
+
+
+def pixel_coordinates(height: int, width: int, device: torch.device) -> torch.Tensor:
+    """Each pixel's centre on the image plane [H * W, 2] (x right, y up), row by row, in units
+    of half the image's height (``geometry.image_plane``'s)."""
+    focal = height / 2
+    x = (torch.arange(width, device=device, dtype=torch.float32) + 0.5 - width / 2) / focal
+    y = (height / 2 - torch.arange(height, device=device, dtype=torch.float32) - 0.5) / focal
+    return torch.stack([x.repeat(height), y.repeat_interleave(width)], dim=-1)
+
+
+def per_id(mask: torch.Tensor, frames: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Per frame and mask id [B, T, K, ...]: ``pixels`` (count), the pixels' ``centroid`` and
+    half-extents (``half``, half a pixel at least), ``area`` and mean ``colour``, from ``mask``
+    uint8 [B, T, H, W] and ``frames`` uint8 [B, T, H, W, 3]; zeros for an id not in the frame."""
+    batch, steps, height, width = mask.shape
+    count = specs.OBJECT_SLOTS
+    ids = mask.long().flatten(2)  # [B, T, P]
+    if int(ids.max()) >= count:
+        raise ValueError(f"mask ids must be < {count} (specs.OBJECT_SLOTS), got {int(ids.max())}")
+    xy = pixel_coordinates(height, width, mask.device).expand(batch, steps, -1, -1)
+    colour = frames.flatten(2, 3).float() / 255.0  # [B, T, P, 3]
+    values = torch.cat([torch.ones_like(xy[..., :1]), xy, colour], dim=-1)  # [B, T, P, 6]
+    sums = values.new_zeros(batch, steps, count, 6).scatter_add_(
+        2, ids[..., None].expand(-1, -1, -1, 6), values
+    )
+    pixels = sums[..., 0]
+    seen = (pixels > 0)[..., None]
+    mean = sums[..., 1:] / pixels.clamp(min=1)[..., None]
+    index = ids[..., None].expand(-1, -1, -1, 2)
+    low = xy.new_full((batch, steps, count, 2), torch.inf).scatter_reduce(2, index, xy, "amin")
+    high = xy.new_full((batch, steps, count, 2), -torch.inf).scatter_reduce(2, index, xy, "amax")
+    half_pixel = 1 / height  # a pixel spans 2 / height of the image plane
+    half = torch.where(seen, (high - low) / 2 + half_pixel, 0.0)
+    return {
+        "pixels": pixels,
+        "centroid": mean[..., :2] * seen,
+        "half": half,
+        "area": pixels / (height * width),
+        "colour": mean[..., 2:] * seen,
+    }
+
+
+def observe_masks(mask: torch.Tensor, frames: torch.Tensor, camera: torch.Tensor) -> Observations:
+    """What the mask rung reads of a batch of videos: per slot (a mask id, ordered as
+    ``state.observe`` orders them) and frame, the ``MASKS`` state of its visible pixels, its
+    area as the visible share, no shape (perception gives no label: the shape terms read
+    nothing) and the camera poses. Frame t's observations read frame t alone."""
+    measured = per_id(mask, frames)
+    ids = slot_ids(measured["pixels"] > 0)
+    picked = {name: by_slot(value, ids) for name, value in measured.items()}
+    visible = picked["pixels"] > 0
+    state = torch.cat(
+        [picked["centroid"], picked["half"], picked["area"][..., None], picked["colour"]], dim=-1
+    )
+    return Observations(
+        ids=ids,
+        state=state,
+        shape=state.new_zeros(*visible.shape, SHAPES),
+        fraction=picked["area"],
+        visible=visible,
+        camera=camera.float(),
+    )
