@@ -8,7 +8,7 @@ import torch
 
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.object_state.arguments import GEOMETRY_OFF
-from voe_lightning.model.object_state.masks import MASKS, observe_masks
+from voe_lightning.model.object_state.masks import MASKS, observe_masks, seen_box
 from voe_lightning.model.object_state.state import observe
 from voe_lightning.scenes import generate_clip
 
@@ -52,6 +52,13 @@ def test_each_slot_reads_what_its_ids_pixels_show_and_nothing_while_hidden(conce
     assert observed.visible.any(1).all() and not observed.visible.all()  # someone hides
     assert (observed.state[~observed.visible] == 0).all()
     assert (observed.shape == 0).all()  # no shape label: a camera gives none
+    # with projection, the networks read the box the pixels span, and nothing of the camera
+    model = ObjectStateModel(perception="masks", hidden_size=8, message_size=4, **GEOMETRY_OFF)
+    box = model._view(observed.state[:, 0], batch["camera"][:, 0])
+    assert torch.equal(box, seen_box(observed.state[:, 0]))
+    assert (box[..., :3] == 0).all()
+    torch.testing.assert_close(box[..., 3:5], observed.state[:, 0, :, :2])
+    torch.testing.assert_close(box[..., 5:7], observed.state[:, 0, :, 2:4])
 
 
 def test_3d_geometry_and_priors_are_refused_without_3d_states():

@@ -34,7 +34,8 @@ CARRIES = ("none", "support")
 #: What the learner perceives of each object (``perception``): its 3D state, or what its mask
 #: and the frames show.
 PERCEPTIONS = ("states", "masks")
-#: The arguments that give geometry or a prior about a 3D state, each with its value off.
+#: The arguments that give geometry or a prior about a 3D state, each with its value off
+#: (``projection`` is not one: perceived by masks, the image box is what is seen).
 GEOMETRY_OFF = {
     "stop_component": False,
     "landing_component": False,
@@ -47,7 +48,6 @@ GEOMETRY_OFF = {
     "shared_identity": False,
     "sight_lines": False,
     "floor": False,
-    "projection": False,
 }
 
 

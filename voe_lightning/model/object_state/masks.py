@@ -23,6 +23,13 @@ MASKS = StateLayout(
 )
 
 
+def seen_box(state: torch.Tensor) -> torch.Tensor:
+    """The ``view`` of mask-perceived states [..., 8] (``geometry.VIEW`` wide): no camera
+    coordinates (zeros), and the image box the pixels span, as seen or believed."""
+    centre, half = state[..., MASKS.position], state[..., MASKS.extent][..., :2]
+    return torch.cat([torch.zeros_like(state[..., :3]), centre, half], dim=-1)
+
+
 def pixel_coordinates(height: int, width: int, device: torch.device) -> torch.Tensor:
     """Each pixel's centre on the image plane [H * W, 2] (x right, y up), row by row, in units
     of half the image's height (``geometry.image_plane``'s)."""

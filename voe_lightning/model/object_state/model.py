@@ -67,7 +67,8 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     With ``perception: masks`` (the mask rung, ``configs/learned_masks.yaml``) it reads no 3D
     state: per mask id, the image-plane centroid, half-extents, area and mean colour of its
     pixels in the record's ``mask`` and ``frames`` (``masks.observe_masks``), which it predicts
-    as it predicts a 3D state; no geometry or prior applies to them.
+    as it predicts a 3D state; no 3D geometry or prior applies to them, and ``projection``
+    reads the boxes the pixels span, as seen or believed (``masks.seen_box``).
 
     Args:
         perception: ``"states"`` (perfect 3D perception, ``specs.objects_spec``) or

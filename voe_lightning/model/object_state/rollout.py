@@ -23,6 +23,7 @@ from voe_lightning.model.object_state.geometry import (
     seen_by_geometry,
     view,
 )
+from voe_lightning.model.object_state.masks import seen_box
 from voe_lightning.model.object_state.mixture import (
     LEFT_OUT,
     MAX_MOVE,
@@ -161,11 +162,14 @@ class SlotRollout:
 
     def _view(self, state: torch.Tensor, pose: torch.Tensor) -> torch.Tensor:
         """Where each slot is seen from ``pose`` [B, S, VIEW] (``view``: camera coordinates and
-        image-plane box); zeros without ``projection``, where only the pose itself (each
-        network's camera features) says where the camera is."""
-        if self.hparams.projection:
-            return view(state, pose)
-        return state.new_zeros(*state.shape[:-1], VIEW)
+        image-plane box; perceived by masks, the box its pixels span, ``seen_box``); zeros
+        without ``projection``, where only the pose itself (each network's camera features)
+        says where the camera is."""
+        if not self.hparams.projection:
+            return state.new_zeros(*state.shape[:-1], VIEW)
+        if self.hparams.perception == "masks":
+            return seen_box(state)
+        return view(state, pose)
 
     def _recur(
         self, slots: Slots, given: torch.Tensor, fraction: torch.Tensor, pose: torch.Tensor
