@@ -88,7 +88,7 @@ def test_probe_callback_logs_the_stratified_pooled_test_of_both_variants():
     console.print(voe_table(callback.last, title="VOE", alpha=0.05))
     text = console.export_text()
     assert "verdict" in text and "pooled" in text
-    assert "VOE (α = 0.05)" in text and "* < 0.05" in text  # the alpha in the table header
+    assert "VOE (α = 0.05)" in text and "* p < 0.05" in text  # the alpha in title and caption
     # unchangeableness has only color's pairs (no seeds: no quadruplet rows): every half untested
     assert (
         "undecided: no test of position, position_counterbalanced, color_counterbalanced," in text

@@ -75,6 +75,25 @@ def test_fit_then_test_writes_curves_checkpoint_and_report(workdir):
     assert "| object_persistence | standard | 3 |" in markdown
 
 
+def test_fits_last_screen_fits_80_columns_and_ends_with_the_test_to_run(workdir, capsys):
+    """The VOE table's cells never wrap at 80 columns (why a concept shows no VOE is a
+    footnote), and fit ends with the exact test command of its run, which runs as printed."""
+    main(["fit", "--config", TINY_CONFIG])
+    out = capsys.readouterr().out
+    table = out[out.index("VOE on validation probes") :]
+    lines = table.splitlines()
+    cells = table[: table.index("* p < ")].splitlines()  # the footnotes below are plain text
+    assert max(len(line.rstrip()) for line in cells) <= 80
+    assert re.search(r"^ object_persistence +(VOE|no VOE¹|undecided¹)\s*$", table, re.M)
+    assert not re.search(r"^ +(VOE|no VOE)\s*$", table, re.M)  # no verdict cell wrapped alone
+    run = Path("runs", "tiny", "version_0")  # where the config's logger puts it, from here
+    command = lines[-1].split()
+    assert lines[-2] == f"next, the report on the test probes (into {run / 'voe_report'}):"
+    assert command[:3] == ["python", "-m", "voe_lightning"]
+    main(command[3:])
+    assert (run / "voe_report" / "summary.json").is_file()
+
+
 def test_resume_continues_in_the_same_run(workdir):
     main(["fit", "--config", TINY_CONFIG])
     checkpoint = workdir / "runs" / "tiny" / "version_0" / "checkpoints" / "last.ckpt"

@@ -12,8 +12,10 @@ import lightning as L
 import numpy as np
 import torch
 from lightning.pytorch.utilities import rank_zero_warn
-from rich.console import Console
+from rich import box
+from rich.console import Console, Group
 from rich.table import Table
+from rich.text import Text
 
 from voe_lightning.callbacks.common import gather_objects, probe_names
 from voe_lightning.causality import Causality, check_prefix
@@ -233,52 +235,56 @@ def _window_sum(outputs: Mapping[str, Any], side: str, window: SurpriseWindow) -
     return video_surprise(outputs[f"surprise_{side}"], window, first)
 
 
+#: Footnote marks of the verdicts that say why (``voe_table``), then numbers.
+MARKS = "¹²³⁴⁵⁶⁷⁸⁹"
+
+
 def voe_table(
     results: dict[tuple[str, str], dict[str, float]],
     title: str,
     alpha: float = ALPHA,
     causality: Causality | None = None,
-) -> Table:
-    """A rich table of relative surprise, t, p and accuracy per concept/variant (pooled rows
-    bold: the stratified test), alpha in its title and p header, with each concept's verdict
-    (``verdicts.concept_verdicts``, withheld where ``causality`` failed, whose line is the
-    caption) on its first row."""
+) -> Group:
+    """A table of relative surprise M, t, p and accuracy per concept (a heading row) and
+    variant (pooled rows bold: the stratified test), alpha in its title, that fits an
+    80-column terminal: each concept's verdict (``verdicts.concept_verdicts``, withheld where
+    ``causality`` failed, whose line is the caption) on its heading row, and why a concept
+    shows none in a footnote under the table rather than in a cell that would wrap."""
     verdicts = {v.concept: v for v in concept_verdicts(results, alpha, causality)}
+    caption = f"* p < {alpha:g}, one-tailed paired t-test"
+    if causality is not None:
+        caption += "\n" + causality.line()
     table = Table(
         title=f"{title} ({format_alpha(alpha)})",
-        caption=causality.line() if causality is not None else None,
+        caption=caption,
+        box=box.SIMPLE_HEAD,
+        pad_edge=False,
+        collapse_padding=True,
     )
-    for column in (
-        "concept",
-        "variant",
-        "n",
-        "relative surprise",
-        "t",
-        f"p (one-tailed, * < {alpha:g})",
-        "accuracy",
-        "verdict",
-    ):
-        justify = "left" if column in ("concept", "variant", "verdict") else "right"
-        table.add_column(column, justify=justify, overflow="fold")
-    keys = list(results)
-    for index, ((concept, variant), values) in enumerate(results.items()):
-        cells = row_text(values, CONSOLE, alpha)
-        first = index == 0 or keys[index - 1][0] != concept
-        last = index + 1 == len(keys) or keys[index + 1][0] != concept
+    for column in ("concept / variant", "n", "M", "t", "p", "acc", "verdict"):
+        table.add_column(column, justify="left" if "/" in column else "right", no_wrap=True)
+    notes = []
+    for concept in dict.fromkeys(concept for concept, _ in results):
         verdict = verdicts[concept]
-        text = verdict.text() if first else ""
-        if first and verdict.voe is not None:
-            text = f"[green]{text}[/green]" if verdict.voe else f"[red]{text}[/red]"
-        table.add_row(
-            concept if first else "",
-            variant,
-            cells.n,
-            cells.mean,
-            cells.t,
-            cells.p + cells.star,
-            cells.accuracy,
-            text,
-            style="bold" if variant == POOLED else None,
-            end_section=last,
-        )
-    return table
+        text = "VOE"
+        if not verdict.voe:  # "no VOE", "undecided" or "no verdict", and why in a footnote
+            mark = MARKS[len(notes)] if len(notes) < len(MARKS) else f"({len(notes) + 1})"
+            text = verdict.text().split(":")[0] + mark
+            notes.append(f"{mark} {concept}: {verdict.text()}")
+        colour = "green" if verdict.voe else "red" if verdict.voe is False else "yellow"
+        table.add_row(f"[bold]{concept}[/bold]", *[""] * 5, f"[{colour}]{text}[/{colour}]")
+        rows = [(variant, values) for (name, variant), values in results.items() if name == concept]
+        for index, (variant, values) in enumerate(rows):
+            cells = row_text(values, CONSOLE, alpha)
+            table.add_row(
+                f"  {variant}",
+                cells.n,
+                cells.mean,
+                cells.t,
+                cells.p + cells.star,
+                cells.accuracy,
+                "",
+                style="bold" if variant == POOLED else None,
+                end_section=index + 1 == len(rows),
+            )
+    return Group(table, *(Text(note) for note in notes))

@@ -255,8 +255,19 @@ class VOECLI(LightningCLI):
             callback.untrained = untrained
 
     def after_fit(self) -> None:
-        """Exit with ``NOT_CAUSAL_EXIT`` where the fit's surprise was not causal."""
+        """Exit with ``NOT_CAUSAL_EXIT`` where the fit's surprise was not causal; else say
+        what to run next: the test of this run, from its saved config, and where its report
+        goes."""
         self._exit_if_not_causal("fit")
+        run = Path(self.trainer.log_dir or ".")
+        callback = self.trainer.checkpoint_callback
+        checkpoint = callback and (callback.last_model_path or callback.best_model_path)
+        if self.trainer.is_global_zero and checkpoint and (run / runs.RUN_CONFIG).exists():
+            print(
+                f"next, the report on the test probes (into {run / 'voe_report'}):\n"
+                f"  python -m voe_lightning test --config {run / runs.RUN_CONFIG} "
+                f"--ckpt_path {checkpoint}"
+            )
 
     def after_validate(self) -> None:
         """Exit with ``NOT_CAUSAL_EXIT`` where the validation's surprise was not causal."""

@@ -127,6 +127,8 @@ def _conflicts(given: Any, trained: dict, ignored: tuple[str, ...] = ()) -> list
         f"{name}: config {value!r}, checkpoint {trained[name]!r}"
         for name, value in _differences(given, trained).items()
         if name not in ignored
+        # recorded from the training batches: a config (a run's saved one) that gives none
+        and not (name == "training_frames" and value is None)
     ]
     class_path, trained_class_path = given.get("class_path"), trained.get("_class_path")
     if (
