@@ -43,7 +43,6 @@ NOT_FROM_CONFIG = (
     "learning_rate",
     "adam_betas",
     "compile",
-    "compile_model",
     "cuda_graph",
     "channels_last",
     "precision",

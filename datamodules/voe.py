@@ -278,9 +278,3 @@ class ConceptDataModule(VOEDataModule):
     def __init__(self, concept: specs.Concept = "object_persistence", **kwargs):
         specs.check_concept(concept)
         super().__init__(concepts=[concept], **kwargs)
-
-
-class JointDataModule(VOEDataModule):
-    """``VOEDataModule`` under its old name, kept only so that old configs (LightningCLI's saved
-    ``config.yaml`` of earlier runs: ``class_path: datamodules.JointDataModule``) keep working;
-    name ``datamodules.VOEDataModule``, whose default ``concepts`` are all five."""

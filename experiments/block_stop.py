@@ -18,7 +18,7 @@ from voe_lightning import specs
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.base import video_inputs
 from voe_lightning.model.likelihood import rectified_excess
-from voe_lightning.model.object_state import STATE_SIZE
+from voe_lightning.model.object_state.state import STATE_SIZE
 
 
 def rollout(model: ObjectStateModel, batch, side: str) -> dict:

@@ -14,7 +14,7 @@ import argparse
 import numpy as np
 
 from voe_lightning import specs
-from voe_lightning.audit import cues
+from voe_lightning.audit import cues, video_cues
 
 
 def main() -> None:
@@ -38,7 +38,7 @@ def main() -> None:
     for concept in pooled:
         variants = specs.STANDARD_VARIANTS[concept]
         rows = (audit.concepts == concept) & np.isin(audit.variants, variants)
-        for cue in cues.FRAME_LOCAL_CUES:
+        for cue in video_cues.FRAME_LOCAL_CUES:
             con = audit.scores["consistent"][cue][rows]
             inc = audit.scores["inconsistent"][cue][rows]
             both = np.concatenate([con, inc])

@@ -33,9 +33,9 @@ import torch
 from scipy import stats
 
 from voe_lightning import specs
-from voe_lightning.audit import cues
+from voe_lightning.audit import cues, video_cues
 from voe_lightning.data.store import open_split
-from voe_lightning.report.results import PairResults
+from voe_lightning.report.pairs import PairResults
 
 #: The physical differences of ``--given motion`` and ``--given reveal``, in column order.
 PHYSICAL = {
@@ -134,11 +134,11 @@ def pair_table(root: str, concept: str, given: str) -> dict[tuple[int, str], dic
         score, state = {}, {}
         for side in cues.SIDES:
             video = record[side]
-            score[side] = cues.score_videos(video["frames"][None], video["mask"][None], m)
+            score[side] = video_cues.score_videos(video["frames"][None], video["mask"][None], m)
             state[side] = physical(video["objects"], int(m)) if physical else {}
         row = {
             cue: float(score["inconsistent"][cue][0] - score["consistent"][cue][0])
-            for cue in cues.FRAME_LOCAL_CUES
+            for cue in video_cues.FRAME_LOCAL_CUES
         }
         if given == "motion":
             row.update(
@@ -208,10 +208,10 @@ def print_rest(runs: list[str], table: dict, cue: str) -> None:
 def print_given(runs: list[str], tables: dict[str, dict], keys: tuple[str, ...]) -> None:
     """Per run, concept and variant: r(d, cue) -> partial r given the physical differences
     ``keys`` for every frame-local cue, and r of d with each of them."""
-    titles = " | ".join(cues.CUE_TITLES[cue] for cue in cues.FRAME_LOCAL_CUES)
+    titles = " | ".join(cues.CUE_TITLES[cue] for cue in video_cues.FRAME_LOCAL_CUES)
     print(f"r(d, cue) -> partial r given {', '.join(keys)}\n")
     print(f"| run | concept | variant | n | {titles} | r(d, {' / '.join(keys)}) |")
-    print("|---" * (5 + len(cues.FRAME_LOCAL_CUES)) + "|")
+    print("|---" * (5 + len(video_cues.FRAME_LOCAL_CUES)) + "|")
     for run in runs:
         for concept, table in tables.items():
             for variant in specs.STANDARD_VARIANTS[concept]:
@@ -222,7 +222,7 @@ def print_given(runs: list[str], tables: dict[str, dict], keys: tuple[str, ...])
                 cells = [
                     f"{stats.pearsonr(d, column[cue])[0]:+.2f} -> "
                     f"{partial_r(d, column[cue], given):+.2f}"
-                    for cue in cues.FRAME_LOCAL_CUES
+                    for cue in video_cues.FRAME_LOCAL_CUES
                 ]
                 physical = " / ".join(
                     f"{stats.pearsonr(d, column[key])[0]:+.2f}"
@@ -244,7 +244,7 @@ def main() -> None:
     parser.add_argument(
         "--cue",
         default="motion_energy",
-        choices=cues.FRAME_LOCAL_CUES,
+        choices=video_cues.FRAME_LOCAL_CUES,
         help="the cue of --given rest",
     )
     parser.add_argument(

@@ -18,7 +18,7 @@ import torch
 
 from datamodules import VOEDataModule
 from voe_lightning import specs
-from voe_lightning.model import ObjectStateModel
+from voe_lightning.model import ObjectStateModel, likelihood
 from voe_lightning.model.likelihood import gaussian_nll
 from voe_lightning.model.object_state import rollout
 
@@ -57,7 +57,7 @@ def predicted_falls(model: ObjectStateModel, clips) -> dict[str, np.ndarray]:
         caught.append((observed, means, log_std, logits))
         return nll(observed, means, log_std, logits, hard=hard)
 
-    nll = rollout.mixture_nll
+    nll = likelihood.mixture_nll
     observations = model._inputs(clips["frames"], clips["objects"], clips.get("camera"))
     with torch.no_grad(), mock.patch.object(rollout, "mixture_nll", spy):
         model.rollout(observations)

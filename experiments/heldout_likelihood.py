@@ -17,7 +17,7 @@ from voe_lightning import specs
 from voe_lightning.data.store import collate, open_split
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.base import video_inputs
-from voe_lightning.model.object_state import SLOT_TERMS
+from voe_lightning.model.object_state.state import SLOT_TERMS
 
 #: Every how many training clips one is scored.
 TRAIN_STRIDE = 40

@@ -21,7 +21,7 @@ from voe_lightning import specs
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.base import video_inputs
 from voe_lightning.model.likelihood import rectified_excess
-from voe_lightning.model.object_state import SLOT_TERMS
+from voe_lightning.model.object_state.state import SLOT_TERMS
 
 
 def largest_errors(model: ObjectStateModel, batch, side: str) -> list[float]:

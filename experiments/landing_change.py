@@ -15,10 +15,10 @@ import torch
 from scipy import stats
 
 from voe_lightning import specs
-from voe_lightning.audit import cues
+from voe_lightning.audit import video_cues
 from voe_lightning.data.store import open_split
 from voe_lightning.model import ObjectStateModel
-from voe_lightning.model.object_state import STATE_SIZE
+from voe_lightning.model.object_state.state import STATE_SIZE
 
 
 def without_landing_change(model: ObjectStateModel) -> torch.utils.hooks.RemovableHandle:
@@ -44,7 +44,7 @@ def relative(records: list, score) -> np.ndarray:
 def motion(record, side: str) -> float:
     video = record[side]
     return float(
-        cues.score_videos(
+        video_cues.score_videos(
             video["frames"][None], video["mask"][None], record["manipulation_frame"].reshape(1)
         )["motion_energy"][0]
     )

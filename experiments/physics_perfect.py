@@ -15,7 +15,7 @@ import numpy as np
 
 from voe_lightning import specs
 from voe_lightning.audit import cues
-from voe_lightning.report.results import PairResults
+from voe_lightning.report.pairs import PairResults
 
 #: The issue's bound on a model's |r| with every frame-local cue.
 BOUND = 0.3

@@ -21,9 +21,10 @@ from free_fall import PARTS, part_nats
 
 from voe_lightning import specs
 from voe_lightning.data.store import open_split
-from voe_lightning.model import ObjectStateModel
+from voe_lightning.model import ObjectStateModel, likelihood
 from voe_lightning.model.likelihood import rectified_excess
-from voe_lightning.model.object_state import STATE_SIZE, rollout
+from voe_lightning.model.object_state import rollout
+from voe_lightning.model.object_state.state import STATE_SIZE
 
 #: After landing, a frame in which the plank moves or turns by more than these still settles.
 MOVES, TURNS = 0.01, 0.01
@@ -50,7 +51,7 @@ def settling_rows(
     surprise, the mixture weights the dynamics gave it for that frame and each Gaussian's
     negative log-likelihood of each part of the state (``PARTS``) [N, 1 + K + 4 K]."""
     caught, scored = [], []
-    nll = rollout.mixture_nll
+    nll = likelihood.mixture_nll
 
     def spy(observed, means, log_std, logits, hard=False):
         scored.append(part_nats(observed, means, log_std))  # [B, S, parts, K]

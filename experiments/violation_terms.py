@@ -16,11 +16,11 @@ import torch
 from scipy import stats
 
 from voe_lightning import specs
-from voe_lightning.audit import cues
+from voe_lightning.audit import cues, video_cues
 from voe_lightning.data.store import open_split
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.likelihood import rectified_excess
-from voe_lightning.model.object_state import SLOT_TERMS
+from voe_lightning.model.object_state.state import SLOT_TERMS
 
 #: Frames of the per-frame profile, from the first frame the two videos part.
 PROFILE = range(-2, 10)
@@ -50,9 +50,9 @@ def pair_rows(model: ObjectStateModel, root: str, concept: str) -> dict[str, lis
             continue
         m = record["manipulation_frame"].reshape(1)
         score = {
-            side: cues.score_videos(record[side]["frames"][None], record[side]["mask"][None], m)[
-                "foreground_pixels"
-            ][0]
+            side: video_cues.score_videos(
+                record[side]["frames"][None], record[side]["mask"][None], m
+            )["foreground_pixels"][0]
             for side in cues.SIDES
         }
         fraction = {side: record[side]["objects"]["visible_fraction"] for side in cues.SIDES}

@@ -5,8 +5,10 @@ names a quadruplet, the variant its half), so a report tests them by the quadrup
 import numpy as np
 import pytest
 
-from voe_lightning.report.results import PairResults, summarize
-from voe_lightning.stats.statistics import QUADRUPLET, quadruplet_test
+from voe_lightning.report.pairs import PairResults
+from voe_lightning.report.tables import summarize
+from voe_lightning.specs import QUADRUPLET
+from voe_lightning.stats.statistics import quadruplet_test
 from voe_lightning.stats.verdicts import concept_verdicts
 
 

@@ -27,8 +27,9 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from voe_lightning import specs
 from voe_lightning.cli import main
-from voe_lightning.report.results import PairResults, summarize
-from voe_lightning.stats.statistics import QUADRUPLET_ROWS
+from voe_lightning.report.pairs import PairResults
+from voe_lightning.report.tables import summarize
+from voe_lightning.specs import QUADRUPLET_ROWS
 
 DDP = ["--trainer.strategy", "ddp_spawn", "--trainer.devices", "2", "--trainer.accelerator", "cpu"]
 STATISTICS = ("relative_surprise", "t", "p_value", "accuracy", "n")

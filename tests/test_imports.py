@@ -1,24 +1,29 @@
 """The library never depends on the DataModules: no module of ``voe_lightning`` imports
-``datamodules``, not even by name in a string (``importlib``, a dispatch table); and no module of
+``datamodules``, not even by name in a string (``importlib``, a dispatch table); no module of
 the package is in an import circle, not even through an import inside a function or a
-package's ``__init__``; and none is over 500 lines."""
+package's ``__init__``; none is over 500 lines; each name has one path (no module but a
+package's ``__init__`` re-exports a name it imports); and the lower layers import no higher one."""
 
 import ast
 import graphlib
 import pkgutil
 import re
+import sys
+from collections.abc import Iterable
 from pathlib import Path
 
+from locations import REPO
+
+import datamodules
 import voe_lightning
-from voe_lightning.old_paths import OLD_PATHS
 
 NAMES_DATAMODULES = re.compile(r"^datamodules(\.|$)")
 
 
-def module_files() -> dict[str, Path]:
-    """Every module of the package, by name, found without importing it."""
-    files = {"voe_lightning": Path(voe_lightning.__file__)}
-    for info in pkgutil.walk_packages(voe_lightning.__path__, "voe_lightning."):
+def module_files(package=voe_lightning) -> dict[str, Path]:
+    """Every module of ``package``, by name, found without importing it."""
+    files = {package.__name__: Path(package.__file__)}
+    for info in pkgutil.walk_packages(package.__path__, f"{package.__name__}."):
         spec = info.module_finder.find_spec(info.name)
         files[info.name] = Path(spec.origin)
     return files
@@ -104,19 +109,6 @@ def test_no_module_of_voe_lightning_is_in_an_import_circle():
         raise AssertionError(f"import circle: {' -> '.join(error.args[1])}") from None
 
 
-def test_no_module_of_voe_lightning_imports_an_old_module_path():
-    """The old flat paths (``voe_lightning.statistics``) are for saved configs and other people's
-    code; the package itself imports the modules where they are."""
-    files = module_files()
-    assert not OLD_PATHS.keys() & files.keys()  # an old path is no file
-    offenders = {
-        name: old
-        for name, path in files.items()
-        if (old := package_imports(name, path, set(files) | OLD_PATHS.keys()) & OLD_PATHS.keys())
-    }
-    assert offenders == {}
-
-
 def test_no_module_of_voe_lightning_is_over_500_lines():
     """One idea per module: a module past 500 lines holds two (CONTRIBUTING.md)."""
     files = module_files()
@@ -125,3 +117,118 @@ def test_no_module_of_voe_lightning_is_over_500_lines():
     }
     assert len(files) > 100
     assert long == {}
+
+
+#: The lower layers, lowest first: a module of one imports only modules of its own layer or of
+#: the layers before it (the package's ``__init__`` sets the environment only). Everything else
+#: (``model``, ``callbacks``, ``report``, ``audit``, ``external``, ``cli``, the root's other
+#: modules) is higher and may import them.
+LAYERS = (
+    ("voe_lightning", "voe_lightning.specs"),
+    ("voe_lightning.stats", "voe_lightning.scenes"),
+    ("voe_lightning.data",),
+)
+
+
+def layer(name: str) -> int:
+    """The index in ``LAYERS`` of module ``name``'s layer; ``len(LAYERS)`` for a higher one."""
+    for index, prefixes in enumerate(LAYERS):
+        if any(name == p or (p != "voe_lightning" and name.startswith(f"{p}.")) for p in prefixes):
+            return index
+    return len(LAYERS)
+
+
+def test_no_module_of_a_lower_layer_imports_a_higher_one():
+    files = module_files()
+    assert layer("voe_lightning.stats.verdicts") == 1 and layer("voe_lightning.causality") == 3
+    climbs = {
+        f"{name} -> {imported}"
+        for name, path in files.items()
+        if layer(name) < len(LAYERS)
+        for imported in package_imports(name, path, set(files))
+        if layer(imported) > layer(name)
+    }
+    assert climbs == set()
+
+
+def defined_names(path: Path) -> set[str]:
+    """The names a module's own top-level code binds (functions, classes, assignments, also
+    under a top-level ``if`` or ``try``), not those it imports."""
+    names, todo = set(), list(ast.parse(path.read_text(), str(path)).body)
+    while todo:
+        node = todo.pop()
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            names |= {n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name)}
+        elif isinstance(node, (ast.If, ast.Try)):
+            todo += node.body + node.orelse + getattr(node, "finalbody", [])
+            todo += [line for handler in getattr(node, "handlers", []) for line in handler.body]
+    return names
+
+
+def exported_names(path: Path) -> list[str]:
+    """The names of a module's ``__all__``, if it has one."""
+    for node in ast.parse(path.read_text(), str(path)).body:
+        if isinstance(node, ast.Assign) and any(
+            isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets
+        ):
+            return list(ast.literal_eval(node.value))
+    return []
+
+
+def imported_names(path: Path, modules: Iterable[str]) -> list[tuple[str, str, int]]:
+    """Each name the file at ``path`` takes from one of ``modules`` (absolute imports only):
+    ``from module import name``, or ``module.name`` where ``from package import module`` or
+    ``import module as alias`` named it; as the module, the name and the line."""
+    tree = ast.parse(path.read_text(), str(path))
+    found, aliases = [], {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            for alias in node.names:
+                if f"{node.module}.{alias.name}" in modules:
+                    aliases[alias.asname or alias.name] = f"{node.module}.{alias.name}"
+                else:
+                    found.append((node.module, alias.name, node.lineno))
+        elif isinstance(node, ast.Import):
+            aliases |= {alias.asname: alias.name for alias in node.names if alias.asname}
+    return found + [
+        (aliases[node.value.id], node.attr, node.lineno)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Attribute)
+        and isinstance(node.value, ast.Name)
+        and node.value.id in aliases
+        and not node.attr.startswith("__")  # a module's own __name__, __file__, ...
+    ]
+
+
+def test_no_module_re_exports_a_name_it_does_not_define():
+    """One path per name: a name is imported from the module that defines it. Only a package's
+    ``__init__`` offers names of its modules (its public API); any other module's ``__all__``
+    lists only its own names, and nothing imports from it a name it imported itself."""
+    files = module_files() | module_files(datamodules)
+    modules = {name: path for name, path in files.items() if path.name != "__init__.py"}
+    defined = {name: defined_names(path) for name, path in modules.items()}
+    assert {"ALPHA", "paired_test"} <= defined["voe_lightning.stats.statistics"]
+    exported = {f"{name}.{n}" for name, path in modules.items() for n in exported_names(path)}
+    offenders = {
+        path for path in exported if path.rpartition(".")[2] not in defined[path.rpartition(".")[0]]
+    }
+    sources = list(files.values()) + [
+        path
+        for folder in ("tests", "experiments", "benchmarks", "scripts")
+        for path in (REPO / folder).rglob("*.py")
+    ]
+    offenders |= {
+        f"{path.relative_to(REPO)}:{line}: {module}.{name}"
+        for path in sources
+        for module, name, line in imported_names(path, files)
+        if module in defined and name not in defined[module]
+    }
+    assert offenders == set()
+
+
+def test_importing_the_package_installs_no_import_hook():
+    finders = [type(finder).__module__ for finder in sys.meta_path]
+    assert not [module for module in finders if module.startswith("voe_lightning")]

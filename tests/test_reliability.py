@@ -24,7 +24,7 @@ from voe_lightning.cli import main
 from voe_lightning.data import generate, generate_manifest, store
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.report import write_report
-from voe_lightning.report.results import PairResults
+from voe_lightning.report.pairs import PairResults
 from voe_lightning.runs import report_folder
 from voe_lightning.scenes.camera import VideoOptions
 

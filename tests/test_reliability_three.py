@@ -27,7 +27,6 @@ from test_reliability import _refused, _results
 from tfrecord.writer import TFRecordWriter
 
 from voe_lightning.callbacks import voe_table
-from voe_lightning.causality import check_prefix
 from voe_lightning.cli import NOT_CAUSAL_EXIT, main
 from voe_lightning.data import store_shards
 from voe_lightning.external.base import BenchmarkDataError, FrameSampling
@@ -42,6 +41,7 @@ from voe_lightning.external.metrics import (
 )
 from voe_lightning.external.physical_concepts import read_records
 from voe_lightning.report import write_report
+from voe_lightning.stats.causality import check_prefix
 
 TINY_STORE = [
     "--num_frames",

@@ -11,7 +11,7 @@ import pytest
 from scipy import stats
 
 from voe_lightning import specs
-from voe_lightning.audit import calibration, cues
+from voe_lightning.audit import calibration, cues, video_cues
 from voe_lightning.scenes import generate_probe
 from voe_lightning.stats.statistics import ALPHA
 
@@ -55,7 +55,7 @@ def test_false_voe_stays_at_alpha_for_noise_and_every_cue_follower_the_stimuli_c
     mine = [row for row in rows if row.concept == concept]
     checked = [row for row in mine if not row.right_on_every_variant]
     assert mine[0].cue is None and mine[0].pairs == PAIRS  # noise alone comes first
-    assert len(checked) >= len(cues.FRAME_LOCAL_CUES) * 2 * len(calibration.WEIGHTS)
+    assert len(checked) >= len(video_cues.FRAME_LOCAL_CUES) * 2 * len(calibration.WEIGHTS)
     worst = max(checked, key=lambda row: row.false_voe_rate)
     assert worst.false_voe_rate <= bound, _describe(worst) + f" > bound {100 * bound:.2f}%"
 
@@ -105,7 +105,7 @@ def test_quadruplet_concepts_calibrate_over_quadruplets_and_cancel_post_change_c
     expected = stats.nct.sf(stats.t.ppf(1 - ALPHA, n - 1), n - 1, 0.6 * np.sqrt(2 * n))
     assert abs(rates[1] - expected) <= 4 * np.sqrt(expected * (1 - expected) / repetitions) + 0.01
     for concept, quadruplets in specs.QUADRUPLETS.items():
-        for cue in cues.FRAME_LOCAL_CUES:
+        for cue in video_cues.FRAME_LOCAL_CUES:
             for follower in calibration.FOLLOWERS:
                 terms = calibration.cue_terms(audit, concept, cue, follower)
                 for halves in quadruplets.values():

@@ -14,7 +14,7 @@ from scipy import stats
 from tensordict import TensorDict
 
 from voe_lightning import specs
-from voe_lightning.audit import cue_report, cues
+from voe_lightning.audit import cue_report, cues, video_cues
 from voe_lightning.cli import main
 from voe_lightning.data.generate import generate_dataset
 
@@ -26,7 +26,7 @@ def _score(frames, mask=None, m=2):
     mask = None if mask is None else torch.as_tensor(np.asarray(mask, np.uint8))[None]
     return {
         cue: float(value[0])
-        for cue, value in cues.score_videos(frames, mask, torch.tensor([m])).items()
+        for cue, value in video_cues.score_videos(frames, mask, torch.tensor([m])).items()
     }
 
 
@@ -42,7 +42,7 @@ def _square_appears(at):
 def test_a_square_appearing_after_m_raises_foreground_and_novelty():
     empty = _score(*_square_appears(T))  # never appears
     appears = _score(*_square_appears(4))
-    assert empty == {cue: 0.0 for cue in cues.CUES}
+    assert empty == {cue: 0.0 for cue in video_cues.CUES}
     assert appears["foreground_pixels"] == 16 * (T - 4)  # frames 4 and 5
     # New at frame 4 only: L1 over RGB of (255 - 100) / 255 on 16 pixels; frame 5 saw it at 4.
     assert appears["pixel_novelty"] == pytest.approx(16 * 3 * 155 / 255, rel=1e-6)
@@ -69,9 +69,11 @@ def test_static_video_has_no_motion_and_linear_change_no_extrapolation_error():
 
 def test_score_videos_refuses_bad_shapes_and_frames():
     with pytest.raises(ValueError, match=r"\[B, T, H, W, 3\]"):
-        cues.score_videos(torch.zeros(T, H, W, 3, dtype=torch.uint8), None, torch.tensor([1]))
+        video_cues.score_videos(torch.zeros(T, H, W, 3, dtype=torch.uint8), None, torch.tensor([1]))
     with pytest.raises(ValueError, match=r"in \[0, 5\], got \[6\]"):
-        cues.score_videos(torch.zeros(1, T, H, W, 3, dtype=torch.uint8), None, torch.tensor([6]))
+        video_cues.score_videos(
+            torch.zeros(1, T, H, W, 3, dtype=torch.uint8), None, torch.tensor([6])
+        )
 
 
 def _pair(concept, variant, seed, masks=True):
@@ -285,7 +287,7 @@ def _extent_audit(rng, pairs=200):
     sign = np.where(variants == "standard", -1.0, 1.0)
     extent = np.stack([parted, first, sign * parted], 1)
     foreground = sign * parted * rng.uniform(50, 150, 2 * pairs)
-    scores = {side: {cue: np.zeros(2 * pairs) for cue in cues.CUES} for side in cues.SIDES}
+    scores = {side: {cue: np.zeros(2 * pairs) for cue in video_cues.CUES} for side in cues.SIDES}
     scores["inconsistent"]["foreground_pixels"] = foreground
     return cues.CueAudit(
         np.full(2 * pairs, "object_persistence", dtype=object), variants, scores, extent
@@ -399,7 +401,7 @@ def test_the_report_shows_a_cue_follower_in_its_correlations_and_scatter(audit, 
     """write_report with the cue audit of the model's pairs adds the correlation table to
     cues.md, cue_correlations.csv, the r values to cues.json and cue_scatter.png."""
     from voe_lightning.report import write_report
-    from voe_lightning.report.results import PairResults
+    from voe_lightning.report.pairs import PairResults
 
     motion = (
         audit.scores["inconsistent"]["motion_energy"] - audit.scores["consistent"]["motion_energy"]
@@ -409,7 +411,7 @@ def test_the_report_shows_a_cue_follower_in_its_correlations_and_scatter(audit, 
     per_frame = np.zeros((len(audit), 4))
     inconsistent = per_frame.copy()
     inconsistent[:, -1] = follower
-    results = PairResults(
+    paired = PairResults(
         audit.concepts,
         audit.variants,
         np.arange(len(audit)),
@@ -417,8 +419,8 @@ def test_the_report_shows_a_cue_follower_in_its_correlations_and_scatter(audit, 
         per_frame,
         inconsistent,
     )
-    np.testing.assert_allclose(results.relative_surprise, follower)
-    write_report(results, tmp_path, cue_audit=audit, bootstrap=0, echo=False)
+    np.testing.assert_allclose(paired.relative_surprise, follower)
+    write_report(paired, tmp_path, cue_audit=audit, bootstrap=0, echo=False)
     report = tmp_path / "voe_report"
     assert "pair by pair?" in (report / "cues.md").read_text()
     assert (report / "cue_scatter.png").stat().st_size > 10_000
@@ -488,11 +490,11 @@ def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
     # frame-local cues read frames from m on only, so D = 0 in every one (pixel novelty
     # remembers the frames before m).
     for row in rows:
-        if row["variant"] in specs.QUADRUPLET_ROWS and row["cue"] in cues.FRAME_LOCAL_CUES:
+        if row["variant"] in specs.QUADRUPLET_ROWS and row["cue"] in video_cues.FRAME_LOCAL_CUES:
             assert row["relative_surprise"] == 0.0 and row["accuracy"] == 0.5, row
     with open(out / "cues.csv", newline="") as handle:
         table = list(csv.DictReader(handle))
-    assert len(table) == len(groups) * len(cues.CUES) and tuple(table[0]) == cues.CUE_COLUMNS
+    assert len(table) == len(groups) * len(video_cues.CUES) and tuple(table[0]) == cues.CUE_COLUMNS
     document = json.loads((out / "cues.json").read_text())
     assert document["split"] == "val" and document["num_pairs"] == 8 + 6 * 4
     assert document["alpha"] == 0.01  # configs/base.yaml's alpha is the command's default

@@ -18,7 +18,7 @@ from voe_lightning import specs
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.cli import analysis, main, size_sweep
 from voe_lightning.report import write_report
-from voe_lightning.report.results import PairResults
+from voe_lightning.report.pairs import PairResults
 from voe_lightning.stats.statistics import paired_test
 
 NOTEBOOK = REPO / "notebooks" / "voe_report.ipynb"
@@ -370,10 +370,10 @@ def test_command_line_writes_the_figures(tmp_path, capsys):
 @pytest.mark.slow
 def test_notebook_reproduces_the_figures_of_a_run_directory(tmp_path, monkeypatch):
     run = tmp_path / "lightning_logs" / "version_0"
-    results = pair_results(
+    paired = pair_results(
         {("object_persistence", "standard"): (12, 1.0), ("continuity", "standard"): (12, 0.0)}
     )
-    write_report(results, run, bootstrap=100, echo=False)
+    write_report(paired, run, bootstrap=100, echo=False)
     write_events(
         run,
         {
@@ -381,7 +381,7 @@ def test_notebook_reproduces_the_figures_of_a_run_directory(tmp_path, monkeypatc
             ("continuity", "standard"): lambda s: 0.0,
         },
     )
-    sweep = size_sweep.sweep_rows(results, 100, 2)
+    sweep = size_sweep.sweep_rows(paired, 100, 2)
     (tmp_path / "sweep.json").write_text(json.dumps(sweep))
     monkeypatch.setenv("VOE_RUN_DIR", str(tmp_path))
     monkeypatch.setenv("VOE_SWEEP_RESULTS", str(tmp_path / "sweep.json"))

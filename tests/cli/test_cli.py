@@ -21,7 +21,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from voe_lightning.cli import analysis, main
 from voe_lightning.data.store import collate, open_split
 from voe_lightning.model import VRNNLRUModel
-from voe_lightning.model.object_centric import SURPRISES
+from voe_lightning.model.object_centric.model import SURPRISES
 from voe_lightning.specs import to_model_input
 
 

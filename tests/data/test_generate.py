@@ -154,7 +154,7 @@ def test_round_trip_resume_and_repair(tmp_path, calls):
     data = bytearray(corrupt.read_bytes())
     data[20] ^= 0x01
     corrupt.write_bytes(bytes(data))
-    with pytest.raises(store.CorruptShardError, match=str(corrupt)):
+    with pytest.raises(store_shards.CorruptShardError, match=str(corrupt)):
         store.open_split(tmp_path, "unchangeableness", "test")[6]  # first record of shard 2
     assert sorted(store_plan.verify(tmp_path)) == sorted([corrupt, missing])
     repaired = generate.generate_dataset(tmp_path, CONCEPTS, **SMALL)
@@ -181,23 +181,6 @@ def test_ensure_dataset_generates_only_what_is_missing(tmp_path, calls):
     }
     with pytest.raises(TypeError, match="frames_per_video"):
         generate.ensure_dataset(tmp_path, frames_per_video=3)
-
-
-def test_the_counts_old_keyword_names_still_work_with_a_deprecation(tmp_path, calls):
-    """Issue 26: the counts are val_pairs, test_pairs, generalization_pairs everywhere; the old
-    ``*_pairs_per_variant`` keywords of generate_dataset and ensure_dataset still work."""
-    old = {
-        f"{name}_per_variant" if name.endswith("_pairs") else name: value
-        for name, value in SMALL.items()
-    }
-    with pytest.warns(DeprecationWarning, match="val_pairs_per_variant is now called val_pairs"):
-        first = generate.ensure_dataset(tmp_path, concepts=("continuity",), **old)
-    with pytest.warns(DeprecationWarning, match="test_pairs_per_variant is now called test_pairs"):
-        again = generate.generate_dataset(tmp_path, ("continuity",), **old)
-    assert again.shards_skipped == first.shards_planned  # the same plan as under the new names
-    assert generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL) is None
-    with pytest.raises(TypeError, match="give val_pairs only"):
-        generate.generate_dataset(tmp_path, ("continuity",), val_pairs_per_variant=1, **SMALL)
 
 
 def test_ensure_dataset_of_some_splits_leaves_the_rest_to_a_later_run(tmp_path, calls):

@@ -204,9 +204,9 @@ def test_corrupt_and_truncated_shards_are_named(tmp_path, monkeypatch):
     truncated = store.shard_path(tmp_path, "continuity", "train", 2)
     truncated.write_bytes(truncated.read_bytes()[:-10])
     dataset = store.open_split(tmp_path, "continuity", "train")
-    with pytest.raises(store.CorruptShardError, match=str(corrupt)):
+    with pytest.raises(store_shards.CorruptShardError, match=str(corrupt)):
         dataset[4]
-    with pytest.raises(store.CorruptShardError, match=str(truncated)):
+    with pytest.raises(store_shards.CorruptShardError, match=str(truncated)):
         dataset[8]
     assert _equal(dataset[5], fifth)  # other records still readable
     assert store_plan.verify(tmp_path) == [corrupt, truncated]

@@ -3,7 +3,6 @@ stratified pooled_test for pooled rows) at the run's alpha, pairs.csv round trip
 Trainer.test with a small frame-persistence model."""
 
 import csv
-import importlib
 import json
 import math
 
@@ -14,7 +13,6 @@ import torch
 from PIL import Image
 from scipy import stats
 from tensordict import TensorDict
-from test_imports import module_files, package_imports
 from torch.utils.data import DataLoader
 
 from voe_lightning import specs
@@ -23,7 +21,8 @@ from voe_lightning.model.base import SurpriseModel
 from voe_lightning.probe_datamodule import ProbeDataModule
 from voe_lightning.report import write_report
 from voe_lightning.report.figures import PredictionExample
-from voe_lightning.report.results import SUMMARY_COLUMNS, PairResults
+from voe_lightning.report.pairs import PairResults
+from voe_lightning.report.tables import SUMMARY_COLUMNS
 from voe_lightning.stats.statistics import ALPHA, paired_test, pooled_test, quadruplet_test
 
 T, H, W = 6, 16, 16
@@ -76,7 +75,7 @@ def _png_ok(path, min_width=300):
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
     out = tmp_path_factory.mktemp("run")
-    results = synthetic_results()
+    pairs = synthetic_results()
     rng = np.random.default_rng(1)
     frames = np.zeros((T, H, W, 3), np.uint8)
     frames[:, 4:10, 4:10] = [255, 0, 255]
@@ -89,8 +88,8 @@ def report(tmp_path_factory):
         video: {"prior": rng.normal(size=(2, T, 8)), "memory": rng.normal(size=(2, T, 3, 4))}
         for video in ("consistent", "inconsistent")
     }
-    rows = write_report(results, out, predictions, trajectories, bootstrap=200, echo=False)
-    return out / "voe_report", results, rows
+    rows = write_report(pairs, out, predictions, trajectories, bootstrap=200, echo=False)
+    return out / "voe_report", pairs, rows
 
 
 def test_summary_rows_are_paired_tests_in_specs_order(report):
@@ -160,14 +159,14 @@ def test_pooled_row_is_the_stratified_test_of_both_variants(report):
 
 
 def test_a_pooled_row_with_a_variant_of_one_pair_is_explained_not_tested(tmp_path):
-    results = synthetic_results()
+    pairs = synthetic_results()
     counterbalanced = [
         (c, v) == ("object_persistence", "counterbalanced")
-        for c, v in zip(results.concept, results.variant)
+        for c, v in zip(pairs.concept, pairs.variant)
     ]
     keep = ~np.array(counterbalanced)
     keep[counterbalanced.index(True)] = True  # one counterbalanced pair only
-    rows = write_report(results.select(keep), tmp_path, bootstrap=0, echo=False)
+    rows = write_report(pairs.select(keep), tmp_path, bootstrap=0, echo=False)
     pooled = next(r for r in rows if r["variant"] == "pooled")
     assert pooled["t"] is None and pooled["note"] == (
         "no pooled test: counterbalanced has 1 pair (each variant needs at least 2)"
@@ -448,23 +447,3 @@ def test_callback_refuses_missing_outputs_names_and_probes(tmp_path):
         _trainer(tmp_path, VOEReportCallback()).test(PersistenceModel(), datamodule=unnamed)
     with pytest.raises(RuntimeError, match="collected no probe results"):
         _trainer(tmp_path, VOEReportCallback()).test(PersistenceModel(), datamodule=ProbeData([]))
-
-
-def test_the_former_results_module_names_the_objects_of_the_modules_now_holding_them():
-    """``voe_lightning.report.results``, split by idea (issue 49), keeps its public names for
-    other people's code, each the very object of its new module; the package imports those."""
-    from voe_lightning.report import results
-
-    homes = [
-        importlib.import_module(f"voe_lightning.report.{name}")
-        for name in ("pairs", "tables", "markdown", "priors_alone", "summary", "summary_file")
-    ]
-    assert {"PairResults", "summarize", "write_summary", "read_summary"} <= set(results.__all__)
-    for name in results.__all__:
-        assert any(getattr(home, name, None) is getattr(results, name) for home in homes), name
-    files = module_files()
-    assert not {
-        name
-        for name, path in files.items()
-        if "voe_lightning.report.results" in package_imports(name, path, set(files))
-    }

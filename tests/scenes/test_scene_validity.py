@@ -14,7 +14,7 @@ import torch
 from scipy import stats
 
 from voe_lightning import specs
-from voe_lightning.audit import cues
+from voe_lightning.audit import cues, video_cues
 from voe_lightning.scenes import (
     CLIP_KINDS_BY_CONCEPT,
     CONCEPTS,
@@ -253,7 +253,7 @@ def test_balanced_pools_have_no_frame_local_cue(concept, row, halves):
     ]
     audit = cues.audit_records(records)
     rows = {r["cue"]: r for r in audit.rows() if r["variant"] == row}
-    for cue in cues.FRAME_LOCAL_CUES:
+    for cue in video_cues.FRAME_LOCAL_CUES:
         result = rows[cue]
         d_z = 0.0 if np.isnan(result["d_z"]) else result["d_z"]  # NaN: every pair tied
         assert abs(d_z) <= 0.25 and 0.3 <= result["accuracy"] <= 0.7, (

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from voe_lightning.audit import cues
+from voe_lightning.audit import video_cues
 from voe_lightning.scenes import VideoOptions, generate_clip, generate_probe, solidity
 from voe_lightning.scenes.builder import Geom, SceneBuilder
 from voe_lightning.scenes.simulation import visible_ids
@@ -151,7 +151,7 @@ def test_no_pixel_is_new_to_one_past_only(seed):
         elsewhere = masks[m + 1 :] != block
         assert (frames[m + 1 :] == frames[0])[elsewhere].all()
     videos = torch.from_numpy(np.stack([video[0] for video in (a, ab, b, ba)]))
-    novelty = cues.score_videos(videos, None, torch.full((4,), m))["pixel_novelty"]
+    novelty = video_cues.score_videos(videos, None, torch.full((4,), m))["pixel_novelty"]
     halves = novelty[1] - novelty[0], novelty[3] - novelty[2]
     assert abs(float(sum(halves))) < 0.05 < min(abs(float(half)) for half in halves), halves
 

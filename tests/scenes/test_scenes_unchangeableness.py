@@ -18,6 +18,7 @@ from voe_lightning.scenes.camera import (
     image_point,
 )
 from voe_lightning.scenes.sampling import RejectedSample
+from voe_lightning.scenes.screen import Screen
 from voe_lightning.scenes.simulation import visible_ids
 
 SEEDS = range(3)
@@ -222,7 +223,7 @@ def test_bad_names_list_the_valid_ones():
         scene.clip("screen", 0, VideoOptions())
 
 
-def _screen_parameters(screen: scene.Screen, camera: CameraPose) -> dict[str, float]:
+def _screen_parameters(screen: Screen, camera: CameraPose) -> dict[str, float]:
     motion = screen.motion
     return {
         "screen_dx": screen.x - camera.lookat[0],

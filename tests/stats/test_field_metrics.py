@@ -108,7 +108,7 @@ def test_quadruplet_benchmarks_get_the_set_from_per_frame_surprise():
 def test_the_report_writes_the_set_per_group_into_summary_json_and_md(tmp_path):
     rng = np.random.default_rng(1)
     consistent = rng.random((8, 5))
-    results = PairResults(
+    pairs = PairResults(
         concept=["solidity"] * 8,
         variant=["standard", "counterbalanced"] * 4,
         seed=np.arange(8),
@@ -116,11 +116,11 @@ def test_the_report_writes_the_set_per_group_into_summary_json_and_md(tmp_path):
         surprise_consistent=consistent,
         surprise_inconsistent=consistent + rng.random((8, 5)),
     )
-    write_report(results, tmp_path, echo=False, bootstrap=0)
+    write_report(pairs, tmp_path, echo=False, bootstrap=0)
     summary = json.loads((tmp_path / "voe_report" / "summary.json").read_text())
     metrics = summary["field_metrics"]
     assert list(metrics) == ["solidity/standard", "solidity/counterbalanced", "solidity/pooled"]
-    standard = results.select(np.arange(8) % 2 == 0)
+    standard = pairs.select(np.arange(8) % 2 == 0)
     assert metrics["solidity/standard"] == pytest.approx(
         field_metrics(standard.surprise_consistent, standard.surprise_inconsistent)
     )
@@ -134,7 +134,7 @@ def test_analyze_context_sweep_tables_the_set_of_each_context_lengths_report(tmp
     runs = {}
     for context in (4, 8):
         consistent = rng.random((4, 5))
-        results = PairResults(
+        pairs = PairResults(
             concept=["continuity"] * 4,
             variant=["standard"] * 4,
             seed=np.arange(4),
@@ -142,8 +142,8 @@ def test_analyze_context_sweep_tables_the_set_of_each_context_lengths_report(tmp
             surprise_consistent=consistent,
             surprise_inconsistent=consistent + rng.random((4, 5)) - 0.3,
         )
-        write_report(results, tmp_path / f"c{context}", echo=False, bootstrap=0)
-        runs[context] = results
+        write_report(pairs, tmp_path / f"c{context}", echo=False, bootstrap=0)
+        runs[context] = pairs
     table = main(
         [
             "analyze",

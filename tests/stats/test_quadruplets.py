@@ -12,9 +12,8 @@ import pytest
 import torch
 
 from voe_lightning import specs
-from voe_lightning.audit import cues
+from voe_lightning.audit import cues, video_cues
 from voe_lightning.scenes import generate_probe
-from voe_lightning.stats import statistics
 
 SPLICE_SEEDS = int(os.environ.get("VOE_QUADRUPLET_SEEDS", "50"))
 SIZE = 32
@@ -101,7 +100,7 @@ def test_post_change_scorers_give_every_quadruplet_d_zero_exactly(quadruplets):
 
     def scorers(batch, video):
         frames, mask = _after_m(batch, video)
-        scores = cues.score_videos(frames, mask, torch.zeros(len(frames), dtype=torch.long))
+        scores = video_cues.score_videos(frames, mask, torch.zeros(len(frames), dtype=torch.long))
         x = specs.to_model_input(frames).double().flatten(0, 1)
         with torch.no_grad():
             conv = net(x).reshape(len(frames), -1).sum(dim=1)
@@ -131,10 +130,10 @@ def test_the_quadruplet_test_of_a_post_change_scorer_is_null(quadruplets):
     audit = cues.CueAudit.concatenate(
         [cues.CueAudit.score_batch(first), cues.CueAudit.score_batch(second)]
     )
-    rows = [row for row in audit.rows() if row["variant"] in statistics.QUADRUPLET_ROWS]
+    rows = [row for row in audit.rows() if row["variant"] in specs.QUADRUPLET_ROWS]
     assert {(row["concept"], row["variant"]) for row in rows} == {(concept, name)}
     assert rows[0]["n"] == len(first)
     for row in rows:
-        if row["cue"] in cues.FRAME_LOCAL_CUES:
+        if row["cue"] in video_cues.FRAME_LOCAL_CUES:
             assert row["relative_surprise"] == 0.0 and row["p_value"] == 1.0, row
             assert "every d = 0" in row["note"]

@@ -15,7 +15,7 @@ from scipy import stats
 from sklearn.metrics import roc_auc_score
 
 from voe_lightning import specs
-from voe_lightning.stats import statistics, statistics_format
+from voe_lightning.stats import statistics, statistics_format, t_tests
 from voe_lightning.stats.statistics import PairedTestResult, effect_size_interval, paired_test
 from voe_lightning.stats.streaming_statistics import PairedSurpriseStats, pooled_values
 
@@ -409,19 +409,19 @@ def test_streaming_pooled_values_equal_the_one_shot_pooled_test():
 
 def test_stratified_degenerate_and_refused_inputs():
     # Every d equal within each variant: zero standard error, the one-variant rule decides.
-    zero = statistics.stratified_test([(4, 0.5, 0.0), (6, 0.1, 0.0)])
+    zero = t_tests.stratified_test([(4, 0.5, 0.0), (6, 0.1, 0.0)])
     assert zero.t == math.inf and zero.p_value == 0.0 and "t = +inf" in zero.note
-    nothing = statistics.stratified_test([(4, 0.0, 0.0), (6, 0.0, 0.0)])
+    nothing = t_tests.stratified_test([(4, 0.0, 0.0), (6, 0.0, 0.0)])
     assert math.isnan(nothing.t) and nothing.p_value == 1.0
     # One variant without spread: the other's alone gives SE and df = n - 1.
-    one = statistics.stratified_test([(5, 1.0, 0.0), (8, 0.2, 0.5)])
+    one = t_tests.stratified_test([(5, 1.0, 0.0), (8, 0.2, 0.5)])
     assert one.df == pytest.approx(7.0) and one.standard_error == pytest.approx(
         0.5 * math.sqrt(0.5 / 8)
     )
     with pytest.raises(ValueError, match="at least 2 strata"):
-        statistics.stratified_test([(5, 1.0, 1.0)])
+        t_tests.stratified_test([(5, 1.0, 1.0)])
     with pytest.raises(ValueError, match="at least 2 probe pairs, got n=1"):
-        statistics.stratified_test([(5, 1.0, 1.0), (1, 0.3, 0.0)])
+        t_tests.stratified_test([(5, 1.0, 1.0), (1, 0.3, 0.0)])
     with pytest.raises(ValueError, match="counterbalanced has 1 pair"):
         statistics.pooled_test(
             [1.0, 2.0, 3.0], [0.0, 0.0, 0.0], ["standard", "standard", "counterbalanced"]
@@ -548,7 +548,8 @@ def test_quadruplets_match_by_seed_and_the_report_tests_them():
     """The two halves of a quadruplet concept are matched by seed whatever their order; a
     seed without its other half is left out (a concept without a common seed gets no
     quadruplet group); a seed twice in one variant is refused."""
-    from voe_lightning.report.results import PairResults, summarize
+    from voe_lightning.report.pairs import PairResults
+    from voe_lightning.report.tables import summarize
     from voe_lightning.stats.verdicts import concept_verdicts, pair_groups, quadruplets
 
     concepts = ["object_persistence"] * 7 + ["continuity"] * 2

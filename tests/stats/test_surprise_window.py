@@ -11,7 +11,8 @@ import torch
 from locations import TINY_CONFIG
 
 from voe_lightning.cli import main
-from voe_lightning.report.results import PairResults, summarize
+from voe_lightning.report.pairs import PairResults
+from voe_lightning.report.tables import summarize
 from voe_lightning.stats.surprise_window import (
     SurpriseWindow,
     first_difference,

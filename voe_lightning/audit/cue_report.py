@@ -47,7 +47,7 @@ __all__ = [
 #: How a compact table's cell writes accuracy and d_z: '61% / +0.52'.
 CELL_STYLE = replace(BRIEF, d_z="+.2f")
 #: The rows a concept's verdict may read, printed bold: its pooled and quadruplet tests.
-_TESTED_TOGETHER = frozenset({statistics.POOLED}) | statistics.QUADRUPLET_ROWS
+_TESTED_TOGETHER = frozenset({statistics.POOLED}) | specs.QUADRUPLET_ROWS
 
 
 def _cell(row: Mapping[str, Any] | None) -> tuple[str, bool]:

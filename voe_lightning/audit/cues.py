@@ -31,25 +31,17 @@ from voe_lightning.audit.video_cues import (
     CUES,
     FRAME_LOCAL_CUES,
     MASK_CUES,
-    counted_frames,
-    frame_scores,
     frames_after,
     score_videos,
 )
 from voe_lightning.stats import statistics, verdicts
-from voe_lightning.stats.statistics import QUADRUPLET_ROWS
 
 __all__ = [
-    "CUES",
     "CUE_COLUMNS",
     "CueAudit",
-    "FRAME_LOCAL_CUES",
     "audit_records",
     "audit_split",
-    "counted_frames",
-    "frame_scores",
     "physics_perfect_surprise",
-    "score_videos",
     "seen_extent",
     "tracked_cues",
 ]
@@ -233,7 +225,8 @@ class CueAudit:
                     concept=concept,
                     variant=variant,
                     cue=cue,
-                    n=len(self.concepts[selected]) // (2 if variant in QUADRUPLET_ROWS else 1),
+                    n=len(self.concepts[selected])
+                    // (2 if variant in specs.QUADRUPLET_ROWS else 1),
                 )
                 unscored = int(np.isnan(inconsistent).sum() + np.isnan(consistent).sum())
                 untested = statistics.untested_reason(variant, self.variants[selected])
@@ -287,7 +280,7 @@ class CueAudit:
         }
         rows = []
         for concept, variant, selected in self.groups():
-            if variant in QUADRUPLET_ROWS:  # correlations are pair by pair
+            if variant in specs.QUADRUPLET_ROWS:  # correlations are pair by pair
                 continue
             readings = [(variant, model_difference, None)]  # (row name, d, covariates)
             if variant == statistics.POOLED:
@@ -334,7 +327,7 @@ class CueAudit:
 def _differences(variant: str, d: np.ndarray) -> np.ndarray:
     """The differences a group's test is over: per pair, or per quadruplet D, the sum of its
     halves (a quadruplet group holds its first halves, then its second halves)."""
-    if variant not in QUADRUPLET_ROWS:
+    if variant not in specs.QUADRUPLET_ROWS:
         return d
     half = d.size // 2
     return d[:half] + d[half:]

@@ -18,8 +18,8 @@ from rich.table import Table
 from rich.text import Text
 
 from voe_lightning.callbacks.common import gather_objects, probe_names
-from voe_lightning.causality import Causality, check_prefix
 from voe_lightning.probe_datamodule import probe_datamodule
+from voe_lightning.stats.causality import Causality, check_prefix
 from voe_lightning.stats.statistics import (
     ALPHA,
     POOLED,
@@ -56,7 +56,7 @@ class VOEProbeCallback(L.Callback):
     A ``surprise_window`` other than all frames (``surprise_window.surprise_window``; the CLI
     gives the run's) logs the same statistics of each video's surprise summed over that window
     beside them, as ``voe_window/...``. Each validation run also checks causality
-    (``causality.check_prefix``): ``causality`` holds the last run's finding; where surprise
+    (``stats.causality.check_prefix``): ``causality`` holds the last run's finding; where surprise
     differs through the pairs' manipulation frame it warns, and the table gives no verdict."""
 
     STATISTICS = ("relative_surprise", "t", "p_value", "accuracy", "n")

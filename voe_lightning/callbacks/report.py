@@ -17,10 +17,10 @@ from voe_lightning.callbacks.report_batches import CueScores, ProbeOutputs
 from voe_lightning.callbacks.report_benchmark import write_benchmark_metrics
 from voe_lightning.callbacks.report_examples import ExampleVideos
 from voe_lightning.callbacks.report_source import report_source
-from voe_lightning.causality import Causality
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.report import write_report
 from voe_lightning.report.pairs import PairResults
+from voe_lightning.stats.causality import Causality
 from voe_lightning.stats.statistics import ALPHA, check_alpha
 from voe_lightning.stats.surprise_window import surprise_window as parse_window
 

@@ -4,8 +4,9 @@ arguments (``run_arguments``), the model arguments matched with a checkpoint's
 (``checkpoint_arguments``), the run folder a checkpoint's run works in (``run_folders``), bad
 input as one line (``user_errors``), and what only the command line uses: checks before any
 work (``preflight``), analyses across runs (``analysis``, the ``analyze`` subcommands), the
-untrained null model (``null``) and the training-set-size sweep (``size_sweep``). The entry
-point's public names are re-exported here: ``voe_lightning.cli:main`` is the installed script."""
+untrained null model (``null``), the training-set-size sweep (``size_sweep``) and the one-off
+rewrite of a run saved under old class paths (``migrate``). The entry point's public names are
+re-exported here: ``voe_lightning.cli:main`` is the installed script."""
 
 from voe_lightning.cli.app import NOT_CAUSAL_EXIT, VOECLI, main
 from voe_lightning.cli.commands import LIGHTNING_SUBCOMMANDS

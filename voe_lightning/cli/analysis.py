@@ -33,7 +33,7 @@ from voe_lightning.report.figures import panel_grid, save_figure
 from voe_lightning.report.pairs import PairResults
 from voe_lightning.report.summary_file import read_summary
 from voe_lightning.stats.field_metrics import context_sweep, format_field_metrics
-from voe_lightning.stats.statistics import POOLED, QUADRUPLET_ROWS
+from voe_lightning.stats.statistics import POOLED
 from voe_lightning.stats.statistics_format import BRIEF, format_alpha, row_text
 
 __all__ = [
@@ -241,7 +241,7 @@ def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, An
             by_concept.setdefault(row["concept"], []).append(row)
         for verdict in summary["verdicts"]:
             concept_rows = by_concept[verdict["concept"]]
-            quadruplet = [row for row in concept_rows if row["variant"] in QUADRUPLET_ROWS]
+            quadruplet = [row for row in concept_rows if row["variant"] in specs.QUADRUPLET_ROWS]
             pooled = [row for row in concept_rows if row["variant"] == POOLED]
             standard = [
                 row

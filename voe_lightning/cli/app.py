@@ -63,7 +63,7 @@ class VOECLI(LightningCLI):
     gets a folder of its own), and ``test``/``predict`` of a model with trainable parameters
     and no checkpoint. SIGTERM or SIGINT during ``fit`` saves a resumable last.ckpt and exits
     with 128 + the signal's number (``interruption``). A run whose probe surprise is not causal
-    (``causality.check_prefix``: it differs where a pair's videos are identical) exits with
+    (``stats.causality.check_prefix``: it differs where a pair's videos are identical) exits with
     ``NOT_CAUSAL_EXIT`` after its report, unless ``--allow_non_causal true``. The subcommands
     of ``COMMANDS`` call their function instead, with no model, data or trainer."""
 

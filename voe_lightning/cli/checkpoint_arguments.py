@@ -18,11 +18,19 @@ from voe_lightning.model import SurpriseModel
 
 
 def refuse_retired_arguments(ckpt_path: str, trained: dict) -> None:
-    """Refuse a checkpoint whose model arguments include some its model class no longer takes
-    (a checkpoint of an older version), naming them, before the model is built."""
+    """Refuse a checkpoint whose model class does not import, or whose model arguments include
+    some its model class no longer takes (a checkpoint of an older version), naming them, before
+    the model is built; ``migrate`` rewrites a run saved under old paths."""
     if not trained.get("_class_path"):
         return
-    model_class = import_object(trained["_class_path"])
+    migrate = f"`python -m voe_lightning migrate {ckpt_path}`"
+    try:
+        model_class = import_object(trained["_class_path"])
+    except (ImportError, AttributeError) as error:
+        raise ValueError(
+            f"{ckpt_path} names its model class {trained['_class_path']}, which does not import "
+            f"({error}); a run saved under an old path is rewritten by {migrate}"
+        ) from None
     parameters = inspect.signature(model_class.__init__).parameters
     if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values()):
         return
@@ -32,8 +40,8 @@ def refuse_retired_arguments(ckpt_path: str, trained: dict) -> None:
     if retired:
         raise ValueError(
             f"{ckpt_path} holds model arguments {model_class.__name__} no longer takes: "
-            f"{', '.join(retired)} (a checkpoint of an older version?); test it with the version "
-            "that wrote it"
+            f"{', '.join(retired)} (a checkpoint of an older version?); rewrite it with "
+            f"{migrate}, or test it with the version that wrote it"
         )
 
 

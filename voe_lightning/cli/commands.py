@@ -1,6 +1,6 @@
 """The subcommands in the one parser: Lightning's (``fit``, ``validate``, ``test``,
 ``predict``), listed with a summary of their own, and the package's (``COMMANDS``: ``generate``,
-``audit``, ``check-causality``, ``analyze``), each built by jsonargparse from its function's
+``audit``, ``check-causality``, ``analyze``, ``migrate``), each built by jsonargparse from its function's
 signature and docstring and run by calling that function."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from lightning.pytorch.cli import LightningArgumentParser
 
 from voe_lightning import causality
 from voe_lightning.audit import cue_report
-from voe_lightning.cli import analysis, emergence
+from voe_lightning.cli import analysis, emergence, migrate
 from voe_lightning.cli.class_paths import import_object
 from voe_lightning.cli.run_arguments import base_alpha
 from voe_lightning.data import generate
@@ -34,7 +34,10 @@ COMMANDS: dict[str, Any] = {
     "audit": cue_report.audit,
     "check-causality": causality.check_causality,
     "analyze": {**analysis.COMMANDS, "emergence": emergence.emergence},
+    "migrate": migrate.migrate,
 }
+#: The commands whose required arguments are positional (``migrate PATH``).
+POSITIONAL = {"migrate"}
 
 
 class Subcommands(ActionSubCommands):
@@ -76,7 +79,9 @@ def _add_command(subcommands: ActionSubCommands, name: str, command: Any) -> Non
     )
     subcommands.add_subcommand(name, parser, help=description.splitlines()[0])
     if not nested:
-        parser.add_function_arguments(command, as_group=False, sub_configs=True)
+        parser.add_function_arguments(
+            command, as_group=False, as_positional=name in POSITIONAL, sub_configs=True
+        )
         if "alpha" in inspect.signature(command).parameters:
             parser.set_defaults(alpha=base_alpha())
         return

@@ -8,7 +8,6 @@ the probe splits into a store of their own (``store_plan.seed_offset_root``).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import inspect
 import os
 import time
@@ -194,34 +193,6 @@ def _warn_of_shard_memory(video: VideoOptions, shard_size: int) -> None:
         )
 
 
-#: The counts' old keyword names in generate_dataset and ensure_dataset (issue 26: one name
-#: for one count, the one configs and ``generate --val_pairs`` use).
-OLD_COUNT_NAMES = {
-    f"{split}_pairs_per_variant": f"{split}_pairs" for split in ("val", "test", "generalization")
-}
-
-
-def _accepts_old_count_names(function):
-    """``function`` taking the counts under their old keyword names too, with a warning."""
-
-    @functools.wraps(function)
-    def renamed(*args, **kwargs):
-        for old, new in OLD_COUNT_NAMES.items():
-            if old in kwargs:
-                if new in kwargs:
-                    raise TypeError(f"give {new} only ({old} is its old name), not both")
-                warnings.warn(
-                    f"{function.__name__}: {old} is now called {new}",
-                    DeprecationWarning,
-                    stacklevel=2,
-                )
-                kwargs[new] = kwargs.pop(old)
-        return function(*args, **kwargs)
-
-    return renamed
-
-
-@_accepts_old_count_names
 def generate_dataset(
     root: str | os.PathLike,
     concepts: Iterable[str] = specs.CONCEPTS,
@@ -246,8 +217,7 @@ def generate_dataset(
     ``DEFAULT_TRAIN_EXAMPLES`` (none with a ``seed_offset``); ``train_controls`` to
     ``train_examples`` (1:1 as in the paper), split evenly over the concept's control kinds;
     ``val_pairs``, ``test_pairs`` and ``generalization_pairs`` count probe pairs per concept and
-    variant (the DataModules' and ``generate``'s names; ``*_pairs_per_variant``, their old names
-    here, are still accepted with a DeprecationWarning).
+    variant (the DataModules' and ``generate``'s names).
     Shards that exist and verify are kept; missing or corrupt ones are (re)rendered by
     ``workers`` processes (default: all cores). With ``num_shards`` > 1 only the shards
     ``shard_index, shard_index + num_shards, ...`` of the plan are made (a job array's slice).
@@ -282,7 +252,7 @@ def generate_dataset(
     for task in tasks:
         try:
             check_task(root, task, layouts)
-        except store.CorruptShardError as error:
+        except store_shards.CorruptShardError as error:
             _remove_stale_temporaries(task.path(root))
             todo.append(task)
             if error.reason != "missing":
@@ -327,7 +297,6 @@ def _run(root: Path, todo: list[ShardTask], video: VideoOptions, workers: int):
     )  # fmt: skip
 
 
-@_accepts_old_count_names
 def ensure_dataset(root: str | os.PathLike, **options) -> GenerationSummary | None:
     """Make sure the store at ``root`` holds the dataset ``options`` (generate_dataset's
     arguments) describe: returns None at once when the manifest matches and every shard of
@@ -376,7 +345,7 @@ def _is_complete(request: _Request, splits: Sequence[str]) -> bool:
     for task in _planned(request, splits):
         try:
             check_task(request.root, task, layouts)
-        except store.CorruptShardError:
+        except store_shards.CorruptShardError:
             return False
     return True
 

@@ -292,7 +292,7 @@ def bad_shards(
             continue
         try:
             check_task(Path(root), task, layouts, full)
-        except store.CorruptShardError as error:
+        except store_shards.CorruptShardError as error:
             bad.append((error.path, error.reason))
     return bad
 
@@ -305,7 +305,7 @@ def check_split(
     (another concept's, split's or version's, other seeds, missing) and what it is."""
     bad = bad_shards(root, manifest, concepts, split, full=False)
     if bad:
-        raise store.CorruptShardError(*bad[0])
+        raise store_shards.CorruptShardError(*bad[0])
 
 
 def verify(root: str | os.PathLike) -> list[Path]:

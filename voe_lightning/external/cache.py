@@ -19,7 +19,8 @@ from tensordict import TensorDictBase
 from torchrl.data import Composite
 
 from voe_lightning.data import store, store_shards
-from voe_lightning.data.store import CorruptShardError, SplitDataset
+from voe_lightning.data.store import SplitDataset
+from voe_lightning.data.store_shards import CorruptShardError
 
 #: The store concept and split under which a cache keeps its one record set.
 CONCEPT, SPLIT = "benchmark", "records"

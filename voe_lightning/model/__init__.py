@@ -1,6 +1,5 @@
 """The video models behind one protocol (``SurpriseModel``): the VRNN-LRU (``VRNNLRUModel``,
-paper §4: LRU memory, encoder/decoder, recurrent core; ``VOEModel`` is its old name, kept for
-saved configs and checkpoints) and the object-centric model after PLATO (Piloto et al. 2022:
+paper §4: LRU memory, encoder/decoder, recurrent core) and the object-centric model after PLATO (Piloto et al. 2022:
 object slots from masks, per-object perception, interaction-network slot dynamics)
 and the positive control with perfect perception (``ObjectStateModel``: object states in, slot
 dynamics, the likelihood of what is seen as surprise), and the physics-blind cues as
@@ -14,7 +13,7 @@ from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model.object_centric import ObjectCentricModel
 from voe_lightning.model.object_state import ObjectStateModel
 from voe_lightning.model.scorers import CallableModel, CueScorer, VideoMAEScorer, VJEPA2Scorer
-from voe_lightning.model.vrnn_lru import VOEModel, VRNNLRUModel  # VOEModel: its old name
+from voe_lightning.model.vrnn_lru import VRNNLRUModel
 from voe_lightning.model.vrnn_lru.memory import LRUMemory, MemoryState, Read
 from voe_lightning.model.vrnn_lru.networks import Decoder, Encoder
 from voe_lightning.model.vrnn_lru.vrnn import VRNNCore, VRNNOutput, gaussian_kl, standard_normal_kl
@@ -26,7 +25,6 @@ __all__ = [
     "VideoMAEScorer",
     "VJEPA2Scorer",
     "VRNNLRUModel",
-    "VOEModel",
     "ObjectCentricModel",
     "ObjectStateModel",
     "LRUMemory",

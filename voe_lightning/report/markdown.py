@@ -7,8 +7,8 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from voe_lightning.causality import Causality
 from voe_lightning.model.vrnn_lru import VRNNLRUModel
+from voe_lightning.stats.causality import Causality
 from voe_lightning.stats.statistics_format import format_alpha, row_text, rows_alpha
 from voe_lightning.stats.surprise_window import SurpriseWindow
 from voe_lightning.stats.verdicts import concept_verdicts

@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from voe_lightning.causality import Causality, check_prefix
 from voe_lightning.report.summary_file import file_sha256, read_summary
 from voe_lightning.specs import CONCEPTS, VARIANTS
+from voe_lightning.stats.causality import Causality, check_prefix
 from voe_lightning.stats.surprise_window import SurpriseWindow, video_surprise
 from voe_lightning.stats.verdicts import pair_groups
 
@@ -119,7 +119,7 @@ class PairResults:
     @property
     def causality(self) -> Causality:
         """Whether per-frame surprise is identical where each pair's videos are
-        (``causality.check_prefix``): a report gives no verdict when it is not."""
+        (``stats.causality.check_prefix``): a report gives no verdict when it is not."""
         return check_prefix(
             self.surprise_consistent,
             self.surprise_inconsistent,

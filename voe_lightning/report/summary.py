@@ -9,12 +9,12 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from voe_lightning.causality import Causality
 from voe_lightning.report.markdown import format_markdown, format_source
 from voe_lightning.report.pairs import PairResults
 from voe_lightning.report.priors_alone import format_priors_alone, priors_alone_document
 from voe_lightning.report.summary_file import file_sha256
 from voe_lightning.report.tables import SUMMARY_COLUMNS, field_metric_rows
+from voe_lightning.stats.causality import Causality
 from voe_lightning.stats.field_metrics import format_field_metrics
 from voe_lightning.stats.statistics_format import json_row
 from voe_lightning.stats.surprise_window import SurpriseWindow

@@ -9,10 +9,10 @@ from typing import Any
 import numpy as np
 
 from voe_lightning.report.pairs import PairResults
+from voe_lightning.specs import QUADRUPLET_ROWS
 from voe_lightning.stats.field_metrics import field_metrics
 from voe_lightning.stats.statistics import (
     ALPHA,
-    QUADRUPLET_ROWS,
     QuadrupletTestResult,
     group_test,
     untested_reason,

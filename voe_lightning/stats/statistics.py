@@ -39,13 +39,9 @@ import torch
 from scipy import optimize, stats
 from torchmetrics.functional.classification import binary_auroc
 
-from voe_lightning.specs import QUADRUPLET, QUADRUPLET_ROWS
+from voe_lightning.specs import QUADRUPLET_ROWS
 from voe_lightning.stats.t_tests import (
-    StratifiedTest,
-    TTest,
-    stratified_moments,
     stratified_test,
-    t_and_p,
     t_test_from_moments,
 )
 
@@ -54,11 +50,7 @@ __all__ = [
     "POOLED",
     "POOLED_VARIANTS",
     "PairedTestResult",
-    "QUADRUPLET",
-    "QUADRUPLET_ROWS",
     "QuadrupletTestResult",
-    "StratifiedTest",
-    "TTest",
     "as_float64",
     "check_alpha",
     "effect_size_interval",
@@ -68,10 +60,6 @@ __all__ = [
     "quadruplet_test",
     "ranked_auroc",
     "relative_surprise",
-    "stratified_moments",
-    "stratified_test",
-    "t_and_p",
-    "t_test_from_moments",
     "untested_reason",
 ]
 

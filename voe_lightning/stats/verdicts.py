@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from voe_lightning import causality as causality_check
 from voe_lightning import specs
+from voe_lightning.stats import causality as causality_check
 from voe_lightning.stats.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
 from voe_lightning.stats.statistics_format import (
     format_number,
@@ -135,7 +135,7 @@ def _rows_by_seed(
 class Verdict:
     """Whether a concept shows VOE by the rule of docs/architecture.md §8: ``voe`` is True or
     False, or None when the pairs needed to decide are missing or the verdict is ``withheld``
-    (the model is not causal, ``voe_lightning.causality``); ``reason`` names what failed."""
+    (the model is not causal, ``voe_lightning.stats.causality``); ``reason`` names what failed."""
 
     concept: str
     voe: bool | None

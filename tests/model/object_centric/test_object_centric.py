@@ -10,7 +10,7 @@ from tensordict import TensorDict
 
 from voe_lightning.cli import main
 from voe_lightning.model import ObjectCentricModel, SurpriseModel
-from voe_lightning.model.object_centric import SURPRISES
+from voe_lightning.model.object_centric.model import SURPRISES
 from voe_lightning.model.object_centric.slots import MAX_MASK_JUMP, centroid_moves, object_slots
 from voe_lightning.scenes import (
     CLIP_KINDS_BY_CONCEPT,

@@ -17,12 +17,14 @@ from tensordict import TensorDict
 from voe_lightning import specs
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.likelihood import gaussian_nll, mixture_nll
-from voe_lightning.model.object_state import Observations, rollout, slowed, withheld_spans
+from voe_lightning.model.object_state import rollout
 from voe_lightning.model.object_state.geometry import (
     lying_on_floor,
     on_or_above_floor,
     seen_by_geometry,
 )
+from voe_lightning.model.object_state.mixture import slowed
+from voe_lightning.model.object_state.state import Observations, withheld_spans
 from voe_lightning.model.optimization import adam
 
 FRAMES = 10

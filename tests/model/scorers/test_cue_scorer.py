@@ -10,7 +10,7 @@ import pytest
 import torch
 from locations import TINY_CONFIG
 
-from voe_lightning.audit import cues
+from voe_lightning.audit import video_cues
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.callbacks.prediction_writer import IntPhysAnswerWriter
 from voe_lightning.cli import main
@@ -28,8 +28,8 @@ def test_surprise_after_the_manipulation_sums_to_the_audit_score(cue):
     model = CueScorer(cue)
     assert list(model.parameters()) == []
     surprise = model.surprise(frames, mask)
-    after = cues.counted_frames(CUE_NAMES[cue], manipulation, 6)
-    expected = cues.score_videos(frames, mask, manipulation)[CUE_NAMES[cue]]
+    after = video_cues.counted_frames(CUE_NAMES[cue], manipulation, 6)
+    expected = video_cues.score_videos(frames, mask, manipulation)[CUE_NAMES[cue]]
     assert torch.allclose((surprise.double() * after).sum(1), expected, rtol=1e-5)
     assert model.expected_frames(frames).shape == (3, 6, 3, 8, 8)
     assert model.trajectories(frames, mask)["cue"].shape == (3, 6, 2)

@@ -203,7 +203,7 @@ def test_the_learning_rate_warms_up_linearly_as_a_tensor_for_fused_adam():
 
 def test_compile_settings_resolve_by_device_and_refuse_unknown_values():
     assert not model().compiles  # auto: off on a CPU
-    assert model(compile="frame").compiles and model(compile_model=True).compiles
+    assert model(compile="frame").compiles
     with pytest.raises(
         ValueError, match="unknown compile 'graph'; valid choices are: auto, off, frame"
     ):

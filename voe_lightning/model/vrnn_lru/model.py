@@ -91,8 +91,6 @@ class VRNNLRUModel(SurpriseModel):
             as CUDA graphs (``torch.cuda.make_graphed_callables``) at the first training batch
             and replay them (thousands of kernel launches become two); elsewhere (a CPU, DDP)
             the same function runs uncaptured.
-        compile_model: the earlier switch (``True`` is ``compile: frame``), kept so that old
-            configs and checkpoints load.
         channels_last: keep the encoder and decoder in NHWC layout, the fast layout of oneDNN
             and cuDNN (same float32 numbers up to summation order). False is the NCHW reference.
         precision: ``"auto"`` (default) runs the encoder and decoder under bf16 autocast where
@@ -114,7 +112,6 @@ class VRNNLRUModel(SurpriseModel):
         "lr_warmup_steps",
         "compile",
         "cuda_graph",
-        "compile_model",
     )
     VALIDATION_METRIC = "val/kl"
     SURPRISE = "KL(posterior || prior)"
@@ -145,7 +142,6 @@ class VRNNLRUModel(SurpriseModel):
         lr_warmup_steps: int = 0,
         compile: str = "auto",
         cuda_graph: bool = True,
-        compile_model: bool = False,
         channels_last: bool = True,
         precision: str = "auto",
         training_frames: int | None = None,
@@ -235,7 +231,7 @@ class VRNNLRUModel(SurpriseModel):
     @property
     def compiles(self) -> bool:
         """Whether ``compile`` resolves to ``frame`` on the current device."""
-        mode = "frame" if self.hparams.compile_model else self.hparams.compile
+        mode = self.hparams.compile
         return mode == "frame" or (mode == "auto" and self.device.type == "cuda")
 
     def _networks(self) -> dict:
@@ -491,8 +487,3 @@ class _TrainingTerms(torch.nn.Module):
         self, frames: torch.Tensor, noise: torch.Tensor, kl_weight: torch.Tensor
     ) -> torch.Tensor:
         return self.model.training_terms(frames, noise, kl_weight)
-
-
-#: The VRNN-LRU's old name (the same class), kept only so that code, saved LightningCLI configs
-#: (``class_path: voe_lightning.model.VOEModel``) and checkpoints of earlier versions keep working.
-VOEModel = VRNNLRUModel
