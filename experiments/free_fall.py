@@ -2,9 +2,10 @@
 (the clips it learned from), at the frame after a block's first frame of fall: how far the block
 then falls (on in free fall, or landing within the frame interval), and, per checkpoint, each
 Gaussian of its mixture: the fall it predicts (the mean's change of height), its standard
-deviation there and its weight, as the model gives them (after ``falling_lands``), and its
-``fall_gain``; then what each Gaussian's choice by hard assignment rests on, the negative
+deviation there and its weight, as the model gives them (after ``falling_lands``), and the
+``fall_gain`` its checkpoint was trained with; then what each Gaussian's choice by hard assignment rests on, the negative
 log-likelihood of each part of the seen state and -log of its weight. Seen blocks only.
+(``fall_gain``, the prior this measured, was deleted: it cost object persistence.)
 
     python experiments/free_fall.py runs/r15_fall_s8/version_0/checkpoints/last.ckpt \
         --root data/cpu

@@ -4,7 +4,7 @@ with constructor arguments given instead of the checkpoint's (``--set``, only on
 parameter), on the test pairs of configs/cpu.yaml's data.
 
     python experiments/prior_at_evaluation.py \
-        runs/r15_fall_s8/version_0/checkpoints/last.ckpt --set fall_gain=0.392
+        runs/object_state/version_0/checkpoints/last.ckpt --set slowing=false
 """
 
 import argparse

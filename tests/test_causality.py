@@ -105,7 +105,6 @@ NO_PRIORS = dict(
     hold_still=False,
     slowing=False,
     falling_lands=False,
-    fall_gain=0.0,
     shared_identity=False,
 )
 NO_GIVENS = dict(sight_lines=False, floor=False, inertia=False, projection=False)

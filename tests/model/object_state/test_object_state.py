@@ -41,7 +41,6 @@ PLAIN = dict(
     hold_still=False,
     slowing=False,
     falling_lands=False,
-    fall_gain=0.0,
     shared_identity=False,
     withhold=0.0,
     hard_assignment=False,
@@ -327,39 +326,6 @@ def test_nothing_stops_in_mid_air(falling_lands):
     assert torch.isfinite(out["state"]).all() and torch.isfinite(out["state_entropy"]).all()
 
 
-@pytest.mark.parametrize("fall_gain", [0.1, 0.0])
-def test_what_falls_falls_faster(fall_gain):
-    """``fall_gain``: with no learned change, a cube seen falling 0.1, 0.2, 0.3 m a frame (a
-    constant gain of 0.1 m) is predicted where free fall takes it, its last move grown by the
-    gain, while a cube sliding along the floor and one rising keep their last move; without
-    it, every one keeps its last move."""
-    steps = 5
-    observations = _two_objects(
-        torch.zeros(steps),
-        0.1 * torch.arange(steps + 0.0),
-        torch.ones(1, steps, 2, dtype=torch.bool),
-    )
-    drop = 0.05 * torch.arange(steps + 0.0) * (torch.arange(steps + 0.0) + 1)  # 0, .1, .3, .6
-    observations.state[0, :, 0, 2] = 2.0 - drop
-    rising = _two_objects(
-        torch.zeros(steps), torch.zeros(steps), torch.ones(1, steps, 2, dtype=torch.bool)
-    )
-    rising.state[0, :, 0, 2] = 0.1 + 0.1 * torch.arange(steps + 0.0)
-    model = plain(hidden_size=16, message_size=8, fall_gain=fall_gain)
-    last = model.dynamics[-1]
-    torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
-    with torch.no_grad():
-        predicted = model.rollout(observations)["predicted"][0, 2:]
-        up = model.rollout(rising)["predicted"][0, 2:, 0, 2]
-    seen = observations.state[0, 1:-1]  # where each cube was a frame before frames 2, 3, 4
-    moved = seen - observations.state[0, :-2]
-    torch.testing.assert_close(predicted[:, 0, 2], seen[:, 0, 2] + moved[:, 0, 2] - fall_gain)
-    if fall_gain:
-        torch.testing.assert_close(predicted[:, 0, 2], observations.state[0, 2:, 0, 2])
-    torch.testing.assert_close(predicted[:, 1, 0], seen[:, 1, 0] + 0.1)
-    torch.testing.assert_close(up, rising.state[0, 1:-1, 0, 2] + 0.1)
-
-
 @pytest.mark.parametrize("shared", [True, False])
 def test_shared_identity_makes_every_gaussian_predict_the_object_it_is(shared):
     """``shared_identity``: with random weights, every Gaussian of the mixture predicts the
@@ -564,8 +530,6 @@ def test_the_stop_and_landing_components_need_others_and_carry_a_known_choice():
         plain(components=3, carry="support")
     with pytest.raises(ValueError, match="falling_lands needs stop_component: true"):
         plain(components=3, falling_lands=True)
-    with pytest.raises(ValueError, match=r"fall_gain must be in \[0, 1.5\].*got -0.392"):
-        plain(fall_gain=-0.392)
 
 
 def test_a_mixture_without_components_or_a_bad_withheld_share_is_refused():
@@ -757,5 +721,5 @@ def test_the_givens_of_the_learner_can_each_be_removed():
     for t, means in enumerate(means_of(kept), start=1):
         moved = means[0, 0] - observations.state[0, t - 1, 0, 0]
         assert moved == pytest.approx(0.3 if t > 1 else 0.0)  # the last move, seen from t-2
-    with pytest.raises(ValueError, match="slowing and fall_gain .* need inertia: true"):
+    with pytest.raises(ValueError, match="slowing shapes the inertial move, so it needs inertia"):
         plain(inertia=False, slowing=True)

@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 from voe_lightning.model import optimization
-from voe_lightning.model.object_state.mixture import MAX_MOVE
 
 #: Constructor arguments that shape the parameters, or the priors they were trained with: a
 #: checkpoint must agree on all of them.
@@ -22,7 +21,6 @@ ARCHITECTURE = (
     "hold_still",
     "slowing",
     "falling_lands",
-    "fall_gain",
     "shared_identity",
     "sight_lines",
     "floor",
@@ -44,7 +42,6 @@ GEOMETRY_OFF = {
     "hold_still": False,
     "slowing": False,
     "falling_lands": False,
-    "fall_gain": 0.0,
     "shared_identity": False,
     "sight_lines": False,
     "floor": False,
@@ -138,16 +135,10 @@ def _check_priors(h) -> None:
             "falling_lands needs stop_component: true (it leaves the stopping "
             "Gaussian out for a falling object), got stop_component=false"
         )
-    if not 0 <= h.fall_gain <= MAX_MOVE:
+    if not h.inertia and h.slowing:
         raise ValueError(
-            f"fall_gain must be in [0, {MAX_MOVE}] (m a frame by which a falling "
-            f"object's downward move grows; 0.392 at 15 frames over 3 s), got "
-            f"{h.fall_gain}"
-        )
-    if not h.inertia and (h.slowing or h.fall_gain):
-        raise ValueError(
-            "slowing and fall_gain shape the inertial move, so they need inertia: true, got "
-            f"inertia=false with slowing={h.slowing}, fall_gain={h.fall_gain}"
+            "slowing shapes the inertial move, so it needs inertia: true, got inertia=false "
+            "with slowing=true"
         )
     if h.carry == "support" and not h.stop_component:
         raise ValueError(

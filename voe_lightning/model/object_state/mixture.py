@@ -79,18 +79,11 @@ def slowed(move: torch.Tensor, change: torch.Tensor) -> torch.Tensor:
     return torch.cat([along_floor * kept, move[..., 2:]], dim=-1)
 
 
-def inertial_move(
-    slots: Slots, falling: torch.Tensor, slowing: bool, fall_gain: float
-) -> torch.Tensor:
+def inertial_move(slots: Slots, slowing: bool) -> torch.Tensor:
     """Where its last move takes each slot [B, S, state] (positions only, the state's first
-    part): that move, slowed as it was slowing (``slowing``) and, falling, grown by
-    ``fall_gain``; bounded by ``MAX_MOVE``, so a hidden object's rollout cannot feed on itself
-    and diverge."""
-    move = slots.velocity
-    if slowing:
-        move = slowed(slots.velocity, slots.acceleration)
-    if fall_gain:  # what falls, falls faster
-        move = move - F.pad(falling[..., None] * fall_gain, (2, 0))
+    part): that move, slowed as it was slowing (``slowing``); bounded by ``MAX_MOVE``, so a
+    hidden object's rollout cannot feed on itself and diverge."""
+    move = slowed(slots.velocity, slots.acceleration) if slowing else slots.velocity
     return F.pad(move.clamp(-MAX_MOVE, MAX_MOVE), (0, slots.belief.shape[-1] - move.shape[-1]))
 
 

@@ -53,8 +53,8 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     is the rectified excess of each term's NLL over its entropy (``_per_frame``).
 
     Given, not learned (priors, each an argument here): the floor, the stopping, landing and
-    pivoting geometry, support carrying, holding still, slowing, falling lands, the fall's
-    gain and shared identity; the package's learned result (``configs/learned_states.yaml``)
+    pivoting geometry, support carrying, holding still, slowing, falling lands and shared
+    identity (the fall's gain, which cost object persistence on validation, was deleted); the package's learned result (``configs/learned_states.yaml``)
     turns every one off. Given to every configuration, and each removable to measure what it
     costs: the sight lines of the visibility (``sight_lines``), the floor under every mean
     (``floor``), the inertial baseline (``inertia``) and the image-plane projection the
@@ -88,8 +88,6 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         hold_still: an unseen object last seen still on the floor stays where it is.
         slowing: what was slowing goes on slowing to a stop, never turning back (``slowed``).
         falling_lands: no stopping Gaussian for an object whose last move took it down.
-        fall_gain: a falling object's downward move grows by this much a frame (m; g·Δt² =
-            0.392 at the generator's 15 frames over 3 s; 0: off).
         shared_identity: every Gaussian predicts the size and colour last believed, with one
             learned spread.
         sight_lines: the visibility logit adds sight lines from the camera to every known
@@ -139,7 +137,6 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         hold_still: bool = True,
         slowing: bool = True,
         falling_lands: bool = True,
-        fall_gain: float = 0.392,
         shared_identity: bool = True,
         sight_lines: bool = True,
         floor: bool = True,

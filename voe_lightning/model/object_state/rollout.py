@@ -212,11 +212,7 @@ class SlotRollout:
         pairs = pair_features(slots.belief, slots.shape, seen_as, self.layout)
         message = messages(self.message, slots.hidden, slots.hidden, pairs, slots.known)
         falling = self._falling(slots)
-        inertia = (
-            inertial_move(slots, falling, h.slowing, h.fall_gain)
-            if h.inertia
-            else torch.zeros_like(slots.belief)
-        )
+        inertia = inertial_move(slots, h.slowing) if h.inertia else torch.zeros_like(slots.belief)
         mixture, shape_logits = self._mixture(slots, message, pose_features, inertia, falling)
         predicted, mixture, holding = hold(slots, mixture, unseen, h.carry, h.hold_still)
         logit = self._visibility_logit(slots, predicted, pose, pose_features)
