@@ -102,10 +102,8 @@ NO_PRIORS = dict(
     landing_component=False,
     pivot_landing=False,
     carry="none",
-    hold_still=False,
     slowing=False,
     falling_lands=False,
-    shared_identity=False,
 )
 NO_GIVENS = dict(sight_lines=False, floor=False, inertia=False, projection=False)
 FAMILIES = [

@@ -38,10 +38,8 @@ PLAIN = dict(
     landing_component=False,
     pivot_landing=False,
     carry="none",
-    hold_still=False,
     slowing=False,
     falling_lands=False,
-    shared_identity=False,
     withhold=0.0,
     hard_assignment=False,
     lr_schedule="constant",
@@ -220,29 +218,6 @@ def test_a_cube_hidden_in_a_sliding_container_keeps_its_place_in_it(carry):
     assert (geometry < 0.1).all() == (carry == "support"), geometry
 
 
-@pytest.mark.parametrize("hold_still", [True, False])
-def test_what_lay_still_stays_still_unseen(hold_still):
-    """``hold_still``: with a learned change that drifts every object 5 cm a frame along x, a
-    cube seen lying still on the floor stays where it was seen once hidden; a cube seen sliding
-    along the floor moves on, by its last move and the drift (which the move it feeds takes
-    up: the learned change fed on itself); without it, both drift."""
-    steps = 7
-    visible = torch.ones(1, steps, 2, dtype=torch.bool)
-    visible[0, 3:] = False
-    observations = _two_objects(0.1 * torch.arange(steps + 0.0), torch.full((steps,), 0.5), visible)
-    model = plain(hidden_size=16, message_size=8, hold_still=hold_still)
-    last = model.dynamics[-1]
-    torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
-    drift = 0.05
-    with torch.no_grad():
-        last.bias[0] = 1.5 * math.atanh(drift / 1.5)  # the change of x (MAX_MOVE * tanh)
-        belief = model.rollout(observations)["belief"][0, 3:, :, 0]
-    after = torch.arange(1, steps - 2.0)  # frames hidden
-    torch.testing.assert_close(belief[:, 0], 0.2 + (0.1 + drift * after).cumsum(0))
-    still = torch.full_like(after, 0.5) if hold_still else 0.5 + (drift * after).cumsum(0)
-    torch.testing.assert_close(belief[:, 1], still)
-
-
 @pytest.mark.parametrize("slowing", [True, False])
 def test_a_hidden_object_goes_on_slowing_and_stops_where_it_would(slowing):
     """``slowing``: a cube seen sliding along x, each move 2 cm shorter than the last (0.2,
@@ -324,54 +299,6 @@ def test_nothing_stops_in_mid_air(falling_lands):
     torch.testing.assert_close(out["predicted"][0, 2:, 0, 2], fallen)
     torch.testing.assert_close(out["predicted"][0, 2:, 1, 0], seen[:, 1, 0])
     assert torch.isfinite(out["state"]).all() and torch.isfinite(out["state_entropy"]).all()
-
-
-@pytest.mark.parametrize("shared", [True, False])
-def test_shared_identity_makes_every_gaussian_predict_the_object_it_is(shared):
-    """``shared_identity``: with random weights, every Gaussian of the mixture predicts the
-    size and colour last seen, with the same spread, so hard assignment chooses by position and
-    orientation alone (a colour change costs every Gaussian the same); without it, the
-    Gaussians disagree about them."""
-    torch.manual_seed(0)
-    steps = 4
-    observations = _two_objects(
-        0.1 * torch.arange(steps + 0.0),
-        torch.full((steps,), 0.5),
-        torch.ones(1, steps, 2, dtype=torch.bool),
-    )
-    observations.state[0, :, :, 10:] = torch.tensor([0.2, 0.4, 0.6])
-    observations.state[0, -1, 0, 10:] = torch.tensor([0.9, 0.1, 0.1])  # recoloured when seen
-    model = plain(
-        hidden_size=16,
-        message_size=8,
-        components=4,
-        stop_component=True,
-        landing_component=True,
-        pivot_landing=True,
-        hard_assignment=True,
-        shared_identity=shared,
-    )
-    caught = []
-
-    def spy(observed, means, log_std, logits, hard=False):
-        caught.append((observed, means, log_std))
-        return mixture_nll(observed, means, log_std, logits, hard=hard)
-
-    with torch.no_grad(), mock.patch.object(rollout, "mixture_nll", spy):
-        model.rollout(observations)
-    for t, (observed, means, log_std) in enumerate(caught[1:], start=1):
-        identity = means[..., 7:]  # [B, S, K, 6]
-        spread = log_std[..., 7:]
-        if shared:
-            torch.testing.assert_close(
-                identity, observations.state[:, t - 1, :, None, 7:].expand_as(identity)
-            )
-            torch.testing.assert_close(spread, spread[:, :, :1].expand_as(spread))
-            costs = gaussian_nll(observed[..., None, 7:], identity, spread)[0]
-            torch.testing.assert_close(costs, costs[:, :, :1].expand_as(costs))
-        else:
-            assert (identity - identity[:, :, :1]).abs().amax() > 1e-3
-            assert (spread - spread[:, :, :1]).abs().amax() > 1e-3
 
 
 @pytest.mark.parametrize("landing_change", [True, False])

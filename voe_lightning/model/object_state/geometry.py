@@ -26,7 +26,7 @@ CORNER_INSET = 0.9
 #: its walls).
 WALL = 0.02
 #: How far (m) below an object's lowest point the top of what it rests on may be
-#: (``resting_on``; ``hold_still``'s floor): one resting on another touches it.
+#: (``resting_on``): one resting on another touches it.
 REST_TOLERANCE = 0.05
 #: Softness (m) of the sight-line tests: how far a sight line must pass through a box, or a
 #: point lie above the floor, to count as clearly hidden or clearly not.

@@ -1,6 +1,6 @@
 """The mixture over each slot's next state and the priors that shape it, given, not learned: the
 inertia of the last move (slowing, falling faster), laying an object down (the landing
-Gaussian) and holding what rests on another object or lies still (``hold``)."""
+Gaussian) and holding what rests on another object (``hold``)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,6 @@ import torch
 import torch.nn.functional as F
 
 from voe_lightning.model.object_state.geometry import (
-    REST_TOLERANCE,
-    lowest_point,
     lying_on_floor,
     on_or_above_floor,
     pivoted_down,
@@ -37,7 +35,7 @@ LEFT_OUT = -1.0e4
 
 @dataclass
 class Holding:
-    """Which slots stay where they rest while unseen (``carry: support``, ``hold_still``):
+    """Which slots stay where they rest while unseen (``carry: support``):
     what each rests on, one-hot [B, S, S] (``resting_on``; zeros: the floor or nothing),
     whether it is held [B, S], and where, its belief moved by its support's predicted move
     [B, S, 13]."""
@@ -98,28 +96,23 @@ def landing_mean(moved: torch.Tensor, slots: Slots, pivot: bool) -> torch.Tensor
 
 
 def hold(
-    slots: Slots, mixture: Mixture, unseen: torch.Tensor, carry: str, hold_still: bool
+    slots: Slots, mixture: Mixture, unseen: torch.Tensor, carry: str
 ) -> tuple[torch.Tensor, Mixture, Holding | None]:
     """The predicted states [B, S, 13], the mixture with its stopping Gaussian carried by
     what each slot rests on (``carry: support``), and the ``Holding``: an unseen slot
-    resting on a known one, or last seen still on the floor (``hold_still``), is held
-    there. Without either prior: the most probable means, the mixture, None."""
+    resting on a known one is held there. Without the prior: the most probable means, the
+    mixture, None."""
     predicted = mixture.most_probable()
-    if not (carry == "support" or hold_still):
+    if carry != "support":
         return predicted, mixture, None
     belief, known = slots.belief, slots.known
-    rests = belief.new_zeros(*known.shape, known.shape[1])
-    carried = torch.zeros_like(belief)
-    if carry == "support":  # what rests on a known object moves with it
-        rests = resting_on(belief.detach(), slots.shape, known)
-        moves = ((predicted - belief)[..., POSITION] * known[..., None]).detach()
-        carried = F.pad(torch.einsum("bij,bjk->bik", rests, moves), (0, STATE_SIZE - 3))
-        stopping = on_or_above_floor(mixture.means[:, :, 0] + carried)[:, :, None]
-        mixture = replace(mixture, means=torch.cat([stopping, mixture.means[:, :, 1:]], 2))
-        predicted = mixture.most_probable()
+    rests = resting_on(belief.detach(), slots.shape, known)  # what rests on a known object
+    moves = ((predicted - belief)[..., POSITION] * known[..., None]).detach()  # moves with it
+    carried = F.pad(torch.einsum("bij,bjk->bik", rests, moves), (0, STATE_SIZE - 3))
+    stopping = on_or_above_floor(mixture.means[:, :, 0] + carried)[:, :, None]
+    mixture = replace(mixture, means=torch.cat([stopping, mixture.means[:, :, 1:]], 2))
+    predicted = mixture.most_probable()
     holds = rests.sum(-1) > 0
-    if hold_still:  # what was still when seen and lies on the floor
-        holds = holds | (slots.still & (lowest_point(belief) <= REST_TOLERANCE))
     holding = Holding(rests, holds, belief + carried)
     predicted = torch.where((unseen & holds)[..., None], holding.state, predicted)
     return predicted, mixture, holding

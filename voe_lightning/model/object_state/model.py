@@ -53,8 +53,9 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     is the rectified excess of each term's NLL over its entropy (``_per_frame``).
 
     Given, not learned (priors, each an argument here): the floor, the stopping, landing and
-    pivoting geometry, support carrying, holding still, slowing, falling lands and shared
-    identity (the fall's gain, which cost object persistence on validation, was deleted); the package's learned result (``configs/learned_states.yaml``)
+    pivoting geometry, support carrying, slowing and falling lands (the fall's gain, holding
+    still and shared identity, which added no verdict or half on validation, were deleted:
+    docs/study/learned_physics.md); the package's learned result (``configs/learned_states.yaml``)
     turns every one off. Given to every configuration, and each removable to measure what it
     costs: the sight lines of the visibility (``sight_lines``), the floor under every mean
     (``floor``), the inertial baseline (``inertia``) and the image-plane projection the
@@ -85,11 +86,8 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         landing_change: the landing Gaussian takes the learned change too (false: inertia only).
         carry: ``"support"``: what rests on a known object moves with it, held there unseen
             (``resting_on``); ``"none"``: no carrying.
-        hold_still: an unseen object last seen still on the floor stays where it is.
         slowing: what was slowing goes on slowing to a stop, never turning back (``slowed``).
         falling_lands: no stopping Gaussian for an object whose last move took it down.
-        shared_identity: every Gaussian predicts the size and colour last believed, with one
-            learned spread.
         sight_lines: the visibility logit adds sight lines from the camera to every known
             object's box at its predicted state (``seen_by_geometry``; false: learned alone).
         floor: no Gaussian's mean is below the floor (``on_or_above_floor``).
@@ -134,10 +132,8 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         pivot_landing: bool = True,
         landing_change: bool = True,
         carry: str = "support",
-        hold_still: bool = True,
         slowing: bool = True,
         falling_lands: bool = True,
-        shared_identity: bool = True,
         sight_lines: bool = True,
         floor: bool = True,
         inertia: bool = True,

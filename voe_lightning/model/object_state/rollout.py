@@ -38,7 +38,6 @@ from voe_lightning.model.object_state.mixture import (
 from voe_lightning.model.object_state.pairs import messages, pair_features
 from voe_lightning.model.object_state.state import (
     IDENTITY,
-    POSE,
     SHAPES,
     SLOT_TERMS,
     Observations,
@@ -146,7 +145,6 @@ class SlotRollout:
         position = self.layout.position
         move = torch.where(steady, belief, predicted)[..., position] - slots.belief[..., position]
         velocity = move * (slots.known & ~new)[..., None].float()  # known before t
-        still = torch.where(steady[..., 0], velocity[..., :2].norm(dim=-1) < MOVING, slots.still)
         known = slots.known | visible
         seen = Slots(
             hidden=slots.hidden,
@@ -155,7 +153,6 @@ class SlotRollout:
             velocity=velocity,
             acceleration=velocity - slots.velocity,
             known=known,
-            still=still,
         )
         hidden = self._recur(seen, given, obs.fraction[:, t], obs.camera[:, t])
         return replace(seen, hidden=hidden * known[..., None], belief=belief * known[..., None])
@@ -206,7 +203,7 @@ class SlotRollout:
         """Frame t's predictions from the slots after frame t-1: the predicted states [B, S, state]
         (the most probable Gaussian's mean, or where ``hold`` holds a slot not given at t-1,
         ``unseen`` [B, S]), the terms of what frame t shows (``rollout``), p(visible) [B, S] and
-        the ``Holding`` of every known slot (None without ``carry: support`` or ``hold_still``)."""
+        the ``Holding`` of every known slot (None without ``carry: support``)."""
         h = self.hparams
         seen_as = self._view(slots.belief, pose)
         pairs = pair_features(slots.belief, slots.shape, seen_as, self.layout)
@@ -214,7 +211,7 @@ class SlotRollout:
         falling = self._falling(slots)
         inertia = inertial_move(slots, h.slowing) if h.inertia else torch.zeros_like(slots.belief)
         mixture, shape_logits = self._mixture(slots, message, pose_features, inertia, falling)
-        predicted, mixture, holding = hold(slots, mixture, unseen, h.carry, h.hold_still)
+        predicted, mixture, holding = hold(slots, mixture, unseen, h.carry)
         logit = self._visibility_logit(slots, predicted, pose, pose_features)
         hard = self.training and h.hard_assignment
         terms = slot_terms(slots, mixture, shape_logits, logit, obs, t, hard)
@@ -293,10 +290,6 @@ class SlotRollout:
         if not self.hparams.landing_change:  # the landing Gaussian: where inertia takes it
             landing_identity = F.pad(change[:, :, -1:, IDENTITY], (IDENTITY.start, 0))
             change = torch.cat([change[:, :, :-1], landing_identity], dim=2)
-        if self.hparams.shared_identity:  # size and colour kept, under one spread for all
-            change = torch.cat([change[..., POSE], torch.zeros_like(change[..., IDENTITY])], -1)
-            shared = log_std[..., :1, IDENTITY].expand(*log_std.shape[:-1], -1)
-            log_std = torch.cat([log_std[..., POSE], shared], -1)
         return change, log_std, logits, shape_logits
 
     def _visibility_logit(

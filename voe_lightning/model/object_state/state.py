@@ -127,8 +127,7 @@ def observe(objects: TensorDictBase, camera: torch.Tensor) -> Observations:
 class Slots:
     """The slots after a frame, each [B, S, ...]: ``hidden`` recurrent states, ``belief`` (the
     last state seen or, while hidden, predicted), ``shape`` one-hot, the last ``velocity`` and
-    its change (``acceleration``), ``known`` (seen at some frame so far) and ``still`` (last
-    seen in two frames running not moving across the floor)."""
+    its change (``acceleration``) and ``known`` (seen at some frame so far)."""
 
     hidden: torch.Tensor
     belief: torch.Tensor
@@ -136,11 +135,10 @@ class Slots:
     velocity: torch.Tensor
     acceleration: torch.Tensor
     known: torch.Tensor
-    still: torch.Tensor
 
 
 def empty_slots(observations: Observations, hidden_size: int, layout: StateLayout) -> Slots:
-    """The slots before frame 0: none known, all zeros, each ``still``."""
+    """The slots before frame 0: none known, all zeros."""
     batch, _, count = observations.visible.shape
     zeros = observations.state.new_zeros
     velocity = zeros(batch, count, layout.position_size)
@@ -152,7 +150,6 @@ def empty_slots(observations: Observations, hidden_size: int, layout: StateLayou
         velocity=velocity,
         acceleration=velocity,  # the change of the last move
         known=known,
-        still=torch.ones_like(known),  # not seen moving across the floor when last seen twice
     )
 
 
