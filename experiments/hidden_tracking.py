@@ -6,7 +6,7 @@ and, per term, the mean surprise (rectified excess surprisal summed over frames 
     python experiments/hidden_tracking.py runs/ost_s3/version_0/checkpoints/last.ckpt \
         --concept containment --root data/cpu
 
-``--set carry=support`` evaluates the checkpoint with those constructor
+``--set inertia=false`` evaluates the checkpoint with those constructor
 arguments instead of its own (only ones that add no parameter load).
 """
 

@@ -4,7 +4,7 @@ with constructor arguments given instead of the checkpoint's (``--set``, only on
 parameter), on the test pairs of configs/cpu.yaml's data.
 
     python experiments/prior_at_evaluation.py \
-        runs/object_state/version_0/checkpoints/last.ckpt --set slowing=false
+        runs/object_state/version_0/checkpoints/last.ckpt --set pivot_landing=false
 """
 
 import argparse

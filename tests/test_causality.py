@@ -98,12 +98,8 @@ VJEPA2 = dict(
 #: Every model family the package ships, untrained and tiny: one line adds a family.
 #: The object-state learner's priors off (configs/learned_states.yaml) and its givens removed.
 NO_PRIORS = dict(
-    stop_component=False,
     landing_component=False,
     pivot_landing=False,
-    carry="none",
-    slowing=False,
-    falling_lands=False,
 )
 NO_GIVENS = dict(sight_lines=False, floor=False, inertia=False, projection=False)
 FAMILIES = [

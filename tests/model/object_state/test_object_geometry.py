@@ -14,7 +14,6 @@ from voe_lightning.model.object_state.geometry import (
     on_or_above_floor,
     pivoted_down,
     quaternion_matrix,
-    resting_on,
     seen_by_geometry,
 )
 
@@ -290,44 +289,3 @@ def test_a_pivoting_plank_comes_to_rest_as_mujoco_rests_object_persistence_plank
         flat = pivoted_down(state, state, shape, known)[0, 0]
         lying = sides["inconsistent"][-1, plank]
         assert abs(float(flat[2] - lying[2])) < 0.01, (seed, flat[:3], lying[:3])
-
-
-def test_what_rests_on_a_known_object():
-    """``resting_on``: a cube lying on an open container's bottom rests on the container, one on
-    a box's top on the box; one lying behind the container, one still falling through its
-    mouth, one on the floor and one on a box not yet known rest on nothing."""
-    container = ((0.0, 0.0, 0.25), (0.35, 0.25, 0.25), COMPOUND)
-    inside = ((0.1, 0.05, 0.04 + 0.09), (0.09, 0.09, 0.09), BOX)
-    behind = ((0.0, 0.45, 0.09), (0.09, 0.09, 0.09), BOX)
-    falling = ((0.0, 0.0, 0.45), (0.09, 0.09, 0.09), BOX)
-    pedestal = ((1.2, 0.0, 0.2), (0.2, 0.2, 0.2), BOX)
-    on_pedestal = ((1.25, 0.05, 0.45), (0.05, 0.05, 0.05), BOX)
-    state, shape, known = states(container, inside, behind, falling, pedestal, on_pedestal)
-    rests = resting_on(state, shape, known)[0]
-    assert rests[1].tolist() == [1, 0, 0, 0, 0, 0]
-    assert rests[5].tolist() == [0, 0, 0, 0, 1, 0]
-    assert not rests[[0, 2, 3, 4]].any()
-    known[0, 4] = False
-    assert not resting_on(state, shape, known)[0, 5].any()
-
-
-@pytest.mark.parametrize("variant, rests", [("standard", True), ("counterbalanced", False)])
-def test_a_cube_rests_in_the_container_as_mujoco_puts_it(variant, rests):
-    """The support rule against the simulator: at containment's manipulation frame, the cube
-    of the consistent probe rests on the container in the standard variant (it fell in) and
-    on nothing in the counterbalanced one (it fell behind), by its true state."""
-    for seed in range(3):
-        record = scenes.generate_probe("containment", variant, seed)
-        frame = int(record["manipulation_frame"])
-        objects = record["consistent", "objects"]
-        state = torch.cat(
-            [objects["position"], objects["orientation"], objects["size"], objects["color"]], dim=-1
-        ).float()[frame]
-        label = objects["shape_label"][frame].long()
-        cube = int(record["manipulated_ids"][0])
-        container = int((label == COMPOUND).nonzero()[0])
-        on = resting_on(
-            state[None], F.one_hot(label, len(specs.OBJECT_SHAPES)).float()[None], (label > 0)[None]
-        )[0]
-        assert bool(on[cube, container]) == rests, (seed, state[cube, :3], state[container, :3])
-        assert int(on[cube].sum()) == int(rests)

@@ -1,7 +1,6 @@
 """The positive control (``ObjectStateModel``): it reads only what is visible, tracks a hidden
 object forward, and is surprised by a vanishing or a teleport after learning from clips."""
 
-import math
 from unittest import mock
 
 import numpy as np
@@ -21,9 +20,7 @@ from voe_lightning.model.object_state import rollout
 from voe_lightning.model.object_state.geometry import (
     lying_on_floor,
     on_or_above_floor,
-    seen_by_geometry,
 )
-from voe_lightning.model.object_state.mixture import slowed
 from voe_lightning.model.object_state.state import Observations, withheld_spans
 from voe_lightning.model.optimization import adam
 
@@ -34,12 +31,8 @@ BALL, SCREEN = 1, 2  # mask ids
 #: ``ObjectStateModel()`` is the published control).
 PLAIN = dict(
     components=1,
-    stop_component=False,
     landing_component=False,
     pivot_landing=False,
-    carry="none",
-    slowing=False,
-    falling_lands=False,
     withhold=0.0,
     hard_assignment=False,
     lr_schedule="constant",
@@ -174,133 +167,6 @@ def _two_objects(
     )
 
 
-@pytest.mark.parametrize("carry", ["support", "none"])
-def test_a_cube_hidden_in_a_sliding_container_keeps_its_place_in_it(carry):
-    """``carry: support``, no learned change: a cube lying hidden on a container's bottom
-    moves exactly as the container does once it slides, speeding up and slowing down (what
-    the container did beyond its predicted move reaches the hidden cube too), and is expected
-    unseen all along; without it, the cube is left where it was seen."""
-    steps = 9
-    slide = torch.tensor([0.0, 0.0, 0.0, 0.05, 0.2, 0.35, 0.35, 0.2, 0.05]).cumsum(0)
-    state = torch.zeros(1, steps, 2, 13)
-    state[..., 3] = 1.0
-    state[0, :, 0, :3] = torch.stack([slide, torch.zeros(steps), torch.full((steps,), 0.25)], -1)
-    state[0, :, 0, 7:10] = torch.tensor([0.35, 0.25, 0.25])  # an open container
-    state[0, :, 1, :3] = torch.stack(
-        [slide + 0.1, torch.zeros(steps), torch.full((steps,), 0.13)], -1
-    )
-    state[0, :, 1, 7:10] = 0.09  # a cube on its bottom
-    visible = torch.ones(1, steps, 2, dtype=torch.bool)
-    visible[0, 1:, 1] = False
-    labels = torch.tensor([specs.OBJECT_SHAPES.index("compound"), specs.OBJECT_SHAPES.index("box")])
-    observations = Observations(
-        ids=torch.tensor([[1, 2]]),
-        state=state * visible[..., None],
-        shape=F.one_hot(labels, 7).float().expand(1, steps, 2, 7),
-        fraction=visible.float(),
-        visible=visible,
-        camera=torch.tensor([0.0, 0.0, 0.4, 3.0, 90.0, -30.0]).expand(1, steps, 6),
-    )
-    model = plain(hidden_size=16, message_size=8, components=3, stop_component=True, carry=carry)
-    last = model.dynamics[-1]
-    torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
-    with torch.no_grad():
-        out = model.rollout(observations)
-    cube_x = out["belief"][0, 1:, 1, 0]
-    expected = slide[1:] + 0.1 if carry == "support" else torch.full((steps - 1,), 0.1)
-    torch.testing.assert_close(cube_x, expected)
-    geometry = seen_by_geometry(
-        out["predicted"][0, 1:],
-        observations.shape[0, 1:],
-        torch.ones(steps - 1, 2, dtype=torch.bool),
-        observations.camera[0, 1:],
-    )[:, 1]
-    assert (geometry < 0.1).all() == (carry == "support"), geometry
-
-
-@pytest.mark.parametrize("slowing", [True, False])
-def test_a_hidden_object_goes_on_slowing_and_stops_where_it_would(slowing):
-    """``slowing``: a cube seen sliding along x, each move 2 cm shorter than the last (0.2,
-    0.18, 0.16 m), then hidden, is believed to slow on to a standstill, 0.56 m on from where it
-    was last seen (0.14 + 0.12 + ... + 0.02 m), and to stay there, not turn back; without it,
-    it slides on at 0.16 m a frame (no learned change)."""
-    steps = 12
-    moves = torch.tensor([0.0, 0.2, 0.18, 0.16] + [0.0] * (steps - 4))
-    visible = torch.ones(1, steps, 2, dtype=torch.bool)
-    visible[0, 4:, 0] = False
-    observations = _two_objects(moves.cumsum(0), torch.full((steps,), 3.0), visible)
-    model = plain(hidden_size=16, message_size=8, slowing=slowing)
-    last = model.dynamics[-1]
-    torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
-    with torch.no_grad():
-        hidden_x = model.rollout(observations)["belief"][0, 4:, 0, 0]
-    last_seen = 0.54
-    if slowing:  # 0.14 + 0.12 + ... + 0.02, then standing still
-        expected = last_seen + (0.16 - 0.02 * torch.arange(1.0, steps - 3)).clamp(min=0).cumsum(0)
-        assert expected[-1].item() == pytest.approx(last_seen + 0.56)
-    else:
-        expected = last_seen + 0.16 * torch.arange(1.0, steps - 3)
-    torch.testing.assert_close(hidden_x, expected)
-
-
-def test_slowing_brakes_only_along_the_floor_and_never_turns_back():
-    """``slowed``: the opposing part of the change shortens the move along the floor, a change
-    that speeds up or turns it leaves the move as it was, the vertical move is untouched, and a
-    brake larger than the move stops it (no reversal); no gradient is lost at standstill."""
-    move = torch.tensor(
-        [[0.3, 0.4, -0.2], [0.3, 0.4, -0.2], [0.1, 0.0, 0.0], [0.0, 0.0, 0.0], [0.2, 0.0, 0.0]],
-        requires_grad=True,
-    )
-    change = torch.tensor(
-        [
-            [-0.03, -0.04, 0.5],
-            [0.03, 0.04, 0.0],
-            [-0.5, 0.0, 0.0],
-            [-0.1, 0.0, 0.0],
-            [0.0, 0.3, 0.0],
-        ]
-    )
-    next_move = slowed(move, change)
-    expected = torch.tensor(
-        [[0.27, 0.36, -0.2], [0.3, 0.4, -0.2], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.2, 0.0, 0.0]]
-    )
-    torch.testing.assert_close(next_move, expected)
-    next_move.sum().backward()
-    assert torch.isfinite(move.grad).all()
-
-
-@pytest.mark.parametrize("falling_lands", [True, False])
-def test_nothing_stops_in_mid_air(falling_lands):
-    """``falling_lands``: with the stopping Gaussian favoured and no learned change, a cube
-    seen falling 0.2 m a frame is predicted to fall 0.2 m on (the stop is left out for it),
-    while a cube sliding along the floor is still held where it is; without it, both are
-    held. The left-out Gaussian leaves the likelihood finite."""
-    steps = 5
-    observations = _two_objects(
-        torch.zeros(steps),
-        0.1 * torch.arange(steps + 0.0),
-        torch.ones(1, steps, 2, dtype=torch.bool),
-    )
-    observations.state[0, :, 0, 2] = 2.0 - 0.2 * torch.arange(steps + 0.0)
-    model = plain(
-        hidden_size=16,
-        message_size=8,
-        components=2,
-        stop_component=True,
-        falling_lands=falling_lands,
-    )
-    last = model.dynamics[-1]
-    torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
-    with torch.no_grad():
-        last.bias[2 * 2 * 13] = 5.0  # the stopping Gaussian's logit
-        out = model.rollout(observations)
-    seen = observations.state[0, 1:-1]  # where each cube was a frame before frames 2, 3, 4
-    fallen = seen[:, 0, 2] - 0.2 if falling_lands else seen[:, 0, 2]
-    torch.testing.assert_close(out["predicted"][0, 2:, 0, 2], fallen)
-    torch.testing.assert_close(out["predicted"][0, 2:, 1, 0], seen[:, 1, 0])
-    assert torch.isfinite(out["state"]).all() and torch.isfinite(out["state_entropy"]).all()
-
-
 @pytest.mark.parametrize("landing_change", [True, False])
 def test_without_a_landing_change_the_landing_gaussian_is_the_geometrys(landing_change):
     """``landing_change: false``: the landing Gaussian's mean does not move with the dynamics'
@@ -318,7 +184,6 @@ def test_without_a_landing_change_the_landing_gaussian_is_the_geometrys(landing_
         hidden_size=16,
         message_size=8,
         components=4,
-        stop_component=True,
         landing_component=True,
         pivot_landing=True,
         hard_assignment=True,
@@ -345,37 +210,6 @@ def test_without_a_landing_change_the_landing_gaussian_is_the_geometrys(landing_
     assert (pushed_moving - moving)[..., 0].abs().amin() > 0.1
     moved = (pushed_landing - landing).abs().amax()
     assert (moved > 0.1) if landing_change else (moved == 0)
-
-
-@pytest.mark.parametrize("favoured", [0, 1])
-def test_the_stop_component_holds_an_object_where_it_is(favoured):
-    """``stop_component``: with no learned change, the first Gaussian sits where a moving
-    object is, the second where its inertia takes it; the belief follows the one the logits
-    favour, and the state's NLL is that mixture's."""
-    steps = 5
-    observations = _two_objects(
-        0.1 * torch.arange(steps + 0.0),
-        torch.full((steps,), 2.0),
-        torch.ones(1, steps, 2, dtype=torch.bool),
-    )
-    model = plain(hidden_size=16, message_size=8, components=2, stop_component=True)
-    last = model.dynamics[-1]
-    torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)
-    with torch.no_grad():
-        last.bias[2 * 2 * 13 + favoured] = 5.0  # the favoured component's logit
-        out = model.rollout(observations)
-    x = 0.1 * torch.arange(2.0, steps)  # from frame 2 on, the last move is 0.1
-    before = x - 0.1
-    torch.testing.assert_close(out["predicted"][0, 2:, 0, 0], before + 0.1 * favoured)
-    state = observations.state[0, 2:, 0]
-    means = torch.stack([state, state], dim=1)  # [T, K, 13]
-    means[:, 0, 0], means[:, 1, 0] = before, before + 0.1
-    floor = math.log(model.hparams.min_std)
-    log_std = torch.full_like(means, floor + F.softplus(torch.tensor(-floor)).item())
-    logits = torch.zeros(steps - 2, 2)
-    logits[:, favoured] = 5.0
-    expected, _ = mixture_nll(state, means, log_std, logits)
-    torch.testing.assert_close(out["state"][0, 2:, 0], expected)
 
 
 @pytest.mark.parametrize("favoured", [0, 1])
@@ -421,11 +255,9 @@ def test_hard_assignment_scores_training_by_the_best_gaussian_and_surprise_by_th
         torch.ones(1, steps, 2, dtype=torch.bool),
     )
     torch.manual_seed(0)
-    hard = plain(
-        hidden_size=16, message_size=8, components=2, stop_component=True, hard_assignment=True
-    )
+    hard = plain(hidden_size=16, message_size=8, components=2, hard_assignment=True)
     torch.manual_seed(0)
-    soft = plain(hidden_size=16, message_size=8, components=2, stop_component=True)
+    soft = plain(hidden_size=16, message_size=8, components=2)
     with torch.no_grad():
         evaluated = hard.eval().rollout(observations)["state"]
         mixture = soft.eval().rollout(observations)["state"]
@@ -435,28 +267,15 @@ def test_hard_assignment_scores_training_by_the_best_gaussian_and_surprise_by_th
     assert (trained[:, 1:][seen] > mixture[:, 1:][seen]).all()
 
 
-def test_the_stop_and_landing_components_need_others_and_carry_a_known_choice():
-    with pytest.raises(ValueError, match="stop_component needs components >= 2"):
-        plain(components=1, stop_component=True)
+def test_the_landing_options_need_the_landing_gaussian_and_another():
     with pytest.raises(
-        ValueError,
-        match="landing_component needs components >= 3 .*one for stopping.*got components=2",
+        ValueError, match="landing_component needs components >= 2 .*got components=1"
     ):
-        plain(components=2, stop_component=True, landing_component=True)
+        plain(components=1, landing_component=True)
     with pytest.raises(
         ValueError, match="pivot_landing needs landing_component: true.*got landing_component=false"
     ):
         plain(components=3, pivot_landing=True)
-    with pytest.raises(
-        ValueError,
-        match=r"carry must be one of \('none', 'support'\).*got "
-        r"'velocity'",
-    ):
-        plain(carry="velocity")
-    with pytest.raises(ValueError, match="carry: support needs stop_component: true"):
-        plain(components=3, carry="support")
-    with pytest.raises(ValueError, match="falling_lands needs stop_component: true"):
-        plain(components=3, falling_lands=True)
 
 
 def test_a_mixture_without_components_or_a_bad_withheld_share_is_refused():
@@ -648,5 +467,3 @@ def test_the_givens_of_the_learner_can_each_be_removed():
     for t, means in enumerate(means_of(kept), start=1):
         moved = means[0, 0] - observations.state[0, t - 1, 0, 0]
         assert moved == pytest.approx(0.3 if t > 1 else 0.0)  # the last move, seen from t-2
-    with pytest.raises(ValueError, match="slowing shapes the inertial move, so it needs inertia"):
-        plain(inertia=False, slowing=True)

@@ -13,32 +13,22 @@ ARCHITECTURE = (
     "message_size",
     "use_camera",
     "components",
-    "stop_component",
     "landing_component",
     "pivot_landing",
     "landing_change",
-    "carry",
-    "slowing",
-    "falling_lands",
     "sight_lines",
     "floor",
     "inertia",
     "projection",
 )
-#: What a carrier passes on (``carry``): nothing, or, to what rests on it, its whole move.
-CARRIES = ("none", "support")
 #: What the learner perceives of each object (``perception``): its 3D state, or what its mask
 #: and the frames show.
 PERCEPTIONS = ("states", "masks")
 #: The arguments that give geometry or a prior about a 3D state, each with its value off
 #: (``projection`` is not one: perceived by masks, the image box is what is seen).
 GEOMETRY_OFF = {
-    "stop_component": False,
     "landing_component": False,
     "pivot_landing": False,
-    "carry": "none",
-    "slowing": False,
-    "falling_lands": False,
     "sight_lines": False,
     "floor": False,
 }
@@ -50,7 +40,6 @@ def check_arguments(h) -> None:
     _check_sizes(h)
     _check_mixture(h)
     _check_withholding(h)
-    _check_priors(h)
     optimization.check_schedule(h.lr_schedule)
 
 
@@ -87,16 +76,10 @@ def _check_mixture(h) -> None:
             f"components must be >= 1 (Gaussians in the mixture over a slot's next "
             f"state), got {h.components}"
         )
-    if h.stop_component and h.components < 2:
+    if h.landing_component and h.components < 2:
         raise ValueError(
-            f"stop_component needs components >= 2 (one Gaussian for stopping, the "
-            f"others for moving on), got components={h.components}"
-        )
-    if h.landing_component and h.components < 2 + h.stop_component:
-        raise ValueError(
-            f"landing_component needs components >= {2 + h.stop_component} (one "
-            f"Gaussian for landing{', one for stopping' if h.stop_component else ''}"
-            f", the others for moving on), got components={h.components}"
+            f"landing_component needs components >= 2 (one Gaussian for landing, the others "
+            f"for moving on), got components={h.components}"
         )
     if not h.landing_change and not h.landing_component:
         raise ValueError(
@@ -116,28 +99,4 @@ def _check_withholding(h) -> None:
         raise ValueError(
             f"withhold must be in [0, 1] (a share of each clip's objects) and "
             f"withhold_frames >= 1, got {h.withhold}, {h.withhold_frames}"
-        )
-
-
-def _check_priors(h) -> None:
-    """Refuse a carry that is not one of ``CARRIES`` and priors without the Gaussian they use."""
-    if h.carry not in CARRIES:
-        raise ValueError(
-            f"carry must be one of {CARRIES} (what a carrier passes on to the "
-            f"objects resting on it), got {h.carry!r}"
-        )
-    if h.falling_lands and not h.stop_component:
-        raise ValueError(
-            "falling_lands needs stop_component: true (it leaves the stopping "
-            "Gaussian out for a falling object), got stop_component=false"
-        )
-    if not h.inertia and h.slowing:
-        raise ValueError(
-            "slowing shapes the inertial move, so it needs inertia: true, got inertia=false "
-            "with slowing=true"
-        )
-    if h.carry == "support" and not h.stop_component:
-        raise ValueError(
-            "carry: support needs stop_component: true (it moves the stopping "
-            "Gaussian with what the object rests on), got stop_component=false"
         )

@@ -25,8 +25,8 @@ CORNER_INSET = 0.9
 #: open-topped box of its bounding box: what lies inside it is seen over its rim, not through
 #: its walls).
 WALL = 0.02
-#: How far (m) below an object's lowest point the top of what it rests on may be
-#: (``resting_on``): one resting on another touches it.
+#: How far (m) below an object's lowest point the top of what it rests on may be: one resting
+#: on another touches it (``pivoted_down``).
 REST_TOLERANCE = 0.05
 #: Softness (m) of the sight-line tests: how far a sight line must pass through a box, or a
 #: point lie above the floor, to count as clearly hidden or clearly not.
@@ -212,23 +212,6 @@ def support_tops(belief: torch.Tensor, shape: torch.Tensor) -> torch.Tensor:
     compound = (shape.argmax(-1) == COMPOUND) & (shape.amax(-1) > 0)
     wall = torch.minimum(belief[..., 7:10].amin(-1), torch.full_like(bottom, WALL))
     return torch.where(compound, bottom + 2 * wall, belief[..., 2] + own[..., 2])
-
-
-def resting_on(belief: torch.Tensor, shape: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
-    """Which known object each object rests on [B, S_i, S_j] (one-hot over j, or zeros: the
-    floor or nothing): one whose box's footprint holds the object's centre and whose top
-    (``support_tops``: an open container's, its bottom) lies within REST_TOLERANCE of the
-    object's lowest point, the highest such top where several do. A cube lying in a container
-    rests on it; one lying behind it, or a block still falling through its mouth, does not."""
-    extents = world_half_extents(belief)
-    top = support_tops(belief, shape)  # [B, S]
-    apart = (belief[:, :, None, :2] - belief[:, None, :, :2]).abs()  # [B, i, j, 2]
-    inside = (apart <= extents[:, None, :, :2]).all(-1)
-    touching = (lowest_point(belief)[:, :, None] - top[:, None, :]).abs() <= REST_TOLERANCE
-    others = ~torch.eye(known.shape[1], dtype=torch.bool, device=known.device)
-    under = inside & touching & known[:, None, :] & known[:, :, None] & others
-    highest = torch.where(under, top[:, None, :], torch.full_like(apart[..., 0], -math.inf))
-    return F.one_hot(highest.argmax(-1), known.shape[1]).to(belief) * under.any(-1, keepdim=True)
 
 
 def _rotate(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:

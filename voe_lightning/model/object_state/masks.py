@@ -19,7 +19,7 @@ from voe_lightning.model.object_state.state import (
 #: A mask-perceived state: centroid (x right, y up, the image plane's [-1, 1] across the height,
 #: as ``geometry.view``'s image box), half-extents of the pixels' box, area, mean colour (RGB).
 MASKS = StateLayout(
-    8, position=slice(0, 2), extent=slice(2, 5), color=slice(5, 8), orientation=None, up=None
+    8, position=slice(0, 2), extent=slice(2, 5), color=slice(5, 8), orientation=None
 )
 
 

@@ -25,13 +25,8 @@ from voe_lightning.model.object_state.geometry import (
 )
 from voe_lightning.model.object_state.masks import seen_box
 from voe_lightning.model.object_state.mixture import (
-    LEFT_OUT,
     MAX_MOVE,
-    MOVING,
-    Holding,
     Mixture,
-    carry_held,
-    hold,
     inertial_move,
     landing_mean,
 )
@@ -88,13 +83,10 @@ class SlotRollout:
             if withheld is not None:
                 given = given & ~(withheld[:, t] & slots.known)
             if t == 0:
-                predicted, terms, probability, holding = self._nothing_predicted(obs, slots)
+                predicted, terms, probability = self._nothing_predicted(obs, slots)
             else:
-                unseen = slots.known & ~given_before
-                predicted, terms, probability, holding = self._predict(
-                    slots, unseen, pose, pose_features, obs, t
-                )
-            slots = self._observe(slots, predicted, holding, (given, given_before), obs, t)
+                predicted, terms, probability = self._predict(slots, pose, pose_features, obs, t)
+            slots = self._observe(slots, predicted, (given, given_before), obs, t)
             given_before = given
             frames.append(
                 {
@@ -111,7 +103,7 @@ class SlotRollout:
     @staticmethod
     def _nothing_predicted(
         obs: Observations, slots: Slots
-    ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor, None]:
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]:
         """Frame 0's predictions, terms and p(visible): zeros, as nothing came before it."""
         batch, count = slots.known.shape
         terms = {
@@ -119,25 +111,21 @@ class SlotRollout:
             for name in SLOT_TERMS + ("appear",)
             for key in (name, f"{name}_entropy")
         }
-        return slots.belief, terms, obs.state.new_zeros(batch, count), None
+        return slots.belief, terms, obs.state.new_zeros(batch, count)
 
     def _observe(
         self,
         slots: Slots,
         predicted: torch.Tensor,
-        holding: Holding | None,
         given: tuple[torch.Tensor, torch.Tensor],
         obs: Observations,
         t: int,
     ) -> Slots:
         """The slots after frame t: the slots ``given`` at t (and at t-1) take what is seen, the
-        others their prediction or, held, where they rest (``carry_held``); then each recurrent
-        state steps."""
+        others their prediction; then each recurrent state steps."""
         given, given_before = given
         visible = obs.visible[:, t]
         new = visible & ~slots.known
-        if holding is not None:
-            predicted = carry_held(predicted, holding, given, obs.state[:, t])
         belief = torch.where(given[..., None], obs.state[:, t], predicted)
         # the last move: seen in both frames, what was seen; else what was predicted (a
         # reappearing object's jump from its predicted place is a correction, not a move)
@@ -151,7 +139,6 @@ class SlotRollout:
             belief=belief,
             shape=torch.where(given[..., None], obs.shape[:, t], slots.shape),
             velocity=velocity,
-            acceleration=velocity - slots.velocity,
             known=known,
         )
         hidden = self._recur(seen, given, obs.fraction[:, t], obs.camera[:, t])
@@ -194,24 +181,21 @@ class SlotRollout:
     def _predict(
         self,
         slots: Slots,
-        unseen: torch.Tensor,
         pose: torch.Tensor,
         pose_features: torch.Tensor,
         obs: Observations,
         t: int,
-    ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor, Holding | None]:
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]:
         """Frame t's predictions from the slots after frame t-1: the predicted states [B, S, state]
-        (the most probable Gaussian's mean, or where ``hold`` holds a slot not given at t-1,
-        ``unseen`` [B, S]), the terms of what frame t shows (``rollout``), p(visible) [B, S] and
-        the ``Holding`` of every known slot (None without ``carry: support``)."""
+        (the most probable Gaussian's mean), the terms of what frame t shows (``rollout``) and
+        p(visible) [B, S]."""
         h = self.hparams
         seen_as = self._view(slots.belief, pose)
         pairs = pair_features(slots.belief, slots.shape, seen_as, self.layout)
         message = messages(self.message, slots.hidden, slots.hidden, pairs, slots.known)
-        falling = self._falling(slots)
-        inertia = inertial_move(slots, h.slowing) if h.inertia else torch.zeros_like(slots.belief)
-        mixture, shape_logits = self._mixture(slots, message, pose_features, inertia, falling)
-        predicted, mixture, holding = hold(slots, mixture, unseen, h.carry)
+        inertia = inertial_move(slots) if h.inertia else torch.zeros_like(slots.belief)
+        mixture, shape_logits = self._mixture(slots, message, pose_features, inertia)
+        predicted = mixture.most_probable()
         logit = self._visibility_logit(slots, predicted, pose, pose_features)
         hard = self.training and h.hard_assignment
         terms = slot_terms(slots, mixture, shape_logits, logit, obs, t, hard)
@@ -226,13 +210,7 @@ class SlotRollout:
                 obs.shape[:, t],
             )
         )
-        return predicted, terms, torch.sigmoid(logit) * slots.known.float(), holding
-
-    def _falling(self, slots: Slots) -> torch.Tensor:
-        """Which slots' last move took them down [B, S] (none where perception gives no height)."""
-        if self.layout.up is None:
-            return torch.zeros_like(slots.known)
-        return slots.velocity[..., self.layout.up] < -MOVING
+        return predicted, terms, torch.sigmoid(logit) * slots.known.float()
 
     def _mixture(
         self,
@@ -240,28 +218,21 @@ class SlotRollout:
         message: torch.Tensor,
         pose_features: torch.Tensor,
         inertia: torch.Tensor,
-        falling: torch.Tensor,
     ) -> tuple[Mixture, torch.Tensor]:
         """The mixture over each slot's next state and its shape's logits [B, S, 7]: each mean
-        the belief moved on by inertia (none for the stopping Gaussian) plus a learned change,
-        never below the floor; the last one laid down (``landing_mean``); the stopping Gaussian
-        left out for what falls (``falling_lands``)."""
+        the belief moved on by inertia plus a learned change, never below the floor; the last
+        one laid down (``landing_mean``)."""
         belief, components = slots.belief, self.hparams.components
         change, log_std, logits, shape_logits = self._dynamics(
             slots, message, pose_features, inertia
         )
-        moved = (
-            belief[:, :, None] + self.inertia_kept * inertia[:, :, None]
-        ) + MAX_MOVE * torch.tanh(change / MAX_MOVE)
+        moved = (belief + inertia)[:, :, None] + MAX_MOVE * torch.tanh(change / MAX_MOVE)
         means = on_or_above_floor(moved) if self.hparams.floor else moved
         if self.hparams.landing_component:
             landing = landing_mean(moved[:, :, -1], slots, self.hparams.pivot_landing)
             means = torch.cat([means[:, :, :-1], landing[:, :, None]], dim=2)
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
         logits = logits if components > 1 else None
-        if self.hparams.falling_lands:  # nothing stops in mid-air: it lands or falls on
-            stopping = torch.arange(components, device=falling.device) == 0
-            logits = logits.masked_fill(falling[..., None] & stopping, LEFT_OUT)
         return Mixture(means, log_std, logits), shape_logits
 
     def _dynamics(

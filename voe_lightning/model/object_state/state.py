@@ -30,16 +30,14 @@ SLOT_TERMS = ("visibility", "state", "shape", "newcomer_state", "newcomer_shape"
 @dataclass(frozen=True)
 class StateLayout:
     """What a slot's state holds, by perception: its ``size``, where it is (``position``: what
-    moves, whose change is the velocity), how big it is (``extent``), its ``color``, how it is
-    turned (``orientation``) and which part of the position is height (``up``); None where
-    perception gives none."""
+    moves, whose change is the velocity), how big it is (``extent``), its ``color`` and how it
+    is turned (``orientation``; None where perception gives none)."""
 
     size: int
     position: slice
     extent: slice
     color: slice
     orientation: slice | None
-    up: int | None
 
     @property
     def position_size(self) -> int:
@@ -55,7 +53,7 @@ class StateLayout:
 
 
 #: Perfect 3D perception's state (``observe``).
-STATES = StateLayout(STATE_SIZE, POSITION, SIZE, COLOR, ORIENTATION, up=2)
+STATES = StateLayout(STATE_SIZE, POSITION, SIZE, COLOR, ORIENTATION)
 
 
 @dataclass
@@ -127,13 +125,12 @@ def observe(objects: TensorDictBase, camera: torch.Tensor) -> Observations:
 class Slots:
     """The slots after a frame, each [B, S, ...]: ``hidden`` recurrent states, ``belief`` (the
     last state seen or, while hidden, predicted), ``shape`` one-hot, the last ``velocity`` and
-    its change (``acceleration``) and ``known`` (seen at some frame so far)."""
+    ``known`` (seen at some frame so far)."""
 
     hidden: torch.Tensor
     belief: torch.Tensor
     shape: torch.Tensor
     velocity: torch.Tensor
-    acceleration: torch.Tensor
     known: torch.Tensor
 
 
@@ -141,15 +138,12 @@ def empty_slots(observations: Observations, hidden_size: int, layout: StateLayou
     """The slots before frame 0: none known, all zeros."""
     batch, _, count = observations.visible.shape
     zeros = observations.state.new_zeros
-    velocity = zeros(batch, count, layout.position_size)
-    known = torch.zeros(batch, count, dtype=torch.bool, device=observations.state.device)
     return Slots(
         hidden=zeros(batch, count, hidden_size),
         belief=zeros(batch, count, layout.size),
         shape=zeros(batch, count, SHAPES),
-        velocity=velocity,
-        acceleration=velocity,  # the change of the last move
-        known=known,
+        velocity=zeros(batch, count, layout.position_size),
+        known=torch.zeros(batch, count, dtype=torch.bool, device=observations.state.device),
     )
 
 
