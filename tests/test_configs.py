@@ -1,5 +1,5 @@
 """The shipped configs compose as documented: every `fit`/`validate`/`test`/`predict` command
-written in the README, docs/ (with docs/study/, not its archive) or a config's own header parses
+written in the README, docs/ (with docs/study/) or a config's own header parses
 (``--print_config``: no data, no training), and so does every documented
 `generate`/`audit`/`analyze` command; every config file is used by one, the lists merge as intended (a later ``callbacks+:`` appends to base.yaml's
 callbacks) and base.yaml, which the CLI reads first, makes a study config alone a whole run."""
@@ -20,8 +20,6 @@ from voe_lightning.cli import main
 
 ROOT = REPO
 CONFIGS = ROOT / "configs"
-#: Study history: its commands ran on the code of their day (docs/study/archive/*.md say so).
-ARCHIVE = ROOT / "docs" / "study" / "archive"
 COMMAND = re.compile(r"\b(fit|validate|test|predict)\s+--config\b")
 PACKAGE_COMMAND = re.compile(r"voe_lightning\s+(generate|audit|analyze)\b")
 
@@ -31,7 +29,7 @@ def documented_commands(command: re.Pattern = COMMAND) -> list[tuple[str, ...]]:
     ``--ckpt_path`` (the checkpoint is not there), in order of first appearance."""
     sources = [
         ROOT / "README.md",
-        *sorted(path for path in (ROOT / "docs").rglob("*.md") if ARCHIVE not in path.parents),
+        *sorted((ROOT / "docs").rglob("*.md")),
     ]
     texts = [path.read_text() for path in sources]
     texts += [

@@ -11,10 +11,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
+from helpers import refused
 from locations import TINY_CONFIG
 from PIL import Image
 from test_intphys import SCENES, datamodule, make_intphys
-from test_reliability import _refused
 
 from voe_lightning.callbacks import IntPhys2LeaderboardWriter, VOEProbeCallback
 from voe_lightning.cli import main
@@ -200,19 +200,19 @@ def _unblocked(fifo):
 def test_a_config_that_is_a_pipe_or_device_is_refused_before_it_is_opened(workdir, capsys, given):
     os.mkfifo(workdir / "config.yaml")
     with _unblocked(workdir / "config.yaml"):  # was a hang
-        line = _refused(capsys, ["fit", *given.split()])
+        line = refused(capsys, ["fit", *given.split()])
     assert line == (
         "error: --config config.yaml is a pipe (FIFO), not a regular file: give a YAML file "
         "(a pipe, device or /dev/stdin would be read whole before the parser reads it again)"
     )
-    line = _refused(capsys, ["fit", "--config", "/dev/zero"])  # was 24 GB read, then killed
+    line = refused(capsys, ["fit", "--config", "/dev/zero"])  # was 24 GB read, then killed
     assert line.startswith("error: --config /dev/zero is a character device, not a regular file")
 
 
 def test_a_config_larger_than_any_config_is_refused_unread(workdir, capsys):
     big = workdir / "big.yaml"
     big.write_text("# " + "x" * (1 << 20) + "\n")
-    line = _refused(capsys, ["fit", "--config", "big.yaml"])
+    line = refused(capsys, ["fit", "--config", "big.yaml"])
     assert line == (
         "error: --config big.yaml is 1,048,579 bytes, more than the 1,048,576 a config may "
         "be (the package's own are under 5 KB): give a YAML config file"

@@ -2,7 +2,7 @@
 mixture of them, a Bernoulli, a categorical), each with the entropy of the prediction, and the
 rectified excess surprisal built from the two: a term counts only where what is seen is less
 likely than the model expected
-(``docs/study/archive/positive_control_rounds.md``, round one, finding 1)."""
+(docs/architecture.md §7, "Surprise as rectified excess")."""
 
 from __future__ import annotations
 

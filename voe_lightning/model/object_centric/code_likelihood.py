@@ -64,7 +64,7 @@ def excess_surprisal(terms: dict[str, tuple[torch.Tensor, torch.Tensor]]) -> tor
     log-likelihood less its entropy, where positive, summed. Only what is less likely than
     the model expected counts, so a video showing more objects does not read as less surprising
     for each well-predicted object
-    (``docs/study/archive/positive_control_rounds.md``, round one, finding 1)."""
+    (docs/architecture.md §7, "Surprise as rectified excess")."""
     return sum(_per_frame(rectified_excess(nll, entropy)) for nll, entropy in terms.values())
 
 

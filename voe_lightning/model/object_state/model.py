@@ -35,9 +35,9 @@ LAYOUTS = {"states": STATES, "masks": MASKS}
 
 
 class ObjectStateModel(SlotRollout, SurpriseModel):
-    """Slot dynamics over perfectly perceived object states, the package's positive control;
-    its defaults are the published control (``configs/object_state.yaml``; how each part came
-    to be: docs/study/archive/positive_control_rounds.md).
+    """Slot dynamics over perceived object states: with no prior, the package's learned result
+    (``configs/learned_states.yaml``); its defaults are the positive control
+    (``configs/object_state.yaml``; how each part came to be: docs/study/positive_control.md).
 
     Each mask id is a slot, created when the id is first seen. Per frame t, from the slots
     after frame t-1, the model predicts every known slot's state at t (a mixture of Gaussians,

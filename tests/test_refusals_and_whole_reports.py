@@ -1,4 +1,4 @@
-"""Issue 27: nothing silently wrong. A test without a trained checkpoint is refused, last/best
+"""Nothing silently wrong: a test without a trained checkpoint is refused, last/best
 name a real run, reports never mix or keep stale files and say what they were made from,
 preemption saves, concurrent generate runs keep each other's concepts, a corrupt pairs.csv is
 named, and a bad argument is one line. docs/reliability.md lists each case."""
@@ -12,10 +12,10 @@ import time
 from pathlib import Path
 
 import lightning as L
-import numpy as np
 import pytest
 import torch
 import yaml
+from helpers import pair_results, refused
 from locations import REPO, TINY_CONFIG
 from test_cli import copy_of
 
@@ -55,22 +55,6 @@ class SignalAtStep(L.Callback):
             os.kill(os.getpid(), signal.Signals[self.signal_name])
 
 
-def _error_line(capsys) -> str:
-    """The one line a refused command printed (and that it printed no traceback)."""
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    lines = [line for line in err.splitlines() if line.startswith("error: ")]
-    assert len(lines) == 1, err
-    return lines[0]
-
-
-def _refused(capsys, arguments: list[str]) -> str:
-    with pytest.raises(SystemExit) as raised:
-        main(arguments)
-    assert raised.value.code == 2
-    return _error_line(capsys)
-
-
 # ----------------------------------------------------------------------------- 1: checkpoints
 @pytest.mark.parametrize(
     "arguments",
@@ -88,13 +72,21 @@ def _refused(capsys, arguments: list[str]) -> str:
     ],
 )
 def test_a_trainable_model_without_checkpoint_is_refused_naming_the_fix(workdir, capsys, arguments):
-    line = _refused(capsys, arguments)
+    line = refused(capsys, arguments)
     assert "untrained weights of VRNNLRUModel" in line and "--ckpt_path" in line
     assert not (workdir / "data").exists() and not list(workdir.rglob("voe_report"))
 
 
 def test_a_model_without_parameters_needs_no_checkpoint(workdir):
-    main(["test", "--config", TINY_CONFIG, "--model", "test_reliability.MeanBrightness"])
+    main(
+        [
+            "test",
+            "--config",
+            TINY_CONFIG,
+            "--model",
+            "test_refusals_and_whole_reports.MeanBrightness",
+        ]
+    )
     [report] = workdir.rglob("voe_report")
     source = json.loads((report / "summary.json").read_text())["source"]
     assert source["checkpoint"] is None and source["global_step"] is None
@@ -167,7 +159,7 @@ def test_last_is_the_newest_run_and_the_report_names_what_it_was_made_from(
 def test_last_or_best_without_such_a_checkpoint_is_refused(workdir, trained, capsys, word, message):
     copy_of(trained, workdir)
     name = "nothing" if word == "last" else "trained"
-    line = _refused(
+    line = refused(
         capsys,
         [
             "test",
@@ -185,7 +177,7 @@ def test_last_or_best_without_such_a_checkpoint_is_refused(workdir, trained, cap
 
 def test_a_directory_as_checkpoint_is_named_as_one(workdir, trained, capsys):
     run = copy_of(trained, workdir)
-    line = _refused(capsys, ["test", "--config", TINY_CONFIG, "--ckpt_path", str(run)])
+    line = refused(capsys, ["test", "--config", TINY_CONFIG, "--ckpt_path", str(run)])
     assert f"--ckpt_path {run} is a directory, not a checkpoint file" in line
     assert str(run / "checkpoints" / "last.ckpt") in line
     assert "does not exist" not in line
@@ -248,7 +240,7 @@ def test_a_signal_during_fit_saves_a_resumable_checkpoint_and_exits_non_zero(
                 "trainer": {
                     "callbacks+": [
                         {
-                            "class_path": "test_reliability.SignalAtStep",
+                            "class_path": "test_refusals_and_whole_reports.SignalAtStep",
                             "init_args": {"step": 3, "signal_name": signal_name},
                         }
                     ]
@@ -305,18 +297,6 @@ def test_concurrent_generate_runs_for_two_concepts_keep_both_in_the_manifest(tmp
 
 
 # ----------------------------------------------------------------------------- 6: report files
-def _results(pairs: int = 4) -> PairResults:
-    rng = np.random.default_rng(0)
-    return PairResults(
-        concept=["continuity"] * pairs,
-        variant=["standard"] * pairs,
-        seed=np.arange(pairs),
-        manipulation_frame=np.full(pairs, 2),
-        surprise_consistent=rng.random((pairs, 5)),
-        surprise_inconsistent=rng.random((pairs, 5)) + 0.1,
-    )
-
-
 @pytest.mark.parametrize(
     "damage, message",
     [
@@ -327,7 +307,7 @@ def _results(pairs: int = 4) -> PairResults:
     ],
 )
 def test_a_damaged_pairs_csv_is_named_as_corrupt(tmp_path, damage, message):
-    write_report(_results(), tmp_path, bootstrap=10, echo=False)
+    write_report(pair_results(), tmp_path, bootstrap=10, echo=False)
     pairs = tmp_path / "voe_report" / "pairs.csv"
     assert len(PairResults.from_csv(pairs)) == 4
     pairs.write_text(damage(pairs.read_text()))
@@ -336,7 +316,7 @@ def test_a_damaged_pairs_csv_is_named_as_corrupt(tmp_path, damage, message):
 
 
 def test_an_interrupted_report_leaves_the_previous_one_whole(tmp_path, monkeypatch):
-    write_report(_results(), tmp_path, bootstrap=10, echo=False)
+    write_report(pair_results(), tmp_path, bootstrap=10, echo=False)
     before = {path.name: path.read_bytes() for path in (tmp_path / "voe_report").iterdir()}
 
     def fail(*args, **kwargs):
@@ -344,7 +324,7 @@ def test_an_interrupted_report_leaves_the_previous_one_whole(tmp_path, monkeypat
 
     monkeypatch.setattr("voe_lightning.report.write_figures", fail)
     with pytest.raises(OSError):
-        write_report(_results(6), tmp_path, bootstrap=10, echo=False)
+        write_report(pair_results(6), tmp_path, bootstrap=10, echo=False)
     after = {path.name: path.read_bytes() for path in (tmp_path / "voe_report").iterdir()}
     assert after == before
     assert [path.name for path in tmp_path.iterdir()] == ["voe_report"]
@@ -364,7 +344,7 @@ def test_an_interrupted_report_leaves_the_previous_one_whole(tmp_path, monkeypat
 def test_a_bad_argument_is_one_line_and_debug_shows_the_traceback(
     workdir, capsys, arguments, message
 ):
-    assert message in _refused(capsys, ["fit", "--config", TINY_CONFIG, *arguments])
+    assert message in refused(capsys, ["fit", "--config", TINY_CONFIG, *arguments])
     with pytest.raises((ValueError, OSError)):
         main(["fit", "--config", TINY_CONFIG, *arguments, "--debug"])
     assert not (workdir / "data").exists()
@@ -388,7 +368,7 @@ def test_a_bad_argument_is_one_line_and_debug_shows_the_traceback(
 def test_arguments_that_contradict_each_other_are_refused_before_rendering(
     workdir, capsys, arguments, message
 ):
-    assert message in _refused(capsys, ["fit", "--config", TINY_CONFIG, *arguments])
+    assert message in refused(capsys, ["fit", "--config", TINY_CONFIG, *arguments])
     assert not (workdir / "data").exists()
 
 
@@ -411,10 +391,10 @@ def test_a_fit_that_would_never_validate_says_so(workdir):
 
 
 def test_a_truncated_summary_json_is_named(tmp_path, capsys):
-    write_report(_results(), tmp_path, bootstrap=10, echo=False)
+    write_report(pair_results(), tmp_path, bootstrap=10, echo=False)
     summary = tmp_path / "voe_report" / "summary.json"
     summary.write_text(summary.read_text()[:100])
-    line = _refused(capsys, ["analyze", "compare", "--runs", json.dumps([str(tmp_path)])])
+    line = refused(capsys, ["analyze", "compare", "--runs", json.dumps([str(tmp_path)])])
     assert f"{summary} is corrupt (truncated?)" in line
 
 
@@ -449,18 +429,18 @@ def test_a_bad_file_or_folder_is_named_in_one_line_before_any_work(
 ):
     (workdir / "broken.yaml").write_text("trainer:\n  max_steps: [1\n")
     (workdir / "a_file").write_text("not a folder")
-    assert message in _refused(capsys, ["fit", "--config", TINY_CONFIG, *arguments])
+    assert message in refused(capsys, ["fit", "--config", TINY_CONFIG, *arguments])
     assert not (workdir / "data").exists()
 
 
 def test_a_checkpoint_argument_the_model_no_longer_takes_is_named(workdir, trained, capsys):
     old = _retired(trained / "checkpoints" / "last.ckpt", workdir)
-    line = _refused(capsys, ["test", "--config", TINY_CONFIG, "--ckpt_path", str(old)])
+    line = refused(capsys, ["test", "--config", TINY_CONFIG, "--ckpt_path", str(old)])
     assert f"{old} holds model arguments VRNNLRUModel no longer takes: retired_argument" in line
 
 
 def test_predict_with_a_datamodule_that_cannot_predict_is_one_line(workdir, trained, capsys):
-    line = _refused(
+    line = refused(
         capsys,
         [
             "predict",
@@ -484,7 +464,7 @@ def test_a_shard_too_large_for_memory_is_warned_of(tmp_path):
 
 
 def test_generate_of_one_frame_videos_is_one_line_naming_num_frames(tmp_path, capsys):
-    line = _refused(capsys, ["generate", "--root", str(tmp_path / "data"), "--num_frames", "1"])
+    line = refused(capsys, ["generate", "--root", str(tmp_path / "data"), "--num_frames", "1"])
     assert "num_frames must be an integer of at least 2" in line
     assert not (tmp_path / "data").exists()
 
@@ -493,7 +473,7 @@ def test_a_setting_a_scene_cannot_render_is_one_line_before_anything_renders(tmp
     """Solidity's probes need a frame 1 to 1.6 s in with two after it (num_frames >= 5 over
     3 s): generate says so in one line before rendering any shard, of solidity or of a concept
     listed before it."""
-    line = _refused(
+    line = refused(
         capsys,
         [
             "generate",

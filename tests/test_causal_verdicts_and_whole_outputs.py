@@ -1,4 +1,4 @@
-"""Issue 51: nothing silently wrong, round three. A model that reads frames after t gets no
+"""Nothing silently wrong, causality and outputs: a model that reads frames after t gets no
 verdict and a non-zero exit; docs/reliability.md lists each case with its test."""
 
 import errno
@@ -18,12 +18,12 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from helpers import pair_results, refused
 from locations import TINY_CONFIG
 from rich.console import Console
 from test_analysis import _curve_runs
 from test_cli import copy_of
 from test_intphys2 import FRAMES, SIZE, frame, make_root
-from test_reliability import _refused, _results
 from tfrecord.writer import TFRecordWriter
 
 from voe_lightning.callbacks import voe_table
@@ -86,7 +86,7 @@ def test_a_model_that_reads_the_future_gets_no_verdict_and_a_non_zero_exit(workd
                 "--config",
                 TINY_CONFIG,
                 *CALLABLE,
-                "test_reliability_three.reads_the_next_frame",
+                "test_causal_verdicts_and_whole_outputs.reads_the_next_frame",
             ]
         )
     assert raised.value.code == NOT_CAUSAL_EXIT
@@ -112,7 +112,7 @@ def test_a_model_that_reads_the_future_gets_no_verdict_and_a_non_zero_exit(workd
             "--config",
             TINY_CONFIG,
             *CALLABLE,
-            "test_reliability_three.reads_the_next_frame",
+            "test_causal_verdicts_and_whole_outputs.reads_the_next_frame",
             "--allow_non_causal",
             "true",
         ]
@@ -121,7 +121,15 @@ def test_a_model_that_reads_the_future_gets_no_verdict_and_a_non_zero_exit(workd
 
 
 def test_a_causal_model_passes_the_check_and_keeps_its_verdict(workdir, capsys):
-    main(["test", "--config", TINY_CONFIG, *CALLABLE, "test_reliability_three.brightness"])
+    main(
+        [
+            "test",
+            "--config",
+            TINY_CONFIG,
+            *CALLABLE,
+            "test_causal_verdicts_and_whole_outputs.brightness",
+        ]
+    )
     [report] = workdir.rglob("voe_report")
     summary = json.loads((report / "summary.json").read_text())
     assert summary["causality"] == {
@@ -160,7 +168,7 @@ def test_validation_of_a_model_that_reads_the_future_warns_and_withholds_the_ver
                     "--config",
                     TINY_CONFIG,
                     *CALLABLE,
-                    "test_reliability_three.reads_the_next_frame",
+                    "test_causal_verdicts_and_whole_outputs.reads_the_next_frame",
                 ]
             )
     assert raised.value.code == NOT_CAUSAL_EXIT
@@ -192,14 +200,14 @@ def test_check_causality_runs_a_users_model_through_the_protocol(capsys):
         "6",
         *CALLABLE,
     ]
-    assert main([*check, "test_reliability_three.brightness"]) is True
+    assert main([*check, "test_causal_verdicts_and_whole_outputs.brightness"]) is True
     printed = capsys.readouterr().out
     assert (
         "object_persistence, pairs through the manipulation frame: causal (surprise "
         "identical in all 2 pairs)"
     ) in printed
     assert "object_persistence, videos cut after each frame t: causal" in printed
-    line = _refused(capsys, [*check, "test_reliability_three.reads_the_next_frame"])
+    line = refused(capsys, [*check, "test_causal_verdicts_and_whole_outputs.reads_the_next_frame"])
     assert (
         "CallableModel is not causal: its surprise at frame t reads later frames in "
         "object_persistence (pairs through the manipulation frame), object_persistence "
@@ -252,7 +260,7 @@ def test_a_full_disk_during_audit_names_the_file_and_keeps_the_previous_audit(
     before = _contents(out)
     assert {"cues.md", "cues.csv", "cues.json"} <= set(before)
     _disk_full_after(monkeypatch, 1)  # the second file of the audit finds the disk full
-    line = _refused(capsys, [*audit, "--alpha", "0.05"])
+    line = refused(capsys, [*audit, "--alpha", "0.05"])
     assert "No space left on device" in line and f"cannot write {out}" in line
     assert _contents(out) == before  # every file the previous audit's, no temporary left
 
@@ -284,7 +292,7 @@ def test_audit_refuses_a_shard_of_another_concept_or_split(
     shutil.copytree(tiny_store, root)
     shard = root / "object_persistence" / "test" / "shard-00000.voe"
     shutil.copyfile(root / source / "shard-00000.voe", shard)
-    line = _refused(
+    line = refused(
         capsys,
         ["audit", "--root", str(root), "--concepts", "[object_persistence]", "--progress", "false"],
     )
@@ -316,7 +324,7 @@ def test_a_resumed_fit_on_other_data_is_refused_and_the_record_kept(
         "--trainer.max_steps",
         "2",
     ]
-    line = _refused(capsys, [*resume, f"--data.init_args.{argument}", value])
+    line = refused(capsys, [*resume, f"--data.init_args.{argument}", value])
     assert f"resumes the run {run.relative_to(workdir)}, which trained on other data" in line
     assert f"data.init_args.{argument}: {message}" in line
     assert not (workdir / "data").exists()  # refused before any work
@@ -364,7 +372,7 @@ def test_nothing_is_written_through_a_link_out_of_the_run_folder(workdir, traine
     assert (run / "test_config.yaml").is_symlink() and (run / "test_config-2.yaml").is_file()
     (run / "config.yaml").unlink()
     (run / "config.yaml").symlink_to(elsewhere)
-    line = _refused(
+    line = refused(
         capsys,
         [
             "fit",
@@ -447,7 +455,7 @@ def test_an_out_path_is_the_path_written(tmp_path, capsys):
     )
     assert f"wrote {out}\n" in capsys.readouterr().out
     assert out.read_bytes().startswith(b"\x89PNG") and not out.with_suffix(".png").exists()
-    line = _refused(
+    line = refused(
         capsys,
         [
             "analyze",
@@ -465,7 +473,7 @@ def test_a_yaml_alias_bomb_is_refused_in_one_line(workdir, capsys):
     levels = ["a0: &a0 [x, x, x, x, x, x, x, x, x, x]"]
     levels += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]" for i in range(1, 9)]
     (workdir / "bomb.yaml").write_text("\n".join(levels) + "\n")  # 10^9 values, 500 bytes
-    line = _refused(capsys, ["fit", "--config", "bomb.yaml"])
+    line = refused(capsys, ["fit", "--config", "bomb.yaml"])
     assert "--config bomb.yaml expands to more than 100,000 values through its YAML aliases" in line
     assert len(line) < 400
 
@@ -489,7 +497,7 @@ def test_an_error_in_a_dataloader_worker_is_the_same_one_line(tiny_store, tmp_pa
         "--progress",
         "false",
     ]
-    lines = [_refused(capsys, [*audit, "--num_workers", workers]) for workers in ("0", "1")]
+    lines = [refused(capsys, [*audit, "--num_workers", workers]) for workers in ("0", "1")]
     assert (
         lines[0] == lines[1] == f"error: corrupt shard {shard}: record 0 checksum mismatch "
         "(rerun generate with this store's settings, or the fit/test using it, whose "
@@ -597,10 +605,16 @@ class PoisonWeights(L.Callback):
 def test_a_non_finite_loss_is_one_line(workdir, capsys):
     (workdir / "poison.yaml").write_text(
         yaml.safe_dump(
-            {"trainer": {"callbacks+": [{"class_path": "test_reliability_three.PoisonWeights"}]}}
+            {
+                "trainer": {
+                    "callbacks+": [
+                        {"class_path": "test_causal_verdicts_and_whole_outputs.PoisonWeights"}
+                    ]
+                }
+            }
         )
     )
-    line = _refused(capsys, ["fit", "--config", TINY_CONFIG, "--config", "poison.yaml"])
+    line = refused(capsys, ["fit", "--config", TINY_CONFIG, "--config", "poison.yaml"])
     assert "non-finite loss at global step 1" in line
 
 
@@ -622,16 +636,23 @@ def test_a_config_folder_or_a_class_that_cannot_be_imported_is_one_line(
     workdir, capsys, arguments, message
 ):
     (workdir / "configs_folder").mkdir()
-    line = _refused(capsys, ["fit", "--config", TINY_CONFIG, *arguments])
+    line = refused(capsys, ["fit", "--config", TINY_CONFIG, *arguments])
     assert message in line and len(line) < 300
 
 
 @pytest.mark.parametrize("function", ["returns_none", "returns_a_ragged_list"])
 def test_a_callable_returning_no_array_is_one_line(workdir, capsys, function):
-    line = _refused(
-        capsys, ["test", "--config", TINY_CONFIG, *CALLABLE, f"test_reliability_three.{function}"]
+    line = refused(
+        capsys,
+        [
+            "test",
+            "--config",
+            TINY_CONFIG,
+            *CALLABLE,
+            f"test_causal_verdicts_and_whole_outputs.{function}",
+        ],
     )
-    assert f"test_reliability_three.{function} returned a" in line
+    assert f"test_causal_verdicts_and_whole_outputs.{function} returned a" in line
     assert "that is no array of numbers" in line and "expected surprise [B, T] = [" in line
 
 
@@ -647,13 +668,13 @@ def test_audit_of_an_empty_split_or_a_manifest_edited_by_hand_is_one_line(
     tiny_store, tmp_path, capsys
 ):
     audit = ["audit", "--root", str(tiny_store), "--progress", "false"]
-    line = _refused(capsys, [*audit, "--split", "generalization"])
+    line = refused(capsys, [*audit, "--split", "generalization"])
     assert "the generalization split of" in line and "holds no probe pairs" in line
     root = shutil.copytree(tiny_store, tmp_path / "store")
     manifest = json.loads((root / "manifest.json").read_text())
     del manifest["video"]["num_frames"]  # a default of 15 would blame the intact shards
     (root / "manifest.json").write_text(json.dumps(manifest))
-    line = _refused(capsys, ["audit", "--root", str(root), "--progress", "false"])
+    line = refused(capsys, ["audit", "--root", str(root), "--progress", "false"])
     assert (
         f"{root / 'manifest.json'}: the manifest describes no valid plan (KeyError: "
         "'video.num_frames')" in line
@@ -670,7 +691,7 @@ def test_what_a_killed_writer_staged_is_removed_on_the_next_write(tmp_path):
     for folder in (stale, running, other_host):
         folder.mkdir()
         (folder / "summary.json").write_text("{}")
-    write_report(_results(), tmp_path, bootstrap=10, echo=False)
+    write_report(pair_results(), tmp_path, bootstrap=10, echo=False)
     assert not stale.exists() and running.exists() and other_host.exists()
     # The same for a file staged by store_shards.write_whole (answer.txt here).
     stale_file = tmp_path / f".answer.txt.{host}.{ended.pid}.y1.tmp"
