@@ -14,6 +14,7 @@ import nbformat
 import pytest
 import torch
 import yaml
+from helpers import refused
 from locations import REPO, TINY_CONFIG
 from nbclient import NotebookClient
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -92,6 +93,22 @@ def test_fits_last_screen_fits_80_columns_and_ends_with_the_test_to_run(workdir,
     assert command[:3] == ["python", "-m", "voe_lightning"]
     main(command[3:])
     assert (run / "voe_report" / "summary.json").is_file()
+
+
+def test_a_shipped_config_is_given_by_name_and_an_unknown_name_is_refused(workdir, capsys):
+    """``--config quickstart`` (and ``overlays/untrained_null``, ``.yaml`` optional) is the
+    package's own config wherever it is installed; a name that is neither a file nor shipped is
+    one line listing the shipped ones."""
+    with pytest.raises(SystemExit):
+        main(
+            ["fit", "--config", "quickstart", "--config=overlays/untrained_null", "--print_config"]
+        )
+    printed = yaml.safe_load(capsys.readouterr().out)
+    assert printed["trainer"]["logger"]["init_args"]["name"] == "quickstart"
+    assert printed["data"]["init_args"]["generalization"] is False  # the overlay's
+    line = refused(capsys, ["fit", "--config", "quickstrat"])
+    assert line.startswith("error: --config quickstrat is neither a file nor a config the package")
+    assert "learned_states, " in line and "overlays/untrained_null" in line
 
 
 def test_resume_continues_in_the_same_run(workdir):

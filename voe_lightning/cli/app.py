@@ -30,7 +30,7 @@ from voe_lightning.cli import (
     user_errors,
 )
 from voe_lightning.cli.commands import COMMANDS, LIGHTNING_SUBCOMMANDS
-from voe_lightning.cli.run_arguments import BASE_CONFIG
+from voe_lightning.cli.run_arguments import BASE_CONFIG, SHIPPED_CONFIGS
 from voe_lightning.cli.user_errors import DEBUG_VARIABLE
 from voe_lightning.model import SurpriseModel
 from voe_lightning.probe_datamodule import ProbeDataModule
@@ -324,9 +324,10 @@ def main(args: list[str] | None = None) -> Any:
     words = list(sys.argv[1:] if args is None else args)
     debug = "--debug" in words or os.environ.get(DEBUG_VARIABLE, "") not in ("", "0")
     words = [word for word in words if word != "--debug"]
-    if args is None:
-        sys.argv[1:] = words  # LightningCLI reads the command line itself
     try:
+        words = user_errors.shipped_config_names(words, SHIPPED_CONFIGS)
+        if args is None:
+            sys.argv[1:] = words  # LightningCLI reads the command line itself
         user_errors.check_yaml(words)
         user_errors.check_classes(words)
         cli = _cli(None if args is None else words)

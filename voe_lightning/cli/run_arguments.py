@@ -15,9 +15,12 @@ from voe_lightning.cli.class_paths import import_object
 from voe_lightning.stats import statistics
 from voe_lightning.stats.surprise_window import surprise_window
 
+#: The configs shipped inside the package (``configs/`` in a checkout links to them), found
+#: wherever the package is installed.
+SHIPPED_CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 #: Trainer, logger, callbacks and model class every fit/validate/test/predict starts from, so
 #: ``--config configs/joint.yaml`` alone is a whole run; later ``--config`` files override it.
-BASE_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "base.yaml"
+BASE_CONFIG = SHIPPED_CONFIGS / "base.yaml"
 
 
 def add_run_arguments(parser: Any) -> None:

@@ -73,12 +73,45 @@ def check_yaml(words: list[str]) -> None:
 def _config_files(words: list[str]) -> list[str]:
     """The files given as ``--config F`` or ``--config=F``, by ``-c`` too and by the prefixes
     of ``--config`` argparse takes for it (``--conf``)."""
-    files = []
-    for word, after in zip(words, [*words[1:], None]):
-        flag, equals, value = word.partition("=")
+    return [words[index][len(prefix) :] for index, prefix in _config_values(words)]
+
+
+def _config_values(words: list[str]) -> list[tuple[int, str]]:
+    """Where each ``--config`` value is among ``words``: its index, and the prefix before it
+    in that word (``--config=``; '' for a value that is a word of its own)."""
+    values = []
+    for index, word in enumerate(words):
+        flag, equals, _ = word.partition("=")
         if flag == "-c" or (len(flag) > 3 and "--config".startswith(flag)):
-            files += [value] if equals else [after] if after is not None else []
-    return files
+            if equals:
+                values.append((index, flag + equals))
+            elif index + 1 < len(words):
+                values.append((index + 1, ""))
+    return values
+
+
+def shipped_config_names(words: list[str], shipped: Path) -> list[str]:
+    """``words`` with each ``--config NAME`` that names no file but one of the configs in
+    ``shipped`` (``quickstart``, ``overlays/untrained_null``; ``.yaml`` may be left out)
+    replaced by that config's path, so a config is given by name wherever the package is
+    installed; a name that is neither is refused, listing the shipped ones."""
+    words = list(words)
+    for index, prefix in _config_values(words):
+        name = words[index][len(prefix) :]
+        if not name or Path(name).exists():
+            continue  # the parser names an empty or missing file itself
+        config = shipped / (name if name.endswith((".yaml", ".yml")) else f"{name}.yaml")
+        if config.is_file():
+            words[index] = prefix + str(config)
+        elif "/" not in name and not name.endswith((".yaml", ".yml")):
+            names = sorted(
+                str(path.relative_to(shipped).with_suffix("")) for path in shipped.rglob("*.yaml")
+            )
+            raise ValueError(
+                f"--config {name} is neither a file nor a config the package ships; give a "
+                f"YAML file's path or one of: {', '.join(names)}"
+            )
+    return words
 
 
 def _config_text(name: str) -> str | None:
