@@ -59,6 +59,8 @@ class IntPhysDataModule(ExternalDataModule):
         seed: seed of the training order.
     """
 
+    without_masks = "IntPhys"
+
     concept_names, variant_names = CONCEPT_NAMES, VARIANT_NAMES
 
     def __init__(

@@ -21,13 +21,13 @@ from voe_lightning.external.intphys2 import (
     RECORD_VERSION,
     SPLITS,
     VARIANT_NAMES,
-    ClipSampling,
     SceneDataset,
     Video,
     VideoDataset,
     pair_videos,
     read_metadata,
 )
+from voe_lightning.external.mp4 import ClipSampling
 
 
 class IntPhys2DataModule(ExternalDataModule):
@@ -55,6 +55,8 @@ class IntPhys2DataModule(ExternalDataModule):
             instead of raising; ``skipped`` counts them per reason.
         cache_dir: if set, decoded pairs are written there once (store shards) and reused.
     """
+
+    without_masks = "IntPhys 2"
 
     concept_names, variant_names = PRINCIPLES, VARIANT_NAMES
     #: Videos differ in length, so frames are picked per video (``ClipSampling``); this bound

@@ -20,7 +20,7 @@ from voe_lightning import specs
 from voe_lightning.data import store
 from voe_lightning.data.generate import ensure_dataset
 from voe_lightning.data.store import open_split, probe_sampler, record_loader
-from voe_lightning.data.store_plan import check_seed_offset, seed_offset_root
+from voe_lightning.data.store_plan import check_seed_offset, store_root
 from voe_lightning.probe_datamodule import ProbeDataModule
 
 
@@ -181,10 +181,10 @@ class VOEDataModule(ProbeDataModule):
         return splits
 
     def _store_root(self, split: str) -> Path:
-        """The store ``split`` is read from: the root's for the training clips, the seed
-        offset's (the root itself at offset 0) for the probes."""
-        seed_offset = 0 if split == "train" else self.hparams.seed_offset
-        return seed_offset_root(self.hparams.root, seed_offset)
+        """The store ``split`` is read from (``store_plan.store_root``)."""
+        root = store_root(self.hparams, split)
+        assert root is not None, "a VOEDataModule always has a root"
+        return root
 
     def probe_source(self) -> dict[str, Any]:
         """The data root, the seed offset and the store its probes are read from."""

@@ -15,6 +15,7 @@ import numpy as np
 
 from voe_lightning import specs
 from voe_lightning.audit import cues
+from voe_lightning.cli.run_arguments import base_alpha
 from voe_lightning.report.pairs import PairResults
 
 #: The issue's bound on a model's |r| with every frame-local cue.
@@ -68,9 +69,13 @@ def main() -> None:
         audits.append(cues.audit_records(records[k] for k in range(len(records))))
         seeds += [int(records[k]["seed"]) for k in range(len(records))]
     audit, seeds = cues.CueAudit.concatenate(audits), np.array(seeds)
-    observer = cues.tracked_cues(audit.model_correlations(audit.physics_perfect))
+    observer = cues.tracked_cues(
+        audit.model_correlations(audit.physics_perfect, alpha=base_alpha())
+    )
     runs = {
-        run: cues.tracked_cues(audit.model_correlations(run_difference(run, audit, seeds)))
+        run: cues.tracked_cues(
+            audit.model_correlations(run_difference(run, audit, seeds), alpha=base_alpha())
+        )
         for run in args.runs
     }
     print(

@@ -14,6 +14,7 @@ import yaml
 
 from datamodules import VOEDataModule
 from voe_lightning import specs
+from voe_lightning.cli.run_arguments import base_alpha
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.stats import statistics
 from voe_lightning.stats.surprise_window import video_surprise
@@ -64,7 +65,9 @@ def main() -> None:
                     surprise.setdefault(key, {}).setdefault(side, []).append(float(value))
     print(f"{args.checkpoint} with {overrides or 'its own arguments'}")
     for (concept, variant), sides in surprise.items():
-        result = statistics.paired_test(sides["inconsistent"], sides["consistent"], bootstrap=0)
+        result = statistics.paired_test(
+            sides["inconsistent"], sides["consistent"], bootstrap=0, alpha=base_alpha()
+        )
         print(
             f"  {concept:18s} {variant:15s} n {result.n:3d}  t {result.t:+8.2f}  "
             f"right {result.accuracy:.0%}"

@@ -1,14 +1,24 @@
 #!/usr/bin/env bash
 # Install everything voe_lightning needs on a fresh Debian/Ubuntu machine: the EGL libraries for
-# headless MuJoCo rendering, a CPU build of PyTorch (unless one is installed), then the package.
+# headless MuJoCo rendering, headless Chromium for the browser test of a report's index.html,
+# a CPU build of PyTorch (unless one is installed), then the package.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+APT_UPDATED=""
+apt_install() {
+  [ -n "$APT_UPDATED" ] || { $SUDO apt-get update -qq; APT_UPDATED=1; }
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "$@" >/dev/null
+}
 if ! { ldconfig -p 2>/dev/null | grep -q libEGL_mesa && compgen -G "/usr/lib/*/dri/swrast_dri.so" >/dev/null; }; then
-  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
-  $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends \
-    libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libopengl0 libglvnd0 >/dev/null
+  apt_install libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libopengl0 libglvnd0
+fi
+# Debian's names; where apt has no such packages (Ubuntu ships Chromium as a snap) the browser
+# test of index.html (tests/report/test_html.py) is skipped, and nothing else needs them.
+if ! { command -v chromium && command -v chromedriver; } >/dev/null 2>&1; then
+  apt_install chromium chromium-driver ||
+    echo "install.sh: apt could not install chromium chromium-driver; the browser test of index.html will be skipped" >&2
 fi
 
 # pip must be there; a system Python marked EXTERNALLY-MANAGED (PEP 668: Debian 12, Ubuntu

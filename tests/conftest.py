@@ -3,7 +3,7 @@
 import os
 
 import pytest
-from locations import TINY_CONFIG
+from helpers.locations import TINY_CONFIG
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 

@@ -18,12 +18,11 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from helpers import pair_results, refused
-from locations import TINY_CONFIG
+from helpers import ALPHA, pair_results, refused
+from helpers.intphys2 import FRAMES, SIZE, frame, make_root
+from helpers.locations import TINY_CONFIG
+from helpers.runs import copy_of, curve_runs
 from rich.console import Console
-from test_analysis import _curve_runs
-from test_cli import copy_of
-from test_intphys2 import FRAMES, SIZE, frame, make_root
 from tfrecord.writer import TFRecordWriter
 
 from voe_lightning.callbacks import voe_table
@@ -31,7 +30,7 @@ from voe_lightning.cli import NOT_CAUSAL_EXIT, main
 from voe_lightning.data import store_shards
 from voe_lightning.external.base import BenchmarkDataError, FrameSampling
 from voe_lightning.external.intphys import read_label
-from voe_lightning.external.intphys2 import ClipSampling, read_metadata, read_video
+from voe_lightning.external.intphys2 import read_metadata
 from voe_lightning.external.metrics import (
     plausibility_from_surprise,
     read_answer_file,
@@ -39,8 +38,9 @@ from voe_lightning.external.metrics import (
     score_answers,
     write_answer_file,
 )
+from voe_lightning.external.mp4 import ClipSampling, read_video
 from voe_lightning.external.physical_concepts import read_records
-from voe_lightning.report import write_report
+from voe_lightning.report import ReportInputs, write_report
 from voe_lightning.stats.causality import check_prefix
 
 TINY_STORE = [
@@ -184,7 +184,7 @@ def test_validation_of_a_model_that_reads_the_future_warns_and_withholds_the_ver
         }
     }
     console = Console(width=200, record=True)
-    console.print(voe_table(results, "VOE", causality=causality))
+    console.print(voe_table(results, "VOE", causality=causality, alpha=ALPHA))
     text = " ".join(console.export_text().split())  # the caption wraps at the table's width
     assert "no verdict: the model reads frames after t" in text and "in 2 of 2 pairs" in text
 
@@ -441,7 +441,7 @@ def test_the_official_score_of_a_written_answer_file_is_the_reports(tmp_path):
 
 
 def test_an_out_path_is_the_path_written(tmp_path, capsys):
-    runs = _curve_runs(tmp_path)
+    runs = curve_runs(tmp_path)
     out = tmp_path / "figure"  # no suffix: matplotlib alone would write figure.png
     main(
         [
@@ -691,7 +691,7 @@ def test_what_a_killed_writer_staged_is_removed_on_the_next_write(tmp_path):
     for folder in (stale, running, other_host):
         folder.mkdir()
         (folder / "summary.json").write_text("{}")
-    write_report(pair_results(), tmp_path, bootstrap=10, echo=False)
+    write_report(ReportInputs(pair_results(), alpha=ALPHA, bootstrap=10), tmp_path, echo=False)
     assert not stale.exists() and running.exists() and other_host.exists()
     # The same for a file staged by store_shards.write_whole (answer.txt here).
     stale_file = tmp_path / f".answer.txt.{host}.{ended.pid}.y1.tmp"

@@ -4,22 +4,17 @@ written in the README, docs/ (with docs/study/) or a config's own header parses
 `generate`/`audit`/`analyze` command; every config file is used by one, the lists merge as intended (a later ``callbacks+:`` appends to base.yaml's
 callbacks) and base.yaml, which the CLI reads first, makes a study config alone a whole run."""
 
-import contextlib
 import importlib
-import io
 import re
 import shlex
 import sys
-from functools import cache
 
 import pytest
 import yaml
-from locations import REPO
+from helpers.configs import compose, parsed
+from helpers.locations import REPO
 
-from voe_lightning.cli import main
-
-ROOT = REPO
-CONFIGS = ROOT / "configs"
+CONFIGS = REPO / "configs"
 COMMAND = re.compile(r"\b(fit|validate|test|predict)\s+--config\b")
 PACKAGE_COMMAND = re.compile(r"voe_lightning\s+(generate|audit|analyze)\b")
 
@@ -28,8 +23,8 @@ def documented_commands(command: re.Pattern = COMMAND) -> list[tuple[str, ...]]:
     """Each documented ``command`` as its arguments after ``python -m voe_lightning``, without
     ``--ckpt_path`` (the checkpoint is not there), in order of first appearance."""
     sources = [
-        ROOT / "README.md",
-        *sorted((ROOT / "docs").rglob("*.md")),
+        REPO / "README.md",
+        *sorted((REPO / "docs").rglob("*.md")),
     ]
     texts = [path.read_text() for path in sources]
     texts += [
@@ -52,23 +47,6 @@ def documented_commands(command: re.Pattern = COMMAND) -> list[tuple[str, ...]]:
     return list(commands)
 
 
-@cache
-def parsed(*arguments: str) -> dict:
-    """The full config that ``python -m voe_lightning ARGUMENTS`` would run, as a dict."""
-    printed = io.StringIO()
-    with contextlib.redirect_stdout(printed), pytest.raises(SystemExit) as exit_:
-        main([*arguments, "--print_config"])
-    assert exit_.value.code in (None, 0), f"{' '.join(arguments)} does not parse"
-    return yaml.safe_load(printed.getvalue())
-
-
-def compose(*names: str, subcommand: str = "fit") -> dict:
-    """The parsed config of ``--config configs/NAME.yaml`` for each name, in order."""
-    return parsed(
-        subcommand, *(word for name in names for word in ("--config", f"configs/{name}.yaml"))
-    )
-
-
 def imported(class_path: str) -> type:
     module, _, name = class_path.rpartition(".")
     return getattr(importlib.import_module(module), name)
@@ -88,7 +66,7 @@ def callbacks(config: dict) -> dict[str, dict]:
 
 @pytest.fixture(autouse=True)
 def in_repository(monkeypatch):
-    monkeypatch.chdir(ROOT)  # the documented paths are relative to the repository root
+    monkeypatch.chdir(REPO)  # the documented paths are relative to the repository root
     monkeypatch.setattr(sys, "argv", ["python -m voe_lightning"])  # not pytest's arguments
 
 
@@ -96,7 +74,7 @@ def test_every_config_is_in_a_documented_command():
     used = {
         word for command in documented_commands() for word in command if word.startswith("configs/")
     }
-    shipped = {str(path.relative_to(ROOT)) for path in CONFIGS.rglob("*.yaml")}
+    shipped = {str(path.relative_to(REPO)) for path in CONFIGS.rglob("*.yaml")}
     assert used | {"configs/base.yaml"} == shipped
 
 
@@ -112,11 +90,11 @@ def test_an_overlay_is_visibly_one():
         first_line = path.read_text().splitlines()[0]
         parents = re.findall(r"configs/\w+\.yaml", first_line)
         assert first_line.startswith("# Overlay on ") and parents, path.name
-        assert all((ROOT / parent).is_file() for parent in parents), first_line
-        assert str(path.relative_to(ROOT)) not in firsts, f"{path.name} is documented alone"
+        assert all((REPO / parent).is_file() for parent in parents), first_line
+        assert str(path.relative_to(REPO)) not in firsts, f"{path.name} is documented alone"
     for path in CONFIGS.glob("*.yaml"):
         if path.name != "base.yaml":
-            assert str(path.relative_to(ROOT)) in firsts, f"{path.name} is never documented alone"
+            assert str(path.relative_to(REPO)) in firsts, f"{path.name} is never documented alone"
 
 
 @pytest.mark.parametrize("command", documented_commands(), ids=" ".join)

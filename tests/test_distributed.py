@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from locations import TINY_CONFIG
+from helpers import ALPHA
+from helpers.locations import TINY_CONFIG
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from voe_lightning import specs
@@ -166,7 +167,9 @@ def _batch_noise(batched: PairResults, alone: PairResults) -> float:
 
 
 def _rows(pairs: PairResults) -> dict[tuple[str, str], dict]:
-    return {(row["concept"], row["variant"]): row for row in summarize(pairs, bootstrap=0)}
+    return {
+        (row["concept"], row["variant"]): row for row in summarize(pairs, bootstrap=0, alpha=ALPHA)
+    }
 
 
 def _tolerances(

@@ -2,7 +2,8 @@
 ``datamodules``, not even by name in a string (``importlib``, a dispatch table); no module of
 the package is in an import circle, not even through an import inside a function or a
 package's ``__init__``; none is over 500 lines; each name has one path (no module but a
-package's ``__init__`` re-exports a name it imports); and the lower layers import no higher one."""
+package's ``__init__`` re-exports a name it imports); the lower layers import no higher one; and
+no module of the tests imports a test module."""
 
 import ast
 import graphlib
@@ -12,7 +13,7 @@ import sys
 from collections.abc import Iterable
 from pathlib import Path
 
-from locations import REPO
+from helpers.locations import REPO
 
 import datamodules
 import voe_lightning
@@ -140,7 +141,9 @@ def layer(name: str) -> int:
 
 def test_no_module_of_a_lower_layer_imports_a_higher_one():
     files = module_files()
-    assert layer("voe_lightning.stats.verdicts") == 1 and layer("voe_lightning.causality") == 3
+    assert (
+        layer("voe_lightning.stats.verdicts") == 1 and layer("voe_lightning.model.causality") == 3
+    )
     climbs = {
         f"{name} -> {imported}"
         for name, path in files.items()
@@ -210,7 +213,7 @@ def test_no_module_re_exports_a_name_it_does_not_define():
     files = module_files() | module_files(datamodules)
     modules = {name: path for name, path in files.items() if path.name != "__init__.py"}
     defined = {name: defined_names(path) for name, path in modules.items()}
-    assert {"ALPHA", "paired_test"} <= defined["voe_lightning.stats.statistics"]
+    assert {"check_alpha", "paired_test"} <= defined["voe_lightning.stats.statistics"]
     exported = {f"{name}.{n}" for name, path in modules.items() for n in exported_names(path)}
     offenders = {
         path for path in exported if path.rpartition(".")[2] not in defined[path.rpartition(".")[0]]
@@ -232,3 +235,37 @@ def test_no_module_re_exports_a_name_it_does_not_define():
 def test_importing_the_package_installs_no_import_hook():
     finders = [type(finder).__module__ for finder in sys.meta_path]
     assert not [module for module in finders if module.startswith("voe_lightning")]
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Each module an import anywhere in the file at ``path`` names (a function's too):
+    ``import a.b`` names ``a.b``; ``from a import b`` names ``a`` and, ``b`` being maybe a
+    module, ``a.b``; ``from . import b``, ``b``."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            module = node.module if node.level == 0 else None
+            found |= {module} if module else set()
+            found |= {".".join(filter(None, (module, alias.name))) for alias in node.names}
+    return found
+
+
+def test_no_module_of_the_tests_imports_a_test_module():
+    """A test module is run, never imported: what several test modules share lives in
+    ``tests/helpers/`` (a module per idea), so a test module can be renamed, moved or deleted
+    alone, and ``pythonpath`` needs only ``tests``."""
+    tests = REPO / "tests"
+    files = sorted(tests.rglob("*.py"))
+    test_modules = {path.stem for path in files if path.name.startswith("test_")}
+    assert {"test_imports", "test_intphys", "test_store"} <= test_modules
+    imports = {path: imported_modules(path) for path in files}
+    assert "helpers.intphys" in imports[tests / "model" / "scorers" / "test_cue_scorer.py"]
+    offenders = {
+        f"{path.relative_to(REPO)}: {module}"
+        for path, modules in imports.items()
+        for module in modules
+        if any(part in test_modules for part in module.split("."))
+    }
+    assert offenders == set()

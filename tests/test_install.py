@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from locations import REPO
+from helpers.locations import REPO
 
 INSTALL = REPO / "scripts" / "install.sh"
 

@@ -15,15 +15,15 @@ import lightning as L
 import pytest
 import torch
 import yaml
-from helpers import pair_results, refused
-from locations import REPO, TINY_CONFIG
-from test_cli import copy_of
+from helpers import ALPHA, pair_results, refused
+from helpers.locations import REPO, TINY_CONFIG
+from helpers.runs import copy_of
 
 from voe_lightning import specs
 from voe_lightning.cli import main
 from voe_lightning.data import generate, generate_manifest, store
 from voe_lightning.model.base import SurpriseModel
-from voe_lightning.report import write_report
+from voe_lightning.report import ReportInputs, write_report
 from voe_lightning.report.pairs import PairResults
 from voe_lightning.runs import report_folder
 from voe_lightning.scenes.camera import VideoOptions
@@ -277,9 +277,9 @@ def test_concurrent_generate_runs_for_two_concepts_keep_both_in_the_manifest(tmp
     monkeypatch.setattr(store, "read_manifest", slow_read)
     video = VideoOptions(num_frames=6, height=32, width=32)
     entries = {
-        concept: generate._prepare(tmp_path, [concept], 2, None, 1, 1, 1, 4, 6, 32, 32, 0).entries[
-            concept
-        ]
+        concept: generate.plan_generation(
+            tmp_path, [concept], 2, None, 1, 1, 1, 4, 6, 32, 32, 0
+        ).entries[concept]
         for concept in ("continuity", "containment")
     }
     runs = [
@@ -307,7 +307,7 @@ def test_concurrent_generate_runs_for_two_concepts_keep_both_in_the_manifest(tmp
     ],
 )
 def test_a_damaged_pairs_csv_is_named_as_corrupt(tmp_path, damage, message):
-    write_report(pair_results(), tmp_path, bootstrap=10, echo=False)
+    write_report(ReportInputs(pair_results(), alpha=ALPHA, bootstrap=10), tmp_path, echo=False)
     pairs = tmp_path / "voe_report" / "pairs.csv"
     assert len(PairResults.from_csv(pairs)) == 4
     pairs.write_text(damage(pairs.read_text()))
@@ -316,7 +316,7 @@ def test_a_damaged_pairs_csv_is_named_as_corrupt(tmp_path, damage, message):
 
 
 def test_an_interrupted_report_leaves_the_previous_one_whole(tmp_path, monkeypatch):
-    write_report(pair_results(), tmp_path, bootstrap=10, echo=False)
+    write_report(ReportInputs(pair_results(), alpha=ALPHA, bootstrap=10), tmp_path, echo=False)
     before = {path.name: path.read_bytes() for path in (tmp_path / "voe_report").iterdir()}
 
     def fail(*args, **kwargs):
@@ -324,7 +324,7 @@ def test_an_interrupted_report_leaves_the_previous_one_whole(tmp_path, monkeypat
 
     monkeypatch.setattr("voe_lightning.report.write_figures", fail)
     with pytest.raises(OSError):
-        write_report(pair_results(6), tmp_path, bootstrap=10, echo=False)
+        write_report(ReportInputs(pair_results(6), alpha=ALPHA, bootstrap=10), tmp_path, echo=False)
     after = {path.name: path.read_bytes() for path in (tmp_path / "voe_report").iterdir()}
     assert after == before
     assert [path.name for path in tmp_path.iterdir()] == ["voe_report"]
@@ -391,7 +391,7 @@ def test_a_fit_that_would_never_validate_says_so(workdir):
 
 
 def test_a_truncated_summary_json_is_named(tmp_path, capsys):
-    write_report(pair_results(), tmp_path, bootstrap=10, echo=False)
+    write_report(ReportInputs(pair_results(), alpha=ALPHA, bootstrap=10), tmp_path, echo=False)
     summary = tmp_path / "voe_report" / "summary.json"
     summary.write_text(summary.read_text()[:100])
     line = refused(capsys, ["analyze", "compare", "--runs", json.dumps([str(tmp_path)])])
@@ -460,7 +460,7 @@ def test_a_shard_too_large_for_memory_is_warned_of(tmp_path):
         match=r"4096 x 4096 x 15 frames with shard_size 100 hold "
         r"about 187.5 GiB per shard",
     ):
-        generate._prepare(tmp_path, ["continuity"], 1, None, 1, 1, 0, 100, 15, 4096, 4096, 0)
+        generate.plan_generation(tmp_path, ["continuity"], 1, None, 1, 1, 0, 100, 15, 4096, 4096, 0)
 
 
 def test_generate_of_one_frame_videos_is_one_line_naming_num_frames(tmp_path, capsys):

@@ -11,10 +11,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
-from helpers import refused
-from locations import TINY_CONFIG
+from helpers import ALPHA, refused
+from helpers.intphys import SCENES, datamodule, make_intphys
+from helpers.locations import TINY_CONFIG
 from PIL import Image
-from test_intphys import SCENES, datamodule, make_intphys
 
 from voe_lightning.callbacks import IntPhys2LeaderboardWriter, VOEProbeCallback
 from voe_lightning.cli import main
@@ -92,7 +92,7 @@ def test_a_callables_float64_or_integer_surprise_is_kept_in_float64():
 def test_the_streaming_test_refuses_moments_beyond_float64_as_the_one_shot_does():
     inconsistent, consistent = [2e200, -1e200], [0.0, 0.0]  # scipy: t = 0, p = .5
     with pytest.raises(ValueError, match="moments of the differences are not finite"):
-        paired_test(inconsistent, consistent, bootstrap=0)
+        paired_test(inconsistent, consistent, bootstrap=0, alpha=ALPHA)
     metric = PairedSurpriseStats()
     metric.update(torch.tensor(inconsistent, dtype=torch.float64), torch.tensor(consistent))
     with pytest.raises(
@@ -103,7 +103,7 @@ def test_the_streaming_test_refuses_moments_beyond_float64_as_the_one_shot_does(
         metric.compute()  # was t = +inf, p = 0: the zero-variance rule on max(0, inf - inf)
     one_pair = PairedSurpriseStats()
     one_pair.update(torch.tensor([1.0]), torch.tensor([0.0]))
-    callback = VOEProbeCallback(print_table=False)
+    callback = VOEProbeCallback(print_table=False, alpha=ALPHA)
     callback.metrics = {("voe", "object_persistence", "counterbalanced"): one_pair}
     assert callback._results("voe") == {}  # too few pairs so far: passed over
     callback.metrics[("voe", "object_persistence", "standard")] = metric

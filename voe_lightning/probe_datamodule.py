@@ -17,6 +17,11 @@ class ProbeDataModule(L.LightningDataModule, metaclass=ABCMeta):
     """A DataModule serving probe pairs whose ``concept``/``variant`` entries index
     ``concept_names``/``variant_names`` (subclasses set both as class attributes)."""
 
+    #: The data's name where its videos have no object masks (their ``mask`` entries are
+    #: zeros: IntPhys, IntPhys 2), so a model that needs masks is refused naming it; None
+    #: where the masks are the data's own.
+    without_masks: str | None = None
+
     @property
     @abstractmethod
     def concept_names(self) -> tuple[str, ...]:

@@ -18,8 +18,6 @@ import torch
 import yaml
 from lightning.pytorch.cli import SaveConfigCallback
 
-from voe_lightning.data.store_plan import seed_offset_root
-
 #: ``--ckpt_path`` words that name a checkpoint of the newest run of the config's logger name.
 RUN_CHECKPOINT_WORDS = ("last", "best")
 #: ``--ckpt_path`` words Lightning resolves itself (a SLURM requeue's, a model registry's).
@@ -109,22 +107,12 @@ def concepts_of(data_arguments: Any) -> tuple[str, ...] | None:
     return tuple(sorted(str(concept) for concept in concepts)) if concepts is not None else None
 
 
-def probe_root(data_arguments: Any) -> str | None:
-    """Where a DataModule's init arguments have its probes read: their ``root``, or the store
-    of their ``seed_offset`` under it (``store_plan.seed_offset_root``), so a re-test on fresh
-    probes gets a report folder of its own; None when they name no root."""
-    if not data_arguments or data_arguments.get("root") is None:
-        return None
-    seed_offset = data_arguments.get("seed_offset") or 0
-    return str(seed_offset_root(data_arguments["root"], seed_offset))
-
-
 def report_folder(
     checkpoint: Path,
-    root: str | None,
+    root: Path | None,
     concepts: Iterable[str] | None,
     benchmark: str | None,
-    trained_root: str | None,
+    trained_root: Path | None,
     trained_concepts: Iterable[str] | None,
     evaluation: Mapping[str, Any] | None = None,
     split: str = "test",

@@ -8,12 +8,12 @@ import json
 
 import numpy as np
 import pytest
+from helpers import ALPHA
 from scipy import stats
 
 from voe_lightning import specs
 from voe_lightning.audit import calibration, cues, video_cues
 from voe_lightning.scenes import generate_probe
-from voe_lightning.stats.statistics import ALPHA
 
 PAIRS, SIZE, REPETITIONS = 30, 32, 2000
 
@@ -32,7 +32,7 @@ def audit():
 @pytest.fixture(scope="module")
 def rows(audit):
     return calibration.calibrate(
-        audit, repetitions=REPETITIONS, deltas=np.zeros(1), power_weights=()
+        audit, repetitions=REPETITIONS, deltas=np.zeros(1), power_weights=(), alpha=ALPHA
     )
 
 
@@ -119,17 +119,16 @@ def test_quadruplet_concepts_calibrate_over_quadruplets_and_cancel_post_change_c
 
 
 def test_calibration_is_seeded_and_refuses_bad_arguments(audit):
-    first = calibration.calibrate(
-        audit, repetitions=50, concepts=["solidity"], followers=["linear"], weights=(1.0,), seed=3
+    options = dict(
+        repetitions=50, concepts=["solidity"], followers=["linear"], weights=(1.0,), seed=3
     )
-    assert first == calibration.calibrate(
-        audit, repetitions=50, concepts=["solidity"], followers=["linear"], weights=(1.0,), seed=3
-    )
+    first = calibration.calibrate(audit, alpha=ALPHA, **options)
+    assert first == calibration.calibrate(audit, alpha=ALPHA, **options)
     assert first[0].delta_80 is not None and first[1].delta_80 is not None  # power at weight 1
     table = calibration.calibration_markdown(first)
     assert "| solidity | 30 | linear |" in table and "(α = 0.01, 50 repetitions)" in table
     with pytest.raises(ValueError, match=r"unknown followers \['cubic'\]; valid: linear"):
-        calibration.calibrate(audit, followers=["cubic"])
+        calibration.calibrate(audit, followers=["cubic"], alpha=ALPHA)
     with pytest.raises(ValueError, match="alpha must be a significance level"):
         calibration.calibrate(audit, alpha=0)
 

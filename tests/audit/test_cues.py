@@ -10,6 +10,7 @@ import json
 import numpy as np
 import pytest
 import torch
+from helpers import ALPHA
 from scipy import stats
 from tensordict import TensorDict
 
@@ -116,7 +117,7 @@ def audit():
 def test_rows_agree_with_scipy_and_pool_both_variants_stratified(audit):
     """Variant rows are scipy's paired test; the pooled row, as the model's, is the stratified
     test of both variants: scipy's Welch test of d_standard against -d_counterbalanced."""
-    rows = {(r["concept"], r["variant"], r["cue"]): r for r in audit.rows()}
+    rows = {(r["concept"], r["variant"], r["cue"]): r for r in audit.rows(alpha=ALPHA)}
     assert [(c, v) for c, v, _ in audit.groups()] == [
         ("object_persistence", "standard"),
         ("object_persistence", "counterbalanced"),
@@ -147,7 +148,7 @@ def test_rows_agree_with_scipy_and_pool_both_variants_stratified(audit):
 
 
 def test_accuracy_counts_ties_half(audit):
-    rows = {(r["concept"], r["variant"], r["cue"]): r for r in audit.rows()}
+    rows = {(r["concept"], r["variant"], r["cue"]): r for r in audit.rows(alpha=ALPHA)}
     d = (
         audit.scores["inconsistent"]["foreground_pixels"]
         - audit.scores["consistent"]["foreground_pixels"]
@@ -158,11 +159,11 @@ def test_accuracy_counts_ties_half(audit):
 
 
 def test_pairs_without_masks_skip_the_mask_cue_with_a_note(audit, tmp_path):
-    rows = [r for r in audit.rows() if r["concept"] == "unchangeableness"]
+    rows = [r for r in audit.rows(alpha=ALPHA) if r["concept"] == "unchangeableness"]
     skipped = {r["cue"]: r for r in rows}["foreground_pixels"]
     assert skipped["t"] is None and "no object mask" in skipped["note"] and skipped["n"] == 5
     assert all(r["t"] is not None for r in rows if r["cue"] != "foreground_pixels")
-    cue_report.write_audit(audit.rows(), tmp_path)
+    cue_report.write_audit(audit.rows(alpha=ALPHA), tmp_path)
     markdown = (tmp_path / "cues.md").read_text()
     assert "| unchangeableness | color | 5 | n/a |" in markdown
     assert "unchangeableness/color, foreground: foreground_pixels skipped" in markdown
@@ -175,7 +176,10 @@ def test_model_correlations_agree_with_scipy_and_expose_a_cue_follower(audit, tm
         audit.scores["inconsistent"]["motion_energy"] - audit.scores["consistent"]["motion_energy"]
     )
     follower = 3.0 * motion + np.random.default_rng(0).normal(0.0, 1e-3, len(audit))
-    rows = {(r["concept"], r["variant"], r["cue"]): r for r in audit.model_correlations(follower)}
+    rows = {
+        (r["concept"], r["variant"], r["cue"]): r
+        for r in audit.model_correlations(follower, alpha=ALPHA)
+    }
     for concept, variant, selected in audit.groups():
         row = rows[(concept, variant, "motion_energy")]
         reference = stats.pearsonr(follower[selected], motion[selected])
@@ -184,15 +188,15 @@ def test_model_correlations_agree_with_scipy_and_expose_a_cue_follower(audit, tm
     # No masks, no foreground score: no correlation, with the reason.
     assert rows[("unchangeableness", "color", "foreground_pixels")]["r"] is None
     assert "not scored" in rows[("unchangeableness", "color", "foreground_pixels")]["note"]
-    constant = audit.model_correlations(np.ones(len(audit)))
+    constant = audit.model_correlations(np.ones(len(audit)), alpha=ALPHA)
     assert all(
         r["r"] is None and "constant" in r["note"]
         for r in constant
         if r["concept"] == "object_persistence"
     )
     with pytest.raises(ValueError, match="one value per scored pair"):
-        audit.model_correlations(np.ones(3))
-    cue_report.write_audit(audit.rows(), tmp_path, correlation_rows=list(rows.values()))
+        audit.model_correlations(np.ones(3), alpha=ALPHA)
+    cue_report.write_audit(audit.rows(alpha=ALPHA), tmp_path, correlation_rows=list(rows.values()))
     markdown = (tmp_path / "cues.md").read_text()
     assert "Does the model's surprise track a cue, pair by pair?" in markdown
     assert "| object_persistence | **pooled** | 12 |" in markdown.split("pair by pair?")[1]
@@ -215,7 +219,10 @@ def test_the_pooled_correlation_within_variants_is_the_partial_correlation_given
     scores["inconsistent"]["motion_energy"] = scores["consistent"]["motion_energy"] + cue
     shifted = dataclasses.replace(audit, scores=scores)
     model = 50 * shift + rng.normal(0.0, 1.0, len(audit))  # no pair-by-pair relation
-    rows = {(r["concept"], r["variant"], r["cue"]): r for r in shifted.model_correlations(model)}
+    rows = {
+        (r["concept"], r["variant"], r["cue"]): r
+        for r in shifted.model_correlations(model, alpha=ALPHA)
+    }
     for concept, variant, selected in audit.groups():
         if variant != "pooled":
             continue
@@ -304,7 +311,7 @@ def test_given_the_seen_extent_a_model_that_sees_the_violation_grow_follows_no_c
     rng = np.random.default_rng(3)
     audit, foreground = _extent_audit(rng)
     sees = 3.0 * audit.extent[:, 2] + rng.normal(0.0, 1.0, len(audit))
-    rows = {(r["variant"], r["cue"]): r for r in audit.model_correlations(sees)}
+    rows = {(r["variant"], r["cue"]): r for r in audit.model_correlations(sees, alpha=ALPHA)}
     assert abs(rows[(cues.WITHIN_VARIANTS, "foreground_pixels")]["r"]) > 0.5
     given = rows[(cues.GIVEN_EXTENT, "foreground_pixels")]
     residual = []
@@ -321,14 +328,14 @@ def test_given_the_seen_extent_a_model_that_sees_the_violation_grow_follows_no_c
     t = reference * np.sqrt(df / (1 - reference**2))
     assert given["p_two_sided"] == pytest.approx(2 * stats.t.sf(abs(t), df), rel=1e-9)
     follower = foreground / foreground.std() + rng.normal(0.0, 0.1, len(audit))
-    rows = {(r["variant"], r["cue"]): r for r in audit.model_correlations(follower)}
+    rows = {(r["variant"], r["cue"]): r for r in audit.model_correlations(follower, alpha=ALPHA)}
     assert rows[(cues.GIVEN_EXTENT, "foreground_pixels")]["r"] > 0.5
     assert "within variants, given the seen extent" in cue_report.format_correlations(
-        audit.model_correlations(sees)
+        audit.model_correlations(sees, alpha=ALPHA)
     )
     assert not any(
         r["variant"] == cues.GIVEN_EXTENT
-        for r in dataclasses.replace(audit, extent=None).model_correlations(sees)
+        for r in dataclasses.replace(audit, extent=None).model_correlations(sees, alpha=ALPHA)
     )
 
 
@@ -349,14 +356,16 @@ def test_the_physics_perfect_row_is_the_observers_r_within_variants_whatever_the
         centred.append(rest)
     reference = stats.pearsonr(*centred).statistic
     for model in (rng.normal(size=len(audit)), foreground):
-        rows = {(r["variant"], r["cue"]): r for r in audit.model_correlations(model)}
+        rows = {(r["variant"], r["cue"]): r for r in audit.model_correlations(model, alpha=ALPHA)}
         row = rows[(cues.PHYSICS_PERFECT, "foreground_pixels")]
         assert row["r"] == pytest.approx(reference, rel=1e-9) and abs(reference) > 0.3
     assert rows[(cues.WITHIN_VARIANTS, "foreground_pixels")]["r"] == pytest.approx(1.0)
     assert "Physics-perfect observer" in cue_report.format_correlations(rows.values())
     assert not any(
         r["variant"] == cues.PHYSICS_PERFECT
-        for r in dataclasses.replace(audit, physics_perfect=None).model_correlations(observer)
+        for r in dataclasses.replace(audit, physics_perfect=None).model_correlations(
+            observer, alpha=ALPHA
+        )
     )
 
 
@@ -400,7 +409,7 @@ def test_the_audit_reads_the_seen_extent_from_the_records_objects():
 def test_the_report_shows_a_cue_follower_in_its_correlations_and_scatter(audit, tmp_path):
     """write_report with the cue audit of the model's pairs adds the correlation table to
     cues.md, cue_correlations.csv, the r values to cues.json and cue_scatter.png."""
-    from voe_lightning.report import write_report
+    from voe_lightning.report import ReportInputs, write_report
     from voe_lightning.report.pairs import PairResults
 
     motion = (
@@ -420,7 +429,9 @@ def test_the_report_shows_a_cue_follower_in_its_correlations_and_scatter(audit, 
         inconsistent,
     )
     np.testing.assert_allclose(paired.relative_surprise, follower)
-    write_report(paired, tmp_path, cue_audit=audit, bootstrap=0, echo=False)
+    write_report(
+        ReportInputs(paired, alpha=ALPHA, cue_audit=audit, bootstrap=0), tmp_path, echo=False
+    )
     report = tmp_path / "voe_report"
     assert "pair by pair?" in (report / "cues.md").read_text()
     assert (report / "cue_scatter.png").stat().st_size > 10_000
@@ -446,7 +457,9 @@ def test_the_report_shows_a_cue_follower_in_its_correlations_and_scatter(audit, 
         inconsistent,
     )
     with pytest.raises(ValueError, match="not the model's pairs in the same order"):
-        write_report(shuffled, tmp_path, cue_audit=audit, bootstrap=0, echo=False)
+        write_report(
+            ReportInputs(shuffled, alpha=ALPHA, cue_audit=audit, bootstrap=0), tmp_path, echo=False
+        )
 
 
 def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
@@ -529,7 +542,9 @@ def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
     capsys.readouterr()
     with pytest.raises(SystemExit):
         main(["audit", "--root", str(root), "--split", "train"])
-    assert "Got value: train" in capsys.readouterr().err
+    assert capsys.readouterr().err == (
+        "error: --split: expected one of val, test, generalization, got train\n"
+    )
     with pytest.raises(SystemExit):
         main(["audit", "--root", str(root), "--alpha", "1.5"])
     assert (

@@ -7,13 +7,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
+from helpers import ALPHA
 from rich.console import Console
 from scipy import stats
 
 from voe_lightning import specs
 from voe_lightning.callbacks import VOEProbeCallback, VOEReportCallback, voe_table
 from voe_lightning.probe_datamodule import ProbeDataModule
-from voe_lightning.stats import statistics
 from voe_lightning.stats.verdicts import concept_verdicts
 
 CASES = [
@@ -43,7 +43,7 @@ class _Module:
 def test_probe_callback_logs_the_stratified_pooled_test_of_both_variants():
     rng = np.random.default_rng(0)
     trainer = SimpleNamespace(datamodule=_Probes(), sanity_checking=False)
-    callback, module = VOEProbeCallback(print_table=False), _Module()
+    callback, module = VOEProbeCallback(print_table=False, alpha=ALPHA), _Module()
     callback.on_validation_epoch_start(trainer, module)
     pairs = {case: ([], []) for case in CASES}
     for batch in range(3):  # mixed batches of all three cases
@@ -95,9 +95,11 @@ def test_probe_callback_logs_the_stratified_pooled_test_of_both_variants():
     )
 
 
-def test_callbacks_take_the_default_alpha_and_refuse_a_bad_one():
-    assert VOEProbeCallback().alpha == VOEReportCallback().alpha == statistics.ALPHA
-    assert VOEProbeCallback(alpha=0.05).alpha == 0.05
+def test_callbacks_need_the_runs_alpha_and_refuse_a_bad_one():
+    assert VOEProbeCallback(alpha=0.05).alpha == VOEReportCallback(alpha=0.05).alpha == 0.05
+    for callback in (VOEProbeCallback, VOEReportCallback):
+        with pytest.raises(ValueError, match=f"{callback.__name__} was given no alpha"):
+            _ = callback().alpha
     with pytest.raises(ValueError, match=r"alpha must be a significance level in \(0, 1\).*got 5"):
         VOEReportCallback(alpha=5)
 
@@ -105,7 +107,7 @@ def test_callbacks_take_the_default_alpha_and_refuse_a_bad_one():
 def test_probe_callback_refuses_a_datamodule_without_names():
     trainer = SimpleNamespace(datamodule=SimpleNamespace(probe_cases=lambda split="val": CASES))
     with pytest.raises(TypeError, match="VOEProbeCallback .* needs a ProbeDataModule"):
-        VOEProbeCallback().on_validation_epoch_start(trainer, _Module())
+        VOEProbeCallback(alpha=ALPHA).on_validation_epoch_start(trainer, _Module())
 
 
 def test_probe_callback_logs_the_quadruplet_test_the_verdict_reads():
@@ -113,7 +115,7 @@ def test_probe_callback_logs_the_quadruplet_test_the_verdict_reads():
     quadruplet, tested over training as the report tests it (scipy's one-sample t of D)."""
     rng = np.random.default_rng(1)
     trainer = SimpleNamespace(datamodule=_Probes(), sanity_checking=False)
-    callback, module = VOEProbeCallback(print_table=False), _Module()
+    callback, module = VOEProbeCallback(print_table=False, alpha=ALPHA), _Module()
     callback.on_validation_epoch_start(trainer, module)
     quads = 6
     consistent = rng.gamma(2.0, 1.0, (2 * quads, 5))
@@ -145,5 +147,7 @@ def test_probe_callback_logs_the_quadruplet_test_the_verdict_reads():
         d[quads:].mean()
     )
     assert list(callback.last)[-1] == ("object_persistence", "quadruplet")
-    verdict = {v.concept: v for v in concept_verdicts(callback.last)}["object_persistence"]
+    verdict = {v.concept: v for v in concept_verdicts(callback.last, alpha=ALPHA)}[
+        "object_persistence"
+    ]
     assert "quadruplet test" in verdict.rule

@@ -9,33 +9,21 @@ from pathlib import Path
 import nbformat
 import numpy as np
 import pytest
-from locations import REPO
+from helpers import ALPHA
+from helpers.locations import REPO
+from helpers.runs import curve_runs, write_events
 from nbclient import NotebookClient
 from PIL import Image
-from torch.utils.tensorboard import SummaryWriter
 
 from voe_lightning import specs
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.cli import analysis, main, size_sweep
-from voe_lightning.report import write_report
+from voe_lightning.report import ReportInputs, write_report
 from voe_lightning.report.pairs import PairResults
 from voe_lightning.stats.statistics import paired_test
 
 NOTEBOOK = REPO / "notebooks" / "voe_report.ipynb"
 T = 5
-
-
-def write_events(run_dir, curves, steps=range(0, 500, 100), other_tags=True):
-    """TensorBoard scalars voe/<concept>/<variant>/relative_surprise = curve(step)."""
-    writer = SummaryWriter(str(run_dir))
-    for step in steps:
-        for (concept, variant), curve in curves.items():
-            writer.add_scalar(f"voe/{concept}/{variant}/relative_surprise", curve(step), step)
-            if other_tags:
-                writer.add_scalar(f"voe/{concept}/{variant}/t", 2 * curve(step), step)
-        if other_tags:
-            writer.add_scalar("train/loss", 1.0 / (step + 1), step)
-    writer.close()
 
 
 def pair_results(groups, seed=0):
@@ -82,27 +70,8 @@ def test_missing_runs_and_tags_are_named(tmp_path):
         analysis.relative_surprise_curves_figure([("joint", tmp_path / "ok")], {"separate": 0.5})
 
 
-def _curve_runs(root):
-    concepts = {
-        ("object_persistence", "standard"): 0.5,
-        ("object_persistence", "counterbalanced"): 0.3,
-        ("unchangeableness", "color"): 0.8,
-    }
-    write_events(
-        root / "joint", {k: (lambda s, a=a: a * np.log1p(s / 50)) for k, a in concepts.items()}
-    )
-    for (concept, variant), a in concepts.items():
-        write_events(
-            root / f"separate_{concept}",
-            {(concept, variant): (lambda s, a=a: 0.6 * a * np.log1p(s / 50))},
-        )
-    return [("joint", root / "joint")] + [
-        ("separate", root / f"separate_{c}") for c in ("object_persistence", "unchangeableness")
-    ]
-
-
 def test_curves_figure_draws_every_run_and_variant(tmp_path):
-    runs = _curve_runs(tmp_path)
+    runs = curve_runs(tmp_path)
     figure = analysis.relative_surprise_curves_figure(runs, {"joint": 0.2})
     visible = [ax for ax in figure.axes if ax.get_visible()]
     assert [ax.get_title() for ax in visible] == ["object_persistence", "unchangeableness"]
@@ -146,7 +115,7 @@ def test_sweep_rows_are_disjoint_evaluation_sets(tmp_path):
     results = pair_results(
         {("object_persistence", "standard"): (30, 1.0), ("continuity", "standard"): (31, 0.0)}
     )
-    rows = size_sweep.sweep_rows(results, train_size=100, eval_sets=3)
+    rows = size_sweep.sweep_rows(results, train_size=100, eval_sets=3, alpha=ALPHA)
     assert len(rows) == 6 and {r["train_size"] for r in rows} == {100}
     persistence = [r for r in rows if r["concept"] == "object_persistence"]
     assert [r["eval_set"] for r in persistence] == [0, 1, 2]
@@ -154,10 +123,12 @@ def test_sweep_rows_are_disjoint_evaluation_sets(tmp_path):
     assert sum(r["n"] for r in rows if r["concept"] == "continuity") == 31
     (_, _, pairs), _ = results.groups()
     first = pairs.select(np.argsort(pairs.seed)[:10])  # the 10 lowest seeds form set 0
-    expected = paired_test(first.total_inconsistent, first.total_consistent, bootstrap=0)
+    expected = paired_test(
+        first.total_inconsistent, first.total_consistent, bootstrap=0, alpha=ALPHA
+    )
     assert persistence[0]["t"] == expected.t and persistence[0]["p_value"] == expected.p_value
     with pytest.raises(ValueError, match="too few for 20 evaluation sets"):
-        size_sweep.sweep_rows(results, 100, eval_sets=20)
+        size_sweep.sweep_rows(results, 100, eval_sets=20, alpha=ALPHA)
 
 
 def test_size_sweep_figure_marks_significant_points_green():
@@ -195,15 +166,17 @@ def test_run_size_sweep_drives_fit_then_test(tmp_path):
         calls.append(args)
         size = int(args[args.index("--data.train_examples") + 1])
         checkpoint = types.SimpleNamespace(last_model_path=f"/ckpt/{size}.ckpt", best_model_path="")
-        callback = VOEReportCallback()
+        callback = VOEReportCallback(alpha=ALPHA)
         if args[0] == "test":
             pairs = int(args[args.index("--data.test_pairs") + 1])
             write_report(
-                pair_results({("solidity", "standard"): (pairs, size / 100)}, seed=size),
+                ReportInputs(
+                    pair_results({("solidity", "standard"): (pairs, size / 100)}, seed=size),
+                    bootstrap=0,
+                    alpha=0.05,
+                ),
                 tmp_path / f"test_{size}",
-                bootstrap=0,
                 echo=False,
-                alpha=0.05,
             )
             callback.report_dir = tmp_path / f"test_{size}" / "voe_report"
         return types.SimpleNamespace(
@@ -297,7 +270,7 @@ def test_sweep_command_runs_fit_and_test_through_the_cli_main(monkeypatch, tmp_p
 
 
 def test_command_line_writes_the_figures(tmp_path, capsys):
-    runs = _curve_runs(tmp_path)
+    runs = curve_runs(tmp_path)
     curves_png = tmp_path / "figs" / "curves.png"
     main(
         [
@@ -313,9 +286,12 @@ def test_command_line_writes_the_figures(tmp_path, capsys):
     )
     for size, effect in ((100, 0.1), (1000, 1.0)):
         write_report(
-            pair_results({("solidity", "standard"): (40, effect)}, seed=size),
+            ReportInputs(
+                pair_results({("solidity", "standard"): (40, effect)}, seed=size),
+                alpha=ALPHA,
+                bootstrap=0,
+            ),
             tmp_path / f"run_{size}" / "version_0",
-            bootstrap=0,
             echo=False,
         )
     sweep_png = tmp_path / "figs" / "sweep.png"
@@ -373,7 +349,7 @@ def test_notebook_reproduces_the_figures_of_a_run_directory(tmp_path, monkeypatc
     paired = pair_results(
         {("object_persistence", "standard"): (12, 1.0), ("continuity", "standard"): (12, 0.0)}
     )
-    write_report(paired, run, bootstrap=100, echo=False)
+    write_report(ReportInputs(paired, alpha=ALPHA, bootstrap=100), run, echo=False)
     write_events(
         run,
         {
@@ -381,7 +357,7 @@ def test_notebook_reproduces_the_figures_of_a_run_directory(tmp_path, monkeypatc
             ("continuity", "standard"): lambda s: 0.0,
         },
     )
-    sweep = size_sweep.sweep_rows(paired, 100, 2)
+    sweep = size_sweep.sweep_rows(paired, 100, 2, alpha=ALPHA)
     (tmp_path / "sweep.json").write_text(json.dumps(sweep))
     monkeypatch.setenv("VOE_RUN_DIR", str(tmp_path))
     monkeypatch.setenv("VOE_SWEEP_RESULTS", str(tmp_path / "sweep.json"))
@@ -413,14 +389,21 @@ def test_compare_reads_each_verdicts_rows_beside_the_cue_audit(tmp_path, capsys)
         **{("unchangeableness", v): (30, 0.0) for v in specs.VERDICT_VARIANTS["unchangeableness"]},
         ("unchangeableness", "shape_plus1"): (30, 3.0),
     }
-    write_report(pair_results(groups, seed=1), tmp_path / "a", bootstrap=0, echo=False)
     write_report(
-        pair_results(
-            {("solidity", "standard"): (40, 2.0), ("solidity", "counterbalanced"): (40, -2.0)},
-            seed=2,
+        ReportInputs(pair_results(groups, seed=1), alpha=ALPHA, bootstrap=0),
+        tmp_path / "a",
+        echo=False,
+    )
+    write_report(
+        ReportInputs(
+            pair_results(
+                {("solidity", "standard"): (40, 2.0), ("solidity", "counterbalanced"): (40, -2.0)},
+                seed=2,
+            ),
+            alpha=ALPHA,
+            bootstrap=0,
         ),
         tmp_path / "b",
-        bootstrap=0,
         echo=False,
     )
     rows = analysis.comparison_rows([("a", tmp_path / "a"), ("b", tmp_path / "b")])
@@ -461,22 +444,28 @@ def test_compare_reads_a_runs_own_report_before_a_newer_one_on_other_data(tmp_pa
     run; `analyze compare` of the run reads the run's own report, even when older."""
     run = tmp_path / "run"
     write_report(
-        pair_results(
-            {("solidity", "standard"): (40, 2.0), ("solidity", "counterbalanced"): (40, 2.0)},
-            seed=1,
+        ReportInputs(
+            pair_results(
+                {("solidity", "standard"): (40, 2.0), ("solidity", "counterbalanced"): (40, 2.0)},
+                seed=1,
+            ),
+            alpha=ALPHA,
+            bootstrap=0,
         ),
         run,
-        bootstrap=0,
         echo=False,
     )
     (run / "config.yaml").write_text("data: {init_args: {root: data/x}}\n")
     write_report(
-        pair_results(
-            {("solidity", "standard"): (12, 2.0), ("solidity", "counterbalanced"): (12, 2.0)},
-            seed=2,
+        ReportInputs(
+            pair_results(
+                {("solidity", "standard"): (12, 2.0), ("solidity", "counterbalanced"): (12, 2.0)},
+                seed=2,
+            ),
+            alpha=ALPHA,
+            bootstrap=0,
         ),
         run / "data_data_tpyo",
-        bootstrap=0,
         echo=False,
     )
     rows = analysis.comparison_rows([("run", run)])

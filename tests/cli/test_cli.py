@@ -4,7 +4,6 @@ refusals that must happen before any work starts."""
 import csv
 import json
 import re
-import shutil
 import subprocess
 import sys
 import warnings
@@ -15,7 +14,8 @@ import pytest
 import torch
 import yaml
 from helpers import refused
-from locations import REPO, TINY_CONFIG
+from helpers.locations import REPO, TINY_CONFIG
+from helpers.runs import copy_of
 from nbclient import NotebookClient
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -234,7 +234,7 @@ def test_each_command_has_a_help_with_its_summary_and_config(capsys, command, su
 
 
 def test_test_on_intphys_dev_reports_the_benchmark_metrics(workdir, trained):
-    from test_intphys import FRAMES, make_intphys
+    from helpers.intphys import FRAMES, make_intphys
 
     make_intphys(workdir / "intphys", "dev", labelled=True)
     run = copy_of(trained, workdir)
@@ -270,7 +270,7 @@ def test_test_on_intphys_dev_reports_the_benchmark_metrics(workdir, trained):
 
 
 def test_predict_with_the_intphys_test_config_writes_the_answer_file(workdir):
-    from test_intphys import FRAMES, make_intphys
+    from helpers.intphys import FRAMES, make_intphys
 
     make_intphys(workdir / "intphys", "test", labelled=False)
     main(["fit", "--config", TINY_CONFIG, "--trainer.max_steps", "1"])
@@ -422,13 +422,6 @@ def test_checkpoints_are_read_with_weights_only(workdir, monkeypatch, command):
     with pytest.raises((Exception, SystemExit)):
         main([command, "--config", TINY_CONFIG, "--ckpt_path", str(checkpoint)])
     assert len(calls) >= 2 and all(value is True for value in calls), calls
-
-
-def copy_of(run: Path, workdir: Path) -> Path:
-    """``run`` copied to ``workdir``/runs/trained/version_0 (tests write into it)."""
-    target = workdir / "runs" / "trained" / "version_0"
-    shutil.copytree(run, target)
-    return target
 
 
 @pytest.mark.parametrize("subcommand, split", [("test", "test"), ("validate", "val")])
@@ -747,7 +740,7 @@ def test_intphys_test_of_a_checkpoint_writes_beside_it_in_the_models_geometry(wo
     """Issue 10 case 15: configs/intphys_dev.yaml tests any checkpoint: the report goes into a
     sub-directory of the checkpoint's run (two checkpoints never share one), and the frames
     are sampled and resized as the checkpoint's model was trained (6 frames of 32x32)."""
-    from test_intphys import FRAMES, make_intphys
+    from helpers.intphys import FRAMES, make_intphys
 
     make_intphys(workdir / "intphys", "dev", labelled=True)
     run = copy_of(trained, workdir)

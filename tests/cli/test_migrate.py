@@ -8,8 +8,8 @@ import zipfile
 import pytest
 import torch
 import yaml
-from locations import TINY_CONFIG
-from test_cli import copy_of
+from helpers.locations import TINY_CONFIG
+from helpers.runs import copy_of
 
 from voe_lightning.cli import main
 from voe_lightning.cli.migrate import MOVED_MODULES, RENAMED_CLASSES, new_path

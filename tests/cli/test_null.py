@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import scipy.stats
 import yaml
-from locations import REPO, TINY_CONFIG
+from helpers.locations import REPO, TINY_CONFIG
 from PIL import Image
 
 from voe_lightning.cli import main

@@ -8,7 +8,7 @@ import subprocess
 import sys
 
 import pytest
-from locations import REPO, TINY_CONFIG
+from helpers.locations import REPO, TINY_CONFIG
 
 #: What the wheel is built from.
 SOURCES = ("pyproject.toml", "README.md", "LICENSE", "voe_lightning", "datamodules")

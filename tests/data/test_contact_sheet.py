@@ -3,8 +3,8 @@ labelled clip rows, from fresh renders and from a store."""
 
 import numpy as np
 import pytest
+from helpers.stores import fake_clip, fake_probe
 from PIL import Image
-from test_store import fake_clip, fake_probe
 
 from voe_lightning import specs
 from voe_lightning.data import contact_sheet, generate

@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 import pytest
 import torch
-from test_store import fake_clip, fake_probe
+from helpers.stores import fake_clip, fake_probe
 
 from datamodules import (
     ConceptDataModule,
@@ -164,7 +164,7 @@ def test_benchmark_geometry_left_out_is_the_models_or_is_asked_for(module, tmp_p
 
 
 def test_intphys_takes_the_models_geometry_in_setup(tmp_path):
-    from test_intphys import FRAMES, make_intphys
+    from helpers.intphys import FRAMES, make_intphys
 
     datamodule = IntPhysDataModule(
         root=str(make_intphys(tmp_path, "dev", labelled=True)), frames_per_movie=FRAMES, height=8

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from test_store import fake_clip, fake_probe
+from helpers.stores import fake_clip, fake_probe
 
 from voe_lightning import scenes, specs
 from voe_lightning.cli import main
@@ -183,6 +183,23 @@ def test_ensure_dataset_generates_only_what_is_missing(tmp_path, calls):
         generate.ensure_dataset(tmp_path, frames_per_video=3)
 
 
+def test_a_generate_plans_the_store_once(tmp_path, calls, monkeypatch):
+    """ensure_dataset finds a shard missing and renders it from the one plan it checked the
+    store with."""
+    generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    store.shard_path(tmp_path, "continuity", "val", 0).unlink()
+    planned = []
+
+    def plan_shards(*arguments, **options):
+        planned.append(arguments)
+        return store_plan.plan_shards(*arguments, **options)
+
+    monkeypatch.setattr(generate, "plan_shards", plan_shards)
+    summary = generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
+    assert summary.shards_generated == 1 and store_plan.verify(tmp_path) == []
+    assert len(planned) == 1
+
+
 def test_ensure_dataset_of_some_splits_leaves_the_rest_to_a_later_run(tmp_path, calls):
     """Issue 10 case 9: a test run makes only its probes; a later fit completes the store."""
     generate.ensure_dataset(tmp_path, concepts=("continuity",), splits=("test",), **SMALL)
@@ -225,7 +242,10 @@ def test_bad_input_names_the_value_and_the_choices(tmp_path, calls, capsys):
         generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "train_examples": -1})
     with pytest.raises(SystemExit):
         main(["generate", "--root", str(tmp_path), "--concepts", "[continuity, gravity]"])
-    assert "Got value: gravity" in capsys.readouterr().err  # refused with the valid names
+    assert capsys.readouterr().err == (  # refused in one line with the valid names
+        "error: --concepts: expected one of object_persistence, unchangeableness, continuity, "
+        "solidity, containment, got gravity\n"
+    )
     with pytest.raises(SystemExit):
         main(
             [

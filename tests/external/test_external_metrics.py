@@ -3,6 +3,7 @@ answer.txt format."""
 
 import numpy as np
 import pytest
+from helpers import ALPHA
 from scipy import stats
 
 from voe_lightning.external.metrics import (
@@ -31,7 +32,7 @@ def test_relative_error_counts_only_strictly_more_surprising_possible_movies_and
     with pytest.raises(ValueError, match="same number"):
         relative_error_rate([[1, 2]], [[1, 2], [3, 4]])
     pairs = quadruplet_metrics(
-        [0, 0, 1, 1, 2, 2, 3, 3], np.ravel(possible), np.ravel(impossible), bootstrap=0
+        [0, 0, 1, 1, 2, 2, 3, 3], np.ravel(possible), np.ravel(impossible), bootstrap=0, alpha=ALPHA
     )
     assert pairs["relative_error_rate"] == 1 / 4
     assert pairs["relative_error_rate_ties_half"] == 2 / 4
@@ -71,7 +72,7 @@ def test_quadruplet_metrics_group_pairs_and_agree_with_scipy_on_the_paired_test(
     quadruplet = np.repeat(np.arange(10), 2)
     possible = rng.normal(10, 2, 20)
     impossible = possible + rng.normal(1, 1, 20)
-    result = quadruplet_metrics(quadruplet, possible, impossible, bootstrap=0)
+    result = quadruplet_metrics(quadruplet, possible, impossible, bootstrap=0, alpha=ALPHA)
     sums_p = possible.reshape(10, 2).sum(1)
     sums_i = impossible.reshape(10, 2).sum(1)
     assert result["n_quadruplets"] == 10 and result["n_pairs"] == 20
@@ -95,7 +96,9 @@ def test_grouped_metrics_split_by_group_and_subgroup():
     subgroups = ["visible", "visible", "occluded", "occluded", None, None]
     possible = [1, 2, 5, 1, 2, 2]
     impossible = [3, 4, 2, 3, 1, 3]
-    result = grouped_metrics(groups, quadruplet, possible, impossible, subgroups, bootstrap=0)
+    result = grouped_metrics(
+        groups, quadruplet, possible, impossible, subgroups, bootstrap=0, alpha=ALPHA
+    )
     assert set(result) == {"O1", "O2"}
     assert set(result["O1"]) == {"all", "visible", "occluded"} and set(result["O2"]) == {"all"}
     assert result["O1"]["all"]["relative_error_rate"] == 0.5

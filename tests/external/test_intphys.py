@@ -14,11 +14,12 @@ import lightning as L
 import numpy as np
 import pytest
 import torch
-from benchmark_quadruplets import check_quadruplet_rows
+from helpers import ALPHA
+from helpers.intphys import SAMPLED, SCENES, datamodule, make_intphys, make_train
+from helpers.quadruplets import check_quadruplet_rows
 from PIL import Image
 
 import voe_lightning.external.intphys as intphys
-from datamodules.intphys import IntPhysDataModule
 from voe_lightning import specs
 from voe_lightning.callbacks.prediction_writer import IntPhysAnswerWriter
 from voe_lightning.external.base import BenchmarkDataError
@@ -27,79 +28,9 @@ from voe_lightning.external.intphys import read_png
 from voe_lightning.external.metrics import read_answer_file, score_answers
 from voe_lightning.model import SurpriseModel
 
-FRAMES, SIZE = 20, 32
-#: num_frames=5 of 20 samples source frames [0, 5, 10, 14, 19].
-SAMPLED = [0, 5, 10, 14, 19]
-#: scene -> (A->B switch frame, B->A switch frame, folder of [possible A, possible B,
-#: impossible A->B, impossible B->A]); switch frames are source frames.
-SCENES = {
-    "O1/0001_O1_test_visible_static_nobj1": (7, 12, ["1", "4", "3", "2"]),
-    "O1/0002_O1_test_occluded_dynamic_1_nobj2": (3, 16, ["2", "3", "1", "4"]),
-    "O2/0003": (11, 5, ["4", "1", "2", "3"]),
-}
-
 
 def first_sampled_at_or_after(frame: int) -> int:
     return next(k for k, source in enumerate(SAMPLED) if source >= frame)
-
-
-def world_frame(scene_seed: int, world: str, t: int) -> np.ndarray:
-    """A background shared by the scene, a time marker, and the world's object."""
-    image = np.random.default_rng(scene_seed).integers(0, 120, (SIZE, SIZE, 3), dtype=np.uint8)
-    image[t % SIZE, :, 1] = 250
-    if world == "A":
-        image[4:12, 4:12] = (255, 0, 0)
-    else:
-        image[18:28, 18:28] = (0, 0, 255)
-    return image
-
-
-def movie_worlds(kind: str, switch: int) -> list[str]:
-    start, end = {"pA": "AA", "pB": "BB", "iAB": "AB", "iBA": "BA"}[kind]
-    return [start if t < switch else end for t in range(FRAMES)]
-
-
-def write_movie(folder, frames, label=None):
-    (folder / "scene").mkdir(parents=True)
-    for number, frame in enumerate(frames, 1):
-        Image.fromarray(frame).save(folder / "scene" / f"scene_{number:03d}.png")
-    if label is not None:
-        header = {"block_name": "O1", "block_type": "test", "is_possible": label}
-        (folder / "status.json").write_text(json.dumps({"header": header, "frames": []}))
-
-
-def make_intphys(root, split="dev", labelled=True):
-    for seed, (scene, (switch_ab, switch_ba, folders)) in enumerate(SCENES.items()):
-        kinds = {
-            "pA": (folders[0], True, switch_ab),
-            "pB": (folders[1], True, switch_ab),
-            "iAB": (folders[2], False, switch_ab),
-            "iBA": (folders[3], False, switch_ba),
-        }
-        for kind, (folder, possible, switch) in kinds.items():
-            frames = [world_frame(seed, w, t) for t, w in enumerate(movie_worlds(kind, switch))]
-            write_movie(root / split / scene / folder, frames, possible if labelled else None)
-    return root
-
-
-def make_train(root, movies=3):
-    for index in range(movies):
-        frames = [world_frame(100 + index, "A", t) for t in range(FRAMES)]
-        write_movie(root / "train" / f"{index:05d}", frames)
-
-
-def datamodule(root, **options):
-    settings = dict(
-        root=str(root),
-        num_frames=5,
-        height=16,
-        width=16,
-        frames_per_movie=FRAMES,
-        batch_size=2,
-        probe_batch_size=4,
-    )
-    settings.update(options)
-    return IntPhysDataModule(**settings)
 
 
 @pytest.fixture(scope="module")
@@ -215,7 +146,9 @@ def test_benchmark_metrics_per_block_match_hand_computed_values(dataset_root):
         f"{s3}/{f3[2]}": 1.0,
         f"{s3}/{f3[3]}": 3.0,
     }
-    report = external_metrics(dm.external_pairs(), fake_outputs(dm, surprise), bootstrap=0)
+    report = external_metrics(
+        dm.external_pairs(), fake_outputs(dm, surprise), bootstrap=0, alpha=ALPHA
+    )
     o1 = report["metrics"]["O1_object_permanence"]
     assert o1["all"]["relative_error_rate"] == pytest.approx(0.5)
     # impossible {3, 4, 2, 3} vs possible {1, 2, 5, 1}: 11.5 of 16 pairs ranked right
@@ -284,9 +217,9 @@ def test_answer_file_for_the_unlabelled_test_set(dataset_root, tmp_path):
 def test_answer_file_scores_equal_the_surprise_metrics_on_dev(dataset_root, tmp_path):
     dm = datamodule(dataset_root, predict_split="dev")
     surprise = predict(dm, tmp_path / "answer.txt")
-    from_surprise = external_metrics(dm.external_pairs(), fake_outputs(dm, surprise), bootstrap=0)[
-        "metrics"
-    ]
+    from_surprise = external_metrics(
+        dm.external_pairs(), fake_outputs(dm, surprise), bootstrap=0, alpha=ALPHA
+    )["metrics"]
     answers = read_answer_file(tmp_path / "answer.txt")
     labels = {m.name: m.is_possible for m in dm.movies("dev")}
     official = score_answers(answers, labels)
@@ -507,7 +440,7 @@ def test_bad_input_raises_naming_the_file_or_is_skipped_and_counted_when_lenient
         "surprise_consistent": torch.zeros(4, 5),
         "surprise_inconsistent": torch.ones(4, 5),
     }
-    metrics = external_metrics(lenient.external_pairs(), outputs, bootstrap=0)
+    metrics = external_metrics(lenient.external_pairs(), outputs, bootstrap=0, alpha=ALPHA)
     assert metrics["skipped"] == {reason: 1}
 
 

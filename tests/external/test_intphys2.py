@@ -6,19 +6,18 @@ CLI with the parameter-free CueScorer and no checkpoint."""
 import csv
 import json
 import os
-import random
 import shutil
 import subprocess
 import sys
-from pathlib import Path
 
-import av
 import numpy as np
 import pytest
 import torch
 import yaml
-from benchmark_quadruplets import check_quadruplet_rows
-from locations import REPO
+from helpers import ALPHA
+from helpers.intphys2 import PREFIXES, SCENES, SIZE, frame, make_root, write_metadata
+from helpers.locations import REPO
+from helpers.quadruplets import check_quadruplet_rows
 
 from datamodules.intphys2 import IntPhys2DataModule
 from voe_lightning.cli import main
@@ -26,111 +25,9 @@ from voe_lightning.external.base import BenchmarkDataError
 from voe_lightning.external.evaluation import VIDEO_COLUMNS, external_metrics
 from voe_lightning.external.metrics import intphys2_metrics
 
-FRAMES, SIZE = 8, 16
 #: num_frames=4 spread over 8 frames samples source frames [0, 2, 5, 7].
 SAMPLED = [0, 2, 5, 7]
-COLUMNS = [
-    "SceneIndex",
-    "name",
-    "file_name",
-    "game_name",
-    "condition",
-    "env",
-    "type",
-    "occluder",
-    "Difficulty",
-    "Camera",
-]
-#: scene -> (condition, principle, difficulty, camera); one scene per principle.
-SCENES = {
-    "3": ("permanence", "Permanence", "Easy", "Static"),
-    "10": ("immutability_texture", "Immutability", "Medium", "Static"),
-    "10_1": ("continuity_swap", "Continuity", "Hard", "Moving"),
-    "25": ("solidity", "Solidity", "Hard", "Moving"),
-}
-#: prefix -> (the possible video's object, the impossible one's object after the switch,
-#: switch source frame, first sampled frame that differs)
-PREFIXES = {"1": ("A", "B", 4, 2), "2": ("B", "A", 6, 3)}
 CONFIG = str(REPO / "configs" / "intphys2.yaml")
-
-
-def write_mp4(path, frames):
-    """A lossless RGB H.264 mp4 (PyAV), so decoded pixels equal the ones written."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream("libx264rgb", rate=10)
-        stream.width, stream.height, stream.pix_fmt = SIZE, SIZE, "rgb24"
-        stream.options = {"qp": "0"}
-        for frame in frames:
-            container.mux(stream.encode(av.VideoFrame.from_ndarray(frame, format="rgb24")))
-        container.mux(stream.encode())
-
-
-def frame(seed, world, t):
-    image = np.random.default_rng(seed).integers(0, 100, (SIZE, SIZE, 3), dtype=np.uint8)
-    image[t % SIZE, :, 1] = 250  # a time marker
-    if world == "A":
-        image[2:7, 2:7] = (255, 0, 0)
-    else:
-        image[9:14, 9:14] = (0, 0, 255)
-    return image
-
-
-def scene_rows(split_dir, number, scene, frames=FRAMES, id_column="file_name"):
-    condition, _, difficulty, camera = SCENES[scene]
-    rows = []
-    for prefix, (world, other, switch, _) in PREFIXES.items():
-        for kind in ("Possible", "Impossible"):
-            name = f"s{scene}_{prefix}_{kind.lower()}"
-            worlds = [world if kind == "Possible" or t < switch else other for t in range(frames)]
-            write_mp4(
-                split_dir / "Videos" / f"{name}.mp4",
-                [frame(number, w, t) for t, w in enumerate(worlds)],
-            )
-            rows.append(
-                {
-                    "SceneIndex": scene,
-                    "name": name,
-                    id_column: f"{name}.mp4",
-                    "game_name": "g",
-                    "condition": condition,
-                    "env": "e",
-                    "type": f"{prefix}_{kind}",
-                    "occluder": "o",
-                    "Difficulty": difficulty,
-                    "Camera": camera,
-                }
-            )
-    return rows
-
-
-def write_metadata(split_dir, rows, columns=COLUMNS):
-    with open(split_dir / "metadata.csv", "w", newline="") as stream:
-        writer = csv.DictWriter(stream, columns, extrasaction="ignore")
-        writer.writeheader()
-        writer.writerows(rows)
-
-
-def make_root(root: Path) -> Path:
-    """A tiny IntPhys 2 layout under ``root``: Main (shuffled rows), Debug and HeldOut."""
-    rows = [
-        row
-        for number, scene in enumerate(SCENES)
-        for row in scene_rows(root / "Main", number, scene)
-    ]
-    random.Random(0).shuffle(rows)
-    write_metadata(root / "Main", rows)
-    debug = scene_rows(root / "Debug", 7, "3", frames=12, id_column="filename")
-    for row in debug:
-        row["Difficulty"] = ""
-    write_metadata(
-        root / "Debug",
-        debug,
-        ["SceneIndex", "name", "filename", "condition", "type", "Difficulty", "Camera"],
-    )
-    held_out = scene_rows(root / "HeldOut", 9, "25")
-    write_metadata(root / "HeldOut", held_out, ["file_name"])
-    return root
 
 
 @pytest.fixture(scope="module")
@@ -241,6 +138,7 @@ def _edit_main(root, edit):
         ("unknown_condition", "unknown_condition", r"line \d+: unknown condition 'gravity'"),
         ("unknown_type", "unknown_type", r"line \d+: unknown type '3_Possible'"),
         ("undecodable", "undecodable_video", r"s25_2_possible.mp4 does not decode"),
+        ("symlink_loop", "bad_path", r"loop.mp4 cannot be resolved .*points back at itself"),
     ],
 )
 def test_bad_input_raises_naming_it_or_is_skipped_and_counted_when_lenient(
@@ -284,6 +182,8 @@ def test_bad_input_raises_naming_it_or_is_skipped_and_counted_when_lenient(
                 for r in rows
             ],
         )
+    elif case == "symlink_loop":
+        (videos / "loop.mp4").symlink_to(videos / "loop.mp4")
     else:
         (videos / "s25_2_possible.mp4").write_bytes(b"not a video")
     with pytest.raises(BenchmarkDataError, match=message) as error:
@@ -298,6 +198,7 @@ def test_bad_input_raises_naming_it_or_is_skipped_and_counted_when_lenient(
         "malformed_group": 1,
         "missing_file": 0,
         "unlisted_file": 0,
+        "symlink_loop": 0,
         "unknown_condition": 2,
         "unknown_type": 1,
         "undecodable": 2,
@@ -344,7 +245,7 @@ def test_metrics_match_a_hand_computation(root):
         "surprise_consistent": np.array([p for p, _ in sides], np.float32),
         "surprise_inconsistent": np.array([i for _, i in sides], np.float32),
     }
-    report = external_metrics(dm.external_pairs(), outputs, bootstrap=0)
+    report = external_metrics(dm.external_pairs(), outputs, bootstrap=0, alpha=ALPHA)
     metrics = report["metrics"]
     # possible maxima {1, 2, 1, 5, 0, 0, 0, 0}: 90th percentile at 0.9 * 7 = 6.3 -> 2 + 0.3 * 3
     assert metrics["threshold"]["value"] == pytest.approx(2.9)
@@ -371,6 +272,7 @@ def test_metrics_match_a_hand_computation(root):
         outputs["surprise_consistent"],
         outputs["surprise_inconsistent"],
         bootstrap=0,
+        alpha=ALPHA,
     )
     assert same["all"] == overall
 

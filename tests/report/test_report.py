@@ -10,6 +10,7 @@ import lightning as L
 import numpy as np
 import pytest
 import torch
+from helpers import ALPHA
 from PIL import Image
 from scipy import stats
 from tensordict import TensorDict
@@ -19,11 +20,11 @@ from voe_lightning import specs
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.probe_datamodule import ProbeDataModule
-from voe_lightning.report import write_report
+from voe_lightning.report import ReportInputs, write_report
 from voe_lightning.report.figures import PredictionExample
 from voe_lightning.report.pairs import PairResults
 from voe_lightning.report.tables import SUMMARY_COLUMNS
-from voe_lightning.stats.statistics import ALPHA, paired_test, pooled_test, quadruplet_test
+from voe_lightning.stats.statistics import paired_test, pooled_test, quadruplet_test
 
 T, H, W = 6, 16, 16
 
@@ -88,7 +89,13 @@ def report(tmp_path_factory):
         video: {"prior": rng.normal(size=(2, T, 8)), "memory": rng.normal(size=(2, T, 3, 4))}
         for video in ("consistent", "inconsistent")
     }
-    rows = write_report(pairs, out, predictions, trajectories, bootstrap=200, echo=False)
+    rows = write_report(
+        ReportInputs(
+            pairs, predictions=predictions, trajectories=trajectories, alpha=ALPHA, bootstrap=200
+        ),
+        out,
+        echo=False,
+    )
     return out / "voe_report", pairs, rows
 
 
@@ -107,12 +114,18 @@ def test_summary_rows_are_paired_tests_in_specs_order(report):
             continue
         if variant == "pooled":
             expected = pooled_test(
-                pairs.total_inconsistent, pairs.total_consistent, pairs.variant, bootstrap=200
+                pairs.total_inconsistent,
+                pairs.total_consistent,
+                pairs.variant,
+                bootstrap=200,
+                alpha=ALPHA,
             )
         elif variant == "quadruplet":
             expected = _quadruplets_by_hand(results)
         else:
-            expected = paired_test(pairs.total_inconsistent, pairs.total_consistent, bootstrap=200)
+            expected = paired_test(
+                pairs.total_inconsistent, pairs.total_consistent, bootstrap=200, alpha=ALPHA
+            )
         assert expected.alpha == ALPHA
         assert {k: row[k] for k in expected.as_dict()} == expected.as_dict()
     assert rows[0]["significant"] and not rows[1]["significant"]
@@ -132,7 +145,7 @@ def _quadruplets_by_hand(results):
         [totals[variant, seed] for seed in range(100, 109)]
         for variant in ("standard", "counterbalanced")
     )
-    return quadruplet_test(*np.array(first).T, *np.array(second).T, bootstrap=200)
+    return quadruplet_test(*np.array(first).T, *np.array(second).T, bootstrap=200, alpha=ALPHA)
 
 
 def test_pooled_row_is_the_stratified_test_of_both_variants(report):
@@ -166,7 +179,9 @@ def test_a_pooled_row_with_a_variant_of_one_pair_is_explained_not_tested(tmp_pat
     ]
     keep = ~np.array(counterbalanced)
     keep[counterbalanced.index(True)] = True  # one counterbalanced pair only
-    rows = write_report(pairs.select(keep), tmp_path, bootstrap=0, echo=False)
+    rows = write_report(
+        ReportInputs(pairs.select(keep), alpha=ALPHA, bootstrap=0), tmp_path, echo=False
+    )
     pooled = next(r for r in rows if r["variant"] == "pooled")
     assert pooled["t"] is None and pooled["note"] == (
         "no pooled test: counterbalanced has 1 pair (each variant needs at least 2)"
@@ -396,7 +411,7 @@ CASES = [
 
 @pytest.mark.slow
 def test_callback_writes_the_report_of_a_test_run(tmp_path):
-    callback = VOEReportCallback(out_dir=str(tmp_path / "run"), bootstrap=100)
+    callback = VOEReportCallback(out_dir=str(tmp_path / "run"), bootstrap=100, alpha=ALPHA)
     _trainer(tmp_path, callback).test(PersistenceModel(), datamodule=ProbeData(CASES))
     directory = tmp_path / "run" / "voe_report"
     assert callback.report_dir == directory
@@ -439,11 +454,15 @@ def test_callback_writes_the_report_of_a_test_run(tmp_path):
 
 def test_callback_refuses_missing_outputs_names_and_probes(tmp_path):
     with pytest.raises(TypeError, match="test_step to return the probe_step dict"):
-        _trainer(tmp_path, VOEReportCallback()).test(
+        _trainer(tmp_path, VOEReportCallback(alpha=ALPHA)).test(
             PersistenceModel(return_outputs=False), datamodule=ProbeData(CASES[:1])
         )
     with pytest.raises(TypeError, match="needs a ProbeDataModule .* got UnnamedProbeData"):
         unnamed = UnnamedProbeData(CASES[:1])
-        _trainer(tmp_path, VOEReportCallback()).test(PersistenceModel(), datamodule=unnamed)
+        _trainer(tmp_path, VOEReportCallback(alpha=ALPHA)).test(
+            PersistenceModel(), datamodule=unnamed
+        )
     with pytest.raises(RuntimeError, match="collected no probe results"):
-        _trainer(tmp_path, VOEReportCallback()).test(PersistenceModel(), datamodule=ProbeData([]))
+        _trainer(tmp_path, VOEReportCallback(alpha=ALPHA)).test(
+            PersistenceModel(), datamodule=ProbeData([])
+        )

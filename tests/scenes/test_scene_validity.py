@@ -5,12 +5,12 @@ physics-blind cue in any concept's balanced pool of probes. Set VOE_VALIDITY_SEE
 more seeds (CI uses a few; run with 50 before changing a scene) and VOE_FAIRNESS_PAIRS for
 more pairs in the cue test."""
 
-import importlib
 import os
 
 import numpy as np
 import pytest
 import torch
+from helpers import ALPHA
 from scipy import stats
 
 from voe_lightning import specs
@@ -19,6 +19,7 @@ from voe_lightning.scenes import (
     CLIP_KINDS_BY_CONCEPT,
     CONCEPTS,
     PROBE_VARIANTS,
+    concept_scene,
     generate_clip,
     generate_probe,
 )
@@ -252,7 +253,7 @@ def test_balanced_pools_have_no_frame_local_cue(concept, row, halves):
         for variant in halves  # a seed's halves one after the other: its quadruplet drawn once
     ]
     audit = cues.audit_records(records)
-    rows = {r["cue"]: r for r in audit.rows() if r["variant"] == row}
+    rows = {r["cue"]: r for r in audit.rows(alpha=ALPHA) if r["variant"] == row}
     for cue in video_cues.FRAME_LOCAL_CUES:
         result = rows[cue]
         d_z = 0.0 if np.isnan(result["d_z"]) else result["d_z"]  # NaN: every pair tied
@@ -270,7 +271,7 @@ def _cameras(records) -> np.ndarray:
 def test_one_camera_distribution_per_concept(concept):
     """Examples, every control and the probes draw the camera from the concept's CAMERA range;
     each control's cameras are distributed as the examples' (two-sample KS per parameter)."""
-    camera_range = importlib.import_module(f"voe_lightning.scenes.{concept}").CAMERA
+    camera_range = concept_scene(concept).CAMERA
     kinds = CLIP_KINDS_BY_CONCEPT[concept]
     cameras = {
         kind: _cameras([generate_clip(concept, kind, seed) for seed in range(CAMERA_CLIPS)])

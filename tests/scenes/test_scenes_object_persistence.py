@@ -163,7 +163,7 @@ def test_change_happens_on_a_frame_while_hidden(variant):
 @pytest.mark.parametrize(
     "call,match",
     [
-        (lambda: object_persistence.clip("gap_block", 0, VideoOptions()), "valid: example"),
+        (lambda: object_persistence.clip("gap_block", 0, VideoOptions()), "are: example"),
         (lambda: object_persistence.probe("color", 0, VideoOptions()), "standard, counterbalanced"),
     ],
 )

@@ -268,9 +268,9 @@ def test_camera_position_matches_mujoco():
 @pytest.mark.parametrize(
     "call,match",
     [
-        (lambda: solidity.clip("example_behind", 0, VideoOptions()), "valid: example"),
-        (lambda: solidity.probe("bogus", 0, VideoOptions()), "valid: standard, counterbalanced"),
-        (lambda: solidity.draw_probe("bogus", np.random.default_rng(0)), "valid: standard"),
+        (lambda: solidity.clip("example_behind", 0, VideoOptions()), "are: example"),
+        (lambda: solidity.probe("bogus", 0, VideoOptions()), "are: standard, counterbalanced"),
+        (lambda: solidity.draw_probe("bogus", np.random.default_rng(0)), "are: standard"),
     ],
 )
 def test_bad_names_list_valid_ones(call, match):

@@ -219,7 +219,7 @@ def test_other_video_geometry():
 def test_bad_names_list_the_valid_ones():
     with pytest.raises(ValueError, match="valid variants"):
         scene.probe("size", 0, VideoOptions())
-    with pytest.raises(ValueError, match="valid kinds"):
+    with pytest.raises(ValueError, match="valid clip kind"):
         scene.clip("screen", 0, VideoOptions())
 
 

@@ -6,10 +6,11 @@ import json
 
 import numpy as np
 import pytest
+from helpers import ALPHA
 
 from voe_lightning.cli import main
 from voe_lightning.external.metrics import quadruplet_metrics
-from voe_lightning.report import PairResults, write_report
+from voe_lightning.report import PairResults, ReportInputs, write_report
 from voe_lightning.stats.field_metrics import (
     REDUCTIONS,
     context_sweep,
@@ -98,8 +99,9 @@ def test_quadruplet_benchmarks_get_the_set_from_per_frame_surprise():
         reduce_surprise(POSSIBLE, "sum"),
         reduce_surprise(IMPOSSIBLE, "sum"),
         bootstrap=0,
+        alpha=ALPHA,
     )
-    frames = quadruplet_metrics([0, 0, 1, 1], POSSIBLE, IMPOSSIBLE, bootstrap=0)
+    frames = quadruplet_metrics([0, 0, 1, 1], POSSIBLE, IMPOSSIBLE, bootstrap=0, alpha=ALPHA)
     assert "field_metrics" not in totals
     assert frames.pop("field_metrics") == field_metrics(POSSIBLE, IMPOSSIBLE)
     assert frames == totals
@@ -116,7 +118,7 @@ def test_the_report_writes_the_set_per_group_into_summary_json_and_md(tmp_path):
         surprise_consistent=consistent,
         surprise_inconsistent=consistent + rng.random((8, 5)),
     )
-    write_report(pairs, tmp_path, echo=False, bootstrap=0)
+    write_report(ReportInputs(pairs, alpha=ALPHA, bootstrap=0), tmp_path, echo=False)
     summary = json.loads((tmp_path / "voe_report" / "summary.json").read_text())
     metrics = summary["field_metrics"]
     assert list(metrics) == ["solidity/standard", "solidity/counterbalanced", "solidity/pooled"]
@@ -142,7 +144,9 @@ def test_analyze_context_sweep_tables_the_set_of_each_context_lengths_report(tmp
             surprise_consistent=consistent,
             surprise_inconsistent=consistent + rng.random((4, 5)) - 0.3,
         )
-        write_report(pairs, tmp_path / f"c{context}", echo=False, bootstrap=0)
+        write_report(
+            ReportInputs(pairs, alpha=ALPHA, bootstrap=0), tmp_path / f"c{context}", echo=False
+        )
         runs[context] = pairs
     table = main(
         [

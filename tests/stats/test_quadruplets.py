@@ -10,6 +10,7 @@ import os
 
 import pytest
 import torch
+from helpers import ALPHA
 
 from voe_lightning import specs
 from voe_lightning.audit import cues, video_cues
@@ -130,7 +131,7 @@ def test_the_quadruplet_test_of_a_post_change_scorer_is_null(quadruplets):
     audit = cues.CueAudit.concatenate(
         [cues.CueAudit.score_batch(first), cues.CueAudit.score_batch(second)]
     )
-    rows = [row for row in audit.rows() if row["variant"] in specs.QUADRUPLET_ROWS]
+    rows = [row for row in audit.rows(alpha=ALPHA) if row["variant"] in specs.QUADRUPLET_ROWS]
     assert {(row["concept"], row["variant"]) for row in rows} == {(concept, name)}
     assert rows[0]["n"] == len(first)
     for row in rows:

@@ -3,6 +3,7 @@ and streaming) against a hand computation, degenerate inputs, the streaming metr
 when states from several processes are merged (simulated DDP), the verdict rules and the one
 alpha."""
 
+import ast
 import json
 import math
 
@@ -10,12 +11,13 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from locations import REPO
+from helpers import ALPHA
+from helpers.locations import REPO
 from scipy import stats
 from sklearn.metrics import roc_auc_score
 
 from voe_lightning import specs
-from voe_lightning.stats import statistics, statistics_format, t_tests
+from voe_lightning.stats import statistics, statistics_format, t_tests, verdicts
 from voe_lightning.stats.statistics import PairedTestResult, effect_size_interval, paired_test
 from voe_lightning.stats.streaming_statistics import PairedSurpriseStats, pooled_values
 
@@ -31,7 +33,7 @@ def _surprise(n, effect, seed):
 )
 def test_paired_test_agrees_with_scipy(n, effect, seed):
     inconsistent, consistent = _surprise(n, effect, seed)
-    result = paired_test(inconsistent, consistent, bootstrap=200)
+    result = paired_test(inconsistent, consistent, bootstrap=200, alpha=ALPHA)
     reference = stats.ttest_rel(inconsistent, consistent, alternative="greater")
     d = inconsistent - consistent
     assert result.n == n and result.df == n - 1
@@ -40,7 +42,7 @@ def test_paired_test_agrees_with_scipy(n, effect, seed):
     assert result.relative_surprise == pytest.approx(d.mean(), rel=1e-12)
     assert result.sd == pytest.approx(d.std(ddof=1), rel=1e-12)
     assert result.d_z == pytest.approx(d.mean() / d.std(ddof=1), rel=1e-12)
-    assert result.significant == (reference.pvalue < statistics.ALPHA)
+    assert result.significant == (reference.pvalue < ALPHA)
     assert result.accuracy == np.mean(d > 0)
     labels = np.r_[np.ones(n), np.zeros(n)]
     reference_auroc = roc_auc_score(labels, np.r_[inconsistent, consistent])
@@ -50,13 +52,14 @@ def test_paired_test_agrees_with_scipy(n, effect, seed):
 
 def test_tensors_and_lists_are_accepted_and_dict_is_flat():
     inconsistent, consistent = _surprise(20, 0.5, 4)
-    from_numpy = paired_test(inconsistent, consistent, bootstrap=100)
+    from_numpy = paired_test(inconsistent, consistent, bootstrap=100, alpha=ALPHA)
     from_torch = paired_test(
         torch.tensor(inconsistent, dtype=torch.float64),
         torch.tensor(consistent, dtype=torch.float64),
         bootstrap=100,
+        alpha=ALPHA,
     )
-    from_list = paired_test(list(inconsistent), list(consistent), bootstrap=100)
+    from_list = paired_test(list(inconsistent), list(consistent), bootstrap=100, alpha=ALPHA)
     assert from_numpy == from_torch == from_list
     row = from_numpy.as_dict()
     assert list(row) == [f.name for f in PairedTestResult.__dataclass_fields__.values()]
@@ -66,7 +69,7 @@ def test_tensors_and_lists_are_accepted_and_dict_is_flat():
 
 def test_effect_size_interval_is_the_noncentral_t_interval():
     inconsistent, consistent = _surprise(40, 0.8, 5)
-    result = paired_test(inconsistent, consistent, bootstrap=0)
+    result = paired_test(inconsistent, consistent, bootstrap=0, alpha=ALPHA)
     n, root_n = result.n, math.sqrt(result.n)
     # At the bounds the observed t is the 97.5% / 2.5% quantile of the noncentral t.
     low_tail = stats.nct.cdf(result.t, n - 1, result.d_z_ci_low * root_n)
@@ -83,9 +86,9 @@ def test_effect_size_interval_is_the_noncentral_t_interval():
 
 def test_bootstrap_interval_is_seeded_and_covers_the_mean():
     inconsistent, consistent = _surprise(200, 0.4, 6)
-    first = paired_test(inconsistent, consistent, bootstrap=500, seed=1)
-    again = paired_test(inconsistent, consistent, bootstrap=500, seed=1)
-    other = paired_test(inconsistent, consistent, bootstrap=500, seed=2)
+    first = paired_test(inconsistent, consistent, bootstrap=500, seed=1, alpha=ALPHA)
+    again = paired_test(inconsistent, consistent, bootstrap=500, seed=1, alpha=ALPHA)
+    other = paired_test(inconsistent, consistent, bootstrap=500, seed=2, alpha=ALPHA)
     assert first == again
     assert first.relative_surprise_ci_low != other.relative_surprise_ci_low
     low, high = first.relative_surprise_ci_low, first.relative_surprise_ci_high
@@ -97,37 +100,37 @@ def test_bootstrap_interval_is_seeded_and_covers_the_mean():
 
 
 def test_no_bootstrap_gives_nan_bounds_with_a_note():
-    result = paired_test([1.0, 2.5, 3.0], [0.5, 2.0, 3.5], bootstrap=0)
+    result = paired_test([1.0, 2.5, 3.0], [0.5, 2.0, 3.5], bootstrap=0, alpha=ALPHA)
     assert math.isnan(result.relative_surprise_ci_low) and "bootstrap=0" in result.note
 
 
 def test_fewer_than_two_pairs_is_refused():
     with pytest.raises(ValueError, match="at least 2 probe pairs, got n=1"):
-        paired_test([1.0], [0.0])
+        paired_test([1.0], [0.0], alpha=ALPHA)
     with pytest.raises(ValueError, match="n=0"):
-        paired_test([], [])
+        paired_test([], [], alpha=ALPHA)
 
 
 def test_nan_surprise_is_refused_naming_how_many():
     inconsistent = np.array([1.0, np.nan, 2.0, np.nan, np.inf])
     with pytest.raises(ValueError, match=r"3 non-finite value\(s\) out of 5 \(2 NaN, 1 infinite\)"):
-        paired_test(inconsistent, np.zeros(5))
+        paired_test(inconsistent, np.zeros(5), alpha=ALPHA)
     with pytest.raises(ValueError, match="consistent surprise has 1 non-finite"):
-        paired_test(np.zeros(3), [0.0, np.nan, 1.0])
+        paired_test(np.zeros(3), [0.0, np.nan, 1.0], alpha=ALPHA)
 
 
 def test_mismatched_or_per_frame_input_is_refused():
     with pytest.raises(ValueError, match="3 inconsistent and 2 consistent"):
-        paired_test([1.0, 2.0, 3.0], [1.0, 2.0])
+        paired_test([1.0, 2.0, 3.0], [1.0, 2.0], alpha=ALPHA)
     with pytest.raises(ValueError, match=r"shape \[n\]; got shape \(2, 15\)"):
-        paired_test(np.zeros((2, 15)), np.zeros((2, 15)))
+        paired_test(np.zeros((2, 15)), np.zeros((2, 15)), alpha=ALPHA)
     with pytest.raises(ValueError, match="alpha"):
         paired_test([1.0, 2.0], [0.0, 0.0], alpha=5)
 
 
 def test_zero_variance_positive_difference():
     consistent = np.array([1.0, 4.0, 2.5, 7.0])
-    result = paired_test(consistent + 0.1, consistent, bootstrap=100)
+    result = paired_test(consistent + 0.1, consistent, bootstrap=100, alpha=ALPHA)
     assert result.t == math.inf and result.p_value == 0.0 and result.significant
     assert result.d_z == math.inf and result.d_z_ci_low == math.inf
     assert result.relative_surprise == pytest.approx(0.1)
@@ -136,14 +139,14 @@ def test_zero_variance_positive_difference():
 
 
 def test_zero_variance_negative_difference():
-    result = paired_test([0.0, 1.0, 2.0], [0.5, 1.5, 2.5], bootstrap=100)
+    result = paired_test([0.0, 1.0, 2.0], [0.5, 1.5, 2.5], bootstrap=100, alpha=ALPHA)
     assert result.t == -math.inf and result.p_value == 1.0 and not result.significant
     assert result.accuracy == 0.0 and "t = -inf, p = 1" in result.note
 
 
 def test_identical_surprise_is_not_significant_and_says_why():
     surprise = [3.0, 1.0, 2.0]
-    result = paired_test(surprise, surprise, bootstrap=100)
+    result = paired_test(surprise, surprise, bootstrap=100, alpha=ALPHA)
     assert math.isnan(result.t) and math.isnan(result.d_z)
     assert result.p_value == 1.0 and not result.significant
     assert result.relative_surprise == 0.0 and result.accuracy == 0.0 and result.auroc == 0.5
@@ -175,7 +178,7 @@ def test_streaming_metric_agrees_with_scipy_and_one_shot():
     values = _stream(inconsistent, consistent, batch=10).compute()
     assert all(value.dtype == torch.float64 for value in values.values())
     _assert_matches_scipy(values, inconsistent, consistent)
-    one_shot = paired_test(inconsistent, consistent, bootstrap=0)
+    one_shot = paired_test(inconsistent, consistent, bootstrap=0, alpha=ALPHA)
     assert values["t"].item() == pytest.approx(one_shot.t, rel=1e-9)
     assert values["p_value"].item() == pytest.approx(one_shot.p_value, rel=1e-9)
 
@@ -264,8 +267,10 @@ def test_pooled_verdict_needs_the_pool_and_both_variants_significant():
     assert "stratified pooled test and in both standard and counterbalanced" in weak.rule
     assert "p < 0.01" in weak.rule
     assert verdict(_result(0.005, 1.0), _result(0.005, 0.5), _result(0.02, 0.7), alpha=0.05).voe
-    assert concept_verdicts({("continuity", "pooled"): _result(0.02, 0.7)})[0].voe is None
-    missing = concept_verdicts({("continuity", "standard"): _result(0.001, 3.0)})[0]
+    assert (
+        concept_verdicts({("continuity", "pooled"): _result(0.02, 0.7)}, alpha=ALPHA)[0].voe is None
+    )
+    missing = concept_verdicts({("continuity", "standard"): _result(0.001, 3.0)}, alpha=ALPHA)[0]
     assert missing.voe is None and "counterbalanced, pooled" in missing.text()
 
 
@@ -290,26 +295,31 @@ def test_unchangeableness_verdict_needs_each_change_quadruplet():
     }
     results[("unchangeableness", "color_plus1")] = _result(0.9, -1.0)  # generalization: ignored
     results[("unchangeableness", "position")] = _result(0.9, -1.0)  # a half: beside the test
-    assert concept_verdicts(results)[0].voe is True
-    assert "of each change" in concept_verdicts(results)[0].rule
+    assert concept_verdicts(results, alpha=ALPHA)[0].voe is True
+    assert "of each change" in concept_verdicts(results, alpha=ALPHA)[0].rule
     results[("unchangeableness", "shape_quadruplet")] = quadruplet_row(0.02)
-    assert concept_verdicts(results)[0].text() == "no VOE: shape_quadruplet p = .020 >= 0.01"
+    assert (
+        concept_verdicts(results, alpha=ALPHA)[0].text()
+        == "no VOE: shape_quadruplet p = .020 >= 0.01"
+    )
     assert concept_verdicts(results, alpha=0.05)[0].voe is True
     results[("unchangeableness", "color_quadruplet")] = quadruplet_row(0.001, 2.0, -0.5)
     assert concept_verdicts(results, alpha=0.05)[0].text() == (
         "no VOE: color_counterbalanced half M = -0.5 <= 0"
     )
     del results[("unchangeableness", "position_quadruplet")]
-    missing = concept_verdicts(results)[0]
+    missing = concept_verdicts(results, alpha=ALPHA)[0]
     assert missing.voe is None and "no test of position_quadruplet" in missing.text()
 
     halves = {
         ("unchangeableness", v): _result(0.005, 1.0)
         for v in specs.VERDICT_VARIANTS["unchangeableness"]
     }
-    assert concept_verdicts(halves)[0].voe is True
+    assert concept_verdicts(halves, alpha=ALPHA)[0].voe is True
     halves[("unchangeableness", "shape_counterbalanced")] = _result(0.02, 0.4)
-    assert concept_verdicts(halves)[0].text() == ("no VOE: shape_counterbalanced p = .020 >= 0.01")
+    assert concept_verdicts(halves, alpha=ALPHA)[0].text() == (
+        "no VOE: shape_counterbalanced p = .020 >= 0.01"
+    )
 
 
 def test_the_verdict_rule_takes_arrays_as_concept_verdicts_takes_rows():
@@ -354,7 +364,7 @@ def test_pooled_test_is_the_stratified_test_computed_by_hand(sizes, effects, see
     consistent = rng.gamma(2.0, 5.0, sum(sizes))
     inconsistent = consistent + np.concatenate(d)
     strata = ["standard"] * sizes[0] + ["counterbalanced"] * sizes[1]
-    result = statistics.pooled_test(inconsistent, consistent, strata, bootstrap=300)
+    result = statistics.pooled_test(inconsistent, consistent, strata, bootstrap=300, alpha=ALPHA)
     mean, standard_error, df, p = _hand_stratified(*d)
     assert result.n == sum(sizes)
     assert result.relative_surprise == pytest.approx(mean, rel=1e-12)
@@ -365,7 +375,7 @@ def test_pooled_test_is_the_stratified_test_computed_by_hand(sizes, effects, see
     welch = stats.ttest_ind(d[0], -d[1], equal_var=False, alternative="greater")
     assert result.t == pytest.approx(welch.statistic, rel=1e-12)
     assert result.p_value == pytest.approx(welch.pvalue, rel=1e-9)
-    assert result.significant == (p < statistics.ALPHA)
+    assert result.significant == (p < ALPHA)
     union = np.concatenate(d)
     assert result.sd == pytest.approx(union.std(ddof=1), rel=1e-12)
     assert result.d_z == pytest.approx(mean / union.std(ddof=1), rel=1e-12)
@@ -380,7 +390,7 @@ def test_stratified_test_has_more_power_than_the_union_when_variants_split():
     rng = np.random.default_rng(4)
     d1, d2 = rng.normal(2.0, 0.5, 40), rng.normal(-1.6, 0.5, 40)
     strata = ["standard"] * 40 + ["counterbalanced"] * 40
-    pooled = statistics.pooled_test(np.r_[d1, d2], np.zeros(80), strata, bootstrap=0)
+    pooled = statistics.pooled_test(np.r_[d1, d2], np.zeros(80), strata, bootstrap=0, alpha=ALPHA)
     union = stats.ttest_1samp(np.r_[d1, d2], 0.0, alternative="greater")
     assert pooled.p_value < 0.01 < 0.1 < union.pvalue
 
@@ -401,6 +411,7 @@ def test_streaming_pooled_values_equal_the_one_shot_pooled_test():
         np.r_[parts[0][1], parts[1][1]],
         ["standard"] * sizes[0] + ["counterbalanced"] * sizes[1],
         bootstrap=0,
+        alpha=ALPHA,
     )
     assert pooled["n"] == one_shot.n == sum(sizes)
     for key in ("relative_surprise", "t", "df", "p_value", "accuracy"):
@@ -424,18 +435,48 @@ def test_stratified_degenerate_and_refused_inputs():
         t_tests.stratified_test([(5, 1.0, 1.0), (1, 0.3, 0.0)])
     with pytest.raises(ValueError, match="counterbalanced has 1 pair"):
         statistics.pooled_test(
-            [1.0, 2.0, 3.0], [0.0, 0.0, 0.0], ["standard", "standard", "counterbalanced"]
+            [1.0, 2.0, 3.0],
+            [0.0, 0.0, 0.0],
+            ["standard", "standard", "counterbalanced"],
+            alpha=ALPHA,
         )
     with pytest.raises(ValueError, match="at least 2 variants"):
-        statistics.pooled_test([1.0, 2.0, 3.0], [0.0, 0.0, 0.0], ["standard"] * 3)
+        statistics.pooled_test([1.0, 2.0, 3.0], [0.0, 0.0, 0.0], ["standard"] * 3, alpha=ALPHA)
 
 
 # ----------------------------------------------------------------------------- alpha
 
 
-def test_one_alpha_in_code_and_base_config_and_bad_values_are_named():
+def test_alpha_has_one_home_the_base_config_and_bad_values_are_named():
+    """No module-level default decides a verdict: a function taking ``alpha`` requires it, or
+    takes None for "the rows' own" or "the run's" (the CLI's and commands' default is
+    configs/base.yaml's, ``base_alpha``)."""
     base = yaml.safe_load((REPO / "configs" / "base.yaml").read_text())
-    assert base["alpha"] == statistics.ALPHA == 0.01
+    assert base["alpha"] == ALPHA == 0.01
+    assert not hasattr(statistics, "ALPHA")
+    defaulted = []
+    for path in (REPO / "voe_lightning").rglob("*.py"):
+        if path.parent.name == "scenes":  # a colour's alpha, not a significance level
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                arguments = node.args
+                positional = arguments.posonlyargs + arguments.args
+                pairs = list(
+                    zip(positional[len(positional) - len(arguments.defaults) :], arguments.defaults)
+                )
+                pairs += [
+                    (a, d)
+                    for a, d in zip(arguments.kwonlyargs, arguments.kw_defaults)
+                    if d is not None
+                ]
+                defaulted += [
+                    f"{path.name}:{node.name}"
+                    for a, default in pairs
+                    if a.arg == "alpha"
+                    and not (isinstance(default, ast.Constant) and default.value is None)
+                ]
+    assert defaulted == []
     for bad in (0, 1, 1.5, -0.1, "0.05", True):
         with pytest.raises(ValueError, match=r"alpha must be a significance level in \(0, 1\)"):
             statistics.check_alpha(bad)
@@ -471,7 +512,11 @@ def test_one_row_formatter_writes_each_number_alike_in_every_style():
         "concept": "solidity",
         "variant": "pooled",
         **statistics.pooled_test(
-            d + 1.0, np.ones(6), ["standard"] * 3 + ["counterbalanced"] * 3, bootstrap=0
+            d + 1.0,
+            np.ones(6),
+            ["standard"] * 3 + ["counterbalanced"] * 3,
+            bootstrap=0,
+            alpha=ALPHA,
         ).as_dict(),
     }
     report = statistics_format.row_text(row)
@@ -518,6 +563,37 @@ def test_one_row_formatter_writes_each_number_alike_in_every_style():
     )
 
 
+def test_a_nan_p_is_undefined_and_a_p_beside_alpha_shows_the_digits_of_its_verdict():
+    """format_p(NaN) was '1'; p = .0103 beside α = .01 was '.010 ... no' (issue 59)."""
+    fmt = statistics_format
+    assert fmt.format_p(math.nan) == fmt.format_p("nan") == "undefined"
+    assert fmt.format_p_phrase(np.float32("nan"), 0.01) == "p = undefined"
+    assert fmt.format_p(0.0103, 0.01) == ".0103" and fmt.format_p(0.0097, 0.01) == ".0097"
+    assert fmt.format_p(0.0100001, 0.01) == ".0100001" and fmt.format_p(0.01, 0.01) == ".010"
+    # anywhere else, three decimals or '< .001', as before
+    assert [fmt.format_p(p, 0.01) for p in (0.034, 0.0004, 0.0123, 0.99, 1.0)] == [
+        ".034",
+        "< .001",
+        ".012",
+        ".990",
+        "1",
+    ]
+    assert fmt.format_p(0.0103) == ".010"  # no alpha: no verdict beside it
+    row = {"n": 9, "t": 3.0, "df": 8, "p_value": 0.0103, "alpha": 0.01, "significant": False}
+    report = fmt.row_text(row)
+    assert (report.p, report.p_phrase, report.sig) == (".0103", "p = .0103", "no")
+    console = fmt.row_text({**row, "p_value": 0.009996}, fmt.CONSOLE)
+    assert console.p == ".009996" and fmt.row_text(row, fmt.CONSOLE).p == "0.0103"
+    verdict = verdicts.concept_verdicts(
+        [
+            {"concept": "mine", "variant": variant, "p_value": 0.0103, "relative_surprise": 1.0}
+            for variant in ("a", "b")
+        ],
+        0.01,
+    )
+    assert "p = .0103 >= 0.01" in verdict[0].reason
+
+
 # ----------------------------------------------------------------------------- quadruplet test
 
 
@@ -528,7 +604,7 @@ def test_quadruplet_test_agrees_with_scipy_over_d(n, effect, seed):
     rng = np.random.default_rng(seed)
     a, b = rng.normal(10, 2, n), rng.normal(10, 2, n)
     ab, ba = b + effect + rng.normal(0, 1, n), a + effect + rng.normal(0, 1, n)
-    result = statistics.quadruplet_test(ab, a, ba, b, bootstrap=0)
+    result = statistics.quadruplet_test(ab, a, ba, b, bootstrap=0, alpha=ALPHA)
     d = (ab - a) + (ba - b)
     expected = stats.ttest_1samp(d, 0.0, alternative="greater")
     assert result.n == n and result.df == n - 1
@@ -541,7 +617,7 @@ def test_quadruplet_test_agrees_with_scipy_over_d(n, effect, seed):
     with pytest.raises(
         ValueError, match=f"one pair per quadruplet alike; got {n} first and {n - 1} second"
     ):
-        statistics.quadruplet_test(ab, a, ba[1:], b[1:])
+        statistics.quadruplet_test(ab, a, ba[1:], b[1:], alpha=ALPHA)
 
 
 def test_quadruplets_match_by_seed_and_the_report_tests_them():
@@ -608,7 +684,10 @@ def test_quadruplets_match_by_seed_and_the_report_tests_them():
         surprise_consistent=frames[:, 0],
         surprise_inconsistent=frames[:, 1] + 1.0,
     )
-    rows = {(row["concept"], row["variant"]): row for row in summarize(results, bootstrap=0)}
+    rows = {
+        (row["concept"], row["variant"]): row
+        for row in summarize(results, bootstrap=0, alpha=ALPHA)
+    }
     row = rows[("object_persistence", "quadruplet")]
     total_con, total_inc = frames[:, 0].sum(1), frames[:, 1].sum(1) + 4.0
     d = total_inc - total_con
@@ -617,7 +696,7 @@ def test_quadruplets_match_by_seed_and_the_report_tests_them():
     )
     assert row["first_half"] == pytest.approx(d[[0, 3]].mean())
     assert rows[("continuity", "pooled")]["first_half"] is None
-    verdict = concept_verdicts(list(rows.values()))[0]
+    verdict = concept_verdicts(list(rows.values()), alpha=ALPHA)[0]
     assert "quadruplet test, both halves M > 0" in verdict.rule
 
 
@@ -635,7 +714,8 @@ def test_quadruplet_verdict_needs_the_test_and_both_halves():
             {
                 ("object_persistence", "standard"): _result(0.9, -1.0),
                 ("object_persistence", "quadruplet"): row,
-            }
+            },
+            alpha=ALPHA,
         )[0]
 
     assert verdict(0.001, 1.0, 0.5).voe is True  # a weak variant row does not decide it
@@ -680,6 +760,7 @@ def test_each_quadruplet_half_is_tested_on_its_own_beside_the_verdict():
                 "first_half": 0.5,
                 "second_half": 0.5,
             }
-        }
+        },
+        alpha=ALPHA,
     )[0]
     assert lone.halves_significant is None and lone.halves == ""

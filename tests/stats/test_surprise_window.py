@@ -8,7 +8,8 @@ import json
 import numpy as np
 import pytest
 import torch
-from locations import TINY_CONFIG
+from helpers import ALPHA
+from helpers.locations import TINY_CONFIG
 
 from voe_lightning.cli import main
 from voe_lightning.report.pairs import PairResults
@@ -56,7 +57,7 @@ def test_a_window_sums_the_frames_from_the_first_difference_by_hand():
     # all frames: pair 0's persistent difference at frame 4 counts too
     np.testing.assert_array_equal(results.relative_surprise, [14.0, 13.0])
     assert results.windowed(SurpriseWindow()).relative_surprise.tolist() == [14.0, 13.0]
-    row = summarize(windowed, bootstrap=0)[0]
+    row = summarize(windowed, bootstrap=0, alpha=ALPHA)[0]
     assert row["relative_surprise"] == pytest.approx(8.5) and row["n"] == 2
     # a window past the last frame keeps what there is; without first_difference, m + 1
     late = results.windowed(SurpriseWindow(frames=10))
@@ -146,7 +147,7 @@ def test_the_report_names_its_window_beside_all_frames(tmp_path, monkeypatch):
     assert summary["surprise_window"] == {"start": "first_difference", "frames": 2}
     assert summary["rows"] == all_rows
     pairs = PairResults.from_csv(report / "pairs.csv")
-    expected = summarize(pairs.windowed(SurpriseWindow(2)), bootstrap=2000)
+    expected = summarize(pairs.windowed(SurpriseWindow(2)), bootstrap=2000, alpha=ALPHA)
     window = summary["window"]
     assert window["video_surprise"].startswith("sum over the 2 frames from the pair's first")
     assert [row["relative_surprise"] for row in window["rows"]] == pytest.approx(
@@ -182,9 +183,7 @@ def test_validation_curves_log_the_window_beside_all_frames():
 
     results, module = _toy(), Module()
     trainer = SimpleNamespace(datamodule=Probes(), sanity_checking=False)
-    callback = VOEProbeCallback(
-        print_table=False, surprise_window={"start": "first_difference", "frames": 2}
-    )
+    callback = VOEProbeCallback(print_table=False, surprise_window=SurpriseWindow(2), alpha=ALPHA)
     callback.on_validation_epoch_start(trainer, module)
     outputs = {
         "concept": torch.tensor([specs.CONCEPTS.index("continuity")] * 2),

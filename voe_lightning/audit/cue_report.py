@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -277,7 +278,7 @@ def write_audit(
     ``physics_perfect_correlations.csv`` (with those correlations) and ``cues.json`` (rows,
     correlations and ``metadata``), all or none of them (``store_shards.write_whole``: a full
     disk names the file and leaves the previous audit whole)."""
-    out = Path(out_dir)
+    out = check_out_folder(out_dir, "the audit's folder")
     markdown = format_markdown(cue_rows, model_rows, title)
     files = {}
     for rows, formatter, name in (
@@ -299,6 +300,20 @@ def write_audit(
     return out
 
 
+def check_out_folder(out: str | os.PathLike, what: str) -> Path:
+    """``out`` as a Path, refused (a ValueError naming it) when it, or the first of its
+    parents that exists, is a file: the audit writes several files into a folder."""
+    out = Path(out)
+    existing = next((path for path in (out, *out.parents) if path.exists()), None)
+    if existing is not None and not existing.is_dir():
+        where = "is a file" if existing == out else f"lies under the file {existing}"
+        raise ValueError(
+            f"{what} {out} {where}; it is a folder the audit writes cues.md, cues.csv, "
+            "cues.json and the correlation CSVs into: give a folder (new or existing)"
+        )
+    return out
+
+
 def _csv_text(rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> str:
     """``rows`` as CSV text with a header of ``columns``."""
     handle = io.StringIO(newline="")
@@ -313,7 +328,8 @@ def audit(
     split: Literal["val", "test", "generalization"] = "test",
     concepts: list[specs.Concept] | None = None,
     out: Path | None = None,
-    alpha: float = statistics.ALPHA,
+    *,
+    alpha: float,
     batch_size: int = 64,
     num_workers: int = 0,
     progress: bool = True,
@@ -340,6 +356,8 @@ def audit(
     statistics.check_alpha(alpha)
     if batch_size < 1:
         raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+    if out is not None:
+        check_out_folder(out, "--out")
     scores = audit_split(root, split, concepts, batch_size, num_workers, progress=progress)
     rows = scores.rows(alpha=alpha)
     reference = None

@@ -211,10 +211,11 @@ class CueAudit:
         of ``specs.QUADRUPLETS`` (``verdicts.pair_groups``)."""
         return verdicts.pair_groups(self.concepts, self.variants, seeds=self.seeds)
 
-    def rows(self, alpha: float = statistics.ALPHA, bootstrap: int = 0) -> list[dict[str, Any]]:
+    def rows(self, alpha: float, bootstrap: int = 0) -> list[dict[str, Any]]:
         """One row per (concept, variant or pooled, cue), columns ``CUE_COLUMNS``: the test
         of score(inconsistent) - score(consistent) the model's rows get
-        (``statistics.group_test``: stratified for pooled), ``accuracy`` counting ties as half."""
+        (``statistics.group_test``: stratified for pooled), ``accuracy`` counting ties as half;
+        every row, tested or not, carries ``alpha``."""
         rows = []
         for concept, variant, selected in self.groups():
             for cue in CUES:
@@ -225,6 +226,7 @@ class CueAudit:
                     concept=concept,
                     variant=variant,
                     cue=cue,
+                    alpha=alpha,
                     n=len(self.concepts[selected])
                     // (2 if variant in specs.QUADRUPLET_ROWS else 1),
                 )
@@ -254,7 +256,7 @@ class CueAudit:
         return rows
 
     def model_correlations(
-        self, model_difference: np.ndarray, alpha: float = statistics.ALPHA
+        self, model_difference: np.ndarray, alpha: float
     ) -> list[dict[str, Any]]:
         """How closely a model tracks each cue pair by pair: per group (``groups``) and cue,
         Pearson's r across pairs between the model's relative surprise d (``model_difference``,

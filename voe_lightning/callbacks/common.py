@@ -1,13 +1,45 @@
-"""What the callbacks share: the probe DataModule's concept and variant names, and
-objects gathered from every DDP rank."""
+"""What the callbacks share: the run's significance level, what a probe callback found
+(``ProbeOutcome``), the probe DataModule's concept and variant names, and objects gathered from
+every DDP rank."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import lightning as L
 
 from voe_lightning.probe_datamodule import probe_datamodule
+from voe_lightning.stats.causality import Causality
+from voe_lightning.stats.statistics import check_alpha
+
+
+class RunAlpha:
+    """A callback's ``alpha``: the run's significance level, which the CLI hands every callback
+    that takes one (configs/base.yaml's ``alpha``); a callback used without it refuses to test
+    rather than fall back on a default."""
+
+    def __init__(self, alpha: float | None) -> None:
+        self._alpha = None if alpha is None else check_alpha(alpha)
+
+    @property
+    def alpha(self) -> float:
+        if self._alpha is None:
+            raise ValueError(
+                f"{type(self).__name__} was given no alpha: pass the run's significance level "
+                "(alpha=0.01 is configs/base.yaml's; the CLI hands it over)"
+            )
+        return self._alpha
+
+
+@dataclass(frozen=True)
+class ProbeOutcome:
+    """What a probe callback found on its last run, for the CLI: its causality check (None
+    before one ran) and the report folder it wrote (None for none)."""
+
+    causality: Causality | None
+    report_dir: Path | None = None
 
 
 def probe_names(trainer: L.Trainer, user: str) -> tuple[tuple[str, ...], tuple[str, ...]]:

@@ -7,11 +7,12 @@ from typing import Any
 
 import lightning as L
 import torch
+from lightning.pytorch.utilities import rank_zero_warn
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
 from voe_lightning.callbacks.common import probe_names
-from voe_lightning.model.base import video_inputs
+from voe_lightning.model.base import expected_frames_problem, video_inputs
 
 
 def _first_frames(video_input: Any, count: int) -> Any:
@@ -58,8 +59,13 @@ class ExpectationImages(L.Callback):
                 for key, value in example.items()
             }
             frames = example["frames"][: self.max_frames]
+            model_frames = video.pop("frames")
             with torch.no_grad():
-                expected = pl_module.expected_frames(video.pop("frames"), **video)[0]
+                returned = pl_module.expected_frames(model_frames, **video)
+            if problem := expected_frames_problem(pl_module, returned, model_frames):
+                rank_zero_warn(f"{problem}; no expected/ images logged")
+                return
+            expected = returned[0]
             strip = torch.cat(
                 [specs.to_model_input(frames), expected.float().cpu().clamp(0, 1)], dim=-2
             )

@@ -1,7 +1,10 @@
 """A preempted or interrupted ``fit`` saves where it stopped and says so: SIGTERM (a cluster's
 preemption) and SIGINT (Ctrl-C) stop training at the end of the current step through
 Lightning's own SIGTERM handling, and ``InterruptCheckpoint`` saves a resumable last.ckpt
-there; the CLI then exits with 128 + the signal's number instead of 0."""
+there; the CLI then exits with 128 + the signal's number instead of 0. ``validate``, ``test``
+and ``predict`` have nothing to resume: SIGTERM stops them at once (Lightning's handler only
+sets a flag, which its loops read between batches and its predict loop never), so ``kill``
+and ``timeout`` stop a long evaluation."""
 
 from __future__ import annotations
 
@@ -11,8 +14,10 @@ from pathlib import Path
 from typing import Any
 
 import lightning as L
+from lightning.pytorch.trainer.states import TrainerFn
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 
+from voe_lightning.callbacks.checkpoint_io import use_whole_checkpoints
 from voe_lightning.runs import LAST_CHECKPOINT
 
 
@@ -21,12 +26,20 @@ class InterruptCheckpoint(L.Callback):
     ``SIGTERMException`` once the step in progress has ended, so the loops' state is whole);
     on that exception the trainer's full state is saved as last.ckpt in the run's checkpoint
     folder, ready for ``fit --ckpt_path <it>`` (or ``last``). A second Ctrl-C stops at once,
-    saving nothing. After the exception, ``signal_name`` and ``saved`` say what happened."""
+    saving nothing. During ``validate``, ``test`` and ``predict``, SIGTERM raises
+    ``SIGTERMException`` at once (nothing to save). After the exception, ``signal_name`` and
+    ``saved`` say what happened. It also writes every checkpoint of the run whole
+    (``checkpoint_io.WholeCheckpointIO``)."""
 
     def __init__(self) -> None:
         self.signal_name: str | None = None
         self.saved: Path | None = None
         self._previous: dict[int, Any] = {}
+
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        """Every checkpoint of the run, this one's and ModelCheckpoint's, is written whole
+        (``checkpoint_io.WholeCheckpointIO``: never a truncated file on a full disk)."""
+        use_whole_checkpoints(trainer)
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self.signal_name, self.saved = None, None
@@ -50,11 +63,52 @@ class InterruptCheckpoint(L.Callback):
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._restore_handlers()
 
+    # ------------------------------------------------ validate, test, predict: stop at once
+    def _stop_on_sigterm(self, trainer: L.Trainer) -> None:
+        """Outside ``fit``, SIGTERM raises ``SIGTERMException`` where the evaluation is (a
+        batch, the report): there is no state to save, and the flag Lightning's handler sets
+        is read only between batches (never in the last one, the report or predict)."""
+        if trainer.state.fn == TrainerFn.FITTING or self._previous:
+            return
+        if threading.current_thread() is not threading.main_thread():
+            return
+        self.signal_name, self.saved = None, None
+        self._previous = {signal.SIGTERM: signal.getsignal(signal.SIGTERM)}
+
+        def on_signal(number: int, frame: Any) -> None:
+            self.signal_name = signal.Signals(number).name
+            self._restore_handlers()
+            raise SIGTERMException
+
+        signal.signal(signal.SIGTERM, on_signal)
+
+    def on_validation_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._stop_on_sigterm(trainer)
+
+    def on_test_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._stop_on_sigterm(trainer)
+
+    def on_predict_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._stop_on_sigterm(trainer)
+
+    def _evaluation_end(self, trainer: L.Trainer) -> None:
+        if trainer.state.fn != TrainerFn.FITTING:
+            self._restore_handlers()
+
+    def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._evaluation_end(trainer)
+
+    def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._evaluation_end(trainer)
+
+    def on_predict_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._evaluation_end(trainer)
+
     def on_exception(
         self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException
     ) -> None:
         self._restore_handlers()
-        if not isinstance(exception, SIGTERMException):
+        if not isinstance(exception, SIGTERMException) or trainer.state.fn != TrainerFn.FITTING:
             return
         self.signal_name = self.signal_name or "SIGTERM"
         self.saved = self.checkpoint_path(trainer)

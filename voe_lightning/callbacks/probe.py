@@ -17,14 +17,12 @@ from rich.console import Console, Group
 from rich.table import Table
 from rich.text import Text
 
-from voe_lightning.callbacks.common import gather_objects, probe_names
+from voe_lightning.callbacks.common import ProbeOutcome, RunAlpha, gather_objects, probe_names
 from voe_lightning.probe_datamodule import probe_datamodule
 from voe_lightning.stats.causality import Causality, check_prefix
 from voe_lightning.stats.statistics import (
-    ALPHA,
     POOLED,
     POOLED_VARIANTS,
-    check_alpha,
     quadruplet_test,
 )
 from voe_lightning.stats.statistics_format import CONSOLE, format_alpha, row_text
@@ -34,14 +32,13 @@ from voe_lightning.stats.streaming_statistics import (
     pooled_values,
 )
 from voe_lightning.stats.surprise_window import SurpriseWindow, video_surprise
-from voe_lightning.stats.surprise_window import surprise_window as parse_window
 from voe_lightning.stats.verdicts import concept_verdicts, pair_groups, quadruplets
 
 #: A quadruplet row's means of its halves, logged beside its statistics.
 HALVES = ("first_half", "second_half")
 
 
-class VOEProbeCallback(L.Callback):
+class VOEProbeCallback(RunAlpha, L.Callback):
     """Every validation run (set its frequency with ``trainer.val_check_interval``, in training
     steps) streams each probe pair's relative surprise into one PairedSurpriseStats per
     concept/variant, then logs ``voe/<concept>/<variant>/{relative_surprise,t,p_value,accuracy,n}``.
@@ -51,8 +48,8 @@ class VOEProbeCallback(L.Callback):
     they are); and each quadruplet the validation probes hold (matched by seed,
     ``verdicts.quadruplets``), ``voe/<concept>/<quadruplet row>/...`` with its halves' means
     (``first_half``, ``second_half``): the quadruplet test the verdict reads, as the report's.
-    At the end of ``fit`` it prints the last table with each concept's verdict at ``alpha``
-    (None: ``statistics.ALPHA``; the CLI gives the run's ``alpha`` from configs/base.yaml).
+    At the end of ``fit`` it prints the last table with each concept's verdict at ``alpha``,
+    the run's significance level (the CLI gives the run's ``alpha``, configs/base.yaml).
     A ``surprise_window`` other than all frames (``surprise_window.surprise_window``; the CLI
     gives the run's) logs the same statistics of each video's surprise summed over that window
     beside them, as ``voe_window/...``. Each validation run also checks causality
@@ -65,12 +62,11 @@ class VOEProbeCallback(L.Callback):
         self,
         print_table: bool = True,
         alpha: float | None = None,
-        surprise_window: str | dict[str, Any] | None = None,
+        surprise_window: SurpriseWindow | None = None,
     ):
-        super().__init__()
+        super().__init__(alpha)
         self.print_table = print_table
-        self.alpha = ALPHA if alpha is None else check_alpha(alpha)
-        window = parse_window(surprise_window)
+        window = surprise_window or SurpriseWindow()
         #: The windows whose statistics are logged, by log prefix: all frames first.
         self.windows = {
             "voe": SurpriseWindow(),
@@ -83,6 +79,11 @@ class VOEProbeCallback(L.Callback):
         #: Per log prefix, this validation run's pairs (concept, variant, seed, S(inc), S(con)),
         #: which the quadruplet rows match by seed.
         self._pairs: dict[str, list[tuple[str, str, int, float, float]]] = {}
+
+    @property
+    def outcome(self) -> ProbeOutcome:
+        """The last validation's causality check; no report."""
+        return ProbeOutcome(self.causality)
 
     def on_validation_epoch_start(self, trainer, pl_module) -> None:
         cases = probe_datamodule(trainer, type(self).__name__).probe_cases("val")
@@ -242,7 +243,7 @@ MARKS = "¹²³⁴⁵⁶⁷⁸⁹"
 def voe_table(
     results: dict[tuple[str, str], dict[str, float]],
     title: str,
-    alpha: float = ALPHA,
+    alpha: float,
     causality: Causality | None = None,
 ) -> Group:
     """A table of relative surprise M, t, p and accuracy per concept (a heading row) and

@@ -12,27 +12,26 @@ from typing import Any
 
 import lightning as L
 
-from voe_lightning.callbacks.common import gather_objects, probe_names
+from voe_lightning.callbacks.common import ProbeOutcome, RunAlpha, gather_objects, probe_names
 from voe_lightning.callbacks.report_batches import CueScores, ProbeOutputs
 from voe_lightning.callbacks.report_benchmark import write_benchmark_metrics
 from voe_lightning.callbacks.report_examples import ExampleVideos
 from voe_lightning.callbacks.report_source import report_source
 from voe_lightning.model.base import SurpriseModel
-from voe_lightning.report import write_report
+from voe_lightning.report import ReportInputs, write_report
 from voe_lightning.report.pairs import PairResults
 from voe_lightning.stats.causality import Causality
-from voe_lightning.stats.statistics import ALPHA, check_alpha
-from voe_lightning.stats.surprise_window import surprise_window as parse_window
+from voe_lightning.stats.surprise_window import SurpriseWindow
 
 
-class VOEReportCallback(L.Callback):
+class VOEReportCallback(RunAlpha, L.Callback):
     """Collects ``test_step`` outputs (the ``probe_step`` dict, ``ProbeOutputs``) and, at the
     end of ``test``, writes the VOE report into ``out_dir`` or the run directory
     (``trainer.log_dir``). Keeps up to ``max_prediction_examples`` inconsistent probes per
     concept/variant for predictions_<concept>.png (``pl_module.expected_frames``) and
     ``tsne_pairs`` object-persistence pairs, standard and counterbalanced alternately, for the
-    t-SNE figure (``pl_module.trajectories``; ``ExampleVideos``). Tests are at ``alpha`` (None:
-    ``statistics.ALPHA``; the CLI gives the run's ``alpha`` from configs/base.yaml). With
+    t-SNE figure (``pl_module.trajectories``; ``ExampleVideos``). Tests are at ``alpha``, the
+    run's significance level (the CLI gives the run's ``alpha``, configs/base.yaml). With
     ``cue_audit`` it scores the physics-blind cues of every test batch's pairs (``CueScores``:
     ``voe_lightning.audit.cues``, on the batch's device), so the cue rows of cues.md/cues.csv
     share the model's pairs and n. Names are decoded with the ProbeDataModule's
@@ -55,13 +54,13 @@ class VOEReportCallback(L.Callback):
     def __init__(
         self,
         out_dir: str | None = None,
+        alpha: float | None = None,
         max_prediction_examples: int = 1,
         tsne_pairs: int = 2,
-        alpha: float | None = None,
         bootstrap: int = 2000,
         seed: int = 0,
         cue_audit: bool = True,
-        surprise_window: str | dict[str, Any] | None = None,
+        surprise_window: SurpriseWindow | None = None,
         priors_alone: bool = False,
     ) -> None:
         if max_prediction_examples < 0 or tsne_pairs < 0:
@@ -72,10 +71,10 @@ class VOEReportCallback(L.Callback):
         self.out_dir = out_dir
         self.max_prediction_examples = max_prediction_examples
         self.tsne_pairs = tsne_pairs
-        self.alpha = ALPHA if alpha is None else check_alpha(alpha)
+        super().__init__(alpha)
         self.bootstrap, self.seed = bootstrap, seed
         self.cue_audit = cue_audit
-        self.surprise_window = parse_window(surprise_window)
+        self.surprise_window = surprise_window or SurpriseWindow()
         self.priors_alone = priors_alone
         #: The untrained copy's summary.json document (``null.priors_alone``), set by the CLI.
         self.untrained: dict[str, Any] | None = None
@@ -94,6 +93,11 @@ class VOEReportCallback(L.Callback):
         self._examples = ExampleVideos(
             self.max_prediction_examples, self.tsne_pairs, concept_names, variant_names
         )
+
+    @property
+    def outcome(self) -> ProbeOutcome:
+        """The last test's causality check and the report folder it wrote."""
+        return ProbeOutcome(self.causality, self.report_dir)
 
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         if not isinstance(pl_module, SurpriseModel):
@@ -160,21 +164,21 @@ class VOEReportCallback(L.Callback):
             pl_module, [rank[1] for rank in gathered]
         )
         user = type(self).__name__
-        self.summary = write_report(
+        inputs = ReportInputs(
             results,
-            out_dir,
-            predictions,
-            trajectories,
-            trajectory_labels=labels,
-            cue_audit=cue_audit,
             alpha=self.alpha,
             bootstrap=self.bootstrap,
             seed=self.seed,
+            predictions=predictions,
+            trajectories=trajectories,
+            trajectory_labels=labels,
+            cue_audit=cue_audit,
             surprise=pl_module.SURPRISE,
             source=report_source(trainer, self._checkpoint_step, user),
             window=self.surprise_window,
             priors_alone=self.untrained,
         )
+        self.summary = write_report(inputs, out_dir)
         self.report_dir = Path(out_dir) / "voe_report"
         self.causality = results.causality
         write_benchmark_metrics(

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from lightning.pytorch.utilities import rank_zero_warn
 
-from voe_lightning.model.base import video_inputs
+from voe_lightning.model.base import expected_frames_problem, video_inputs
 from voe_lightning.report.figures import PredictionExample, tsne_unfit
 
 #: Kept videos per (concept, variant) index for the predictions, per variant index for t-SNE.
@@ -101,7 +101,11 @@ class ExampleVideos:
         if not examples:
             return []
         video = _stacked([e["inconsistent"] for e in examples], pl_module.device)
-        expected = pl_module.expected_frames(**video).float().cpu().numpy()
+        returned = pl_module.expected_frames(**video)
+        if problem := expected_frames_problem(pl_module, returned, video["frames"]):
+            rank_zero_warn(f"{problem}; predictions_<concept>.png not written")
+            return []
+        expected = returned.float().cpu().numpy()
         return [
             PredictionExample(
                 concept=self.concept_names[e["concept"]],

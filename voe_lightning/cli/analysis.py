@@ -30,6 +30,7 @@ from voe_lightning.cli.size_sweep import sweep, sweep_plot
 from voe_lightning.data.store import collate, open_split, read_manifest
 from voe_lightning.model import VRNNLRUModel
 from voe_lightning.report.figures import panel_grid, save_figure
+from voe_lightning.report.page import write_comparison
 from voe_lightning.report.pairs import PairResults
 from voe_lightning.report.summary_file import read_summary
 from voe_lightning.stats.field_metrics import context_sweep, format_field_metrics
@@ -322,17 +323,23 @@ def curves(runs: list[str], out: Path, step_scale: dict[str, float] | None = Non
     )
 
 
-def compare(runs: list[str], out: Path | None = None) -> str:
+def compare(runs: list[str], out: Path | None = None, page: Path | None = None) -> str:
     """Per-concept verdicts of tested runs side by side, as a Markdown table.
 
     Args:
         runs: tested run directories as [LABEL=]DIR (their latest own voe_report is read).
         out: also write the table here.
+        page: also write a self-contained HTML page here (opens offline): the runs' verdicts
+            side by side, each one's source and causality check, and their figures side by side.
     """
-    table = comparison_markdown(comparison_rows([_labelled(run) for run in runs]))
+    labelled = [_labelled(run) for run in runs]
+    table = comparison_markdown(comparison_rows(labelled))
     print(table, end="")
     if out:
         Path(out).write_text(table)
+    if page:
+        reports = [(label, _latest_report(run_dir)) for label, run_dir in labelled]
+        print(f"wrote {write_comparison(reports, page)}")
     return table
 
 

@@ -20,10 +20,12 @@ from lightning.pytorch.utilities.seed import isolate_rng
 from voe_lightning import runs
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.callbacks.interruption import InterruptCheckpoint
+from voe_lightning.callbacks.outcomes import probe_outcomes
 from voe_lightning.cli import (
     checkpoint_arguments,
     commands,
     null,
+    parser_errors,
     preflight,
     run_arguments,
     run_folders,
@@ -33,6 +35,7 @@ from voe_lightning.cli.commands import COMMANDS, LIGHTNING_SUBCOMMANDS
 from voe_lightning.cli.run_arguments import BASE_CONFIG, SHIPPED_CONFIGS
 from voe_lightning.cli.user_errors import DEBUG_VARIABLE
 from voe_lightning.model import SurpriseModel
+from voe_lightning.model.scorers.callable_model import CallableError
 from voe_lightning.probe_datamodule import ProbeDataModule
 from voe_lightning.report.priors_alone import PRIORS_ALONE
 from voe_lightning.runs import read_checkpoint
@@ -40,6 +43,8 @@ from voe_lightning.runs import read_checkpoint
 #: Exit status of a fit/validate/test whose probe surprise failed the causality check (the
 #: report is written, without verdicts), unless ``--allow_non_causal true``.
 NOT_CAUSAL_EXIT = 3
+#: Exit status of a ``COMMANDS`` subcommand stopped by Ctrl-C (128 + SIGINT, as a shell's).
+INTERRUPTED_EXIT = 130
 
 
 class VOECLI(LightningCLI):
@@ -125,14 +130,16 @@ class VOECLI(LightningCLI):
         """Complete and check the run's config before anything is built: the evaluation-only
         model arguments, the run's alpha and surprise window for the callbacks, the preflight
         checks, the config file's name and the logger in the checkpoint's run folder."""
-        config = self.config.get(self.subcommand, {})
+        # A CLI built without running (run=False: ``analyze null``) has no subcommand level.
+        config = self.config if self.subcommand is None else self.config.get(self.subcommand, {})
         # LightningCLI has replaced the model's arguments with the checkpoint's hyperparameters
         # since parse_arguments (its _parse_ckpt_path): the evaluation-only ones given win.
         for name, value in self.evaluation_arguments.items():
             config["model"]["init_args"][name] = value
-        if self.subcommand in LIGHTNING_SUBCOMMANDS:
+        if self.subcommand is None or self.subcommand in LIGHTNING_SUBCOMMANDS:
             run_arguments.give_alpha(config)
             run_arguments.give_surprise_window(config)
+        if self.subcommand in LIGHTNING_SUBCOMMANDS:
             preflight.check_run(self.subcommand, config)
         if config and "weights_only" in config and config.get("weights_only") is None:
             config["weights_only"] = True  # torch>=2.4 may default to unpickling anything
@@ -181,8 +188,22 @@ class VOECLI(LightningCLI):
             arguments = self.config[subcommand].clone()
             del arguments["seed_everything"]  # parse_arguments' False: not the function's
             entry_points = {"_cli_main": main, "_build_cli": functools.partial(_cli, run=False)}
-            self.result = commands.call(COMMANDS[subcommand], arguments, entry_points)
+            try:
+                self.result = commands.call(COMMANDS[subcommand], arguments, entry_points)
+            except KeyboardInterrupt as stopped:
+                if subcommand not in commands.RESUMABLE:
+                    raise
+                print(
+                    f"error: {subcommand} interrupted (Ctrl-C, SIGINT): "
+                    f"{commands.RESUMABLE[subcommand]}",
+                    file=sys.stderr,
+                )
+                raise SystemExit(INTERRUPTED_EXIT) from stopped
             return
+        if not any(
+            isinstance(callback, InterruptCheckpoint) for callback in self.trainer.callbacks
+        ):
+            self.trainer.callbacks.append(InterruptCheckpoint())  # SIGTERM stops evaluation too
         try:
             super()._run_subcommand(subcommand)
         except SIGTERMException as stopped:
@@ -204,9 +225,10 @@ class VOECLI(LightningCLI):
             if interrupt.saved
             else "nothing saved"
         )
+        at_step = f" at step {self.trainer.global_step}" if subcommand == "fit" else ""
         print(
-            f"{subcommand} stopped by {interrupt.signal_name or 'SIGTERM'} at step "
-            f"{self.trainer.global_step}; {saved}",
+            f"{subcommand} stopped by {interrupt.signal_name or 'SIGTERM'}{at_step}; "
+            + (saved if subcommand == "fit" else "nothing written (no report, no predictions)"),
             file=sys.stderr,
         )
         return interrupt.exit_code()
@@ -280,11 +302,10 @@ class VOECLI(LightningCLI):
     def _exit_if_not_causal(self, subcommand: str) -> None:
         """Say so in one line and exit with ``NOT_CAUSAL_EXIT`` where a callback's causality
         check failed (the report and tables give no verdict), unless ``--allow_non_causal``."""
-        for callback in self.trainer.callbacks:
-            causality = getattr(callback, "causality", None)
+        for outcome in probe_outcomes(self.trainer.callbacks):
+            causality, where = outcome.causality, outcome.report_dir
             if causality is None or causality.causal:
                 continue
-            where = getattr(callback, "report_dir", None)
             if self.config[subcommand].get("allow_non_causal"):
                 print(f"{subcommand}: {causality.line()} (--allow_non_causal)", file=sys.stderr)
                 return
@@ -311,7 +332,9 @@ class VOECLI(LightningCLI):
                 f"{subcommand} without --ckpt_path would use the untrained weights of "
                 f"{type(self.model).__name__} ({trainable:,} trainable parameters): give "
                 "--ckpt_path PATH.ckpt, or --ckpt_path last for the newest checkpoint of the "
-                "config's logger name (only a model without trainable parameters needs none)"
+                "config's logger name (only a model without trainable parameters needs none: "
+                "weights your own code loads, e.g. an nn.Module a CallableModel wraps, are "
+                "frozen with .requires_grad_(False) where they are built)"
             )
 
 
@@ -330,11 +353,14 @@ def main(args: list[str] | None = None) -> Any:
             sys.argv[1:] = words  # LightningCLI reads the command line itself
         user_errors.check_yaml(words)
         user_errors.check_classes(words)
-        cli = _cli(None if args is None else words)
+        with parser_errors.full_messages(debug):
+            cli = _cli(None if args is None else words)
     except Exception as error:
         message = user_errors.user_message(error)
         if debug or message is None:
             raise
+        if isinstance(error, CallableError):
+            message += f" ({DEBUG_VARIABLE}=1 or --debug shows its traceback)"
         print(f"error: {message}", file=sys.stderr)
         raise SystemExit(2) from error
     return cli.result if cli.subcommand in COMMANDS else cli

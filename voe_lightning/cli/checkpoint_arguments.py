@@ -12,7 +12,7 @@ from typing import Any
 
 from jsonargparse import Namespace
 
-from voe_lightning.cli.class_paths import import_object
+from voe_lightning.cli.class_paths import import_failure, import_object
 from voe_lightning.cli.run_arguments import BASE_CONFIG
 from voe_lightning.model import SurpriseModel
 
@@ -24,13 +24,21 @@ def refuse_retired_arguments(ckpt_path: str, trained: dict) -> None:
     if not trained.get("_class_path"):
         return
     migrate = f"`python -m voe_lightning migrate {ckpt_path}`"
+    class_path = trained["_class_path"]
     try:
-        model_class = import_object(trained["_class_path"])
-    except (ImportError, AttributeError) as error:
+        model_class = import_object(class_path)
+    except Exception as error:  # any error importing it: the module's own too
         raise ValueError(
-            f"{ckpt_path} names its model class {trained['_class_path']}, which does not import "
-            f"({error}); a run saved under an old path is rewritten by {migrate}"
-        ) from None
+            f"{ckpt_path} names its model class {class_path}, which does not import "
+            f"({import_failure(error)}); a run saved under an old path is rewritten by "
+            f"{migrate}"
+        ) from error
+    if not (isinstance(model_class, type) and issubclass(model_class, SurpriseModel)):
+        raise ValueError(
+            f"{ckpt_path} names its model class {class_path}, which is a "
+            f"{type(model_class).__name__}, not a subclass of SurpriseModel; a checkpoint of "
+            f"this package names one, e.g. voe_lightning.model.VRNNLRUModel"
+        )
     parameters = inspect.signature(model_class.__init__).parameters
     if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values()):
         return

@@ -1,6 +1,6 @@
 """The subcommands in the one parser: Lightning's (``fit``, ``validate``, ``test``,
 ``predict``), listed with a summary of their own, and the package's (``COMMANDS``: ``generate``,
-``audit``, ``check-causality``, ``analyze``, ``migrate``), each built by jsonargparse from its function's
+``audit``, ``check-causality``, ``analyze``, ``migrate``, ``export``), each built by jsonargparse from its function's
 signature and docstring and run by calling that function."""
 
 from __future__ import annotations
@@ -12,12 +12,14 @@ from typing import Any
 from jsonargparse import ActionConfigFile, ActionSubCommands, ArgumentParser, Namespace
 from lightning.pytorch.cli import LightningArgumentParser
 
-from voe_lightning import causality
 from voe_lightning.audit import cue_report
 from voe_lightning.cli import analysis, emergence, migrate
 from voe_lightning.cli.class_paths import import_object
+from voe_lightning.cli.parser_errors import OneLineErrors
 from voe_lightning.cli.run_arguments import base_alpha
 from voe_lightning.data import generate
+from voe_lightning.export import command as export_command
+from voe_lightning.model import causality
 
 #: ``--help``'s summary of Lightning's subcommands (their docstrings' first lines stop mid-sentence).
 LIGHTNING_SUBCOMMANDS = {
@@ -35,6 +37,13 @@ COMMANDS: dict[str, Any] = {
     "check-causality": causality.check_causality,
     "analyze": {**analysis.COMMANDS, "emergence": emergence.emergence},
     "migrate": migrate.migrate,
+    "export": export_command.export,
+}
+#: The commands that a rerun resumes where Ctrl-C stopped them, and what their one line then
+#: says (the traceback of the KeyboardInterrupt is not printed).
+RESUMABLE = {
+    "generate": "the shards it finished are kept (a shard being written is left out whole); "
+    "run the same command again to resume",
 }
 #: The commands whose required arguments are positional (``migrate PATH``).
 POSITIONAL = {"migrate"}
@@ -50,14 +59,20 @@ class Subcommands(ActionSubCommands):
         return super().add_subcommand(name, parser, **kwargs)
 
 
-class SubcommandsParser(LightningArgumentParser):
+class SubcommandsParser(OneLineErrors, LightningArgumentParser):
     """LightningArgumentParser whose subcommands are ``Subcommands``, kept as ``subcommands``
-    so that ``add_commands`` adds the package's beside Lightning's."""
+    so that ``add_commands`` adds the package's beside Lightning's; a refusal is one line
+    (``parser_errors.OneLineErrors``)."""
 
     def add_subcommands(self, *args: Any, **kwargs: Any) -> ActionSubCommands:
         kwargs.setdefault("action", Subcommands)
         self.subcommands = super().add_subcommands(*args, **kwargs)
         return self.subcommands
+
+
+class CommandParser(OneLineErrors, ArgumentParser):
+    """The parser of a ``COMMANDS`` subcommand, whose refusals are one line (it reports its own
+    type errors, not the main parser)."""
 
 
 def add_commands(parser: SubcommandsParser) -> None:
@@ -71,7 +86,7 @@ def _add_command(subcommands: ActionSubCommands, name: str, command: Any) -> Non
     with their help from its docstring's Args, or a dict's functions as its own subcommands."""
     nested = isinstance(command, dict)
     description = command["_help"] if nested else inspect.getdoc(command).split("\n\nArgs:")[0]
-    parser = ArgumentParser(description=description)
+    parser = CommandParser(description=description)
     parser.add_argument(
         "--config",
         action=ActionConfigFile,

@@ -28,6 +28,7 @@ import scipy.stats
 import yaml
 from matplotlib.figure import Figure
 
+from voe_lightning.callbacks.outcomes import report_folders
 from voe_lightning.data.store_shards import write_whole
 from voe_lightning.report.figures import save_figure
 from voe_lightning.report.summary_file import read_summary
@@ -57,11 +58,7 @@ def _untrained_report(
         ]
     )
     cli.trainer.test(cli.model, datamodule=cli.datamodule)
-    reports = [
-        callback.report_dir
-        for callback in cli.trainer.callbacks
-        if getattr(callback, "report_dir", None) is not None
-    ]
+    reports = report_folders(cli.trainer.callbacks)
     if not reports:
         raise ValueError(
             "the configs' trainer wrote no report: add "

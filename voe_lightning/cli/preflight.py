@@ -48,6 +48,12 @@ def check_run(subcommand: str, config: Any) -> None:
     if subcommand != "fit":
         return
     interval = trainer.get("val_check_interval")
+    if isinstance(interval, int) and not isinstance(interval, bool) and interval < 1:
+        raise ValueError(
+            f"trainer.val_check_interval {interval}: give a number of training steps >= 1 "
+            "between validations, a fraction of an epoch in (0.0, 1.0], or a duration "
+            "'DD:HH:MM:SS'"
+        )
     if (
         isinstance(interval, int)
         and isinstance(max_steps, int)
@@ -83,11 +89,32 @@ def check_logger(config: Any) -> None:
     folder = Path(logger["save_dir"], *parts)
     existing = next(path for path in (folder, *folder.parents) if path.exists())
     if not os.access(existing, os.W_OK | os.X_OK) or not existing.is_dir():
+        problem = f"cannot write the run folder {folder}: {existing} is not a writable folder"
+        checkpoint = _checkpoint_in_run(config, logger)
+        if checkpoint is not None:  # run_folders.log_into_run put the logger there
+            raise PermissionError(
+                f"{problem}; a checkpoint in a run's checkpoints/ folder ({checkpoint}) logs "
+                f"and reports into its run {checkpoint.parent.parent}, whatever save_dir is: "
+                f"make {existing} writable, or copy the checkpoint out of checkpoints/ (cp "
+                f"{checkpoint} model.ckpt; --ckpt_path model.ckpt) to write under "
+                "trainer.logger.init_args.save_dir"
+            )
         raise PermissionError(
-            f"cannot write the run folder {folder}: {existing} is not a "
-            "writable folder; choose another trainer.logger.init_args.save_dir "
-            "or make it writable"
+            f"{problem}; choose another trainer.logger.init_args.save_dir or make it writable"
         )
+
+
+def _checkpoint_in_run(config: Any, logger: Any) -> Path | None:
+    """``--ckpt_path`` when it lies in ``<save_dir>/<name>/<version>/checkpoints/`` and the
+    logger writes into that run (``run_folders.log_into_run``), else None."""
+    ckpt_path = config.get("ckpt_path")
+    if not ckpt_path or Path(ckpt_path).parent.name != "checkpoints":
+        return None
+    checkpoint = Path(ckpt_path)
+    run = checkpoint.parent.parent
+    if Path(logger["save_dir"], str(logger.get("name"))) != run.parent:
+        return None
+    return checkpoint
 
 
 def _check_image_size(model: Any, data: Any) -> None:

@@ -6,14 +6,25 @@ from __future__ import annotations
 
 import inspect
 from pathlib import Path
-from typing import Any, Union
+from typing import Any, Optional
 
 import yaml
 from jsonargparse import Namespace
+from jsonargparse.typing import register_type
 
 from voe_lightning.cli.class_paths import import_object
 from voe_lightning.stats import statistics
-from voe_lightning.stats.surprise_window import surprise_window
+from voe_lightning.stats.surprise_window import ALL, SurpriseWindow, surprise_window
+
+
+def _window_from_config(value: Any) -> SurpriseWindow:
+    """A ``SurpriseWindow`` from a config's or a command line's value (YAML text there)."""
+    return surprise_window(yaml.safe_load(value) if isinstance(value, str) else value)
+
+
+# A surprise window is parsed once, where the parser reads it, and saved configs keep its
+# config form.
+register_type(SurpriseWindow, serializer=SurpriseWindow.as_config, deserializer=_window_from_config)
 
 #: The configs shipped inside the package (``configs/`` in a checkout links to them), found
 #: wherever the package is installed.
@@ -29,14 +40,14 @@ def add_run_arguments(parser: Any) -> None:
     parser.add_argument(
         "--alpha",
         type=float,
-        default=statistics.ALPHA,
+        default=base_alpha(),
         help="significance level of every test, verdict and table of the "
         "run; each callback with an alpha argument gets it",
     )
     parser.add_argument(
         "--surprise_window",
-        type=Union[str, dict, None],  # noqa: UP007 (jsonargparse's type)
-        default="all",
+        type=Optional[SurpriseWindow],  # noqa: UP045 (jsonargparse's type)
+        default=ALL,
         help="frames a video's surprise sums in the report: all (the "
         "paper's) or {start: first_difference, frames: k}, reported beside "
         "all frames; each callback with a surprise_window argument gets it",
@@ -58,22 +69,18 @@ def add_run_arguments(parser: Any) -> None:
 
 
 def base_alpha() -> float:
-    """The ``alpha`` of configs/base.yaml (``statistics.ALPHA`` where the file or the key is
-    missing): the default significance level of the commands beside Lightning's too."""
+    """The ``alpha`` of configs/base.yaml, the one home of the default significance level:
+    every run's and every command's beside Lightning's."""
     try:
-        alpha = yaml.safe_load(BASE_CONFIG.read_text()).get("alpha", statistics.ALPHA)
-    except (OSError, AttributeError):
-        return statistics.ALPHA
-    try:
-        return statistics.check_alpha(alpha)
+        return statistics.check_alpha(yaml.safe_load(BASE_CONFIG.read_text()).get("alpha"))
     except ValueError as error:
         raise ValueError(f"{BASE_CONFIG}: {error}") from None
 
 
 def give_surprise_window(config: Any) -> None:
-    """Hand the run's ``surprise_window`` (checked) to every configured callback that takes
-    one and was not given one."""
-    window = surprise_window(config.get("surprise_window")).as_config()
+    """Hand the run's ``surprise_window`` (a ``SurpriseWindow``, parsed once by the parser) to
+    every configured callback that takes one and was not given one."""
+    window = config["surprise_window"] or SurpriseWindow()
     for _, init_args in _callbacks_taking(config, "surprise_window"):
         if init_args.get("surprise_window") is None:
             init_args["surprise_window"] = window

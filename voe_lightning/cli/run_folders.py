@@ -16,6 +16,7 @@ from lightning.pytorch.utilities import rank_zero_warn
 
 from voe_lightning import runs
 from voe_lightning.cli.class_paths import import_object
+from voe_lightning.data.store_plan import store_root
 from voe_lightning.probe_datamodule import ProbeDataModule
 
 
@@ -116,10 +117,10 @@ def _report_folder(config: Any, checkpoint: Path, evaluation: dict[str, Any]) ->
         trained_args = {}
     return runs.report_folder(
         checkpoint,
-        runs.probe_root(data_args),
+        store_root(data_args),
         runs.concepts_of(data_args),
         benchmark,
-        runs.probe_root(trained_args),
+        store_root(trained_args),
         runs.concepts_of(trained_args),
         evaluation,
         data_args.get("test_split") or "test",

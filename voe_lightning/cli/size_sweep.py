@@ -15,17 +15,17 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from voe_lightning.callbacks import VOEReportCallback
+from voe_lightning.callbacks.outcomes import report_folders
 from voe_lightning.report.figures import panel_grid, save_figure
 from voe_lightning.report.pairs import PairResults
 from voe_lightning.report.summary_file import read_summary
-from voe_lightning.stats.statistics import ALPHA, paired_test
+from voe_lightning.stats.statistics import paired_test
 
 __all__ = ["run_size_sweep", "size_sweep_figure", "sweep", "sweep_plot", "sweep_rows"]
 
 
 def sweep_rows(
-    results: PairResults, train_size: int, eval_sets: int, alpha: float = ALPHA
+    results: PairResults, train_size: int, eval_sets: int, alpha: float
 ) -> list[dict[str, Any]]:
     """Split each concept/variant's test pairs (ordered by seed) into ``eval_sets`` disjoint
     evaluation sets and test each: one row per (concept, variant, evaluation set)."""
@@ -109,10 +109,9 @@ def size_sweep_figure(rows: Sequence[Mapping[str, Any]]) -> Figure:
 
 
 def _report_dir(cli: Any) -> Path:
-    trainer = getattr(cli, "trainer", None)
-    for callback in getattr(trainer, "callbacks", []):
-        if isinstance(callback, VOEReportCallback) and callback.report_dir is not None:
-            return callback.report_dir
+    reports = report_folders(cli.trainer.callbacks)
+    if reports:
+        return reports[-1]
     raise RuntimeError(
         "the test run wrote no VOE report: add voe_lightning.callbacks."
         "VOEReportCallback to the config's trainer.callbacks"
@@ -120,15 +119,16 @@ def _report_dir(cli: Any) -> Path:
 
 
 def _report_alpha(report_dir: Path) -> float:
-    """The significance level a voe_report was written at (its summary.json's alpha; ALPHA
-    where it has none). A corrupt summary.json is named, not read as the default alpha."""
-    if not (Path(report_dir) / "summary.json").is_file():
-        return ALPHA
-    return float(read_summary(report_dir).get("alpha", ALPHA))
+    """The significance level a voe_report was written at (its summary.json's ``alpha``). A
+    missing or corrupt summary.json, or one without an alpha, is named."""
+    alpha = read_summary(report_dir).get("alpha")
+    if alpha is None:
+        raise ValueError(f"{Path(report_dir) / 'summary.json'} gives no alpha")
+    return float(alpha)
 
 
 def _checkpoint(cli: Any) -> str:
-    callback = getattr(getattr(cli, "trainer", None), "checkpoint_callback", None)
+    callback = cli.trainer.checkpoint_callback
     path = callback and (callback.last_model_path or callback.best_model_path)
     if not path:
         raise RuntimeError("the fit run saved no checkpoint (is checkpointing enabled?)")

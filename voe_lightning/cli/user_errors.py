@@ -15,7 +15,7 @@ from pathlib import Path
 import yaml
 from lightning.pytorch.utilities.exceptions import MisconfigurationException
 
-from voe_lightning.cli.class_paths import import_object
+from voe_lightning.cli.class_paths import import_failure, import_object, missing_methods
 
 #: Environment variable that, like ``--debug`` anywhere on the command line, shows the traceback
 #: of a refused argument or input instead of its one-line error.
@@ -62,7 +62,20 @@ def check_yaml(words: list[str]) -> None:
             where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
             problem = getattr(error, "problem", None) or error
             raise ValueError(f"--config {name} is not valid YAML{where}: {problem}") from None
-        if document is not None and _expanded_size(document, {}) > MAX_CONFIG_VALUES:
+        if document is None or (
+            isinstance(document, yaml.ScalarNode) and document.tag.endswith(":null")
+        ):
+            raise ValueError(
+                f"--config {name} is empty (or null): a config is a YAML mapping of arguments, "
+                "e.g. 'trainer: {max_steps: 100}'; give one, or leave this --config out"
+            )
+        if not isinstance(document, yaml.MappingNode):
+            kind = "a list" if isinstance(document, yaml.SequenceNode) else "a single value"
+            raise ValueError(
+                f"--config {name} holds {kind}, not a mapping of arguments: a config is a "
+                "YAML mapping, e.g. 'trainer: {max_steps: 100}'"
+            )
+        if _expanded_size(document, {}) > MAX_CONFIG_VALUES:
             raise ValueError(
                 f"--config {name} expands to more than {MAX_CONFIG_VALUES:,} values "
                 "through its YAML aliases (*name repeating &name): refused; a "
@@ -161,12 +174,24 @@ def check_classes(words: list[str]) -> None:
         ):
             continue
         try:
-            import_object(value)
-        except (ImportError, AttributeError) as error:
+            given = import_object(value)
+        except Exception as error:  # any error importing it: the module's own too
             raise ValueError(
-                f"{flag} {value} cannot be imported ({error}); give a class's "
+                f"{flag} {value} cannot be imported ({import_failure(error)}); give a class's "
                 f"import path, e.g. {CLASS_FLAGS[flag]}"
-            ) from None
+            ) from error
+        if missing := missing_methods(given):
+            raise ValueError(abstract_class(flag, value, missing))
+
+
+def abstract_class(name: str, class_path: str, missing: list[str]) -> str:
+    """The message refusing the abstract class ``class_path`` given as ``name``, naming the
+    methods it does not implement."""
+    return (
+        f"{name} {class_path} cannot be built: it does not implement {', '.join(missing)} "
+        "(abstract in its base class; a SurpriseModel implements surprise, expected_frames "
+        "and trajectories: docs/your_model.md)"
+    )
 
 
 def _expanded_size(node: yaml.Node, sizes: dict[int, int]) -> int:

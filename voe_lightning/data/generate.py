@@ -15,6 +15,7 @@ import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import get_args
 
 from tqdm.auto import tqdm
 
@@ -31,7 +32,8 @@ from voe_lightning.data.store_plan import (
     split_counts,
 )
 from voe_lightning.scenes import check_video, generate_clip, generate_probe
-from voe_lightning.scenes.camera import VideoOptions
+from voe_lightning.scenes.camera import VideoOptions, draws_every_scene, size_advice
+from voe_lightning.scenes.sampling import NoValidScene
 
 DEFAULT_SHARD_SIZE = 256
 #: Paper scale (§A): 100,000 examples and 100,000 controls per concept, 2,000 validation and
@@ -75,11 +77,13 @@ def generate_shard(
             records.append(render_record(task.concept, task.split, name, seed, video))
         except (ValueError, RuntimeError) as error:
             # A ValueError is a setting the scene cannot render (solidity's num_frames): it
-            # stays one, so the CLI prints it as the user's error, in one line.
-            kind = ValueError if isinstance(error, ValueError) else RuntimeError
+            # stays one, so the CLI prints it as the user's error, in one line; so does a
+            # scene no draw of which fits a frame of a size outside those that work.
+            small = isinstance(error, NoValidScene) and not draws_every_scene(video)
+            kind = ValueError if isinstance(error, ValueError) or small else RuntimeError
             raise kind(
                 f"rendering {task.concept} {task.split} {name} seed {seed} for {task.path(root)} "
-                f"failed: {error}"
+                f"failed: {error}" + (f": {size_advice(video)}" if small else "")
             ) from error
     return len(records), store_shards.write_shard(task.path(root), records, shard_meta(task))
 
@@ -90,53 +94,96 @@ def _generate_shard_star(arguments) -> tuple[int, int, int]:
 
 
 def _remove_stale_temporaries(path: Path) -> None:
-    """Delete temporary files an interrupted write of ``path`` left behind."""
+    """Delete temporary files an interrupted write of ``path`` left behind: those whose
+    process no longer runs on this host (``store_shards.remove_stale``); a running writer's
+    (another ``generate`` on this root), or another host's, are left to it."""
     if path.parent.is_dir():
-        for temporary in path.parent.glob(f".{path.name}.*.tmp"):
-            temporary.unlink(missing_ok=True)
+        store_shards.remove_stale(path.parent, path.name)
 
 
 # --- entry points -------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class _Request:
-    """A checked generate request: where (the seed offset's store), which video size, the
-    records of every split and the probe splits' seed offset."""
+class GenerationPlan:
+    """A checked generate request, planned once: where (the seed offset's store), which video
+    size and shard size, each concept's manifest entry, the probe splits' seed offset, the
+    splits asked for and every shard of them, in plan order (``store_plan.plan_shards``)."""
 
     root: Path
     video: VideoOptions
     shard_size: int
-    concept_counts: dict[str, dict[str, dict[str, int]]]
     entries: dict[str, dict]
     seed_offset: int
+    splits: tuple[str, ...]
+    tasks: tuple[ShardTask, ...]
 
 
-def _prepare(
-    root,
-    concepts,
-    train_examples,
-    train_controls,
-    val_pairs,
-    test_pairs,
-    generalization_pairs,
-    shard_size,
-    num_frames,
-    height,
-    width,
-    seed_offset,
-) -> _Request:
-    """Check generate's arguments (errors name the bad value and the valid choices); a
-    ``train_examples`` of None is ``DEFAULT_TRAIN_EXAMPLES``, or none with a seed offset,
-    whose store holds probes only."""
+def plan_generation(
+    root: str | os.PathLike,
+    concepts: Iterable[str] | str,
+    train_examples: int | None,
+    train_controls: int | None,
+    val_pairs: int,
+    test_pairs: int,
+    generalization_pairs: int,
+    shard_size: int,
+    num_frames: int,
+    height: int,
+    width: int,
+    seed_offset: int,
+    splits: Iterable[str] = store.SPLITS,
+) -> GenerationPlan:
+    """Check generate's arguments (errors name the bad value and the valid choices) and plan
+    the store they describe, once for the whole run: a ``train_examples`` of None is
+    ``DEFAULT_TRAIN_EXAMPLES``, or none with a seed offset, whose store holds probes only."""
+    checked_splits = _checked_splits(splits)
     check_seed_offset(seed_offset)
+    names = _checked_concepts(concepts)
+    counts = _checked_counts(
+        root, train_examples, train_controls, val_pairs, test_pairs, generalization_pairs,
+        seed_offset,
+    )  # fmt: skip
+    video = _checked_video(names, shard_size, num_frames, height, width, counts)
+    _warn_of_shard_memory(video, shard_size)
+    concept_counts = {concept: split_counts(concept, **counts) for concept in names}
+    entries = {
+        concept: generate_manifest.concept_entry(c, seed_offset)
+        for concept, c in concept_counts.items()
+    }
+    tasks = plan_shards(concept_counts, shard_size, seed_offset)
+    return GenerationPlan(
+        root=seed_offset_root(root, seed_offset),
+        video=video,
+        shard_size=shard_size,
+        entries=entries,
+        seed_offset=seed_offset,
+        splits=checked_splits,
+        tasks=tuple(task for task in tasks if task.split in checked_splits),
+    )
+
+
+def _checked_concepts(concepts: Iterable[str] | str) -> tuple[str, ...]:
+    """The concepts asked for, once each, in order; a ValueError names an unknown one."""
+    names = (concepts,) if isinstance(concepts, str) else tuple(dict.fromkeys(concepts))
+    if not names:
+        raise ValueError(f"no concepts given; valid concepts are: {', '.join(specs.CONCEPTS)}")
+    for concept in names:
+        specs.check_concept(concept)
+    return names
+
+
+def _checked_counts(
+    root: str | os.PathLike,
+    train_examples: int | None,
+    train_controls: int | None,
+    val_pairs: int,
+    test_pairs: int,
+    generalization_pairs: int,
+    seed_offset: int,
+) -> dict[str, int]:
+    """``split_counts``' arguments, each checked; training clips default to
+    ``DEFAULT_TRAIN_EXAMPLES`` (none with a seed offset) and controls match examples 1:1."""
     if train_examples is None:
         train_examples = 0 if seed_offset else DEFAULT_TRAIN_EXAMPLES
-    if isinstance(concepts, str):
-        concepts = (concepts,)
-    concepts = tuple(dict.fromkeys(concepts))
-    if not concepts:
-        raise ValueError(f"no concepts given; valid concepts are: {', '.join(specs.CONCEPTS)}")
-    for concept in concepts:
-        specs.check_concept(concept)
     if train_controls is None:
         train_controls = train_examples  # matched 1:1 as in the paper
     if seed_offset and (train_examples or train_controls):
@@ -156,6 +203,19 @@ def _prepare(
     for name, value in counts.items():
         if not isinstance(value, int) or value < 0:
             raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
+    return counts
+
+
+def _checked_video(
+    concepts: Sequence[str],
+    shard_size: int,
+    num_frames: int,
+    height: int,
+    width: int,
+    counts: dict[str, int],
+) -> VideoOptions:
+    """The video options, checked with the shard size, and against every concept's scenes
+    when probes are asked for (before a shard of any concept renders)."""
     if not isinstance(shard_size, int) or shard_size < 1:
         raise ValueError(f"shard_size must be a positive integer, got {shard_size!r}")
     if not isinstance(num_frames, int) or num_frames < 2:
@@ -164,18 +224,10 @@ def _prepare(
             f"its first frame), got {num_frames!r}"
         )
     video = VideoOptions(num_frames=num_frames, height=height, width=width)
-    if val_pairs or test_pairs:  # before a shard of any concept renders
+    if counts["val_pairs"] or counts["test_pairs"]:
         for concept in concepts:
             check_video(concept, num_frames=num_frames, height=height, width=width)
-    _warn_of_shard_memory(video, shard_size)
-    concept_counts = {concept: split_counts(concept, **counts) for concept in concepts}
-    entries = {
-        concept: generate_manifest.concept_entry(c, seed_offset)
-        for concept, c in concept_counts.items()
-    }
-    return _Request(
-        seed_offset_root(root, seed_offset), video, shard_size, concept_counts, entries, seed_offset
-    )
+    return video
 
 
 def _warn_of_shard_memory(video: VideoOptions, shard_size: int) -> None:
@@ -227,6 +279,17 @@ def generate_dataset(
     each split's billion-wide range) and puts them in a store of their own, ``root/
     seed_offset_<N>`` (``store_plan.seed_offset_root``, the summary's ``root``), which holds
     no training clips: a fresh test set that leaves the store at ``root`` untouched."""
+    workers = _checked_workers(workers, shard_index, num_shards)
+    plan = plan_generation(
+        root, concepts, train_examples, train_controls, val_pairs, test_pairs,
+        generalization_pairs, shard_size, num_frames, height, width, seed_offset, splits,
+    )  # fmt: skip
+    return _generate(plan, workers, shard_index, num_shards, overwrite, progress)
+
+
+def _checked_workers(workers: int | None, shard_index: int, num_shards: int) -> int:
+    """The worker processes to render with (None: all cores), checked with the slice
+    ``shard_index`` of ``num_shards`` (errors name the bad value)."""
     if not isinstance(num_shards, int) or num_shards < 1:
         raise ValueError(f"num_shards must be a positive integer, got {num_shards!r}")
     if not isinstance(shard_index, int) or not 0 <= shard_index < num_shards:
@@ -234,49 +297,40 @@ def generate_dataset(
     workers = worker_pool.default_workers() if workers is None else workers
     if not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
-    splits = _checked_splits(splits)
-    request = _prepare(
-        root, concepts, train_examples, train_controls, val_pairs, test_pairs,
-        generalization_pairs, shard_size, num_frames, height, width, seed_offset,
-    )  # fmt: skip
-    root, video = request.root, request.video
+    return workers
+
+
+def _generate(
+    plan: GenerationPlan,
+    workers: int,
+    shard_index: int,
+    num_shards: int,
+    overwrite: bool,
+    progress: bool,
+) -> GenerationSummary:
+    """Render the shards of ``plan``'s slice ``shard_index`` of ``num_shards`` that are
+    missing or corrupt, after reconciling the manifest (``generate_dataset``)."""
+    root = plan.root
     started = time.perf_counter()
     if root.exists() and not root.is_dir():
         raise NotADirectoryError(f"dataset root {root} exists and is not a directory")
     generate_manifest.reconcile_manifest(
-        root, video, shard_size, request.entries, overwrite, request.seed_offset
+        root, plan.video, plan.shard_size, plan.entries, overwrite, plan.seed_offset
     )
-    tasks = _planned(request, splits)[shard_index::num_shards]
-    layouts = record_layouts(video)
-    todo, replaced = [], []
-    for task in tasks:
-        try:
-            check_task(root, task, layouts)
-        except store_shards.CorruptShardError as error:
-            _remove_stale_temporaries(task.path(root))
-            todo.append(task)
-            if error.reason != "missing":
-                replaced.append(f"{error.path}: {error.reason}")
-    if replaced:
-        warnings.warn(
-            f"regenerating {len(replaced)} shard(s) of {root} that do not match the plan:\n  "
-            + "\n  ".join(replaced[:20])
-            + ("\n  ..." if len(replaced) > 20 else ""),
-            stacklevel=2,
-        )
+    tasks = plan.tasks[shard_index::num_shards]
+    todo = _shards_to_render(plan, tasks)
     total_videos = sum(task.num_videos for task in tasks)
-    done_videos = total_videos - sum(task.num_videos for task in todo)
     records = written = 0
     bar = tqdm(
         total=total_videos,
-        initial=done_videos,
+        initial=total_videos - sum(task.num_videos for task in todo),
         unit="video",
         desc=f"generate {root}" + (f" [{shard_index}/{num_shards}]" if num_shards > 1 else ""),
         disable=not progress,
         dynamic_ncols=True,
     )
     with bar:
-        for videos, count, size in _run(root, todo, video, workers):
+        for videos, count, size in _run(root, todo, plan.video, workers):
             records += count
             written += size
             bar.update(videos)
@@ -284,6 +338,28 @@ def generate_dataset(
         root, len(tasks), len(tasks) - len(todo), len(todo), records, written,
         time.perf_counter() - started,
     )  # fmt: skip
+
+
+def _shards_to_render(plan: GenerationPlan, tasks: Sequence[ShardTask]) -> list[ShardTask]:
+    """The shards of ``tasks`` missing or not matching the plan in ``plan.root`` (their stale
+    temporaries deleted), warning of those it replaces."""
+    layouts = record_layouts(plan.video)
+    todo, replaced = [], []
+    for task in tasks:
+        try:
+            check_task(plan.root, task, layouts)
+        except store_shards.CorruptShardError as error:
+            _remove_stale_temporaries(task.path(plan.root))
+            todo.append(task)
+            if error.reason != "missing":
+                replaced.append(f"{error.path}: {error.reason}")
+    if replaced:
+        warnings.warn(
+            f"regenerating {len(replaced)} shard(s) of {plan.root} that do not match the plan:"
+            "\n  " + "\n  ".join(replaced[:20]) + ("\n  ..." if len(replaced) > 20 else ""),
+            stacklevel=4,
+        )
+    return todo
 
 
 def _run(root: Path, todo: list[ShardTask], video: VideoOptions, workers: int):
@@ -301,50 +377,44 @@ def ensure_dataset(root: str | os.PathLike, **options) -> GenerationSummary | No
     """Make sure the store at ``root`` holds the dataset ``options`` (generate_dataset's
     arguments) describe: returns None at once when the manifest matches and every shard of
     ``splits`` is present with an intact index, else says which splits it generates where and
-    generates what is missing. For DataModule.prepare_data."""
-    bound = inspect.signature(generate_dataset).bind(root, **options)
-    bound.apply_defaults()
-    request = _prepare(**{k: bound.arguments[k] for k in inspect.signature(_prepare).parameters})
-    splits = _checked_splits(bound.arguments["splits"])
-    if _is_complete(request, splits):
+    generates what is missing, from the same plan. For DataModule.prepare_data."""
+    arguments = inspect.signature(generate_dataset).bind(root, **options)
+    arguments.apply_defaults()
+    given = arguments.arguments
+    plan = plan_generation(**{k: given[k] for k in inspect.signature(plan_generation).parameters})
+    if _is_complete(plan):
         return None
     print(
-        f"generating the {', '.join(splits)} split{'s' if len(splits) > 1 else ''} of "
-        f"{', '.join(request.concept_counts)} under {request.root} (missing or incomplete "
-        "there)"
+        f"generating the {', '.join(plan.splits)} split{'s' if len(plan.splits) > 1 else ''} "
+        f"of {', '.join(plan.entries)} under {plan.root} (missing or incomplete there)"
     )
-    return generate_dataset(root, **options)
+    workers = _checked_workers(given["workers"], given["shard_index"], given["num_shards"])
+    return _generate(
+        plan, workers, given["shard_index"], given["num_shards"], given["overwrite"],
+        given["progress"],
+    )  # fmt: skip
 
 
-def _checked_splits(splits: Iterable[str]) -> list[str]:
+def _checked_splits(splits: Iterable[str]) -> tuple[str, ...]:
     """``splits`` in the store's order, each checked (the error names the valid ones)."""
     wanted = set(splits)
     for split in sorted(wanted):
         store.check_split(split)
-    return [split for split in store.SPLITS if split in wanted]
+    return tuple(split for split in store.SPLITS if split in wanted)
 
 
-def _planned(request: _Request, splits: Sequence[str]) -> list[ShardTask]:
-    """The planned shards of ``splits``."""
-    return [
-        task
-        for task in plan_shards(request.concept_counts, request.shard_size, request.seed_offset)
-        if task.split in splits
-    ]
-
-
-def _is_complete(request: _Request, splits: Sequence[str]) -> bool:
-    """Whether the store holds every planned shard of ``splits``, intact (checksums included:
-    a corrupt record must be repaired before training, not met in the middle of it)."""
-    manifest = store.read_manifest(request.root)
+def _is_complete(plan: GenerationPlan) -> bool:
+    """Whether the store holds every planned shard, intact (checksums included: a corrupt
+    record must be repaired before training, not met in the middle of it)."""
+    manifest = store.read_manifest(plan.root)
     if not generate_manifest.matches(
-        manifest, request.video, request.shard_size, request.entries, request.seed_offset
+        manifest, plan.video, plan.shard_size, plan.entries, plan.seed_offset
     ):
         return False
-    layouts = record_layouts(request.video)
-    for task in _planned(request, splits):
+    layouts = record_layouts(plan.video)
+    for task in plan.tasks:
         try:
-            check_task(request.root, task, layouts)
+            check_task(plan.root, task, layouts)
         except store_shards.CorruptShardError:
             return False
     return True
@@ -353,7 +423,7 @@ def _is_complete(request: _Request, splits: Sequence[str]) -> bool:
 # --- command line -------------------------------------------------------------------------------
 def generate(
     root: Path,
-    concepts: list[specs.Concept] = list(specs.CONCEPTS),  # noqa: B006 (the CLI reads it; never mutated)
+    concepts: list[specs.Concept] = list(get_args(specs.Concept)),  # noqa: B006, B008 (the CLI reads it; never mutated)
     train_examples: int | None = None,
     train_controls: int | None = None,
     val_pairs: int = DEFAULT_VAL_PAIRS,

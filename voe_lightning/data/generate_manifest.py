@@ -27,7 +27,11 @@ def _describe_spec(spec) -> dict:
     described = {}
     for key, leaf in spec.items(include_nested=True, leaves_only=True):
         key = key if isinstance(key, str) else "/".join(key)
-        entry = {"type": type(leaf).__name__, "dtype": str(leaf.dtype), "shape": list(leaf.shape)}
+        entry: dict[str, object] = {
+            "type": type(leaf).__name__,
+            "dtype": str(leaf.dtype),
+            "shape": list(leaf.shape),
+        }
         if hasattr(leaf.space, "low"):
             entry["low"], entry["high"] = leaf.space.low.min().item(), leaf.space.high.max().item()
         if hasattr(leaf.space, "n"):
@@ -75,7 +79,9 @@ def _stored_settings(manifest: dict) -> dict:
     }
 
 
-def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
+def _differences(old: object, new: object, prefix: str = "") -> list[str]:
+    """Each leaf where ``old`` and ``new`` (nested dicts) differ, as "key.path: stored ..., asked
+    ..."."""
     if isinstance(old, dict) and isinstance(new, dict):
         out = []
         for key in sorted(set(old) | set(new)):

@@ -7,9 +7,10 @@ neither imports the other's planner."""
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import Any
 
 from voe_lightning import specs
 from voe_lightning.data import store, store_shards
@@ -130,6 +131,16 @@ def seed_offset_root(root: str | os.PathLike, seed_offset: int) -> Path:
     return Path(root) / SEED_OFFSET_FOLDER.format(seed_offset) if seed_offset else Path(root)
 
 
+def store_root(data_arguments: Mapping[str, Any], split: str = "test") -> Path | None:
+    """The store a DataModule with these init arguments reads ``split`` from: its ``root`` for
+    the training clips, the store of its ``seed_offset`` (``seed_offset_root``) for the
+    probes; None when they name no root. The one place a store root is derived."""
+    if not data_arguments or data_arguments.get("root") is None:
+        return None
+    seed_offset = 0 if split == "train" else data_arguments.get("seed_offset") or 0
+    return seed_offset_root(data_arguments["root"], seed_offset)
+
+
 def seed_range(split: str, counts: dict[str, int], seed_offset: int = 0) -> tuple[int, int]:
     """[start, stop) of the seeds ``split_seeds`` gives the records of ``split`` with these
     per kind or variant ``counts``: clips count up from the split's first seed, probes per
@@ -240,7 +251,7 @@ def manifest_plan(manifest: dict) -> tuple[list[ShardTask], VideoOptions]:
         if missing:
             raise KeyError(f"video.{missing[0]}")
         video = VideoOptions(**manifest["video"])
-        concept_counts = {}
+        concept_counts: dict[str, dict[str, dict[str, int]]] = {}
         for concept, entry in manifest["concepts"].items():
             canonical = {
                 "train": specs.CLIP_KINDS_BY_CONCEPT[concept],

@@ -4,6 +4,7 @@ dies, even by SIGKILL, so no orphan keeps writing. ``generate`` renders its shar
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import multiprocessing
@@ -37,19 +38,42 @@ def run(function: Callable[[Any], Any], arguments: Sequence, workers: int, died:
         yield from (function(argument) for argument in arguments)
         return
     context = multiprocessing.get_context("spawn")
+    others = set(multiprocessing.active_children())
     pool = ProcessPoolExecutor(
         min(workers, len(arguments)), context, initializer=_init_worker, initargs=(os.getpid(),)
     )
     with pool:
-        futures = [pool.submit(function, argument) for argument in arguments]
+        with _interrupts_ignored():  # the workers spawned now inherit it: Ctrl-C is ours
+            futures = [pool.submit(function, argument) for argument in arguments]
         try:
             for future in as_completed(futures):
                 yield future.result()
         except BrokenProcessPool as error:
             raise RuntimeError(died) from error
+        except KeyboardInterrupt:
+            # Ctrl-C stops the workers too, at once (a shard being written is left out whole:
+            # it is written by rename), rather than after the shards they are rendering.
+            for child in set(multiprocessing.active_children()) - others:
+                child.terminate()
+            raise
         finally:
             for future in futures:
                 future.cancel()
+
+
+@contextlib.contextmanager
+def _interrupts_ignored() -> Iterator[None]:
+    """Ignore SIGINT (Ctrl-C) within, in the main thread: processes spawned within inherit it,
+    so the terminal's Ctrl-C, sent to every process of the group, interrupts this process
+    alone, which stops them, and no worker prints a KeyboardInterrupt of its own."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _init_worker(parent: int) -> None:

@@ -204,11 +204,12 @@ def _evaluation(pairs: ExternalPairs) -> tuple[Metrics, Files | None]:
 
 
 def external_metrics(
-    pairs: ExternalPairs, outputs: Mapping[str, Any], **options: Any
+    pairs: ExternalPairs, outputs: Mapping[str, Any], *, alpha: float, **options: Any
 ) -> dict[str, Any]:
     """The benchmark's own metrics of the merged ``probe_step`` outputs (concept, seed,
-    surprise_consistent, surprise_inconsistent [N, T]); ``options``: alpha, bootstrap."""
-    return _evaluation(pairs)[0](pairs, outputs, **options)
+    surprise_consistent, surprise_inconsistent [N, T]) at the run's ``alpha``; ``options``:
+    bootstrap."""
+    return _evaluation(pairs)[0](pairs, outputs, alpha=alpha, **options)
 
 
 def external_files(pairs: ExternalPairs, outputs: Mapping[str, Any]) -> dict[str, str]:
@@ -218,7 +219,8 @@ def external_files(pairs: ExternalPairs, outputs: Mapping[str, Any]) -> dict[str
 
 
 def evaluate(
-    pairs: ExternalPairs, outputs: Mapping[str, Any], **options: Any
+    pairs: ExternalPairs, outputs: Mapping[str, Any], *, alpha: float, **options: Any
 ) -> tuple[dict[str, Any], dict[str, str]]:
     """``external_metrics`` and ``external_files`` of one test run."""
-    return external_metrics(pairs, outputs, **options), external_files(pairs, outputs)
+    metrics = external_metrics(pairs, outputs, alpha=alpha, **options)
+    return metrics, external_files(pairs, outputs)

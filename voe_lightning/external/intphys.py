@@ -147,12 +147,30 @@ def read_label(movie: Path) -> bool:
     return label
 
 
+#: PIL modes of a 16-bit grayscale PNG (``I`` from older Pillow versions): scaled to 8 bits.
+GRAY16_MODES = ("I", "I;16", "I;16B", "I;16L", "I;16N")
+
+
 def read_png(path: Path) -> np.ndarray:
-    """One frame as uint8 [h, w, 3]; a missing or undecodable file names itself."""
+    """One frame as uint8 [h, w, 3]; a missing or undecodable file names itself. A 16-bit
+    grayscale PNG is scaled to 8 bits (v / 257, rounded: 65535 is 255), not clipped at 255
+    as PIL's ``convert("RGB")`` does."""
     try:
         with Image.open(path) as image:
             image.load()
+            if image.mode in GRAY16_MODES:
+                gray = np.asarray(image).astype(np.int64)
+                if gray.min() < 0 or gray.max() > 65535:
+                    raise BenchmarkDataError(
+                        f"unreadable PNG {path}: mode {image.mode} holds values "
+                        f"{gray.min()}..{gray.max()}, beyond 16 bits; expected an RGB PNG frame",
+                        "unreadable_png",
+                    )
+                level = ((gray * 255 + 32767) // 65535).astype(np.uint8)
+                return np.repeat(level[..., None], 3, axis=-1)
             return np.asarray(image.convert("RGB"))
+    except BenchmarkDataError:
+        raise
     except FileNotFoundError:
         raise BenchmarkDataError(f"missing frame {path}", "missing_frame") from None
     except Image.DecompressionBombError as error:

@@ -58,7 +58,7 @@ from voe_lightning.stats.field_metrics import (
     reduce_surprise,
     surprise_threshold,
 )
-from voe_lightning.stats.statistics import ALPHA, paired_test, ranked_auroc
+from voe_lightning.stats.statistics import paired_test, ranked_auroc
 
 #: A movie path in an IntPhys answer file: <block>/<scene>/<movie 1-4>.
 ANSWER_PATH = re.compile(r"^(O[123])/([^/\s]+)/([1-4])$")
@@ -104,7 +104,7 @@ def quadruplet_metrics(
     quadruplet: Sequence[int],
     surprise_possible: Any,
     surprise_impossible: Any,
-    alpha: float = ALPHA,
+    alpha: float,
     bootstrap: int = 2000,
 ) -> dict[str, Any]:
     """Metrics of matched pairs (one row per pair: its quadruplet id, the possible movie's and
@@ -198,6 +198,8 @@ def grouped_metrics(
     surprise_possible: Any,
     surprise_impossible: Any,
     subgroups: Sequence[str] | None = None,
+    *,
+    alpha: float,
     **options: Any,
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """``quadruplet_metrics`` per group (IntPhys block, Physical Concepts concept) under
@@ -214,12 +216,14 @@ def grouped_metrics(
     for group in sorted(set(groups)):
         rows = np.array([g == group for g in groups])
         result[group] = {
-            "all": quadruplet_metrics(quadruplet[rows], possible[rows], impossible[rows], **options)
+            "all": quadruplet_metrics(
+                quadruplet[rows], possible[rows], impossible[rows], alpha=alpha, **options
+            )
         }
         for subgroup in sorted({s for s, r in zip(subgroups, rows) if r and s is not None}):
             sub = rows & np.array([s == subgroup for s in subgroups])
             result[group][subgroup] = quadruplet_metrics(
-                quadruplet[sub], possible[sub], impossible[sub], **options
+                quadruplet[sub], possible[sub], impossible[sub], alpha=alpha, **options
             )
     return result
 
@@ -351,7 +355,7 @@ def video_pair_metrics(
     frames_possible: Any,
     frames_impossible: Any,
     threshold: float,
-    alpha: float = ALPHA,
+    alpha: float,
     bootstrap: int = 2000,
 ) -> dict[str, Any]:
     """IntPhys 2 metrics of matched pairs from per-frame surprise [N, T] of each pair's possible
@@ -375,12 +379,14 @@ def intphys2_metrics(
     frames_possible: Any,
     frames_impossible: Any,
     percentile: float = PERCENTILE,
+    *,
+    alpha: float,
     **options: Any,
 ) -> dict[str, Any]:
     """``video_pair_metrics`` over all pairs (``all``), per principle (``principle``) and per
     principle x difficulty x camera (``principle_difficulty_camera``, keyed
     ``<principle>/<difficulty>/<camera>``), at one threshold from all possible videos
-    (``threshold``). ``options`` go to ``video_pair_metrics`` (alpha, bootstrap)."""
+    (``threshold``). ``alpha`` and ``options`` (bootstrap) go to ``video_pair_metrics``."""
     possible = np.asarray(frames_possible, dtype=np.float64)
     impossible = np.asarray(frames_impossible, dtype=np.float64)
     keys = list(zip(principle, difficulty, camera))
@@ -392,7 +398,9 @@ def intphys2_metrics(
     threshold = surprise_threshold(possible.max(axis=-1), percentile)
 
     def metrics(rows: np.ndarray) -> dict[str, Any]:
-        return video_pair_metrics(possible[rows], impossible[rows], threshold, **options)
+        return video_pair_metrics(
+            possible[rows], impossible[rows], threshold, alpha=alpha, **options
+        )
 
     return {
         "threshold": {

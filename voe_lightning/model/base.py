@@ -39,6 +39,46 @@ def video_inputs(batch: Any, video: str | None = None) -> dict[str, Any]:
     return inputs
 
 
+def check_real_surprise(surprise: torch.Tensor, source: str) -> torch.Tensor:
+    """``surprise`` when it is real numbers held in memory; a ValueError naming ``source``
+    (the model class or the callable) and what it returned otherwise: a complex dtype, whose
+    imaginary part a cast would drop, a tensor on the meta device, which holds no values, or a
+    sparse one, which the statistics cannot index."""
+    if surprise.is_meta:
+        raise ValueError(
+            f"{source} returned surprise on the meta device, a tensor of shape "
+            f"{tuple(surprise.shape)} without values: return one holding its numbers, on the "
+            "CPU or the frames' device"
+        )
+    if surprise.layout is not torch.strided:
+        raise ValueError(
+            f"{source} returned sparse surprise ({surprise.layout}): return a dense tensor "
+            "(e.g. its .to_dense())"
+        )
+    if surprise.is_complex():
+        raise ValueError(
+            f"{source} returned complex surprise ({surprise.dtype}): surprise is a real "
+            "number per frame; return a real floating tensor (e.g. its .abs() or .real, "
+            "whichever your model means)"
+        )
+    return surprise
+
+
+def expected_frames_problem(model: Any, expected: Any, frames: torch.Tensor) -> str | None:
+    """What is wrong with ``model.expected_frames``' answer ``expected`` for uint8 ``frames``
+    [B, T, H, W, 3], in words (None: nothing): it must be a tensor [B, T, 3, H, W]."""
+    b, t, h, w = frames.shape[:4]
+    wanted = (b, t, 3, h, w)
+    got = tuple(expected.shape) if isinstance(expected, torch.Tensor) else None
+    if got == wanted:
+        return None
+    what = f"shape {got}" if got is not None else f"a {type(expected).__name__}"
+    return (
+        f"{type(model).__name__}.expected_frames returned {what} for frames "
+        f"{tuple(frames.shape)}; expected a tensor [B, T, 3, H, W] = {list(wanted)}"
+    )
+
+
 class SurpriseModel(LightningModule, metaclass=ABCMeta):
     """Base of the package's video models. Subclasses implement ``surprise``,
     ``expected_frames`` and ``trajectories`` of uint8 videos ``frames`` [B, T, H, W, 3], given
@@ -142,7 +182,10 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
             for name in sides[0]
             if all(name in side for side in sides)
         }
-        surprise = self.surprise(torch.cat([consistent, inconsistent], dim=0), **inputs)
+        surprise = check_real_surprise(
+            self.surprise(torch.cat([consistent, inconsistent], dim=0), **inputs),
+            type(self).__name__,
+        )
         surprise_consistent, surprise_inconsistent = surprise.split(consistent.shape[0], dim=0)
         return {
             "concept": batch["concept"],
@@ -186,7 +229,9 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
         """Each video's surprise (its sum over frames, float64, and its largest frame's:
         ``surprise_max``) with its ``index`` in the predict dataset, for a prediction writer;
         its mask and camera go along when the batch has them."""
-        surprise = self.surprise(self._frames_of(batch), **video_inputs(batch)).double()
+        surprise = check_real_surprise(
+            self.surprise(self._frames_of(batch), **video_inputs(batch)), type(self).__name__
+        ).double()
         return {
             "index": batch["index"],
             "surprise": video_surprise(surprise),

@@ -45,6 +45,11 @@ def save_figure(figure: Figure, path: str | Path) -> Path:
     another format matplotlib writes), whole (``store_shards.write_whole``), say so, and
     return the path."""
     path = Path(path)
+    if path.is_dir():  # write_whole would replace an empty folder with the file
+        raise ValueError(
+            f"cannot write a figure as {path}: it is a folder, and a figure is one file; "
+            f"give a file path, e.g. {path / 'figure.png'}"
+        )
     kind = path.suffix[1:].lower() or "png"
     if kind not in figure.canvas.get_supported_filetypes():
         raise ValueError(

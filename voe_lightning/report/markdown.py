@@ -11,19 +11,17 @@ from voe_lightning.model.vrnn_lru import VRNNLRUModel
 from voe_lightning.stats.causality import Causality
 from voe_lightning.stats.statistics_format import format_alpha, row_text, rows_alpha
 from voe_lightning.stats.surprise_window import SurpriseWindow
-from voe_lightning.stats.verdicts import concept_verdicts
+from voe_lightning.stats.verdicts import Verdict
 
 #: What a frame's surprise is unless told otherwise: the paper's (the VRNN-LRU's).
 VRNN_SURPRISE = VRNNLRUModel.SURPRISE
 
 
-def format_verdicts(
-    rows: Sequence[Mapping[str, Any]], causality: Causality | None = None
-) -> list[str]:
-    """Markdown lines of the ``causality`` check and each concept's VOE verdict
-    (``verdicts.concept_verdicts``, withheld when the check failed)."""
+def format_verdicts(verdicts: Sequence[Verdict], causality: Causality | None = None) -> list[str]:
+    """Markdown lines of the ``causality`` check and each concept's VOE verdict (computed
+    once by the report, ``verdicts.concept_verdicts``, withheld when the check failed)."""
     lines = [causality.line(), ""] if causality is not None else []
-    for verdict in concept_verdicts(rows, rows_alpha(rows), causality):
+    for verdict in verdicts:
         text = "**VOE**" if verdict.voe else verdict.text()
         line = f"- {verdict.concept}: {text} (rule: {verdict.rule})"
         if verdict.halves:
@@ -35,12 +33,14 @@ def format_verdicts(
 
 def format_markdown(
     rows: Sequence[Mapping[str, Any]],
+    verdicts: Sequence[Verdict],
     surprise: str = VRNN_SURPRISE,
     window: SurpriseWindow = SurpriseWindow(),
     causality: Causality | None = None,
 ) -> str:
     """The summary as a Markdown table (paper notation, alpha in its header), notes as
-    footnotes below it, then the ``causality`` check and each concept's VOE verdict;
+    footnotes below it, then the ``causality`` check and each concept's VOE verdict (the
+    report's ``verdicts`` of these rows);
     ``surprise`` names what a frame's surprise is, ``window`` the frames a video's surprise
     sums."""
     alpha = rows_alpha(rows)
@@ -90,7 +90,7 @@ def format_markdown(
         "variants do not enter.",
         "",
     ]
-    lines += format_verdicts(rows, causality)
+    lines += format_verdicts(verdicts, causality)
     return "\n".join(lines) + "\n"
 
 

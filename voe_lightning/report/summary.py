@@ -14,11 +14,10 @@ from voe_lightning.report.pairs import PairResults
 from voe_lightning.report.priors_alone import format_priors_alone, priors_alone_document
 from voe_lightning.report.summary_file import file_sha256
 from voe_lightning.report.tables import SUMMARY_COLUMNS, field_metric_rows
-from voe_lightning.stats.causality import Causality
 from voe_lightning.stats.field_metrics import format_field_metrics
 from voe_lightning.stats.statistics_format import json_row
 from voe_lightning.stats.surprise_window import SurpriseWindow
-from voe_lightning.stats.verdicts import concept_verdicts
+from voe_lightning.stats.verdicts import Verdict, concept_verdicts
 
 
 def write_summary(
@@ -44,6 +43,7 @@ def write_summary(
     summary.md. Return the Markdown summary."""
     results.to_csv(report_dir / "pairs.csv")
     causality = results.causality
+    verdicts = concept_verdicts(rows, alpha, causality)
     document = {
         "source": dict(source or {}),
         "alpha": alpha,
@@ -54,13 +54,13 @@ def write_summary(
         "video_surprise": f"sum over frames of {surprise}",
         "surprise_window": window.as_config(),
         "causality": causality.as_dict(),
-        **_tables(rows, alpha, causality),
+        **_tables(rows, verdicts),
         "field_metrics": field_metric_rows(results),
     }
     with open(report_dir / "summary.csv", "w", newline="") as handle:
         _write_rows(handle, rows)
     markdown = format_source(document["source"]) + format_markdown(
-        rows, surprise, causality=causality
+        rows, verdicts, surprise, causality=causality
     )
     if priors_alone is not None:
         document["priors_alone"] = priors_alone_document(priors_alone)
@@ -68,17 +68,19 @@ def write_summary(
             document["rows"], document["verdicts"], document["priors_alone"]
         )
     if not window.all_frames:
+        assert window_rows is not None, "a surprise window needs its rows"
+        window_verdicts = concept_verdicts(window_rows, alpha, causality)
         document["window"] = {
             "surprise_window": window.as_config(),
             "video_surprise": f"sum over the {window.describe()} of {surprise}",
-            **_tables(window_rows, alpha, causality),
+            **_tables(window_rows, window_verdicts),
         }
         with open(report_dir / "summary_window.csv", "w", newline="") as handle:
             _write_rows(handle, window_rows)
         markdown += (
             f"\n## Surprise window: {window.describe()}\n\nBeside the paper's sums "
             "over all frames above, never instead of them.\n\n"
-            + format_markdown(window_rows, surprise, window, causality)
+            + format_markdown(window_rows, window_verdicts, surprise, window, causality)
         )
     else:
         markdown += "\nSurprise window: all frames (the paper's).\n"
@@ -90,11 +92,9 @@ def write_summary(
     return markdown
 
 
-def _tables(
-    rows: Sequence[Mapping[str, Any]], alpha: float, causality: Causality
-) -> dict[str, Any]:
-    """summary.json's ``rows`` (strict JSON) and ``verdicts`` of ``summarize``'s rows (none
-    given where ``causality`` failed)."""
+def _tables(rows: Sequence[Mapping[str, Any]], verdicts: Sequence[Verdict]) -> dict[str, Any]:
+    """summary.json's ``rows`` (strict JSON) and ``verdicts`` (of those rows, withheld where
+    the causality check failed)."""
     return {
         "rows": [json_row(row) for row in rows],
         "verdicts": [
@@ -106,7 +106,7 @@ def _tables(
                 "halves_significant": v.halves_significant,
                 "halves": v.halves,
             }
-            for v in concept_verdicts(rows, alpha, causality)
+            for v in verdicts
         ],
     }
 

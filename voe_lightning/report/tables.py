@@ -12,7 +12,6 @@ from voe_lightning.report.pairs import PairResults
 from voe_lightning.specs import QUADRUPLET_ROWS
 from voe_lightning.stats.field_metrics import field_metrics
 from voe_lightning.stats.statistics import (
-    ALPHA,
     QuadrupletTestResult,
     group_test,
     untested_reason,
@@ -23,18 +22,19 @@ SUMMARY_COLUMNS = ("concept", "variant") + tuple(QuadrupletTestResult.__dataclas
 
 
 def summarize(
-    results: PairResults, alpha: float = ALPHA, bootstrap: int = 2000, seed: int = 0
+    results: PairResults, alpha: float, bootstrap: int = 2000, seed: int = 0
 ) -> list[dict[str, Any]]:
     """One row per concept/variant, a ``pooled`` row per concept with a counterbalanced
     pair (``statistics.pooled_test``: the stratified test of its variants' mean differences)
     and a row per quadruplet of ``specs.QUADRUPLETS`` (``statistics.quadruplet_test``): the test
     of summed surprise (``statistics.group_test``). A group without a test (fewer than two
     pairs, ``statistics.untested_reason``) gets ``None`` statistics and a note instead of
-    failing the report; columns a row's test lacks (the halves of a pair test) are ``None``."""
+    failing the report; columns a row's test lacks (the halves of a pair test) are ``None``.
+    Every row carries the report's ``alpha``, so its writers read one level from the rows."""
     rows = []
     for concept, variant, pairs in results.groups(pooled=True):
         row: dict[str, Any] = dict.fromkeys(SUMMARY_COLUMNS)
-        row.update(concept=concept, variant=variant)
+        row.update(concept=concept, variant=variant, alpha=alpha)
         reason = untested_reason(variant, pairs.variant)
         if reason:
             row.update(n=len(pairs) // (2 if variant in QUADRUPLET_ROWS else 1), note=reason)

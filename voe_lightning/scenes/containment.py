@@ -23,12 +23,14 @@ from voe_lightning import specs
 from voe_lightning.scenes import recording
 from voe_lightning.scenes.appearance import distinct_colors
 from voe_lightning.scenes.builder import SceneBuilder, yaw_quat
-from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions
+from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions, accept_any_video
 from voe_lightning.scenes.container import container_geoms
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
 
 CONCEPT = "containment"
+#: Its scenes render videos of any size and length (``scenes.check_video``).
+check_video = accept_any_video
 #: The one (static per clip) camera distribution of examples, every control and the probes.
 CAMERA = CameraRange(
     lookat_x=(-0.2, 0.2),
@@ -260,7 +262,7 @@ def drop_behind(rng: np.random.Generator, layout: Layout) -> None:
 
 
 def check_hidden_and_carried(
-    sim: Simulation, layout: Layout, frame: int, videos, start: tuple[float, float]
+    sim: Simulation, layout: Layout, frame: int, videos, start: tuple[float, float, float]
 ) -> None:
     """Reject a probe whose cube shows at the manipulation frame in either of its ``videos``,
     or whose cube ``sim`` (the branch where it rides in the container, run to the end) did not
@@ -307,7 +309,7 @@ def quadruplet(seed: int, video: VideoOptions) -> tuple:
         enough = MIN_VISIBLE_PIXELS * video.height * video.width / 4096
         if (videos[1][1][-1] == cube).sum() < enough:
             raise RejectedSample("the cube behind the container is not revealed")
-        pairs = recording.quadruplet(*videos, frame)
+        pairs = recording.quadruplet(videos[0], videos[1], frame)
         return pairs, camera.as_array(), frame, cube
 
     return draw_until_valid(make, rng_for(seed, CONCEPT, "quadruplet"))
@@ -351,9 +353,8 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
     """A training clip: an ``example`` (cube into a container of any size and place, which is
     then slid), ``cube_behind_container`` (the cube lands hidden behind it and stays when it
     slides) or ``cube_random_position`` (the cube lands anywhere, the empty container slides)."""
-    specs.check_kind(CONCEPT, kind)
 
-    def make(rng: np.random.Generator) -> TensorDict:
+    def draw_scene(rng: np.random.Generator) -> tuple[CameraPose, recording.Video]:
         layout, camera, frame = clip_layout(kind, rng, video)
         sim = build(rng, video, camera, layout)
         frames, masks, objects = sim.record(video.num_frames)
@@ -363,14 +364,6 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
         enough = MIN_VISIBLE_PIXELS * video.height * video.width / 4096
         if kind == "cube_random_position" and (masks[frame] == cube).sum() < enough:
             raise RejectedSample("the randomly placed cube is hidden or out of view")
-        return specs.clip_record(
-            frames,
-            masks,
-            camera.as_array(),
-            specs.CONCEPTS.index(CONCEPT),
-            specs.CLIP_KINDS.index(kind),
-            seed,
-            objects,
-        )
+        return camera, (frames, masks, objects)
 
-    return draw_until_valid(make, rng_for(seed, CONCEPT, kind))
+    return recording.draw_clip(CONCEPT, kind, seed, draw_scene)

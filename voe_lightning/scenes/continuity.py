@@ -27,17 +27,29 @@ from voe_lightning.scenes.camera import (
     CameraPose,
     CameraRange,
     VideoOptions,
+    accept_any_video,
     camera_axes,
     focal_length,
     pixel_of,
     view_edges,
     x_at_column,
 )
-from voe_lightning.scenes.recording import join, quadruplet_record, record_tracking, splice
+from voe_lightning.scenes.recording import (
+    Video,
+    draw_clip,
+    join,
+    pair_record,
+    quadruplet_record,
+    record_tracking,
+    splice,
+    tail,
+)
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation
 
 CONCEPT = "continuity"
+#: Its scenes render videos of any size and length (``scenes.check_video``).
+check_video = accept_any_video
 #: The one camera distribution of the concept: examples, the gap_block control and every probe
 #: draw from it. Close enough that the ball is 8-12 px across at 64x64.
 CAMERA = CameraRange(
@@ -341,7 +353,7 @@ def _quadruplet(rng: np.random.Generator, video: VideoOptions, camera: CameraPos
     first, _, positions = record_tracking(sim, "ball")
     vanish, reappear = vanish_and_reappear(sim, layout, first[1], positions)
     later = reappear - vanish
-    second = join(tuple(part[later:] for part in first), sim.record(later))
+    second = join(tail(first, later), sim.record(later))
     return sim, recording.quadruplet(first, second, vanish), vanish
 
 
@@ -371,16 +383,9 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
     def make(rng: np.random.Generator) -> TensorDict:
         camera = CAMERA.sample(rng)
         sim, consistent, inconsistent, vanish = _standard(rng, variant, video, camera)
-        ball = sim.mask_id("ball")
-        return specs.probe_record(
-            consistent,
-            inconsistent,
-            camera.as_array(),
-            specs.CONCEPTS.index(CONCEPT),
-            specs.VARIANTS.index(variant),
-            vanish,
-            seed,
-            [ball],
+        pair = (consistent, inconsistent)
+        return pair_record(
+            CONCEPT, variant, seed, pair, camera.as_array(), vanish, [sim.mask_id("ball")]
         )
 
     return draw_until_valid(make, rng_for(seed, CONCEPT, variant))
@@ -390,9 +395,8 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
     """A training clip: an ``example`` with an unconstrained ball path, or the ``gap_block``
     control where a block fills the gap so the ball shows only before and after the pillars
     (the standard probe's path and ball). Both draw the camera from CAMERA."""
-    specs.check_kind(CONCEPT, kind)
 
-    def make(rng: np.random.Generator) -> TensorDict:
+    def draw_scene(rng: np.random.Generator) -> tuple[CameraPose, Video]:
         camera = CAMERA.sample(rng)
         if kind == "example":
             layout = example_layout(rng, video.duration)
@@ -412,14 +416,6 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             for t, position in enumerate(positions):
                 if low < column(sim, position) < high and pixels[t]:
                     raise RejectedSample("the ball shows above the gap block")
-        return specs.clip_record(
-            frames,
-            masks,
-            camera.as_array(),
-            specs.CONCEPTS.index(CONCEPT),
-            specs.CLIP_KINDS.index(kind),
-            seed,
-            objects,
-        )
+        return camera, (frames, masks, objects)
 
-    return draw_until_valid(make, rng_for(seed, CONCEPT, kind))
+    return draw_clip(CONCEPT, kind, seed, draw_scene)

@@ -21,12 +21,20 @@ from voe_lightning import specs
 from voe_lightning.scenes import recording
 from voe_lightning.scenes.appearance import distinct_colors
 from voe_lightning.scenes.builder import SceneBuilder, yaw_quat
-from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions
-from voe_lightning.scenes.recording import join, quadruplet_record, record_with_ghost
+from voe_lightning.scenes.camera import CameraPose, CameraRange, VideoOptions, accept_any_video
+from voe_lightning.scenes.recording import (
+    Video,
+    draw_clip,
+    join,
+    quadruplet_record,
+    record_with_ghost,
+)
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
 
 CONCEPT = "object_persistence"
+#: Its scenes render videos of any size and length (``scenes.check_video``).
+check_video = accept_any_video
 #: One camera distribution for examples, controls and probes (docs/architecture.md §4, "one world"); the
 #: scene is placed relative to where the camera looks (``_anchor``).
 CAMERA = CameraRange(
@@ -207,10 +215,7 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
     ``standard`` (the object vanishes under the plank) or ``counterbalanced`` (the scene starts
     empty and an object appears under the plank); after the change each pair's inconsistent
     video is exactly the other's consistent one."""
-    if variant not in ("standard", "counterbalanced"):
-        raise ValueError(
-            f"unknown {CONCEPT} probe variant {variant!r}; valid: standard, counterbalanced"
-        )
+    specs.check_variant(CONCEPT, variant)
     return quadruplet_record(CONCEPT, variant, seed, quadruplet(seed, video))
 
 
@@ -318,12 +323,8 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
     """A training clip: ``example`` (the plank falls on a sphere or cube; poses, sizes and
     camera vary), ``plank_beside_object`` (it lands on open floor beside a visible object) or
     ``plank_on_empty_floor`` (no object at all)."""
-    kinds = ("example", "plank_beside_object", "plank_on_empty_floor")
-    if kind not in kinds:
-        raise ValueError(f"unknown {CONCEPT} clip kind {kind!r}; valid: {', '.join(kinds)}")
-    rng = rng_for(seed, CONCEPT, kind)
 
-    def make(rng: np.random.Generator) -> TensorDict:
+    def draw_scene(rng: np.random.Generator) -> tuple[CameraPose, Video]:
         plank_color, object_color = distinct_colors(rng, 2)
         layout = clip_layout(rng, kind)
         obj, obj_xy, camera = layout["object"], layout["object_xy"], layout["camera"]
@@ -344,14 +345,6 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
                 raise RejectedSample("the plank hid the object")
         if sim.mask_id("plank") not in visible_ids(masks[-1]):
             raise RejectedSample("the plank landed out of view")
-        return specs.clip_record(
-            frames,
-            masks,
-            camera.as_array(),
-            specs.CONCEPTS.index(CONCEPT),
-            specs.CLIP_KINDS.index(kind),
-            seed,
-            objects,
-        )
+        return camera, (frames, masks, objects)
 
-    return draw_until_valid(make, rng)
+    return draw_clip(CONCEPT, kind, seed, draw_scene)

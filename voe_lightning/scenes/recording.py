@@ -1,10 +1,12 @@
-"""Recording videos from a simulation for probes: the consistent video and its inconsistent
-twin, forked from one simulation at the hidden manipulation and identical through the
-manipulation frame (docs/architecture.md §4), either at a chosen frame (``record_pair``) or as
-soon as the physics allows the change unseen (``record_pair_when``); a whole video with the
-state at every frame (``record_tracking``), to fork later at a frame an object's path chooses;
-and a quadruplet's two pairs spliced from two consistent videos of one scene (``quadruplet``,
-with ``record_with_ghost`` for a second history of one motion)."""
+"""Recording videos from a simulation, and the records every concept makes of them: for probes,
+the consistent video and its inconsistent twin, forked from one simulation at the hidden
+manipulation and identical through the manipulation frame (docs/architecture.md §4), either at
+a chosen frame (``record_pair``) or as soon as the physics allows the change unseen
+(``record_pair_when``); a whole video with the state at every frame (``record_tracking``), to
+fork later at a frame an object's path chooses; a quadruplet's two pairs spliced from two
+consistent videos of one scene (``quadruplet``, with ``record_with_ghost`` for a second history
+of one motion); and a training clip's record, drawn until valid (``draw_clip``), and a probe
+pair's (``pair_record``, ``quadruplet_record``)."""
 
 from __future__ import annotations
 
@@ -14,7 +16,8 @@ import numpy as np
 from tensordict import TensorDict
 
 from voe_lightning import specs
-from voe_lightning.scenes.sampling import RejectedSample
+from voe_lightning.scenes.camera import CameraPose
+from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.simulation import Simulation, visible_ids
 
 #: A rendered video: uint8 frames [T, H, W, 3], masks [T, H, W] and object states [T, OBJECT_SLOTS]
@@ -37,7 +40,14 @@ def splice(consistent: Video, rest: Video, manipulation_frame: int) -> Video:
 
 def join(prefix: Video, rest: Video) -> Video:
     """One video from two consecutive parts (frames, masks and object states each)."""
-    return tuple(np.concatenate([a, b]) for a, b in zip(prefix, rest))
+    frames, masks, objects = (np.concatenate([a, b]) for a, b in zip(prefix, rest))
+    return frames, masks, objects
+
+
+def tail(video: Video, start: int) -> Video:
+    """The part of ``video`` from frame ``start`` on (frames, masks and object states)."""
+    frames, masks, objects = video
+    return frames[start:], masks[start:], objects[start:]
 
 
 def quadruplet(
@@ -51,8 +61,7 @@ def quadruplet(
     m = manipulation_frame
     if not all(np.array_equal(a[m], b[m]) for a, b in zip(first[:2], second[:2])):
         raise RejectedSample(f"the two consistent videos differ at the manipulation frame {m}")
-    rest = [tuple(part[m:] for part in video) for video in (first, second)]
-    return (first, splice(first, rest[1], m)), (second, splice(second, rest[0], m))
+    return (first, splice(first, tail(second, m), m)), (second, splice(second, tail(first, m), m))
 
 
 def quadruplet_record(concept: str, variant: str, seed: int, drawn: tuple) -> TensorDict:
@@ -63,17 +72,73 @@ def quadruplet_record(concept: str, variant: str, seed: int, drawn: tuple) -> Te
     (B, BA); its arrays are copies, so the cache stays as it was."""
     pairs, camera, frame, manipulated = drawn
     _, half = specs.quadruplet_half(concept, variant)
-    consistent, inconsistent = (tuple(np.copy(part) for part in video) for video in pairs[half])
+    consistent, inconsistent = (_copy(video) for video in pairs[half])
+    return pair_record(
+        concept,
+        variant,
+        seed,
+        (consistent, inconsistent),
+        camera,
+        frame,
+        np.atleast_1d(manipulated).tolist(),
+    )
+
+
+def _copy(video: Video) -> Video:
+    """A copy of ``video``'s arrays (frames, masks and object states)."""
+    frames, masks, objects = video
+    return np.copy(frames), np.copy(masks), np.copy(objects)
+
+
+def pair_record(
+    concept: str,
+    variant: str,
+    seed: int,
+    pair: tuple[Video, Video],
+    camera: np.ndarray,
+    manipulation_frame: int,
+    manipulated_ids: Sequence[int],
+) -> TensorDict:
+    """The probe record of ``concept``'s ``variant`` at ``seed`` from its (consistent,
+    inconsistent) videos, the camera pose array, the manipulation frame and the ids the hidden
+    change touches: the one place a concept's names become the record's vocabulary indices."""
+    consistent, inconsistent = pair
     return specs.probe_record(
         consistent,
         inconsistent,
         camera,
         specs.CONCEPTS.index(concept),
         specs.VARIANTS.index(variant),
-        frame,
+        manipulation_frame,
         seed,
-        np.atleast_1d(manipulated).tolist(),
+        manipulated_ids,
     )
+
+
+def draw_clip(
+    concept: str,
+    kind: str,
+    seed: int,
+    draw: Callable[[np.random.Generator], tuple[CameraPose, Video]],
+) -> TensorDict:
+    """The record of ``concept``'s training clip of ``kind`` at ``seed``, as every concept makes
+    its clips: ``draw`` (the camera and the recorded video of one scene draw, or a
+    RejectedSample) is called with the generator of (seed, concept, kind) until a draw holds."""
+    specs.check_kind(concept, kind)
+
+    def make(rng: np.random.Generator) -> TensorDict:
+        camera, (frames, masks, objects) = draw(rng)
+        return specs.clip_record(
+            frames,
+            masks,
+            camera.as_array(),
+            specs.CONCEPTS.index(concept),
+            specs.CLIP_KINDS.index(kind),
+            seed,
+            objects,
+        )
+
+    return draw_until_valid(make, rng_for(seed, concept, kind))
 
 
 def record_with_ghost(
@@ -82,14 +147,21 @@ def record_with_ghost(
     """Render ``num_frames`` frames of ``sim`` and, at each, of a copy of it altered by
     ``change`` (e.g. an object removed): the same motion seen in two scenes, for a quadruplet's
     second history where the change touches nothing else before the manipulation frame."""
-    videos = ([], [])
+    seen: list[Video] = []
+    altered: list[Video] = []
     for _ in range(num_frames):
         ghost = sim.fork()
         change(ghost)
-        for video, view in zip(videos, (sim, ghost)):
-            video.append(view.render())
+        seen.append(sim.render())
+        altered.append(ghost.render())
         sim.step(sim.video.steps_per_frame)
-    return tuple(tuple(np.stack(part) for part in zip(*video)) for video in videos)
+    return _stacked(seen), _stacked(altered)
+
+
+def _stacked(renders: list[Video]) -> Video:
+    """One video from the renders of its frames, one (frame, mask, object states) each."""
+    frames, masks, objects = (np.stack(part) for part in zip(*renders))
+    return frames, masks, objects
 
 
 def record_tracking(sim: Simulation, name: str) -> tuple[Video, list, np.ndarray]:

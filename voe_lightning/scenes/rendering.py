@@ -5,6 +5,7 @@ context, one MjrContext and one MjvScene, giving RGB frames and the geom seen at
 
 from __future__ import annotations
 
+import functools
 import importlib
 import os
 
@@ -78,9 +79,16 @@ class Renderer:
         # Choose the backend from MUJOCO_GL now, not from whatever it was when mujoco was imported.
         backend = os.environ.get("MUJOCO_GL", "egl")
         gl_context_class = importlib.import_module(f"mujoco.{backend}").GLContext
+        _check_frame_size(height, width, gl_context_class)
         self._gl_context = gl_context_class(max(width, 64), max(height, 64))
         self._gl_context.make_current()
-        self._context = mujoco.MjrContext(template, mujoco.mjtFontScale.mjFONTSCALE_150.value)
+        try:
+            self._context = mujoco.MjrContext(template, mujoco.mjtFontScale.mjFONTSCALE_150.value)
+        except mujoco.FatalError as error:  # the size passed the check: name it all the same
+            raise ValueError(
+                f"the renderer ({backend}) cannot draw frames of {height} x {width} "
+                f"(height x width): {error}; use a smaller height and width"
+            ) from error
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN.value, self._context)
         self._scene = mujoco.MjvScene(template, maxgeom=500)
         self._option = mujoco.MjvOption()
@@ -121,6 +129,42 @@ class Renderer:
             if geom.segid != -1 and geom.objtype == mujoco.mjtObj.mjOBJ_GEOM:
                 lookup[geom.segid + 1] = geom.objid
         return rgb, lookup[np.clip(segid, 0, self._scene.ngeom)]
+
+
+def _check_frame_size(height: int, width: int, gl_context_class: type) -> None:
+    """Refuse a frame larger than the GL renderbuffers may be (GL_MAX_RENDERBUFFER_SIZE a
+    side), naming the size and the limit, before a context of that size is made (seconds of
+    allocation) and MuJoCo says "Offscreen framebuffer is not complete"."""
+    if max(height, width) <= MIN_RENDERBUFFER_SIZE:
+        return  # every OpenGL 3 renderer draws this size: no context to query
+    limit = _renderbuffer_limit(gl_context_class)
+    if limit is not None and max(height, width) > limit:
+        raise ValueError(
+            f"frames of {height} x {width} (height x width) are larger than this renderer "
+            f"draws: at most {limit} pixels a side (GL_MAX_RENDERBUFFER_SIZE); use a height "
+            f"and width of at most {limit}"
+        )
+
+
+#: The GL_MAX_RENDERBUFFER_SIZE every OpenGL 3 implementation reaches at least.
+MIN_RENDERBUFFER_SIZE = 1024
+
+
+@functools.cache
+def _renderbuffer_limit(gl_context_class: type) -> int | None:
+    """The largest renderbuffer side of a small context of ``gl_context_class``, queried once
+    per process (None: it cannot be queried; MjrContext then says what fails)."""
+    try:
+        from OpenGL import GL
+
+        context = gl_context_class(64, 64)
+        try:
+            context.make_current()
+            return int(GL.glGetIntegerv(GL.GL_MAX_RENDERBUFFER_SIZE))
+        finally:
+            context.free()
+    except Exception:  # no PyOpenGL, or no context of that kind here
+        return None
 
 
 _RENDERERS: dict[tuple[int, int, int], Renderer] = {}

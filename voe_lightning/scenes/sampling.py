@@ -26,6 +26,12 @@ class RejectedSample(Exception):
     """A random draw that does not satisfy a probe's constraints; the caller draws again."""
 
 
+class NoValidScene(RuntimeError):
+    """Every draw of a scene was rejected (``draw_until_valid``): at the default video size a
+    bug, in a frame too small or too narrow a setting the scenes cannot be drawn in
+    (``data.generate`` says which sizes work)."""
+
+
 def draw_until_valid(
     make: Callable[[np.random.Generator], TensorDict], rng: np.random.Generator, attempts: int = 50
 ) -> TensorDict:
@@ -36,4 +42,4 @@ def draw_until_valid(
             return make(rng)
         except RejectedSample as error:
             last = error
-    raise RuntimeError(f"no valid scene after {attempts} draws; last rejection: {last}")
+    raise NoValidScene(f"no valid scene after {attempts} draws; last rejection: {last}")

@@ -89,7 +89,8 @@ class Screen:
 
 def draw_screen_color(rng: np.random.Generator) -> tuple[float, float, float]:
     """SCREEN_COLOR scaled by a random factor, so that no two screens share one tone."""
-    return tuple(float(c) for c in np.clip(np.array(SCREEN_COLOR) * rng.uniform(0.8, 1.25), 0, 1))
+    red, green, blue = np.clip(np.array(SCREEN_COLOR) * rng.uniform(0.8, 1.25), 0, 1)
+    return float(red), float(green), float(blue)
 
 
 def draw_screen(

@@ -66,7 +66,12 @@ class Simulation:
     def position(self, name: str) -> np.ndarray:
         return self.data.body(name).xpos.copy()
 
-    def move(self, name: str, pos: Sequence[float], quat: Sequence[float] | None = None) -> None:
+    def move(
+        self,
+        name: str,
+        pos: Sequence[float] | np.ndarray,
+        quat: Sequence[float] | np.ndarray | None = None,
+    ) -> None:
         """Place a free body (velocity zeroed) or a mocap body at ``pos``."""
         obj = self.objects[name]
         if obj.mocap:

@@ -33,7 +33,6 @@ from voe_lightning.scenes.simulation import Simulation, visible_ids
 
 CONCEPT = "solidity"
 VARIANTS = ("standard", "counterbalanced")
-CLIP_KINDS = ("example", "no_object", "object_behind_container")
 #: Pixels of the block that the inconsistent video may show beyond the consistent one (edges).
 PENETRATION_TOLERANCE = 2
 
@@ -327,10 +326,7 @@ def draw_probe(
     """The parameters of ``variant``'s consistent scene in a quadruplet (``draw_quadruplet``):
     ``standard`` the tall block, ``counterbalanced`` the short one; ``block`` carries its
     height, ``drop`` its start above the rim."""
-    if variant not in VARIANTS:
-        raise ValueError(
-            f"unknown {CONCEPT} probe variant {variant!r}; valid: {', '.join(VARIANTS)}"
-        )
+    specs.check_variant(CONCEPT, variant)
     params = draw_quadruplet(rng, video)
     return _scene(params, "tall" if variant == "standard" else "short")
 
@@ -361,10 +357,7 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
     ``standard`` (a tall block rests protruding, or after the change sinks out of view as if
     through the floor) or ``counterbalanced`` (a short block sinks out of view, or after the
     change stops protruding above the rim as if on something hidden)."""
-    if variant not in VARIANTS:
-        raise ValueError(
-            f"unknown {CONCEPT} probe variant {variant!r}; valid: {', '.join(VARIANTS)}"
-        )
+    specs.check_variant(CONCEPT, variant)
     return recording.quadruplet_record(CONCEPT, variant, seed, quadruplet(seed, video))
 
 
@@ -403,7 +396,8 @@ def quadruplet(seed: int, video: VideoOptions) -> tuple:
             raise RejectedSample("the protruding block is hidden: the pair would not differ")
         if block_id in visible_ids(short[-1]):
             raise RejectedSample("the block that should be out of view is seen at the end")
-        return recording.quadruplet(*videos, frame), camera.as_array(), frame, block_id
+        pairs = recording.quadruplet(videos[0], videos[1], frame)
+        return pairs, camera.as_array(), frame, block_id
 
     return draw_until_valid(make, rng_for(seed, CONCEPT, "quadruplet"))
 
@@ -431,11 +425,8 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
     """A training clip: ``example`` (a block of any height drops into the container, seen from
     any perspective), ``no_object`` (the container alone) or ``object_behind_container`` (the
     block falls behind the container and ends hidden by it)."""
-    if kind not in CLIP_KINDS:
-        raise ValueError(f"unknown {CONCEPT} clip kind {kind!r}; valid: {', '.join(CLIP_KINDS)}")
-    rng = rng_for(seed, CONCEPT, kind)
 
-    def make(rng: np.random.Generator) -> TensorDict:
+    def draw_scene(rng: np.random.Generator) -> tuple[CameraPose, recording.Video]:
         params = draw_example(rng)
         box, block, camera = params["box"], params["block"], params["camera"]
         container_color, block_color = distinct_colors(rng, 2)
@@ -471,14 +462,6 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
             raise RejectedSample("the block is not seen before it falls")
         if kind == "object_behind_container" and sim.mask_id("block") in visible_ids(masks[-1]):
             raise RejectedSample("the block behind the container is still seen at the end")
-        return specs.clip_record(
-            frames,
-            masks,
-            camera.as_array(),
-            specs.CONCEPTS.index(CONCEPT),
-            specs.CLIP_KINDS.index(kind),
-            seed,
-            objects,
-        )
+        return camera, (frames, masks, objects)
 
-    return draw_until_valid(make, rng)
+    return recording.draw_clip(CONCEPT, kind, seed, draw_scene)

@@ -27,15 +27,18 @@ from voe_lightning.scenes.camera import (
     CameraPose,
     CameraRange,
     VideoOptions,
+    accept_any_video,
     floor_point,
     image_point,
 )
-from voe_lightning.scenes.recording import record_pair
+from voe_lightning.scenes.recording import Video, draw_clip, pair_record, record_pair
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.screen import SCREEN_THICKNESS, Screen, draw_screen
 from voe_lightning.scenes.simulation import Simulation, visible_ids
 
 CONCEPT = "unchangeableness"
+#: Its scenes render videos of any size and length (``scenes.check_video``).
+check_video = accept_any_video
 #: Objects in training clips and standard probes; generalization probes add one or two more.
 MIN_OBJECTS, MAX_OBJECTS = 2, 4
 OBJECT_SHAPES = ("sphere", "box", "cylinder", "capsule")
@@ -229,20 +232,20 @@ def _draw_change(
         chosen = rng.choice(count, moved, replace=False)
         targets = np.roll(chosen, int(rng.integers(1, moved)))
 
-        def apply(sim: Simulation) -> None:
+        def swap_places(sim: Simulation) -> None:
             for source, target in zip(chosen, targets):
                 sim.move(names[source], resting_position(draws[source], float(xs[target]), row_y))
 
-        return apply, [builder.objects[names[i]].mask_id for i in chosen], []
+        return swap_places, [builder.objects[names[i]].mask_id for i in chosen], []
     if change == "color":
         recoloured = rng.choice(count, _changed_count(rng, min(count, 3)), replace=False)
         new_colors = layout.spare_colors[: len(recoloured)]
 
-        def apply(sim: Simulation) -> None:
+        def recolour(sim: Simulation) -> None:
             for index, color in zip(recoloured, new_colors):
                 sim.set_color(names[index], color)
 
-        return apply, [builder.objects[names[i]].mask_id for i in recoloured], []
+        return recolour, [builder.objects[names[i]].mask_id for i in recoloured], []
     # shape: each changed object swaps with a same-coloured twin of another shape, which takes
     # its mask id: to a tracker it is the same object, changed.
     reshaped = rng.choice(count, _changed_count(rng, MOST_RESHAPED), replace=False)
@@ -259,12 +262,12 @@ def _draw_change(
         )
         add_object(builder, twin_name, twin, float(xs[index]), row_y, names[index])
 
-    def apply(sim: Simulation) -> None:
+    def swap_in_twins(sim: Simulation) -> None:
         for index, twin_name in zip(reshaped, twins):
             sim.remove(names[index])
             sim.restore(twin_name)
 
-    return apply, [builder.objects[names[i]].mask_id for i in reshaped], twins
+    return swap_in_twins, [builder.objects[names[i]].mask_id for i in reshaped], twins
 
 
 def probe_scene(
@@ -320,7 +323,7 @@ def quadruplet(change: str, seed: int, video: VideoOptions) -> tuple:
         videos = [
             sim.record(video.num_frames, scene.layout.screen.script) for sim in (scene.sim, second)
         ]
-        pairs = recording.quadruplet(*videos, scene.frame)
+        pairs = recording.quadruplet(videos[0], videos[1], scene.frame)
         for pair in pairs:
             _check_pair(*pair, scene)
         return pairs, scene.layout.camera.as_array(), scene.frame, tuple(scene.manipulated)
@@ -338,14 +341,13 @@ def _generalization_probe(
         scene.sim, scene.frame, scene.change, script=scene.layout.screen.script
     )
     _check_pair(consistent, inconsistent, scene)
-    return specs.probe_record(
-        consistent,
-        inconsistent,
-        scene.layout.camera.as_array(),
-        specs.CONCEPTS.index(CONCEPT),
-        specs.VARIANTS.index(variant),
-        scene.frame,
+    return pair_record(
+        CONCEPT,
+        variant,
         seed,
+        (consistent, inconsistent),
+        scene.layout.camera.as_array(),
+        scene.frame,
         scene.manipulated,
     )
 
@@ -423,11 +425,8 @@ def scatter_objects(
 def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
     """A training clip: ``example`` (scattered objects and a screen going down and up),
     ``objects_only`` (no screen) or ``screen_only`` (no objects)."""
-    kinds = ("example", "objects_only", "screen_only")
-    if kind not in kinds:
-        raise ValueError(f"unknown unchangeableness clip kind {kind!r}; valid kinds: {kinds}")
 
-    def make(rng: np.random.Generator) -> TensorDict:
+    def draw_scene(rng: np.random.Generator) -> tuple[CameraPose, Video]:
         camera = CAMERA.sample(rng)
         aspect = video.width / video.height
         builder = SceneBuilder(rng, video, camera)
@@ -438,15 +437,6 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
         if screen is not None:
             screen.add_to(builder)
         sim = builder.build()
-        frames, masks, objects = sim.record(video.num_frames, screen.script if screen else None)
-        return specs.clip_record(
-            frames,
-            masks,
-            camera.as_array(),
-            specs.CONCEPTS.index(CONCEPT),
-            specs.CLIP_KINDS.index(kind),
-            seed,
-            objects,
-        )
+        return camera, sim.record(video.num_frames, screen.script if screen else None)
 
-    return draw_until_valid(make, rng_for(seed, CONCEPT, kind))
+    return draw_clip(CONCEPT, kind, seed, draw_scene)

@@ -2,7 +2,7 @@
 a probe pair's two videos are byte-identical through ``manipulation_frame``, so a causal model's
 per-frame surprise is identical there. ``check_prefix`` checks one batch of pairs;
 ``Causality`` is its finding, and ``Causality.merge`` adds batches up. Running a model through
-the whole protocol is ``voe_lightning.causality``'s (``check_model``, ``check-causality``)."""
+the whole protocol is ``voe_lightning.model.causality``'s (``check_model``, ``check-causality``)."""
 
 from __future__ import annotations
 

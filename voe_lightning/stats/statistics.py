@@ -23,8 +23,8 @@ D = [S(AB) - S(A)] + [S(BA) - S(B)], the one-tailed t-test of D's mean, with the
 differences beside it. Its inconsistent videos hold exactly the consistent ones' frames after
 the change, so any scorer of those frames alone has D = 0 in every quadruplet.
 
-One significance level, ``ALPHA``, decides every verdict and table unless a run sets its own
-(``alpha:`` in configs/base.yaml, which the CLI hands to every callback and command).
+Every test takes its significance level, ``alpha``, from the caller: a run's one alpha lives in
+its config (``alpha:``, configs/base.yaml), which the CLI hands to every callback and command.
 """
 
 from __future__ import annotations
@@ -46,7 +46,6 @@ from voe_lightning.stats.t_tests import (
 )
 
 __all__ = [
-    "ALPHA",
     "POOLED",
     "POOLED_VARIANTS",
     "PairedTestResult",
@@ -68,18 +67,11 @@ __all__ = [
 POOLED = "pooled"
 POOLED_VARIANTS: tuple[str, str] = ("standard", "counterbalanced")
 
-#: The significance level of every verdict and table unless a run sets another: .01 per test,
-#: so that five concepts' verdicts together stay near .05 (docs/architecture.md §8).
-#: configs/base.yaml states it as the run's ``alpha``; a test checks the two agree.
-ALPHA = 0.01
-
 
 def check_alpha(alpha: Any) -> float:
     """``alpha`` as a float if it is a significance level in (0, 1); a ValueError otherwise."""
     if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0.0 < alpha < 1.0:
-        raise ValueError(
-            f"alpha must be a significance level in (0, 1), e.g. {ALPHA}; got {alpha!r}"
-        )
+        raise ValueError(f"alpha must be a significance level in (0, 1), e.g. 0.01; got {alpha!r}")
     return float(alpha)
 
 
@@ -276,7 +268,7 @@ def _result(
 def paired_test(
     inconsistent: Any,
     consistent: Any,
-    alpha: float = ALPHA,
+    alpha: float,
     bootstrap: int = 2000,
     seed: int = 0,
 ) -> PairedTestResult:
@@ -311,7 +303,7 @@ def pooled_test(
     inconsistent: Any,
     consistent: Any,
     strata: Sequence[str],
-    alpha: float = ALPHA,
+    alpha: float,
     bootstrap: int = 2000,
     seed: int = 0,
 ) -> PairedTestResult:
@@ -375,7 +367,7 @@ def quadruplet_test(
     first_consistent: Any,
     second_inconsistent: Any,
     second_consistent: Any,
-    alpha: float = ALPHA,
+    alpha: float,
     bootstrap: int = 2000,
     seed: int = 0,
 ) -> QuadrupletTestResult:
@@ -429,7 +421,7 @@ def group_test(
     inconsistent: Any,
     consistent: Any,
     variants: Sequence[str],
-    alpha: float = ALPHA,
+    alpha: float,
     bootstrap: int = 2000,
     seed: int = 0,
 ) -> PairedTestResult:

@@ -18,8 +18,6 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from voe_lightning.stats.statistics import ALPHA
-
 __all__ = [
     "BRIEF",
     "CONSOLE",
@@ -44,9 +42,12 @@ def format_alpha(alpha: float) -> str:
 
 
 def rows_alpha(rows: Iterable[Mapping[str, Any]]) -> float:
-    """The significance level result rows were tested at (their ``alpha``; ``ALPHA`` when
-    no row was tested)."""
-    return next((row["alpha"] for row in rows if row.get("alpha") is not None), ALPHA)
+    """The significance level result rows were tested at (their ``alpha``); a ValueError
+    when no row carries one."""
+    alpha = next((row["alpha"] for row in rows if row.get("alpha") is not None), None)
+    if alpha is None:
+        raise ValueError("no row carries the alpha it was tested at")
+    return float(alpha)
 
 
 #: Non-finite floats as ``json_row`` writes them.
@@ -68,18 +69,41 @@ def format_number(value: Any, spec: str = ".3g") -> str:
     return format(value, spec)
 
 
-def format_p(p: float | None) -> str:
-    """APA-style p value for a table cell: '< .001', '.034', '1'."""
+def format_p(p: Any, alpha: float | None = None) -> str:
+    """APA-style p value for a table cell: '< .001', '.034', '1'; 'undefined' for NaN (as
+    ``format_number``). Beside a significance level ``alpha``, a p that three decimals would
+    round onto or across it gets as many more digits as tell the two apart (p = .0103 beside
+    α = .01 is '.0103', not '.010'), so the verdict can be read off the number."""
     if p is None:
         return "n/a"
-    if p < 0.001:
+    if p in _NON_FINITE:
+        p = float(p)
+    if p != p:  # NaN, of any float type
+        return "undefined"
+    if p < 0.001 and (alpha is None or alpha >= 0.001):
         return "< .001"
-    return f"{p:.3f}".lstrip("0") if p < 1 else "1"
+    if p >= 1:
+        return "1"
+    digits = 3
+    text = f"{p:.{digits}f}"
+    while alpha is not None and digits < 20:
+        rounded = float(text)
+        if (
+            (rounded < alpha) == (p < alpha)
+            and (rounded != alpha or p == alpha)
+            and (rounded > 0 or p == 0)
+        ):
+            break
+        digits += 1
+        text = f"{p:.{digits}f}"
+    return text.lstrip("0")
 
 
-def format_p_phrase(p: float) -> str:
-    """'p < .001' or 'p = .034', as in the paper's text."""
-    return f"p {format_p(p)}" if p < 0.001 else f"p = {format_p(p)}"
+def format_p_phrase(p: Any, alpha: float | None = None) -> str:
+    """'p < .001' or 'p = .034', as in the paper's text (``format_p``'s digits beside
+    ``alpha``)."""
+    text = format_p(p, alpha)
+    return f"p {text}" if text.startswith("<") else f"p = {text}"
 
 
 def format_t(t: float | None, df: float | None, spec: str = ".2f") -> str:
@@ -162,13 +186,17 @@ def row_text(
 ) -> RowText:
     """The cells of one statistics row in ``style``. A row is significant by its own
     ``significant`` field, or, lacking one (the streaming form), when p < ``alpha``
-    (None: the row's ``alpha``, else ``statistics.ALPHA``)."""
+    (None: the row's ``alpha``)."""
     get = row.get
     tested = get("t") is not None
+    level = alpha if alpha is not None else get("alpha")
     if get("significant") is not None:
         significant = bool(get("significant"))
     else:
-        level = alpha if alpha is not None else (get("alpha") or ALPHA)
+        if tested and level is None:
+            raise ValueError(
+                f"the row {get('concept')}/{get('variant')} has no alpha to test its p at"
+            )
         significant = tested and get("p_value") is not None and get("p_value") < level
     p = get("p_value")
     accuracy = get("accuracy")
@@ -186,8 +214,8 @@ def row_text(
             if style.t_with_df
             else format_number(get("t"), style.t)
         ),
-        p=format_p(p) if style.p is None else format_number(p, style.p),
-        p_phrase="n/a" if p is None else format_p_phrase(p),
+        p=_p_text(p, style, level),
+        p_phrase="n/a" if p is None else format_p_phrase(p, level),
         significant=significant,
         sig="n/a" if not tested else ("yes *" if significant else "no"),
         d_z=format_number(get("d_z"), style.d_z),
@@ -201,6 +229,21 @@ def row_text(
             f"{format_number(get('second_half'), style.mean)}"
         ),
     )
+
+
+def _p_text(p: Any, style: RowStyle, alpha: Any) -> str:
+    """p in ``style``: APA-style (``format_p``), or its format spec unless that rounds p onto
+    or across ``alpha``, where ``format_p``'s digits tell the two apart."""
+    level = None if alpha is None or alpha in _NON_FINITE else float(alpha)
+    if style.p is None:
+        return format_p(p, level)
+    text = format_number(p, style.p)
+    if level is None or p in _NON_FINITE or p != p:
+        return text
+    rounded = float(text)
+    if (rounded < level) == (p < level) and (rounded != level or p == level):
+        return text
+    return format_p(p, level)
 
 
 def json_row(row: Mapping[str, Any]) -> dict[str, Any]:

@@ -18,7 +18,7 @@ import numpy as np
 
 from voe_lightning import specs
 from voe_lightning.stats import causality as causality_check
-from voe_lightning.stats.statistics import ALPHA, POOLED, POOLED_VARIANTS, check_alpha
+from voe_lightning.stats.statistics import POOLED, POOLED_VARIANTS, check_alpha
 from voe_lightning.stats.statistics_format import (
     format_number,
     format_p,
@@ -200,7 +200,7 @@ def _quadruplet_verdict(
         means = (results[(concept, row)]["first_half"], results[(concept, row)]["second_half"])
         voe &= bool(quadruplet_rule(p_value, *means, alpha))
         if not p_value < alpha:
-            failed.append(f"{row} p = {format_p(p_value)} >= {alpha:g}")
+            failed.append(f"{row} p = {format_p(p_value, alpha)} >= {alpha:g}")
         failed += [
             f"{name} half M = {format_number(mean)} <= 0"
             for name, mean in zip(halves, means)
@@ -224,7 +224,7 @@ def _halves_on_their_own(
                 return None, ""
             tests.append((half, row))
     text = "; ".join(
-        f"{half} {format_t(row.get('t'), row.get('df'))}, {format_p_phrase(row['p_value'])}"
+        f"{half} {format_t(row.get('t'), row.get('df'))}, {format_p_phrase(row['p_value'], alpha)}"
         for half, row in tests
     )
     return all(row["p_value"] < alpha for _, row in tests), text
@@ -232,7 +232,7 @@ def _halves_on_their_own(
 
 def concept_verdicts(
     results: Mapping[tuple[str, str], Mapping[str, Any]] | Sequence[Mapping[str, Any]],
-    alpha: float = ALPHA,
+    alpha: float,
     causality: causality_check.Causality | None = None,
 ) -> list[Verdict]:
     """Per concept, in the order first seen: ``quadruplet_rule`` on each of its quadruplet rows
@@ -282,7 +282,7 @@ def concept_verdicts(
             if not mean > 0:
                 failed.append(f"{variant} M = {format_number(mean)} <= 0")
             elif not p_value < alpha:
-                failed.append(f"{variant} p = {format_p(p_value)} >= {alpha:g}")
+                failed.append(f"{variant} p = {format_p(p_value, alpha)} >= {alpha:g}")
         verdicts.append(Verdict(concept, voe, rule, "" if voe else "; ".join(failed)))
     if causality is not None and not causality.causal:
         return [

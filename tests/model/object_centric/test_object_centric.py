@@ -5,7 +5,7 @@ import json
 
 import pytest
 import torch
-from locations import REPO, TINY_CONFIG
+from helpers.locations import REPO, TINY_CONFIG
 from tensordict import TensorDict
 
 from voe_lightning.cli import main
@@ -352,7 +352,7 @@ def test_the_object_free_twin_is_scored_on_intphys_by_the_benchmark_configs(tmp_
     """configs/intphys_dev.yaml tests an object-free checkpoint, its model class coming from the
     checkpoint, and `predict` writes its answer.txt; IntPhys has neither masks nor camera poses,
     so this is the twin (without camera input) that can be scored there."""
-    from test_intphys import FRAMES, make_intphys
+    from helpers.intphys import FRAMES, make_intphys
 
     monkeypatch.chdir(tmp_path)
     model = [
@@ -409,9 +409,9 @@ def test_the_object_free_twin_is_scored_on_intphys_by_the_benchmark_configs(tmp_
 
 
 def test_configs_build_models_of_matching_size(monkeypatch):
-    from test_configs import ROOT, compose
+    from helpers.configs import compose
 
-    monkeypatch.chdir(ROOT)
+    monkeypatch.chdir(REPO)
     counts = {}
     for name, configs in (
         ("object_centric", ("base", "object_centric")),
@@ -432,7 +432,7 @@ def test_fit_and_test_on_physical_concepts_freeform_and_probes(tmp_path, monkeyp
     """configs/overlays/physical_concepts_object_centric.yaml's path on a tiny Physical Concepts
     dataset in the released layout: train on freeform clips (masks and camera poses from the
     records), then test on the probe quadruplets with the benchmark's own metrics."""
-    from test_physical_concepts import make_dataset
+    from helpers.physical_concepts import make_dataset
 
     monkeypatch.chdir(tmp_path)
     root = make_dataset(tmp_path / "physical_concepts")

@@ -10,7 +10,7 @@ import scipy.stats
 import torch
 import torch.nn.functional as F
 import yaml
-from locations import REPO, TINY_CONFIG
+from helpers.locations import REPO, TINY_CONFIG
 from tensordict import TensorDict
 
 from voe_lightning import specs

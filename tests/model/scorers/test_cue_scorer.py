@@ -8,7 +8,8 @@ import json
 import lightning as L
 import pytest
 import torch
-from locations import TINY_CONFIG
+from helpers import ALPHA
+from helpers.locations import TINY_CONFIG
 
 from voe_lightning.audit import video_cues
 from voe_lightning.callbacks import VOEReportCallback
@@ -75,15 +76,16 @@ def test_test_on_our_probes_runs_without_a_checkpoint(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("dataset", ["intphys", "physical_concepts"])
 def test_test_on_the_other_benchmarks_runs_without_a_checkpoint(dataset, tmp_path):
-    """IntPhys and DeepMind Physical Concepts fixtures (those readers' tests'): the report and
-    the benchmark's own metrics are written; IntPhys' answer.txt comes from ``predict``."""
+    """On tiny IntPhys and DeepMind Physical Concepts datasets (``helpers.intphys``,
+    ``helpers.physical_concepts``): the report and the benchmark's own metrics are written;
+    IntPhys' answer.txt comes from ``predict``."""
     if dataset == "intphys":
-        import test_intphys as fixtures
+        from helpers import intphys as fixtures
 
         root = fixtures.make_intphys(tmp_path / "data", "dev", labelled=True)
         fixtures.make_intphys(root, "test", labelled=False)
     else:
-        import test_physical_concepts as fixtures
+        from helpers import physical_concepts as fixtures
 
         root = fixtures.make_dataset(tmp_path / "data")
     trainer = L.Trainer(
@@ -91,7 +93,7 @@ def test_test_on_the_other_benchmarks_runs_without_a_checkpoint(dataset, tmp_pat
         logger=False,
         enable_progress_bar=False,
         enable_model_summary=False,
-        callbacks=[VOEReportCallback(out_dir=str(tmp_path), bootstrap=0)],
+        callbacks=[VOEReportCallback(out_dir=str(tmp_path), bootstrap=0, alpha=ALPHA)],
     )
     trainer.test(CueScorer("linear_extrapolation"), datamodule=fixtures.datamodule(root))
     metrics = json.loads((tmp_path / "voe_report" / "benchmark_metrics.json").read_text())

@@ -8,7 +8,7 @@ import torch
 
 pytest.importorskip("transformers")
 
-from locations import TINY_CONFIG
+from helpers.locations import TINY_CONFIG
 
 from voe_lightning.cli import main  # noqa: E402
 from voe_lightning.model.scorers.videomae import VideoMAEScorer  # noqa: E402

@@ -12,7 +12,7 @@ import torch.nn.functional as F
 
 pytest.importorskip("transformers")
 
-from locations import TINY_CONFIG
+from helpers.locations import TINY_CONFIG
 
 from voe_lightning import specs  # noqa: E402
 from voe_lightning.cli import main  # noqa: E402

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 import torch
-from locations import TINY_CONFIG
+from helpers.locations import TINY_CONFIG
 
 from voe_lightning.cli import main
 from voe_lightning.model import CallableModel

@@ -8,8 +8,8 @@ import sys
 import pytest
 import torch
 import torch.nn.functional as F
+from helpers.videos import moving_squares
 from tensordict import TensorDict
-from videos import moving_squares
 
 from voe_lightning import specs
 from voe_lightning.model import Encoder, VRNNLRUModel

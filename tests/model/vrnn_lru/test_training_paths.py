@@ -8,11 +8,11 @@ import pickle
 
 import pytest
 import torch
+from helpers.videos import moving_squares
 from lightning.pytorch import Callback, Trainer
 from tensordict import TensorDict
 from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils.data import DataLoader, SequentialSampler
-from videos import moving_squares
 
 from datamodules import ConceptDataModule
 from datamodules.resident import ResidentBatches

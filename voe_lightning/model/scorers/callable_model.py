@@ -11,7 +11,12 @@ import torch
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
-from voe_lightning.model.base import SurpriseModel
+from voe_lightning.model.base import SurpriseModel, check_real_surprise
+
+
+class CallableError(ValueError):
+    """A ValueError the user's callable raised, named by its path; the CLI's one line says how
+    to see the callable's own traceback."""
 
 
 def import_callable(path: str) -> Callable:
@@ -33,8 +38,16 @@ def _as_surprise(returned: object) -> torch.Tensor:
     """The callable's surprise as a tensor: a floating dtype as given, any other (integers,
     Python numbers) as float64, so the report's float64 sums lose nothing to rounding."""
     if isinstance(returned, (list, tuple)):
-        return torch.as_tensor(returned, dtype=torch.float64)
+        try:
+            return torch.as_tensor(returned, dtype=torch.float64)
+        except TypeError:  # complex numbers: refused by name (check_real_surprise)
+            surprise = torch.as_tensor(returned)
+            if surprise.is_complex():
+                return surprise
+            raise
     surprise = torch.as_tensor(returned)
+    if surprise.is_complex():
+        return surprise  # refused by name in CallableModel.surprise (check_real_surprise)
     return surprise if surprise.is_floating_point() else surprise.double()
 
 
@@ -63,7 +76,12 @@ class CallableModel(SurpriseModel):
         camera: torch.Tensor | None = None,
         objects: TensorDictBase | None = None,
     ) -> torch.Tensor:
-        returned = self.function(frames.to(self.device))
+        try:
+            returned = self.function(frames.to(self.device))
+        except ValueError as error:  # a user error prints one line: name the callable in it
+            raise CallableError(
+                f"{self.hparams.function} raised {type(error).__name__}: {error}"
+            ) from error
         try:
             surprise = _as_surprise(returned)
         except (TypeError, ValueError, RuntimeError) as error:  # None, a ragged list
@@ -72,6 +90,7 @@ class CallableModel(SurpriseModel):
                 f"is no array of numbers ({error}); expected surprise [B, T] = "
                 f"{list(frames.shape[:2])}"
             ) from None
+        check_real_surprise(surprise, self.hparams.function)
         if tuple(surprise.shape) != tuple(frames.shape[:2]):
             raise ValueError(
                 f"{self.hparams.function} returned surprise of shape "

@@ -43,6 +43,24 @@ class CueScorer(SurpriseModel):
         self.save_hyperparameters()
         self.cue_name = CUE_NAMES.get(cue, cue)
 
+    def setup(self, stage: str) -> None:
+        """Refuse a mask cue on data without masks (``ProbeDataModule.without_masks``: IntPhys,
+        IntPhys 2), whose zero masks would score 0 everywhere, before any batch."""
+        super().setup(stage)
+        data = getattr(self._trainer, "datamodule", None)
+        benchmark = getattr(data, "without_masks", None)
+        if self.cue_name in video_cues.MASK_CUES and benchmark:
+            raise ValueError(
+                f"CueScorer cue {self.hparams.cue!r} counts object pixels in the masks, and "
+                f"{benchmark} has no masks (its videos' masks would all be zero): choose "
+                f"one of {', '.join(self._frame_cues())}"
+            )
+
+    @staticmethod
+    def _frame_cues() -> list[str]:
+        """The cues that read frames only (no masks)."""
+        return [name for name, cue in CUE_NAMES.items() if cue not in video_cues.MASK_CUES]
+
     def surprise(
         self,
         frames: torch.Tensor,
@@ -53,8 +71,7 @@ class CueScorer(SurpriseModel):
         if self.cue_name in video_cues.MASK_CUES and mask is None:
             raise ValueError(
                 f"cue {self.hparams.cue!r} counts object pixels and needs masks; "
-                "this data has none: choose motion, copy_last, "
-                "linear_extrapolation or novelty"
+                f"this data has none: choose one of {', '.join(self._frame_cues())}"
             )
         return video_cues.frame_scores(frames, mask)[self.cue_name].float()
 

@@ -20,14 +20,23 @@ from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.stats.causality import Causality, check_prefix
 
 
-def check_model(model: SurpriseModel, probes: Any) -> tuple[Causality, Causality]:
+def check_model(
+    model: SurpriseModel, probes: Any, concept: str | None = None
+) -> tuple[Causality, Causality]:
     """The causality protocol of ``model`` (a ``SurpriseModel``) on a batch of probe pairs:
     per-frame surprise identical through each pair's manipulation frame (``check_prefix`` of
     ``probe_step``), and each inconsistent video's surprise up to frame t unchanged when the
     video (frames, masks, camera, object states) is cut after t, for every t (counted once
-    per video and frame)."""
+    per video and frame). Surprise that is not finite (NaN equals NaN nowhere, so an all-NaN
+    model would pass) cannot be checked: a ValueError naming the model (and ``concept``)."""
     with torch.no_grad():
         scored = model.probe_step(probes)
+        _check_finite(
+            model,
+            concept,
+            scored["surprise_consistent"],
+            scored["surprise_inconsistent"],
+        )
         prefix = check_prefix(
             scored["surprise_consistent"],
             scored["surprise_inconsistent"],
@@ -42,8 +51,30 @@ def check_model(model: SurpriseModel, probes: Any) -> tuple[Causality, Causality
             part = model.surprise(
                 frames[:, : t + 1], **{name: _through(value, t) for name, value in inputs.items()}
             )
+            _check_finite(model, concept, whole, part)
             cut = cut.merge(check_prefix(whole[:, : t + 1], part, torch.full((len(frames),), t)))
     return prefix, cut
+
+
+def model_name(model: SurpriseModel) -> str:
+    """The model's class, and a ``CallableModel``'s callable: 'CallableModel of my.fn'."""
+    function = getattr(model, "hparams", {}).get("function")
+    name = type(model).__name__
+    return f"{name} of {function}" if isinstance(function, str) else name
+
+
+def _check_finite(model: SurpriseModel, concept: str | None, *surprises: torch.Tensor) -> None:
+    """A ValueError when any of ``surprises`` is NaN or infinite: causality cannot be checked."""
+    values = torch.cat([surprise.detach().reshape(-1).double().cpu() for surprise in surprises])
+    bad = int((~torch.isfinite(values)).sum())
+    if bad:
+        where = f" on {concept}'s probes" if concept else ""
+        raise ValueError(
+            f"{model_name(model)}'s causality cannot be checked: its surprise is not finite"
+            f"{where} ({bad:,} of {values.numel():,} per-frame values NaN or infinite); the "
+            "check compares finite surprise (NaN would pass as identical): make the model's "
+            "surprise finite"
+        )
 
 
 def _through(value: Any, t: int) -> Any:
@@ -94,7 +125,9 @@ def check_causality(
             ]
         )
         checks = ("pairs through the manipulation frame", "videos cut after each frame t")
-        for check, unit, found in zip(checks, ("pairs", "cuts"), check_model(model, probes)):
+        for check, unit, found in zip(
+            checks, ("pairs", "cuts"), check_model(model, probes, concept)
+        ):
             print(f"{concept}, {check}: {found.counted(unit)}")
             if not found.causal:
                 failed.append(f"{concept} ({check})")

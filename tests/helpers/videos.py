@@ -1,4 +1,4 @@
-"""Synthetic videos the model tests train and score on (imported by them; not a test file)."""
+"""Synthetic videos the model tests train and score on."""
 
 import torch
 

@@ -1,10 +1,11 @@
 """The check that a benchmark's probe records expose their quadruplets as our stores do (a seed
 names a quadruplet, the variant its half), so a report tests them by the quadruplet test
-(imported by the benchmark reader tests; not a test file)."""
+(the benchmark reader tests' shared check)."""
 
 import numpy as np
 import pytest
 
+from helpers import ALPHA
 from voe_lightning.report.pairs import PairResults
 from voe_lightning.report.tables import summarize
 from voe_lightning.specs import QUADRUPLET
@@ -36,7 +37,10 @@ def check_quadruplet_rows(probes, concept_names, variant_names, quadruplets: dic
         concept_names,
         variant_names,
     )
-    rows = {(row["concept"], row["variant"]): row for row in summarize(results, bootstrap=0)}
+    rows = {
+        (row["concept"], row["variant"]): row
+        for row in summarize(results, bootstrap=0, alpha=ALPHA)
+    }
     concepts, variants = np.array(results.concept), np.array(results.variant)
     for concept, count in quadruplets.items():
         row = rows[(concept, QUADRUPLET)]
@@ -52,11 +56,11 @@ def check_quadruplet_rows(probes, concept_names, variant_names, quadruplets: dic
         assert results.seed[halves[0]].tolist() == results.seed[halves[1]].tolist()
         inc, con = results.total_inconsistent, results.total_consistent
         expected = quadruplet_test(
-            inc[halves[0]], con[halves[0]], inc[halves[1]], con[halves[1]], bootstrap=0
+            inc[halves[0]], con[halves[0]], inc[halves[1]], con[halves[1]], bootstrap=0, alpha=ALPHA
         )
         assert row["relative_surprise"] == pytest.approx(expected.relative_surprise)
         assert row["p_value"] == pytest.approx(expected.p_value)
-    verdicts = {v.concept: v for v in concept_verdicts(list(rows.values()))}
+    verdicts = {v.concept: v for v in concept_verdicts(list(rows.values()), alpha=ALPHA)}
     for concept, count in quadruplets.items():
         assert "quadruplet test" in verdicts[concept].rule
         assert verdicts[concept].voe == (True if count >= 2 else None)

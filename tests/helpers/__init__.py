@@ -1,10 +1,10 @@
-"""What several test modules share: the one line a refused command prints, and a small set of
-pair results."""
+"""Shared test helpers: a refused command's one error line, a few pair results, the tests' alpha."""
 
 import numpy as np
 import pytest
 
 from voe_lightning.cli import main
+from voe_lightning.cli.run_arguments import base_alpha
 from voe_lightning.report.pairs import PairResults
 
 
@@ -34,3 +34,7 @@ def pair_results(pairs: int = 4) -> PairResults:
         surprise_consistent=rng.random((pairs, 5)),
         surprise_inconsistent=rng.random((pairs, 5)) + 0.1,
     )
+
+
+#: The significance level every test here tests at: the run's, as configs/base.yaml sets it.
+ALPHA = base_alpha()

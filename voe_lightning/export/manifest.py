@@ -1,0 +1,185 @@
+"""What every export carries and how it is written: the folder it is staged in (renamed into
+place only once whole), the SHA-256 of each file written, and ``manifest.json``, which says what
+the export holds so a paper can cite it ("voe_lightning probes v10, test split, seed offset
+K"): generator and package versions, store, split, seeds, seed offset, video geometry, how
+frames were encoded, each concept's place in the benchmark's layout, the quadruplet grouping
+(which four videos, which consistent, which inconsistent, which concept) and the lone pairs."""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import shutil
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+from tensordict import TensorDictBase
+
+import voe_lightning
+from voe_lightning.data import store
+from voe_lightning.data.store_plan import GENERATOR_VERSION
+from voe_lightning.export.probes import ROLES, ProbeGroup, ProbeSource
+
+MANIFEST_NAME = "manifest.json"
+#: Version of the export layouts and of this manifest; bump it when either changes.
+EXPORT_VERSION = 1
+
+
+def sha256_file(path: Path) -> str:
+    """The SHA-256 of the file at ``path``, read in 1 MiB chunks."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as stream:
+        for chunk in iter(lambda: stream.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+class ExportFolder:
+    """The folder an export is written into, keeping the SHA-256 of every file written
+    (``files``: path relative to the folder, with ``/`` -> hex digest) for the manifest."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.files: dict[str, str] = {}
+
+    def write(self, relative: str, data: bytes) -> None:
+        """Write ``data`` to ``relative`` (folders made as needed) and note its SHA-256."""
+        path = self.path / relative
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(data)
+        self.files[relative] = hashlib.sha256(data).hexdigest()
+
+    def add(self, relative: str) -> None:
+        """Note the SHA-256 of ``relative``, a file written otherwise (a tar shard)."""
+        self.files[relative] = sha256_file(self.path / relative)
+
+
+@dataclass
+class Written:
+    """What a format's writer reports for the manifest: where each concept went (``layout``),
+    how frames were encoded, each group's entry (``group_entry``) and what it left out."""
+
+    layout: dict[str, Any]
+    encoding: dict[str, Any]
+    groups: list[dict[str, Any]] = field(default_factory=list)
+    left_out: list[dict[str, Any]] = field(default_factory=list)
+
+
+class Progress(Protocol):
+    """The part of a tqdm bar a writer uses: ``update(videos written)``."""
+
+    def update(self, n: float | None = 1) -> bool | None: ...
+
+
+def check_out(out: Path) -> None:
+    """Refuse an ``out`` that is a file, or a folder that is not empty: an export never
+    writes over or beside other files."""
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"--out {out} is a file; give a new or empty folder")
+    if out.is_dir() and any(out.iterdir()):
+        raise FileExistsError(
+            f"--out {out} exists and is not empty; give a new or empty folder (an export "
+            "never writes over or beside other files)"
+        )
+
+
+@contextlib.contextmanager
+def staged(out: Path) -> Iterator[ExportFolder]:
+    """An ExportFolder in ``.<out>.partial`` beside ``out``, renamed to ``out`` when the block
+    ends without error and deleted when it raises: an interrupted export leaves no ``out``
+    that looks whole."""
+    check_out(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.parent / f".{out.name}.partial"
+    if partial.exists():
+        shutil.rmtree(partial)  # an interrupted export's leftovers
+    partial.mkdir()
+    try:
+        yield ExportFolder(partial)
+        check_out(out)  # nothing appeared there meanwhile
+        if out.is_dir():
+            out.rmdir()
+        os.rename(partial, out)
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)
+        raise
+
+
+def pair_entry(variant: str, record: TensorDictBase, locations: Sequence[str]) -> dict[str, Any]:
+    """A pair's manifest entry: its variant, manipulation frame and where its consistent and
+    inconsistent videos are in the export (``locations``, in ``ROLES`` order)."""
+    return {
+        "variant": variant,
+        "manipulation_frame": int(record["manipulation_frame"]),
+        **dict(zip(ROLES, locations)),
+    }
+
+
+def group_entry(
+    group: ProbeGroup,
+    records: Sequence[TensorDictBase],
+    locations: Sequence[Sequence[str]],
+    scene: Any = None,
+) -> dict[str, Any]:
+    """A group's manifest entry: concept, seed, the benchmark's ``scene`` for it, and each
+    pair's entry (``locations[k]``: pair k's video locations); a quadruplet's also names its
+    row and lists its consistent (A, B) and inconsistent (AB, BA) videos."""
+    pairs = [
+        pair_entry(pair.variant, record, where)
+        for pair, record, where in zip(group.pairs, records, locations)
+    ]
+    entry: dict[str, Any] = {"concept": group.concept, "seed": group.seed, "scene": scene}
+    if group.quadruplet is not None:
+        entry["quadruplet"] = group.quadruplet
+        entry.update({role: [where[k] for where in locations] for k, role in enumerate(ROLES)})
+    return {**entry, "pairs": pairs}
+
+
+def citation(source: ProbeSource) -> str:
+    """How a paper names the exported probes."""
+    return (
+        f"voe_lightning probes v{GENERATOR_VERSION}, {source.split} split, seed offset "
+        f"{source.seed_offset}"
+    )
+
+
+def build_manifest(
+    source: ProbeSource, export_format: str, written: Written, files: dict[str, str]
+) -> dict[str, Any]:
+    """The export's manifest: what it is (``export_format``; from ``written``, the layout:
+    where each concept went, and how frames were encoded), what it holds (the quadruplets and
+    lone pairs, what was left out and why) and the SHA-256 of each file."""
+    video = source.video
+    store_manifest = source.root / store.MANIFEST_NAME
+    return {
+        "citation": citation(source),
+        "export_format": export_format,
+        "export_version": EXPORT_VERSION,
+        "generator_version": GENERATOR_VERSION,
+        "package_version": voe_lightning.__version__,
+        "store": {
+            "root": str(source.root),
+            "manifest_sha256": sha256_file(store_manifest),
+            "package_version": source.manifest.get("package_version"),
+        },
+        "split": source.split,
+        "seed_offset": source.seed_offset,
+        "seeds": {concept: source.seeds(concept) for concept in source.concepts},
+        "video": {**video, "fps": video["num_frames"] / video["duration"]},
+        "layout": written.layout,
+        "encoding": written.encoding,
+        "quadruplets": [entry for entry in written.groups if "quadruplet" in entry],
+        "pairs": [entry for entry in written.groups if "quadruplet" not in entry],
+        "left_out": written.left_out,
+        "files": dict(sorted(files.items())),
+    }
+
+
+def write_manifest(folder: ExportFolder, manifest: dict[str, Any]) -> None:
+    """Write ``manifest.json`` (not among its own ``files``)."""
+    text = json.dumps(manifest, indent=2) + "\n"
+    (folder.path / MANIFEST_NAME).write_text(text)
