@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch.utils.data import ConcatDataset, DataLoader, Dataset, Sampler
+from torch.utils.data import ConcatDataset, DataLoader, Dataset, Sampler, Subset
 
 from datamodules.arguments import check_at_least
 from datamodules.resident import ResidentBatches, resident_frames
@@ -90,6 +90,9 @@ class VOEDataModule(ProbeDataModule):
             splits' seed ranges (0: the store's own): a fresh test set of any size no one has
             seen, generated or read in ``root/seed_offset_<N>`` (``store_plan.seed_offset_root``,
             probes only), so the training data's store is never touched; the report names it.
+        train_limit: train on only the first ``train_limit`` examples per concept of the store
+            (and their controls in proportion: the plan interleaves the kinds, so every prefix
+            holds them so); None: all ``train_examples``. A training-size sweep over one store.
     """
 
     concept_names, variant_names = specs.CONCEPTS, specs.VARIANTS
@@ -115,6 +118,7 @@ class VOEDataModule(ProbeDataModule):
         seed: int = 0,
         seed_offset: int = 0,
         test_split: str = "test",
+        train_limit: int | None = None,
     ):
         super().__init__()
         if test_split not in TEST_SPLITS:
@@ -143,6 +147,11 @@ class VOEDataModule(ProbeDataModule):
                 "seed": (seed, 0),
             }
         )
+        if train_limit is not None and not 1 <= train_limit <= train_examples:
+            raise ValueError(
+                f"train_limit must be a number of examples per concept from 1 to train_examples "
+                f"({train_examples}), or None for all; got {train_limit!r}"
+            )
         check_seed_offset(
             seed_offset,
             {"val": val_pairs, "test": test_pairs, "generalization": generalization_pairs},
@@ -220,11 +229,18 @@ class VOEDataModule(ProbeDataModule):
             if split in self._datasets:
                 continue
             parts = [
-                open_split(self._store_root(split), concept, split)
+                self._limited(open_split(self._store_root(split), concept, split), split)
                 for concept in self.concepts
                 if split != "generalization" or specs.GENERALIZATION_VARIANTS[concept]
             ]
             self._datasets[split] = ConcatDataset(parts) if parts else None
+
+    def _limited(self, part: Dataset, split: str) -> Dataset:
+        """A concept's split, cut to its first ``train_limit`` examples' worth of training clips."""
+        limit = self.hparams.train_limit
+        if split != "train" or limit is None:
+            return part
+        return Subset(part, range(round(len(part) * limit / self.hparams.train_examples)))
 
     def probe_cases(self, split: str = "val") -> list[tuple[str, str]]:
         """The (concept, variant) pairs whose probes ``split`` holds."""

@@ -24,6 +24,19 @@ RUN_CHECKPOINT_WORDS = ("last", "best")
 LIGHTNING_CHECKPOINT_WORDS = ("hpc", "registry")
 #: The file ModelCheckpoint(save_last=True), FinalStepCheckpoint and InterruptCheckpoint write.
 LAST_CHECKPOINT = "last.ckpt"
+#: The folder, inside a test's log folder, of the same config tested untrained (``priors_alone``).
+UNTRAINED_FOLDER = "priors_alone"
+
+
+def trained_reports(run_dir: str | Path, name: str = "summary.json") -> list[Path]:
+    """Every report file ``voe_report/<name>`` under ``run_dir``, oldest first, leaving out the
+    reports of an untrained copy (``UNTRAINED_FOLDER``), which are no result of the run."""
+    reports = [
+        path
+        for path in Path(run_dir).rglob(f"voe_report/{name}")
+        if UNTRAINED_FOLDER not in path.relative_to(run_dir).parts
+    ]
+    return sorted(reports, key=lambda path: path.stat().st_mtime)
 
 
 def checkpoint_file(ckpt_path: str) -> Path:

@@ -3,6 +3,7 @@ plot, and the driver's orchestration with a stand-in CLI), the ``analyze`` comma
 the report notebook executed on a tiny synthetic run directory."""
 
 import json
+import os
 import types
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.cli import analysis, main, size_sweep
 from voe_lightning.report import ReportInputs, write_report
 from voe_lightning.report.pairs import PairResults
+from voe_lightning.runs import trained_reports
 from voe_lightning.stats.statistics import paired_test
 
 NOTEBOOK = REPO / "notebooks" / "voe_report.ipynb"
@@ -471,3 +473,21 @@ def test_compare_reads_a_runs_own_report_before_a_newer_one_on_other_data(tmp_pa
     rows = analysis.comparison_rows([("run", run)])
     assert [(r["variant"], r["n"]) for r in rows] == [("quadruplet", 40)]
     assert rows[0]["report"] == str(run / "voe_report")
+
+
+def test_compare_and_sweep_plot_never_read_an_untrained_copys_report(tmp_path):
+    """A test with ``priors_alone`` writes the untrained copy's report first, in its own run
+    folder (with a config.yaml beside it) under the test's folder: `analyze compare` and
+    `sweep-plot` read the trained model's report, not that one."""
+    evaluation = tmp_path / "run" / "version_0" / "data_fresh-1234"
+    untrained = evaluation / "priors_alone" / "seed_0" / "version_0"
+    groups = {("solidity", "standard"): (40, 0.0), ("solidity", "counterbalanced"): (40, 0.0)}
+    write_report(ReportInputs(pair_results(groups, seed=1), alpha=ALPHA, bootstrap=0), untrained, echo=False)  # fmt: skip
+    (untrained / "config.yaml").write_text("model: {}\n")
+    trained = {("solidity", "standard"): (40, 2.0), ("solidity", "counterbalanced"): (40, 2.0)}
+    write_report(ReportInputs(pair_results(trained, seed=2), alpha=ALPHA, bootstrap=0), evaluation, echo=False)  # fmt: skip
+    assert analysis._latest_report(tmp_path / "run") == evaluation / "voe_report"
+    os.utime(untrained / "voe_report" / "pairs.csv")  # newest, and still not read
+    assert trained_reports(tmp_path / "run", "pairs.csv") == [
+        evaluation / "voe_report" / "pairs.csv"
+    ]

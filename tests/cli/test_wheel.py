@@ -1,6 +1,8 @@
-"""Installed like any package: a wheel built from the checkout, installed into a folder outside
-it, runs from an empty folder: a shipped config by name, and generate, a 2-step fit, test and
-audit of a config file there, reading base.yaml from the installed package."""
+"""Installed like any package: a wheel built from the checkout, installed into a fresh virtual
+environment outside it (its dependencies from the system's site-packages, so nothing is
+downloaded), runs from an empty folder: a shipped config by name, and generate, a 2-step fit,
+test (``--ckpt_path last``) and audit of a config file there, reading base.yaml from the
+installed package."""
 
 import os
 import shutil
@@ -25,31 +27,35 @@ def test_a_wheel_installed_outside_the_checkout_runs_there(tmp_path):
             )
         else:
             shutil.copy(REPO / name, source / name)
-    wheels, installed, work = tmp_path / "wheels", tmp_path / "installed", tmp_path / "work"
-    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
-    subprocess.run([*pip, "wheel", "--no-deps", "--no-build-isolation", "-w", wheels, source], check=True)  # fmt: skip
+    wheels, venv, work = tmp_path / "wheels", tmp_path / "venv", tmp_path / "work"
+    pip = ["-m", "pip", "--disable-pip-version-check", "-q"]
+    subprocess.run([sys.executable, *pip, "wheel", "--no-deps", "--no-build-isolation", "-w", wheels, source], check=True)  # fmt: skip
     (wheel,) = wheels.glob("voe_lightning-*.whl")
-    subprocess.run([*pip, "install", "--no-deps", "--target", installed, wheel], check=True)
+    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", venv], check=True)
+    python = str(venv / "bin" / "python")
+    subprocess.run([python, *pip, "install", "--no-deps", wheel], check=True)
     work.mkdir()
     shutil.copy(TINY_CONFIG, work / "tiny.yaml")
-    environment = {**os.environ, "PYTHONPATH": str(installed), "MUJOCO_GL": "egl"}
+    environment = {**os.environ, "MUJOCO_GL": "egl"}
+    environment.pop("PYTHONPATH", None)
 
     def run(*words: str) -> str:
         done = subprocess.run(
-            [sys.executable, *words], cwd=work, env=environment, capture_output=True, text=True
+            [python, *words], cwd=work, env=environment, capture_output=True, text=True
         )
         assert done.returncode == 0, done.stderr[-3000:]
         return done.stdout
 
     where = run("-c", "import voe_lightning.cli.run_arguments as r; print(r.BASE_CONFIG)")
-    assert where.strip() == str(installed / "voe_lightning" / "configs" / "base.yaml")
+    assert where.strip().startswith(str(venv)) and where.strip().endswith(
+        "voe_lightning/configs/base.yaml"
+    )
     assert "name: quickstart" in run("-m", "voe_lightning", "fit", "--config", "quickstart", "--print_config")  # fmt: skip
     run("-m", "voe_lightning", "generate", "--root", "data/tiny", "--concepts", "[object_persistence]",
         "--train_examples", "4", "--val_pairs", "2", "--test_pairs", "3", "--generalization_pairs", "2",
         "--num_frames", "6", "--height", "32", "--width", "32", "--workers", "1", "--progress", "false")  # fmt: skip
     assert "next, the report on the test probes" in run("-m", "voe_lightning", "fit", "--config", "tiny.yaml")  # fmt: skip
-    checkpoint = "runs/tiny/version_0/checkpoints/last.ckpt"
-    run("-m", "voe_lightning", "test", "--config", "tiny.yaml", "--ckpt_path", checkpoint)
+    run("-m", "voe_lightning", "test", "--config", "tiny.yaml", "--ckpt_path", "last")
     assert (work / "runs" / "tiny" / "version_0" / "voe_report" / "summary.json").is_file()
     run("-m", "voe_lightning", "audit", "--root", "data/tiny", "--split", "test", "--progress", "false")  # fmt: skip
     assert any((work / "data" / "tiny").rglob("cues.md"))

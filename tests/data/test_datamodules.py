@@ -177,28 +177,34 @@ def test_intphys_takes_the_models_geometry_in_setup(tmp_path):
     assert datamodule.probe_spec().is_in(batch[0])
 
 
-def test_a_seed_offset_reads_fresh_probes_from_their_own_store_and_trains_on_the_roots(
-    tmp_path, monkeypatch
-):
-    """Issue 48 part 5: the probe splits of ``seed_offset`` N are generated into and read from
-    root/seed_offset_<N>, the training clips from the root, whose store is left as it was."""
+def _fake_store(tmp_path, monkeypatch, **sizes):
+    """A continuity store of fake clips and probes at ``tmp_path`` (16 x 16, 4 frames), the
+    DataModule options that made it, and its files' bytes."""
     monkeypatch.setattr(generate, "generate_clip", fake_clip)
     monkeypatch.setattr(generate, "generate_probe", fake_probe)
     options = dict(
         concept="continuity",
         root=str(tmp_path),
-        train_examples=4,
         val_pairs=2,
-        test_pairs=3,
         generalization_pairs=1,
         generate_workers=1,
         num_frames=4,
         height=16,
         width=16,
-        batch_size=4,
+        **sizes,
     )
     ConceptDataModule(**options).prepare_data()
-    before = {path: path.read_bytes() for path in tmp_path.rglob("*") if path.is_file()}
+    return options, {path: path.read_bytes() for path in tmp_path.rglob("*") if path.is_file()}
+
+
+def test_a_seed_offset_reads_fresh_probes_from_their_own_store_and_trains_on_the_roots(
+    tmp_path, monkeypatch
+):
+    """Issue 48 part 5: the probe splits of ``seed_offset`` N are generated into and read from
+    root/seed_offset_<N>, the training clips from the root, whose store is left as it was."""
+    options, before = _fake_store(
+        tmp_path, monkeypatch, train_examples=4, test_pairs=3, batch_size=4
+    )
     datamodule = ConceptDataModule(**options, seed_offset=1000)
     datamodule.prepare_data()
     assert {path: path.read_bytes() for path in before} == before
@@ -275,3 +281,29 @@ def test_a_seed_offset_past_a_splits_range_is_refused_when_built():
         r".*got -5",
     ):
         VOEDataModule(seed_offset=-5)
+
+
+def test_train_limit_trains_on_a_prefix_of_the_store_with_every_kind_in_proportion(
+    tmp_path, monkeypatch
+):
+    """``train_limit`` N reads the first N examples per concept and their controls in
+    proportion from the same store (a training-size sweep without regenerating), and refuses
+    a limit outside 1..train_examples."""
+    options, before = _fake_store(
+        tmp_path, monkeypatch, train_examples=8, test_pairs=2, batch_size=2
+    )
+    datamodule = ConceptDataModule(**options, train_limit=4)
+    datamodule.prepare_data()
+    datamodule.setup("fit")
+    assert {path: path.read_bytes() for path in before} == before  # the same store
+    batches = list(datamodule.train_dataloader())
+    kinds = [specs.CLIP_KINDS[int(k)] for batch in batches for k in batch["kind"]]
+    seeds = sorted(int(seed) for batch in batches for seed in batch["seed"])
+    assert seeds == list(range(8))  # the first 8 of the 16 clips: 4 examples, 4 controls
+    assert kinds.count("example") == 4
+    assert set(kinds) == set(specs.CLIP_KINDS_BY_CONCEPT["continuity"])
+    for bad in (0, 9):
+        with pytest.raises(
+            ValueError, match=rf"train_limit must be .* from 1 to train_examples \(8\).*got {bad}"
+        ):
+            ConceptDataModule(**options, train_limit=bad)

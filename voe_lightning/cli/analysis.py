@@ -33,6 +33,7 @@ from voe_lightning.report.figures import panel_grid, save_figure
 from voe_lightning.report.page import write_comparison
 from voe_lightning.report.pairs import PairResults
 from voe_lightning.report.summary_file import read_summary
+from voe_lightning.runs import trained_reports
 from voe_lightning.stats.field_metrics import context_sweep, format_field_metrics
 from voe_lightning.stats.statistics import POOLED
 from voe_lightning.stats.statistics_format import BRIEF, format_alpha, row_text
@@ -204,10 +205,8 @@ def _latest_report(run_dir: str | Path) -> Path:
     """The newest voe_report under ``run_dir``, preferring a training run's own (beside its
     config.yaml) to those `test` writes into sub-folders for external benchmarks, other data,
     concepts, checkpoints or evaluation-only model arguments (``<run>/<what differs>-<hash>/``,
-    ``runs.report_folder``)."""
-    reports = sorted(
-        Path(run_dir).rglob("voe_report/summary.json"), key=lambda path: path.stat().st_mtime
-    )
+    ``runs.report_folder``); never an untrained copy's (``runs.trained_reports``)."""
+    reports = trained_reports(run_dir)
     if not reports:
         raise FileNotFoundError(f"no voe_report/summary.json under {run_dir} (run test first)")
     own = [path for path in reports if (path.parent.parent / "config.yaml").is_file()]

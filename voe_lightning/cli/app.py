@@ -266,7 +266,7 @@ class VOECLI(LightningCLI):
         own = set(inspect.signature(self.trainer.test).parameters) - self.subcommands()["test"]
         for key in ("config", *own):  # ckpt_path, verbose...: the untrained copy has none
             saved.pop(key, None)
-        out = Path(self.trainer.log_dir) / "priors_alone"
+        out = Path(self.trainer.log_dir) / runs.UNTRAINED_FOLDER
         print(
             f"test: first the config at initialization (seed {seed}) on the same probes, "
             f"its {PRIORS_ALONE} rows for the report, into {out}"

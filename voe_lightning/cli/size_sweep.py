@@ -19,6 +19,7 @@ from voe_lightning.callbacks.outcomes import report_folders
 from voe_lightning.report.figures import panel_grid, save_figure
 from voe_lightning.report.pairs import PairResults
 from voe_lightning.report.summary_file import read_summary
+from voe_lightning.runs import trained_reports
 from voe_lightning.stats.statistics import paired_test
 
 __all__ = ["run_size_sweep", "size_sweep_figure", "sweep", "sweep_plot", "sweep_rows"]
@@ -252,7 +253,7 @@ def sweep_plot(
     else:
         rows = []
         for size, run_dir in runs.items():
-            pairs = sorted(Path(run_dir).rglob("voe_report/pairs.csv"))
+            pairs = trained_reports(run_dir, "pairs.csv")
             if not pairs:
                 raise FileNotFoundError(f"no voe_report/pairs.csv under {run_dir} (run test first)")
             rows.extend(
