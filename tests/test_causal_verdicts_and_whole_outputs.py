@@ -21,7 +21,7 @@ import yaml
 from helpers import ALPHA, pair_results, refused
 from helpers.intphys2 import FRAMES, SIZE, frame, make_root
 from helpers.locations import TINY_CONFIG
-from helpers.runs import copy_of, curve_runs
+from helpers.runs import RESUME_TRAINED, copy_of, curve_runs
 from rich.console import Console
 from tfrecord.writer import TFRecordWriter
 
@@ -313,22 +313,11 @@ def test_a_resumed_fit_on_other_data_is_refused_and_the_record_kept(
 ):
     run = copy_of(trained, workdir)
     record = (run / "config.yaml").read_bytes()
-    resume = [
-        "fit",
-        "--config",
-        TINY_CONFIG,
-        "--trainer.logger.init_args.name",
-        "trained",
-        "--ckpt_path",
-        "last",
-        "--trainer.max_steps",
-        "2",
-    ]
-    line = refused(capsys, [*resume, f"--data.init_args.{argument}", value])
+    line = refused(capsys, [*RESUME_TRAINED, f"--data.init_args.{argument}", value])
     assert f"resumes the run {run.relative_to(workdir)}, which trained on other data" in line
     assert f"data.init_args.{argument}: {message}" in line
     assert not (workdir / "data").exists()  # refused before any work
-    main(resume)  # on the run's own data: resumed, its config saved beside the record
+    main(RESUME_TRAINED)  # on the run's own data: resumed, its config saved beside the record
     assert (run / "config.yaml").read_bytes() == record
     resumed = yaml.safe_load((run / "config_resumed_step1.yaml").read_text())
     assert resumed["trainer"]["max_steps"] == 2
@@ -339,15 +328,7 @@ def test_a_branch_continues_on_other_data_in_a_new_version(workdir, trained, cap
     record = (run / "config.yaml").read_bytes()
     cli = main(
         [
-            "fit",
-            "--config",
-            TINY_CONFIG,
-            "--trainer.logger.init_args.name",
-            "trained",
-            "--ckpt_path",
-            "last",
-            "--trainer.max_steps",
-            "2",
+            *RESUME_TRAINED,
             "--branch",
             "true",
             "--data.init_args.concept",

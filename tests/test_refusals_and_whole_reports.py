@@ -17,7 +17,7 @@ import torch
 import yaml
 from helpers import ALPHA, pair_results, refused
 from helpers.locations import REPO, TINY_CONFIG
-from helpers.runs import copy_of
+from helpers.runs import RESUME_TRAINED, copy_of
 
 from voe_lightning import specs
 from voe_lightning.cli import main
@@ -128,19 +128,7 @@ def test_last_is_the_newest_run_and_the_report_names_what_it_was_made_from(
         "concepts": ["object_persistence"],
     }
     # fit --ckpt_path last resumes that run (Lightning alone would start again from step 0).
-    cli = main(
-        [
-            "fit",
-            "--config",
-            TINY_CONFIG,
-            "--trainer.logger.init_args.name",
-            "trained",
-            "--ckpt_path",
-            "last",
-            "--trainer.max_steps",
-            "2",
-        ]
-    )
+    cli = main(RESUME_TRAINED)
     assert cli.trainer.global_step == 2
     assert sorted(path.name for path in older.parent.iterdir()) == ["version_0", "version_1"]
 

@@ -1,11 +1,26 @@
-"""Run folders the tests read: TensorBoard curves written like a training run's, and a copy of
-a trained run to write into."""
+"""Run folders the tests read: TensorBoard curves written like a training run's, a copy of a
+trained run to write into, and the command that resumes it."""
 
 import shutil
 from pathlib import Path
 
 import numpy as np
 from torch.utils.tensorboard import SummaryWriter
+
+from helpers.locations import TINY_CONFIG
+
+#: ``fit`` resuming the tiny config's run named ``trained`` (``copy_of``) for one more step.
+RESUME_TRAINED = [
+    "fit",
+    "--config",
+    str(TINY_CONFIG),
+    "--trainer.logger.init_args.name",
+    "trained",
+    "--ckpt_path",
+    "last",
+    "--trainer.max_steps",
+    "2",
+]
 
 
 def write_events(run_dir, curves, steps=range(0, 500, 100), other_tags=True):
