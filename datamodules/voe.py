@@ -12,10 +12,11 @@ from typing import Any
 
 import numpy as np
 import torch
+from tensordict import TensorDictBase
 from torch.utils.data import ConcatDataset, DataLoader, Dataset, Sampler, Subset
 
 from datamodules.arguments import check_at_least
-from datamodules.resident import ResidentBatches, resident_frames
+from datamodules.resident import ResidentBatches, resident_records
 from voe_lightning import specs
 from voe_lightning.data import store
 from voe_lightning.data.generate import ensure_dataset
@@ -77,9 +78,13 @@ class VOEDataModule(ProbeDataModule):
         batch_size: clips per training batch (the paper used 10).
         probe_batch_size: probe pairs per evaluation batch.
         num_workers: DataLoader worker processes.
-        train_on_device: hold the training clips' frames on the training device as uint8 and
-            gather each batch there (``datamodules.resident``): for a GPU training thousands of
-            sequences a second; frames only, so for models trained from pixels (the VRNN-LRU).
+        train_on_device: hold the training clips (their ``train_fields``; default the frames,
+            as uint8) on the training device and gather each batch there
+            (``datamodules.resident``): for a GPU training thousands of sequences a second.
+        train_fields: the record fields of each training batch, read once and held whole
+            (on the training device with ``train_on_device``, else in host memory), so no batch
+            decodes a record; None: whole records through the DataLoader. The state learner
+            reads ``[objects, camera]``: no frame is decoded after the first pass.
         generate_workers: processes rendering missing data (default: all cores).
         num_frames, height, width: video geometry (paper: 15 frames of 64x64).
         seed: seed of the training order.
@@ -119,6 +124,7 @@ class VOEDataModule(ProbeDataModule):
         seed_offset: int = 0,
         test_split: str = "test",
         train_limit: int | None = None,
+        train_fields: list[str] | None = None,
     ):
         super().__init__()
         if test_split not in TEST_SPLITS:
@@ -152,6 +158,11 @@ class VOEDataModule(ProbeDataModule):
                 f"train_limit must be a number of examples per concept from 1 to train_examples "
                 f"({train_examples}), or None for all; got {train_limit!r}"
             )
+        if train_fields is not None and not train_fields:
+            raise ValueError(
+                "train_fields must name at least one record field (e.g. [objects, camera]), "
+                "or be None for whole records"
+            )
         check_seed_offset(
             seed_offset,
             {"val": val_pairs, "test": test_pairs, "generalization": generalization_pairs},
@@ -159,7 +170,7 @@ class VOEDataModule(ProbeDataModule):
         self.save_hyperparameters()
         self.concepts = list(dict.fromkeys(concepts))
         self._datasets: dict[str, Dataset] = {}
-        self._resident: torch.Tensor | None = None
+        self._resident: TensorDictBase | None = None
 
     # --- data on disk --------------------------------------------------------------------------
     def _generation_arguments(self, split: str) -> dict:
@@ -258,12 +269,15 @@ class VOEDataModule(ProbeDataModule):
         sampler = InterleavedSampler(
             [len(part) for part in dataset.datasets], shuffle=True, seed=self.hparams.seed
         )
-        if not self.hparams.train_on_device:
-            return self._loader(dataset, self.hparams.batch_size, sampler=sampler, drop_last=True)
+        h = self.hparams
+        if not h.train_on_device and h.train_fields is None:
+            return self._loader(dataset, h.batch_size, sampler=sampler, drop_last=True)
         if self._resident is None:
-            device = self.trainer.strategy.root_device if self.trainer else torch.device("cpu")
-            self._resident = resident_frames(dataset, device, self.hparams.num_workers)
-        return ResidentBatches(self._resident, sampler, self.hparams.batch_size)
+            on_device = h.train_on_device and self.trainer is not None
+            device = self.trainer.strategy.root_device if on_device else torch.device("cpu")
+            fields = h.train_fields or ["frames"]
+            self._resident = resident_records(dataset, fields, device, h.num_workers)
+        return ResidentBatches(self._resident, sampler, h.batch_size)
 
     def _probe_loader(self, split: str) -> DataLoader:
         # Its own generator: a loader's iterator draws a seed, and drawing it from the global

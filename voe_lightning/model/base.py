@@ -147,6 +147,18 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
             )
         return batch["frames"]
 
+    @staticmethod
+    def _clip_length(batch: TensorDictBase | dict) -> int:
+        """Frames per clip of a training batch: its frames' count, or, in a batch that holds
+        no frames (a state learner's ``train_fields``), its camera poses'."""
+        for key in ("frames", "camera"):
+            if key in batch.keys():
+                return batch[key].shape[1]
+        raise KeyError(
+            "a training batch needs 'frames' (uint8 [B,T,H,W,3]) or 'camera' ([B,T,6]); got "
+            f"keys {list(batch.keys())}"
+        )
+
     # ----------------------------------------------------------------------------- training
     def _check_finite(self, terms: dict[str, torch.Tensor]) -> None:
         """Stop training on a NaN/inf loss, naming the step and the offending term(s)."""
@@ -158,7 +170,7 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
     def on_train_batch_start(self, batch: TensorDictBase, batch_idx: int) -> None:
         """Record the training clips' frame count in ``training_frames`` (saved in
         checkpoints), warning when it replaces another one (a checkpoint's, or a value given)."""
-        frames = self._frames_of(batch).shape[1]
+        frames = self._clip_length(batch)
         recorded = self.hparams.get("training_frames")
         if recorded != frames:
             if recorded is not None:

@@ -467,3 +467,32 @@ def test_the_givens_of_the_learner_can_each_be_removed():
     for t, means in enumerate(means_of(kept), start=1):
         moved = means[0, 0] - observations.state[0, t - 1, 0, 0]
         assert moved == pytest.approx(0.3 if t > 1 else 0.0)  # the last move, seen from t-2
+
+
+def test_it_trains_from_states_alone_as_from_whole_records():
+    """A batch of ``train_fields: [objects, camera]`` (no frames) gives the loss a whole record
+    gives, and records the clips' length from the camera."""
+    clips = scripted_clips(3, seed=2)
+    losses = []
+    for batch in (clips, clips.select("objects", "camera")):
+        torch.manual_seed(0)
+        model = plain(hidden_size=8, message_size=8, withhold=0.5)
+        model.log = lambda *_, **__: None
+        model.on_train_batch_start(batch, 0)
+        assert model.hparams.training_frames == FRAMES
+        losses.append(model.training_step(batch, 0))
+    assert torch.equal(losses[0], losses[1])
+
+
+def test_the_pair_messages_are_the_sum_of_each_pairs_output():
+    """``PairNetwork`` applies its last layer to each slot's weighted sum, not to every pair:
+    the same as summing every pair's output."""
+    from voe_lightning.model.object_state.pairs import PairNetwork
+
+    torch.manual_seed(0)
+    network = PairNetwork(4, 3, 5, 6, 2)
+    own, other, pairs = torch.randn(2, 3, 4), torch.randn(2, 3, 3), torch.randn(2, 3, 3, 5)
+    weight = (torch.rand(2, 3, 3, 1) > 0.4).float()
+    first = network.own(own)[:, :, None] + network.pair(pairs) + network.other(other)[:, None]
+    per_pair = network.out(torch.relu(first))  # [B, S, S, out]
+    torch.testing.assert_close(network(own, other, pairs, weight), (per_pair * weight).sum(2))

@@ -60,7 +60,8 @@ def trainer(steps: int, **overrides) -> Trainer:
 
 
 def batches(videos: torch.Tensor) -> ResidentBatches:
-    return ResidentBatches(videos, SequentialSampler(range(len(videos))), B)
+    held = TensorDict(frames=videos, batch_size=[len(videos)])
+    return ResidentBatches(held, SequentialSampler(range(len(videos))), B)
 
 
 class LossRecorder(Callback):
@@ -224,7 +225,7 @@ def test_a_compiled_model_pickles_and_copies():
 def test_resident_batches_follow_the_sampler_and_split_ranks(monkeypatch):
     videos = clips(10)
     order = [3, 1, 4, 0, 5, 9, 2, 6, 8, 7]
-    resident = ResidentBatches(videos, order, 3)
+    resident = ResidentBatches(TensorDict(frames=videos, batch_size=[10]), order, 3)
     assert len(resident) == 3
     assert [batch["frames"].shape[0] for batch in resident] == [3, 3, 3]  # last one dropped
     first = next(iter(resident))["frames"]
@@ -234,9 +235,9 @@ def test_resident_batches_follow_the_sampler_and_split_ranks(monkeypatch):
     assert torch.equal(next(iter(resident))["frames"], videos[[0, 5, 9]])
 
 
-def test_train_on_device_serves_the_loaders_clips_in_its_order(tmp_path):
-    """The DataModule's resident batches hold exactly the frames its DataLoader would give."""
-    arguments = dict(
+def tiny_store(tmp_path) -> dict:
+    """A ConceptDataModule's arguments for a tiny solidity store under ``tmp_path``."""
+    return dict(
         concept="solidity",
         root=str(tmp_path / "data"),
         train_examples=4,
@@ -249,6 +250,11 @@ def test_train_on_device_serves_the_loaders_clips_in_its_order(tmp_path):
         height=32,
         width=32,
     )
+
+
+def test_train_on_device_serves_the_loaders_clips_in_its_order(tmp_path):
+    """The DataModule's resident batches hold exactly the frames its DataLoader would give."""
+    arguments = tiny_store(tmp_path)
     standard, resident = (
         ConceptDataModule(**arguments),
         ConceptDataModule(**arguments, train_on_device=True),
@@ -262,5 +268,30 @@ def test_train_on_device_serves_the_loaders_clips_in_its_order(tmp_path):
     for a, b in zip(held, loaded):
         assert torch.equal(a, b)
     assert isinstance(standard.train_dataloader(), DataLoader)
-    assert resident.train_dataloader().frames is resident._resident  # decoded once
+    assert resident.train_dataloader().records is resident._resident  # decoded once
+    assert list(resident._resident.keys()) == ["frames"]  # the frames alone by default
     assert isinstance(next(iter(resident.train_dataloader())), TensorDict)
+
+
+def test_train_fields_hold_only_the_named_fields_in_the_loaders_order(tmp_path):
+    """``train_fields``: the named fields of every training clip, decoded once and held in
+    host memory, served in the DataLoader's order; an unknown field or none is refused."""
+    arguments = tiny_store(tmp_path)
+    standard = ConceptDataModule(**arguments)
+    held = ConceptDataModule(**arguments, train_fields=["objects", "camera"])
+    for datamodule in (standard, held):
+        datamodule.prepare_data()
+        datamodule.setup("fit")
+    loaded = list(standard.train_dataloader())
+    states = list(held.train_dataloader())
+    assert len(states) == len(loaded) == 4
+    for a, b in zip(states, loaded):
+        assert sorted(a.keys()) == ["camera", "objects"]
+        assert (a == b.select("objects", "camera")).all()
+    assert held._resident.device == torch.device("cpu")
+    with pytest.raises(ValueError, match="train_fields must name at least one"):
+        ConceptDataModule(**arguments, train_fields=[])
+    wrong = ConceptDataModule(**arguments, train_fields=["objects", "pose"])
+    wrong.setup("fit")
+    with pytest.raises(KeyError, match=r"\['pose'\].*they hold"):
+        wrong.train_dataloader()

@@ -176,35 +176,41 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     # ----------------------------------------------------------------------------- inputs
     def _inputs(
         self,
-        frames: torch.Tensor,
+        frames: torch.Tensor | None,
         objects: TensorDictBase | None,
         camera: torch.Tensor | None,
         mask: torch.Tensor | None = None,
     ) -> Observations:
         """The batch's ``Observations`` as ``perception`` reads them, at a fixed pose without
-        a camera or ``use_camera``."""
-        steps = frames.shape[1]
-        if camera is None or not self.hparams.use_camera:
-            camera = torch.tensor([0.0, 0.0, 0.4, 4.0, 90.0, -20.0], device=self.device)
-            camera = camera.expand(frames.shape[0], steps, 6)
+        a camera or ``use_camera``. Perceiving states, it needs no ``frames`` (a training batch
+        of ``train_fields: [objects, camera]`` holds none)."""
         if self.hparams.perception == "masks":
-            if mask is None:
+            missing = [key for key, value in (("mask", mask), ("frames", frames)) if value is None]
+            if missing:
                 raise ValueError(
                     "the object-state model with perception: masks reads each video's object-"
-                    f"id mask (batch key 'mask'), but a batch of {tuple(frames.shape[:2])} "
-                    "videos came without one"
+                    f"id mask and frames, but a batch came without batch key '{missing[0]}'"
                 )
+            camera = self._pose(frames.shape[:2], camera)
             return observe_masks(
                 mask.to(self.device), frames.to(self.device), camera.to(self.device)
             )
         if objects is None:
             raise ValueError(
                 "the object-state model (the positive control) reads each video's object "
-                f"states (batch key 'objects', specs.objects_spec), but a batch of "
-                f"{tuple(frames.shape[:2])} videos came without them; use the package's "
-                "generated records (GENERATOR_VERSION 3 or later)"
+                "states (batch key 'objects', specs.objects_spec), but a batch came without "
+                "them; use the package's generated records (GENERATOR_VERSION 3 or later)"
             )
+        camera = self._pose(objects["position"].shape[:2], camera)
         return observe(objects.to(self.device), camera.to(self.device))
+
+    def _pose(self, clips: tuple[int, ...], camera: torch.Tensor | None) -> torch.Tensor:
+        """The camera poses [B, T, 6] the model reads: the batch's, or a fixed default pose
+        without a camera or ``use_camera``."""
+        if camera is not None and self.hparams.use_camera:
+            return camera
+        pose = torch.tensor([0.0, 0.0, 0.4, 4.0, 90.0, -20.0], device=self.device)
+        return pose.expand(*clips, 6)
 
     def _per_frame(self, out: dict[str, torch.Tensor]) -> torch.Tensor:
         """Each frame's surprise [B, T]: the positive part of the excess surprisal of each
@@ -222,8 +228,8 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
 
     # ----------------------------------------------------------------------------- training
     def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
-        frames = self._frames_of(batch)
         inputs = video_inputs(batch)
+        frames = batch["frames"] if "frames" in batch.keys() else None
         observations = self._inputs(
             frames, inputs.get("objects"), inputs.get("camera"), inputs.get("mask")
         )
@@ -234,7 +240,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
             observations.visible.device,
         )
         out = self.rollout(observations, withheld)
-        clips = frames.shape[0]
+        clips = observations.visible.shape[0]
         terms = {
             name: out[name].sum() / clips  # the negative log-likelihood of the clips
             for name in SLOT_TERMS + ("appear",)
