@@ -1,19 +1,23 @@
 """Training throughput of the object-state learner (``--config``: the positive control,
-``configs/object_state.yaml``; the learned result, ``configs/learned_states.yaml``; its mask
-rung, ``configs/learned_masks.yaml``): training steps and clips per second on real batches of
-the config's training clips, per thread count, batch size and hidden size (default: the
-config's), and what ``fit``'s max_steps then take. Data loading is outside the timing; the model
-is small, so the time goes into many small tensor operations, and a second thread helps little.
+``configs/object_state.yaml``; the learned result, ``configs/learned_states.yaml``): training
+steps and clips per second on real batches of the config's training clips, per thread count,
+batch size and hidden size (default: the config's), and what ``fit``'s max_steps then take.
+Batches come as ``fit`` serves them with ``train_fields: [objects, camera]``: the states held in
+memory, one gather a batch, inside the timing (decoding them once is not). ``--model`` sets
+model arguments over the config's (e.g. ``'{"sight_lines": false}'``). ``--objects N`` times
+batches of only the clips that show N objects: what padding every clip to a batch's most
+objects costs (the pair networks run over every slot pair of the padded batch).
 
     python benchmarks/positive_control.py --threads 1 2 --steps 30
     python benchmarks/positive_control.py --config configs/learned_states.yaml \
-        --batch-size 32 512 --hidden-size 128 32 --threads 2 --steps 5
+        --batch-size 32 512 --hidden-size 128 64 --threads 2 --steps 5
 """
 
 from __future__ import annotations
 
 import argparse
 import itertools
+import json
 import platform
 import statistics
 import time
@@ -21,10 +25,12 @@ from pathlib import Path
 
 import torch
 import yaml
-from torch.utils.data import ConcatDataset, DataLoader
+from torch.utils.data import ConcatDataset
 
+from datamodules.resident import ResidentBatches, resident_records
+from datamodules.voe import InterleavedSampler
 from voe_lightning import specs
-from voe_lightning.data.store import collate, open_split
+from voe_lightning.data.store import open_split
 from voe_lightning.model import ObjectStateModel
 
 REPO = Path(__file__).resolve().parents[1]
@@ -46,6 +52,8 @@ def main() -> None:
     parser.add_argument("--config", default="configs/object_state.yaml")
     parser.add_argument("--batch-size", type=int, nargs="+", help="default: the config's")
     parser.add_argument("--hidden-size", type=int, nargs="+", help="default: the config's")
+    parser.add_argument("--model", type=json.loads, default={}, help="model arguments (JSON)")
+    parser.add_argument("--objects", type=int, help="only clips showing this many objects")
     args = parser.parse_args()
     config = yaml.safe_load((REPO / args.config).read_text())
     data, model_args = config["data"]["init_args"], config["model"]["init_args"]
@@ -58,17 +66,17 @@ def main() -> None:
         )
     train = ConcatDataset([open_split(root, concept, "train") for concept in specs.CONCEPTS])
     batch_sizes = args.batch_size or [data["batch_size"]]
-    loader = DataLoader(
-        train,
-        batch_size=max(batch_sizes),
-        shuffle=True,
-        collate_fn=collate,
-        drop_last=True,
-        generator=torch.Generator().manual_seed(0),
-    )
-    batches = [batch for batch, _ in zip(loader, range(args.warmup + args.steps))]
+    held = resident_records(train, ["objects", "camera"], torch.device("cpu"))
+    sampler = InterleavedSampler([len(part) for part in train.datasets])
+    if args.objects is not None:
+        shown = (held["objects", "visible_fraction"] > 0).any(1)[:, 1:].sum(1)  # id 0: background
+        chosen = (shown == args.objects).nonzero()[:, 0]
+        if len(chosen) == 0:
+            raise SystemExit(f"no training clip shows {args.objects} objects")
+        held, sampler = held[chosen], torch.randperm(len(chosen)).repeat(64).tolist()
     max_steps = config["trainer"]["max_steps"]
-    print(f"{args.config}: {args.steps} timed steps on {cpu_name()}")
+    only = "" if args.objects is None else f", clips showing {args.objects} objects"
+    print(f"{args.config} {args.model or ''}{only}: {args.steps} timed steps on {cpu_name()}")
     print("| threads | batch | hidden | step (s), median | steps/s | clips/s | fit of max_steps |")
     print("|---|---|---|---|---|---|---|")
     for threads, batch_size, hidden in itertools.product(
@@ -76,15 +84,16 @@ def main() -> None:
     ):
         torch.set_num_threads(threads)
         torch.manual_seed(0)
-        arguments = {k: v for k, v in model_args.items() if k != "lr_schedule"}
+        arguments = {k: v for k, v in model_args.items() if k != "lr_schedule"} | args.model
         arguments |= {"hidden_size": hidden, "message_size": max(1, hidden // 2)}
         model = ObjectStateModel(**arguments)
         model.log = lambda *_, **__: None
         optimizer = torch.optim.Adam(model.parameters(), lr=model_args["learning_rate"])
         times = []
-        for index, batch in enumerate(batches):
+        batches = iter(ResidentBatches(held, sampler, batch_size))
+        for index in range(args.warmup + args.steps):
             start = time.perf_counter()
-            loss = model.training_step(batch[:batch_size], index)
+            loss = model.training_step(next(batches), index)
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()

@@ -5,6 +5,7 @@ interaction network over them (``PairNetwork``), summed over the other known slo
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from voe_lightning.model.object_state.state import (
@@ -82,8 +83,9 @@ def pair_weight(known: torch.Tensor) -> torch.Tensor:
 
 
 class PairNetwork(nn.Module):
-    """An MLP over [own_i, other_j, pair_ij] for every slot pair, with its first layer split
-    by input: the slots' parts are computed once per slot, not once per pair (S times less)."""
+    """An MLP over [own_i, other_j, pair_ij] for every slot pair, summed over j: its first layer
+    split by input, so the slots' parts are computed once per slot, not once per pair, and its
+    last (linear) layer applied once to each slot's sum, not to every pair (S times less each)."""
 
     def __init__(
         self, own_size: int, other_size: int, pair_size: int, hidden_size: int, output_size: int
@@ -95,13 +97,19 @@ class PairNetwork(nn.Module):
         self.out = nn.Linear(hidden_size, output_size)
 
     def forward(
-        self, own: torch.Tensor, other: torch.Tensor | None, pairs: torch.Tensor
+        self,
+        own: torch.Tensor,
+        other: torch.Tensor | None,
+        pairs: torch.Tensor,
+        weight: torch.Tensor,
     ) -> torch.Tensor:
-        """own [B, S, O], other [B, S, P] (or None), pairs [B, S, S, F] -> [B, S, S, out]."""
+        """own [B, S, O], other [B, S, P] (or None), pairs [B, S, S, F], each pair's weight
+        [B, S, S, 1] -> sum over j of weight_ij * MLP(own_i, other_j, pair_ij) [B, S, out]."""
         first = self.own(own)[:, :, None] + self.pair(pairs)
         if self.other is not None:
             first = first + self.other(other)[:, None]
-        return self.out(torch.relu(first))
+        summed = (torch.relu(first) * weight).sum(2)
+        return F.linear(summed, self.out.weight) + self.out.bias * weight.sum(2)
 
 
 def messages(
@@ -112,4 +120,4 @@ def messages(
     known: torch.Tensor,
 ) -> torch.Tensor:
     """Sum over the other known slots j of network(own_i, other_j, pair_ij) [B, S, M]."""
-    return (network(own, other, pairs) * pair_weight(known)).sum(2)
+    return network(own, other, pairs, pair_weight(known))
