@@ -45,7 +45,7 @@ def resident_records(
         )
     template = first.select(*fields)
     _check_fits(len(dataset) * template.bytes(), len(dataset), device)
-    held = template.expand(len(dataset)).to(device).clone()
+    held = template.to(device).expand(len(dataset)).clone()  # one copy, on the device
     start = 0
     loader = record_loader(dataset, 256, num_workers)
     for batch in tqdm(loader, desc="training clips to " + str(device), unit="batch", leave=False):
