@@ -5,8 +5,8 @@ batch size and hidden size (default: the config's), and what ``fit``'s max_steps
 Batches come as ``fit`` serves them with ``train_fields: [objects, camera]``: the states held in
 memory, one gather a batch, inside the timing (decoding them once is not). ``--model`` sets
 model arguments over the config's (e.g. ``'{"sight_lines": false}'``). ``--objects N`` times
-batches of only the clips that show N objects: what padding every clip to a batch's most
-objects costs (the pair networks run over every slot pair of the padded batch).
+batches of only the clips that show N objects (each step rolls a batch's clips out grouped by
+how many objects they show, ``by_object_count``, so no slot pair is run for an empty slot).
 
     python benchmarks/positive_control.py --threads 1 2 --steps 30
     python benchmarks/positive_control.py --config configs/learned_states.yaml \

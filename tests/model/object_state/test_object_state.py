@@ -21,7 +21,12 @@ from voe_lightning.model.object_state.geometry import (
     lying_on_floor,
     on_or_above_floor,
 )
-from voe_lightning.model.object_state.state import Observations, withheld_spans
+from voe_lightning.model.object_state.state import (
+    SLOT_TERMS,
+    Observations,
+    by_object_count,
+    withheld_spans,
+)
 from voe_lightning.model.optimization import adam
 
 FRAMES = 10
@@ -496,3 +501,21 @@ def test_the_pair_messages_are_the_sum_of_each_pairs_output():
     first = network.own(own)[:, :, None] + network.pair(pairs) + network.other(other)[:, None]
     per_pair = network.out(torch.relu(first))  # [B, S, S, out]
     torch.testing.assert_close(network(own, other, pairs, weight), (per_pair * weight).sum(2))
+
+
+def test_training_rolls_clips_out_grouped_by_object_count_for_the_same_loss():
+    """With ``group_by_objects`` each clip is rolled out with as many slots as it shows objects
+    (``by_object_count``): the loss is the one the batch padded to its most objects gives."""
+    clips = scripted_clips(5, seed=3)
+    clips["objects", "visible_fraction"][:2, :, SCREEN] = 0  # two clips show the ball alone
+    clips["objects", "visible_fraction"][4, :, BALL] = 0  # one the screen alone
+    torch.manual_seed(0)
+    model = plain(hidden_size=8, message_size=8, group_by_objects=True)
+    model.log = lambda *_, **__: None
+    observations = model._inputs(None, clips["objects"], clips["camera"])
+    groups = by_object_count(observations)
+    assert sorted(tuple(group.visible.shape[::2]) for group in groups) == [(2, 2), (3, 1)]
+    assert all(bool(group.visible.any(1).all()) for group in groups)  # no slot left empty
+    padded = model.rollout(observations)
+    loss = sum(padded[name].sum() for name in SLOT_TERMS + ("appear",)) / 5
+    torch.testing.assert_close(model.training_step(clips, 0), loss)

@@ -121,6 +121,29 @@ def observe(objects: TensorDictBase, camera: torch.Tensor) -> Observations:
     )
 
 
+def by_object_count(observations: Observations) -> list[Observations]:
+    """The batch's clips grouped by how many objects each shows, each group with that many
+    slots: a clip's rollout reads no other clip, so the groups' terms sum to the batch's, while
+    no slot pair is run for a slot its clip never fills (a clip of one object, padded to a
+    batch's five, ran 20 slot pairs for none)."""
+    shown = observations.visible.any(1).sum(-1)  # [B]; a clip's shown ids fill its first slots
+    groups = []
+    for count in shown.unique().tolist():
+        clips = (shown == count).nonzero()[:, 0]
+        per_slot = {
+            name: getattr(observations, name)[clips][:, :, :count]
+            for name in ("state", "shape", "fraction", "visible")
+        }
+        groups.append(
+            Observations(
+                ids=observations.ids[clips][:, :count],
+                camera=observations.camera[clips],
+                **per_slot,
+            )
+        )
+    return groups
+
+
 @dataclass
 class Slots:
     """The slots after a frame, each [B, S, ...]: ``hidden`` recurrent states, ``belief`` (the
