@@ -138,6 +138,12 @@ FAMILIES = [
         lambda: ObjectStateModel(hidden_size=16, message_size=8, **NO_PRIORS, **NO_GIVENS),
         id="object_state_nothing_given",
     ),
+    pytest.param(  # ... and seeing learned from the states (configs/overlays/nothing_given.yaml)
+        lambda: ObjectStateModel(
+            hidden_size=16, message_size=8, **NO_PRIORS, **NO_GIVENS, visibility_from="states"
+        ),
+        id="object_state_nothing_given_seen_from_states",
+    ),
     pytest.param(  # configs/learned_masks.yaml's learner: what the masks and frames show
         lambda: ObjectStateModel(
             perception="masks", hidden_size=16, message_size=8, **NO_PRIORS, **NO_GIVENS

@@ -1,6 +1,7 @@
 """The positive control (``ObjectStateModel``): it reads only what is visible, tracks a hidden
 object forward, and is surprised by a vanishing or a teleport after learning from clips."""
 
+import itertools
 from unittest import mock
 
 import numpy as np
@@ -519,3 +520,36 @@ def test_training_rolls_clips_out_grouped_by_object_count_for_the_same_loss():
     padded = model.rollout(observations)
     loss = sum(padded[name].sum() for name in SLOT_TERMS + ("appear",)) / 5
     torch.testing.assert_close(model.training_step(clips, 0), loss)
+
+
+def test_seen_from_states_is_in_view_times_no_other_known_object_covering_it():
+    """``visibility_from: states``: p(seen) = p(in view) x prod over the other known slots of
+    1 - p(that slot covers it), each a network of the predicted states and the pose alone."""
+    from voe_lightning.model.object_state.geometry import VIEW
+    from voe_lightning.model.object_state.pairs import pair_feature_size
+    from voe_lightning.model.object_state.state import STATES
+
+    torch.manual_seed(0)
+    model = plain(hidden_size=8, message_size=8, sight_lines=False, visibility_from="states")
+    placed, seen_as = torch.randn(2, 3, STATES.size), torch.randn(2, 3, VIEW)
+    pairs, pose = torch.randn(2, 3, 3, pair_feature_size(STATES)), torch.randn(2, 3, 8)
+    known = torch.tensor([[True, True, True], [True, True, False]])
+    seen = torch.sigmoid(model._composed_logit(placed, seen_as, pairs, known, pose))
+    own = torch.cat([placed, seen_as, pose], dim=-1)
+    in_view = torch.sigmoid(model.in_view(own))[..., 0]
+    cover = torch.sigmoid(
+        model.cover(torch.cat([pairs, own[:, :, None].expand(-1, -1, 3, -1)], -1))
+    )
+    for clip, slot in itertools.product(range(2), range(3)):
+        if not known[clip, slot]:  # an unknown slot's p(seen) is never read
+            continue
+        others = [j for j in range(3) if j != slot and known[clip, j]]
+        expected = in_view[clip, slot] * torch.prod(1 - cover[clip, slot, others, 0])
+        torch.testing.assert_close(seen[clip, slot], expected)
+
+
+def test_a_visibility_from_neither_memory_nor_states_or_with_sight_lines_is_refused():
+    with pytest.raises(ValueError, match=r"visibility_from must be one of \('memory', 'states'\)"):
+        plain(visibility_from="pixels")
+    with pytest.raises(ValueError, match="no sight lines to add to; set sight_lines: false"):
+        plain(visibility_from="states")

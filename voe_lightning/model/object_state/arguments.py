@@ -20,10 +20,13 @@ ARCHITECTURE = (
     "floor",
     "inertia",
     "projection",
+    "visibility_from",
 )
 #: What the learner perceives of each object (``perception``): its 3D state, or what its mask
 #: and the frames show.
 PERCEPTIONS = ("states", "masks")
+#: What the learned p(seen) reads (``visibility_from``): memory, or the predicted states alone.
+VISIBILITIES = ("memory", "states")
 #: The arguments that give geometry or a prior about a 3D state, each with its value off
 #: (``projection`` is not one: perceived by masks, the image box is what is seen).
 GEOMETRY_OFF = {
@@ -47,6 +50,15 @@ def _check_perception(h) -> None:
     """Refuse a perception not in ``PERCEPTIONS``, and 3D geometry or priors without 3D states."""
     if h.perception not in PERCEPTIONS:
         raise ValueError(f"perception must be one of {PERCEPTIONS}, got {h.perception!r}")
+    if h.visibility_from not in VISIBILITIES:
+        raise ValueError(
+            f"visibility_from must be one of {VISIBILITIES}, got {h.visibility_from!r}"
+        )
+    if h.visibility_from == "states" and h.sight_lines:
+        raise ValueError(
+            "visibility_from: states learns what is seen from the states alone, with no sight "
+            "lines to add to; set sight_lines: false"
+        )
     if h.perception == "masks":
         on = {name: h[name] for name, off in GEOMETRY_OFF.items() if h[name] != off}
         if on:

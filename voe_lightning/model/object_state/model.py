@@ -44,7 +44,9 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     after frame t-1, the model predicts every known slot's state at t (a mixture of Gaussians,
     ``_mixture``: each mean the belief moved on by inertia, ``inertial_move``, plus a learned
     change, never below the floor), its shape (a categorical) and whether it is seen (a
-    Bernoulli on the sight lines to the boxes at the predicted states, ``_visibility_logit``);
+    Bernoulli, ``_visibility_logit``: learned from the slot's memory, plus the sight lines to
+    the boxes at the predicted states; or, ``visibility_from: states``, learned from the
+    predicted states alone);
     a context over the known slots predicts whether a new object appears. The most probable
     Gaussian is the predicted state, which a hidden slot's belief follows. Then the frame's observations update the beliefs and,
     through an interaction network over slot pairs, a GRU per slot. Training minimises the
@@ -63,7 +65,9 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     (``floor``), the inertial baseline (``inertia``) and the image-plane projection the
     networks read (``projection``). Kept by measurement (docs/study/learned_physics.md,
     2026-12-01): removed one after another, each step passes 3 of 5 concepts on a fresh set
-    against 5 of 5 with all four, containment failing at every step. Never removable: one slot per
+    against 5 of 5 with all four, containment failing at every step; with all four removed and
+    the visibility learned from the states (``configs/overlays/nothing_given.yaml``), 4 of 5
+    at three seeds (2026-12-05), object persistence failing. Never removable: one slot per
     tracker id, the states of the objects while seen, the camera pose, the mixture's bound
     on a frame's move (``MAX_MOVE``).
 
@@ -95,6 +99,11 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
             (``inertial_move``; false: the network predicts the whole move).
         projection: the networks read each object's camera coordinates and image-plane box
             (``view``) and the pairs' image overlaps (false: only the states and the pose).
+        visibility_from: what the learned p(seen) reads (``_visibility_logit``): ``"memory"``,
+            the slot's recurrent state and messages from the others; ``"states"``, only the
+            predicted states and the pose, composed as p(in view) times the chance that no
+            other known object covers it, each a network (no memory: what is seen follows
+            from where things are, as with the sight lines, but learned).
         withhold: share of each training clip's objects withheld for a span of frames
             (``withheld_spans``; 0: never).
         withhold_frames: the longest withheld span, in frames.
@@ -139,6 +148,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         floor: bool = True,
         inertia: bool = True,
         projection: bool = True,
+        visibility_from: str = "memory",
         withhold: float = 0.5,
         withhold_frames: int = 8,
         hard_assignment: bool = True,
@@ -164,10 +174,14 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
                 self._dynamics_outputs(components, layout.size),
             ]
         )
-        self.occlusion = PairNetwork(hidden, 0, pairs, hidden, message)
-        self.visibility = mlp(
-            [hidden + message + VIEW + layout.extent_size + CAMERA_FEATURES, hidden, 1]
-        )
+        if visibility_from == "states":  # p(seen) composed from the predicted states and pose
+            self.in_view = mlp([layout.size + VIEW + CAMERA_FEATURES, hidden, 1])
+            self.cover = mlp([pairs + layout.size + VIEW + CAMERA_FEATURES, hidden, 1])
+        else:
+            self.occlusion = PairNetwork(hidden, 0, pairs, hidden, message)
+            self.visibility = mlp(
+                [hidden + message + VIEW + layout.extent_size + CAMERA_FEATURES, hidden, 1]
+            )
         if sight_lines:
             #: How much the visibility logit starts from geometry (``seen_by_geometry``); learned.
             self.geometry_weight = nn.Parameter(torch.ones(()))

@@ -30,7 +30,7 @@ from voe_lightning.model.object_state.mixture import (
     inertial_move,
     landing_mean,
 )
-from voe_lightning.model.object_state.pairs import messages, pair_features
+from voe_lightning.model.object_state.pairs import messages, pair_features, pair_weight
 from voe_lightning.model.object_state.state import (
     IDENTITY,
     SHAPES,
@@ -274,6 +274,8 @@ class SlotRollout:
         placed = predicted.detach()
         seen_as = self._view(placed, pose)
         pairs = pair_features(placed, slots.shape, seen_as, self.layout)
+        if self.hparams.visibility_from == "states":
+            return self._composed_logit(placed, seen_as, pairs, slots.known, pose_features)
         occluders = messages(self.occlusion, slots.hidden, None, pairs, slots.known)
         extent = placed[..., self.layout.extent]
         learned = self.visibility(
@@ -283,6 +285,25 @@ class SlotRollout:
             return learned
         geometry = seen_by_geometry(placed, slots.shape, slots.known, pose).clamp(0.02, 0.98)
         return learned + self.geometry_weight * torch.logit(geometry)
+
+    def _composed_logit(
+        self,
+        placed: torch.Tensor,
+        seen_as: torch.Tensor,
+        pairs: torch.Tensor,
+        known: torch.Tensor,
+        pose_features: torch.Tensor,
+    ) -> torch.Tensor:
+        """The logit [B, S] of p(seen) = p(in view) x the product over the other known slots j
+        of 1 - p(j covers it), from the predicted states, views and pose alone: an object is
+        seen unless it is out of view or something is in front of it."""
+        own = torch.cat([placed, seen_as, pose_features], dim=-1)  # [B, S, ·]
+        in_view = F.logsigmoid(self.in_view(own).squeeze(-1))
+        count = known.shape[1]
+        per_pair = torch.cat([pairs, own[:, :, None].expand(-1, -1, count, -1)], dim=-1)
+        covered = F.softplus(self.cover(per_pair).squeeze(-1))  # -log(1 - p(j covers i))
+        log_seen = (in_view - (covered * pair_weight(known)[..., 0]).sum(-1)).clamp(max=-1e-6)
+        return log_seen - torch.log(-torch.expm1(log_seen))
 
     def _appearance(
         self,
