@@ -4,7 +4,9 @@ the manipulation frame, never after: containment's counterbalanced half, the cub
 sliding container uncovers in the physical video; object persistence's standard half, the
 object under the plank that falls flat in the magic one), from the manipulation frame on: the
 learner's predicted p(seen) for that object before each frame, in each video, and the sum of
-the visibility term's rectified excess over those frames.
+the visibility term's rectified excess over those frames. Then, on every tenth training clip of
+the two concepts, the mean p(seen) it predicts for a known object at the frames it is hidden
+and at those it is seen: whether it has learned when things are hidden at all.
 
     python experiments/uncovering.py runs/learned_states/version_0/checkpoints/last.ckpt
 """
@@ -13,9 +15,10 @@ import argparse
 
 import numpy as np
 import torch
+from torch.utils.data import Subset
 
 from voe_lightning import specs
-from voe_lightning.data.store import open_split
+from voe_lightning.data.store import open_split, record_loader
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.likelihood import rectified_excess
 
@@ -36,6 +39,24 @@ def seen_and_expected(model: ObjectStateModel, video, camera) -> tuple[torch.Ten
     probability[:, ids] = out["visible_probability"][0]
     excess[:, ids] = rectified_excess(out["visibility"], out["visibility_entropy"])[0]
     return video["objects"]["visible_fraction"] > 0, probability, excess
+
+
+def on_training_clips(model: ObjectStateModel, root: str, concept: str) -> tuple[float, ...]:
+    """Over every tenth training clip of ``concept``: the known object-frames hidden, and the
+    mean p(seen) predicted for them and for the known object-frames seen."""
+    clips = open_split(root, concept, "train")
+    hidden, seen = [], []
+    for batch in record_loader(Subset(clips, range(0, len(clips), 10)), 100, 0):
+        with torch.no_grad():
+            observations = model._inputs(None, batch["objects"], batch["camera"])
+            out = model.rollout(observations)
+        probability = out["visible_probability"][:, 1:]
+        known = out["known"][:, :-1]  # known before the frame
+        visible = observations.visible[:, 1:]
+        hidden.append(probability[known & ~visible])
+        seen.append(probability[known & visible])
+    hidden_p, seen_p = torch.cat(hidden), torch.cat(seen)
+    return len(hidden_p), float(hidden_p.mean()), float(seen_p.mean())
 
 
 def main() -> None:
@@ -76,6 +97,11 @@ def main() -> None:
             f"{np.mean(values['p_physical']):.2f} | {np.mean(values['p_magic']):.2f} | "
             f"{np.mean(values['excess_physical']):+.2f} | {np.mean(values['excess_magic']):+.2f} |"
         )
+    print("\n| training clips | hidden object-frames | p(seen) when hidden | p(seen) when seen |")
+    print("|---|---|---|---|")
+    for concept, _ in HALVES:
+        frames, hidden, seen = on_training_clips(model, args.root, concept)
+        print(f"| {concept} | {frames} | {hidden:.2f} | {seen:.2f} |")
 
 
 if __name__ == "__main__":
