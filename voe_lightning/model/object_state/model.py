@@ -67,7 +67,9 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     2026-12-01): removed one after another, each step passes 3 of 5 concepts on a fresh set
     against 5 of 5 with all four, containment failing at every step; with all four removed and
     the visibility learned from the states (``configs/overlays/nothing_given.yaml``), 4 of 5
-    at three seeds (2026-12-05), object persistence failing. Never removable: one slot per
+    at three seeds (2026-12-05), object persistence failing, without learning how things move;
+    trained five times as long, unclipped (``configs/overlays/nothing_given_long.yaml``), it
+    learns motion and occlusion and passes 5, 4 and 5 of 5. Never removable: one slot per
     tracker id, the states of the objects while seen, the camera pose, the mixture's bound
     on a frame's move (``MAX_MOVE``).
 
