@@ -99,6 +99,7 @@ def size_sweep_figure(rows: Sequence[Mapping[str, Any]]) -> Figure:
         if logarithmic:
             ax.set_xscale("log")
         ax.set_xticks(sizes, [str(size) for size in sizes])
+        ax.set_xticks([], minor=True)  # a log axis labels its minor ticks over the sizes
         ax.margins(x=0.15)
         ax.set_title(f"{concept} / {variant}", fontsize=10)
         ax.set_xlabel("training set size (examples per concept)")
