@@ -24,6 +24,7 @@ from voe_lightning.model.object_state.geometry import (
 )
 from voe_lightning.model.object_state.state import (
     SLOT_TERMS,
+    STATES,
     Observations,
     by_object_count,
     withheld_spans,
@@ -94,6 +95,22 @@ def scripted_clips(count: int, seed: int, hide: str = "none") -> TensorDict:
 
 def video_surprise(model: ObjectStateModel, clips: TensorDict) -> torch.Tensor:
     return model.surprise(clips["frames"], camera=clips["camera"], objects=clips["objects"]).sum(-1)
+
+
+def scored_mixtures(
+    model: ObjectStateModel, observations: Observations, **patches
+) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """The means [B, S, K, state] and log-stds of each frame's mixture as the rollout scores
+    what it sees (frames 1..), with ``patches`` over the rollout module's names."""
+    caught = []
+
+    def spy(observed, means, log_std, logits, hard=False):
+        caught.append((means, log_std))
+        return mixture_nll(observed, means, log_std, logits, hard=hard)
+
+    with torch.no_grad(), mock.patch.multiple(rollout, mixture_nll=spy, **patches):
+        model.rollout(observations)
+    return caught
 
 
 def test_hidden_states_never_reach_the_model():
@@ -195,17 +212,10 @@ def test_without_a_landing_change_the_landing_gaussian_is_the_geometrys(landing_
         hard_assignment=True,
         landing_change=landing_change,
     )
-    caught = []
-
-    def spy(observed, means, log_std, logits, hard=False):
-        caught.append(means)
-        return mixture_nll(observed, means, log_std, logits, hard=hard)
 
     def landing_and_moving() -> tuple[torch.Tensor, torch.Tensor]:
-        caught.clear()
-        with torch.no_grad(), mock.patch.object(rollout, "mixture_nll", spy):
-            model.rollout(observations)
-        means = torch.stack(caught[1:])  # [T - 1, B, S, K, 13]
+        caught = scored_mixtures(model, observations)
+        means = torch.stack([mean for mean, _ in caught[1:]])  # [T - 1, B, S, K, 13]
         return means[..., -1, :7], means[..., 1, :7]
 
     landing, moving = landing_and_moving()
@@ -441,19 +451,9 @@ def test_the_givens_of_the_learner_can_each_be_removed():
     )
 
     def means_of(model: ObjectStateModel, **patches) -> list[torch.Tensor]:
-        last = [m for m in model.dynamics.modules() if isinstance(m, torch.nn.Linear)][-1]
-        torch.nn.init.zeros_(last.weight), torch.nn.init.zeros_(last.bias)  # no learned change
-        caught = []
+        return [means[0, :, 0] for means, _ in scored_mixtures(model, observations, **patches)]
 
-        def spy(observed, means, log_std, logits, hard=False):
-            caught.append(means[0, :, 0])
-            return mixture_nll(observed, means, log_std, logits, hard=hard)
-
-        with torch.no_grad(), mock.patch.multiple(rollout, mixture_nll=spy, **patches):
-            model.rollout(observations)
-        return caught  # frames 1.. (frame 0 predicts nothing)
-
-    torch.manual_seed(0)
+    torch.manual_seed(0)  # zero_heads: no learned change
     removed = plain(
         hidden_size=16,
         message_size=8,
@@ -461,6 +461,7 @@ def test_the_givens_of_the_learner_can_each_be_removed():
         floor=False,
         inertia=False,
         projection=False,
+        zero_heads=True,
     )
     assert not hasattr(removed, "geometry_weight")
     refuse = mock.Mock(side_effect=AssertionError("a removed given was used"))
@@ -468,7 +469,7 @@ def test_the_givens_of_the_learner_can_each_be_removed():
         means_of(removed, seen_by_geometry=refuse, on_or_above_floor=refuse, view=refuse), start=1
     ):
         torch.testing.assert_close(means, observations.state[0, t - 1])
-    kept = plain(hidden_size=16, message_size=8)
+    kept = plain(hidden_size=16, message_size=8, zero_heads=True)
     assert hasattr(kept, "geometry_weight")
     for t, means in enumerate(means_of(kept), start=1):
         moved = means[0, 0] - observations.state[0, t - 1, 0, 0]
@@ -527,7 +528,6 @@ def test_seen_from_states_is_in_view_times_no_other_known_object_covering_it():
     1 - p(that slot covers it), each a network of the predicted states and the pose alone."""
     from voe_lightning.model.object_state.geometry import VIEW
     from voe_lightning.model.object_state.pairs import pair_feature_size
-    from voe_lightning.model.object_state.state import STATES
 
     torch.manual_seed(0)
     model = plain(hidden_size=8, message_size=8, sight_lines=False, visibility_from="states")
@@ -553,3 +553,36 @@ def test_a_visibility_from_neither_memory_nor_states_or_with_sight_lines_is_refu
         plain(visibility_from="pixels")
     with pytest.raises(ValueError, match="no sight lines to add to; set sight_lines: false"):
         plain(visibility_from="states")
+
+
+@pytest.mark.parametrize("visibility_from", ["memory", "states"])
+def test_zero_heads_start_every_draw_as_one_learner_that_predicts_no_move(visibility_from):
+    """``zero_heads``: untrained, every draw is the same function (no move, a standard deviation
+    near 1, the same p(seen)), so an untrained null cannot come from the draw; a training step
+    moves the heads off zero."""
+    clips = scripted_clips(3, seed=4, hide="vanish")
+    outputs = []
+    for seed in (0, 1):
+        torch.manual_seed(seed)
+        model = plain(
+            hidden_size=8,
+            message_size=8,
+            sight_lines=False,
+            inertia=False,
+            visibility_from=visibility_from,
+            zero_heads=True,
+        )
+        observations = model._inputs(None, clips["objects"], clips["camera"])
+        with torch.no_grad():
+            out = model.rollout(observations)
+        mixtures = scored_mixtures(model, observations)
+        for t, (means, log_std) in enumerate(mixtures, start=1):  # no move: the belief at t - 1
+            seen = observations.visible[:, t - 1]
+            torch.testing.assert_close(means[:, :, 0][seen], observations.state[:, t - 1][seen])
+            torch.testing.assert_close(log_std, torch.full_like(log_std, 0.01), atol=1e-3, rtol=0)
+        outputs.append((video_surprise(model, clips), out["visible_probability"]))
+    for first, second in zip(*outputs):
+        torch.testing.assert_close(first, second, rtol=0, atol=0)
+    model.log = lambda *_, **__: None
+    model.training_step(clips, 0).backward()
+    assert model.dynamics[-1].weight.grad.abs().sum() > 0

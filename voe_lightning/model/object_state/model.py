@@ -118,6 +118,12 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
             each with only as many slots as its clips show (``by_object_count``): the same loss
             with no slot pair run for an empty slot, faster at large batches (hundreds of
             clips), slower at small ones, where each group's steps cost more than padding.
+        zero_heads: every network's last layer that predicts (a state's change and spread,
+            the Gaussians' weights, the shape, whether it is seen, any newcomer) starts at zero
+            (``_zero_heads``): untrained, every draw is the same learner, which predicts no
+            move and even odds, so an untrained null finds no chance bias of a draw (drawn, 3
+            of 10 untrained copies passed object persistence). Gaussians that start alike may
+            stay alike (trained long, two of four were still one).
         learning_rate: Adam's (peak) learning rate.
         lr_schedule: ``"constant"`` or ``"cosine"`` (decays to 0 at ``trainer.max_steps``).
         training_frames: frames per training clip, recorded from the training batches.
@@ -131,6 +137,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         "withhold_frames",
         "hard_assignment",
         "group_by_objects",
+        "zero_heads",
     )
     SURPRISE = (
         "the rectified excess surprisal of the seen object states (each term's negative "
@@ -158,6 +165,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         withhold_frames: int = 8,
         hard_assignment: bool = True,
         group_by_objects: bool = False,
+        zero_heads: bool = False,
         learning_rate: float = 1e-3,
         lr_schedule: str = "cosine",
         training_frames: int | None = None,
@@ -192,6 +200,22 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
             self.geometry_weight = nn.Parameter(torch.ones(()))
         self.appearance = mlp([hidden + CAMERA_FEATURES, hidden, 1 + 2 * layout.size + SHAPES])
         self.log_min_std = math.log(min_std)
+        if zero_heads:
+            self._zero_heads()
+
+    def _zero_heads(self) -> None:
+        """Start every prediction at nothing (``zero_heads``): no change of state, a standard
+        deviation near 1, even weights, uniform shapes, even odds of being seen and of a
+        newcomer: the same function whatever the draw."""
+        heads = [self.dynamics, self.appearance]
+        heads += (
+            [self.in_view, self.cover]
+            if self.hparams.visibility_from == "states"
+            else [self.visibility]
+        )
+        for head in heads:
+            nn.init.zeros_(head[-1].weight)
+            nn.init.zeros_(head[-1].bias)
 
     @staticmethod
     def _dynamics_outputs(components: int, state_size: int) -> int:
