@@ -144,6 +144,17 @@ FAMILIES = [
         ),
         id="object_state_nothing_given_seen_from_states",
     ),
+    pytest.param(  # ... started with its heads at zero (zero_heads)
+        lambda: ObjectStateModel(
+            hidden_size=16,
+            message_size=8,
+            **NO_PRIORS,
+            **NO_GIVENS,
+            visibility_from="states",
+            zero_heads=True,
+        ),
+        id="object_state_zero_heads",
+    ),
     pytest.param(  # configs/learned_masks.yaml's learner: what the masks and frames show
         lambda: ObjectStateModel(
             perception="masks", hidden_size=16, message_size=8, **NO_PRIORS, **NO_GIVENS
