@@ -99,9 +99,10 @@ def video_surprise(model: ObjectStateModel, clips: TensorDict) -> torch.Tensor:
 
 def scored_mixtures(
     model: ObjectStateModel, observations: Observations, **patches
-) -> list[tuple[torch.Tensor, torch.Tensor]]:
+) -> tuple[list[tuple[torch.Tensor, torch.Tensor]], dict[str, torch.Tensor]]:
     """The means [B, S, K, state] and log-stds of each frame's mixture as the rollout scores
-    what it sees (frames 1..), with ``patches`` over the rollout module's names."""
+    what it sees (frames 1..), with ``patches`` over the rollout module's names, and the
+    rollout's output."""
     caught = []
 
     def spy(observed, means, log_std, logits, hard=False):
@@ -109,8 +110,8 @@ def scored_mixtures(
         return mixture_nll(observed, means, log_std, logits, hard=hard)
 
     with torch.no_grad(), mock.patch.multiple(rollout, mixture_nll=spy, **patches):
-        model.rollout(observations)
-    return caught
+        out = model.rollout(observations)
+    return caught, out
 
 
 def test_hidden_states_never_reach_the_model():
@@ -214,7 +215,7 @@ def test_without_a_landing_change_the_landing_gaussian_is_the_geometrys(landing_
     )
 
     def landing_and_moving() -> tuple[torch.Tensor, torch.Tensor]:
-        caught = scored_mixtures(model, observations)
+        caught, _ = scored_mixtures(model, observations)
         means = torch.stack([mean for mean, _ in caught[1:]])  # [T - 1, B, S, K, 13]
         return means[..., -1, :7], means[..., 1, :7]
 
@@ -451,7 +452,8 @@ def test_the_givens_of_the_learner_can_each_be_removed():
     )
 
     def means_of(model: ObjectStateModel, **patches) -> list[torch.Tensor]:
-        return [means[0, :, 0] for means, _ in scored_mixtures(model, observations, **patches)]
+        mixtures, _ = scored_mixtures(model, observations, **patches)
+        return [means[0, :, 0] for means, _ in mixtures]
 
     torch.manual_seed(0)  # zero_heads: no learned change
     removed = plain(
@@ -573,9 +575,7 @@ def test_zero_heads_start_every_draw_as_one_learner_that_predicts_no_move(visibi
             zero_heads=True,
         )
         observations = model._inputs(None, clips["objects"], clips["camera"])
-        with torch.no_grad():
-            out = model.rollout(observations)
-        mixtures = scored_mixtures(model, observations)
+        mixtures, out = scored_mixtures(model, observations)
         for t, (means, log_std) in enumerate(mixtures, start=1):  # no move: the belief at t - 1
             seen = observations.visible[:, t - 1]
             torch.testing.assert_close(means[:, :, 0][seen], observations.state[:, t - 1][seen])
