@@ -90,7 +90,8 @@ def main() -> None:
         model.log = lambda *_, **__: None
         optimizer = torch.optim.Adam(model.parameters(), lr=model_args["learning_rate"])
         times = []
-        batches = iter(ResidentBatches(held, sampler, batch_size))
+        epochs = itertools.repeat(ResidentBatches(held, sampler, batch_size))
+        batches = itertools.chain.from_iterable(epochs)  # large batches run past one epoch
         for index in range(args.warmup + args.steps):
             start = time.perf_counter()
             loss = model.training_step(next(batches), index)

@@ -479,11 +479,17 @@ def test_the_givens_of_the_learner_can_each_be_removed():
 
 
 def test_it_trains_from_states_alone_as_from_whole_records():
-    """A batch of ``train_fields: [objects, camera]`` (no frames) gives the loss a whole record
-    gives, and records the clips' length from the camera."""
+    """A batch of ``train_fields: [objects, camera]`` (no frames), its objects cut to the ids
+    the clips show as held in memory (``shown_ids``), gives the loss a whole record gives, and
+    records the clips' length from the camera."""
+    from datamodules.resident import shown_ids
+
     clips = scripted_clips(3, seed=2)
+    held = clips.select("objects", "camera")
+    held["objects"] = shown_ids(held["objects"])
+    assert held["objects", "position"].shape[2] < clips["objects", "position"].shape[2]
     losses = []
-    for batch in (clips, clips.select("objects", "camera")):
+    for batch in (clips, clips.select("objects", "camera"), held):
         torch.manual_seed(0)
         model = plain(hidden_size=8, message_size=8, withhold=0.5)
         model.log = lambda *_, **__: None
@@ -491,18 +497,92 @@ def test_it_trains_from_states_alone_as_from_whole_records():
         assert model.hparams.training_frames == FRAMES
         losses.append(model.training_step(batch, 0))
     assert torch.equal(losses[0], losses[1])
+    assert torch.equal(losses[0], losses[2])
+
+
+def test_a_prediction_reads_the_pairs_the_step_before_built_as_if_built_anew():
+    """Without ``projection`` no pose enters the pair features, so a frame's prediction reads
+    those the recurrent step after the frame before built (``_observe``): the same rollout as
+    with them built again."""
+    clips = scripted_clips(3, seed=4)
+    torch.manual_seed(0)
+    model = plain(
+        hidden_size=8,
+        message_size=8,
+        sight_lines=False,
+        floor=False,
+        inertia=False,
+        projection=False,
+        visibility_from="states",
+    )
+    observations = model._inputs(None, clips["objects"], clips["camera"])
+    reused = model.rollout(observations)
+    observe = model._observe
+    with mock.patch.object(model, "_observe", lambda *a: (observe(*a)[0], None)):
+        anew = model.rollout(observations)
+    for key in reused:
+        torch.testing.assert_close(reused[key], anew[key])
+
+
+@pytest.mark.parametrize("boxes", [True, False])
+def test_pair_features_are_each_other_slot_seen_from_each_slot(boxes):
+    """``SlotPairs`` holds a pair's features as the two slots' parts and the overlaps: built,
+    they are the other slot's position, camera coordinates and image-box centre less this
+    one's, both extents and half-extents, the overlaps, the other's orientation and shape."""
+    from voe_lightning.model.object_state.geometry import VIEW
+    from voe_lightning.model.object_state.pairs import pair_feature_size, slot_pairs
+
+    torch.manual_seed(0)
+    state, shape = torch.randn(2, 3, STATES.size), torch.randn(2, 3, 7)
+    seen_as = torch.randn(2, 3, VIEW) if boxes else torch.zeros(2, 3, VIEW)
+    built = slot_pairs(state, shape, seen_as, STATES, boxes=boxes).full()
+    assert built.shape == (2, 3, 3, pair_feature_size(STATES))
+    for i, j in itertools.product(range(3), range(3)):
+        own, other, own_view, other_view = state[:, i], state[:, j], seen_as[:, i], seen_as[:, j]
+        half, other_half = own_view[:, 5:7], other_view[:, 5:7]
+        gap = (other_view[:, 3:5] - own_view[:, 3:5]).abs()
+        overlap = ((other_half + half - gap) / (2 * half).clamp(min=1e-3)).clamp(0, 1)
+        expected = torch.cat(
+            [
+                other[:, :3] - own[:, :3],
+                other_view[:, :5] - own_view[:, :5],
+                other[:, 7:10],
+                own[:, 7:10],
+                other_half,
+                half,
+                overlap,
+                overlap.prod(-1, keepdim=True),
+                other[:, 3:7],
+                shape[:, j],
+            ],
+            dim=-1,
+        )
+        torch.testing.assert_close(built[:, i, j], expected)
 
 
 def test_the_pair_messages_are_the_sum_of_each_pairs_output():
-    """``PairNetwork`` applies its last layer to each slot's weighted sum, not to every pair:
-    the same as summing every pair's output."""
-    from voe_lightning.model.object_state.pairs import PairNetwork
+    """``PairNetwork`` applies its first layer to each slot's part and its last to each slot's
+    weighted sum, not to every pair: the same as summing every pair's output."""
+    from voe_lightning.model.object_state.geometry import VIEW
+    from voe_lightning.model.object_state.pairs import (
+        PairNetwork,
+        pair_feature_size,
+        slot_pairs,
+    )
 
     torch.manual_seed(0)
-    network = PairNetwork(4, 3, 5, 6, 2)
-    own, other, pairs = torch.randn(2, 3, 4), torch.randn(2, 3, 3), torch.randn(2, 3, 3, 5)
+    network = PairNetwork(4, 3, pair_feature_size(STATES), 6, 2)
+    own, other = torch.randn(2, 3, 4), torch.randn(2, 3, 3)
+    state, shape, seen_as = (
+        torch.randn(2, 3, STATES.size),
+        torch.randn(2, 3, 7),
+        torch.randn(2, 3, VIEW),
+    )
+    pairs = slot_pairs(state, shape, seen_as, STATES)
     weight = (torch.rand(2, 3, 3, 1) > 0.4).float()
-    first = network.own(own)[:, :, None] + network.pair(pairs) + network.other(other)[:, None]
+    first = (
+        network.own(own)[:, :, None] + network.pair(pairs.full()) + network.other(other)[:, None]
+    )
     per_pair = network.out(torch.relu(first))  # [B, S, S, out]
     torch.testing.assert_close(network(own, other, pairs, weight), (per_pair * weight).sum(2))
 
@@ -529,18 +609,18 @@ def test_seen_from_states_is_in_view_times_no_other_known_object_covering_it():
     """``visibility_from: states``: p(seen) = p(in view) x prod over the other known slots of
     1 - p(that slot covers it), each a network of the predicted states and the pose alone."""
     from voe_lightning.model.object_state.geometry import VIEW
-    from voe_lightning.model.object_state.pairs import pair_feature_size
+    from voe_lightning.model.object_state.pairs import slot_pairs
 
     torch.manual_seed(0)
     model = plain(hidden_size=8, message_size=8, sight_lines=False, visibility_from="states")
     placed, seen_as = torch.randn(2, 3, STATES.size), torch.randn(2, 3, VIEW)
-    pairs, pose = torch.randn(2, 3, 3, pair_feature_size(STATES)), torch.randn(2, 3, 8)
+    pairs, pose = slot_pairs(placed, torch.randn(2, 3, 7), seen_as, STATES), torch.randn(2, 3, 8)
     known = torch.tensor([[True, True, True], [True, True, False]])
     seen = torch.sigmoid(model._composed_logit(placed, seen_as, pairs, known, pose))
     own = torch.cat([placed, seen_as, pose], dim=-1)
     in_view = torch.sigmoid(model.in_view(own))[..., 0]
     cover = torch.sigmoid(
-        model.cover(torch.cat([pairs, own[:, :, None].expand(-1, -1, 3, -1)], -1))
+        model.cover(torch.cat([pairs.full(), own[:, :, None].expand(-1, -1, 3, -1)], -1))
     )
     for clip, slot in itertools.product(range(2), range(3)):
         if not known[clip, slot]:  # an unknown slot's p(seen) is never read

@@ -293,7 +293,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
                 self.hparams.withhold_frames,
                 group.visible.device,
             )
-            out = self.rollout(group, withheld)
+            out = self.rollout(group, withheld, keys=terms)
             for name in terms:  # the negative log-likelihood of the clips
                 terms[name] = terms[name] + out[name].sum() / clips
         terms["loss"] = sum(terms.values())

@@ -4,6 +4,7 @@ and the slots after it."""
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import replace
 
 import torch
@@ -30,7 +31,14 @@ from voe_lightning.model.object_state.mixture import (
     inertial_move,
     landing_mean,
 )
-from voe_lightning.model.object_state.pairs import messages, pair_features, pair_weight
+from voe_lightning.model.object_state.pairs import (
+    SlotPairs,
+    messages,
+    pair_feature_size,
+    pair_weight,
+    pairwise,
+    slot_pairs,
+)
 from voe_lightning.model.object_state.state import (
     IDENTITY,
     SHAPES,
@@ -57,7 +65,10 @@ class SlotRollout:
     """The rollout of ``ObjectStateModel``, whose networks and hyperparameters it reads."""
 
     def rollout(
-        self, observations: Observations, withheld: torch.Tensor | None = None
+        self,
+        observations: Observations,
+        withheld: torch.Tensor | None = None,
+        keys: Collection[str] | None = None,
     ) -> dict[str, torch.Tensor]:
         """Run the slots through a batch's frames. Returns, per frame and slot [B, T, S], the
         negative log-likelihood of the visibility, state and shape seen (0 where they do not
@@ -70,10 +81,11 @@ class SlotRollout:
         ``withheld`` (bool [B, T, S], training only): frames at which a known slot's
         observation is kept from the model, which rolls it forward as if it were hidden, while
         what it shows is still scored: a hidden object's rollout learns from targets
-        (``withheld_spans``)."""
+        (``withheld_spans``). ``keys``: only those outputs (training needs the terms alone)."""
         obs = observations
         slots = empty_slots(obs, self.hparams.hidden_size, self.layout)
         given_before = slots.known  # what reached the model at the frame before (none before 0)
+        pairs = None  # the slots' pair features, where the next prediction can read them
         frames = []
         for t in range(obs.visible.shape[1]):
             pose = obs.camera[:, t]
@@ -85,8 +97,10 @@ class SlotRollout:
             if t == 0:
                 predicted, terms, probability = self._nothing_predicted(obs, slots)
             else:
-                predicted, terms, probability = self._predict(slots, pose, pose_features, obs, t)
-            slots = self._observe(slots, predicted, (given, given_before), obs, t)
+                predicted, terms, probability = self._predict(
+                    slots, pose, pose_features, obs, t, pairs
+                )
+            slots, pairs = self._observe(slots, predicted, (given, given_before), obs, t)
             given_before = given
             frames.append(
                 {
@@ -98,7 +112,8 @@ class SlotRollout:
                     "hidden": slots.hidden,
                 }
             )
-        return {key: torch.stack([frame[key] for frame in frames], dim=1) for key in frames[0]}
+        keys = frames[0] if keys is None else keys
+        return {key: torch.stack([frame[key] for frame in frames], dim=1) for key in keys}
 
     @staticmethod
     def _nothing_predicted(
@@ -120,9 +135,10 @@ class SlotRollout:
         given: tuple[torch.Tensor, torch.Tensor],
         obs: Observations,
         t: int,
-    ) -> Slots:
+    ) -> tuple[Slots, SlotPairs | None]:
         """The slots after frame t: the slots ``given`` at t (and at t-1) take what is seen, the
-        others their prediction; then each recurrent state steps."""
+        others their prediction; then each recurrent state steps. Also their pair features,
+        which the next frame's prediction reads where no pose enters them (no ``projection``)."""
         given, given_before = given
         visible = obs.visible[:, t]
         new = visible & ~slots.known
@@ -141,8 +157,13 @@ class SlotRollout:
             velocity=velocity,
             known=known,
         )
-        hidden = self._recur(seen, given, obs.fraction[:, t], obs.camera[:, t])
-        return replace(seen, hidden=hidden * known[..., None], belief=belief * known[..., None])
+        hidden, pairs = self._recur(seen, given, obs.fraction[:, t], obs.camera[:, t])
+        after = replace(seen, hidden=hidden * known[..., None], belief=belief * known[..., None])
+        if self.hparams.projection:  # seen from the next frame's pose, the pairs differ
+            return after, None
+        # built from beliefs that differ from ``after``'s only in slots not yet known, whose
+        # pairs weigh nothing
+        return after, pairs
 
     def _view(self, state: torch.Tensor, pose: torch.Tensor) -> torch.Tensor:
         """Where each slot is seen from ``pose`` [B, S, VIEW] (``view``: camera coordinates and
@@ -155,10 +176,15 @@ class SlotRollout:
             return seen_box(state)
         return view(state, pose)
 
+    def _pairs(self, state: torch.Tensor, shape: torch.Tensor, seen_as: torch.Tensor) -> SlotPairs:
+        """The slots' pair features (``slot_pairs``): with no ``projection``, no overlaps."""
+        return slot_pairs(state, shape, seen_as, self.layout, boxes=self.hparams.projection)
+
     def _recur(
         self, slots: Slots, given: torch.Tensor, fraction: torch.Tensor, pose: torch.Tensor
-    ) -> torch.Tensor:
-        """Each slot's next recurrent state [B, S, H]: a GRU step on what it now believes."""
+    ) -> tuple[torch.Tensor, SlotPairs]:
+        """Each slot's next recurrent state [B, S, H], a GRU step on what it now believes, and
+        the slots' pair features it read."""
         seen_as = self._view(slots.belief, pose)
         features = torch.cat(
             [
@@ -171,12 +197,12 @@ class SlotRollout:
             ],
             dim=-1,
         )
-        pairs = pair_features(slots.belief, slots.shape, seen_as, self.layout)
+        pairs = self._pairs(slots.belief, slots.shape, seen_as)
         message = messages(self.message, slots.hidden, slots.hidden, pairs, slots.known)
         pose_features = camera_features(pose)[:, None].expand(-1, slots.known.shape[1], -1)
         step_input = torch.cat([features, message, pose_features], dim=-1)
         hidden = slots.hidden
-        return self.update(step_input.flatten(0, 1), hidden.flatten(0, 1)).view_as(hidden)
+        return self.update(step_input.flatten(0, 1), hidden.flatten(0, 1)).view_as(hidden), pairs
 
     def _predict(
         self,
@@ -185,13 +211,14 @@ class SlotRollout:
         pose_features: torch.Tensor,
         obs: Observations,
         t: int,
+        pairs: SlotPairs | None = None,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor]:
-        """Frame t's predictions from the slots after frame t-1: the predicted states [B, S, state]
-        (the most probable Gaussian's mean), the terms of what frame t shows (``rollout``) and
-        p(visible) [B, S]."""
+        """Frame t's predictions from the slots after frame t-1 (and their ``pairs``, where
+        built already): the predicted states [B, S, state] (the most probable Gaussian's mean),
+        the terms of what frame t shows (``rollout``) and p(visible) [B, S]."""
         h = self.hparams
-        seen_as = self._view(slots.belief, pose)
-        pairs = pair_features(slots.belief, slots.shape, seen_as, self.layout)
+        if pairs is None:
+            pairs = self._pairs(slots.belief, slots.shape, self._view(slots.belief, pose))
         message = messages(self.message, slots.hidden, slots.hidden, pairs, slots.known)
         inertia = inertial_move(slots) if h.inertia else torch.zeros_like(slots.belief)
         mixture, shape_logits = self._mixture(slots, message, pose_features, inertia)
@@ -273,7 +300,7 @@ class SlotRollout:
         why it is not seen (with it, a cube behind a container drifted in, where walls hide it)."""
         placed = predicted.detach()
         seen_as = self._view(placed, pose)
-        pairs = pair_features(placed, slots.shape, seen_as, self.layout)
+        pairs = self._pairs(placed, slots.shape, seen_as)
         if self.hparams.visibility_from == "states":
             return self._composed_logit(placed, seen_as, pairs, slots.known, pose_features)
         occluders = messages(self.occlusion, slots.hidden, None, pairs, slots.known)
@@ -290,7 +317,7 @@ class SlotRollout:
         self,
         placed: torch.Tensor,
         seen_as: torch.Tensor,
-        pairs: torch.Tensor,
+        pairs: SlotPairs,
         known: torch.Tensor,
         pose_features: torch.Tensor,
     ) -> torch.Tensor:
@@ -299,9 +326,12 @@ class SlotRollout:
         seen unless it is out of view or something is in front of it."""
         own = torch.cat([placed, seen_as, pose_features], dim=-1)  # [B, S, ·]
         in_view = F.logsigmoid(self.in_view(own).squeeze(-1))
-        count = known.shape[1]
-        per_pair = torch.cat([pairs, own[:, :, None].expand(-1, -1, count, -1)], dim=-1)
-        covered = F.softplus(self.cover(per_pair).squeeze(-1))  # -log(1 - p(j covers i))
+        # the cover network's first layer over [pair_ij, own_i], in its parts (SlotPairs)
+        first, size = self.cover[0], pair_feature_size(self.layout)
+        own_part, other_part, overlaps = pairs.project(first.weight[:, :size])
+        own_part = own_part + F.linear(own, first.weight[:, size:], first.bias)
+        per_pair = self.cover[1:](pairwise(own_part, other_part, overlaps))
+        covered = F.softplus(per_pair.squeeze(-1))  # -log(1 - p(j covers i))
         log_seen = (in_view - (covered * pair_weight(known)[..., 0]).sum(-1)).clamp(max=-1e-6)
         return log_seen - torch.log(-torch.expm1(log_seen))
 
