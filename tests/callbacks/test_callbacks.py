@@ -42,7 +42,7 @@ class _Module:
 
 def test_probe_callback_logs_the_stratified_pooled_test_of_both_variants():
     rng = np.random.default_rng(0)
-    trainer = SimpleNamespace(datamodule=_Probes(), sanity_checking=False)
+    trainer = SimpleNamespace(datamodule=_Probes(), sanity_checking=False, global_step=250)
     callback, module = VOEProbeCallback(print_table=False, alpha=ALPHA), _Module()
     callback.on_validation_epoch_start(trainer, module)
     pairs = {case: ([], []) for case in CASES}
@@ -95,6 +95,34 @@ def test_probe_callback_logs_the_stratified_pooled_test_of_both_variants():
     )
 
 
+def test_the_table_at_fit_end_names_the_step_its_validation_ran_at(capsys):
+    """A fit that ends after its last validation (a cadence in epochs) prints that validation's
+    table under the step it ran at, not the step training ended at."""
+    rng = np.random.default_rng(2)
+    trainer = SimpleNamespace(
+        datamodule=_Probes(), sanity_checking=False, global_step=504, is_global_zero=True
+    )
+    callback, module = VOEProbeCallback(alpha=ALPHA), _Module()
+    callback.on_validation_epoch_start(trainer, module)
+    consistent = rng.gamma(2.0, 1.0, (8, 5))
+    inconsistent = consistent + rng.normal(1.0, 1.0, (8, 5))
+    inconsistent[:, :2] = consistent[:, :2]
+    outputs = {
+        "concept": torch.full((8,), specs.CONCEPTS.index(CASES[0][0])),
+        "variant": torch.full((8,), specs.VARIANTS.index(CASES[0][1])),
+        "manipulation_frame": torch.ones(8, dtype=torch.int64),
+        "surprise_consistent": torch.from_numpy(consistent),
+        "surprise_inconsistent": torch.from_numpy(inconsistent),
+    }
+    callback.on_validation_batch_end(trainer, module, outputs, None, 0)
+    callback.on_validation_epoch_end(trainer, module)
+    trainer.global_step = 520  # training went on after the last validation
+    callback.on_fit_end(trainer, module)
+    out = capsys.readouterr().out
+    assert "VOE on validation probes, step 504" in out
+    assert "step 520" not in out
+
+
 def test_callbacks_need_the_runs_alpha_and_refuse_a_bad_one():
     assert VOEProbeCallback(alpha=0.05).alpha == VOEReportCallback(alpha=0.05).alpha == 0.05
     for callback in (VOEProbeCallback, VOEReportCallback):
@@ -114,7 +142,7 @@ def test_probe_callback_logs_the_quadruplet_test_the_verdict_reads():
     """Validation probes carry seeds: each seed's standard and counterbalanced pairs are one
     quadruplet, tested over training as the report tests it (scipy's one-sample t of D)."""
     rng = np.random.default_rng(1)
-    trainer = SimpleNamespace(datamodule=_Probes(), sanity_checking=False)
+    trainer = SimpleNamespace(datamodule=_Probes(), sanity_checking=False, global_step=250)
     callback, module = VOEProbeCallback(print_table=False, alpha=ALPHA), _Module()
     callback.on_validation_epoch_start(trainer, module)
     quads = 6

@@ -182,7 +182,7 @@ def test_validation_curves_log_the_window_beside_all_frames():
             self.logged[name] = value
 
     results, module = _toy(), Module()
-    trainer = SimpleNamespace(datamodule=Probes(), sanity_checking=False)
+    trainer = SimpleNamespace(datamodule=Probes(), sanity_checking=False, global_step=0)
     callback = VOEProbeCallback(print_table=False, surprise_window=SurpriseWindow(2), alpha=ALPHA)
     callback.on_validation_epoch_start(trainer, module)
     outputs = {

@@ -74,6 +74,8 @@ class VOEProbeCallback(RunAlpha, L.Callback):
         }
         self.metrics: dict[tuple[str, str, str], PairedSurpriseStats] = {}
         self.last: dict[tuple[str, str], dict[str, float]] = {}
+        #: The training step the ``last`` statistics were measured at (what the table names).
+        self.last_step = 0
         self.causality: Causality | None = None
         self._causality = Causality()
         #: Per log prefix, this validation run's pairs (concept, variant, seed, S(inc), S(con)),
@@ -159,7 +161,7 @@ class VOEProbeCallback(RunAlpha, L.Callback):
                         sync_dist=False,
                     )
             if prefix == "voe":
-                self.last = results
+                self.last, self.last_step = results, trainer.global_step
 
     def _results(self, prefix: str) -> dict[tuple[str, str], dict[str, float]]:
         """The statistics of the window logged under ``prefix``, per concept/variant with the
@@ -217,7 +219,8 @@ class VOEProbeCallback(RunAlpha, L.Callback):
             console = Console()
             if not console.is_terminal:  # logs and pipes: do not cut the table at 80 columns
                 console.width = 120
-            title = f"VOE on validation probes, step {trainer.global_step}"
+            # the last validation's step: fit may end after it (a cadence in epochs)
+            title = f"VOE on validation probes, step {self.last_step}"
             console.print(
                 voe_table(self.last, title=title, alpha=self.alpha, causality=self.causality)
             )
