@@ -46,6 +46,10 @@ PLAIN = dict(
 )
 
 
+#: Every given of the learner off (``configs/overlays/nothing_given.yaml``'s model arguments).
+NOTHING_GIVEN = dict(sight_lines=False, floor=False, inertia=False, projection=False)
+
+
 def plain(**arguments) -> ObjectStateModel:
     """The object-state model with ``PLAIN`` settings, less what ``arguments`` set."""
     return ObjectStateModel(**{**PLAIN, **arguments})
@@ -456,15 +460,7 @@ def test_the_givens_of_the_learner_can_each_be_removed():
         return [means[0, :, 0] for means, _ in mixtures]
 
     torch.manual_seed(0)  # zero_heads: no learned change
-    removed = plain(
-        hidden_size=16,
-        message_size=8,
-        sight_lines=False,
-        floor=False,
-        inertia=False,
-        projection=False,
-        zero_heads=True,
-    )
+    removed = plain(hidden_size=16, message_size=8, zero_heads=True, **NOTHING_GIVEN)
     assert not hasattr(removed, "geometry_weight")
     refuse = mock.Mock(side_effect=AssertionError("a removed given was used"))
     for t, means in enumerate(
@@ -506,15 +502,7 @@ def test_a_prediction_reads_the_pairs_the_step_before_built_as_if_built_anew():
     with them built again."""
     clips = scripted_clips(3, seed=4)
     torch.manual_seed(0)
-    model = plain(
-        hidden_size=8,
-        message_size=8,
-        sight_lines=False,
-        floor=False,
-        inertia=False,
-        projection=False,
-        visibility_from="states",
-    )
+    model = plain(hidden_size=8, message_size=8, visibility_from="states", **NOTHING_GIVEN)
     observations = model._inputs(None, clips["objects"], clips["camera"])
     reused = model.rollout(observations)
     observe = model._observe

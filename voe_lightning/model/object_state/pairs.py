@@ -57,7 +57,7 @@ class SlotPairs:
 
     def full(self) -> torch.Tensor:
         """The pair features [B, S_i, S_j, F], built (for tests and reading)."""
-        features = self.own[:, :, None] + self.other[:, None]
+        features = pairwise(self.own, self.other, None)
         if self.overlaps is None:
             return features
         before = self.overlap_columns.start
