@@ -161,6 +161,18 @@ FAMILIES = [
         ),
         id="object_state_masks",
     ),
+    pytest.param(  # configs/learned_pixels.yaml's learner: a learned code of each id's pixels
+        lambda: ObjectStateModel(
+            perception="pixels",
+            image_size=(SIZE, SIZE),
+            hidden_size=16,
+            message_size=8,
+            code_size=4,
+            **NO_PRIORS,
+            **NO_GIVENS,
+        ),
+        id="object_state_pixels",
+    ),
     *[pytest.param(lambda cue=cue: CueScorer(cue), id=f"cue_{cue}") for cue in CUE_NAMES],
     pytest.param(
         lambda: VideoMAEScorer(config=VIDEOMAE),

@@ -64,8 +64,10 @@ def test_each_slot_reads_what_its_ids_pixels_show_and_nothing_while_hidden(conce
 def test_3d_geometry_and_priors_are_refused_without_3d_states():
     with pytest.raises(ValueError, match="perception: masks gives no 3D state.*sight_lines"):
         ObjectStateModel(perception="masks", **{**GEOMETRY_OFF, "sight_lines": True})
-    with pytest.raises(ValueError, match=r"perception must be one of \('states', 'masks'\)"):
-        ObjectStateModel(perception="pixels")
+    with pytest.raises(
+        ValueError, match=r"perception must be one of \('states', 'masks', 'pixels'\), got 'lidar'"
+    ):
+        ObjectStateModel(perception="lidar")
 
 
 def test_the_mask_rung_learns_from_masks_and_frames():

@@ -15,7 +15,7 @@ from voe_lightning import specs
 from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.model.dynamics import SlotDynamics
 from voe_lightning.model.object_centric import code_likelihood
-from voe_lightning.model.object_centric.perception import Perception, compose
+from voe_lightning.model.object_centric.perception import Perception, autoencoder_terms, compose
 from voe_lightning.model.object_centric.slots import (
     MAX_MASK_JUMP,
     Slots,
@@ -306,27 +306,9 @@ class ObjectCentricModel(SurpriseModel):
             frames, mask = frames[:, steps], (mask[:, steps] if mask is not None else None)
         x = self._model_input(frames, self.image_size)
         slots = self.slots(frames, mask, seeds, consecutive=not sampled)
-        mean, log_std = self.perceive(x, slots)
-        codes = mean
-        if self.hparams.variational:
-            codes = mean + log_std.exp() * torch.randn_like(mean)
-        composed, log_weights = self.render(codes, slots.seen)
-        clips = x.shape[0]
-        reconstruction = (composed - x).pow(2).sum() / clips
-        seen = slots.masks > 0
-        mask = -torch.where(seen, log_weights, torch.zeros_like(log_weights)).sum() / clips
-        kl = 0.5 * (mean.pow(2) + (2 * log_std).exp() - 1 - 2 * log_std)
-        kl = kl * slots.seen[..., None]
-        kl = self.hparams.kl_weight * kl.sum() / clips
-        if not self.hparams.variational:
-            kl = torch.zeros_like(kl)
-        mask = self.hparams.mask_loss_weight * mask
-        return {
-            "loss": reconstruction + mask + kl,
-            "reconstruction": reconstruction,
-            "mask": mask,
-            "kl": kl,
-        }
+        return autoencoder_terms(
+            self.perception, x, slots, self.hparams.kl_weight, self.hparams.mask_loss_weight
+        )
 
     def dynamics_terms(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """Dynamics loss per clip (mean over the batch), against the frozen perception's codes

@@ -10,6 +10,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from voe_lightning.model.object_centric.slots import Slots
+
 
 class Perception(nn.Module):
     """Object autoencoder shared by all slots.
@@ -92,3 +94,36 @@ def compose(
     log_weights = F.log_softmax(logits, dim=1)
     frame = (log_weights.exp()[:, :, None] * rgb).sum(dim=1)
     return frame, log_weights
+
+
+def autoencoder_terms(
+    perception: Perception,
+    x: torch.Tensor,
+    slots: Slots,
+    kl_weight: float,
+    mask_loss_weight: float,
+) -> dict[str, torch.Tensor]:
+    """The perception's loss per clip on model inputs [B, T, 3, H, W] and their ``slots``:
+    reconstruction = the squared error of the composed frames, summed over frames and pixels;
+    mask = ``mask_loss_weight`` * cross-entropy of the composition weights against the true
+    slot masks; kl = ``kl_weight`` * KL of the seen slots' codes to N(0, I) (VAE only; else 0).
+    The codes are sampled in a VAE."""
+    batch, steps = x.shape[:2]
+    mean, log_std = perception.encode(x.flatten(0, 1), slots.masks.flatten(0, 1))
+    codes = mean + log_std.exp() * torch.randn_like(mean) if perception.variational else mean
+    rgb, logits = perception.decode(codes)
+    composed, log_weights = compose(rgb, logits, slots.seen.flatten(0, 1))
+    reconstruction = (composed - x.flatten(0, 1)).pow(2).sum() / batch
+    seen = slots.masks.flatten(0, 1) > 0
+    mask = -torch.where(seen, log_weights, torch.zeros_like(log_weights)).sum() / batch
+    kl = 0.5 * (mean.pow(2) + (2 * log_std).exp() - 1 - 2 * log_std)
+    kl = kl_weight * (kl * slots.seen.flatten(0, 1)[..., None]).sum() / batch
+    if not perception.variational:
+        kl = torch.zeros_like(kl)
+    mask = mask_loss_weight * mask
+    return {
+        "loss": reconstruction + mask + kl,
+        "reconstruction": reconstruction,
+        "mask": mask,
+        "kl": kl,
+    }

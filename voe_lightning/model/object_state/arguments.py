@@ -21,10 +21,12 @@ ARCHITECTURE = (
     "inertia",
     "projection",
     "visibility_from",
+    "code_size",
+    "image_size",
 )
-#: What the learner perceives of each object (``perception``): its 3D state, or what its mask
-#: and the frames show.
-PERCEPTIONS = ("states", "masks")
+#: What the learner perceives of each object (``perception``): its 3D state, what its mask and
+#: the frames show, or a learned code of its pixels.
+PERCEPTIONS = ("states", "masks", "pixels")
 #: What the learned p(seen) reads (``visibility_from``): memory, or the predicted states alone.
 VISIBILITIES = ("memory", "states")
 #: The arguments that give geometry or a prior about a 3D state, each with its value off
@@ -59,14 +61,26 @@ def _check_perception(h) -> None:
             "visibility_from: states learns what is seen from the states alone, with no sight "
             "lines to add to; set sight_lines: false"
         )
-    if h.perception == "masks":
-        on = {name: h[name] for name, off in GEOMETRY_OFF.items() if h[name] != off}
-        if on:
-            raise ValueError(
-                f"perception: masks gives no 3D state, so no 3D geometry or prior applies; set "
-                f"{', '.join(f'{name}: {off}' for name, off in GEOMETRY_OFF.items() if name in on)}"
-                f" (got {on})"
-            )
+    if h.perception == "states":
+        return
+    off = {**GEOMETRY_OFF, **({"projection": False} if h.perception == "pixels" else {})}
+    on = {name: h[name] for name, value in off.items() if h[name] != value}
+    if on:
+        raise ValueError(
+            f"perception: {h.perception} gives no 3D state"
+            + (" and no image box" if h.perception == "pixels" else "")
+            + ", so no geometry or prior applies; set "
+            + ", ".join(f"{name}: {off[name]}" for name in on)
+            + f" (got {on})"
+        )
+    if h.perception == "pixels" and (
+        h.code_size < 1 or h.perception_steps < 0 or h.perception_frames < 1
+    ):
+        raise ValueError(
+            f"perception: pixels needs code_size >= 1, perception_steps >= 0 and "
+            f"perception_frames >= 1, got {h.code_size}, {h.perception_steps}, "
+            f"{h.perception_frames}"
+        )
 
 
 def _check_sizes(h) -> None:

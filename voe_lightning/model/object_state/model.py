@@ -12,6 +12,7 @@ import torch
 from tensordict import TensorDictBase
 from torch import nn
 
+from voe_lightning import specs
 from voe_lightning.model import optimization
 from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.model.dynamics import CAMERA_FEATURES, mlp
@@ -20,19 +21,29 @@ from voe_lightning.model.object_state.arguments import ARCHITECTURE, check_argum
 from voe_lightning.model.object_state.geometry import VIEW, draw_ellipses, paint_ellipses
 from voe_lightning.model.object_state.masks import MASKS, observe_masks
 from voe_lightning.model.object_state.pairs import PairNetwork, pair_feature_size
+from voe_lightning.model.object_state.pixels import (
+    code_layout,
+    encoder_terms,
+    object_encoder,
+    observe_pixels,
+    paint_codes,
+)
 from voe_lightning.model.object_state.rollout import FLOOR_FEATURES, SlotRollout, slot_feature_size
 from voe_lightning.model.object_state.state import (
     SHAPES,
     SLOT_TERMS,
     STATES,
     Observations,
+    StateLayout,
     by_object_count,
     observe,
     withheld_spans,
 )
 
-#: What the learner perceives (``perception``): its state layout.
-LAYOUTS = {"states": STATES, "masks": MASKS}
+
+def layout_of(perception: str, code_size: int) -> StateLayout:
+    """What the learner perceives (``perception``): its state layout."""
+    return {"states": STATES, "masks": MASKS}.get(perception) or code_layout(code_size)
 
 
 class ObjectStateModel(SlotRollout, SurpriseModel):
@@ -85,9 +96,15 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     with and without each, docs/study/learned_physics.md); the published run has both, and
     which of them to drop waits on a mask rung that passes more.
 
+    With ``perception: pixels`` (the pixel rung, ``configs/learned_pixels.yaml``) no feature
+    is hand-written either: an object's state is the code a learned encoder gives its pixels
+    (``pixels.observe_pixels``). The encoder, PLATO's object autoencoder, trains alone for the
+    first ``perception_steps`` steps, then is frozen while the rest learns over its codes.
+
     Args:
-        perception: ``"states"`` (perfect 3D perception, ``specs.objects_spec``) or
-            ``"masks"`` (what the mask and frames show of each id, no 3D state).
+        perception: ``"states"`` (perfect 3D perception, ``specs.objects_spec``),
+            ``"masks"`` (what the mask and frames show of each id, no 3D state) or
+            ``"pixels"`` (a learned code of each id's pixels).
         hidden_size: recurrent state per slot and width of the MLPs.
         message_size: size of the summed pair messages.
         use_camera: the core and visibility read the camera pose (else a fixed default pose).
@@ -127,6 +144,11 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         learning_rate: Adam's (peak) learning rate.
         lr_schedule: ``"constant"`` or ``"cosine"`` (decays to 0 at ``trainer.max_steps``).
         training_frames: frames per training clip, recorded from the training batches.
+        code_size: an object's code, perceived by pixels.
+        image_size: (H, W) of the frames, perceived by pixels (divisible by 16).
+        perception_steps: perceived by pixels, the first training steps, which train the
+            encoder alone (then frozen).
+        perception_frames: random frames per clip in those steps.
     """
 
     ARCHITECTURE = ARCHITECTURE
@@ -138,6 +160,8 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         "hard_assignment",
         "group_by_objects",
         "zero_heads",
+        "perception_steps",
+        "perception_frames",
     )
     SURPRISE = (
         "the rectified excess surprisal of the seen object states (each term's negative "
@@ -169,12 +193,18 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         learning_rate: float = 1e-3,
         lr_schedule: str = "cosine",
         training_frames: int | None = None,
+        code_size: int = 16,
+        image_size: tuple[int, int] = (specs.HEIGHT, specs.WIDTH),
+        perception_steps: int = 500,
+        perception_frames: int = 4,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
         check_arguments(self.hparams)
         hidden, message = hidden_size, message_size
-        self.layout = layout = LAYOUTS[perception]
+        self.layout = layout = layout_of(perception, code_size)
+        if perception == "pixels":
+            self.encoder = object_encoder(code_size, image_size)
         pairs = pair_feature_size(layout)
         self.message = PairNetwork(hidden, hidden, pairs, hidden, message)
         self.update = nn.GRUCell(slot_feature_size(layout) + message + CAMERA_FEATURES, hidden)
@@ -234,17 +264,21 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         """The batch's ``Observations`` as ``perception`` reads them, at a fixed pose without
         a camera or ``use_camera``. Perceiving states, it needs no ``frames`` (a training batch
         of ``train_fields: [objects, camera]`` holds none)."""
-        if self.hparams.perception == "masks":
+        if self.hparams.perception in ("masks", "pixels"):
             missing = [key for key, value in (("mask", mask), ("frames", frames)) if value is None]
             if missing:
                 raise ValueError(
-                    "the object-state model with perception: masks reads each video's object-"
-                    f"id mask and frames, but a batch came without batch key '{missing[0]}'"
+                    f"the object-state model with perception: {self.hparams.perception} reads "
+                    "each video's object-id mask and frames, but a batch came without batch "
+                    f"key '{missing[0]}'"
                 )
-            camera = self._pose(frames.shape[:2], camera)
-            return observe_masks(
-                mask.to(self.device), frames.to(self.device), camera.to(self.device)
-            )
+            mask, frames = mask.to(self.device), frames.to(self.device)
+            camera = self._pose(frames.shape[:2], camera).to(self.device)
+            if self.hparams.perception == "masks":
+                return observe_masks(mask, frames, camera)
+            frames = self._checked_frames(frames, tuple(self.hparams.image_size))
+            with torch.no_grad():  # the encoder learns only from its own loss
+                return observe_pixels(self.encoder, mask, frames, camera)
         if objects is None:
             raise ValueError(
                 "the object-state model (the positive control) reads each video's object "
@@ -280,6 +314,8 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
         inputs = video_inputs(batch)
         frames = batch["frames"] if "frames" in batch.keys() else None
+        if self.perception_stage:
+            return self._encoder_step(frames, inputs.get("mask"))
         observations = self._inputs(
             frames, inputs.get("objects"), inputs.get("camera"), inputs.get("mask")
         )
@@ -302,6 +338,31 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         for name, value in terms.items():
             if name != "loss":
                 self.log(f"train/{name}", value, batch_size=clips)
+        return terms["loss"]
+
+    @property
+    def perception_stage(self) -> bool:
+        """Whether training is in its first stage: the pixel encoder alone."""
+        return (
+            self.hparams.perception == "pixels" and self.global_step < self.hparams.perception_steps
+        )
+
+    def _encoder_step(self, frames: torch.Tensor | None, mask: torch.Tensor | None) -> torch.Tensor:
+        """A step of the pixel encoder alone (``pixels.encoder_terms``)."""
+        if frames is None or mask is None:
+            raise ValueError(
+                "the object-state model with perception: pixels learns its encoder from each "
+                "training clip's frames and object-id mask, but a batch came without them"
+            )
+        terms = encoder_terms(
+            self.encoder,
+            mask.to(self.device),
+            self._checked_frames(frames, tuple(self.hparams.image_size)),
+            self.hparams.perception_frames,
+        )
+        self._check_finite(terms)
+        for name, value in terms.items():
+            self.log(f"train/encoder_{name}", value, prog_bar=name == "loss", batch_size=len(mask))
         return terms["loss"]
 
     def configure_optimizers(self) -> dict:
@@ -342,6 +403,8 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         opacity = torch.cat(
             [observations.visible[:, :1].float(), out["visible_probability"][:, 1:]], dim=1
         )
+        if self.hparams.perception == "pixels":  # each belief decoded
+            return paint_codes(self.encoder, belief, opacity)
         if self.hparams.perception == "masks":  # an ellipse in its pixels' box, larger first
             centre, half = belief[..., MASKS.position], belief[..., MASKS.extent][..., :2]
             colour, area = belief[..., MASKS.color], belief[..., MASKS.extent][..., 2]

@@ -1,0 +1,101 @@
+"""The pixel rung of the learner's perception: what a learned encoder makes of each tracked
+object's pixels, with no hand-written measurement. Per frame and visible mask id, PLATO's object
+autoencoder (``object_centric.perception``) encodes the frame masked to the id's pixels, and the
+code is the object's state; the autoencoder learns first, from the training clips' frames, then
+is frozen while the dynamics learn over its codes."""
+
+from __future__ import annotations
+
+import torch
+
+from voe_lightning import specs
+from voe_lightning.model.object_centric.perception import Perception, autoencoder_terms
+from voe_lightning.model.object_centric.slots import Slots as MaskSlots
+from voe_lightning.model.object_state.masks import per_id
+from voe_lightning.model.object_state.state import (
+    SHAPES,
+    Observations,
+    StateLayout,
+    by_slot,
+    slot_ids,
+)
+
+#: The encoder's stride-2 convolutions (PLATO's, sized for a CPU as configs/object_centric.yaml).
+CHANNELS = (16, 32, 32, 64)
+
+
+def code_layout(code_size: int) -> StateLayout:
+    """A learned code's state layout: the whole code is what moves (its change is the
+    velocity, its differences the pairs'), with no extent, colour or orientation to name."""
+    return StateLayout(
+        code_size,
+        position=slice(0, code_size),
+        extent=slice(code_size, code_size),
+        color=slice(code_size, code_size),
+        orientation=None,
+    )
+
+
+def object_encoder(code_size: int, image_size: tuple[int, int]) -> Perception:
+    """The variational object autoencoder of frames ``image_size`` (H, W), ``code_size`` wide."""
+    height, width = image_size
+    return Perception((height, width), code_size, CHANNELS, variational=True)
+
+
+def observe_pixels(
+    encoder: Perception, mask: torch.Tensor, frames: torch.Tensor, camera: torch.Tensor
+) -> Observations:
+    """What the pixel rung reads of a batch of videos: per slot (a mask id, ordered as
+    ``state.observe`` orders them) and frame, the encoder's mean code of the frame masked to the
+    id's pixels where it has any (zeros where hidden), its area as the visible share, no shape
+    and the camera poses. Frame t's observations read frame t alone."""
+    pixels = per_id(mask, frames)["pixels"]
+    ids = slot_ids(pixels > 0)
+    area = by_slot(pixels, ids) / (mask.shape[-2] * mask.shape[-1])
+    visible = area > 0
+    masks = (mask.long()[:, :, None] == ids[:, None, :, None, None]).float()  # [B, T, S, H, W]
+    x = specs.to_model_input(frames)  # [B, T, 3, H, W]
+    which = visible.nonzero(as_tuple=True)  # encode only the seen (clip, frame, slot)s
+    seen_codes, _ = encoder.encode(x[which[:2]], masks[which][:, None])
+    state = seen_codes.new_zeros(*visible.shape, encoder.code_size)
+    state[which] = seen_codes[:, 0]
+    return Observations(
+        ids=ids,
+        state=state,
+        shape=state.new_zeros(*visible.shape, SHAPES),
+        fraction=area,
+        visible=visible,
+        camera=camera.float(),
+    )
+
+
+def encoder_terms(
+    encoder: Perception,
+    mask: torch.Tensor,
+    frames: torch.Tensor,
+    frames_per_clip: int,
+    kl_weight: float = 1.0,
+    mask_loss_weight: float = 1.0,
+) -> dict[str, torch.Tensor]:
+    """The autoencoder's loss per clip (``perception.autoencoder_terms``) on
+    ``frames_per_clip`` random frames of each clip: its slots the video's mask ids, in the
+    order ``observe_pixels`` takes them, and the background as one more slot."""
+    steps = torch.randperm(frames.shape[1], device=frames.device)[:frames_per_clip].sort().values
+    mask, frames = mask[:, steps], frames[:, steps]
+    ids = slot_ids(per_id(mask, frames)["pixels"] > 0)
+    ids = torch.cat([torch.zeros_like(ids[:, :1]), ids], dim=1)  # slot 0: the background
+    masks = (mask.long()[:, :, None] == ids[:, None, :, None, None]).float()
+    slots = MaskSlots(ids=ids, seen=masks.flatten(3).any(-1), masks=masks)
+    x = specs.to_model_input(frames)
+    return autoencoder_terms(encoder, x, slots, kl_weight, mask_loss_weight)
+
+
+def paint_codes(encoder: Perception, codes: torch.Tensor, opacity: torch.Tensor) -> torch.Tensor:
+    """What the slots' ``codes`` [B, T, S, C] look like, decoded [B, T, 3, H, W]: each slot's
+    decoded object over grey, weighed by its decoded mask and its ``opacity`` [B, T, S] (the
+    probability that it is seen)."""
+    rgb, logits = encoder.decode(codes.flatten(0, 1))  # [N, S, 3, H, W], [N, S, H, W]
+    weight = torch.sigmoid(logits) * opacity.flatten(0, 1)[..., None, None]
+    share = weight / weight.sum(1, keepdim=True).clamp(min=1.0)  # never more than one in all
+    image = 0.5 * (1 - share.sum(1))[:, None] + (share[:, :, None] * rgb).sum(1)
+    return image.view(*codes.shape[:2], *image.shape[1:])
