@@ -164,7 +164,7 @@ FAMILIES = [
     pytest.param(  # configs/learned_pixels.yaml's learner: a learned code of each id's pixels
         lambda: ObjectStateModel(
             perception="pixels",
-            image_size=(SIZE, SIZE),
+            frame_size=(SIZE, SIZE),
             hidden_size=16,
             message_size=8,
             code_size=4,

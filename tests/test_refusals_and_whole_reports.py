@@ -350,6 +350,15 @@ def test_a_bad_argument_is_one_line_and_debug_shows_the_traceback(
             ["--data.init_args.height", "48"],
             "model.init_args.image_size [32, 32] differs from the data's height x width 48 x 32",
         ),
+        (
+            [
+                "--model",
+                "voe_lightning.model.ObjectStateModel",
+                "--model.init_args.frame_size",
+                "[64, 64]",
+            ],
+            "model.init_args.frame_size [64, 64] differs from the data's height x width 32 x 32",
+        ),
         (["--trainer.max_steps", "-2"], "trainer.max_steps -2: give a number of steps >= 0"),
     ],
 )

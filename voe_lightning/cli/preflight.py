@@ -118,18 +118,19 @@ def _checkpoint_in_run(config: Any, logger: Any) -> Path | None:
 
 
 def _check_image_size(model: Any, data: Any) -> None:
-    """The model's ``image_size`` must be the data's height and width (found otherwise only
-    after the whole dataset is rendered)."""
-    image_size = model.get("image_size")
+    """The model's ``image_size`` (the object-state model's pixel encoder: ``frame_size``) must
+    be the data's height and width (found otherwise only after the whole dataset is rendered)."""
     height, width = data.get("height"), data.get("width")
-    if image_size is None or height is None or width is None:
-        return
-    if tuple(image_size) != (height, width):
-        raise ValueError(
-            f"model.init_args.image_size {list(image_size)} differs from the data's height x "
-            f"width {height} x {width}: set both to one size (e.g. --data.init_args.height "
-            f"{image_size[0]} --data.init_args.width {image_size[1]})"
-        )
+    for name in ("image_size", "frame_size"):
+        size = model.get(name)
+        if size is None or height is None or width is None:
+            continue
+        if tuple(size) != (height, width):
+            raise ValueError(
+                f"model.init_args.{name} {list(size)} differs from the data's height x width "
+                f"{height} x {width}: set both to one size (e.g. --data.init_args.height "
+                f"{size[0]} --data.init_args.width {size[1]})"
+            )
 
 
 def _check_batch_size(data: Any) -> None:

@@ -22,7 +22,7 @@ ARCHITECTURE = (
     "projection",
     "visibility_from",
     "code_size",
-    "image_size",
+    "frame_size",
 )
 #: What the learner perceives of each object (``perception``): its 3D state, what its mask and
 #: the frames show, or a learned code of its pixels.

@@ -145,7 +145,8 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         lr_schedule: ``"constant"`` or ``"cosine"`` (decays to 0 at ``trainer.max_steps``).
         training_frames: frames per training clip, recorded from the training batches.
         code_size: an object's code, perceived by pixels.
-        image_size: (H, W) of the frames, perceived by pixels (divisible by 16).
+        frame_size: (H, W) of the frames, perceived by pixels (divisible by 16; None: the
+            generator's, ``specs.HEIGHT`` x ``specs.WIDTH``).
         perception_steps: perceived by pixels, the first training steps, which train the
             encoder alone (then frozen).
         perception_frames: random frames per clip in those steps.
@@ -194,7 +195,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         lr_schedule: str = "cosine",
         training_frames: int | None = None,
         code_size: int = 16,
-        image_size: tuple[int, int] = (specs.HEIGHT, specs.WIDTH),
+        frame_size: tuple[int, int] | None = None,
         perception_steps: int = 500,
         perception_frames: int = 4,
     ) -> None:
@@ -204,7 +205,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         hidden, message = hidden_size, message_size
         self.layout = layout = layout_of(perception, code_size)
         if perception == "pixels":
-            self.encoder = object_encoder(code_size, image_size)
+            self.encoder = object_encoder(code_size, self.frame_size)
         pairs = pair_feature_size(layout)
         self.message = PairNetwork(hidden, hidden, pairs, hidden, message)
         self.update = nn.GRUCell(slot_feature_size(layout) + message + CAMERA_FEATURES, hidden)
@@ -276,7 +277,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
             camera = self._pose(frames.shape[:2], camera).to(self.device)
             if self.hparams.perception == "masks":
                 return observe_masks(mask, frames, camera)
-            frames = self._checked_frames(frames, tuple(self.hparams.image_size))
+            frames = self._checked_frames(frames, self.frame_size)
             with torch.no_grad():  # the encoder learns only from its own loss
                 return observe_pixels(self.encoder, mask, frames, camera)
         if objects is None:
@@ -341,6 +342,12 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         return terms["loss"]
 
     @property
+    def frame_size(self) -> tuple[int, int]:
+        """(H, W) of the frames the pixel encoder reads."""
+        height, width = self.hparams.frame_size or (specs.HEIGHT, specs.WIDTH)
+        return int(height), int(width)
+
+    @property
     def perception_stage(self) -> bool:
         """Whether training is in its first stage: the pixel encoder alone."""
         return (
@@ -357,7 +364,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         terms = encoder_terms(
             self.encoder,
             mask.to(self.device),
-            self._checked_frames(frames, tuple(self.hparams.image_size)),
+            self._checked_frames(frames, self.frame_size),
             self.hparams.perception_frames,
         )
         self._check_finite(terms)
