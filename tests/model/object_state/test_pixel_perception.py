@@ -94,9 +94,10 @@ def test_what_it_expected_is_its_beliefs_decoded():
     images = model.expected_frames(batch["frames"], batch["mask"], batch["camera"])
     assert images.shape == (2, specs.NUM_FRAMES, 3, specs.HEIGHT, specs.WIDTH)
     assert images.min() >= 0 and images.max() <= 1
-    # nothing expected seen: grey
-    codes = torch.randn(1, 2, 3, 4)
+    # nothing expected seen: the background alone, decoded
+    codes, background = torch.randn(1, 2, 3, 4), torch.randn(1, 2, 4)
+    alone, _ = model.encoder.decode(background.flatten(0, 1)[:, None])
     torch.testing.assert_close(
-        paint_codes(model.encoder, codes, torch.zeros(1, 2, 3)),
-        torch.full((1, 2, 3, specs.HEIGHT, specs.WIDTH), 0.5),
+        paint_codes(model.encoder, codes, torch.zeros(1, 2, 3), background),
+        alone[:, 0].view(1, 2, 3, specs.HEIGHT, specs.WIDTH),
     )

@@ -22,6 +22,7 @@ from voe_lightning.model.object_state.geometry import VIEW, draw_ellipses, paint
 from voe_lightning.model.object_state.masks import MASKS, observe_masks
 from voe_lightning.model.object_state.pairs import PairNetwork, pair_feature_size
 from voe_lightning.model.object_state.pixels import (
+    background_codes,
     code_layout,
     encoder_terms,
     object_encoder,
@@ -403,15 +404,20 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     ) -> torch.Tensor:
         """What the model expected [B, T, 3, H, W]: each known slot's expected state drawn as an
         ellipse of its colour where and as large as its box is seen, as opaque as the predicted
-        probability that it is seen (frame 0: what is seen), nearer objects over farther."""
+        probability that it is seen (frame 0: what is seen), nearer objects over farther;
+        perceived by pixels, each expected code decoded over the frame before's background."""
         observations = self._inputs(frames, objects, camera, mask)
         out = self.rollout(observations)
         belief = torch.cat([out["belief"][:, :1], out["predicted"][:, 1:]], dim=1)
         opacity = torch.cat(
             [observations.visible[:, :1].float(), out["visible_probability"][:, 1:]], dim=1
         )
-        if self.hparams.perception == "pixels":  # each belief decoded
-            return paint_codes(self.encoder, belief, opacity)
+        if self.hparams.perception == "pixels":  # each belief decoded, over the last background
+            background = background_codes(
+                self.encoder, mask.to(self.device), frames.to(self.device)
+            )
+            before = torch.cat([background[:, :1], background[:, :-1]], dim=1)
+            return paint_codes(self.encoder, belief, opacity, before)
         if self.hparams.perception == "masks":  # an ellipse in its pixels' box, larger first
             centre, half = belief[..., MASKS.position], belief[..., MASKS.extent][..., :2]
             colour, area = belief[..., MASKS.color], belief[..., MASKS.extent][..., 2]

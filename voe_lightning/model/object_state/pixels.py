@@ -7,9 +7,14 @@ is frozen while the dynamics learn over its codes."""
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 
 from voe_lightning import specs
-from voe_lightning.model.object_centric.perception import Perception, autoencoder_terms
+from voe_lightning.model.object_centric.perception import (
+    Perception,
+    autoencoder_terms,
+    compose,
+)
 from voe_lightning.model.object_centric.slots import Slots as MaskSlots
 from voe_lightning.model.object_state.masks import per_id
 from voe_lightning.model.object_state.state import (
@@ -90,12 +95,24 @@ def encoder_terms(
     return autoencoder_terms(encoder, x, slots, kl_weight, mask_loss_weight)
 
 
-def paint_codes(encoder: Perception, codes: torch.Tensor, opacity: torch.Tensor) -> torch.Tensor:
-    """What the slots' ``codes`` [B, T, S, C] look like, decoded [B, T, 3, H, W]: each slot's
-    decoded object over grey, weighed by its decoded mask and its ``opacity`` [B, T, S] (the
-    probability that it is seen)."""
-    rgb, logits = encoder.decode(codes.flatten(0, 1))  # [N, S, 3, H, W], [N, S, H, W]
-    weight = torch.sigmoid(logits) * opacity.flatten(0, 1)[..., None, None]
-    share = weight / weight.sum(1, keepdim=True).clamp(min=1.0)  # never more than one in all
-    image = 0.5 * (1 - share.sum(1))[:, None] + (share[:, :, None] * rgb).sum(1)
+def background_codes(encoder: Perception, mask: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
+    """The code of each frame's background (mask id 0) [B, T, C], which the expected frames are
+    composed over."""
+    x = specs.to_model_input(frames).flatten(0, 1)
+    mean, _ = encoder.encode(x, (mask == 0).float().flatten(0, 1)[:, None])
+    return mean.view(*mask.shape[:2], -1)
+
+
+def paint_codes(
+    encoder: Perception, codes: torch.Tensor, opacity: torch.Tensor, background: torch.Tensor
+) -> torch.Tensor:
+    """What the slots' ``codes`` [B, T, S, C] look like, decoded [B, T, 3, H, W] and composed
+    as the autoencoder learned to compose a frame (``perception.compose``) over the
+    ``background`` code [B, T, C], each slot's mask logits raised by the log of its
+    ``opacity`` [B, T, S] (the probability that it is seen): a slot expected hidden shows
+    nothing."""
+    everything = torch.cat([background[:, :, None], codes], dim=2).flatten(0, 1)
+    rgb, logits = encoder.decode(everything)  # [N, 1 + S, 3, H, W], [N, 1 + S, H, W]
+    seen = F.pad(opacity.flatten(0, 1), (1, 0), value=1.0).log()  # the background: always
+    image, _ = compose(rgb, logits + seen[..., None, None], torch.ones_like(seen, dtype=torch.bool))
     return image.view(*codes.shape[:2], *image.shape[1:])
