@@ -79,10 +79,9 @@ def encoder_terms(
     mask: torch.Tensor,
     frames: torch.Tensor,
     frames_per_clip: int,
-    kl_weight: float = 1.0,
-    mask_loss_weight: float = 1.0,
 ) -> dict[str, torch.Tensor]:
-    """The autoencoder's loss per clip (``perception.autoencoder_terms``) on
+    """The autoencoder's loss per clip (``perception.autoencoder_terms``, its KL and mask terms
+    weighed 1, as configs/object_centric.yaml's) on
     ``frames_per_clip`` random frames of each clip: its slots the video's mask ids, in the
     order ``observe_pixels`` takes them, and the background as one more slot."""
     steps = torch.randperm(frames.shape[1], device=frames.device)[:frames_per_clip].sort().values
@@ -92,7 +91,7 @@ def encoder_terms(
     masks = (mask.long()[:, :, None] == ids[:, None, :, None, None]).float()
     slots = MaskSlots(ids=ids, seen=masks.flatten(3).any(-1), masks=masks)
     x = specs.to_model_input(frames)
-    return autoencoder_terms(encoder, x, slots, kl_weight, mask_loss_weight)
+    return autoencoder_terms(encoder, x, slots, kl_weight=1.0, mask_loss_weight=1.0)
 
 
 def background_codes(encoder: Perception, mask: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
