@@ -71,7 +71,9 @@ def table(runs: list[tuple[str, Path]]) -> str:
             + " | ".join(counts(a) if a else "" for a in alone)
             + " |"
         )
-    lines.append("| largest cue correlation |" + " | ".join(largest_cue(p) for _, p in runs) + " |")
+    lines.append(
+        "| largest cue correlation | " + " | ".join(largest_cue(p) for _, p in runs) + " |"
+    )
     return "\n".join(lines) + "\n\n† a half not significant on its own at the report's alpha.\n"
 
 
