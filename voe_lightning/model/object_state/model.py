@@ -72,7 +72,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     stopping Gaussian and the control's six priors (carrying, slowing, falling lands, the
     fall's gain, holding still, shared identity), each added alone, added no verdict and no
     half standing alone, and were deleted. The
-    package's learned result (``configs/learned_states.yaml``) turns it off. Given to every configuration, and each removable to measure what it
+    package's learned result (``configs/learned_states.yaml`` with its overlays) turns it off. Given to every configuration, and each removable to measure what it
     costs: the sight lines of the visibility (``sight_lines``), the floor under every mean
     (``floor``), the inertial baseline (``inertia``) and the image-plane projection the
     networks read (``projection``). Kept by measurement (docs/study/learned_physics.md,
@@ -81,7 +81,10 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     the visibility learned from the states (``configs/overlays/nothing_given.yaml``), 4 of 5
     at three seeds (2026-12-05), object persistence failing, without learning how things move;
     trained five times as long, unclipped (``configs/overlays/nothing_given_long.yaml``), it
-    learns motion and occlusion and passes 5, 4 and 5 of 5. Its one structural given, how
+    learns motion and occlusion and passes 5, 4 and 5 of 5; at a large batch
+    (``configs/overlays/large_batch.yaml``, the package's learned result) 5, 5 and 5 with an
+    empty untrained null, and with its heads started at zero (``zero_heads``) 4, 4 and 4, its
+    null empty by construction. Its one structural given, how
     p(seen) is composed (in view, and covered by no other known slot: a product), changed no
     verdict against an additive composition on validation at 1,000 steps and was not measured
     trained long. Never removable: one slot per
