@@ -47,6 +47,21 @@ def test_null_rows_by_hand():
     assert "p < 0.01" in table
 
 
+def test_an_undefined_t_is_counted_and_left_out_of_the_spread():
+    """An initialization whose every difference is 0 has no t (NaN): the spread and the
+    percentile are over the others, and the table says how many were undefined."""
+    summaries = [
+        summary(1.0, 0.5, False),
+        summary(float("nan"), 0.5, False),
+        summary(3.0, 0.5, True),
+    ]
+    standard, _ = null_rows(summaries, summary(2.0, 0.5, True))
+    assert (standard["initializations"], standard["undefined"]) == (3, 1)
+    assert (standard["t_median"], standard["t_min"], standard["t_max"]) == (2.0, 1.0, 3.0)
+    assert standard["trained_percentile"] == 50.0  # 2.0 over {1, 3}
+    assert "| 3 | +2.00 [+1.00, +3.00], 1 undefined | 0% | 33% |" in format_null([standard], 0.01)
+
+
 def test_the_null_figure_draws_each_t_against_the_critical_t():
     """A row per concept/variant: the finite untrained t's as points, the critical t of the
     row's df at alpha (scipy's) as the dashed mark, the trained t as the one diamond."""

@@ -114,19 +114,24 @@ def null_rows(
     rows = []
     for (concept, variant), values in t_values.items():
         null = np.asarray(values)
+        defined = null[~np.isnan(null)]  # every d = 0 leaves t undefined: no place in the spread
+        spread = (
+            (np.median(defined), defined.min(), defined.max()) if defined.size else (math.nan,) * 3
+        )
         row = {
             "concept": concept,
             "variant": variant,
             "initializations": null.size,
-            "t_median": float(np.median(null)),
-            "t_min": float(null.min()),
-            "t_max": float(null.max()),
+            "undefined": int(null.size - defined.size),
+            "t_median": float(spread[0]),
+            "t_min": float(spread[1]),
+            "t_max": float(spread[2]),
             "significant_share": float(np.mean(significant[concept, variant])),
             "voe_share": float(np.mean(voe.get(concept, [False]))),
         }
         if trained_t.get((concept, variant)) is not None:
             row["trained_t"] = float(trained_t[concept, variant])
-            row["trained_percentile"] = _percentile(row["trained_t"], null)
+            row["trained_percentile"] = _percentile(row["trained_t"], defined)
         rows.append(row)
     return rows
 
@@ -142,7 +147,7 @@ def format_null(rows: Sequence[Mapping[str, Any]], alpha: float) -> str:
         spread = (
             f"{format_number(row['t_median'], '+.2f')} [{format_number(row['t_min'], '+.2f')}"
             f", {format_number(row['t_max'], '+.2f')}]"
-        )
+        ) + (f", {row['undefined']} undefined" if row.get("undefined") else "")
         lines.append(
             f"| {row['concept']} | {row['variant']} | {row['initializations']} "
             f"| {spread} | {row['significant_share']:.0%} | {row['voe_share']:.0%} "
@@ -155,7 +160,8 @@ def format_null(rows: Sequence[Mapping[str, Any]], alpha: float) -> str:
         f"the one-tailed paired test per initialization; significant: share with p < "
         f"{alpha:g}; concept VOE: share of initializations whose verdict for the concept "
         "is VOE; percentile: where the trained run's t falls among the untrained ones "
-        "(ties half).",
+        "(ties half); undefined: initializations whose every difference was 0, left out of "
+        "the spread and the percentile.",
     ]
     return "\n".join(lines) + "\n"
 
