@@ -115,7 +115,7 @@ def null_rows(
     for (concept, variant), values in t_values.items():
         null = np.asarray(values)
         defined = null[~np.isnan(null)]  # every d = 0 leaves t undefined: no place in the spread
-        spread = (
+        median, low, high = (
             (np.median(defined), defined.min(), defined.max()) if defined.size else (math.nan,) * 3
         )
         row = {
@@ -123,9 +123,9 @@ def null_rows(
             "variant": variant,
             "initializations": null.size,
             "undefined": int(null.size - defined.size),
-            "t_median": float(spread[0]),
-            "t_min": float(spread[1]),
-            "t_max": float(spread[2]),
+            "t_median": float(median),
+            "t_min": float(low),
+            "t_max": float(high),
             "significant_share": float(np.mean(significant[concept, variant])),
             "voe_share": float(np.mean(voe.get(concept, [False]))),
         }

@@ -121,11 +121,11 @@ def _check_image_size(model: Any, data: Any) -> None:
     """The model's ``image_size`` (the object-state model's pixel encoder: ``frame_size``) must
     be the data's height and width (found otherwise only after the whole dataset is rendered)."""
     height, width = data.get("height"), data.get("width")
+    if height is None or width is None:
+        return
     for name in ("image_size", "frame_size"):
         size = model.get(name)
-        if size is None or height is None or width is None:
-            continue
-        if tuple(size) != (height, width):
+        if size is not None and tuple(size) != (height, width):
             raise ValueError(
                 f"model.init_args.{name} {list(size)} differs from the data's height x width "
                 f"{height} x {width}: set both to one size (e.g. --data.init_args.height "
