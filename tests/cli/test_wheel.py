@@ -1,13 +1,15 @@
 """Installed like any package: a wheel built from the checkout, installed into a fresh virtual
-environment outside it (its dependencies from the system's site-packages, so nothing is
-downloaded), runs from an empty folder: a shipped config by name, and generate, a 2-step fit,
-test (``--ckpt_path last``) and audit of a config file there, reading base.yaml from the
-installed package."""
+environment outside it (its dependencies from the environment running the test, a virtual
+environment or the system's, so nothing is downloaded), runs from an empty folder: a shipped
+config by name, and generate, a 2-step fit, test (``--ckpt_path last``) and audit of a config
+file there, reading base.yaml from the installed package."""
 
 import os
 import shutil
+import site
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from helpers.locations import REPO, TINY_CONFIG
@@ -31,8 +33,9 @@ def test_a_wheel_installed_outside_the_checkout_runs_there(tmp_path):
     pip = ["-m", "pip", "--disable-pip-version-check", "-q"]
     subprocess.run([sys.executable, *pip, "wheel", "--no-deps", "--no-build-isolation", "-w", wheels, source], check=True)  # fmt: skip
     (wheel,) = wheels.glob("voe_lightning-*.whl")
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", venv], check=True)
+    subprocess.run([sys.executable, "-m", "venv", venv], check=True)
     python = str(venv / "bin" / "python")
+    _see_the_running_packages(python)
     subprocess.run([python, *pip, "install", "--no-deps", wheel], check=True)
     work.mkdir()
     shutil.copy(TINY_CONFIG, work / "tiny.yaml")
@@ -59,3 +62,18 @@ def test_a_wheel_installed_outside_the_checkout_runs_there(tmp_path):
     assert (work / "runs" / "tiny" / "version_0" / "voe_report" / "summary.json").is_file()
     run("-m", "voe_lightning", "audit", "--root", "data/tiny", "--split", "test", "--progress", "false")  # fmt: skip
     assert any((work / "data" / "tiny").rglob("cues.md"))
+
+
+def _see_the_running_packages(python: str) -> None:
+    """Put the site-packages this test runs with after the new environment's own, by a ``.pth``
+    file: ``--system-site-packages`` would give the base Python's, which in a virtual
+    environment (the README's advice under PEP 668) lack the dependencies installed in it."""
+    where = subprocess.run(
+        [python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
+    user = [site.getusersitepackages()] if site.ENABLE_USER_SITE else []
+    running = [path for path in sys.path if path in {*site.getsitepackages(), *user}]
+    (Path(where) / "running_site_packages.pth").write_text("\n".join(running) + "\n")
