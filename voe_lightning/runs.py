@@ -95,14 +95,27 @@ def run_checkpoint(word: str, save_dir: str | Path, name: str) -> Path:
     )
 
 
+#: How torch names the class or function a weights-only load met in a checkpoint's pickle.
+PICKLED_OBJECT = re.compile(r"Unsupported global: GLOBAL (\S+)")
+
+
 def read_checkpoint(path: str | Path) -> dict:
     """``torch.load`` of a checkpoint (weights only), naming the file when it cannot be read
-    (torch's errors for a truncated file, e.g. ``OSError: [Errno 22]``, name none)."""
+    (torch's errors for a truncated file, e.g. ``OSError: [Errno 22]``, name none), and the
+    object it holds where that is why (``PICKLED_OBJECT``), which is no damage."""
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except PermissionError:
         raise  # names the file already
     except (OSError, EOFError, RuntimeError, pickle.UnpicklingError) as error:
+        pickled = PICKLED_OBJECT.search(str(error))
+        if pickled:
+            raise ValueError(
+                f"cannot read the checkpoint {path}: it holds a pickled object ({pickled[1]}), "
+                "which loading weights only refuses, as unpickling it could run any code (this "
+                "package's checkpoints hold none); if you trust the file, load it with "
+                "torch.load(path, weights_only=False) and save it again without that object"
+            ) from error
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
         raise ValueError(
             f"cannot read the checkpoint {path}: it is truncated or corrupt ({reason})"

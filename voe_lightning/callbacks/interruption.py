@@ -4,12 +4,16 @@ Lightning's own SIGTERM handling, and ``InterruptCheckpoint`` saves a resumable 
 there; the CLI then exits with 128 + the signal's number instead of 0. ``validate``, ``test``
 and ``predict`` have nothing to resume: SIGTERM stops them at once (Lightning's handler only
 sets a flag, which its loops read between batches and its predict loop never), so ``kill``
-and ``timeout`` stop a long evaluation."""
+and ``timeout`` stop a long evaluation. Ctrl-C anywhere else stays a KeyboardInterrupt, which
+Lightning would answer with a line of its own and exit status 1 (``ctrl_c_kept``)."""
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import signal
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +23,37 @@ from lightning.pytorch.utilities.exceptions import SIGTERMException
 
 from voe_lightning.callbacks.checkpoint_io import use_whole_checkpoints
 from voe_lightning.runs import LAST_CHECKPOINT
+
+#: The logger of Lightning's ``rank_zero_info``, which says it caught a KeyboardInterrupt.
+LIGHTNING_INFO = "lightning.pytorch.utilities.rank_zero"
+#: What that logger then says.
+LIGHTNING_CTRL_C = "Detected KeyboardInterrupt"
+
+
+@contextlib.contextmanager
+def ctrl_c_kept() -> Iterator[None]:
+    """Within, Ctrl-C in a trainer's method stays the KeyboardInterrupt it is: Lightning
+    catches it, logs a line, ignores SIGINT from then on and calls ``sys.exit(1)``; that line
+    is left out, SIGINT's handler put back and the KeyboardInterrupt raised again, for the CLI
+    to say in one line what was kept."""
+    handler = signal.getsignal(signal.SIGINT)
+    logger = logging.getLogger(LIGHTNING_INFO)
+    logger.addFilter(_not_lightning_ctrl_c)
+    try:
+        yield
+    except SystemExit as exit:
+        if exit.code != 1 or not isinstance(exit.__context__, KeyboardInterrupt):
+            raise
+        raise exit.__context__ from None
+    finally:
+        logger.removeFilter(_not_lightning_ctrl_c)
+        if handler is not None and threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, handler)
+
+
+def _not_lightning_ctrl_c(record: logging.LogRecord) -> bool:
+    """Whether a log record is other than Lightning's line on a KeyboardInterrupt."""
+    return LIGHTNING_CTRL_C not in record.getMessage()
 
 
 class InterruptCheckpoint(L.Callback):

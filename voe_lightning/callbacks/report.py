@@ -12,7 +12,13 @@ from typing import Any
 
 import lightning as L
 
-from voe_lightning.callbacks.common import ProbeOutcome, RunAlpha, gather_objects, probe_names
+from voe_lightning.callbacks.common import (
+    ProbeOutcome,
+    RunAlpha,
+    check_finite_surprise,
+    gather_objects,
+    probe_names,
+)
 from voe_lightning.callbacks.report_batches import CueScores, ProbeOutputs
 from voe_lightning.callbacks.report_benchmark import write_benchmark_metrics
 from voe_lightning.callbacks.report_examples import ExampleVideos
@@ -144,6 +150,7 @@ class VOEReportCallback(RunAlpha, L.Callback):
         dataloader_idx: int = 0,
     ) -> None:
         stored = self._outputs.add(outputs)
+        check_finite_surprise(stored, self._concept_names, self._variant_names)
         if self.cue_audit:
             self._cues.add(batch)
         self._examples.add(stored, batch)

@@ -19,7 +19,7 @@ from lightning.pytorch.utilities.seed import isolate_rng
 
 from voe_lightning import runs
 from voe_lightning.callbacks import VOEReportCallback
-from voe_lightning.callbacks.interruption import InterruptCheckpoint
+from voe_lightning.callbacks.interruption import InterruptCheckpoint, ctrl_c_kept
 from voe_lightning.callbacks.outcomes import probe_outcomes
 from voe_lightning.cli import (
     checkpoint_arguments,
@@ -43,8 +43,10 @@ from voe_lightning.runs import read_checkpoint
 #: Exit status of a fit/validate/test whose probe surprise failed the causality check (the
 #: report is written, without verdicts), unless ``--allow_non_causal true``.
 NOT_CAUSAL_EXIT = 3
-#: Exit status of a ``COMMANDS`` subcommand stopped by Ctrl-C (128 + SIGINT, as a shell's).
+#: Exit status of a command stopped by Ctrl-C (128 + SIGINT, as a shell's).
 INTERRUPTED_EXIT = 130
+#: What an evaluation stopped by Ctrl-C leaves (a report is written whole or not at all).
+EVALUATION_INTERRUPTED = "nothing written (no report, no predictions; one written before is kept)"
 
 
 class VOECLI(LightningCLI):
@@ -61,16 +63,17 @@ class VOECLI(LightningCLI):
     ``runs.RunConfig``). A ``test`` whose report callback asks for ``priors_alone`` first tests
     the config at initialization (``_test_priors_alone``). ``--ckpt_path last``/``best`` name
     the newest run of the config's logger name. A missing checkpoint (or a directory) is
-    refused before any work starts, and so are a truncated or corrupt one, model arguments the
-    user gives that differ from the checkpoint's (``checkpoint_arguments``: LightningCLI
-    replaces the config's model arguments with the checkpoint's, so they would be ignored;
-    evaluating it, the model's ``EVALUATION_ONLY`` ones given are used instead, and its report
-    gets a folder of its own), and ``test``/``predict`` of a model with trainable parameters
-    and no checkpoint. SIGTERM or SIGINT during ``fit`` saves a resumable last.ckpt and exits
+    refused before any work starts, and so are a truncated or corrupt one, one holding a
+    pickled object (``runs.read_checkpoint``), model arguments the user gives that differ from
+    the checkpoint's (``checkpoint_arguments``: LightningCLI replaces the config's model
+    arguments with the checkpoint's, so they would be ignored; evaluating it, the model's
+    ``EVALUATION_ONLY`` ones given are used instead, and its report gets a folder of its own),
+    and ``test``/``predict`` of a model with trainable parameters and no checkpoint. SIGTERM or SIGINT during ``fit`` saves a resumable last.ckpt and exits
     with 128 + the signal's number (``interruption``). A run whose probe surprise is not causal
     (``stats.causality.check_prefix``: it differs where a pair's videos are identical) exits with
-    ``NOT_CAUSAL_EXIT`` after its report, unless ``--allow_non_causal true``. The subcommands
-    of ``COMMANDS`` call their function instead, with no model, data or trainer."""
+    ``NOT_CAUSAL_EXIT`` after its report, unless ``--allow_non_causal true``. Ctrl-C anywhere
+    else prints one line saying what was kept and exits with ``INTERRUPTED_EXIT``. The
+    subcommands of ``COMMANDS`` call their function instead, with no model, data or trainer."""
 
     def setup_parser(
         self, add_subcommands: bool, main_kwargs: dict[str, Any], subparser_kwargs: dict[str, Any]
@@ -189,25 +192,29 @@ class VOECLI(LightningCLI):
             del arguments["seed_everything"]  # parse_arguments' False: not the function's
             entry_points = {"_cli_main": main, "_build_cli": functools.partial(_cli, run=False)}
             try:
-                self.result = commands.call(COMMANDS[subcommand], arguments, entry_points)
+                with ctrl_c_kept():  # analyze null tests through Lightning too
+                    self.result = commands.call(COMMANDS[subcommand], arguments, entry_points)
             except KeyboardInterrupt as stopped:
-                if subcommand not in commands.RESUMABLE:
-                    raise
-                print(
-                    f"error: {subcommand} interrupted (Ctrl-C, SIGINT): "
-                    f"{commands.RESUMABLE[subcommand]}",
-                    file=sys.stderr,
-                )
-                raise SystemExit(INTERRUPTED_EXIT) from stopped
+                kept = commands.INTERRUPTED[subcommand]
+                raise SystemExit(interrupted(subcommand, kept)) from stopped
             return
         if not any(
             isinstance(callback, InterruptCheckpoint) for callback in self.trainer.callbacks
         ):
             self.trainer.callbacks.append(InterruptCheckpoint())  # SIGTERM stops evaluation too
         try:
-            super()._run_subcommand(subcommand)
+            with ctrl_c_kept():
+                super()._run_subcommand(subcommand)
         except SIGTERMException as stopped:
             raise SystemExit(self._interrupted(subcommand)) from stopped
+        except KeyboardInterrupt as stopped:
+            kept = (
+                f"nothing saved at step {self.trainer.global_step} (checkpoints saved before "
+                "are kept; a first Ctrl-C while it trains saves a resumable one)"
+                if subcommand == "fit"
+                else EVALUATION_INTERRUPTED
+            )
+            raise SystemExit(interrupted(subcommand, kept)) from stopped
 
     def _interrupted(self, subcommand: str) -> int:
         """Say where ``InterruptCheckpoint`` saved the stopped run; its exit status."""
@@ -355,6 +362,12 @@ def main(args: list[str] | None = None) -> Any:
         user_errors.check_classes(words)
         with parser_errors.full_messages(debug):
             cli = _cli(None if args is None else words)
+    except KeyboardInterrupt as stopped:
+        if debug:
+            raise
+        names = (*LIGHTNING_SUBCOMMANDS, *COMMANDS)
+        command = next((word for word in words if word in names), "the command")
+        raise SystemExit(interrupted(command, "nothing written (it had not begun)")) from stopped
     except Exception as error:
         message = user_errors.user_message(error)
         if debug or message is None:
@@ -364,6 +377,12 @@ def main(args: list[str] | None = None) -> Any:
         print(f"error: {message}", file=sys.stderr)
         raise SystemExit(2) from error
     return cli.result if cli.subcommand in COMMANDS else cli
+
+
+def interrupted(command: str, kept: str) -> int:
+    """Say in one line that Ctrl-C stopped ``command`` and what it ``kept``; the exit status."""
+    print(f"error: {command} interrupted (Ctrl-C, SIGINT): {kept}", file=sys.stderr)
+    return INTERRUPTED_EXIT
 
 
 def _cli(args: list[str] | None, run: bool = True) -> VOECLI:

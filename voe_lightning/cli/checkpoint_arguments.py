@@ -23,7 +23,10 @@ def refuse_retired_arguments(ckpt_path: str, trained: dict) -> None:
     the model is built; ``migrate`` rewrites a run saved under old paths."""
     if not trained.get("_class_path"):
         return
-    migrate = f"`python -m voe_lightning migrate {ckpt_path}`"
+    migrate = (
+        f"`python -m voe_lightning migrate {ckpt_path}` (it unpickles the checkpoint, which "
+        "can run code: only one you trust)"
+    )
     class_path = trained["_class_path"]
     try:
         model_class = import_object(class_path)

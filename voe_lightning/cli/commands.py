@@ -39,11 +39,18 @@ COMMANDS: dict[str, Any] = {
     "migrate": migrate.migrate,
     "export": export_command.export,
 }
-#: The commands that a rerun resumes where Ctrl-C stopped them, and what their one line then
-#: says (the traceback of the KeyboardInterrupt is not printed).
-RESUMABLE = {
+#: What each command leaves when Ctrl-C stops it, said in its one line (the traceback of the
+#: KeyboardInterrupt is not printed).
+INTERRUPTED = {
     "generate": "the shards it finished are kept (a shard being written is left out whole); "
     "run the same command again to resume",
+    "audit": "nothing written (the cue report is written when the audit ends)",
+    "check-causality": "nothing written and no verdict (it writes nothing)",
+    "analyze": "its tables and figures are written when it ends, so none were (the runs a "
+    "sweep finished are kept); run the same command again",
+    "migrate": "each file it rewrote is whole, its original kept as <name>.before-migrate; "
+    "run it again for the rest",
+    "export": "nothing written to --out (the partial export is removed)",
 }
 #: The commands whose required arguments are positional (``migrate PATH``).
 POSITIONAL = {"migrate"}

@@ -7,7 +7,8 @@ module to read it back). Old module paths (``MOVED_MODULES``) and old class name
 (``RENAMED_CLASSES``) become today's, and the arguments a class no longer takes are dropped from
 its ``init_args`` and hyperparameters. Each file that changes is written whole to a temporary
 file and renamed over the old one, after the old one is kept beside it as
-``<name>.before-migrate``."""
+``<name>.before-migrate``. Reading a checkpoint's pickle in full runs any code it holds, so
+``migrate`` is for runs one trusts (its ``--help`` says so)."""
 
 from __future__ import annotations
 
@@ -66,13 +67,15 @@ BACKUP_SUFFIX = ".before-migrate"
 
 
 def migrate(path: Path) -> list[str]:
-    """Rewrite a run saved before each name had one import path to today's paths, once.
+    """Rewrite an old run's import paths to today's (it unpickles checkpoints: trusted runs only).
 
-    Rewrites the old module paths and class names in a run folder's YAML files (``config.yaml``,
-    ``hparams.yaml``, the evaluations' configs) and checkpoints (their hyperparameters and
-    whatever they pickle), and drops arguments the classes no longer take. Prints each change;
-    keeps each changed file's original beside it as ``<name>.before-migrate``. Reads the
-    checkpoints' pickles in full: migrate only runs you trust.
+    Rewrites, once, a run saved before each name had one import path: the old module paths
+    and class names in a run folder's YAML files (``config.yaml``, ``hparams.yaml``, the
+    evaluations' configs) and checkpoints (their hyperparameters and whatever they pickle),
+    dropping arguments the classes no longer take. Prints each change; keeps each changed
+    file's original beside it as ``<name>.before-migrate``. It unpickles each checkpoint in
+    full (``torch.load`` with ``weights_only=False``), which runs any code the file holds:
+    migrate only runs you trust, yours or from a source you trust.
 
     Args:
         path: a run folder (every ``.yaml`` and ``.ckpt`` under it), a config ``.yaml`` or a

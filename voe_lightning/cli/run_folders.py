@@ -19,6 +19,10 @@ from voe_lightning.cli.class_paths import import_object
 from voe_lightning.data.store_plan import store_root
 from voe_lightning.probe_datamodule import ProbeDataModule
 
+#: Data arguments that say how the data is loaded, never which: a resumed ``fit`` may change
+#: them (DataLoader workers, rendering processes, probe pairs scored at once).
+LOADING_ONLY = ("num_workers", "generate_workers", "probe_batch_size")
+
 
 def checkpoint_file(config: Any, ckpt_path: str) -> Path:
     """The checkpoint file ``--ckpt_path`` names: ``last``/``best`` of the newest run of
@@ -85,8 +89,13 @@ def log_into_run(
 def resumed_config_name(checkpoint: Path, run_dir: Path, given: dict, step: int | None) -> str:
     """The name a ``fit`` resuming ``run_dir`` saves its config under, beside the run's
     record, never over it (``config_resumed_step<N>.yaml``); it trains on the record's data
-    (its saved config.yaml), so ``given`` data that differs is refused, naming both values."""
-    differences = runs.record_differences(run_dir / runs.RUN_CONFIG, given)
+    (its saved config.yaml), so ``given`` data that differs is refused, naming both values
+    (``LOADING_ONLY`` arguments may differ)."""
+    differences = [
+        difference
+        for difference in runs.record_differences(run_dir / runs.RUN_CONFIG, given)
+        if difference.split(":")[0].rpartition(".")[2] not in LOADING_ONLY
+    ]
     if differences:
         raise ValueError(
             f"fit --ckpt_path {checkpoint} resumes the run {run_dir}, which trained on other "
