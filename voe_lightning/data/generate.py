@@ -23,8 +23,10 @@ from voe_lightning import specs
 from voe_lightning.data import generate_manifest, store, store_shards, worker_pool
 from voe_lightning.data.store_plan import (
     ShardTask,
+    check_fresh_offset,
     check_seed_offset,
     check_task,
+    drawn_probes,
     plan_shards,
     record_layouts,
     seed_offset_root,
@@ -145,6 +147,7 @@ def plan_generation(
     video = _checked_video(names, shard_size, num_frames, height, width, counts)
     _warn_of_shard_memory(video, shard_size)
     concept_counts = {concept: split_counts(concept, **counts) for concept in names}
+    check_fresh_offset(root, seed_offset, drawn_probes(concept_counts))
     entries = {
         concept: generate_manifest.concept_entry(c, seed_offset)
         for concept, c in concept_counts.items()
@@ -467,7 +470,8 @@ def generate(
         contact_sheets: write ROOT/contact_sheets/<concept>.png from the store at the end.
         progress: show a progress bar.
         seed_offset: shift the probe splits' seeds by this much (0 to 999,999,999 less the
-            pairs per variant) for a fresh test set no one has seen, written to its own store,
+            pairs per variant, and no less than ROOT's pairs per variant, whose seeds it would
+            draw again) for a fresh test set no one has seen, written to its own store,
             ROOT/seed_offset_<N> (probes only; printed).
     """
     summary = generate_dataset(

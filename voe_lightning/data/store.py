@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import shlex
 from collections import OrderedDict
 from collections.abc import Sequence
 from pathlib import Path
@@ -34,6 +36,11 @@ SPLIT_RECORD_TYPE: dict[str, str] = {
     "test": "probe",
     "generalization": "probe",
 }
+#: The splits that hold probe pairs, which a seed offset draws fresh.
+PROBE_SPLITS: tuple[str, ...] = tuple(s for s in SPLITS if SPLIT_RECORD_TYPE[s] == "probe")
+#: Folder, under a store's root, of the store whose probe splits are shifted by a seed offset
+#: (``store_plan.seed_offset_root``): a fresh test set beside the training data, never over it.
+SEED_OFFSET_FOLDER = "seed_offset_{}"
 MANIFEST_NAME = "manifest.json"
 SHARD_SUFFIX = ".voe"
 _MAX_OPEN_SHARDS = 32
@@ -200,14 +207,62 @@ def write_manifest(root: str | os.PathLike, manifest: dict) -> None:
 
 def read_manifest_or_error(root: str | os.PathLike) -> dict:
     """The root's manifest; a FileNotFoundError naming the command that makes one if there is
-    none."""
+    none: for a seed offset's folder, the one that draws its fresh probes (``draw_command``),
+    not a store at offset 0 in the offset's place."""
     manifest = read_manifest(root)
     if manifest is None:
+        offset = re.fullmatch(SEED_OFFSET_FOLDER.format(r"([1-9]\d{0,8})"), Path(root).name)
+        command = (
+            draw_command(Path(root).parent, int(offset[1]))
+            if offset
+            else shlex.join(["python", "-m", "voe_lightning", "generate", "--root", str(root)])
+        )
         raise FileNotFoundError(
             f"no dataset at {root}: {Path(root) / MANIFEST_NAME} is missing "
-            f"(create one with `python -m voe_lightning generate --root {root}`)"
+            f"(create one with `{command}`)"
         )
     return manifest
+
+
+def draw_command(
+    root: str | os.PathLike,
+    seed_offset: int,
+    splits: Sequence[str] = PROBE_SPLITS,
+    concepts: Sequence[str] = (),
+) -> str:
+    """The ``generate`` command that draws ``splits`` of ``concepts`` (default: those the store
+    at ``root`` holds) fresh at ``seed_offset``, into ``root/seed_offset_<N>``: as many pairs per
+    variant as the store holds of each, at its video size (generate's defaults where it records
+    none), and no training clips or other probe split."""
+    try:
+        manifest = read_manifest(root) or {}
+    except ManifestError:
+        manifest = {}
+    held = manifest.get("concepts", {})
+    names = list(concepts or [c for c in specs.CONCEPTS if c in held])
+    words = ["python", "-m", "voe_lightning", "generate", "--root", str(root)]
+    words += ["--seed_offset", str(seed_offset), "--train_examples", "0"]
+    if names:
+        words += ["--concepts", f"[{', '.join(names)}]"]
+    for split in PROBE_SPLITS:
+        pairs = _held_pairs(held, names, split) if split in splits else 0
+        words += [] if pairs is None else [f"--{split}_pairs", str(pairs)]
+    video = manifest.get("video", {})
+    for key in ("num_frames", "height", "width"):
+        words += [f"--{key}", str(video[key])] if isinstance(video.get(key), int) else []
+    return shlex.join(words)
+
+
+def _held_pairs(held: dict, concepts: Sequence[str], split: str) -> int | None:
+    """The most pairs per variant a store's ``held`` concepts record of ``split`` among
+    ``concepts``; None where they record none (an unreadable entry counts as none)."""
+    counts = []
+    for concept in concepts:
+        try:
+            counts += list(held[concept]["splits"][split]["variants"].values())
+        except (KeyError, TypeError, AttributeError):
+            continue
+    return max((n for n in counts if isinstance(n, int)), default=None)
 
 
 def vocabulary() -> dict[str, list[str]]:

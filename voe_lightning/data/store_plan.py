@@ -24,9 +24,6 @@ SEED_STARTS: dict[str, int] = {
     "generalization": 3_000_000_000,
 }
 SEED_RANGE = 1_000_000_000
-#: Folder, under a store's root, of the store whose probe splits are shifted by a seed offset
-#: (``seed_offset_root``): a fresh test set beside the training data, never over it.
-SEED_OFFSET_FOLDER = "seed_offset_{}"
 
 #: Version of the stimuli the scenes render. Bump it whenever a scene change alters what a
 #: (concept, kind or variant, seed) renders or records: every shard carries it, and shards of
@@ -109,7 +106,8 @@ def split_counts(
 def check_seed_offset(seed_offset: object, pairs: dict[str, int] | None = None) -> None:
     """Raise a ValueError unless ``seed_offset`` is an integer in [0, SEED_RANGE): a probe
     split's seeds start that far into its billion-wide range; with ``pairs`` (probe split ->
-    pairs per variant), unless each split's pairs fit in what is left (``seed_range``)."""
+    pairs per variant, in the store at offset 0 and the offset's alike), unless each split's
+    pairs fit in what is left (``seed_range``) and an offset other than 0 starts past them."""
     if (
         isinstance(seed_offset, bool)
         or not isinstance(seed_offset, int)
@@ -121,6 +119,67 @@ def check_seed_offset(seed_offset: object, pairs: dict[str, int] | None = None) 
         )
     for split, count in (pairs or {}).items():
         seed_range(split, {"pairs": count}, seed_offset)
+    split, most = max((pairs or {}).items(), key=lambda item: item[1], default=("test", 0))
+    if 0 < seed_offset < most:
+        held = f"the {most:_} {split} pairs per variant read at offset 0"
+        raise ValueError(_redraw_message(seed_offset, most, held))
+
+
+def _redraw_message(seed_offset: int, least: int, held: str) -> str:
+    """Why ``seed_offset`` is refused: its probes would be those of ``held`` again."""
+    return (
+        f"seed_offset {seed_offset:_} would draw probes already drawn ({held}; a probe "
+        f"split's seeds count up from its start), not fresh ones: give a seed_offset of at "
+        f"least {least:_}"
+    )
+
+
+def drawn_probes(
+    concept_counts: Mapping[str, Mapping[str, Mapping[str, int]]],
+) -> list[tuple[str, str]]:
+    """The (concept, probe split) of every split that holds pairs in ``concept_counts``
+    (``split_counts`` per concept)."""
+    return [
+        (concept, split)
+        for concept, counts in concept_counts.items()
+        for split, count in counts.items()
+        if store.SPLIT_RECORD_TYPE[split] == "probe" and any(count.values())
+    ]
+
+
+def check_fresh_offset(
+    root: str | os.PathLike, seed_offset: int, probes: Sequence[tuple[str, str]]
+) -> None:
+    """Refuse (ValueError) a seed offset whose ``probes`` (concept, probe split) would share
+    seeds with those the store at ``root`` holds, the store they are drawn fresh to, naming
+    the smallest offset that shares none. Nothing to check at offset 0 or with no store yet."""
+    held = store.read_manifest(root) if seed_offset else None
+    if held is None:
+        return
+    stops = {probe: _held_stop(root, held, *probe) - SEED_STARTS[probe[1]] for probe in probes}
+    (concept, split), least = max(stops.items(), key=lambda item: item[1], default=(("", ""), 0))
+    if seed_offset < least:
+        where = (
+            f"{root}'s {concept} {split} split holds seeds up to {SEED_STARTS[split] + least - 1:_}"
+        )
+        raise ValueError(_redraw_message(seed_offset, least, where))
+
+
+def _held_stop(root: str | os.PathLike, manifest: dict, concept: str, split: str) -> int:
+    """One past the last seed of ``concept``'s ``split`` in the store ``manifest`` describes
+    (the split's first seed when it holds none); a ManifestError when it records no split."""
+    entry = manifest["concepts"].get(concept)
+    if entry is None:
+        return SEED_STARTS[split]
+    try:
+        variants = entry["splits"][split]["variants"]
+        start, stop = seed_range(split, variants, manifest_seed_offset(manifest))
+    except (KeyError, TypeError, AttributeError, ValueError) as error:
+        raise store.ManifestError(
+            f"{Path(root) / store.MANIFEST_NAME} records no valid {split} split of {concept} "
+            f"({type(error).__name__}: {error}); regenerate with generate --overwrite"
+        ) from error
+    return stop if stop > start else SEED_STARTS[split]
 
 
 def seed_offset_root(root: str | os.PathLike, seed_offset: int) -> Path:
@@ -128,7 +187,7 @@ def seed_offset_root(root: str | os.PathLike, seed_offset: int) -> Path:
     else its own store in ``root/seed_offset_<N>`` (probes only: the training clips are the
     root's), so a fresh test set never touches the store a model was trained and tuned on."""
     check_seed_offset(seed_offset)
-    return Path(root) / SEED_OFFSET_FOLDER.format(seed_offset) if seed_offset else Path(root)
+    return Path(root) / store.SEED_OFFSET_FOLDER.format(seed_offset) if seed_offset else Path(root)
 
 
 def store_root(data_arguments: Mapping[str, Any], split: str = "test") -> Path | None:

@@ -9,7 +9,6 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
-from voe_lightning.data.store_plan import seed_offset_root
 from voe_lightning.export.intphys import write_intphys
 from voe_lightning.export.intphys2 import write_intphys2
 from voe_lightning.export.manifest import (
@@ -22,7 +21,7 @@ from voe_lightning.export.manifest import (
     staged,
     write_manifest,
 )
-from voe_lightning.export.probes import ProbeSource, open_probes
+from voe_lightning.export.probes import ProbeSource, open_fresh_probes
 from voe_lightning.export.webdataset import write_webdataset
 
 #: The formats, in ``--help``'s order.
@@ -73,14 +72,14 @@ def export(
         split: probe split to export: val, test or generalization.
         concepts: concepts to export (default: every concept in the store).
         seed_offset: export the fresh probes generate --seed_offset N drew (read from
-            ROOT/seed_offset_N).
+            ROOT/seed_offset_N, which must record that offset and share no seed with ROOT).
         shard_size: pairs per tar shard (webdataset).
         progress: show a progress bar.
     """
     write = writer(format, shard_size)
     out = Path(out)
     check_out(out)
-    source = open_probes(seed_offset_root(root, seed_offset), split, concepts)
+    source = open_fresh_probes(root, split, concepts, seed_offset)
     bar = tqdm(
         total=source.num_videos,
         unit="video",

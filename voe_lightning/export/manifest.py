@@ -11,7 +11,13 @@ import contextlib
 import hashlib
 import json
 import os
+import re
 import shutil
+import signal
+import socket
+import sys
+import tempfile
+import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,9 +28,12 @@ from tensordict import TensorDictBase
 import voe_lightning
 from voe_lightning.data import store
 from voe_lightning.data.store_plan import GENERATOR_VERSION
+from voe_lightning.data.store_shards import current_umask, remove_stale, temporary_prefix
 from voe_lightning.export.probes import ROLES, ProbeGroup, ProbeSource
 
 MANIFEST_NAME = "manifest.json"
+#: How the name of the hidden folder an export is staged in ends (``staged``).
+PARTIAL = ".partial"
 #: Version of the export layouts and of this manifest; bump it when either changes.
 EXPORT_VERSION = 1
 
@@ -76,8 +85,18 @@ class Progress(Protocol):
 
 
 def check_out(out: Path) -> None:
-    """Refuse an ``out`` that is a file, or a folder that is not empty: an export never
-    writes over or beside other files."""
+    """Refuse an ``out`` that is a symbolic link or lies under a file (the finished export is
+    renamed into place, which neither allows), is a file, or is a folder that is not empty:
+    an export never writes over or beside other files. Checked before any work, and again
+    before the rename."""
+    if out.is_symlink():
+        raise FileExistsError(
+            f"--out {out} is a symbolic link (to {os.readlink(out)}); give the folder's own "
+            f"path, e.g. {out.resolve()}"
+        )
+    above = next((path for path in out.parents if path.exists() and not path.is_dir()), None)
+    if above is not None:
+        raise NotADirectoryError(f"--out {out} lies under {above}, a file; give a folder's path")
     if out.exists() and not out.is_dir():
         raise FileExistsError(f"--out {out} is a file; give a new or empty folder")
     if out.is_dir() and any(out.iterdir()):
@@ -89,24 +108,59 @@ def check_out(out: Path) -> None:
 
 @contextlib.contextmanager
 def staged(out: Path) -> Iterator[ExportFolder]:
-    """An ExportFolder in ``.<out>.partial`` beside ``out``, renamed to ``out`` when the block
-    ends without error and deleted when it raises: an interrupted export leaves no ``out``
-    that looks whole."""
+    """An ExportFolder in a hidden folder of this process beside ``out``
+    (``.<out>.<host>.<pid>.*.partial``), renamed to ``out`` when the block ends without error
+    and deleted when it raises or SIGTERM stops it: an interrupted export leaves no ``out``
+    that looks whole, two exports to one ``out`` never share one, and the ones a killed
+    export left (SIGKILL) beside any ``out`` go first (``remove_stale_partials``)."""
     check_out(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.parent / f".{out.name}.partial"
-    if partial.exists():
-        shutil.rmtree(partial)  # an interrupted export's leftovers
-    partial.mkdir()
+    remove_stale_partials(out.parent)
+    with _sigterm_stops(out):
+        partial = Path(
+            tempfile.mkdtemp(prefix=temporary_prefix(out.name), suffix=PARTIAL, dir=out.parent)
+        )
+        try:
+            os.chmod(partial, 0o777 & ~current_umask())  # mkdtemp's 0700 hides it from a lab
+            yield ExportFolder(partial)
+            check_out(out)  # nothing appeared there meanwhile
+            if out.is_dir():
+                out.rmdir()
+            os.rename(partial, out)
+        except BaseException:
+            shutil.rmtree(partial, ignore_errors=True)
+            raise
+
+
+def remove_stale_partials(folder: Path) -> None:
+    """Remove the partial exports (``staged``) in ``folder``, of any ``out``, that an export
+    of this host left when it was killed: ``store_shards.remove_stale`` of each ``out``."""
+    pattern = rf"\.(.+)\.{re.escape(socket.gethostname())}\.\d+\..*{re.escape(PARTIAL)}"
+    for path in folder.glob(f".*{PARTIAL}"):
+        match = re.fullmatch(pattern, path.name)
+        if match:
+            remove_stale(folder, match[1])
+
+
+@contextlib.contextmanager
+def _sigterm_stops(out: Path) -> Iterator[None]:
+    """While the block runs (in the main thread), SIGTERM raises SystemExit(128 + SIGTERM),
+    saying so, instead of ending the process at once: the partial export is removed on the
+    way out. A second SIGTERM is ignored until then, so it cannot cut that short."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum: int, frame: object) -> None:
+        signal.signal(signum, signal.SIG_IGN)
+        print(f"export stopped by SIGTERM; nothing written to {out}", file=sys.stderr)
+        raise SystemExit(128 + signum)
+
+    previous = signal.signal(signal.SIGTERM, stop)
     try:
-        yield ExportFolder(partial)
-        check_out(out)  # nothing appeared there meanwhile
-        if out.is_dir():
-            out.rmdir()
-        os.rename(partial, out)
-    except BaseException:
-        shutil.rmtree(partial, ignore_errors=True)
-        raise
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 def pair_entry(variant: str, record: TensorDictBase, locations: Sequence[str]) -> dict[str, Any]:

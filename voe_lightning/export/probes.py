@@ -117,17 +117,55 @@ class ProbeSource:
             yield group, self.records(group)
 
 
+def open_fresh_probes(
+    root: str | os.PathLike, split: str, concepts: Sequence[str] | None, seed_offset: int
+) -> ProbeSource:
+    """``open_probes`` of the store at ``root`` (offset 0), or of the probes ``generate
+    --seed_offset N`` drew beside it (``store_plan.seed_offset_root``): refused unless that
+    store records offset N and shares no seed with the root's (``check_fresh_offset``); a
+    missing one named with the command that draws exactly it (``store.draw_command``)."""
+    path = store_plan.seed_offset_root(root, seed_offset)
+    if not seed_offset:
+        return open_probes(path, split, concepts)
+    if store.read_manifest(path) is None:
+        _check_split(split)
+        names = list(dict.fromkeys(concepts or ()))
+        for concept in names:
+            specs.check_concept(concept)
+        wanted = names or list((store.read_manifest(root) or {"concepts": {}})["concepts"])
+        store_plan.check_fresh_offset(root, seed_offset, [(c, split) for c in wanted])
+        raise FileNotFoundError(
+            f"no fresh probes at {path}: {path / store.MANIFEST_NAME} is missing; draw them "
+            f"with `{store.draw_command(root, seed_offset, (split,), names)}`"
+        )
+    source = open_probes(path, split, concepts)
+    if source.seed_offset != seed_offset:
+        raise ValueError(
+            f"{path} holds probes drawn at seed offset {source.seed_offset}, not the "
+            f"{seed_offset} asked for (a store generated or copied into its place); draw "
+            f"them with `{store.draw_command(root, seed_offset, (split,), source.concepts)} "
+            "--overwrite`"
+        )
+    store_plan.check_fresh_offset(root, seed_offset, [(c, split) for c in source.concepts])
+    return source
+
+
+def _check_split(split: str) -> None:
+    """A ValueError naming the probe splits unless ``split`` is one."""
+    if split not in store.PROBE_SPLITS:
+        raise ValueError(
+            f"split {split!r} holds no probe pairs; probe splits are: "
+            f"{', '.join(store.PROBE_SPLITS)}"
+        )
+
+
 def open_probes(
     root: str | os.PathLike, split: str, concepts: Sequence[str] | None = None
 ) -> ProbeSource:
     """The probe ``split`` of the store at ``root`` for ``concepts`` (default: every concept
     it holds), its shards checked against its manifest first. A ValueError (or
     FileNotFoundError) names a bad split, concept or store, and a split with no pairs."""
-    if store.SPLIT_RECORD_TYPE.get(split) != "probe":
-        probe_splits = [s for s, kind in store.SPLIT_RECORD_TYPE.items() if kind == "probe"]
-        raise ValueError(
-            f"split {split!r} holds no probe pairs; probe splits are: {', '.join(probe_splits)}"
-        )
+    _check_split(split)
     root = Path(root)
     manifest = store.read_manifest_or_error(root)
     stored = manifest["concepts"]
