@@ -204,7 +204,8 @@ def _assert_close(
 ) -> None:
     """|actual - expected| within ``tolerance``. A t or d_z is undefined (NaN) when every d is
     exactly 0, which float noise can make of one side only where M is within its noise of 0
-    (``zero_within_noise``): only then may either side be NaN."""
+    (``zero_within_noise``): only then may either side be NaN (summary.json writes it 'nan')."""
+    actual, expected = float(actual), float(expected)
     if zero_within_noise and (math.isnan(actual) or math.isnan(expected)):
         return
     assert abs(actual - expected) <= tolerance + LOGGED_ROUNDING * abs(expected), (

@@ -74,15 +74,22 @@ _MARKERS = (
 )
 
 
-def _event_dirs(run_dir: Path) -> list[Path]:
-    return sorted({path.parent for path in run_dir.rglob("events.out.tfevents.*")})
+def _is_evaluation(accumulator: Any) -> bool:
+    """Whether an event file is a ``validate``/``test`` evaluation's, not training's: no
+    training scalar (``train/...``) and every scalar at step 0, where ``validate`` logs (a
+    fit validates after a step at least); its values are a trained model's, no curve's start."""
+    tags = accumulator.Tags()["scalars"]
+    return not any(tag.startswith("train/") for tag in tags) and all(
+        event.step == 0 for tag in tags for event in accumulator.Scalars(tag)
+    )
 
 
 def read_scalars(
     run_dir: str | Path,
     pattern: re.Pattern | str = RELATIVE_SURPRISE_TAG,
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Scalars whose tag matches ``pattern`` from every event file under ``run_dir``, as
+    """Scalars whose tag matches ``pattern`` from every training event file under ``run_dir``
+    (not a later ``validate``'s, ``_is_evaluation``, in the run or a folder of other data), as
     tag -> (steps, values) sorted by step (a later event wins on a repeated step, as when a
     run is resumed)."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -90,16 +97,18 @@ def read_scalars(
     run_dir = Path(run_dir)
     if not run_dir.exists():
         raise FileNotFoundError(f"run directory {run_dir} does not exist")
-    directories = _event_dirs(run_dir)
-    if not directories:
+    files = sorted(run_dir.rglob("events.out.tfevents.*"))
+    if not files:
         raise FileNotFoundError(
             f"no TensorBoard event files (events.out.tfevents.*) under {run_dir}"
         )
     pattern = re.compile(pattern) if isinstance(pattern, str) else pattern
     collected: dict[str, dict[int, tuple[float, float]]] = {}
-    for directory in directories:
-        accumulator = EventAccumulator(str(directory), size_guidance={"scalars": 0})
+    for file in files:
+        accumulator = EventAccumulator(str(file), size_guidance={"scalars": 0})
         accumulator.Reload()
+        if _is_evaluation(accumulator):
+            continue
         for tag in accumulator.Tags()["scalars"]:
             if pattern.match(tag):
                 by_step = collected.setdefault(tag, {})
@@ -148,7 +157,7 @@ def relative_surprise_curves_figure(
     """Relative surprise over training per concept (paper Figure 6): one panel per concept,
     a colour per variant, a line style per run label ('joint' solid, 'separate' dashed).
     ``runs`` is a list of (label, run directory); several directories may share a label (the
-    separately trained models, one per concept). ``step_scale`` multiplies a label's steps,
+    separately trained models, one per concept), never a concept/variant's curve. ``step_scale`` multiplies a label's steps,
     e.g. to compare joint and separate runs at equal examples per concept."""
     if not runs:
         raise ValueError("no runs given: pass at least one (label, run directory)")
@@ -157,6 +166,7 @@ def relative_surprise_curves_figure(
     if unknown:
         raise ValueError(f"step_scale names unknown run labels {sorted(unknown)}")
     curves: dict[str, dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]] = {}
+    sources: dict[tuple[str, str, str], str | Path] = {}
     for label, run_dir in runs:
         found = read_relative_surprise(run_dir)
         if not found:
@@ -164,6 +174,14 @@ def relative_surprise_curves_figure(
                 f"{run_dir} has no voe/<concept>/<variant>/relative_surprise scalars "
                 "(was the VOE probe callback enabled during fit?)"
             )
+        for concept, variant in found:  # runs share a label only for different concepts
+            first = sources.setdefault((label, concept, variant), run_dir)
+            if first != run_dir:
+                raise ValueError(
+                    f"runs {first} and {run_dir} are both labelled {label!r} and both have "
+                    f"{concept}/{variant} curves, so one would hide the other: give each its "
+                    "own label (LABEL=DIR); runs share a label only for different concepts"
+                )
         curves.setdefault(label, {}).update(found)
     labels = list(curves)
     styles = _run_styles(labels)
@@ -312,7 +330,7 @@ def curves(runs: list[str], out: Path, step_scale: dict[str, float] | None = Non
 
     Args:
         runs: run directories as [LABEL=]DIR; label joint runs 'joint' (solid) and separate
-            runs 'separate' (dashed); a label may repeat.
+            runs 'separate' (dashed); a label may repeat for runs of different concepts.
         out: PNG to write.
         step_scale: a factor per label multiplying its steps, e.g. {joint: 0.2} for examples
             per concept.

@@ -18,6 +18,7 @@ from voe_lightning import specs
 from voe_lightning.cli.analysis import _labelled, read_scalars
 from voe_lightning.cli.run_arguments import base_alpha
 from voe_lightning.report.figures import panel_grid, save_figure
+from voe_lightning.stats.statistics import check_alpha
 from voe_lightning.stats.verdicts import quadruplet_rule
 
 #: The statistics of a quadruplet row the figure reads.
@@ -110,9 +111,5 @@ def emergence(runs: list[str], out: Path, alpha: float | None = None) -> Path:
         out: PNG to write.
         alpha: significance level (default: configs/base.yaml's).
     """
-    return save_figure(
-        emergence_figure(
-            [_labelled(run) for run in runs], base_alpha() if alpha is None else alpha
-        ),
-        out,
-    )
+    alpha = base_alpha() if alpha is None else check_alpha(alpha)
+    return save_figure(emergence_figure([_labelled(run) for run in runs], alpha), out)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -83,6 +84,45 @@ def priors_alone(
         build_cli, [config_path], seed, out, ["--trainer.logger.init_args.version", "null"]
     )
     return {**read_summary(report), "seed": seed, "report": str(report)}
+
+
+#: What a report's ``source`` says of its probes; a trained t is placed only among t's of the same.
+PROBE_SOURCE = ("data_root", "seed_offset", "probe_split", "probe_root")
+
+
+def _same_source(key: str, one: Any, other: Any) -> bool:
+    """Whether two reports' ``source`` values of ``key`` agree (paths as written or resolved)."""
+    if one == other or not key.endswith("root") or None in (one, other):
+        return one == other
+    return os.path.normpath(one) == os.path.normpath(other) or (
+        Path(one).resolve() == Path(other).resolve()
+    )
+
+
+def check_same_probes(null: Mapping[str, Any], trained: Mapping[str, Any], where: Any) -> None:
+    """Refuse a ``trained`` summary tested on other probes than an untrained ``null`` one: its
+    data root, probe store, seed offset or split (what both ``source``s name) or a row's n (t
+    grows as sqrt(n)), naming both; its t among theirs would be no percentile of anything."""
+    ours, theirs = null.get("source") or {}, trained.get("source") or {}
+    advice = (
+        "a trained t is placed only among untrained t's on the same probes: test the run "
+        "with the null's data and seed offset, or give them to the null (--extra_args)"
+    )
+    for key in PROBE_SOURCE:
+        if key in ours and key in theirs and not _same_source(key, ours[key], theirs[key]):
+            raise ValueError(
+                f"--trained {where} was tested on other probes than the untrained "
+                f"initializations: its {key} is {theirs[key]!r}, theirs {ours[key]!r}; {advice}"
+            )
+    sizes = {(row["concept"], row["variant"]): row.get("n") for row in null["rows"]}
+    for row in trained["rows"]:
+        size = sizes.get((row["concept"], row["variant"]))
+        if row.get("t") is not None and None not in (size, row.get("n")) and size != row["n"]:
+            raise ValueError(
+                f"--trained {where} was tested on other probes than the untrained "
+                f"initializations: its {row['concept']}/{row['variant']} has n = {row['n']}, "
+                f"theirs n = {size}, and t grows as sqrt(n); {advice}"
+            )
 
 
 def _percentile(value: float, null: np.ndarray) -> float:
@@ -251,7 +291,8 @@ def untrained_null(
             with VOEReportCallback in the callbacks.
         seeds: initializations (seed_everything 0 .. seeds - 1).
         out: folder of the runs and the table.
-        trained: a trained run's report directory (its voe_report) to place in the null.
+        trained: a trained run's report directory (its voe_report) to place in the null,
+            tested on the same probes (``check_same_probes``: refused otherwise).
         extra_args: further arguments for every initialization's run, e.g. a smaller test set.
         _build_cli: builds a run's model, data and trainer from arguments without running it;
             the CLI passes its own, so this module does not import the CLI.
@@ -264,11 +305,15 @@ def untrained_null(
     if seeds < 1:
         raise ValueError(f"seeds must be at least 1, got {seeds}")
     out = Path(out)
-    summaries = [
-        read_summary(_untrained_report(_build_cli, configs, seed, out, extra_args or ()))
-        for seed in range(seeds)
-    ]
-    rows = null_rows(summaries, None if trained is None else read_summary(trained))
+    trained_summary = None if trained is None else read_summary(trained)
+    summaries = []
+    for seed in range(seeds):
+        summaries.append(
+            read_summary(_untrained_report(_build_cli, configs, seed, out, extra_args or ()))
+        )
+        if trained_summary is not None and seed == 0:  # refused before the other seeds run
+            check_same_probes(summaries[0], trained_summary, trained)
+    rows = null_rows(summaries, trained_summary)
     table = format_null(rows, summaries[0]["alpha"])
     document = {
         "configs": [str(c) for c in configs],

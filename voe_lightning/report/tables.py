@@ -16,6 +16,7 @@ from voe_lightning.stats.statistics import (
     group_test,
     untested_reason,
 )
+from voe_lightning.stats.t_tests import rounding_of
 
 #: Columns of summary.csv, in order (``None`` cells mean "no test", explained in ``note``).
 SUMMARY_COLUMNS = ("concept", "variant") + tuple(QuadrupletTestResult.__dataclass_fields__)
@@ -30,7 +31,9 @@ def summarize(
     of summed surprise (``statistics.group_test``). A group without a test (fewer than two
     pairs, ``statistics.untested_reason``) gets ``None`` statistics and a note instead of
     failing the report; columns a row's test lacks (the halves of a pair test) are ``None``.
-    Every row carries the report's ``alpha``, so its writers read one level from the rows."""
+    Every row carries the report's ``alpha``, so its writers read one level from the rows.
+    A d within rounding of the per-frame values' precision is 0 (``t_tests.rounding_of``)."""
+    rounding = rounding_of(results.surprise_consistent, results.surprise_inconsistent)
     rows = []
     for concept, variant, pairs in results.groups(pooled=True):
         row: dict[str, Any] = dict.fromkeys(SUMMARY_COLUMNS)
@@ -48,6 +51,7 @@ def summarize(
                     alpha=alpha,
                     bootstrap=bootstrap,
                     seed=seed,
+                    rounding=rounding,
                 ).as_dict()
             )
         rows.append(row)

@@ -41,6 +41,8 @@ from torchmetrics.functional.classification import binary_auroc
 
 from voe_lightning.specs import QUADRUPLET_ROWS
 from voe_lightning.stats.t_tests import (
+    rounding_as_zero,
+    rounding_of,
     stratified_test,
     t_test_from_moments,
 )
@@ -97,8 +99,11 @@ def as_float64(values: Any, name: str) -> np.ndarray:
     return array
 
 
-def relative_surprise(inconsistent: Any, consistent: Any) -> np.ndarray:
-    """Per-pair relative surprise d = S(inconsistent) - S(consistent), float64 [n]."""
+def relative_surprise(
+    inconsistent: Any, consistent: Any, rounding: float | None = None
+) -> np.ndarray:
+    """Per-pair relative surprise d = S(inconsistent) - S(consistent), float64 [n], each d
+    within ``rounding`` of its pair's surprise 0 (``t_tests.rounding_as_zero``)."""
     inc = as_float64(inconsistent, "inconsistent surprise")
     con = as_float64(consistent, "consistent surprise")
     if inc.shape != con.shape:
@@ -106,7 +111,7 @@ def relative_surprise(inconsistent: Any, consistent: Any) -> np.ndarray:
             f"inconsistent and consistent surprise must pair up one to one; got {inc.size} "
             f"inconsistent and {con.size} consistent values"
         )
-    return inc - con
+    return rounding_as_zero(inc, con, rounding)
 
 
 def effect_size_interval(t: float, n: int, confidence: float = 0.95) -> tuple[float, float]:
@@ -219,6 +224,7 @@ def _check_options(alpha: float, bootstrap: int) -> None:
 def _result(
     inc: np.ndarray,
     con: np.ndarray,
+    d: np.ndarray,
     parts: Sequence[np.ndarray],
     mean: float,
     t: float,
@@ -230,10 +236,9 @@ def _result(
     bootstrap: int,
     seed: int,
 ) -> PairedTestResult:
-    """The report row of a test of d = inc - con, whatever test gave M, t, df and p: d_z is M
-    over the SD of every pair's d, accuracy and AUROC count every pair; ``parts`` are what the
-    bootstrap of M resamples separately."""
-    d = inc - con
+    """The report row of a test of d (inc - con, rounding as 0), whatever test gave M, t, df
+    and p: d_z is M over the SD of every pair's d, accuracy and AUROC count every pair;
+    ``parts`` are what the bootstrap of M resamples separately."""
     sd = float(np.std(d, ddof=1))
     zero_error = not math.isfinite(t) or sd == 0.0
     d_z = t if zero_error else mean / sd  # +inf, -inf, or nan when every d = 0
@@ -271,21 +276,24 @@ def paired_test(
     alpha: float,
     bootstrap: int = 2000,
     seed: int = 0,
+    rounding: float | None = None,
 ) -> PairedTestResult:
     """One-tailed paired t-test of per-pair surprise, H1: mean(inconsistent - consistent) > 0.
-    Agrees with ``scipy.stats.ttest_rel(inconsistent, consistent, alternative="greater")``.
+    Agrees with ``scipy.stats.ttest_rel(inconsistent, consistent, alternative="greater")`` but
+    for d within ``rounding`` (None: ``t_tests.rounding_of`` the values), which count as 0.
     ``bootstrap`` resamples (seeded by ``seed``) give the 95% interval of M; 0 skips it and
     reports NaN bounds with a note."""
     _check_options(alpha, bootstrap)
     inc = as_float64(inconsistent, "inconsistent surprise")
     con = as_float64(consistent, "consistent surprise")
-    d = relative_surprise(inc, con)
+    d = relative_surprise(inc, con, rounding)
     if d.size < 2:
         raise ValueError(f"a paired t-test needs at least 2 probe pairs, got n={d.size}")
     test = t_test_from_moments(d.size, float(np.mean(d)), float(np.var(d, ddof=1)))
     return _result(
         inc,
         con,
+        d,
         [d],
         test.mean,
         test.t,
@@ -306,16 +314,18 @@ def pooled_test(
     alpha: float,
     bootstrap: int = 2000,
     seed: int = 0,
+    rounding: float | None = None,
 ) -> PairedTestResult:
     """The pooled row of a concept: ``stratified_test`` over the pairs' ``strata`` (their
     variants, e.g. standard and counterbalanced), so M is the mean of the variants' mean
     differences. ``sd`` and ``d_z`` = M / sd are over every pair's d, accuracy and AUROC count
     every pair; d_z's interval is M's t interval (M +- t_.975(df) SE) over sd, and the
-    bootstrap interval of M resamples each variant on its own."""
+    bootstrap interval of M resamples each variant on its own; d within ``rounding`` is 0, as
+    in ``paired_test``."""
     _check_options(alpha, bootstrap)
     inc = as_float64(inconsistent, "inconsistent surprise")
     con = as_float64(consistent, "consistent surprise")
-    d = relative_surprise(inc, con)
+    d = relative_surprise(inc, con, rounding)
     strata = np.asarray(strata, dtype=object)
     if strata.shape != d.shape:
         raise ValueError(
@@ -338,6 +348,7 @@ def pooled_test(
     return _result(
         inc,
         con,
+        d,
         parts,
         test.mean,
         test.t,
@@ -370,14 +381,18 @@ def quadruplet_test(
     alpha: float,
     bootstrap: int = 2000,
     seed: int = 0,
+    rounding: float | None = None,
 ) -> QuadrupletTestResult:
     """One-tailed t-test over quadruplets of D = [S(AB) - S(A)] + [S(BA) - S(B)], H1: mean D > 0,
     from the surprise of each quadruplet's first pair (AB, A) and second pair (BA, B), aligned
     by quadruplet. Agrees with ``scipy.stats.ttest_1samp(D, 0, alternative="greater")``;
-    ``bootstrap`` and ``seed`` as in ``paired_test``."""
+    ``bootstrap``, ``seed`` and ``rounding`` (None: of all four) as in ``paired_test``."""
+    sides = (first_inconsistent, first_consistent, second_inconsistent, second_consistent)
+    if rounding is None:  # of the videos' own values: their sums are float64 ones
+        rounding = rounding_of(*sides)
     halves = [
-        relative_surprise(first_inconsistent, first_consistent),
-        relative_surprise(second_inconsistent, second_consistent),
+        relative_surprise(first_inconsistent, first_consistent, rounding),
+        relative_surprise(second_inconsistent, second_consistent, rounding),
     ]
     if halves[0].shape != halves[1].shape:
         raise ValueError(
@@ -390,7 +405,7 @@ def quadruplet_test(
     consistent = as_float64(first_consistent, "first consistent surprise") + as_float64(
         second_consistent, "second consistent surprise"
     )
-    result = paired_test(inconsistent, consistent, alpha, bootstrap, seed)
+    result = paired_test(inconsistent, consistent, alpha, bootstrap, seed, rounding)
     return QuadrupletTestResult(
         **result.as_dict(),
         first_half=float(np.mean(halves[0])),
@@ -424,16 +439,18 @@ def group_test(
     alpha: float,
     bootstrap: int = 2000,
     seed: int = 0,
+    rounding: float | None = None,
 ) -> PairedTestResult:
     """The test of one row of ``verdicts.pair_groups``: ``pooled_test`` over the pairs' ``variants``
     for the ``POOLED`` row, ``quadruplet_test`` for a quadruplet row (``QUADRUPLET_ROWS``; its
-    pairs: the first halves, then the second halves, aligned), ``paired_test`` for any other."""
+    pairs: the first halves, then the second halves, aligned), ``paired_test`` for any other;
+    ``rounding`` as in ``paired_test``."""
     if variant in QUADRUPLET_ROWS:
         half = len(variants) // 2
         inc, con = np.asarray(inconsistent), np.asarray(consistent)
         return quadruplet_test(
-            inc[:half], con[:half], inc[half:], con[half:], alpha, bootstrap, seed
+            inc[:half], con[:half], inc[half:], con[half:], alpha, bootstrap, seed, rounding
         )
     if variant == POOLED:
-        return pooled_test(inconsistent, consistent, variants, alpha, bootstrap, seed)
-    return paired_test(inconsistent, consistent, alpha, bootstrap, seed)
+        return pooled_test(inconsistent, consistent, variants, alpha, bootstrap, seed, rounding)
+    return paired_test(inconsistent, consistent, alpha, bootstrap, seed, rounding)

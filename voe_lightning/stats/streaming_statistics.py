@@ -14,7 +14,7 @@ from typing import Any
 import torch
 from torchmetrics import Metric
 
-from voe_lightning.stats.t_tests import stratified_test, t_test_from_moments
+from voe_lightning.stats.t_tests import rounding_as_zero, stratified_test, t_test_from_moments
 
 __all__ = ["PairedSurpriseStats", "TooFewPairs", "pooled_values"]
 
@@ -46,9 +46,14 @@ class PairedSurpriseStats(Metric):
             self.add_state(name, default=torch.zeros((), dtype=torch.float64), dist_reduce_fx="sum")
 
     def update(
-        self, surprise_inconsistent: torch.Tensor, surprise_consistent: torch.Tensor
+        self,
+        surprise_inconsistent: torch.Tensor,
+        surprise_consistent: torch.Tensor,
+        rounding: float | None = None,
     ) -> None:
-        """Add a batch of pairs: per-video surprise [B] of the inconsistent and consistent video."""
+        """Add a batch of pairs: per-video surprise [B] of the inconsistent and consistent video;
+        a d within ``rounding`` of its surprise counts as 0 (``t_tests.rounding_as_zero``; None:
+        the rounding of these values, where the caller knows no per-frame surprise)."""
         inc = torch.as_tensor(surprise_inconsistent).detach()
         con = torch.as_tensor(surprise_consistent).detach()
         if inc.ndim != 1 or inc.shape != con.shape:
@@ -56,9 +61,8 @@ class PairedSurpriseStats(Metric):
                 "update expects per-video surprise of shape [B] for both videos of each pair; "
                 f"got inconsistent {tuple(inc.shape)} and consistent {tuple(con.shape)}"
             )
-        d = inc.to(device=self.sum_d.device, dtype=torch.float64) - con.to(
-            device=self.sum_d.device, dtype=torch.float64
-        )
+        d = torch.from_numpy(rounding_as_zero(inc.cpu().double(), con.cpu().double(), rounding))
+        d = d.to(self.sum_d.device)
         bad = ~torch.isfinite(d)
         if bad.any():
             raise ValueError(

@@ -6,6 +6,9 @@ of a concept's variants from each one's (``stratified_test``), shared by the one
 
 Degenerate inputs, decided once here:
 
+- a difference within rounding of its pair's surprise is exactly 0 (``rounding_as_zero``, which
+  every test's d comes from): float32 surprise differing by an ulp of 1.43 is no evidence of
+  surprise, so rounding alone never makes a test significant (nor t = +inf);
 - fewer than two pairs, or moments that are not finite: ``ValueError`` (no variance, no test);
 - zero variance of the differences (every pair has the same d): the t statistic is the limit
   of M / (s / sqrt(n)) as s -> 0, so t = +inf, p = 0 when M > 0 and t = -inf, p = 1 when M < 0
@@ -24,16 +27,27 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import torch
 from scipy import stats
 
 __all__ = [
+    "FLOAT32_ROUNDING",
+    "FLOAT64_ROUNDING",
     "StratifiedTest",
     "TTest",
+    "rounding_as_zero",
+    "rounding_of",
     "stratified_moments",
     "stratified_test",
     "t_and_p",
     "t_test_from_moments",
 ]
+
+#: Rounding of surprise held in float32 (or narrower), as a share of the larger value of a pair:
+#: 16 float32 epsilons, as a sum over frames or a batch's kernels leave a few ulps; and of
+#: float64 surprise. Far below the causality check's bf16 noise (1e-4, ``stats.causality``),
+#: which would zero real differences such as the cue audit's grey levels (docs/stimuli.md).
+FLOAT32_ROUNDING, FLOAT64_ROUNDING = 2.0**-19, 2.0**-48
 
 #: A variance below this fraction of the mean square is treated as exactly zero (the streaming
 #: form computes it from sums, where equal differences leave rounding residue of about 1e-16).
@@ -51,6 +65,30 @@ class TTest:
     df: int
     p_value: float
     note: str
+
+
+def rounding_of(*values: Any) -> float:
+    """The rounding of surprise ``values`` (tensors or arrays): ``FLOAT32_ROUNDING`` when every
+    value is a float32 one (as the surprise of a float32 model is, even summed or stored in
+    float64), ``FLOAT64_ROUNDING`` otherwise (a float64 scorer's, whose small d are real)."""
+    for value in values:
+        if isinstance(value, torch.Tensor):
+            value = value.detach().cpu().double().numpy()
+        array = np.asarray(value, dtype=np.float64)
+        if not np.array_equal(array, array.astype(np.float32), equal_nan=True):
+            return FLOAT64_ROUNDING
+    return FLOAT32_ROUNDING
+
+
+def rounding_as_zero(inconsistent: Any, consistent: Any, rounding: float | None = None) -> Any:
+    """d = inconsistent - consistent in float64, each d within ``rounding`` (a share of its
+    pair's larger surprise; None: ``rounding_of`` the values) set to exactly 0."""
+    inc, con = np.asarray(inconsistent, np.float64), np.asarray(consistent, np.float64)
+    share = rounding_of(inc, con) if rounding is None else rounding
+    with np.errstate(invalid="ignore"):  # inf - inf: NaN, which callers refuse
+        d = inc - con
+        within = np.isfinite(d) & (np.abs(d) <= share * np.maximum(np.abs(inc), np.abs(con)))
+    return np.where(within, 0.0, d)
 
 
 def t_and_p(mean: Any, standard_error: Any, df: Any) -> tuple[Any, Any]:
@@ -71,7 +109,12 @@ def _degenerate(mean: float) -> tuple[float, float, str]:
         return math.inf, 0.0, f"zero variance: every d = {mean:.6g} > 0, so t = +inf, p = 0"
     if mean < 0:
         return -math.inf, 1.0, f"zero variance: every d = {mean:.6g} < 0, so t = -inf, p = 1"
-    return math.nan, 1.0, "every d = 0: no difference at all; t and d_z undefined, p set to 1"
+    return (
+        math.nan,
+        1.0,
+        "every d = 0 (up to rounding of the surprise): no difference at all; t and d_z "
+        "undefined, p set to 1",
+    )
 
 
 def _check_moments(n: int, mean: float, variance: float) -> None:
