@@ -138,10 +138,12 @@ def test_a_causal_model_passes_the_check_and_keeps_its_verdict(workdir, capsys):
         "non_causal_pairs": 0,
         "largest_difference": 0.0,
         "first_frame": None,
+        "unchecked_pairs": 0,
     }
     assert "no verdict" not in summary["verdicts"][0]["verdict"]
-    assert "identical through manipulation_frame (where the two videos are) in all 6 pairs" in (
-        capsys.readouterr().out
+    assert (
+        "identical before each pair's first difference (where the two videos' inputs are) in all 6 pairs"
+        in (capsys.readouterr().out)
     )
 
 
@@ -203,14 +205,14 @@ def test_check_causality_runs_a_users_model_through_the_protocol(capsys):
     assert main([*check, "test_causal_verdicts_and_whole_outputs.brightness"]) is True
     printed = capsys.readouterr().out
     assert (
-        "object_persistence, pairs through the manipulation frame: causal (surprise "
+        "object_persistence, pairs before their first difference: causal (surprise "
         "identical in all 2 pairs)"
     ) in printed
     assert "object_persistence, videos cut after each frame t: causal" in printed
     line = refused(capsys, [*check, "test_causal_verdicts_and_whole_outputs.reads_the_next_frame"])
     assert (
         "CallableModel is not causal: its surprise at frame t reads later frames in "
-        "object_persistence (pairs through the manipulation frame), object_persistence "
+        "object_persistence (pairs before their first difference), object_persistence "
         "(videos cut after each frame t)"
     ) in line
 

@@ -138,7 +138,7 @@ def test_the_page_shows_each_concepts_verdict_videos_and_the_causality_line(repo
     page = (report / "index.html").read_text()
     elements = Elements(page)
     text = " ".join(" ".join(elements.texts).split())
-    assert "causality: per-frame surprise identical through manipulation_frame" in text
+    assert "causality: per-frame surprise identical before each pair's first difference" in text
     verdict_rows = re.findall(r"<tr><td><strong>(\w+)</strong></td><td><span class=\"badge", page)
     assert verdict_rows == list(specs.CONCEPTS)
     sections = re.findall(r'<section class="quadruplet" data-concept="(\w+)">(.*?)</section>', page)

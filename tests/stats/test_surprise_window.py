@@ -76,7 +76,7 @@ def test_a_window_sums_the_frames_from_the_first_difference_by_hand():
 def test_a_videos_surprise_is_made_in_one_place_for_tensors_and_arrays():
     per_frame = torch.arange(12, dtype=torch.float32).reshape(2, 6)
     assert torch.equal(video_surprise(per_frame), per_frame.sum(-1))
-    assert video_surprise(per_frame).dtype == torch.float32  # summed in the input's dtype
+    assert video_surprise(per_frame).dtype == torch.float64  # summed in float64 (issue 73)
     window = SurpriseWindow(2)
     windowed = video_surprise(per_frame, window, torch.tensor([1, 5]))
     assert windowed.tolist() == [1.0 + 2.0, 11.0]  # frames 1-2; frame 5 only (the video ends)

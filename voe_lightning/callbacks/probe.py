@@ -17,7 +17,13 @@ from rich.console import Console, Group
 from rich.table import Table
 from rich.text import Text
 
-from voe_lightning.callbacks.common import ProbeOutcome, RunAlpha, gather_objects, probe_names
+from voe_lightning.callbacks.common import (
+    ProbeOutcome,
+    RunAlpha,
+    check_finite_surprise,
+    gather_objects,
+    probe_names,
+)
 from voe_lightning.probe_datamodule import probe_datamodule
 from voe_lightning.stats.causality import Causality, check_prefix
 from voe_lightning.stats.statistics import (
@@ -32,6 +38,7 @@ from voe_lightning.stats.streaming_statistics import (
     pooled_values,
 )
 from voe_lightning.stats.surprise_window import SurpriseWindow, video_surprise
+from voe_lightning.stats.t_tests import FLOAT32_ROUNDING, rounding_of
 from voe_lightning.stats.verdicts import concept_verdicts, pair_groups, quadruplets
 
 #: A quadruplet row's means of its halves, logged beside its statistics.
@@ -81,6 +88,9 @@ class VOEProbeCallback(RunAlpha, L.Callback):
         #: Per log prefix, this validation run's pairs (concept, variant, seed, S(inc), S(con)),
         #: which the quadruplet rows match by seed.
         self._pairs: dict[str, list[tuple[str, str, int, float, float]]] = {}
+        #: The rounding of this validation run's per-frame surprise (``t_tests.rounding_of``),
+        #: within which a d is 0, as in the report.
+        self._rounding = FLOAT32_ROUNDING
 
     @property
     def outcome(self) -> ProbeOutcome:
@@ -97,6 +107,7 @@ class VOEProbeCallback(RunAlpha, L.Callback):
             metric.reset()
         self._causality = Causality()
         self._pairs = {prefix: [] for prefix in self.windows}
+        self._rounding = FLOAT32_ROUNDING
 
     def _metric(self, key: tuple[str, str, str], device: torch.device) -> PairedSurpriseStats:
         if key not in self.metrics:
@@ -109,12 +120,13 @@ class VOEProbeCallback(RunAlpha, L.Callback):
         if not outputs:
             return
         concept_names, variant_names = probe_names(trainer, type(self).__name__)
+        check_finite_surprise(outputs, concept_names, variant_names)
         self._causality = self._causality.merge(
             check_prefix(
                 outputs["surprise_consistent"],
                 outputs["surprise_inconsistent"],
                 outputs["manipulation_frame"],
-                outputs.get("first_difference"),
+                outputs.get("inputs_differ", outputs.get("first_difference")),
             )
         )
         names = [
@@ -125,6 +137,8 @@ class VOEProbeCallback(RunAlpha, L.Callback):
         for index, case in enumerate(names):
             groups[case].append(index)
         seeds = outputs["seed"].tolist() if "seed" in outputs else None
+        rounding = rounding_of(outputs["surprise_consistent"], outputs["surprise_inconsistent"])
+        self._rounding = min(self._rounding, rounding)
         for prefix, window in self.windows.items():
             inconsistent, consistent = (
                 _window_sum(outputs, side, window) for side in ("inconsistent", "consistent")
@@ -139,7 +153,7 @@ class VOEProbeCallback(RunAlpha, L.Callback):
             for case, rows in groups.items():
                 rows = torch.tensor(rows, device=inconsistent.device)
                 self._metric((prefix, *case), pl_module.device).update(
-                    inconsistent[rows], consistent[rows]
+                    inconsistent[rows], consistent[rows], rounding
                 )
 
     def on_validation_epoch_end(self, trainer, pl_module) -> None:
@@ -205,6 +219,7 @@ class VOEProbeCallback(RunAlpha, L.Callback):
                 consistent[second],
                 self.alpha,
                 bootstrap=0,
+                rounding=self._rounding,
             )
             values = {k: test.as_dict()[k] for k in self.STATISTICS + HALVES}
             rows[concept].append((row, {k: float(v) for k, v in values.items()}))

@@ -10,7 +10,12 @@ from typing import Any
 import numpy as np
 
 from voe_lightning.audit import cues
-from voe_lightning.report.pairs import FIRST_DIFFERENCE, PROBE_OUTPUT_KEYS, as_numpy
+from voe_lightning.report.pairs import (
+    FIRST_DIFFERENCE,
+    INPUTS_DIFFER,
+    PROBE_OUTPUT_KEYS,
+    as_numpy,
+)
 
 
 class ProbeOutputs:
@@ -33,7 +38,7 @@ class ProbeOutputs:
             raise KeyError(f"test_step output lacks {missing} (needs {list(PROBE_OUTPUT_KEYS)})")
         stored = {
             key: as_numpy(outputs[key], None)
-            for key in (*PROBE_OUTPUT_KEYS, FIRST_DIFFERENCE)
+            for key in (*PROBE_OUTPUT_KEYS, FIRST_DIFFERENCE, INPUTS_DIFFER)
             if key in outputs
         }
         self.kept.append(stored)

@@ -64,6 +64,39 @@ def check_real_surprise(surprise: torch.Tensor, source: str) -> torch.Tensor:
     return surprise
 
 
+def inputs_first_difference(
+    consistent: dict[str, Any],
+    inconsistent: dict[str, Any],
+    frames_first: torch.Tensor,
+    read: frozenset[str] = frozenset({"mask", "objects"}),
+) -> torch.Tensor:
+    """The first frame at which each pair's inputs differ, int64 [B]: the earliest of its
+    frames' (``frames_first``) and of each of the ``read`` inputs (masks, object states) both
+    sides have; a state can differ a frame before the pixels show it. A causal model's surprise
+    is identical before it."""
+    first = frames_first
+    for name in sorted(consistent.keys() & inconsistent.keys() & read):
+        one, other = consistent[name], inconsistent[name]
+        leaves = (
+            zip(one.values(True, True), other.values(True, True))
+            if isinstance(one, TensorDictBase)
+            else [(one, other)]
+        )
+        for a, b in leaves:
+            first = torch.minimum(first, first_difference(a, b).to(first.device))
+    return first
+
+
+def received_surprise(surprise: torch.Tensor, source: str) -> torch.Tensor:
+    """A model's per-frame surprise as the package keeps it: checked real
+    (``check_real_surprise``), a copy of its own (a model may return a view of a buffer it
+    reuses for the next batch) in float32, or float64 when it is (bf16/fp16 widened exactly,
+    so no sum rounds in them; integers as float64, as ``CallableModel`` takes them)."""
+    check_real_surprise(surprise, source)
+    wide = surprise.dtype == torch.float64 or not surprise.is_floating_point()
+    return surprise.to(torch.float64 if wide else torch.float32, copy=True)
+
+
 def expected_frames_problem(model: Any, expected: Any, frames: torch.Tensor) -> str | None:
     """What is wrong with ``model.expected_frames``' answer ``expected`` for uint8 ``frames``
     [B, T, H, W, 3], in words (None: nothing): it must be a tensor [B, T, 3, H, W]."""
@@ -98,6 +131,12 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
     EVALUATION_ONLY: tuple[str, ...] = ()
 
     # ----------------------------------------------------------------------------- protocol
+    def inputs_read(self) -> frozenset[str]:
+        """Which of a video's ``mask`` and ``objects`` its surprise may read (frames and camera
+        always): the causality check compares a pair's surprise before the first frame at which
+        the frames or one of these differ. Any may, unless a family says it reads fewer."""
+        return frozenset({"mask", "objects"})
+
     @abstractmethod
     def surprise(
         self,
@@ -185,7 +224,8 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
         """Surprise of both videos of each probe pair (one pass: rows never interact); each
         video's mask and the pair's camera go to the model when the batch has them. Also the
         pair's ``first_difference``, the first frame at which its videos differ, where a
-        surprise window starts (``voe_lightning.stats.surprise_window``)."""
+        surprise window starts (``voe_lightning.stats.surprise_window``), and ``inputs_differ``,
+        the first at which any of its inputs do, before which the causality check compares."""
         consistent = batch["consistent", "frames"]
         inconsistent = batch["inconsistent", "frames"]
         sides = [video_inputs(batch, "consistent"), video_inputs(batch, "inconsistent")]
@@ -194,11 +234,12 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
             for name in sides[0]
             if all(name in side for side in sides)
         }
-        surprise = check_real_surprise(
+        surprise = received_surprise(
             self.surprise(torch.cat([consistent, inconsistent], dim=0), **inputs),
             type(self).__name__,
         )
         surprise_consistent, surprise_inconsistent = surprise.split(consistent.shape[0], dim=0)
+        frames_first = first_difference(consistent, inconsistent)
         return {
             "concept": batch["concept"],
             "variant": batch["variant"],
@@ -206,7 +247,8 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
             "manipulation_frame": batch["manipulation_frame"],
             "surprise_consistent": surprise_consistent,
             "surprise_inconsistent": surprise_inconsistent,
-            "first_difference": first_difference(consistent, inconsistent),
+            "first_difference": frames_first,
+            "inputs_differ": inputs_first_difference(*sides, frames_first, self.inputs_read()),
         }
 
     #: Name under which ``validation_step`` logs the consistent probes' mean video surprise.
@@ -223,7 +265,7 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
         consistent = result["surprise_consistent"]
         self.log(
             self.VALIDATION_METRIC,
-            consistent.sum(dim=1).mean(),
+            video_surprise(consistent).mean(),
             batch_size=consistent.shape[0],
             add_dataloader_idx=False,
         )
@@ -241,7 +283,7 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
         """Each video's surprise (its sum over frames, float64, and its largest frame's:
         ``surprise_max``) with its ``index`` in the predict dataset, for a prediction writer;
         its mask and camera go along when the batch has them."""
-        surprise = check_real_surprise(
+        surprise = received_surprise(
             self.surprise(self._frames_of(batch), **video_inputs(batch)), type(self).__name__
         ).double()
         return {

@@ -1,8 +1,9 @@
 """The causality check every report and validation run makes (docs/architecture.md §7, DESIGN.md
-§5): a probe pair's two videos are byte-identical through ``manipulation_frame``, so a
-causal model's per-frame surprise is identical there. Where it differs beyond float noise, the
-model reads frames after t (a user's callable scoring frame t from t..t+1, or giving every frame
-the video's total), its relative surprise may carry the answer, and no verdict is given.
+§5): a probe pair's two videos are byte-identical before their first difference (at least
+through ``manipulation_frame``), so a causal model's per-frame surprise is identical there.
+Where it differs beyond float noise, the model reads frames after t (a user's callable scoring
+frame t from t..t+1, or giving every frame the video's total), its relative surprise may carry
+the answer, and no verdict is given.
 ``voe_lightning.stats.causality`` holds the finding (``Causality``) and the check of one batch
 of pairs (``check_prefix``); here ``check_model`` runs a model through the whole protocol
 (``tests/test_causality.py``'s two checks), and ``check_causality`` (``python -m voe_lightning
@@ -16,7 +17,7 @@ import torch
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
-from voe_lightning.model.base import SurpriseModel, video_inputs
+from voe_lightning.model.base import SurpriseModel, received_surprise, video_inputs
 from voe_lightning.stats.causality import Causality, check_prefix
 
 
@@ -24,11 +25,14 @@ def check_model(
     model: SurpriseModel, probes: Any, concept: str | None = None
 ) -> tuple[Causality, Causality]:
     """The causality protocol of ``model`` (a ``SurpriseModel``) on a batch of probe pairs:
-    per-frame surprise identical through each pair's manipulation frame (``check_prefix`` of
-    ``probe_step``), and each inconsistent video's surprise up to frame t unchanged when the
-    video (frames, masks, camera, object states) is cut after t, for every t (counted once
-    per video and frame). Surprise that is not finite (NaN equals NaN nowhere, so an all-NaN
-    model would pass) cannot be checked: a ValueError naming the model (and ``concept``)."""
+    per-frame surprise identical before the first frame at which each pair's inputs differ
+    (``check_prefix`` of ``probe_step``'s ``inputs_differ``), and each inconsistent video's surprise up to frame t
+    unchanged when the video (frames, masks, camera, object states) is cut after t, for every t
+    (counted once per video and frame; each answer copied as received, so a model reusing one
+    output buffer cannot overwrite the whole video's). Surprise that is not finite (NaN equals
+    NaN nowhere, so an all-NaN model would pass) cannot be checked: a ValueError naming the
+    model (and ``concept``)."""
+    frames = probes["inconsistent", "frames"]
     with torch.no_grad():
         scored = model.probe_step(probes)
         _check_finite(
@@ -41,15 +45,15 @@ def check_model(
             scored["surprise_consistent"],
             scored["surprise_inconsistent"],
             scored["manipulation_frame"],
-            scored.get("first_difference"),
+            scored["inputs_differ"],
         )
-        frames = probes["inconsistent", "frames"]
         inputs = video_inputs(probes, "inconsistent")
-        whole = model.surprise(frames, **inputs)
+        whole = received_surprise(model.surprise(frames, **inputs), model_name(model))
         cut = Causality()
         for t in range(frames.shape[1] - 1):
-            part = model.surprise(
-                frames[:, : t + 1], **{name: _through(value, t) for name, value in inputs.items()}
+            through = {name: _through(value, t) for name, value in inputs.items()}
+            part = received_surprise(
+                model.surprise(frames[:, : t + 1], **through), model_name(model)
             )
             _check_finite(model, concept, whole, part)
             cut = cut.merge(check_prefix(whole[:, : t + 1], part, torch.full((len(frames),), t)))
@@ -95,7 +99,7 @@ def check_causality(
     """Run a model through the causality protocol on generated probe pairs.
 
     Surprise at frame t may read frames up to t only: per concept, each pair's per-frame
-    surprise must be identical through its manipulation frame (the two videos are), and a
+    surprise must be identical before its first difference (the two videos are), and a
     video cut after t must keep its surprise up to t. Prints one line per check and concept;
     refuses a model that fails (exit status 2). The model is checked as built (causality is
     a property of its computation, not of its weights).
@@ -124,7 +128,7 @@ def check_causality(
                 for seed in range(seeds)
             ]
         )
-        checks = ("pairs through the manipulation frame", "videos cut after each frame t")
+        checks = ("pairs before their first difference", "videos cut after each frame t")
         for check, unit, found in zip(
             checks, ("pairs", "cuts"), check_model(model, probes, concept)
         ):

@@ -32,13 +32,20 @@ PROBE_OUTPUT_KEYS = (
 #: A key ``probe_step`` also returns, which a model's own probe step may leave out: the first
 #: frame at which each pair's videos differ (``PairResults`` then takes manipulation_frame + 1).
 FIRST_DIFFERENCE = "first_difference"
+#: Key of ``probe_step``'s first frame at which a pair's inputs (frames, masks, states) differ.
+INPUTS_DIFFER = "inputs_differ"
 
 
 def as_numpy(values: Any, dtype: Any) -> np.ndarray:
-    """A tensor (detached, on the CPU) or array-like as a numpy array of ``dtype``."""
+    """A tensor (detached, on the CPU; bf16/fp16 widened to float32, which numpy lacks) or
+    array-like as a numpy array of ``dtype``, always a copy of its own: a model's output may
+    be a view of a buffer it overwrites with the next batch's."""
     if isinstance(values, torch.Tensor):
-        values = values.detach().cpu().numpy()
-    return np.asarray(values, dtype=dtype)
+        values = values.detach().cpu()
+        if values.is_floating_point() and values.element_size() < 4:
+            values = values.float()
+        values = values.numpy()
+    return np.array(values, dtype=dtype)
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,6 +61,7 @@ class PairResults:
     surprise_consistent: np.ndarray
     surprise_inconsistent: np.ndarray
     first_difference: np.ndarray | None = None
+    inputs_differ: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -61,10 +69,13 @@ class PairResults:
         set_(self, "variant", tuple(str(v) for v in self.variant))
         if self.first_difference is None:
             set_(self, "first_difference", as_numpy(self.manipulation_frame, np.int64) + 1)
+        if self.inputs_differ is None:
+            set_(self, "inputs_differ", self.first_difference)
         for name, dtype in (
             ("seed", np.int64),
             ("manipulation_frame", np.int64),
             ("first_difference", np.int64),
+            ("inputs_differ", np.int64),
             ("surprise_consistent", np.float64),
             ("surprise_inconsistent", np.float64),
         ):
@@ -79,6 +90,7 @@ class PairResults:
             "seed": self.seed.shape,
             "manipulation_frame": self.manipulation_frame.shape,
             "first_difference": self.first_difference.shape,
+            "inputs_differ": self.inputs_differ.shape,
             "surprise_inconsistent": self.surprise_inconsistent.shape,
         }
         expected = {
@@ -86,6 +98,7 @@ class PairResults:
             "seed": (n,),
             "manipulation_frame": (n,),
             "first_difference": (n,),
+            "inputs_differ": (n,),
             "surprise_inconsistent": self.surprise_consistent.shape,
         }
         wrong = {k: v for k, v in shapes.items() if v != expected[k]}
@@ -118,13 +131,14 @@ class PairResults:
 
     @property
     def causality(self) -> Causality:
-        """Whether per-frame surprise is identical where each pair's videos are
-        (``stats.causality.check_prefix``): a report gives no verdict when it is not."""
+        """Whether per-frame surprise is identical before each pair's inputs differ
+        (``stats.causality.check_prefix``): a report gives no verdict when it is not. Read
+        back from pairs.csv, which keeps only the frames' first difference, that is the bound."""
         return check_prefix(
             self.surprise_consistent,
             self.surprise_inconsistent,
             self.manipulation_frame,
-            self.first_difference,
+            self.inputs_differ,
         )
 
     def windowed(self, window: SurpriseWindow) -> PairResults:
@@ -140,6 +154,7 @@ class PairResults:
             self.surprise_consistent * weights,
             self.surprise_inconsistent * weights,
             self.first_difference,
+            self.inputs_differ,
         )
 
     @classmethod
@@ -154,8 +169,9 @@ class PairResults:
         if not outputs:
             raise ValueError("no probe results: the list of probe_step outputs is empty")
         keys = PROBE_OUTPUT_KEYS
-        if all(FIRST_DIFFERENCE in output for output in outputs):
-            keys = (*keys, FIRST_DIFFERENCE)
+        for optional in (FIRST_DIFFERENCE, INPUTS_DIFFER):
+            if all(optional in output for output in outputs):
+                keys = (*keys, optional)
         columns: dict[str, list[np.ndarray]] = {key: [] for key in keys}
         for index, output in enumerate(outputs):
             missing = [key for key in PROBE_OUTPUT_KEYS if key not in output]
@@ -184,6 +200,7 @@ class PairResults:
             surprise_consistent=merged["surprise_consistent"],
             surprise_inconsistent=merged["surprise_inconsistent"],
             first_difference=merged.get(FIRST_DIFFERENCE),
+            inputs_differ=merged.get(INPUTS_DIFFER),
         )
 
     def select(self, rows: np.ndarray) -> PairResults:
@@ -197,6 +214,7 @@ class PairResults:
             surprise_consistent=self.surprise_consistent[index],
             surprise_inconsistent=self.surprise_inconsistent[index],
             first_difference=self.first_difference[index],
+            inputs_differ=self.inputs_differ[index],
         )
 
     def groups(self, pooled: bool = False) -> list[tuple[str, str, PairResults]]:

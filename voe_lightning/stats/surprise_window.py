@@ -66,21 +66,45 @@ def video_surprise(
     """Each video's surprise from its per-frame surprise [..., T] (a tensor or an array): the
     sum over its frames (the paper's, docs/architecture.md §7), or over ``window``'s frames
     counted from each pair's ``first_difference`` [N] (needed then). The one place a video's
-    surprise is made: summed in the input's own dtype (and on its device), so a caller that
-    wants float64 sums converts first."""
-    if window.all_frames:
-        return per_frame.sum(-1)
-    if first_difference is None:
-        raise ValueError(
-            f"a surprise window of {window.describe()} needs each pair's first difference"
-        )
-    first = (
-        first_difference.cpu() if isinstance(first_difference, torch.Tensor) else first_difference
-    )
-    weights = window.frame_weights(per_frame.shape[-1], first)
+    surprise is made: summed in float64 (a tensor's on its device, or the CPU for Apple's GPUs),
+    so neither a model's bf16/fp16 rounding nor a float32 overflow enters the statistics; a sum
+    of finite per-frame surprise that still overflows is a ValueError saying so (``_check_no_overflow``)."""
     if isinstance(per_frame, torch.Tensor):
-        weights = torch.as_tensor(weights, dtype=per_frame.dtype, device=per_frame.device)
-    return (per_frame * weights).sum(-1)
+        if per_frame.device.type == "mps":  # Apple's GPUs have no float64
+            per_frame = per_frame.cpu()
+        per_frame = per_frame.double()
+    else:
+        per_frame = np.asarray(per_frame, dtype=np.float64)
+    if not window.all_frames:
+        if first_difference is None:
+            raise ValueError(
+                f"a surprise window of {window.describe()} needs each pair's first difference"
+            )
+        first = (
+            first_difference.cpu()
+            if isinstance(first_difference, torch.Tensor)
+            else first_difference
+        )
+        weights = window.frame_weights(per_frame.shape[-1], first)
+        if isinstance(per_frame, torch.Tensor):
+            weights = torch.as_tensor(weights, dtype=per_frame.dtype, device=per_frame.device)
+        per_frame = per_frame * weights
+    with np.errstate(over="ignore"):  # an overflow is named below, not warned about
+        return _check_no_overflow(per_frame, per_frame.sum(-1))
+
+
+def _check_no_overflow(per_frame: Any, sums: Any) -> Any:
+    """``sums`` of ``per_frame`` surprise, unless a sum is infinite while every per-frame value
+    is finite: a ValueError naming the overflow, which is the sum's, not the model's."""
+    module = torch if isinstance(sums, torch.Tensor) else np
+    if bool(module.isfinite(sums).all()) or not bool(module.isfinite(per_frame).all()):
+        return sums
+    largest = float(abs(per_frame).max())
+    raise ValueError(
+        f"a video's surprise, the sum of its per-frame surprise, overflows float64: every "
+        f"per-frame value is finite (up to {largest:.3g} in size) but their sum is not; "
+        "scale the model's surprise down (e.g. in nats or bits rather than raw likelihoods)"
+    )
 
 
 def surprise_window(value: Any) -> SurpriseWindow:

@@ -221,12 +221,14 @@ def test_probe_step_on_a_spec_batch():
         "seed",
         "manipulation_frame",
         "first_difference",
+        "inputs_differ",
         "surprise_consistent",
         "surprise_inconsistent",
     }
     for key in ("concept", "variant", "seed", "manipulation_frame"):
         assert torch.equal(result[key], batch[key])
     assert result["first_difference"].tolist() == [0, 0, 0]  # random videos differ at once
+    assert result["inputs_differ"].tolist() == [0, 0, 0]
     assert result["surprise_consistent"].shape == (3, T)
     assert result["surprise_inconsistent"].shape == (3, T)
     torch.testing.assert_close(

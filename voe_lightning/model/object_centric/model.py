@@ -368,6 +368,10 @@ class ObjectCentricModel(SurpriseModel):
                 object_slots(mask, self.hparams.num_slots, seeds)
         return super().probe_step(batch)
 
+    def inputs_read(self) -> frozenset[str]:
+        """Frames and the object-id masks its slots come from."""
+        return frozenset({"mask"})
+
     @torch.no_grad()
     def surprise(
         self,

@@ -69,6 +69,10 @@ class CallableModel(SurpriseModel):
         self.save_hyperparameters()
         self.function = import_callable(function)
 
+    def inputs_read(self) -> frozenset[str]:
+        """The function sees the frames only."""
+        return frozenset()
+
     def surprise(
         self,
         frames: torch.Tensor,

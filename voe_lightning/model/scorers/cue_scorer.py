@@ -61,6 +61,10 @@ class CueScorer(SurpriseModel):
         """The cues that read frames only (no masks)."""
         return [name for name, cue in CUE_NAMES.items() if cue not in video_cues.MASK_CUES]
 
+    def inputs_read(self) -> frozenset[str]:
+        """A mask cue reads the masks, a frame cue the frames only."""
+        return frozenset({"mask"} if self.cue_name in video_cues.MASK_CUES else ())
+
     def surprise(
         self,
         frames: torch.Tensor,

@@ -63,6 +63,10 @@ class PretrainedScorer(SurpriseModel):
             "std", torch.tensor(IMAGENET_STD)[None, None, :, None, None], persistent=False
         )
 
+    def inputs_read(self) -> frozenset[str]:
+        """A pretrained video model sees the frames only."""
+        return frozenset()
+
     def train(self, mode: bool = True) -> PretrainedScorer:
         """Stays in eval mode (no dropout): a frozen scorer."""
         return super().train(False)

@@ -388,6 +388,10 @@ class VRNNLRUModel(SurpriseModel):
         self._finite.check()
 
     # ----------------------------------------------------------------------------- surprise
+    def inputs_read(self) -> frozenset[str]:
+        """Pixels alone (``surprise``)."""
+        return frozenset()
+
     @torch.no_grad()
     def surprise(
         self,

@@ -40,6 +40,7 @@ def causality_of(summary: Mapping[str, Any]) -> Causality | None:
         non_causal=found["non_causal_pairs"],
         largest_difference=found["largest_difference"],
         first_frame=found["first_frame"],
+        unchecked=found.get("unchecked_pairs", 0),
     )
 
 
@@ -48,7 +49,7 @@ def causality_html(summary: Mapping[str, Any]) -> str:
     causality = causality_of(summary)
     if causality is None:
         return '<p class="causality">causality: not checked in this report</p>'
-    state = "passed" if causality.causal else "failed"
+    state = "failed" if not causality.causal else "passed" if causality.checked else "unchecked"
     return f'<p class="causality {state}">{html.escape(causality.line())}</p>'
 
 
