@@ -16,11 +16,13 @@ from voe_lightning import specs
 from voe_lightning.model import (
     CueScorer,
     ObjectCentricModel,
+    ObjectFollower,
     ObjectStateModel,
     SurpriseModel,
     VRNNLRUModel,
 )
 from voe_lightning.model.scorers.cue_scorer import CUE_NAMES
+from voe_lightning.model.scorers.followers import INPUTS, RULES
 from voe_lightning.model.scorers.videomae import VideoMAEScorer
 from voe_lightning.model.scorers.vjepa2 import VJEPA2Scorer
 from voe_lightning.scenes import CONCEPTS, PROBE_VARIANTS, generate_probe
@@ -174,6 +176,11 @@ FAMILIES = [
         id="object_state_pixels",
     ),
     *[pytest.param(lambda cue=cue: CueScorer(cue), id=f"cue_{cue}") for cue in CUE_NAMES],
+    *[
+        pytest.param(lambda r=rule, f=inputs: ObjectFollower(r, f), id=f"follower_{inputs}_{rule}")
+        for rule in RULES
+        for inputs in INPUTS
+    ],
     pytest.param(
         lambda: VideoMAEScorer(config=VIDEOMAE),
         id="videomae",

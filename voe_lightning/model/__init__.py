@@ -3,7 +3,8 @@ paper §4: LRU memory, encoder/decoder, recurrent core) and the object-centric m
 object slots from masks, per-object perception, interaction-network slot dynamics)
 and the positive control with perfect perception (``ObjectStateModel``: object states in, slot
 dynamics, the likelihood of what is seen as surprise), and the physics-blind cues as
-parameter-free models (``CueScorer``), any callable frames -> surprise (``CallableModel``) and a
+parameter-free models (``CueScorer``; ``ObjectFollower``, rules with no dynamics over per-object
+inputs), any callable frames -> surprise (``CallableModel``) and a
 maintained library's predictive models (``VideoMAEScorer``, transformers' VideoMAE;
 ``VJEPA2Scorer``, V-JEPA 2 scored as the V-JEPA intuitive-physics evaluation scores it).
 Each family is a sub-package (``vrnn_lru/``, ``object_centric/``, ``object_state/``,
@@ -12,7 +13,13 @@ Each family is a sub-package (``vrnn_lru/``, ``object_centric/``, ``object_state
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model.object_centric import ObjectCentricModel
 from voe_lightning.model.object_state import ObjectStateModel
-from voe_lightning.model.scorers import CallableModel, CueScorer, VideoMAEScorer, VJEPA2Scorer
+from voe_lightning.model.scorers import (
+    CallableModel,
+    CueScorer,
+    ObjectFollower,
+    VideoMAEScorer,
+    VJEPA2Scorer,
+)
 from voe_lightning.model.vrnn_lru import VRNNLRUModel
 from voe_lightning.model.vrnn_lru.memory import LRUMemory, MemoryState, Read
 from voe_lightning.model.vrnn_lru.networks import Decoder, Encoder
@@ -21,6 +28,7 @@ from voe_lightning.model.vrnn_lru.vrnn import VRNNCore, VRNNOutput, gaussian_kl,
 __all__ = [
     "SurpriseModel",
     "CueScorer",
+    "ObjectFollower",
     "CallableModel",
     "VideoMAEScorer",
     "VJEPA2Scorer",
