@@ -84,7 +84,8 @@ def previous(value: torch.Tensor, lag: int) -> torch.Tensor:
 class ObjectFollower(SurpriseModel):
     """Per-frame surprise of a physics-blind rule over per-object inputs, summed over the ids
     (``RULES`` says what each is surprised by). It has no parameters: it needs no checkpoint
-    and cannot be trained. Frame t's surprise reads frames, masks and states up to t.
+    and cannot be trained. Frame t's surprise reads frames, masks and states up to t. Given, for
+    the counted rules only: what counts as a change (``MOVE_TOLERANCE``, ``ATTRIBUTE_TOLERANCE``).
 
     Args:
         rule: one of ``RULES``.
@@ -177,8 +178,7 @@ class ObjectFollower(SurpriseModel):
         objects: TensorDictBase | None = None,
     ) -> torch.Tensor:
         """The frame before (a follower predicts objects, not pixels; frame 0: itself)."""
-        x = specs.to_model_input(frames)
-        return torch.cat([x[:, :1], x[:, :-1]], dim=1)
+        return previous(specs.to_model_input(frames), 1)
 
     def trajectories(
         self,
