@@ -289,3 +289,33 @@ def test_probes_refuse_videos_without_a_frame_for_the_change(variant):
     ):
         generate_probe("solidity", variant, 0, num_frames=4, height=32, width=32)
     assert solidity.manipulation_frames(VideoOptions(num_frames=5)) == [2]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_spliced_block_keeps_its_size_and_passes_through_the_floor(seed):
+    """Issue 70: the states of a quadruplet's spliced block are its own block's, moved where the
+    frames show the other block's top (checked by rendering them in ``quadruplet``), so a
+    follower of sizes finds nothing to be surprised by, and only the path tells: the tall block
+    sinks below the container's floor, the short one stops above it with nothing beneath."""
+    from voe_lightning.model.scorers.followers import ObjectFollower
+
+    follower = ObjectFollower("attributes", "states")
+    for variant in solidity.VARIANTS:
+        record = generate_probe(CONCEPT, variant, seed)
+        m = int(record["manipulation_frame"])
+        for video in ("consistent", "inconsistent"):
+            size = record[video, "objects", "size"][:, BLOCK]
+            assert (size == size[0]).all(), (variant, video)
+            surprise = follower.surprise(
+                record[video, "frames"][None], objects=record[video, "objects"][None]
+            )
+            assert surprise.abs().max() == 0, (variant, video)
+        states = record["inconsistent", "objects"]
+        bottom = states["position"][:, BLOCK, 2] - states["size"][:, BLOCK, 2]
+        container = states["size"][0, CONTAINER, 2] * 2
+        floor = record["consistent", "objects"]["position"][:, BLOCK, 2] - size[:, 2]
+        if variant == "standard":  # the tall block ends below the floor it rested on
+            assert bottom[-1] < floor[-1] - 0.05 and floor[-1] > 0
+        else:  # the short block stops well above where it lands
+            assert bottom[-1] > floor[-1] + 0.05 and bottom[-1] < container
+        assert torch.equal(bottom[: m + 1], floor[: m + 1])

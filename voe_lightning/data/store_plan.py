@@ -39,8 +39,10 @@ SEED_RANGE = 1_000_000_000
 #: gives every variant the same seeds (``split_seeds``), so a seed names a quadruplet; 10:
 #: solidity's block is lowered into view from above it (examples' blocks from up to
 #: EXAMPLE_LIFT above where they hang), so a quadruplet's first frame shows no block, and
-#: unchangeableness' changes are quadruplets too (``<change>`` and ``<change>_counterbalanced``).
-GENERATOR_VERSION = 10
+#: unchangeableness' changes are quadruplets too (``<change>`` and ``<change>_counterbalanced``);
+#: 11: solidity's spliced block keeps its size in the object states (its top where the other
+#: block's top is), so the states show a path through the floor, not a block changing height.
+GENERATOR_VERSION = 11
 
 
 @dataclass(frozen=True)

@@ -10,8 +10,11 @@ so that they fall alike. At the manipulation frame both have fallen
 FALL_TIME, their bottoms hidden by the front wall and only their level tops showing, so they
 render alike; the standard inconsistent video (A, then B) shows the tall block sink out of
 sight as if through the container and the floor, the counterbalanced one (B, then A) the short
-block stop protruding as if on something hidden. After the change each inconsistent video is
-exactly the other variant's consistent one. Examples vary heights and perspective freely;
+block stop protruding as if on something hidden. After the change each inconsistent video's
+frames and masks are exactly the other variant's consistent one's; its block keeps its own size
+in the object states, its top where the other block's top is (``keep_the_block``), so the states
+show the tall block sink through the floor or the short one stop above it, as the frames do,
+and never a block that changes height. Examples vary heights and perspective freely;
 controls show the container alone, or the block falling behind it and ending hidden by it."""
 
 from __future__ import annotations
@@ -373,7 +376,7 @@ def quadruplet(seed: int, video: VideoOptions) -> tuple:
         box, camera, frame = params["box"], params["camera"], params["manipulation_frame"]
         container_color, block_color = distinct_colors(rng, 2)
         scene_seed = int(rng.integers(2**63))  # one draw of the stage for both scenes
-        videos = []
+        videos, sims = [], []
         for size in ("tall", "short"):
             scene = _scene(params, size)
             builder = SceneBuilder(np.random.default_rng(scene_seed), video, camera)
@@ -385,6 +388,7 @@ def quadruplet(seed: int, video: VideoOptions) -> tuple:
             release = round(params["hold"] / video.timestep)
             sim.controller = hand_controller(sim, params["lift"], release)
             videos.append(sim.record(video.num_frames))
+            sims.append(sim)
         block_id = sim.mask_id("block")
         (_, tall, _), (_, short, _) = videos
         if block_id in visible_ids(tall[0]) | visible_ids(short[0]):
@@ -397,9 +401,36 @@ def quadruplet(seed: int, video: VideoOptions) -> tuple:
         if block_id in visible_ids(short[-1]):
             raise RejectedSample("the block that should be out of view is seen at the end")
         pairs = recording.quadruplet(videos[0], videos[1], frame)
+        for (own, spliced), puppet in zip(pairs, sims):
+            keep_the_block(own, spliced, block_id, frame)
+            if _shown_apart(puppet, spliced, block_id, frame) > PENETRATION_TOLERANCE:
+                raise RejectedSample("the spliced block's states would not render as its frames")
         return pairs, camera.as_array(), frame, block_id
 
     return draw_until_valid(make, rng_for(seed, CONCEPT, "quadruplet"))
+
+
+def keep_the_block(own: recording.Video, spliced: recording.Video, block_id: int, m: int) -> None:
+    """Give the spliced video's block, after the change at ``m``, its own size (the one ``own``,
+    its consistent video, shows) with its top where the other block's top is: the hidden change
+    is the block's path through (or stop above) the floor, not a swap of blocks, which a
+    learner reading states would see as a block changing height (issue 70). In place."""
+    objects, half = spliced[2], own[2]["size"][m, block_id]
+    objects["position"][m + 1 :, block_id, 2] += objects["size"][m + 1 :, block_id, 2] - half[2]
+    objects["size"][m + 1 :, block_id] = half
+
+
+def _shown_apart(sim: Simulation, spliced: recording.Video, block_id: int, m: int) -> int:
+    """The most pixels, over the frames after ``m``, where ``sim``'s block placed as the spliced
+    video's states say shows and the spliced video's mask does not, or the reverse: the states
+    must render as the frames (only the level tops show)."""
+    _, masks, objects = spliced
+    apart = 0
+    for t in range(m + 1, len(masks)):
+        sim.move("block", objects["position"][t, block_id], objects["orientation"][t, block_id])
+        _, mask, _ = sim.render()
+        apart = max(apart, int(((mask == block_id) != (masks[t] == block_id)).sum()))
+    return apart
 
 
 def _behind_container(rng: np.random.Generator, box: dict, block: dict, camera: CameraPose):
