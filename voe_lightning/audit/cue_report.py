@@ -25,6 +25,7 @@ from voe_lightning.audit.cues import (
     PHYSICS_PERFECT,
     audit_split,
 )
+from voe_lightning.audit.followers import follower_title
 from voe_lightning.audit.video_cues import CUES
 from voe_lightning.data.store_shards import write_whole
 from voe_lightning.stats import statistics
@@ -40,6 +41,7 @@ __all__ = [
     "audit",
     "cue_table",
     "format_correlations",
+    "format_followers",
     "format_markdown",
     "format_physics_perfect",
     "write_audit",
@@ -60,18 +62,30 @@ def _cell(row: Mapping[str, Any] | None) -> tuple[str, bool]:
     return f"{text.accuracy} / {text.d_z}", bool(separates)
 
 
+def cue_title(cue: str) -> str:
+    """A cue's column title: the pixel cues' short names, a follower's 'states: stay put'."""
+    return CUE_TITLES[cue] if cue in CUE_TITLES else follower_title(cue)
+
+
+def follower_names(cue_rows: Sequence[Mapping[str, Any]]) -> tuple[str, ...]:
+    """The followers among ``cue_rows``' cues (``audit.followers``), in order."""
+    return tuple(dict.fromkeys(r["cue"] for r in cue_rows if r["cue"] not in CUES))
+
+
 def _table_cells(
-    cue_rows: Sequence[Mapping[str, Any]], model_rows: Sequence[Mapping[str, Any]] | None
+    cue_rows: Sequence[Mapping[str, Any]],
+    model_rows: Sequence[Mapping[str, Any]] | None,
+    cues: Sequence[str] = CUES,
 ) -> list[tuple[str, str, int, list[tuple[str, bool]]]]:
     """(concept, variant, n, cells) per group: the model's cell first when given, then one
-    cell per cue."""
+    cell per cue of ``cues``."""
     by_key = {(r["concept"], r["variant"], r["cue"]): r for r in cue_rows}
     models = {(r["concept"], r["variant"]): r for r in model_rows or ()}
     table = []
     for concept, variant in dict.fromkeys((r["concept"], r["variant"]) for r in cue_rows):
         cells = [_cell(models.get((concept, variant)))] if model_rows is not None else []
-        cells += [_cell(by_key.get((concept, variant, cue))) for cue in CUES]
-        n = by_key[(concept, variant, CUES[0])]["n"]
+        cells += [_cell(by_key.get((concept, variant, cue))) for cue in cues]
+        n = by_key[(concept, variant, cues[0])]["n"]
         table.append((concept, variant, n, cells))
     return table
 
@@ -80,17 +94,19 @@ def format_markdown(
     cue_rows: Sequence[Mapping[str, Any]],
     model_rows: Sequence[Mapping[str, Any]] | None = None,
     title: str = "Cue audit",
+    cues: Sequence[str] = CUES,
 ) -> str:
     """The compact cue table as Markdown: per concept/variant (and pooled), accuracy / d_z of
-    each cue, beside the model's when ``model_rows`` (report summary rows) are given. Cue
-    cells that separate the pairs (two-sided p < alpha) are bold; model cells with one-tailed
-    p < alpha carry *. Notes (skipped cues, degenerate tests) follow the table."""
+    each cue of ``cues``, beside the model's when ``model_rows`` (report summary rows) are
+    given. Cue cells that separate the pairs (two-sided p < alpha) are bold; model cells with
+    one-tailed p < alpha carry *. Notes (skipped cues, degenerate tests) follow the table."""
     model = model_rows is not None
     header = (
         ["concept", "variant", "n"]
         + (["model (surprise)"] if model else [])
-        + [CUE_TITLES[cue] for cue in CUES]
+        + [cue_title(cue) for cue in cues]
     )
+    cue_rows = [r for r in cue_rows if r["cue"] in cues]
     alpha = rows_alpha(cue_rows)
     lines = [
         f"## {title} ({format_alpha(alpha)})",
@@ -98,7 +114,7 @@ def format_markdown(
         "| " + " | ".join(header) + " |",
         "|" + "---|" * len(header),
     ]
-    for concept, variant, n, cells in _table_cells(cue_rows, model_rows):
+    for concept, variant, n, cells in _table_cells(cue_rows, model_rows, cues):
         texts = []
         for index, (text, separates) in enumerate(cells):
             if model and index == 0:
@@ -111,7 +127,7 @@ def format_markdown(
         "",
         "Each cell: accuracy / d_z of d = score(inconsistent) - score(consistent) on "
         "the same pairs (cue accuracy counts ties as half: 50% is chance). Cues are "
-        "physics-blind: " + ", ".join(f"{CUE_TITLES[c]} = {c}" for c in CUES) + ". "
+        "physics-blind: " + ", ".join(f"{cue_title(c)} = {c}" for c in cues) + ". "
         f"**Bold**: the cue separates the pairs (two-sided p < {alpha:g}), so a model "
         "could do as well without physics."
         + (
@@ -123,12 +139,41 @@ def format_markdown(
         + " Full statistics in cues.csv.",
     ]
     notes = [
-        f"{r['concept']}/{r['variant']}, {CUE_TITLES[r['cue']]}: {r['note']}"
+        f"{r['concept']}/{r['variant']}, {cue_title(r['cue'])}: {r['note']}"
         for r in cue_rows
         if r.get("note") and "bootstrap" not in r["note"]
     ]
     lines += [f"- {note}" for note in notes]
     return "\n".join(lines) + "\n"
+
+
+def format_followers(
+    cue_rows: Sequence[Mapping[str, Any]], model_rows: Sequence[Mapping[str, Any]] | None = None
+) -> str:
+    """The followers' compact table (``format_markdown`` over ``follower_names``) and what a
+    bold pooled or quadruplet cell there means; empty without follower rows."""
+    names = follower_names(cue_rows)
+    if not names:
+        return ""
+    ties = [r for r in cue_rows if r["cue"] in names and "every d = 0" in (r.get("note") or "")]
+    quiet = [{**r, "note": None} if r in ties else r for r in cue_rows]
+    table = format_markdown(quiet, model_rows, "Followers of the model's own inputs", names)
+    return (
+        table
+        + (
+            f"\n{len(ties)} follower cells score both videos of every pair alike (every d = 0: "
+            "no test, p set to 1; cues.csv has their notes). "
+            if ties
+            else "\n"
+        )
+        + (
+            "Followers are rules with no dynamics over the inputs the model reads "
+            "(`voe_lightning.model.ObjectFollower`: stay put, attributes, seen again, same and seen, "
+            "nothing changes, copy last, linear extrapolation). A concept whose bold pooled or "
+            "quadruplet cell a follower holds can be passed from these inputs without physics; "
+            "unchangeableness' attribute memory is the concept itself.\n"
+        )
+    )
 
 
 def _correlation_table(correlation_rows: Sequence[Mapping[str, Any]], title: str) -> list[str]:
@@ -280,6 +325,8 @@ def write_audit(
     disk names the file and leaves the previous audit whole)."""
     out = check_out_folder(out_dir, "the audit's folder")
     markdown = format_markdown(cue_rows, model_rows, title)
+    if follower_names(cue_rows):
+        markdown += "\n" + format_followers(cue_rows, model_rows)
     files = {}
     for rows, formatter, name in (
         (correlation_rows, format_correlations, "cue_correlations"),
@@ -290,7 +337,11 @@ def write_audit(
             files[out / f"{name}.csv"] = _csv_text(rows, CORRELATION_COLUMNS)
     files[out / "cues.md"] = markdown
     files[out / "cues.csv"] = _csv_text(cue_rows, CUE_COLUMNS)
-    document = {**metadata, "cues": list(CUES), "rows": [json_row(row) for row in cue_rows]}
+    document = {
+        **metadata,
+        "cues": list(CUES + follower_names(cue_rows)),
+        "rows": [json_row(row) for row in cue_rows],
+    }
     if correlation_rows is not None:
         document["model_correlations"] = [json_row(row) for row in correlation_rows]
     if physics_perfect_rows is not None:

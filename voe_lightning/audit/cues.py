@@ -27,6 +27,7 @@ import torch
 from scipy import stats
 
 from voe_lightning import specs
+from voe_lightning.audit import followers as object_followers
 from voe_lightning.audit.video_cues import (
     CUES,
     FRAME_LOCAL_CUES,
@@ -131,7 +132,9 @@ class CueAudit:
     (side is ``consistent`` or ``inconsistent``; NaN where a cue cannot be scored), with each
     pair's concept and variant name and, where the records carry object states, its
     ``seen_extent`` [N, 3] and ``physics_perfect_surprise`` [N] (else None); ``seeds`` [N]
-    (None where unknown) match a quadruplet concept's two halves (``verdicts.quadruplets``)."""
+    (None where unknown) match a quadruplet concept's two halves (``verdicts.quadruplets``).
+    The cues are ``video_cues.CUES``, then the followers of a model's inputs where asked for
+    (``audit.followers``)."""
 
     concepts: np.ndarray
     variants: np.ndarray
@@ -143,16 +146,24 @@ class CueAudit:
     def __len__(self) -> int:
         return len(self.concepts)
 
+    @property
+    def cue_names(self) -> tuple[str, ...]:
+        """The cues scored, in table order: the pixel cues, then any followers."""
+        return tuple(self.scores["consistent"])
+
     @classmethod
     def score_batch(
         cls,
         batch: Any,
         concept_names: Sequence[str] = specs.CONCEPTS,
         variant_names: Sequence[str] = specs.VARIANTS,
+        followers: Sequence[str] = (),
     ) -> CueAudit:
         """Score a batch of probe pairs (a stacked probe TensorDict, as loaders yield them);
         ``concept``/``variant`` indices decode with the given name tuples. A pair whose masks
-        are all zero in both videos gets NaN ``foreground_pixels`` (no masks to count)."""
+        are all zero in both videos gets NaN ``foreground_pixels`` (no masks to count).
+        ``followers`` (``states``, ``masks``) adds those followers' scores
+        (``audit.followers.score``)."""
         m = batch["manipulation_frame"]
         scores = {
             side: score_videos(batch[side]["frames"], _mask(batch[side]), m) for side in SIDES
@@ -165,6 +176,13 @@ class CueAudit:
             for side in SIDES:
                 for cue in MASK_CUES:
                     scores[side][cue][unmasked] = math.nan
+        numbers = {
+            side: {
+                **{cue: values.cpu().numpy() for cue, values in scores[side].items()},
+                **object_followers.score(batch[side], m, followers),
+            }
+            for side in SIDES
+        }
         extent = physics_perfect = None
         if all("objects" in batch[side].keys() for side in SIDES):
             objects = [batch[side]["objects"] for side in ("inconsistent", "consistent")]
@@ -173,10 +191,7 @@ class CueAudit:
         return cls(
             np.array([concept_names[int(i)] for i in batch["concept"].reshape(-1)], dtype=object),
             np.array([variant_names[int(i)] for i in batch["variant"].reshape(-1)], dtype=object),
-            {
-                side: {cue: values.cpu().numpy() for cue, values in by_cue.items()}
-                for side, by_cue in scores.items()
-            },
+            numbers,
             extent,
             physics_perfect,
             batch["seed"].reshape(-1).cpu().numpy() if "seed" in batch.keys() else None,
@@ -188,11 +203,12 @@ class CueAudit:
         audits = list(audits)
         if not audits:
             raise ValueError("no cue scores to concatenate (no probe pairs were scored)")
+        names = audits[0].cue_names
         return cls(
             np.concatenate([a.concepts for a in audits]),
             np.concatenate([a.variants for a in audits]),
             {
-                side: {cue: np.concatenate([a.scores[side][cue] for a in audits]) for cue in CUES}
+                side: {cue: np.concatenate([a.scores[side][cue] for a in audits]) for cue in names}
                 for side in SIDES
             },
             *(
@@ -218,7 +234,7 @@ class CueAudit:
         every row, tested or not, carries ``alpha``."""
         rows = []
         for concept, variant, selected in self.groups():
-            for cue in CUES:
+            for cue in self.cue_names:
                 inconsistent = self.scores["inconsistent"][cue][selected]
                 consistent = self.scores["consistent"][cue][selected]
                 row: dict[str, Any] = dict.fromkeys(CUE_COLUMNS)
@@ -235,7 +251,8 @@ class CueAudit:
                 if unscored:
                     row["note"] = (
                         f"{cue} skipped: {unscored} of {2 * row['n']} videos have no "
-                        "object mask (all zero or absent)"
+                        + ("object states" if cue.startswith("states_") else "object mask")
+                        + " (all zero or absent)"
                     )
                 elif untested:
                     row["note"] = untested

@@ -12,6 +12,7 @@ from typing import Any
 
 import lightning as L
 
+from voe_lightning.audit.followers import features_read
 from voe_lightning.callbacks.common import (
     ProbeOutcome,
     RunAlpha,
@@ -91,11 +92,17 @@ class VOEReportCallback(RunAlpha, L.Callback):
         self._checkpoint_step: int | None = None
         self._reset((), ())
 
-    def _reset(self, concept_names: tuple[str, ...], variant_names: tuple[str, ...]) -> None:
-        """Fresh collaborators for a test of a DataModule with these names."""
+    def _reset(
+        self,
+        concept_names: tuple[str, ...],
+        variant_names: tuple[str, ...],
+        followers: tuple[str, ...] = (),
+    ) -> None:
+        """Fresh collaborators for a test of a DataModule with these names, auditing the
+        followers of the model's inputs (``followers``)."""
         self._concept_names, self._variant_names = concept_names, variant_names
         self._outputs = ProbeOutputs()
-        self._cues = CueScores(concept_names, variant_names)
+        self._cues = CueScores(concept_names, variant_names, followers)
         self._examples = ExampleVideos(
             self.max_prediction_examples, self.tsne_pairs, concept_names, variant_names
         )
@@ -138,7 +145,9 @@ class VOEReportCallback(RunAlpha, L.Callback):
         )
 
     def on_test_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        self._reset(*probe_names(trainer, type(self).__name__))
+        inputs_read = getattr(pl_module, "inputs_read", None)
+        followers = features_read(inputs_read()) if callable(inputs_read) else ()
+        self._reset(*probe_names(trainer, type(self).__name__), followers)
 
     def on_test_batch_end(
         self,

@@ -48,14 +48,23 @@ class ProbeOutputs:
 class CueScores:
     """The cue audit of each test batch's pairs (``audit.cues.CueAudit.score_batch``, on the
     batch's device), names decoded with the DataModule's ``concept_names`` and
-    ``variant_names``."""
+    ``variant_names``, with the followers of the inputs the model reads (``followers``:
+    ``states``, ``masks``; ``audit.followers.features_read``)."""
 
-    def __init__(self, concept_names: Sequence[str], variant_names: Sequence[str]) -> None:
+    def __init__(
+        self,
+        concept_names: Sequence[str],
+        variant_names: Sequence[str],
+        followers: Sequence[str] = (),
+    ) -> None:
         self.concept_names, self.variant_names = concept_names, variant_names
+        self.followers = tuple(followers)
         self.kept: list[cues.CueAudit] = []
 
     def add(self, batch: Any) -> None:
-        self.kept.append(cues.CueAudit.score_batch(batch, self.concept_names, self.variant_names))
+        self.kept.append(
+            cues.CueAudit.score_batch(batch, self.concept_names, self.variant_names, self.followers)
+        )
 
     @staticmethod
     def audit(gathered: Iterable[list[cues.CueAudit]]) -> cues.CueAudit:

@@ -188,6 +188,8 @@ def _write_cue_audit(
         + "\n"
         + cue_report.format_correlations(correlations)
     )
+    if cue_report.follower_names(cue_rows):
+        markdown += "\n" + cue_report.format_followers(cue_rows, rows)
     return markdown, correlations
 
 

@@ -2,6 +2,7 @@
 computations on one hand-made video of states and one of masks, refusing what they cannot read,
 and run by ``test`` with no checkpoint."""
 
+import csv
 import json
 
 import pytest
@@ -12,6 +13,7 @@ from tensordict import TensorDict
 from voe_lightning import specs
 from voe_lightning.cli import main
 from voe_lightning.model import ObjectFollower
+from voe_lightning.model.scorers.followers import RULES
 
 T, K = 5, specs.OBJECT_SLOTS
 
@@ -110,3 +112,17 @@ def test_test_scores_a_follower_with_no_checkpoint(tmp_path, monkeypatch):
     )
     (summary,) = tmp_path.glob("runs/follower/*/voe_report/summary.json")
     assert json.loads(summary.read_text())["source"]["checkpoint"] is None
+    # Its report's cue audit holds the followers of what it reads (the states), not the masks',
+    # and the stay-put follower's rows there are its own rows: the same rule on the same pairs.
+    report = summary.parent
+    rows = list(csv.DictReader((report / "cues.csv").open()))
+    cues = {row["cue"] for row in rows}
+    assert {f"states_{rule}" for rule in RULES} <= cues
+    assert not any(cue.startswith("masks_") for cue in cues)
+    assert "Followers of the model's own inputs" in (report / "cues.md").read_text()
+    own = {(r["concept"], r["variant"]): r for r in csv.DictReader((report / "summary.csv").open())}
+    followed = [r for r in rows if r["cue"] == "states_stay_put" and r["t"]]
+    assert followed
+    for row in followed:
+        model_row = own[(row["concept"], row["variant"])]
+        assert float(row["t"]) == pytest.approx(float(model_row["t"]), rel=1e-6, nan_ok=True)

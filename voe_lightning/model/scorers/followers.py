@@ -81,6 +81,73 @@ def previous(value: torch.Tensor, lag: int) -> torch.Tensor:
     return torch.cat([value[:, :1].expand(-1, lag, *value.shape[2:]), value[:, :-lag]], dim=1)
 
 
+def follower_inputs(
+    features: str,
+    frames: torch.Tensor,
+    mask: torch.Tensor | None,
+    objects: TensorDictBase | None,
+) -> dict[str, torch.Tensor]:
+    """``seen``, ``position`` and ``attributes`` of each id from the records' states
+    (``features`` ``states``) or from the masks and frames (``masks``), refused by name where
+    the data lacks that input."""
+    if features == "states":
+        if objects is None:
+            raise ValueError(
+                "ObjectFollower features 'states' reads the records' objects, and this "
+                "data has none: use features 'masks'"
+            )
+        return state_features(objects)
+    if mask is None:
+        raise ValueError("ObjectFollower features 'masks' needs masks; this data has none")
+    return mask_features(mask, frames)
+
+
+def rule_surprise(rule: str, features: str, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Per-frame surprise [B, T] of ``rule`` (``RULES``) over ``follower_inputs``, summed
+    over the ids."""
+    seen = inputs["seen"]
+    if rule in ("copy_last", "linear_extrapolation"):
+        return _extrapolation_error(rule, inputs)
+    moved = _change_since_seen(inputs["position"], seen)
+    changed = _change_since_seen(inputs["attributes"], seen)
+    gone = (last_seen(seen[..., None].float(), seen)[1] & ~seen).float()
+    if rule == "stay_put":
+        return moved.sum(-1)
+    if rule == "attributes":
+        return changed.sum(-1)
+    if rule == "seen_again":
+        return gone.sum(-1)
+    count = gone + (changed > ATTRIBUTE_TOLERANCE).float()
+    if rule == "nothing_changes":
+        count = count + (moved > MOVE_TOLERANCE[features]).float()
+    return count.sum(-1)
+
+
+def _change_since_seen(value: torch.Tensor, seen: torch.Tensor) -> torch.Tensor:
+    """Per frame and id, the distance of a seen id's ``value`` from its last seen one (0 for an
+    id not seen now or never seen before)."""
+    before, known = last_seen(value, seen)
+    distance = (value - before).norm(dim=-1)
+    return torch.where(seen & known, distance, 0.0)
+
+
+def _extrapolation_error(rule: str, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Squared error of the features (position, attributes) of ids seen at t and at the frames
+    the prediction reads."""
+    value = torch.cat([inputs["position"], inputs["attributes"]], dim=-1)
+    seen = inputs["seen"]
+    if rule == "copy_last":
+        predicted, valid = previous(value, 1), seen & previous(seen, 1)
+    else:
+        predicted = 2 * previous(value, 1) - previous(value, 2)
+        valid = seen & previous(seen, 1) & previous(seen, 2)
+    valid[:, 0] = False
+    if rule == "linear_extrapolation" and value.shape[1] > 1:
+        valid[:, 1] = False
+    error = ((value - predicted) ** 2).sum(-1)
+    return torch.where(valid, error, 0.0).sum(-1)
+
+
 class ObjectFollower(SurpriseModel):
     """Per-frame surprise of a physics-blind rule over per-object inputs, summed over the ids
     (``RULES`` says what each is surprised by). It has no parameters: it needs no checkpoint
@@ -107,20 +174,6 @@ class ObjectFollower(SurpriseModel):
         """The states or the masks, as ``features`` says."""
         return frozenset({"objects" if self.features == "states" else "mask"})
 
-    def _inputs(
-        self, frames: torch.Tensor, mask: torch.Tensor | None, objects: TensorDictBase | None
-    ) -> dict[str, torch.Tensor]:
-        if self.features == "states":
-            if objects is None:
-                raise ValueError(
-                    "ObjectFollower features 'states' reads the records' objects, and this "
-                    "data has none: use features 'masks'"
-                )
-            return state_features(objects)
-        if mask is None:
-            raise ValueError("ObjectFollower features 'masks' needs masks; this data has none")
-        return mask_features(mask, frames)
-
     def surprise(
         self,
         frames: torch.Tensor,
@@ -128,47 +181,8 @@ class ObjectFollower(SurpriseModel):
         camera: torch.Tensor | None = None,
         objects: TensorDictBase | None = None,
     ) -> torch.Tensor:
-        inputs = self._inputs(frames, mask, objects)
-        seen = inputs["seen"]
-        if self.rule in ("copy_last", "linear_extrapolation"):
-            return self._extrapolation_error(inputs)
-        moved = self._change_since_seen(inputs["position"], seen)
-        changed = self._change_since_seen(inputs["attributes"], seen)
-        gone = (last_seen(seen[..., None].float(), seen)[1] & ~seen).float()
-        if self.rule == "stay_put":
-            return moved.sum(-1)
-        if self.rule == "attributes":
-            return changed.sum(-1)
-        if self.rule == "seen_again":
-            return gone.sum(-1)
-        count = gone + (changed > ATTRIBUTE_TOLERANCE).float()
-        if self.rule == "nothing_changes":
-            count = count + (moved > MOVE_TOLERANCE[self.features]).float()
-        return count.sum(-1)
-
-    @staticmethod
-    def _change_since_seen(value: torch.Tensor, seen: torch.Tensor) -> torch.Tensor:
-        """Per frame and id, the distance of a seen id's ``value`` from its last seen one (0 for
-        an id not seen now or never seen before)."""
-        before, known = last_seen(value, seen)
-        distance = (value - before).norm(dim=-1)
-        return torch.where(seen & known, distance, 0.0)
-
-    def _extrapolation_error(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
-        """Squared error of the features (position, attributes) of ids seen at t and at the
-        frames the prediction reads."""
-        value = torch.cat([inputs["position"], inputs["attributes"]], dim=-1)
-        seen = inputs["seen"]
-        if self.rule == "copy_last":
-            predicted, valid = previous(value, 1), seen & previous(seen, 1)
-        else:
-            predicted = 2 * previous(value, 1) - previous(value, 2)
-            valid = seen & previous(seen, 1) & previous(seen, 2)
-        valid[:, 0] = False
-        if self.rule == "linear_extrapolation" and value.shape[1] > 1:
-            valid[:, 1] = False
-        error = ((value - predicted) ** 2).sum(-1)
-        return torch.where(valid, error, 0.0).sum(-1)
+        inputs = follower_inputs(self.features, frames, mask, objects)
+        return rule_surprise(self.rule, self.features, inputs)
 
     def expected_frames(
         self,
