@@ -92,6 +92,27 @@ def test_the_null_figure_draws_each_t_against_the_critical_t():
     ]
 
 
+def analyze_two_seeds(tmp_path: Path, extra_args: list[str]) -> str:
+    """``analyze null`` of the tiny config at seeds 0 and 1 into tmp_path/null, placing the
+    tiny run tested first; its table."""
+    return main(
+        [
+            "analyze",
+            "null",
+            "--configs",
+            f"[{TINY}]",
+            "--seeds",
+            "2",
+            "--out",
+            str(tmp_path / "null"),
+            "--trained",
+            str(tmp_path / "runs" / "tiny" / "version_0" / "voe_report"),
+            "--extra_args",
+            json.dumps(extra_args),
+        ]
+    )
+
+
 def test_analyze_null_tests_each_initialization_on_the_same_probes(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     main(
@@ -108,22 +129,7 @@ def test_analyze_null_tests_each_initialization_on_the_same_probes(tmp_path, mon
         ]
     )
     trained = tmp_path / "runs" / "tiny" / "version_0" / "voe_report"
-    table = main(
-        [
-            "analyze",
-            "null",
-            "--configs",
-            f"[{TINY}]",
-            "--seeds",
-            "2",
-            "--out",
-            str(tmp_path / "null"),
-            "--trained",
-            str(trained),
-            "--extra_args",
-            '["--trainer.enable_progress_bar", "false"]',
-        ]
-    )
+    table = analyze_two_seeds(tmp_path, ["--trainer.enable_progress_bar", "false"])
     document = json.loads((tmp_path / "null" / "null.json").read_text())
     assert [i["seed"] for i in document["initializations"]] == [0, 1]
     first, second = ([row["t"] for row in i["rows"]] for i in document["initializations"])
@@ -142,8 +148,23 @@ def test_analyze_null_tests_each_initialization_on_the_same_probes(tmp_path, mon
     assert all(
         row["initializations"] == 2 and "trained_percentile" in row for row in document["rows"]
     )
+    assert document["distinct_functions"] == 2 and "2 of 2 initializations are different" in table
     with pytest.raises(SystemExit):
         main(["analyze", "null", "--configs", f"[{TINY}]", "--seeds", "0"])
+
+
+def test_a_null_whose_initializations_are_one_function_says_it_tests_nothing(tmp_path, monkeypatch):
+    """Issue 70: a family whose every draw is the same function (here a follower, which has
+    no parameters; the zero-heads learner is another) is named, and a trained t gets no
+    percentile among copies of one value."""
+    monkeypatch.chdir(tmp_path)
+    follower = ["--model", "voe_lightning.model.ObjectFollower", "--trainer.enable_progress_bar"]
+    main(["test", "--config", TINY, *follower, "false"])
+    table = analyze_two_seeds(tmp_path, [*follower, "false"])
+    document = json.loads((tmp_path / "null" / "null.json").read_text())
+    assert document["distinct_functions"] == 1
+    assert "they are one function, and this null tests nothing" in table
+    assert all(row["trained_percentile"] is None for row in document["rows"] if "trained_t" in row)
 
 
 def control_config(folder: Path) -> str:

@@ -17,6 +17,7 @@ config at its own seed, which ``test`` runs first where the report callback asks
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -176,8 +177,27 @@ def null_rows(
     return rows
 
 
-def format_null(rows: Sequence[Mapping[str, Any]], alpha: float) -> str:
-    """``null_rows`` as a Markdown table with a line saying what the columns are."""
+def distinct_functions(reports: Sequence[Path]) -> int:
+    """How many different functions the initializations behind ``reports`` (their voe_report
+    folders) are on the probes: the number of different pairs.csv files (every pair's
+    per-frame surprise, written in full precision)."""
+    return len({hashlib.sha256((Path(r) / "pairs.csv").read_bytes()).digest() for r in reports})
+
+
+def one_function(rows: list[dict[str, Any]]) -> None:
+    """Take the trained percentile out of ``rows`` of a null whose initializations are one
+    function: a t among copies of one value is no percentile of anything. In place."""
+    for row in rows:
+        if "trained_percentile" in row:
+            row["trained_percentile"] = None
+
+
+def format_null(
+    rows: Sequence[Mapping[str, Any]], alpha: float, distinct: int | None = None
+) -> str:
+    """``null_rows`` as a Markdown table with a line saying what the columns are and, given
+    ``distinct`` (``distinct_functions``), how many different functions the initializations
+    are."""
     lines = [
         "| concept | variant | inits | t median [min, max] | significant | concept VOE "
         "| trained t | percentile |",
@@ -203,6 +223,18 @@ def format_null(rows: Sequence[Mapping[str, Any]], alpha: float) -> str:
         "(ties half); undefined: initializations whose every difference was 0, left out of "
         "the spread and the percentile.",
     ]
+    count = rows[0]["initializations"] if rows else 0
+    if distinct is not None and distinct < 2 <= count:
+        lines += [
+            "",
+            f"**All {count} initializations score every pair alike: they are one function, "
+            "and this null tests nothing** (the family starts from the same function at "
+            "every seed, e.g. predicting layers started at zero). Read a trained run against "
+            "the followers of its own inputs instead (its report's cues.md) or draw "
+            "initializations that differ.",
+        ]
+    elif distinct is not None:
+        lines += ["", f"{distinct} of {count} initializations are different functions."]
     return "\n".join(lines) + "\n"
 
 
@@ -306,18 +338,21 @@ def untrained_null(
         raise ValueError(f"seeds must be at least 1, got {seeds}")
     out = Path(out)
     trained_summary = None if trained is None else read_summary(trained)
-    summaries = []
+    summaries, reports = [], []
     for seed in range(seeds):
-        summaries.append(
-            read_summary(_untrained_report(_build_cli, configs, seed, out, extra_args or ()))
-        )
+        reports.append(_untrained_report(_build_cli, configs, seed, out, extra_args or ()))
+        summaries.append(read_summary(reports[-1]))
         if trained_summary is not None and seed == 0:  # refused before the other seeds run
             check_same_probes(summaries[0], trained_summary, trained)
     rows = null_rows(summaries, trained_summary)
-    table = format_null(rows, summaries[0]["alpha"])
+    distinct = distinct_functions(reports)
+    if distinct == 1:
+        one_function(rows)
+    table = format_null(rows, summaries[0]["alpha"], distinct)
     document = {
         "configs": [str(c) for c in configs],
         "seeds": seeds,
+        "distinct_functions": distinct,
         "rows": rows,
         "initializations": [
             {"seed": seed, "rows": s["rows"], "verdicts": s["verdicts"]}
