@@ -89,3 +89,30 @@ def test_the_mask_rung_learns_from_masks_and_frames():
     assert losses[-1] < losses[0] - 50, losses
     with pytest.raises(ValueError, match="batch key 'mask'"):
         model.surprise(clips["frames"], objects=clips["objects"], camera=clips["camera"])
+
+
+@pytest.mark.parametrize("perception", ["masks", "pixels"])
+def test_a_camera_rungs_surprise_is_unchanged_without_the_amodal_objects(perception):
+    """Issue 70: the camera rungs read what a camera gives (frames, masks, camera pose), so
+    removing the records' amodal ``objects`` from the probes leaves every frame's surprise
+    exactly as it was; the rung says so (``inputs_read``), and its report audits the followers
+    of masks, not of states."""
+    from voe_lightning.audit.followers import features_read
+    from voe_lightning.scenes import generate_probe
+
+    torch.manual_seed(0)
+    options = dict(perception=perception, hidden_size=8, message_size=4, **GEOMETRY_OFF)
+    if perception == "pixels":
+        options["projection"] = False
+    model = ObjectStateModel(**options).eval()
+    assert model.inputs_read() == frozenset({"mask"}) and features_read(model.inputs_read()) == (
+        "masks",
+    )
+    batch = torch.stack([generate_probe("solidity", "standard", seed) for seed in (0, 1)])
+    for side in ("consistent", "inconsistent"):
+        video = batch[side]
+        camera = batch["camera"]
+        with_objects = model.surprise(video["frames"], video["mask"], camera, video["objects"])
+        without = model.surprise(video["frames"], video["mask"], camera, None)
+        assert torch.equal(with_objects, without)
+    assert ObjectStateModel(**GEOMETRY_OFF).inputs_read() == frozenset({"objects"})

@@ -385,6 +385,11 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         )
 
     # ----------------------------------------------------------------------------- protocol
+    def inputs_read(self) -> frozenset[str]:
+        """What a camera gives (the mask; frames and camera always) for ``perception`` masks
+        or pixels, which never read the record's amodal ``objects``; those for states."""
+        return frozenset({"objects"} if self.hparams.perception == "states" else {"mask"})
+
     @torch.no_grad()
     def surprise(
         self,
