@@ -47,6 +47,8 @@ __all__ = [
     "write_audit",
 ]
 
+#: Concepts where a follower's pass is the concept itself (attribute memory), marked ‡.
+CONCEPT_ITSELF = ("unchangeableness",)
 #: How a compact table's cell writes accuracy and d_z: '61% / +0.52'.
 CELL_STYLE = replace(BRIEF, d_z="+.2f")
 #: The rows a concept's verdict may read, printed bold: its pooled and quadruplet tests.
@@ -158,6 +160,8 @@ def format_followers(
     ties = [r for r in cue_rows if r["cue"] in names and "every d = 0" in (r.get("note") or "")]
     quiet = [{**r, "note": None} if r in ties else r for r in cue_rows]
     table = format_markdown(quiet, model_rows, "Followers of the model's own inputs", names)
+    for concept in CONCEPT_ITSELF:
+        table = table.replace(f"| {concept} |", f"| {concept} ‡ |")
     return (
         table
         + (
@@ -171,7 +175,8 @@ def format_followers(
             "(`voe_lightning.model.ObjectFollower`: stay put, attributes, seen again, same and seen, "
             "nothing changes, copy last, linear extrapolation). A concept whose bold pooled or "
             "quadruplet cell a follower holds can be passed from these inputs without physics; "
-            "unchangeableness' attribute memory is the concept itself.\n"
+            "‡ unchangeableness: a memory of each object's attributes is the concept itself "
+            "(docs/study/shortcuts.md).\n"
         )
     )
 

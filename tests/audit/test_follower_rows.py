@@ -1,0 +1,34 @@
+"""The followers' rows of a report's cue audit (issue 70): tested like every cue, tabled on their
+own, unchangeableness marked as the concept itself, and a tie (every d = 0) said once."""
+
+import numpy as np
+
+from voe_lightning.audit.cue_report import format_followers
+from voe_lightning.audit.cues import CueAudit
+from voe_lightning.audit.followers import follower_cues
+
+
+def test_follower_rows_are_tested_tabled_and_marked():
+    rng = np.random.default_rng(0)
+    n = 20
+    concepts = np.array(["continuity"] * (2 * n) + ["unchangeableness"] * n, dtype=object)
+    variants = np.array(["standard"] * n + ["counterbalanced"] * n + ["color"] * n, dtype=object)
+    seeds = np.concatenate([np.arange(n), np.arange(n), np.arange(n)])
+    cues = follower_cues("states")
+    consistent = {cue: rng.normal(size=3 * n) for cue in cues}
+    inconsistent = {cue: values.copy() for cue, values in consistent.items()}
+    inconsistent["states_stay_put"] = consistent["states_stay_put"] + 1 + rng.normal(0, 0.1, 3 * n)
+    audit = CueAudit(
+        concepts, variants, {"consistent": consistent, "inconsistent": inconsistent}, seeds=seeds
+    )
+    assert audit.cue_names == cues
+    rows = audit.rows(alpha=0.01)
+    quadruplet = next(
+        r for r in rows if r["cue"] == "states_stay_put" and r["variant"] == "quadruplet"
+    )
+    assert quadruplet["significant"] and quadruplet["n"] == n
+    text = format_followers(rows)
+    assert "| unchangeableness ‡ |" in text and "| continuity |" in text
+    assert "states: stay put" in text and "every d = 0" in text
+    assert "- continuity/standard, states: attributes: every d = 0" not in text  # said once
+    assert format_followers([r for r in rows if r["cue"] == "nothing"]) == ""
