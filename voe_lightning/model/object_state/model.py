@@ -89,7 +89,11 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     verdict against an additive composition on validation at 1,000 steps and was not measured
     trained long. Never removable: one slot per
     tracker id, the states of the objects while seen, the camera pose, the mixture's bound
-    on a frame's move (``MAX_MOVE``).
+    on a frame's move (``MAX_MOVE``), and the move between a slot's last two states, which its
+    GRU reads whether or not ``inertia`` is on. With ``perception: states`` those states are an
+    oracle's (issue 70): every object's whole 3D box while any of it is seen, occluders' too,
+    one slot per id that never dies, so identity through occlusion and permanence are given;
+    it is the ceiling a camera learner is read against, not a learner from vision.
 
     With ``perception: masks`` (the mask rung, ``configs/learned_masks.yaml``) it reads no 3D
     state: per mask id, the image-plane centroid, half-extents, area and mean colour of its
