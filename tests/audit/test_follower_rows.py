@@ -1,9 +1,10 @@
 """The followers' rows of a report's cue audit (issue 70): tested like every cue, tabled on their
-own, unchangeableness marked as the concept itself, and a tie (every d = 0) said once."""
+own, unchangeableness marked as the concept itself, a tie (every d = 0) said once, and the
+concepts a follower passes by the verdict's own rule named."""
 
 import numpy as np
 
-from voe_lightning.audit.cue_report import format_followers
+from voe_lightning.audit.cue_report import followers_passing, format_followers
 from voe_lightning.audit.cues import CueAudit
 from voe_lightning.audit.followers import follower_cues
 
@@ -31,4 +32,6 @@ def test_follower_rows_are_tested_tabled_and_marked():
     assert "| unchangeableness ‡ |" in text and "| continuity |" in text
     assert "states: stay put" in text and "every d = 0" in text
     assert "- continuity/standard, states: attributes: every d = 0" not in text  # said once
+    assert "**Passed by a follower**" in text and "continuity (states: stay put)." in text
+    assert followers_passing(rows) == {"continuity": ["states_stay_put"]}
     assert format_followers([r for r in rows if r["cue"] == "nothing"]) == ""

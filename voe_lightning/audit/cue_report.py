@@ -28,7 +28,7 @@ from voe_lightning.audit.cues import (
 from voe_lightning.audit.followers import follower_title
 from voe_lightning.audit.video_cues import CUES
 from voe_lightning.data.store_shards import write_whole
-from voe_lightning.stats import statistics
+from voe_lightning.stats import statistics, verdicts
 from voe_lightning.stats.statistics_format import (
     BRIEF,
     format_alpha,
@@ -149,6 +149,34 @@ def format_markdown(
     return "\n".join(lines) + "\n"
 
 
+def followers_passing(cue_rows: Sequence[Mapping[str, Any]]) -> dict[str, list[str]]:
+    """Per concept, the followers among ``cue_rows`` that pass it by the verdict's own rule
+    (``verdicts.concept_verdicts`` on each follower's rows), in table order."""
+    passing: dict[str, list[str]] = {}
+    for cue in follower_names(cue_rows):
+        rows = [r for r in cue_rows if r["cue"] == cue]
+        for verdict in verdicts.concept_verdicts(rows, alpha=rows_alpha(rows)):
+            if verdict.voe:
+                passing.setdefault(verdict.concept, []).append(cue)
+    return passing
+
+
+def _passing_line(cue_rows: Sequence[Mapping[str, Any]]) -> str:
+    """One sentence: which concepts a follower passes by the verdict's rule, or none."""
+    passing = followers_passing(cue_rows)
+    if not passing:
+        return "No follower passes any concept by the verdict's rule."
+    parts = [
+        f"{concept}{' ‡' if concept in CONCEPT_ITSELF else ''} "
+        f"({', '.join(cue_title(cue) for cue in cues)})"
+        for concept, cues in passing.items()
+    ]
+    return (
+        "**Passed by a follower** (the verdict's rule: quadruplet test significant, both halves "
+        f"above 0): {'; '.join(parts)}. A model's VOE there is no evidence of physics."
+    )
+
+
 def format_followers(
     cue_rows: Sequence[Mapping[str, Any]], model_rows: Sequence[Mapping[str, Any]] | None = None
 ) -> str:
@@ -173,11 +201,12 @@ def format_followers(
         + (
             "Followers are rules with no dynamics over the inputs the model reads "
             "(`voe_lightning.model.ObjectFollower`: stay put, attributes, seen again, same and seen, "
-            "nothing changes, copy last, linear extrapolation). A concept whose bold pooled or "
-            "quadruplet cell a follower holds can be passed from these inputs without physics; "
-            "‡ unchangeableness: a memory of each object's attributes is the concept itself "
-            "(docs/study/shortcuts.md).\n"
+            "nothing changes, copy last, linear extrapolation); a bold cell says one separates "
+            "the pairs, in either direction. ‡ unchangeableness: a memory of each object's "
+            "attributes is the concept itself (docs/study/shortcuts.md).\n\n"
         )
+        + _passing_line(cue_rows)
+        + "\n"
     )
 
 
