@@ -1,50 +1,72 @@
-"""The followers table of docs/study/shortcuts.md: every physics-blind follower of per-object
-inputs (``ObjectFollower``: each rule of ``RULES`` on ``states`` and on ``masks``) tested with
-``test`` on one probe set, then the Markdown table of their verdicts (``learned_physics.table``).
+"""The followers tables of docs/study/shortcuts.md: every physics-blind follower of per-object
+inputs (``ObjectFollower``'s ``RULES`` on ``states`` and on ``masks``) on one probe set, read
+from the followers' rows of a report's cue audit (one ``test`` per input: a follower reads that
+input, so its report audits all seven), each follower's verdicts decided by the report's rule.
 A concept a follower passes can be passed without physics from that input.
 
-    python experiments/follower_audit.py --seed_offset 7000000 [--config configs/cpu.yaml]
+    python experiments/follower_audit.py --seed_offset 8000000 [--config configs/cpu.yaml]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
-from learned_physics import table
+from learned_physics import cell, counts
 
-from voe_lightning.model.scorers.followers import INPUTS, RULES
+from voe_lightning import specs
+from voe_lightning.audit.followers import follower_cues, follower_title
+from voe_lightning.model.scorers.followers import INPUTS
+from voe_lightning.stats.verdicts import concept_verdicts
 
 
-def run_follower(config: str, seed_offset: int, features: str, rule: str, save_dir: str) -> Path:
-    """``test`` of one follower on the config's probes at ``seed_offset``; its report folder."""
-    name = f"follower_{features}_{rule}"
+def audited_report(config: str, seed_offset: int, features: str, save_dir: str) -> Path:
+    """``test`` of a follower of ``features`` on the config's probes at ``seed_offset``; its
+    report folder, whose cue audit holds every follower of that input."""
+    name = f"followers_of_{features}"
     command = [
-        sys.executable,
-        "-m",
-        "voe_lightning",
-        "test",
-        "--config",
-        config,
-        "--model",
-        "voe_lightning.model.ObjectFollower",
-        "--model.init_args.rule",
-        rule,
-        "--model.init_args.features",
-        features,
-        "--data.init_args.seed_offset",
-        str(seed_offset),
-        "--trainer.logger.init_args.save_dir",
-        save_dir,
-        "--trainer.logger.init_args.name",
-        name,
+        *(sys.executable, "-m", "voe_lightning", "test", "--config", config),
+        *("--model", "voe_lightning.model.ObjectFollower"),
+        *("--model.init_args.features", features),
+        *("--data.init_args.seed_offset", str(seed_offset)),
+        *("--trainer.logger.init_args.save_dir", save_dir),
+        *("--trainer.logger.init_args.name", name),
     ]
     done = subprocess.run(command, capture_output=True, text=True)
     if done.returncode != 0:
         sys.exit(f"{name} failed ({done.returncode}):\n{done.stderr[-2000:]}")
     return max(Path(save_dir, name).glob("version_*/voe_report"), key=lambda p: p.stat().st_mtime)
+
+
+def follower_summaries(report: Path, features: str) -> list[tuple[str, dict[str, Any]]]:
+    """(title, summary-like document: its rows and the report's verdicts of them) per follower
+    of ``features`` in ``report``'s cue audit (cues.json)."""
+    rows = json.loads((report / "cues.json").read_text())["rows"]
+    summaries = []
+    for cue in follower_cues(features):
+        own = [row for row in rows if row["cue"] == cue]
+        verdicts = concept_verdicts(own, alpha=own[0]["alpha"])
+        document = {"rows": own, "verdicts": [dataclasses.asdict(v) for v in verdicts]}
+        summaries.append((follower_title(cue).split(": ", 1)[1], document))
+    return summaries
+
+
+def table(summaries: list[tuple[str, dict[str, Any]]]) -> str:
+    """The Markdown table of the followers' verdicts per concept, and their counts."""
+    lines = [
+        "| concept | " + " | ".join(title for title, _ in summaries) + " |",
+        "|---|" + "---|" * len(summaries),
+    ]
+    for concept in specs.CONCEPTS:
+        cells = " | ".join(cell(summary, concept) for _, summary in summaries)
+        lines.append(f"| {concept.replace('_', ' ')} | {cells} |")
+    lines.append("| **verdicts** | " + " | ".join(counts(s) for _, s in summaries) + " |")
+    return "\n".join(lines) + "\n\n† a half not significant on its own at the report's alpha.\n"
 
 
 def main() -> None:
@@ -55,15 +77,9 @@ def main() -> None:
     parser.add_argument("--features", nargs="+", default=list(INPUTS), choices=INPUTS)
     args = parser.parse_args()
     for features in args.features:
-        runs = [
-            (
-                rule.replace("_", " "),
-                run_follower(args.config, args.seed_offset, features, rule, args.save_dir),
-            )
-            for rule in RULES
-        ]
-        print(f"\n### Followers of {features}, seed offset {args.seed_offset}\n")
-        print(table(runs), end="")
+        report = audited_report(args.config, args.seed_offset, features, args.save_dir)
+        print(f"\n### Followers of {features}, seed offset {args.seed_offset}\n", flush=True)
+        print(table(follower_summaries(report, features)), end="", flush=True)
 
 
 if __name__ == "__main__":
