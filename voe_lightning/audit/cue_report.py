@@ -42,6 +42,8 @@ __all__ = [
     "cue_table",
     "format_correlations",
     "format_followers",
+    "followers_passing",
+    "passing_sentence",
     "format_markdown",
     "format_physics_perfect",
     "write_audit",
@@ -163,7 +165,11 @@ def followers_passing(cue_rows: Sequence[Mapping[str, Any]]) -> dict[str, list[s
 
 def _passing_line(cue_rows: Sequence[Mapping[str, Any]]) -> str:
     """One sentence: which concepts a follower passes by the verdict's rule, or none."""
-    passing = followers_passing(cue_rows)
+    return passing_sentence(followers_passing(cue_rows))
+
+
+def passing_sentence(passing: Mapping[str, Sequence[str]]) -> str:
+    """One sentence of ``followers_passing``: which concepts a follower passes, or none."""
     if not passing:
         return "No follower passes any concept by the verdict's rule."
     parts = [

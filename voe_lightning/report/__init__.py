@@ -125,6 +125,8 @@ def _write_files(inputs: ReportInputs, report_dir: Path, echo: bool) -> list[dic
             seed=inputs.seed,
         )
     )
+    cue_rows = [] if cue_audit is None else cue_audit.rows(alpha=alpha)
+    followers = cue_report.follower_names(cue_rows)
     markdown = write_summary(
         results,
         rows,
@@ -136,10 +138,11 @@ def _write_files(inputs: ReportInputs, report_dir: Path, echo: bool) -> list[dic
         window=inputs.window,
         window_rows=window_rows,
         priors_alone=inputs.priors_alone,
+        followers_passing=cue_report.followers_passing(cue_rows) if followers else None,
     )
     correlations = None
     if cue_audit is not None:
-        cue_markdown, correlations = _write_cue_audit(inputs, cue_audit, rows, report_dir)
+        cue_markdown, correlations = _write_cue_audit(inputs, cue_audit, rows, cue_rows, report_dir)
         markdown += cue_markdown
     write_figures(
         results,
@@ -158,10 +161,15 @@ def _write_files(inputs: ReportInputs, report_dir: Path, echo: bool) -> list[dic
 
 
 def _write_cue_audit(
-    inputs: ReportInputs, cue_audit: cues.CueAudit, rows: list[dict[str, Any]], report_dir: Path
+    inputs: ReportInputs,
+    cue_audit: cues.CueAudit,
+    rows: list[dict[str, Any]],
+    cue_rows: list[dict[str, Any]],
+    report_dir: Path,
 ) -> tuple[str, list[dict[str, Any]]]:
     """The cue audit's files of the model's own pairs (refused unless they are the same pairs
-    in the same order); its Markdown and the model's correlations with each cue."""
+    in the same order; ``cue_rows`` its rows); its Markdown and the model's correlations with
+    each cue."""
     results, alpha = inputs.results, inputs.alpha
     if len(cue_audit) != len(results):
         raise ValueError(
@@ -170,7 +178,6 @@ def _write_cue_audit(
         )
     if tuple(cue_audit.concepts) != results.concept or tuple(cue_audit.variants) != results.variant:
         raise ValueError("the cue audit's pairs are not the model's pairs in the same order")
-    cue_rows = cue_audit.rows(alpha=alpha)
     correlations = cue_audit.model_correlations(results.relative_surprise, alpha=alpha)
     title = "Cue audit on the model's test pairs"
     cue_report.write_audit(

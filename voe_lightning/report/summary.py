@@ -9,6 +9,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from voe_lightning.audit.cue_report import passing_sentence
 from voe_lightning.report.markdown import format_markdown, format_source
 from voe_lightning.report.pairs import PairResults
 from voe_lightning.report.priors_alone import format_priors_alone, priors_alone_document
@@ -32,6 +33,7 @@ def write_summary(
     window: SurpriseWindow = SurpriseWindow(),
     window_rows: Sequence[Mapping[str, Any]] | None = None,
     priors_alone: Mapping[str, Any] | None = None,
+    followers_passing: Mapping[str, Sequence[str]] | None = None,
 ) -> str:
     """Write pairs.csv, summary.json (with ``source``: what the report was made from, and
     pairs.csv's SHA-256, which ``PairResults.from_csv`` checks), summary.csv and summary.md
@@ -40,7 +42,10 @@ def write_summary(
     other than all frames, its ``window_rows`` go beside them: summary.json's ``window``,
     summary_window.csv and a section of summary.md; ``priors_alone`` (the untrained copy's
     summary, ``null.priors_alone``) gives summary.json's ``priors_alone`` and its section of
-    summary.md. Return the Markdown summary."""
+    summary.md; ``followers_passing`` (``cue_report.followers_passing`` of the followers of
+    the model's inputs) gives summary.json's ``followers_passing`` and a line under the
+    verdicts: a VOE a follower also gets is no evidence of physics. Return the Markdown
+    summary."""
     results.to_csv(report_dir / "pairs.csv")
     causality = results.causality
     verdicts = concept_verdicts(rows, alpha, causality)
@@ -62,6 +67,13 @@ def write_summary(
     markdown = format_source(document["source"]) + format_markdown(
         rows, verdicts, surprise, causality=causality
     )
+    if followers_passing is not None:
+        document["followers_passing"] = {c: list(f) for c, f in followers_passing.items()}
+        markdown += (
+            "\nFollowers of the model's own inputs (cues.md): "
+            + passing_sentence(followers_passing)
+            + "\n"
+        )
     if priors_alone is not None:
         document["priors_alone"] = priors_alone_document(priors_alone)
         markdown += "\n" + format_priors_alone(

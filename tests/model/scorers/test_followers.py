@@ -120,6 +120,10 @@ def test_test_scores_a_follower_with_no_checkpoint(tmp_path, monkeypatch):
     assert {f"states_{rule}" for rule in RULES} <= cues
     assert not any(cue.startswith("masks_") for cue in cues)
     assert "Followers of the model's own inputs" in (report / "cues.md").read_text()
+    # the summary says under the verdicts which concepts a follower passes too
+    document = json.loads(summary.read_text())
+    assert isinstance(document["followers_passing"], dict)
+    assert "Followers of the model's own inputs (cues.md): " in (report / "summary.md").read_text()
     own = {(r["concept"], r["variant"]): r for r in csv.DictReader((report / "summary.csv").open())}
     followed = [r for r in rows if r["cue"] == "states_stay_put" and r["t"]]
     assert followed
