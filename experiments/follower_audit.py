@@ -20,8 +20,7 @@ from typing import Any
 from learned_physics import cell, counts
 
 from voe_lightning import specs
-from voe_lightning.audit.followers import follower_cues, follower_title
-from voe_lightning.model.scorers.followers import INPUTS
+from voe_lightning.model.scorers.followers import INPUTS, RULES
 from voe_lightning.stats.verdicts import concept_verdicts
 
 
@@ -48,11 +47,11 @@ def follower_summaries(report: Path, features: str) -> list[tuple[str, dict[str,
     of ``features`` in ``report``'s cue audit (cues.json)."""
     rows = json.loads((report / "cues.json").read_text())["rows"]
     summaries = []
-    for cue in follower_cues(features):
-        own = [row for row in rows if row["cue"] == cue]
+    for rule in RULES:
+        own = [row for row in rows if row["cue"] == f"{features}_{rule}"]
         verdicts = concept_verdicts(own, alpha=own[0]["alpha"])
         document = {"rows": own, "verdicts": [dataclasses.asdict(v) for v in verdicts]}
-        summaries.append((follower_title(cue).split(": ", 1)[1], document))
+        summaries.append((rule.replace("_", " "), document))
     return summaries
 
 

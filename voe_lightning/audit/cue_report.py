@@ -163,11 +163,6 @@ def followers_passing(cue_rows: Sequence[Mapping[str, Any]]) -> dict[str, list[s
     return passing
 
 
-def _passing_line(cue_rows: Sequence[Mapping[str, Any]]) -> str:
-    """One sentence: which concepts a follower passes by the verdict's rule, or none."""
-    return passing_sentence(followers_passing(cue_rows))
-
-
 def passing_sentence(passing: Mapping[str, Sequence[str]]) -> str:
     """One sentence of ``followers_passing``: which concepts a follower passes, or none."""
     if not passing:
@@ -211,7 +206,7 @@ def format_followers(
             "the pairs, in either direction. ‡ unchangeableness: a memory of each object's "
             "attributes is the concept itself (docs/study/shortcuts.md).\n\n"
         )
-        + _passing_line(cue_rows)
+        + passing_sentence(followers_passing(cue_rows))
         + "\n"
     )
 
