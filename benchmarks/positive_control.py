@@ -38,10 +38,10 @@ import yaml
 from torch import nn
 from torch.utils.data import ConcatDataset
 
-from datamodules.resident import ResidentBatches, resident_records
-from datamodules.voe import InterleavedSampler
 from voe_lightning import specs
 from voe_lightning.data.store import open_split
+from voe_lightning.datamodules.resident import ResidentBatches, resident_records
+from voe_lightning.datamodules.voe import InterleavedSampler
 from voe_lightning.model import ObjectStateModel
 
 REPO = Path(__file__).resolve().parents[1]

@@ -6,7 +6,7 @@ and on a GPU ``graphed`` (compiled, the loss's forward and backward replayed fro
 Sizes from ``configs/quickstart.yaml`` and ``configs/paper.yaml``, at the config's batch and
 any ``--batch-size`` more.
 
-Clips are random uint8 held on the device (``datamodules.resident``), so loading costs nothing.
+Clips are random uint8 held on the device (``voe_lightning.datamodules.resident``), so loading costs nothing.
 Paths are timed in interleaved rounds (the order reversed every round; each round a short
 ``fit`` whose first steps are not timed); the table gives each path's median. Per path also:
 host syncs a plain step and a read-back step (every ``log_every_n_steps`` the model reads its
@@ -34,7 +34,7 @@ from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils.data import SequentialSampler
 from torch.utils.flop_counter import FlopCounterMode
 
-from datamodules.resident import ResidentBatches
+from voe_lightning.datamodules.resident import ResidentBatches
 from voe_lightning.model import VRNNLRUModel
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"

@@ -16,8 +16,8 @@ import numpy as np
 import torch
 import yaml
 
-from datamodules import VOEDataModule
 from voe_lightning import specs
+from voe_lightning.datamodules import VOEDataModule
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.base import video_inputs
 from voe_lightning.model.likelihood import rectified_excess

@@ -15,9 +15,9 @@ import mujoco
 import numpy as np
 import torch
 
-from datamodules import VOEDataModule
 from voe_lightning import specs
 from voe_lightning.data.store import open_split
+from voe_lightning.datamodules import VOEDataModule
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.base import video_inputs
 from voe_lightning.model.object_state.geometry import on_or_above_floor

@@ -610,8 +610,8 @@ def test_a_non_finite_loss_is_one_line(workdir, capsys):
             "--model nonexistent_pkg.Model cannot be imported (No module named 'nonexistent_pkg')",
         ),
         (
-            ["--data", "datamodules.NoSuchDataModule"],
-            "--data datamodules.NoSuchDataModule cannot be imported",
+            ["--data", "voe_lightning.datamodules.NoSuchDataModule"],
+            "--data voe_lightning.datamodules.NoSuchDataModule cannot be imported",
         ),
     ],
 )

@@ -26,12 +26,12 @@ from helpers.runs import curve_runs
 from jsonargparse import Namespace
 from PIL import Image
 
-from datamodules.intphys2 import IntPhys2DataModule
 from voe_lightning.callbacks import InterruptCheckpoint
 from voe_lightning.callbacks.checkpoint_io import WholeCheckpointIO
 from voe_lightning.cli import main, preflight
 from voe_lightning.cli.user_errors import DEBUG_VARIABLE
 from voe_lightning.data import generate, store_shards
+from voe_lightning.datamodules.intphys2 import IntPhys2DataModule
 from voe_lightning.external.base import BenchmarkDataError
 from voe_lightning.external.intphys import read_png
 from voe_lightning.external.intphys2 import read_metadata

@@ -126,7 +126,7 @@ def test_later_configs_append_to_or_override_base():
     assert callbacks(compose("quickstart"))["FinalStepCheckpoint"]["every_n_train_steps"] == 250
     assert cpu["trainer"]["gradient_clip_val"] == 10.0  # base.yaml's
     separate = compose("joint", "overlays/solidity")
-    assert separate["data"]["class_path"] == "datamodules.ConceptDataModule"
+    assert separate["data"]["class_path"] == "voe_lightning.datamodules.ConceptDataModule"
     assert separate["data"]["init_args"]["concept"] == "solidity"
     assert separate["data"]["init_args"]["root"] == "data/voe_10k"  # joint.yaml's, kept
     assert separate["data"]["init_args"]["train_examples"] == 10000

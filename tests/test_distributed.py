@@ -49,7 +49,7 @@ LOGGED_ROUNDING = 1e-6
 # pair must still be scored once (Lightning's default sampler would repeat one).
 DATA = [
     "--data",
-    "datamodules.VOEDataModule",
+    "voe_lightning.datamodules.VOEDataModule",
     "--data.concepts",
     "[continuity, unchangeableness]",
     "--data.init_args.num_frames",

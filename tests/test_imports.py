@@ -1,5 +1,6 @@
-"""The library never depends on the DataModules: no module of ``voe_lightning`` imports
-``datamodules``, not even by name in a string (``importlib``, a dispatch table); no module of
+"""The library never depends on the DataModules: no module of ``voe_lightning`` outside
+``voe_lightning.datamodules`` imports it, not even by name in a string (``importlib``, a
+dispatch table); no module of
 the package is in an import circle, not even through an import inside a function or a
 package's ``__init__``; none is over 500 lines; each name has one path (no module but a
 package's ``__init__`` re-exports a name it imports); the lower layers import no higher one; and
@@ -15,10 +16,9 @@ from pathlib import Path
 
 from helpers.locations import REPO
 
-import datamodules
 import voe_lightning
 
-NAMES_DATAMODULES = re.compile(r"^datamodules(\.|$)")
+NAMES_DATAMODULES = re.compile(r"^(voe_lightning\.)?datamodules(\.|$)")
 
 
 def module_files(package=voe_lightning) -> dict[str, Path]:
@@ -31,7 +31,7 @@ def module_files(package=voe_lightning) -> dict[str, Path]:
 
 
 def datamodules_references(path: Path) -> list[str]:
-    """Each import of, or string naming, ``datamodules`` in the module at ``path``."""
+    """Each import of, or string naming, the DataModules' package in the module at ``path``."""
     found = []
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
@@ -49,7 +49,12 @@ def datamodules_references(path: Path) -> list[str]:
 
 
 def test_no_module_of_voe_lightning_imports_datamodules():
-    files = module_files()
+    files = {  # but migrate, whose table of moved modules names the package's old path and new
+        name: path
+        for name, path in module_files().items()
+        if not NAMES_DATAMODULES.match(name.removeprefix("voe_lightning."))
+        and name != "voe_lightning.cli.migrate"
+    }
     assert {
         "voe_lightning.cli",
         "voe_lightning.external.intphys",
@@ -210,7 +215,7 @@ def test_no_module_re_exports_a_name_it_does_not_define():
     """One path per name: a name is imported from the module that defines it. Only a package's
     ``__init__`` offers names of its modules (its public API); any other module's ``__all__``
     lists only its own names, and nothing imports from it a name it imported itself."""
-    files = module_files() | module_files(datamodules)
+    files = module_files()
     modules = {name: path for name, path in files.items() if path.name != "__init__.py"}
     defined = {name: defined_names(path) for name, path in modules.items()}
     assert {"check_alpha", "paired_test"} <= defined["voe_lightning.stats.statistics"]

@@ -120,7 +120,7 @@ def test_last_is_the_newest_run_and_the_report_names_what_it_was_made_from(
         "config": str(Path("runs/trained/version_1/test_config.yaml")),
         "checkpoint": str(Path("runs/trained/version_1/checkpoints/last.ckpt")),
         "global_step": 1,
-        "datamodule": "datamodules.voe.ConceptDataModule",
+        "datamodule": "voe_lightning.datamodules.voe.ConceptDataModule",
         "data_root": "data/tiny",
         "seed_offset": 0,
         "probe_root": "data/tiny",
@@ -447,7 +447,7 @@ def test_predict_with_a_datamodule_that_cannot_predict_is_one_line(workdir, trai
             str(trained / "checkpoints" / "last.ckpt"),
         ],
     )
-    assert "datamodules.ConceptDataModule has none" in line
+    assert "voe_lightning.datamodules.ConceptDataModule has none" in line
     assert not (workdir / "data").exists()
 
 

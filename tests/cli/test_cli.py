@@ -246,7 +246,7 @@ def test_test_on_intphys_dev_reports_the_benchmark_metrics(workdir, trained):
             "--ckpt_path",
             str(run / "checkpoints" / "last.ckpt"),
             "--data",
-            "datamodules.IntPhysDataModule",
+            "voe_lightning.datamodules.IntPhysDataModule",
             "--data.root",
             str(workdir / "intphys"),
             "--data.num_frames",

@@ -32,7 +32,10 @@ def test_old_module_paths_and_names_become_those_of_today():
         "voe_lightning.callbacks.prediction_writer.IntPhysAnswerWriter"
     )
     assert new_path("voe_lightning.model.VRNNLRUModel") == "voe_lightning.model.VRNNLRUModel"
-    assert len(MOVED_MODULES) == 36 and not any(
+    assert new_path("datamodules.voe.ConceptDataModule") == (
+        "voe_lightning.datamodules.voe.ConceptDataModule"
+    )
+    assert len(MOVED_MODULES) == 37 and not any(
         new in MOVED_MODULES for new in MOVED_MODULES.values()
     )
 

@@ -223,10 +223,10 @@ def test_debug_shows_the_parsers_whole_message(workdir, capsys):
         ),
         (
             'Parser key "data":\n  Does not validate against any of the Union subtypes\n'
-            "  Errors:\n    - Problem with given class_path 'datamodules.ConceptDataModule':\n"
+            "  Errors:\n    - Problem with given class_path 'voe_lightning.datamodules.ConceptDataModule':\n"
             "        Option 'no_such_key' is not accepted\n    - Expected a <class 'NoneType'>\n"
             "  Given value: NestedArg(key='no_such_key', val='1')",
-            "--data.init_args.no_such_key: datamodules.ConceptDataModule takes no argument "
+            "--data.init_args.no_such_key: voe_lightning.datamodules.ConceptDataModule takes no argument "
             "no_such_key; it takes concept, concepts, root,",
         ),
     ],

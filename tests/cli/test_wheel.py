@@ -2,7 +2,8 @@
 environment outside it (its dependencies from the environment running the test, a virtual
 environment or the system's, so nothing is downloaded), runs from an empty folder: a shipped
 config by name, and generate, a 2-step fit, test (``--ckpt_path last``) and audit of a config
-file there, reading base.yaml from the installed package."""
+file there, reading base.yaml from the installed package; ``voe_lightning`` is the only package
+it puts into site-packages."""
 
 import os
 import shutil
@@ -15,7 +16,7 @@ import pytest
 from helpers.locations import REPO, TINY_CONFIG
 
 #: What the wheel is built from.
-SOURCES = ("pyproject.toml", "README.md", "LICENSE", "voe_lightning", "datamodules")
+SOURCES = ("pyproject.toml", "README.md", "LICENSE", "voe_lightning")
 
 
 @pytest.mark.slow
@@ -49,6 +50,11 @@ def test_a_wheel_installed_outside_the_checkout_runs_there(tmp_path):
         assert done.returncode == 0, done.stderr[-3000:]
         return done.stdout
 
+    installed = (
+        "import importlib.metadata as m; print(*{f.parts[0] for f in m.files('voe_lightning')})"
+    )
+    tops = {top for top in run("-c", installed).split() if top != ".."}  # ../bin: the scripts
+    assert {top for top in tops if not top.endswith(".dist-info")} == {"voe_lightning"}
     where = run("-c", "import voe_lightning.cli.run_arguments as r; print(r.BASE_CONFIG)")
     assert where.strip().startswith(str(venv)) and where.strip().endswith(
         "voe_lightning/configs/base.yaml"

@@ -8,15 +8,15 @@ import pytest
 import torch
 from helpers.stores import fake_clip, fake_probe
 
-from datamodules import (
+from voe_lightning import specs
+from voe_lightning.data import generate, store, store_plan, store_shards
+from voe_lightning.datamodules import (
     ConceptDataModule,
     IntPhysDataModule,
     PhysicalConceptsDataModule,
     VOEDataModule,
 )
-from datamodules.voe import InterleavedSampler
-from voe_lightning import specs
-from voe_lightning.data import generate, store, store_plan, store_shards
+from voe_lightning.datamodules.voe import InterleavedSampler
 from voe_lightning.runs import report_folder
 
 

@@ -16,9 +16,9 @@ import pytest
 from helpers import refused
 from helpers.stores import fake_clip, fake_probe
 
-from datamodules import ConceptDataModule
 from voe_lightning.cli import main
 from voe_lightning.data import generate, store, store_plan
+from voe_lightning.datamodules import ConceptDataModule
 from voe_lightning.export import command
 from voe_lightning.export.manifest import staged
 

@@ -19,8 +19,8 @@ from helpers.intphys2 import PREFIXES, SCENES, SIZE, frame, make_root, write_met
 from helpers.locations import REPO
 from helpers.quadruplets import check_quadruplet_rows
 
-from datamodules.intphys2 import IntPhys2DataModule
 from voe_lightning.cli import main
+from voe_lightning.datamodules.intphys2 import IntPhys2DataModule
 from voe_lightning.external.base import BenchmarkDataError
 from voe_lightning.external.evaluation import VIDEO_COLUMNS, external_metrics
 from voe_lightning.external.metrics import intphys2_metrics
@@ -379,7 +379,7 @@ def test_the_package_and_its_datamodules_import_without_pyav():
     (a lent GPU with no package index, say) must start without it."""
     blocked = (
         "import sys; sys.modules['av'] = None; "
-        "import voe_lightning.cli, datamodules, voe_lightning.external.intphys2"
+        "import voe_lightning.cli, voe_lightning.datamodules, voe_lightning.external.intphys2"
     )
     root = REPO
     result = subprocess.run(

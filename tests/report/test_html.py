@@ -19,11 +19,11 @@ import pytest
 from helpers import ALPHA
 from PIL import Image
 
-from datamodules import VOEDataModule
 from voe_lightning import specs
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.cli.analysis import compare
 from voe_lightning.data import store
+from voe_lightning.datamodules import VOEDataModule
 from voe_lightning.model import CueScorer
 from voe_lightning.report.page.examples import VIDEOS, choose_quadruplets, read_examples
 from voe_lightning.report.page.markdown import markdown_html

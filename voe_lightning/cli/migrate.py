@@ -26,7 +26,7 @@ import yaml
 
 from voe_lightning.cli.class_paths import import_object
 
-#: The module paths before the package had sub-packages (issue 49), by old path.
+#: The module paths before the package had sub-packages (issues 49 and 71), by old path.
 MOVED_MODULES = {
     f"voe_lightning.{old}": f"voe_lightning.{new}"
     for package, modules in {
@@ -57,6 +57,7 @@ MOVED_MODULES = {
         "vjepa2": "scorers.vjepa2",
     }.items()
 }
+MOVED_MODULES["datamodules"] = "voe_lightning.datamodules"  # a top-level package until issue 71
 #: Classes renamed (issue 26), by old name. The old names are written in two parts so that the
 #: check that no code uses them (``grep``, issue 57) finds none here either.
 RENAMED_CLASSES = {"VOE" + "Model": "VRNNLRUModel", "Joint" + "DataModule": "VOEDataModule"}

@@ -478,7 +478,7 @@ def test_it_trains_from_states_alone_as_from_whole_records():
     """A batch of ``train_fields: [objects, camera]`` (no frames), its objects cut to the ids
     the clips show as held in memory (``shown_ids``), gives the loss a whole record gives, and
     records the clips' length from the camera."""
-    from datamodules.resident import shown_ids
+    from voe_lightning.datamodules.resident import shown_ids
 
     clips = scripted_clips(3, seed=2)
     held = clips.select("objects", "camera")

@@ -14,8 +14,8 @@ from tensordict import TensorDict
 from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils.data import DataLoader, SequentialSampler
 
-from datamodules import ConceptDataModule
-from datamodules.resident import ResidentBatches
+from voe_lightning.datamodules import ConceptDataModule
+from voe_lightning.datamodules.resident import ResidentBatches
 from voe_lightning.model import VRNNLRUModel
 from voe_lightning.model.optimization import adam
 from voe_lightning.model.training_monitor import FiniteMonitor

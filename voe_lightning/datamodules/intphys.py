@@ -13,8 +13,8 @@ from tensordict import TensorDict
 from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
-from datamodules.arguments import check_at_least, check_fraction
-from datamodules.external import ExternalDataModule
+from voe_lightning.datamodules.arguments import check_at_least, check_fraction
+from voe_lightning.datamodules.external import ExternalDataModule
 from voe_lightning.external.base import SkipLog, worker_loader
 from voe_lightning.external.cache import fingerprint, open_cache, write_cache
 from voe_lightning.external.evaluation import ExternalPairs

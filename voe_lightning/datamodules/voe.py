@@ -15,13 +15,13 @@ import torch
 from tensordict import TensorDictBase
 from torch.utils.data import ConcatDataset, DataLoader, Dataset, Sampler, Subset
 
-from datamodules.arguments import check_at_least
-from datamodules.resident import ResidentBatches, resident_records
 from voe_lightning import specs
 from voe_lightning.data import store
 from voe_lightning.data.generate import ensure_dataset
 from voe_lightning.data.store import open_split, probe_sampler, record_loader
 from voe_lightning.data.store_plan import check_seed_offset, store_root
+from voe_lightning.datamodules.arguments import check_at_least
+from voe_lightning.datamodules.resident import ResidentBatches, resident_records
 from voe_lightning.probe_datamodule import ProbeDataModule
 
 
@@ -80,7 +80,7 @@ class VOEDataModule(ProbeDataModule):
         num_workers: DataLoader worker processes.
         train_on_device: hold the training clips (their ``train_fields``; default the frames,
             as uint8) on the training device and gather each batch there
-            (``datamodules.resident``): for a GPU training thousands of sequences a second.
+            (``voe_lightning.datamodules.resident``): for a GPU training thousands of sequences a second.
         train_fields: the record fields of each training batch, read once and held whole
             (on the training device with ``train_on_device``, else in host memory), so no batch
             decodes a record; None: whole records through the DataLoader. The state learner

@@ -11,8 +11,8 @@ from typing import Any
 
 from torch.utils.data import DataLoader, Dataset
 
-from datamodules.arguments import check_at_least, check_fraction
-from datamodules.external import ExternalDataModule
+from voe_lightning.datamodules.arguments import check_at_least, check_fraction
+from voe_lightning.datamodules.external import ExternalDataModule
 from voe_lightning.external.base import SkipLog
 from voe_lightning.external.cache import fingerprint
 from voe_lightning.external.evaluation import ExternalPairs
