@@ -13,7 +13,7 @@ import argparse
 
 import numpy as np
 
-from voe_lightning.cli.analysis import read_scalars
+from voe_lightning.analysis.training_curves import read_scalars
 
 VARIANT_T = r"voe/([a-z_]+)/([a-z_]+)/t$"
 

@@ -15,8 +15,8 @@ import numpy as np
 
 from voe_lightning import specs
 from voe_lightning.audit import cues
-from voe_lightning.cli.run_arguments import base_alpha
 from voe_lightning.report.pairs import PairResults
+from voe_lightning.runs import base_alpha
 
 #: The issue's bound on a model's |r| with every frame-local cue.
 BOUND = 0.3

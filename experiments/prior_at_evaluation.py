@@ -13,9 +13,9 @@ import torch
 import yaml
 
 from voe_lightning import specs
-from voe_lightning.cli.run_arguments import base_alpha
 from voe_lightning.datamodules import VOEDataModule
 from voe_lightning.model import ObjectStateModel
+from voe_lightning.runs import base_alpha
 from voe_lightning.stats import statistics
 from voe_lightning.stats.surprise_window import video_surprise
 

@@ -274,3 +274,43 @@ def test_no_module_of_the_tests_imports_a_test_module():
         if any(part in test_modules for part in module.split("."))
     }
     assert offenders == set()
+
+
+def command_line_imports(path: Path) -> list[int]:
+    """The lines of the module at ``path`` that import ``voe_lightning.cli`` or a module of it."""
+
+    def names(node: ast.AST) -> list[str]:
+        if isinstance(node, ast.Import):
+            return [alias.name for alias in node.names]
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            return [node.module] + [f"{node.module}.{alias.name}" for alias in node.names]
+        return []
+
+    return [
+        node.lineno
+        for node in ast.walk(ast.parse(path.read_text(), str(path)))
+        if any(
+            name == "voe_lightning.cli" or name.startswith("voe_lightning.cli.")
+            for name in names(node)
+        )
+    ]
+
+
+def test_only_the_entry_point_imports_the_command_line():
+    """The command line parses, checks and dispatches: no other module of the package (but
+    ``__main__``, which runs it), and no benchmark or experiment, imports from it."""
+    sources = [
+        path
+        for name, path in module_files().items()
+        if name != "voe_lightning.__main__" and not name.startswith("voe_lightning.cli")
+    ]
+    sources += [
+        path for folder in ("benchmarks", "experiments") for path in (REPO / folder).rglob("*.py")
+    ]
+    assert REPO / "voe_lightning" / "analysis" / "null.py" in sources
+    offenders = {
+        f"{path.relative_to(REPO)}:{line}"
+        for path in sources
+        for line in command_line_imports(path)
+    }
+    assert offenders == set()

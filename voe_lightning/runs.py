@@ -3,7 +3,9 @@
 it), and the one report folder each (checkpoint, data root, concepts, evaluation-only model
 arguments) gets inside a run; and a run's record kept: a resumed ``fit`` trains on the data
 and model its saved config names (``record_differences``), configs are never overwritten
-(``fresh_config_name``) nor written through a link out of the run folder (``RunConfig``)."""
+(``fresh_config_name``) nor written through a link out of the run folder (``RunConfig``); and
+the configs shipped in the package, whose ``base.yaml`` every run starts from and whose
+``alpha`` is the default significance level of every command (``base_alpha``)."""
 
 from __future__ import annotations
 
@@ -17,6 +19,15 @@ from typing import Any
 import torch
 import yaml
 from lightning.pytorch.cli import SaveConfigCallback
+
+from voe_lightning.stats import statistics
+
+#: The configs shipped inside the package (``configs/`` in a checkout links to them), found
+#: wherever the package is installed.
+SHIPPED_CONFIGS = Path(__file__).resolve().parent / "configs"
+#: Trainer, logger, callbacks and model class every fit/validate/test/predict starts from, so
+#: ``--config configs/joint.yaml`` alone is a whole run; later ``--config`` files override it.
+BASE_CONFIG = SHIPPED_CONFIGS / "base.yaml"
 
 #: ``--ckpt_path`` words that name a checkpoint of the newest run of the config's logger name.
 RUN_CHECKPOINT_WORDS = ("last", "best")
@@ -276,3 +287,12 @@ class RunConfig(SaveConfigCallback):
             check_inside(log_dir / self.config_filename, log_dir)
             self.config_path = log_dir / self.config_filename
         super().setup(trainer, pl_module, stage)
+
+
+def base_alpha() -> float:
+    """The ``alpha`` of configs/base.yaml, the one home of the default significance level:
+    every run's and every command's beside Lightning's."""
+    try:
+        return statistics.check_alpha(yaml.safe_load(BASE_CONFIG.read_text()).get("alpha"))
+    except ValueError as error:
+        raise ValueError(f"{BASE_CONFIG}: {error}") from None

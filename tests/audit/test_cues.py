@@ -439,14 +439,14 @@ def test_the_report_shows_a_cue_follower_in_its_correlations_and_scatter(audit, 
     pooled = [r for r in correlations if r["variant"] == "pooled" and r["cue"] == "motion_energy"]
     assert len(pooled) == 1 and pooled[0]["r"] > 0.9
     # `analyze compare` names the cue each verdict row's surprise tracks most.
-    from voe_lightning.cli import analysis
+    from voe_lightning.analysis import comparison
 
     compared = {
-        (r["concept"], r["variant"]): r for r in analysis.comparison_rows([("f", tmp_path)])
+        (r["concept"], r["variant"]): r for r in comparison.comparison_rows([("f", tmp_path)])
     }
     persistence = compared[("object_persistence", "pooled")]
     assert persistence["tracked_cue"] == "motion_energy" and persistence["tracked_cue_r"] > 0.9
-    markdown = analysis.comparison_markdown(list(compared.values()))
+    markdown = comparison.comparison_markdown(list(compared.values()))
     assert f"| motion ({persistence['tracked_cue_r']:+.2f}) |" in markdown
     shuffled = PairResults(
         audit.concepts[::-1],

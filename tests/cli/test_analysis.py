@@ -17,8 +17,9 @@ from nbclient import NotebookClient
 from PIL import Image
 
 from voe_lightning import specs
+from voe_lightning.analysis import comparison, size_sweep, training_curves
 from voe_lightning.callbacks import VOEReportCallback
-from voe_lightning.cli import analysis, main, size_sweep
+from voe_lightning.cli import main
 from voe_lightning.report import ReportInputs, write_report
 from voe_lightning.report.pairs import PairResults
 from voe_lightning.runs import trained_reports
@@ -48,33 +49,35 @@ def test_read_scalars_filters_tags_and_merges_resumed_runs(tmp_path):
     write_events(
         tmp_path / "version_0", {("solidity", "standard"): lambda s: -1.0}, steps=[400, 500]
     )
-    scalars = analysis.read_scalars(tmp_path)
+    scalars = training_curves.read_scalars(tmp_path)
     assert list(scalars) == ["voe/solidity/standard/relative_surprise"]
     steps, values = scalars["voe/solidity/standard/relative_surprise"]
     np.testing.assert_array_equal(steps, [0, 100, 200, 300, 400, 500])
     np.testing.assert_allclose(values, [0, 1, 2, 3, -1, -1])
-    loss = analysis.read_scalars(tmp_path, r"^train/loss$")["train/loss"]
+    loss = training_curves.read_scalars(tmp_path, r"^train/loss$")["train/loss"]
     assert loss[1][0] == pytest.approx(1.0)
-    curves = analysis.read_relative_surprise(tmp_path)
+    curves = training_curves.read_relative_surprise(tmp_path)
     assert list(curves) == [("solidity", "standard")]
 
 
 def test_missing_runs_and_tags_are_named(tmp_path):
     with pytest.raises(FileNotFoundError, match="does not exist"):
-        analysis.read_scalars(tmp_path / "nope")
+        training_curves.read_scalars(tmp_path / "nope")
     with pytest.raises(FileNotFoundError, match="no TensorBoard event files"):
-        analysis.read_scalars(tmp_path)
+        training_curves.read_scalars(tmp_path)
     write_events(tmp_path / "run", {}, other_tags=True)
     with pytest.raises(ValueError, match="has no voe/<concept>/<variant>/relative_surprise"):
-        analysis.relative_surprise_curves_figure([("joint", tmp_path / "run")])
+        training_curves.relative_surprise_curves_figure([("joint", tmp_path / "run")])
     write_events(tmp_path / "ok", {("solidity", "standard"): lambda s: 1.0})
     with pytest.raises(ValueError, match="unknown run labels"):
-        analysis.relative_surprise_curves_figure([("joint", tmp_path / "ok")], {"separate": 0.5})
+        training_curves.relative_surprise_curves_figure(
+            [("joint", tmp_path / "ok")], {"separate": 0.5}
+        )
 
 
 def test_curves_figure_draws_every_run_and_variant(tmp_path):
     runs = curve_runs(tmp_path)
-    figure = analysis.relative_surprise_curves_figure(runs, {"joint": 0.2})
+    figure = training_curves.relative_surprise_curves_figure(runs, {"joint": 0.2})
     visible = [ax for ax in figure.axes if ax.get_visible()]
     assert [ax.get_title() for ax in visible] == ["object_persistence", "unchangeableness"]
     lines = {
@@ -102,7 +105,7 @@ def test_curves_of_three_runs_are_told_apart_by_style_and_marker(tmp_path):
         write_events(
             tmp_path / label, {("solidity", "standard"): (lambda s, a=index: a + np.log1p(s / 50))}
         )
-    figure = analysis.relative_surprise_curves_figure(
+    figure = training_curves.relative_surprise_curves_figure(
         [(label, tmp_path / label) for label in labels]
     )
     lines = [line for line in figure.axes[0].get_lines() if not line.get_label().startswith("_")]
@@ -408,7 +411,7 @@ def test_compare_reads_each_verdicts_rows_beside_the_cue_audit(tmp_path, capsys)
         tmp_path / "b",
         echo=False,
     )
-    rows = analysis.comparison_rows([("a", tmp_path / "a"), ("b", tmp_path / "b")])
+    rows = comparison.comparison_rows([("a", tmp_path / "a"), ("b", tmp_path / "b")])
     assert [(r["run"], r["concept"], r["variant"], r["n"]) for r in rows] == [
         ("a", "unchangeableness", "position_quadruplet", 30),
         ("a", "unchangeableness", "color_quadruplet", 30),
@@ -438,7 +441,7 @@ def test_compare_reads_each_verdicts_rows_beside_the_cue_audit(tmp_path, capsys)
     assert table == capsys.readouterr().out
     assert "| a | solidity | quadruplet | 40 |" in table and table.count("**yes**") == 1
     with pytest.raises(FileNotFoundError, match="run test first"):
-        analysis.comparison_rows([("missing", tmp_path / "missing")])
+        comparison.comparison_rows([("missing", tmp_path / "missing")])
 
 
 def test_compare_reads_a_runs_own_report_before_a_newer_one_on_other_data(tmp_path):
@@ -470,7 +473,7 @@ def test_compare_reads_a_runs_own_report_before_a_newer_one_on_other_data(tmp_pa
         run / "data_data_tpyo",
         echo=False,
     )
-    rows = analysis.comparison_rows([("run", run)])
+    rows = comparison.comparison_rows([("run", run)])
     assert [(r["variant"], r["n"]) for r in rows] == [("quadruplet", 40)]
     assert rows[0]["report"] == str(run / "voe_report")
 
@@ -486,7 +489,7 @@ def test_compare_and_sweep_plot_never_read_an_untrained_copys_report(tmp_path):
     (untrained / "config.yaml").write_text("model: {}\n")
     trained = {("solidity", "standard"): (40, 2.0), ("solidity", "counterbalanced"): (40, 2.0)}
     write_report(ReportInputs(pair_results(trained, seed=2), alpha=ALPHA, bootstrap=0), evaluation, echo=False)  # fmt: skip
-    assert analysis._latest_report(tmp_path / "run") == evaluation / "voe_report"
+    assert comparison._latest_report(tmp_path / "run") == evaluation / "voe_report"
     os.utime(untrained / "voe_report" / "pairs.csv")  # newest, and still not read
     assert trained_reports(tmp_path / "run", "pairs.csv") == [
         evaluation / "voe_report" / "pairs.csv"

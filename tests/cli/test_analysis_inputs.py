@@ -11,9 +11,10 @@ from helpers.locations import TINY_CONFIG
 from helpers.runs import write_events
 from torch.utils.tensorboard import SummaryWriter
 
-from voe_lightning.cli import analysis, main
-from voe_lightning.cli.emergence import first_voe_step, read_quadruplet_curves
-from voe_lightning.cli.null import check_same_probes
+from voe_lightning.analysis import training_curves
+from voe_lightning.analysis.emergence import first_voe_step, read_quadruplet_curves
+from voe_lightning.analysis.null import check_same_probes
+from voe_lightning.cli import main
 
 STEPS = range(100, 600, 100)
 QUADRUPLET = "voe/continuity/quadruplet"
@@ -48,10 +49,10 @@ def test_a_later_validate_is_no_step_0_of_the_curve(tmp_path):
     tag = "voe/solidity/standard/relative_surprise"
     _validate_into(run, {tag: 4.0})  # validate --ckpt_path last: into the run itself
     _validate_into(run / "data_other-0123abcd", {tag: -7.0})  # on other data: a sub-folder
-    [(steps, values)] = analysis.read_relative_surprise(run).values()
+    [(steps, values)] = training_curves.read_relative_surprise(run).values()
     np.testing.assert_array_equal(steps, list(STEPS))  # was [0, 100, ...]: the trained 4.0 first
     np.testing.assert_allclose(values, [1, 2, 3, 4, 5])
-    figure = analysis.relative_surprise_curves_figure([("joint", run)])
+    figure = training_curves.relative_surprise_curves_figure([("joint", run)])
     [line] = figure.axes[0].get_lines()[:1]
     assert line.get_xdata()[0] == 100
 

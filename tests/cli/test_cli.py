@@ -19,7 +19,8 @@ from helpers.runs import copy_of
 from nbclient import NotebookClient
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from voe_lightning.cli import analysis, main
+from voe_lightning.analysis import latent_code
+from voe_lightning.cli import main
 from voe_lightning.data.store import collate, open_split
 from voe_lightning.model import VRNNLRUModel
 from voe_lightning.model.object_centric.model import SURPRISES
@@ -796,11 +797,11 @@ def test_analyze_latents_counts_the_latents_that_carry_information(trained, caps
         "consistent", "frames"
     ]
     surprise = model.surprise(frames)
-    usage = analysis.latent_usage(model, frames, threshold=0.0)
+    usage = latent_code.latent_usage(model, frames, threshold=0.0)
     assert float(row[1]) == pytest.approx(surprise.sum(dim=1).mean().item(), abs=0.06)
     assert usage["kl_per_sequence"] == pytest.approx(surprise.sum(dim=1).mean().item(), rel=1e-5)
     assert usage["first_frame"] == pytest.approx(surprise[:, 0].mean().item(), rel=1e-5)
     assert usage["latents_in_use"] == 8  # KL is positive in every latent of a one-step model
-    assert analysis.latent_usage(model, frames, threshold=1e9)["latents_in_use"] == 0
+    assert latent_code.latent_usage(model, frames, threshold=1e9)["latents_in_use"] == 0
     with pytest.raises(FileNotFoundError, match="no store at nowhere"):
-        analysis.latents([str(checkpoint)], Path("nowhere"))
+        latent_code.latents([str(checkpoint)], Path("nowhere"))

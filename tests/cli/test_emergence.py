@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from torch.utils.tensorboard import SummaryWriter
 
-from voe_lightning.cli.emergence import emergence, first_voe_step, read_quadruplet_curves
+from voe_lightning.analysis.emergence import emergence, first_voe_step, read_quadruplet_curves
 
 
 def _run(path, t_values, halves):

@@ -1,4 +1,4 @@
-"""The untrained null (voe_lightning.cli.null, ``analyze null``): its table by hand from synthetic
+"""The untrained null (voe_lightning.analysis.null, ``analyze null``): its table by hand from synthetic
 summaries, and the command at a tiny size: each initialization its own seed and report, a
 trained report placed in the distribution; the positive control's test report carrying its
 priors alone (one initialization of its own config)."""
@@ -12,8 +12,8 @@ import yaml
 from helpers.locations import REPO, TINY_CONFIG
 from PIL import Image
 
+from voe_lightning.analysis.null import format_null, null_figure, null_rows
 from voe_lightning.cli import main
-from voe_lightning.cli.null import format_null, null_figure, null_rows
 
 TINY = TINY_CONFIG
 

@@ -55,7 +55,7 @@ def test_a_wheel_installed_outside_the_checkout_runs_there(tmp_path):
     )
     tops = {top for top in run("-c", installed).split() if top != ".."}  # ../bin: the scripts
     assert {top for top in tops if not top.endswith(".dist-info")} == {"voe_lightning"}
-    where = run("-c", "import voe_lightning.cli.run_arguments as r; print(r.BASE_CONFIG)")
+    where = run("-c", "import voe_lightning.runs as r; print(r.BASE_CONFIG)")
     assert where.strip().startswith(str(venv)) and where.strip().endswith(
         "voe_lightning/configs/base.yaml"
     )

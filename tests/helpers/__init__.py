@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from voe_lightning.cli import main
-from voe_lightning.cli.run_arguments import base_alpha
 from voe_lightning.report.pairs import PairResults
+from voe_lightning.runs import base_alpha
 
 
 def error_line(capsys) -> str:

@@ -20,8 +20,8 @@ from helpers import ALPHA
 from PIL import Image
 
 from voe_lightning import specs
+from voe_lightning.analysis.comparison import compare
 from voe_lightning.callbacks import VOEReportCallback
-from voe_lightning.cli.analysis import compare
 from voe_lightning.data import store
 from voe_lightning.datamodules import VOEDataModule
 from voe_lightning.model import CueScorer

@@ -18,13 +18,13 @@ from lightning.pytorch.utilities.exceptions import SIGTERMException
 from lightning.pytorch.utilities.seed import isolate_rng
 
 from voe_lightning import runs
+from voe_lightning.analysis import null
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.callbacks.interruption import InterruptCheckpoint, ctrl_c_kept
 from voe_lightning.callbacks.outcomes import probe_outcomes
 from voe_lightning.cli import (
     checkpoint_arguments,
     commands,
-    null,
     parser_errors,
     preflight,
     run_arguments,
@@ -32,13 +32,12 @@ from voe_lightning.cli import (
     user_errors,
 )
 from voe_lightning.cli.commands import COMMANDS, LIGHTNING_SUBCOMMANDS
-from voe_lightning.cli.run_arguments import BASE_CONFIG, SHIPPED_CONFIGS
 from voe_lightning.cli.user_errors import DEBUG_VARIABLE
 from voe_lightning.model import SurpriseModel
 from voe_lightning.model.scorers.callable_model import CallableError
 from voe_lightning.probe_datamodule import ProbeDataModule
 from voe_lightning.report.priors_alone import PRIORS_ALONE
-from voe_lightning.runs import read_checkpoint
+from voe_lightning.runs import BASE_CONFIG, SHIPPED_CONFIGS, read_checkpoint
 
 #: Exit status of a fit/validate/test whose probe surprise failed the causality check (the
 #: report is written, without verdicts), unless ``--allow_non_causal true``.

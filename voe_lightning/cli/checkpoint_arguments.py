@@ -13,8 +13,8 @@ from typing import Any
 from jsonargparse import Namespace
 
 from voe_lightning.cli.class_paths import import_failure, import_object
-from voe_lightning.cli.run_arguments import BASE_CONFIG
 from voe_lightning.model import SurpriseModel
+from voe_lightning.runs import BASE_CONFIG
 
 
 def refuse_retired_arguments(ckpt_path: str, trained: dict) -> None:

@@ -12,14 +12,22 @@ from typing import Any
 from jsonargparse import ActionConfigFile, ActionSubCommands, ArgumentParser, Namespace
 from lightning.pytorch.cli import LightningArgumentParser
 
-from voe_lightning.audit import cue_report
-from voe_lightning.cli import analysis, emergence, migrate
+from voe_lightning.analysis import (
+    comparison,
+    emergence,
+    latent_code,
+    null,
+    size_sweep,
+    training_curves,
+)
+from voe_lightning.audit import calibration, cue_report
+from voe_lightning.cli import migrate
 from voe_lightning.cli.class_paths import import_object
 from voe_lightning.cli.parser_errors import OneLineErrors
-from voe_lightning.cli.run_arguments import base_alpha
 from voe_lightning.data import generate
 from voe_lightning.export import command as export_command
 from voe_lightning.model import causality
+from voe_lightning.runs import base_alpha
 
 #: ``--help``'s summary of Lightning's subcommands (their docstrings' first lines stop mid-sentence).
 LIGHTNING_SUBCOMMANDS = {
@@ -35,7 +43,20 @@ COMMANDS: dict[str, Any] = {
     "generate": generate.generate,
     "audit": cue_report.audit,
     "check-causality": causality.check_causality,
-    "analyze": {**analysis.COMMANDS, "emergence": emergence.emergence},
+    "analyze": {
+        "_help": "Figures and tables over runs: curves, emergence, sweep, sweep-plot, compare, "
+        "context-sweep, latents; untrained initializations of a config: null; and "
+        "the verdict's calibration on a store: calibrate.",
+        "curves": training_curves.curves,
+        "emergence": emergence.emergence,
+        "sweep": size_sweep.sweep,
+        "sweep-plot": size_sweep.sweep_plot,
+        "compare": comparison.compare,
+        "context-sweep": comparison.context_sweep_table,
+        "latents": latent_code.latents,
+        "null": null.untrained_null,
+        "calibrate": calibration.calibrate_store,
+    },
     "migrate": migrate.migrate,
     "export": export_command.export,
 }

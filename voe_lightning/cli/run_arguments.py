@@ -1,11 +1,10 @@
-"""The run-wide arguments beside the trainer's, model's and data's: ``configs/base.yaml``, read
-first by every run; one significance level (``alpha``) and one ``surprise_window`` for the
+"""The run-wide arguments beside the trainer's, model's and data's (``configs/base.yaml``, read
+first by every run, sets them): one significance level (``alpha``) and one ``surprise_window`` for the
 whole run, handed to each callback that takes one; ``branch`` and ``allow_non_causal``."""
 
 from __future__ import annotations
 
 import inspect
-from pathlib import Path
 from typing import Any, Optional
 
 import yaml
@@ -13,6 +12,7 @@ from jsonargparse import Namespace
 from jsonargparse.typing import register_type
 
 from voe_lightning.cli.class_paths import import_object
+from voe_lightning.runs import base_alpha
 from voe_lightning.stats import statistics
 from voe_lightning.stats.surprise_window import ALL, SurpriseWindow, surprise_window
 
@@ -25,13 +25,6 @@ def _window_from_config(value: Any) -> SurpriseWindow:
 # A surprise window is parsed once, where the parser reads it, and saved configs keep its
 # config form.
 register_type(SurpriseWindow, serializer=SurpriseWindow.as_config, deserializer=_window_from_config)
-
-#: The configs shipped inside the package (``configs/`` in a checkout links to them), found
-#: wherever the package is installed.
-SHIPPED_CONFIGS = Path(__file__).resolve().parents[1] / "configs"
-#: Trainer, logger, callbacks and model class every fit/validate/test/predict starts from, so
-#: ``--config configs/joint.yaml`` alone is a whole run; later ``--config`` files override it.
-BASE_CONFIG = SHIPPED_CONFIGS / "base.yaml"
 
 
 def add_run_arguments(parser: Any) -> None:
@@ -66,15 +59,6 @@ def add_run_arguments(parser: Any) -> None:
         help="exit 0 though the model's surprise is not causal (it differs "
         "where a probe pair's videos are identical); verdicts stay withheld",
     )
-
-
-def base_alpha() -> float:
-    """The ``alpha`` of configs/base.yaml, the one home of the default significance level:
-    every run's and every command's beside Lightning's."""
-    try:
-        return statistics.check_alpha(yaml.safe_load(BASE_CONFIG.read_text()).get("alpha"))
-    except ValueError as error:
-        raise ValueError(f"{BASE_CONFIG}: {error}") from None
 
 
 def give_surprise_window(config: Any) -> None:

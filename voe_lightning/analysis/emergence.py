@@ -15,9 +15,9 @@ from matplotlib.figure import Figure
 from scipy import stats
 
 from voe_lightning import specs
-from voe_lightning.cli.analysis import _labelled, read_scalars
-from voe_lightning.cli.run_arguments import base_alpha
+from voe_lightning.analysis.training_curves import labelled_run, read_scalars
 from voe_lightning.report.figures import panel_grid, save_figure
+from voe_lightning.runs import base_alpha
 from voe_lightning.stats.statistics import check_alpha
 from voe_lightning.stats.verdicts import quadruplet_rule
 
@@ -112,4 +112,4 @@ def emergence(runs: list[str], out: Path, alpha: float | None = None) -> Path:
         alpha: significance level (default: configs/base.yaml's).
     """
     alpha = base_alpha() if alpha is None else check_alpha(alpha)
-    return save_figure(emergence_figure([_labelled(run) for run in runs], alpha), out)
+    return save_figure(emergence_figure([labelled_run(run) for run in runs], alpha), out)
