@@ -7,7 +7,7 @@
 #   3. renders a training set on every core if it does, else uses the carried data/gpu;
 #   4. runs benchmarks/training.py on CUDA (paper size; batch 10 and 256; eager, compiled,
 #      graphed);
-#   5. trains the paper-size VRNN-LRU with configs/overlays/paper_fast.yaml on that set,
+#   5. trains the paper-size VRNN-LRU with configs/paper_fast.yaml on that set,
 #      clips held on the GPU, VOE statistics of the validation probes every VAL_EVERY steps;
 #   6. tests the last checkpoint on the test probes and draws the curves.
 # Everything lands in $OUT (default gpu_out/): session.log, benchmark.txt/.json, the fit and
@@ -101,7 +101,7 @@ tail -n 12 "$OUT/benchmark.txt" | tee -a "$OUT/session.log"
 # --- 5. fit -------------------------------------------------------------------------------------
 FIT_SECONDS=$((BUDGET - $(elapsed) - 75))
 [ "$FIT_SECONDS" -ge 60 ] || FIT_SECONDS=60  # the steps before ran long: still train a minute
-RUN=(--config configs/paper.yaml --config configs/overlays/paper_fast.yaml "${SIZES[@]}"
+RUN=(--config configs/paper_fast.yaml "${SIZES[@]}"
      "${DATA_ARGS[@]}" --trainer.logger.init_args.name gpu_session)
 log "fit for ${FIT_SECONDS} s"
 timeout $((FIT_SECONDS + 30)) python3 -m voe_lightning fit "${RUN[@]}" \

@@ -140,7 +140,7 @@ FAMILIES = [
         lambda: ObjectStateModel(hidden_size=16, message_size=8, **NO_PRIORS, **NO_GIVENS),
         id="object_state_nothing_given",
     ),
-    pytest.param(  # ... and seeing learned from the states (configs/overlays/nothing_given.yaml)
+    pytest.param(  # ... and seeing learned from the states (configs/oracle_states_1000_steps.yaml)
         lambda: ObjectStateModel(
             hidden_size=16, message_size=8, **NO_PRIORS, **NO_GIVENS, visibility_from="states"
         ),

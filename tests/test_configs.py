@@ -14,6 +14,8 @@ import yaml
 from helpers.configs import compose, parsed
 from helpers.locations import REPO
 
+from voe_lightning import specs
+
 CONFIGS = REPO / "configs"
 COMMAND = re.compile(r"\b(fit|validate|test|predict)\s+--config\b")
 PACKAGE_COMMAND = re.compile(r"voe_lightning\s+(generate|audit|analyze)\b")
@@ -85,7 +87,7 @@ def test_an_overlay_is_visibly_one():
     commands = documented_commands()
     firsts = {command[command.index("--config") + 1] for command in commands}
     overlays = sorted((CONFIGS / "overlays").glob("*.yaml"))
-    assert len(overlays) >= 9
+    assert len(overlays) >= 6
     for path in overlays:
         first_line = path.read_text().splitlines()[0]
         parents = re.findall(r"configs/\w+\.yaml", first_line)
@@ -95,6 +97,30 @@ def test_an_overlay_is_visibly_one():
     for path in CONFIGS.glob("*.yaml"):
         if path.name != "base.yaml":
             assert str(path.relative_to(REPO)) in firsts, f"{path.name} is never documented alone"
+
+
+#: The overlays a documented command may add to its one config: the paper's separate regime, one
+#: concept at a time on configs/joint.yaml, and ``analyze null``'s (its untrained draws need no
+#: untrained copy of themselves).
+OVERLAYS_ALLOWED = {
+    *(f"configs/overlays/{concept}.yaml" for concept in specs.CONCEPTS),
+    "configs/overlays/untrained_null.yaml",
+}
+
+
+def test_a_result_is_one_config():
+    """Every documented command names one config; a second only from ``OVERLAYS_ALLOWED``."""
+    commands = documented_commands()
+    assert len(commands) >= 40
+    stacked = {
+        " ".join(command)
+        for command in commands
+        for index, word in enumerate(command)
+        if word == "--config"
+        and index != command.index("--config")
+        and command[index + 1] not in OVERLAYS_ALLOWED
+    }
+    assert stacked == set()
 
 
 @pytest.mark.parametrize("command", documented_commands(), ids=" ".join)

@@ -63,9 +63,7 @@ class SignalAtStep(L.Callback):
         [
             "predict",
             "--config",
-            str(CONFIGS / "intphys_dev.yaml"),
-            "--config",
-            str(CONFIGS / "overlays" / "intphys_test.yaml"),
+            str(CONFIGS / "intphys_test.yaml"),
             "--data.init_args.root",
             "nowhere",
         ],

@@ -281,9 +281,7 @@ def test_predict_with_the_intphys_test_config_writes_the_answer_file(workdir):
         [
             "predict",
             "--config",
-            str(configs / "intphys_dev.yaml"),
-            "--config",
-            str(configs / "overlays" / "intphys_test.yaml"),
+            str(configs / "intphys_test.yaml"),
             "--ckpt_path",
             str(checkpoint),
             "--data.init_args.root",

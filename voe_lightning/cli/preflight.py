@@ -42,7 +42,7 @@ def check_run(subcommand: str, config: Any) -> None:
     if subcommand == "predict" and data_class and not _predicts(data_class):
         raise ValueError(
             f"predict needs a DataModule with a predict_dataloader, and {data_class} "
-            "has none: use one that has (e.g. configs/overlays/intphys_test.yaml's), "
+            "has none: use one that has (e.g. configs/intphys_test.yaml's), "
             "or test"
         )
     if subcommand != "fit":

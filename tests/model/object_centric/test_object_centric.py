@@ -396,9 +396,7 @@ def test_the_object_free_twin_is_scored_on_intphys_by_the_benchmark_configs(tmp_
         [
             "predict",
             "--config",
-            str(configs / "intphys_dev.yaml"),
-            "--config",
-            str(configs / "overlays" / "intphys_test.yaml"),
+            str(configs / "intphys_test.yaml"),
             "--ckpt_path",
             checkpoint,
             *data,
@@ -415,11 +413,8 @@ def test_configs_build_models_of_matching_size(monkeypatch):
     counts = {}
     for name, configs in (
         ("object_centric", ("base", "object_centric")),
-        ("object_free", ("base", "object_centric", "overlays/object_free")),
-        (
-            "physical_concepts_object_centric",
-            ("base", "physical_concepts", "overlays/physical_concepts_object_centric"),
-        ),
+        ("object_free", ("base", "object_free")),
+        ("physical_concepts_object_centric", ("base", "physical_concepts_object_centric")),
     ):
         model = compose(*configs)["model"]
         assert model["class_path"] == "voe_lightning.model.ObjectCentricModel"
@@ -429,7 +424,7 @@ def test_configs_build_models_of_matching_size(monkeypatch):
 
 
 def test_fit_and_test_on_physical_concepts_freeform_and_probes(tmp_path, monkeypatch):
-    """configs/overlays/physical_concepts_object_centric.yaml's path on a tiny Physical Concepts
+    """configs/physical_concepts_object_centric.yaml's path on a tiny Physical Concepts
     dataset in the released layout: train on freeform clips (masks and camera poses from the
     records), then test on the probe quadruplets with the benchmark's own metrics."""
     from helpers.physical_concepts import make_dataset
@@ -440,7 +435,7 @@ def test_fit_and_test_on_physical_concepts_freeform_and_probes(tmp_path, monkeyp
     arguments = [
         *(
             word
-            for name in ("base", "physical_concepts", "overlays/physical_concepts_object_centric")
+            for name in ("base", "physical_concepts_object_centric")
             for word in ("--config", str(configs / f"{name}.yaml"))
         ),
         "--trainer.max_steps=2",

@@ -46,7 +46,7 @@ PLAIN = dict(
 )
 
 
-#: Every given of the learner off (``configs/overlays/nothing_given.yaml``'s model arguments).
+#: Every given of the learner off (``configs/oracle_states_1000_steps.yaml``'s model arguments).
 NOTHING_GIVEN = dict(sight_lines=False, floor=False, inertia=False, projection=False)
 
 

@@ -78,12 +78,12 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     networks read (``projection``). Kept by measurement (docs/study/learned_physics.md,
     2026-12-01): removed one after another, each step passes 3 of 5 concepts on a fresh set
     against 5 of 5 with all four, containment failing at every step; with all four removed and
-    the visibility learned from the states (``configs/overlays/nothing_given.yaml``), 4 of 5
+    the visibility learned from the states (``configs/oracle_states_1000_steps.yaml``), 4 of 5
     at three seeds (2026-12-05), object persistence failing, without learning how things move;
-    trained five times as long, unclipped (``configs/overlays/nothing_given_long.yaml``), it
+    trained five times as long, unclipped (``configs/oracle_states_batch32.yaml``), it
     learns motion and occlusion and passes 5, 4 and 5 of 5; at a large batch
-    (``configs/overlays/large_batch.yaml``, the package's learned result) 5, 5 and 5 with an
-    empty untrained null, and with its heads started at zero (``zero_heads``) 4, 4 and 4, its
+    (``configs/oracle_states.yaml``, the ceiling) 5, 5 and 5 with an empty untrained null, and
+    with its heads started at zero (``configs/oracle_states_15min.yaml``) 4, 4 and 4, its
     null empty by construction. Its one structural given, how
     p(seen) is composed (in view, and covered by no other known slot: a product), changed no
     verdict against an additive composition on validation at 1,000 steps and was not measured
