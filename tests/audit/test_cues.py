@@ -554,3 +554,37 @@ def test_audit_cli_on_a_tiny_generated_store(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["audit", "--root", str(tmp_path / "nowhere"), "--progress", "false"])
     assert "no dataset at" in capsys.readouterr().err
+
+
+def test_the_scatters_pooled_panel_plots_the_pairs_its_r_counts():
+    """Continuity's pooled r counts its standard and counterbalanced pairs: its panel plots
+    those, not the ``paper`` pairs reported beside."""
+    from voe_lightning.report.figures import cue_scatter_figure
+    from voe_lightning.report.pairs import PairResults
+
+    records = [
+        _pair("continuity", variant, 10 * i + s)
+        for i, variant in enumerate(["standard", "counterbalanced", "paper"])
+        for s in range(5)
+    ]
+    scored = cues.audit_records(records, batch_size=8)
+    per_frame = np.zeros((len(scored), 4))
+    inconsistent = per_frame.copy()
+    inconsistent[:, -1] = np.random.default_rng(1).normal(size=len(scored))
+    paired = PairResults(
+        scored.concepts,
+        scored.variants,
+        np.arange(len(scored)),
+        np.full(len(scored), 2),
+        per_frame,
+        inconsistent,
+    )
+    rows = scored.model_correlations(paired.relative_surprise, alpha=ALPHA)
+    figure = cue_scatter_figure(paired, scored, rows)
+    (panel,) = [ax for ax in figure.axes if ax.get_title().startswith("continuity / pooled")]
+    plotted = sum(len(points.get_offsets()) for points in panel.collections)
+    assert plotted == 10 == next(r["n"] for r in rows if r["variant"] == "pooled")
+    assert {text.get_text() for text in panel.get_legend().get_texts()} == {
+        "standard",
+        "counterbalanced",
+    }

@@ -4,7 +4,7 @@ concepts a follower passes by the verdict's own rule named."""
 
 import numpy as np
 
-from voe_lightning.audit.cue_report import followers_passing, format_followers
+from voe_lightning.audit.cue_report import followers_passing, format_followers, format_markdown
 from voe_lightning.audit.cues import CueAudit
 from voe_lightning.audit.followers import follower_cues
 
@@ -35,3 +35,27 @@ def test_follower_rows_are_tested_tabled_and_marked():
     assert "**Passed by a follower**" in text and "continuity (states: stay put)." in text
     assert followers_passing(rows) == {"continuity": ["states_stay_put"]}
     assert format_followers([r for r in rows if r["cue"] == "nothing"]) == ""
+
+
+def test_cells_where_every_d_is_zero_are_one_line_under_any_cue_table():
+    """A cue that scores both videos of every pair alike (every frame-local cue's quadruplet
+    rows, by construction) is one sentence under the table, not a bullet per cell."""
+    rng = np.random.default_rng(1)
+    n = 12
+    concepts = np.array(["solidity"] * (2 * n), dtype=object)
+    variants = np.array(["standard"] * n + ["counterbalanced"] * n, dtype=object)
+    seeds = np.concatenate([np.arange(n), np.arange(n)])
+    cues = ["motion_energy", "pixel_novelty"]
+    consistent = {cue: rng.normal(size=2 * n) for cue in cues}
+    # the second half's inconsistent videos are the first half's consistent ones and back: a
+    # scorer of frames after the change gives every quadruplet D = 0
+    inconsistent = {cue: np.concatenate([v[n:], v[:n]]) for cue, v in consistent.items()}
+    rows = CueAudit(
+        concepts, variants, {"consistent": consistent, "inconsistent": inconsistent}, seeds=seeds
+    ).rows(alpha=0.01)
+    tied = [r for r in rows if "every d = 0" in (r.get("note") or "")]
+    assert {r["variant"] for r in tied} == {"quadruplet"} and len(tied) == 2
+    text = format_markdown(rows, cues=cues)
+    assert text.count("every d = 0") == 1
+    assert "- 2 cells score both videos of every pair alike" in text
+    assert "scores every quadruplet 0 by construction" in text

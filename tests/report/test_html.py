@@ -149,6 +149,17 @@ def test_the_page_shows_each_concepts_verdict_videos_and_the_causality_line(repo
         assert all(frame_count(video["src"]) == NUM_FRAMES for video in videos)
         assert len(Elements(section).of("svg", "surprise")) == 4
         assert "The change is hidden at frame" in section
+        for plot in re.findall(r'<svg class="surprise".*?</svg>', section):
+            # axes, a tick per frame, the range's ends, the frame numbers and a legend; the
+            # pair's other video dashed, drawn after (over) this one's
+            marks = Elements(plot)
+            assert len(marks.of("line")) == 2 + NUM_FRAMES + 1 + 2, concept
+            words = marks.texts
+            assert {"0", str(NUM_FRAMES - 1), "frame", "this video", "its pair's other"} <= set(
+                words
+            ), words
+            solid, dashed = marks.of("polyline")
+            assert "stroke-dasharray" in dashed and "stroke-dasharray" not in solid
     for figure in ("histograms.png", "surprise_per_frame.png", "cue_scatter.png"):
         assert f"<code>{figure}</code>" in page
     assert "Cue audit on the model's test pairs" in text

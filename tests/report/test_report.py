@@ -466,3 +466,28 @@ def test_callback_refuses_missing_outputs_names_and_probes(tmp_path):
         _trainer(tmp_path, VOEReportCallback(alpha=ALPHA)).test(
             PersistenceModel(), datamodule=ProbeData([])
         )
+
+
+def test_the_per_frame_figure_ticks_whole_frames_and_keeps_long_titles_whole():
+    from voe_lightning.report.figures import per_frame_figure
+
+    variants = ["position", "position_counterbalanced"]
+    rng = np.random.default_rng(0)
+    results = PairResults(
+        ["unchangeableness"] * 8,
+        variants * 4,
+        np.repeat(np.arange(4), 2),
+        rng.integers(3, 8, 8),
+        rng.random((8, 15)),
+        rng.random((8, 15)),
+    )
+    figure = per_frame_figure(results)
+    figure.canvas.draw()
+    box = figure.bbox
+    for ax, variant in zip(figure.axes, variants):
+        ticks = ax.get_xticks()
+        assert np.array_equal(ticks, np.round(ticks)), ticks
+        title = ax.title
+        assert title.get_text() == f"unchangeableness\n{variant} (n = 4)"
+        extent = title.get_window_extent()
+        assert box.x0 <= extent.x0 and extent.x1 <= box.x1, (variant, extent, box)

@@ -124,11 +124,13 @@ def test_the_report_writes_the_set_per_group_into_summary_json_and_md(tmp_path):
     assert list(metrics) == ["solidity/standard", "solidity/counterbalanced", "solidity/pooled"]
     standard = pairs.select(np.arange(8) % 2 == 0)
     assert metrics["solidity/standard"] == pytest.approx(
-        field_metrics(standard.surprise_consistent, standard.surprise_inconsistent)
+        field_metrics(
+            standard.surprise_consistent, standard.surprise_inconsistent, max_from=np.full(4, 2)
+        )
     )
     assert metrics["solidity/pooled"]["relative_accuracy_sum"] == 1.0
     markdown = (tmp_path / "voe_report" / "summary.md").read_text()
-    assert format_field_metrics(metrics, "concept/variant") in markdown
+    assert format_field_metrics(metrics, "concept/variant", max_after_change=True) in markdown
 
 
 def test_analyze_context_sweep_tables_the_set_of_each_context_lengths_report(tmp_path, capsys):
@@ -169,3 +171,53 @@ def test_analyze_context_sweep_tables_the_set_of_each_context_lengths_report(tmp
     )
     assert table == expected == (tmp_path / "sweep.md").read_text()
     assert expected in capsys.readouterr().out
+
+
+def test_the_max_reads_the_frames_from_each_pairs_first_difference():
+    """Before the change a pair is one video: there its max is one frame's in both, and the
+    first frame's surprise, larger than any later, ties every pair. From the change on, the
+    max tells them apart."""
+    possible = [[9.0, 0, 1], [9.0, 2, 0], [9.0, 1, 1]]
+    impossible = [[9.0, 0, 3], [9.0, 4, 0], [9.0, 1, 0]]
+    whole = field_metrics(possible, impossible)
+    assert whole["relative_accuracy_max"] == 0.5 and whole["ties_max"] == 3
+    after = field_metrics(possible, impossible, max_from=[1, 1, 1])
+    # maxima from frame 1: possible 1, 2, 1 against impossible 3, 4, 1 -> right, right, tie
+    assert after["relative_accuracy_max"] == pytest.approx(2.5 / 3)
+    assert after["ties_max"] == 1
+    assert after["relative_accuracy_sum"] == whole["relative_accuracy_sum"]
+    assert after["threshold"] == pytest.approx(np.percentile([1, 2, 1], 90))
+    with pytest.raises(ValueError, match=r"first_frame must be one frame index in \[0, 2\]"):
+        field_metrics(possible, impossible, max_from=[1, 3, 1])
+
+
+def test_a_quadruplet_row_is_of_quadruplets_as_its_test_is(tmp_path):
+    """The field's metrics of a quadruplet are of its n quadruplets (A + B against AB + BA,
+    frame by frame), not of its 2n pairs: n and the sum's relative accuracy are summary.csv's
+    n and accuracy."""
+    rng = np.random.default_rng(3)
+    n, frames = 12, 5
+    consistent = rng.random((2 * n, frames))
+    inconsistent = consistent + rng.normal(0.3, 0.5, (2 * n, frames))
+    pairs = PairResults(
+        concept=["solidity"] * (2 * n),
+        variant=["standard"] * n + ["counterbalanced"] * n,
+        seed=np.concatenate([np.arange(n), np.arange(n)]),
+        manipulation_frame=np.full(2 * n, 1),
+        surprise_consistent=consistent,
+        surprise_inconsistent=inconsistent,
+    )
+    write_report(ReportInputs(pairs, alpha=ALPHA, bootstrap=0), tmp_path, echo=False)
+    summary = json.loads((tmp_path / "voe_report" / "summary.json").read_text())
+    row = next(r for r in summary["rows"] if r["variant"] == "quadruplet")
+    metrics = summary["field_metrics"]["solidity/quadruplet"]
+    assert metrics["n_pairs"] == row["n"] == n
+    assert metrics["relative_accuracy_sum"] == pytest.approx(row["accuracy"])
+    assert metrics == pytest.approx(
+        field_metrics(
+            consistent[:n] + consistent[n:],
+            inconsistent[:n] + inconsistent[n:],
+            max_from=np.full(n, 2),
+        )
+    )
+    assert summary["field_metrics"]["solidity/pooled"]["n_pairs"] == 2 * n

@@ -103,7 +103,9 @@ def format_markdown(
     """The compact cue table as Markdown: per concept/variant (and pooled), accuracy / d_z of
     each cue of ``cues``, beside the model's when ``model_rows`` (report summary rows) are
     given. Cue cells that separate the pairs (two-sided p < alpha) are bold; model cells with
-    one-tailed p < alpha carry *. Notes (skipped cues, degenerate tests) follow the table."""
+    one-tailed p < alpha carry *. Notes (skipped cues, degenerate tests) follow the table, the
+    cells where every d = 0 counted in one line (a frame-local cue's quadruplet rows are so by
+    construction)."""
     model = model_rows is not None
     header = (
         ["concept", "variant", "n"]
@@ -142,12 +144,25 @@ def format_markdown(
         )
         + " Full statistics in cues.csv.",
     ]
-    notes = [
-        f"{r['concept']}/{r['variant']}, {cue_title(r['cue'])}: {r['note']}"
-        for r in cue_rows
-        if r.get("note") and "bootstrap" not in r["note"]
+    noted = [r for r in cue_rows if r.get("note") and "bootstrap" not in r["note"]]
+    ties = [r for r in noted if "every d = 0" in r["note"]]
+    lines += [
+        f"- {r['concept']}/{r['variant']}, {cue_title(r['cue'])}: {r['note']}"
+        for r in noted
+        if r not in ties
     ]
-    lines += [f"- {note}" for note in notes]
+    if ties:
+        by_construction = any(r["variant"] in specs.QUADRUPLET_ROWS for r in ties)
+        lines.append(
+            f"- {len(ties)} cells score both videos of every pair alike (every d = 0: no test, "
+            "p set to 1"
+            + (
+                "; a cue of the frames after the change scores every quadruplet 0 by construction"
+                if by_construction
+                else ""
+            )
+            + "); cues.csv has their notes."
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -186,21 +201,13 @@ def format_followers(
     names = follower_names(cue_rows)
     if not names:
         return ""
-    ties = [r for r in cue_rows if r["cue"] in names and "every d = 0" in (r.get("note") or "")]
-    quiet = [{**r, "note": None} if r in ties else r for r in cue_rows]
-    table = format_markdown(quiet, model_rows, "Followers of the model's own inputs", names)
+    table = format_markdown(cue_rows, model_rows, "Followers of the model's own inputs", names)
     for concept in CONCEPT_ITSELF:
         table = table.replace(f"| {concept} |", f"| {concept} ‡ |")
     return (
         table
         + (
-            f"\n{len(ties)} follower cells score both videos of every pair alike (every d = 0: "
-            "no test, p set to 1; cues.csv has their notes). "
-            if ties
-            else "\n"
-        )
-        + (
-            "Followers are rules with no dynamics over the inputs the model reads "
+            "\nFollowers are rules with no dynamics over the inputs the model reads "
             "(`voe_lightning.model.ObjectFollower`: stay put, attributes, seen again, same and seen, "
             "nothing changes, copy last, linear extrapolation); a bold cell says one separates "
             "the pairs, in either direction. ‡ unchangeableness: a memory of each object's "

@@ -13,12 +13,13 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 from scipy import stats
 
 from voe_lightning.data.store_shards import write_whole
 from voe_lightning.report.pairs import PairResults, as_numpy
 from voe_lightning.specs import GENERALIZATION_VARIANT_NAMES
-from voe_lightning.stats.statistics import POOLED
+from voe_lightning.stats.statistics import POOLED, POOLED_VARIANTS
 from voe_lightning.stats.statistics_format import BRIEF, format_p_phrase, row_text, rows_alpha
 
 #: Histograms hide pairs whose d lies beyond this many SD from the mean (display only).
@@ -159,7 +160,8 @@ def _mean_and_band(aligned: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def per_frame_figure(results: PairResults) -> Figure:
     """Mean per-frame surprise of consistent vs inconsistent probes per concept/variant,
-    aligned at the manipulation frame, with 95% t confidence bands."""
+    aligned at the manipulation frame, with 95% t confidence bands; ticks on whole frames, each
+    title on two lines (concept, then variant) so that no long variant name is cut."""
     groups = results.groups()
     figure, axes = panel_grid(len(groups), 4.2, 3.0)
     for ax, (concept, variant, pairs) in zip(axes, groups):
@@ -172,7 +174,8 @@ def per_frame_figure(results: PairResults) -> Figure:
             ax.plot(offsets, mean, color=color, marker="o", markersize=3, label=label)
             ax.fill_between(offsets, mean - half, mean + half, color=color, alpha=0.2, linewidth=0)
         ax.axvline(0, color="black", linestyle="--", linewidth=1)
-        ax.set_title(f"{concept} / {variant} (n = {len(pairs)})", fontsize=10)
+        ax.set_title(f"{concept}\n{variant} (n = {len(pairs)})", fontsize=10)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_xlabel("frame relative to manipulation (dashed)")
         ax.set_ylabel("surprise per frame (the model's)")
         ax.legend(fontsize=8, loc="upper left")
@@ -353,7 +356,9 @@ def cue_scatter_figure(
     """Per pair, the model's relative surprise against the difference of the frame-local cue
     it tracks most (largest |r| of ``CueAudit.model_correlations``), one panel per group a
     verdict reads (pooled rows; every variant of a concept without one), points coloured by
-    variant: a cue-follower lines up along the cue, its variants on either side of 0."""
+    variant: a cue-follower lines up along the cue, its variants on either side of 0. A pooled
+    panel plots the pairs its r counts, the pooled variants' (not, e.g., continuity's
+    ``paper`` pairs, reported beside)."""
     from voe_lightning.audit.cues import CUE_TITLES, tracked_cues
 
     pooled = {r["concept"] for r in correlation_rows if r["variant"] == POOLED}
@@ -370,9 +375,9 @@ def cue_scatter_figure(
     for ax, ((concept, variant), row) in zip(axes, panels.items()):
         cue = row["cue"]
         cue_d = cue_audit.scores["inconsistent"][cue] - cue_audit.scores["consistent"][cue]
-        chosen = concepts == concept
-        if variant != POOLED:
-            chosen &= variants == variant
+        chosen = (concepts == concept) & (
+            np.isin(variants, POOLED_VARIANTS) if variant == POOLED else variants == variant
+        )
         for name in dict.fromkeys(variants[chosen]):
             points = chosen & (variants == name)
             ax.scatter(cue_d[points], d[points], s=10, alpha=0.7, label=name)

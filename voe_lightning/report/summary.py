@@ -96,8 +96,8 @@ def write_summary(
         )
     else:
         markdown += "\nSurprise window: all frames (the paper's).\n"
-    markdown += "\n## The field's metrics (all frames)\n\n" + format_field_metrics(
-        document["field_metrics"], "concept/variant"
+    markdown += "\n## The field's metrics\n\n" + format_field_metrics(
+        document["field_metrics"], "concept/variant", max_after_change=True
     )
     (report_dir / "summary.json").write_text(json.dumps(document, indent=2) + "\n")
     (report_dir / "summary.md").write_text(markdown)

@@ -62,13 +62,22 @@ def field_metric_rows(results: PairResults) -> dict[str, dict[str, Any]]:
     """The field's metric set (``field_metrics.field_metrics``: relative accuracy with sum,
     mean and max surprise, absolute accuracy, AUROC) per concept/variant and pooled group, keyed
     ``<concept>/<variant>``; each group's threshold is from its own consistent videos, as
-    surprise scales differ between concepts. A group with non-finite surprise gets a note."""
+    surprise scales differ between concepts, and the max reads the frames after each pair's
+    change. A quadruplet's row is of its quadruplets, as its test is: the per-frame surprise of
+    its consistent videos summed (A + B) against its inconsistent ones' (AB + BA), so its n and
+    its relative accuracy of the sum are the summary row's. A group with non-finite surprise
+    gets a note."""
     rows = {}
     for concept, variant, pairs in results.groups(pooled=True):
         sides = (pairs.surprise_consistent, pairs.surprise_inconsistent)
+        first = pairs.first_difference
+        if variant in QUADRUPLET_ROWS:  # first halves, then second halves, matched by seed
+            half = len(pairs) // 2
+            sides = tuple(side[:half] + side[half:] for side in sides)
+            first = np.minimum(first[:half], first[half:])
         rows[f"{concept}/{variant}"] = (
-            field_metrics(*sides)
+            field_metrics(*sides, max_from=np.minimum(first, pairs.num_frames - 1))
             if all(np.isfinite(side).all() for side in sides)
-            else {"n_pairs": len(pairs), "note": "surprise is not finite: no metrics"}
+            else {"n_pairs": len(sides[0]), "note": "surprise is not finite: no metrics"}
         )
     return rows

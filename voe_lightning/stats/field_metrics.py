@@ -21,7 +21,7 @@ context length is one set per context length (``context_sweep``).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -40,11 +40,11 @@ def reduce_surprise(per_frame: Any, reduction: str) -> np.ndarray:
     sum through ``surprise_window.video_surprise``, the one place a video's total is made)."""
     per_frame = np.asarray(per_frame, dtype=np.float64)
     if reduction == "sum":
-        return video_surprise(per_frame)
+        return cast(np.ndarray, video_surprise(per_frame))
     if reduction == "mean":
-        return per_frame.mean(axis=-1)
+        return cast(np.ndarray, per_frame.mean(axis=-1))
     if reduction == "max":
-        return per_frame.max(axis=-1)
+        return cast(np.ndarray, per_frame.max(axis=-1))
     raise ValueError(f"unknown surprise reduction {reduction!r}; valid: {', '.join(REDUCTIONS)}")
 
 
@@ -90,28 +90,52 @@ def _per_frame_pairs(frames_possible: Any, frames_impossible: Any) -> tuple[np.n
     return possible, impossible
 
 
+def after(per_frame: np.ndarray, first_frame: Any) -> np.ndarray:
+    """Per-frame surprise [N, T] with the frames before each pair's ``first_frame`` [N] set to
+    -inf, so that a max reads the frames from there on only."""
+    first = np.asarray(first_frame, dtype=np.int64).reshape(-1, 1)
+    if (
+        first.shape[0] != per_frame.shape[0]
+        or (first < 0).any()
+        or (first >= per_frame.shape[1]).any()
+    ):
+        raise ValueError(
+            f"first_frame must be one frame index in [0, {per_frame.shape[1] - 1}] per pair "
+            f"({per_frame.shape[0]}), got {first.ravel().tolist()}"
+        )
+    return np.where(np.arange(per_frame.shape[1]) >= first, per_frame, -np.inf)
+
+
 def field_metrics(
     frames_possible: Any,
     frames_impossible: Any,
     threshold: float | None = None,
     percentile: float = PERCENTILE,
+    max_from: Any = None,
 ) -> dict[str, Any]:
     """The metric set (module docstring) of matched pairs from per-frame surprise [N, T] of
     each pair's possible and impossible video: ``relative_accuracy_<r>``, ``ties_<r>`` and
     ``auroc_<r>`` per reduction r, ``absolute_accuracy`` at ``threshold`` (None: the
     ``percentile``-th percentile of these possible videos' max surprise) and that
-    ``threshold``."""
+    ``threshold``. ``max_from`` [N] (None: every frame, as the field takes it) is each pair's
+    first frame the max reads: from where its two videos differ, the max of a probe pair is
+    not the same frame's in both (before, the pair is one video)."""
     possible, impossible = _per_frame_pairs(frames_possible, frames_impossible)
+    if max_from is not None:
+        possible_max, impossible_max = after(possible, max_from), after(impossible, max_from)
+    else:
+        possible_max, impossible_max = possible, impossible
     if threshold is None:
-        threshold = surprise_threshold(possible.max(axis=-1), percentile)
+        threshold = surprise_threshold(possible_max.max(axis=-1), percentile)
     result: dict[str, Any] = {"n_pairs": possible.shape[0]}
     for reduction in REDUCTIONS:
-        low, high = reduce_surprise(possible, reduction), reduce_surprise(impossible, reduction)
+        sides = (possible_max, impossible_max) if reduction == "max" else (possible, impossible)
+        low, high = (reduce_surprise(side, reduction) for side in sides)
         result[f"relative_accuracy_{reduction}"], result[f"ties_{reduction}"] = relative_accuracy(
             low, high
         )
         result[f"auroc_{reduction}"] = ranked_auroc(high, low)
-    maxima = np.concatenate([possible.max(axis=-1), impossible.max(axis=-1)])
+    maxima = np.concatenate([possible_max.max(axis=-1), impossible_max.max(axis=-1)])
     labels = np.arange(maxima.size) < possible.shape[0]
     result["absolute_accuracy"] = absolute_accuracy(maxima, labels, threshold)
     result["threshold"] = float(threshold)
@@ -132,10 +156,13 @@ def context_sweep(
     }
 
 
-def format_field_metrics(rows: Mapping[str, Mapping[str, Any]], label: str = "group") -> str:
+def format_field_metrics(
+    rows: Mapping[str, Mapping[str, Any]], label: str = "group", max_after_change: bool = False
+) -> str:
     """The metric set as a Markdown table, one row per {name: ``field_metrics`` result}, and a
-    line saying what the columns are; ``label`` heads the names' column. A row without a
-    metric (a note instead) shows n/a there."""
+    line saying what the columns are (``max_after_change``: that the max read the frames after
+    each pair's change, ``field_metrics``'s ``max_from``); ``label`` heads the names' column. A
+    row without a metric (a note instead) shows n/a there."""
     reductions = " | ".join(REDUCTIONS)
     header = (
         f"| {label} | n | relative accuracy: {reductions} | absolute accuracy "
@@ -152,10 +179,16 @@ def format_field_metrics(rows: Mapping[str, Mapping[str, Any]], label: str = "gr
             f"| {format_number(metrics.get('absolute_accuracy'), '.1%')} "
             f"| {format_number(metrics.get('threshold'), '.3g')} | {area} |"
         )
+    over = (
+        "max over the frames after the change (before it a pair's two videos are one, and "
+        "their max is the same frame's)"
+        if max_after_change
+        else "max over frames"
+    )
     lines += [
         "",
         "Relative accuracy: share of pairs whose possible (consistent) video is less "
-        "surprising than its impossible one, surprise the sum, mean or max over frames, "
+        f"surprising than its impossible one, surprise the sum, mean or {over}, "
         "ties half; absolute accuracy: share of videos called right when a video is "
         "impossible if its max surprise exceeds the threshold, the "
         f"{PERCENTILE:g}th percentile of the possible videos' max surprise; AUROC of sum, "

@@ -8,6 +8,7 @@ from __future__ import annotations
 import html
 import io
 from collections.abc import Sequence
+from typing import cast
 
 import numpy as np
 from PIL import Image
@@ -24,7 +25,7 @@ PAST, NOW, FUTURE = (150, 150, 150), (255, 255, 255), (60, 60, 60)
 
 def scale_of(frames: np.ndarray) -> int:
     """The whole factor that enlarges ``frames`` [T, H, W, 3] to about ``VIDEO_WIDTH``."""
-    return max(1, VIDEO_WIDTH // frames.shape[2])
+    return cast(int, max(1, VIDEO_WIDTH // frames.shape[2]))
 
 
 def _cells(count: int, width: int) -> list[tuple[int, int]]:
@@ -82,31 +83,69 @@ def _points(
     )
 
 
+def _tick(value: float) -> str:
+    """A y-axis label: three significant figures."""
+    return f"{value:.3g}"
+
+
 def surprise_svg(
     surprise: Sequence[float],
     partner: Sequence[float],
     change: int,
     span: tuple[float, float],
     width: int,
-    height: int = 64,
+    height: int = 92,
 ) -> str:
-    """An inline SVG of a video's per-frame ``surprise`` (dark) over its pair's other video's
-    (``partner``, light), on the y range ``span`` shared by a quadruplet's four plots, a
-    dashed line at the ``change`` frame, frames aligned with ``animated_webp``'s strip."""
-    top, bottom = 10.0, height - 4.0
-    start, stop = _cells(len(surprise), width)[change]
+    """An inline SVG of a video's per-frame ``surprise`` (solid, dark) and its pair's other
+    video's (``partner``: dashed, light, drawn on top so that where the two coincide both
+    show), on the y range ``span`` shared by a quadruplet's four plots: a y axis with that
+    range's ends labelled, a frame axis with a tick per frame (its first, change and last
+    frames numbered), a dashed line at the ``change`` frame and a legend; frames aligned with
+    ``animated_webp``'s strip."""
+    top, bottom = 10.0, height - 34.0
+    cells = _cells(len(surprise), width)
+    start, stop = cells[change]
     middle = (start + stop) / 2
-    label = html.escape(f"surprise per frame; max of the quadruplet's {span[1]:.3g}")
+    low, high = span
+    label = html.escape(
+        f"surprise per frame from {low:.3g} to {high:.3g} (the quadruplet's range); solid: "
+        "this video, dashed: its pair's other video"
+    )
+    ticks = "".join(
+        f'<line x1="{(a + b) / 2:.1f}" y1="{bottom:.1f}" x2="{(a + b) / 2:.1f}" '
+        f'y2="{bottom + 3:.1f}" stroke="#666"/>'
+        for a, b in cells
+    )
+    numbered = sorted({0, change, len(cells) - 1})
+    numbers = "".join(
+        f'<text x="{(cells[f][0] + cells[f][1]) / 2:.1f}" y="{bottom + 12:.1f}" font-size="9" '
+        f'text-anchor="middle" fill="#444">{f}</text>'
+        for f in numbered
+    )
+    legend_y = height - 6
     return (
         f'<svg class="surprise" width="{width}" height="{height}" viewBox="0 0 {width} {height}" '
         f'role="img" aria-label="{label}">'
-        f'<rect x="0" y="0" width="{width}" height="{height}" fill="#fafafa"/>'
-        f'<line x1="{middle:.1f}" y1="0" x2="{middle:.1f}" y2="{height}" stroke="#d62728" '
+        f'<rect x="0" y="0" width="{width}" height="{bottom + 1:.1f}" fill="#fafafa"/>'
+        f'<line x1="0.5" y1="{top:.1f}" x2="0.5" y2="{bottom:.1f}" stroke="#666"/>'
+        f'<line x1="0" y1="{bottom:.1f}" x2="{width}" y2="{bottom:.1f}" stroke="#666"/>'
+        f"{ticks}{numbers}"
+        f'<text x="3" y="{top + 3:.1f}" font-size="9" fill="#444">{_tick(high)}</text>'
+        f'<text x="3" y="{bottom - 2:.1f}" font-size="9" fill="#444">{_tick(low)}</text>'
+        f'<text x="{width - 2}" y="{bottom + 22:.1f}" font-size="9" text-anchor="end" '
+        'fill="#444">frame</text>'
+        f'<line x1="{middle:.1f}" y1="0" x2="{middle:.1f}" y2="{bottom:.1f}" stroke="#d62728" '
         'stroke-dasharray="3,2"/>'
         f'<text x="{middle + 3:.1f}" y="9" font-size="9" fill="#d62728">change</text>'
-        f'<polyline points="{_points(partner, width, top, bottom, span)}" fill="none" '
-        'stroke="#bbb" stroke-width="1.5"/>'
         f'<polyline points="{_points(surprise, width, top, bottom, span)}" fill="none" '
         'stroke="#1f3b73" stroke-width="2"/>'
+        f'<polyline points="{_points(partner, width, top, bottom, span)}" fill="none" '
+        'stroke="#9ab" stroke-width="1.5" stroke-dasharray="4,3"/>'
+        f'<line x1="2" y1="{legend_y - 3}" x2="16" y2="{legend_y - 3}" stroke="#1f3b73" '
+        'stroke-width="2"/>'
+        f'<text x="19" y="{legend_y}" font-size="9" fill="#444">this video</text>'
+        f'<line x1="72" y1="{legend_y - 3}" x2="86" y2="{legend_y - 3}" stroke="#9ab" '
+        'stroke-width="1.5" stroke-dasharray="4,3"/>'
+        f'<text x="89" y="{legend_y}" font-size="9" fill="#444">its pair\'s other</text>'
         "</svg>"
     )

@@ -83,7 +83,7 @@ def _quadruplet_html(example: ExampleVideos, results: PairResults) -> str:
         f"Seed {example.seed}, the quadruplet of median D of {example.count}: D = "
         f"{sum(halves):+.3g} (halves {halves[0]:+.3g} / {halves[1]:+.3g}). The change is "
         f"hidden at frame {change} (red mark); under each video its per-frame surprise "
-        "(dark) and its pair's other video's (light), on one scale for all four."
+        "(solid) and its pair's other video's (dashed), on one scale for all four."
     )
     videos = "".join(_video_html(example, name, results, pairs, span) for name in VIDEOS)
     return (

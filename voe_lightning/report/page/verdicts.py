@@ -124,4 +124,4 @@ def field_metrics_html(summary: Mapping[str, Any]) -> str:
     metrics = summary.get("field_metrics")
     if not metrics:
         return "<p>This report has no field's metrics.</p>"
-    return markdown_html(format_field_metrics(metrics, "concept/variant"))
+    return markdown_html(format_field_metrics(metrics, "concept/variant", max_after_change=True))
