@@ -235,3 +235,41 @@ def test_bad_variant_names_the_valid_ones():
         continuity.probe("four_pillars", 0, VIDEO)
     with pytest.raises(ValueError, match="gap_block"):
         continuity.clip("cube_random_position", 0, VIDEO)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_stay_put_scores_a_quadruplet_by_the_gap_its_inconsistent_videos_skip(seed):
+    """Why *stay put* (surprise: an object's distance from where it was last seen) passes
+    continuity from the states (docs/study/shortcuts.md): whatever each video does after its
+    first sighting past m cancels in D, leaving the four jumps across m, D = |B1 - A0| +
+    |A1 - B0| - |A1 - A0| - |B1 - B0| (X0 the ball's last sighting through m, X1 its first after
+    m in video X), which is twice the stretch between A's reappearance and B's last sighting
+    before the last pillar: every quadruplet's D > 0, by construction of any splice of one roll
+    whose inconsistent videos cross a gap unseen."""
+    from voe_lightning.model.scorers.followers import rule_surprise, state_features
+
+    first, second = (generate_probe("continuity", v, seed) for v in ("standard", "counterbalanced"))
+    m, ball = int(first["manipulation_frame"]), int(first["manipulated_ids"][0])
+    videos = [record[side] for record in (first, second) for side in ("consistent", "inconsistent")]
+    a, ab, b, ba = (
+        rule_surprise("stay_put", "states", state_features(v["objects"][None])).sum().item()
+        for v in videos
+    )
+
+    def sightings(video) -> tuple[np.ndarray, np.ndarray]:
+        seen = video["objects", "visible_fraction"][:, ball].numpy() > 0
+        position = video["objects", "position"][:, ball].double().numpy()
+        before = np.flatnonzero(seen[: m + 1])[-1]
+        after = m + 1 + np.flatnonzero(seen[m + 1 :])[0]
+        return position[before], position[after]
+
+    (a0, a1), _, (b0, b1), _ = (sightings(v) for v in videos)
+    jumps = (
+        np.linalg.norm(b1 - a0)
+        + np.linalg.norm(a1 - b0)
+        - np.linalg.norm(a1 - a0)
+        - np.linalg.norm(b1 - b0)
+    )
+    d = (ab - a) + (ba - b)
+    assert d == pytest.approx(jumps, abs=1e-4)
+    assert d == pytest.approx(2 * np.linalg.norm(b0 - a1), rel=0.02) and d > 0.2
