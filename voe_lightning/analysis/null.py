@@ -23,7 +23,7 @@ import math
 import os
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import scipy.stats
@@ -94,7 +94,7 @@ PROBE_SOURCE = ("data_root", "seed_offset", "probe_split", "probe_root")
 def _same_source(key: str, one: Any, other: Any) -> bool:
     """Whether two reports' ``source`` values of ``key`` agree (paths as written or resolved)."""
     if one == other or not key.endswith("root") or None in (one, other):
-        return one == other
+        return cast(bool, one == other)
     return os.path.normpath(one) == os.path.normpath(other) or (
         Path(one).resolve() == Path(other).resolve()
     )

@@ -97,6 +97,6 @@ def _callbacks_taking(config: Any, argument: str) -> list[tuple[str, Any]]:
         if argument not in inspect.signature(import_object(class_path).__init__).parameters:
             continue
         if callback.get("init_args") is None:
-            callback["init_args"] = Namespace()
+            callback["init_args"] = Namespace()  # type: ignore[no-untyped-call]  # jsonargparse: unannotated
         taking.append((class_path, callback["init_args"]))
     return taking

@@ -12,11 +12,12 @@ import inspect
 import os
 import time
 import warnings
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import get_args
+from typing import Any, get_args
 
+from tensordict import TensorDict
 from tqdm.auto import tqdm
 
 from voe_lightning import specs
@@ -61,7 +62,9 @@ class GenerationSummary:
 
 
 # --- rendering ----------------------------------------------------------------------------------
-def render_record(concept: str, split: str, name: str, seed: int, video: VideoOptions):
+def render_record(
+    concept: str, split: str, name: str, seed: int, video: VideoOptions
+) -> TensorDict:
     """Render one record of ``split``: a clip of kind ``name`` or a probe pair of variant ``name``."""
     options = dataclasses.asdict(video)
     if store.SPLIT_RECORD_TYPE[split] == "clip":
@@ -70,7 +73,7 @@ def render_record(concept: str, split: str, name: str, seed: int, video: VideoOp
 
 
 def generate_shard(
-    root: str | os.PathLike, task: ShardTask, video: VideoOptions
+    root: str | os.PathLike[str], task: ShardTask, video: VideoOptions
 ) -> tuple[int, int]:
     """Render and write one shard; returns (records, bytes). Runs in a worker process."""
     records = []
@@ -90,7 +93,7 @@ def generate_shard(
     return len(records), store_shards.write_shard(task.path(root), records, shard_meta(task))
 
 
-def _generate_shard_star(arguments) -> tuple[int, int, int]:
+def _generate_shard_star(arguments: tuple[Path, ShardTask, VideoOptions]) -> tuple[int, int, int]:
     root, task, video = arguments
     return (task.num_videos, *generate_shard(root, task, video))
 
@@ -113,14 +116,14 @@ class GenerationPlan:
     root: Path
     video: VideoOptions
     shard_size: int
-    entries: dict[str, dict]
+    entries: dict[str, dict[str, Any]]
     seed_offset: int
     splits: tuple[str, ...]
     tasks: tuple[ShardTask, ...]
 
 
 def plan_generation(
-    root: str | os.PathLike,
+    root: str | os.PathLike[str],
     concepts: Iterable[str] | str,
     train_examples: int | None,
     train_controls: int | None,
@@ -175,7 +178,7 @@ def _checked_concepts(concepts: Iterable[str] | str) -> tuple[str, ...]:
 
 
 def _checked_counts(
-    root: str | os.PathLike,
+    root: str | os.PathLike[str],
     train_examples: int | None,
     train_controls: int | None,
     val_pairs: int,
@@ -249,7 +252,7 @@ def _warn_of_shard_memory(video: VideoOptions, shard_size: int) -> None:
 
 
 def generate_dataset(
-    root: str | os.PathLike,
+    root: str | os.PathLike[str],
     concepts: Iterable[str] = specs.CONCEPTS,
     train_examples: int | None = None,
     train_controls: int | None = None,
@@ -365,7 +368,8 @@ def _shards_to_render(plan: GenerationPlan, tasks: Sequence[ShardTask]) -> list[
     return todo
 
 
-def _run(root: Path, todo: list[ShardTask], video: VideoOptions, workers: int):
+def _run(root: Path, todo: list[ShardTask], video: VideoOptions,
+         workers: int) -> Iterator[tuple[int, int, int]]:  # fmt: skip
     """Generate the shards of ``todo``, yielding (videos, records, bytes) as each is written,
     with ``workers`` processes (``worker_pool.run``). A worker that dies raises an error instead
     of hanging; on any error the shards already written stay and a rerun resumes."""
@@ -376,7 +380,7 @@ def _run(root: Path, todo: list[ShardTask], video: VideoOptions, workers: int):
     )  # fmt: skip
 
 
-def ensure_dataset(root: str | os.PathLike, **options) -> GenerationSummary | None:
+def ensure_dataset(root: str | os.PathLike[str], **options: Any) -> GenerationSummary | None:
     """Make sure the store at ``root`` holds the dataset ``options`` (generate_dataset's
     arguments) describe: returns None at once when the manifest matches and every shard of
     ``splits`` is present with an intact index, else says which splits it generates where and

@@ -9,6 +9,9 @@ from __future__ import annotations
 import dataclasses
 import shutil
 from pathlib import Path
+from typing import Any
+
+from torchrl.data import Composite
 
 import voe_lightning
 from voe_lightning import specs
@@ -22,9 +25,9 @@ class ManifestMismatchError(ValueError):
     """The root already holds a dataset generated with other settings."""
 
 
-def _describe_spec(spec) -> dict:
+def _describe_spec(spec: Composite) -> dict[str, dict[str, object]]:
     """A JSON description of a record spec: per leaf its type, dtype, shape and bounds."""
-    described = {}
+    described: dict[str, dict[str, object]] = {}
     for key, leaf in spec.items(include_nested=True, leaves_only=True):
         key = key if isinstance(key, str) else "/".join(key)
         entry: dict[str, object] = {
@@ -40,7 +43,7 @@ def _describe_spec(spec) -> dict:
     return described
 
 
-def concept_entry(counts: dict[str, dict[str, int]], seed_offset: int = 0) -> dict:
+def concept_entry(counts: dict[str, dict[str, int]], seed_offset: int = 0) -> dict[str, Any]:
     """A concept's manifest entry: per split its record type, count, seeds (``seed_range``,
     the probe splits' shifted by ``seed_offset``) and counts per kind or variant."""
     splits = {}
@@ -57,7 +60,7 @@ def concept_entry(counts: dict[str, dict[str, int]], seed_offset: int = 0) -> di
     return {"splits": splits}
 
 
-def _settings(video: VideoOptions, shard_size: int, seed_offset: int) -> dict:
+def _settings(video: VideoOptions, shard_size: int, seed_offset: int) -> dict[str, Any]:
     return {
         "format": FORMAT,
         "video": dataclasses.asdict(video),
@@ -71,7 +74,7 @@ def _settings(video: VideoOptions, shard_size: int, seed_offset: int) -> dict:
 _SETTING_KEYS = ("format", "video", "shard_size", "seed_starts", "seed_offset", "vocabulary")
 
 
-def _stored_settings(manifest: dict) -> dict:
+def _stored_settings(manifest: dict[str, Any]) -> dict[str, Any]:
     """The settings a stored manifest records (a manifest before offsets: seed offset 0)."""
     return {
         **{k: manifest.get(k) for k in _SETTING_KEYS},
@@ -94,10 +97,10 @@ def reconcile_manifest(
     root: Path,
     video: VideoOptions,
     shard_size: int,
-    entries: dict[str, dict],
+    entries: dict[str, dict[str, Any]],
     overwrite: bool,
     seed_offset: int = 0,
-) -> dict:
+) -> dict[str, Any]:
     """The manifest for this run: the stored one, extended with new concepts, or a new one.
     Refuses other settings for what is stored unless ``overwrite``, which deletes the data
     they invalidate (every concept if the video or shard settings changed). Read, merged and
@@ -110,10 +113,10 @@ def _reconcile_locked(
     root: Path,
     video: VideoOptions,
     shard_size: int,
-    entries: dict[str, dict],
+    entries: dict[str, dict[str, Any]],
     overwrite: bool,
     seed_offset: int,
-) -> dict:
+) -> dict[str, Any]:
     """``reconcile_manifest``'s work, with the manifest lock held."""
     settings = _settings(video, shard_size, seed_offset)
     try:
@@ -170,10 +173,10 @@ def _reconcile_locked(
 
 
 def matches(
-    manifest: dict | None,
+    manifest: dict[str, Any] | None,
     video: VideoOptions,
     shard_size: int,
-    entries: dict[str, dict],
+    entries: dict[str, dict[str, Any]],
     seed_offset: int = 0,
 ) -> bool:
     """Whether the stored ``manifest`` is what a request of these settings and concept

@@ -17,6 +17,7 @@ import shlex
 from collections import OrderedDict
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -53,7 +54,7 @@ def check_split(split: str) -> None:
         raise ValueError(f"unknown split {split!r}; valid splits are: {', '.join(SPLITS)}")
 
 
-def shard_path(root: str | os.PathLike, concept: str, split: str, index: int) -> Path:
+def shard_path(root: str | os.PathLike[str], concept: str, split: str, index: int) -> Path:
     """Where shard ``index`` of a concept's split lives."""
     return Path(root) / concept / split / f"shard-{index:05d}{SHARD_SUFFIX}"
 
@@ -67,12 +68,14 @@ def shard_counts(count: int, shard_size: int) -> list[int]:
 
 
 # --- a split as a Dataset -----------------------------------------------------------------------
-class SplitDataset(Dataset):
+class SplitDataset(Dataset[TensorDict]):
     """A concept's split as a map-style Dataset of TensorDict records (``spec`` describes
     them). Safe to hand to DataLoader workers: each process opens shards lazily, keeping at
     most 32 open."""
 
-    def __init__(self, root: str | os.PathLike, concept: str, split: str, manifest: dict):
+    def __init__(
+        self, root: str | os.PathLike[str], concept: str, split: str, manifest: dict[str, Any]
+    ):
         self.root, self.concept, self.split = Path(root), concept, split
         entry = manifest["concepts"][concept]["splits"][split]
         self.record_type = entry["record_type"]
@@ -113,7 +116,7 @@ class SplitDataset(Dataset):
         shard = index // self._shard_size
         return self._reader(shard)[index - int(self._starts[shard])]
 
-    def __getstate__(self) -> dict:
+    def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
         state["_readers"] = OrderedDict()
         return state
@@ -128,7 +131,9 @@ def collate(records: Sequence[TensorDictBase]) -> TensorDictBase:
     return torch.stack(list(records))
 
 
-def record_loader(dataset: Dataset, batch_size: int, num_workers: int = 0, **kwargs) -> DataLoader:
+def record_loader(
+    dataset: Dataset[TensorDict], batch_size: int, num_workers: int = 0, **kwargs: Any
+) -> DataLoader[TensorDict]:
     """A DataLoader of TensorDict record batches, as every DataModule serves them. Workers are
     persistent: torchrl makes multiprocessing spawn, and a spawned worker starts slowly."""
     return DataLoader(
@@ -141,7 +146,7 @@ def record_loader(dataset: Dataset, batch_size: int, num_workers: int = 0, **kwa
     )
 
 
-def probe_sampler(dataset: Dataset) -> Sampler | None:
+def probe_sampler(dataset: Dataset[TensorDict]) -> Sampler[int] | None:
     """Under DDP, each probe pair on exactly one rank, in order (Lightning's default
     DistributedSampler repeats pairs to even out the ranks, which would count them twice in
     the paired test); None (sequential) in a single process."""
@@ -162,7 +167,7 @@ class ManifestError(ValueError):
 MANIFEST_KEYS = {"video": dict, "shard_size": int, "concepts": dict}
 
 
-def read_manifest(root: str | os.PathLike) -> dict | None:
+def read_manifest(root: str | os.PathLike[str]) -> dict[str, Any] | None:
     """The root's manifest, or None if there is none yet. Raises ManifestError naming the
     file when it is truncated, not JSON, or JSON of another shape."""
     path = Path(root) / MANIFEST_NAME
@@ -191,7 +196,7 @@ def read_manifest(root: str | os.PathLike) -> dict | None:
     return manifest
 
 
-def manifest_lock(root: str | os.PathLike) -> FileLock:
+def manifest_lock(root: str | os.PathLike[str]) -> FileLock:
     """The lock a writer holds from reading the root's manifest to writing it back, so two
     ``generate`` runs on one root (say, for two concepts) merge their entries instead of the
     last writer's replacing the other's."""
@@ -199,13 +204,13 @@ def manifest_lock(root: str | os.PathLike) -> FileLock:
     return FileLock(Path(root) / f".{MANIFEST_NAME}.lock")
 
 
-def write_manifest(root: str | os.PathLike, manifest: dict) -> None:
+def write_manifest(root: str | os.PathLike[str], manifest: dict[str, Any]) -> None:
     """Write the root's manifest atomically."""
     text = json.dumps(manifest, indent=2, sort_keys=True) + "\n"
     atomic_write(Path(root) / MANIFEST_NAME, [text.encode()])
 
 
-def read_manifest_or_error(root: str | os.PathLike) -> dict:
+def read_manifest_or_error(root: str | os.PathLike[str]) -> dict[str, Any]:
     """The root's manifest; a FileNotFoundError naming the command that makes one if there is
     none: for a seed offset's folder, the one that draws its fresh probes (``draw_command``),
     not a store at offset 0 in the offset's place."""
@@ -225,7 +230,7 @@ def read_manifest_or_error(root: str | os.PathLike) -> dict:
 
 
 def draw_command(
-    root: str | os.PathLike,
+    root: str | os.PathLike[str],
     seed_offset: int,
     splits: Sequence[str] = PROBE_SPLITS,
     concepts: Sequence[str] = (),
@@ -253,7 +258,7 @@ def draw_command(
     return shlex.join(words)
 
 
-def _held_pairs(held: dict, concepts: Sequence[str], split: str) -> int | None:
+def _held_pairs(held: dict[str, Any], concepts: Sequence[str], split: str) -> int | None:
     """The most pairs per variant a store's ``held`` concepts record of ``split`` among
     ``concepts``; None where they record none (an unreadable entry counts as none)."""
     counts = []
@@ -274,7 +279,7 @@ def vocabulary() -> dict[str, list[str]]:
     }
 
 
-def open_split(root: str | os.PathLike, concept: str, split: str) -> SplitDataset:
+def open_split(root: str | os.PathLike[str], concept: str, split: str) -> SplitDataset:
     """The records of ``concept``'s ``split`` (train, val, test or generalization) in the store
     at ``root``, as a torch Dataset of TensorDicts (batch them with ``collate_fn=collate``)."""
     specs.check_concept(concept)

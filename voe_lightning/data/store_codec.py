@@ -9,6 +9,7 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -34,7 +35,7 @@ class Leaf:
     def nbytes(self) -> int:
         return int(np.dtype(self.dtype).itemsize * math.prod(self.shape))
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {
             "key": list(self.key),
             "dtype": self.dtype,
@@ -43,7 +44,7 @@ class Leaf:
         }
 
     @staticmethod
-    def from_json(entry: dict) -> Leaf:
+    def from_json(entry: dict[str, Any]) -> Leaf:
         return Leaf(tuple(entry["key"]), entry["dtype"], tuple(entry["shape"]), entry["codec"])
 
 

@@ -10,7 +10,7 @@ import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from voe_lightning import specs
 from voe_lightning.data import store, store_shards
@@ -55,7 +55,7 @@ class ShardTask:
     items: tuple[tuple[str, int], ...]
     seed_offset: int = 0
 
-    def path(self, root: str | os.PathLike) -> Path:
+    def path(self, root: str | os.PathLike[str]) -> Path:
         return store.shard_path(root, self.concept, self.split, self.index)
 
     @property
@@ -150,7 +150,7 @@ def drawn_probes(
 
 
 def check_fresh_offset(
-    root: str | os.PathLike, seed_offset: int, probes: Sequence[tuple[str, str]]
+    root: str | os.PathLike[str], seed_offset: int, probes: Sequence[tuple[str, str]]
 ) -> None:
     """Refuse (ValueError) a seed offset whose ``probes`` (concept, probe split) would share
     seeds with those the store at ``root`` holds, the store they are drawn fresh to, naming
@@ -167,7 +167,9 @@ def check_fresh_offset(
         raise ValueError(_redraw_message(seed_offset, least, where))
 
 
-def _held_stop(root: str | os.PathLike, manifest: dict, concept: str, split: str) -> int:
+def _held_stop(
+    root: str | os.PathLike[str], manifest: dict[str, Any], concept: str, split: str
+) -> int:
     """One past the last seed of ``concept``'s ``split`` in the store ``manifest`` describes
     (the split's first seed when it holds none); a ManifestError when it records no split."""
     entry = manifest["concepts"].get(concept)
@@ -184,7 +186,7 @@ def _held_stop(root: str | os.PathLike, manifest: dict, concept: str, split: str
     return stop if stop > start else SEED_STARTS[split]
 
 
-def seed_offset_root(root: str | os.PathLike, seed_offset: int) -> Path:
+def seed_offset_root(root: str | os.PathLike[str], seed_offset: int) -> Path:
     """The store holding the probe splits drawn at ``seed_offset``: ``root`` itself for 0,
     else its own store in ``root/seed_offset_<N>`` (probes only: the training clips are the
     root's), so a fresh test set never touches the store a model was trained and tuned on."""
@@ -261,7 +263,7 @@ def plan_shards(
     return tasks
 
 
-def shard_meta(task: ShardTask) -> dict:
+def shard_meta(task: ShardTask) -> dict[str, Any]:
     """What a shard of ``task`` records about itself, and must match to count as done."""
     return {
         "concept": task.concept,
@@ -275,13 +277,13 @@ def shard_meta(task: ShardTask) -> dict:
     }
 
 
-def manifest_seed_offset(manifest: dict) -> int:
+def manifest_seed_offset(manifest: dict[str, Any]) -> int:
     """The seed offset a manifest's probe splits were drawn at (0 where it records none, as
     every manifest before offsets)."""
-    return manifest.get("seed_offset", 0)
+    return cast(int, manifest.get("seed_offset", 0))
 
 
-def record_layouts(video: VideoOptions) -> dict[str, dict]:
+def record_layouts(video: VideoOptions) -> dict[str, dict[str, tuple[str, tuple[int, ...]]]]:
     """Per record type (clip, probe): the leaves, dtypes and shapes its shards must store."""
     size = (video.num_frames, video.height, video.width)
     return {
@@ -290,7 +292,12 @@ def record_layouts(video: VideoOptions) -> dict[str, dict]:
     }
 
 
-def check_task(root: Path, task: ShardTask, layouts: dict[str, dict], full: bool = True) -> None:
+def check_task(
+    root: Path,
+    task: ShardTask,
+    layouts: dict[str, dict[str, tuple[str, tuple[int, ...]]]],
+    full: bool = True,
+) -> None:
     """Raise CorruptShardError naming the shard of ``task`` and why, unless it is intact and
     holds exactly the planned records (concept, split, names, seeds, shapes, generator)."""
     store_shards.check_shard(
@@ -302,7 +309,7 @@ def check_task(root: Path, task: ShardTask, layouts: dict[str, dict], full: bool
     )
 
 
-def manifest_plan(manifest: dict) -> tuple[list[ShardTask], VideoOptions]:
+def manifest_plan(manifest: dict[str, Any]) -> tuple[list[ShardTask], VideoOptions]:
     """The shard plan and video options a manifest describes."""
     try:
         # Every setting stated: a default filled in would blame intact shards of another size.
@@ -341,8 +348,8 @@ def manifest_plan(manifest: dict) -> tuple[list[ShardTask], VideoOptions]:
 
 
 def bad_shards(
-    root: str | os.PathLike,
-    manifest: dict,
+    root: str | os.PathLike[str],
+    manifest: dict[str, Any],
     concepts: Sequence[str] | None = None,
     split: str | None = None,
     full: bool = True,
@@ -370,7 +377,7 @@ def bad_shards(
 
 
 def check_split(
-    root: str | os.PathLike, manifest: dict, concepts: Sequence[str], split: str
+    root: str | os.PathLike[str], manifest: dict[str, Any], concepts: Sequence[str], split: str
 ) -> None:
     """Refuse to read ``split`` of ``concepts`` unless every shard of it is the one the
     manifest plans (``bad_shards``, index only): a CorruptShardError names the first other one
@@ -380,7 +387,7 @@ def check_split(
         raise store_shards.CorruptShardError(*bad[0])
 
 
-def verify(root: str | os.PathLike) -> list[Path]:
+def verify(root: str | os.PathLike[str]) -> list[Path]:
     """Check every shard the manifest of ``root`` plans: intact index, the planned concept,
     split, kinds or variants and seeds per record, the record spec's shapes and dtypes, the
     current generator version and every record's checksum. Returns the paths of the missing,

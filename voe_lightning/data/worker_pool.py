@@ -16,9 +16,12 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any
+from typing import TypeVar
 
 _PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+#: What ``run`` hands its function, and what the function gives back.
+Argument = TypeVar("Argument")
+Result = TypeVar("Result")
 
 
 def default_workers() -> int:
@@ -29,7 +32,9 @@ def default_workers() -> int:
         return os.cpu_count() or 1
 
 
-def run(function: Callable[[Any], Any], arguments: Sequence, workers: int, died: str) -> Iterator:
+def run(
+    function: Callable[[Argument], Result], arguments: Sequence[Argument], workers: int, died: str
+) -> Iterator[Result]:
     """Yield ``function(argument)`` for each of ``arguments`` as each finishes: in this process
     for one worker or one argument, else in a pool of ``workers`` spawned processes. A worker
     that dies raises a RuntimeError saying ``died`` instead of hanging; on any error, arguments

@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from tqdm.auto import tqdm
 
@@ -54,7 +55,7 @@ def export(
     seed_offset: int = 0,
     shard_size: int = DEFAULT_SHARD_SIZE,
     progress: bool = True,
-) -> dict:
+) -> dict[str, Any]:
     """Write a probe split of a store in another benchmark's format, with a manifest.
 
     intphys2: per concept, CONCEPT/Main/Videos/NAME.mp4 and CONCEPT/Main/metadata.csv (IntPhys

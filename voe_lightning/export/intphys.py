@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 from PIL import Image
+from tensordict import TensorDictBase
 
 from voe_lightning.export.manifest import ExportFolder, Progress, Written, group_entry
 from voe_lightning.export.probes import ROLES, ProbeGroup, ProbePair, ProbeSource
@@ -103,7 +104,7 @@ def write_movie(
 
 
 def write_quadruplet(
-    folder: ExportFolder, group: ProbeGroup, records: list, scene: str
+    folder: ExportFolder, group: ProbeGroup, records: list[TensorDictBase], scene: str
 ) -> list[list[str]]:
     """A quadruplet's four movie folders under ``scene``; returns each pair's movies."""
     block = BLOCKS[group.concept]

@@ -9,6 +9,7 @@ import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, cast
 
 from tensordict import TensorDictBase
 
@@ -68,7 +69,7 @@ class ProbeSource:
 
     root: Path
     split: str
-    manifest: dict
+    manifest: dict[str, Any]
     groups: tuple[ProbeGroup, ...]
     datasets: dict[str, store.SplitDataset] = field(default_factory=dict, repr=False)
 
@@ -83,16 +84,16 @@ class ProbeSource:
         return store_plan.manifest_seed_offset(self.manifest)
 
     @property
-    def video(self) -> dict:
+    def video(self) -> dict[str, Any]:
         """The store's video options (num_frames, height, width, duration, timestep)."""
-        return self.manifest["video"]
+        return cast(dict[str, Any], self.manifest["video"])
 
     @property
     def num_videos(self) -> int:
         """Videos in the split (two per pair): the progress bar's total."""
         return 2 * sum(len(group.pairs) for group in self.groups)
 
-    def seeds(self, concept: str) -> dict:
+    def seeds(self, concept: str) -> dict[str, Any]:
         """The store's seed range and pairs per variant of ``concept``'s split."""
         entry = self.manifest["concepts"][concept]["splits"][self.split]
         return {k: entry[k] for k in ("seed_start", "seed_stop", "variants")}
@@ -118,7 +119,7 @@ class ProbeSource:
 
 
 def open_fresh_probes(
-    root: str | os.PathLike, split: str, concepts: Sequence[str] | None, seed_offset: int
+    root: str | os.PathLike[str], split: str, concepts: Sequence[str] | None, seed_offset: int
 ) -> ProbeSource:
     """``open_probes`` of the store at ``root`` (offset 0), or of the probes ``generate
     --seed_offset N`` drew beside it (``store_plan.seed_offset_root``): refused unless that
@@ -160,7 +161,7 @@ def _check_split(split: str) -> None:
 
 
 def open_probes(
-    root: str | os.PathLike, split: str, concepts: Sequence[str] | None = None
+    root: str | os.PathLike[str], split: str, concepts: Sequence[str] | None = None
 ) -> ProbeSource:
     """The probe ``split`` of the store at ``root`` for ``concepts`` (default: every concept
     it holds), its shards checked against its manifest first. A ValueError (or
@@ -197,7 +198,7 @@ def open_probes(
     return ProbeSource(root, split, manifest, tuple(groups), datasets)
 
 
-def planned_items(manifest: dict, split: str) -> dict[str, list[tuple[str, int]]]:
+def planned_items(manifest: dict[str, Any], split: str) -> dict[str, list[tuple[str, int]]]:
     """Per concept, the (variant, seed) of each record of ``split`` in store order, from the
     shard plan the manifest describes (so grouping reads no record)."""
     tasks, _ = store_plan.manifest_plan(manifest)

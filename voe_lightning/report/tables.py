@@ -71,6 +71,7 @@ def field_metric_rows(results: PairResults) -> dict[str, dict[str, Any]]:
     for concept, variant, pairs in results.groups(pooled=True):
         sides = (pairs.surprise_consistent, pairs.surprise_inconsistent)
         first = pairs.first_difference
+        assert first is not None  # PairResults fills it in (manipulation_frame + 1)
         if variant in QUADRUPLET_ROWS:  # first halves, then second halves, matched by seed
             half = len(pairs) // 2
             sides = tuple(side[:half] + side[half:] for side in sides)

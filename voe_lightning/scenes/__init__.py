@@ -10,7 +10,7 @@ forked at the hidden change, and the records every concept makes of its videos),
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Any, Protocol
 
 from tensordict import TensorDict
 
@@ -79,20 +79,20 @@ def concept_scene(concept: str) -> ConceptScene:
     return SCENES[concept]
 
 
-def check_video(concept: str, **options) -> None:
+def check_video(concept: str, **options: Any) -> None:
     """Refuse video options (VideoOptions fields) that ``concept``'s scenes cannot render,
     before anything is rendered."""
     concept_scene(concept).check_video(VideoOptions(**options))
 
 
-def generate_clip(concept: str, kind: str, seed: int, **options) -> TensorDict:
+def generate_clip(concept: str, kind: str, seed: int, **options: Any) -> TensorDict:
     """Render one training clip (``kind`` is ``example`` or one of the concept's controls).
     ``options`` are VideoOptions fields (num_frames, height, width, duration, timestep)."""
     specs.check_kind(concept, kind)
     return concept_scene(concept).clip(kind, int(seed), VideoOptions(**options))
 
 
-def generate_probe(concept: str, variant: str, seed: int, **options) -> TensorDict:
+def generate_probe(concept: str, variant: str, seed: int, **options: Any) -> TensorDict:
     """Render one consistent/inconsistent probe pair of ``variant`` (see PROBE_VARIANTS)."""
     specs.check_variant(concept, variant)
     return concept_scene(concept).probe(variant, int(seed), VideoOptions(**options))

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -96,7 +97,13 @@ class SceneBuilder:
         return obj
 
     def add_primitive(
-        self, name: str, shape: str, size: Sequence[float], pos: Sequence[float], color, **kwargs
+        self,
+        name: str,
+        shape: str,
+        size: Sequence[float],
+        pos: Sequence[float],
+        color: str | Sequence[float],
+        **kwargs: Any,
     ) -> SceneObject:
         """Add an object of one primitive geom."""
         return self.add(name, [Geom(shape, size)], pos, color, **kwargs)

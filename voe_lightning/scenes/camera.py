@@ -7,7 +7,9 @@ projects alike (the positive control's ``model/object_geometry.py`` is its torch
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -144,7 +146,9 @@ def camera_axes(camera: CameraPose) -> tuple[np.ndarray, np.ndarray, np.ndarray,
     return position, np.cross(forward, up), up, forward
 
 
-def camera_coordinates(camera: CameraPose, point) -> tuple[float, float, float]:
+def camera_coordinates(
+    camera: CameraPose, point: Sequence[float] | np.ndarray
+) -> tuple[float, float, float]:
     """The world ``point`` in the camera's frame: its offsets along right, up and forward
     (depth); every projection of a point into the image starts here."""
     position, right, up, forward = camera_axes(camera)
@@ -155,10 +159,12 @@ def camera_coordinates(camera: CameraPose, point) -> tuple[float, float, float]:
 # --- projection between the world and the image ---------------------------------------------
 def focal_length(video: VideoOptions) -> float:
     """Focal length in pixels of MuJoCo's free camera."""
-    return (video.height / 2) / np.tan(np.radians(FOVY) / 2)
+    return cast(float, (video.height / 2) / np.tan(np.radians(FOVY) / 2))
 
 
-def pixel_of(camera: CameraPose, video: VideoOptions, point) -> tuple[int, int]:
+def pixel_of(
+    camera: CameraPose, video: VideoOptions, point: Sequence[float] | np.ndarray
+) -> tuple[int, int]:
     """Pixel (row, column) where the world ``point`` appears in a frame (may lie outside it)."""
     right, up, depth = camera_coordinates(camera, point)
     focal = focal_length(video)
@@ -184,7 +190,9 @@ def view_edges(camera: CameraPose, video: VideoOptions, y: float, z: float) -> t
     return x_at_column(camera, video, 0.0, y, z), x_at_column(camera, video, video.width, y, z)
 
 
-def image_point(camera: CameraPose, point, aspect: float = 1.0) -> tuple[float, float]:
+def image_point(
+    camera: CameraPose, point: Sequence[float] | np.ndarray, aspect: float = 1.0
+) -> tuple[float, float]:
     """Normalised image coordinates of a world point: (-1..1 left to right, -1..1 bottom to top)."""
     right, up, depth = camera_coordinates(camera, point)
     if depth <= 0:
@@ -193,7 +201,9 @@ def image_point(camera: CameraPose, point, aspect: float = 1.0) -> tuple[float, 
     return float(right / (depth * tan_half * aspect)), float(up / (depth * tan_half))
 
 
-def floor_point(camera: CameraPose, u: float, v: float, height: float, aspect: float = 1.0):
+def floor_point(
+    camera: CameraPose, u: float, v: float, height: float, aspect: float = 1.0
+) -> np.ndarray | None:
     """The point at ``height`` above the floor seen at image coordinates (u, v), or None when
     that pixel looks above the horizon."""
     position, right, up, forward = camera_axes(camera)
@@ -201,7 +211,7 @@ def floor_point(camera: CameraPose, u: float, v: float, height: float, aspect: f
     ray = forward + u * tan_half * aspect * right + v * tan_half * up
     if ray[2] >= 0:
         return None
-    return position + ray * (height - position[2]) / ray[2]
+    return cast(np.ndarray, position + ray * (height - position[2]) / ray[2])
 
 
 def height_above_view(camera: CameraPose, x: float, y: float) -> float:

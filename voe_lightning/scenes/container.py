@@ -3,6 +3,8 @@ outer box hides from a camera (an open box hides what lies behind it like a soli
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from voe_lightning.scenes.builder import Geom
@@ -21,7 +23,7 @@ def container_geoms(half_x: float, half_y: float, height: float, wall: float) ->
     ]
 
 
-def outer_gap(outer: tuple[float, float], xy) -> float:
+def outer_gap(outer: tuple[float, float], xy: Sequence[float] | np.ndarray) -> float:
     """Distance from ``xy`` to a container's footprint of outer half-sizes ``outer`` centred at
     the origin (0 inside it)."""
     return float(np.hypot(max(abs(xy[0]) - outer[0], 0.0), max(abs(xy[1]) - outer[1], 0.0)))

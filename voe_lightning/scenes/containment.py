@@ -13,7 +13,9 @@ standard inconsistent cube is revealed where B's lies, just behind where the bac
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
+from typing import cast
 
 import mujoco
 import numpy as np
@@ -74,7 +76,7 @@ def smoothstep(x: float) -> float:
     """0 before 0, 1 after 1, a cosine ease in between (starts and stops at rest); the
     container's speed is its derivative."""
     x = min(max(x, 0.0), 1.0)
-    return 0.5 - 0.5 * np.cos(np.pi * x)
+    return cast(float, 0.5 - 0.5 * np.cos(np.pi * x))
 
 
 def build(
@@ -141,7 +143,9 @@ def build(
     return sim
 
 
-def timeline(rng: np.random.Generator, video: VideoOptions) -> tuple[int, float, float, tuple]:
+def timeline(
+    rng: np.random.Generator, video: VideoOptions
+) -> tuple[int, float, float, tuple[float, float]]:
     """Manipulation frame, move start and end (s), and rod descent (s): the rod comes down
     while the cube settles; the container starts sliding just after the manipulation frame."""
     frame_time = video.steps_per_frame * video.timestep
@@ -262,7 +266,11 @@ def drop_behind(rng: np.random.Generator, layout: Layout) -> None:
 
 
 def check_hidden_and_carried(
-    sim: Simulation, layout: Layout, frame: int, videos, start: tuple[float, float, float]
+    sim: Simulation,
+    layout: Layout,
+    frame: int,
+    videos: Sequence[recording.Video],
+    start: tuple[float, float, float],
 ) -> None:
     """Reject a probe whose cube shows at the manipulation frame in either of its ``videos``,
     or whose cube ``sim`` (the branch where it rides in the container, run to the end) did not
@@ -286,14 +294,14 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
 
 
 @functools.lru_cache(maxsize=4)
-def quadruplet(seed: int, video: VideoOptions) -> tuple:
+def quadruplet(seed: int, video: VideoOptions) -> recording.Quadruplet:
     """One scene draw's quadruplet ((A, AB), (B, BA)): one container, rod and slide, the cube
     dropped into the container (A: it travels inside, hidden) or just behind it (B: the
     sliding container reveals it), both hidden at the manipulation frame, the last before the
     container slides (``recording.quadruplet``); with the camera, that frame and the cube's
     mask id. Cached, as both variants of a seed read it (callers copy what they keep)."""
 
-    def make(rng: np.random.Generator) -> tuple:
+    def make(rng: np.random.Generator) -> recording.Quadruplet:
         camera = CAMERA.sample(rng)
         inside, frame = sample_layout(rng, video, PROBE_RANGES)
         behind = replace(inside)

@@ -14,7 +14,9 @@ unconstrained paths past the same pillars."""
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from tensordict import TensorDict
@@ -160,7 +162,9 @@ def build(
     return sim
 
 
-def launch(sim: Simulation, start, velocity) -> None:
+def launch(
+    sim: Simulation, start: tuple[float, float, float], velocity: tuple[float, float]
+) -> None:
     """Place the ball at ``start`` rolling with horizontal ``velocity`` (spin without slip)."""
     radius = float(sim.model.geom("ball_0").size[0])
     vx, vy = velocity
@@ -170,7 +174,7 @@ def launch(sim: Simulation, start, velocity) -> None:
 
 def ball_pixels(masks: np.ndarray, ball_id: int) -> np.ndarray:
     """Visible ball pixels per frame."""
-    return (masks == ball_id).sum(axis=(1, 2))
+    return cast(np.ndarray, (masks == ball_id).sum(axis=(1, 2)))
 
 
 def what_hides_ball(sim: Simulation, masks: np.ndarray, positions: np.ndarray) -> np.ndarray:
@@ -185,7 +189,7 @@ def what_hides_ball(sim: Simulation, masks: np.ndarray, positions: np.ndarray) -
     return seen
 
 
-def column(sim: Simulation, point) -> int:
+def column(sim: Simulation, point: Sequence[float] | np.ndarray) -> int:
     """Image column of the world ``point``."""
     return pixel_of(sim.camera, sim.video, point)[1]
 
@@ -320,7 +324,9 @@ def first_hidden(seen: np.ndarray, pixels: np.ndarray, occluder: int, after: int
     return int(hidden[0])
 
 
-def _standard(rng: np.random.Generator, variant: str, video: VideoOptions, camera: CameraPose):
+def _standard(
+    rng: np.random.Generator, variant: str, video: VideoOptions, camera: CameraPose
+) -> tuple[Simulation, Video, Video, int]:
     """The paper's pair: the consistent video rendered whole; the inconsistent one forks at the
     frame the ball is hidden by the first pillar, parks the ball, and restores the consistent
     state (ball on course) at the frame it is hidden by the last pillar."""
@@ -341,7 +347,9 @@ def _standard(rng: np.random.Generator, variant: str, video: VideoOptions, camer
     return sim, consistent, splice(consistent, rest, vanish), vanish
 
 
-def _quadruplet(rng: np.random.Generator, video: VideoOptions, camera: CameraPose):
+def _quadruplet(
+    rng: np.random.Generator, video: VideoOptions, camera: CameraPose
+) -> tuple[Simulation, tuple[tuple[Video, Video], tuple[Video, Video]], int]:
     """One ball's roll past both pillars seen from two moments: A from the launch (hidden by
     the first pillar at m = ``vanish``), B the same roll k = reappear - vanish frames later
     (hidden by the last pillar at m). Both show nothing of the ball at m, so they render alike
@@ -358,12 +366,12 @@ def _quadruplet(rng: np.random.Generator, video: VideoOptions, camera: CameraPos
 
 
 @functools.lru_cache(maxsize=4)
-def quadruplet(seed: int, video: VideoOptions) -> tuple:
+def quadruplet(seed: int, video: VideoOptions) -> recording.Quadruplet:
     """One scene draw's quadruplet ((A, AB), (B, BA)) (``_quadruplet``), with the camera, the
     manipulation frame and the ball's mask id. Cached, as both variants of a seed read it
     (callers copy what they keep)."""
 
-    def make(rng: np.random.Generator) -> tuple:
+    def make(rng: np.random.Generator) -> recording.Quadruplet:
         camera = CAMERA.sample(rng)
         sim, pairs, vanish = _quadruplet(rng, video, camera)
         return pairs, camera.as_array(), vanish, sim.mask_id("ball")

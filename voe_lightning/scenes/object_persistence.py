@@ -12,6 +12,8 @@ frame (frames identical through the manipulation) without starting unlike the ex
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
+from typing import Any, cast
 
 import mujoco
 import numpy as np
@@ -72,20 +74,22 @@ def _compose(*quats: np.ndarray) -> np.ndarray:
     return result
 
 
-def _rotate(quat: np.ndarray, vector) -> np.ndarray:
+def _rotate(quat: np.ndarray, vector: Sequence[float] | np.ndarray) -> np.ndarray:
     out = np.empty(3)
     mujoco.mju_rotVecQuat(out, np.asarray(vector, float), quat)
     return out
 
 
-def _draw_object(rng: np.random.Generator, sizes: tuple[float, float]) -> dict:
+def _draw_object(rng: np.random.Generator, sizes: tuple[float, float]) -> dict[str, Any]:
     """A sphere (radius) or cube (half side) of random size and yaw."""
     shape = "sphere" if rng.random() < 0.5 else "box"
     half = float(rng.uniform(*sizes))
     return {"shape": shape, "half": half, "yaw": float(rng.uniform(0, np.pi / 2))}
 
 
-def _add_object(builder: SceneBuilder, obj: dict, xy, color: str) -> None:
+def _add_object(
+    builder: SceneBuilder, obj: dict[str, Any], xy: Sequence[float] | np.ndarray, color: str
+) -> None:
     size = [obj["half"]] if obj["shape"] == "sphere" else [obj["half"]] * 3
     builder.add_primitive(
         "object",
@@ -103,16 +107,29 @@ def _add_object(builder: SceneBuilder, obj: dict, xy, color: str) -> None:
         geom.friction = [1.5, 0.005, 0.02]
 
 
-def _add_plank(builder: SceneBuilder, half_sizes, center, quat, color: str) -> None:
+def _add_plank(
+    builder: SceneBuilder,
+    half_sizes: Sequence[float] | np.ndarray,
+    center: Sequence[float] | np.ndarray,
+    quat: Sequence[float] | np.ndarray,
+    color: str,
+) -> None:
     builder.add_primitive(
         "plank", "box", list(half_sizes), list(center), color, quat=list(quat), friction=2.0
     )
 
 
-def _anchor(rng: np.random.Generator, camera: CameraPose, offset) -> np.ndarray:
+def _anchor(
+    rng: np.random.Generator,
+    camera: CameraPose,
+    offset: tuple[tuple[float, float], tuple[float, float]],
+) -> np.ndarray:
     """The floor point (x, y) the scene is built around, drawn relative to the camera."""
     (x_low, x_high), (y_low, y_high) = offset
-    return np.array(camera.lookat[:2]) + (rng.uniform(x_low, x_high), rng.uniform(y_low, y_high))
+    return cast(
+        np.ndarray,
+        np.array(camera.lookat[:2]) + (rng.uniform(x_low, x_high), rng.uniform(y_low, y_high)),
+    )
 
 
 def _plank_lowest_point(sim: Simulation) -> float:
@@ -133,7 +150,7 @@ def _touching(sim: Simulation, first: str, second: str, depth: float = 0.0) -> b
 # --- probes --------------------------------------------------------------------------------------
 
 
-def probe_layout(rng: np.random.Generator) -> dict:
+def probe_layout(rng: np.random.Generator) -> dict[str, Any]:
     """A probe's geometry: the plank, pitched front-down and facing the camera, drops so that its
     front edge lands in front of the object and it pivots back to rest on the object, which its
     sloped underside then hides (the camera looks along the plank from a low elevation). At the
@@ -194,7 +211,7 @@ def _change_step(sim: Simulation, rng: np.random.Generator, last_frame: int) -> 
     plank, obj = sim.model.geom("plank_0").id, sim.model.geom("object_0").id
     spf = sim.video.steps_per_frame
     fromto = np.empty(6)
-    candidates = []
+    candidates: list[tuple[int, Simulation]] = []
     for step in range(1, (last_frame + 1) * spf):
         dry.step(1)
         mujoco.mj_forward(dry.model, dry.data)
@@ -203,6 +220,7 @@ def _change_step(sim: Simulation, rng: np.random.Generator, last_frame: int) -> 
         if mujoco.mj_geomDistance(dry.model, dry.data, plank, obj, 0.01, fromto) < 0.004:
             break  # the plank reaches the object: the two branches would differ from here on
         candidates.append((step, dry.fork()))
+    index: np.int64  # numpy's stubs give an array's items as Any
     for index in rng.permutation(len(candidates)):
         step, state = candidates[index]
         if sim.mask_id("object") not in visible_ids(state.render()[1]):
@@ -220,7 +238,7 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
 
 
 @functools.lru_cache(maxsize=4)
-def quadruplet(seed: int, video: VideoOptions) -> tuple:
+def quadruplet(seed: int, video: VideoOptions) -> recording.Quadruplet:
     """One scene draw's quadruplet: ((A, AB), (B, BA)) with A the plank ending propped on the
     object and B the same plank's fall in the scene without the object (A's motion: the change
     comes before the plank touches the object's place), spliced at a frame where the plank
@@ -228,7 +246,7 @@ def quadruplet(seed: int, video: VideoOptions) -> tuple:
     mask id. Cached, as both variants of a seed read it (callers copy what they keep)."""
     rng = rng_for(seed, CONCEPT, "quadruplet")
 
-    def make(rng: np.random.Generator) -> tuple:
+    def make(rng: np.random.Generator) -> recording.Quadruplet:
         layout = probe_layout(rng)
         plank_color, object_color = distinct_colors(rng, 2)
         builder = SceneBuilder(rng, video, layout["camera"])
@@ -262,7 +280,9 @@ def quadruplet(seed: int, video: VideoOptions) -> tuple:
 # --- training clips --------------------------------------------------------------------------
 
 
-def _random_plank(rng: np.random.Generator, above: float) -> tuple:
+def _random_plank(
+    rng: np.random.Generator, above: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Plank half sizes (width, length and thickness vary greatly) and a random pose whose
     lowest corner starts ``above`` metres over the floor; centred at the origin in xy."""
     half = np.array(
@@ -279,7 +299,7 @@ def _random_plank(rng: np.random.Generator, above: float) -> tuple:
     return half, quat, np.array([0.0, 0.0, above + depth]), float(np.hypot(half[0], half[1]))
 
 
-def clip_layout(rng: np.random.Generator, kind: str) -> dict:
+def clip_layout(rng: np.random.Generator, kind: str) -> dict[str, Any]:
     """A training clip's geometry (the keys of ``probe_layout``): camera from CAMERA, object and
     plank around a point drawn relative to it; the plank over the object (``example``) or on
     open floor beside it (controls)."""

@@ -23,6 +23,11 @@ from voe_lightning.scenes.simulation import Simulation, visible_ids
 #: A rendered video: uint8 frames [T, H, W, 3], masks [T, H, W] and object states [T, OBJECT_SLOTS]
 #: of ``specs.OBJECT_STATE_DTYPE``, as ``Simulation.record`` gives them.
 Video = tuple[np.ndarray, np.ndarray, np.ndarray]
+#: A quadruplet as each concept's cached ``quadruplet`` gives it: its pairs ((A, AB), (B, BA)),
+#: the camera pose array, the manipulation frame and the manipulated id (or ids).
+Quadruplet = tuple[
+    tuple[tuple[Video, Video], tuple[Video, Video]], np.ndarray, int, int | tuple[int, ...]
+]
 
 
 def splice(consistent: Video, rest: Video, manipulation_frame: int) -> Video:
@@ -64,7 +69,7 @@ def quadruplet(
     return (first, splice(first, tail(second, m), m)), (second, splice(second, tail(first, m), m))
 
 
-def quadruplet_record(concept: str, variant: str, seed: int, drawn: tuple) -> TensorDict:
+def quadruplet_record(concept: str, variant: str, seed: int, drawn: Quadruplet) -> TensorDict:
     """The probe record of ``variant``'s half of a quadruplet ``drawn`` = (((A, AB), (B, BA)),
     camera, manipulation frame, manipulated id or ids), as a concept's cached ``quadruplet``
     gives it: the first half of ``specs.QUADRUPLETS`` (``standard``, or an unchangeableness
@@ -164,10 +169,11 @@ def _stacked(renders: list[Video]) -> Video:
     return frames, masks, objects
 
 
-def record_tracking(sim: Simulation, name: str) -> tuple[Video, list, np.ndarray]:
+def record_tracking(sim: Simulation, name: str) -> tuple[Video, list[np.ndarray], np.ndarray]:
     """Render the whole video, keeping the simulation state and the position of object ``name``
     at every frame (to fork a twin later at a frame the object's path chooses)."""
-    states, positions = [], []
+    states: list[np.ndarray] = []
+    positions: list[np.ndarray] = []
 
     def keep(sim: Simulation, frame: int) -> None:
         states.append(sim.get_state())

@@ -5,9 +5,12 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Callable
+from typing import TypeVar
 
 import numpy as np
-from tensordict import TensorDict
+
+#: What a draw makes (a record, a quadruplet): ``draw_until_valid`` gives back what ``make`` does.
+Drawn = TypeVar("Drawn")
 
 
 def rng_for(seed: int, *salt: str) -> np.random.Generator:
@@ -33,8 +36,8 @@ class NoValidScene(RuntimeError):
 
 
 def draw_until_valid(
-    make: Callable[[np.random.Generator], TensorDict], rng: np.random.Generator, attempts: int = 50
-) -> TensorDict:
+    make: Callable[[np.random.Generator], Drawn], rng: np.random.Generator, attempts: int = 50
+) -> Drawn:
     """Call ``make(rng)`` until it does not raise RejectedSample (deterministic for one rng)."""
     last = None
     for _ in range(attempts):

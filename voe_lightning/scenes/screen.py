@@ -50,7 +50,9 @@ class ScreenMotion:
         return [f for f in range(1, math.floor(self.up) + 1) if f - 1 >= self.down]
 
 
-def draw_motion(rng: np.random.Generator, video: VideoOptions, top: float, bottom: float):
+def draw_motion(
+    rng: np.random.Generator, video: VideoOptions, top: float, bottom: float
+) -> ScreenMotion:
     """Random timing of the lowering and raising, scaled to the video's length."""
     scale = video.num_frames / 15.0
     start = rng.uniform(0.3, 2.0) * scale

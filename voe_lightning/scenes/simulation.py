@@ -7,6 +7,7 @@ from __future__ import annotations
 import copy
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import cast
 
 import mujoco
 import numpy as np
@@ -64,7 +65,7 @@ class Simulation:
         return self.objects[name].mask_id
 
     def position(self, name: str) -> np.ndarray:
-        return self.data.body(name).xpos.copy()
+        return cast(np.ndarray, self.data.body(name).xpos.copy())
 
     def move(
         self,
@@ -90,7 +91,9 @@ class Simulation:
             raise ValueError(f"object {name!r} is fixed and cannot be moved")
         mujoco.mj_forward(self.model, self.data)
 
-    def set_velocity(self, name: str, linear: Sequence[float], angular=(0.0, 0.0, 0.0)) -> None:
+    def set_velocity(
+        self, name: str, linear: Sequence[float], angular: Sequence[float] = (0.0, 0.0, 0.0)
+    ) -> None:
         joint = self.model.joint(f"{name}_joint")
         dof = joint.dofadr[0]
         self.data.qvel[dof : dof + 3] = linear

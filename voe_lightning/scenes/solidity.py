@@ -20,7 +20,9 @@ controls show the container alone, or the block falling behind it and ending hid
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from typing import Any, cast
 
 import numpy as np
 from tensordict import TensorDict
@@ -88,9 +90,13 @@ CLEARANCE = (0.01, 0.05)
 GRAVITY = 9.81  # MuJoCo's default, which the scenes keep
 #: Outer height of the container.
 CONTAINER_HEIGHT = (0.55, 0.8)
+#: A container's sizes, a block's or a scene draw's parameters, by name; a floor point (x, y).
+Box = dict[str, float]
+Params = dict[str, Any]
+Point = Sequence[float] | np.ndarray
 
 
-def _draw_container(rng: np.random.Generator) -> dict:
+def _draw_container(rng: np.random.Generator) -> Box:
     """An open box: interior half width/depth, wall half thickness and outer height."""
     return {
         "inner_x": float(rng.uniform(0.35, 0.6)),
@@ -100,12 +106,12 @@ def _draw_container(rng: np.random.Generator) -> dict:
     }
 
 
-def _depth(box: dict) -> float:
+def _depth(box: Box) -> float:
     """Inner depth: from the top of the container's bottom to its rim."""
     return box["height"] - 2 * box["wall"]
 
 
-def _add_container(builder: SceneBuilder, box: dict, color: str) -> None:
+def _add_container(builder: SceneBuilder, box: Box, color: str) -> None:
     """The container as one fixed object of five box geoms (bottom and four walls)."""
     geoms = container_geoms(box["inner_x"], box["inner_y"], box["height"], 2 * box["wall"])
     builder.add("container", geoms, (0.0, 0.0, 0.0), color, free=False)
@@ -121,14 +127,14 @@ def camera_position(camera: CameraPose) -> np.ndarray:
     return np.asarray(camera.lookat, float) - camera.distance * forward
 
 
-def _hidden_height(eye: np.ndarray, box: dict, x: float, y: float) -> float:
+def _hidden_height(eye: np.ndarray, box: Box, x: float, y: float) -> float:
     """The highest point above (x, y) inside the container that the front wall hides from
     ``eye``: the sight line over the front rim (y = -inner_y, z = height) meets it there."""
     reach = (-box["inner_y"] - eye[1]) / (y - eye[1])  # fraction of the way at the front face
     return float(eye[2] + (box["height"] - eye[2]) / reach)
 
 
-def sees_top_not_bottom(camera: CameraPose, box: dict) -> bool:
+def sees_top_not_bottom(camera: CameraPose, box: Box) -> bool:
     """The probe perspective: from in front of and above the container, the sight line over
     the front rim meets the back wall's inner face between HIDDEN_BACK_WALL of its depth."""
     eye = camera_position(camera)
@@ -142,15 +148,15 @@ def sees_top_not_bottom(camera: CameraPose, box: dict) -> bool:
     return floor < low <= min(heights) and max(heights) <= high
 
 
-def _footprint(block: dict, xy) -> np.ndarray:
+def _footprint(block: Params, xy: Point) -> np.ndarray:
     """The four corners (x, y) of the block's yawed footprint centred at ``xy``, [4, 2]."""
     half_x, half_y, _ = block["half"]
     cos, sin = np.cos(block["yaw"]), np.sin(block["yaw"])
     local = np.array([[sx * half_x, sy * half_y] for sx in (-1, 1) for sy in (-1, 1)])
-    return np.asarray(xy, float) + local @ np.array([[cos, sin], [-sin, cos]])
+    return cast(np.ndarray, np.asarray(xy, float) + local @ np.array([[cos, sin], [-sin, cos]]))
 
 
-def _draw_block(rng: np.random.Generator, box: dict, heights: tuple[float, float]) -> dict:
+def _draw_block(rng: np.random.Generator, box: Box, heights: tuple[float, float]) -> Params:
     """A block that fits inside the container upright, its height a random multiple (in
     ``heights``) of the container's inner depth, with a small random yaw."""
     yaw = float(np.deg2rad(rng.uniform(-12, 12)))
@@ -170,7 +176,7 @@ def _draw_block(rng: np.random.Generator, box: dict, heights: tuple[float, float
     return {"half": (half_x, half_y, half_z), "yaw": yaw, "offset": offset}
 
 
-def draw_example(rng: np.random.Generator) -> dict:
+def draw_example(rng: np.random.Generator) -> Params:
     """The parameters of a training clip: container, block, camera, drop height, how far the
     block is lowered to it and how long it is held before it drops."""
     box = _draw_container(rng)
@@ -247,13 +253,7 @@ def check_video(video: VideoOptions) -> None:
         n
         for n in range(video.num_frames + 1, 10 * video.num_frames + 100)
         if manipulation_frames(
-            VideoOptions(
-                n,
-                video.height,
-                video.width,
-                video.duration,
-                min(video.timestep, video.duration / n),
-            )
+            replace(video, num_frames=n, timestep=min(video.timestep, video.duration / n))
         )
     )
     raise ValueError(
@@ -265,7 +265,7 @@ def check_video(video: VideoOptions) -> None:
     )
 
 
-def draw_quadruplet(rng: np.random.Generator, video: VideoOptions = VideoOptions()) -> dict:
+def draw_quadruplet(rng: np.random.Generator, video: VideoOptions = VideoOptions()) -> Params:
     """The parameters of a probe quadruplet, each inside the examples' range: a container seen
     from the controlled perspective, a block footprint, two heights for it and when it is let
     go. ``tall`` rests on the floor protruding PROTRUSION above the sight line over the front
@@ -315,7 +315,7 @@ def draw_quadruplet(rng: np.random.Generator, video: VideoOptions = VideoOptions
     raise RuntimeError(f"no {CONCEPT} probe quadruplet parameters in 1000 draws")
 
 
-def _lift_out_of_view(camera: CameraPose, block: dict, bottom: float) -> float:
+def _lift_out_of_view(camera: CameraPose, block: Params, bottom: float) -> float:
     """How far to lift ``block``, its bottom hanging at ``bottom``, for all of it to lie
     LIFT_MARGIN or more above the top edge of ``camera``'s view: its bottom corners are the
     lowest points of it and the view's top face slopes less than vertical."""
@@ -325,7 +325,7 @@ def _lift_out_of_view(camera: CameraPose, block: dict, bottom: float) -> float:
 
 def draw_probe(
     variant: str, rng: np.random.Generator, video: VideoOptions = VideoOptions()
-) -> dict:
+) -> Params:
     """The parameters of ``variant``'s consistent scene in a quadruplet (``draw_quadruplet``):
     ``standard`` the tall block, ``counterbalanced`` the short one; ``block`` carries its
     height, ``drop`` its start above the rim."""
@@ -334,14 +334,14 @@ def draw_probe(
     return _scene(params, "tall" if variant == "standard" else "short")
 
 
-def _scene(params: dict, size: str) -> dict:
+def _scene(params: Params, size: str) -> Params:
     """One of a quadruplet's two scenes: its block ``size`` (tall or short) in ``params``."""
     half = params["block"]["half"]
     block = {**params["block"], "half": (half[0], half[1], params["heights"][size] / 2)}
     return {**params, "block": block, "drop": float(params["drops"][size])}
 
 
-def _add_block(builder: SceneBuilder, block: dict, xy, bottom: float, color: str) -> None:
+def _add_block(builder: SceneBuilder, block: Params, xy: Point, bottom: float, color: str) -> None:
     """The block, its weight compensated (it hangs still) until ``hand_controller`` lets
     it go."""
     builder.add_primitive(
@@ -365,13 +365,13 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
 
 
 @functools.lru_cache(maxsize=4)
-def quadruplet(seed: int, video: VideoOptions) -> tuple:
+def quadruplet(seed: int, video: VideoOptions) -> recording.Quadruplet:
     """One scene draw's quadruplet ((A, AB), (B, BA)) (``draw_quadruplet``): A the tall block
     resting protruding, B the short one sinking out of sight, spliced at the manipulation
     frame, where only their level tops show; with the camera, that frame and the block's mask
     id. Cached, as both variants of a seed read it (callers copy what they keep)."""
 
-    def make(rng: np.random.Generator) -> tuple:
+    def make(rng: np.random.Generator) -> recording.Quadruplet:
         params = draw_quadruplet(rng, video)
         box, camera, frame = params["box"], params["camera"], params["manipulation_frame"]
         container_color, block_color = distinct_colors(rng, 2)
@@ -433,7 +433,9 @@ def _shown_apart(sim: Simulation, spliced: recording.Video, block_id: int, m: in
     return apart
 
 
-def _behind_container(rng: np.random.Generator, box: dict, block: dict, camera: CameraPose):
+def _behind_container(
+    rng: np.random.Generator, box: Box, block: Params, camera: CameraPose
+) -> np.ndarray:
     """A floor position for ``block`` behind the container as the camera sees it: along the
     line of sight, just past where the block's footprint clears the container."""
     view = np.deg2rad(camera.azimuth)
@@ -447,7 +449,7 @@ def _behind_container(rng: np.random.Generator, box: dict, block: dict, camera: 
     return start + (behind + rng.uniform(0.03, 0.15)) * along
 
 
-def _outer(box: dict) -> tuple[float, float]:
+def _outer(box: Box) -> tuple[float, float]:
     """The container's outer half-sizes (x, y)."""
     return box["inner_x"] + 2 * box["wall"], box["inner_y"] + 2 * box["wall"]
 

@@ -34,7 +34,7 @@ from voe_lightning.scenes.camera import (
 from voe_lightning.scenes.recording import Video, draw_clip, pair_record, record_pair
 from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_for
 from voe_lightning.scenes.screen import SCREEN_THICKNESS, Screen, draw_screen
-from voe_lightning.scenes.simulation import Simulation, visible_ids
+from voe_lightning.scenes.simulation import SceneObject, Simulation, visible_ids
 
 CONCEPT = "unchangeableness"
 #: Its scenes render videos of any size and length (``scenes.check_video``).
@@ -122,7 +122,7 @@ def add_object(
     x: float,
     y: float,
     replaces: str | None = None,
-):
+) -> SceneObject:
     """Add a static object resting on the floor at (x, y); a mocap body, so the hidden change
     can move it with sim.move. A twin swapped in for another object ``replaces`` it (its id)."""
     geoms, z = draw.geoms()
@@ -222,7 +222,7 @@ def _draw_change(
     builder: SceneBuilder,
     layout: ProbeLayout,
     names: list[str],
-) -> tuple[Callable, list[int], list[str]]:
+) -> tuple[Callable[[Simulation], None], list[int], list[str]]:
     """(the change of ``change``'s property, the ids it touches, the bodies to take out once
     built) for the row ``names`` of ``layout``; a shape change adds its twins to ``builder``."""
     draws, xs, row_y, count = layout.draws, layout.xs, layout.row_y, len(names)
@@ -294,7 +294,7 @@ def probe_scene(
     return ProbeScene(sim, layout, frame, manipulated, apply)
 
 
-def _check_pair(consistent, inconsistent, scene: ProbeScene) -> None:
+def _check_pair(consistent: Video, inconsistent: Video, scene: ProbeScene) -> None:
     """Reject draws where the objects do not all show first, the screen does not hide the row at
     the change frame, or the change is not revealed at the end."""
     objects = set(range(1, len(scene.layout.draws) + 1))
@@ -310,13 +310,13 @@ def _check_pair(consistent, inconsistent, scene: ProbeScene) -> None:
 
 
 @functools.lru_cache(maxsize=4)
-def quadruplet(change: str, seed: int, video: VideoOptions) -> tuple:
+def quadruplet(change: str, seed: int, video: VideoOptions) -> recording.Quadruplet:
     """One scene draw's quadruplet of ``change`` ((A, AB), (B, BA)): A the row with the
     property's first value throughout, B with the other (``ProbeScene.change`` applied before
     the first frame), alike at the change frame, where the screen hides the whole row
     (``recording.quadruplet``); with the camera, that frame and the ids the change touches."""
 
-    def make(rng: np.random.Generator) -> tuple:
+    def make(rng: np.random.Generator) -> recording.Quadruplet:
         scene = probe_scene(change, 0, video, rng)
         second = scene.sim.fork()
         scene.change(second)
@@ -368,7 +368,9 @@ def probe(variant: str, seed: int, video: VideoOptions) -> TensorDict:
 
 
 # --- training clips ------------------------------------------------------------------------------
-def draw_example_screen(rng: np.random.Generator, camera: CameraPose, video: VideoOptions):
+def draw_example_screen(
+    rng: np.random.Generator, camera: CameraPose, video: VideoOptions
+) -> Screen:
     """A screen of any size at any depth from the foreground to the background, or (half of
     them) wide across the foreground as in probes; it may stop above the floor, so objects are
     hidden partly, wholly or not at all, at different times."""

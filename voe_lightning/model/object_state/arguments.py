@@ -3,7 +3,12 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from voe_lightning.model import optimization
+
+if TYPE_CHECKING:
+    from lightning.fabric.utilities.data import AttributeDict
 
 #: Constructor arguments that shape the parameters, or the priors they were trained with: a
 #: checkpoint must agree on all of them.
@@ -39,7 +44,7 @@ GEOMETRY_OFF = {
 }
 
 
-def check_arguments(h) -> None:
+def check_arguments(h: AttributeDict) -> None:
     """Refuse constructor arguments that make no model, naming the value and what is valid."""
     _check_perception(h)
     _check_sizes(h)
@@ -48,7 +53,7 @@ def check_arguments(h) -> None:
     optimization.check_schedule(h.lr_schedule)
 
 
-def _check_perception(h) -> None:
+def _check_perception(h: AttributeDict) -> None:
     """Refuse a perception not in ``PERCEPTIONS``, and 3D geometry or priors without 3D states."""
     if h.perception not in PERCEPTIONS:
         raise ValueError(f"perception must be one of {PERCEPTIONS}, got {h.perception!r}")
@@ -83,7 +88,7 @@ def _check_perception(h) -> None:
         )
 
 
-def _check_sizes(h) -> None:
+def _check_sizes(h: AttributeDict) -> None:
     """Refuse sizes, precisions and learning rates that are not positive."""
     if h.hidden_size < 1 or h.message_size < 1:
         raise ValueError(
@@ -95,7 +100,7 @@ def _check_sizes(h) -> None:
         )
 
 
-def _check_mixture(h) -> None:
+def _check_mixture(h: AttributeDict) -> None:
     """Refuse too few Gaussians, and landing options without the landing Gaussian."""
     if h.components < 1:
         raise ValueError(
@@ -119,7 +124,7 @@ def _check_mixture(h) -> None:
         )
 
 
-def _check_withholding(h) -> None:
+def _check_withholding(h: AttributeDict) -> None:
     """Refuse a withheld share outside [0, 1] or spans shorter than a frame."""
     if not 0 <= h.withhold <= 1 or h.withhold_frames < 1:
         raise ValueError(

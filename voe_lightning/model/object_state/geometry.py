@@ -7,6 +7,7 @@ states as they would be seen (the control's expected frames in the report)."""
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import torch
 import torch.nn.functional as F
@@ -91,12 +92,14 @@ def _rotation(quaternion: torch.Tensor) -> torch.Tensor:
     """Rotation matrices [..., 3, 3] of quaternions [..., 4] (w, x, y, z; zeros give the
     identity)."""
     products = (quaternion[..., :, None] * quaternion[..., None, :]).flatten(-2)
-    return (products @ PRODUCT_MAP.to(quaternion) + IDENTITY.to(quaternion)).unflatten(-1, (3, 3))
+    return (products @ PRODUCT_MAP.to(quaternion) + IDENTITY.to(quaternion)).unflatten(-1, (3, 3))  # type: ignore[no-untyped-call, no-any-return]  # Tensor.unflatten: unannotated in torch
 
 
 def quaternion_matrix(quaternion: torch.Tensor) -> torch.Tensor:
     """Rotation matrices [..., 3, 3] of quaternions [..., 4] (w, x, y, z; zeros give zeros)."""
-    return _rotation(quaternion) * (quaternion.norm(dim=-1) > 0)[..., None, None]
+    return cast(
+        torch.Tensor, _rotation(quaternion) * (quaternion.norm(dim=-1) > 0)[..., None, None]
+    )
 
 
 def image_plane(coordinates: torch.Tensor) -> torch.Tensor:
@@ -163,7 +166,7 @@ def quaternion_product(first: torch.Tensor, second: torch.Tensor) -> torch.Tenso
 def _unit_quaternion(state: torch.Tensor) -> torch.Tensor:
     """Each object's orientation [..., 4] scaled to unit length (zeros stay near zero)."""
     quaternion = state[..., 3:7]
-    return quaternion / quaternion.norm(dim=-1, keepdim=True).clamp(min=1e-6)
+    return cast(torch.Tensor, quaternion / quaternion.norm(dim=-1, keepdim=True).clamp(min=1e-6))
 
 
 def _resting_face(rotation: torch.Tensor, half: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -460,7 +463,7 @@ def paint_ellipses(
     for index in range(slots):
         slot = order[..., index]  # [B, T]: the farthest remaining slot of each frame
 
-        def take(values, slot=slot):
+        def take(values: torch.Tensor, slot: torch.Tensor = slot) -> torch.Tensor:
             return values.gather(2, slot[..., None]).squeeze(2)
 
         inside = (

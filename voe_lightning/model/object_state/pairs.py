@@ -5,6 +5,7 @@ over the other known slots (``messages``)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import torch
 import torch.nn.functional as F
@@ -172,4 +173,4 @@ def messages(
     known: torch.Tensor,
 ) -> torch.Tensor:
     """Sum over the other known slots j of network(own_i, other_j, pair_ij) [B, S, M]."""
-    return network(own, other, pairs, pair_weight(known))
+    return cast(torch.Tensor, network(own, other, pairs, pair_weight(known)))

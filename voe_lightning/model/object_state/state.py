@@ -34,10 +34,10 @@ class StateLayout:
     is turned (``orientation``; None where perception gives none)."""
 
     size: int
-    position: slice
-    extent: slice
-    color: slice
-    orientation: slice | None
+    position: slice[int]
+    extent: slice[int]
+    color: slice[int]
+    orientation: slice[int] | None
 
     @property
     def position_size(self) -> int:
@@ -128,7 +128,7 @@ def by_object_count(observations: Observations) -> list[Observations]:
     batch's five, ran 20 slot pairs for none)."""
     shown = observations.visible.any(1).sum(-1)  # [B]; a clip's shown ids fill its first slots
     groups = []
-    for count in shown.unique().tolist():
+    for count in shown.unique().tolist():  # type: ignore[no-untyped-call]  # Tensor.unique: unannotated in torch
         clips = (shown == count).nonzero()[:, 0]
         per_slot = {
             name: getattr(observations, name)[clips][:, :, :count]
