@@ -7,11 +7,13 @@ byte-identical exports of one store."""
 import csv
 import io
 import json
+import os
 import tarfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from voe_lightning import specs
 from voe_lightning.data import store
@@ -169,6 +171,40 @@ def test_intphys2_reader_reads_the_pairs_labels_quadruplets_and_frames_back(expo
                 original["consistent", "frames"].numpy(), original["inconsistent", "frames"].numpy()
             )
     assert 0.2 < np.mean(errors) <= bound["mean_absolute"]  # lossy, within the stated bound
+
+
+def test_the_surprise_harness_reading_rules_get_every_video_back_exactly(exports, records):
+    """The V-JEPA intuitive-physics harness's IntPhys 2 reader, by its rules (facts, not its
+    code): the unique ``filename``s of ``labels.csv``, sorted, each a folder under ``Images/``
+    that exists; its frames the folder's files in sorted order, every ``frame_step``-th, RGBA's
+    alpha dropped. Every video of the export is there, its frames the store's exactly."""
+    out, manifest = exports["intphys2"]
+    for concept in specs.CONCEPTS:
+        main = out / concept / "Main"
+        with (main / "labels.csv").open() as stream:
+            labels = list(csv.DictReader(stream))
+        names = sorted({row["filename"] for row in labels})
+        folders = sorted(main / "Images" / name for name in names)
+        assert all(folder.is_dir() for folder in folders)
+        expected = manifest_pairs(manifest, concept)
+        assert len(names) == 2 * len(expected)
+        by_name = {row["filename"]: row for row in labels}
+        for _, pair, _ in expected:
+            original = store_pair(records, concept, pair)
+            for role, column in (("consistent", "possible"), ("inconsistent", "impossible")):
+                name = pair[role].rpartition("/")[2].removesuffix(".mp4")
+                assert by_name[name]["type"].endswith(
+                    "Possible" if column == "possible" else "Impossible"
+                )
+                files = sorted(os.listdir(main / "Images" / name))
+                for frame_step in (1, 2):
+                    read = np.stack(
+                        [
+                            np.array(Image.open(main / "Images" / name / f))[..., :3]
+                            for f in files[::frame_step]
+                        ]
+                    )
+                    assert np.array_equal(read, original[role, "frames"].numpy()[::frame_step])
 
 
 def test_intphys_reader_reads_the_pairs_labels_quadruplets_and_frames_back_exactly(

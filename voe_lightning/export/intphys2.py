@@ -5,6 +5,9 @@ it. A quadruplet is a scene (``SceneIndex``): its first half's pair is ``type`` 
 1_Impossible (A, AB), its second's 2_Possible / 2_Impossible (B, BA); a lone pair is a scene
 of its prefix-1 pair alone. ``condition`` is the IntPhys 2 condition nearest to the concept
 (``CONDITIONS``); a root per concept keeps the two concepts written as ``continuity`` apart.
+Beside it, the same videos in the form the V-JEPA intuitive-physics surprise harness reads an
+IntPhys 2 split (its ``intphys2_dataset.py``): ``labels.csv`` naming each video in a
+``filename`` column, its frames as ``Images/<filename>/<NNN>.png``, lossless.
 
 Videos are H.264 (libx264) in 4:4:4 YUV, lossless in YUV (qp 0) and without B-frames, so the
 only error is the BT.601 RGB -> YUV -> RGB rounding (``MP4_ERROR``: at most 2 grey levels),
@@ -15,10 +18,11 @@ from __future__ import annotations
 import csv
 import io
 from fractions import Fraction
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
+from voe_lightning.export.intphys import png_bytes
 from voe_lightning.export.manifest import ExportFolder, Progress, Written, group_entry
 from voe_lightning.export.probes import LABELS, ROLES, ProbeGroup, ProbePair, ProbeSource
 from voe_lightning.external import intphys2 as reader
@@ -44,6 +48,9 @@ OCCLUDERS: dict[str, str] = {
 #: The labelled IntPhys 2 split the export imitates, and its columns.
 SPLIT = "Main"
 ENV = "MuJoCo"
+#: The surprise harness's form: its labels file, whose ``filename`` column names each video's
+#: frame folder under ``HARNESS_FRAMES``.
+HARNESS_LABELS, HARNESS_FRAMES = "labels.csv", "Images"
 #: How videos are encoded: fixed, so one store gives the same bytes on one machine.
 MP4_CODEC = "libx264"
 MP4_PIXEL_FORMAT = "yuv444p"
@@ -60,7 +67,7 @@ BT601_OFFSET = np.array([16.0, 128.0, 128.0])
 MP4_ERROR: dict[str, float] = {"mean_absolute": 0.5, "max_absolute": 2}
 
 
-def frame_rate(video: dict) -> Fraction:
+def frame_rate(video: dict[str, Any]) -> Fraction:
     """The store's frames per second, num_frames over the duration (5 for 15 frames in 3 s)."""
     return Fraction(video["num_frames"]) / Fraction(video["duration"]).limit_denominator(1000)
 
@@ -69,7 +76,9 @@ def rgb_to_yuv444(image: np.ndarray) -> np.ndarray:
     """uint8 RGB [H, W, 3] -> planar limited-range BT.601 YCbCr [3, H, W], rounded in numpy
     (the same on every machine, unlike a SIMD conversion)."""
     yuv = np.einsum("ij,hwj->ihw", BT601 / 255, image.astype(np.float64))
-    return np.clip(np.rint(yuv + BT601_OFFSET[:, None, None]), 0, 255).astype(np.uint8)
+    return cast(
+        np.ndarray, np.clip(np.rint(yuv + BT601_OFFSET[:, None, None]), 0, 255).astype(np.uint8)
+    )
 
 
 def encode_mp4(frames: np.ndarray, rate: Fraction) -> bytes:
@@ -139,6 +148,17 @@ def metadata_csv(rows: list[dict[str, str]]) -> bytes:
     return text.getvalue().encode()
 
 
+def labels_csv(rows: list[dict[str, str]]) -> bytes:
+    """The rows as the surprise harness's labels.csv: metadata.csv's columns after
+    ``filename``, the video's name (its folder under ``HARNESS_FRAMES``)."""
+    text = io.StringIO()
+    columns = ["filename", *reader.METADATA_COLUMNS]
+    writer = csv.DictWriter(text, fieldnames=columns, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows({"filename": row["name"], **row} for row in rows)
+    return text.getvalue().encode()
+
+
 def write_intphys2(source: ProbeSource, folder: ExportFolder, bar: Progress) -> Written:
     """Write ``source``'s groups in IntPhys 2's layout, one root per concept."""
     rate = frame_rate(source.video)
@@ -153,11 +173,13 @@ def write_intphys2(source: ProbeSource, folder: ExportFolder, bar: Progress) -> 
                 "2_Impossible": "BA",
             },
             "video_location": "<concept>/Main/Videos/<name>.mp4, a row of "
-            "<concept>/Main/metadata.csv",
+            "<concept>/Main/metadata.csv; for the surprise harness also "
+            "<concept>/Main/Images/<name>/NNN.png, a row of <concept>/Main/labels.csv "
+            "(filename = name)",
         },
         encoding={
             "frames": f"mp4, H.264 ({MP4_CODEC}) {MP4_PIXEL_FORMAT}, options {MP4_OPTIONS}, "
-            f"BT.601 limited range, {float(rate):g} fps",
+            f"BT.601 limited range, {float(rate):g} fps; Images/<name>/NNN.png: PNG, lossless",
             "error_bound": MP4_ERROR,
             "masks": "not written (IntPhys 2 has none)",
             "labels": "metadata.csv type <prefix>_Possible (consistent) / _Impossible",
@@ -173,11 +195,16 @@ def write_intphys2(source: ProbeSource, folder: ExportFolder, bar: Progress) -> 
             pair_rows = video_rows(group, pair, record, scene, reader.PREFIXES[half])
             concept_rows += pair_rows
             paths = [f"{group.concept}/{SPLIT}/{row['file_name']}" for row in pair_rows]
-            for role, path in zip(ROLES, paths):
-                folder.write(path, encode_mp4(record[role, "frames"].numpy(), rate))
+            for role, path, row in zip(ROLES, paths, pair_rows):
+                frames = record[role, "frames"].numpy()
+                folder.write(path, encode_mp4(frames, rate))
+                images = f"{group.concept}/{SPLIT}/{HARNESS_FRAMES}/{row['name']}"
+                for index, image in enumerate(frames):
+                    folder.write(f"{images}/{index:03d}.png", png_bytes(image))
             locations.append(paths)
         written.groups.append(group_entry(group, records, locations, scene))
         bar.update(2 * len(group.pairs))
     for concept, concept_rows in rows.items():
         folder.write(f"{concept}/{SPLIT}/metadata.csv", metadata_csv(concept_rows))
+        folder.write(f"{concept}/{SPLIT}/{HARNESS_LABELS}", labels_csv(concept_rows))
     return written
