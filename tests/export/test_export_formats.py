@@ -243,6 +243,23 @@ def test_intphys_reader_reads_the_pairs_labels_quadruplets_and_frames_back_exact
                 assert int(record["manipulation_frame"]) > int(original["manipulation_frame"])
 
 
+def test_the_intphys_roots_merge_into_one_dev_tree_without_a_clash(exports, tmp_path):
+    """Object persistence and solidity are both block O1 (and continuity and containment O3):
+    scenes are numbered across the concepts, so a harness given one dev/ tree of every root
+    reads every quadruplet once."""
+    out, manifest = exports["intphys"]
+    merged = tmp_path / "merged" / "dev"
+    for concept in specs.CONCEPTS:
+        for scene in sorted((out / concept / "dev").glob("O*/*")):
+            target = merged / scene.parent.name / scene.name
+            assert not target.exists(), f"{concept} writes {target.relative_to(merged)} again"
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.symlink_to(scene, target_is_directory=True)
+    quadruplets = intphys.scan_quadruplets(merged.parent, "dev", FRAMES, labelled=True)
+    assert len(quadruplets) == len(manifest["quadruplets"])
+    assert len({q.scene for q in quadruplets}) == len(quadruplets)
+
+
 def test_read_webdataset_gives_back_every_record_whole(exports, records):
     out, manifest = exports["webdataset"]
     shards = sorted(out.glob("*.tar"))

@@ -8,8 +8,10 @@ A scene is a quadruplet: movies 1 and 2 are its consistent videos A and B, 3 and
 inconsistent AB and BA, so the scene's first possible movie pairs with its first impossible
 one as our first half does (the reader pairs them by shared prefix, and finds these). IntPhys
 has three blocks and we have five concepts, so each concept has a root of its own and the
-block nearest to what its viewer sees (``BLOCKS``); a lone pair (no quadruplet) has no place
-in an IntPhys scene and is left out, listed in the manifest."""
+block nearest to what its viewer sees (``BLOCKS``); scenes are numbered across the concepts,
+so the roots merge into one ``dev/`` tree (two concepts share a block) with no scene written
+twice. A lone pair (no quadruplet) has no place in an IntPhys scene and is left out, listed in
+the manifest."""
 
 from __future__ import annotations
 
@@ -61,14 +63,11 @@ def movie_name(pair: ProbePair, role: str) -> str:
     return reader.MOVIES[2 * ROLES.index(role) + pair.half]
 
 
-def scene_widths(source: ProbeSource) -> dict[str, int]:
-    """Per concept, the digits of its scene folders: 4, as IntPhys', or more, so that they
-    sort in order."""
-    counts: dict[str, int] = {}
-    for group in source.groups:
-        if group.quadruplet is not None:
-            counts[group.concept] = counts.get(group.concept, 0) + 1
-    return {concept: max(4, len(str(count))) for concept, count in counts.items()}
+def scene_concepts(source: ProbeSource) -> tuple[list[str], int]:
+    """The concepts with quadruplets, in order, and the digits of the scene folders, numbered
+    across them: 4, as IntPhys', or more, so that they sort in order."""
+    concepts = [group.concept for group in source.groups if group.quadruplet is not None]
+    return list(dict.fromkeys(concepts)), max(4, len(str(len(concepts))))
 
 
 def status(pair: ProbePair, role: str, block: str, manipulation_frame: int) -> bytes:
@@ -130,8 +129,8 @@ def left_out(group: ProbeGroup) -> dict[str, object]:
 def write_intphys(source: ProbeSource, folder: ExportFolder, bar: Progress) -> Written:
     """Write ``source``'s quadruplets in IntPhys' dev layout, one root per concept (a
     ValueError when it holds none); its lone pairs are left out, and listed."""
-    widths = scene_widths(source)
-    if not widths:
+    concepts, width = scene_concepts(source)
+    if not concepts:
         raise ValueError(
             f"the {source.split} split of {source.root} holds no quadruplets for "
             f"{', '.join(source.concepts)}, and an IntPhys scene is one; export it as intphys2 "
@@ -140,7 +139,7 @@ def write_intphys(source: ProbeSource, folder: ExportFolder, bar: Progress) -> W
     written = Written(
         layout={
             "split_folder": SPLIT,
-            "concepts": {c: {"root": c, "block": BLOCKS[c]} for c in widths},
+            "concepts": {c: {"root": c, "block": BLOCKS[c]} for c in concepts},
             "movies": {"1": "A", "2": "B", "3": "AB", "4": "BA"},
             "video_location": "<concept>/dev/<block>/<scene>/<movie>: scene/scene_NNN.png, "
             "masks/masks_NNN.png, status.json",
@@ -151,14 +150,13 @@ def write_intphys(source: ProbeSource, folder: ExportFolder, bar: Progress) -> W
             "labels": "status.json header.is_possible (consistent: true)",
         },
     )
-    numbers: dict[str, int] = {}
+    number = 0
     for group in source.groups:
         if group.quadruplet is None:
             written.left_out.append(left_out(group))
         else:
-            numbers[group.concept] = number = numbers.get(group.concept, 0) + 1
-            scene = f"{group.concept}/{SPLIT}/{BLOCKS[group.concept]}/"
-            scene += f"{number:0{widths[group.concept]}d}"
+            number += 1
+            scene = f"{group.concept}/{SPLIT}/{BLOCKS[group.concept]}/{number:0{width}d}"
             records = source.records(group)
             locations = write_quadruplet(folder, group, records, scene)
             written.groups.append(group_entry(group, records, locations, scene))
