@@ -3,7 +3,9 @@ the host), so that at thousands of clips a second loading never waits: each reco
 once, one gather a batch, no worker processes. Only the fields a model reads are kept: the
 frames for a model trained from pixels (the VRNN-LRU; the paper-scale set, about 184 GB at 15
 frames of 64x64, does not fit one GPU), the objects' states and the camera for the state
-learner, whose batches then never decode a frame."""
+learner, whose batches then never decode a frame; for its mask rung, ``mask_features``: what
+each clip's mask and frames show of each id (``masks.per_id``), measured once here instead of
+every batch, and no mask or frame held."""
 
 from __future__ import annotations
 
@@ -15,6 +17,10 @@ from torch.utils.data import Dataset, Sampler
 from tqdm import tqdm
 
 from voe_lightning.data.store import record_loader
+from voe_lightning.model.object_state.masks import per_id
+
+#: A field no record holds, made of two it does: ``per_id``'s measures of the mask and frames.
+MASK_FEATURES = "mask_features"
 
 
 def _check_fits(needed: int, clips: int, device: torch.device) -> None:
@@ -37,30 +43,50 @@ def resident_records(
     naming the sizes, when it would not fit the device's free memory. An unknown field is
     refused, naming the fields a record has."""
     first = dataset[0]
-    missing = [name for name in fields if name not in first.keys()]
+    measured = MASK_FEATURES in fields
+    stored = [name for name in fields if name != MASK_FEATURES]
+    missing = [
+        name
+        for name in stored + (["mask", "frames"] if measured else [])
+        if name not in first.keys()
+    ]
     if missing:
         raise KeyError(
             f"train_fields names {missing}, which the training records lack; they hold "
             f"{sorted(first.keys())}"
         )
-    template = first.select(*fields)
+    template = _held(first[None], stored, measured)[0]
     _check_fits(len(dataset) * template.bytes(), len(dataset), device)
     held = template.to(device).expand(len(dataset)).clone()  # one copy, on the device
     start = 0
     loader = record_loader(dataset, 256, num_workers)
     for batch in tqdm(loader, desc="training clips to " + str(device), unit="batch", leave=False):
-        held[start : start + len(batch)] = batch.select(*fields).to(device, non_blocking=True)
+        held[start : start + len(batch)] = _held(batch, stored, measured).to(
+            device, non_blocking=True
+        )
         start += len(batch)
     if "objects" in fields:
         held["objects"] = shown_ids(held["objects"])
+    if measured:
+        held[MASK_FEATURES] = shown_ids(held[MASK_FEATURES], "pixels")
     return held
 
 
-def shown_ids(objects: TensorDictBase) -> TensorDictBase:
-    """``objects`` [N, T, K, ...] cut to the ids up to the highest that any clip shows: an id
-    no clip shows has no pixel and is never a slot, and a record's K (33) is several times the
-    ids a scene uses (5), so each batch gathers and reads that much less."""
-    shown = (objects["visible_fraction"] > 0).flatten(0, 1).any(0).nonzero()
+def _held(batch: TensorDictBase, stored: Sequence[str], measured: bool) -> TensorDictBase:
+    """What is held of a batch of records: its ``stored`` fields and, if ``measured``, the
+    ``per_id`` measures of its mask and frames as ``MASK_FEATURES``."""
+    held = batch.select(*stored)
+    if measured:
+        measures = per_id(batch["mask"], batch["frames"])
+        held[MASK_FEATURES] = TensorDict(measures, batch_size=[len(batch)])
+    return held
+
+
+def shown_ids(objects: TensorDictBase, seen: str = "visible_fraction") -> TensorDictBase:
+    """``objects`` [N, T, K, ...] cut to the ids up to the highest that any clip shows (its
+    ``seen`` > 0): an id no clip shows has no pixel and is never a slot, and a record's K (33)
+    is several times the ids a scene uses (5), so each batch gathers and reads that much less."""
+    shown = (objects[seen] > 0).flatten(0, 1).any(0).nonzero()
     count = int(shown.max()) + 1 if len(shown) else 1
     return objects.apply(lambda value: value[:, :, :count].clone())
 

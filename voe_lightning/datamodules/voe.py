@@ -84,7 +84,9 @@ class VOEDataModule(ProbeDataModule):
         train_fields: the record fields of each training batch, read once and held whole
             (on the training device with ``train_on_device``, else in host memory), so no batch
             decodes a record; None: whole records through the DataLoader. The state learner
-            reads ``[objects, camera]``: no frame is decoded after the first pass.
+            reads ``[objects, camera]``: no frame is decoded after the first pass; its mask
+            rung ``[mask_features, camera]``: what each clip's mask and frames show of each
+            id, measured once as the clips are read (``resident.MASK_FEATURES``).
         generate_workers: processes rendering missing data (default: all cores).
         num_frames, height, width: video geometry (paper: 15 frames of 64x64).
         seed: seed of the training order.

@@ -116,3 +116,28 @@ def test_a_camera_rungs_surprise_is_unchanged_without_the_amodal_objects(percept
         without = model.surprise(video["frames"], video["mask"], camera, None)
         assert torch.equal(with_objects, without)
     assert ObjectStateModel(**GEOMETRY_OFF).inputs_read() == frozenset({"objects"})
+
+
+def test_mask_features_held_once_per_clip_train_as_the_masks_and_frames_do(tmp_path):
+    """``train_fields: [mask_features, camera]``: each training clip's ``per_id`` measures,
+    made once when the clips are loaded (``datamodules.resident``), give the loss the clip's
+    mask and frames give, with no mask or frame held; a store that lacks them is refused."""
+    from voe_lightning.data.generate import generate_dataset
+    from voe_lightning.data.store import open_split
+    from voe_lightning.datamodules.resident import MASK_FEATURES, resident_records
+
+    generate_dataset(
+        tmp_path, ["solidity"], train_examples=3, train_controls=1, val_pairs=0, test_pairs=0,
+        generalization_pairs=0, workers=1, num_frames=8, height=32, width=32, progress=False,
+        splits=("train",),
+    )  # fmt: skip
+    dataset = open_split(tmp_path, "solidity", "train")
+    whole = resident_records(dataset, ["mask", "frames", "camera"], torch.device("cpu"))
+    held = resident_records(dataset, [MASK_FEATURES, "camera"], torch.device("cpu"))
+    assert set(held.keys()) == {MASK_FEATURES, "camera"} and len(held) == len(dataset)
+    torch.manual_seed(0)
+    model = ObjectStateModel(perception="masks", hidden_size=16, message_size=8, **GEOMETRY_OFF)
+    model.hparams.withhold = 0.0  # no random spans: the two losses see the same clips
+    torch.testing.assert_close(model.training_step(held, 0), model.training_step(whole, 0))
+    with pytest.raises(KeyError, match=r"train_fields names \['depth'\]"):
+        resident_records(dataset, [MASK_FEATURES, "depth"], torch.device("cpu"))

@@ -5,6 +5,8 @@ the frame) and its mean colour."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import torch
 
 from voe_lightning import specs
@@ -76,7 +78,12 @@ def observe_masks(mask: torch.Tensor, frames: torch.Tensor, camera: torch.Tensor
     ``state.observe`` orders them) and frame, the ``MASKS`` state of its visible pixels, its
     area as the visible share, no shape (perception gives no label: the shape terms read
     nothing) and the camera poses. Frame t's observations read frame t alone."""
-    measured = per_id(mask, frames)
+    return observe_measured(per_id(mask, frames), camera)
+
+
+def observe_measured(measured: Mapping[str, torch.Tensor], camera: torch.Tensor) -> Observations:
+    """``observe_masks`` from a batch's ``per_id`` measures, made once per clip and held
+    (``train_fields: [mask_features, camera]``) or made now: the same observations."""
     ids = slot_ids(measured["pixels"] > 0)
     picked = {name: by_slot(value, ids) for name, value in measured.items()}
     visible = picked["pixels"] > 0

@@ -19,7 +19,7 @@ from voe_lightning.model.dynamics import CAMERA_FEATURES, mlp
 from voe_lightning.model.likelihood import rectified_excess
 from voe_lightning.model.object_state.arguments import ARCHITECTURE, check_arguments
 from voe_lightning.model.object_state.geometry import VIEW, draw_ellipses, paint_ellipses
-from voe_lightning.model.object_state.masks import MASKS, observe_masks
+from voe_lightning.model.object_state.masks import MASKS, observe_masks, observe_measured
 from voe_lightning.model.object_state.pairs import PairNetwork, pair_feature_size
 from voe_lightning.model.object_state.pixels import (
     background_codes,
@@ -269,10 +269,16 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         objects: TensorDictBase | None,
         camera: torch.Tensor | None,
         mask: torch.Tensor | None = None,
+        mask_features: TensorDictBase | None = None,
     ) -> Observations:
         """The batch's ``Observations`` as ``perception`` reads them, at a fixed pose without
         a camera or ``use_camera``. Perceiving states, it needs no ``frames`` (a training batch
-        of ``train_fields: [objects, camera]`` holds none)."""
+        of ``train_fields: [objects, camera]`` holds none); perceiving masks, a training batch
+        of ``train_fields: [mask_features, camera]`` holds each clip's ``masks.per_id``
+        measures, made once when the clips were loaded, and no mask or frame."""
+        if self.hparams.perception == "masks" and mask_features is not None:
+            pose = self._pose(mask_features["pixels"].shape[:2], camera).to(self.device)
+            return observe_measured(mask_features.to(self.device), pose)
         if self.hparams.perception in ("masks", "pixels"):
             missing = [key for key, value in (("mask", mask), ("frames", frames)) if value is None]
             if missing:
@@ -325,8 +331,9 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         frames = batch["frames"] if "frames" in batch.keys() else None
         if self.perception_stage:
             return self._encoder_step(frames, inputs.get("mask"))
+        features = batch["mask_features"] if "mask_features" in batch.keys() else None
         observations = self._inputs(
-            frames, inputs.get("objects"), inputs.get("camera"), inputs.get("mask")
+            frames, inputs.get("objects"), inputs.get("camera"), inputs.get("mask"), features
         )
         clips = observations.visible.shape[0]
         terms = dict.fromkeys(SLOT_TERMS + ("appear",), 0.0)
