@@ -2,8 +2,10 @@
 ``configs/object_state.yaml``; the learned result, ``configs/learned_states.yaml``): training
 steps and clips per second on real batches of the config's training clips, per thread count,
 batch size and hidden size (default: the config's), and what ``fit``'s max_steps then take.
-Batches come as ``fit`` serves them with ``train_fields: [objects, camera]``: the states held in
-memory, one gather a batch, inside the timing (decoding them once is not). ``--model`` sets
+Batches come as ``fit`` serves them with the config's ``train_fields`` (``[objects, camera]``:
+the states; the mask rung's ``[mask_features, camera]``: each clip's mask measures) held in
+memory, one gather a batch, inside the timing (decoding and measuring them once is not);
+``--clips N`` holds the first N clips only, for a quicker start. ``--model`` sets
 model arguments over the config's (e.g. ``'{"sight_lines": false}'``). ``--objects N`` times
 batches of only the clips that show N objects (each step rolls a batch's clips out grouped by
 how many objects they show, ``by_object_count``, so no slot pair is run for an empty slot).
@@ -17,6 +19,8 @@ DistributedDataParallel.
         --batch-size 32 512 --hidden-size 128 64 --threads 2 --steps 5
     python benchmarks/positive_control.py --config configs/learned_states.yaml \
         --batch-size 4096 --hidden-size 64 --threads 1 --processes 2 --steps 3 --warmup 1
+    python benchmarks/positive_control.py --config configs/masks_15min.yaml --clips 4096 \
+        --batch-size 32 2048 --hidden-size 128 64 --threads 2 --steps 5 --warmup 1
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ import torch.distributed as dist
 import torch.multiprocessing as mp
 import yaml
 from torch import nn
-from torch.utils.data import ConcatDataset
+from torch.utils.data import ConcatDataset, Subset
 
 from voe_lightning import specs
 from voe_lightning.data.store import open_split
@@ -67,12 +71,18 @@ class TrainingStep(nn.Module):
         return self.model.training_step(batch, index)
 
 
-def held_clips(args: argparse.Namespace, root: Path):
-    """The training clips' states held in memory and the order ``fit`` serves them in."""
-    train = ConcatDataset([open_split(root, concept, "train") for concept in specs.CONCEPTS])
-    held = resident_records(train, ["objects", "camera"], torch.device("cpu"))
+def held_clips(args: argparse.Namespace, root: Path, fields: list[str]):
+    """The training clips' ``fields`` held in memory and the order ``fit`` serves them in."""
+    parts = [open_split(root, concept, "train") for concept in specs.CONCEPTS]
+    if args.clips is not None:  # the first clips of each concept, in equal shares
+        share = -(-args.clips // len(parts))
+        parts = [Subset(part, range(min(share, len(part)))) for part in parts]
+    train = ConcatDataset(parts)
+    held = resident_records(train, fields, torch.device("cpu"))
     sampler = InterleavedSampler([len(part) for part in train.datasets])
     if args.objects is not None:
+        if "objects" not in fields:
+            raise SystemExit(f"--objects counts the states' objects; {args.config} holds {fields}")
         shown = (held["objects", "visible_fraction"] > 0).any(1)[:, 1:].sum(1)  # id 0: background
         chosen = (shown == args.objects).nonzero()[:, 0]
         if len(chosen) == 0:
@@ -109,12 +119,14 @@ def median_step(
     return statistics.median(times)
 
 
-def process_step(rank: int, world: int, port: int, args, root, model_args, sizes, results) -> None:
+def process_step(
+    rank: int, world: int, port: int, args, root, fields, model_args, sizes, results
+) -> None:
     """One data-parallel process: its share of each batch, timed; rank 0 reports the medians."""
     os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
     dist.init_process_group("gloo", rank=rank, world_size=world)
     torch.set_num_threads(args.threads[0])
-    held, sampler = held_clips(args, root)
+    held, sampler = held_clips(args, root, fields)
     for batch_size, hidden in sizes:
         step = median_step(args, held, sampler, model_args, batch_size // world, hidden)
         if rank == 0:
@@ -141,10 +153,12 @@ def main() -> None:
     parser.add_argument(
         "--processes", type=int, default=1, help="data-parallel processes (DDP), each --threads"
     )
+    parser.add_argument("--clips", type=int, help="hold only the first N training clips")
     args = parser.parse_args()
     config = yaml.safe_load((REPO / args.config).read_text())
     data, model_args = config["data"]["init_args"], config["model"]["init_args"]
     root = REPO / data["root"]
+    fields = data.get("train_fields") or ["objects", "camera"]
     if not (root / "manifest.json").exists():
         raise SystemExit(
             f"no training clips at {root}; run `python -m voe_lightning fit "
@@ -179,13 +193,13 @@ def main() -> None:
         results = mp.get_context("spawn").SimpleQueue()
         mp.spawn(
             process_step,
-            args=(args.processes, free_port(), args, root, model_args, sizes, results),
+            args=(args.processes, free_port(), args, root, fields, model_args, sizes, results),
             nprocs=args.processes,
         )
         for _ in sizes:
             row(args.threads[0], *results.get())
         return
-    held, sampler = held_clips(args, root)
+    held, sampler = held_clips(args, root, fields)
     for threads, (batch_size, hidden) in itertools.product(args.threads, sizes):
         torch.set_num_threads(threads)
         row(
