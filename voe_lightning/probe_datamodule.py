@@ -53,7 +53,7 @@ class ProbeDataModule(L.LightningDataModule, metaclass=ABCMeta):
 def probe_datamodule(trainer: L.Trainer, user: str) -> ProbeDataModule:
     """``trainer.datamodule``, refused with a clear error unless it is a ProbeDataModule;
     ``user`` names who needs it."""
-    datamodule = trainer.datamodule
+    datamodule = trainer.datamodule  # type: ignore[attr-defined]  # lightning: set by the Trainer's DataConnector, undeclared on Trainer
     if not isinstance(datamodule, ProbeDataModule):
         raise TypeError(
             f"{user} decodes probe indices with trainer.datamodule.concept_names and "

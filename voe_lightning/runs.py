@@ -110,12 +110,13 @@ def run_checkpoint(word: str, save_dir: str | Path, name: str) -> Path:
 PICKLED_OBJECT = re.compile(r"Unsupported global: GLOBAL (\S+)")
 
 
-def read_checkpoint(path: str | Path) -> dict:
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
     """``torch.load`` of a checkpoint (weights only), naming the file when it cannot be read
     (torch's errors for a truncated file, e.g. ``OSError: [Errno 22]``, name none), and the
     object it holds where that is why (``PICKLED_OBJECT``), which is no damage."""
     try:
-        return torch.load(path, map_location="cpu", weights_only=True)
+        checkpoint: dict[str, Any] = torch.load(path, map_location="cpu", weights_only=True)
+        return checkpoint
     except PermissionError:
         raise  # names the file already
     except (OSError, EOFError, RuntimeError, pickle.UnpicklingError) as error:
@@ -172,10 +173,12 @@ def report_folder(
     if checkpoint.name != LAST_CHECKPOINT:
         parts.append(f"ckpt_{checkpoint.stem}")
     if other_root:
+        assert root is not None  # other_root says so
         parts.append(
             "data_" + "_".join(part for part in Path(root).parts if part not in ("/", "..", "."))
         )
     if other_concepts:
+        assert concepts is not None  # other_concepts says so
         parts.append("concepts_" + "+".join(concepts))
     if split != "test":
         parts.append(f"{split}_probes")

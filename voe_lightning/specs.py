@@ -161,7 +161,9 @@ def quadruplet_half(concept: str, variant: str) -> tuple[str, int]:
     )
 
 
-def _video_spec(num_frames: int, height: int, width: int, objects: bool) -> dict:
+def _video_spec(
+    num_frames: int, height: int, width: int, objects: bool
+) -> dict[str, Bounded | Composite]:
     video = {
         "frames": Bounded(0, 255, shape=(num_frames, height, width, 3), dtype=torch.uint8),
         "mask": Bounded(0, MAX_OBJECT_ID, shape=(num_frames, height, width), dtype=torch.uint8),
@@ -243,7 +245,9 @@ def probe_spec(
     )
 
 
-def _video(frames: np.ndarray, mask: np.ndarray, objects: np.ndarray | None = None) -> dict:
+def _video(
+    frames: np.ndarray, mask: np.ndarray, objects: np.ndarray | None = None
+) -> dict[str, torch.Tensor | TensorDictBase]:
     """A video's record entries; ``objects`` [T, OBJECT_SLOTS] of OBJECT_STATE_DTYPE, if given,
     becomes the nested ``objects`` TensorDict."""
     video = {
@@ -257,6 +261,7 @@ def _video(frames: np.ndarray, mask: np.ndarray, objects: np.ndarray | None = No
             f"object states must be [{len(frames)}, {OBJECT_SLOTS}] of OBJECT_STATE_DTYPE, got "
             f"{list(objects.shape)} of {objects.dtype}"
         )
+    assert OBJECT_STATE_DTYPE.names is not None  # a structured dtype
     states = {
         name: torch.from_numpy(np.ascontiguousarray(objects[name]))
         for name in OBJECT_STATE_DTYPE.names

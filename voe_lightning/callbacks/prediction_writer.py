@@ -26,7 +26,7 @@ class IntPhysAnswerWriter(BasePredictionWriter):
         plausibility from the movie's total surprise (``external.metrics.write_answer_file``). Both writers write
     their file whole (``store_shards.write_whole``): a full disk keeps the previous one."""
 
-    def __init__(self, path: str | os.PathLike = "answer.txt"):
+    def __init__(self, path: str | os.PathLike[str] = "answer.txt"):
         super().__init__(write_interval="epoch")
         self.path = Path(path)
 
@@ -60,7 +60,9 @@ def gathered_scores(
         scores = [score for rank in gathered for score in rank]
     if not trainer.is_global_zero:
         return None
-    dataset = trainer.predict_dataloaders.dataset
+    loader = trainer.predict_dataloaders
+    assert loader is not None  # predict has set its dataloader
+    dataset = loader.dataset
     names = dataset.names
     _check_distinct(names, getattr(dataset, "describe", lambda index: f"video {index}"))
     if sorted(index for index, _ in scores) != list(range(len(names))):
@@ -119,7 +121,7 @@ class IntPhys2LeaderboardWriter(BasePredictionWriter):
     def __init__(
         self,
         threshold: float | str,
-        path: str | os.PathLike = "intphys2_heldout.jsonl",
+        path: str | os.PathLike[str] = "intphys2_heldout.jsonl",
         data_name: str = "IntPhys2",
         task: str = "HeldOut",
     ):

@@ -97,7 +97,7 @@ class VOEProbeCallback(RunAlpha, L.Callback):
         """The last validation's causality check; no report."""
         return ProbeOutcome(self.causality)
 
-    def on_validation_epoch_start(self, trainer, pl_module) -> None:
+    def on_validation_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         cases = probe_datamodule(trainer, type(self).__name__).probe_cases("val")
         # Create every metric up front so all DDP ranks hold the same states.
         for prefix in self.windows:
@@ -115,7 +115,13 @@ class VOEProbeCallback(RunAlpha, L.Callback):
         return self.metrics[key]
 
     def on_validation_batch_end(
-        self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0
+        self,
+        trainer: L.Trainer,
+        pl_module: L.LightningModule,
+        outputs: Any,
+        batch: Any,
+        batch_idx: int,
+        dataloader_idx: int = 0,
     ) -> None:
         if not outputs:
             return
@@ -133,7 +139,7 @@ class VOEProbeCallback(RunAlpha, L.Callback):
             (concept_names[c], variant_names[v])
             for c, v in zip(outputs["concept"].tolist(), outputs["variant"].tolist())
         ]
-        groups = defaultdict(list)
+        groups: defaultdict[tuple[str, str], list[int]] = defaultdict(list)
         for index, case in enumerate(names):
             groups[case].append(index)
         seeds = outputs["seed"].tolist() if "seed" in outputs else None
@@ -150,13 +156,13 @@ class VOEProbeCallback(RunAlpha, L.Callback):
                         names, seeds, inconsistent.double().tolist(), consistent.double().tolist()
                     )
                 )
-            for case, rows in groups.items():
-                rows = torch.tensor(rows, device=inconsistent.device)
+            for case, indices in groups.items():
+                rows = torch.tensor(indices, device=inconsistent.device)
                 self._metric((prefix, *case), pl_module.device).update(
                     inconsistent[rows], consistent[rows], rounding
                 )
 
-    def on_validation_epoch_end(self, trainer, pl_module) -> None:
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.sanity_checking:
             return
         # Every rank's pairs (under DDP each rank scored its own), as the statistics are.
@@ -229,7 +235,7 @@ class VOEProbeCallback(RunAlpha, L.Callback):
             ordered.update({(concept, row): values for row, values in rows.get(concept, [])})
         return ordered
 
-    def on_fit_end(self, trainer, pl_module) -> None:
+    def on_fit_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if self.print_table and self.last and trainer.is_global_zero:
             console = Console()
             if not console.is_terminal:  # logs and pipes: do not cut the table at 80 columns
@@ -251,7 +257,8 @@ def _window_sum(outputs: Mapping[str, Any], side: str, window: SurpriseWindow) -
         if "first_difference" in outputs
         else outputs["manipulation_frame"] + 1
     )
-    return video_surprise(outputs[f"surprise_{side}"], window, first)
+    summed: torch.Tensor = video_surprise(outputs[f"surprise_{side}"], window, first)
+    return summed
 
 
 #: Footnote marks of the verdicts that say why (``voe_table``), then numbers.
@@ -282,7 +289,7 @@ def voe_table(
     )
     for column in ("concept / variant", "n", "M", "t", "p", "acc", "verdict"):
         table.add_column(column, justify="left" if "/" in column else "right", no_wrap=True)
-    notes = []
+    notes: list[str] = []
     for concept in dict.fromkeys(concept for concept, _ in results):
         verdict = verdicts[concept]
         text = "VOE"

@@ -171,6 +171,7 @@ class VOEReportCallback(RunAlpha, L.Callback):
         out_dir = self.out_dir or trainer.log_dir or trainer.default_root_dir
         if not trainer.is_global_zero:
             return
+        assert isinstance(pl_module, SurpriseModel)  # setup refused any other module
         outputs = [output for rank in gathered for output in rank[0]]
         if not outputs:
             self._no_results()

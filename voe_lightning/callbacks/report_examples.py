@@ -8,21 +8,18 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-import lightning as L
 import numpy as np
 import torch
 from lightning.pytorch.utilities import rank_zero_warn
 
-from voe_lightning.model.base import expected_frames_problem, video_inputs
+from voe_lightning.model.base import SurpriseModel, expected_frames_problem, video_inputs
 from voe_lightning.report.figures import PredictionExample, tsne_unfit
 
 #: Kept videos per (concept, variant) index for the predictions, per variant index for t-SNE.
 Kept = tuple[dict[tuple[int, int], list[dict[str, Any]]], dict[int, list[dict[str, Any]]]]
 
 
-def _stacked(
-    videos: list[dict[str, torch.Tensor]], device: torch.device
-) -> dict[str, torch.Tensor]:
+def _stacked(videos: list[dict[str, Any]], device: torch.device) -> dict[str, Any]:
     """Kept videos (frames and, where the batch had them, mask and camera) as one batch."""
     return {key: torch.stack([video[key] for video in videos]).to(device) for key in videos[0]}
 
@@ -76,7 +73,7 @@ class ExampleVideos:
                 tsne.append(meta | videos)
 
     def figure_inputs(
-        self, pl_module: L.LightningModule, gathered: Iterable[Kept]
+        self, pl_module: SurpriseModel, gathered: Iterable[Kept]
     ) -> tuple[list[PredictionExample], dict[str, Any] | None, list[str] | None]:
         """Every rank's ``kept`` videos (``gathered``) run through the model in eval mode
         without gradients: the prediction examples, the t-SNE trajectories and their labels
@@ -96,7 +93,7 @@ class ExampleVideos:
         return predictions, trajectories, labels
 
     def _predictions(
-        self, pl_module: L.LightningModule, examples: list[dict[str, Any]]
+        self, pl_module: SurpriseModel, examples: list[dict[str, Any]]
     ) -> list[PredictionExample]:
         if not examples:
             return []
@@ -118,7 +115,9 @@ class ExampleVideos:
             for i, e in enumerate(examples)
         ]
 
-    def _trajectories(self, pl_module: L.LightningModule, tsne: list[dict[str, Any]]):
+    def _trajectories(
+        self, pl_module: SurpriseModel, tsne: list[dict[str, Any]]
+    ) -> tuple[dict[str, Any] | None, list[str] | None]:
         # Interleave variants (standard, counterbalanced, standard, ...) up to tsne_pairs.
         by_variant: dict[int, list[dict[str, Any]]] = {}
         for e in tsne:

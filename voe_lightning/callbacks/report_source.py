@@ -20,7 +20,7 @@ def report_source(trainer: L.Trainer, checkpoint_step: int | None, user: str) ->
     datamodule = probe_datamodule(trainer, user)
     configs = [
         callback.config_path
-        for callback in trainer.callbacks
+        for callback in trainer.callbacks  # type: ignore[attr-defined]  # lightning: set by the Trainer's CallbackConnector, undeclared on Trainer
         if isinstance(callback, RunConfig) and callback.config_path is not None
     ]
     return {

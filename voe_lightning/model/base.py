@@ -178,21 +178,23 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
 
     # ----------------------------------------------------------------------------- inputs
     @staticmethod
-    def _frames_of(batch: TensorDictBase | dict) -> torch.Tensor:
+    def _frames_of(batch: TensorDictBase | dict[str, Any]) -> torch.Tensor:
         if "frames" not in batch.keys():
             raise KeyError(
                 "a training batch needs 'frames' (uint8 [B,T,H,W,3]); got keys "
                 f"{list(batch.keys())}"
             )
-        return batch["frames"]
+        frames: torch.Tensor = batch["frames"]
+        return frames
 
     @staticmethod
-    def _clip_length(batch: TensorDictBase | dict) -> int:
+    def _clip_length(batch: TensorDictBase | dict[str, Any]) -> int:
         """Frames per clip of a training batch: its frames' count, or, in a batch that holds
         no frames (a state learner's ``train_fields``), its camera poses'."""
         for key in ("frames", "camera"):
             if key in batch.keys():
-                return batch[key].shape[1]
+                length: int = batch[key].shape[1]
+                return length
         raise KeyError(
             "a training batch needs 'frames' (uint8 [B,T,H,W,3]) or 'camera' ([B,T,6]); got "
             f"keys {list(batch.keys())}"
@@ -217,7 +219,7 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
                     f"training_frames was {recorded}, the training clips have "
                     f"{frames}: recording {frames}"
                 )
-            self.hparams.training_frames = frames
+            self.hparams["training_frames"] = frames
 
     # ----------------------------------------------------------------------------- probes
     def probe_step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
@@ -238,7 +240,7 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
             self.surprise(torch.cat([consistent, inconsistent], dim=0), **inputs),
             type(self).__name__,
         )
-        surprise_consistent, surprise_inconsistent = surprise.split(consistent.shape[0], dim=0)
+        surprise_consistent, surprise_inconsistent = surprise.split(consistent.shape[0], dim=0)  # type: ignore[no-untyped-call]  # Tensor.split: unannotated in torch
         frames_first = first_difference(consistent, inconsistent)
         return {
             "concept": batch["concept"],
@@ -248,7 +250,9 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
             "surprise_consistent": surprise_consistent,
             "surprise_inconsistent": surprise_inconsistent,
             "first_difference": frames_first,
-            "inputs_differ": inputs_first_difference(*sides, frames_first, self.inputs_read()),
+            "inputs_differ": inputs_first_difference(
+                sides[0], sides[1], frames_first, self.inputs_read()
+            ),
         }
 
     #: Name under which ``validation_step`` logs the consistent probes' mean video surprise.
@@ -310,7 +314,7 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
             )
         return frames.to(self.device)
 
-    def on_load_checkpoint(self, checkpoint: dict) -> None:
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         """Refuse, naming the file, a checkpoint trained with another architecture (naming the
         differences) or one without hyperparameters whose weights do not fit this model
         (Lightning calls this before loading the weights, which would fail obscurely)."""
@@ -320,7 +324,7 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
             self._refuse_unfitting_weights(checkpoint.get("state_dict", {}), source)
             return
 
-        def normal(value):
+        def normal(value: Any) -> Any:
             return list(value) if isinstance(value, (list, tuple)) else value
 
         differences = [
@@ -336,7 +340,7 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
                 f"({type(self).__name__}.load_from_checkpoint, or its run's config.yaml)."
             )
 
-    def _refuse_unfitting_weights(self, state_dict: dict, source: str) -> None:
+    def _refuse_unfitting_weights(self, state_dict: dict[str, torch.Tensor], source: str) -> None:
         """Without hyperparameters the model was built from the config's arguments alone: say
         so, naming the first tensor that does not fit, instead of torch's mismatch list."""
         ours = {name: list(tensor.shape) for name, tensor in self.state_dict().items()}

@@ -135,6 +135,7 @@ class SlotDynamics(nn.Module):
         mean, hidden = self._run(codes, seen, camera, visible)
         context = (hidden * seen[..., None]).sum(2) / seen.sum(2, keepdim=True).clamp(min=1)
         if self.use_camera:
+            assert camera is not None  # _run refuses None with use_camera
             poses = torch.cat([camera[:, 1:], camera[:, -1:]], dim=1)  # of the frame predicted
             context = torch.cat([context, camera_features(poses)], dim=-1)
         appear_logit, newcomer_mean, newcomer_log_std = self.appearance(context).split(
@@ -179,11 +180,13 @@ class SlotDynamics(nn.Module):
         pair_weight = weight[:, :, None, :] * weight[:, :, :, None]  # [B, T, S_i, S_j]
         pair_weight = pair_weight * (1 - torch.eye(slots, device=codes.device))  # j != i
         buffer: list[torch.Tensor] = []
-        predictions, states = [], []
+        predictions: list[torch.Tensor] = []
+        states: list[torch.Tensor] = []
         velocity = torch.zeros_like(codes[:, 0])
         for t in range(steps):
             code = codes[:, t]
             if self.visibility and t:  # a hidden slot goes on from what was predicted for it
+                assert visible is not None  # refused above
                 code = torch.where(visible[:, t, :, None], code, predictions[-1])
                 steady = (visible[:, t] & visible[:, t - 1])[..., None]
                 move = torch.where(steady, code, predictions[-1]) - buffer[-1]
@@ -192,6 +195,7 @@ class SlotDynamics(nn.Module):
             summary = self._buffer_summary(state, buffer)
             parts = [state, code, summary]
             if self.visibility:
+                assert visible is not None  # refused above
                 parts.append(visible[:, t, :, None].float())
             node = torch.cat(parts, dim=-1)  # [B, S, N]
             inputs = [node]
@@ -206,6 +210,7 @@ class SlotDynamics(nn.Module):
                 messages = self.relation(pairs) * pair_weight[:, t, ..., None]  # [B, Si, Sj, R]
                 inputs.append(messages.sum(dim=2))
             if self.use_camera:
+                assert camera is not None  # refused above
                 pose = camera[:, min(t + 1, steps - 1)]  # the pose of the frame predicted
                 inputs.append(camera_features(pose)[:, None].expand(-1, slots, -1))
             step_input = self.node(torch.cat(inputs, dim=-1)).flatten(0, 1)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
+from typing import Any
 
 import torch
 
@@ -30,15 +31,15 @@ def adam(
     betas: tuple[float, float] = (0.9, 0.999),
     warmup_steps: int = 0,
     fused: bool = False,
-) -> dict:
+) -> dict[str, Any]:
     """Lightning's ``configure_optimizers`` value: Adam, and a per-step scheduler for
     ``cosine`` (from ``learning_rate`` to 0 at ``max_steps``) or a warm-up (the rate rises
     linearly over ``warmup_steps``). ``fused``: one fused kernel per step and the rate a tensor
     on the parameters' device, read there, so neither the step nor a schedule syncs the host."""
     parameters = list(parameters)
     if fused:
-        rate = torch.tensor(learning_rate, device=parameters[0].device)
-        optimizer = torch.optim.Adam(parameters, lr=rate, betas=betas, fused=True)
+        device_rate = torch.tensor(learning_rate, device=parameters[0].device)
+        optimizer = torch.optim.Adam(parameters, lr=device_rate, betas=betas, fused=True)
     else:
         optimizer = torch.optim.Adam(parameters, lr=learning_rate, betas=betas)
     if lr_schedule == "constant" and not warmup_steps:
@@ -53,6 +54,7 @@ def adam(
         warm = min(1.0, (step + 1) / warmup_steps) if warmup_steps else 1.0
         if lr_schedule == "constant":
             return warm
+        assert max_steps is not None  # refused above for cosine
         return warm * 0.5 * (1 + math.cos(math.pi * min(step, max_steps) / max_steps))
 
     schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, rate)

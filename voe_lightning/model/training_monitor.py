@@ -38,6 +38,7 @@ class FiniteMonitor:
         if self.first_bad_step is None or self.first_bad_step.device != terms.device:
             self.first_bad_step = torch.full((), -1, dtype=torch.int64, device=terms.device)
             self.bad_terms = torch.zeros_like(terms)
+        assert self.bad_terms is not None  # set with first_bad_step
         first = (self.first_bad_step < 0) & ~torch.isfinite(terms).all()
         self.first_bad_step = torch.where(first, step, self.first_bad_step)
         self.bad_terms = torch.where(first, terms, self.bad_terms)
@@ -48,4 +49,5 @@ class FiniteMonitor:
             return
         step = int(self.first_bad_step)
         if step >= 0:
+            assert self.bad_terms is not None  # set with first_bad_step
             raise FloatingPointError(non_finite_message(step, self.names, self.bad_terms.tolist()))

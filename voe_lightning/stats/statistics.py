@@ -111,7 +111,8 @@ def relative_surprise(
             f"inconsistent and consistent surprise must pair up one to one; got {inc.size} "
             f"inconsistent and {con.size} consistent values"
         )
-    return rounding_as_zero(inc, con, rounding)
+    d: np.ndarray = rounding_as_zero(inc, con, rounding)
+    return d
 
 
 def effect_size_interval(t: float, n: int, confidence: float = 0.95) -> tuple[float, float]:
@@ -132,7 +133,8 @@ def effect_size_interval(t: float, n: int, confidence: float = 0.95) -> tuple[fl
         near, far = t, t + direction * step
         for _ in range(60):
             if gap(near) * gap(far) <= 0:
-                return optimize.brentq(gap, min(near, far), max(near, far), xtol=1e-12) / root_n
+                root: float = optimize.brentq(gap, min(near, far), max(near, far), xtol=1e-12)
+                return root / root_n
             near, far, step = far, far + direction * step, step * 2.0
         raise RuntimeError("could not bracket the noncentrality parameter")
 
@@ -197,7 +199,8 @@ def _bootstrap_mean_interval(
     part: the mean of d; a pooled row's variants: the stratified mean)."""
 
     def mean_of_means(*samples: np.ndarray, axis: int = -1) -> np.ndarray:
-        return np.mean([np.mean(sample, axis=axis) for sample in samples], axis=0)
+        means: np.ndarray = np.mean([np.mean(sample, axis=axis) for sample in samples], axis=0)
+        return means
 
     size = sum(part.size for part in parts)
     result = stats.bootstrap(
@@ -326,16 +329,16 @@ def pooled_test(
     inc = as_float64(inconsistent, "inconsistent surprise")
     con = as_float64(consistent, "consistent surprise")
     d = relative_surprise(inc, con, rounding)
-    strata = np.asarray(strata, dtype=object)
-    if strata.shape != d.shape:
+    variants = np.asarray(strata, dtype=object)
+    if variants.shape != d.shape:
         raise ValueError(
-            f"strata must name one variant per pair ({d.size}); got shape {strata.shape}"
+            f"strata must name one variant per pair ({d.size}); got shape {variants.shape}"
         )
-    names = list(dict.fromkeys(strata.tolist()))
-    reason = untested_reason(POOLED, strata.tolist())
+    names = list(dict.fromkeys(variants.tolist()))
+    reason = untested_reason(POOLED, variants.tolist())
     if reason or len(names) < 2:
         raise ValueError(reason or f"a pooled test needs pairs of at least 2 variants, got {names}")
-    parts = [d[strata == name] for name in names]
+    parts = [d[variants == name] for name in names]
     test = stratified_test(
         [(part.size, float(np.mean(part)), float(np.var(part, ddof=1))) for part in parts]
     )

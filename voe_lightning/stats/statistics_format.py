@@ -106,7 +106,7 @@ def format_p_phrase(p: Any, alpha: float | None = None) -> str:
     return f"p {text}" if text.startswith("<") else f"p = {text}"
 
 
-def format_t(t: float | None, df: float | None, spec: str = ".2f") -> str:
+def format_t(t: float | None, df: float | str | None, spec: str = ".2f") -> str:
     """'t(47) = 2.31' as in the paper's text; a pooled row's real-valued Welch-Satterthwaite
     df with one decimal, 't(93.4) = 2.31'; 'n/a' without a test."""
     if t is None:
@@ -190,6 +190,7 @@ def row_text(
     get = row.get
     tested = get("t") is not None
     level = alpha if alpha is not None else get("alpha")
+    p = get("p_value")
     if get("significant") is not None:
         significant = bool(get("significant"))
     else:
@@ -197,8 +198,7 @@ def row_text(
             raise ValueError(
                 f"the row {get('concept')}/{get('variant')} has no alpha to test its p at"
             )
-        significant = tested and get("p_value") is not None and get("p_value") < level
-    p = get("p_value")
+        significant = tested and p is not None and level is not None and p < level
     accuracy = get("accuracy")
     return RowText(
         n=format_number(get("n"), style.n),

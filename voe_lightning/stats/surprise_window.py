@@ -42,6 +42,7 @@ class SurpriseWindow:
         """What the window is, in words, for reports."""
         if self.all_frames:
             return "all frames"
+        assert self.frames is not None  # not all_frames
         plural = "s" if self.frames > 1 else ""
         return f"{self.frames} frame{plural} from the pair's first difference"
 
@@ -57,6 +58,7 @@ class SurpriseWindow:
         frame = np.arange(num_frames)[None]
         if self.all_frames:
             return np.ones((start.shape[0], num_frames))
+        assert self.frames is not None  # not all_frames
         return ((frame >= start) & (frame < start + self.frames)).astype(np.float64)
 
 
@@ -85,7 +87,7 @@ def video_surprise(
             if isinstance(first_difference, torch.Tensor)
             else first_difference
         )
-        weights = window.frame_weights(per_frame.shape[-1], first)
+        weights: np.ndarray | torch.Tensor = window.frame_weights(per_frame.shape[-1], first)
         if isinstance(per_frame, torch.Tensor):
             weights = torch.as_tensor(weights, dtype=per_frame.dtype, device=per_frame.device)
         per_frame = per_frame * weights

@@ -37,10 +37,10 @@ __all__ = [
 
 
 def pair_groups(
-    concepts: Sequence[str],
-    variants: Sequence[str],
+    concepts: Sequence[str] | np.ndarray,
+    variants: Sequence[str] | np.ndarray,
     pooled: bool = True,
-    seeds: Sequence[int] | None = None,
+    seeds: Sequence[int] | np.ndarray | None = None,
 ) -> list[tuple[str, str, np.ndarray]]:
     """(concept, variant, row selector) for every concept/variant among the pairs, in
     ``specs`` order where known (others after, in order of first appearance); selectors are
@@ -49,9 +49,9 @@ def pair_groups(
     variants; with ``seeds`` too, each quadruplet of a concept (``specs.QUADRUPLETS``) then gets
     a group named by its row, whose selector is an index array, its matched first halves then
     its second halves in seed order (``quadruplets``; tested by ``quadruplet_test``)."""
-    concepts = np.asarray(concepts, dtype=object)
-    variants = np.asarray(variants, dtype=object)
-    keys = list(dict.fromkeys(zip(concepts.tolist(), variants.tolist())))
+    concept_of = np.asarray(concepts, dtype=object)
+    variant_of = np.asarray(variants, dtype=object)
+    keys = list(dict.fromkeys(zip(concept_of.tolist(), variant_of.tolist())))
 
     def order(key: tuple[str, str]) -> tuple[int, int, int]:
         concept, variant = key
@@ -64,25 +64,29 @@ def pair_groups(
     matched = (
         [
             (concept, row, np.concatenate([first, second]))
-            for concept, row, first, second in quadruplets(concepts, variants, seeds)
+            for concept, row, first, second in quadruplets(concept_of, variant_of, seeds)
         ]
         if pooled and seeds is not None
         else []
     )
-    groups = []
+    groups: list[tuple[str, str, np.ndarray]] = []
     ordered = sorted(keys, key=order)
     for concept in dict.fromkeys(concept for concept, _ in ordered):
-        in_concept = concepts == concept
+        in_concept = concept_of == concept
         present = [variant for c, variant in ordered if c == concept]
-        groups.extend((concept, variant, in_concept & (variants == variant)) for variant in present)
+        groups.extend(
+            (concept, variant, in_concept & (variant_of == variant)) for variant in present
+        )
         if pooled and set(POOLED_VARIANTS) <= set(present):
-            groups.append((concept, POOLED, in_concept & np.isin(variants, POOLED_VARIANTS)))
+            groups.append((concept, POOLED, in_concept & np.isin(variant_of, POOLED_VARIANTS)))
         groups.extend((c, row, rows) for c, row, rows in matched if c == concept)
     return groups
 
 
 def quadruplets(
-    concepts: Sequence[str], variants: Sequence[str], seeds: Sequence[int]
+    concepts: Sequence[str] | np.ndarray,
+    variants: Sequence[str] | np.ndarray,
+    seeds: Sequence[int] | np.ndarray,
 ) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
     """(concept, row, first, second) for every quadruplet among the pairs: the row indices of its
     first-half (A, AB) and second-half (B, BA) pairs of every seed both hold, in seed order; a
@@ -90,14 +94,14 @@ def quadruplets(
     whose reader names its quadruplets' halves so, docs/benchmarks.md) has one, row
     ``quadruplet``, where its standard and counterbalanced pairs share seeds. A seed twice in
     one variant is refused (the pairs of two splits mixed)."""
-    concepts, variants = (np.asarray(x, dtype=object) for x in (concepts, variants))
-    seeds = np.asarray(seeds, dtype=np.int64)
-    present = list(dict.fromkeys(concepts.tolist()))
+    concept_of, variant_of = (np.asarray(x, dtype=object) for x in (concepts, variants))
+    seed_of = np.asarray(seeds, dtype=np.int64)
+    present = list(dict.fromkeys(concept_of.tolist()))
     ours = [c for c in specs.QUADRUPLETS if c in present]
     matched = []
     for concept in ours + [c for c in present if c not in specs.QUADRUPLETS]:
         for row, halves in quadruplets_of(concept).items():
-            by_seed = [_rows_by_seed(concepts, variants, seeds, concept, v) for v in halves]
+            by_seed = [_rows_by_seed(concept_of, variant_of, seed_of, concept, v) for v in halves]
             common = sorted(set(by_seed[0]) & set(by_seed[1]))
             if common:
                 matched.append(
@@ -206,8 +210,10 @@ def _quadruplet_verdict(
             for name, mean in zip(halves, means)
             if not mean > 0
         ]
-    significant, halves = _halves_on_their_own(concept, results, alpha)
-    return Verdict(concept, voe, rule, "" if voe else "; ".join(failed), False, significant, halves)
+    significant, halves_alone = _halves_on_their_own(concept, results, alpha)
+    return Verdict(
+        concept, voe, rule, "" if voe else "; ".join(failed), False, significant, halves_alone
+    )
 
 
 def _halves_on_their_own(

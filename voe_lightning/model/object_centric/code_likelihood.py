@@ -31,7 +31,7 @@ def frame_terms(
     known = seen[:, :-1].float()
     shown = visible[:, 1:].float()
     new = (seen[:, 1:] & ~seen[:, :-1]).float()
-    terms = {
+    terms: dict[str, tuple[tuple[torch.Tensor, torch.Tensor], torch.Tensor | float]] = {
         "visibility": (bernoulli_nll(prediction["seen_logit"][:, :-1], shown), known),
         "code": (
             gaussian_nll(codes[:, 1:], prediction["mean"][:, :-1], prediction["log_std"][:, :-1]),
@@ -65,7 +65,9 @@ def excess_surprisal(terms: dict[str, tuple[torch.Tensor, torch.Tensor]]) -> tor
     the model expected counts, so a video showing more objects does not read as less surprising
     for each well-predicted object
     (docs/architecture.md §7, "Surprise as rectified excess")."""
-    return sum(_per_frame(rectified_excess(nll, entropy)) for nll, entropy in terms.values())
+    total = sum(_per_frame(rectified_excess(nll, entropy)) for nll, entropy in terms.values())
+    assert isinstance(total, torch.Tensor)  # frame_terms gives every term of TERMS
+    return total
 
 
 def _per_frame(values: torch.Tensor) -> torch.Tensor:

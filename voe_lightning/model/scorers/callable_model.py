@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
+from typing import Any
 
 import torch
 from tensordict import TensorDictBase
@@ -19,11 +20,11 @@ class CallableError(ValueError):
     to see the callable's own traceback."""
 
 
-def import_callable(path: str) -> Callable:
+def import_callable(path: str) -> Callable[..., Any]:
     """The object ``package.module.name`` names (``package.module:name`` too), checked callable."""
     module_name, _, name = path.replace(":", ".").rpartition(".")
     try:
-        function = getattr(importlib.import_module(module_name), name)
+        function: object = getattr(importlib.import_module(module_name), name)
     except (ImportError, AttributeError, ValueError) as error:
         raise ValueError(
             f"function {path!r} cannot be imported ({error}); give the dotted path "
@@ -84,20 +85,20 @@ class CallableModel(SurpriseModel):
             returned = self.function(frames.to(self.device))
         except ValueError as error:  # a user error prints one line: name the callable in it
             raise CallableError(
-                f"{self.hparams.function} raised {type(error).__name__}: {error}"
+                f"{self.hparams['function']} raised {type(error).__name__}: {error}"
             ) from error
         try:
             surprise = _as_surprise(returned)
         except (TypeError, ValueError, RuntimeError) as error:  # None, a ragged list
             raise ValueError(
-                f"{self.hparams.function} returned a {type(returned).__name__} that "
+                f"{self.hparams['function']} returned a {type(returned).__name__} that "
                 f"is no array of numbers ({error}); expected surprise [B, T] = "
                 f"{list(frames.shape[:2])}"
             ) from None
-        check_real_surprise(surprise, self.hparams.function)
+        check_real_surprise(surprise, self.hparams["function"])
         if tuple(surprise.shape) != tuple(frames.shape[:2]):
             raise ValueError(
-                f"{self.hparams.function} returned surprise of shape "
+                f"{self.hparams['function']} returned surprise of shape "
                 f"{tuple(surprise.shape)} for frames {tuple(frames.shape)}; expected "
                 f"[B, T] = {list(frames.shape[:2])}"
             )

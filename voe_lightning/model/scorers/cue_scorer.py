@@ -51,7 +51,7 @@ class CueScorer(SurpriseModel):
         benchmark = getattr(data, "without_masks", None)
         if self.cue_name in video_cues.MASK_CUES and benchmark:
             raise ValueError(
-                f"CueScorer cue {self.hparams.cue!r} counts object pixels in the masks, and "
+                f"CueScorer cue {self.hparams['cue']!r} counts object pixels in the masks, and "
                 f"{benchmark} has no masks (its videos' masks would all be zero): choose "
                 f"one of {', '.join(self._frame_cues())}"
             )
@@ -74,7 +74,7 @@ class CueScorer(SurpriseModel):
     ) -> torch.Tensor:
         if self.cue_name in video_cues.MASK_CUES and mask is None:
             raise ValueError(
-                f"cue {self.hparams.cue!r} counts object pixels and needs masks; "
+                f"cue {self.hparams['cue']!r} counts object pixels and needs masks; "
                 f"this data has none: choose one of {', '.join(self._frame_cues())}"
             )
         return video_cues.frame_scores(frames, mask)[self.cue_name].float()

@@ -36,6 +36,10 @@ class PretrainedScorer(SurpriseModel):
     eval mode with no gradients; ``normalized`` maps [0, 1] input to the ImageNet statistics.
     Subclasses implement ``surprise`` and ``expected_frames``."""
 
+    #: The ImageNet statistics as buffers [1, 1, 3, 1, 1] (registered in ``__init__``).
+    mean: torch.Tensor
+    std: torch.Tensor
+
     def __init__(
         self,
         model_class: Any,
@@ -54,6 +58,7 @@ class PretrainedScorer(SurpriseModel):
         if pretrained is not None:
             self.model = model_class.from_pretrained(pretrained, local_files_only=True)
         else:
+            assert config is not None  # exactly one of the two, checked above
             self.model = model_class(config_class(**config))
         self.model.eval().requires_grad_(False)
         self.register_buffer(

@@ -47,13 +47,13 @@ class VideoMAEScorer(PretrainedScorer):
                 f"{settings.tubelet_size}"
             )
         self.save_hyperparameters()
-        self.hparams.image_size = (settings.image_size, settings.image_size)
-        self.hparams.training_frames = settings.num_frames
+        self.hparams["image_size"] = (settings.image_size, settings.image_size)
+        self.hparams["training_frames"] = settings.num_frames
 
     # ----------------------------------------------------------------------------- helpers
     def _padded(self, frames: torch.Tensor) -> torch.Tensor:
         """uint8 [B, T, H, W, 3] -> [B, num_frames, 3, H, W] in [0, 1], the last frame repeated."""
-        x = self._model_input(frames, tuple(self.hparams.image_size))
+        x = self._model_input(frames, tuple(self.hparams["image_size"]))
         total = self.model.config.num_frames
         if x.shape[1] > total:
             raise ValueError(
@@ -132,8 +132,8 @@ class VideoMAEScorer(PretrainedScorer):
         expected = x.clone()
         for k, predicted in enumerate(self._predictions(x), start=1):
             if settings.norm_pix_loss:
-                raw = seen[:, k].unflatten(-1, (ts * p * p, c))
-                predicted = predicted.unflatten(-1, (ts * p * p, c)) * raw.std(
+                raw = seen[:, k].unflatten(-1, (ts * p * p, c))  # type: ignore[no-untyped-call]  # Tensor.unflatten: unannotated in torch
+                predicted = predicted.unflatten(-1, (ts * p * p, c)) * raw.std(  # type: ignore[no-untyped-call]  # Tensor.unflatten: unannotated in torch
                     dim=-2, keepdim=True
                 ) + raw.mean(dim=-2, keepdim=True)
             tubelet = (

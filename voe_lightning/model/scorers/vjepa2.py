@@ -72,13 +72,13 @@ class VJEPA2Scorer(PretrainedScorer):
         check_windows(
             context_frames, window_frames, frame_step, window_stride, settings.tubelet_size
         )
-        self.hparams.image_size = (settings.crop_size, settings.crop_size)
+        self.hparams["image_size"] = (settings.crop_size, settings.crop_size)
 
     # ----------------------------------------------------------------------------- helpers
     def _subsampled(self, frames: torch.Tensor) -> torch.Tensor:
         """uint8 [B, T, H, W, 3] -> every ``frame_step``-th frame as the network's input
         [B, T', 3, S, S] (resized, centre-cropped to S = crop_size, ImageNet-normalized)."""
-        x = specs.to_model_input(frames.to(self.device))[:, :: self.hparams.frame_step]
+        x = specs.to_model_input(frames.to(self.device))[:, :: self.hparams["frame_step"]]
         b, t, c, h, w = x.shape
         size = self.model.config.crop_size
         if (h, w) != (size, size):
@@ -91,7 +91,7 @@ class VJEPA2Scorer(PretrainedScorer):
                 align_corners=False,
             )
             top, left = (resized.shape[-2] - size) // 2, (resized.shape[-1] - size) // 2
-            x = resized[..., top : top + size, left : left + size].unflatten(0, (b, t))
+            x = resized[..., top : top + size, left : left + size].unflatten(0, (b, t))  # type: ignore[no-untyped-call]  # Tensor.unflatten: unannotated in torch
         return self.normalized(x)
 
     def _window_error(self, window: torch.Tensor, context_frames: int) -> torch.Tensor:
@@ -104,7 +104,7 @@ class VJEPA2Scorer(PretrainedScorer):
         target = F.layer_norm(target, target.shape[-1:])
         seen, total, batch = context.shape[1], target.shape[1], window.shape[0]
         positions = torch.arange(total, device=window.device).expand(batch, -1)
-        predicted = self.model.predictor(
+        predicted: torch.Tensor = self.model.predictor(
             encoder_hidden_states=context,
             context_mask=[positions[:, :seen]],
             target_mask=[positions[:, seen:]],
@@ -121,19 +121,19 @@ class VJEPA2Scorer(PretrainedScorer):
         for context in context_lengths:
             check_windows(
                 context,
-                self.hparams.window_frames,
-                self.hparams.frame_step,
-                self.hparams.window_stride,
+                self.hparams["window_frames"],
+                self.hparams["frame_step"],
+                self.hparams["window_stride"],
                 self.model.config.tubelet_size,
             )
             surprise = torch.zeros(frames.shape[0], frames.shape[1], device=x.device)
             for start, last in window_ends(
                 x.shape[1],
-                self.hparams.window_frames,
-                self.hparams.window_stride,
-                self.hparams.frame_step,
+                self.hparams["window_frames"],
+                self.hparams["window_stride"],
+                self.hparams["frame_step"],
             ):
-                window = x[:, start : start + self.hparams.window_frames]
+                window = x[:, start : start + self.hparams["window_frames"]]
                 surprise[:, last] = self._window_error(window, context)
             result[context] = surprise
         return result
@@ -146,7 +146,7 @@ class VJEPA2Scorer(PretrainedScorer):
         camera: torch.Tensor | None = None,
         objects: TensorDictBase | None = None,
     ) -> torch.Tensor:
-        context = self.hparams.context_frames
+        context = self.hparams["context_frames"]
         return self.surprise_per_context(frames, [context])[context]
 
     def expected_frames(

@@ -205,6 +205,7 @@ class LRUMemory(nn.Module):
             mixture = torch.full_like(weights[..., 0], 1.0 / self.num_read_heads)
         else:
             if self.head_mixing == "controller":
+                assert self.head_weights is not None  # built for head_mixing "controller"
                 mixture = torch.softmax(self.head_weights(hidden).float(), dim=-1)
             else:
                 mixture = torch.full_like(weights[..., 0], 1.0 / self.num_read_heads)

@@ -33,7 +33,7 @@ def feature_map_size(height: int, width: int, num_blocks: int) -> tuple[int, int
 def _memory_format(module: nn.Module, channels_last: bool) -> torch.memory_format:
     """Put ``module``'s convolution weights in the chosen layout and return that layout."""
     memory_format = torch.channels_last if channels_last else torch.contiguous_format
-    module.to(memory_format=memory_format)
+    module.to(memory_format=memory_format)  # type: ignore[call-overload]  # torch: Module.to takes memory_format, its overloads omit it
     return memory_format
 
 
@@ -115,7 +115,7 @@ class Encoder(nn.Module):
         leading = frames.shape[:-3]
         # specs.to_model_input already gives a channels-last view: no copy on the fast path.
         frames = frames.reshape(-1, *frames.shape[-3:]).contiguous(memory_format=self.memory_format)
-        features = self.mlp(self.blocks(frames))
+        features: torch.Tensor = self.mlp(self.blocks(frames))
         return features.reshape(*leading, self.output_size)
 
 
@@ -171,5 +171,5 @@ class Decoder(nn.Module):
         features = features.view(-1, self.map_channels, *self.map_size).contiguous(
             memory_format=self.memory_format
         )
-        logits = self.logits(self.blocks(features))
+        logits: torch.Tensor = self.logits(self.blocks(features))
         return logits.reshape(*leading, self.out_channels, *self.image_size)

@@ -4,9 +4,9 @@ encoded frame, a latent sample, and a memory write. Only this core loops over ti
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -122,7 +122,13 @@ class VRNNCore(nn.Module):
         self.posterior = mlp(
             embedding_size + memory.read_size + 2 * latent_size, mlp_sizes, 2 * latent_size
         )
-        self._compiled_step = None
+        self._compiled_step: (
+            Callable[
+                [MemoryState, torch.Tensor, torch.Tensor, torch.Tensor | None],
+                tuple[MemoryState, FrameStep],
+            ]
+            | None
+        ) = None
 
     def _split(self, stats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         mean, log_std = stats.float().chunk(2, dim=-1)
@@ -141,6 +147,7 @@ class VRNNCore(nn.Module):
         when ``noise`` is None), write. A pure function of tensors, so it compiles whole
         (``fullgraph=True``: no host sync, no data-dependent shape)."""
         first = self.posterior[0]
+        assert isinstance(first, nn.Linear)  # mlp's first layer
         read = self.memory.read(state, z)
         prior_mean, prior_log_std = self._split(self.prior(read.read))
         prior_log_std = prior_log_std.clamp(-LOG_STD_LIMIT, LOG_STD_LIMIT)
@@ -181,7 +188,7 @@ class VRNNCore(nn.Module):
         calls the compiled step for every frame (``compile: frame``)."""
         self._compiled_step = torch.compile(self.step, fullgraph=True)
 
-    def __getstate__(self) -> dict:
+    def __getstate__(self) -> dict[str, Any]:
         # A compiled function does not pickle (ddp_spawn, deepcopy): recompile after loading.
         return {**self.__dict__, "_compiled_step": None}
 
@@ -198,6 +205,7 @@ class VRNNCore(nn.Module):
         batch, steps, _ = embeddings.shape
         device = embeddings.device
         first = self.posterior[0]
+        assert isinstance(first, nn.Linear)  # mlp's first layer
         # The enc(x_t) part of the posterior's first layer, for all frames at once.
         frame_part = F.linear(embeddings, first.weight[:, : self.embedding_size], first.bias)
         if not deterministic and noise is None:
@@ -210,7 +218,11 @@ class VRNNCore(nn.Module):
             z.requires_grad_()
         frames = []
         for t in range(steps):
-            state, output = step(state, z, frame_part[:, t], None if deterministic else noise[t])
+            frame_noise: torch.Tensor | None = None
+            if not deterministic:
+                assert noise is not None  # drawn above when not given
+                frame_noise = noise[t]
+            state, output = step(state, z, frame_part[:, t], frame_noise)
             z = output.z
             frames.append(output)
         stacked = {
