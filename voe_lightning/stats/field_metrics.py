@@ -27,7 +27,7 @@ import numpy as np
 
 from voe_lightning.stats.statistics import ranked_auroc
 from voe_lightning.stats.statistics_format import format_number
-from voe_lightning.stats.surprise_window import video_surprise
+from voe_lightning.stats.surprise_window import SurpriseWindow, video_surprise
 
 #: The ways a video's per-frame surprise is reduced to one number, each with its metrics.
 REDUCTIONS = ("sum", "mean", "max")
@@ -92,7 +92,8 @@ def _per_frame_pairs(frames_possible: Any, frames_impossible: Any) -> tuple[np.n
 
 def after(per_frame: np.ndarray, first_frame: Any) -> np.ndarray:
     """Per-frame surprise [N, T] with the frames before each pair's ``first_frame`` [N] set to
-    -inf, so that a max reads the frames from there on only."""
+    -inf, so that a max reads the frames from there on only (the window of every frame from
+    there, ``SurpriseWindow.frame_weights``)."""
     first = np.asarray(first_frame, dtype=np.int64).reshape(-1, 1)
     if (
         first.shape[0] != per_frame.shape[0]
@@ -103,7 +104,9 @@ def after(per_frame: np.ndarray, first_frame: Any) -> np.ndarray:
             f"first_frame must be one frame index in [0, {per_frame.shape[1] - 1}] per pair "
             f"({per_frame.shape[0]}), got {first.ravel().tolist()}"
         )
-    return np.where(np.arange(per_frame.shape[1]) >= first, per_frame, -np.inf)
+    steps = per_frame.shape[1]
+    inside = SurpriseWindow(steps).frame_weights(steps, first.ravel()) > 0
+    return np.where(inside, per_frame, -np.inf)
 
 
 def field_metrics(
