@@ -8,7 +8,7 @@ import pytest
 from helpers import refused
 
 from voe_lightning.cli import main
-from voe_lightning.data.generate import generate_dataset
+from voe_lightning.data.store import generate_dataset
 from voe_lightning.export import command, manifest
 from voe_lightning.export.probes import open_probes
 

@@ -17,7 +17,8 @@ from helpers import refused
 from helpers.stores import fake_clip, fake_probe
 
 from voe_lightning.cli import main
-from voe_lightning.data import generate, store, store_plan
+from voe_lightning.data import store
+from voe_lightning.data.store import render
 from voe_lightning.datamodules import ConceptDataModule
 from voe_lightning.export import command
 from voe_lightning.export.manifest import staged
@@ -26,14 +27,14 @@ from voe_lightning.export.manifest import staged
 SIZES = ["--concepts", "[continuity]", "--train_examples", "0", "--val_pairs", "1",
          "--test_pairs", "3", "--generalization_pairs", "0", "--num_frames", "4",
          "--height", "16", "--width", "16", "--workers", "1", "--progress", "false"]  # fmt: skip
-TEST_START = store_plan.SEED_STARTS["test"]
+TEST_START = store.SEED_STARTS["test"]
 
 
 @pytest.fixture
 def root(tmp_path, monkeypatch):
     """A root store (SIZES) of fake renders; later ``generate`` calls render fakes too."""
-    monkeypatch.setattr(generate, "generate_clip", fake_clip)
-    monkeypatch.setattr(generate, "generate_probe", fake_probe)
+    monkeypatch.setattr(render, "generate_clip", fake_clip)
+    monkeypatch.setattr(render, "generate_probe", fake_probe)
     main(["generate", "--root", str(tmp_path / "data"), *SIZES])
     return tmp_path / "data"
 

@@ -7,7 +7,7 @@ import json
 import numpy as np
 from PIL import Image
 
-from voe_lightning.datamodules.intphys import IntPhysDataModule
+from voe_lightning.benchmarks.intphys.datamodule import IntPhysDataModule
 
 FRAMES, SIZE = 20, 32
 #: num_frames=5 of 20 samples source frames [0, 5, 10, 14, 19].

@@ -9,7 +9,7 @@ from pathlib import Path
 import av
 import numpy as np
 
-from voe_lightning.external.intphys2 import METADATA_COLUMNS
+from voe_lightning.benchmarks.intphys2.reader import METADATA_COLUMNS
 
 FRAMES, SIZE = 8, 16
 COLUMNS = list(METADATA_COLUMNS)

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from tfrecord.writer import TFRecordWriter
 
-from voe_lightning.datamodules.physical_concepts import PhysicalConceptsDataModule
+from voe_lightning.benchmarks.physical_concepts.datamodule import PhysicalConceptsDataModule
 
 T, H, W = 15, 64, 64
 #: num_frames=5 of 15 samples frames [0, 4, 7, 10, 14].

@@ -9,11 +9,12 @@ every batch, and no mask or frame held."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Sequence, Sized
+from typing import Protocol, cast
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torch.utils.data import Dataset, Sampler
+from torch.utils.data import Dataset
 from tqdm import tqdm
 
 from voe_lightning.data.store import record_loader
@@ -36,8 +37,16 @@ def _check_fits(needed: int, clips: int, device: torch.device) -> None:
         )
 
 
+class SizedSampler(Protocol):
+    """A sampler that knows its length, as ``ResidentBatches`` counts its batches."""
+
+    def __iter__(self) -> Iterator[int]: ...
+
+    def __len__(self) -> int: ...
+
+
 def resident_records(
-    dataset: Dataset, fields: Sequence[str], device: torch.device, num_workers: int = 0
+    dataset: Dataset[TensorDict], fields: Sequence[str], device: torch.device, num_workers: int = 0
 ) -> TensorDict:
     """Every record's ``fields`` as one TensorDict [N] on ``device``, in dataset order; refused,
     naming the sizes, when it would not fit the device's free memory. An unknown field is
@@ -56,8 +65,9 @@ def resident_records(
             f"{sorted(first.keys())}"
         )
     template = _held(first[None], stored, measured)[0]
-    _check_fits(len(dataset) * template.bytes(), len(dataset), device)
-    held = template.to(device).expand(len(dataset)).clone()  # one copy, on the device
+    clips = len(cast(Sized, dataset))  # a map-style dataset: every store split has a length
+    _check_fits(clips * template.bytes(), clips, device)
+    held = template.to(device).expand(clips).clone()  # one copy, on the device
     start = 0
     loader = record_loader(dataset, 256, num_workers)
     for batch in tqdm(loader, desc="training clips to " + str(device), unit="batch", leave=False):
@@ -96,7 +106,7 @@ class ResidentBatches:
     ``sampler`` gives, gathered from ``records`` [N] on their device. Under DDP each rank
     takes every world-size-th batch, so the ranks see disjoint clips."""
 
-    def __init__(self, records: TensorDictBase, sampler: Sampler[int], batch_size: int) -> None:
+    def __init__(self, records: TensorDictBase, sampler: SizedSampler, batch_size: int) -> None:
         self.records, self.sampler, self.batch_size = records, sampler, batch_size
 
     def _rank(self) -> tuple[int, int]:

@@ -6,21 +6,27 @@ a ``seed_offset``, from a fresh draw of them in the store's ``seed_offset_<N>`` 
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Sequence, Sized
 from pathlib import Path
-from typing import Any
+from typing import Any, cast, get_args
 
 import numpy as np
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from torch.utils.data import ConcatDataset, DataLoader, Dataset, Sampler, Subset
 
 from voe_lightning import specs
 from voe_lightning.data import store
-from voe_lightning.data.generate import ensure_dataset
-from voe_lightning.data.store import open_split, probe_sampler, record_loader
-from voe_lightning.data.store_plan import check_seed_offset, store_root
-from voe_lightning.datamodules.arguments import check_at_least
+from voe_lightning.data.store import (
+    SplitDataset,
+    check_seed_offset,
+    ensure_dataset,
+    open_split,
+    probe_sampler,
+    record_loader,
+    store_root,
+)
+from voe_lightning.datamodule_arguments import check_at_least
 from voe_lightning.datamodules.resident import ResidentBatches, resident_records
 from voe_lightning.probe_datamodule import ProbeDataModule
 
@@ -54,6 +60,9 @@ class InterleavedSampler(Sampler[int]):
         self.epoch += 1
         return iter(interleaved.reshape(-1).tolist())
 
+
+#: ``specs.CONCEPTS`` typed as concepts: the default of ``VOEDataModule``'s ``concepts``.
+_CONCEPTS: tuple[specs.Concept, ...] = get_args(specs.Concept)
 
 #: The probe splits ``test`` can report on (``VOEDataModule``'s ``test_split``).
 TEST_SPLITS = ("test", "val")
@@ -95,7 +104,7 @@ class VOEDataModule(ProbeDataModule):
             are then left out), in a report folder of its own.
         seed_offset: draw the validation, test and generalization probes this far into their
             splits' seed ranges (0: the store's own): a fresh test set of any size no one has
-            seen, generated or read in ``root/seed_offset_<N>`` (``store_plan.seed_offset_root``,
+            seen, generated or read in ``root/seed_offset_<N>`` (``store.seed_offset_root``,
             probes only), so the training data's store is never touched; the report names it.
         train_limit: train on only the first ``train_limit`` examples per concept of the store
             (and their controls in proportion: the plan interleaves the kinds, so every prefix
@@ -106,7 +115,7 @@ class VOEDataModule(ProbeDataModule):
 
     def __init__(
         self,
-        concepts: list[specs.Concept] = list(specs.CONCEPTS),  # noqa: B006 (the CLI reads it; never mutated)
+        concepts: list[specs.Concept] = list(_CONCEPTS),  # noqa: B006 (the CLI reads it; never mutated)
         root: str = "data/voe",
         train_examples: int = 1000,
         train_controls: int | None = None,
@@ -171,39 +180,48 @@ class VOEDataModule(ProbeDataModule):
         )
         self.save_hyperparameters()
         self.concepts = list(dict.fromkeys(concepts))
-        self._datasets: dict[str, Dataset] = {}
+        self._datasets: dict[str, ConcatDataset[TensorDict] | None] = {}
         self._resident: TensorDictBase | None = None
 
     # --- data on disk --------------------------------------------------------------------------
-    def _generation_arguments(self, split: str) -> dict:
+    def _generation_arguments(self, split: str) -> dict[str, Any]:
         """``ensure_dataset``'s arguments for the store ``split`` is in (``_store_root``): the
         seed offset's, which holds no training clips, for a probe split."""
         h = self.hparams
-        seed_offset = 0 if split == "train" else h.seed_offset
-        train_controls = h.train_examples if h.train_controls is None else h.train_controls
+        seed_offset = 0 if split == "train" else h["seed_offset"]
+        train_controls = h["train_examples"] if h["train_controls"] is None else h["train_controls"]
         return dict(
             concepts=self.concepts,
             seed_offset=seed_offset,
-            train_examples=0 if seed_offset else h.train_examples,
+            train_examples=0 if seed_offset else h["train_examples"],
             train_controls=0 if seed_offset else train_controls,
-            val_pairs=h.val_pairs,
-            test_pairs=h.test_pairs,
-            generalization_pairs=h.generalization_pairs,
-            workers=h.generate_workers or os.cpu_count() or 1,
-            num_frames=h.num_frames,
-            height=h.height,
-            width=h.width,
+            val_pairs=h["val_pairs"],
+            test_pairs=h["test_pairs"],
+            generalization_pairs=h["generalization_pairs"],
+            workers=h["generate_workers"] or os.cpu_count() or 1,
+            num_frames=h["num_frames"],
+            height=h["height"],
+            width=h["width"],
         )
 
     def _probe_splits(self, stage: str | None) -> list[str] | None:
         """The probe splits ``validate`` or ``test`` reads (None for other stages)."""
-        splits = {"validate": ["val"], "test": [self.hparams.test_split]}.get(stage)
-        if stage == "test" and self.hparams.generalization and self.hparams.test_split == "test":
+        by_stage: dict[str | None, list[str]] = {
+            "validate": ["val"],
+            "test": [self.hparams["test_split"]],
+        }
+        splits = by_stage.get(stage)
+        if (
+            splits is not None
+            and stage == "test"
+            and self.hparams["generalization"]
+            and self.hparams["test_split"] == "test"
+        ):
             splits.append("generalization")
         return splits
 
     def _store_root(self, split: str) -> Path:
-        """The store ``split`` is read from (``store_plan.store_root``)."""
+        """The store ``split`` is read from (``store.store_root``)."""
         root = store_root(self.hparams, split)
         assert root is not None, "a VOEDataModule always has a root"
         return root
@@ -212,9 +230,9 @@ class VOEDataModule(ProbeDataModule):
         """The data root, the seed offset and the store its probes are read from."""
         return {
             **super().probe_source(),
-            "seed_offset": self.hparams.seed_offset,
+            "seed_offset": self.hparams["seed_offset"],
             "probe_root": str(self._store_root("test")),
-            "probe_split": self.hparams.test_split,
+            "probe_split": self.hparams["test_split"],
         }
 
     def prepare_data(self) -> None:
@@ -229,7 +247,7 @@ class VOEDataModule(ProbeDataModule):
             by_store.setdefault(self._store_root(split), []).append(split)
         for store_splits in by_store.values():
             ensure_dataset(
-                self.hparams.root,
+                self.hparams["root"],
                 splits=store_splits,
                 **self._generation_arguments(store_splits[0]),
             )
@@ -248,12 +266,12 @@ class VOEDataModule(ProbeDataModule):
             ]
             self._datasets[split] = ConcatDataset(parts) if parts else None
 
-    def _limited(self, part: Dataset, split: str) -> Dataset:
+    def _limited(self, part: SplitDataset, split: str) -> Dataset[TensorDict]:
         """A concept's split, cut to its first ``train_limit`` examples' worth of training clips."""
-        limit = self.hparams.train_limit
+        limit = self.hparams["train_limit"]
         if split != "train" or limit is None:
             return part
-        return Subset(part, range(round(len(part) * limit / self.hparams.train_examples)))
+        return Subset(part, range(round(len(part) * limit / self.hparams["train_examples"])))
 
     def probe_cases(self, split: str = "val") -> list[tuple[str, str]]:
         """The (concept, variant) pairs whose probes ``split`` holds."""
@@ -263,41 +281,47 @@ class VOEDataModule(ProbeDataModule):
         return [(c, v) for c in self.concepts for v in variants[c]]
 
     # --- loaders --------------------------------------------------------------------------------
-    def _loader(self, dataset: Dataset, batch_size: int, **kwargs) -> DataLoader:
-        return record_loader(dataset, batch_size, self.hparams.num_workers, **kwargs)
+    def _loader(
+        self, dataset: Dataset[TensorDict], batch_size: int, **kwargs: Any
+    ) -> DataLoader[TensorDict]:
+        return record_loader(dataset, batch_size, self.hparams["num_workers"], **kwargs)
 
-    def train_dataloader(self) -> DataLoader | ResidentBatches:
+    def train_dataloader(self) -> DataLoader[TensorDict] | ResidentBatches:
         dataset = self._datasets["train"]
+        assert dataset is not None  # every concept has training clips
         sampler = InterleavedSampler(
-            [len(part) for part in dataset.datasets], shuffle=True, seed=self.hparams.seed
+            [len(cast(Sized, part)) for part in dataset.datasets],  # _limited's SplitDataset/Subset
+            shuffle=True,
+            seed=self.hparams["seed"],
         )
         h = self.hparams
-        if not h.train_on_device and h.train_fields is None:
-            return self._loader(dataset, h.batch_size, sampler=sampler, drop_last=True)
+        if not h["train_on_device"] and h["train_fields"] is None:
+            return self._loader(dataset, h["batch_size"], sampler=sampler, drop_last=True)
         if self._resident is None:
-            on_device = h.train_on_device and self.trainer is not None
-            device = self.trainer.strategy.root_device if on_device else torch.device("cpu")
-            fields = h.train_fields or ["frames"]
-            self._resident = resident_records(dataset, fields, device, h.num_workers)
-        return ResidentBatches(self._resident, sampler, h.batch_size)
+            trainer = self.trainer if h["train_on_device"] else None
+            device = trainer.strategy.root_device if trainer is not None else torch.device("cpu")
+            fields = h["train_fields"] or ["frames"]
+            self._resident = resident_records(dataset, fields, device, h["num_workers"])
+        return ResidentBatches(self._resident, sampler, h["batch_size"])
 
-    def _probe_loader(self, split: str) -> DataLoader:
+    def _probe_loader(self, split: str) -> DataLoader[TensorDict]:
         # Its own generator: a loader's iterator draws a seed, and drawing it from the global
         # RNG would make training depend on how often validation runs.
-        generator = torch.Generator().manual_seed(self.hparams.seed)
-        batch_size = self.hparams.probe_batch_size
+        generator = torch.Generator().manual_seed(self.hparams["seed"])
+        batch_size = self.hparams["probe_batch_size"]
         dataset = self._datasets[split]
+        assert dataset is not None  # test_dataloader reads generalization only where it has probes
         return self._loader(
             dataset, batch_size, generator=generator, sampler=probe_sampler(dataset)
         )
 
-    def val_dataloader(self) -> DataLoader:
+    def val_dataloader(self) -> DataLoader[TensorDict]:
         return self._probe_loader("val")
 
-    def test_dataloader(self) -> DataLoader | list[DataLoader]:
-        loaders = [self._probe_loader(self.hparams.test_split)]
+    def test_dataloader(self) -> DataLoader[TensorDict] | list[DataLoader[TensorDict]]:
+        loaders = [self._probe_loader(self.hparams["test_split"])]
         if (
-            "generalization" in self._probe_splits("test")
+            "generalization" in (self._probe_splits("test") or [])
             and self._datasets.get("generalization") is not None
         ):
             loaders.append(self._probe_loader("generalization"))
@@ -307,6 +331,6 @@ class VOEDataModule(ProbeDataModule):
 class ConceptDataModule(VOEDataModule):
     """One concept: the paper's separately trained models."""
 
-    def __init__(self, concept: specs.Concept = "object_persistence", **kwargs):
+    def __init__(self, concept: specs.Concept = "object_persistence", **kwargs: Any) -> None:
         specs.check_concept(concept)
         super().__init__(concepts=[concept], **kwargs)

@@ -10,8 +10,8 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
-from voe_lightning.export.intphys import write_intphys
-from voe_lightning.export.intphys2 import write_intphys2
+from voe_lightning.benchmarks.intphys.export import write_intphys
+from voe_lightning.benchmarks.intphys2.export import write_intphys2
 from voe_lightning.export.manifest import (
     ExportFolder,
     Progress,

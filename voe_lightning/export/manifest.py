@@ -27,8 +27,12 @@ from tensordict import TensorDictBase
 
 import voe_lightning
 from voe_lightning.data import store
-from voe_lightning.data.store_plan import GENERATOR_VERSION
-from voe_lightning.data.store_shards import current_umask, remove_stale, temporary_prefix
+from voe_lightning.data.store import (
+    GENERATOR_VERSION,
+    current_umask,
+    remove_stale,
+    temporary_prefix,
+)
 from voe_lightning.export.probes import ROLES, ProbeGroup, ProbeSource
 
 MANIFEST_NAME = "manifest.json"
@@ -134,7 +138,7 @@ def staged(out: Path) -> Iterator[ExportFolder]:
 
 def remove_stale_partials(folder: Path) -> None:
     """Remove the partial exports (``staged``) in ``folder``, of any ``out``, that an export
-    of this host left when it was killed: ``store_shards.remove_stale`` of each ``out``."""
+    of this host left when it was killed: ``store.remove_stale`` of each ``out``."""
     pattern = rf"\.(.+)\.{re.escape(socket.gethostname())}\.\d+\..*{re.escape(PARTIAL)}"
     for path in folder.glob(f".*{PARTIAL}"):
         match = re.fullmatch(pattern, path.name)

@@ -14,7 +14,7 @@ from typing import Any, cast
 from tensordict import TensorDictBase
 
 from voe_lightning import specs
-from voe_lightning.data import store, store_plan
+from voe_lightning.data import store
 
 #: A pair's two videos, in the order every format writes them.
 ROLES: tuple[str, str] = ("consistent", "inconsistent")
@@ -81,7 +81,7 @@ class ProbeSource:
     @property
     def seed_offset(self) -> int:
         """The seed offset the store's probes were drawn at (0: the store's own)."""
-        return store_plan.manifest_seed_offset(self.manifest)
+        return store.manifest_seed_offset(self.manifest)
 
     @property
     def video(self) -> dict[str, Any]:
@@ -122,10 +122,10 @@ def open_fresh_probes(
     root: str | os.PathLike[str], split: str, concepts: Sequence[str] | None, seed_offset: int
 ) -> ProbeSource:
     """``open_probes`` of the store at ``root`` (offset 0), or of the probes ``generate
-    --seed_offset N`` drew beside it (``store_plan.seed_offset_root``): refused unless that
+    --seed_offset N`` drew beside it (``store.seed_offset_root``): refused unless that
     store records offset N and shares no seed with the root's (``check_fresh_offset``); a
     missing one named with the command that draws exactly it (``store.draw_command``)."""
-    path = store_plan.seed_offset_root(root, seed_offset)
+    path = store.seed_offset_root(root, seed_offset)
     if not seed_offset:
         return open_probes(path, split, concepts)
     if store.read_manifest(path) is None:
@@ -134,7 +134,7 @@ def open_fresh_probes(
         for concept in names:
             specs.check_concept(concept)
         wanted = names or list((store.read_manifest(root) or {"concepts": {}})["concepts"])
-        store_plan.check_fresh_offset(root, seed_offset, [(c, split) for c in wanted])
+        store.check_fresh_offset(root, seed_offset, [(c, split) for c in wanted])
         raise FileNotFoundError(
             f"no fresh probes at {path}: {path / store.MANIFEST_NAME} is missing; draw them "
             f"with `{store.draw_command(root, seed_offset, (split,), names)}`"
@@ -147,7 +147,7 @@ def open_fresh_probes(
             f"them with `{store.draw_command(root, seed_offset, (split,), source.concepts)} "
             "--overwrite`"
         )
-    store_plan.check_fresh_offset(root, seed_offset, [(c, split) for c in source.concepts])
+    store.check_fresh_offset(root, seed_offset, [(c, split) for c in source.concepts])
     return source
 
 
@@ -178,7 +178,7 @@ def open_probes(
                 f"concept {concept!r} was not generated in {root}; it holds: "
                 f"{', '.join(stored) or 'none'}"
             )
-    store_plan.check_split(root, manifest, concepts, split)
+    store.check_split(root, manifest, concepts, split)
     datasets = {concept: store.open_split(root, concept, split) for concept in concepts}
     items = planned_items(manifest, split)
     groups = []
@@ -201,7 +201,7 @@ def open_probes(
 def planned_items(manifest: dict[str, Any], split: str) -> dict[str, list[tuple[str, int]]]:
     """Per concept, the (variant, seed) of each record of ``split`` in store order, from the
     shard plan the manifest describes (so grouping reads no record)."""
-    tasks, _ = store_plan.manifest_plan(manifest)
+    tasks, _ = store.manifest_plan(manifest)
     items: dict[str, list[tuple[str, int]]] = {}
     for task in sorted(tasks, key=lambda task: (task.concept, task.index)):
         if task.split == split:

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 
-from voe_lightning.data.store_plan import GENERATOR_VERSION
+from voe_lightning.data.store import GENERATOR_VERSION
 from voe_lightning.export.manifest import ExportFolder, Progress, Written, group_entry
 from voe_lightning.export.probes import LABELS, ROLES, ProbeGroup, ProbePair, ProbeSource
 

@@ -36,13 +36,13 @@ from tensordict import TensorDict
 from torch.utils.data import Dataset
 
 from voe_lightning import specs
-from voe_lightning.external.base import (
+from voe_lightning.benchmarks.mp4 import ClipSampling, read_video
+from voe_lightning.benchmarks.reader import (
     BenchmarkDataError,
     SkipLog,
     first_divergence,
     read_text,
 )
-from voe_lightning.external.mp4 import ClipSampling, read_video
 
 #: The columns of a labelled split's metadata.csv (the Main split's), in order.
 METADATA_COLUMNS: tuple[str, ...] = tuple(
@@ -126,7 +126,7 @@ class Pair:
 
 
 # --- metadata ------------------------------------------------------------------------------------
-def split_folder(root: str | os.PathLike, split: str) -> Path:
+def split_folder(root: str | os.PathLike[str], split: str) -> Path:
     if split not in SPLITS:
         raise ValueError(
             f"unknown IntPhys 2 split {split!r}; valid splits are: {', '.join(SPLITS)}"
@@ -218,7 +218,7 @@ def _row_video(
 
 
 def read_metadata(
-    root: str | os.PathLike,
+    root: str | os.PathLike[str],
     split: str,
     labelled: bool = True,
     lenient: bool = False,
@@ -276,7 +276,7 @@ def read_metadata(
     return videos
 
 
-def _scene_key(scene: str) -> tuple:
+def _scene_key(scene: str) -> tuple[tuple[int, int] | tuple[int, str], ...]:
     """Natural order of SceneIndex values (``2`` < ``10`` < ``10_0``)."""
     return tuple(
         (0, int(part)) if part.isdigit() else (1, part) for part in re.split(r"[_.]", scene)
@@ -292,7 +292,9 @@ def pair_videos(
     scene and its rows, or with ``lenient`` is logged to ``skips`` and left out."""
     groups: dict[tuple[str, str, str], list[Video]] = defaultdict(list)
     for video in videos:
-        groups[(video.condition, video.scene, video.prefix)].append(video)
+        condition, scene, prefix = video.condition, video.scene, video.prefix
+        assert condition and scene and prefix, "a labelled video (read_metadata, labelled)"
+        groups[(condition, scene, prefix)].append(video)
     pairs: list[Pair] = []
     scenes: dict[tuple[str, str], int] = {}
     for condition, scene, prefix in sorted(groups, key=lambda k: (k[0], _scene_key(k[1]), k[2])):
@@ -328,7 +330,7 @@ def scene_pairs(pairs: Sequence[Pair]) -> list[list[Pair]]:
 
 
 # --- videos ---------------------------------------------------------------------------------------
-class SceneDataset(Dataset):
+class SceneDataset(Dataset[tuple[list[TensorDict], dict[str, Any] | None]]):
     """Item k: (the probe records of scene k's pairs, its pairing table entry: the variant of
     each pair -> the pair's entry). With ``lenient``, a scene with a pair that fails to decode
     is logged and yields ([], None)."""
@@ -387,7 +389,7 @@ class SceneDataset(Dataset):
         return record, pair.entry(divergence)
 
 
-class VideoDataset(Dataset):
+class VideoDataset(Dataset[TensorDict]):
     """Single videos to score (``predict``): {frames [T, H, W, 3], index}, where
     ``names[index]`` is the video's name. Never lenient: a submission needs every video."""
 

@@ -19,13 +19,13 @@ from helpers.intphys import SAMPLED, SCENES, datamodule, make_intphys, make_trai
 from helpers.quadruplets import check_quadruplet_rows
 from PIL import Image
 
-import voe_lightning.external.intphys as intphys
+import voe_lightning.benchmarks.intphys.reader as intphys
 from voe_lightning import specs
+from voe_lightning.benchmarks.evaluation import external_metrics
+from voe_lightning.benchmarks.intphys.reader import read_png
+from voe_lightning.benchmarks.metrics import read_answer_file, score_answers
+from voe_lightning.benchmarks.reader import BenchmarkDataError
 from voe_lightning.callbacks.prediction_writer import IntPhysAnswerWriter
-from voe_lightning.external.base import BenchmarkDataError
-from voe_lightning.external.evaluation import external_metrics
-from voe_lightning.external.intphys import read_png
-from voe_lightning.external.metrics import read_answer_file, score_answers
 from voe_lightning.model import SurpriseModel
 
 

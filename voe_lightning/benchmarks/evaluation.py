@@ -1,5 +1,5 @@
 """An external benchmark's own evaluation of a ``test`` run (docs/architecture.md §8): its
-published metrics (``voe_lightning.external.metrics``) and extra report files, computed from the
+published metrics (``voe_lightning.benchmarks.metrics``) and extra report files, computed from the
 merged ``probe_step`` outputs and what the DataModule knows of its pairs (``ExternalPairs``).
 
 The DataModules only describe their pairs (``ProbeDataModule.external_pairs``: which benchmark,
@@ -20,15 +20,15 @@ from __future__ import annotations
 import csv
 import io
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import torch
 
-from voe_lightning.external.intphys import BLOCKS as INTPHYS_BLOCKS
-from voe_lightning.external.intphys2 import VARIANT_NAMES as INTPHYS2_HALVES
-from voe_lightning.external.metrics import (
+from voe_lightning.benchmarks.external_pairs import ExternalPairs
+from voe_lightning.benchmarks.intphys.reader import BLOCKS as INTPHYS_BLOCKS
+from voe_lightning.benchmarks.intphys2.reader import VARIANT_NAMES as INTPHYS2_HALVES
+from voe_lightning.benchmarks.metrics import (
     grouped_metrics,
     incomplete_quadruplets,
     intphys2_metrics,
@@ -38,7 +38,6 @@ from voe_lightning.external.metrics import (
 __all__ = [
     "BENCHMARKS",
     "VIDEO_COLUMNS",
-    "ExternalPairs",
     "evaluate",
     "external_files",
     "external_metrics",
@@ -56,22 +55,6 @@ VIDEO_COLUMNS = (
     "surprise_mean",
     "surprise_max",
 )
-
-
-@dataclass(frozen=True)
-class ExternalPairs:
-    """What an external benchmark's evaluation needs beyond the probe outputs: ``benchmark``
-    (a key of ``BENCHMARKS``), the DataModule's ``concept_names``, the evaluated ``split``
-    (None where the benchmark has one), the pairs' metadata ``table`` (IntPhys: quadruplet
-    index -> {block, condition, ambiguous_pairing, ...}; IntPhys 2: (seed, half) -> {principle,
-    difficulty, camera, possible, impossible, ...}; none for Physical Concepts) and the
-    ``skipped`` input counts per reason."""
-
-    benchmark: str
-    concept_names: tuple[str, ...]
-    split: str | None = None
-    table: Mapping[int, Mapping[str, Any]] = field(default_factory=dict)
-    skipped: Mapping[str, int] = field(default_factory=dict)
 
 
 def _intphys(pairs: ExternalPairs, outputs: Mapping[str, Any], **options: Any) -> dict[str, Any]:

@@ -19,11 +19,11 @@ from helpers.intphys2 import PREFIXES, SCENES, SIZE, frame, make_root, write_met
 from helpers.locations import REPO
 from helpers.quadruplets import check_quadruplet_rows
 
+from voe_lightning.benchmarks.evaluation import VIDEO_COLUMNS, external_metrics
+from voe_lightning.benchmarks.intphys2.datamodule import IntPhys2DataModule
+from voe_lightning.benchmarks.metrics import intphys2_metrics
+from voe_lightning.benchmarks.reader import BenchmarkDataError
 from voe_lightning.cli import main
-from voe_lightning.datamodules.intphys2 import IntPhys2DataModule
-from voe_lightning.external.base import BenchmarkDataError
-from voe_lightning.external.evaluation import VIDEO_COLUMNS, external_metrics
-from voe_lightning.external.metrics import intphys2_metrics
 
 #: num_frames=4 spread over 8 frames samples source frames [0, 2, 5, 7].
 SAMPLED = [0, 2, 5, 7]
@@ -107,7 +107,7 @@ def test_debug_filename_column_and_frame_step_of_longer_videos(root):
 def test_cached_pairs_are_served_without_decoding(root, tmp_path, monkeypatch):
     first = datamodule(root, cache_dir=str(tmp_path))
     first.setup("test")
-    monkeypatch.setattr("voe_lightning.external.intphys2.read_video", None)  # would fail
+    monkeypatch.setattr("voe_lightning.benchmarks.intphys2.reader.read_video", None)  # would fail
     second = datamodule(root, cache_dir=str(tmp_path))
     second.setup("test")
     assert second.pairs("Main") == first.pairs("Main")
@@ -379,7 +379,7 @@ def test_the_package_and_its_datamodules_import_without_pyav():
     (a lent GPU with no package index, say) must start without it."""
     blocked = (
         "import sys; sys.modules['av'] = None; "
-        "import voe_lightning.cli, voe_lightning.datamodules, voe_lightning.external.intphys2"
+        "import voe_lightning.cli, voe_lightning.datamodules, voe_lightning.benchmarks.intphys2"
     )
     root = REPO
     result = subprocess.run(

@@ -1,7 +1,8 @@
 """What the DataModules of the external benchmarks (IntPhys, IntPhys 2, Physical Concepts)
 share: record specs over the benchmark's own vocabularies, skipped-input counts, loader settings
-and the model input geometry. Their readers are ``voe_lightning.external``; their metrics,
-``voe_lightning.external.evaluation`` (from each DataModule's ``external_pairs``)."""
+and the model input geometry. Each benchmark's DataModule is ``<benchmark>.datamodule`` beside
+its ``<benchmark>.reader``; their metrics, ``voe_lightning.benchmarks.evaluation`` (from each
+DataModule's ``external_pairs``)."""
 
 from __future__ import annotations
 
@@ -15,8 +16,8 @@ from torchrl.data import Composite
 from tqdm import tqdm
 
 from voe_lightning import specs
-from voe_lightning.data.store import probe_sampler, record_loader
-from voe_lightning.external.base import (
+from voe_lightning.benchmarks.cache import open_cache, write_cache
+from voe_lightning.benchmarks.reader import (
     FrameSampling,
     RecordList,
     SkipLog,
@@ -25,8 +26,12 @@ from voe_lightning.external.base import (
     merge_counts,
     worker_loader,
 )
-from voe_lightning.external.cache import open_cache, write_cache
+from voe_lightning.data.store import probe_sampler, record_loader
 from voe_lightning.probe_datamodule import ProbeDataModule
+
+#: What decodes a benchmark's probes: item k, the records of its k-th scene or quadruplet and
+#: their pairing table entry (None: skipped under ``lenient``).
+ProbeDecoder = Dataset[tuple[list[TensorDict], dict[str, Any] | None]]
 
 
 class ExternalDataModule(ProbeDataModule):
@@ -47,7 +52,7 @@ class ExternalDataModule(ProbeDataModule):
         self._skips: dict[str, SkipLog] = {}
         self._cached_skips: dict[str, dict[str, int]] = {}
         self._video: FrameSampling | None = None
-        self._probes: dict[str, Dataset] = {}
+        self._probes: dict[str, Dataset[TensorDict]] = {}
         self._tables: dict[str, dict[int, dict[str, Any]]] = {}
 
     @property
@@ -64,7 +69,7 @@ class ExternalDataModule(ProbeDataModule):
         """Build ``video`` from num_frames, height and width, taking those left None from the
         trainer's model; ``required`` (in ``setup``) refuses what neither gives, naming it."""
         h = self.hparams
-        given = {"num_frames": h.num_frames, "height": h.height, "width": h.width}
+        given = {"num_frames": h["num_frames"], "height": h["height"], "width": h["width"]}
         model = getattr(self.trainer, "lightning_module", None)
         model_hparams = getattr(model, "hparams", {})
         height, width = model_hparams.get("image_size") or (None, None)
@@ -73,7 +78,7 @@ class ExternalDataModule(ProbeDataModule):
             "height": height,
             "width": width,
         }
-        geometry = {
+        geometry: dict[str, Any] = {
             name: from_model[name] if value is None else value for name, value in given.items()
         }
         unresolved = [name for name, value in geometry.items() if value is None]
@@ -97,14 +102,14 @@ class ExternalDataModule(ProbeDataModule):
             )
         if not unresolved:
             indices = frame_indices(
-                self.source_frames, geometry["num_frames"], h.frame_stride, h.first_frame
+                self.source_frames, geometry["num_frames"], h["frame_stride"], h["first_frame"]
             )
             self._video = FrameSampling(
                 tuple(indices.tolist()),
                 geometry["height"],
                 geometry["width"],
-                h.divergence_level,
-                h.divergence_fraction,
+                h["divergence_level"],
+                h["divergence_fraction"],
             )
 
     def probe_spec(self) -> Composite:
@@ -125,14 +130,20 @@ class ExternalDataModule(ProbeDataModule):
         logs = (log.counts() for log in self._skips.values())
         return merge_counts(*logs, *self._cached_skips.values())
 
-    def _loader(self, dataset: Dataset, batch_size: int, **kwargs) -> DataLoader:
-        return record_loader(dataset, batch_size, self.hparams.num_workers, **kwargs)
+    def _loader(
+        self, dataset: Dataset[TensorDict], batch_size: int, **kwargs: Any
+    ) -> DataLoader[TensorDict]:
+        return record_loader(dataset, batch_size, self.hparams["num_workers"], **kwargs)
 
-    def _probe_loader(self, dataset: Dataset) -> DataLoader:
+    def _probe_loader(self, dataset: Dataset[TensorDict]) -> DataLoader[TensorDict]:
         """Probe pairs or single videos in order, each on one DDP rank."""
-        return self._loader(dataset, self.hparams.probe_batch_size, sampler=probe_sampler(dataset))
+        return self._loader(
+            dataset, self.hparams["probe_batch_size"], sampler=probe_sampler(dataset)
+        )
 
-    def _read_probes(self, split: str, decoder: Dataset, folder: Path | None, unit: str) -> Dataset:
+    def _read_probes(
+        self, split: str, decoder: ProbeDecoder, folder: Path | None, unit: str
+    ) -> Dataset[TensorDict]:
         """The probe records of ``split`` from the cache at ``folder`` when it is intact, else
         decoded by ``decoder`` (items: (records, table entry or None)) in worker processes and
         written there (``folder`` None: kept in memory). Fills ``_probes[split]`` and
@@ -155,11 +166,11 @@ class ExternalDataModule(ProbeDataModule):
         return self._probes[split]
 
     def _decode(
-        self, decoder: Dataset, meta: dict, skips: SkipLog, what: str, unit: str
+        self, decoder: ProbeDecoder, meta: dict[str, Any], skips: SkipLog, what: str, unit: str
     ) -> Iterator[TensorDict]:
         """The probe records, decoded by worker processes; fills ``meta`` (table, skipped
         counts) as it goes, complete once exhausted."""
-        loader = worker_loader(decoder, self.hparams.num_workers)
+        loader = worker_loader(decoder, self.hparams["num_workers"])
         for records, entry in tqdm(
             loader, desc=f"decoding {type(self).__name__} {what}", unit=unit, leave=False
         ):

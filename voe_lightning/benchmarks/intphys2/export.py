@@ -1,6 +1,6 @@
 """A probe split in IntPhys 2's released layout (Bordes et al. 2025): per concept a benchmark
 root ``<concept>/Main/`` holding ``Videos/<name>.mp4``, one per video, and ``metadata.csv``
-with IntPhys 2's columns, so ``voe_lightning.external.intphys2`` and IntPhys 2 harnesses read
+with IntPhys 2's columns, so ``voe_lightning.benchmarks.intphys2.reader`` and IntPhys 2 harnesses read
 it. A quadruplet is a scene (``SceneIndex``): its first half's pair is ``type`` 1_Possible /
 1_Impossible (A, AB), its second's 2_Possible / 2_Impossible (B, BA); a lone pair is a scene
 of its prefix-1 pair alone. ``condition`` is the IntPhys 2 condition nearest to the concept
@@ -22,10 +22,10 @@ from typing import Any, cast
 
 import numpy as np
 
-from voe_lightning.export.intphys import png_bytes
+from voe_lightning.benchmarks.intphys.export import png_bytes
+from voe_lightning.benchmarks.intphys2 import reader
 from voe_lightning.export.manifest import ExportFolder, Progress, Written, group_entry
 from voe_lightning.export.probes import LABELS, ROLES, ProbeGroup, ProbePair, ProbeSource
-from voe_lightning.external import intphys2 as reader
 
 #: The IntPhys 2 condition each concept is written as (``reader.CONDITIONS``'s keys); as
 #: IntPhys' blocks, containment's is continuity: its cube stays behind when its container is

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from PIL import Image
 from scipy.optimize import linear_sum_assignment
-from tensordict import TensorDictBase
+from tensordict import TensorDict
 from torch.utils.data import DataLoader, Dataset
 from torchrl.data import Categorical, Composite
 
@@ -32,7 +32,8 @@ class BenchmarkDataError(ValueError):
         super().__init__(message)
         self.reason = reason
 
-    def __reduce__(self):  # keep the reason when raised in a DataLoader worker
+    def __reduce__(self) -> tuple[type[BenchmarkDataError], tuple[str, str]]:
+        # keep the reason when raised in a DataLoader worker
         return type(self), (str(self), self.reason)
 
 
@@ -75,7 +76,7 @@ class SkipLog:
         ).start()
         weakref.finalize(self, self._writer.close)  # the reading thread then ends
 
-    def __getstate__(self) -> dict:  # a worker gets only the pipe's writing end
+    def __getstate__(self) -> dict[str, Any]:  # a worker gets only the pipe's writing end
         return {"_owner": self._owner, "_writer": self._writer}
 
     def add(self, reason: str, item: str) -> None:
@@ -92,7 +93,8 @@ class SkipLog:
         with self._lock:
             _take_skips(self._reader, self._lines)
             lines = list(self._lines)
-        return sorted(tuple(line.split("\t", 1)) for line in lines if "\t" in line)
+        split = (line.split("\t", 1) for line in lines if "\t" in line)
+        return sorted((reason, item) for reason, item in split)
 
     def counts(self) -> dict[str, int]:
         return dict(Counter(reason for reason, _ in self.entries()))
@@ -116,7 +118,7 @@ def _read_skips(reader: Any, lines: set[str], lock: threading.Lock) -> None:
 
 
 def merge_counts(*counts: dict[str, int]) -> dict[str, int]:
-    total: Counter = Counter()
+    total: Counter[str] = Counter()
     for count in counts:
         total.update(count)
     return dict(sorted(total.items()))
@@ -239,16 +241,16 @@ def benchmark_spec(
     return spec
 
 
-class RecordList(Dataset):
+class RecordList(Dataset[TensorDict]):
     """Records held in memory as a map-style Dataset."""
 
-    def __init__(self, records: Sequence[TensorDictBase]):
+    def __init__(self, records: Sequence[TensorDict]):
         self.records = list(records)
 
     def __len__(self) -> int:
         return len(self.records)
 
-    def __getitem__(self, index: int) -> TensorDictBase:
+    def __getitem__(self, index: int) -> TensorDict:
         return self.records[index]
 
 
@@ -256,7 +258,7 @@ def _identity(item: Any) -> Any:
     return item
 
 
-def worker_loader(dataset: Dataset, num_workers: int) -> DataLoader:
+def worker_loader(dataset: Dataset[Any], num_workers: int) -> DataLoader[Any]:
     """``dataset``'s items one by one, as they are (no batching, no collation), decoded by
     ``num_workers`` worker processes: how the readers fill a cache."""
     return DataLoader(dataset, batch_size=None, num_workers=num_workers, collate_fn=_identity)

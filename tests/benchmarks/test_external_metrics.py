@@ -6,7 +6,7 @@ import pytest
 from helpers import ALPHA
 from scipy import stats
 
-from voe_lightning.external.metrics import (
+from voe_lightning.benchmarks.metrics import (
     absolute_error_rate,
     auroc,
     grouped_metrics,

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from voe_lightning.external.base import BenchmarkDataError, FrameSampling, frame_indices
+from voe_lightning.benchmarks.reader import BenchmarkDataError, FrameSampling, frame_indices
 
 
 @dataclass(frozen=True)

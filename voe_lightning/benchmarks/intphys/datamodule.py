@@ -1,6 +1,6 @@
 """IntPhys (Riochet et al. 2018) as a LightningDataModule: training movies as clips, the
 labelled dev quadruplets as probe pairs, and single movies for ``predict`` (answer.txt, see
-``voe_lightning.callbacks.prediction_writer``); the reading is ``voe_lightning.external.intphys``."""
+``voe_lightning.callbacks.prediction_writer``); the reading is ``reader``, beside it."""
 
 from __future__ import annotations
 
@@ -13,12 +13,10 @@ from tensordict import TensorDict
 from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
-from voe_lightning.datamodules.arguments import check_at_least, check_fraction
-from voe_lightning.datamodules.external import ExternalDataModule
-from voe_lightning.external.base import SkipLog, worker_loader
-from voe_lightning.external.cache import fingerprint, open_cache, write_cache
-from voe_lightning.external.evaluation import ExternalPairs
-from voe_lightning.external.intphys import (
+from voe_lightning.benchmarks.cache import fingerprint, open_cache, write_cache
+from voe_lightning.benchmarks.datamodule import ExternalDataModule
+from voe_lightning.benchmarks.external_pairs import ExternalPairs
+from voe_lightning.benchmarks.intphys.reader import (
     BLOCKS,
     CONCEPT_NAMES,
     RECORD_VERSION,
@@ -31,6 +29,8 @@ from voe_lightning.external.intphys import (
     scan_quadruplets,
     scan_train,
 )
+from voe_lightning.benchmarks.reader import SkipLog, worker_loader
+from voe_lightning.datamodule_arguments import check_at_least, check_fraction
 
 
 class IntPhysDataModule(ExternalDataModule):
@@ -107,7 +107,7 @@ class IntPhysDataModule(ExternalDataModule):
         self.save_hyperparameters()
         self.source_frames = frames_per_movie
         self._resolve_video(required=False)
-        self._train: Dataset | None = None
+        self._train: Dataset[TensorDict] | None = None
         self._movies: dict[str, list[Movie]] = {}
 
     # --- building --------------------------------------------------------------------------------
@@ -117,45 +117,47 @@ class IntPhysDataModule(ExternalDataModule):
         if stage in ("fit", None):
             self._setup_train()
         if stage in ("fit", "validate", "test", None):
-            self.probes(h.eval_split)
+            self.probes(h["eval_split"])
         if stage == "predict":
-            self.movies(h.predict_split)
+            self.movies(h["predict_split"])
 
     def _settings(self, what: str) -> dict[str, Any]:
         h = self.hparams
         return {
             "what": what,
             "video": self.video.__dict__,
-            "frames_per_movie": h.frames_per_movie,
-            "lenient": h.lenient,
+            "frames_per_movie": h["frames_per_movie"],
+            "lenient": h["lenient"],
             "records": RECORD_VERSION,
         }
 
     def _frames(self, movie: Path) -> list[Path]:
         """A movie's frame files, the sources a cache fingerprints: a frame rewritten in place
         changes its file's size or mtime, never its folder's."""
-        return [frame_file(movie, i) for i in range(1, self.hparams.frames_per_movie + 1)]
+        return [frame_file(movie, i) for i in range(1, self.hparams["frames_per_movie"] + 1)]
 
     def _cache_folder(self, what: str, sources: list[Path]) -> Path | None:
-        if self.hparams.cache_dir is None:
+        if self.hparams["cache_dir"] is None:
             return None
         key = fingerprint(self._settings(what), sources)
-        return Path(self.hparams.cache_dir) / "intphys" / what / key
+        return Path(self.hparams["cache_dir"]) / "intphys" / what / key
 
-    def probes(self, split: str = "dev") -> Dataset:
+    def probes(self, split: str = "dev") -> Dataset[TensorDict]:
         """The probe pairs of a labelled split (decoded once; from the cache when there is one)."""
         if split in self._probes:
             return self._probes[split]
         h = self.hparams
         skips = self._skips[split] = SkipLog()
-        quadruplets = scan_quadruplets(h.root, split, h.frames_per_movie, True, h.lenient, skips)
+        quadruplets = scan_quadruplets(
+            h["root"], split, h["frames_per_movie"], True, h["lenient"], skips
+        )
         sources = [
             p
             for q in quadruplets
             for m in q.movies
             for p in (*self._frames(m.path), m.path / "status.json")
         ]
-        decoder = QuadrupletDataset(quadruplets, self.video, h.lenient, skips)
+        decoder = QuadrupletDataset(quadruplets, self.video, h["lenient"], skips)
         return self._read_probes(split, decoder, self._cache_folder(split, sources), "scene")
 
     def quadruplets(self, split: str = "dev") -> dict[int, dict[str, Any]]:
@@ -170,14 +172,14 @@ class IntPhysDataModule(ExternalDataModule):
             return
         h = self.hparams
         skips = self._skips["train"] = SkipLog()
-        movies = scan_train(h.root, h.frames_per_movie, h.lenient, skips)
+        movies = scan_train(h["root"], h["frames_per_movie"], h["lenient"], skips)
         folder = self._cache_folder("train", [p for m in movies for p in self._frames(m)])
         if folder is None:
-            self._train = TrainClipDataset(movies, self.video, h.lenient, skips, substitute=True)
+            self._train = TrainClipDataset(movies, self.video, h["lenient"], skips, substitute=True)
             return
         cached = open_cache(folder, {"skipped": dict})
         if cached is None:
-            converting = TrainClipDataset(movies, self.video, h.lenient, skips, substitute=False)
+            converting = TrainClipDataset(movies, self.video, h["lenient"], skips, substitute=False)
             meta: dict[str, Any] = {}
             records = self._convert(converting, meta, skips)
             cached = write_cache(folder, records, self.clip_spec(), meta)
@@ -186,9 +188,9 @@ class IntPhysDataModule(ExternalDataModule):
         self._train = cached
 
     def _convert(
-        self, dataset: TrainClipDataset, meta: dict, skips: SkipLog
+        self, dataset: TrainClipDataset, meta: dict[str, Any], skips: SkipLog
     ) -> Iterator[TensorDict]:
-        loader = worker_loader(dataset, self.hparams.num_workers)
+        loader = worker_loader(dataset, self.hparams["num_workers"])
         for record in tqdm(loader, desc="caching IntPhys train", unit="movie", leave=False):
             if record is not None:
                 yield record
@@ -198,7 +200,7 @@ class IntPhysDataModule(ExternalDataModule):
         """Every movie of ``split`` in answer.txt order (labels are None for ``test``)."""
         if split not in self._movies:
             h = self.hparams
-            quadruplets = scan_quadruplets(h.root, split, h.frames_per_movie, split == "dev")
+            quadruplets = scan_quadruplets(h["root"], split, h["frames_per_movie"], split == "dev")
             self._movies[split] = sorted(
                 (m for q in quadruplets for m in q.movies), key=lambda m: m.name
             )
@@ -207,32 +209,39 @@ class IntPhysDataModule(ExternalDataModule):
     def probe_cases(self, split: str = "val") -> list[tuple[str, str]]:
         """The (concept, variant) names present among the evaluation probes: each block's two
         quadruplet halves."""
-        table = self.quadruplets(self.hparams.eval_split)
+        table = self.quadruplets(self.hparams["eval_split"])
         blocks = sorted({CONCEPT_NAMES[BLOCKS.index(e["block"])] for e in table.values()})
         return [(block, variant) for block in blocks for variant in VARIANT_NAMES]
 
     # --- loaders ---------------------------------------------------------------------------------
-    def train_dataloader(self) -> DataLoader:
+    def train_dataloader(self) -> DataLoader[TensorDict]:
         self._setup_train()
-        generator = torch.Generator().manual_seed(self.hparams.seed)
+        assert self._train is not None  # built by _setup_train
+        generator = torch.Generator().manual_seed(self.hparams["seed"])
         return self._loader(
-            self._train, self.hparams.batch_size, shuffle=True, drop_last=True, generator=generator
+            self._train,
+            self.hparams["batch_size"],
+            shuffle=True,
+            drop_last=True,
+            generator=generator,
         )
 
-    def val_dataloader(self) -> DataLoader:
-        return self._probe_loader(self.probes(self.hparams.eval_split))
+    def val_dataloader(self) -> DataLoader[TensorDict]:
+        return self._probe_loader(self.probes(self.hparams["eval_split"]))
 
-    def test_dataloader(self) -> DataLoader:
+    def test_dataloader(self) -> DataLoader[TensorDict]:
         return self.val_dataloader()
 
-    def predict_dataloader(self) -> DataLoader:
-        return self._probe_loader(MovieDataset(self.movies(self.hparams.predict_split), self.video))
+    def predict_dataloader(self) -> DataLoader[TensorDict]:
+        return self._probe_loader(
+            MovieDataset(self.movies(self.hparams["predict_split"]), self.video)
+        )
 
     # --- evaluation ------------------------------------------------------------------------------
     def external_pairs(self) -> ExternalPairs:
         """The evaluated split's quadruplets (``quadruplets``) and skipped counts, for IntPhys'
-        metrics (``voe_lightning.external.evaluation``)."""
-        split = self.hparams.eval_split
+        metrics (``voe_lightning.benchmarks.evaluation``)."""
+        split = self.hparams["eval_split"]
         return ExternalPairs(
             "IntPhys", self.concept_names, split, self.quadruplets(split), self.skipped
         )

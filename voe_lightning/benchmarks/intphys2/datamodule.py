@@ -2,21 +2,20 @@
 pairs of a split for ``validate``/``test`` (with the benchmark's metrics and videos.csv in the
 report), and single videos for ``predict`` (the leaderboard's jsonl, see
 ``voe_lightning.callbacks.prediction_writer.IntPhys2LeaderboardWriter``); the reading is
-``voe_lightning.external.intphys2``."""
+``reader``, beside it."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
+from tensordict import TensorDict
 from torch.utils.data import DataLoader, Dataset
 
-from voe_lightning.datamodules.arguments import check_at_least, check_fraction
-from voe_lightning.datamodules.external import ExternalDataModule
-from voe_lightning.external.base import SkipLog
-from voe_lightning.external.cache import fingerprint
-from voe_lightning.external.evaluation import ExternalPairs
-from voe_lightning.external.intphys2 import (
+from voe_lightning.benchmarks.cache import fingerprint
+from voe_lightning.benchmarks.datamodule import ExternalDataModule
+from voe_lightning.benchmarks.external_pairs import ExternalPairs
+from voe_lightning.benchmarks.intphys2.reader import (
     PRINCIPLES,
     RECORD_VERSION,
     SPLITS,
@@ -27,7 +26,9 @@ from voe_lightning.external.intphys2 import (
     pair_videos,
     read_metadata,
 )
-from voe_lightning.external.mp4 import ClipSampling
+from voe_lightning.benchmarks.mp4 import ClipSampling
+from voe_lightning.benchmarks.reader import SkipLog
+from voe_lightning.datamodule_arguments import check_at_least, check_fraction
 
 
 class IntPhys2DataModule(ExternalDataModule):
@@ -107,39 +108,41 @@ class IntPhys2DataModule(ExternalDataModule):
 
     @property
     def sampling(self) -> ClipSampling:
-        return ClipSampling(self.video, self.hparams.frame_stride, self.hparams.first_frame)
+        return ClipSampling(self.video, self.hparams["frame_stride"], self.hparams["first_frame"])
 
     # --- building --------------------------------------------------------------------------------
     def setup(self, stage: str | None = None) -> None:
         self._resolve_video()
         if stage in ("fit", "validate", "test", None):
-            self.probes(self.hparams.eval_split)
+            self.probes(self.hparams["eval_split"])
         if stage == "predict":
-            self.videos(self.hparams.predict_split)
+            self.videos(self.hparams["predict_split"])
 
-    def probes(self, split: str = "Main") -> Dataset:
+    def probes(self, split: str = "Main") -> Dataset[TensorDict]:
         """The probe pairs of a labelled split (decoded once; from the cache when there is one)."""
         if split in self._probes:
             return self._probes[split]
         h = self.hparams
         skips = self._skips[split] = SkipLog()
-        pairs = pair_videos(read_metadata(h.root, split, True, h.lenient, skips), h.lenient, skips)
+        pairs = pair_videos(
+            read_metadata(h["root"], split, True, h["lenient"], skips), h["lenient"], skips
+        )
         folder = None
-        if h.cache_dir is not None:
+        if h["cache_dir"] is not None:
             settings = {
                 "what": split,
                 "video": self.video.__dict__,
-                "frame_stride": h.frame_stride,
-                "first_frame": h.first_frame,
-                "lenient": h.lenient,
+                "frame_stride": h["frame_stride"],
+                "first_frame": h["first_frame"],
+                "lenient": h["lenient"],
                 "records": RECORD_VERSION,
             }
-            sources = [Path(h.root) / split / "metadata.csv"] + [
+            sources = [Path(h["root"]) / split / "metadata.csv"] + [
                 v.path for pair in pairs for v in (pair.possible, pair.impossible)
             ]
-            folder = Path(h.cache_dir) / "intphys2" / split / fingerprint(settings, sources)
+            folder = Path(h["cache_dir"]) / "intphys2" / split / fingerprint(settings, sources)
         return self._read_probes(
-            split, SceneDataset(pairs, self.sampling, h.lenient, skips), folder, "scene"
+            split, SceneDataset(pairs, self.sampling, h["lenient"], skips), folder, "scene"
         )
 
     def pairs(self, split: str = "Main") -> dict[tuple[int, str], dict[str, Any]]:
@@ -156,34 +159,34 @@ class IntPhys2DataModule(ExternalDataModule):
     def videos(self, split: str = "HeldOut") -> list[Video]:
         """Every video of ``split`` in metadata order (labels read where the split has them)."""
         if split not in self._videos:
-            self._videos[split] = read_metadata(self.hparams.root, split, split != "HeldOut")
+            self._videos[split] = read_metadata(self.hparams["root"], split, split != "HeldOut")
         return self._videos[split]
 
     def probe_cases(self, split: str = "val") -> list[tuple[str, str]]:
         """The (principle, half) names present among the evaluation pairs."""
-        table = self.pairs(self.hparams.eval_split)
+        table = self.pairs(self.hparams["eval_split"])
         return sorted(
             {(e["principle"], variant) for (_, variant), e in table.items()},
             key=lambda case: (case[0], VARIANT_NAMES.index(case[1])),
         )
 
     # --- loaders ---------------------------------------------------------------------------------
-    def val_dataloader(self) -> DataLoader:
-        return self._probe_loader(self.probes(self.hparams.eval_split))
+    def val_dataloader(self) -> DataLoader[TensorDict]:
+        return self._probe_loader(self.probes(self.hparams["eval_split"]))
 
-    def test_dataloader(self) -> DataLoader:
+    def test_dataloader(self) -> DataLoader[TensorDict]:
         return self.val_dataloader()
 
-    def predict_dataloader(self) -> DataLoader:
+    def predict_dataloader(self) -> DataLoader[TensorDict]:
         return self._probe_loader(
-            VideoDataset(self.videos(self.hparams.predict_split), self.sampling)
+            VideoDataset(self.videos(self.hparams["predict_split"]), self.sampling)
         )
 
     # --- evaluation ------------------------------------------------------------------------------
     def external_pairs(self) -> ExternalPairs:
         """The evaluated split's pairs (``pairs``) and skipped counts, for IntPhys 2's metrics
-        and videos.csv (``voe_lightning.external.evaluation``)."""
-        split = self.hparams.eval_split
+        and videos.csv (``voe_lightning.benchmarks.evaluation``)."""
+        split = self.hparams["eval_split"]
         return ExternalPairs(
             "IntPhys 2", self.concept_names, split, self.pairs(split), self.skipped
         )

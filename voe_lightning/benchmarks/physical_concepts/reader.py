@@ -43,7 +43,7 @@ from tfrecord.writer import TFRecordWriter
 from torch.utils.data import ConcatDataset, Dataset, IterableDataset, get_worker_info
 
 from voe_lightning import specs
-from voe_lightning.external.base import (
+from voe_lightning.benchmarks.reader import (
     BenchmarkDataError,
     FrameSampling,
     SkipLog,
@@ -74,7 +74,9 @@ MAX_RECORD_BYTES = 256 << 20
 
 
 # --- TFRecord files ------------------------------------------------------------------------------
-def _read_exact(stream, size: int, path: Path, number: int, at_boundary: bool) -> bytes | None:
+def _read_exact(
+    stream: gzip.GzipFile, size: int, path: Path, number: int, at_boundary: bool
+) -> bytes | None:
     try:
         data = stream.read(size)
     except (EOFError, OSError, zlib.error) as error:  # gzip.BadGzipFile is an OSError
@@ -128,6 +130,7 @@ def read_records(
                         "bad_length",
                     )
                 body = _read_exact(stream, length + 4, path, number, at_boundary=False)
+                assert body is not None  # not at a boundary: all of it, or an error
                 if masked_crc(body[:-4]) != body[-4:]:
                     error = BenchmarkDataError(
                         f"{path}: record {number}: payload checksum mismatch; expected the masked "
@@ -314,6 +317,13 @@ class Source:
     kind: str  # "freeform" or "probe"
 
 
+def _shard_number(path: Path) -> int:
+    """The XXXXX of a ``data.tfrecord-XXXXX-of-YYYYY`` file (``shard_files`` lists no other)."""
+    match = SHARD_NAME.match(path.name)
+    assert match is not None
+    return int(match[1])
+
+
 def part_sources(
     root: str | Path, part: str, skip: Callable[[BenchmarkDataError], None] | None = None
 ) -> list[Source]:
@@ -323,15 +333,9 @@ def part_sources(
     if part.startswith("probes/"):
         concept = part.split("/", 1)[1]
         paths = shard_files(root / "probes" / concept, skip)
-        return [
-            Source(p, int(SHARD_NAME.match(p.name)[1]), CONCEPT_NAMES.index(concept), "probe")
-            for p in paths
-        ]
+        return [Source(p, _shard_number(p), CONCEPT_NAMES.index(concept), "probe") for p in paths]
     paths = shard_files(root / "freeform" / part, skip)
-    return [
-        Source(p, int(SHARD_NAME.match(p.name)[1]), CONCEPT_NAMES.index("freeform"), "freeform")
-        for p in paths
-    ]
+    return [Source(p, _shard_number(p), CONCEPT_NAMES.index("freeform"), "freeform") for p in paths]
 
 
 def source_records(
@@ -358,7 +362,7 @@ def source_records(
             skip(error)
 
 
-class RecordStream(IterableDataset):
+class RecordStream(IterableDataset[TensorDict]):
     """Records decoded on the fly from TFRecord shards. Shards are split over DDP ranks and
     DataLoader workers; with ``shuffle`` the shard order changes every epoch and records pass
     through a ``shuffle_buffer``-sized buffer."""
@@ -393,7 +397,7 @@ class RecordStream(IterableDataset):
         if self.shuffle:
             np.random.default_rng([self.seed, epoch_seed]).shuffle(sources)
         mine = sources[rank * workers + worker :: world * workers]
-        records = (
+        records: Iterator[TensorDict] = (
             record
             for source in mine
             for record in source_records(
@@ -424,19 +428,20 @@ def _buffer_shuffle(
     yield from buffer
 
 
-def chain(datasets: list[Dataset]) -> Dataset:
+def chain(datasets: list[Dataset[TensorDict]]) -> Dataset[TensorDict]:
     """Concatenate map-style datasets, or chain iterable ones (one loader over all concepts)."""
     if len(datasets) == 1:
         return datasets[0]
-    if all(isinstance(d, IterableDataset) for d in datasets):
-        return _ChainedStreams(datasets)
+    streams = [d for d in datasets if isinstance(d, IterableDataset)]
+    if len(streams) == len(datasets):
+        return _ChainedStreams(streams)
     return ConcatDataset(datasets)
 
 
-class _ChainedStreams(IterableDataset):
+class _ChainedStreams(IterableDataset[TensorDict]):
     """Several RecordStreams read one after another; each splits its own shards over workers."""
 
-    def __init__(self, streams: list[Dataset]):
+    def __init__(self, streams: list[IterableDataset[TensorDict]]):
         self.streams = streams
 
     def __iter__(self) -> Iterator[TensorDict]:

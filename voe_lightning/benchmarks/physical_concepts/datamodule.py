@@ -1,6 +1,6 @@
 """The DeepMind Physical Concepts dataset (Piloto et al. 2022) as a LightningDataModule:
 freeform clips for training and the five concepts' probe quadruplets for evaluation; the
-reading (TFRecords, without TensorFlow) is ``voe_lightning.external.physical_concepts``."""
+reading (TFRecords, without TensorFlow) is ``reader``, beside it."""
 
 from __future__ import annotations
 
@@ -14,12 +14,10 @@ from tensordict import TensorDict
 from torch.utils.data import DataLoader, Dataset, IterableDataset, Subset
 from tqdm import tqdm
 
-from voe_lightning.datamodules.arguments import check_at_least, check_fraction
-from voe_lightning.datamodules.external import ExternalDataModule
-from voe_lightning.external.base import SkipLog, worker_loader
-from voe_lightning.external.cache import fingerprint, open_cache, write_cache
-from voe_lightning.external.evaluation import ExternalPairs
-from voe_lightning.external.physical_concepts import (
+from voe_lightning.benchmarks.cache import CachedRecords, fingerprint, open_cache, write_cache
+from voe_lightning.benchmarks.datamodule import ExternalDataModule
+from voe_lightning.benchmarks.external_pairs import ExternalPairs
+from voe_lightning.benchmarks.physical_concepts.reader import (
     CONCEPT_NAMES,
     NUM_FRAMES,
     PROBE_CONCEPTS,
@@ -31,6 +29,8 @@ from voe_lightning.external.physical_concepts import (
     chain,
     part_sources,
 )
+from voe_lightning.benchmarks.reader import SkipLog, worker_loader
+from voe_lightning.datamodule_arguments import check_at_least, check_fraction
 
 
 class PhysicalConceptsDataModule(ExternalDataModule):
@@ -110,16 +110,18 @@ class PhysicalConceptsDataModule(ExternalDataModule):
         self.save_hyperparameters()
         self.concepts = list(dict.fromkeys(concepts))
         self._resolve_video(required=False)
-        self._datasets: dict[str, Dataset] = {}
+        self._datasets: dict[str, Dataset[TensorDict]] = {}
 
     # --- building --------------------------------------------------------------------------------
     def _sources(self, part: str) -> list[Source]:
         """Shards of ``part`` (see ``part_sources``); with ``lenient``, missing ones are counted."""
         skips = self._skips.setdefault(part, SkipLog())
-        skip = (lambda error: skips.add(error.reason, str(error))) if self.hparams.lenient else None
-        return part_sources(self.hparams.root, part, skip)
+        skip = (
+            (lambda error: skips.add(error.reason, str(error))) if self.hparams["lenient"] else None
+        )
+        return part_sources(self.hparams["root"], part, skip)
 
-    def _dataset(self, part: str, shuffle: bool = False) -> Dataset:
+    def _dataset(self, part: str, shuffle: bool = False) -> Dataset[TensorDict]:
         """All records of ``part``: from the cache (built on first use) if ``cache_dir`` is
         set, else streamed from the shards."""
         key = f"{part}|{shuffle}"
@@ -128,62 +130,65 @@ class PhysicalConceptsDataModule(ExternalDataModule):
         h = self.hparams
         sources = self._sources(part)
         skips = self._skips[part]
-        if h.cache_dir is None:
+        dataset: Dataset[TensorDict]
+        if h["cache_dir"] is None:
             dataset = RecordStream(
                 sources,
                 self.video,
-                h.lenient,
+                h["lenient"],
                 skips,
                 shuffle=shuffle,
-                shuffle_buffer=h.shuffle_buffer if shuffle else 0,
-                seed=h.seed,
+                shuffle_buffer=h["shuffle_buffer"] if shuffle else 0,
+                seed=h["seed"],
             )
         else:
             settings = {
                 "part": part,
                 "video": self.video.__dict__,
-                "lenient": h.lenient,
+                "lenient": h["lenient"],
                 "records": RECORD_VERSION,
             }
             folder = (
-                Path(h.cache_dir)
+                Path(h["cache_dir"])
                 / "physical_concepts"
                 / part
                 / fingerprint(settings, [s.path for s in sources])
             )
-            dataset = open_cache(folder, {"skipped": dict})
-            if dataset is None:
+            cached = open_cache(folder, {"skipped": dict})
+            if cached is None:
                 meta: dict[str, Any] = {}
                 records = self._convert(sources, meta, skips, part)
                 spec = self.clip_spec() if part in ("train", "test") else self.probe_spec()
-                dataset = write_cache(folder, records, spec, meta)
+                cached = write_cache(folder, records, spec, meta)
             self._skips[part] = SkipLog()  # the cache's counts include this scan's
-            self._cached_skips[part] = dataset.meta.get("skipped", {})
+            self._cached_skips[part] = cached.meta.get("skipped", {})
+            dataset = cached
         self._datasets[key] = dataset
         return dataset
 
     def _convert(
-        self, sources: list[Source], meta: dict, skips: SkipLog, part: str
+        self, sources: list[Source], meta: dict[str, Any], skips: SkipLog, part: str
     ) -> Iterator[TensorDict]:
-        stream = RecordStream(sources, self.video, self.hparams.lenient, skips)
-        loader = worker_loader(stream, self.hparams.num_workers)
+        stream = RecordStream(sources, self.video, self.hparams["lenient"], skips)
+        loader = worker_loader(stream, self.hparams["num_workers"])
         yield from tqdm(
             loader, desc=f"caching Physical Concepts {part}", unit="record", leave=False
         )
         meta["skipped"] = skips.counts()
 
-    def _validation_set(self, concept: str) -> Dataset:
+    def _validation_set(self, concept: str) -> Dataset[TensorDict]:
         h = self.hparams
-        limit = h.val_quadruplets_per_concept
-        if h.cache_dir is not None:  # worker processes interleave shards: select by seed
+        limit = h["val_quadruplets_per_concept"]
+        if h["cache_dir"] is not None:  # worker processes interleave shards: select by seed
             dataset = self._dataset(f"probes/{concept}")
+            assert isinstance(dataset, CachedRecords)  # cache_dir: the cache's records
             shard, record = np.divmod(dataset.seeds(), SHARD_STRIDE)
             first = shard.min(initial=np.iinfo(np.int64).max)
             return Subset(dataset, np.flatnonzero((shard == first) & (record < limit)).tolist())
         part = f"probes/{concept}"
         sources = self._sources(part)[:1]
         return RecordStream(
-            sources, self.video, h.lenient, self._skips[part], limit_per_source=limit
+            sources, self.video, h["lenient"], self._skips[part], limit_per_source=limit
         )
 
     def setup(self, stage: str | None = None) -> None:
@@ -201,28 +206,29 @@ class PhysicalConceptsDataModule(ExternalDataModule):
         return [(concept, variant) for concept in self.concepts for variant in VARIANT_NAMES]
 
     # --- loaders ---------------------------------------------------------------------------------
-    def train_dataloader(self) -> DataLoader:
+    def train_dataloader(self) -> DataLoader[TensorDict]:
         dataset = self._dataset("train", shuffle=True)
         if isinstance(dataset, IterableDataset):
-            return self._loader(dataset, self.hparams.batch_size, drop_last=True)
-        generator = torch.Generator().manual_seed(self.hparams.seed)
+            return self._loader(dataset, self.hparams["batch_size"], drop_last=True)
+        generator = torch.Generator().manual_seed(self.hparams["seed"])
         return self._loader(
-            dataset, self.hparams.batch_size, shuffle=True, drop_last=True, generator=generator
+            dataset, self.hparams["batch_size"], shuffle=True, drop_last=True, generator=generator
         )
 
-    def val_dataloader(self) -> DataLoader:
+    def val_dataloader(self) -> DataLoader[TensorDict]:
         return self._loader(
-            chain([self._validation_set(c) for c in self.concepts]), self.hparams.probe_batch_size
+            chain([self._validation_set(c) for c in self.concepts]),
+            self.hparams["probe_batch_size"],
         )
 
-    def test_dataloader(self) -> DataLoader:
+    def test_dataloader(self) -> DataLoader[TensorDict]:
         return self._loader(
             chain([self._dataset(f"probes/{c}") for c in self.concepts]),
-            self.hparams.probe_batch_size,
+            self.hparams["probe_batch_size"],
         )
 
     # --- evaluation ------------------------------------------------------------------------------
     def external_pairs(self) -> ExternalPairs:
         """The concept names and skipped counts, for the per-concept quadruplet metrics
-        (``voe_lightning.external.evaluation``); a pair's quadruplet is its ``seed``."""
+        (``voe_lightning.benchmarks.evaluation``); a pair's quadruplet is its ``seed``."""
         return ExternalPairs("DeepMind Physical Concepts", self.concept_names, skipped=self.skipped)

@@ -50,8 +50,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from voe_lightning.data.store_shards import write_whole
-from voe_lightning.external.base import read_text
+from voe_lightning.benchmarks.reader import read_text
+from voe_lightning.data.store import write_whole
 from voe_lightning.stats.field_metrics import (
     PERCENTILE,
     field_metrics,
@@ -101,7 +101,7 @@ def absolute_error_rate(surprise: Any, is_possible: Any) -> float:
 
 
 def quadruplet_metrics(
-    quadruplet: Sequence[int],
+    quadruplet: Sequence[int] | np.ndarray,
     surprise_possible: Any,
     surprise_impossible: Any,
     alpha: float,
@@ -129,7 +129,7 @@ def quadruplet_metrics(
         )
     if quadruplet.size == 0:
         raise ValueError("no pairs to score")
-    sums = defaultdict(lambda: [0.0, 0.0])
+    sums: defaultdict[int, list[float]] = defaultdict(lambda: [0.0, 0.0])
     for key, p, i in zip(quadruplet.tolist(), possible, impossible):
         sums[key][0] += p
         sums[key][1] += i
@@ -168,10 +168,10 @@ def _per_frame_or_none(
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Both sides as float64 per-frame surprise [N, T] when they are two-dimensional, else
     None (totals)."""
-    sides = tuple(
+    possible, impossible = (
         np.asarray(side, dtype=np.float64) for side in (surprise_possible, surprise_impossible)
     )
-    return sides if all(side.ndim == 2 for side in sides) else None
+    return (possible, impossible) if possible.ndim == 2 and impossible.ndim == 2 else None
 
 
 def pair_surprise(outputs: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -194,10 +194,10 @@ def incomplete_quadruplets(quadruplets: Iterable[Hashable]) -> int:
 
 def grouped_metrics(
     groups: Sequence[str],
-    quadruplet: Sequence[int],
+    quadruplet: Sequence[int] | np.ndarray,
     surprise_possible: Any,
     surprise_impossible: Any,
-    subgroups: Sequence[str] | None = None,
+    subgroups: Sequence[str | None] | None = None,
     *,
     alpha: float,
     **options: Any,
@@ -239,10 +239,11 @@ def plausibility_from_surprise(surprise: Any) -> np.ndarray:
     low, high = surprise.min(initial=np.inf), surprise.max(initial=-np.inf)
     if surprise.size == 0 or high == low:
         return np.full(surprise.shape, 0.5)
-    return (high - surprise) / (high - low)
+    plausibility: np.ndarray = (high - surprise) / (high - low)
+    return plausibility
 
 
-def _check_movie_path(path: str, where: str) -> re.Match:
+def _check_movie_path(path: str, where: str) -> re.Match[str]:
     match = ANSWER_PATH.match(path)
     if match is None:
         raise ValueError(
@@ -260,7 +261,7 @@ def _check_complete(scenes: Mapping[str, set[str]], where: str) -> None:
             )
 
 
-def write_answer_file(path: str | os.PathLike, surprise: Mapping[str, float]) -> Path:
+def write_answer_file(path: str | os.PathLike[str], surprise: Mapping[str, float]) -> Path:
     """Write an IntPhys ``answer.txt`` from each movie's total surprise (keys: movie paths
     relative to the split folder, ``O1/0001/1``): one ``<path> <plausibility>`` line per movie,
     sorted, plausibility from ``plausibility_from_surprise`` written exactly (``repr``: a
@@ -278,7 +279,7 @@ def write_answer_file(path: str | os.PathLike, surprise: Mapping[str, float]) ->
     return path
 
 
-def read_answer_file(path: str | os.PathLike) -> dict[str, float]:
+def read_answer_file(path: str | os.PathLike[str]) -> dict[str, float]:
     """Read and validate an IntPhys ``answer.txt``: {movie path: plausibility}."""
     path = Path(path)
     answers: dict[str, float] = {}

@@ -21,10 +21,10 @@ from helpers.physical_concepts import (
 )
 from helpers.quadruplets import check_quadruplet_rows
 
-import voe_lightning.external.physical_concepts as physical_concepts
-from voe_lightning.external.base import BenchmarkDataError
-from voe_lightning.external.evaluation import external_metrics
-from voe_lightning.external.physical_concepts import read_records
+import voe_lightning.benchmarks.physical_concepts.reader as physical_concepts
+from voe_lightning.benchmarks.evaluation import external_metrics
+from voe_lightning.benchmarks.physical_concepts.reader import read_records
+from voe_lightning.benchmarks.reader import BenchmarkDataError
 
 
 @pytest.fixture(scope="module")

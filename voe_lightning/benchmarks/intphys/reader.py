@@ -34,7 +34,7 @@ from tensordict import TensorDict
 from torch.utils.data import Dataset
 
 from voe_lightning import specs
-from voe_lightning.external.base import (
+from voe_lightning.benchmarks.reader import (
     BenchmarkDataError,
     FrameSampling,
     SkipLog,
@@ -208,7 +208,7 @@ def _subfolders(path: Path) -> list[Path]:
     return sorted(p for p in path.iterdir() if p.is_dir() and not p.name.startswith("."))
 
 
-def split_folder(root: str | os.PathLike, split: str) -> Path:
+def split_folder(root: str | os.PathLike[str], split: str) -> Path:
     if split not in SPLITS:
         raise ValueError(f"unknown IntPhys split {split!r}; valid splits are: {', '.join(SPLITS)}")
     folder = Path(root) / split
@@ -222,7 +222,7 @@ def split_folder(root: str | os.PathLike, split: str) -> Path:
 
 
 def scan_quadruplets(
-    root: str | os.PathLike,
+    root: str | os.PathLike[str],
     split: str,
     frames_per_movie: int,
     labelled: bool,
@@ -266,7 +266,7 @@ def _scan_scene(
         label = read_label(scene / name) if labelled else None
         movies.append(Movie(scene / name, f"{block}/{scene.name}/{name}", label))
     if labelled:
-        possible = sum(movie.is_possible for movie in movies)
+        possible = sum(bool(movie.is_possible) for movie in movies)
         if possible != 2:
             raise BenchmarkDataError(
                 f"scene {scene} has {possible} possible and {4 - possible} impossible movies "
@@ -279,7 +279,7 @@ def _scan_scene(
 
 
 def scan_train(
-    root: str | os.PathLike,
+    root: str | os.PathLike[str],
     frames_per_movie: int,
     lenient: bool = False,
     skips: SkipLog | None = None,
@@ -299,7 +299,7 @@ def scan_train(
 
 
 # --- datasets ------------------------------------------------------------------------------------
-class QuadrupletDataset(Dataset):
+class QuadrupletDataset(Dataset[tuple[list[TensorDict], dict[str, Any] | None]]):
     """Item q: (the two probe records of quadruplet q, its pairing table entry). With
     ``lenient``, a quadruplet that fails to decode or pair is logged and yields no records."""
 
@@ -385,7 +385,7 @@ class QuadrupletDataset(Dataset):
         return records, entry
 
 
-class MovieDataset(Dataset):
+class MovieDataset(Dataset[TensorDict]):
     """Single movies to score (``predict``): {frames [T, H, W, 3], index}, where
     ``names[index]`` is the movie's answer.txt path (``O1/0001/1``). Never lenient: a
     submission needs a score for every movie."""
@@ -411,7 +411,7 @@ class MovieDataset(Dataset):
         )
 
 
-class TrainClipDataset(Dataset):
+class TrainClipDataset(Dataset[TensorDict | None]):
     """IntPhys training movies (all possible) as clips: concept ``train``, kind 0 (``example``),
     zero masks and cameras, seed = movie index. With ``lenient``, an undecodable movie is
     logged and replaced by the next readable one (``substitute``) or returned as None."""

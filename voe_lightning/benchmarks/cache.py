@@ -18,15 +18,14 @@ import numpy as np
 from tensordict import TensorDictBase
 from torchrl.data import Composite
 
-from voe_lightning.data import store, store_shards
-from voe_lightning.data.store import SplitDataset
-from voe_lightning.data.store_shards import CorruptShardError
+from voe_lightning.data import store
+from voe_lightning.data.store import CorruptShardError, SplitDataset
 
 #: The store concept and split under which a cache keeps its one record set.
 CONCEPT, SPLIT = "benchmark", "records"
 
 
-def fingerprint(settings: dict[str, Any], sources: Iterable[str | os.PathLike]) -> str:
+def fingerprint(settings: dict[str, Any], sources: Iterable[str | os.PathLike[str]]) -> str:
     """A short hash of the decoding settings and the source files' names, sizes and mtimes."""
     digest = hashlib.sha256(json.dumps(settings, sort_keys=True, default=str).encode())
     for source in sources:
@@ -39,7 +38,7 @@ class CachedRecords(SplitDataset):
     """The records of a finished cache, ``meta`` its manifest. A shard that goes bad while in
     use raises an OSError naming the cache (the next run's ``open_cache`` rebuilds it)."""
 
-    def __init__(self, directory: str | os.PathLike, manifest: dict[str, Any]):
+    def __init__(self, directory: str | os.PathLike[str], manifest: dict[str, Any]):
         super().__init__(directory, CONCEPT, SPLIT, manifest)
         self.meta = manifest
 
@@ -59,7 +58,7 @@ class CachedRecords(SplitDataset):
             ) from None
 
 
-def _cache_problem(directory: Path, required: dict[str, type]) -> tuple[str, dict | None]:
+def _cache_problem(directory: Path, required: dict[str, type]) -> tuple[str, dict[str, Any] | None]:
     """What is wrong with the cache at ``directory`` ("" if nothing), and its manifest."""
     path = directory / store.MANIFEST_NAME
     try:
@@ -68,7 +67,7 @@ def _cache_problem(directory: Path, required: dict[str, type]) -> tuple[str, dic
         return f"{path}: unreadable JSON ({error})", None
     if not isinstance(manifest, dict):
         return f"{path}: a JSON {type(manifest).__name__}, expected an object", None
-    if manifest.get("format") != store_shards.FORMAT:
+    if manifest.get("format") != store.FORMAT:
         return "", manifest  # an older layout: stale, not bad
     for key, kind in {**store.MANIFEST_KEYS, **required}.items():
         if key not in manifest:
@@ -84,7 +83,7 @@ def _cache_problem(directory: Path, required: dict[str, type]) -> tuple[str, dic
     for number, size in enumerate(sizes):
         shard = store.shard_path(directory, CONCEPT, SPLIT, number)
         try:
-            index = store_shards.check_shard(shard)
+            index = store.check_shard(shard)
         except CorruptShardError as error:
             return f"{error.path}: {error.reason}", manifest
         if len(index) != size:
@@ -93,7 +92,7 @@ def _cache_problem(directory: Path, required: dict[str, type]) -> tuple[str, dic
 
 
 def open_cache(
-    directory: str | os.PathLike, required: dict[str, type] | None = None
+    directory: str | os.PathLike[str], required: dict[str, type] | None = None
 ) -> CachedRecords | None:
     """The cache at ``directory`` if it was completely written in the current format and is
     intact: its manifest parses, has the entries of ``required`` (name -> JSON type), and every
@@ -109,13 +108,14 @@ def open_cache(
             stacklevel=2,
         )
         return None
-    if manifest["format"] != store_shards.FORMAT:
+    assert manifest is not None  # no problem: the manifest was read
+    if manifest["format"] != store.FORMAT:
         return None
     return CachedRecords(directory, manifest)
 
 
 def write_cache(
-    directory: str | os.PathLike,
+    directory: str | os.PathLike[str],
     records: Iterable[TensorDictBase],
     spec: Composite,
     meta: dict[str, Any] | None = None,
@@ -129,25 +129,23 @@ def write_cache(
     directory = Path(directory)
     directory.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
-    os.chmod(
-        staging, 0o777 & ~store_shards.current_umask()
-    )  # mkdtemp makes it 0700 whatever the umask
+    os.chmod(staging, 0o777 & ~store.current_umask())  # mkdtemp makes it 0700 whatever the umask
     try:
         count, shards, buffer = 0, 0, []
         for record in records:
             buffer.append(record)
             count += 1
             if len(buffer) == shard_size:
-                store_shards.write_shard(store.shard_path(staging, CONCEPT, SPLIT, shards), buffer)
+                store.write_shard(store.shard_path(staging, CONCEPT, SPLIT, shards), buffer)
                 shards, buffer = shards + 1, []
         if buffer:
-            store_shards.write_shard(store.shard_path(staging, CONCEPT, SPLIT, shards), buffer)
+            store.write_shard(store.shard_path(staging, CONCEPT, SPLIT, shards), buffer)
         record_type = "probe" if "consistent" in spec.keys() else "clip"
         frames = spec["consistent", "frames"] if record_type == "probe" else spec["frames"]
         num_frames, height, width, _ = frames.shape
         manifest = {
             **(meta or {}),
-            "format": store_shards.FORMAT,
+            "format": store.FORMAT,
             "video": {"num_frames": num_frames, "height": height, "width": width},
             "shard_size": shard_size,
             "concepts": {
@@ -161,4 +159,4 @@ def write_cache(
     finally:
         if staging.exists():
             shutil.rmtree(staging, ignore_errors=True)
-    return CachedRecords(directory, store.read_manifest(directory))
+    return CachedRecords(directory, store.read_manifest_or_error(directory))

@@ -2,7 +2,7 @@
 is: per concept a benchmark root ``<concept>/dev/<block>/<scene>/<movie>/`` holding
 ``scene/scene_001.png ...`` (the frames, lossless), ``masks/masks_001.png ...`` (our object
 ids, 0 the background) and ``status.json`` whose ``header.is_possible`` is the label, so
-``voe_lightning.external.intphys`` and IntPhys harnesses read it.
+``voe_lightning.benchmarks.intphys.reader`` and IntPhys harnesses read it.
 
 A scene is a quadruplet: movies 1 and 2 are its consistent videos A and B, 3 and 4 the
 inconsistent AB and BA, so the scene's first possible movie pairs with its first impossible
@@ -23,9 +23,9 @@ import numpy as np
 from PIL import Image
 from tensordict import TensorDictBase
 
+from voe_lightning.benchmarks.intphys import reader
 from voe_lightning.export.manifest import ExportFolder, Progress, Written, group_entry
 from voe_lightning.export.probes import ROLES, ProbeGroup, ProbePair, ProbeSource
-from voe_lightning.external import intphys as reader
 
 #: The IntPhys block each concept is written as, by what its inconsistent video shows: an
 #: object gone (object persistence; solidity, whose block falls through the floor), changed
