@@ -14,8 +14,9 @@ from pathlib import Path
 import torch
 
 from voe_lightning import specs
-from voe_lightning.data import generate, store_plan
-from voe_lightning.data.store_codec import COMPRESSION_LEVEL
+from voe_lightning.data import store
+from voe_lightning.data.store import render
+from voe_lightning.data.store.codec import COMPRESSION_LEVEL
 from voe_lightning.scenes.camera import VideoOptions
 from voe_lightning.scenes.rendering import get_renderer
 
@@ -34,16 +35,16 @@ def measure(concept: str, clips: int, pairs: int, video: VideoOptions, root: Pat
     """Generate ``clips`` training clips (examples and controls 1:1) and ``pairs`` test probe
     pairs of ``concept`` as shards under ``root``; time each part and size the files."""
     variants = specs.STANDARD_VARIANTS[concept]
-    counts = store_plan.split_counts(
+    counts = store.split_counts(
         concept, train_examples=clips // 2, train_controls=clips - clips // 2,
         val_pairs=0, test_pairs=-(-pairs // len(variants)),
         generalization_pairs=0,
     )  # fmt: skip
-    tasks = store_plan.plan_shards({concept: counts}, shard_size=max(clips, pairs, 1))
+    tasks = store.plan_shards({concept: counts}, shard_size=max(clips, pairs, 1))
     result = {"concept": concept}
     for task in tasks:
         started, cpu_started = time.perf_counter(), time.process_time()
-        count, size = generate.generate_shard(root, task, video)
+        count, size = render.generate_shard(root, task, video)
         seconds, cpu_seconds = time.perf_counter() - started, time.process_time() - cpu_started
         result[task.split] = {
             "records": count, "videos": task.num_videos, "seconds": seconds,
@@ -82,8 +83,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     results = []
     with tempfile.TemporaryDirectory(prefix="voe_generation_benchmark_") as root:
         for concept in args.concepts:
-            generate.generate_shard(
-                root, store_plan.ShardTask(concept, "train", 999, (("example", 10**6),)), video
+            render.generate_shard(
+                root, store.ShardTask(concept, "train", 999, (("example", 10**6),)), video
             )  # warm-up
             result = measure(concept, args.clips, args.pairs, video, Path(root))
             train, test = result["train"], result["test"]

@@ -14,8 +14,7 @@ import time
 
 from torch.utils.data import DataLoader
 
-from voe_lightning.data.generate import ensure_dataset
-from voe_lightning.data.store import collate, open_split
+from voe_lightning.data.store import collate, ensure_dataset, open_split
 
 
 def records_per_second(dataset, workers: int, batch_size: int, records: int) -> float:

@@ -7,7 +7,8 @@ from helpers.stores import fake_clip, fake_probe
 from PIL import Image
 
 from voe_lightning import specs
-from voe_lightning.data import contact_sheet, generate
+from voe_lightning.data import contact_sheet, store
+from voe_lightning.data.store import render
 
 
 def _red_pixels(path) -> np.ndarray:
@@ -43,10 +44,10 @@ def test_probe_pair_rows_and_manipulation_outline(tmp_path):
 
 
 def test_store_sheet_shows_each_variant_and_kind(tmp_path, monkeypatch):
-    monkeypatch.setattr(generate, "generate_clip", fake_clip)
-    monkeypatch.setattr(generate, "generate_probe", fake_probe)
+    monkeypatch.setattr(render, "generate_clip", fake_clip)
+    monkeypatch.setattr(render, "generate_probe", fake_probe)
     root = tmp_path / "data"
-    generate.generate_dataset(
+    store.generate_dataset(
         root, ("unchangeableness",), train_examples=4, val_pairs=1,
         test_pairs=2, generalization_pairs=0, shard_size=4,
         workers=1, progress=False,

@@ -9,13 +9,11 @@ import torch
 from helpers.stores import fake_clip, fake_probe
 
 from voe_lightning import specs
-from voe_lightning.data import generate, store, store_plan, store_shards
-from voe_lightning.datamodules import (
-    ConceptDataModule,
-    IntPhysDataModule,
-    PhysicalConceptsDataModule,
-    VOEDataModule,
-)
+from voe_lightning.benchmarks.intphys import IntPhysDataModule
+from voe_lightning.benchmarks.physical_concepts import PhysicalConceptsDataModule
+from voe_lightning.data import store
+from voe_lightning.data.store import render, shards
+from voe_lightning.datamodules import ConceptDataModule, VOEDataModule
 from voe_lightning.datamodules.voe import InterleavedSampler
 from voe_lightning.runs import report_folder
 
@@ -92,8 +90,8 @@ def test_datamodule_generates_and_serves_spec_batches(tmp_path):
 
 def test_prepare_data_regenerates_a_checksum_corrupt_shard(tmp_path, monkeypatch):
     """Issue 10 case 4: rerunning fit repairs a corrupt record instead of failing again."""
-    monkeypatch.setattr(generate, "generate_clip", fake_clip)
-    monkeypatch.setattr(generate, "generate_probe", fake_probe)
+    monkeypatch.setattr(render, "generate_clip", fake_clip)
+    monkeypatch.setattr(render, "generate_probe", fake_probe)
     datamodule = ConceptDataModule(
         concept="continuity", root=str(tmp_path), train_examples=4, val_pairs=1, test_pairs=1,
         generalization_pairs=1, generate_workers=1, num_frames=4, height=16, width=16,
@@ -101,12 +99,12 @@ def test_prepare_data_regenerates_a_checksum_corrupt_shard(tmp_path, monkeypatch
     datamodule.prepare_data()
     shard = store.shard_path(tmp_path, "continuity", "train", 0)
     data = bytearray(shard.read_bytes())
-    data[len(store_shards._MAGIC) + 10] ^= 0xFF  # inside the first record
+    data[len(shards._MAGIC) + 10] ^= 0xFF  # inside the first record
     shard.write_bytes(bytes(data))
-    assert store_plan.verify(tmp_path) == [shard]
+    assert store.verify(tmp_path) == [shard]
     with pytest.warns(UserWarning, match=rf"{shard}: record 0 checksum mismatch"):
         datamodule.prepare_data()
-    assert store_plan.verify(tmp_path) == []
+    assert store.verify(tmp_path) == []
     first = store.open_split(tmp_path, "continuity", "train")[0]
     expected = fake_clip(
         "continuity", specs.CLIP_KINDS[int(first["kind"])], 0, num_frames=4, height=16, width=16
@@ -180,8 +178,8 @@ def test_intphys_takes_the_models_geometry_in_setup(tmp_path):
 def _fake_store(tmp_path, monkeypatch, **sizes):
     """A continuity store of fake clips and probes at ``tmp_path`` (16 x 16, 4 frames), the
     DataModule options that made it, and its files' bytes."""
-    monkeypatch.setattr(generate, "generate_clip", fake_clip)
-    monkeypatch.setattr(generate, "generate_probe", fake_probe)
+    monkeypatch.setattr(render, "generate_clip", fake_clip)
+    monkeypatch.setattr(render, "generate_probe", fake_probe)
     options = dict(
         concept="continuity",
         root=str(tmp_path),
@@ -215,17 +213,15 @@ def test_a_seed_offset_reads_fresh_probes_from_their_own_store_and_trains_on_the
         "probe_root": str(fresh),
         "probe_split": "test",
     }
-    assert not (fresh / "continuity" / "train").exists() and store_plan.verify(fresh) == []
+    assert not (fresh / "continuity" / "train").exists() and store.verify(fresh) == []
     datamodule.setup("fit")
     train = [int(seed) for batch in datamodule.train_dataloader() for seed in batch["seed"]]
     assert sorted(train) == list(range(8))  # the root's training clips, unshifted
     val = [int(seed) for batch in datamodule.val_dataloader() for seed in batch["seed"]]
-    assert sorted(set(val)) == [store_plan.SEED_STARTS["val"] + 1000 + k for k in range(2)]
+    assert sorted(set(val)) == [store.SEED_STARTS["val"] + 1000 + k for k in range(2)]
     datamodule.setup("test")
     test = next(iter(datamodule.test_dataloader()))
-    assert set(test["seed"].tolist()) == {
-        store_plan.SEED_STARTS["test"] + 1000 + k for k in range(3)
-    }
+    assert set(test["seed"].tolist()) == {store.SEED_STARTS["test"] + 1000 + k for k in range(3)}
 
 
 def test_test_split_val_reports_on_the_validation_probes_in_a_folder_of_its_own(
@@ -233,8 +229,8 @@ def test_test_split_val_reports_on_the_validation_probes_in_a_folder_of_its_own(
 ):
     """Tuning reads the validation probes' quadruplets through ``test`` (``test_split: val``),
     never the test probes, and its report cannot land in the run's own folder."""
-    monkeypatch.setattr(generate, "generate_clip", fake_clip)
-    monkeypatch.setattr(generate, "generate_probe", fake_probe)
+    monkeypatch.setattr(render, "generate_clip", fake_clip)
+    monkeypatch.setattr(render, "generate_probe", fake_probe)
     options = dict(
         concept="continuity",
         root=str(tmp_path),
@@ -253,7 +249,7 @@ def test_test_split_val_reports_on_the_validation_probes_in_a_folder_of_its_own(
     datamodule.setup("test")
     loader = datamodule.test_dataloader()  # one loader: no generalization probes with val
     seeds = {int(seed) for batch in loader for seed in batch["seed"]}
-    assert seeds == {store_plan.SEED_STARTS["val"] + k for k in range(2)}
+    assert seeds == {store.SEED_STARTS["val"] + k for k in range(2)}
     assert datamodule.probe_source()["probe_split"] == "val"
     checkpoint = tmp_path / "runs" / "r" / "version_0" / "checkpoints" / "last.ckpt"
     root = str(tmp_path)
@@ -266,7 +262,7 @@ def test_test_split_val_reports_on_the_validation_probes_in_a_folder_of_its_own(
 
 
 def test_a_seed_offset_past_a_splits_range_is_refused_when_built():
-    last = store_plan.SEED_RANGE - 3
+    last = store.SEED_RANGE - 3
     pairs = dict(val_pairs=3, test_pairs=3, generalization_pairs=1)
     ConceptDataModule(**pairs, seed_offset=last)
     with pytest.raises(

@@ -16,7 +16,8 @@ from helpers.stores import fake_clip, fake_probe
 
 from voe_lightning import scenes, specs
 from voe_lightning.cli import main
-from voe_lightning.data import generate, generate_manifest, store, store_plan, store_shards
+from voe_lightning.data import store
+from voe_lightning.data.store import files, manifest, plan, render
 
 SMALL = dict(
     train_examples=4,
@@ -46,8 +47,8 @@ def calls(monkeypatch):
         made.append((concept, "probe", variant, seed))
         return fake_probe(concept, variant, seed, **options)
 
-    monkeypatch.setattr(generate, "generate_clip", clip)
-    monkeypatch.setattr(generate, "generate_probe", probe)
+    monkeypatch.setattr(render, "generate_clip", clip)
+    monkeypatch.setattr(render, "generate_probe", probe)
     return made
 
 
@@ -57,8 +58,8 @@ def _plan(**overrides):
     counts.update(overrides)
     if counts["train_controls"] is None:
         counts["train_controls"] = counts["train_examples"]
-    per_concept = {c: store_plan.split_counts(c, **counts) for c in specs.CONCEPTS}
-    return store_plan.plan_shards(per_concept, shard_size=4)
+    per_concept = {c: store.split_counts(c, **counts) for c in specs.CONCEPTS}
+    return store.plan_shards(per_concept, shard_size=4)
 
 
 def test_plan_matches_controls_one_to_one_and_keeps_splits_disjoint():
@@ -81,8 +82,8 @@ def test_plan_matches_controls_one_to_one_and_keeps_splits_disjoint():
             for split in store.SPLITS
         }
         for split, own in seeds.items():
-            start = store_plan.SEED_STARTS[split]
-            assert all(start <= seed < start + store_plan.SEED_RANGE for seed in own)
+            start = store.SEED_STARTS[split]
+            assert all(start <= seed < start + store.SEED_RANGE for seed in own)
             assert all(not own & other for name, other in seeds.items() if name != split)
     # A probe split gives every variant the same seeds: a seed names a quadruplet.
     test = [
@@ -95,7 +96,7 @@ def test_plan_matches_controls_one_to_one_and_keeps_splits_disjoint():
         v: sorted(seed for name, seed in test if name == v)
         for v in specs.STANDARD_VARIANTS["object_persistence"]
     }
-    start = store_plan.SEED_STARTS["test"]
+    start = store.SEED_STARTS["test"]
     assert by_variant == {v: list(range(start, start + 4)) for v in by_variant}
     unchangeableness = [t for t in tasks if t.concept == "unchangeableness"]
     variants = {v for t in unchangeableness if t.split == "generalization" for v, _ in t.items}
@@ -108,7 +109,7 @@ def test_slices_cover_every_shard_exactly_once(tmp_path, calls):
     sliced = [(t.concept, t.split, t.index) for k in range(3) for t in _plan()[k::3]]
     assert sorted(sliced) == sorted(full) and len(set(sliced)) == len(full)
     summaries = [
-        generate.generate_dataset(tmp_path, CONCEPTS, shard_index=k, num_shards=3, **SMALL)
+        store.generate_dataset(tmp_path, CONCEPTS, shard_index=k, num_shards=3, **SMALL)
         for k in range(3)
     ]
     assert (
@@ -116,14 +117,14 @@ def test_slices_cover_every_shard_exactly_once(tmp_path, calls):
         == summaries[0].shards_planned + summaries[1].shards_planned + summaries[2].shards_planned
     )
     assert len(calls) == len(set(calls))  # no record rendered twice
-    assert store_plan.verify(tmp_path) == []
-    assert generate.generate_dataset(tmp_path, CONCEPTS, **SMALL).shards_generated == 0
+    assert store.verify(tmp_path) == []
+    assert store.generate_dataset(tmp_path, CONCEPTS, **SMALL).shards_generated == 0
     with pytest.raises(ValueError, match=r"shard_index must be in \[0, 2\], got 3"):
-        generate.generate_dataset(tmp_path, CONCEPTS, shard_index=3, num_shards=3, **SMALL)
+        store.generate_dataset(tmp_path, CONCEPTS, shard_index=3, num_shards=3, **SMALL)
 
 
 def test_round_trip_resume_and_repair(tmp_path, calls):
-    first = generate.generate_dataset(tmp_path, CONCEPTS, **SMALL)
+    first = store.generate_dataset(tmp_path, CONCEPTS, **SMALL)
     assert first.shards_generated == first.shards_planned and first.records_generated == len(calls)
     train = store.open_split(tmp_path, "continuity", "train")
     assert len(train) == 8
@@ -142,11 +143,10 @@ def test_round_trip_resume_and_repair(tmp_path, calls):
 
     calls.clear()  # rerun: nothing to do
     assert (
-        generate.generate_dataset(tmp_path, CONCEPTS, **SMALL).shards_skipped
-        == first.shards_planned
+        store.generate_dataset(tmp_path, CONCEPTS, **SMALL).shards_skipped == first.shards_planned
     )
     assert calls == []
-    assert generate.ensure_dataset(tmp_path, concepts=CONCEPTS, **SMALL) is None
+    assert store.ensure_dataset(tmp_path, concepts=CONCEPTS, **SMALL) is None
 
     missing = store.shard_path(tmp_path, "continuity", "train", 1)
     missing.unlink()
@@ -154,12 +154,12 @@ def test_round_trip_resume_and_repair(tmp_path, calls):
     data = bytearray(corrupt.read_bytes())
     data[20] ^= 0x01
     corrupt.write_bytes(bytes(data))
-    with pytest.raises(store_shards.CorruptShardError, match=str(corrupt)):
+    with pytest.raises(store.CorruptShardError, match=str(corrupt)):
         store.open_split(tmp_path, "unchangeableness", "test")[6]  # first record of shard 2
-    assert sorted(store_plan.verify(tmp_path)) == sorted([corrupt, missing])
-    repaired = generate.generate_dataset(tmp_path, CONCEPTS, **SMALL)
+    assert sorted(store.verify(tmp_path)) == sorted([corrupt, missing])
+    repaired = store.generate_dataset(tmp_path, CONCEPTS, **SMALL)
     assert repaired.shards_generated == 2 and repaired.records_generated == len(calls) == 3 + 3
-    assert store_plan.verify(tmp_path) == []
+    assert store.verify(tmp_path) == []
     assert torch.equal(
         store.open_split(tmp_path, "unchangeableness", "test")[6]["inconsistent", "frames"],
         before["inconsistent", "frames"],
@@ -167,68 +167,63 @@ def test_round_trip_resume_and_repair(tmp_path, calls):
 
 
 def test_ensure_dataset_generates_only_what_is_missing(tmp_path, calls):
-    generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
+    store.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
     made = len(calls)
     assert made == 8 + 2 * 3 + 3 * 3 + 1  # three standard variants, one generalization
     store.shard_path(tmp_path, "continuity", "val", 0).unlink()
-    summary = generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
+    summary = store.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
     assert summary.shards_generated == 1 and len(calls) == made + 3
     # Another concept joins the same root; the first is left alone.
-    generate.ensure_dataset(tmp_path, concepts=("containment",), **SMALL)
+    store.ensure_dataset(tmp_path, concepts=("containment",), **SMALL)
     assert set(json.loads((tmp_path / "manifest.json").read_text())["concepts"]) == {
         "continuity",
         "containment",
     }
     with pytest.raises(TypeError, match="frames_per_video"):
-        generate.ensure_dataset(tmp_path, frames_per_video=3)
+        store.ensure_dataset(tmp_path, frames_per_video=3)
 
 
 def test_a_generate_plans_the_store_once(tmp_path, calls, monkeypatch):
     """ensure_dataset finds a shard missing and renders it from the one plan it checked the
     store with."""
-    generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    store.generate_dataset(tmp_path, ("continuity",), **SMALL)
     store.shard_path(tmp_path, "continuity", "val", 0).unlink()
     planned = []
 
     def plan_shards(*arguments, **options):
         planned.append(arguments)
-        return store_plan.plan_shards(*arguments, **options)
+        return store.plan_shards(*arguments, **options)
 
-    monkeypatch.setattr(generate, "plan_shards", plan_shards)
-    summary = generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
-    assert summary.shards_generated == 1 and store_plan.verify(tmp_path) == []
+    monkeypatch.setattr(plan, "plan_shards", plan_shards)
+    summary = store.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
+    assert summary.shards_generated == 1 and store.verify(tmp_path) == []
     assert len(planned) == 1
 
 
 def test_ensure_dataset_of_some_splits_leaves_the_rest_to_a_later_run(tmp_path, calls):
     """Issue 10 case 9: a test run makes only its probes; a later fit completes the store."""
-    generate.ensure_dataset(tmp_path, concepts=("continuity",), splits=("test",), **SMALL)
+    store.ensure_dataset(tmp_path, concepts=("continuity",), splits=("test",), **SMALL)
     assert {kind for _, kind, _, seed in calls} == {"probe"} and len(calls) == 3 * 3
     assert {path.name for path in (tmp_path / "continuity").iterdir()} == {"test"}
     assert (
-        generate.ensure_dataset(tmp_path, concepts=("continuity",), splits=("test",), **SMALL)
-        is None
+        store.ensure_dataset(tmp_path, concepts=("continuity",), splits=("test",), **SMALL) is None
     )
-    generate.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
-    assert len(calls) == 8 + 2 * 3 + 3 * 3 + 1 and store_plan.verify(tmp_path) == []
+    store.ensure_dataset(tmp_path, concepts=("continuity",), **SMALL)
+    assert len(calls) == 8 + 2 * 3 + 3 * 3 + 1 and store.verify(tmp_path) == []
     with pytest.raises(ValueError, match="unknown split 'tests'; valid splits are: train"):
-        generate.ensure_dataset(tmp_path, concepts=("continuity",), splits=("tests",), **SMALL)
+        store.ensure_dataset(tmp_path, concepts=("continuity",), splits=("tests",), **SMALL)
 
 
 def test_other_settings_are_refused_unless_overwritten(tmp_path, calls):
-    generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
-    with pytest.raises(
-        generate_manifest.ManifestMismatchError, match=r"video.height: stored 24, asked 32"
-    ):
-        generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32})
-    with pytest.raises(
-        generate_manifest.ManifestMismatchError, match=r"kinds.example: stored 4, asked 5"
-    ):
-        generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "train_examples": 5})
-    summary = generate.generate_dataset(
+    store.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    with pytest.raises(store.ManifestMismatchError, match=r"video.height: stored 24, asked 32"):
+        store.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32})
+    with pytest.raises(store.ManifestMismatchError, match=r"kinds.example: stored 4, asked 5"):
+        store.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "train_examples": 5})
+    summary = store.generate_dataset(
         tmp_path, ("continuity",), **{**SMALL, "height": 32, "overwrite": True}
     )
-    assert summary.shards_skipped == 0 and store_plan.verify(tmp_path) == []
+    assert summary.shards_skipped == 0 and store.verify(tmp_path) == []
     assert store.open_split(tmp_path, "continuity", "train")[0]["frames"].shape == (6, 32, 24, 3)
 
 
@@ -237,9 +232,9 @@ def test_bad_input_names_the_value_and_the_choices(tmp_path, calls, capsys):
         ValueError,
         match="unknown concept 'gravity'; valid concepts are: object_persistence, unchangeableness, continuity, solidity, containment",
     ):
-        generate.generate_dataset(tmp_path, ("continuity", "gravity"), **SMALL)
+        store.generate_dataset(tmp_path, ("continuity", "gravity"), **SMALL)
     with pytest.raises(ValueError, match="train_examples must be a non-negative integer, got -1"):
-        generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "train_examples": -1})
+        store.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "train_examples": -1})
     with pytest.raises(SystemExit):
         main(["generate", "--root", str(tmp_path), "--concepts", "[continuity, gravity]"])
     assert capsys.readouterr().err == (  # refused in one line with the valid names
@@ -263,19 +258,19 @@ def test_bad_input_names_the_value_and_the_choices(tmp_path, calls, capsys):
     not_a_folder = tmp_path / "file"
     not_a_folder.write_text("")
     with pytest.raises(OSError, match=str(not_a_folder / "data")):
-        generate.generate_dataset(not_a_folder / "data", ("continuity",), **SMALL)
+        store.generate_dataset(not_a_folder / "data", ("continuity",), **SMALL)
 
 
 def test_full_disk_names_the_shard(tmp_path, calls, monkeypatch):
     def full_disk(file, data):
         raise OSError(28, "No space left on device")
 
-    generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    store.generate_dataset(tmp_path, ("continuity",), **SMALL)
     lost = store.shard_path(tmp_path, "continuity", "test", 0)
     lost.unlink()
-    monkeypatch.setattr(store_shards, "_write_bytes", full_disk)
+    monkeypatch.setattr(files, "_write_bytes", full_disk)
     with pytest.raises(OSError, match=f"cannot write {lost}: No space left on device"):
-        generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+        store.generate_dataset(tmp_path, ("continuity",), **SMALL)
     assert not list(lost.parent.glob("*.tmp"))  # no temporary left behind
 
 
@@ -288,10 +283,10 @@ def test_command_line_generates_with_real_scenes_in_two_workers(tmp_path):
             "--height", "32", "--width", "32", "--progress", "false"]  # fmt: skip
     summary = main(argv)
     assert summary.shards_generated == summary.shards_planned == 11
-    assert store_plan.verify(root) == []
+    assert store.verify(root) == []
     val = store.open_split(root, "continuity", "val")[0]
     expected = scenes.generate_probe(
-        "continuity", "standard", store_plan.SEED_STARTS["val"], height=32, width=32
+        "continuity", "standard", store.SEED_STARTS["val"], height=32, width=32
     )
     assert torch.equal(val["inconsistent", "frames"], expected["inconsistent", "frames"])
     assert main(argv).shards_generated == 0
@@ -299,27 +294,25 @@ def test_command_line_generates_with_real_scenes_in_two_workers(tmp_path):
 
 def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch):
     """Issue 10 case 1: seeds alone do not make a shard the planned one."""
-    generate.generate_dataset(tmp_path, CONCEPTS, **SMALL)
+    store.generate_dataset(tmp_path, CONCEPTS, **SMALL)
     planned = len(
-        store_plan.plan_shards(
-            {"continuity": store_plan.split_counts("continuity", 4, 4, 2, 3, 1)}, 3
-        )
+        store.plan_shards({"continuity": store.split_counts("continuity", 4, 4, 2, 3, 1)}, 3)
     )
     # Record spec: same seeds, other video size, manifest lost.
     (tmp_path / "manifest.json").unlink()
     with pytest.warns(
         UserWarning, match=r"frames is uint8\[6, 24, 24, 3\], expected uint8\[6, 32, 24, 3\]"
     ):
-        summary = generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32})
+        summary = store.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32})
     assert summary.shards_generated == planned and summary.shards_skipped == 0
     assert store.open_split(tmp_path, "continuity", "train")[0]["frames"].shape == (6, 32, 24, 3)
-    assert store_plan.verify(tmp_path) == []
+    assert store.verify(tmp_path) == []
     # Kinds per record: same seeds, other kind counts.
     (tmp_path / "manifest.json").unlink()
     with pytest.warns(
         UserWarning, match=r"train/shard-00000.voe: does not belong here: its names is"
     ):
-        generate.generate_dataset(
+        store.generate_dataset(
             tmp_path,
             ("continuity",),
             **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6},
@@ -329,19 +322,19 @@ def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch)
     ]
     assert kinds.count("example") == 2
     # Concept: a shard of another concept with the same seeds (three variants) in its place.
-    generate.generate_dataset(
+    store.generate_dataset(
         tmp_path,
         ("containment", "unchangeableness"),
         **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6},
     )
     foreign = store.shard_path(tmp_path, "continuity", "test", 0)
     foreign.write_bytes(store.shard_path(tmp_path, "unchangeableness", "test", 0).read_bytes())
-    assert store_plan.verify(tmp_path) == [foreign]
+    assert store.verify(tmp_path) == [foreign]
     with pytest.warns(
         UserWarning, match=r"its concept is 'unchangeableness', expected 'continuity'"
     ):
         assert (
-            generate.generate_dataset(
+            store.generate_dataset(
                 tmp_path,
                 ("continuity",),
                 **{**SMALL, "height": 32, "train_examples": 2, "train_controls": 6},
@@ -350,32 +343,31 @@ def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch)
         )
     assert specs.concept_name(store.open_split(tmp_path, "continuity", "test")[0]) == "continuity"
     # Generator version: a scene change makes every shard stale.
-    version = store_plan.GENERATOR_VERSION
-    monkeypatch.setattr(store_plan, "GENERATOR_VERSION", version + 1)
-    assert len(store_plan.verify(tmp_path)) == len(
-        store_plan.manifest_plan(store.read_manifest(tmp_path))[0]
-    )
+    version = store.GENERATOR_VERSION
+    for module in (plan, manifest):  # where shards and manifests take it from
+        monkeypatch.setattr(module, "GENERATOR_VERSION", version + 1)
+    assert len(store.verify(tmp_path)) == len(store.manifest_plan(store.read_manifest(tmp_path))[0])
     options = {**SMALL, "height": 32, "train_examples": 2, "train_controls": 6}
     with pytest.warns(
         UserWarning, match=f"its generator_version is {version}, expected {version + 1}"
     ):
-        summary = generate.ensure_dataset(
+        summary = store.ensure_dataset(
             tmp_path, concepts=("continuity", "containment", "unchangeableness"), **options
         )
-    assert summary.shards_skipped == 0 and store_plan.verify(tmp_path) == []
-    assert store.read_manifest(tmp_path)["generator_version"] == store_plan.GENERATOR_VERSION
+    assert summary.shards_skipped == 0 and store.verify(tmp_path) == []
+    assert store.read_manifest(tmp_path)["generator_version"] == version + 1
 
 
 def test_shards_without_object_states_are_regenerated(tmp_path, calls):
     """A shard written before records carried object states (GENERATOR_VERSION 2) does not
     match the record layout: verify finds it and generate rewrites it with them."""
-    generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
-    layouts = store_plan.record_layouts(scenes.VideoOptions(num_frames=6, height=24, width=24))
+    store.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    layouts = store.record_layouts(scenes.VideoOptions(num_frames=6, height=24, width=24))
     assert "objects/visible_fraction" in layouts["clip"]
     assert "inconsistent/objects/shape_label" in layouts["probe"]
     for split in ("train", "test"):
         path = store.shard_path(tmp_path, "continuity", split, 0)
-        reader = store_shards.ShardReader(path)
+        reader = store.ShardReader(path)
         records = [reader[i] for i in range(len(reader))]
         meta = reader.index.meta
         reader.close()
@@ -383,12 +375,12 @@ def test_shards_without_object_states_are_regenerated(tmp_path, calls):
             r.exclude("objects", ("consistent", "objects"), ("inconsistent", "objects"))
             for r in records
         ]
-        store_shards.write_shard(path, stripped, meta)
+        store.write_shard(path, stripped, meta)
     stale = {store.shard_path(tmp_path, "continuity", split, 0) for split in ("train", "test")}
-    assert set(store_plan.verify(tmp_path)) == stale
+    assert set(store.verify(tmp_path)) == stale
     with pytest.warns(UserWarning, match=r"its records' (consistent/)?objects/color is missing"):
-        summary = generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
-    assert summary.shards_generated == 2 and store_plan.verify(tmp_path) == []
+        summary = store.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    assert summary.shards_generated == 2 and store.verify(tmp_path) == []
     assert ("objects", "position") in store.open_split(tmp_path, "continuity", "train")[0].keys(
         True
     )
@@ -470,23 +462,23 @@ def test_workers_die_with_a_killed_parent(tmp_path):
 def test_a_malformed_manifest_is_named_and_overwritten_on_request(tmp_path, calls, text, message):
     """Issue 10 case 5: wrong-shape, null or truncated manifests raise a named error, and
     --overwrite replaces them."""
-    generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
-    manifest = tmp_path / "manifest.json"
-    manifest.write_text(text)
-    path = str(manifest)
+    store.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    stored = tmp_path / "manifest.json"
+    stored.write_text(text)
+    path = str(stored)
     with pytest.raises(store.ManifestError, match=message) as error:
-        generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+        store.generate_dataset(tmp_path, ("continuity",), **SMALL)
     assert path in str(error.value)
     with pytest.raises(store.ManifestError, match="--overwrite"):
         store.open_split(tmp_path, "continuity", "train")
     with pytest.raises(store.ManifestError, match=path):
-        store_plan.verify(tmp_path)
+        store.verify(tmp_path)
     calls.clear()
-    summary = generate.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "overwrite": True})
+    summary = store.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "overwrite": True})
     assert (
         summary.shards_skipped == summary.shards_planned and calls == []
     )  # the shards still belong
-    assert store_plan.verify(tmp_path) == [] and store.read_manifest(tmp_path)["shard_size"] == 3
+    assert store.verify(tmp_path) == [] and store.read_manifest(tmp_path)["shard_size"] == 3
 
 
 # --- seed offset (issue 48 part 5: a fresh test set anyone can re-test a checkpoint on) -------
@@ -504,8 +496,8 @@ def _store_files(root: Path) -> dict[str, bytes]:
 
 def test_an_offset_shifts_the_probe_seeds_within_their_split_and_never_the_clips():
     tasks = _plan()
-    shifted = store_plan.plan_shards(
-        {c: store_plan.split_counts(c, 10, 10, 3, 4, 2) for c in specs.CONCEPTS}, 4, OFFSET
+    shifted = store.plan_shards(
+        {c: store.split_counts(c, 10, 10, 3, 4, 2) for c in specs.CONCEPTS}, 4, OFFSET
     )
     for task, moved in zip(tasks, shifted, strict=True):
         assert (
@@ -513,42 +505,34 @@ def test_an_offset_shifts_the_probe_seeds_within_their_split_and_never_the_clips
             if task.split == "train"
             else moved.seeds == [seed + OFFSET for seed in task.seeds]
         )
-        assert ("seed_offset" in store_plan.shard_meta(moved)) == (task.split != "train")
-        assert "seed_offset" not in store_plan.shard_meta(task)  # stores before offsets stay
-    last = store_plan.SEED_RANGE - 4  # 4 test pairs per variant fit exactly
-    edge = store_plan.plan_shards(
-        {"solidity": store_plan.split_counts("solidity", 0, 0, 0, 4, 0)}, 4, last
-    )
-    assert (
-        max(seed for t in edge for seed in t.seeds) == store_plan.SEED_STARTS["generalization"] - 1
-    )
+        assert ("seed_offset" in store.shard_meta(moved)) == (task.split != "train")
+        assert "seed_offset" not in store.shard_meta(task)  # stores before offsets stay
+    last = store.SEED_RANGE - 4  # 4 test pairs per variant fit exactly
+    edge = store.plan_shards({"solidity": store.split_counts("solidity", 0, 0, 0, 4, 0)}, 4, last)
+    assert max(seed for t in edge for seed in t.seeds) == store.SEED_STARTS["generalization"] - 1
     with pytest.raises(
         ValueError,
         match=r"solidity: the test split would need seeds up to "
         r"3_000_000_000 .*past the last seed of its range, 2_999_999_999: "
         r"seed_offset plus the count must be at most 1_000_000_000",
     ):
-        store_plan.plan_shards(
-            {"solidity": store_plan.split_counts("solidity", 0, 0, 0, 5, 0)}, 4, last
-        )
-    for bad in (-1, store_plan.SEED_RANGE, 1.5, True):
+        store.plan_shards({"solidity": store.split_counts("solidity", 0, 0, 0, 5, 0)}, 4, last)
+    for bad in (-1, store.SEED_RANGE, 1.5, True):
         with pytest.raises(
             ValueError,
             match=rf"seed_offset must be an integer in \[0, "
             rf"999_999_999\].*got {bad!r}",
         ):
-            store_plan.check_seed_offset(bad)
+            store.check_seed_offset(bad)
 
 
 def test_an_offset_store_is_its_own_beside_the_root_resumable_and_checked(tmp_path, calls):
-    generate.generate_dataset(tmp_path, ("continuity",), **SMALL)
+    store.generate_dataset(tmp_path, ("continuity",), **SMALL)
     before = _store_files(tmp_path)
     calls.clear()
-    summary = generate.generate_dataset(
-        tmp_path, ("continuity",), **PROBES_ONLY, seed_offset=OFFSET
-    )
+    summary = store.generate_dataset(tmp_path, ("continuity",), **PROBES_ONLY, seed_offset=OFFSET)
     fresh = tmp_path / f"seed_offset_{OFFSET}"
-    assert summary.root == fresh and store_plan.verify(fresh) == []
+    assert summary.root == fresh and store.verify(fresh) == []
     assert {
         str(p.relative_to(tmp_path))
         for p in tmp_path.rglob("*")
@@ -559,14 +543,14 @@ def test_an_offset_store_is_its_own_beside_the_root_resumable_and_checked(tmp_pa
     manifest = store.read_manifest(fresh)
     assert manifest["seed_offset"] == OFFSET
     assert manifest["concepts"]["continuity"]["splits"]["test"]["seed_start"] == (
-        store_plan.SEED_STARTS["test"] + OFFSET
+        store.SEED_STARTS["test"] + OFFSET
     )
     for split in ("val", "test", "generalization"):
         seeds = [int(r["seed"]) for r in store.open_split(fresh, "continuity", split)]
         old = [int(r["seed"]) for r in store.open_split(tmp_path, "continuity", split)]
         assert seeds == [seed + OFFSET for seed in old]
         assert (
-            store_shards.ShardReader(store.shard_path(fresh, "continuity", split, 0)).index.meta[
+            store.ShardReader(store.shard_path(fresh, "continuity", split, 0)).index.meta[
                 "seed_offset"
             ]
             == OFFSET
@@ -574,12 +558,10 @@ def test_an_offset_store_is_its_own_beside_the_root_resumable_and_checked(tmp_pa
     # Resumable: a rerun keeps it; a lost shard is rendered again at the offset's seeds.
     lost = store.shard_path(fresh, "continuity", "test", 0)
     lost.unlink()
-    again = generate.generate_dataset(tmp_path, ("continuity",), **PROBES_ONLY, seed_offset=OFFSET)
-    assert again.shards_generated == 1 and store_plan.verify(fresh) == []
+    again = store.generate_dataset(tmp_path, ("continuity",), **PROBES_ONLY, seed_offset=OFFSET)
+    assert again.shards_generated == 1 and store.verify(fresh) == []
     assert (
-        generate.ensure_dataset(
-            tmp_path, concepts=("continuity",), seed_offset=OFFSET, **PROBES_ONLY
-        )
+        store.ensure_dataset(tmp_path, concepts=("continuity",), seed_offset=OFFSET, **PROBES_ONLY)
         is None
     )
     # Training clips are not shifted: an offset store refuses them, before any work.
@@ -588,34 +570,34 @@ def test_an_offset_store_is_its_own_beside_the_root_resumable_and_checked(tmp_pa
         match=rf"seed_offset {OFFSET} draws fresh probes only, into "
         rf"{fresh}.*give train_examples 0 and train_controls 0, got 4 and 4",
     ):
-        generate.generate_dataset(tmp_path, ("continuity",), **SMALL, seed_offset=OFFSET)
+        store.generate_dataset(tmp_path, ("continuity",), **SMALL, seed_offset=OFFSET)
 
 
 def test_a_store_of_another_offset_is_refused_and_its_shards_found(tmp_path, calls):
-    generate.generate_dataset(tmp_path / "a", ("continuity",), **PROBES_ONLY, seed_offset=OFFSET)
+    store.generate_dataset(tmp_path / "a", ("continuity",), **PROBES_ONLY, seed_offset=OFFSET)
     moved = tmp_path / "b" / "seed_offset_7"  # a store copied to another offset's place
     moved.parent.mkdir()
     (tmp_path / "a" / f"seed_offset_{OFFSET}").rename(moved)
     with pytest.raises(
-        generate_manifest.ManifestMismatchError, match=rf"seed_offset: stored {OFFSET}, asked 7"
+        store.ManifestMismatchError, match=rf"seed_offset: stored {OFFSET}, asked 7"
     ):
-        generate.generate_dataset(tmp_path / "b", ("continuity",), **PROBES_ONLY, seed_offset=7)
+        store.generate_dataset(tmp_path / "b", ("continuity",), **PROBES_ONLY, seed_offset=7)
     with pytest.raises(
-        generate_manifest.ManifestMismatchError, match=rf"seed_offset: stored {OFFSET}, asked 0"
+        store.ManifestMismatchError, match=rf"seed_offset: stored {OFFSET}, asked 0"
     ):
-        generate.generate_dataset(moved, ("continuity",), **PROBES_ONLY)
-    summary = generate.generate_dataset(
+        store.generate_dataset(moved, ("continuity",), **PROBES_ONLY)
+    summary = store.generate_dataset(
         tmp_path / "b", ("continuity",), **PROBES_ONLY, seed_offset=7, overwrite=True
     )
     assert summary.root == moved and summary.shards_skipped == 0
-    assert store.read_manifest(moved)["seed_offset"] == 7 and store_plan.verify(moved) == []
+    assert store.read_manifest(moved)["seed_offset"] == 7 and store.verify(moved) == []
     # A shard of the store at offset 0 in the offset store's place is found by what it is.
-    generate.generate_dataset(tmp_path / "c", ("continuity",), **PROBES_ONLY)
+    store.generate_dataset(tmp_path / "c", ("continuity",), **PROBES_ONLY)
     foreign = store.shard_path(moved, "continuity", "test", 0)
     foreign.write_bytes(store.shard_path(tmp_path / "c", "continuity", "test", 0).read_bytes())
-    assert store_plan.verify(moved) == [foreign]
+    assert store.verify(moved) == [foreign]
     with pytest.warns(UserWarning, match="its seed_offset is missing, expected 7"):
-        generate.generate_dataset(tmp_path / "b", ("continuity",), **PROBES_ONLY, seed_offset=7)
+        store.generate_dataset(tmp_path / "b", ("continuity",), **PROBES_ONLY, seed_offset=7)
 
 
 def test_command_line_draws_fresh_real_probes_at_an_offset(tmp_path, capsys):
@@ -629,7 +611,7 @@ def test_command_line_draws_fresh_real_probes_at_an_offset(tmp_path, capsys):
     summary = main([*argv, "--seed_offset", str(OFFSET)])
     assert summary.root == root / f"seed_offset_{OFFSET}"
     assert str(summary.root) in capsys.readouterr().out  # says where
-    seed = store_plan.SEED_STARTS["test"] + OFFSET
+    seed = store.SEED_STARTS["test"] + OFFSET
     for old, new in zip(
         store.open_split(root, "solidity", "test"),
         store.open_split(summary.root, "solidity", "test"),

@@ -12,8 +12,9 @@ from tensordict import TensorDict
 from torch.utils.data import DataLoader
 
 from voe_lightning import scenes, specs
-from voe_lightning.data import generate, store, store_plan, store_shards
-from voe_lightning.external.cache import write_cache
+from voe_lightning.benchmarks.cache import write_cache
+from voe_lightning.data import store
+from voe_lightning.data.store import files, render
 
 
 def _equal(a: TensorDict, b: TensorDict) -> bool:
@@ -27,11 +28,11 @@ def test_round_trip_is_lossless_for_random_clips_and_probes(tmp_path):
     torch.manual_seed(0)
     clips = [specs.clip_spec(5, 12, 10).rand() for _ in range(4)]  # odd sizes, random bytes
     probes = [specs.probe_spec().rand() for _ in range(3)]
-    store_shards.write_shard(tmp_path / "clips.voe", clips)
-    store_shards.write_shard(tmp_path / "probes.voe", probes, {"note": "kept"})
+    store.write_shard(tmp_path / "clips.voe", clips)
+    store.write_shard(tmp_path / "probes.voe", probes, {"note": "kept"})
     clip_reader, probe_reader = (
-        store_shards.ShardReader(tmp_path / "clips.voe"),
-        store_shards.ShardReader(tmp_path / "probes.voe"),
+        store.ShardReader(tmp_path / "clips.voe"),
+        store.ShardReader(tmp_path / "probes.voe"),
     )
     assert len(clip_reader) == 4 and len(probe_reader) == 3
     for i in (2, 0, 3, 1):  # random order
@@ -53,8 +54,8 @@ def test_generated_records_round_trip_exactly_with_their_object_states(tmp_path)
         "probe": scenes.generate_probe("unchangeableness", "shape", 0),
     }
     for name, record in records.items():
-        store_shards.write_shard(tmp_path / f"{name}.voe", [record])
-        stored = store_shards.ShardReader(tmp_path / f"{name}.voe")[0]
+        store.write_shard(tmp_path / f"{name}.voe", [record])
+        stored = store.ShardReader(tmp_path / f"{name}.voe")[0]
         assert _equal(stored, record)
         objects = stored["objects"] if name == "clip" else stored["inconsistent", "objects"]
         assert objects["position"].dtype == torch.float32
@@ -64,8 +65,8 @@ def test_generated_records_round_trip_exactly_with_their_object_states(tmp_path)
 def test_structured_videos_compress_well_below_40_kb(tmp_path):
     clips = [fake_clip("solidity", "example", seed) for seed in range(8)]
     probes = [fake_probe("solidity", "standard", seed) for seed in range(8)]
-    clip_bytes = store_shards.write_shard(tmp_path / "c.voe", clips)
-    probe_bytes = store_shards.write_shard(tmp_path / "p.voe", probes)
+    clip_bytes = store.write_shard(tmp_path / "c.voe", clips)
+    probe_bytes = store.write_shard(tmp_path / "p.voe", probes)
     raw = 15 * 64 * 64 * 4  # frames and mask of one video
     assert clip_bytes / 8 < raw / 10
     # The inconsistent video is stored as its difference from the consistent one.
@@ -87,7 +88,7 @@ def _split_root(tmp_path, count=10, shard_size=4, concept="continuity"):
     manifest["concepts"][concept]["splits"]["train"]["count"] = count
     clips = [fake_clip(concept, "example", seed) for seed in range(count)]
     for index, start in enumerate(range(0, count, shard_size)):
-        store_shards.write_shard(
+        store.write_shard(
             store.shard_path(tmp_path, concept, "train", index), clips[start : start + shard_size]
         )
     store.write_manifest(tmp_path, manifest)
@@ -121,12 +122,12 @@ def test_open_split_reads_every_record_from_dataloader_workers(tmp_path):
 
 
 def test_corrupt_and_truncated_shards_are_named(tmp_path, monkeypatch):
-    monkeypatch.setattr(generate, "generate_clip", fake_clip)
-    generate.generate_dataset(
+    monkeypatch.setattr(render, "generate_clip", fake_clip)
+    store.generate_dataset(
         tmp_path, ("continuity",), train_examples=5, val_pairs=0, test_pairs=0,
         generalization_pairs=0, shard_size=4, workers=1, progress=False,
     )  # fmt: skip
-    assert store_plan.verify(tmp_path) == []
+    assert store.verify(tmp_path) == []
     fifth = store.open_split(tmp_path, "continuity", "train")[5]
     corrupt = store.shard_path(tmp_path, "continuity", "train", 1)
     data = bytearray(corrupt.read_bytes())
@@ -135,24 +136,24 @@ def test_corrupt_and_truncated_shards_are_named(tmp_path, monkeypatch):
     truncated = store.shard_path(tmp_path, "continuity", "train", 2)
     truncated.write_bytes(truncated.read_bytes()[:-10])
     dataset = store.open_split(tmp_path, "continuity", "train")
-    with pytest.raises(store_shards.CorruptShardError, match=str(corrupt)):
+    with pytest.raises(store.CorruptShardError, match=str(corrupt)):
         dataset[4]
-    with pytest.raises(store_shards.CorruptShardError, match=str(truncated)):
+    with pytest.raises(store.CorruptShardError, match=str(truncated)):
         dataset[8]
     assert _equal(dataset[5], fifth)  # other records still readable
-    assert store_plan.verify(tmp_path) == [corrupt, truncated]
+    assert store.verify(tmp_path) == [corrupt, truncated]
     store.shard_path(tmp_path, "continuity", "train", 0).unlink()
-    assert store_plan.verify(tmp_path)[0] == store.shard_path(tmp_path, "continuity", "train", 0)
+    assert store.verify(tmp_path)[0] == store.shard_path(tmp_path, "continuity", "train", 0)
 
 
 def test_failed_write_names_the_path_and_leaves_no_temporary(tmp_path, monkeypatch):
     def full_disk(file, data):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(store_shards, "_write_bytes", full_disk)
+    monkeypatch.setattr(files, "_write_bytes", full_disk)
     path = tmp_path / "concept" / "train" / "shard-00000.voe"
     with pytest.raises(OSError, match=str(path)) as error:
-        store_shards.write_shard(path, [fake_clip("solidity", "example", 0)])
+        store.write_shard(path, [fake_clip("solidity", "example", 0)])
     assert error.value.errno == 28
     assert list(path.parent.iterdir()) == []
 
@@ -181,8 +182,8 @@ def test_written_files_respect_the_umask(tmp_path, umask, mode):
     """Issue 10 case 3: a dataset made for a lab is readable as the umask allows, not 0600."""
     previous = os.umask(umask)
     try:
-        store_shards.write_shard(tmp_path / "a.voe", [fake_clip("continuity", "example", 0)])
-        store.write_manifest(tmp_path, {"format": store_shards.FORMAT})
+        store.write_shard(tmp_path / "a.voe", [fake_clip("continuity", "example", 0)])
+        store.write_manifest(tmp_path, {"format": store.FORMAT})
     finally:
         os.umask(previous)
     assert stat.S_IMODE((tmp_path / "a.voe").stat().st_mode) == mode

@@ -1,5 +1,5 @@
 """Fake clip and probe records that satisfy the specs, determined by their arguments: stand-ins
-for rendered ones (``generate.generate_clip``, ``generate_probe``) in the store's and the data
+for rendered ones (``render.generate_clip``, ``generate_probe``) in the store's and the data
 pipeline's tests."""
 
 import numpy as np

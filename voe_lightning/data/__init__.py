@@ -1,4 +1,3 @@
-"""The generated data and its store: a record to bytes and back (``store_codec``), shards and
-their files (``store_shards``), the plan of which seeds go where (``store_plan``), reading a
-store (``store``), generating one (``generate``, ``generate_manifest``, ``worker_pool``) and the
-contact sheets that show it (``contact_sheet``)."""
+"""The generated data: the store that holds it (``store``: planned, rendered and written as
+shards with a manifest, and read as Datasets), the ``generate`` command that fills one
+(``generate``, with ``video_presets``) and the contact sheets that show it (``contact_sheet``)."""

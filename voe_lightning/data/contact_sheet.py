@@ -8,6 +8,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -61,7 +62,7 @@ def _strip(frames: np.ndarray) -> np.ndarray:
 
 
 def draw_rows(
-    rows: Sequence[Row], path: str | os.PathLike, title: str | None = None, scale: float = 1.5
+    rows: Sequence[Row], path: str | os.PathLike[str], title: str | None = None, scale: float = 1.5
 ) -> Path:
     """Draw ``rows`` (all of one video size) into a PNG at ``path``; returns the path."""
     if not rows:
@@ -97,12 +98,12 @@ def draw_rows(
             )
         top -= row_height
         axes = figure.add_axes(
-            [
+            (
                 label_width / fig_width,
                 (top + 3) / fig_height,
                 strip_width * scale / fig_width,
                 height * scale / fig_height,
-            ]
+            )
         )
         axes.imshow(_strip(row.frames), interpolation="nearest")
         axes.set_xticks([t * (width + GAP) + width / 2 for t in range(num_frames)])
@@ -127,7 +128,7 @@ def draw_rows(
 
 
 def write_records_sheet(
-    records: Sequence[TensorDictBase], path: str | os.PathLike, title: str | None = None
+    records: Sequence[TensorDictBase], path: str | os.PathLike[str], title: str | None = None
 ) -> Path:
     """A contact sheet of probe pairs and/or clips, in the order given."""
     return draw_rows([row for record in records for row in record_rows(record)], path, title)
@@ -135,10 +136,10 @@ def write_records_sheet(
 
 def write_concept_sheet(
     concept: str,
-    path: str | os.PathLike,
+    path: str | os.PathLike[str],
     seed: int = 0,
     include_generalization: bool = False,
-    **video_options,
+    **video_options: Any,
 ) -> Path:
     """Render one probe pair per probe variant and one clip per training kind of ``concept``
     (seed ``seed``) and draw them as a contact sheet at ``path``."""
@@ -157,16 +158,16 @@ def write_concept_sheet(
 
 
 def write_store_sheet(
-    root: str | os.PathLike,
+    root: str | os.PathLike[str],
     concept: str,
-    path: str | os.PathLike,
+    path: str | os.PathLike[str],
     probe_split: str = "test",
     scan: int = 256,
 ) -> Path:
     """A contact sheet of ``concept`` from the store at ``root``: the first pair of each probe
     variant in ``probe_split`` and the first clip of each kind in train (looking at most
     ``scan`` records into each split; splits are interleaved, so the first few suffice)."""
-    from voe_lightning.data.store import open_split
+    from voe_lightning.data.store.read import open_split
 
     records = []
     for split, field, names in (

@@ -15,10 +15,28 @@ import numpy as np
 
 from voe_lightning import specs
 
+#: The longest physics step (s): a video made at a frame rate (``VideoOptions.at_fps``) splits
+#: each frame period into as many equal steps of at most this as it takes (the paper's 0.01 s,
+#: 20 steps a frame at 5 fps).
+MAX_TIMESTEP = 0.01
+#: The paper's clip length (s): 15 frames at 5 fps, the length every concept's scenes are timed
+#: for (``check_duration``).
+PAPER_DURATION = 3.0
+#: The clip lengths (s) every concept's scenes are drawn in with the paper's motion: continuity's
+#: ball crosses the view in the clip at the paper's probe speeds (0.55 to 1.2 m/s), which found
+#: draws for every seed tried from 2.2 to 5 s and for none below 1.8 or above 5.5 s (10 seeds of
+#: each variant and of the gap_block control); containment's slide and unchangeableness's screen
+#: fill the clip, so they move at the paper's pace times 3 s over the duration (two thirds to
+#: six fifths of it here). Solidity needs more (``solidity.check_video``).
+DURATIONS = (2.5, 4.5)
+
 
 @dataclass(frozen=True)
 class VideoOptions:
-    """Geometry and timing of a rendered video (paper: 15 frames, 64x64, about 3 s)."""
+    """Geometry and timing of a rendered video (paper: 15 frames, 64x64, about 3 s). Made with
+    a frame rate (``at_fps``), frames fall at exact multiples of 1/fps; made without one (the
+    default, as every store before ``generate --fps``), the clip is 3 s long and a frame is the
+    whole number of 0.01 s steps nearest to 3 s over ``num_frames`` (exactly 0.2 s at 15)."""
 
     num_frames: int = specs.NUM_FRAMES
     height: int = specs.HEIGHT
@@ -39,6 +57,57 @@ class VideoOptions:
     @property
     def steps_per_frame(self) -> int:
         return max(1, round(self.duration / self.num_frames / self.timestep))
+
+    @property
+    def fps(self) -> float:
+        """Frames per second: ``num_frames`` over ``duration`` (5 for the paper's clips)."""
+        return self.num_frames / self.duration
+
+    @classmethod
+    def at_fps(
+        cls,
+        fps: float,
+        num_frames: int = specs.NUM_FRAMES,
+        height: int = specs.HEIGHT,
+        width: int = specs.WIDTH,
+    ) -> VideoOptions:
+        """``num_frames`` frames at ``fps`` frames per second: a clip of num_frames / fps s
+        whose physics step divides the frame period exactly (the period over the fewest equal
+        steps of at most ``MAX_TIMESTEP``), so that frame k shows the scene at k / fps s. At 5
+        fps and 15 frames these are the default options, field for field."""
+        check_fps(fps)
+        duration = num_frames / fps
+        period = duration / num_frames
+        steps = max(1, math.ceil(period / MAX_TIMESTEP - 1e-9))
+        return cls(num_frames, height, width, duration, period / steps)
+
+
+def check_duration(video: VideoOptions) -> None:
+    """Refuse a clip whose length (num_frames / fps) lies outside ``DURATIONS``, naming it and
+    the frame rate that would give the paper's 3 s at its num_frames."""
+    low, high = DURATIONS
+    if not low - 1e-9 <= video.duration <= high + 1e-9:
+        raise ValueError(
+            f"{video.num_frames} frames at {video.fps:g} fps last {video.duration:g} s; the "
+            f"scenes are timed for the paper's {PAPER_DURATION:g} s and drawn in {low:g} to "
+            f"{high:g} s: give an fps from {video.num_frames / high:g} to "
+            f"{video.num_frames / low:g} (e.g. {video.num_frames / PAPER_DURATION:g}) or "
+            f"fewer or more frames"
+        )
+
+
+def check_fps(fps: object) -> None:
+    """Refuse a frame rate that is not a positive, finite number, naming it."""
+    if (
+        isinstance(fps, bool)
+        or not isinstance(fps, int | float)
+        or not math.isfinite(fps)
+        or fps <= 0
+    ):
+        raise ValueError(
+            f"fps must be a positive number of frames per second (the paper's is 5: 15 "
+            f"frames in 3 s), got {fps!r}"
+        )
 
 
 #: The fewest pixels a side, and the most times wider than tall, of frames every concept's

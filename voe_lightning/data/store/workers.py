@@ -1,6 +1,6 @@
 """Running work in a pool of spawned worker processes tied to this one's life: each a fresh
 interpreter (safe with EGL contexts and torch threads) on one thread, that exits when its parent
-dies, even by SIGKILL, so no orphan keeps writing. ``generate`` renders its shards with it."""
+dies, even by SIGKILL, so no orphan keeps writing. ``render`` renders the shards with it."""
 
 from __future__ import annotations
 
@@ -19,6 +19,7 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import TypeVar
 
 _PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
 #: What ``run`` hands its function, and what the function gives back.
 Argument = TypeVar("Argument")
 Result = TypeVar("Result")
@@ -32,7 +33,7 @@ def default_workers() -> int:
         return os.cpu_count() or 1
 
 
-def run(
+def run_in_workers(
     function: Callable[[Argument], Result], arguments: Sequence[Argument], workers: int, died: str
 ) -> Iterator[Result]:
     """Yield ``function(argument)`` for each of ``arguments`` as each finishes: in this process

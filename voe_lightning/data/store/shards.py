@@ -1,194 +1,48 @@
-"""The shard file (docs/architecture.md §5): a header, one zstd blob per record (``store_codec``)
-with its CRC32, then an index of offsets, lengths, checksums and seeds with the shard's metadata
-and leaf schema, so a DataLoader worker reads one record without the rest. Writing is atomic
-(``atomic_write``, which the manifest uses too); reading checks what it reads
-(``check_shard``, ``ShardReader``) and names the file in a ``CorruptShardError``."""
+"""The shard file (docs/architecture.md §5): a header, one zstd blob per record (``codec``) with
+its CRC32, then an index of offsets, lengths, checksums and seeds with the shard's metadata and
+leaf schema, so a DataLoader worker reads one record without the rest. Written whole
+(``files.atomic_write``); reading checks what it reads (``check_shard``, ``ShardReader``) and
+names the file in a ``CorruptShardError``."""
 
 from __future__ import annotations
 
-import errno
-import glob
 import json
 import os
-import re
-import shutil
-import socket
 import struct
-import tempfile
 import zlib
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
 import zstandard
 from tensordict import TensorDict, TensorDictBase
 
-from voe_lightning.data.store_codec import Leaf, decode, encode, record_schema, zstd_codecs
+from voe_lightning.data.store.codec import Leaf, decode, encode, record_schema, zstd_codecs
+from voe_lightning.data.store.errors import CorruptShardError
+from voe_lightning.data.store.files import atomic_write
+
+if TYPE_CHECKING:
+    from torchrl.data import Composite
+
 
 #: Version of the shard format, written into every shard's metadata and the manifest.
 FORMAT = "voe_lightning.store/1"
-
 _MAGIC = b"VOESHRD1"
+
 # trailer offset, meta length, record count, trailer crc32, reserved, magic
 _FOOTER = struct.Struct("<QIIII8s")
 _FOOTER_MAGIC = b"VOEINDEX"
 _TABLE_DTYPE = np.dtype([("offset", "<u8"), ("length", "<u4"), ("crc", "<u4"), ("seed", "<i8")])
 
 
-class CorruptShardError(OSError):
-    """A shard that is missing, truncated or fails its checksums; ``path`` names it."""
-
-    def __init__(self, path: str | os.PathLike, reason: str):
-        self.path = Path(path)
-        self.reason = reason
-        super().__init__(errno.EIO, f"corrupt shard {self.path}: {reason}", str(self.path))
-
-    def __str__(self) -> str:
-        return (
-            f"corrupt shard {self.path}: {self.reason} (rerun generate with this store's settings, "
-            "or the fit/test using it, whose prepare_data regenerates bad shards)"
-        )
-
-    def __reduce__(self):  # keep both arguments when sent back from a worker process
-        return (type(self), (str(self.path), self.reason))
-
-
 # --- writing ------------------------------------------------------------------------------------
-def _write_bytes(file, data: bytes) -> None:
-    file.write(data)
-
-
-def current_umask() -> int:
-    """This process's umask, read without changing it (``os.umask`` would, for every thread)."""
-    try:
-        with open("/proc/self/status") as status:
-            for line in status:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except OSError:
-        pass
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def atomic_write(path: str | os.PathLike, chunks: Iterable[bytes]) -> int:
-    """Write ``chunks`` to ``path`` atomically (temporary file in the same folder, fsync,
-    rename); returns the bytes written. The file gets the mode ``open`` would give it (0666
-    less the umask; ``mkstemp`` alone makes it 0600, unreadable to a lab's other users).
-    OSErrors (no space, no permission) name ``path``."""
-    return write_whole({path: chunks})[Path(path)]
-
-
-def write_whole(
-    files: Mapping[str | os.PathLike, Iterable[bytes] | bytes | str],
-) -> dict[Path, int]:
-    """Write several files as ``atomic_write`` does one, as a set: every file is staged (its
-    temporary file in its own folder, written and fsynced) before any replaces its old
-    version, so a write that fails (a full disk) leaves every previous file whole, and the
-    error names the file. An empty folder where a file belongs is replaced too (a non-empty
-    one is named). Contents are bytes, text (UTF-8) or chunks of bytes; returns the bytes
-    written per file."""
-    staged: dict[Path, str] = {}
-    sizes: dict[Path, int] = {}
-    try:
-        for name, content in files.items():
-            path = Path(name)
-            chunks = (
-                [content.encode()]
-                if isinstance(content, str)
-                else [content]
-                if isinstance(content, bytes)
-                else content
-            )
-            staged[path], sizes[path] = _stage(path, chunks)
-        for path in list(staged):
-            try:
-                if path.is_dir() and not path.is_symlink() and not any(path.iterdir()):
-                    path.rmdir()
-                os.replace(staged[path], path)
-            except OSError as error:
-                raise OSError(
-                    error.errno, f"cannot write {path}: {error.strerror or error}", str(path)
-                ) from error
-            del staged[path]
-        return sizes
-    finally:
-        for temporary in staged.values():
-            try:
-                os.unlink(temporary)
-            except OSError:
-                pass
-
-
-def temporary_prefix(name: str) -> str:
-    """``.<name>.<host>.<pid>.``: the prefix of a temporary file or folder of this process
-    standing in for ``name`` (``remove_stale`` tells those of a killed process)."""
-    return f".{name}.{socket.gethostname()}.{os.getpid()}."
-
-
-def remove_stale(folder: Path, name: str) -> None:
-    """Remove the temporary files and folders (``temporary_prefix``) of ``name`` in ``folder``
-    that a process of this host left when it was killed (SIGKILL, power loss) before cleaning
-    up: its id no longer runs. Another host's, or a running process's, are left alone."""
-    pattern = re.compile(rf"\.{re.escape(name)}\.{re.escape(socket.gethostname())}\.(\d+)\.")
-    for path in folder.glob(f".{glob.escape(name)}.*"):
-        match = pattern.match(path.name)
-        if match and not _running(int(match[1])):
-            if path.is_dir() and not path.is_symlink():
-                shutil.rmtree(path, ignore_errors=True)
-            else:
-                path.unlink(missing_ok=True)
-
-
-def _running(pid: int) -> bool:
-    """Whether a process ``pid`` runs on this host."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's
-        return True
-    return True
-
-
-def _stage(path: Path, chunks: Iterable[bytes]) -> tuple[str, int]:
-    """``chunks`` written and fsynced to a new temporary file beside ``path`` (with ``open``'s
-    mode): its name and size. OSErrors name ``path``; the temporary file is gone after one,
-    and those a killed writer left beside ``path`` go first (``remove_stale``)."""
-    temporary = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        remove_stale(path.parent, path.name)
-        handle, temporary = tempfile.mkstemp(
-            prefix=temporary_prefix(path.name), suffix=".tmp", dir=path.parent
-        )
-        os.fchmod(handle, 0o666 & ~current_umask())
-        size = 0
-        with os.fdopen(handle, "wb") as file:
-            for chunk in chunks:
-                _write_bytes(file, chunk)
-                size += len(chunk)
-            file.flush()
-            os.fsync(file.fileno())
-        return temporary, size
-    except OSError as error:
-        if temporary is not None:
-            try:
-                os.unlink(temporary)
-            except OSError:
-                pass
-        if isinstance(error, CorruptShardError):
-            raise
-        reason = error.strerror or str(error)
-        raise OSError(error.errno, f"cannot write {path}: {reason}", str(path)) from error
-
-
 def write_shard(
-    path: str | os.PathLike, records: Sequence[TensorDictBase], meta: dict[str, Any] | None = None
+    path: str | os.PathLike[str],
+    records: Sequence[TensorDictBase],
+    meta: dict[str, Any] | None = None,
 ) -> int:
     """Write ``records`` (all clips or all probes, same shapes) as one shard at ``path``,
     atomically; ``meta`` (JSON-able) is kept in the shard's index. Returns the file size."""
@@ -230,7 +84,8 @@ class ShardIndex:
 
     @property
     def seeds(self) -> list[int]:
-        return self.table["seed"].tolist()
+        seeds: list[int] = self.table["seed"].tolist()
+        return seeds
 
     @property
     def layout(self) -> dict[str, tuple[str, tuple[int, ...]]]:
@@ -238,9 +93,9 @@ class ShardIndex:
         return {"/".join(leaf.key): (leaf.dtype, leaf.shape) for leaf in self.schema}
 
 
-def spec_layout(spec) -> dict[str, tuple[str, tuple[int, ...]]]:
+def spec_layout(spec: Composite) -> dict[str, tuple[str, tuple[int, ...]]]:
     """Per leaf of a record spec ("a/b" key): the numpy dtype name and shape a shard stores."""
-    layout = {}
+    layout: dict[str, tuple[str, tuple[int, ...]]] = {}
     for key, leaf in spec.items(include_nested=True, leaves_only=True):
         key = key if isinstance(key, str) else "/".join(key)
         layout[key] = (str(torch.empty((), dtype=leaf.dtype).numpy().dtype), tuple(leaf.shape))
@@ -283,7 +138,7 @@ def _open(path: Path) -> int:
         raise CorruptShardError(path, "missing") from error
 
 
-def read_index(path: str | os.PathLike) -> ShardIndex:
+def read_index(path: str | os.PathLike[str]) -> ShardIndex:
     """Read and check a shard's index (cheap: does not read the records)."""
     path = Path(path)
     fd = _open(path)
@@ -294,7 +149,7 @@ def read_index(path: str | os.PathLike) -> ShardIndex:
 
 
 def check_shard(
-    path: str | os.PathLike,
+    path: str | os.PathLike[str],
     expected_seeds: Sequence[int] | None = None,
     full: bool = True,
     expected_meta: dict[str, Any] | None = None,
@@ -313,9 +168,9 @@ def check_shard(
         # named by that, not by its seeds.
         for key, value in (expected_meta or {}).items():
             if index.meta.get(key) != value:
-                stored = repr(index.meta[key]) if key in index.meta else "missing"
+                found = repr(index.meta[key]) if key in index.meta else "missing"
                 raise CorruptShardError(
-                    path, f"does not belong here: its {key} is {stored}, expected {value!r}"
+                    path, f"does not belong here: its {key} is {found}, expected {value!r}"
                 )
         if expected_seeds is not None and index.seeds != [int(s) for s in expected_seeds]:
             raise CorruptShardError(
@@ -352,7 +207,7 @@ def _describe_leaf(leaf: tuple[str, tuple[int, ...]] | None) -> str:
 class ShardReader:
     """Random access to one shard's records; the file is opened on first use in each process."""
 
-    def __init__(self, path: str | os.PathLike):
+    def __init__(self, path: str | os.PathLike[str]):
         self.path = Path(path)
         self._fd: int | None = None
         self._pid: int | None = None
@@ -362,6 +217,7 @@ class ShardReader:
         if self._pid != os.getpid():  # first use, or a forked DataLoader worker
             self._fd, self._pid = _open(self.path), os.getpid()
             self._index = _read_index(self._fd, self.path)
+        assert self._index is not None  # read on first use in this process
         return self._index
 
     @property
@@ -378,6 +234,7 @@ class ShardReader:
                 f"record {number} out of range for {len(index)} records in {self.path}"
             )
         offset, length, crc, _ = index.table[number].tolist()
+        assert self._fd is not None  # opened by _ensure_open
         blob = os.pread(self._fd, length, offset)
         if len(blob) != length or zlib.crc32(blob) != crc:
             raise CorruptShardError(self.path, f"record {number} checksum mismatch")
@@ -392,7 +249,7 @@ class ShardReader:
             os.close(self._fd)
         self._fd = self._pid = self._index = None
 
-    def __getstate__(self) -> dict:
+    def __getstate__(self) -> dict[str, Any]:
         return {"path": self.path, "_fd": None, "_pid": None, "_index": None}
 
     def __del__(self) -> None:
