@@ -25,21 +25,21 @@ from helpers.runs import RESUME_TRAINED, copy_of, curve_runs
 from rich.console import Console
 from tfrecord.writer import TFRecordWriter
 
-from voe_lightning.callbacks import voe_table
-from voe_lightning.cli import NOT_CAUSAL_EXIT, main
-from voe_lightning.data import store_shards
-from voe_lightning.external.base import BenchmarkDataError, FrameSampling
-from voe_lightning.external.intphys import read_label
-from voe_lightning.external.intphys2 import read_metadata
-from voe_lightning.external.metrics import (
+from voe_lightning.benchmarks.intphys.reader import read_label
+from voe_lightning.benchmarks.intphys2.reader import read_metadata
+from voe_lightning.benchmarks.metrics import (
     plausibility_from_surprise,
     read_answer_file,
     relative_error_rate,
     score_answers,
     write_answer_file,
 )
-from voe_lightning.external.mp4 import ClipSampling, read_video
-from voe_lightning.external.physical_concepts import read_records
+from voe_lightning.benchmarks.mp4 import ClipSampling, read_video
+from voe_lightning.benchmarks.physical_concepts.reader import read_records
+from voe_lightning.benchmarks.reader import BenchmarkDataError, FrameSampling
+from voe_lightning.callbacks import voe_table
+from voe_lightning.cli import NOT_CAUSAL_EXIT, main
+from voe_lightning.data.store import files as store_files
 from voe_lightning.report import ReportInputs, write_report
 from voe_lightning.stats.causality import check_prefix
 
@@ -236,7 +236,7 @@ def tiny_store(tmp_path_factory):
 
 
 def _disk_full_after(monkeypatch, files: int) -> None:
-    """Every write to disk through ``store_shards`` after the first ``files`` files fails
+    """Every write to disk through ``store.files`` after the first ``files`` files fails
     with ENOSPC (a full disk)."""
     written = []
 
@@ -246,7 +246,7 @@ def _disk_full_after(monkeypatch, files: int) -> None:
         written.append(file.name)
         file.write(data)
 
-    monkeypatch.setattr(store_shards, "_write_bytes", write)
+    monkeypatch.setattr(store_files, "_write_bytes", write)
 
 
 def _contents(folder):
@@ -676,7 +676,7 @@ def test_what_a_killed_writer_staged_is_removed_on_the_next_write(tmp_path):
         (folder / "summary.json").write_text("{}")
     write_report(ReportInputs(pair_results(), alpha=ALPHA, bootstrap=10), tmp_path, echo=False)
     assert not stale.exists() and running.exists() and other_host.exists()
-    # The same for a file staged by store_shards.write_whole (answer.txt here).
+    # The same for a file staged by store.write_whole (answer.txt here).
     stale_file = tmp_path / f".answer.txt.{host}.{ended.pid}.y1.tmp"
     running_file = tmp_path / f".answer.txt.{host}.{os.getpid()}.y2.tmp"
     for file in (stale_file, running_file):

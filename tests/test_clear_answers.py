@@ -26,15 +26,16 @@ from helpers.runs import curve_runs
 from jsonargparse import Namespace
 from PIL import Image
 
+from voe_lightning import run_folders
+from voe_lightning.benchmarks.intphys.reader import read_png
+from voe_lightning.benchmarks.intphys2.datamodule import IntPhys2DataModule
+from voe_lightning.benchmarks.intphys2.reader import read_metadata
+from voe_lightning.benchmarks.reader import BenchmarkDataError
 from voe_lightning.callbacks import InterruptCheckpoint
 from voe_lightning.callbacks.checkpoint_io import WholeCheckpointIO
-from voe_lightning.cli import main, preflight
+from voe_lightning.cli import main
 from voe_lightning.cli.user_errors import DEBUG_VARIABLE
-from voe_lightning.data import generate, store_shards
-from voe_lightning.datamodules.intphys2 import IntPhys2DataModule
-from voe_lightning.external.base import BenchmarkDataError
-from voe_lightning.external.intphys import read_png
-from voe_lightning.external.intphys2 import read_metadata
+from voe_lightning.data.store import files, generation
 from voe_lightning.model import CallableModel, CueScorer
 from voe_lightning.model.base import check_real_surprise
 
@@ -258,7 +259,7 @@ def test_generate_leaves_a_running_writers_temporary_files(tmp_path):
     stale = tmp_path / f".{shard.name}.{host}.{ended.pid}.def.tmp"  # a killed writer's
     for path in (running, stale):
         path.write_bytes(b"partial")
-    generate._remove_stale_temporaries(shard)
+    generation._remove_stale_temporaries(shard)
     assert running.exists() and not stale.exists()
 
 
@@ -270,14 +271,14 @@ def test_a_checkpoint_on_a_full_disk_leaves_no_truncated_file(tmp_path, monkeypa
     previous = folder / "last.ckpt"
     io = trainer.strategy.checkpoint_io
     io.save_checkpoint({"global_step": 1}, previous)
-    write = store_shards._write_bytes
+    write = files._write_bytes
 
     def full_disk(file, data):  # half the checkpoint fits
         write(file, data[: len(data) // 2])
         file.flush()
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(store_shards, "_write_bytes", full_disk)
+    monkeypatch.setattr(files, "_write_bytes", full_disk)
     for name in ("epoch=0-step=2.ckpt", "last.ckpt"):
         with pytest.raises(OSError) as raised:
             io.save_checkpoint({"global_step": 2, "state": torch.zeros(4096)}, folder / name)
@@ -319,13 +320,13 @@ def test_a_read_only_run_folder_of_a_checkpoint_names_what_would_help(tmp_path, 
     )
     monkeypatch.setattr(os, "access", lambda path, mode: Path(path) != run)  # read-only run
     with pytest.raises(PermissionError) as raised:
-        preflight.check_logger(config)
+        run_folders.check_run_folder(config)
     message = str(raised.value)
     assert f"whatever save_dir is: make {run} writable" in message
     assert f"copy the checkpoint out of checkpoints/ (cp {checkpoint} model.ckpt" in message
     config.ckpt_path = None  # no checkpoint: save_dir is where the run goes
     with pytest.raises(PermissionError, match="choose another trainer.logger.init_args.save_dir"):
-        preflight.check_logger(config)
+        run_folders.check_run_folder(config)
 
 
 def test_a_folder_as_a_figure_or_a_file_as_the_audit_folder_is_one_line(tmp_path, capsys):

@@ -21,7 +21,8 @@ from helpers.runs import RESUME_TRAINED, copy_of
 
 from voe_lightning import specs
 from voe_lightning.cli import main
-from voe_lightning.data import generate, generate_manifest, store
+from voe_lightning.data import store
+from voe_lightning.data.store import manifest
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.report import ReportInputs, write_report
 from voe_lightning.report.pairs import PairResults
@@ -260,17 +261,17 @@ def test_concurrent_generate_runs_for_two_concepts_keep_both_in_the_manifest(tmp
         time.sleep(0.3)
         return manifest
 
-    monkeypatch.setattr(store, "read_manifest", slow_read)
+    monkeypatch.setattr(manifest, "read_manifest", slow_read)
     video = VideoOptions(num_frames=6, height=32, width=32)
     entries = {
-        concept: generate.plan_generation(
+        concept: store.plan_generation(
             tmp_path, [concept], 2, None, 1, 1, 1, 4, 6, 32, 32, 0
         ).entries[concept]
         for concept in ("continuity", "containment")
     }
     runs = [
         threading.Thread(
-            target=generate_manifest.reconcile_manifest,
+            target=manifest.reconcile_manifest,
             args=(tmp_path, video, 4, {concept: entry}, False),
         )
         for concept, entry in entries.items()
@@ -455,7 +456,7 @@ def test_a_shard_too_large_for_memory_is_warned_of(tmp_path):
         match=r"4096 x 4096 x 15 frames with shard_size 100 hold "
         r"about 187.5 GiB per shard",
     ):
-        generate.plan_generation(tmp_path, ["continuity"], 1, None, 1, 1, 0, 100, 15, 4096, 4096, 0)
+        store.plan_generation(tmp_path, ["continuity"], 1, None, 1, 1, 0, 100, 15, 4096, 4096, 0)
 
 
 def test_generate_of_one_frame_videos_is_one_line_naming_num_frames(tmp_path, capsys):

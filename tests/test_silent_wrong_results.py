@@ -16,10 +16,10 @@ from helpers.intphys import SCENES, datamodule, make_intphys
 from helpers.locations import TINY_CONFIG
 from PIL import Image
 
+from voe_lightning.benchmarks.intphys2.reader import Video, VideoDataset
+from voe_lightning.benchmarks.metrics import write_answer_file
 from voe_lightning.callbacks import IntPhys2LeaderboardWriter, VOEProbeCallback
 from voe_lightning.cli import main
-from voe_lightning.external.intphys2 import Video, VideoDataset
-from voe_lightning.external.metrics import write_answer_file
 from voe_lightning.model import CallableModel
 from voe_lightning.stats.statistics import paired_test
 from voe_lightning.stats.streaming_statistics import PairedSurpriseStats

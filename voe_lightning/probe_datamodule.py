@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import lightning as L
 
 if TYPE_CHECKING:
-    from voe_lightning.external.evaluation import ExternalPairs
+    from voe_lightning.benchmarks.external_pairs import ExternalPairs
 
 
 class ProbeDataModule(L.LightningDataModule, metaclass=ABCMeta):
@@ -45,7 +45,7 @@ class ProbeDataModule(L.LightningDataModule, metaclass=ABCMeta):
 
     def external_pairs(self) -> ExternalPairs | None:
         """What an external benchmark's own evaluation needs of this DataModule's test pairs
-        (``voe_lightning.external.evaluation``: metrics written to ``benchmark_metrics.json``,
+        (``voe_lightning.benchmarks.evaluation``: metrics written to ``benchmark_metrics.json``,
         extra files); None here: the package's probes have none."""
         return None
 

@@ -64,8 +64,9 @@ def checkpoint_file(ckpt_path: str) -> Path:
         )
     if not path.is_file():
         raise FileNotFoundError(
-            f"--ckpt_path {ckpt_path!r} does not exist (give a .ckpt file, "
-            "or last/best for the newest run of the config's logger name)"
+            f"--ckpt_path {ckpt_path!r} does not exist (give a .ckpt file, last/best for "
+            "the newest run of the config's logger name, or a shipped checkpoint's name: "
+            "voe_lightning.shipped.SHIPPED)"
         )
     return path
 

@@ -12,7 +12,7 @@ from helpers import ALPHA
 from scipy import stats
 
 from voe_lightning import specs
-from voe_lightning.audit import calibration, cues, video_cues
+from voe_lightning.audit import calibration, cue_followers, cues, video_cues
 from voe_lightning.scenes import generate_probe
 
 PAIRS, SIZE, REPETITIONS = 30, 32, 2000
@@ -106,7 +106,7 @@ def test_quadruplet_concepts_calibrate_over_quadruplets_and_cancel_post_change_c
     assert abs(rates[1] - expected) <= 4 * np.sqrt(expected * (1 - expected) / repetitions) + 0.01
     for concept, quadruplets in specs.QUADRUPLETS.items():
         for cue in video_cues.FRAME_LOCAL_CUES:
-            for follower in calibration.FOLLOWERS:
+            for follower in cue_followers.FOLLOWERS:
                 terms = calibration.cue_terms(audit, concept, cue, follower)
                 for halves in quadruplets.values():
                     first, second = (terms[half] for half in halves)
@@ -135,7 +135,7 @@ def test_calibration_is_seeded_and_refuses_bad_arguments(audit):
 
 def test_analyze_calibrate_prints_and_writes_the_table_of_a_store(tmp_path, capsys):
     from voe_lightning.cli import main
-    from voe_lightning.data.generate import generate_dataset
+    from voe_lightning.data.store import generate_dataset
 
     root = tmp_path / "store"
     generate_dataset(
@@ -171,6 +171,6 @@ def test_analyze_calibrate_prints_and_writes_the_table_of_a_store(tmp_path, caps
     )
     assert table == capsys.readouterr().out == out.read_text()
     assert f"## Calibration on the val pairs of {root} (α = 0.01, 40 repetitions)" in table
-    assert table.count("| object_persistence | 4 |") == len(calibration.FOLLOWERS)
+    assert table.count("| object_persistence | 4 |") == len(cue_followers.FOLLOWERS)
     rows = json.loads(out.with_suffix(".json").read_text())
     assert {row["concept"] for row in rows} == {"object_persistence"} and rows[0]["cue"] is None

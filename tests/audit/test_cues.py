@@ -17,7 +17,7 @@ from tensordict import TensorDict
 from voe_lightning import specs
 from voe_lightning.audit import cue_report, cues, video_cues
 from voe_lightning.cli import main
-from voe_lightning.data.generate import generate_dataset
+from voe_lightning.data.store import generate_dataset
 
 T, H, W = 6, 16, 16
 

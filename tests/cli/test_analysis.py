@@ -440,6 +440,16 @@ def test_compare_reads_each_verdicts_rows_beside_the_cue_audit(tmp_path, capsys)
     table = out.read_text()
     assert table == capsys.readouterr().out
     assert "| a | solidity | quadruplet | 40 |" in table and table.count("**yes**") == 1
+    t = np.array([solidity_a["t"], solidity_b["t"]])
+    first = np.array([solidity_a["first_half"], solidity_b["first_half"]])
+    second = np.array([solidity_a["second_half"], solidity_b["second_half"]])
+    assert "Over the 2 runs (mean ± sd; sd with n − 1):" in table
+    assert (
+        f"| solidity | quadruplet | 2 | {t.mean():.2f} ± {t.std(ddof=1):.2f} | "
+        f"{first.mean():.2f} ± {first.std(ddof=1):.2f} / "
+        f"{second.mean():.2f} ± {second.std(ddof=1):.2f} | 1 of 2 |"
+    ) in table
+    assert "| unchangeableness | shape_quadruplet | 1 |" in table  # only a has it
     with pytest.raises(FileNotFoundError, match="run test first"):
         comparison.comparison_rows([("missing", tmp_path / "missing")])
 

@@ -247,7 +247,7 @@ def test_test_on_intphys_dev_reports_the_benchmark_metrics(workdir, trained):
             "--ckpt_path",
             str(run / "checkpoints" / "last.ckpt"),
             "--data",
-            "voe_lightning.datamodules.IntPhysDataModule",
+            "voe_lightning.benchmarks.intphys.IntPhysDataModule",
             "--data.root",
             str(workdir / "intphys"),
             "--data.num_frames",
@@ -459,6 +459,23 @@ def test_test_of_a_checkpoint_writes_its_report_beside_it(workdir, trained):
     assert not (workdir / "runs" / "tiny").exists()
     assert (run / "config.yaml").read_text() == training_config
     assert "last.ckpt" in (run / "test_config.yaml").read_text()  # the test's own config
+
+
+def test_test_reuses_the_runs_saved_config_with_no_flag_repeated(workdir, trained):
+    """``test --config <run>/config.yaml --ckpt_path last``-style: the config a run saved
+    tests it as trained (its data, model and logger), nothing repeated on the command line."""
+    run = copy_of(trained, workdir)
+    main(
+        [
+            "test",
+            "--config",
+            str(run / "config.yaml"),
+            "--ckpt_path",
+            str(run / "checkpoints" / "last.ckpt"),
+        ]
+    )
+    summary = json.loads((run / "voe_report" / "summary.json").read_text())
+    assert summary["rows"] and {row["concept"] for row in summary["rows"]} == {"object_persistence"}
 
 
 def test_test_on_other_data_keeps_the_runs_own_report(workdir, trained, capsys):

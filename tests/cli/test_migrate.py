@@ -12,7 +12,7 @@ from helpers.locations import TINY_CONFIG
 from helpers.runs import copy_of
 
 from voe_lightning.cli import main
-from voe_lightning.cli.migrate import MOVED_MODULES, RENAMED_CLASSES, new_path
+from voe_lightning.migration import MOVED_MODULES, RENAMED_CLASSES, new_path
 from voe_lightning.model.vrnn_lru.model import VRNNLRUModel
 from voe_lightning.stats import surprise_window
 from voe_lightning.stats.surprise_window import SurpriseWindow
@@ -35,9 +35,29 @@ def test_old_module_paths_and_names_become_those_of_today():
     assert new_path("datamodules.voe.ConceptDataModule") == (
         "voe_lightning.datamodules.voe.ConceptDataModule"
     )
-    assert len(MOVED_MODULES) == 37 and not any(
-        new in MOVED_MODULES for new in MOVED_MODULES.values()
+    assert new_path("voe_lightning.external.intphys2.VideoDataset") == (
+        "voe_lightning.benchmarks.intphys2.reader.VideoDataset"
     )
+    assert new_path("voe_lightning.null.run_null") == "voe_lightning.analysis.null.run_null"
+    assert len(MOVED_MODULES) == 63 and not any(  # no path of today is rewritten again
+        new == old or new.startswith(f"{old}.")
+        for new in MOVED_MODULES.values()
+        for old in MOVED_MODULES
+    )
+
+
+def test_a_config_naming_a_benchmark_datamodule_by_its_old_path_names_its_home(tmp_path):
+    """Issue 71: each benchmark's DataModule moved into its home, ``voe_lightning.benchmarks``."""
+    old, new = (
+        "voe_lightning.datamodules.IntPhysDataModule",
+        "voe_lightning.benchmarks.intphys.IntPhysDataModule",
+    )
+    config = tmp_path / "config.yaml"
+    config.write_text(yaml.safe_dump({"data": {"class_path": old, "init_args": {"root": "x"}}}))
+    assert main(["migrate", str(config)]) == [f"{config}: data.class_path: {old} -> {new}"]
+    assert yaml.safe_load(config.read_text()) == {
+        "data": {"class_path": new, "init_args": {"root": "x"}}
+    }
 
 
 @pytest.mark.slow

@@ -10,7 +10,7 @@ from helpers.locations import REPO, TINY_CONFIG
 from voe_lightning import specs
 from voe_lightning.cli import main
 from voe_lightning.cli.parser_errors import one_line
-from voe_lightning.data import generate
+from voe_lightning.data.store import render
 from voe_lightning.model import CallableModel, SurpriseModel
 from voe_lightning.scenes import camera
 
@@ -116,21 +116,21 @@ def test_a_checkpoint_naming_a_class_that_does_not_import_is_one_line(
 
 
 def test_ctrl_c_during_generate_is_one_line_and_a_rerun_resumes(workdir, capsys, monkeypatch):
-    render, rendered = generate.render_record, []
+    render_record, rendered = render.render_record, []
 
     def interrupted_at_the_second_clip(*arguments, **options):
         if rendered:
             raise KeyboardInterrupt
         rendered.append(arguments)
-        return render(*arguments, **options)
+        return render_record(*arguments, **options)
 
-    monkeypatch.setattr(generate, "render_record", interrupted_at_the_second_clip)
+    monkeypatch.setattr(render, "render_record", interrupted_at_the_second_clip)
     line = only_line(capsys, ["generate", "--root", "d", *SMALL], code=130)
     assert line == (
         "error: generate interrupted (Ctrl-C, SIGINT): the shards it finished are kept (a "
         "shard being written is left out whole); run the same command again to resume"
     )
-    monkeypatch.setattr(generate, "render_record", render)
+    monkeypatch.setattr(render, "render_record", render_record)
     main(["generate", "--root", "d", *SMALL])
     assert "1 shards generated (1 records" in capsys.readouterr().out  # the first was kept
 

@@ -16,17 +16,17 @@ import pytest
 from PIL import Image
 
 from voe_lightning import specs
+from voe_lightning.benchmarks.intphys import export as intphys_export
+from voe_lightning.benchmarks.intphys import reader as intphys
+from voe_lightning.benchmarks.intphys2 import export as intphys2_export
+from voe_lightning.benchmarks.intphys2 import reader as intphys2
+from voe_lightning.benchmarks.mp4 import ClipSampling
+from voe_lightning.benchmarks.reader import FrameSampling, SkipLog, first_divergence
 from voe_lightning.data import store
-from voe_lightning.data.generate import generate_dataset
-from voe_lightning.data.store_plan import GENERATOR_VERSION
-from voe_lightning.export import intphys as intphys_export
-from voe_lightning.export import intphys2 as intphys2_export
+from voe_lightning.data.store import GENERATOR_VERSION, generate_dataset
 from voe_lightning.export.command import export
 from voe_lightning.export.manifest import MANIFEST_NAME, sha256_file
 from voe_lightning.export.webdataset import read_webdataset
-from voe_lightning.external import intphys, intphys2
-from voe_lightning.external.base import FrameSampling, SkipLog, first_divergence
-from voe_lightning.external.mp4 import ClipSampling
 
 FRAMES, SIZE, PAIRS = 8, 32, 2
 SAMPLING = FrameSampling(tuple(range(FRAMES)), SIZE, SIZE)
@@ -205,6 +205,42 @@ def test_the_surprise_harness_reading_rules_get_every_video_back_exactly(exports
                         ]
                     )
                     assert np.array_equal(read, original[role, "frames"].numpy()[::frame_step])
+
+
+#: ComputeScoreIntPhys2.ipynb's property settings (its ``subsplit``): the ``condition`` values
+#: each selects; its camera settings select IntPhys 2's own games by ``game_name``.
+NOTEBOOK_PROPERTIES = {
+    "Permanence": {"permanence"},
+    "Immutability": {"immutability", "immutability_texture"},
+    "Continuity": {"continuity", "continuity_swap"},
+    "Solidity": {"solidity"},
+}
+NOTEBOOK_CAMERA_GAMES = {
+    "FixedMarryPoppins", "FixedJumpSolidity", "RotatingCup", "HotAirBallon",
+    "SphereFallingDown", "SolidityFallingFlat", "SphereFallingDownSoldity", "BoxSoldity",
+    "Scaffoling", "CameraSolidity", "JumpSolidity", "Box", "MovingAroundOccluder", "JailStone",
+    "PrisonCell", "Restaurant",
+}  # fmt: skip
+
+
+def test_the_score_notebooks_rules_score_each_root_by_its_property(exports):
+    """ComputeScoreIntPhys2.ipynb's rules (facts, not its code) on each concept's root: its
+    ``metadata.csv`` renamed ``name`` -> ``filename`` merges one-to-one with predictions named
+    by ``filename``; every ``type`` parses (``Impossible`` before ``Possible``); the root's one
+    property setting (docs/benchmarks.md) selects every video, the others none, and its camera
+    setting ``All`` every video (its other two name IntPhys 2's games, none of ours)."""
+    out, _ = exports["intphys2"]
+    for concept in specs.CONCEPTS:
+        with (out / concept / "Main" / "metadata.csv").open() as stream:
+            rows = [{**row, "filename": row.pop("name")} for row in csv.DictReader(stream)]
+        names = [row["filename"] for row in rows]
+        assert len(set(names)) == len(names) and rows
+        assert {0 if "Impossible" in row["type"] else 1 for row in rows} == {0, 1}
+        assert not {row["game_name"] for row in rows} & NOTEBOOK_CAMERA_GAMES
+        chosen = intphys2.CONDITIONS[intphys2_export.CONDITIONS[concept]]  # its principle
+        for prop, conditions in NOTEBOOK_PROPERTIES.items():
+            selected = [row for row in rows if row["condition"] in conditions]
+            assert len(selected) == (len(rows) if prop == chosen else 0), (concept, prop)
 
 
 def test_intphys_reader_reads_the_pairs_labels_quadruplets_and_frames_back_exactly(

@@ -30,6 +30,25 @@ from voe_lightning.report.page.markdown import markdown_html
 from voe_lightning.report.pairs import PairResults
 
 NUM_FRAMES = 8
+#: Per surprise plot under a video, as the browser lays it out: its size, its two curves, its
+#: texts, the numbers among them, and any text that falls outside the plot's box.
+SURPRISE_PLOTS = """
+return Array.from(document.querySelectorAll("svg.surprise")).map(svg => {
+  const box = svg.getBoundingClientRect();
+  const texts = Array.from(svg.querySelectorAll("text"));
+  return {
+    width: box.width, height: box.height,
+    lines: svg.querySelectorAll("polyline").length,
+    texts: texts.map(t => t.textContent),
+    numbers: texts.map(t => t.textContent).filter(t => !isNaN(parseFloat(t))),
+    clipped: texts.filter(t => {
+      const r = t.getBoundingClientRect();
+      return r.width === 0 || r.left < box.left - 0.5 || r.right > box.right + 0.5
+        || r.top < box.top - 0.5 || r.bottom > box.bottom + 0.5;
+    }).map(t => t.textContent),
+  };
+});
+"""
 #: Chromium's flags on a machine with no network (without them it waits on the network).
 CHROMIUM_FLAGS = (
     "--headless",
@@ -233,6 +252,13 @@ def test_the_page_opens_offline_in_a_browser_with_its_videos_playing(report, tmp
         first = video.screenshot_as_png
         time.sleep(0.7)  # about three frames of 250 ms: the timeline under the frames moves on
         assert video.screenshot_as_png != first
+        plots = browser.execute_script(SURPRISE_PLOTS)
+        assert len(plots) == 4 * len(specs.CONCEPTS)
+        for plot in plots:  # drawn, and every label inside its box where the page shows it
+            assert plot["lines"] == 2 and plot["width"] > 0 and plot["height"] > 0, plot
+            assert {"this video", "its pair's other", "frame", "change"} <= set(plot["texts"])
+            assert "0" in plot["texts"] and len(plot["numbers"]) >= 4, plot  # y ends, frames
+            assert plot["clipped"] == [], plot
         assert browser.save_screenshot(str(tmp_path / "index.png"))
         with Image.open(tmp_path / "index.png") as shot:
             assert shot.size[0] >= 1000 and len(shot.getcolors(1 << 24) or []) > 50

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from helpers import ALPHA
 
+from voe_lightning.benchmarks.metrics import quadruplet_metrics
 from voe_lightning.cli import main
-from voe_lightning.external.metrics import quadruplet_metrics
 from voe_lightning.report import PairResults, ReportInputs, write_report
 from voe_lightning.stats.field_metrics import (
     REDUCTIONS,

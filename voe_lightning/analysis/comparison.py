@@ -1,5 +1,6 @@
-"""Tested runs side by side: the per-concept verdicts of their reports (``analyze compare``)
-and the field's metric set of a windowed model over context length (``analyze context-sweep``)."""
+"""Tested runs side by side: the per-concept verdicts of their reports and their mean ± sd
+over the runs (``analyze compare``), and the field's metric set of a windowed model over
+context length (``analyze context-sweep``)."""
 
 from __future__ import annotations
 
@@ -51,14 +52,14 @@ def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, An
                     if cue["cue"] in FRAME_LOCAL_CUES and cue["accuracy"] not in ("", "None"):
                         key = (cue["concept"], cue["variant"])
                         cue_accuracy.setdefault(key, []).append(float(cue["accuracy"]))
-        tracked = {}
+        tracked: dict[tuple[str, str], Mapping[str, Any]] = {}
         if (report / "cue_correlations.csv").is_file():
             with open(report / "cue_correlations.csv", newline="") as handle:
                 tracked = tracked_cues(
                     {**row, "r": float(row["r"]) if row["r"] not in ("", "None") else None}
                     for row in csv.DictReader(handle)
                 )
-        by_concept: dict[str, list[dict]] = {}
+        by_concept: dict[str, list[dict[str, Any]]] = {}
         for row in summary["rows"]:
             by_concept.setdefault(row["concept"], []).append(row)
         for verdict in summary["verdicts"]:
@@ -72,7 +73,7 @@ def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, An
             ]
             for row in quadruplet or pooled or standard:  # generalization variants: never
                 accuracies = cue_accuracy.get((row["concept"], row["variant"]), [])
-                cue = tracked.get((row["concept"], row["variant"]), {"cue": None, "r": None})
+                best = tracked.get((row["concept"], row["variant"]), {"cue": None, "r": None})
                 rows.append(
                     {
                         "run": label,
@@ -82,8 +83,8 @@ def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, An
                         "verdict": verdict["verdict"],
                         "cue_accuracy_min": min(accuracies, default=None),
                         "cue_accuracy_max": max(accuracies, default=None),
-                        "tracked_cue": cue["cue"],
-                        "tracked_cue_r": cue["r"],
+                        "tracked_cue": best["cue"],
+                        "tracked_cue_r": best["r"],
                     }
                 )
     return rows
@@ -92,7 +93,7 @@ def comparison_rows(runs: Sequence[tuple[str, str | Path]]) -> list[dict[str, An
 def comparison_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
     """The comparison as a Markdown table, one line per run, concept and verdict row; the
     VOE column's header names the runs' alpha (each run's verdict is at its own)."""
-    alphas = {row.get("alpha") for row in rows if row.get("alpha") is not None}
+    alphas: set[float] = {row["alpha"] for row in rows if row.get("alpha") is not None}
     voe = f"VOE ({format_alpha(alphas.pop())})" if len(alphas) == 1 else "VOE (each run's α)"
     lines = [
         "| run | concept | variant | n | M | t(df) | p | accuracy | frame-local cues: "
@@ -120,6 +121,44 @@ def comparison_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def over_runs_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
+    """Per concept and verdict row, t's mean ± sd over the runs (seeds of one config, say:
+    the spread the field asks a result to report), the halves' M as mean ± sd, and how many
+    runs show VOE; empty for fewer than two runs."""
+    runs = list(dict.fromkeys(str(row["run"]) for row in rows))
+    if len(runs) < 2:
+        return ""
+    groups: dict[tuple[str, str], list[Mapping[str, Any]]] = {}
+    for row in rows:
+        groups.setdefault((row["concept"], row["variant"]), []).append(row)
+    lines = [
+        f"Over the {len(runs)} runs (mean ± sd; sd with n − 1):",
+        "",
+        "| concept | variant | runs | t | halves M | VOE |",
+        "|---|---|---|---|---|---|",
+    ]
+    for (concept, variant), group in groups.items():
+        t = _mean_sd([row["t"] for row in group])
+        halves = " / ".join(
+            _mean_sd([row.get(half) for row in group]) for half in ("first_half", "second_half")
+        )
+        shown = sum(bool(row["voe"]) for row in group if row["voe"] is not None)
+        lines.append(
+            f"| {concept} | {variant} | {len(group)} | {t} | {halves} | {shown} of {len(group)} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _mean_sd(values: Sequence[float | None]) -> str:
+    """``mean ± sd`` of the values given (n/a where none is)."""
+    known = np.array([value for value in values if value is not None], dtype=float)
+    known = known[np.isfinite(known)]
+    if known.size == 0:
+        return "n/a"
+    sd = f" ± {known.std(ddof=1):.2f}" if known.size > 1 else ""
+    return f"{known.mean():.2f}{sd}"
+
+
 def compare(runs: list[str], out: Path | None = None, page: Path | None = None) -> str:
     """Per-concept verdicts of tested runs side by side, as a Markdown table.
 
@@ -130,7 +169,10 @@ def compare(runs: list[str], out: Path | None = None, page: Path | None = None) 
             side by side, each one's source and causality check, and their figures side by side.
     """
     labelled = [labelled_run(run) for run in runs]
-    table = comparison_markdown(comparison_rows(labelled))
+    rows = comparison_rows(labelled)
+    table = comparison_markdown(rows)
+    spread = over_runs_markdown(rows)
+    table += f"\n{spread}" if spread else ""
     print(table, end="")
     if out:
         Path(out).write_text(table)

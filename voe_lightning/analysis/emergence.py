@@ -35,6 +35,7 @@ def read_quadruplet_curves(run_dir: str | Path) -> dict[tuple[str, str], Curves]
     curves: dict[tuple[str, str], Curves] = {}
     for tag, curve in read_scalars(run_dir, QUADRUPLET_TAG).items():
         match = QUADRUPLET_TAG.match(tag)
+        assert match is not None  # read_scalars keeps the tags the pattern matches
         curves.setdefault((match["concept"], match["row"]), {})[match["statistic"]] = curve
     return curves
 

@@ -11,8 +11,8 @@ own folder, then tables per concept/variant the distribution of t over initializ
 share significant and, per concept, the share with a VOE verdict; a trained run's t gets its
 percentile in that distribution, and the plot (``null_figure``) shows each t against the
 critical t at alpha. ``priors_alone`` is one such initialization of a run's own
-config at its own seed, which ``test`` runs first where the report callback asks for it
-(``VOEReportCallback(priors_alone=True)``, the positive control's config).
+config at its own seed, which ``test`` runs first (``priors_alone_first``) where the report
+callback asks for it (``VOEReportCallback(priors_alone=True)``, the positive control's config).
 """
 
 from __future__ import annotations
@@ -28,11 +28,14 @@ from typing import Any, cast
 import numpy as np
 import scipy.stats
 import yaml
+from lightning.pytorch.utilities.seed import isolate_rng
 from matplotlib.figure import Figure
 
 from voe_lightning.callbacks.outcomes import report_folders
-from voe_lightning.data.store_shards import write_whole
+from voe_lightning.callbacks.report import VOEReportCallback
+from voe_lightning.data.store import write_whole
 from voe_lightning.report.figures import save_figure
+from voe_lightning.report.priors_alone import PRIORS_ALONE
 from voe_lightning.report.summary_file import read_summary
 from voe_lightning.runs import fresh_config_name
 from voe_lightning.stats.statistics_format import format_number
@@ -85,6 +88,32 @@ def priors_alone(
         build_cli, [config_path], seed, out, ["--trainer.logger.init_args.version", "null"]
     )
     return {**read_summary(report), "seed": seed, "report": str(report)}
+
+
+def priors_alone_first(
+    callbacks: Sequence[VOEReportCallback],
+    build_cli: Callable[[list[str]], Any],
+    config: Mapping[str, Any],
+    seed: Any,
+    out: Path,
+) -> None:
+    """Before a ``test`` whose report ``callbacks`` ask for ``priors_alone``: its ``config`` as
+    tested, at initialization under the run's ``seed`` (an integer), tested first on the same
+    probes into ``out`` (``priors_alone``) and handed to each callback for its report; the
+    test's random state is kept as it was."""
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise ValueError(
+            f"priors_alone tests the config at initialization under the run's "
+            f"seed, and seed_everything is {seed!r}: give an integer"
+        )
+    print(
+        f"test: first the config at initialization (seed {seed}) on the same probes, "
+        f"its {PRIORS_ALONE} rows for the report, into {out}"
+    )
+    with isolate_rng():
+        untrained = priors_alone(build_cli, config, seed, out)
+    for callback in callbacks:
+        callback.untrained = untrained
 
 
 #: What a report's ``source`` says of its probes; a trained t is placed only among t's of the same.

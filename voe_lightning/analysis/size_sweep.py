@@ -131,7 +131,7 @@ def _report_alpha(report_dir: Path) -> float:
 
 def _checkpoint(cli: Any) -> str:
     callback = cli.trainer.checkpoint_callback
-    path = callback and (callback.last_model_path or callback.best_model_path)
+    path: str = callback and (callback.last_model_path or callback.best_model_path)
     if not path:
         raise RuntimeError("the fit run saved no checkpoint (is checkpointing enabled?)")
     return path
@@ -252,6 +252,7 @@ def sweep_plot(
     if results is not None:
         rows = json.loads(Path(results).read_text())
     else:
+        assert runs is not None  # exactly one of results and runs, checked above
         rows = []
         for size, run_dir in runs.items():
             pairs = trained_reports(run_dir, "pairs.csv")

@@ -17,8 +17,10 @@ from voe_lightning.report.figures import panel_grid, save_figure
 RELATIVE_SURPRISE_TAG = re.compile(r"^voe/(?P<concept>[^/]+)/(?P<variant>[^/]+)/relative_surprise$")
 #: Line styles of the paper's Figure 6; other run labels cycle through the rest.
 PAPER_LINESTYLES = {"joint": "-", "separate": "--"}
+#: A matplotlib line style: a name, or (offset, on-off dash sequence).
+LineStyle = str | tuple[int, tuple[int, ...]]
 #: Line styles and markers of the other runs, in order; each run of a figure gets its own.
-_LINESTYLES = (
+_LINESTYLES: tuple[tuple[LineStyle, str], ...] = (
     ("-", "solid"),
     ("--", "dashed"),
     (":", "dotted"),
@@ -50,7 +52,7 @@ def _is_evaluation(accumulator: Any) -> bool:
 
 def read_scalars(
     run_dir: str | Path,
-    pattern: re.Pattern | str = RELATIVE_SURPRISE_TAG,
+    pattern: re.Pattern[str] | str = RELATIVE_SURPRISE_TAG,
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Scalars whose tag matches ``pattern`` from every training event file under ``run_dir``
     (not a later ``validate``'s, ``_is_evaluation``, in the run or a folder of other data), as
@@ -92,11 +94,12 @@ def read_relative_surprise(
     curves = {}
     for tag, curve in read_scalars(run_dir).items():
         match = RELATIVE_SURPRISE_TAG.match(tag)
+        assert match is not None  # read_scalars keeps the tags the pattern matches
         curves[(match["concept"], match["variant"])] = curve
     return curves
 
 
-def _run_styles(labels: Sequence[str]) -> dict[str, tuple[Any, str, str]]:
+def _run_styles(labels: Sequence[str]) -> dict[str, tuple[LineStyle, str, str]]:
     """(line style, marker, its description) per run label: 'joint' solid and 'separate' dashed
     as in the paper, the other labels each a style and a marker no other run of the figure has."""
     paper = {PAPER_LINESTYLES[label] for label in labels if label in PAPER_LINESTYLES}
@@ -105,6 +108,7 @@ def _run_styles(labels: Sequence[str]) -> dict[str, tuple[Any, str, str]]:
     styles, others = {}, 0
     for index, label in enumerate(labels):
         marker, marker_name = _MARKERS[index % len(_MARKERS)]
+        line: LineStyle
         if label in PAPER_LINESTYLES:
             line, line_name = PAPER_LINESTYLES[label], names[PAPER_LINESTYLES[label]]
         else:
@@ -151,7 +155,7 @@ def relative_surprise_curves_figure(
     styles = _run_styles(labels)
     concepts = list(dict.fromkeys(c for label in labels for c, _ in curves[label]))
     figure, axes = panel_grid(len(concepts), 5.0, 3.6, max_cols=3)
-    colors = {}
+    colors: dict[tuple[str, str], str] = {}
     for ax, concept in zip(axes, concepts):
         variants = list(
             dict.fromkeys(v for label in labels for c, v in curves[label] if c == concept)

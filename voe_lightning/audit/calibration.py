@@ -6,9 +6,9 @@ A synthetic model's relative surprise of probe pair i of a concept is
     d_i = delta + weight * sign * follow(cue scores of pair i) + noise_i,   noise_i ~ N(0, 1),
 
 built from the *real* cue scores of generated probes (``cues.CueAudit``, the frame-local cues):
-``follow`` is one of ``FOLLOWERS``, linear or not, of the pair's cue difference or of each
-video's score, scaled to unit SD over the concept's pairs; ``sign`` says which way the model
-follows the cue; ``delta`` (in noise SDs) is a true violation effect. Each repetition draws
+``follow`` is one of ``cue_followers.FOLLOWERS``, linear or not, of the pair's cue difference or
+of each video's score, scaled to unit SD over the concept's pairs; ``sign`` says which way the
+model follows the cue; ``delta`` (in noise SDs) is a true violation effect. Each repetition draws
 ``pairs`` pairs per variant (with replacement, from the audit's pairs of that variant) and new
 noise, tests every variant as reports do (``statistics``) and applies the verdict rule
 (``verdicts.verdict_rule``). A quadruplet concept (``specs.QUADRUPLETS``)
@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -38,6 +38,7 @@ from scipy import stats
 
 from voe_lightning import specs
 from voe_lightning.audit import cues, video_cues
+from voe_lightning.audit.cue_followers import FOLLOWERS
 from voe_lightning.stats import statistics
 from voe_lightning.stats.statistics_format import format_alpha, json_row
 from voe_lightning.stats.t_tests import t_and_p
@@ -45,7 +46,6 @@ from voe_lightning.stats.verdicts import quadruplet_rule, quadruplets, verdict_r
 
 __all__ = [
     "DELTAS",
-    "FOLLOWERS",
     "WEIGHTS",
     "CalibrationRow",
     "calibrate",
@@ -58,46 +58,6 @@ __all__ = [
     "verdict_rates",
 ]
 
-#: A cue follower: per-pair term from the pairs' scores (consistent, inconsistent) and the
-#: concept's scale of score differences, scale of scores and mean score.
-Follower = Callable[[np.ndarray, np.ndarray, float, float, float], np.ndarray]
-
-
-def _linear(con, inc, difference_scale, score_scale, score_mean):
-    """z: the cue difference in SDs of the concept's differences."""
-    return (inc - con) / difference_scale
-
-
-def _tanh(*scores):
-    return np.tanh(_linear(*scores))
-
-
-def _signed_square(*scores):
-    z = _linear(*scores)
-    return z * np.abs(z)
-
-
-def _threshold(*scores):
-    z = _linear(*scores)
-    return np.sign(z) * (np.abs(z) > 0.5)
-
-
-def _per_video_square(con, inc, difference_scale, score_scale, score_mean):
-    """u_inc^2 - u_con^2, u a video's score in SDs of the concept's scores from their mean."""
-    return ((inc - score_mean) / score_scale) ** 2 - ((con - score_mean) / score_scale) ** 2
-
-
-#: How a physics-blind model may turn a cue into surprise: odd functions of the pair's cue
-#: difference z (linear; saturating; expanding; a detector that fires beyond half an SD), and a
-#: per-video one, each video's surprise the square of its standardized score u (convex: the
-#: difference u_inc^2 - u_con^2 need not cancel over mirrored variants).
-FOLLOWERS: dict[str, Follower] = {
-    "linear": _linear,
-    "tanh": _tanh,
-    "signed square": _signed_square,
-    "threshold": _threshold,
-    "per-video square": _per_video_square,
-}
 #: The cue term's SD over a concept's pairs, in noise SDs.
 WEIGHTS: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0)
 #: The true effects (noise SDs) at which power is computed.
@@ -183,13 +143,14 @@ def verdict_rates(
             f"{concept} needs cue terms of every variant {variants}; missing {missing}"
         )
     if concept in specs.QUADRUPLET_CONCEPTS:
-        return np.all(
+        every_passes: np.ndarray = np.all(
             [
                 quadruplet_voe([terms[v] for v in halves], pairs, repetitions, alpha, deltas, rng)
                 for halves in specs.QUADRUPLETS[concept].values()
             ],
             axis=0,
         ).mean(axis=1)
+        return every_passes
     moments = {}
     for variant in variants:
         pool = terms[variant]
@@ -199,7 +160,8 @@ def verdict_rates(
     shifted = np.asarray(deltas, dtype=np.float64)[:, None]  # [deltas, 1] over [repetitions]
     means = {variant: mean[None] + shifted for variant, (mean, _) in moments.items()}
     p_values = [t_and_p(means[v], np.sqrt(moments[v][1] / pairs), pairs - 1)[1] for v in variants]
-    return verdict_rule(p_values, alpha).mean(axis=1)
+    rates: np.ndarray = verdict_rule(p_values, alpha).mean(axis=1)
+    return rates
 
 
 def quadruplet_voe(
@@ -226,7 +188,8 @@ def quadruplet_voe(
     error = np.sqrt(total.var(axis=1, ddof=1) / count)
     p_values = t_and_p(total.mean(axis=1)[None] + 2 * shifted, error, count - 1)[1]
     first_mean, second_mean = (half.mean(axis=1)[None] + shifted for half in drawn)
-    return quadruplet_rule(p_values, first_mean, second_mean, alpha)
+    voe: np.ndarray = quadruplet_rule(p_values, first_mean, second_mean, alpha)
+    return voe
 
 
 @dataclass(frozen=True)
@@ -303,7 +266,16 @@ def calibrate(
             raise ValueError(f"pairs must be >= 2 per variant, got {pairs}")
         rng = np.random.default_rng([seed, specs.CONCEPTS.index(concept)])
 
-        def row(cue, follower, sign, weight, terms, concept=concept, n=n, rng=rng):
+        def row(
+            cue: str | None,
+            follower: str | None,
+            sign: int,
+            weight: float,
+            terms: Mapping[str, np.ndarray],
+            concept: str = concept,
+            n: int = n,
+            rng: np.random.Generator = rng,
+        ) -> CalibrationRow:
             power = cue is None or weight in power_weights
             grid = grid_with_zero if power else zero
             rates = verdict_rates(terms, concept, n, repetitions, alpha, grid, rng)
@@ -362,7 +334,18 @@ def _power(row: CalibrationRow) -> str:
         return "n/a"
     if math.isnan(row.delta_80):
         return f"> {DELTAS[-1]:g}"
+    assert row.power_at_delta_80 is not None  # computed with delta_80
     return f"{row.delta_80:.2f} ({100 * row.power_at_delta_80:.0f}%)"
+
+
+def _delta_80(row: CalibrationRow) -> float:
+    """A row's delta_80 to rank by, inf where 80% is never reached (NaN; None: not computed)."""
+    return math.inf if row.delta_80 is None or math.isnan(row.delta_80) else row.delta_80
+
+
+def _cue_title(row: CalibrationRow) -> str:
+    assert row.cue is not None  # a row of a cue follower
+    return cues.CUE_TITLES[row.cue]
 
 
 def calibration_markdown(rows: Sequence[CalibrationRow], title: str = "Calibration") -> str:
@@ -389,22 +372,18 @@ def calibration_markdown(rows: Sequence[CalibrationRow], title: str = "Calibrati
             mine = [row for row in tested if (row.concept, row.follower) == (concept, follower)]
             worst = max(mine, key=lambda row: row.false_voe_rate)
             at_one = [row for row in mine if row.weight == 1.0 and row.delta_80 is not None]
-            hardest = (
-                max(at_one, key=lambda row: math.inf if math.isnan(row.delta_80) else row.delta_80)
-                if at_one
-                else None
-            )
+            hardest = max(at_one, key=_delta_80) if at_one else None
             hard = (
                 "n/a"
                 if hardest is None
-                else f"{_power(hardest)} ({cues.CUE_TITLES[hardest.cue]}, {hardest.sign:+d})"
+                else f"{_power(hardest)} ({_cue_title(hardest)}, {hardest.sign:+d})"
             )
             false_voe = f"{100 * worst.false_voe_rate:.2f}%"
             if worst.false_voe_rate > 0:
                 false_voe += (
                     (" †" if worst.right_on_every_variant else "")
                     + (" **> bound**" if worst.false_voe_rate > bound else "")
-                    + f" ({cues.CUE_TITLES[worst.cue]}, {worst.sign:+d}, "
+                    + f" ({_cue_title(worst)}, {worst.sign:+d}, "
                     f"{worst.weight:g})"
                 )
             lines.append(

@@ -15,7 +15,7 @@ import os
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from voe_lightning import specs
 from voe_lightning.audit.cues import (
@@ -27,7 +27,7 @@ from voe_lightning.audit.cues import (
 )
 from voe_lightning.audit.followers import follower_title
 from voe_lightning.audit.video_cues import CUES
-from voe_lightning.data.store_shards import write_whole
+from voe_lightning.data.store import write_whole
 from voe_lightning.stats import statistics, verdicts
 from voe_lightning.stats.statistics_format import (
     BRIEF,
@@ -36,6 +36,9 @@ from voe_lightning.stats.statistics_format import (
     row_text,
     rows_alpha,
 )
+
+if TYPE_CHECKING:
+    from rich.table import Table
 
 __all__ = [
     "audit",
@@ -310,7 +313,7 @@ def cue_table(
     cue_rows: Sequence[Mapping[str, Any]],
     model_rows: Sequence[Mapping[str, Any]] | None = None,
     title: str = "Cue audit",
-):
+) -> Table:
     """The compact cue table as a rich Table (separating cue cells red, pooled rows bold)."""
     from rich.table import Table
 
@@ -320,12 +323,12 @@ def cue_table(
         caption="accuracy (ties half) / d_z; red: the cue separates the pairs "
         f"(two-sided p < {alpha:g})",
     )
-    for column in (
+    for header in (
         ["concept", "variant", "n"]
         + (["model"] if model_rows is not None else [])
         + [CUE_TITLES[cue] for cue in CUES]
     ):
-        table.add_column(column, justify="left" if column in ("concept", "variant") else "right")
+        table.add_column(header, justify="left" if header in ("concept", "variant") else "right")
     groups = _table_cells(cue_rows, model_rows)
     for index, (concept, variant, n, cells) in enumerate(groups):
         styled = []
@@ -363,7 +366,7 @@ def write_audit(
     the model-cue correlations and the physics-perfect observer's when given), ``cues.csv``
     (every column of every row), ``cue_correlations.csv`` and
     ``physics_perfect_correlations.csv`` (with those correlations) and ``cues.json`` (rows,
-    correlations and ``metadata``), all or none of them (``store_shards.write_whole``: a full
+    correlations and ``metadata``), all or none of them (``store.write_whole``: a full
     disk names the file and leaves the previous audit whole)."""
     out = check_out_folder(out_dir, "the audit's folder")
     markdown = format_markdown(cue_rows, model_rows, title)
@@ -393,7 +396,7 @@ def write_audit(
     return out
 
 
-def check_out_folder(out: str | os.PathLike, what: str) -> Path:
+def check_out_folder(out: str | os.PathLike[str], what: str) -> Path:
     """``out`` as a Path, refused (a ValueError naming it) when it, or the first of its
     parents that exists, is a file: the audit writes several files into a folder."""
     out = Path(out)

@@ -20,7 +20,7 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -36,6 +36,9 @@ from voe_lightning.audit.video_cues import (
     score_videos,
 )
 from voe_lightning.stats import statistics, verdicts
+
+if TYPE_CHECKING:
+    from tensordict import TensorDict
 
 __all__ = [
     "CUE_COLUMNS",
@@ -118,8 +121,14 @@ def physics_perfect_surprise(
     turned = 2.0 * torch.arccos(alignment.abs().clamp(max=1.0))
     both = seen[0] & seen[1] & after
     parted = (seen[0] != seen[1]) & after
-    cost = parted.double() + torch.where(both, (moved + turned) / STATE_SCALE, 0.0)
+    cost: torch.Tensor = parted.double() + torch.where(both, (moved + turned) / STATE_SCALE, 0.0)
     return cost.sum((1, 2)).cpu().numpy()
+
+
+def _concatenated(parts: Sequence[np.ndarray | None]) -> np.ndarray | None:
+    """``parts`` end to end; None unless every part is known."""
+    known = [part for part in parts if part is not None]
+    return np.concatenate(known) if len(known) == len(parts) else None
 
 
 def _mask(video: Any) -> torch.Tensor | None:
@@ -169,8 +178,9 @@ class CueAudit:
             side: score_videos(batch[side]["frames"], _mask(batch[side]), m) for side in SIDES
         }
         masks = [_mask(batch[side]) for side in SIDES]
-        if all(mask is not None for mask in masks):
-            unmasked = ~torch.stack([(mask != 0).flatten(1).any(dim=1) for mask in masks]).any(
+        present = [mask for mask in masks if mask is not None]
+        if len(present) == len(masks):
+            unmasked = ~torch.stack([(mask != 0).flatten(1).any(dim=1) for mask in present]).any(
                 dim=0
             )
             for side in SIDES:
@@ -185,9 +195,13 @@ class CueAudit:
         }
         extent = physics_perfect = None
         if all("objects" in batch[side].keys() for side in SIDES):
-            objects = [batch[side]["objects"] for side in ("inconsistent", "consistent")]
-            extent = seen_extent(*(side["visible_fraction"] for side in objects), m)
-            physics_perfect = physics_perfect_surprise(*objects, m)
+            inconsistent, consistent = (
+                batch[side]["objects"] for side in ("inconsistent", "consistent")
+            )
+            extent = seen_extent(
+                inconsistent["visible_fraction"], consistent["visible_fraction"], m
+            )
+            physics_perfect = physics_perfect_surprise(inconsistent, consistent, m)
         return cls(
             np.array([concept_names[int(i)] for i in batch["concept"].reshape(-1)], dtype=object),
             np.array([variant_names[int(i)] for i in batch["variant"].reshape(-1)], dtype=object),
@@ -212,7 +226,7 @@ class CueAudit:
                 for side in SIDES
             },
             *(
-                np.concatenate(parts) if all(part is not None for part in parts) else None
+                _concatenated(parts)
                 for parts in (
                     [a.extent for a in audits],
                     [a.physics_perfect for a in audits],
@@ -301,7 +315,10 @@ class CueAudit:
         for concept, variant, selected in self.groups():
             if variant in specs.QUADRUPLET_ROWS:  # correlations are pair by pair
                 continue
-            readings = [(variant, model_difference, None)]  # (row name, d, covariates)
+            # (row name, d, covariates)
+            readings: list[tuple[str, np.ndarray, np.ndarray | None]] = [
+                (variant, model_difference, None)
+            ]
             if variant == statistics.POOLED:
                 within = np.empty((int(selected.sum()), 0))
                 readings.append((WITHIN_VARIANTS, model_difference, within))
@@ -318,7 +335,7 @@ class CueAudit:
                 model, spent = _residuals(surprise[selected], labels, covariates)
                 for cue in CUES:
                     cue_d, _ = _residuals(differences[cue][selected], labels, covariates)
-                    row = dict.fromkeys(CORRELATION_COLUMNS)
+                    row: dict[str, Any] = dict.fromkeys(CORRELATION_COLUMNS)
                     row.update(
                         concept=concept, variant=name, cue=cue, n=int(selected.sum()), alpha=alpha
                     )
@@ -349,7 +366,8 @@ def _differences(variant: str, d: np.ndarray) -> np.ndarray:
     if variant not in specs.QUADRUPLET_ROWS:
         return d
     half = d.size // 2
-    return d[:half] + d[half:]
+    summed: np.ndarray = d[:half] + d[half:]
+    return summed
 
 
 def _residuals(
@@ -382,7 +400,8 @@ def _partial_p(r: float, df: int) -> float:
     whose mean was removed (the partial correlation given the group)."""
     if abs(r) >= 1.0:
         return 0.0
-    return 2 * stats.t.sf(abs(r) * math.sqrt(df / (1 - r * r)), df)
+    p: float = 2 * stats.t.sf(abs(r) * math.sqrt(df / (1 - r * r)), df)
+    return p
 
 
 def tracked_cues(
@@ -447,10 +466,10 @@ def audit_split(
 ) -> CueAudit:
     """Score every probe pair of ``split`` (val, test or generalization) of the store at
     ``root`` for ``concepts`` (default: every concept the store holds), each shard checked
-    against the manifest first (``store_plan.check_split``: a foreign one is refused)."""
+    against the manifest first (``store.check_split``: a foreign one is refused)."""
     from torch.utils.data import ConcatDataset
 
-    from voe_lightning.data import store, store_plan
+    from voe_lightning.data import store
 
     if store.SPLIT_RECORD_TYPE.get(split) != "probe":
         probe_splits = [s for s, kind in store.SPLIT_RECORD_TYPE.items() if kind == "probe"]
@@ -464,7 +483,7 @@ def audit_split(
             f"generate --root {root}`)"
         )
     concepts = list(dict.fromkeys(concepts or manifest["concepts"]))
-    store_plan.check_split(root, manifest, concepts, split)
+    store.check_split(root, manifest, concepts, split)
     parts = [
         part
         for part in (store.open_split(root, concept, split) for concept in concepts)
@@ -475,6 +494,6 @@ def audit_split(
             f"the {split} split of {root} holds no probe pairs for "
             f"{', '.join(concepts)}; audit another split, or generate this one"
         )
-    dataset = ConcatDataset(parts)
+    dataset: ConcatDataset[TensorDict] = ConcatDataset(parts)
     loader = store.record_loader(dataset, batch_size, num_workers)
     return audit_records(loader, batch_size=0, progress=progress, total=len(loader))

@@ -2,7 +2,7 @@
 system's temporary folder (fsspec's transaction) and moves it into ``checkpoints/``; on another
 file system that move is a copy, which a full disk cuts short, leaving a truncated
 ``epoch=...ckpt``. ``WholeCheckpointIO`` stages it beside its target instead, fsynced, and
-renames it (``store_shards.atomic_write``): a failed write leaves no checkpoint file, the
+renames it (``store.atomic_write``): a failed write leaves no checkpoint file, the
 previous one of that name whole, and names the file; ``use_whole_checkpoints`` puts it in a
 trainer's strategy (``InterruptCheckpoint.setup`` does, so every CLI run has it)."""
 
@@ -16,7 +16,7 @@ import lightning as L
 import torch
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
-from voe_lightning.data.store_shards import atomic_write
+from voe_lightning.data.store import atomic_write
 
 
 class WholeCheckpointIO(TorchCheckpointIO):

@@ -3,7 +3,7 @@ validation run."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import lightning as L
 import torch
@@ -12,7 +12,7 @@ from tensordict import TensorDictBase
 
 from voe_lightning import specs
 from voe_lightning.callbacks.common import probe_names
-from voe_lightning.model.base import expected_frames_problem, video_inputs
+from voe_lightning.model.base import SurpriseModel, expected_frames_problem, video_inputs
 
 
 def _first_frames(video_input: Any, count: int) -> Any:
@@ -31,10 +31,17 @@ class ExpectationImages(L.Callback):
     def __init__(self, max_frames: int = 15):
         super().__init__()
         self.max_frames = max_frames
-        self.examples: dict[str, torch.Tensor] = {}
+        #: Per concept, its probe's inconsistent video: ``frames`` and ``video_inputs``.
+        self.examples: dict[str, dict[str, torch.Tensor | TensorDictBase]] = {}
 
     def on_validation_batch_end(
-        self, trainer, pl_module, outputs, batch, batch_idx, dataloader_idx=0
+        self,
+        trainer: L.Trainer,
+        pl_module: L.LightningModule,
+        outputs: Any,
+        batch: Any,
+        batch_idx: int,
+        dataloader_idx: int = 0,
     ) -> None:
         concept_names, _ = probe_names(trainer, type(self).__name__)
         frames = batch["inconsistent", "frames"]
@@ -47,7 +54,7 @@ class ExpectationImages(L.Callback):
                     for key, value in {"frames": frames, **inputs}.items()
                 }
 
-    def on_validation_epoch_end(self, trainer, pl_module) -> None:
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.sanity_checking or not trainer.is_global_zero or not self.examples:
             return
         experiment = getattr(trainer.logger, "experiment", None)
@@ -61,7 +68,8 @@ class ExpectationImages(L.Callback):
             frames = example["frames"][: self.max_frames]
             model_frames = video.pop("frames")
             with torch.no_grad():
-                returned = pl_module.expected_frames(model_frames, **video)
+                # Any probe model's protocol; expected_frames_problem checks its answer.
+                returned = cast(SurpriseModel, pl_module).expected_frames(model_frames, **video)
             if problem := expected_frames_problem(pl_module, returned, model_frames):
                 rank_zero_warn(f"{problem}; no expected/ images logged")
                 return

@@ -167,3 +167,19 @@ class InterruptCheckpoint(L.Callback):
     def exit_code(self) -> int:
         """The shell's code for death by the signal received: 128 + its number."""
         return 128 + int(signal.Signals[self.signal_name or "SIGTERM"])
+
+    def stopped(self, subcommand: str, step: int) -> str:
+        """The line saying what stopped ``subcommand`` (a fit: at ``step``) and what it left:
+        a fit's resumable checkpoint and how to continue from it."""
+        if subcommand != "fit":
+            return (
+                f"{subcommand} stopped by {self.signal_name or 'SIGTERM'}; nothing written "
+                "(no report, no predictions)"
+            )
+        saved = (
+            f"saved a resumable checkpoint {self.saved}: continue with "
+            f"`fit --ckpt_path {self.saved}`"
+            if self.saved
+            else "nothing saved"
+        )
+        return f"fit stopped by {self.signal_name or 'SIGTERM'} at step {step}; {saved}"

@@ -16,15 +16,15 @@ import torch
 from lightning.pytorch.callbacks import BasePredictionWriter
 from lightning.pytorch.utilities import rank_zero_info
 
-from voe_lightning.data.store_shards import write_whole
-from voe_lightning.external.metrics import write_answer_file
+from voe_lightning.benchmarks.metrics import write_answer_file
+from voe_lightning.data.store import write_whole
 
 
 class IntPhysAnswerWriter(BasePredictionWriter):
     """Writes the IntPhys challenge's ``answer.txt`` to ``path`` at the end of ``predict``: one
         line per movie of the predict dataset (its ``names[index]``, e.g. ``O1/0001/1``) with a
-        plausibility from the movie's total surprise (``external.metrics.write_answer_file``). Both writers write
-    their file whole (``store_shards.write_whole``): a full disk keeps the previous one."""
+        plausibility from the movie's total surprise (``benchmarks.metrics.write_answer_file``). Both writers write
+    their file whole (``store.write_whole``): a full disk keeps the previous one."""
 
     def __init__(self, path: str | os.PathLike[str] = "answer.txt"):
         super().__init__(write_interval="epoch")

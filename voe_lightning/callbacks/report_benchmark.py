@@ -9,8 +9,8 @@ from typing import Any
 import lightning as L
 import numpy as np
 
-from voe_lightning.data.store_shards import write_whole
-from voe_lightning.external.evaluation import evaluate
+from voe_lightning.benchmarks.evaluation import evaluate
+from voe_lightning.data.store import write_whole
 from voe_lightning.probe_datamodule import probe_datamodule
 from voe_lightning.report.pairs import PROBE_OUTPUT_KEYS
 
@@ -25,9 +25,9 @@ def write_benchmark_metrics(
     user: str,
 ) -> None:
     """External benchmarks (IntPhys, Physical Concepts, IntPhys 2) add their own published
-    metrics and files (``external.evaluation``, over the DataModule's ``external_pairs``) of
+    metrics and files (``benchmarks.evaluation``, over the DataModule's ``external_pairs``) of
     the test's probe ``outputs`` to ``report_dir``, written whole
-    (``store_shards.write_whole``); nothing for a DataModule of no external benchmark.
+    (``store.write_whole``); nothing for a DataModule of no external benchmark.
     ``user`` names the callback asking, should the DataModule not be a ProbeDataModule."""
     pairs = probe_datamodule(trainer, user).external_pairs()
     if pairs is None:

@@ -9,34 +9,28 @@ import functools
 import inspect
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import yaml
+from jsonargparse import Namespace
+from lightning.pytorch import Callback
+from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.utilities.exceptions import SIGTERMException
-from lightning.pytorch.utilities.seed import isolate_rng
 
-from voe_lightning import runs
+from voe_lightning import checkpoint_arguments, run_folders, runs
 from voe_lightning.analysis import null
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.callbacks.interruption import InterruptCheckpoint, ctrl_c_kept
 from voe_lightning.callbacks.outcomes import probe_outcomes
-from voe_lightning.cli import (
-    checkpoint_arguments,
-    commands,
-    parser_errors,
-    preflight,
-    run_arguments,
-    run_folders,
-    user_errors,
-)
+from voe_lightning.cli import commands, parser_errors, preflight, run_arguments, user_errors
 from voe_lightning.cli.commands import COMMANDS, LIGHTNING_SUBCOMMANDS
 from voe_lightning.cli.user_errors import DEBUG_VARIABLE
 from voe_lightning.model import SurpriseModel
 from voe_lightning.model.scorers.callable_model import CallableError
 from voe_lightning.probe_datamodule import ProbeDataModule
-from voe_lightning.report.priors_alone import PRIORS_ALONE
 from voe_lightning.runs import BASE_CONFIG, SHIPPED_CONFIGS, read_checkpoint
 
 #: Exit status of a fit/validate/test whose probe surprise failed the causality check (the
@@ -49,30 +43,19 @@ EVALUATION_INTERRUPTED = "nothing written (no report, no predictions; one writte
 
 
 class VOECLI(LightningCLI):
-    """LightningCLI that works in the run directory of ``--ckpt_path``
-    (``<save_dir>/<name>/<version>/checkpoints/x.ckpt``), whatever logger name the config
-    gives: a resumed ``fit`` continues its TensorBoard curves and checkpoints there (warning
-    that another logger name it was given is not used), and
-    ``validate``/``test`` write their logs and report beside the checkpoint: the run's own
-    report for its last.ckpt on its training data and concepts, a folder of its own
-    (``runs.report_folder``) for any other checkpoint, data root, concepts or external
-    benchmark (``run_folders``). ``validate``/``test`` save their config as
-    ``<subcommand>_config.yaml``, keeping the run's training ``config.yaml`` and an earlier
-    evaluation's config there (theirs then ``<subcommand>_config-2.yaml``, ``-3``...:
-    ``runs.RunConfig``). A ``test`` whose report callback asks for ``priors_alone`` first tests
-    the config at initialization (``_test_priors_alone``). ``--ckpt_path last``/``best`` name
-    the newest run of the config's logger name. A missing checkpoint (or a directory) is
-    refused before any work starts, and so are a truncated or corrupt one, one holding a
-    pickled object (``runs.read_checkpoint``), model arguments the user gives that differ from
-    the checkpoint's (``checkpoint_arguments``: LightningCLI replaces the config's model
-    arguments with the checkpoint's, so they would be ignored; evaluating it, the model's
-    ``EVALUATION_ONLY`` ones given are used instead, and its report gets a folder of its own),
-    and ``test``/``predict`` of a model with trainable parameters and no checkpoint. SIGTERM or SIGINT during ``fit`` saves a resumable last.ckpt and exits
-    with 128 + the signal's number (``interruption``). A run whose probe surprise is not causal
-    (``stats.causality.check_prefix``: it differs where a pair's videos are identical) exits with
-    ``NOT_CAUSAL_EXIT`` after its report, unless ``--allow_non_causal true``. Ctrl-C anywhere
-    else prints one line saying what was kept and exits with ``INTERRUPTED_EXIT``. The
-    subcommands of ``COMMANDS`` call their function instead, with no model, data or trainer."""
+    """LightningCLI with the package's subcommands (``COMMANDS``) beside Lightning's, whose
+    runs are checked before any work: a ``--ckpt_path`` (``last``/``best``: the newest run of
+    the config's logger name) is resolved, read and matched with the model arguments given
+    (``checkpoint_arguments``), and the run logs into that checkpoint's run folder
+    (``run_folders``); the run-wide arguments reach the callbacks (``run_arguments``), the
+    config is checked (``preflight``), ``test``/``predict`` of untrained weights are refused
+    and a ``test`` asking for ``priors_alone`` first tests the config at initialization.
+    ``validate``/``test`` save their config as ``<subcommand>_config.yaml`` beside the run's
+    record, never over it (``runs.RunConfig``). Its exits: 128 + the signal's number where
+    SIGTERM or SIGINT stopped a run (a fit saves a resumable last.ckpt: ``interruption``),
+    ``NOT_CAUSAL_EXIT`` after the report of a run whose probe surprise is not causal (unless
+    ``--allow_non_causal true``), ``INTERRUPTED_EXIT`` with one line on what was kept where
+    Ctrl-C stopped anything else."""
 
     def setup_parser(
         self, add_subcommands: bool, main_kwargs: dict[str, Any], subparser_kwargs: dict[str, Any]
@@ -80,6 +63,7 @@ class VOECLI(LightningCLI):
         """Lightning's parser and subcommands, then those of ``COMMANDS`` beside them."""
         super().setup_parser(add_subcommands, main_kwargs, subparser_kwargs)
         if add_subcommands:
+            assert isinstance(self.parser, commands.SubcommandsParser)  # _cli's parser_class
             commands.add_commands(self.parser)
 
     def add_arguments_to_parser(self, parser: Any) -> None:
@@ -117,53 +101,39 @@ class VOECLI(LightningCLI):
             print(f"--ckpt_path {word}: {ckpt_path} (step {checkpoint.get('global_step')})")
         trained = checkpoint.get("hyper_parameters") or {}
         checkpoint_arguments.refuse_retired_arguments(ckpt_path, trained)
-        given = checkpoint_arguments.explicit_model(parser, args, subcommand, trained)
+        given = _explicit_model(parser, args, subcommand, trained)
         self.evaluation_arguments = checkpoint_arguments.evaluation_arguments(
             subcommand, ckpt_path, given, trained
         )
-        if self.evaluation_arguments:
-            print(
-                checkpoint_arguments.evaluation_note(
-                    subcommand, ckpt_path, self.evaluation_arguments, trained
-                )
-            )
 
     def before_instantiate_classes(self) -> None:
-        """Complete and check the run's config before anything is built: the evaluation-only
+        """Complete and check a run's config before anything is built: the evaluation-only
         model arguments, the run's alpha and surprise window for the callbacks, the preflight
         checks, the config file's name and the logger in the checkpoint's run folder."""
+        if self.subcommand in COMMANDS:
+            return  # a function called with its arguments: no model, data or trainer
         # A CLI built without running (run=False: ``analyze null``) has no subcommand level.
-        config = self.config if self.subcommand is None else self.config.get(self.subcommand, {})
+        config = self.config if self.subcommand is None else self.config[self.subcommand]
         # LightningCLI has replaced the model's arguments with the checkpoint's hyperparameters
         # since parse_arguments (its _parse_ckpt_path): the evaluation-only ones given win.
         for name, value in self.evaluation_arguments.items():
             config["model"]["init_args"][name] = value
-        if self.subcommand is None or self.subcommand in LIGHTNING_SUBCOMMANDS:
-            run_arguments.give_alpha(config)
-            run_arguments.give_surprise_window(config)
-        if self.subcommand in LIGHTNING_SUBCOMMANDS:
+        run_arguments.give_run_arguments(config)
+        if self.subcommand is not None:
             preflight.check_run(self.subcommand, config)
-        if config and "weights_only" in config and config.get("weights_only") is None:
+        if "weights_only" in config and config.get("weights_only") is None:
             config["weights_only"] = True  # torch>=2.4 may default to unpickling anything
-        if self.subcommand in LIGHTNING_SUBCOMMANDS and self.subcommand != "fit":
+        if self.subcommand not in (None, "fit"):
             self.save_config_kwargs = {
                 **self.save_config_kwargs,
                 "keep_earlier": True,
                 "config_filename": f"{self.subcommand}_config.yaml",
             }
-        ckpt_path = config.get("ckpt_path") if config else None
-        if ckpt_path and ckpt_path not in runs.LIGHTNING_CHECKPOINT_WORDS:
-            checkpoint = Path(ckpt_path)  # an existing file: parse_arguments resolved it
-            if checkpoint.parent.name == "checkpoints":
-                run_folders.log_into_run(
-                    self.subcommand,
-                    config,
-                    checkpoint,
-                    self.evaluation_arguments,
-                    self._keep_record,
-                )
-        if self.subcommand in LIGHTNING_SUBCOMMANDS:
-            preflight.check_logger(config)
+        run_folders.log_into_run(
+            self.subcommand, config, self.evaluation_arguments, self._keep_record
+        )
+        if self.subcommand is not None:
+            run_folders.check_run_folder(config)
 
     def _keep_record(self, checkpoint: Path, run_dir: Path) -> None:
         """A resumed ``fit`` saves its config beside the run's record, never over it
@@ -173,9 +143,14 @@ class VOECLI(LightningCLI):
         )
         self.save_config_kwargs = {**self.save_config_kwargs, "config_filename": name}
 
-    def _saved_config(self) -> dict:
+    def _saved_config(self) -> dict[str, Any]:
         """This subcommand's config as its saved config file holds it, None values kept."""
-        return yaml.safe_load(self.parser.dump(self.config, skip_none=False))[self.subcommand]
+        saved = yaml.safe_load(self.parser.dump(self.config, skip_none=False))
+        return cast(dict[str, Any], saved[self.subcommand])
+
+    def _callbacks(self) -> list[Callback]:
+        """The trainer's callbacks (set by its CallbackConnector, undeclared on ``Trainer``)."""
+        return cast(list[Callback], self.trainer.callbacks)  # type: ignore[attr-defined]
 
     def instantiate_classes(self) -> None:
         """Lightning's model, data and trainer; none for a subcommand of ``COMMANDS``."""
@@ -189,7 +164,10 @@ class VOECLI(LightningCLI):
         if subcommand in COMMANDS:
             arguments = self.config[subcommand].clone()
             del arguments["seed_everything"]  # parse_arguments' False: not the function's
-            entry_points = {"_cli_main": main, "_build_cli": functools.partial(_cli, run=False)}
+            entry_points: dict[str, Callable[..., Any]] = {
+                "_cli_main": main,
+                "_build_cli": functools.partial(_cli, run=False),
+            }
             try:
                 with ctrl_c_kept():  # analyze null tests through Lightning too
                     self.result = commands.call(COMMANDS[subcommand], arguments, entry_points)
@@ -197,15 +175,17 @@ class VOECLI(LightningCLI):
                 kept = commands.INTERRUPTED[subcommand]
                 raise SystemExit(interrupted(subcommand, kept)) from stopped
             return
-        if not any(
-            isinstance(callback, InterruptCheckpoint) for callback in self.trainer.callbacks
-        ):
-            self.trainer.callbacks.append(InterruptCheckpoint())  # SIGTERM stops evaluation too
+        callbacks = self._callbacks()
+        interrupt = next((c for c in callbacks if isinstance(c, InterruptCheckpoint)), None)
+        if interrupt is None:  # every fit saves a resumable checkpoint; SIGTERM stops the rest
+            interrupt = InterruptCheckpoint()
+            callbacks.append(interrupt)
         try:
             with ctrl_c_kept():
                 super()._run_subcommand(subcommand)
         except SIGTERMException as stopped:
-            raise SystemExit(self._interrupted(subcommand)) from stopped
+            print(interrupt.stopped(subcommand, self.trainer.global_step), file=sys.stderr)
+            raise SystemExit(interrupt.exit_code()) from stopped
         except KeyboardInterrupt as stopped:
             kept = (
                 f"nothing saved at step {self.trainer.global_step} (checkpoints saved before "
@@ -215,72 +195,25 @@ class VOECLI(LightningCLI):
             )
             raise SystemExit(interrupted(subcommand, kept)) from stopped
 
-    def _interrupted(self, subcommand: str) -> int:
-        """Say where ``InterruptCheckpoint`` saved the stopped run; its exit status."""
-        interrupt = next(
-            (
-                callback
-                for callback in self.trainer.callbacks
-                if isinstance(callback, InterruptCheckpoint)
-            ),
-            InterruptCheckpoint(),
-        )
-        saved = (
-            f"saved a resumable checkpoint {interrupt.saved}: continue with "
-            f"`fit --ckpt_path {interrupt.saved}`"
-            if interrupt.saved
-            else "nothing saved"
-        )
-        at_step = f" at step {self.trainer.global_step}" if subcommand == "fit" else ""
-        print(
-            f"{subcommand} stopped by {interrupt.signal_name or 'SIGTERM'}{at_step}; "
-            + (saved if subcommand == "fit" else "nothing written (no report, no predictions)"),
-            file=sys.stderr,
-        )
-        return interrupt.exit_code()
-
-    def before_fit(self) -> None:
-        """Every fit saves a resumable checkpoint when preempted (SIGTERM) or interrupted."""
-        callbacks = self.trainer.callbacks
-        if not any(isinstance(callback, InterruptCheckpoint) for callback in callbacks):
-            callbacks.append(InterruptCheckpoint())
-
     def before_test(self) -> None:
-        """No test of untrained weights; the priors-alone test first where asked for."""
+        """No test of untrained weights; where a report callback asks for ``priors_alone``,
+        first the run's config as tested (the checkpoint's model arguments) at initialization
+        (``null.priors_alone_first``, into ``<log dir>/priors_alone/``)."""
         self._refuse_untrained("test")
-        self._test_priors_alone()
-
-    def _test_priors_alone(self) -> None:
-        """Where a ``VOEReportCallback`` asks for ``priors_alone``: the run's config as tested
-        (the checkpoint's model arguments), at initialization under the run's seed, tested
-        first on the same probes (``null.priors_alone``, into ``<log dir>/priors_alone/``) and
-        handed to the callback for its report; this test's random state is kept as it was."""
-        callbacks = [
+        asking = [
             callback
-            for callback in self.trainer.callbacks
+            for callback in self._callbacks()
             if isinstance(callback, VOEReportCallback) and callback.priors_alone
         ]
-        if not callbacks:
+        if not asking:
             return
-        seed = self.config["test"].get("seed_everything")
-        if isinstance(seed, bool) or not isinstance(seed, int):
-            raise ValueError(
-                f"priors_alone tests the config at initialization under the run's "
-                f"seed, and seed_everything is {seed!r}: give an integer"
-            )
         saved = self._saved_config()
         own = set(inspect.signature(self.trainer.test).parameters) - self.subcommands()["test"]
         for key in ("config", *own):  # ckpt_path, verbose...: the untrained copy has none
             saved.pop(key, None)
-        out = Path(self.trainer.log_dir) / runs.UNTRAINED_FOLDER
-        print(
-            f"test: first the config at initialization (seed {seed}) on the same probes, "
-            f"its {PRIORS_ALONE} rows for the report, into {out}"
-        )
-        with isolate_rng():
-            untrained = null.priors_alone(functools.partial(_cli, run=False), saved, seed, out)
-        for callback in callbacks:
-            callback.untrained = untrained
+        seed = self.config["test"].get("seed_everything")
+        out = Path(self.trainer.log_dir or ".") / runs.UNTRAINED_FOLDER
+        null.priors_alone_first(asking, functools.partial(_cli, run=False), saved, seed, out)
 
     def after_fit(self) -> None:
         """Exit with ``NOT_CAUSAL_EXIT`` where the fit's surprise was not causal; else say
@@ -289,7 +222,9 @@ class VOECLI(LightningCLI):
         self._exit_if_not_causal("fit")
         run = Path(self.trainer.log_dir or ".")
         callback = self.trainer.checkpoint_callback
-        checkpoint = callback and (callback.last_model_path or callback.best_model_path)
+        checkpoint = isinstance(callback, ModelCheckpoint) and (
+            callback.last_model_path or callback.best_model_path
+        )
         if self.trainer.is_global_zero and checkpoint and (run / runs.RUN_CONFIG).exists():
             print(
                 f"next, the report on the test probes (into {run / 'voe_report'}):\n"
@@ -308,7 +243,7 @@ class VOECLI(LightningCLI):
     def _exit_if_not_causal(self, subcommand: str) -> None:
         """Say so in one line and exit with ``NOT_CAUSAL_EXIT`` where a callback's causality
         check failed (the report and tables give no verdict), unless ``--allow_non_causal``."""
-        for outcome in probe_outcomes(self.trainer.callbacks):
+        for outcome in probe_outcomes(self._callbacks()):
             causality, where = outcome.causality, outcome.report_dir
             if causality is None or causality.causal:
                 continue
@@ -378,6 +313,31 @@ def main(args: list[str] | None = None) -> Any:
     return cli.result if cli.subcommand in COMMANDS else cli
 
 
+def _explicit_model(
+    parser: Any, args: Any, subcommand: str, trained: dict[str, Any]
+) -> dict[str, Any] | None:
+    """The model section of ``subcommand`` as given explicitly (a re-parse without defaults),
+    the checkpoint's model class ``trained["_class_path"]`` standing for base.yaml's; as a
+    plain dict (None: no model section given)."""
+    if isinstance(args, (dict, Namespace)):
+        return _plain(parser.parse_object(args, defaults=False)[subcommand].get("model"))
+    # Without defaults, base.yaml (a default config file) is missing too, and a study
+    # config's partial sections would not parse: read it first, explicitly, with the
+    # checkpoint's model class (base.yaml gives a class_path only), as the run will.
+    words = list(sys.argv[1:] if args is None else args)
+    at = words.index(subcommand) + 1
+    if trained.get("_class_path"):
+        words[at:at] = ["--model", trained["_class_path"]]
+    if BASE_CONFIG.is_file():
+        words[at:at] = ["--config", str(BASE_CONFIG)]
+    return _plain(parser.parse_args(words, defaults=False)[subcommand].get("model"))
+
+
+def _plain(model: Any) -> dict[str, Any] | None:
+    """A parsed model section as a plain dict (None for no section)."""
+    return model.as_dict() if isinstance(model, Namespace) else None
+
+
 def interrupted(command: str, kept: str) -> int:
     """Say in one line that Ctrl-C stopped ``command`` and what it ``kept``; the exit status."""
     print(f"error: {command} interrupted (Ctrl-C, SIGINT): {kept}", file=sys.stderr)
@@ -388,6 +348,7 @@ def _cli(args: list[str] | None, run: bool = True) -> VOECLI:
     """The VOECLI of ``args`` (None: the command line), run; with ``run`` False, its model,
     data and trainer built from ``args`` (configs after base.yaml, no subcommand) and not run
     (``analyze null`` tests untrained initializations so, through ``commands.call``)."""
+    defaults = {"default_config_files": [str(BASE_CONFIG)]}  # base.yaml before any --config
     return VOECLI(
         model_class=SurpriseModel,
         datamodule_class=ProbeDataModule,
@@ -403,14 +364,7 @@ def _cli(args: list[str] | None, run: bool = True) -> VOECLI:
             "expectation: generate the data, train and test, audit cues, analyze runs. "
             "A bad argument or input is one line, 'error: ...'; --debug anywhere "
             f"(or {DEBUG_VARIABLE}=1) shows its traceback.",
-            **(
-                {
-                    name: {"default_config_files": [str(BASE_CONFIG)]}
-                    for name in LIGHTNING_SUBCOMMANDS
-                }
-                if run
-                else {"default_config_files": [str(BASE_CONFIG)]}
-            ),
+            **({name: defaults for name in LIGHTNING_SUBCOMMANDS} if run else defaults),
         },
         args=args,
         run=run,

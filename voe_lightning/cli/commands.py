@@ -1,7 +1,7 @@
-"""The subcommands in the one parser: Lightning's (``fit``, ``validate``, ``test``,
-``predict``), listed with a summary of their own, and the package's (``COMMANDS``: ``generate``,
-``audit``, ``check-causality``, ``analyze``, ``migrate``, ``export``), each built by jsonargparse from its function's
-signature and docstring and run by calling that function."""
+"""The subcommands in the one parser: Lightning's (``fit``, ``validate``, ``test``, ``predict``),
+listed with a summary of their own, and the package's (``COMMANDS``: ``generate``, ``audit``,
+``check-causality``, ``analyze``, ``migrate``, ``export``), each built by jsonargparse from its
+function's signature and docstring and run by calling that function."""
 
 from __future__ import annotations
 
@@ -9,9 +9,15 @@ import inspect
 from collections.abc import Callable
 from typing import Any
 
-from jsonargparse import ActionConfigFile, ActionSubCommands, ArgumentParser, Namespace
+from jsonargparse import (  # type: ignore[attr-defined]  # ActionConfigFile: not in its __all__
+    ActionConfigFile,
+    ActionSubCommands,
+    ArgumentParser,
+    Namespace,
+)
 from lightning.pytorch.cli import LightningArgumentParser
 
+from voe_lightning import migration
 from voe_lightning.analysis import (
     comparison,
     emergence,
@@ -21,8 +27,7 @@ from voe_lightning.analysis import (
     training_curves,
 )
 from voe_lightning.audit import calibration, cue_report
-from voe_lightning.cli import migrate
-from voe_lightning.cli.class_paths import import_object
+from voe_lightning.class_paths import import_object
 from voe_lightning.cli.parser_errors import OneLineErrors
 from voe_lightning.data import generate
 from voe_lightning.export import command as export_command
@@ -57,7 +62,7 @@ COMMANDS: dict[str, Any] = {
         "null": null.untrained_null,
         "calibrate": calibration.calibrate_store,
     },
-    "migrate": migrate.migrate,
+    "migrate": migration.migrate,
     "export": export_command.export,
 }
 #: What each command leaves when Ctrl-C stops it, said in its one line (the traceback of the
@@ -113,7 +118,9 @@ def _add_command(subcommands: ActionSubCommands, name: str, command: Any) -> Non
     """Add a ``COMMANDS`` entry as subcommand ``name``: its flags from the function's signature
     with their help from its docstring's Args, or a dict's functions as its own subcommands."""
     nested = isinstance(command, dict)
-    description = command["_help"] if nested else inspect.getdoc(command).split("\n\nArgs:")[0]
+    description = (
+        command["_help"] if nested else (inspect.getdoc(command) or "").split("\n\nArgs:")[0]
+    )
     parser = CommandParser(description=description)
     parser.add_argument(
         "--config",
@@ -134,7 +141,7 @@ def _add_command(subcommands: ActionSubCommands, name: str, command: Any) -> Non
             _add_command(inner, inner_name, function)
 
 
-def call(command: Any, arguments: Namespace, entry_points: dict[str, Callable]) -> Any:
+def call(command: Any, arguments: Namespace, entry_points: dict[str, Callable[..., Any]]) -> Any:
     """Call the function of a ``COMMANDS`` entry that its parsed ``arguments`` select, with
     those of ``entry_points`` its signature asks for: one that runs other commands (``analyze
     sweep``) gets the CLI's ``main`` as ``_cli_main``, one that builds runs without running

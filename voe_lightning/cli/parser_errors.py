@@ -15,8 +15,7 @@ from contextvars import ContextVar
 from dataclasses import dataclass, field
 from typing import Any, NoReturn
 
-from voe_lightning.cli.class_paths import import_failure, import_object, missing_methods
-from voe_lightning.cli.user_errors import abstract_class
+from voe_lightning.class_paths import import_failure, import_object, missing_methods
 
 #: Whether the parser prints its own usage and nested message (``--debug``).
 _FULL_MESSAGES: ContextVar[bool] = ContextVar("full_parser_messages", default=False)
@@ -234,7 +233,11 @@ def _abstract(path: list[str], class_path: str | None) -> str:
         return f"{_name(path)} {class_path} cannot be imported ({import_failure(error)})"
     if not missing:
         return f"{_name(path)} {class_path}: the class is abstract; give one that can be built"
-    return abstract_class(_name(path), str(class_path), missing)
+    return (
+        f"{_name(path)} {class_path} cannot be built: it does not implement "
+        f"{', '.join(missing)} (abstract in its base class; a SurpriseModel implements "
+        "surprise, expected_frames and trajectories: docs/your_model.md)"
+    )
 
 
 def _class_path_of(given: str | None) -> str | None:

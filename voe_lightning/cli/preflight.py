@@ -4,7 +4,6 @@ nothing, log no VOE statistics or fail only after the data is rendered."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -12,11 +11,8 @@ import lightning as L
 from lightning.pytorch.utilities import rank_zero_warn
 
 from voe_lightning import specs
-from voe_lightning.cli.class_paths import import_object
+from voe_lightning.class_paths import import_object
 from voe_lightning.runs import concepts_of
-
-#: The longest file or folder name (bytes) common file systems take.
-NAME_MAX = 255
 
 
 def check_run(subcommand: str, config: Any) -> None:
@@ -67,54 +63,6 @@ def check_run(subcommand: str, config: Any) -> None:
             f"statistics; use val_check_interval <= {max_steps} to have them"
         )
     _check_batch_size(data)
-
-
-def check_logger(config: Any) -> None:
-    """The run folder the logger will write (its logs, checkpoints, report) must be creatable:
-    a name no file system takes, or a folder this user cannot write, is refused now rather
-    than after training or the whole test pass."""
-    logger = getattr((config.get("trainer") or {}).get("logger"), "init_args", None) or {}
-    if not logger.get("save_dir"):
-        return
-    parts = [
-        str(part) for part in (logger.get("name"), logger.get("version")) if part not in (None, "")
-    ]
-    for part in "/".join(parts).split("/"):
-        if len(part.encode()) > NAME_MAX:
-            raise ValueError(
-                f"trainer.logger.init_args name or version {part[:40]}... is "
-                f"{len(part.encode())} bytes long; a folder name may have at most "
-                f"{NAME_MAX}: choose a shorter one"
-            )
-    folder = Path(logger["save_dir"], *parts)
-    existing = next(path for path in (folder, *folder.parents) if path.exists())
-    if not os.access(existing, os.W_OK | os.X_OK) or not existing.is_dir():
-        problem = f"cannot write the run folder {folder}: {existing} is not a writable folder"
-        checkpoint = _checkpoint_in_run(config, logger)
-        if checkpoint is not None:  # run_folders.log_into_run put the logger there
-            raise PermissionError(
-                f"{problem}; a checkpoint in a run's checkpoints/ folder ({checkpoint}) logs "
-                f"and reports into its run {checkpoint.parent.parent}, whatever save_dir is: "
-                f"make {existing} writable, or copy the checkpoint out of checkpoints/ (cp "
-                f"{checkpoint} model.ckpt; --ckpt_path model.ckpt) to write under "
-                "trainer.logger.init_args.save_dir"
-            )
-        raise PermissionError(
-            f"{problem}; choose another trainer.logger.init_args.save_dir or make it writable"
-        )
-
-
-def _checkpoint_in_run(config: Any, logger: Any) -> Path | None:
-    """``--ckpt_path`` when it lies in ``<save_dir>/<name>/<version>/checkpoints/`` and the
-    logger writes into that run (``run_folders.log_into_run``), else None."""
-    ckpt_path = config.get("ckpt_path")
-    if not ckpt_path or Path(ckpt_path).parent.name != "checkpoints":
-        return None
-    checkpoint = Path(ckpt_path)
-    run = checkpoint.parent.parent
-    if Path(logger["save_dir"], str(logger.get("name"))) != run.parent:
-        return None
-    return checkpoint
 
 
 def _check_image_size(model: Any, data: Any) -> None:

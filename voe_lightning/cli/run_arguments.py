@@ -11,7 +11,7 @@ import yaml
 from jsonargparse import Namespace
 from jsonargparse.typing import register_type
 
-from voe_lightning.cli.class_paths import import_object
+from voe_lightning.class_paths import import_object
 from voe_lightning.runs import base_alpha
 from voe_lightning.stats import statistics
 from voe_lightning.stats.surprise_window import ALL, SurpriseWindow, surprise_window
@@ -61,30 +61,24 @@ def add_run_arguments(parser: Any) -> None:
     )
 
 
-def give_surprise_window(config: Any) -> None:
-    """Hand the run's ``surprise_window`` (a ``SurpriseWindow``, parsed once by the parser) to
-    every configured callback that takes one and was not given one."""
-    window = config["surprise_window"] or SurpriseWindow()
-    for _, init_args in _callbacks_taking(config, "surprise_window"):
-        if init_args.get("surprise_window") is None:
-            init_args["surprise_window"] = window
-
-
-def give_alpha(config: Any) -> None:
-    """Hand the run's ``alpha`` to every configured callback that takes one and was not given
-    one; refuse a callback whose own alpha differs (one alpha per run, docs/architecture.md
-    §8)."""
+def give_run_arguments(config: Any) -> None:
+    """Hand the run's ``alpha`` and ``surprise_window`` (a ``SurpriseWindow``, parsed once by
+    the parser) to every configured callback that takes one and was not given one; refuse a
+    callback whose own alpha differs (one alpha per run, docs/architecture.md §8)."""
     alpha = statistics.check_alpha(config["alpha"])
-    for class_path, init_args in _callbacks_taking(config, "alpha"):
-        given = init_args.get("alpha")
-        if given is None:
-            init_args["alpha"] = alpha
-        elif given != alpha:
-            raise ValueError(
-                f"{class_path} was given alpha {given}, the run's alpha is {alpha}: a run has one "
-                "significance level. Set it once, as the top-level `alpha:` of a config (e.g. "
-                "configs/base.yaml) or --alpha, and leave the callbacks' alpha out."
-            )
+    window = config["surprise_window"] or SurpriseWindow()
+    for argument, value in (("alpha", alpha), ("surprise_window", window)):
+        for class_path, init_args in _callbacks_taking(config, argument):
+            given = init_args.get(argument)
+            if given is None:
+                init_args[argument] = value
+            elif argument == "alpha" and given != alpha:
+                raise ValueError(
+                    f"{class_path} was given alpha {given}, the run's alpha is {alpha}: a run "
+                    "has one significance level. Set it once, as the top-level `alpha:` of a "
+                    "config (e.g. configs/base.yaml) or --alpha, and leave the callbacks' "
+                    "alpha out."
+                )
 
 
 def _callbacks_taking(config: Any, argument: str) -> list[tuple[str, Any]]:

@@ -10,12 +10,13 @@ import os
 import re
 import stat
 import traceback
+from collections.abc import Callable
 from pathlib import Path
 
 import yaml
-from lightning.pytorch.utilities.exceptions import MisconfigurationException
+from lightning.fabric.utilities.exceptions import MisconfigurationException
 
-from voe_lightning.cli.class_paths import import_failure, import_object, missing_methods
+from voe_lightning.class_paths import import_failure, import_object
 
 #: Environment variable that, like ``--debug`` anywhere on the command line, shows the traceback
 #: of a refused argument or input instead of its one-line error.
@@ -51,7 +52,8 @@ def check_yaml(words: list[str]) -> None:
     """Refuse a ``--config`` file that is not valid YAML, naming it (jsonargparse's message
     gives the line and column of "<unicode string>"), or that expands to more than
     ``MAX_CONFIG_VALUES`` values through its aliases."""
-    for name in _config_files(words):
+    for _, index, prefix in _flag_values(words, _is_config_flag):
+        name = words[index][len(prefix) :]
         text = _config_text(name)
         if text is None:
             continue  # the parser names a missing file itself
@@ -83,23 +85,23 @@ def check_yaml(words: list[str]) -> None:
             )
 
 
-def _config_files(words: list[str]) -> list[str]:
-    """The files given as ``--config F`` or ``--config=F``, by ``-c`` too and by the prefixes
-    of ``--config`` argparse takes for it (``--conf``)."""
-    return [words[index][len(prefix) :] for index, prefix in _config_values(words)]
+def _is_config_flag(flag: str) -> bool:
+    """Whether ``flag`` is ``--config``: ``-c`` too, and the prefixes argparse takes for it."""
+    return flag == "-c" or (len(flag) > 3 and "--config".startswith(flag))
 
 
-def _config_values(words: list[str]) -> list[tuple[int, str]]:
-    """Where each ``--config`` value is among ``words``: its index, and the prefix before it
-    in that word (``--config=``; '' for a value that is a word of its own)."""
+def _flag_values(words: list[str], is_flag: Callable[[str], bool]) -> list[tuple[str, int, str]]:
+    """Each value among ``words`` of a flag ``is_flag`` accepts (``--flag V`` or ``--flag=V``):
+    the flag, the value's index, and the prefix before it in that word (``--flag=``; '' for a
+    value that is a word of its own)."""
     values = []
     for index, word in enumerate(words):
         flag, equals, _ = word.partition("=")
-        if flag == "-c" or (len(flag) > 3 and "--config".startswith(flag)):
+        if is_flag(flag):
             if equals:
-                values.append((index, flag + equals))
+                values.append((flag, index, flag + equals))
             elif index + 1 < len(words):
-                values.append((index + 1, ""))
+                values.append((flag, index + 1, ""))
     return values
 
 
@@ -109,7 +111,7 @@ def shipped_config_names(words: list[str], shipped: Path) -> list[str]:
     replaced by that config's path, so a config is given by name wherever the package is
     installed; a name that is neither is refused, listing the shipped ones."""
     words = list(words)
-    for index, prefix in _config_values(words):
+    for _, index, prefix in _flag_values(words, _is_config_flag):
         name = words[index][len(prefix) :]
         if not name or Path(name).exists():
             continue  # the parser names an empty or missing file itself
@@ -159,14 +161,11 @@ def _config_text(name: str) -> str | None:
 
 def check_classes(words: list[str]) -> None:
     """Refuse a ``--model``/``--data`` import path (``package.module.Class``; not a file)
-    that cannot be imported, naming it and why (the parser prints its usage over the cause)."""
-    given = [(flag, value) for flag, value in zip(words, words[1:]) if flag in CLASS_FLAGS]
-    given += [
-        tuple(word.split("=", 1))
-        for word in words
-        if "=" in word and word.split("=", 1)[0] in CLASS_FLAGS
-    ]
-    for flag, value in given:
+    that cannot be imported, naming it and why, which the parser's message leaves out for a
+    command's own parser (``check-causality``) and, as the error's type, for a module that
+    raised as it was imported. (An abstract class the parser refuses: ``parser_errors``.)"""
+    for flag, index, prefix in _flag_values(words, CLASS_FLAGS.__contains__):
+        value = words[index][len(prefix) :]
         if (
             not re.fullmatch(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)+", value)
             or Path(value).exists()
@@ -174,24 +173,12 @@ def check_classes(words: list[str]) -> None:
         ):
             continue
         try:
-            given = import_object(value)
+            import_object(value)
         except Exception as error:  # any error importing it: the module's own too
             raise ValueError(
                 f"{flag} {value} cannot be imported ({import_failure(error)}); give a class's "
                 f"import path, e.g. {CLASS_FLAGS[flag]}"
             ) from error
-        if missing := missing_methods(given):
-            raise ValueError(abstract_class(flag, value, missing))
-
-
-def abstract_class(name: str, class_path: str, missing: list[str]) -> str:
-    """The message refusing the abstract class ``class_path`` given as ``name``, naming the
-    methods it does not implement."""
-    return (
-        f"{name} {class_path} cannot be built: it does not implement {', '.join(missing)} "
-        "(abstract in its base class; a SurpriseModel implements surprise, expected_frames "
-        "and trajectories: docs/your_model.md)"
-    )
 
 
 def _expanded_size(node: yaml.Node, sizes: dict[int, int]) -> int:

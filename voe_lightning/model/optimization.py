@@ -6,9 +6,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from typing import Any
+from typing import TYPE_CHECKING
 
 import torch
+
+if TYPE_CHECKING:
+    from lightning.pytorch.utilities.types import OptimizerConfig, OptimizerLRSchedulerConfig
 
 LR_SCHEDULES = ("constant", "cosine")
 
@@ -31,7 +34,7 @@ def adam(
     betas: tuple[float, float] = (0.9, 0.999),
     warmup_steps: int = 0,
     fused: bool = False,
-) -> dict[str, Any]:
+) -> OptimizerConfig | OptimizerLRSchedulerConfig:
     """Lightning's ``configure_optimizers`` value: Adam, and a per-step scheduler for
     ``cosine`` (from ``learning_rate`` to 0 at ``max_steps``) or a warm-up (the rate rises
     linearly over ``warmup_steps``). ``fused``: one fused kernel per step and the rate a tensor

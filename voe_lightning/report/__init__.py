@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from voe_lightning.audit import cue_report, cues
-from voe_lightning.data.store_shards import current_umask, remove_stale, temporary_prefix
+from voe_lightning.data.store import current_umask, remove_stale, temporary_prefix
 from voe_lightning.report.figures import PredictionExample, write_figures
 from voe_lightning.report.markdown import VRNN_SURPRISE
 from voe_lightning.report.page import write_page

@@ -9,14 +9,16 @@ import textwrap
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
+import numpy.typing as npt
 from matplotlib.figure import Figure
+from matplotlib.layout_engine import ConstrainedLayoutEngine
 from matplotlib.ticker import MaxNLocator
 from scipy import stats
 
-from voe_lightning.data.store_shards import write_whole
+from voe_lightning.data.store import write_whole
 from voe_lightning.report.pairs import PairResults, as_numpy
 from voe_lightning.specs import GENERALIZATION_VARIANT_NAMES
 from voe_lightning.stats.statistics import POOLED, POOLED_VARIANTS
@@ -43,7 +45,7 @@ class PredictionExample:
 
 def save_figure(figure: Figure, path: str | Path) -> Path:
     """Write ``figure`` at exactly ``path`` (no suffix added: a PNG unless its suffix names
-    another format matplotlib writes), whole (``store_shards.write_whole``), say so, and
+    another format matplotlib writes), whole (``store.write_whole``), say so, and
     return the path."""
     path = Path(path)
     if path.is_dir():  # write_whole would replace an empty folder with the file
@@ -65,7 +67,9 @@ def save_figure(figure: Figure, path: str | Path) -> Path:
     return path
 
 
-def panel_grid(count: int, width: float, height: float, max_cols: int = 4):
+def panel_grid(
+    count: int, width: float, height: float, max_cols: int = 4
+) -> tuple[Figure, npt.NDArray[np.object_]]:
     """A constrained-layout figure with ``count`` visible panels of width x height inches in
     rows of at most ``max_cols``: (figure, axes [count])."""
     cols = max(1, min(max_cols, count))
@@ -196,8 +200,9 @@ def predictions_figure(examples: Sequence[PredictionExample], max_frames: int = 
         raise ValueError("predictions_figure needs at least one PredictionExample")
     indices = _frame_indices(examples[0].frames.shape[0], max_frames)
     figure = Figure(figsize=(0.9 * len(indices) + 0.6, 2.1 * len(examples)), layout="constrained")
-    figure.get_layout_engine().set(w_pad=0.01, h_pad=0.01, wspace=0.01, hspace=0.01)
-    subfigures = np.atleast_1d(figure.subfigures(len(examples), 1))
+    engine = cast(ConstrainedLayoutEngine, figure.get_layout_engine())
+    engine.set(w_pad=0.01, h_pad=0.01, wspace=0.01, hspace=0.01)
+    subfigures = figure.subfigures(len(examples), 1, squeeze=False)[:, 0]
     for subfigure, example in zip(subfigures, examples):
         frames = as_numpy(example.frames, np.uint8)
         expected = np.clip(as_numpy(example.expected, np.float32), 0.0, 1.0).transpose(0, 2, 3, 1)

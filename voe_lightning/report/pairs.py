@@ -9,7 +9,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -80,6 +80,7 @@ class PairResults:
             ("surprise_inconsistent", np.float64),
         ):
             set_(self, name, as_numpy(getattr(self, name), dtype))
+        assert self.first_difference is not None and self.inputs_differ is not None  # set above
         n = len(self.concept)
         if self.surprise_consistent.ndim != 2 or self.surprise_consistent.shape[0] != n:
             raise ValueError(
@@ -110,7 +111,7 @@ class PairResults:
 
     @property
     def num_frames(self) -> int:
-        return self.surprise_consistent.shape[1]
+        return int(self.surprise_consistent.shape[1])
 
     def __len__(self) -> int:
         return len(self.concept)
@@ -118,16 +119,17 @@ class PairResults:
     @property
     def total_consistent(self) -> np.ndarray:
         """Per-video surprise of the consistent videos: sum over frames, [N]."""
-        return video_surprise(self.surprise_consistent)
+        return cast(np.ndarray, video_surprise(self.surprise_consistent))
 
     @property
     def total_inconsistent(self) -> np.ndarray:
-        return video_surprise(self.surprise_inconsistent)
+        return cast(np.ndarray, video_surprise(self.surprise_inconsistent))
 
     @property
     def relative_surprise(self) -> np.ndarray:
         """Each pair's d = S(inconsistent) - S(consistent), [N]."""
-        return self.total_inconsistent - self.total_consistent
+        d: np.ndarray = self.total_inconsistent - self.total_consistent
+        return d
 
     @property
     def causality(self) -> Causality:
@@ -168,7 +170,7 @@ class PairResults:
         ``concept``/``variant`` indices with the DataModule's name tuples."""
         if not outputs:
             raise ValueError("no probe results: the list of probe_step outputs is empty")
-        keys = PROBE_OUTPUT_KEYS
+        keys: tuple[str, ...] = PROBE_OUTPUT_KEYS
         for optional in (FIRST_DIFFERENCE, INPUTS_DIFFER):
             if all(optional in output for output in outputs):
                 keys = (*keys, optional)
@@ -206,6 +208,7 @@ class PairResults:
     def select(self, rows: np.ndarray) -> PairResults:
         """The pairs at the given boolean mask or indices."""
         index = np.flatnonzero(rows) if np.asarray(rows).dtype == bool else np.asarray(rows)
+        assert self.first_difference is not None and self.inputs_differ is not None  # __post_init__
         return PairResults(
             concept=tuple(self.concept[i] for i in index),
             variant=tuple(self.variant[i] for i in index),
@@ -252,6 +255,7 @@ class PairResults:
         with open(path, "w", newline="") as handle:
             writer = csv.writer(handle)
             writer.writerow(self.csv_columns())
+            assert self.first_difference is not None  # set in __post_init__
             totals = zip(self.total_consistent, self.total_inconsistent)
             for i, (con, inc) in enumerate(totals):
                 writer.writerow(
@@ -293,14 +297,16 @@ class PairResults:
         if path.with_name("summary.json").is_file():
             _check_against_summary(path, len(rows))
         return cls(
-            concept=[r["concept"] for r in rows],
-            variant=[r["variant"] for r in rows],
-            seed=[int(r["seed"]) for r in rows],
-            manipulation_frame=[int(r["manipulation_frame"]) for r in rows],
-            surprise_consistent=[[float(r[c]) for c in con_cols] for r in rows],
-            surprise_inconsistent=[[float(r[c]) for c in inc_cols] for r in rows],
+            concept=tuple(r["concept"] for r in rows),
+            variant=tuple(r["variant"] for r in rows),
+            seed=np.array([int(r["seed"]) for r in rows]),
+            manipulation_frame=np.array([int(r["manipulation_frame"]) for r in rows]),
+            surprise_consistent=np.array([[float(r[c]) for c in con_cols] for r in rows]),
+            surprise_inconsistent=np.array([[float(r[c]) for c in inc_cols] for r in rows]),
             first_difference=(
-                [int(r[FIRST_DIFFERENCE]) for r in rows] if FIRST_DIFFERENCE in columns else None
+                np.array([int(r[FIRST_DIFFERENCE]) for r in rows])
+                if FIRST_DIFFERENCE in columns
+                else None
             ),
         )
 
@@ -332,7 +338,7 @@ def _check_pair_row(
         *inc_cols,
     ):
         try:
-            numbers[name] = float(row[name])
+            numbers[name] = float(cast(str, row[name]))  # None refused above as missing
         except ValueError:
             raise ValueError(f"{corrupt}: {name} is {row[name]!r}, not a number") from None
     for total, frames in (("surprise_consistent", con_cols), ("surprise_inconsistent", inc_cols)):

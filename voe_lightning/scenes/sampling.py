@@ -32,7 +32,7 @@ class RejectedSample(Exception):
 class NoValidScene(RuntimeError):
     """Every draw of a scene was rejected (``draw_until_valid``): at the default video size a
     bug, in a frame too small or too narrow a setting the scenes cannot be drawn in
-    (``data.generate`` says which sizes work)."""
+    (``data.store.render`` says which sizes work)."""
 
 
 def draw_until_valid(

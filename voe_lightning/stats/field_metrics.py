@@ -12,8 +12,8 @@ the sum, the paper's and our statistics'; the mean; the max):
 - AUROC per reduction for telling impossible videos from possible ones, ties counting half.
 
 The one home of these numbers: our probe reports (summary.json's ``field_metrics``), IntPhys 2
-(``external.metrics.intphys2_metrics``) and the quadruplet benchmarks (IntPhys, DeepMind
-Physical Concepts: ``external.metrics.quadruplet_metrics``) compute them here, and
+(``benchmarks.metrics.intphys2_metrics``) and the quadruplet benchmarks (IntPhys, DeepMind
+Physical Concepts: ``benchmarks.metrics.quadruplet_metrics``) compute them here, and
 ``format_field_metrics`` writes them as Markdown everywhere. A windowed model's sweep over
 context length is one set per context length (``context_sweep``).
 """

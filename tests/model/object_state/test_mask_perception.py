@@ -122,8 +122,7 @@ def test_mask_features_held_once_per_clip_train_as_the_masks_and_frames_do(tmp_p
     """``train_fields: [mask_features, camera]``: each training clip's ``per_id`` measures,
     made once when the clips are loaded (``datamodules.resident``), give the loss the clip's
     mask and frames give, with no mask or frame held; a store that lacks them is refused."""
-    from voe_lightning.data.generate import generate_dataset
-    from voe_lightning.data.store import open_split
+    from voe_lightning.data.store import generate_dataset, open_split
     from voe_lightning.datamodules.resident import MASK_FEATURES, resident_records
 
     generate_dataset(

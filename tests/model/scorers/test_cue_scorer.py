@@ -12,10 +12,10 @@ from helpers import ALPHA
 from helpers.locations import TINY_CONFIG
 
 from voe_lightning.audit import video_cues
+from voe_lightning.benchmarks.metrics import read_answer_file
 from voe_lightning.callbacks import VOEReportCallback
 from voe_lightning.callbacks.prediction_writer import IntPhysAnswerWriter
 from voe_lightning.cli import main
-from voe_lightning.external.metrics import read_answer_file
 from voe_lightning.model import CueScorer
 from voe_lightning.model.scorers.cue_scorer import CUE_NAMES
 

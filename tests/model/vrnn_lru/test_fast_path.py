@@ -13,7 +13,7 @@ from tensordict import TensorDict
 
 from voe_lightning import specs
 from voe_lightning.model import Encoder, VRNNLRUModel
-from voe_lightning.model.vrnn_lru.model import bf16_is_fast
+from voe_lightning.model.vrnn_lru.fast_path import bf16_is_fast
 from voe_lightning.model.vrnn_lru.networks import Bottleneck, PixelShuffle
 
 B, T, H, W = 8, 5, 32, 32

@@ -5,17 +5,17 @@ per-object codes from segmentation masks (perception), slot dynamics with an int
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TypedDict
 
 import torch
 import torch.nn.functional as F
 from tensordict import TensorDictBase
-from torch import nn
 
 from voe_lightning import specs
 from voe_lightning.model.base import SurpriseModel, video_inputs
-from voe_lightning.model.dynamics import SlotDynamics
 from voe_lightning.model.object_centric import code_likelihood
-from voe_lightning.model.object_centric.perception import Perception, autoencoder_terms, compose
+from voe_lightning.model.object_centric.networks import build_networks, matching_code_size
+from voe_lightning.model.object_centric.perception import autoencoder_terms, compose
 from voe_lightning.model.object_centric.slots import (
     MAX_MASK_JUMP,
     Slots,
@@ -54,6 +54,30 @@ SURPRISES = {
     "object codes, each weighed by its predicted visibility "
     "(pixel-space surprise)",
 }
+
+
+class _Predicted(TypedDict):
+    predicted: torch.Tensor
+
+
+class DynamicsOutputs(_Predicted, total=False):
+    """What ``ObjectCentricModel._dynamics`` gives: ``predicted`` always, the rest only
+    visibility-aware (``SlotDynamics.rollout``'s ``prediction``, ``code_likelihood``'s
+    ``terms``)."""
+
+    prediction: dict[str, torch.Tensor]
+    visible: torch.Tensor
+    terms: dict[str, tuple[torch.Tensor, torch.Tensor]]
+
+
+class PassOutputs(DynamicsOutputs):
+    """What ``ObjectCentricModel._predict`` gives: the dynamics' outputs and what they came of."""
+
+    x: torch.Tensor
+    codes: torch.Tensor
+    seen: torch.Tensor
+    present: torch.Tensor
+    log_visibility: torch.Tensor | None
 
 
 class ObjectCentricModel(SurpriseModel):
@@ -190,9 +214,12 @@ class ObjectCentricModel(SurpriseModel):
         #: What a frame's surprise is, for reports.
         self.SURPRISE = SURPRISES[(surprise, surprise_space)]
         self.image_size = (int(image_size[0]), int(image_size[1]))
-        if object_free and object_free_code_size is None:
-            object_free_code_size = matching_code_size(self.hparams)
-        self.code_size = object_free_code_size if object_free else code_size
+        if not object_free:
+            self.code_size = code_size
+        elif object_free_code_size is None:
+            self.code_size = matching_code_size(self.hparams)
+        else:
+            self.code_size = object_free_code_size
         self.perception, self.dynamics = build_networks(self.hparams, self.code_size)
 
     # ----------------------------------------------------------------------------- slots
@@ -205,17 +232,17 @@ class ObjectCentricModel(SurpriseModel):
     ) -> Slots:
         """The slots of uint8 videos [B, T, H, W, 3] (see ``slots.object_slots``; frames not
         ``consecutive`` are a sample of a clip's frames, where ids may move far between two)."""
-        if self.hparams.object_free:
+        if self.hparams["object_free"]:
             return whole_frame_slot(frames.to(self.device))
         mask = require_mask(mask, frames, seeds).to(self.device)
-        max_jump = self.hparams.max_mask_jump if consecutive else None
-        return object_slots(mask, self.hparams.num_slots, seeds, max_jump)
+        max_jump = self.hparams["max_mask_jump"] if consecutive else None
+        return object_slots(mask, self.hparams["num_slots"], seeds, max_jump)
 
     def perceive(self, x: torch.Tensor, slots: Slots) -> tuple[torch.Tensor, torch.Tensor]:
         """Model input [B, T, 3, H, W] -> code mean and log-std [B, T, S, C]."""
         batch, steps = x.shape[:2]
         mean, log_std = self.perception.encode(x.flatten(0, 1), slots.masks.flatten(0, 1))
-        return mean.unflatten(0, (batch, steps)), log_std.unflatten(0, (batch, steps))
+        return mean.unflatten(0, (batch, steps)), log_std.unflatten(0, (batch, steps))  # type: ignore[no-untyped-call]  # Tensor.unflatten: unannotated in torch
 
     def render(
         self, codes: torch.Tensor, seen: torch.Tensor, log_visibility: torch.Tensor | None = None
@@ -237,11 +264,12 @@ class ObjectCentricModel(SurpriseModel):
     @property
     def visibility_aware(self) -> bool:
         """Whether the dynamics predict visibility and spread (``surprise: likelihood``)."""
-        return self.hparams.surprise == "likelihood"
+        surprise: str = self.hparams["surprise"]
+        return surprise == "likelihood"
 
     def _dynamics(
         self, codes: torch.Tensor, slots: Slots, camera: torch.Tensor | None
-    ) -> dict[str, torch.Tensor]:
+    ) -> DynamicsOutputs:
         """The dynamics over perceived ``codes``: ``predicted`` [B, T, S, C] (index t is the
         code expected at t + 1) and, when visibility-aware, ``rollout``'s distributions, the
         slots' ``visible`` [B, T, S] and the likelihood ``terms`` of frames 1..T-1."""
@@ -259,7 +287,7 @@ class ObjectCentricModel(SurpriseModel):
 
     def _predict(
         self, frames: torch.Tensor, mask: torch.Tensor | None, camera: torch.Tensor | None
-    ) -> dict[str, torch.Tensor]:
+    ) -> PassOutputs:
         """Deterministic pass: perceived codes, predicted codes aligned with them (index t is
         the code expected at t from frames < t; index 0 is the perceived code), the slots
         each frame is composed of (``present``; visibility-aware: those known before it) with
@@ -289,7 +317,8 @@ class ObjectCentricModel(SurpriseModel):
     @property
     def perception_stage(self) -> bool:
         """Whether training is in its first stage (perception only)."""
-        return self.global_step < self.hparams.perception_steps
+        steps: int = self.hparams["perception_steps"]
+        return self.global_step < steps
 
     def perception_terms(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """Perception loss per clip (mean over the batch), on ``perception_frames`` of its
@@ -298,7 +327,7 @@ class ObjectCentricModel(SurpriseModel):
         masks; kl = kl_weight * KL of the seen slots' codes to N(0, I) (VAE only)."""
         frames, mask = self._frames_of(batch), video_inputs(batch).get("mask")
         seeds = _seeds(batch)
-        chosen = self.hparams.perception_frames
+        chosen = self.hparams["perception_frames"]
         sampled = chosen is not None and chosen < frames.shape[1]
         if sampled:
             self.slots(frames, mask, seeds)  # refuses bad masks on the whole, consecutive clip
@@ -307,7 +336,7 @@ class ObjectCentricModel(SurpriseModel):
         x = self._model_input(frames, self.image_size)
         slots = self.slots(frames, mask, seeds, consecutive=not sampled)
         return autoencoder_terms(
-            self.perception, x, slots, self.hparams.kl_weight, self.hparams.mask_loss_weight
+            self.perception, x, slots, self.hparams["kl_weight"], self.hparams["mask_loss_weight"]
         )
 
     def dynamics_terms(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
@@ -329,11 +358,12 @@ class ObjectCentricModel(SurpriseModel):
                 name: nll.sum() / clips
                 for name, nll in code_likelihood.negative_log_likelihood(out["terms"]).items()
             }
-            weight = self.hparams.code_loss_weight or 1 / self.code_size
+            weight = self.hparams["code_loss_weight"] or 1 / self.code_size
             loss = sum(
                 value * (weight if name in code_likelihood.CODE_TERMS else 1.0)
                 for name, value in terms.items()
             )
+            assert isinstance(loss, torch.Tensor)  # a sum of the terms, each a tensor
             return {"loss": loss, **terms}
         error = (out["predicted"][:, :-1] - codes[:, 1:]).pow(2).sum(-1) * slots.seen[:, 1:]
         prediction = error.sum() / clips
@@ -355,17 +385,17 @@ class ObjectCentricModel(SurpriseModel):
         return terms["loss"]
 
     def configure_optimizers(self) -> torch.optim.Optimizer:
-        return torch.optim.Adam(self.parameters(), lr=self.hparams.learning_rate)
+        return torch.optim.Adam(self.parameters(), lr=self.hparams["learning_rate"])
 
     # ----------------------------------------------------------------------------- protocol
     def probe_step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """The shared probe step, after refusing, naming the pair's seed, a probe video
         without a mask or with more objects than slots."""
-        if not self.hparams.object_free:
+        if not self.hparams["object_free"]:
             for side in ("consistent", "inconsistent"):
                 frames, seeds = batch[side, "frames"], _seeds(batch)
                 mask = require_mask(video_inputs(batch, side).get("mask"), frames, seeds)
-                object_slots(mask, self.hparams.num_slots, seeds)
+                object_slots(mask, self.hparams["num_slots"], seeds)
         return super().probe_step(batch)
 
     def inputs_read(self) -> frozenset[str]:
@@ -382,7 +412,7 @@ class ObjectCentricModel(SurpriseModel):
     ) -> torch.Tensor:
         """Per-frame surprise [B, T] (float32), see the class docstring."""
         out = self._predict(frames, mask, camera)
-        if self.hparams.surprise_space == "pixels":
+        if self.hparams["surprise_space"] == "pixels":
             expected, _ = self.render(out["predicted"], out["present"], out["log_visibility"])
             surprise = (expected - out["x"]).pow(2).sum(dim=(2, 3, 4))
         elif self.visibility_aware:
@@ -425,54 +455,6 @@ class ObjectCentricModel(SurpriseModel):
         }
 
 
-def _seeds(batch: TensorDictBase | dict) -> torch.Tensor | None:
+def _seeds(batch: TensorDictBase) -> torch.Tensor | None:
     """The batch's seeds, which errors name, when it has them."""
     return batch["seed"] if "seed" in batch.keys() else None
-
-
-def build_networks(hparams: dict, code_size: int) -> tuple[Perception, SlotDynamics]:
-    """The perception and dynamics networks for the model's arguments and ``code_size``."""
-    perception = Perception(
-        hparams["image_size"],
-        code_size,
-        hparams["encoder_channels"],
-        hparams["variational"],
-        hparams["channels_last"],
-    )
-    dynamics = SlotDynamics(
-        code_size,
-        hparams["state_size"],
-        hparams["relation_sizes"],
-        hparams["node_sizes"],
-        hparams["relation_size"],
-        interactions=not hparams["object_free"],
-        use_camera=hparams["use_camera"],
-        visibility=hparams["surprise"] == "likelihood",
-        min_std=hparams["min_code_std"],
-    )
-    return perception, dynamics
-
-
-def parameter_count(modules: Sequence[nn.Module]) -> int:
-    """Number of parameters of ``modules``."""
-    return sum(p.numel() for module in modules for p in module.parameters())
-
-
-def matching_code_size(hparams: dict) -> int:
-    """The object-free twin's code size whose parameter count is closest to that of the
-    object-centric model with the same arguments (built on the meta device: no memory)."""
-    with torch.device("meta"):
-        target = parameter_count(
-            build_networks({**hparams, "object_free": False}, hparams["code_size"])
-        )
-
-        def count(size: int) -> int:
-            return parameter_count(build_networks(hparams, size))
-
-        low, high = 1, 2 * hparams["code_size"]
-        while count(high) < target:
-            high *= 2
-        while high - low > 1:  # the count grows with the code size
-            middle = (low + high) // 2
-            low, high = (middle, high) if count(middle) < target else (low, middle)
-        return min((low, high), key=lambda size: abs(count(size) - target))

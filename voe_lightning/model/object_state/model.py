@@ -7,6 +7,7 @@ log-likelihood of what is then seen. If it cannot show VOE on a concept, the sti
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, cast
 
 import torch
 from tensordict import TensorDictBase
@@ -40,6 +41,9 @@ from voe_lightning.model.object_state.state import (
     observe,
     withheld_spans,
 )
+
+if TYPE_CHECKING:
+    from lightning.pytorch.utilities.types import OptimizerConfig, OptimizerLRSchedulerConfig
 
 
 def layout_of(perception: str, code_size: int) -> StateLayout:
@@ -217,10 +221,10 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         pairs = pair_feature_size(layout)
         self.message = PairNetwork(hidden, hidden, pairs, hidden, message)
         self.update = nn.GRUCell(slot_feature_size(layout) + message + CAMERA_FEATURES, hidden)
-        floor = FLOOR_FEATURES if landing_component else 0
+        floor_features = FLOOR_FEATURES if landing_component else 0
         self.dynamics = mlp(
             [
-                hidden + message + CAMERA_FEATURES + floor,
+                hidden + message + CAMERA_FEATURES + floor_features,
                 hidden,
                 hidden,
                 self._dynamics_outputs(components, layout.size),
@@ -249,12 +253,13 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         heads = [self.dynamics, self.appearance]
         heads += (
             [self.in_view, self.cover]
-            if self.hparams.visibility_from == "states"
+            if self.hparams["visibility_from"] == "states"
             else [self.visibility]
         )
         for head in heads:
-            nn.init.zeros_(head[-1].weight)
-            nn.init.zeros_(head[-1].bias)
+            last = cast(nn.Linear, head[-1])  # mlp's, which nn.Sequential types as any module
+            nn.init.zeros_(last.weight)
+            nn.init.zeros_(last.bias)
 
     @staticmethod
     def _dynamics_outputs(components: int, state_size: int) -> int:
@@ -276,20 +281,20 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         of ``train_fields: [objects, camera]`` holds none); perceiving masks, a training batch
         of ``train_fields: [mask_features, camera]`` holds each clip's ``masks.per_id``
         measures, made once when the clips were loaded, and no mask or frame."""
-        if self.hparams.perception == "masks" and mask_features is not None:
+        if self.hparams["perception"] == "masks" and mask_features is not None:
             pose = self._pose(mask_features["pixels"].shape[:2], camera).to(self.device)
             return observe_measured(mask_features.to(self.device), pose)
-        if self.hparams.perception in ("masks", "pixels"):
-            missing = [key for key, value in (("mask", mask), ("frames", frames)) if value is None]
-            if missing:
+        if self.hparams["perception"] in ("masks", "pixels"):
+            if mask is None or frames is None:
+                missing = "mask" if mask is None else "frames"
                 raise ValueError(
-                    f"the object-state model with perception: {self.hparams.perception} reads "
+                    f"the object-state model with perception: {self.hparams['perception']} reads "
                     "each video's object-id mask and frames, but a batch came without batch "
-                    f"key '{missing[0]}'"
+                    f"key '{missing}'"
                 )
             mask, frames = mask.to(self.device), frames.to(self.device)
             camera = self._pose(frames.shape[:2], camera).to(self.device)
-            if self.hparams.perception == "masks":
+            if self.hparams["perception"] == "masks":
                 return observe_masks(mask, frames, camera)
             frames = self._checked_frames(frames, self.frame_size)
             with torch.no_grad():  # the encoder learns only from its own loss
@@ -306,7 +311,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     def _pose(self, clips: tuple[int, ...], camera: torch.Tensor | None) -> torch.Tensor:
         """The camera poses [B, T, 6] the model reads: the batch's, or a fixed default pose
         without a camera or ``use_camera``."""
-        if camera is not None and self.hparams.use_camera:
+        if camera is not None and self.hparams["use_camera"]:
             return camera
         pose = torch.tensor([0.0, 0.0, 0.4, 4.0, 90.0, -20.0], device=self.device)
         return pose.expand(*clips, 6)
@@ -336,19 +341,24 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
             frames, inputs.get("objects"), inputs.get("camera"), inputs.get("mask"), features
         )
         clips = observations.visible.shape[0]
-        terms = dict.fromkeys(SLOT_TERMS + ("appear",), 0.0)
-        groups = by_object_count(observations) if self.hparams.group_by_objects else [observations]
+        names = SLOT_TERMS + ("appear",)
+        terms: dict[str, torch.Tensor] = {}
+        groups = (
+            by_object_count(observations) if self.hparams["group_by_objects"] else [observations]
+        )
         for group in groups:
             withheld = withheld_spans(
                 group.visible.shape,
-                self.hparams.withhold,
-                self.hparams.withhold_frames,
+                self.hparams["withhold"],
+                self.hparams["withhold_frames"],
                 group.visible.device,
             )
-            out = self.rollout(group, withheld, keys=terms)
-            for name in terms:  # the negative log-likelihood of the clips
-                terms[name] = terms[name] + out[name].sum() / clips
-        terms["loss"] = sum(terms.values())
+            out = self.rollout(group, withheld, keys=names)
+            for name in names:  # the negative log-likelihood of the clips
+                terms[name] = terms.get(name, 0.0) + out[name].sum() / clips
+        loss = sum(terms.values())
+        assert isinstance(loss, torch.Tensor)  # a sum of tensors: there is a group at least
+        terms["loss"] = loss
         self._check_finite(terms)
         self.log("train/loss", terms["loss"], prog_bar=True, batch_size=clips)
         for name, value in terms.items():
@@ -359,15 +369,14 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     @property
     def frame_size(self) -> tuple[int, int]:
         """(H, W) of the frames the pixel encoder reads."""
-        height, width = self.hparams.frame_size or (specs.HEIGHT, specs.WIDTH)
+        height, width = self.hparams["frame_size"] or (specs.HEIGHT, specs.WIDTH)
         return int(height), int(width)
 
     @property
     def perception_stage(self) -> bool:
         """Whether training is in its first stage: the pixel encoder alone."""
-        return (
-            self.hparams.perception == "pixels" and self.global_step < self.hparams.perception_steps
-        )
+        pixels: bool = self.hparams["perception"] == "pixels"
+        return pixels and self.global_step < self.hparams["perception_steps"]
 
     def _encoder_step(self, frames: torch.Tensor | None, mask: torch.Tensor | None) -> torch.Tensor:
         """A step of the pixel encoder alone (``pixels.encoder_terms``)."""
@@ -380,18 +389,18 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
             self.encoder,
             mask.to(self.device),
             self._checked_frames(frames, self.frame_size),
-            self.hparams.perception_frames,
+            self.hparams["perception_frames"],
         )
         self._check_finite(terms)
         for name, value in terms.items():
             self.log(f"train/encoder_{name}", value, prog_bar=name == "loss", batch_size=len(mask))
         return terms["loss"]
 
-    def configure_optimizers(self) -> dict:
+    def configure_optimizers(self) -> OptimizerConfig | OptimizerLRSchedulerConfig:
         return optimization.adam(
             self.parameters(),
-            self.hparams.learning_rate,
-            self.hparams.lr_schedule,
+            self.hparams["learning_rate"],
+            self.hparams["lr_schedule"],
             getattr(self._trainer, "max_steps", None),
         )
 
@@ -399,7 +408,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     def inputs_read(self) -> frozenset[str]:
         """What a camera gives (the mask; frames and camera always) for ``perception`` masks
         or pixels, which never read the record's amodal ``objects``; those for states."""
-        return frozenset({"objects"} if self.hparams.perception == "states" else {"mask"})
+        return frozenset({"objects"} if self.hparams["perception"] == "states" else {"mask"})
 
     @torch.no_grad()
     def surprise(
@@ -431,17 +440,19 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         opacity = torch.cat(
             [observations.visible[:, :1].float(), out["visible_probability"][:, 1:]], dim=1
         )
-        if self.hparams.perception == "pixels":  # each belief decoded, over the last background
+        if self.hparams["perception"] == "pixels":  # each belief decoded, over the last background
+            assert mask is not None  # _inputs refused a video without one
             background = background_codes(
                 self.encoder, mask.to(self.device), frames.to(self.device)
             )
             before = torch.cat([background[:, :1], background[:, :-1]], dim=1)
             return paint_codes(self.encoder, belief, opacity, before)
-        if self.hparams.perception == "masks":  # an ellipse in its pixels' box, larger first
+        height, width = frames.shape[2:4]
+        if self.hparams["perception"] == "masks":  # an ellipse in its pixels' box, larger first
             centre, half = belief[..., MASKS.position], belief[..., MASKS.extent][..., :2]
             colour, area = belief[..., MASKS.color], belief[..., MASKS.extent][..., 2]
-            return paint_ellipses(centre, half, colour, opacity, area, frames.shape[2:4])
-        return draw_ellipses(belief, opacity, observations.camera, frames.shape[2:4])
+            return paint_ellipses(centre, half, colour, opacity, area, (height, width))
+        return draw_ellipses(belief, opacity, observations.camera, (height, width))
 
     @torch.no_grad()
     def trajectories(

@@ -4,11 +4,13 @@ and the slots after it."""
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Collection, MutableMapping
 from dataclasses import replace
+from typing import TYPE_CHECKING, Any, cast
 
 import torch
 import torch.nn.functional as F
+from torch import nn
 
 from voe_lightning.model.dynamics import camera_features
 from voe_lightning.model.likelihood import (
@@ -32,6 +34,7 @@ from voe_lightning.model.object_state.mixture import (
     landing_mean,
 )
 from voe_lightning.model.object_state.pairs import (
+    PairNetwork,
     SlotPairs,
     messages,
     pair_feature_size,
@@ -49,6 +52,9 @@ from voe_lightning.model.object_state.state import (
     empty_slots,
 )
 
+if TYPE_CHECKING:
+    from lightning.fabric.utilities.data import AttributeDict
+
 
 def slot_feature_size(layout: StateLayout) -> int:
     """Per-slot features the recurrent core reads: the state, its shape (one-hot), its visible
@@ -62,7 +68,28 @@ FLOOR_FEATURES = 2
 
 
 class SlotRollout:
-    """The rollout of ``ObjectStateModel``, whose networks and hyperparameters it reads."""
+    """The rollout of ``ObjectStateModel``, whose networks and hyperparameters it reads: declared
+    below, built by the model."""
+
+    layout: StateLayout
+    message: PairNetwork
+    update: nn.GRUCell
+    dynamics: nn.Sequential
+    appearance: nn.Sequential
+    #: p(seen) with ``visibility_from: states``: in view, and covered by another slot.
+    in_view: nn.Sequential
+    cover: nn.Sequential
+    #: p(seen) from memory (the other ``visibility_from``), and the sight lines' weight.
+    occlusion: PairNetwork
+    visibility: nn.Sequential
+    geometry_weight: nn.Parameter
+    log_min_std: float
+    training: bool
+
+    if TYPE_CHECKING:  # LightningModule's, as it declares it
+
+        @property
+        def hparams(self) -> AttributeDict | MutableMapping[Any, Any]: ...
 
     def rollout(
         self,
@@ -83,7 +110,7 @@ class SlotRollout:
         what it shows is still scored: a hidden object's rollout learns from targets
         (``withheld_spans``). ``keys``: only those outputs (training needs the terms alone)."""
         obs = observations
-        slots = empty_slots(obs, self.hparams.hidden_size, self.layout)
+        slots = empty_slots(obs, self.hparams["hidden_size"], self.layout)
         given_before = slots.known  # what reached the model at the frame before (none before 0)
         pairs = None  # the slots' pair features, where the next prediction can read them
         frames = []
@@ -132,14 +159,15 @@ class SlotRollout:
         self,
         slots: Slots,
         predicted: torch.Tensor,
-        given: tuple[torch.Tensor, torch.Tensor],
+        givens: tuple[torch.Tensor, torch.Tensor],
         obs: Observations,
         t: int,
     ) -> tuple[Slots, SlotPairs | None]:
-        """The slots after frame t: the slots ``given`` at t (and at t-1) take what is seen, the
-        others their prediction; then each recurrent state steps. Also their pair features,
-        which the next frame's prediction reads where no pose enters them (no ``projection``)."""
-        given, given_before = given
+        """The slots after frame t: the slots given at t (and at t-1: ``givens``) take what is
+        seen, the others their prediction; then each recurrent state steps. Also their pair
+        features, which the next frame's prediction reads where no pose enters them (no
+        ``projection``)."""
+        given, given_before = givens
         visible = obs.visible[:, t]
         new = visible & ~slots.known
         belief = torch.where(given[..., None], obs.state[:, t], predicted)
@@ -159,7 +187,7 @@ class SlotRollout:
         )
         hidden, pairs = self._recur(seen, given, obs.fraction[:, t], obs.camera[:, t])
         after = replace(seen, hidden=hidden * known[..., None], belief=belief * known[..., None])
-        if self.hparams.projection:  # seen from the next frame's pose, the pairs differ
+        if self.hparams["projection"]:  # seen from the next frame's pose, the pairs differ
             return after, None
         # built from beliefs that differ from ``after``'s only in slots not yet known, whose
         # pairs weigh nothing
@@ -170,15 +198,15 @@ class SlotRollout:
         image-plane box; perceived by masks, the box its pixels span, ``seen_box``); zeros
         without ``projection``, where only the pose itself (each network's camera features)
         says where the camera is."""
-        if not self.hparams.projection:
+        if not self.hparams["projection"]:
             return state.new_zeros(*state.shape[:-1], VIEW)
-        if self.hparams.perception == "masks":
+        if self.hparams["perception"] == "masks":
             return seen_box(state)
         return view(state, pose)
 
     def _pairs(self, state: torch.Tensor, shape: torch.Tensor, seen_as: torch.Tensor) -> SlotPairs:
         """The slots' pair features (``slot_pairs``): with no ``projection``, no overlaps."""
-        return slot_pairs(state, shape, seen_as, self.layout, boxes=self.hparams.projection)
+        return slot_pairs(state, shape, seen_as, self.layout, boxes=self.hparams["projection"])
 
     def _recur(
         self, slots: Slots, given: torch.Tensor, fraction: torch.Tensor, pose: torch.Tensor
@@ -220,11 +248,11 @@ class SlotRollout:
         if pairs is None:
             pairs = self._pairs(slots.belief, slots.shape, self._view(slots.belief, pose))
         message = messages(self.message, slots.hidden, slots.hidden, pairs, slots.known)
-        inertia = inertial_move(slots) if h.inertia else torch.zeros_like(slots.belief)
+        inertia = inertial_move(slots) if h["inertia"] else torch.zeros_like(slots.belief)
         mixture, shape_logits = self._mixture(slots, message, pose_features, inertia)
         predicted = mixture.most_probable()
         logit = self._visibility_logit(slots, predicted, pose, pose_features)
-        hard = self.training and h.hard_assignment
+        hard = self.training and h["hard_assignment"]
         terms = slot_terms(slots, mixture, shape_logits, logit, obs, t, hard)
         visible = obs.visible[:, t]
         terms.update(
@@ -249,18 +277,17 @@ class SlotRollout:
         """The mixture over each slot's next state and its shape's logits [B, S, 7]: each mean
         the belief moved on by inertia plus a learned change, never below the floor; the last
         one laid down (``landing_mean``)."""
-        belief, components = slots.belief, self.hparams.components
+        belief, components = slots.belief, self.hparams["components"]
         change, log_std, logits, shape_logits = self._dynamics(
             slots, message, pose_features, inertia
         )
         moved = (belief + inertia)[:, :, None] + MAX_MOVE * torch.tanh(change / MAX_MOVE)
-        means = on_or_above_floor(moved) if self.hparams.floor else moved
-        if self.hparams.landing_component:
-            landing = landing_mean(moved[:, :, -1], slots, self.hparams.pivot_landing)
+        means = on_or_above_floor(moved) if self.hparams["floor"] else moved
+        if self.hparams["landing_component"]:
+            landing = landing_mean(moved[:, :, -1], slots, self.hparams["pivot_landing"])
             means = torch.cat([means[:, :, :-1], landing[:, :, None]], dim=2)
         log_std = self.log_min_std + F.softplus(log_std - self.log_min_std)
-        logits = logits if components > 1 else None
-        return Mixture(means, log_std, logits), shape_logits
+        return Mixture(means, log_std, logits if components > 1 else None), shape_logits
 
     def _dynamics(
         self,
@@ -270,9 +297,9 @@ class SlotRollout:
         inertia: torch.Tensor,
     ) -> tuple[torch.Tensor, ...]:
         """The dynamics' change and log-std [B, S, K, state], components' and shape's logits."""
-        belief, components, size = slots.belief, self.hparams.components, self.layout.size
+        belief, components, size = slots.belief, self.hparams["components"], self.layout.size
         inputs = [slots.hidden, message, pose_features]
-        if self.hparams.landing_component:  # how high the box's lowest point is, now and next
+        if self.hparams["landing_component"]:  # how high the box's lowest point is, now and next
             inputs.append(torch.stack([lowest_point(belief), lowest_point(belief + inertia)], -1))
         change, log_std, logits, shape_logits = self.dynamics(torch.cat(inputs, dim=-1)).split(
             [
@@ -285,7 +312,7 @@ class SlotRollout:
         )
         change = change.unflatten(-1, (components, size))  # [B, S, K, state]
         log_std = log_std.unflatten(-1, (components, size))
-        if not self.hparams.landing_change:  # the landing Gaussian: where inertia takes it
+        if not self.hparams["landing_change"]:  # the landing Gaussian: where inertia takes it
             landing_identity = F.pad(change[:, :, -1:, IDENTITY], (IDENTITY.start, 0))
             change = torch.cat([change[:, :, :-1], landing_identity], dim=2)
         return change, log_std, logits, shape_logits
@@ -301,14 +328,14 @@ class SlotRollout:
         placed = predicted.detach()
         seen_as = self._view(placed, pose)
         pairs = self._pairs(placed, slots.shape, seen_as)
-        if self.hparams.visibility_from == "states":
+        if self.hparams["visibility_from"] == "states":
             return self._composed_logit(placed, seen_as, pairs, slots.known, pose_features)
         occluders = messages(self.occlusion, slots.hidden, None, pairs, slots.known)
         extent = placed[..., self.layout.extent]
-        learned = self.visibility(
+        learned: torch.Tensor = self.visibility(
             torch.cat([slots.hidden, occluders, seen_as, extent, pose_features], dim=-1)
         ).squeeze(-1)
-        if not self.hparams.sight_lines:
+        if not self.hparams["sight_lines"]:
             return learned
         geometry = seen_by_geometry(placed, slots.shape, slots.known, pose).clamp(0.02, 0.98)
         return learned + self.geometry_weight * torch.logit(geometry)
@@ -327,7 +354,8 @@ class SlotRollout:
         own = torch.cat([placed, seen_as, pose_features], dim=-1)  # [B, S, ·]
         in_view = F.logsigmoid(self.in_view(own).squeeze(-1))
         # the cover network's first layer over [pair_ij, own_i], in its parts (SlotPairs)
-        first, size = self.cover[0], pair_feature_size(self.layout)
+        # mlp's first layer, which nn.Sequential's indexing types as any module
+        first, size = cast(nn.Linear, self.cover[0]), pair_feature_size(self.layout)
         own_part, other_part, overlaps = pairs.project(first.weight[:, :size])
         own_part = own_part + F.linear(own, first.weight[:, size:], first.bias)
         per_pair = self.cover[1:](pairwise(own_part, other_part, overlaps))
@@ -348,8 +376,8 @@ class SlotRollout:
         whether any new object appears, given the mean state of the known slots and the pose;
         ``newcomer_state`` and ``newcomer_shape`` [B, S], each newcomer's state (Gaussian) and
         shape (categorical)."""
-        weight = known.float()[..., None]
-        context = (hidden * weight).sum(1) / weight.sum(1).clamp(min=1)
+        share = known.float()[..., None]
+        context = (hidden * share).sum(1) / share.sum(1).clamp(min=1)
         out = self.appearance(torch.cat([context, camera_features(pose)], dim=-1))
         size = self.layout.size
         logit, mean, log_std, shape_logits = out.split([1, size, size, SHAPES], -1)

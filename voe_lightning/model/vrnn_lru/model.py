@@ -5,7 +5,8 @@ callbacks, reports and notebooks use."""
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, cast
 
 import torch
 import torch.nn.functional as F
@@ -15,9 +16,16 @@ from voe_lightning import specs
 from voe_lightning.model import optimization
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model.training_monitor import FiniteMonitor
+from voe_lightning.model.vrnn_lru.fast_path import COMPILE_MODES, PRECISIONS, bf16_is_fast
 from voe_lightning.model.vrnn_lru.memory import LRUMemory
 from voe_lightning.model.vrnn_lru.networks import Decoder, Encoder
 from voe_lightning.model.vrnn_lru.vrnn import VRNNCore, VRNNOutput, standard_normal_kl
+
+if TYPE_CHECKING:
+    from lightning.pytorch.utilities.types import OptimizerConfig, OptimizerLRSchedulerConfig
+
+#: A training step's loss and terms from (frames, noise, kl_weight), as a CUDA graph replays it.
+TrainingTerms = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
 
 LOSS_TERMS = ("reconstruction", "kl", "prior_regularizer")
 #: Constructor arguments that shape the parameters: a checkpoint must agree on all of them.
@@ -36,20 +44,6 @@ ARCHITECTURE = (
     "encoder_channels",
     "encoder_mlp_size",
 )
-PRECISIONS = ("auto", "bf16", "float32")
-#: ``compile``: ``frame`` compiles the recurrent core's step and the encoder and decoder;
-#: ``auto`` does so on a GPU only (on a CPU compiling costs about a minute).
-COMPILE_MODES = ("auto", "off", "frame")
-
-
-def bf16_is_fast(device: torch.device) -> bool:
-    """Whether ``device`` runs bf16 convolutions natively: a CUDA GPU that supports bf16, or a
-    CPU with AVX512-BF16 or AMX (elsewhere oneDNN emulates bf16, several times slower)."""
-    if device.type == "cuda":
-        return torch.cuda.is_bf16_supported()
-    if device.type == "cpu":
-        return torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported()
-    return False
 
 
 class VRNNLRUModel(SurpriseModel):
@@ -115,6 +109,8 @@ class VRNNLRUModel(SurpriseModel):
     )
     VALIDATION_METRIC = "val/kl"
     SURPRISE = "KL(posterior || prior)"
+    #: Optimizer steps taken (a buffer, registered in ``__init__``).
+    _steps: torch.Tensor
 
     def __init__(
         self,
@@ -196,19 +192,23 @@ class VRNNLRUModel(SurpriseModel):
             least_used_slots=least_used_slots,
         )
         self.core = VRNNCore(self.encoder.output_size, latent_size, memory, mlp_sizes)
-        self._compiled: dict | None = None  # compiled encoder and decoder, once resolved
-        self._graphed: tuple | None = None  # (batch shape, captured training loss)
+        # Compiled encoder and decoder, once resolved.
+        self._compiled: dict[str, Callable[[torch.Tensor], torch.Tensor]] | None = None
+        # (batch shape, captured training loss)
+        self._graphed: tuple[torch.Size, TrainingTerms] | None = None
         self._finite = FiniteMonitor(LOSS_TERMS)  # the loss is their sum
         # Optimizer steps taken, on the device: the KL warm-up reads it without a host sync.
         self.register_buffer("_steps", torch.zeros((), dtype=torch.int64), persistent=False)
 
-    def __getstate__(self) -> dict:
+    def __getstate__(self) -> dict[str, Any]:
         # Compiled functions and captured graphs do not pickle (ddp_spawn, deepcopy): they are
         # made again where the copy first runs.
         return {**super().__getstate__(), "_compiled": None, "_graphed": None}
 
     # ----------------------------------------------------------------------------- inputs
-    def _model_input(self, frames: torch.Tensor) -> torch.Tensor:
+    def _model_input(  # type: ignore[override]  # frames are always of this model's image_size
+        self, frames: torch.Tensor
+    ) -> torch.Tensor:
         """uint8 [B, T, H, W, 3] -> float [B, T, 3, H, W] on this module's device."""
         return super()._model_input(frames, self.image_size)
 
@@ -216,13 +216,13 @@ class VRNNLRUModel(SurpriseModel):
     @property
     def uses_bf16(self) -> bool:
         """Whether the encoder and decoder run under bf16 autocast on the current device."""
-        precision = self.hparams.precision
+        precision = self.hparams["precision"]
         return precision == "bf16" or (precision == "auto" and bf16_is_fast(self.device))
 
-    def _autocast(self, networks: bool) -> contextlib.AbstractContextManager:
+    def _autocast(self, networks: bool) -> contextlib.AbstractContextManager[Any]:
         """The precision context of the convolutional ``networks`` or of the recurrent core
         (no weight cache: each weight is cast once a pass anyway, and CUDA graphs need it off)."""
-        if self.hparams.precision == "float32":
+        if self.hparams["precision"] == "float32":
             return torch.autocast(self.device.type, enabled=False)
         if networks and self.uses_bf16:
             return torch.autocast(self.device.type, dtype=torch.bfloat16, cache_enabled=False)
@@ -231,10 +231,10 @@ class VRNNLRUModel(SurpriseModel):
     @property
     def compiles(self) -> bool:
         """Whether ``compile`` resolves to ``frame`` on the current device."""
-        mode = self.hparams.compile
+        mode = self.hparams["compile"]
         return mode == "frame" or (mode == "auto" and self.device.type == "cuda")
 
-    def _networks(self) -> dict:
+    def _networks(self) -> dict[str, Callable[[torch.Tensor], torch.Tensor]]:
         """The encoder and decoder to call: compiled (once, on first use) when :attr:`compiles`."""
         if not self.compiles:
             return {"encoder": self.encoder, "decoder": self.decoder}
@@ -263,9 +263,10 @@ class VRNNLRUModel(SurpriseModel):
         with self._autocast(networks=True):
             embeddings = self._networks()["encoder"](x)
         with self._autocast(networks=False):
-            return self.core(
+            output: VRNNOutput = self.core(
                 embeddings.float(), deterministic=deterministic, generator=generator, noise=noise
             )
+            return output
 
     def forward(
         self,
@@ -296,7 +297,7 @@ class VRNNLRUModel(SurpriseModel):
             F.binary_cross_entropy_with_logits(logits.float(), x.float(), reduction="sum") / batch
         )
         kl = output.kl.sum(dim=1).mean()
-        prior_regularizer = self.hparams.prior_regularizer_weight * (
+        prior_regularizer = self.hparams["prior_regularizer_weight"] * (
             standard_normal_kl(output.prior_mean, output.prior_log_std).sum(dim=1).mean()
         )
         return {
@@ -308,7 +309,7 @@ class VRNNLRUModel(SurpriseModel):
             "prior_regularizer": prior_regularizer,
         }
 
-    def _step(self, batch: TensorDictBase | dict) -> dict[str, torch.Tensor]:
+    def _step(self, batch: TensorDictBase | dict[str, Any]) -> dict[str, torch.Tensor]:
         """The named loss terms of a training batch at this step's KL weight, checked finite at
         once (a host sync): for training loops outside Lightning (tests, benchmarks)."""
         frames = self._checked_frames(self._frames_of(batch), self.image_size)
@@ -341,7 +342,8 @@ class VRNNLRUModel(SurpriseModel):
             graphed = torch.cuda.make_graphed_callables(
                 _TrainingTerms(self), (frames, noise, kl_weight), allow_unused_input=True
             )
-            self._graphed = (frames.shape, graphed)
+            # The stub's Module | Callable: given a module, it returns it as a module.
+            self._graphed = (frames.shape, cast(TrainingTerms, graphed))
         shape, graphed = self._graphed
         if frames.shape != shape:
             return self.training_terms(frames, noise, kl_weight)
@@ -352,7 +354,7 @@ class VRNNLRUModel(SurpriseModel):
         """Whether training replays CUDA graphs: ``cuda_graph`` on one CUDA device (under DDP
         the gradients' all-reduce hooks need the uncaptured step)."""
         single = self._trainer is None or self.trainer.world_size == 1
-        return self.hparams.cuda_graph and self.device.type == "cuda" and single
+        return self.hparams["cuda_graph"] and self.device.type == "cuda" and single
 
     def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
         """One step without a host sync: noise drawn on the device, the terms checked there,
@@ -375,13 +377,14 @@ class VRNNLRUModel(SurpriseModel):
         """Whether this step logs and checks: every ``log_every_n_steps``, and the last one."""
         if self._trainer is None:
             return True
-        every, step = self.trainer.log_every_n_steps, self.global_step + 1
+        # Set on the Trainer by its logger connector, so Lightning's types do not declare it.
+        every, step = self.trainer.log_every_n_steps, self.global_step + 1  # type: ignore[attr-defined]
         return (every > 0 and step % every == 0) or step == self.trainer.max_steps
 
     def on_train_start(self) -> None:
         self._steps.fill_(self.global_step)  # a resumed run's warm-up goes on where it was
 
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         self._finite.check()  # no checkpoint of weights a NaN has already reached
 
     def on_train_end(self) -> None:
@@ -448,7 +451,7 @@ class VRNNLRUModel(SurpriseModel):
     def kl_objective(self, output: VRNNOutput, kl: torch.Tensor) -> torch.Tensor:
         """The KL term the training loss minimizes: ``kl`` (per sequence, batch mean), or with
         free bits sum_t,latents max(free_bits, batch-mean KL of that latent at t)."""
-        free_bits = self.hparams.kl_free_bits
+        free_bits = self.hparams["kl_free_bits"]
         if not free_bits:
             return kl
         return output.kl_per_latent().mean(dim=0).clamp(min=free_bits).sum()
@@ -456,10 +459,11 @@ class VRNNLRUModel(SurpriseModel):
     def kl_weight_at(self, step: torch.Tensor) -> torch.Tensor:
         """Weight of the KL term at global ``step`` (a tensor, so the graph need not change):
         1, or the warm-up's ramp (step + 1) / kl_warmup_steps up to 1."""
-        warmup = self.hparams.kl_warmup_steps
+        warmup = self.hparams["kl_warmup_steps"]
         if not warmup:
             return torch.ones((), device=step.device)
-        return ((step + 1).float() / warmup).clamp(max=1.0)
+        weight: torch.Tensor = ((step + 1).float() / warmup).clamp(max=1.0)
+        return weight
 
     @property
     def kl_weight(self) -> float:
@@ -467,14 +471,14 @@ class VRNNLRUModel(SurpriseModel):
         return float(self.kl_weight_at(torch.tensor(self.global_step)))
 
     # ----------------------------------------------------------------------------- optimizer
-    def configure_optimizers(self) -> dict:
+    def configure_optimizers(self) -> OptimizerConfig | OptimizerLRSchedulerConfig:
         return optimization.adam(
             self.parameters(),
-            self.hparams.learning_rate,
-            self.hparams.lr_schedule,
+            self.hparams["learning_rate"],
+            self.hparams["lr_schedule"],
             getattr(self._trainer, "max_steps", None),
-            tuple(self.hparams.adam_betas),
-            warmup_steps=self.hparams.lr_warmup_steps,
+            tuple(self.hparams["adam_betas"]),
+            warmup_steps=self.hparams["lr_warmup_steps"],
             fused=True,
         )
 

@@ -12,7 +12,7 @@ from pathlib import Path
 from string import Template
 
 from voe_lightning import __version__
-from voe_lightning.data.store_shards import write_whole
+from voe_lightning.data.store import write_whole
 from voe_lightning.report.page.figures import CAPTIONS, figures_html
 from voe_lightning.report.page.markdown import markdown_html
 from voe_lightning.report.page.markup import figure, table

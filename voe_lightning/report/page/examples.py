@@ -18,8 +18,8 @@ import numpy as np
 from PIL import Image
 
 from voe_lightning import specs
-from voe_lightning.data import store, store_plan
-from voe_lightning.data.store_shards import write_whole
+from voe_lightning.data import store
+from voe_lightning.data.store import write_whole
 from voe_lightning.report.pairs import PairResults
 from voe_lightning.report.summary_file import read_summary
 from voe_lightning.stats.verdicts import quadruplets
@@ -83,8 +83,8 @@ def choose_quadruplets(results: PairResults) -> list[Quadruplet]:
 
 def _split_index(root: Path, concept: str, split: str, variant: str, seed: int) -> int:
     """The index in ``store.open_split`` of the pair of ``variant`` and ``seed`` (the store's
-    shard plan, ``store_plan.manifest_plan``, orders them)."""
-    tasks, _ = store_plan.manifest_plan(store.read_manifest_or_error(root))
+    shard plan, ``store.manifest_plan``, orders them)."""
+    tasks, _ = store.manifest_plan(store.read_manifest_or_error(root))
     items = [
         item
         for task in tasks

@@ -1,23 +1,21 @@
-"""The model arguments given with ``--ckpt_path`` matched against the checkpoint's
-hyperparameters: LightningCLI builds the model from the checkpoint's, so a model argument given
-otherwise would be silently ignored and is refused, except, evaluating the checkpoint, its
-model class's ``TRAINING_ONLY`` ones (they change nothing) and ``EVALUATION_ONLY`` ones (used
-instead of the checkpoint's); so is a checkpoint holding arguments its class no longer takes."""
+"""The model arguments a run gives matched against its checkpoint's hyperparameters: LightningCLI
+builds the model from the checkpoint's, so a model argument given otherwise would be silently
+ignored and is refused, except, evaluating the checkpoint, its model class's ``TRAINING_ONLY``
+ones (they change nothing) and ``EVALUATION_ONLY`` ones (used instead of the checkpoint's); so is
+a checkpoint holding arguments its class no longer takes. The model section given is a plain
+mapping (``class_path``, ``init_args``), the hyperparameters as the checkpoint holds them."""
 
 from __future__ import annotations
 
 import inspect
-import sys
+from collections.abc import Mapping
 from typing import Any
 
-from jsonargparse import Namespace
-
-from voe_lightning.cli.class_paths import import_failure, import_object
+from voe_lightning.class_paths import import_failure, import_object
 from voe_lightning.model import SurpriseModel
-from voe_lightning.runs import BASE_CONFIG
 
 
-def refuse_retired_arguments(ckpt_path: str, trained: dict) -> None:
+def refuse_retired_arguments(ckpt_path: str, trained: Mapping[str, Any]) -> None:
     """Refuse a checkpoint whose model class does not import, or whose model arguments include
     some its model class no longer takes (a checkpoint of an older version), naming them, before
     the model is built; ``migrate`` rewrites a run saved under old paths."""
@@ -56,35 +54,18 @@ def refuse_retired_arguments(ckpt_path: str, trained: dict) -> None:
         )
 
 
-def explicit_model(parser: Any, args: Any, subcommand: str, trained: dict) -> Any:
-    """The model section of ``subcommand`` as given explicitly (a re-parse without defaults),
-    the checkpoint's model class ``trained["_class_path"]`` standing for base.yaml's."""
-    if isinstance(args, (dict, Namespace)):
-        return parser.parse_object(args, defaults=False)[subcommand].get("model")
-    # Without defaults, base.yaml (a default config file) is missing too, and a study
-    # config's partial sections would not parse: read it first, explicitly, with the
-    # checkpoint's model class (base.yaml gives a class_path only), as the run will.
-    words = list(sys.argv[1:] if args is None else args)
-    at = words.index(subcommand) + 1
-    if trained.get("_class_path"):
-        words[at:at] = ["--model", trained["_class_path"]]
-    if BASE_CONFIG.is_file():
-        words[at:at] = ["--config", str(BASE_CONFIG)]
-    return parser.parse_args(words, defaults=False)[subcommand].get("model")
-
-
 def evaluation_arguments(
-    subcommand: str, ckpt_path: str, given: Any, trained: dict
+    subcommand: str, ckpt_path: str, given: Mapping[str, Any] | None, trained: Mapping[str, Any]
 ) -> dict[str, Any]:
     """The evaluation-only model arguments ``given`` (the explicit model section) otherwise
-    than the checkpoint's hyperparameters ``trained``, name -> given value; any other that
-    differs is refused, naming it with both values."""
+    than the checkpoint's hyperparameters ``trained``, name -> given value, said in a line;
+    any other that differs is refused, naming it with both values."""
     model_class = _model_class(trained)
     # Evaluating a checkpoint, its training-only arguments change nothing and its
     # evaluation-only ones only how it scores: no conflict.
-    evaluating = subcommand != "fit" and model_class is not None
-    training_only = model_class.TRAINING_ONLY if evaluating else ()
-    evaluation_only = model_class.EVALUATION_ONLY if evaluating else ()
+    evaluated = model_class if subcommand != "fit" else None
+    training_only = evaluated.TRAINING_ONLY if evaluated else ()
+    evaluation_only = evaluated.EVALUATION_ONLY if evaluated else ()
     conflicts = _conflicts(given, trained, training_only + evaluation_only)
     if conflicts:
         raise ValueError(
@@ -95,27 +76,24 @@ def evaluation_arguments(
             + _may_differ(model_class)
             + "."
         )
-    return {
+    evaluation = {
         name: value
         for name, value in _differences(given, trained).items()
         if name in evaluation_only
     }
-
-
-def evaluation_note(
-    subcommand: str, ckpt_path: str, evaluation: dict[str, Any], trained: dict
-) -> str:
-    """The line saying which ``evaluation``-only arguments score the checkpoint otherwise."""
-    return (
-        f"{subcommand} scores {ckpt_path} with evaluation-only model arguments other "
-        "than it was trained with: "
-        + "; ".join(
-            f"{name}: {value} (trained with {trained[name]})" for name, value in evaluation.items()
+    if evaluation:
+        print(
+            f"{subcommand} scores {ckpt_path} with evaluation-only model arguments other "
+            "than it was trained with: "
+            + "; ".join(
+                f"{name}: {value} (trained with {trained[name]})"
+                for name, value in evaluation.items()
+            )
         )
-    )
+    return evaluation
 
 
-def _model_class(trained: dict) -> type[SurpriseModel] | None:
+def _model_class(trained: Mapping[str, Any]) -> type[SurpriseModel] | None:
     """The ``SurpriseModel`` class the checkpoint's hyperparameters name (None: none)."""
     model_class = import_object(trained["_class_path"]) if trained.get("_class_path") else None
     if isinstance(model_class, type) and issubclass(model_class, SurpriseModel):
@@ -123,13 +101,13 @@ def _model_class(trained: dict) -> type[SurpriseModel] | None:
     return None
 
 
-def _differences(given: Any, trained: dict) -> dict[str, Any]:
+def _differences(given: Mapping[str, Any] | None, trained: Mapping[str, Any]) -> dict[str, Any]:
     """Each model argument in ``given`` (the explicitly given model section) that the
     checkpoint's hyperparameters ``trained`` hold otherwise: name -> the given value."""
-    if not isinstance(given, Namespace) or not trained:
+    if given is None or not trained:
         return {}
     arguments = given.get("init_args")
-    arguments = arguments.as_dict() if isinstance(arguments, Namespace) else {}
+    arguments = arguments if isinstance(arguments, Mapping) else {}
     return {
         name: value
         for name, value in arguments.items()
@@ -137,10 +115,12 @@ def _differences(given: Any, trained: dict) -> dict[str, Any]:
     }
 
 
-def _conflicts(given: Any, trained: dict, ignored: tuple[str, ...] = ()) -> list[str]:
+def _conflicts(
+    given: Mapping[str, Any] | None, trained: Mapping[str, Any], ignored: tuple[str, ...] = ()
+) -> list[str]:
     """'name: config X, checkpoint Y' for each of ``_differences`` except those ``ignored``,
     after a model class that differs from the checkpoint's."""
-    if not isinstance(given, Namespace) or not trained:
+    if given is None or not trained:
         return []
     conflicts = [
         f"{name}: config {value!r}, checkpoint {trained[name]!r}"

@@ -1,13 +1,13 @@
-"""``python -m voe_lightning migrate PATH``: a run saved before each name had one path (issue 57)
-rewritten once to today's paths. A run names classes by import path: LightningCLI's
-``config.yaml`` (``class_path:``), a checkpoint's ``hyper_parameters['_class_path']`` and
-``datamodule_hyper_parameters['_class_path']``; a checkpoint's pickle names the class of any
-object it holds by module (none of today's runs holds one, but ``torch.load`` would need the old
-module to read it back). Old module paths (``MOVED_MODULES``) and old class names
-(``RENAMED_CLASSES``) become today's, and the arguments a class no longer takes are dropped from
-its ``init_args`` and hyperparameters. Each file that changes is written whole to a temporary
-file and renamed over the old one, after the old one is kept beside it as
-``<name>.before-migrate``. Reading a checkpoint's pickle in full runs any code it holds, so
+"""A run saved before each name had one path (issue 57) rewritten once to today's paths
+(``migrate``, which ``python -m voe_lightning migrate PATH`` calls). A run names classes by import
+path: LightningCLI's ``config.yaml`` (``class_path:``), a checkpoint's
+``hyper_parameters['_class_path']`` and ``datamodule_hyper_parameters['_class_path']``; a
+checkpoint's pickle names the class of any object it holds by module (none of today's runs holds
+one, but ``torch.load`` would need the old module to read it back). Old module paths
+(``MOVED_MODULES``) and old class names (``RENAMED_CLASSES``) become today's, and the arguments a
+class no longer takes are dropped from its ``init_args`` and hyperparameters. Each file that changes
+is written whole to a temporary file and renamed over the old one, after the old one is kept beside
+it as ``<name>.before-migrate``. Reading a checkpoint's pickle in full runs any code it holds, so
 ``migrate`` is for runs one trusts (its ``--help`` says so)."""
 
 from __future__ import annotations
@@ -24,19 +24,18 @@ from typing import Any
 import torch
 import yaml
 
-from voe_lightning.cli.class_paths import import_object
+from voe_lightning.class_paths import import_object
 
 #: The module paths before the package had sub-packages (issues 49 and 71), by old path.
 MOVED_MODULES = {
     f"voe_lightning.{old}": f"voe_lightning.{new}"
     for package, modules in {
-        "data": "store store_codec store_shards store_plan generate generate_manifest "
-        "worker_pool contact_sheet",
         "stats": "statistics streaming_statistics statistics_format verdicts surprise_window "
         "field_metrics",
         "audit": "cues cue_report calibration",
         "callbacks": "interruption prediction_writer",
-        "cli": "analysis null size_sweep preflight",
+        "analysis": "null size_sweep",
+        "cli": "preflight",
     }.items()
     for old, new in ((name, f"{package}.{name}") for name in modules.split())
 } | {
@@ -58,6 +57,53 @@ MOVED_MODULES = {
     }.items()
 }
 MOVED_MODULES["datamodules"] = "voe_lightning.datamodules"  # a top-level package until issue 71
+#: The store's modules before it had sub-packages, where their parts are today: one sub-package,
+#: ``data.store``, since issue 71.
+MOVED_MODULES |= {
+    f"voe_lightning.{old}": f"voe_lightning.data.{new}"
+    for old, new in {
+        "store": "store",
+        "store_codec": "store.codec",
+        "store_shards": "store.shards",
+        "store_plan": "store.plan",
+        "generate": "generate",
+        "generate_manifest": "store.manifest",
+        "worker_pool": "store.workers",
+        "contact_sheet": "contact_sheet",
+    }.items()
+}
+#: Each public benchmark's reader, DataModule and exporter, moved into its home, and what they
+#: share (issue 71 item 2): by module, and the DataModules by the package-level class paths the
+#: configs named; the top-level ``datamodules`` package's, too, in one step.
+BENCHMARK_MOVES = {
+    "external.base": "benchmarks.reader",
+    "external.cache": "benchmarks.cache",
+    "external.mp4": "benchmarks.mp4",
+    "external.metrics": "benchmarks.metrics",
+    "external.evaluation": "benchmarks.evaluation",
+    "external.evaluation.ExternalPairs": "benchmarks.external_pairs.ExternalPairs",
+    "external.intphys": "benchmarks.intphys.reader",
+    "external.intphys2": "benchmarks.intphys2.reader",
+    "external.physical_concepts": "benchmarks.physical_concepts.reader",
+    "export.intphys": "benchmarks.intphys.export",
+    "export.intphys2": "benchmarks.intphys2.export",
+    "datamodules.arguments": "datamodule_arguments",
+    "datamodules.external": "benchmarks.datamodule",
+    "datamodules.intphys": "benchmarks.intphys.datamodule",
+    "datamodules.intphys2": "benchmarks.intphys2.datamodule",
+    "datamodules.physical_concepts": "benchmarks.physical_concepts.datamodule",
+    "datamodules.IntPhysDataModule": "benchmarks.intphys.IntPhysDataModule",
+    "datamodules.IntPhys2DataModule": "benchmarks.intphys2.IntPhys2DataModule",
+    "datamodules.PhysicalConceptsDataModule": "benchmarks.physical_concepts.PhysicalConceptsDataModule",
+}
+MOVED_MODULES |= {
+    f"voe_lightning.{old}": f"voe_lightning.{new}" for old, new in BENCHMARK_MOVES.items()
+}
+MOVED_MODULES |= {
+    old: f"voe_lightning.{new}"
+    for old, new in BENCHMARK_MOVES.items()
+    if old.startswith("datamodules.")
+}
 #: Classes renamed (issue 26), by old name. The old names are written in two parts so that the
 #: check that no code uses them (``grep``, issue 57) finds none here either.
 RENAMED_CLASSES = {"VOE" + "Model": "VRNNLRUModel", "Joint" + "DataModule": "VOEDataModule"}
