@@ -3,7 +3,7 @@ environment outside it (its dependencies from the environment running the test, 
 environment or the system's, so nothing is downloaded), runs from an empty folder: a shipped
 config by name, and generate, a 2-step fit, test (``--ckpt_path last``) and audit of a config
 file there, reading base.yaml from the installed package; ``voe_lightning`` is the only package
-it puts into site-packages."""
+it puts into site-packages, and its shipped checkpoints unpack from it."""
 
 import os
 import shutil
@@ -34,6 +34,7 @@ def test_a_wheel_installed_outside_the_checkout_runs_there(tmp_path):
     pip = ["-m", "pip", "--disable-pip-version-check", "-q"]
     subprocess.run([sys.executable, *pip, "wheel", "--no-deps", "--no-build-isolation", "-w", wheels, source], check=True)  # fmt: skip
     (wheel,) = wheels.glob("voe_lightning-*.whl")
+    assert wheel.stat().st_size < 20 * 2**20  # the shipped checkpoints inside (issue 72)
     subprocess.run([sys.executable, "-m", "venv", venv], check=True)
     python = str(venv / "bin" / "python")
     _see_the_running_packages(python)
@@ -59,6 +60,12 @@ def test_a_wheel_installed_outside_the_checkout_runs_there(tmp_path):
     assert where.strip().startswith(str(venv)) and where.strip().endswith(
         "voe_lightning/configs/base.yaml"
     )
+    shipped = run("-c", "import voe_lightning.shipped as s; print(*sorted(s.SHIPPED))").split()
+    for name in shipped:  # each file inside the installed package, as recorded
+        run("-c", f"import voe_lightning.shipped as s; s.unpack({name!r}, 'runs')")
+    assert shipped and len(
+        list((work / "runs" / "shipped").glob("*/checkpoints/last.ckpt"))
+    ) == len(shipped)
     assert "name: quickstart" in run("-m", "voe_lightning", "fit", "--config", "quickstart", "--print_config")  # fmt: skip
     run("-m", "voe_lightning", "generate", "--root", "data/tiny", "--concepts", "[object_persistence]",
         "--train_examples", "4", "--val_pairs", "2", "--test_pairs", "3", "--generalization_pairs", "2",
