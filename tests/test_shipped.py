@@ -75,3 +75,24 @@ def test_test_of_a_shipped_name_retests_it_without_training(workdir):
     summary = reports[-1].read_text()
     assert "object_persistence" in summary
     shutil.rmtree(workdir / "data")
+
+
+def test_packing_a_run_keeps_its_weights_and_config_and_drops_the_rest(
+    trained, tmp_path, monkeypatch
+):
+    """``pack`` (how a checkpoint comes to ship) writes the run's weights and hyper-parameters
+    only, loadable with ``weights_only``, beside the run's config, and returns the file's
+    SHA-256 for its ``SHIPPED`` entry."""
+    monkeypatch.setattr(shipped, "FOLDER", tmp_path / "checkpoints")
+    source = trained / "checkpoints" / "last.ckpt"
+    target, sha256 = shipped.pack(source, "tiny_s0")
+    assert target == tmp_path / "checkpoints" / "tiny_s0.ckpt"
+    assert sha256 == shipped._sha256(target)
+    packed = torch.load(target, map_location="cpu", weights_only=True)
+    assert set(packed) == set(shipped.KEPT_KEYS)
+    original = torch.load(source, map_location="cpu", weights_only=True)
+    assert packed["hyper_parameters"] == original["hyper_parameters"]
+    assert all(torch.equal(packed["state_dict"][k], v) for k, v in original["state_dict"].items())
+    assert (tmp_path / "checkpoints" / "tiny_s0.yaml").read_text() == (
+        trained / runs.RUN_CONFIG
+    ).read_text()

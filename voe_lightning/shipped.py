@@ -44,35 +44,27 @@ class ShippedCheckpoint:
     result: str
 
 
-#: The checkpoints behind the README's table, by name.
+#: What the ceiling's shipped seeds are (``configs/oracle_states_15min.yaml``).
+_CEILING = "the ceiling: oracle states, no rule, zero heads, 5,000 steps at batch 32"
+_CEILING_SHA256 = (
+    "c5cb928f8192da503e2fb85f5e9bb2955dcf272e0ce4ae98dde929a4692bf67f",
+    "83d17081616e08c4000e0c19ce62bba6d22d5822b6f6984ab3faa83c5d9b07f4",
+    "11dfe136477c139f1eee4b04e96d4905339cd0e9cbadea7307eef5cfc1afe66e",
+)
+#: The checkpoints behind the README's table, by name; every one trained on stimuli version 11.
 SHIPPED: dict[str, ShippedCheckpoint] = {
-    "oracle_states_15min_s0": ShippedCheckpoint(
-        config="oracle_states_15min",
-        seed=0,
-        generator_version=11,
-        sha256="c5cb928f8192da503e2fb85f5e9bb2955dcf272e0ce4ae98dde929a4692bf67f",
-        result="the ceiling: oracle states, no rule, zero heads, 5,000 steps at batch 32",
-    ),
-    "oracle_states_15min_s1": ShippedCheckpoint(
-        config="oracle_states_15min",
-        seed=1,
-        generator_version=11,
-        sha256="83d17081616e08c4000e0c19ce62bba6d22d5822b6f6984ab3faa83c5d9b07f4",
-        result="the ceiling: oracle states, no rule, zero heads, 5,000 steps at batch 32",
-    ),
-    "oracle_states_15min_s2": ShippedCheckpoint(
-        config="oracle_states_15min",
-        seed=2,
-        generator_version=11,
-        sha256="11dfe136477c139f1eee4b04e96d4905339cd0e9cbadea7307eef5cfc1afe66e",
-        result="the ceiling: oracle states, no rule, zero heads, 5,000 steps at batch 32",
-    ),
+    **{
+        f"oracle_states_15min_s{seed}": ShippedCheckpoint(
+            "oracle_states_15min", seed, 11, sha256, _CEILING
+        )
+        for seed, sha256 in enumerate(_CEILING_SHA256)
+    },
     "masks_15min_s0": ShippedCheckpoint(
-        config="masks_15min",
-        seed=0,
-        generator_version=11,
-        sha256="119c7f3d86830c1c7813d8eed169a977a19d0658e80c48781fa72c829fd5f015",
-        result="the mask rung trained as the ceiling is (same recipe, mask measures)",
+        "masks_15min",
+        0,
+        11,
+        "119c7f3d86830c1c7813d8eed169a977a19d0658e80c48781fa72c829fd5f015",
+        "the mask rung trained as the ceiling is (same recipe, mask measures)",
     ),
 }
 
