@@ -125,6 +125,13 @@ def test_no_module_of_voe_lightning_is_over_500_lines():
     assert long == {}
 
 
+def test_the_command_line_is_at_most_1200_lines():
+    """``cli/`` parses, checks and dispatches (issue 71): analyses and checks of a topic live
+    in their own packages, so the whole command line stays under 1,200 lines."""
+    lines = sum(len(p.read_text().splitlines()) for p in (REPO / "voe_lightning/cli").glob("*.py"))
+    assert lines <= 1200, f"voe_lightning/cli/ is {lines} lines"
+
+
 #: The lower layers, lowest first: a module of one imports only modules of its own layer or of
 #: the layers before it (the package's ``__init__`` sets the environment only). Everything else
 #: (``model``, ``callbacks``, ``report``, ``audit``, ``benchmarks``, ``cli``, the root's other
@@ -314,3 +321,31 @@ def test_only_the_entry_point_imports_the_command_line():
         for line in command_line_imports(path)
     }
     assert offenders == set()
+
+
+def test_every_script_imports_modules_that_exist():
+    """Each script of benchmarks/ and experiments/ imports only modules that can be found from
+    its own folder (a sibling it names by a file name that was renamed would fail only when a
+    reader runs it)."""
+    import importlib.util
+
+    missing = []
+    for path in sorted(p for f in ("benchmarks", "experiments") for p in (REPO / f).glob("*.py")):
+        sys.path.insert(0, str(path.parent))
+        try:
+            for node in ast.walk(ast.parse(path.read_text())):
+                names = (
+                    [alias.name for alias in node.names]
+                    if isinstance(node, ast.Import)
+                    else [node.module]
+                    if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module
+                    else []
+                )
+                missing += [
+                    f"{path.relative_to(REPO)}: {name}"
+                    for name in names
+                    if importlib.util.find_spec(name.split(".")[0]) is None
+                ]
+        finally:
+            sys.path.remove(str(path.parent))
+    assert missing == []

@@ -1,7 +1,5 @@
-"""The command line: ``fit``/``validate``/``test``/``predict`` through LightningCLI and the
-package's own subcommands (``generate``, ``audit``, ``analyze``: ``commands``) in the same
-parser, built by jsonargparse from their functions' signatures and docstrings: one flag style,
-``--config`` for every command, all listed in ``--help``."""
+"""The command line: Lightning's ``fit``/``validate``/``test``/``predict`` and the package's own
+subcommands (``commands``) in one parser: one flag style, ``--config`` for all, one ``--help``."""
 
 from __future__ import annotations
 
@@ -33,8 +31,7 @@ from voe_lightning.model.scorers.callable_model import CallableError
 from voe_lightning.probe_datamodule import ProbeDataModule
 from voe_lightning.runs import BASE_CONFIG, SHIPPED_CONFIGS, read_checkpoint
 
-#: Exit status of a fit/validate/test whose probe surprise failed the causality check (the
-#: report is written, without verdicts), unless ``--allow_non_causal true``.
+#: Exit status of a fit/validate/test whose probe surprise is not causal (report without verdicts).
 NOT_CAUSAL_EXIT = 3
 #: Exit status of a command stopped by Ctrl-C (128 + SIGINT, as a shell's).
 INTERRUPTED_EXIT = 130
@@ -43,19 +40,9 @@ EVALUATION_INTERRUPTED = "nothing written (no report, no predictions; one writte
 
 
 class VOECLI(LightningCLI):
-    """LightningCLI with the package's subcommands (``COMMANDS``) beside Lightning's, whose
-    runs are checked before any work: a ``--ckpt_path`` (``last``/``best``: the newest run of
-    the config's logger name) is resolved, read and matched with the model arguments given
-    (``checkpoint_arguments``), and the run logs into that checkpoint's run folder
-    (``run_folders``); the run-wide arguments reach the callbacks (``run_arguments``), the
-    config is checked (``preflight``), ``test``/``predict`` of untrained weights are refused
-    and a ``test`` asking for ``priors_alone`` first tests the config at initialization.
-    ``validate``/``test`` save their config as ``<subcommand>_config.yaml`` beside the run's
-    record, never over it (``runs.RunConfig``). Its exits: 128 + the signal's number where
-    SIGTERM or SIGINT stopped a run (a fit saves a resumable last.ckpt: ``interruption``),
-    ``NOT_CAUSAL_EXIT`` after the report of a run whose probe surprise is not causal (unless
-    ``--allow_non_causal true``), ``INTERRUPTED_EXIT`` with one line on what was kept where
-    Ctrl-C stopped anything else."""
+    """LightningCLI with the package's subcommands beside Lightning's, whose runs are checked before
+    any work and log into their checkpoint's run folder. Exits: 128 + a SIGTERM/SIGINT's number for
+    a stopped run, ``NOT_CAUSAL_EXIT``, ``INTERRUPTED_EXIT`` where Ctrl-C stopped anything else."""
 
     def setup_parser(
         self, add_subcommands: bool, main_kwargs: dict[str, Any], subparser_kwargs: dict[str, Any]
@@ -64,18 +51,16 @@ class VOECLI(LightningCLI):
         super().setup_parser(add_subcommands, main_kwargs, subparser_kwargs)
         if add_subcommands:
             assert isinstance(self.parser, commands.SubcommandsParser)  # _cli's parser_class
-            commands.add_commands(self.parser)
+            commands.add_commands(self.parser.subcommands, COMMANDS)
 
     def add_arguments_to_parser(self, parser: Any) -> None:
         """The run-wide arguments: ``run_arguments.add_run_arguments``."""
         run_arguments.add_run_arguments(parser)
 
     def parse_arguments(self, parser: Any, args: Any) -> None:
-        """Parse; then a ``COMMANDS`` subcommand is not seeded (``seed_everything`` False),
-        and a Lightning one's ``--ckpt_path`` is checked against its model arguments
-        (``_match_checkpoint``)."""
-        #: The evaluation-only model arguments given otherwise than the checkpoint's, name ->
-        #: value: the model is built with them (``before_instantiate_classes``).
+        """Parse; then a ``COMMANDS`` subcommand is not seeded, and a Lightning one's
+        ``--ckpt_path`` is checked against its model arguments (``_match_checkpoint``)."""
+        #: The evaluation-only model arguments given otherwise than the checkpoint's: name -> value.
         self.evaluation_arguments: dict[str, Any] = {}
         #: The global step of the checkpoint --ckpt_path names (None: none named).
         self.checkpoint_step: int | None = None
@@ -87,8 +72,7 @@ class VOECLI(LightningCLI):
             self._match_checkpoint(parser, args, subcommand)
 
     def _match_checkpoint(self, parser: Any, args: Any, subcommand: str) -> None:
-        """Resolve --ckpt_path to one file (``run_folders.checkpoint_file``), read it (naming
-        it if unreadable) and match the model arguments given explicitly with its
+        """Resolve --ckpt_path to one file and read it; match the model arguments given with its
         hyperparameters (``checkpoint_arguments``), keeping the evaluation-only ones."""
         config = self.config[subcommand]
         word = config.get("ckpt_path")
@@ -98,7 +82,7 @@ class VOECLI(LightningCLI):
         checkpoint = read_checkpoint(ckpt_path)
         self.checkpoint_step = checkpoint.get("global_step")
         if word in runs.RUN_CHECKPOINT_WORDS:
-            print(f"--ckpt_path {word}: {ckpt_path} (step {checkpoint.get('global_step')})")
+            print(f"--ckpt_path {word}: {ckpt_path} (step {self.checkpoint_step})")
         trained = checkpoint.get("hyper_parameters") or {}
         checkpoint_arguments.refuse_retired_arguments(ckpt_path, trained)
         given = _explicit_model(parser, args, subcommand, trained)
@@ -107,15 +91,13 @@ class VOECLI(LightningCLI):
         )
 
     def before_instantiate_classes(self) -> None:
-        """Complete and check a run's config before anything is built: the evaluation-only
-        model arguments, the run's alpha and surprise window for the callbacks, the preflight
-        checks, the config file's name and the logger in the checkpoint's run folder."""
+        """Complete and check a run's config before anything is built: evaluation-only model
+        arguments, run-wide arguments, preflight, saved config's name, logger's run folder."""
         if self.subcommand in COMMANDS:
             return  # a function called with its arguments: no model, data or trainer
         # A CLI built without running (run=False: ``analyze null``) has no subcommand level.
         config = self.config if self.subcommand is None else self.config[self.subcommand]
-        # LightningCLI has replaced the model's arguments with the checkpoint's hyperparameters
-        # since parse_arguments (its _parse_ckpt_path): the evaluation-only ones given win.
+        # LightningCLI's _parse_ckpt_path gave the model the checkpoint's arguments: these win.
         for name, value in self.evaluation_arguments.items():
             config["model"]["init_args"][name] = value
         run_arguments.give_run_arguments(config)
@@ -196,9 +178,8 @@ class VOECLI(LightningCLI):
             raise SystemExit(interrupted(subcommand, kept)) from stopped
 
     def before_test(self) -> None:
-        """No test of untrained weights; where a report callback asks for ``priors_alone``,
-        first the run's config as tested (the checkpoint's model arguments) at initialization
-        (``null.priors_alone_first``, into ``<log dir>/priors_alone/``)."""
+        """No test of untrained weights; where a report callback asks for ``priors_alone``, first
+        the run's config as tested at initialization (``null.priors_alone_first``)."""
         self._refuse_untrained("test")
         asking = [
             callback
@@ -216,9 +197,7 @@ class VOECLI(LightningCLI):
         null.priors_alone_first(asking, functools.partial(_cli, run=False), saved, seed, out)
 
     def after_fit(self) -> None:
-        """Exit with ``NOT_CAUSAL_EXIT`` where the fit's surprise was not causal; else say
-        what to run next: the test of this run, from its saved config, and where its report
-        goes."""
+        """Exit ``NOT_CAUSAL_EXIT`` where the surprise was not causal; else say what to run next."""
         self._exit_if_not_causal("fit")
         run = Path(self.trainer.log_dir or ".")
         callback = self.trainer.checkpoint_callback
@@ -280,11 +259,8 @@ class VOECLI(LightningCLI):
 
 
 def main(args: list[str] | None = None) -> Any:
-    """Entry point of ``python -m voe_lightning``; tests call ``main([...])``. Returns the CLI,
-    or for a subcommand of ``COMMANDS`` its function's return value. A bad argument or input
-    (``user_errors.USER_ERRORS``, raised here or in a DataLoader worker) is printed as one
-    line, ``error: ...``, and exits with status 2; with
-    ``--debug`` anywhere among the arguments, or ``VOE_DEBUG=1``, it raises instead."""
+    """Entry point of ``python -m voe_lightning``: the CLI, or a ``COMMANDS`` function's result.
+    A bad argument or input is one line, ``error: ...``, exit 2 (``--debug``: raised instead)."""
     words = list(sys.argv[1:] if args is None else args)
     debug = "--debug" in words or os.environ.get(DEBUG_VARIABLE, "") not in ("", "0")
     words = [word for word in words if word != "--debug"]
@@ -317,24 +293,20 @@ def _explicit_model(
     parser: Any, args: Any, subcommand: str, trained: dict[str, Any]
 ) -> dict[str, Any] | None:
     """The model section of ``subcommand`` as given explicitly (a re-parse without defaults),
-    the checkpoint's model class ``trained["_class_path"]`` standing for base.yaml's; as a
-    plain dict (None: no model section given)."""
+    the checkpoint's model class standing for base.yaml's, as a dict (None: none given)."""
     if isinstance(args, (dict, Namespace)):
-        return _plain(parser.parse_object(args, defaults=False)[subcommand].get("model"))
-    # Without defaults, base.yaml (a default config file) is missing too, and a study
-    # config's partial sections would not parse: read it first, explicitly, with the
-    # checkpoint's model class (base.yaml gives a class_path only), as the run will.
-    words = list(sys.argv[1:] if args is None else args)
-    at = words.index(subcommand) + 1
-    if trained.get("_class_path"):
-        words[at:at] = ["--model", trained["_class_path"]]
-    if BASE_CONFIG.is_file():
-        words[at:at] = ["--config", str(BASE_CONFIG)]
-    return _plain(parser.parse_args(words, defaults=False)[subcommand].get("model"))
-
-
-def _plain(model: Any) -> dict[str, Any] | None:
-    """A parsed model section as a plain dict (None for no section)."""
+        parsed = parser.parse_object(args, defaults=False)
+    else:
+        # Without defaults base.yaml is missing too, and a study config's partial sections would
+        # not parse: read it first, with the checkpoint's model class, as the run will.
+        words = list(sys.argv[1:] if args is None else args)
+        at = words.index(subcommand) + 1
+        if trained.get("_class_path"):
+            words[at:at] = ["--model", trained["_class_path"]]
+        if BASE_CONFIG.is_file():
+            words[at:at] = ["--config", str(BASE_CONFIG)]
+        parsed = parser.parse_args(words, defaults=False)
+    model = parsed[subcommand].get("model")
     return model.as_dict() if isinstance(model, Namespace) else None
 
 
@@ -345,9 +317,8 @@ def interrupted(command: str, kept: str) -> int:
 
 
 def _cli(args: list[str] | None, run: bool = True) -> VOECLI:
-    """The VOECLI of ``args`` (None: the command line), run; with ``run`` False, its model,
-    data and trainer built from ``args`` (configs after base.yaml, no subcommand) and not run
-    (``analyze null`` tests untrained initializations so, through ``commands.call``)."""
+    """The VOECLI of ``args`` (None: the command line), run; with ``run`` False, built from
+    ``args`` (configs after base.yaml, no subcommand) and not run (for ``analyze null``)."""
     defaults = {"default_config_files": [str(BASE_CONFIG)]}  # base.yaml before any --config
     return VOECLI(
         model_class=SurpriseModel,

@@ -1,7 +1,5 @@
-"""The subcommands in the one parser: Lightning's (``fit``, ``validate``, ``test``, ``predict``),
-listed with a summary of their own, and the package's (``COMMANDS``: ``generate``, ``audit``,
-``check-causality``, ``analyze``, ``migrate``, ``export``), each built by jsonargparse from its
-function's signature and docstring and run by calling that function."""
+"""The subcommands in the one parser: Lightning's, with a summary of their own, and the package's
+(``COMMANDS``), each built from its function's signature and docstring and run by calling it."""
 
 from __future__ import annotations
 
@@ -42,8 +40,7 @@ LIGHTNING_SUBCOMMANDS = {
     "predict": "Per-video surprise of a checkpoint, e.g. IntPhys' answer.txt.",
 }
 
-#: The subcommands beside Lightning's: name -> the function it calls, or a dict of its own
-#: subcommands (as jsonargparse's ``auto_cli`` takes them, ``_help`` being the summary).
+#: The subcommands beside Lightning's: name -> its function, or a dict of subcommands (+ ``_help``).
 COMMANDS: dict[str, Any] = {
     "generate": generate.generate,
     "audit": cue_report.audit,
@@ -65,8 +62,7 @@ COMMANDS: dict[str, Any] = {
     "migrate": migration.migrate,
     "export": export_command.export,
 }
-#: What each command leaves when Ctrl-C stops it, said in its one line (the traceback of the
-#: KeyboardInterrupt is not printed).
+#: What each command leaves when Ctrl-C stops it, said in its one line (with no traceback).
 INTERRUPTED = {
     "generate": "the shards it finished are kept (a shard being written is left out whole); "
     "run the same command again to resume",
@@ -83,10 +79,10 @@ POSITIONAL = {"migrate"}
 
 
 class Subcommands(ActionSubCommands):
-    """jsonargparse's subcommands, Lightning's listed with their ``LIGHTNING_SUBCOMMANDS``
-    summary instead of their docstring's first line."""
+    """jsonargparse's subcommands, Lightning's listed with their ``LIGHTNING_SUBCOMMANDS`` help."""
 
     def add_subcommand(self, name: str, parser: ArgumentParser, **kwargs: Any) -> ArgumentParser:
+        """Add subcommand ``name``, a Lightning one with its summary as its help."""
         if name in LIGHTNING_SUBCOMMANDS:
             kwargs["help"] = LIGHTNING_SUBCOMMANDS[name]
         return super().add_subcommand(name, parser, **kwargs)
@@ -94,58 +90,49 @@ class Subcommands(ActionSubCommands):
 
 class SubcommandsParser(OneLineErrors, LightningArgumentParser):
     """LightningArgumentParser whose subcommands are ``Subcommands``, kept as ``subcommands``
-    so that ``add_commands`` adds the package's beside Lightning's; a refusal is one line
-    (``parser_errors.OneLineErrors``)."""
+    for ``add_commands``; a refusal is one line (``parser_errors.OneLineErrors``)."""
 
     def add_subcommands(self, *args: Any, **kwargs: Any) -> ActionSubCommands:
+        """Lightning's subcommands, as ``Subcommands``, kept as ``self.subcommands``."""
         kwargs.setdefault("action", Subcommands)
         self.subcommands = super().add_subcommands(*args, **kwargs)
         return self.subcommands
 
 
 class CommandParser(OneLineErrors, ArgumentParser):
-    """The parser of a ``COMMANDS`` subcommand, whose refusals are one line (it reports its own
-    type errors, not the main parser)."""
+    """The parser of a ``COMMANDS`` subcommand: it reports its own type errors, in one line."""
 
 
-def add_commands(parser: SubcommandsParser) -> None:
-    """Add the subcommands of ``COMMANDS`` to ``parser``, after Lightning's."""
-    for name, command in COMMANDS.items():
-        _add_command(parser.subcommands, name, command)
-
-
-def _add_command(subcommands: ActionSubCommands, name: str, command: Any) -> None:
-    """Add a ``COMMANDS`` entry as subcommand ``name``: its flags from the function's signature
-    with their help from its docstring's Args, or a dict's functions as its own subcommands."""
-    nested = isinstance(command, dict)
-    description = (
-        command["_help"] if nested else (inspect.getdoc(command) or "").split("\n\nArgs:")[0]
-    )
-    parser = CommandParser(description=description)
-    parser.add_argument(
-        "--config",
-        action=ActionConfigFile,
-        help="a YAML file of these arguments (see --print_config)",
-    )
-    subcommands.add_subcommand(name, parser, help=description.splitlines()[0])
-    if not nested:
+def add_commands(subcommands: ActionSubCommands, entries: dict[str, Any]) -> None:
+    """Add each entry of ``entries`` (``COMMANDS``, after Lightning's) as a subcommand: its flags
+    from its function's signature and docstring, or a dict's functions as its own subcommands."""
+    for name, command in entries.items():
+        if name == "_help":
+            continue
+        nested = isinstance(command, dict)
+        description = (
+            command["_help"] if nested else (inspect.getdoc(command) or "").split("\n\nArgs:")[0]
+        )
+        parser = CommandParser(description=description)
+        parser.add_argument(
+            "--config",
+            action=ActionConfigFile,
+            help="a YAML file of these arguments (see --print_config)",
+        )
+        subcommands.add_subcommand(name, parser, help=description.splitlines()[0])
+        if nested:
+            add_commands(parser.add_subcommands(), command)
+            continue
         parser.add_function_arguments(
             command, as_group=False, as_positional=name in POSITIONAL, sub_configs=True
         )
         if "alpha" in inspect.signature(command).parameters:
             parser.set_defaults(alpha=base_alpha())
-        return
-    inner = parser.add_subcommands()
-    for inner_name, function in command.items():
-        if inner_name != "_help":
-            _add_command(inner, inner_name, function)
 
 
 def call(command: Any, arguments: Namespace, entry_points: dict[str, Callable[..., Any]]) -> Any:
-    """Call the function of a ``COMMANDS`` entry that its parsed ``arguments`` select, with
-    those of ``entry_points`` its signature asks for: one that runs other commands (``analyze
-    sweep``) gets the CLI's ``main`` as ``_cli_main``, one that builds runs without running
-    them (``analyze null``) ``_build_cli``."""
+    """Call the function of a ``COMMANDS`` entry that its parsed ``arguments`` select, with those
+    of ``entry_points`` (``_cli_main``, ``_build_cli``) its signature asks for."""
     arguments = arguments.clone()
     arguments.pop("config", None)
     if isinstance(command, dict):
@@ -159,8 +146,7 @@ def call(command: Any, arguments: Namespace, entry_points: dict[str, Callable[..
 
 
 def _built(value: Any) -> Any:
-    """A parsed ``class_path``/``init_args`` value (``check-causality --model``) as the object
-    it describes; any other value as it is."""
+    """A parsed ``class_path``/``init_args`` value (``check-causality --model``) as its object."""
     if not (isinstance(value, Namespace) and "class_path" in value):
         return value
     init_args = value.get("init_args")

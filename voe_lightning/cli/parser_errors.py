@@ -1,7 +1,5 @@
-"""The parser's refusals as one line, ``error: ...``, as every other bad argument is: jsonargparse
-prints its usage (60 lines) over a message that nests each union alternative it tried; here the
-message is read for the argument, the value and what would be valid (``one_line``), and only
-that is printed. ``--debug`` (``full_messages``) prints the parser's own usage and message."""
+"""The parser's refusals as one line (``one_line``): the argument, the value and what would be
+valid, not jsonargparse's usage and nested message, which ``--debug`` prints (``full_messages``)."""
 
 from __future__ import annotations
 
@@ -19,10 +17,9 @@ from voe_lightning.class_paths import import_failure, import_object, missing_met
 
 #: Whether the parser prints its own usage and nested message (``--debug``).
 _FULL_MESSAGES: ContextVar[bool] = ContextVar("full_parser_messages", default=False)
-#: An example class path for the sections that take one.
+#: An example class path for the sections that take one (``--model``, ``--data``).
 EXAMPLES = {"model": "voe_lightning.model.VRNNLRUModel", "data": "my_package.MyDataModule"}
-#: Union alternatives that explain nothing when another one failed: None, and a model given
-#: as a config file's path.
+#: Union alternatives that explain nothing when another one failed (None, a config file's path).
 _OTHER_ALTERNATIVES = re.compile(
     r"Expected a <class 'NoneType'>|Expected a path but|Expected a <class 'bool'>"
 )
@@ -57,6 +54,7 @@ class OneLineErrors:
     exit_on_error: bool
 
     def error(self, message: str, ex: Exception | None = None) -> NoReturn:
+        """Print ``message`` as one line and exit 2 (with ``--debug``, as jsonargparse does)."""
         if not self.exit_on_error or _FULL_MESSAGES.get():
             super().error(message, ex)  # type: ignore[misc]
         sys.stderr.write(f"error: {one_line(message)}\n")
@@ -92,8 +90,7 @@ def _tree(message: str) -> list[_Node]:
 
 def one_line(message: str) -> str:
     """The parser's ``message`` as one line naming the argument, the value given and what is
-    valid (a type, the choices, a class that imports); a message of another form, its lines
-    joined."""
+    valid (a type, the choices, a class that imports); another message, its lines joined."""
     explained = _explain(_tree(message), [])
     return explained or " ".join(line.strip() for line in message.splitlines() if line.strip())
 
@@ -102,13 +99,10 @@ def _explain(nodes: list[_Node], path: list[str], given: str | None = None) -> s
     """What the message ``nodes`` under the argument ``path`` say was wrong, or None."""
     given = _given(nodes) or given
     for node in nodes:
-        if match := _KEY.fullmatch(node.text):
-            inner = [_Node(match["rest"])] if match["rest"] else []
-            key = match["key"].split(".")
-            return _explain(inner + node.children, path + key, given)
-        if match := _CLASS_PATH.fullmatch(node.text):
-            inner = [_Node(match["rest"])] if match["rest"] else []
-            nested = inner + node.children
+        if match := _KEY.fullmatch(node.text) or _CLASS_PATH.fullmatch(node.text):
+            nested = ([_Node(match["rest"])] if match["rest"] else []) + node.children
+            if "key" in match.groupdict():
+                return _explain(nested, path + match["key"].split("."), given)
             if any(_KEY.fullmatch(child.text) for child in nested):
                 return _explain(nested, [*path, "init_args"], given)
             return _unimportable(path, match["class_path"], nested)
@@ -171,8 +165,7 @@ def _valid(*expected: str) -> str:
 
 
 def _wrong_type(path: list[str], valid: str, value: str, given: str | None) -> str:
-    """A value of the wrong type: the argument, the value given (as read, where the parser
-    read it otherwise) and what the argument takes."""
+    """A value of the wrong type: the argument, the value given (and as read), what it takes."""
     shown = given or value
     read = f"read as {value}" if given and given != value else ""
     if valid == _NAMES["<class 'int'>"] and re.fullmatch(r"-?\d+\.0", value):
@@ -199,16 +192,20 @@ def _unimportable(path: list[str], class_path: str, reason: list[_Node]) -> str:
         )
     if imported is not None:
         return f"{_name([*path, 'class_path'])} {class_path}: {why}"
-    example = EXAMPLES.get(path[-1] if path else "", "my_package.module.MyClass")
+    return cannot_import(_name([*path, "class_path"]), class_path, why, path[-1] if path else "")
+
+
+def cannot_import(flag: str, class_path: str, why: str, section: str) -> str:
+    """A class path given to ``flag`` that does not import: why, and an example of ``section``'s."""
+    example = EXAMPLES.get(section, "my_package.module.MyClass")
     return (
-        f"{_name([*path, 'class_path'])} {class_path} cannot be imported ({why}); give a "
-        f"class's import path, e.g. {example}"
+        f"{flag} {class_path} cannot be imported ({why}); give a class's import path, "
+        f"e.g. {example}"
     )
 
 
 def _arguments_taken(cls: Any) -> list[str]:
-    """The keyword arguments a class takes: its ``__init__``'s, and through ``**kwargs`` its
-    bases' (as the parser reads them)."""
+    """The keyword arguments a class takes: its ``__init__``'s and, via ``**kwargs``, its bases'."""
     taken: list[str] = []
     for base in cls.__mro__ if isinstance(cls, type) else ():
         if "__init__" not in vars(base):

@@ -1,6 +1,5 @@
-"""Arguments checked against each other before any rendering or training starts, from the
-parsed config alone: combinations that each pass their own check but together would train on
-nothing, log no VOE statistics or fail only after the data is rendered."""
+"""Arguments checked against each other from the parsed config, before any rendering or training:
+valid ones that together would train on nothing, log nothing or fail after rendering."""
 
 from __future__ import annotations
 
@@ -16,9 +15,8 @@ from voe_lightning.runs import concepts_of
 
 
 def check_run(subcommand: str, config: Any) -> None:
-    """Refuse, naming the arguments and what would be valid, a ``config`` (one Lightning
-    subcommand's section) whose trainer, model and data arguments contradict each other; warn
-    of a fit that would never validate (a smoke test may mean it)."""
+    """Refuse a Lightning subcommand's ``config`` whose trainer, model and data arguments contradict
+    each other, saying what would be valid; warn of a fit that never validates (a smoke test's)."""
     trainer = config.get("trainer") or {}
     data = getattr(config.get("data"), "init_args", None) or {}
     model = getattr(config.get("model"), "init_args", None) or {}
@@ -82,8 +80,7 @@ def _check_image_size(model: Any, data: Any) -> None:
 
 
 def _check_batch_size(data: Any) -> None:
-    """A training batch larger than the training set is dropped whole (drop_last), so
-    nothing would be trained."""
+    """Refuse a training batch larger than the training set: dropped whole (drop_last)."""
     batch_size, examples = data.get("batch_size"), data.get("train_examples")
     if not isinstance(batch_size, int) or not isinstance(examples, int):
         return

@@ -1,6 +1,5 @@
-"""The run-wide arguments beside the trainer's, model's and data's (``configs/base.yaml``, read
-first by every run, sets them): one significance level (``alpha``) and one ``surprise_window`` for the
-whole run, handed to each callback that takes one; ``branch`` and ``allow_non_causal``."""
+"""The run-wide arguments beside the trainer's, model's and data's (``configs/base.yaml`` sets
+them): one ``alpha`` and ``surprise_window`` for each callback; ``branch``, ``allow_non_causal``."""
 
 from __future__ import annotations
 
@@ -22,8 +21,7 @@ def _window_from_config(value: Any) -> SurpriseWindow:
     return surprise_window(yaml.safe_load(value) if isinstance(value, str) else value)
 
 
-# A surprise window is parsed once, where the parser reads it, and saved configs keep its
-# config form.
+# A surprise window is parsed once, where the parser reads it; saved configs keep its config form.
 register_type(SurpriseWindow, serializer=SurpriseWindow.as_config, deserializer=_window_from_config)
 
 
@@ -62,9 +60,8 @@ def add_run_arguments(parser: Any) -> None:
 
 
 def give_run_arguments(config: Any) -> None:
-    """Hand the run's ``alpha`` and ``surprise_window`` (a ``SurpriseWindow``, parsed once by
-    the parser) to every configured callback that takes one and was not given one; refuse a
-    callback whose own alpha differs (one alpha per run, docs/architecture.md §8)."""
+    """Hand the run's ``alpha`` and ``surprise_window`` to each configured callback that takes one
+    and was given none; refuse a callback's other alpha (one per run, docs/architecture.md §8)."""
     alpha = statistics.check_alpha(config["alpha"])
     window = config["surprise_window"] or SurpriseWindow()
     for argument, value in (("alpha", alpha), ("surprise_window", window)):

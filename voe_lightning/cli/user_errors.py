@@ -1,6 +1,5 @@
-"""A bad argument or input as one line, ``error: ...``, exit status 2: the checks of the
-command line's words before it is parsed (``--config`` files, ``--model``/``--data`` import
-paths), and which errors are the user's (``USER_ERRORS``), even raised in a DataLoader worker."""
+"""A bad argument or input as one line, ``error: ...``, exit 2: the command line's ``--config``
+files and import paths checked before parsing, and which errors are the user's (``USER_ERRORS``)."""
 
 from __future__ import annotations
 
@@ -17,15 +16,13 @@ import yaml
 from lightning.fabric.utilities.exceptions import MisconfigurationException
 
 from voe_lightning.class_paths import import_failure, import_object
+from voe_lightning.cli.parser_errors import EXAMPLES, cannot_import
 
-#: Environment variable that, like ``--debug`` anywhere on the command line, shows the traceback
-#: of a refused argument or input instead of its one-line error.
+#: Environment variable that, like ``--debug``, shows a refusal's traceback instead of its line.
 DEBUG_VARIABLE = "VOE_DEBUG"
-#: Errors that mean a bad argument or input, or a run that cannot go on (a non-finite loss,
-#: ``SurpriseModel._check_finite``): printed as one line, exit status 2.
+#: Errors of a bad argument or input, or of a run that cannot go on (a non-finite loss): one line.
 USER_ERRORS = (ValueError, OSError, MisconfigurationException, FloatingPointError)
-#: The most values a ``--config`` file may expand to through its YAML aliases (a paper config
-#: holds a few hundred; nested anchors can make 700 bytes hold 10^9, which would hang).
+#: The most values a ``--config`` may expand to through YAML aliases (700 bytes can hold 10^9).
 MAX_CONFIG_VALUES = 100_000
 #: The largest ``--config`` file read (the package's configs hold under 5 KB).
 MAX_CONFIG_BYTES = 1 << 20
@@ -37,9 +34,8 @@ FILE_KINDS = (
     (stat.S_ISSOCK, "a socket"),
 )
 #: Flags whose value may be a class's import path, with an example of one.
-CLASS_FLAGS = {"--model": "voe_lightning.model.VRNNLRUModel", "--data": "my_package.MyDataModule"}
-#: How torch's DataLoader re-raises in this process an error a worker process raised: the
-#: worker's whole traceback as its message, whose last line is "module.Type: message".
+CLASS_FLAGS = {f"--{section}": example for section, example in EXAMPLES.items()}
+#: A DataLoader worker's error as torch re-raises it: the worker's traceback, last "Type: message".
 WORKER_ERROR = re.compile(
     r"Caught \w+ in DataLoader worker process \d+\.\n"
     r"Original Traceback \(most recent call last\):\n.*\n"
@@ -49,11 +45,9 @@ WORKER_ERROR = re.compile(
 
 
 def check_yaml(words: list[str]) -> None:
-    """Refuse a ``--config`` file that is not valid YAML, naming it (jsonargparse's message
-    gives the line and column of "<unicode string>"), or that expands to more than
-    ``MAX_CONFIG_VALUES`` values through its aliases."""
-    for _, index, prefix in _flag_values(words, _is_config_flag):
-        name = words[index][len(prefix) :]
+    """Refuse a ``--config`` file that is not a YAML mapping, naming it (jsonargparse names
+    "<unicode string>"), or that expands to over ``MAX_CONFIG_VALUES`` values through aliases."""
+    for *_, name in _flag_values(words, _is_config_flag):
         text = _config_text(name)
         if text is None:
             continue  # the parser names a missing file itself
@@ -90,29 +84,27 @@ def _is_config_flag(flag: str) -> bool:
     return flag == "-c" or (len(flag) > 3 and "--config".startswith(flag))
 
 
-def _flag_values(words: list[str], is_flag: Callable[[str], bool]) -> list[tuple[str, int, str]]:
-    """Each value among ``words`` of a flag ``is_flag`` accepts (``--flag V`` or ``--flag=V``):
-    the flag, the value's index, and the prefix before it in that word (``--flag=``; '' for a
-    value that is a word of its own)."""
+def _flag_values(
+    words: list[str], is_flag: Callable[[str], bool]
+) -> list[tuple[str, int, str, str]]:
+    """Each value of a flag ``is_flag`` accepts among ``words`` (``--flag V``, ``--flag=V``): the
+    flag, the index of the value's word, the prefix before it there ('' or ``--flag=``), itself."""
     values = []
     for index, word in enumerate(words):
-        flag, equals, _ = word.partition("=")
+        flag, equals, value = word.partition("=")
         if is_flag(flag):
             if equals:
-                values.append((flag, index, flag + equals))
+                values.append((flag, index, flag + equals, value))
             elif index + 1 < len(words):
-                values.append((flag, index + 1, ""))
+                values.append((flag, index + 1, "", words[index + 1]))
     return values
 
 
 def shipped_config_names(words: list[str], shipped: Path) -> list[str]:
-    """``words`` with each ``--config NAME`` that names no file but one of the configs in
-    ``shipped`` (``quickstart``, ``overlays/untrained_null``; ``.yaml`` may be left out)
-    replaced by that config's path, so a config is given by name wherever the package is
-    installed; a name that is neither is refused, listing the shipped ones."""
+    """``words`` with each ``--config NAME`` of a config in ``shipped`` (``quickstart``; no file
+    of that name) as its path, wherever the package is installed; an unknown name refused."""
     words = list(words)
-    for _, index, prefix in _flag_values(words, _is_config_flag):
-        name = words[index][len(prefix) :]
+    for _, index, prefix, name in _flag_values(words, _is_config_flag):
         if not name or Path(name).exists():
             continue  # the parser names an empty or missing file itself
         config = shipped / (name if name.endswith((".yaml", ".yml")) else f"{name}.yaml")
@@ -160,12 +152,9 @@ def _config_text(name: str) -> str | None:
 
 
 def check_classes(words: list[str]) -> None:
-    """Refuse a ``--model``/``--data`` import path (``package.module.Class``; not a file)
-    that cannot be imported, naming it and why, which the parser's message leaves out for a
-    command's own parser (``check-causality``) and, as the error's type, for a module that
-    raised as it was imported. (An abstract class the parser refuses: ``parser_errors``.)"""
-    for flag, index, prefix in _flag_values(words, CLASS_FLAGS.__contains__):
-        value = words[index][len(prefix) :]
+    """Refuse a ``--model``/``--data`` import path that does not import, saying why (the parser
+    does not for ``check-causality``'s, nor the type of a module's own error)."""
+    for flag, _, _, value in _flag_values(words, CLASS_FLAGS.__contains__):
         if (
             not re.fullmatch(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)+", value)
             or Path(value).exists()
@@ -175,10 +164,7 @@ def check_classes(words: list[str]) -> None:
         try:
             import_object(value)
         except Exception as error:  # any error importing it: the module's own too
-            raise ValueError(
-                f"{flag} {value} cannot be imported ({import_failure(error)}); give a class's "
-                f"import path, e.g. {CLASS_FLAGS[flag]}"
-            ) from error
+            raise ValueError(cannot_import(flag, value, import_failure(error), flag[2:])) from error
 
 
 def _expanded_size(node: yaml.Node, sizes: dict[int, int]) -> int:
@@ -186,23 +172,16 @@ def _expanded_size(node: yaml.Node, sizes: dict[int, int]) -> int:
     distinct node (``sizes``: by id), so a billion-value alias bomb costs microseconds."""
     if id(node) not in sizes:
         sizes[id(node)] = 1  # a node that contains itself counts once
-        children = (
-            [part for pair in node.value for part in pair]
-            if isinstance(node, yaml.MappingNode)
-            else node.value
-            if isinstance(node, yaml.SequenceNode)
-            else []
-        )
+        children = node.value if isinstance(node, yaml.SequenceNode) else []
+        if isinstance(node, yaml.MappingNode):
+            children = [part for pair in node.value for part in pair]
         sizes[id(node)] = 1 + sum(_expanded_size(child, sizes) for child in children)
     return sizes[id(node)]
 
 
 def user_message(error: BaseException) -> str | None:
-    """The message of the error the user's value caused (None: not one of ``USER_ERRORS``, a
-    bug whose traceback shows): jsonargparse wraps a class's ValueError in one of its own
-    that lists every type it tried, so unwrap those; a DataLoader worker's error is the
-    worker's own one line, as in the main process (torch re-raises it with the worker's
-    traceback as its message, or as a RuntimeError where its type takes other arguments)."""
+    """The message of a ``USER_ERRORS`` error (None: a bug, whose traceback shows), unwrapped
+    from jsonargparse's wrappers and from a DataLoader worker's traceback (``WORKER_ERROR``)."""
     while error.__cause__ is not None and _raised_in(error, "jsonargparse"):
         error = error.__cause__
     worker = WORKER_ERROR.match(str(error.args[0]) if error.args else "")
