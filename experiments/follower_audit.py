@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from learned_physics import cell, counts
+from ladder import cell, counts
 
 from voe_lightning import specs
 from voe_lightning.model.scorers.followers import INPUTS, RULES
