@@ -1,18 +1,21 @@
 """The untrained null (voe_lightning.analysis.null, ``analyze null``): its table by hand from synthetic
 summaries, and the command at a tiny size: each initialization its own seed and report, a
 trained report placed in the distribution; the positive control's test report carrying its
-priors alone (one initialization of its own config)."""
+priors alone (one initialization of its own config); ``--noise`` making a zero-heads family's
+one function N distinct, reproducibly."""
 
 import json
+import math
 from pathlib import Path
 
 import pytest
 import scipy.stats
+import torch
 import yaml
 from helpers.locations import REPO, TINY_CONFIG
 from PIL import Image
 
-from voe_lightning.analysis.null import format_null, null_figure, null_rows
+from voe_lightning.analysis.null import add_noise, format_null, noise_unit, null_figure, null_rows
 from voe_lightning.cli import main
 
 TINY = TINY_CONFIG
@@ -165,6 +168,79 @@ def test_a_null_whose_initializations_are_one_function_says_it_tests_nothing(tmp
     assert document["distinct_functions"] == 1
     assert "they are one function, and this null tests nothing" in table
     assert all(row["trained_percentile"] is None for row in document["rows"] if "trained_t" in row)
+
+
+def test_noise_is_each_tensors_own_scale_seeded_and_spares_frozen_parameters():
+    """``add_noise``: a drawn tensor's unit is its own sd, a zeroed one's 1/sqrt(3 fan-in) (a
+    bias its layer's weight's), a frozen tensor is kept; the same seed gives the same model,
+    another seed another."""
+
+    def zeroed(layer: torch.nn.Linear) -> torch.nn.Linear:
+        for tensor in (layer.weight, layer.bias):
+            torch.nn.init.zeros_(tensor)
+        return layer
+
+    def network(seed: int) -> torch.nn.Sequential:
+        torch.manual_seed(0)  # every seed builds the same network: the head at zero
+        model = torch.nn.Sequential(torch.nn.Linear(4, 8), zeroed(torch.nn.Linear(8, 3)))
+        model[0].bias.requires_grad_(False)
+        add_noise(model, 0.5, seed)
+        return model
+
+    drawn, head = torch.nn.Linear(4, 8), zeroed(torch.nn.Linear(8, 3))
+    assert noise_unit(drawn, drawn.weight) == pytest.approx(float(drawn.weight.std(correction=0)))
+    assert noise_unit(head, head.weight) == noise_unit(head, head.bias) == 1 / math.sqrt(24)
+    one, again, other = network(0), network(0), network(1)
+    assert all(torch.equal(a, b) for a, b in zip(one.parameters(), again.parameters()))
+    assert not torch.equal(one[1].weight, other[1].weight) and one[1].weight.abs().min() > 0
+    assert torch.equal(one[0].bias, other[0].bias)  # frozen: given, not drawn
+    assert float(torch.cat([one[1].weight.flatten(), other[1].weight.flatten()]).std()) == (
+        pytest.approx(0.5 / math.sqrt(24), rel=0.5)
+    )
+
+
+def zero_heads_config(folder: Path) -> str:
+    """The tiny run with configs/oracle_states_15min.yaml's model (every predicting layer
+    started at zero, small sizes) and configs/overlays/untrained_null.yaml: its path."""
+    model = yaml.safe_load((REPO / "configs" / "oracle_states_15min.yaml").read_text())["model"]
+    model["init_args"].update(hidden_size=16, message_size=8, withhold_frames=2)
+    overlay = yaml.safe_load((REPO / "configs" / "overlays" / "untrained_null.yaml").read_text())
+    config = {**yaml.safe_load(Path(TINY).read_text()), "model": model}
+    config["trainer"]["callbacks"] = overlay["trainer"]["callbacks"]
+    config["data"]["init_args"].update(overlay["data"]["init_args"])
+    path = folder / "zero_heads.yaml"
+    path.write_text(yaml.safe_dump(config))
+    return str(path)
+
+
+def test_noise_makes_a_one_function_null_distinct_and_reproducible(tmp_path, monkeypatch):
+    """Issue 70's "nulls that test": the zero-heads learner's untrained draws are one function,
+    and the table says to rerun with --noise; with it they are N of N distinct, the noise in
+    null.json and the table; the same seed and noise give the same pairs.csv again."""
+    monkeypatch.chdir(tmp_path)
+    config = zero_heads_config(tmp_path)
+
+    def null(out: str, seeds: int, noise: float) -> tuple[str, dict]:
+        table = main(
+            ["analyze", "null", "--configs", f"[{config}]", "--seeds", str(seeds)]
+            + ["--out", out, "--noise", str(noise)]
+            + ["--extra_args", '["--trainer.enable_progress_bar", "false"]']
+        )
+        return table, json.loads((tmp_path / out / "null.json").read_text())
+
+    table, document = null("plain", 2, 0)
+    assert document["distinct_functions"] == 1 and "noise" not in document
+    assert "this null tests nothing** (" in table and "Rerun with `--noise 1.0`" in table
+    table, document = null("noisy", 2, 1.0)
+    assert document["distinct_functions"] == 2 and document["noise"] == 1.0
+    assert "2 of 2 initializations are different functions" in table
+    assert "Untrained initializations of one config, each with noise 1 (--noise: " in table
+    null("again", 1, 1.0)
+    pairs = [
+        tmp_path / out / "seed_0" / "version_0" / "voe_report" / "pairs.csv"
+        for out in ("noisy", "again", "plain")
+    ]
+    assert pairs[0].read_bytes() == pairs[1].read_bytes() != pairs[2].read_bytes()
 
 
 def control_config(folder: Path) -> str:

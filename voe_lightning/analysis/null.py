@@ -13,6 +13,9 @@ percentile in that distribution, and the plot (``null_figure``) shows each t aga
 critical t at alpha. ``priors_alone`` is one such initialization of a run's own
 config at its own seed, which ``test`` runs first (``priors_alone_first``) where the report
 callback asks for it (``VOEReportCallback(priors_alone=True)``, the positive control's config).
+A family whose every draw is one function (``distinct_functions``: its predicting heads started
+at zero) draws distinct ones with ``--noise`` (``add_noise``: seeded Gaussian noise on each
+learned parameter at the scale of its initialization).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from typing import Any, cast
 
 import numpy as np
 import scipy.stats
+import torch
 import yaml
 from lightning.pytorch.utilities.seed import isolate_rng
 from matplotlib.figure import Figure
@@ -47,8 +51,10 @@ def _untrained_report(
     seed: int,
     out: Path,
     extra_args: Sequence[str],
+    noise: float = 0.0,
 ) -> Path:
-    """Test the configs' model at initialization under ``seed``; its report's folder."""
+    """Test the configs' model at initialization under ``seed``, with ``add_noise`` at
+    ``noise`` (0: none) once it is built and before the test; its report's folder."""
     arguments = [word for config in configs for word in ("--config", str(config))]
     cli = build_cli(
         [
@@ -62,6 +68,8 @@ def _untrained_report(
             *extra_args,
         ]
     )
+    if noise:
+        add_noise(cli.model, noise, seed)
     cli.trainer.test(cli.model, datamodule=cli.datamodule)
     reports = report_folders(cli.trainer.callbacks)
     if not reports:
@@ -70,6 +78,61 @@ def _untrained_report(
             "voe_lightning.callbacks.VOEReportCallback to its callbacks"
         )
     return reports[-1]
+
+
+#: ``--noise``'s rule, one line (the table's and docs'; ``noise_unit`` says why).
+NOISE_RULE = (
+    "each learned tensor gets Gaussian noise of sd = noise x the tensor's own sd over its "
+    "elements, or, where that is 0 (a head started at zero), x 1/sqrt(3 fan-in), the sd of "
+    "PyTorch's default initialization of its layer"
+)
+#: Told to a null whose draws are one function; the noise that makes them differ.
+NOISE_ADVICE = 1.0
+#: Mixed with an initialization's seed into its noise's seed: a stream of its own, not the one
+#: ``seed_everything`` drew the initialization from (the same seed would tie the noise to it).
+NOISE_STREAM = 0x6E6F697365
+
+
+def noise_unit(module: torch.nn.Module, parameter: torch.Tensor) -> float:
+    """The noise's sd per unit of ``--noise`` on a learned ``parameter`` of ``module``
+    (``NOISE_RULE``): the tensor's own sd over its elements, so that noise 1 is a second
+    draw's worth of spread on top of the first, whatever the layer's initialization scheme;
+    where that sd is 0 (a head started at zero, a bias or a norm's scale that starts
+    constant, a lone scalar), 1/sqrt(3 fan-in), the sd of what ``nn.Linear`` and ``nn.Conv``
+    draw by default (uniform within 1/sqrt(fan-in)): a zeroed layer's draws then differ by
+    as much as a drawn layer's would, not by an arbitrary absolute amount. The fan-in is
+    the weight's (input width times kernel size); a bias or a scale takes its module's
+    weight's where it has one, else its own length."""
+    own = float(parameter.detach().double().std(correction=0)) if parameter.numel() else 0.0
+    if own > 0:
+        return own
+    weight = parameter if parameter.dim() >= 2 else getattr(module, "weight", None)
+    layered = isinstance(weight, torch.Tensor) and weight.dim() >= 2
+    fan_in = cast(torch.Tensor, weight)[0].numel() if layered else parameter.numel()
+    return 1 / math.sqrt(3 * max(fan_in, 1))
+
+
+def add_noise(model: torch.nn.Module, noise: float, seed: int) -> int:
+    """Add Gaussian noise of sd ``noise`` x ``noise_unit`` to every floating-point parameter
+    of ``model`` that training would learn (``requires_grad``: a frozen pretrained part or
+    any given tensor is kept), in place, drawn from a generator seeded by the
+    initialization's ``seed`` (its own stream, ``NOISE_STREAM``): the same seed and noise
+    give the same model, and a different seed a different function even where every seed
+    builds the same one. Returns how many tensors it changed."""
+    stream = np.random.SeedSequence([NOISE_STREAM, seed]).generate_state(1, np.uint64)[0]
+    generator = torch.Generator().manual_seed(int(stream))
+    seen: set[int] = set()
+    with torch.no_grad():
+        for module in model.modules():
+            for parameter in module.parameters(recurse=False):
+                learned = parameter.requires_grad and parameter.is_floating_point()
+                if not learned or id(parameter) in seen:
+                    continue
+                seen.add(id(parameter))
+                sd = noise * noise_unit(module, parameter)
+                draw = torch.randn(parameter.shape, generator=generator, dtype=torch.float64)
+                parameter.add_((sd * draw).to(parameter.device, parameter.dtype))
+    return len(seen)
 
 
 def priors_alone(
@@ -222,11 +285,15 @@ def one_function(rows: list[dict[str, Any]]) -> None:
 
 
 def format_null(
-    rows: Sequence[Mapping[str, Any]], alpha: float, distinct: int | None = None
+    rows: Sequence[Mapping[str, Any]],
+    alpha: float,
+    distinct: int | None = None,
+    noise: float = 0.0,
 ) -> str:
-    """``null_rows`` as a Markdown table with a line saying what the columns are and, given
-    ``distinct`` (``distinct_functions``), how many different functions the initializations
-    are."""
+    """``null_rows`` as a Markdown table with a line saying what the columns are (and the
+    ``noise`` the initializations were given, ``add_noise``) and, given ``distinct``
+    (``distinct_functions``), how many different functions the initializations are: where
+    one, that the null tests nothing and, without noise, to rerun with it."""
     lines = [
         "| concept | variant | inits | t median [min, max] | significant | concept VOE "
         "| trained t | percentile |",
@@ -245,7 +312,9 @@ def format_null(
         )
     lines += [
         "",
-        f"Untrained initializations of one config tested on the same probes: t of "
+        "Untrained initializations of one config"
+        + (f", each with noise {noise:g} (--noise: {NOISE_RULE})," if noise else "")
+        + " tested on the same probes: t of "
         f"the one-tailed paired test per initialization; significant: share with p < "
         f"{alpha:g}; concept VOE: share of initializations whose verdict for the concept "
         "is VOE; percentile: where the trained run's t falls among the untrained ones "
@@ -253,14 +322,25 @@ def format_null(
         "the spread and the percentile.",
     ]
     count = rows[0]["initializations"] if rows else 0
-    if distinct is not None and distinct < 2 <= count:
+    if distinct is not None and distinct < 2 <= count and not noise:
         lines += [
             "",
             f"**All {count} initializations score every pair alike: they are one function, "
             "and this null tests nothing** (the family starts from the same function at "
-            "every seed, e.g. predicting layers started at zero). Read a trained run against "
-            "the followers of its own inputs instead (its report's cues.md) or draw "
-            "initializations that differ.",
+            "every seed, e.g. predicting layers started at zero). Rerun with "
+            f"`--noise {NOISE_ADVICE}` for initializations that differ (Gaussian noise on "
+            "every learned parameter at the scale of its initialization; a model without "
+            "any, a follower, stays one), or read a trained run against the followers of its "
+            "own inputs (its report's cues.md).",
+        ]
+    elif distinct is not None and distinct < 2 <= count:
+        lines += [
+            "",
+            f"**All {count} initializations, even with noise {noise:g}, score every pair "
+            "alike: they are one function, and this null tests nothing** (the noise changes "
+            "learned parameters only, and none reaches this model's surprise, e.g. a "
+            "follower's). Read a trained run against the followers of its own inputs instead "
+            "(its report's cues.md).",
         ]
     elif distinct is not None:
         lines += ["", f"{distinct} of {count} initializations are different functions."]
@@ -329,6 +409,7 @@ def null_figure(document: Mapping[str, Any], alpha: float) -> Figure:
     ax.set_title(
         f"Untrained null: {document['seeds']} initializations of "
         f"{', '.join(Path(config).name for config in document['configs'])}"
+        + (f", noise {document['noise']:g}" if document.get("noise") else "")
     )
     figure.legend(loc="outside lower center", ncols=3, fontsize="small", frameon=False)
     return figure
@@ -340,6 +421,7 @@ def untrained_null(
     out: Path = Path("runs/null"),
     trained: Path | None = None,
     extra_args: list[str] | None = None,
+    noise: float = 0.0,
     _build_cli: Callable[[list[str]], Any] | None = None,
 ) -> str:
     """Test untrained initializations of a config's model on its test probes and table the
@@ -355,6 +437,10 @@ def untrained_null(
         trained: a trained run's report directory (its voe_report) to place in the null,
             tested on the same probes (``check_same_probes``: refused otherwise).
         extra_args: further arguments for every initialization's run, e.g. a smaller test set.
+        noise: Gaussian noise added to each initialization's learned parameters before its
+            test, seeded by its seed, in units of each tensor's initialization scale (its
+            own sd, or 1/sqrt(3 fan-in) where that is 0); 0: none. For a family whose draws
+            are one function (heads started at zero), e.g. 1.0.
         _build_cli: builds a run's model, data and trainer from arguments without running it;
             the CLI passes its own, so this module does not import the CLI.
     """
@@ -365,11 +451,13 @@ def untrained_null(
         )
     if seeds < 1:
         raise ValueError(f"seeds must be at least 1, got {seeds}")
+    if not (math.isfinite(noise) and noise >= 0):
+        raise ValueError(f"noise must be a finite number of at least 0, got {noise}")
     out = Path(out)
     trained_summary = None if trained is None else read_summary(trained)
     summaries, reports = [], []
     for seed in range(seeds):
-        reports.append(_untrained_report(_build_cli, configs, seed, out, extra_args or ()))
+        reports.append(_untrained_report(_build_cli, configs, seed, out, extra_args or (), noise))
         summaries.append(read_summary(reports[-1]))
         if trained_summary is not None and seed == 0:  # refused before the other seeds run
             check_same_probes(summaries[0], trained_summary, trained)
@@ -377,10 +465,11 @@ def untrained_null(
     distinct = distinct_functions(reports)
     if distinct == 1:
         one_function(rows)
-    table = format_null(rows, summaries[0]["alpha"], distinct)
+    table = format_null(rows, summaries[0]["alpha"], distinct, noise)
     document = {
         "configs": [str(c) for c in configs],
         "seeds": seeds,
+        **({"noise": noise} if noise else {}),  # none: null.json as before --noise
         "distinct_functions": distinct,
         "rows": rows,
         "initializations": [
