@@ -1,15 +1,14 @@
 """Continuity (paper §3, after Aguilar & Baillargeon 1999): a ball rolls behind two pillars.
-``standard`` and ``counterbalanced`` are one quadruplet per seed: A is the roll from its launch,
-B the same roll some frames later, at the manipulation frame hidden by the last pillar where A's
-ball is hidden by the first. The standard inconsistent video (A, then B) shows the ball vanish
-behind the first pillar and come out of the last one without crossing the gap; the
-counterbalanced one (B, then A) a ball gone behind the last pillar coming out of the first
-again. After the change each inconsistent video is exactly the other variant's consistent one.
-The ``paper`` variant keeps the paper's own probe, the ball reappearing when it would have
-(hidden across the gap for as long as it takes to cross it), which no splice of two physical
-videos gives (docs/stimuli.md); it is reported beside the quadruplets. The ``gap_block``
-control shows that visibility pattern physically. Examples roll free or slowing balls on
-unconstrained paths past the same pillars."""
+``standard`` and ``counterbalanced`` are one quadruplet per seed, on the ``gap_block`` layout (a
+block fills the gap, so pillars and block are one long screen): A is the roll from its launch,
+B the same roll k frames later, both wholly behind the screen at the manipulation frame. The
+standard inconsistent video (A, then B) shows the ball come out of the screen k frames too
+soon, as if it had jumped across part of it; the counterbalanced one (B, then A) k frames too
+late, as if it had stopped unseen. Both videos of a pair lose and find the ball at the same
+places, unseen for as long in sum, so no rule without dynamics tells them apart (issue 70). The
+``paper`` variant keeps the paper's own probe (an open gap the ball crosses unseen), which no
+splice of two physical videos gives (docs/stimuli.md); it is reported beside the quadruplets.
+Examples roll free or slowing balls on unconstrained paths past the same pillars."""
 
 from __future__ import annotations
 
@@ -78,6 +77,11 @@ EXAMPLE_BALL_RADIUS = (0.13, 0.24)
 PROBE_BALL_DEPTH = (0.35, 0.6)  # behind the pillars
 EXAMPLE_BALL_DEPTH = (-0.9, 1.0)  # in front of or behind them
 PROBE_SPEED = (0.55, 1.2)
+#: Where a quadruplet's ball starts, as a share of the room before the screen (the probes': all
+#: of it): near the frame edge, so it is seen long enough before the screen for the shift.
+QUADRUPLET_START_SHARE = 0.15
+#: The least time by which a quadruplet's inconsistent ball comes out too soon or too late.
+QUADRUPLET_MIN_SHIFT = 0.4
 EXAMPLE_SPEED = (0.4, 1.5)
 #: MuJoCo rolling friction (a length, contact dimension 6): 0 rolls freely (every probe).
 EXAMPLE_ROLLING_FRICTION = (0.005, 0.045)
@@ -218,11 +222,12 @@ def probe_layout(
     variant: str,
     camera: CameraPose,
     video: VideoOptions,
+    start_share: float = 1.0,
 ) -> Layout:
     """Pillars a little upstream of the view's centre (three for ``three_pillars``, else two)
-    and a ball rolling freely behind them at constant speed from the frame edge or nearer,
-    ending in view past the last pillar (RejectedSample if that needs a speed outside
-    PROBE_SPEED)."""
+    and a ball rolling freely behind them at constant speed from the frame edge or nearer (up to
+    ``start_share`` of the way to the first pillar), ending in view past the last pillar
+    (RejectedSample if that needs a speed outside PROBE_SPEED)."""
     centres, widths = _pillars(rng, 3 if variant == "three_pillars" else 2)
     radius = float(rng.uniform(*PROBE_BALL_RADIUS))
     depth = float(rng.uniform(*PROBE_BALL_DEPTH))
@@ -244,7 +249,7 @@ def probe_layout(
     )
     if direction * (before - upstream) < 0 or direction * (inside - past) < 0:
         raise RejectedSample("the pillars leave no room in view before or after them")
-    start = upstream + float(rng.random()) * (before - upstream)
+    start = upstream + start_share * float(rng.random()) * (before - upstream)
     end = past + float(rng.random()) * (inside - past)
     speed = direction * (end - start) / ((video.num_frames - 1) * video.duration / video.num_frames)
     if not PROBE_SPEED[0] <= speed <= PROBE_SPEED[1]:
@@ -347,20 +352,65 @@ def _standard(
     return sim, consistent, splice(consistent, rest, vanish), vanish
 
 
+def gap_block_layout(
+    rng: np.random.Generator, camera: CameraPose, video: VideoOptions, start_share: float = 1.0
+) -> Layout:
+    """The standard probe's pillars and ball (``probe_layout``) with a block 0.75 to 1 times
+    their height filling the gap: one long screen the ball is hidden behind throughout."""
+    layout = probe_layout(rng, "standard", camera, video, start_share)
+    layout.gap_block_height = layout.pillar_height * float(rng.uniform(0.75, 1.0))
+    return layout
+
+
+def check_hidden_over_block(
+    sim: Simulation, layout: Layout, masks: np.ndarray, positions: np.ndarray
+) -> None:
+    """RejectedSample unless the block hides the ball somewhere and never shows it above."""
+    pixels = ball_pixels(masks, sim.mask_id("ball"))
+    if not (what_hides_ball(sim, masks, positions) == sim.mask_id("block")).any():
+        raise RejectedSample("the block never hides the ball")
+    low, high = sorted(column(sim, (x, 0.0, 0.0)) for x in layout.gap_edges())
+    for t, position in enumerate(positions):
+        if low < column(sim, position) < high and pixels[t]:
+            raise RejectedSample("the ball shows above the gap block")
+
+
+def behind_the_screen(sim: Simulation, layout: Layout, masks: np.ndarray) -> tuple[int, int, int]:
+    """Of a roll past the gap_block screen: the last frame the ball is well seen before it, the
+    first frame it is wholly hidden and the first it shows again (RejectedSample if it is not
+    well seen before and after the screen)."""
+    pixels = ball_pixels(masks, sim.mask_id("ball"))
+    full = full_ball_pixels(sim, layout.ball_radius, layout.ball_start[1])
+    well_seen = pixels >= VISIBLE_SHARE * full
+    if not well_seen.any():
+        raise RejectedSample("the ball is never well seen")
+    hidden = np.flatnonzero(pixels == 0)
+    hidden = hidden[hidden > np.argmax(well_seen)]
+    if not len(hidden):
+        raise RejectedSample("the ball never goes wholly behind the screen")
+    vanish = int(hidden[0])
+    shown = np.flatnonzero(pixels[vanish:] > 0)
+    if not len(shown) or not well_seen[vanish + int(shown[0]) :].any():
+        raise RejectedSample("the ball is not well seen after the screen")
+    return int(np.flatnonzero(well_seen[:vanish])[-1]), vanish, vanish + int(shown[0])
+
+
 def _quadruplet(
     rng: np.random.Generator, video: VideoOptions, camera: CameraPose
 ) -> tuple[Simulation, tuple[tuple[Video, Video], tuple[Video, Video]], int]:
-    """One ball's roll past both pillars seen from two moments: A from the launch (hidden by
-    the first pillar at m = ``vanish``), B the same roll k = reappear - vanish frames later
-    (hidden by the last pillar at m). Both show nothing of the ball at m, so they render alike
-    there, and AB (A, then B) shows the paper's violation: the ball vanishes behind the first
-    pillar and comes out of the last one without crossing the gap; BA (B, then A) shows a ball
-    that went behind the last pillar come out of the first one again."""
-    layout = probe_layout(rng, "standard", camera, video)
+    """One roll behind the gap_block screen seen from two moments: A from the launch, B the
+    same roll k frames later, k as large as leaves B's ball well seen before m (A's first
+    frame with the ball wholly hidden) and still hidden at m, and at least QUADRUPLET_MIN_SHIFT.
+    Both show nothing of the ball at m, so they render alike there; AB's ball comes out k
+    frames too soon, BA's k frames too late, at the same place as in A and B."""
+    layout = gap_block_layout(rng, camera, video, QUADRUPLET_START_SHARE)
     sim = build(rng, video, camera, layout)
     first, _, positions = record_tracking(sim, "ball")
-    vanish, reappear = vanish_and_reappear(sim, layout, first[1], positions)
-    later = reappear - vanish
+    check_hidden_over_block(sim, layout, first[1], positions)
+    last_seen, vanish, back = behind_the_screen(sim, layout, first[1])
+    later = min(last_seen, back - vanish - 1)
+    if later < QUADRUPLET_MIN_SHIFT * video.fps - 1e-9:
+        raise RejectedSample(f"the ball can come out only {later} frames too soon or too late")
     second = join(tail(first, later), sim.record(later))
     return sim, recording.quadruplet(first, second, vanish), vanish
 
@@ -409,21 +459,14 @@ def clip(kind: str, seed: int, video: VideoOptions) -> TensorDict:
         if kind == "example":
             layout = example_layout(rng, video.duration)
         else:
-            layout = probe_layout(rng, "standard", camera, video)
-            layout.gap_block_height = layout.pillar_height * float(rng.uniform(0.75, 1.0))
+            layout = gap_block_layout(rng, camera, video)
         sim = build(rng, video, camera, layout)
         (frames, masks, objects), _, positions = record_tracking(sim, "ball")
         pixels = ball_pixels(masks, sim.mask_id("ball"))
         if (pixels > 0).sum() < video.num_frames / 3:
             raise RejectedSample("the ball is seen in less than a third of the frames")
         if kind == "gap_block":
-            seen = what_hides_ball(sim, masks, positions)
-            if not (seen == sim.mask_id("block")).any():
-                raise RejectedSample("the block never hides the ball")
-            low, high = sorted(column(sim, (x, 0.0, 0.0)) for x in layout.gap_edges())
-            for t, position in enumerate(positions):
-                if low < column(sim, position) < high and pixels[t]:
-                    raise RejectedSample("the ball shows above the gap block")
+            check_hidden_over_block(sim, layout, masks, positions)
         return camera, (frames, masks, objects)
 
     return draw_clip(CONCEPT, kind, seed, draw_scene)
