@@ -123,6 +123,18 @@ def test_a_result_is_one_config():
     assert stacked == set()
 
 
+def test_pages_of_the_present_are_short():
+    """The README is a user's page of at most 200 lines and each study page at most 300,
+    current answer first (issue 71; CONTRIBUTING.md): history lives in git."""
+    pages = {REPO / "README.md": 200} | {p: 300 for p in (REPO / "docs/study").glob("*.md")}
+    long = {
+        str(page.relative_to(REPO)): n
+        for page, most in pages.items()
+        if (n := len(page.read_text().splitlines())) > most
+    }
+    assert len(pages) > 5 and long == {}
+
+
 @pytest.mark.parametrize("command", documented_commands(), ids=" ".join)
 def test_documented_command_parses_into_a_complete_run(command):
     config = parsed(*command)

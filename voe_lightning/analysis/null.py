@@ -406,10 +406,10 @@ def null_figure(document: Mapping[str, Any], alpha: float) -> Figure:
     ax.set_ylim(len(rows) - 0.5, -0.5)
     ax.axvline(0, color="0.8", lw=0.8, zorder=0)
     ax.set_xlabel("t of the one-tailed paired test (inconsistent > consistent)")
-    ax.set_title(
-        f"Untrained null: {document['seeds']} initializations of "
-        f"{', '.join(Path(config).name for config in document['configs'])}"
+    ax.set_title(  # two lines: the configs' names alone can fill the width
+        f"Untrained null: {document['seeds']} initializations"
         + (f", noise {document['noise']:g}" if document.get("noise") else "")
+        + f"\n{', '.join(Path(config).name for config in document['configs'])}"
     )
     figure.legend(loc="outside lower center", ncols=3, fontsize="small", frameon=False)
     return figure
