@@ -21,7 +21,7 @@ SLURM = REPO / "scripts" / "slurm"
 #: The store tests/configs/tiny.yaml reads.
 TINY_STORE = ["generate", "--root", "data/tiny", "--concepts", "[object_persistence]",
               "--train_examples", "4", "--val_pairs", "2", "--test_pairs", "3",
-              "--generalization_pairs", "2", "--num_frames", "6", "--height", "32",
+              "--generalization_pairs", "2", "--num_frames", "8", "--height", "32",
               "--width", "32", "--workers", "1", "--progress", "false"]  # fmt: skip
 
 

@@ -262,10 +262,10 @@ def test_concurrent_generate_runs_for_two_concepts_keep_both_in_the_manifest(tmp
         return manifest
 
     monkeypatch.setattr(manifest, "read_manifest", slow_read)
-    video = VideoOptions(num_frames=6, height=32, width=32)
+    video = VideoOptions(num_frames=8, height=32, width=32)
     entries = {
         concept: store.plan_generation(
-            tmp_path, [concept], 2, None, 1, 1, 1, 4, 6, 32, 32, 0
+            tmp_path, [concept], 2, None, 1, 1, 1, 4, 8, 32, 32, 0
         ).entries[concept]
         for concept in ("continuity", "containment")
     }
@@ -476,7 +476,7 @@ def test_a_setting_a_scene_cannot_render_is_one_line_before_anything_renders(tmp
             "--root",
             str(tmp_path),
             "--concepts",
-            "[continuity, solidity]",
+            "[containment, solidity]",
             "--num_frames",
             "4",
             "--height",

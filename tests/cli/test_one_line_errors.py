@@ -14,11 +14,11 @@ from voe_lightning.data.store import render
 from voe_lightning.model import CallableModel, SurpriseModel
 from voe_lightning.scenes import camera
 
-#: A tiny store to generate: one concept, one clip per shard of 6 frames of 32 x 32.
+#: A tiny store to generate: one concept, one clip per shard of 8 frames of 32 x 32.
 SMALL = [
     "--concepts", "[continuity]", "--train_examples", "2", "--train_controls", "0",
     "--val_pairs", "0", "--test_pairs", "0", "--generalization_pairs", "0",
-    "--shard_size", "1", "--workers", "1", "--progress", "false", "--num_frames", "6",
+    "--shard_size", "1", "--workers", "1", "--progress", "false", "--num_frames", "8",
 ]  # fmt: skip
 
 

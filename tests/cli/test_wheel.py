@@ -69,7 +69,7 @@ def test_a_wheel_installed_outside_the_checkout_runs_there(tmp_path):
     assert "name: quickstart" in run("-m", "voe_lightning", "fit", "--config", "quickstart", "--print_config")  # fmt: skip
     run("-m", "voe_lightning", "generate", "--root", "data/tiny", "--concepts", "[object_persistence]",
         "--train_examples", "4", "--val_pairs", "2", "--test_pairs", "3", "--generalization_pairs", "2",
-        "--num_frames", "6", "--height", "32", "--width", "32", "--workers", "1", "--progress", "false")  # fmt: skip
+        "--num_frames", "8", "--height", "32", "--width", "32", "--workers", "1", "--progress", "false")  # fmt: skip
     assert "next, the report on the test probes" in run("-m", "voe_lightning", "fit", "--config", "tiny.yaml")  # fmt: skip
     run("-m", "voe_lightning", "test", "--config", "tiny.yaml", "--ckpt_path", "last")
     assert (work / "runs" / "tiny" / "version_0" / "voe_report" / "summary.json").is_file()

@@ -63,18 +63,18 @@ def test_datamodule_generates_and_serves_spec_batches(tmp_path):
         batch_size=4,
         probe_batch_size=2,
         generate_workers=1,
-        num_frames=6,
+        num_frames=8,
         height=32,
         width=32,
     )
     datamodule.prepare_data()
     datamodule.setup("fit")
     batch = next(iter(datamodule.train_dataloader()))
-    assert specs.clip_spec(6, 32, 32).expand(4).is_in(batch)
+    assert specs.clip_spec(8, 32, 32).expand(4).is_in(batch)
     kinds = {specs.CLIP_KINDS[k] for k in batch["kind"].tolist()}
     assert kinds <= set(specs.CLIP_KINDS_BY_CONCEPT["continuity"])
     probes = next(iter(datamodule.val_dataloader()))
-    assert specs.probe_spec(6, 32, 32).expand(2).is_in(probes)
+    assert specs.probe_spec(8, 32, 32).expand(2).is_in(probes)
     datamodule.setup("test")
     test_loaders = datamodule.test_dataloader()
     assert len(test_loaders) == 2  # test probes and the three-pillar generalization probes
@@ -94,7 +94,7 @@ def test_prepare_data_regenerates_a_checksum_corrupt_shard(tmp_path, monkeypatch
     monkeypatch.setattr(render, "generate_probe", fake_probe)
     datamodule = ConceptDataModule(
         concept="continuity", root=str(tmp_path), train_examples=4, val_pairs=1, test_pairs=1,
-        generalization_pairs=1, generate_workers=1, num_frames=4, height=16, width=16,
+        generalization_pairs=1, generate_workers=1, num_frames=8, height=16, width=16,
     )  # fmt: skip
     datamodule.prepare_data()
     shard = store.shard_path(tmp_path, "continuity", "train", 0)
@@ -107,7 +107,7 @@ def test_prepare_data_regenerates_a_checksum_corrupt_shard(tmp_path, monkeypatch
     assert store.verify(tmp_path) == []
     first = store.open_split(tmp_path, "continuity", "train")[0]
     expected = fake_clip(
-        "continuity", specs.CLIP_KINDS[int(first["kind"])], 0, num_frames=4, height=16, width=16
+        "continuity", specs.CLIP_KINDS[int(first["kind"])], 0, num_frames=8, height=16, width=16
     )
     assert torch.equal(first["frames"], expected["frames"])
 
@@ -186,7 +186,7 @@ def _fake_store(tmp_path, monkeypatch, **sizes):
         val_pairs=2,
         generalization_pairs=1,
         generate_workers=1,
-        num_frames=4,
+        num_frames=8,
         height=16,
         width=16,
         **sizes,
@@ -240,7 +240,7 @@ def test_test_split_val_reports_on_the_validation_probes_in_a_folder_of_its_own(
         generalization_pairs=1,
         generalization=True,
         generate_workers=1,
-        num_frames=4,
+        num_frames=8,
         height=16,
         width=16,
     )

@@ -25,7 +25,7 @@ SMALL = dict(
     test_pairs=3,
     generalization_pairs=1,
     shard_size=3,
-    num_frames=6,
+    num_frames=8,
     height=24,
     width=24,
     workers=1,
@@ -132,7 +132,7 @@ def test_round_trip_resume_and_repair(tmp_path, calls):
         record = train[index]
         kind = specs.CLIP_KINDS[int(record["kind"])]
         expected = fake_clip(
-            "continuity", kind, int(record["seed"]), num_frames=6, height=24, width=24
+            "continuity", kind, int(record["seed"]), num_frames=8, height=24, width=24
         )
         assert all(torch.equal(record[k], expected[k]) for k in expected.keys(True, True))
     test = store.open_split(tmp_path, "unchangeableness", "test")
@@ -224,7 +224,7 @@ def test_other_settings_are_refused_unless_overwritten(tmp_path, calls):
         tmp_path, ("continuity",), **{**SMALL, "height": 32, "overwrite": True}
     )
     assert summary.shards_skipped == 0 and store.verify(tmp_path) == []
-    assert store.open_split(tmp_path, "continuity", "train")[0]["frames"].shape == (6, 32, 24, 3)
+    assert store.open_split(tmp_path, "continuity", "train")[0]["frames"].shape == (8, 32, 24, 3)
 
 
 def test_bad_input_names_the_value_and_the_choices(tmp_path, calls, capsys):
@@ -301,11 +301,11 @@ def test_shards_must_prove_they_belong_to_the_plan(tmp_path, calls, monkeypatch)
     # Record spec: same seeds, other video size, manifest lost.
     (tmp_path / "manifest.json").unlink()
     with pytest.warns(
-        UserWarning, match=r"frames is uint8\[6, 24, 24, 3\], expected uint8\[6, 32, 24, 3\]"
+        UserWarning, match=r"frames is uint8\[8, 24, 24, 3\], expected uint8\[8, 32, 24, 3\]"
     ):
         summary = store.generate_dataset(tmp_path, ("continuity",), **{**SMALL, "height": 32})
     assert summary.shards_generated == planned and summary.shards_skipped == 0
-    assert store.open_split(tmp_path, "continuity", "train")[0]["frames"].shape == (6, 32, 24, 3)
+    assert store.open_split(tmp_path, "continuity", "train")[0]["frames"].shape == (8, 32, 24, 3)
     assert store.verify(tmp_path) == []
     # Kinds per record: same seeds, other kind counts.
     (tmp_path / "manifest.json").unlink()
@@ -362,7 +362,7 @@ def test_shards_without_object_states_are_regenerated(tmp_path, calls):
     """A shard written before records carried object states (GENERATOR_VERSION 2) does not
     match the record layout: verify finds it and generate rewrites it with them."""
     store.generate_dataset(tmp_path, ("continuity",), **SMALL)
-    layouts = store.record_layouts(scenes.VideoOptions(num_frames=6, height=24, width=24))
+    layouts = store.record_layouts(scenes.VideoOptions(num_frames=8, height=24, width=24))
     assert "objects/visible_fraction" in layouts["clip"]
     assert "inconsistent/objects/shape_label" in layouts["probe"]
     for split in ("train", "test"):

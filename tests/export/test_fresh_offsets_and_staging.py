@@ -25,7 +25,7 @@ from voe_lightning.export.manifest import staged
 
 #: A continuity store of fake renders: 3 test pairs per variant, 16 x 16, 4 frames.
 SIZES = ["--concepts", "[continuity]", "--train_examples", "0", "--val_pairs", "1",
-         "--test_pairs", "3", "--generalization_pairs", "0", "--num_frames", "4",
+         "--test_pairs", "3", "--generalization_pairs", "0", "--num_frames", "8",
          "--height", "16", "--width", "16", "--workers", "1", "--progress", "false"]  # fmt: skip
 TEST_START = store.SEED_STARTS["test"]
 
@@ -70,7 +70,7 @@ def test_export_of_an_offset_takes_only_that_offsets_store_and_advises_drawing_i
     assert advice[:4] == ["python", "-m", "voe_lightning", "generate"]
     assert " ".join(advice[4:]) == (
         f"--root {root} --seed_offset 7 --train_examples 0 --concepts [continuity] "
-        "--val_pairs 0 --test_pairs 3 --generalization_pairs 0 --num_frames 4 --height 16 "
+        "--val_pairs 0 --test_pairs 3 --generalization_pairs 0 --num_frames 8 --height 16 "
         "--width 16"
     )
     main([*advice[3:], "--workers", "1", "--progress", "false"])

@@ -1,8 +1,9 @@
 """Continuity scenes: the paper's probe (the ball's hidden disappearance and on-course return),
 the quadruplet (one roll behind the gap_block screen seen from two moments: the ball comes out
-too soon or too late, where it should, so no rule without dynamics scores it), the extra pillar of the generalization probe,
-the gap_block control's visibility pattern and camera, probe parameters inside the examples'
-ranges, examples with balls that slow and stop."""
+too soon or too late, where it should, so no rule without dynamics scores it; the fewest frames
+it needs), the extra pillar of the generalization probe, the gap_block control's visibility
+pattern and camera, probe parameters inside the examples' ranges, examples with balls that slow
+and stop."""
 
 import numpy as np
 import pytest
@@ -76,9 +77,12 @@ def _comes_out(video, ball: int, m: int) -> float:
     return _column(video["mask"][back], ball)
 
 
-def _quadruplet_videos(seed: int):
-    """(m, ball id, [A, AB, B, BA]) of a seed's continuity quadruplet."""
-    first, second = (generate_probe("continuity", v, seed) for v in ("standard", "counterbalanced"))
+def _quadruplet_videos(seed: int, **options):
+    """(m, ball id, [A, AB, B, BA]) of a seed's continuity quadruplet (``options``: VideoOptions
+    fields)."""
+    first, second = (
+        generate_probe("continuity", v, seed, **options) for v in ("standard", "counterbalanced")
+    )
     videos = [record[side] for record in (first, second) for side in ("consistent", "inconsistent")]
     return int(first["manipulation_frame"]), int(first["manipulated_ids"][0]), videos
 
@@ -99,6 +103,29 @@ def test_quadruplet_ball_comes_out_too_soon_or_too_late_where_it_should(seed):
         later = out[1] if inconsistent is ab else out[3]
         column = _column(consistent["mask"][frame], ball)
         assert _column(inconsistent["mask"][later], ball) == pytest.approx(column, abs=0.5)
+
+
+def test_the_least_shift_is_0_4_s_in_whole_frames_and_one_at_least():
+    shift = continuity.quadruplet_min_shift
+    assert shift(VIDEO) == 2  # 5 fps
+    assert shift(VideoOptions(num_frames=30)) == 4
+    assert shift(VideoOptions(num_frames=12)) == shift(VideoOptions(num_frames=8)) == 1
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_small_short_videos_still_make_quadruplets(seed):
+    """At the fewest frames the probes allow, in frames of 32 x 32, the ball still comes out a
+    frame or more too soon (AB) and too late (BA) and is hidden in every video at m."""
+    m, ball, videos = _quadruplet_videos(seed, num_frames=8, height=32, width=32)
+    seen = [ball_visible(video["mask"], ball) for video in videos]
+    out = [m + int(np.argmax(s[m:])) for s in seen]
+    assert not any(s[m] for s in seen)
+    assert out[0] - out[1] >= 1 and out[3] - out[2] == out[0] - out[1]
+
+
+def test_too_few_frames_for_a_quadruplet_are_refused_naming_enough():
+    with pytest.raises(ValueError, match="num_frames >= 8 .* got 6"):
+        generate_probe("continuity", "standard", 0, num_frames=6, height=32, width=32)
 
 
 @pytest.mark.parametrize("seed", range(3))

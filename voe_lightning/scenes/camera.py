@@ -27,7 +27,8 @@ PAPER_DURATION = 3.0
 #: draws for every seed tried from 2.2 to 5 s and for none below 1.8 or above 5.5 s (10 seeds of
 #: each variant and of the gap_block control); containment's slide and unchangeableness's screen
 #: fill the clip, so they move at the paper's pace times 3 s over the duration (two thirds to
-#: six fifths of it here). Solidity needs more (``solidity.check_video``).
+#: six fifths of it here). Solidity's and continuity's probes need enough frames
+#: (``solidity.check_video``, ``continuity.check_video``).
 DURATIONS = (2.5, 4.5)
 
 

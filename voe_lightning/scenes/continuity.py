@@ -13,6 +13,7 @@ Examples roll free or slowing balls on unconstrained paths past the same pillars
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import cast
@@ -28,7 +29,6 @@ from voe_lightning.scenes.camera import (
     CameraPose,
     CameraRange,
     VideoOptions,
-    accept_any_video,
     camera_axes,
     focal_length,
     pixel_of,
@@ -49,8 +49,6 @@ from voe_lightning.scenes.sampling import RejectedSample, draw_until_valid, rng_
 from voe_lightning.scenes.simulation import Simulation
 
 CONCEPT = "continuity"
-#: Its scenes render videos of any size and length (``scenes.check_video``).
-check_video = accept_any_video
 #: The one camera distribution of the concept: examples, the gap_block control and every probe
 #: draw from it. Close enough that the ball is 8-12 px across at 64x64.
 CAMERA = CameraRange(
@@ -395,6 +393,13 @@ def behind_the_screen(sim: Simulation, layout: Layout, masks: np.ndarray) -> tup
     return int(np.flatnonzero(well_seen[:vanish])[-1]), vanish, vanish + int(shown[0])
 
 
+def quadruplet_min_shift(video: VideoOptions) -> int:
+    """The fewest frames by which a quadruplet's inconsistent ball comes out too soon or too
+    late: the whole frames in QUADRUPLET_MIN_SHIFT at ``video``'s frame rate, one at least (2 at
+    the paper's 5 fps)."""
+    return max(1, math.floor(QUADRUPLET_MIN_SHIFT * video.fps + 1e-9))
+
+
 def _quadruplet(
     rng: np.random.Generator, video: VideoOptions, camera: CameraPose
 ) -> tuple[Simulation, tuple[tuple[Video, Video], tuple[Video, Video]], int]:
@@ -409,10 +414,26 @@ def _quadruplet(
     check_hidden_over_block(sim, layout, first[1], positions)
     last_seen, vanish, back = behind_the_screen(sim, layout, first[1])
     later = min(last_seen, back - vanish - 1)
-    if later < QUADRUPLET_MIN_SHIFT * video.fps - 1e-9:
+    if later < quadruplet_min_shift(video):
         raise RejectedSample(f"the ball can come out only {later} frames too soon or too late")
     second = join(tail(first, later), sim.record(later))
     return sim, recording.quadruplet(first, second, vanish), vanish
+
+
+#: The fewest frames a quadruplet is drawn in: in fewer, the ball is seen in at most one frame
+#: before the screen on most draws, so its exit cannot come a frame too soon (``check_video``).
+QUADRUPLET_MIN_FRAMES = 8
+
+
+def check_video(video: VideoOptions) -> None:
+    """Refuse videos too short for the probes (QUADRUPLET_MIN_FRAMES); ``generate`` calls it
+    before rendering anything. Training clips render at any length."""
+    if video.num_frames < QUADRUPLET_MIN_FRAMES:
+        raise ValueError(
+            f"{CONCEPT} probes need num_frames >= {QUADRUPLET_MIN_FRAMES} (the ball seen in two "
+            f"frames before the screen, so that it can come out a frame too soon), got "
+            f"{video.num_frames}"
+        )
 
 
 @functools.lru_cache(maxsize=4)
@@ -420,6 +441,7 @@ def quadruplet(seed: int, video: VideoOptions) -> recording.Quadruplet:
     """One scene draw's quadruplet ((A, AB), (B, BA)) (``_quadruplet``), with the camera, the
     manipulation frame and the ball's mask id. Cached, as both variants of a seed read it
     (callers copy what they keep)."""
+    check_video(video)
 
     def make(rng: np.random.Generator) -> recording.Quadruplet:
         camera = CAMERA.sample(rng)
