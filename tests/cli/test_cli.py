@@ -755,7 +755,7 @@ def test_a_truncated_checkpoint_is_named(workdir, trained, kept):
 def test_intphys_test_of_a_checkpoint_writes_beside_it_in_the_models_geometry(workdir, trained):
     """Issue 10 case 15: configs/intphys_dev.yaml tests any checkpoint: the report goes into a
     sub-directory of the checkpoint's run (two checkpoints never share one), and the frames
-    are sampled and resized as the checkpoint's model was trained (6 frames of 32x32)."""
+    are sampled and resized as the checkpoint's model was trained (8 frames of 32x32)."""
     from helpers.intphys import FRAMES, make_intphys
 
     make_intphys(workdir / "intphys", "dev", labelled=True)
@@ -782,7 +782,7 @@ def test_intphys_test_of_a_checkpoint_writes_beside_it_in_the_models_geometry(wo
     assert (report / "benchmark_metrics.json").is_file()
     assert not (run / "voe_report").exists() and not (workdir / "runs" / "intphys_dev").exists()
     video = cli.datamodule.video
-    assert (len(video.indices), video.height, video.width) == (6, 32, 32)
+    assert (len(video.indices), video.height, video.width) == (8, 32, 32)
 
 
 def test_analyze_latents_counts_the_latents_that_carry_information(trained, capsys):

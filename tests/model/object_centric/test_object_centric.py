@@ -323,7 +323,7 @@ def test_fit_both_stages_then_test_through_the_cli(tmp_path, monkeypatch, object
     run = tmp_path / "runs" / "oc" / "version_0"
     checkpoint = torch.load(run / "checkpoints" / "last.ckpt", weights_only=True)
     assert checkpoint["global_step"] == 2  # one perception step, one dynamics step
-    assert checkpoint["hyper_parameters"]["training_frames"] == 6
+    assert checkpoint["hyper_parameters"]["training_frames"] == 8
     main(
         [
             "test",

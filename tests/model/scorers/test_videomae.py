@@ -81,7 +81,8 @@ def test_a_saved_model_loads_from_its_local_folder(tmp_path):
 
 def test_test_on_our_probes_runs_without_a_checkpoint(tmp_path, monkeypatch):
     torch.manual_seed(0)
-    VideoMAEScorer(config=CONFIG).model.save_pretrained(tmp_path / "videomae")
+    tiny = {**CONFIG, "num_frames": 8}  # the tiny config's videos
+    VideoMAEScorer(config=tiny).model.save_pretrained(tmp_path / "videomae")
     monkeypatch.chdir(tmp_path)
     main(
         [
