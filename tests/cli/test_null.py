@@ -156,7 +156,9 @@ def test_analyze_null_tests_each_initialization_on_the_same_probes(tmp_path, mon
         main(["analyze", "null", "--configs", f"[{TINY}]", "--seeds", "0"])
 
 
-def test_a_null_whose_initializations_are_one_function_says_it_tests_nothing(tmp_path, monkeypatch):
+def test_a_null_whose_initializations_are_one_function_says_it_tests_nothing(
+    tmp_path, monkeypatch, capsys
+):
     """Issue 70: a family whose every draw is the same function (here a follower, which has
     no parameters; the zero-heads learner is another) is named, and a trained t gets no
     percentile among copies of one value."""
@@ -165,9 +167,14 @@ def test_a_null_whose_initializations_are_one_function_says_it_tests_nothing(tmp
     main(["test", "--config", TINY, *follower, "false"])
     table = analyze_two_seeds(tmp_path, [*follower, "false"])
     document = json.loads((tmp_path / "null" / "null.json").read_text())
-    assert document["distinct_functions"] == 1
-    assert "they are one function, and this null tests nothing" in table
+    assert document["distinct_functions"] == 1 and "redrawn_with_noise" not in document
+    assert "they are one function, and this null tests nothing** (the model has no learned" in table
     assert all(row["trained_percentile"] is None for row in document["rows"] if "trained_t" in row)
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        main(["analyze", "null", "--configs", f"[{TINY}]", "--seeds", "2", "--noise", "1",
+              "--extra_args", json.dumps([*follower, "false"])])  # fmt: skip
+    assert "--noise 1 changes nothing: ObjectFollower has no learned" in capsys.readouterr().err
 
 
 def test_noise_is_each_tensors_own_scale_seeded_and_spares_frozen_parameters():
@@ -215,8 +222,9 @@ def zero_heads_config(folder: Path) -> str:
 
 def test_noise_makes_a_one_function_null_distinct_and_reproducible(tmp_path, monkeypatch):
     """Issue 70's "nulls that test": the zero-heads learner's untrained draws are one function,
-    and the table says to rerun with --noise; with it they are N of N distinct, the noise in
-    null.json and the table; the same seed and noise give the same pairs.csv again."""
+    so the null draws them again with noise 1 and says why; with noise they are N of N
+    distinct, the noise in null.json and the table; the same seed and noise give the same
+    pairs.csv again."""
     monkeypatch.chdir(tmp_path)
     config = zero_heads_config(tmp_path)
 
@@ -229,18 +237,21 @@ def test_noise_makes_a_one_function_null_distinct_and_reproducible(tmp_path, mon
         return table, json.loads((tmp_path / out / "null.json").read_text())
 
     table, document = null("plain", 2, 0)
-    assert document["distinct_functions"] == 1 and "noise" not in document
-    assert "this null tests nothing** (" in table and "Rerun with `--noise 1.0`" in table
+    assert document["distinct_functions"] == 2 and document["noise"] == 1.0
+    assert document["redrawn_with_noise"] and "this null tests nothing" not in table
+    assert "Without noise the 2 initializations scored every pair alike: one function" in table
     table, document = null("noisy", 2, 1.0)
+    assert "redrawn_with_noise" not in document and "Without noise" not in table
     assert document["distinct_functions"] == 2 and document["noise"] == 1.0
     assert "2 of 2 initializations are different functions" in table
     assert "Untrained initializations of one config, each with noise 1 (--noise: " in table
     null("again", 1, 1.0)
     pairs = [
         tmp_path / out / "seed_0" / "version_0" / "voe_report" / "pairs.csv"
-        for out in ("noisy", "again", "plain")
+        for out in ("noisy", "again", "plain/noise_1", "plain")
     ]
-    assert pairs[0].read_bytes() == pairs[1].read_bytes() != pairs[2].read_bytes()
+    assert pairs[0].read_bytes() == pairs[1].read_bytes() == pairs[2].read_bytes()
+    assert pairs[0].read_bytes() != pairs[3].read_bytes()  # the plain draw, without noise
 
 
 def control_config(folder: Path) -> str:

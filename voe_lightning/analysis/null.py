@@ -14,8 +14,9 @@ critical t at alpha. ``priors_alone`` is one such initialization of a run's own
 config at its own seed, which ``test`` runs first (``priors_alone_first``) where the report
 callback asks for it (``VOEReportCallback(priors_alone=True)``, the positive control's config).
 A family whose every draw is one function (``distinct_functions``: its predicting heads started
-at zero) draws distinct ones with ``--noise`` (``add_noise``: seeded Gaussian noise on each
-learned parameter at the scale of its initialization).
+at zero) is drawn again with noise (``add_noise``: seeded Gaussian noise on each learned
+parameter at the scale of its initialization, ``NOISE_ADVICE`` unless ``--noise`` says), and
+the table says so: one function tests nothing.
 """
 
 from __future__ import annotations
@@ -45,6 +46,10 @@ from voe_lightning.runs import fresh_config_name
 from voe_lightning.stats.statistics_format import format_number
 
 
+class NothingToNoise(ValueError):
+    """Noise asked of a model with no learned parameter (a follower): it cannot differ."""
+
+
 def _untrained_report(
     build_cli: Callable[[list[str]], Any],
     configs: Sequence[Path],
@@ -68,8 +73,11 @@ def _untrained_report(
             *extra_args,
         ]
     )
-    if noise:
-        add_noise(cli.model, noise, seed)
+    if noise and not add_noise(cli.model, noise, seed):
+        raise NothingToNoise(
+            f"--noise {noise:g} changes nothing: {type(cli.model).__name__} has no learned "
+            "parameter, so its initializations are one function; give --noise 0"
+        )
     cli.trainer.test(cli.model, datamodule=cli.datamodule)
     reports = report_folders(cli.trainer.callbacks)
     if not reports:
@@ -86,7 +94,7 @@ NOISE_RULE = (
     "elements, or, where that is 0 (a head started at zero), x 1/sqrt(3 fan-in), the sd of "
     "PyTorch's default initialization of its layer"
 )
-#: Told to a null whose draws are one function; the noise that makes them differ.
+#: The noise a null whose plain draws are one function is drawn again with.
 NOISE_ADVICE = 1.0
 #: Mixed with an initialization's seed into its noise's seed: a stream of its own, not the one
 #: ``seed_everything`` drew the initialization from (the same seed would tie the noise to it).
@@ -289,11 +297,12 @@ def format_null(
     alpha: float,
     distinct: int | None = None,
     noise: float = 0.0,
+    redrawn: bool = False,
 ) -> str:
     """``null_rows`` as a Markdown table with a line saying what the columns are (and the
-    ``noise`` the initializations were given, ``add_noise``) and, given ``distinct``
-    (``distinct_functions``), how many different functions the initializations are: where
-    one, that the null tests nothing and, without noise, to rerun with it."""
+    ``noise`` the initializations were given, ``add_noise``; ``redrawn``: because without it
+    they were one function) and, given ``distinct`` (``distinct_functions``), how many
+    different functions the initializations are: where one, that the null tests nothing."""
     lines = [
         "| concept | variant | inits | t median [min, max] | significant | concept VOE "
         "| trained t | percentile |",
@@ -322,16 +331,21 @@ def format_null(
         "the spread and the percentile.",
     ]
     count = rows[0]["initializations"] if rows else 0
+    if redrawn:
+        lines += [
+            "",
+            f"Without noise the {count} initializations scored every pair alike: one function "
+            "(the family starts from it at every seed, e.g. predicting layers started at zero), "
+            f"which tests nothing; so these rows are the initializations drawn again with noise "
+            f"{noise:g}.",
+        ]
     if distinct is not None and distinct < 2 <= count and not noise:
         lines += [
             "",
             f"**All {count} initializations score every pair alike: they are one function, "
-            "and this null tests nothing** (the family starts from the same function at "
-            "every seed, e.g. predicting layers started at zero). Rerun with "
-            f"`--noise {NOISE_ADVICE}` for initializations that differ (Gaussian noise on "
-            "every learned parameter at the scale of its initialization; a model without "
-            "any, a follower, stays one), or read a trained run against the followers of its "
-            "own inputs (its report's cues.md).",
+            "and this null tests nothing** (the model has no learned parameter, e.g. a "
+            "follower, so no noise makes them differ). Read a trained run against the "
+            "followers of its own inputs instead (its report's cues.md).",
         ]
     elif distinct is not None and distinct < 2 <= count:
         lines += [
@@ -439,8 +453,9 @@ def untrained_null(
         extra_args: further arguments for every initialization's run, e.g. a smaller test set.
         noise: Gaussian noise added to each initialization's learned parameters before its
             test, seeded by its seed, in units of each tensor's initialization scale (its
-            own sd, or 1/sqrt(3 fan-in) where that is 0); 0: none. For a family whose draws
-            are one function (heads started at zero), e.g. 1.0.
+            own sd, or 1/sqrt(3 fan-in) where that is 0); 0: none, unless the draws are one
+            function (heads started at zero): then they are drawn again with NOISE_ADVICE
+            (1.0) under ``out/noise_1``. Refused for a model with no learned parameter.
         _build_cli: builds a run's model, data and trainer from arguments without running it;
             the CLI passes its own, so this module does not import the CLI.
     """
@@ -455,21 +470,41 @@ def untrained_null(
         raise ValueError(f"noise must be a finite number of at least 0, got {noise}")
     out = Path(out)
     trained_summary = None if trained is None else read_summary(trained)
-    summaries, reports = [], []
-    for seed in range(seeds):
-        reports.append(_untrained_report(_build_cli, configs, seed, out, extra_args or (), noise))
-        summaries.append(read_summary(reports[-1]))
-        if trained_summary is not None and seed == 0:  # refused before the other seeds run
-            check_same_probes(summaries[0], trained_summary, trained)
-    rows = null_rows(summaries, trained_summary)
+
+    def draw(folder: Path, scale: float) -> tuple[list[Path], list[dict[str, Any]]]:
+        reports, summaries = [], []
+        for seed in range(seeds):
+            reports.append(
+                _untrained_report(_build_cli, configs, seed, folder, extra_args or (), scale)
+            )
+            summaries.append(read_summary(reports[-1]))
+            if trained_summary is not None and seed == 0:  # refused before the other seeds run
+                check_same_probes(summaries[0], trained_summary, trained)
+        return reports, summaries
+
+    reports, summaries = draw(out, noise)
     distinct = distinct_functions(reports)
+    redrawn = distinct == 1 and seeds >= 2 and not noise
+    if redrawn:
+        folder = out / f"noise_{NOISE_ADVICE:g}"
+        print(
+            f"the {seeds} initializations are one function (every pair scored alike): drawing "
+            f"them again with noise {NOISE_ADVICE:g} into {folder}"
+        )
+        try:
+            reports, summaries = draw(folder, NOISE_ADVICE)
+            noise, distinct = NOISE_ADVICE, distinct_functions(reports)
+        except NothingToNoise:  # a follower: no draw can differ
+            redrawn = False
+    rows = null_rows(summaries, trained_summary)
     if distinct == 1:
         one_function(rows)
-    table = format_null(rows, summaries[0]["alpha"], distinct, noise)
+    table = format_null(rows, summaries[0]["alpha"], distinct, noise, redrawn)
     document = {
         "configs": [str(c) for c in configs],
         "seeds": seeds,
         **({"noise": noise} if noise else {}),  # none: null.json as before --noise
+        **({"redrawn_with_noise": True} if redrawn else {}),
         "distinct_functions": distinct,
         "rows": rows,
         "initializations": [
