@@ -15,7 +15,8 @@ import yaml
 from helpers.locations import REPO, TINY_CONFIG
 from PIL import Image
 
-from voe_lightning.analysis.null import add_noise, format_null, noise_unit, null_figure, null_rows
+from voe_lightning.analysis.init_noise import add_noise, noise_unit
+from voe_lightning.analysis.null import format_null, null_figure, null_rows
 from voe_lightning.cli import main
 
 TINY = TINY_CONFIG
