@@ -168,7 +168,23 @@ def _video_spec(
         "frames": Bounded(0, 255, shape=(num_frames, height, width, 3), dtype=torch.uint8),
         "mask": Bounded(0, MAX_OBJECT_ID, shape=(num_frames, height, width), dtype=torch.uint8),
     }
-    return {**video, "objects": objects_spec(num_frames)} if objects else video
+    if not objects:
+        return video
+    return {**video, "depth": depth_spec(num_frames), "objects": objects_spec(num_frames)}
+
+
+#: What the depth image shows of each mask id at a frame (``scenes.depth.depth_measures``).
+DEPTH_MEASURES = ("mean", "near", "cut")
+
+
+def depth_spec(num_frames: int = NUM_FRAMES) -> Unbounded:
+    """Per frame and mask id [T, OBJECT_SLOTS, 3], what a depth camera shows of it, measured
+    over its visible pixels alone (``DEPTH_MEASURES``): their mean and least depth along the
+    view axis (m) and the share of its outline where the frame ends or another object is nearer
+    (in front); zeros where the id is not seen. Camera-recoverable, unlike ``objects``: a
+    function of that frame's depth image and mask. The generator's records carry it (stimuli
+    version 13 on); a benchmark's do not."""
+    return Unbounded(shape=(num_frames, OBJECT_SLOTS, len(DEPTH_MEASURES)), dtype=torch.float32)
 
 
 def objects_spec(num_frames: int = NUM_FRAMES) -> Composite:
@@ -196,13 +212,15 @@ def objects_spec(num_frames: int = NUM_FRAMES) -> Composite:
     )
 
 
-#: One object slot of ``objects_spec`` as a numpy structured dtype: generators collect a video's
-#: states in an array [T, OBJECT_SLOTS] of it, which ``clip_record``/``probe_record`` store.
+#: One object slot of ``objects_spec`` and of ``depth_spec`` (field ``depth``) as a numpy
+#: structured dtype: generators collect a video's states in an array [T, OBJECT_SLOTS] of it,
+#: which ``clip_record``/``probe_record`` store as the record's ``objects`` and ``depth``.
 OBJECT_STATE_DTYPE = np.dtype(
     [
         (name, torch.empty((), dtype=leaf.dtype).numpy().dtype, tuple(leaf.shape[2:]))
         for name, leaf in objects_spec(1).items()
     ]
+    + [("depth", np.float32, (len(DEPTH_MEASURES),))]
 )
 
 
@@ -249,7 +267,7 @@ def _video(
     frames: np.ndarray, mask: np.ndarray, objects: np.ndarray | None = None
 ) -> dict[str, torch.Tensor | TensorDictBase]:
     """A video's record entries; ``objects`` [T, OBJECT_SLOTS] of OBJECT_STATE_DTYPE, if given,
-    becomes the nested ``objects`` TensorDict."""
+    becomes the nested ``objects`` TensorDict and the video's ``depth``."""
     video = {
         "frames": torch.from_numpy(np.ascontiguousarray(frames)),
         "mask": torch.from_numpy(np.ascontiguousarray(mask)),
@@ -261,12 +279,12 @@ def _video(
             f"object states must be [{len(frames)}, {OBJECT_SLOTS}] of OBJECT_STATE_DTYPE, got "
             f"{list(objects.shape)} of {objects.dtype}"
         )
-    assert OBJECT_STATE_DTYPE.names is not None  # a structured dtype
     states = {
         name: torch.from_numpy(np.ascontiguousarray(objects[name]))
-        for name in OBJECT_STATE_DTYPE.names
+        for name in objects_spec(1).keys()
     }
-    return {**video, "objects": TensorDict(states, batch_size=[])}
+    depth = torch.from_numpy(np.ascontiguousarray(objects["depth"]))
+    return {**video, "depth": depth, "objects": TensorDict(states, batch_size=[])}
 
 
 def _camera(camera: np.ndarray, num_frames: int) -> torch.Tensor:

@@ -5,13 +5,13 @@ import torch
 
 
 def check_probe_pair(record, concept: str, variant: str, where: str) -> None:
-    """One pair: identical through the manipulation frame (frames, masks, object states), the
+    """One pair: identical through the manipulation frame (frames, masks, depth, object states), the
     manipulated ids unseen there (solidity: no more of the block shows where it sinks than
     where it rests), and the two videos differ after it; ``where`` names it in a failure."""
     m = int(record["manipulation_frame"])
     consistent, inconsistent = record["consistent"], record["inconsistent"]
     states = [("objects", name) for name in consistent["objects"].keys()]
-    for key in ("frames", "mask", *states):
+    for key in ("frames", "mask", "depth", *states):
         assert torch.equal(consistent[key][: m + 1], inconsistent[key][: m + 1]), (
             f"{where}: {key} differ up to manipulation frame {m}"
         )

@@ -96,11 +96,13 @@ class Renderer:
         self._camera.type = mujoco.mjtCamera.mjCAMERA_FREE
         self._rect = mujoco.MjrRect(0, 0, width, height)
         self._rgb = np.empty((height, width, 3), np.uint8)
+        self._depth = np.empty((height, width), np.float32)
 
     def render(
         self, model: mujoco.MjModel, data: mujoco.MjData, camera: CameraPose
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """RGB uint8 [H, W, 3] and the id of the geom seen at each pixel (-1: none) [H, W]."""
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """RGB uint8 [H, W, 3], the id of the geom seen at each pixel (-1: none) [H, W] and
+        each pixel's depth along the view axis (m, float32 [H, W]), read with the RGB."""
         self._gl_context.make_current()
         self._camera.lookat[:] = camera.lookat
         self._camera.distance = camera.distance
@@ -110,8 +112,9 @@ class Renderer:
             model, data, self._option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene
         )
         mujoco.mjr_render(self._rect, self._scene, self._context)
-        mujoco.mjr_readPixels(self._rgb, None, self._rect, self._context)
+        mujoco.mjr_readPixels(self._rgb, self._depth, self._rect, self._context)
         rgb = np.flipud(self._rgb).copy()
+        depth = metres(np.flipud(self._depth), model)
 
         self._scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
         self._scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
@@ -128,7 +131,16 @@ class Renderer:
             geom = self._scene.geoms[index]
             if geom.segid != -1 and geom.objtype == mujoco.mjtObj.mjOBJ_GEOM:
                 lookup[geom.segid + 1] = geom.objid
-        return rgb, lookup[np.clip(segid, 0, self._scene.ngeom)]
+        return rgb, lookup[np.clip(segid, 0, self._scene.ngeom)], depth
+
+
+def metres(buffer: np.ndarray, model: mujoco.MjModel) -> np.ndarray:
+    """Depth along the view axis (m, float32) from OpenGL's depth buffer in [0, 1], between the
+    near and far clipping planes MuJoCo sets from ``model``'s extent."""
+    extent = float(model.stat.extent)
+    near, far = float(model.vis.map.znear) * extent, float(model.vis.map.zfar) * extent
+    metres: np.ndarray = near / (1.0 - buffer.astype(np.float64) * (1.0 - near / far))
+    return metres.astype(np.float32)
 
 
 def _check_frame_size(height: int, width: int, gl_context_class: type) -> None:

@@ -15,6 +15,7 @@ import numpy as np
 from voe_lightning import specs
 from voe_lightning.scenes.appearance import SHAPE_LABELS, rgba
 from voe_lightning.scenes.camera import CameraPose, VideoOptions
+from voe_lightning.scenes.depth import depth_measures
 from voe_lightning.scenes.rendering import get_renderer
 
 
@@ -168,14 +169,17 @@ class Simulation:
     # --- rendering ------------------------------------------------------------------------------
     def render(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The current RGB frame, its object-id mask (0 = background and fixed scenery) and the
-        objects' states (``object_states``). Poses are refreshed first: after ``mj_step`` the
+        objects' states (``object_states``) with what the depth image shows of each id
+        (``depth_measures``, the record's ``depth``). Poses are refreshed first: after ``mj_step`` the
         drawn poses are one step old, while a forked twin's are current, which would make a
         probe pair differ at the fork."""
         mujoco.mj_forward(self.model, self.data)
         renderer = get_renderer(self.video.height, self.video.width)
-        rgb, geom_ids = renderer.render(self.model, self.data, self.camera)
+        rgb, geom_ids, depth = renderer.render(self.model, self.data, self.camera)
         mask = self.geom_mask_id[geom_ids]
-        return rgb, mask, self.object_states(mask)
+        states = self.object_states(mask)
+        states["depth"] = depth_measures(mask, depth)
+        return rgb, mask, states
 
     def object_states(self, mask: np.ndarray) -> np.ndarray:
         """The states of the objects in the scene (not removed), one slot per mask id

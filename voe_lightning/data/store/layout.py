@@ -56,8 +56,10 @@ SHARD_SUFFIX = ".voe"
 #: 11: solidity's spliced block keeps its size in the object states (its top where the other
 #: block's top is), so the states show a path through the floor, not a block changing height;
 #: 12: continuity's quadruplet rolls behind the gap_block screen, its inconsistent ball coming
-#: out too soon or too late where the consistent one does (no rule without dynamics passes it).
-GENERATOR_VERSION = 12
+#: out too soon or too late where the consistent one does (no rule without dynamics passes it);
+#: 13: every video's ``depth``, what the depth image shows of each id (frames, masks and object
+#: states as in 12).
+GENERATOR_VERSION = 13
 
 
 def check_split_name(split: str) -> None:
