@@ -1,5 +1,5 @@
 """The followers tables of docs/study/shortcuts.md: every physics-blind follower of per-object
-inputs (``ObjectFollower``'s ``RULES`` on ``states`` and on ``masks``) on one probe set, read
+inputs (``ObjectFollower``'s ``RULES`` on ``states``, ``masks`` and ``rgbd``) on one probe set, read
 from the followers' rows of a report's cue audit (one ``test`` per input: a follower reads that
 input, so its report audits all seven), each follower's verdicts decided by the report's rule.
 A concept a follower passes can be passed without physics from that input.

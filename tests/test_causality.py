@@ -163,6 +163,12 @@ FAMILIES = [
         ),
         id="object_state_masks",
     ),
+    pytest.param(  # configs/rgbd_15min.yaml's learner: the masks, frames and depth measures
+        lambda: ObjectStateModel(
+            perception="rgbd", hidden_size=16, message_size=8, **NO_PRIORS, **NO_GIVENS
+        ),
+        id="object_state_rgbd",
+    ),
     pytest.param(  # configs/learned_pixels.yaml's learner: a learned code of each id's pixels
         lambda: ObjectStateModel(
             perception="pixels",
@@ -259,8 +265,9 @@ B, T = 2, 6
 
 def _random_video(seed: int) -> dict:
     """Random frames and camera poses, a mask whose object ids first appear at different
-    frames (4 at frame 0, 9 at 1, 2 at 3 though smaller than the ids before it, 6 at 4) and
-    object states whose visible fraction follows the mask."""
+    frames (4 at frame 0, 9 at 1, 2 at 3 though smaller than the ids before it, 6 at 4),
+    object states whose visible fraction follows the mask and depth measures where it shows
+    an id."""
     generator = torch.Generator().manual_seed(seed)
     frames = torch.randint(0, 256, (B, T, SIZE, SIZE, 3), dtype=torch.uint8, generator=generator)
     mask = torch.zeros(B, T, SIZE, SIZE, dtype=torch.uint8)
@@ -268,7 +275,30 @@ def _random_video(seed: int) -> dict:
         for t in range(first, T):
             mask[:, t, 7 * row : 7 * row + 5, 3 + t : 11 + t] = object_id
     camera = torch.randn(B, T, 6, generator=generator)
-    return {"frames": frames, "mask": mask, "camera": camera, "objects": _objects(mask, seed)}
+    return {
+        "frames": frames,
+        "mask": mask,
+        "camera": camera,
+        "objects": _objects(mask, seed),
+        "depth": _depth(mask, seed),
+    }
+
+
+def _depth(mask: torch.Tensor, seed: int) -> torch.Tensor:
+    """Random depth measures (``specs.depth_spec``) [B, T, OBJECT_SLOTS, 3] for ``mask``,
+    zero where it shows no pixel of an id."""
+    generator = torch.Generator().manual_seed(seed)
+    ids = torch.arange(specs.OBJECT_SLOTS, dtype=torch.uint8)
+    shown = (mask[..., None] == ids).flatten(2, 3).any(dim=2)
+    shown[..., 0] = False
+    measures = torch.rand(*shown.shape, len(specs.DEPTH_MEASURES), generator=generator) + 1.0
+    return measures * shown[..., None]
+
+
+def _read_by(model, video: dict) -> dict:
+    """``video``'s inputs as the probe pipeline hands them (``base.video_inputs``): the depth
+    only to a model that reads it."""
+    return {k: v for k, v in video.items() if k != "depth" or "depth" in model.inputs_read()}
 
 
 def _objects(mask: torch.Tensor, seed: int) -> TensorDict:
@@ -311,13 +341,14 @@ def test_nothing_after_frame_t_changes_surprise_up_to_t(family):
     other = _random_video(1)
     other["mask"] = torch.where(other["mask"] == 4, 13, other["mask"])  # id 4 gone, id 13 new
     other["objects"] = _objects(other["mask"], 1)
-    surprise = model.surprise(**video)
+    other["depth"] = _depth(other["mask"], 1)
+    surprise = model.surprise(**_read_by(model, video))
     for t in range(T - 1):
         cut = {name: _splice(value, t) for name, value in video.items()}
         altered = {name: _splice(value, t, other[name]) for name, value in video.items()}
         for name, changed in (("cut", cut), ("altered", altered)):
             torch.testing.assert_close(
-                model.surprise(**changed)[:, : t + 1],
+                model.surprise(**_read_by(model, changed))[:, : t + 1],
                 surprise[:, : t + 1],
                 atol=TOLERANCE,
                 rtol=TOLERANCE,

@@ -19,12 +19,13 @@ from voe_lightning.model.scorers.followers import RULES, follower_inputs, rule_s
 __all__ = ["FEATURES_OF_INPUT", "features_read", "follower_cues", "follower_title", "score"]
 
 #: Which followers a model's ``inputs_read`` calls for: the states' for ``objects``, the
-#: masks' for ``mask``.
-FEATURES_OF_INPUT = {"objects": "states", "mask": "masks"}
+#: masks' for ``mask``, the masks' with depth for ``depth``.
+FEATURES_OF_INPUT = {"objects": "states", "mask": "masks", "depth": "rgbd"}
 
 
 def features_read(inputs_read: Iterable[str]) -> tuple[str, ...]:
-    """The follower features (``states``, ``masks``) of a model that reads ``inputs_read``."""
+    """The follower features (``states``, ``masks``, ``rgbd``) of a model that reads
+    ``inputs_read``."""
     read = set(inputs_read)
     return tuple(features for name, features in FEATURES_OF_INPUT.items() if name in read)
 
@@ -43,21 +44,22 @@ def follower_title(cue: str) -> str:
 def score(
     video: Mapping[str, Any], manipulation_frame: torch.Tensor, features: Iterable[str]
 ) -> dict[str, np.ndarray]:
-    """Each follower's score of a batch of videos (``frames``, and ``mask``/``objects`` where
-    the batch has them): float64 [B] per cue of ``follower_cues``, its surprise summed over the
-    frames t > m; NaN for features the videos lack (masks all zero count as lacking)."""
+    """Each follower's score of a batch of videos (``frames``, and ``mask``/``objects``/``depth``
+    where the batch has them): float64 [B] per cue of ``follower_cues``, its surprise summed
+    over the frames t > m; NaN for features the videos lack (masks all zero count as lacking)."""
     frames = video["frames"]
     keys = set(video.keys())
     mask = video["mask"] if "mask" in keys else None
     objects = video["objects"] if "objects" in keys else None
+    depth = video["depth"] if "depth" in keys else None
     after = frames_after(manipulation_frame.reshape(-1).long(), frames.shape[1])
     scores: dict[str, np.ndarray] = {}
     for name in features:
         lacking = (objects is None) if name == "states" else (mask is None or not bool(mask.any()))
-        if lacking:
+        if lacking or (name == "rgbd" and depth is None):
             scores.update(dict.fromkeys(follower_cues(name), np.full(len(frames), np.nan)))
             continue
-        inputs = follower_inputs(name, frames, mask, objects)
+        inputs = follower_inputs(name, frames, mask, objects, depth)
         for rule in RULES:
             total = (rule_surprise(rule, name, inputs).double() * after).sum(dim=1)
             scores[f"{name}_{rule}"] = total.cpu().numpy()

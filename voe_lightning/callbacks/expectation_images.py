@@ -12,7 +12,12 @@ from tensordict import TensorDictBase
 
 from voe_lightning import specs
 from voe_lightning.callbacks.common import probe_names
-from voe_lightning.model.base import SurpriseModel, expected_frames_problem, video_inputs
+from voe_lightning.model.base import (
+    SurpriseModel,
+    expected_frames_problem,
+    inputs_read_by,
+    video_inputs,
+)
 
 
 def _first_frames(video_input: Any, count: int) -> Any:
@@ -45,7 +50,7 @@ class ExpectationImages(L.Callback):
     ) -> None:
         concept_names, _ = probe_names(trainer, type(self).__name__)
         frames = batch["inconsistent", "frames"]
-        inputs = video_inputs(batch, "inconsistent")
+        inputs = video_inputs(batch, "inconsistent", inputs_read_by(pl_module))
         for index, concept in enumerate(batch["concept"].tolist()):
             name = concept_names[concept]
             if name not in self.examples:  # the first probe of each concept, fixed over training

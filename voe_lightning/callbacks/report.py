@@ -24,7 +24,7 @@ from voe_lightning.callbacks.report_batches import CueScores, ProbeOutputs
 from voe_lightning.callbacks.report_benchmark import write_benchmark_metrics
 from voe_lightning.callbacks.report_examples import ExampleVideos
 from voe_lightning.callbacks.report_source import report_source
-from voe_lightning.model.base import SurpriseModel
+from voe_lightning.model.base import SurpriseModel, inputs_read_by
 from voe_lightning.report import ReportInputs, write_report
 from voe_lightning.report.pairs import PairResults
 from voe_lightning.stats.causality import Causality
@@ -145,8 +145,7 @@ class VOEReportCallback(RunAlpha, L.Callback):
         )
 
     def on_test_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        inputs_read = getattr(pl_module, "inputs_read", None)
-        followers = features_read(inputs_read()) if callable(inputs_read) else ()
+        followers = features_read(inputs_read_by(pl_module))
         self._reset(*probe_names(trainer, type(self).__name__), followers)
 
     def on_test_batch_end(
@@ -162,7 +161,7 @@ class VOEReportCallback(RunAlpha, L.Callback):
         check_finite_surprise(stored, self._concept_names, self._variant_names)
         if self.cue_audit:
             self._cues.add(batch)
-        self._examples.add(stored, batch)
+        self._examples.add(stored, batch, inputs_read_by(pl_module))
 
     def on_test_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         gathered = gather_objects((self._outputs.kept, self._examples.kept, self._cues.kept))

@@ -5,7 +5,7 @@ model once the test is over (``ExampleVideos``)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -41,8 +41,9 @@ class ExampleVideos:
         self.concept_names, self.variant_names = concept_names, variant_names
         self.kept: Kept = ({}, {})
 
-    def add(self, stored: Mapping[str, np.ndarray], batch: Any) -> None:
-        """Keep what is still wanted of a batch whose probe outputs are ``stored``."""
+    def add(self, stored: Mapping[str, np.ndarray], batch: Any, read: Collection[str] = ()) -> None:
+        """Keep what is still wanted of a batch whose probe outputs are ``stored``, with the
+        inputs a model that reads ``read`` is given (``video_inputs``)."""
         examples, tsne_pairs = self.kept
         persistence = (
             self.concept_names.index("object_persistence")
@@ -62,7 +63,7 @@ class ExampleVideos:
                 side: {"frames": batch[side, "frames"][i].cpu().clone()}
                 | {
                     name: value[i].cpu().clone()
-                    for name, value in video_inputs(batch, side).items()
+                    for name, value in video_inputs(batch, side, read).items()
                 }
                 for side in ("consistent", "inconsistent")
             }

@@ -3,9 +3,10 @@ the host), so that at thousands of clips a second loading never waits: each reco
 once, one gather a batch, no worker processes. Only the fields a model reads are kept: the
 frames for a model trained from pixels (the VRNN-LRU; the paper-scale set, about 184 GB at 15
 frames of 64x64, does not fit one GPU), the objects' states and the camera for the state
-learner, whose batches then never decode a frame; for its mask rung, ``mask_features``: what
-each clip's mask and frames show of each id (``masks.per_id``), measured once here instead of
-every batch, and no mask or frame held."""
+learner, whose batches then never decode a frame; for its mask and RGB-D rungs,
+``mask_features``: what each clip's mask and frames show of each id (``masks.per_id``), with
+its ``depth`` measures where the records hold them, measured once here instead of every batch,
+and no mask, frame or depth held."""
 
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ from tqdm import tqdm
 from voe_lightning.data.store import record_loader
 from voe_lightning.model.object_state.masks import per_id
 
-#: A field no record holds, made of two it does: ``per_id``'s measures of the mask and frames.
+#: A field no record holds, made of two it does: ``per_id``'s measures of the mask and frames
+#: (and of the ``depth``, where the records hold it).
 MASK_FEATURES = "mask_features"
 
 
@@ -84,10 +86,12 @@ def resident_records(
 
 def _held(batch: TensorDictBase, stored: Sequence[str], measured: bool) -> TensorDictBase:
     """What is held of a batch of records: its ``stored`` fields and, if ``measured``, the
-    ``per_id`` measures of its mask and frames as ``MASK_FEATURES``."""
+    ``per_id`` measures of its mask and frames (and its depth, where it has one: the RGB-D
+    rung's) as ``MASK_FEATURES``."""
     held = batch.select(*stored)
     if measured:
-        measures = per_id(batch["mask"], batch["frames"])
+        depth = batch["depth"] if "depth" in batch.keys() else None
+        measures = per_id(batch["mask"], batch["frames"], depth)
         held[MASK_FEATURES] = TensorDict(measures, batch_size=[len(batch)])
     return held
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import atexit
 from abc import ABCMeta, abstractmethod
+from collections.abc import Collection
 from typing import Any
 
 import torch
@@ -23,20 +24,36 @@ def _destroy_process_group() -> None:
         torch.distributed.destroy_process_group()
 
 
-def video_inputs(batch: Any, video: str | None = None) -> dict[str, Any]:
+#: A video's inputs that the protocol's methods do not take: only a model that says it reads
+#: one (``inputs_read``) is given it, as a keyword its methods add (``depth``, per mask id what
+#: the depth image shows, ``specs.depth_spec``: the object-state model's RGB-D rung).
+OPTIONAL_INPUTS = ("depth",)
+
+
+def video_inputs(
+    batch: Any, video: str | None = None, read: Collection[str] = ()
+) -> dict[str, Any]:
     """``mask`` and ``objects`` (per-object states, ``specs.objects_spec``) of a clip batch
     (``video=None``) or of one side of a probe batch, and the batch's ``camera``, each when the
-    batch has it: keyword arguments of the protocol."""
+    batch has it: keyword arguments of the protocol; also each of the ``OPTIONAL_INPUTS`` a
+    model ``read``s (its ``inputs_read``), when the batch has it."""
     nested = isinstance(batch, TensorDictBase)
     keys = set(batch.keys(include_nested=True) if nested else batch.keys())
     inputs = {}
-    for name in ("mask", "objects"):
+    for name in ("mask", "objects", *(name for name in OPTIONAL_INPUTS if name in read)):
         key = name if video is None else (video, name)
         if key in keys:
             inputs[name] = batch[key]
     if "camera" in keys:
         inputs["camera"] = batch["camera"]
     return inputs
+
+
+def inputs_read_by(model: Any) -> frozenset[str]:
+    """What ``model`` says its surprise reads (``SurpriseModel.inputs_read``); none for a
+    module without the protocol."""
+    read = getattr(model, "inputs_read", None)
+    return frozenset(read()) if callable(read) else frozenset()
 
 
 def check_real_surprise(surprise: torch.Tensor, source: str) -> torch.Tensor:
@@ -134,7 +151,9 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
     def inputs_read(self) -> frozenset[str]:
         """Which of a video's ``mask`` and ``objects`` its surprise may read (frames and camera
         always): the causality check compares a pair's surprise before the first frame at which
-        the frames or one of these differ. Any may, unless a family says it reads fewer."""
+        the frames or one of these differ. Any may, unless a family says it reads fewer. A
+        model that names one of the ``OPTIONAL_INPUTS`` here (``depth``) is given it by
+        ``video_inputs``, as a keyword of its methods; no other model is."""
         return frozenset({"mask", "objects"})
 
     @abstractmethod
@@ -224,13 +243,15 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
     # ----------------------------------------------------------------------------- probes
     def probe_step(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """Surprise of both videos of each probe pair (one pass: rows never interact); each
-        video's mask and the pair's camera go to the model when the batch has them. Also the
+        video's mask and the pair's camera go to the model when the batch has them (and each
+        video's ``depth`` to a model that reads it, ``video_inputs``). Also the
         pair's ``first_difference``, the first frame at which its videos differ, where a
         surprise window starts (``voe_lightning.stats.surprise_window``), and ``inputs_differ``,
         the first at which any of its inputs do, before which the causality check compares."""
         consistent = batch["consistent", "frames"]
         inconsistent = batch["inconsistent", "frames"]
-        sides = [video_inputs(batch, "consistent"), video_inputs(batch, "inconsistent")]
+        read = self.inputs_read()
+        sides = [video_inputs(batch, side, read) for side in ("consistent", "inconsistent")]
         inputs = {
             name: torch.cat([side[name] for side in sides], dim=0)
             for name in sides[0]
@@ -250,9 +271,7 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
             "surprise_consistent": surprise_consistent,
             "surprise_inconsistent": surprise_inconsistent,
             "first_difference": frames_first,
-            "inputs_differ": inputs_first_difference(
-                sides[0], sides[1], frames_first, self.inputs_read()
-            ),
+            "inputs_differ": inputs_first_difference(sides[0], sides[1], frames_first, read),
         }
 
     #: Name under which ``validation_step`` logs the consistent probes' mean video surprise.
@@ -286,9 +305,11 @@ class SurpriseModel(LightningModule, metaclass=ABCMeta):
     ) -> dict[str, torch.Tensor]:
         """Each video's surprise (its sum over frames, float64, and its largest frame's:
         ``surprise_max``) with its ``index`` in the predict dataset, for a prediction writer;
-        its mask and camera go along when the batch has them."""
+        its mask and camera go along when the batch has them (its depth, to a model that reads
+        it)."""
         surprise = received_surprise(
-            self.surprise(self._frames_of(batch), **video_inputs(batch)), type(self).__name__
+            self.surprise(self._frames_of(batch), **video_inputs(batch, read=self.inputs_read())),
+            type(self).__name__,
         ).double()
         return {
             "index": batch["index"],

@@ -47,7 +47,7 @@ def check_model(
             scored["manipulation_frame"],
             scored["inputs_differ"],
         )
-        inputs = video_inputs(probes, "inconsistent")
+        inputs = video_inputs(probes, "inconsistent", model.inputs_read())
         whole = received_surprise(model.surprise(frames, **inputs), model_name(model))
         cut = Causality()
         for t in range(frames.shape[1] - 1):

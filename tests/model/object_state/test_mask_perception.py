@@ -5,6 +5,7 @@ slots the 3D perception would make; no 3D geometry or prior is accepted with it;
 import numpy as np
 import pytest
 import torch
+from helpers.training import losses_over_steps
 
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.object_state.arguments import GEOMETRY_OFF
@@ -65,7 +66,8 @@ def test_3d_geometry_and_priors_are_refused_without_3d_states():
     with pytest.raises(ValueError, match="perception: masks gives no 3D state.*sight_lines"):
         ObjectStateModel(perception="masks", **{**GEOMETRY_OFF, "sight_lines": True})
     with pytest.raises(
-        ValueError, match=r"perception must be one of \('states', 'masks', 'pixels'\), got 'lidar'"
+        ValueError,
+        match=r"perception must be one of \('states', 'masks', 'rgbd', 'pixels'\), got 'lidar'",
     ):
         ObjectStateModel(perception="lidar")
 
@@ -78,14 +80,7 @@ def test_the_mask_rung_learns_from_masks_and_frames():
     clips = torch.stack(
         [generate_clip(c, "example", seed=s) for c in ("continuity", "solidity") for s in (0, 1)]
     )
-    optimizer = torch.optim.Adam(model.parameters(), lr=3e-3)
-    losses = []
-    for step in range(30):
-        optimizer.zero_grad()
-        loss = model.training_step(clips, step)
-        loss.backward()
-        optimizer.step()
-        losses.append(loss.item())
+    losses = losses_over_steps(model, clips, 30)
     assert losses[-1] < losses[0] - 50, losses
     with pytest.raises(ValueError, match="batch key 'mask'"):
         model.surprise(clips["frames"], objects=clips["objects"], camera=clips["camera"])
@@ -134,9 +129,11 @@ def test_mask_features_held_once_per_clip_train_as_the_masks_and_frames_do(tmp_p
     whole = resident_records(dataset, ["mask", "frames", "camera"], torch.device("cpu"))
     held = resident_records(dataset, [MASK_FEATURES, "camera"], torch.device("cpu"))
     assert set(held.keys()) == {MASK_FEATURES, "camera"} and len(held) == len(dataset)
+    # the records' depth measures, where they hold them (stimuli version 13 on), for rgbd
+    assert ("depth" in held[MASK_FEATURES].keys()) == ("depth" in dataset[0].keys())
     torch.manual_seed(0)
     model = ObjectStateModel(perception="masks", hidden_size=16, message_size=8, **GEOMETRY_OFF)
     model.hparams.withhold = 0.0  # no random spans: the two losses see the same clips
     torch.testing.assert_close(model.training_step(held, 0), model.training_step(whole, 0))
-    with pytest.raises(KeyError, match=r"train_fields names \['depth'\]"):
-        resident_records(dataset, [MASK_FEATURES, "depth"], torch.device("cpu"))
+    with pytest.raises(KeyError, match=r"train_fields names \['lidar'\]"):
+        resident_records(dataset, [MASK_FEATURES, "lidar"], torch.device("cpu"))

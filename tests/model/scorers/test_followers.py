@@ -91,6 +91,26 @@ def test_an_unknown_rule_or_input_and_missing_states_are_refused():
         ObjectFollower("stay_put", "depth")
     with pytest.raises(ValueError, match="has none: use features 'masks'"):
         ObjectFollower("stay_put", "states").surprise(FRAMES)
+    mask = torch.zeros(1, T, 4, 4, dtype=torch.uint8)
+    with pytest.raises(ValueError, match="'rgbd' reads the records' depth .* use features 'masks'"):
+        ObjectFollower("stay_put", "rgbd").surprise(FRAMES[:, :, :4, :4], mask)
+
+
+def test_rgbd_rules_read_the_depth_beside_the_masks():
+    """The mask video above, its object 2 m away, then 2.5 m at frame 1, its outline cut
+    (a share of 0.5) from frame 2: depth joins the position, the cut share the attributes."""
+    mask = torch.zeros(1, 4, 4, 4, dtype=torch.uint8)
+    frames = torch.zeros(1, 4, 4, 4, 3, dtype=torch.uint8)
+    mask[0, :3, 0, 0:2] = 3
+    depth = torch.zeros(1, 4, specs.OBJECT_SLOTS, 3)
+    depth[0, :3, 3] = torch.tensor([[2.0, 2.0, 0.0], [2.5, 2.5, 0.0], [2.5, 2.5, 0.5]])
+    follower = ObjectFollower("stay_put", "rgbd")
+    assert follower.inputs_read() == frozenset({"mask", "depth"})
+    moved = follower.surprise(frames, mask, depth=depth)
+    assert torch.allclose(moved[0], torch.tensor([0.0, 0.5, 0.0, 0.0]))
+    changed = ObjectFollower("attributes", "rgbd").surprise(frames, mask, depth=depth)
+    assert torch.allclose(changed[0], torch.tensor([0.0, 0.0, 0.5, 0.0]))
+    assert ObjectFollower("seen_again", "rgbd").surprise(frames, mask, depth=depth)[0, 3] == 1
 
 
 def test_test_scores_a_follower_with_no_checkpoint(tmp_path, monkeypatch):
@@ -104,6 +124,8 @@ def test_test_scores_a_follower_with_no_checkpoint(tmp_path, monkeypatch):
             "voe_lightning.model.ObjectFollower",
             "--model.init_args.rule",
             "stay_put",
+            "--model.init_args.features",
+            "rgbd",
             "--trainer.logger.init_args.name",
             "follower",
             "--trainer.enable_progress_bar",
@@ -112,20 +134,21 @@ def test_test_scores_a_follower_with_no_checkpoint(tmp_path, monkeypatch):
     )
     (summary,) = tmp_path.glob("runs/follower/*/voe_report/summary.json")
     assert json.loads(summary.read_text())["source"]["checkpoint"] is None
-    # Its report's cue audit holds the followers of what it reads (the states), not the masks',
-    # and the stay-put follower's rows there are its own rows: the same rule on the same pairs.
+    # Its report's cue audit holds the followers of what it reads (the masks and their depth,
+    # handed to it with its expected frames), not the states'.
     report = summary.parent
     rows = list(csv.DictReader((report / "cues.csv").open()))
     cues = {row["cue"] for row in rows}
-    assert {f"states_{rule}" for rule in RULES} <= cues
-    assert not any(cue.startswith("masks_") for cue in cues)
+    assert {f"{features}_{rule}" for rule in RULES for features in ("masks", "rgbd")} <= cues
+    assert not any(cue.startswith("states_") for cue in cues)
     assert "Followers of the model's own inputs" in (report / "cues.md").read_text()
-    # the summary says under the verdicts which concepts a follower passes too
+    # the summary says under the verdicts which concepts a follower passes too, and the
+    # stay-put follower's rows there are its own rows: the same rule on the same pairs
     document = json.loads(summary.read_text())
     assert isinstance(document["followers_passing"], dict)
     assert "Followers of the model's own inputs (cues.md): " in (report / "summary.md").read_text()
     own = {(r["concept"], r["variant"]): r for r in csv.DictReader((report / "summary.csv").open())}
-    followed = [r for r in rows if r["cue"] == "states_stay_put" and r["t"]]
+    followed = [r for r in rows if r["cue"] == "rgbd_stay_put" and r["t"]]
     assert followed
     for row in followed:
         model_row = own[(row["concept"], row["variant"])]

@@ -28,12 +28,12 @@ ARCHITECTURE = (
     "frame_size",
 )
 #: What the learner perceives of each object (``perception``): its 3D state, what its mask and
-#: the frames show, or a learned code of its pixels.
-PERCEPTIONS = ("states", "masks", "pixels")
+#: the frames show, that with what the depth image shows of it, or a learned code of its pixels.
+PERCEPTIONS = ("states", "masks", "rgbd", "pixels")
 #: What the learned p(seen) reads (``visibility_from``): memory, or the predicted states alone.
 VISIBILITIES = ("memory", "states")
 #: The arguments that give geometry or a prior about a 3D state, each with its value off
-#: (``projection`` is not one: perceived by masks, the image box is what is seen).
+#: (``projection`` is not one: perceived by masks or rgbd, the image box is what is seen).
 GEOMETRY_OFF = {
     "landing_component": False,
     "pivot_landing": False,

@@ -1,7 +1,8 @@
 """The mask rung of the learner's perception: what a camera and a tracker give, with no 3D state.
 Per frame and visible mask id, measured from the record's ``mask`` and ``frames`` alone
 (``observe_masks``): the image-plane centroid and half-extents of its pixels, its area (share of
-the frame) and its mean colour."""
+the frame) and its mean colour. ``per_id`` also carries a record's ``depth`` measures where it is
+given them, which the RGB-D rung reads (``rgbd.py``)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from collections.abc import Mapping
 import torch
 
 from voe_lightning import specs
+from voe_lightning.model.object_state.geometry import paint_ellipses
 from voe_lightning.model.object_state.state import (
     SHAPES,
     Observations,
@@ -25,11 +27,27 @@ MASKS = StateLayout(
 )
 
 
-def seen_box(state: torch.Tensor) -> torch.Tensor:
-    """The ``view`` of mask-perceived states [..., 8] (``geometry.VIEW`` wide): no camera
-    coordinates (zeros), and the image box the pixels span, as seen or believed."""
-    centre, half = state[..., MASKS.position], state[..., MASKS.extent][..., :2]
+def seen_box(state: torch.Tensor, layout: StateLayout = MASKS) -> torch.Tensor:
+    """The ``view`` of mask-perceived states [..., ``layout.size``] (``MASKS``, or the RGB-D
+    rung's ``rgbd.RGBD``; ``geometry.VIEW`` wide): no camera coordinates (zeros), and the image
+    box the pixels span (the position's and the extent's first two), as seen or believed."""
+    centre, half = state[..., layout.position][..., :2], state[..., layout.extent][..., :2]
     return torch.cat([torch.zeros_like(state[..., :3]), centre, half], dim=-1)
+
+
+def paint_boxes(
+    belief: torch.Tensor, opacity: torch.Tensor, layout: StateLayout, image_size: tuple[int, int]
+) -> torch.Tensor:
+    """``geometry.paint_ellipses`` of mask-perceived states [B, T, S, ``layout.size``]
+    (``MASKS``, or ``rgbd.RGBD``): an ellipse in each box the pixels span, in their colour,
+    painted far to near: by the mean depth where the position holds one (RGB-D), else the
+    larger area first."""
+    centre, half = belief[..., layout.position][..., :2], belief[..., layout.extent][..., :2]
+    holds_depth = layout.position_size == 3
+    far = (
+        belief[..., layout.position][..., 2] if holds_depth else belief[..., layout.extent][..., 2]
+    )
+    return paint_ellipses(centre, half, belief[..., layout.color], opacity, far, image_size)
 
 
 def pixel_coordinates(height: int, width: int, device: torch.device) -> torch.Tensor:
@@ -41,10 +59,15 @@ def pixel_coordinates(height: int, width: int, device: torch.device) -> torch.Te
     return torch.stack([x.repeat(height), y.repeat_interleave(width)], dim=-1)
 
 
-def per_id(mask: torch.Tensor, frames: torch.Tensor) -> dict[str, torch.Tensor]:
+def per_id(
+    mask: torch.Tensor, frames: torch.Tensor, depth: torch.Tensor | None = None
+) -> dict[str, torch.Tensor]:
     """Per frame and mask id [B, T, K, ...]: ``pixels`` (count), the pixels' ``centroid`` and
     half-extents (``half``, half a pixel at least), ``area`` and mean ``colour``, from ``mask``
-    uint8 [B, T, H, W] and ``frames`` uint8 [B, T, H, W, 3]; zeros for an id not in the frame."""
+    uint8 [B, T, H, W] and ``frames`` uint8 [B, T, H, W, 3]; zeros for an id not in the frame.
+    Given a record's ``depth`` [B, T, K, 3] (``specs.depth_spec``: per id its visible pixels'
+    mean and least depth and the share of its outline a nearer surface cuts), also ``depth``,
+    float32 and zero where the mask shows no pixel of the id."""
     batch, steps, height, width = mask.shape
     count = specs.OBJECT_SLOTS
     ids = mask.long().flatten(2)  # [B, T, P]
@@ -64,13 +87,21 @@ def per_id(mask: torch.Tensor, frames: torch.Tensor) -> dict[str, torch.Tensor]:
     high = xy.new_full((batch, steps, count, 2), -torch.inf).scatter_reduce(2, index, xy, "amax")
     half_pixel = 1 / height  # a pixel spans 2 / height of the image plane
     half = torch.where(seen, (high - low) / 2 + half_pixel, 0.0)
-    return {
+    measures = {
         "pixels": pixels,
         "centroid": mean[..., :2] * seen,
         "half": half,
         "area": pixels / (height * width),
         "colour": mean[..., 2:] * seen,
     }
+    if depth is not None:
+        if tuple(depth.shape) != (batch, steps, count, len(specs.DEPTH_MEASURES)):
+            raise ValueError(
+                f"depth must be [B, T, {count}, {len(specs.DEPTH_MEASURES)}] (specs.depth_spec, batched) "
+                f"for a mask {tuple(mask.shape)}, got {tuple(depth.shape)}"
+            )
+        measures["depth"] = depth.to(mask.device, torch.float32) * seen
+    return measures
 
 
 def observe_masks(mask: torch.Tensor, frames: torch.Tensor, camera: torch.Tensor) -> Observations:

@@ -18,9 +18,15 @@ from voe_lightning.model import optimization
 from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.model.dynamics import CAMERA_FEATURES, mlp
 from voe_lightning.model.likelihood import rectified_excess
+from voe_lightning.model.object_state import rgbd
 from voe_lightning.model.object_state.arguments import ARCHITECTURE, check_arguments
-from voe_lightning.model.object_state.geometry import VIEW, draw_ellipses, paint_ellipses
-from voe_lightning.model.object_state.masks import MASKS, observe_masks, observe_measured
+from voe_lightning.model.object_state.geometry import VIEW, draw_ellipses
+from voe_lightning.model.object_state.masks import (
+    MASKS,
+    observe_masks,
+    observe_measured,
+    paint_boxes,
+)
 from voe_lightning.model.object_state.pairs import PairNetwork, pair_feature_size
 from voe_lightning.model.object_state.pixels import (
     background_codes,
@@ -46,9 +52,15 @@ if TYPE_CHECKING:
     from lightning.pytorch.utilities.types import OptimizerConfig, OptimizerLRSchedulerConfig
 
 
+#: The state layouts of the perceptions that name one (a learned code's is ``code_layout``).
+LAYOUTS = {"states": STATES, "masks": MASKS, "rgbd": rgbd.RGBD}
+#: What each perception's surprise reads of a video (``inputs_read``); the others, the mask.
+READS = {"states": frozenset({"objects"}), "rgbd": frozenset({"mask", "depth"})}
+
+
 def layout_of(perception: str, code_size: int) -> StateLayout:
     """What the learner perceives (``perception``): its state layout."""
-    return {"states": STATES, "masks": MASKS}.get(perception) or code_layout(code_size)
+    return LAYOUTS.get(perception) or code_layout(code_size)
 
 
 class ObjectStateModel(SlotRollout, SurpriseModel):
@@ -108,6 +120,14 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     with and without each, docs/study/learned_physics.md); the published run has both, and
     which of them to drop waits on a mask rung that passes more.
 
+    With ``perception: rgbd`` (the RGB-D rung, ``configs/rgbd_15min.yaml``) it is given what a
+    depth camera and a tracker give: per mask id and frame, the mask rung's 2D measures of its
+    visible pixels plus their mean and nearest depth along the view axis and the share of its
+    outline that a nearer surface (or the frame's edge) cuts, from the record's ``mask``,
+    ``frames`` and ``depth`` (``rgbd.observe_rgbd``); no 3D box, no shape label, no oracle, and
+    it never reads ``objects``. Its state (``rgbd.RGBD``) holds the mean depth in its position,
+    so its velocity holds the change in depth; ``projection`` reads the pixels' boxes.
+
     With ``perception: pixels`` (the pixel rung, ``configs/learned_pixels.yaml``) no feature
     is hand-written either: an object's state is the code a learned encoder gives its pixels
     (``pixels.observe_pixels``). The encoder, PLATO's object autoencoder, trains alone for the
@@ -115,8 +135,11 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
 
     Args:
         perception: ``"states"`` (perfect 3D perception, ``specs.objects_spec``),
-            ``"masks"`` (what the mask and frames show of each id, no 3D state) or
-            ``"pixels"`` (a learned code of each id's pixels).
+            ``"masks"`` (what the mask and frames show of each id, no 3D state), ``"rgbd"``
+            (the masks' measures of each id plus the mean and nearest depth of its visible
+            pixels and the share of its outline a nearer surface cuts, ``specs.depth_spec``:
+            no 3D box, no shape label, no oracle; never reads ``objects``) or ``"pixels"`` (a
+            learned code of each id's pixels).
         hidden_size: recurrent state per slot and width of the MLPs.
         message_size: size of the summed pair messages.
         use_camera: the core and visibility read the camera pose (else a fixed default pose).
@@ -271,20 +294,24 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     def _inputs(
         self,
         frames: torch.Tensor | None,
-        objects: TensorDictBase | None,
-        camera: torch.Tensor | None,
+        objects: TensorDictBase | None = None,
+        camera: torch.Tensor | None = None,
         mask: torch.Tensor | None = None,
         mask_features: TensorDictBase | None = None,
+        depth: torch.Tensor | None = None,
     ) -> Observations:
         """The batch's ``Observations`` as ``perception`` reads them, at a fixed pose without
         a camera or ``use_camera``. Perceiving states, it needs no ``frames`` (a training batch
-        of ``train_fields: [objects, camera]`` holds none); perceiving masks, a training batch
-        of ``train_fields: [mask_features, camera]`` holds each clip's ``masks.per_id``
-        measures, made once when the clips were loaded, and no mask or frame."""
-        if self.hparams["perception"] == "masks" and mask_features is not None:
+        of ``train_fields: [objects, camera]`` holds none); perceiving masks (or rgbd), a
+        training batch of ``train_fields: [mask_features, camera]`` holds each clip's
+        ``masks.per_id`` measures (rgbd: with the ``depth``), made once when the clips were
+        loaded, and no mask or frame."""
+        perception = self.hparams["perception"]
+        if perception in ("masks", "rgbd") and mask_features is not None:
             pose = self._pose(mask_features["pixels"].shape[:2], camera).to(self.device)
-            return observe_measured(mask_features.to(self.device), pose)
-        if self.hparams["perception"] in ("masks", "pixels"):
+            observe_held = observe_measured if perception == "masks" else rgbd.observe_rgbd_measured
+            return observe_held(mask_features.to(self.device), pose)
+        if perception in ("masks", "rgbd", "pixels"):
             if mask is None or frames is None:
                 missing = "mask" if mask is None else "frames"
                 raise ValueError(
@@ -294,8 +321,10 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
                 )
             mask, frames = mask.to(self.device), frames.to(self.device)
             camera = self._pose(frames.shape[:2], camera).to(self.device)
-            if self.hparams["perception"] == "masks":
+            if perception == "masks":
                 return observe_masks(mask, frames, camera)
+            if perception == "rgbd":  # refused without a depth
+                return rgbd.observe_rgbd(mask, frames, depth, camera)
             frames = self._checked_frames(frames, self.frame_size)
             with torch.no_grad():  # the encoder learns only from its own loss
                 return observe_pixels(self.encoder, mask, frames, camera)
@@ -332,14 +361,12 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
 
     # ----------------------------------------------------------------------------- training
     def training_step(self, batch: TensorDictBase, batch_idx: int) -> torch.Tensor:
-        inputs = video_inputs(batch)
+        inputs = video_inputs(batch, read=self.inputs_read())
         frames = batch["frames"] if "frames" in batch.keys() else None
         if self.perception_stage:
             return self._encoder_step(frames, inputs.get("mask"))
         features = batch["mask_features"] if "mask_features" in batch.keys() else None
-        observations = self._inputs(
-            frames, inputs.get("objects"), inputs.get("camera"), inputs.get("mask"), features
-        )
+        observations = self._inputs(frames, mask_features=features, **inputs)
         clips = observations.visible.shape[0]
         names = SLOT_TERMS + ("appear",)
         terms: dict[str, torch.Tensor] = {}
@@ -406,9 +433,10 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
 
     # ----------------------------------------------------------------------------- protocol
     def inputs_read(self) -> frozenset[str]:
-        """What a camera gives (the mask; frames and camera always) for ``perception`` masks
-        or pixels, which never read the record's amodal ``objects``; those for states."""
-        return frozenset({"objects"} if self.hparams["perception"] == "states" else {"mask"})
+        """What a camera gives (the mask; frames and camera always; rgbd's depth too, which
+        only a model that reads it is given) for ``perception`` masks, rgbd or pixels, which
+        never read the record's amodal ``objects``; those for states (``READS``)."""
+        return READS.get(self.hparams["perception"], frozenset({"mask"}))
 
     @torch.no_grad()
     def surprise(
@@ -417,9 +445,11 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         mask: torch.Tensor | None = None,
         camera: torch.Tensor | None = None,
         objects: TensorDictBase | None = None,
+        depth: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """Per-frame surprise [B, T] (float32): the NLL of what is seen (class docstring)."""
-        out = self.rollout(self._inputs(frames, objects, camera, mask))
+        """Per-frame surprise [B, T] (float32): the NLL of what is seen (class docstring);
+        rgbd alone reads ``depth`` [B, T, K, 3] (``specs.depth_spec``)."""
+        out = self.rollout(self._inputs(frames, objects, camera, mask, depth=depth))
         return self._per_frame(out).float()
 
     @torch.no_grad()
@@ -429,12 +459,13 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         mask: torch.Tensor | None = None,
         camera: torch.Tensor | None = None,
         objects: TensorDictBase | None = None,
+        depth: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """What the model expected [B, T, 3, H, W]: each known slot's expected state drawn as an
         ellipse of its colour where and as large as its box is seen, as opaque as the predicted
         probability that it is seen (frame 0: what is seen), nearer objects over farther;
         perceived by pixels, each expected code decoded over the frame before's background."""
-        observations = self._inputs(frames, objects, camera, mask)
+        observations = self._inputs(frames, objects, camera, mask, depth=depth)
         out = self.rollout(observations)
         belief = torch.cat([out["belief"][:, :1], out["predicted"][:, 1:]], dim=1)
         opacity = torch.cat(
@@ -448,10 +479,8 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
             before = torch.cat([background[:, :1], background[:, :-1]], dim=1)
             return paint_codes(self.encoder, belief, opacity, before)
         height, width = frames.shape[2:4]
-        if self.hparams["perception"] == "masks":  # an ellipse in its pixels' box, larger first
-            centre, half = belief[..., MASKS.position], belief[..., MASKS.extent][..., :2]
-            colour, area = belief[..., MASKS.color], belief[..., MASKS.extent][..., 2]
-            return paint_ellipses(centre, half, colour, opacity, area, (height, width))
+        if self.hparams["perception"] in ("masks", "rgbd"):  # an ellipse in its pixels' box
+            return paint_boxes(belief, opacity, self.layout, (height, width))
         return draw_ellipses(belief, opacity, observations.camera, (height, width))
 
     @torch.no_grad()
@@ -461,8 +490,9 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         mask: torch.Tensor | None = None,
         camera: torch.Tensor | None = None,
         objects: TensorDictBase | None = None,
+        depth: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """``slots`` [B, T, H]: the mean recurrent state of the known slots at each frame."""
-        out = self.rollout(self._inputs(frames, objects, camera, mask))
+        out = self.rollout(self._inputs(frames, objects, camera, mask, depth=depth))
         weight = out["known"].float()[..., None]
         return {"slots": (out["hidden"] * weight).sum(2) / weight.sum(2).clamp(min=1)}

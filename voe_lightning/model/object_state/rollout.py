@@ -195,13 +195,13 @@ class SlotRollout:
 
     def _view(self, state: torch.Tensor, pose: torch.Tensor) -> torch.Tensor:
         """Where each slot is seen from ``pose`` [B, S, VIEW] (``view``: camera coordinates and
-        image-plane box; perceived by masks, the box its pixels span, ``seen_box``); zeros
-        without ``projection``, where only the pose itself (each network's camera features)
-        says where the camera is."""
+        image-plane box; perceived by masks or rgbd, the box its pixels span, ``seen_box``);
+        zeros without ``projection``, where only the pose itself (each network's camera
+        features) says where the camera is."""
         if not self.hparams["projection"]:
             return state.new_zeros(*state.shape[:-1], VIEW)
-        if self.hparams["perception"] == "masks":
-            return seen_box(state)
+        if self.hparams["perception"] in ("masks", "rgbd"):
+            return seen_box(state, self.layout)
         return view(state, pose)
 
     def _pairs(self, state: torch.Tensor, shape: torch.Tensor, seen_as: torch.Tensor) -> SlotPairs:

@@ -4,9 +4,12 @@ as a parameter-free ``SurpriseModel`` over what a learner that reads objects rea
 those inputs without physics. A concept a follower passes is a shortcut in the stimuli (or, for
 unchangeableness' attribute memory, the concept itself).
 
-Two inputs: ``states`` (the record's amodal 3D ``objects``, read only while an object is seen,
-as the 3D-state learner reads them) and ``masks`` (what a camera and a tracker give: each mask
-id's image centroid, area and mean colour, ``object_state.masks.per_id``)."""
+Three inputs: ``states`` (the record's amodal 3D ``objects``, read only while an object is
+seen, as the 3D-state learner reads them), ``masks`` (what a camera and a tracker give: each
+mask id's image centroid, area and mean colour, ``object_state.masks.per_id``) and ``rgbd``
+(the masks' measures and what the depth image shows of each id, the record's ``depth``: its
+position the centroid and mean depth, its attributes the area, colour, depth span and the share
+of its outline a nearer surface cuts)."""
 
 from __future__ import annotations
 
@@ -27,11 +30,14 @@ RULES: dict[str, str] = {
     "copy_last": "squared error of each feature predicted as its value at the frame before",
     "linear_extrapolation": "squared error of each feature predicted as 2 x_{t-1} - x_{t-2}",
 }
-INPUTS = ("states", "masks")
+INPUTS = ("states", "masks", "rgbd")
 #: What counts as a change for the counted rules: a move (m for states, image-plane units of
-#: half the height for masks) and an attribute difference (its Euclidean norm).
-MOVE_TOLERANCE = {"states": 0.01, "masks": 0.05}
+#: half the height for masks, both for rgbd's centroid and depth) and an attribute difference
+#: (its Euclidean norm).
+MOVE_TOLERANCE = {"states": 0.01, "masks": 0.05, "rgbd": 0.05}
 ATTRIBUTE_TOLERANCE = 0.02
+#: The record fields each input is read from (``inputs_read``).
+READS = {"states": ("objects",), "masks": ("mask",), "rgbd": ("mask", "depth")}
 
 
 def state_features(objects: TensorDictBase) -> dict[str, torch.Tensor]:
@@ -61,6 +67,22 @@ def mask_features(mask: torch.Tensor, frames: torch.Tensor) -> dict[str, torch.T
     }
 
 
+def rgbd_features(
+    mask: torch.Tensor, frames: torch.Tensor, depth: torch.Tensor
+) -> dict[str, torch.Tensor]:
+    """``mask_features`` with what the depth image shows of each id (``depth`` [B, T, K, 3],
+    ``specs.depth_spec``): the mean depth joins the position, the depth span (mean less
+    nearest) and the cut share join the attributes."""
+    features = mask_features(mask, frames)
+    depth = depth.float()
+    span_and_cut = torch.stack([depth[..., 0] - depth[..., 1], depth[..., 2]], dim=-1)
+    return {
+        "seen": features["seen"],
+        "position": torch.cat([features["position"], depth[..., :1]], dim=-1),
+        "attributes": torch.cat([features["attributes"], span_and_cut], dim=-1),
+    }
+
+
 def last_seen(value: torch.Tensor, seen: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Per frame t, each id's ``value`` at the last frame before t that saw it [B, T, K, F], and
     whether there was one [B, T, K]."""
@@ -86,10 +108,11 @@ def follower_inputs(
     frames: torch.Tensor,
     mask: torch.Tensor | None,
     objects: TensorDictBase | None,
+    depth: torch.Tensor | None = None,
 ) -> dict[str, torch.Tensor]:
     """``seen``, ``position`` and ``attributes`` of each id from the records' states
-    (``features`` ``states``) or from the masks and frames (``masks``), refused by name where
-    the data lacks that input."""
+    (``features`` ``states``), from the masks and frames (``masks``) or from those and the
+    depth measures (``rgbd``), refused by name where the data lacks that input."""
     if features == "states":
         if objects is None:
             raise ValueError(
@@ -98,8 +121,15 @@ def follower_inputs(
             )
         return state_features(objects)
     if mask is None:
-        raise ValueError("ObjectFollower features 'masks' needs masks; this data has none")
-    return mask_features(mask, frames)
+        raise ValueError(f"ObjectFollower features {features!r} needs masks; this data has none")
+    if features == "masks":
+        return mask_features(mask, frames)
+    if depth is None:
+        raise ValueError(
+            "ObjectFollower features 'rgbd' reads the records' depth (stimuli version 13 on), "
+            "and this data has none: use features 'masks'"
+        )
+    return rgbd_features(mask, frames, depth)
 
 
 def rule_surprise(rule: str, features: str, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -156,7 +186,8 @@ class ObjectFollower(SurpriseModel):
 
     Args:
         rule: one of ``RULES``.
-        features: ``states`` (the record's ``objects``, read while seen) or ``masks``.
+        features: ``states`` (the record's ``objects``, read while seen), ``masks`` or
+            ``rgbd`` (the masks and the record's ``depth``).
     """
 
     SURPRISE = "a physics-blind follower of per-object inputs"
@@ -171,8 +202,8 @@ class ObjectFollower(SurpriseModel):
         self.rule, self.features = rule, features
 
     def inputs_read(self) -> frozenset[str]:
-        """The states or the masks, as ``features`` says."""
-        return frozenset({"objects" if self.features == "states" else "mask"})
+        """The states, the masks, or the masks and depth, as ``features`` says."""
+        return frozenset(READS[self.features])
 
     def surprise(
         self,
@@ -180,8 +211,9 @@ class ObjectFollower(SurpriseModel):
         mask: torch.Tensor | None = None,
         camera: torch.Tensor | None = None,
         objects: TensorDictBase | None = None,
+        depth: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        inputs = follower_inputs(self.features, frames, mask, objects)
+        inputs = follower_inputs(self.features, frames, mask, objects, depth)
         return rule_surprise(self.rule, self.features, inputs)
 
     def expected_frames(
@@ -190,6 +222,7 @@ class ObjectFollower(SurpriseModel):
         mask: torch.Tensor | None = None,
         camera: torch.Tensor | None = None,
         objects: TensorDictBase | None = None,
+        depth: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """The frame before (a follower predicts objects, not pixels; frame 0: itself)."""
         return previous(specs.to_model_input(frames), 1)
@@ -200,7 +233,8 @@ class ObjectFollower(SurpriseModel):
         mask: torch.Tensor | None = None,
         camera: torch.Tensor | None = None,
         objects: TensorDictBase | None = None,
+        depth: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """The rule's per-frame surprise and its running total, a course [B, T, 2]."""
-        value = self.surprise(frames, mask, camera, objects)
+        value = self.surprise(frames, mask, camera, objects, depth)
         return {"follower": torch.stack([value, value.cumsum(dim=1)], dim=-1)}
