@@ -183,7 +183,8 @@ def depth_spec(num_frames: int = NUM_FRAMES) -> Unbounded:
     view axis (m) and the share of its outline where the frame ends or another object is nearer
     (in front); zeros where the id is not seen. Camera-recoverable, unlike ``objects``: a
     function of that frame's depth image and mask. The generator's records carry it (stimuli
-    version 13 on); a benchmark's do not."""
+    version 13 on); a benchmark's do not. The depth image itself ([T, H, W], DESIGN.md) is not
+    stored yet: these measures are made from it at render time, in float."""
     return Unbounded(shape=(num_frames, OBJECT_SLOTS, len(DEPTH_MEASURES)), dtype=torch.float32)
 
 
