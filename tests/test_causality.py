@@ -21,6 +21,7 @@ from voe_lightning.model import (
     SurpriseModel,
     VRNNLRUModel,
 )
+from voe_lightning.model.base import video_inputs
 from voe_lightning.model.scorers.cue_scorer import CUE_NAMES
 from voe_lightning.model.scorers.followers import INPUTS, RULES
 from voe_lightning.model.scorers.videomae import VideoMAEScorer
@@ -298,7 +299,7 @@ def _depth(mask: torch.Tensor, seed: int) -> torch.Tensor:
 def _read_by(model, video: dict) -> dict:
     """``video``'s inputs as the probe pipeline hands them (``base.video_inputs``): the depth
     only to a model that reads it."""
-    return {k: v for k, v in video.items() if k != "depth" or "depth" in model.inputs_read()}
+    return {"frames": video["frames"], **video_inputs(video, read=model.inputs_read())}
 
 
 def _objects(mask: torch.Tensor, seed: int) -> TensorDict:

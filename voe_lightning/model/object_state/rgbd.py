@@ -57,7 +57,7 @@ def observe_rgbd_measured(
     (``masks.observe_measured``) with each slot's depth measures laid into its state."""
     if "depth" not in measured:
         raise ValueError(NO_DEPTH.format(where="'depth' among its mask_features"))
-    seen = observe_measured(measured, camera)
+    seen = observe_measured({k: v for k, v in measured.items() if k != "depth"}, camera)
     # zero where the id is not seen (``per_id``), as every other measure is
     mean, near, cut = by_slot(measured["depth"], seen.ids).unbind(-1)
     masks = seen.state
