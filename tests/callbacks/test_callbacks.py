@@ -123,6 +123,34 @@ def test_the_table_at_fit_end_names_the_step_its_validation_ran_at(capsys):
     assert "step 520" not in out
 
 
+def test_validate_alone_prints_the_table_and_fit_s_validations_do_not(capsys):
+    """``validate`` prints its verdict table when it ends; a validation inside ``fit`` leaves
+    the table to fit's end."""
+    rng = np.random.default_rng(3)
+    callback, module = VOEProbeCallback(alpha=ALPHA), _Module()
+    for fn, printed in (("fit", False), ("validate", True)):
+        trainer = SimpleNamespace(
+            datamodule=_Probes(),
+            sanity_checking=False,
+            global_step=40,
+            is_global_zero=True,
+            state=SimpleNamespace(fn=fn),
+        )
+        callback.on_validation_epoch_start(trainer, module)
+        consistent = rng.gamma(2.0, 1.0, (8, 5))
+        outputs = {
+            "concept": torch.full((8,), specs.CONCEPTS.index(CASES[0][0])),
+            "variant": torch.full((8,), specs.VARIANTS.index(CASES[0][1])),
+            "manipulation_frame": torch.ones(8, dtype=torch.int64),
+            "surprise_consistent": torch.from_numpy(consistent),
+            "surprise_inconsistent": torch.from_numpy(consistent + rng.normal(1.0, 1.0, (8, 5))),
+        }
+        callback.on_validation_batch_end(trainer, module, outputs, None, 0)
+        callback.on_validation_epoch_end(trainer, module)
+        callback.on_validation_end(trainer, module)
+        assert ("VOE on validation probes, step 40" in capsys.readouterr().out) is printed
+
+
 def test_callbacks_need_the_runs_alpha_and_refuse_a_bad_one():
     assert VOEProbeCallback(alpha=0.05).alpha == VOEReportCallback(alpha=0.05).alpha == 0.05
     for callback in (VOEProbeCallback, VOEReportCallback):

@@ -11,6 +11,7 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
+from lightning.pytorch.trainer.states import TrainerFn
 from lightning.pytorch.utilities import rank_zero_warn
 from rich import box
 from rich.console import Console, Group
@@ -55,7 +56,7 @@ class VOEProbeCallback(RunAlpha, L.Callback):
     they are); and each quadruplet the validation probes hold (matched by seed,
     ``verdicts.quadruplets``), ``voe/<concept>/<quadruplet row>/...`` with its halves' means
     (``first_half``, ``second_half``): the quadruplet test the verdict reads, as the report's.
-    At the end of ``fit`` it prints the last table with each concept's verdict at ``alpha``,
+    At the end of ``fit`` (and of ``validate``) it prints the last table with each concept's verdict at ``alpha``,
     the run's significance level (the CLI gives the run's ``alpha``, configs/base.yaml).
     A ``surprise_window`` other than all frames (``surprise_window.surprise_window``; the CLI
     gives the run's) logs the same statistics of each video's surprise summed over that window
@@ -236,6 +237,14 @@ class VOEProbeCallback(RunAlpha, L.Callback):
         return ordered
 
     def on_fit_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._print_last(trainer)
+
+    def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.state.fn == TrainerFn.VALIDATING:  # ``validate`` alone; fit's prints at its end
+            self._print_last(trainer)
+
+    def _print_last(self, trainer: L.Trainer) -> None:
+        """Print the last validation's table, each concept's verdict on its heading row."""
         if self.print_table and self.last and trainer.is_global_zero:
             console = Console()
             if not console.is_terminal:  # logs and pipes: do not cut the table at 80 columns
