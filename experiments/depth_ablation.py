@@ -1,0 +1,82 @@
+"""Which of the RGB-D rung's depth measures keeps its place: its recipe (configs/rgbd_15min.yaml)
+trained with one part of the depth left out, zeroed in every state the rung reads (training
+clips and probes alike), then validated on a store of validation probes. A part whose removal
+costs no concept on validation is a given no measurement needs.
+
+    python experiments/depth_ablation.py --drop cut --seed 0 --val_root data/val100v
+
+``--drop``: ``span`` (mean less least depth), ``cut`` (the outline's covered share), ``mean``
+(the mean depth; the rung's position then holds the image plane alone). Other arguments go to
+``fit`` as they are (``--trainer.max_steps 10``). The fit logs to
+runs/rgbd_no_<part>[_s<seed>]; then ``validate`` on ``--val_root`` (100 validation pairs per
+variant, generated there on first use with one pair or clip of every other split) prints its
+verdict table. The full rung's own table: ``validate --ckpt_path`` of its run, the same store.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Mapping
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+
+from voe_lightning.cli import main as cli
+from voe_lightning.model.object_state import rgbd
+from voe_lightning.model.object_state.state import Observations
+
+#: Where each part of the depth lies in an ``rgbd.RGBD`` state.
+PARTS = {"mean": 2, "span": 6, "cut": rgbd.CUT}
+
+
+def leave_out(part: str) -> None:
+    """Make the RGB-D rung read a zero for ``part`` wherever it reads the depth."""
+    column, measured_by = PARTS[part], rgbd.observe_rgbd_measured
+
+    def without(measured: Mapping[str, torch.Tensor], camera: torch.Tensor) -> Observations:
+        seen = measured_by(measured, camera)
+        state = seen.state.clone()
+        state[..., column] = 0.0
+        return replace(seen, state=state)
+
+    rgbd.observe_rgbd_measured = without  # type: ignore[assignment]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--drop", choices=sorted(PARTS), required=True)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--config", default="configs/rgbd_15min.yaml")
+    parser.add_argument("--val_root", default="data/val100v")
+    parser.add_argument("--val_pairs", type=int, default=100)
+    args, fit_args = parser.parse_known_args()  # the rest go to ``fit`` as they are
+    leave_out(args.drop)
+    name = f"rgbd_no_{args.drop}" + (f"_s{args.seed}" if args.seed else "")
+    cli(
+        ["fit", "--config", args.config, "--seed_everything", str(args.seed)]
+        + ["--trainer.logger.init_args.name", name, *fit_args]
+    )
+    checkpoint = sorted(Path("runs", name).glob("version_*/checkpoints/last.ckpt"))[-1]
+    cli(
+        ["validate", "--config", args.config, "--ckpt_path", str(checkpoint)]
+        + ["--trainer.logger.init_args.name", f"{name}_val"]
+        + [f"--data.init_args.{k}={v}" for k, v in _validation_store(args).items()]
+    )
+
+
+def _validation_store(args: argparse.Namespace) -> dict[str, object]:
+    """The data arguments that read ``--val_root``'s validation pairs (each other split holds
+    the one record the data module asks at least)."""
+    return {
+        "root": args.val_root,
+        "val_pairs": args.val_pairs,
+        "train_examples": 1,
+        "test_pairs": 1,
+        "generalization_pairs": 1,
+        "generalization": False,
+    }
+
+
+if __name__ == "__main__":
+    main()
