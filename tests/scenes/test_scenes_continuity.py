@@ -105,6 +105,17 @@ def test_quadruplet_ball_comes_out_too_soon_or_too_late_where_it_should(seed):
         assert _column(inconsistent["mask"][later], ball) == pytest.approx(column, abs=0.5)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_neither_future_shows_the_ball_at_the_frame_edge(seed):
+    """From m on no video of a quadruplet shows the ball in the frame's border pixels: the two
+    futures differ in when it comes out, not in whether it leaves the view (at version 13 B's
+    did at its last frame in 93 of 100 validation quadruplets, A's in none)."""
+    m, ball, videos = _quadruplet_videos(seed)
+    for video in videos:
+        edge = continuity.at_frame_edge(video["mask"].numpy(), ball)
+        assert not edge[m:].any()
+
+
 def test_the_least_shift_is_0_4_s_in_whole_frames_and_one_at_least():
     shift = continuity.quadruplet_min_shift
     assert shift(VIDEO) == 2  # 5 fps
@@ -174,16 +185,20 @@ def _parameters(sampler, draws: int) -> dict[str, np.ndarray]:
     return {name: np.array([row[name] for row in rows]) for name in rows[0]}
 
 
-@pytest.mark.parametrize("variant", ["standard", "three_pillars"])
+@pytest.mark.parametrize("variant", ["standard", "three_pillars", "quadruplet"])
 def test_probe_parameters_lie_inside_the_examples_ranges(variant):
     """Examples are like probes but unconstrained: every probe parameter falls inside the
-    examples' range, and a real share of examples falls inside the probes' range."""
+    examples' range, and a real share of examples falls inside the probes' range (the
+    quadruplet's: its narrower screen, its ball ending near it)."""
     examples = _parameters(lambda rng: continuity.example_layout(rng, VIDEO.duration), 3000)
 
     def probe_sampler(rng):
         while True:  # as draw_until_valid: a layout needing a speed outside the range is redrawn
+            camera = continuity.CAMERA.sample(rng)
             try:
-                return continuity.probe_layout(rng, variant, continuity.CAMERA.sample(rng), VIDEO)
+                if variant == "quadruplet":
+                    return continuity.gap_block_layout(rng, camera, VIDEO, quadruplet=True)
+                return continuity.probe_layout(rng, variant, camera, VIDEO)
             except RejectedSample:
                 pass
 

@@ -38,6 +38,7 @@ from voe_lightning.scenes.camera import (
 from voe_lightning.scenes.recording import (
     Video,
     draw_clip,
+    head,
     join,
     pair_record,
     quadruplet_record,
@@ -64,6 +65,7 @@ PILLAR_DEPTH = 0.12
 VISIBLE_SHARE = 0.5
 
 #: Parameter ranges (uniform). Probes draw inside the examples' ranges (docs/architecture.md §4).
+Range = tuple[float, float]
 PILLAR_WIDTH = (0.42, 0.55)
 GAP = (0.45, 0.9)
 THREE_PILLAR_GAP = (0.8, 0.9)  # the outer pair as in training, from the wide end of GAP
@@ -78,6 +80,14 @@ PROBE_SPEED = (0.55, 1.2)
 #: Where a quadruplet's ball starts, as a share of the room before the screen (the probes': all
 #: of it): near the frame edge, so it is seen long enough before the screen for the shift.
 QUADRUPLET_START_SHARE = 0.15
+#: A quadruplet's screen, from the narrow end of the training ranges, and where its ball ends
+#: in A (a share of the room in view past the screen): room enough for B's ball, k frames
+#: further on, to end in view too. Neither future shows the ball at the frame's edge
+#: (``_quadruplet``); at version 13 B's did in its last frame and A's did not in 93 of 100
+#: validation quadruplets, a difference of the two futures that is not the concept's.
+QUADRUPLET_GAP = (0.45, 0.6)
+QUADRUPLET_PILLAR_WIDTH = (0.42, 0.46)
+QUADRUPLET_END_SHARE = 0.1
 #: The least time by which a quadruplet's inconsistent ball comes out too soon or too late.
 QUADRUPLET_MIN_SHIFT = 0.4
 EXAMPLE_SPEED = (0.4, 1.5)
@@ -203,12 +213,15 @@ def full_ball_pixels(sim: Simulation, radius: float, y: float) -> float:
     return float(np.pi * (focal_length(sim.video) * radius / depth) ** 2)
 
 
-def _pillars(rng: np.random.Generator, num_pillars: int) -> tuple[list[float], list[float]]:
-    """Pillar centres (around 0) and widths: a pair, or the three-pillar probe's pair from the
-    wide end of the training gaps with a narrow pillar in the middle."""
-    width = float(rng.uniform(*PILLAR_WIDTH))
+def _pillars(
+    rng: np.random.Generator, num_pillars: int, screen: tuple[Range, Range] = (GAP, PILLAR_WIDTH)
+) -> tuple[list[float], list[float]]:
+    """Pillar centres (around 0) and widths: a pair (its gap and width drawn from ``screen``),
+    or the three-pillar probe's pair from the wide end of the training gaps with a narrow
+    pillar in the middle."""
+    width = float(rng.uniform(*screen[1]))
     if num_pillars == 2:
-        gap = float(rng.uniform(*GAP))
+        gap = float(rng.uniform(*screen[0]))
         return [-(gap + width) / 2, (gap + width) / 2], [width, width]
     gap = float(rng.uniform(*THREE_PILLAR_GAP))
     middle = float(rng.uniform(*MIDDLE_PILLAR_WIDTH))
@@ -221,12 +234,15 @@ def probe_layout(
     camera: CameraPose,
     video: VideoOptions,
     start_share: float = 1.0,
+    end_share: float = 1.0,
+    screen: tuple[Range, Range] = (GAP, PILLAR_WIDTH),
 ) -> Layout:
     """Pillars a little upstream of the view's centre (three for ``three_pillars``, else two)
     and a ball rolling freely behind them at constant speed from the frame edge or nearer (up to
-    ``start_share`` of the way to the first pillar), ending in view past the last pillar
-    (RejectedSample if that needs a speed outside PROBE_SPEED)."""
-    centres, widths = _pillars(rng, 3 if variant == "three_pillars" else 2)
+    ``start_share`` of the way to the first pillar), ending in view past the last pillar (up to
+    ``end_share`` of the way from it to the far edge; RejectedSample if that needs a speed
+    outside PROBE_SPEED); two pillars' gap and width drawn from ``screen``."""
+    centres, widths = _pillars(rng, 3 if variant == "three_pillars" else 2, screen)
     radius = float(rng.uniform(*PROBE_BALL_RADIUS))
     depth = float(rng.uniform(*PROBE_BALL_DEPTH))
     direction = float(rng.choice([-1.0, 1.0]))
@@ -248,7 +264,7 @@ def probe_layout(
     if direction * (before - upstream) < 0 or direction * (inside - past) < 0:
         raise RejectedSample("the pillars leave no room in view before or after them")
     start = upstream + start_share * float(rng.random()) * (before - upstream)
-    end = past + float(rng.random()) * (inside - past)
+    end = past + end_share * float(rng.random()) * (inside - past)
     speed = direction * (end - start) / ((video.num_frames - 1) * video.duration / video.num_frames)
     if not PROBE_SPEED[0] <= speed <= PROBE_SPEED[1]:
         raise RejectedSample(f"the ball would roll at {speed:.2f} m/s, outside {PROBE_SPEED}")
@@ -351,11 +367,27 @@ def _standard(
 
 
 def gap_block_layout(
-    rng: np.random.Generator, camera: CameraPose, video: VideoOptions, start_share: float = 1.0
+    rng: np.random.Generator,
+    camera: CameraPose,
+    video: VideoOptions,
+    quadruplet: bool = False,
 ) -> Layout:
-    """The standard probe's pillars and ball (``probe_layout``) with a block 0.75 to 1 times
-    their height filling the gap: one long screen the ball is hidden behind throughout."""
-    layout = probe_layout(rng, "standard", camera, video, start_share)
+    """The standard probe's pillars and ball (``probe_layout``; a ``quadruplet``'s narrower, its
+    ball from near the frame's edge to near the screen) with a block 0.75 to 1 times their
+    height filling the gap: one long screen the ball is hidden behind throughout."""
+    layout = (
+        probe_layout(
+            rng,
+            "standard",
+            camera,
+            video,
+            QUADRUPLET_START_SHARE,
+            QUADRUPLET_END_SHARE,
+            (QUADRUPLET_GAP, QUADRUPLET_PILLAR_WIDTH),
+        )
+        if quadruplet
+        else probe_layout(rng, "standard", camera, video)
+    )
     layout.gap_block_height = layout.pillar_height * float(rng.uniform(0.75, 1.0))
     return layout
 
@@ -405,19 +437,37 @@ def _quadruplet(
 ) -> tuple[Simulation, tuple[tuple[Video, Video], tuple[Video, Video]], int]:
     """One roll behind the gap_block screen seen from two moments: A from the launch, B the
     same roll k frames later, k as large as leaves B's ball well seen before m (A's first
-    frame with the ball wholly hidden) and still hidden at m, and at least QUADRUPLET_MIN_SHIFT.
+    frame with the ball wholly hidden), still hidden at m and off the frame's edge to its last
+    frame, and at least QUADRUPLET_MIN_SHIFT.
     Both show nothing of the ball at m, so they render alike there; AB's ball comes out k
-    frames too soon, BA's k frames too late, at the same place as in A and B."""
-    layout = gap_block_layout(rng, camera, video, QUADRUPLET_START_SHARE)
+    frames too soon, BA's k frames too late, at the same place as in A and B. From m on neither
+    shows the ball at the frame's edge: the two futures differ in when it comes out, not in
+    whether it leaves the view."""
+    layout = gap_block_layout(rng, camera, video, quadruplet=True)
     sim = build(rng, video, camera, layout)
     first, _, positions = record_tracking(sim, "ball")
     check_hidden_over_block(sim, layout, first[1], positions)
     last_seen, vanish, back = behind_the_screen(sim, layout, first[1])
+    ball = sim.mask_id("ball")
+    if at_frame_edge(first[1], ball)[vanish:].any():
+        raise RejectedSample("the ball reaches the frame's edge after the change")
     later = min(last_seen, back - vanish - 1)
+    beyond = sim.record(later)  # A's roll on after its last frame, as far as B may go
+    edge = np.flatnonzero(at_frame_edge(beyond[1], ball))
+    later = min(later, int(edge[0])) if len(edge) else later  # B's ball off the edge too
     if later < quadruplet_min_shift(video):
         raise RejectedSample(f"the ball can come out only {later} frames too soon or too late")
-    second = join(tail(first, later), sim.record(later))
+    second = join(tail(first, later), head(beyond, later))
     return sim, recording.quadruplet(first, second, vanish), vanish
+
+
+def at_frame_edge(masks: np.ndarray, object_id: int) -> np.ndarray:
+    """Per frame of ``masks`` [T, H, W], whether ``object_id`` shows in the frame's border
+    pixels: part of it may lie outside the view."""
+    shown = masks == object_id
+    rows, columns = shown[:, [0, -1]].any((1, 2)), shown[:, :, [0, -1]].any((1, 2))
+    edge: np.ndarray = rows | columns
+    return edge
 
 
 #: The fewest frames a quadruplet is drawn in: in fewer, the ball is seen in at most one frame

@@ -49,6 +49,12 @@ def join(prefix: Video, rest: Video) -> Video:
     return frames, masks, objects
 
 
+def head(video: Video, stop: int) -> Video:
+    """The part of ``video`` before frame ``stop`` (frames, masks and object states)."""
+    frames, masks, objects = video
+    return frames[:stop], masks[:stop], objects[:stop]
+
+
 def tail(video: Video, start: int) -> Video:
     """The part of ``video`` from frame ``start`` on (frames, masks and object states)."""
     frames, masks, objects = video

@@ -58,8 +58,9 @@ SHARD_SUFFIX = ".voe"
 #: 12: continuity's quadruplet rolls behind the gap_block screen, its inconsistent ball coming
 #: out too soon or too late where the consistent one does (no rule without dynamics passes it);
 #: 13: every video's ``depth``, what the depth image shows of each id (frames, masks and object
-#: states as in 12).
-GENERATOR_VERSION = 13
+#: states as in 12); 14: continuity's quadruplet screen is from the narrow end of the training
+#: ranges and neither future shows its ball at the frame's edge (at 13, B's did and A's did not).
+GENERATOR_VERSION = 14
 
 
 def check_split_name(split: str) -> None:
