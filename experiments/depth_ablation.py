@@ -3,7 +3,7 @@ trained with one part of the depth left out, zeroed in every state the rung read
 clips and probes alike), then validated on a store of validation probes. A part whose removal
 costs no concept on validation is a given no measurement needs.
 
-    python experiments/depth_ablation.py --drop cut --seed 0 --val_root data/val100v
+    python experiments/depth_ablation.py --drop cut --seed 0 --val_root data/val_probes
 
 ``--drop``: ``span`` (mean less least depth), ``cut`` (the outline's covered share), ``mean``
 (the mean depth; the rung's position then holds the image plane alone). Other arguments go to
@@ -48,7 +48,7 @@ def main() -> None:
     parser.add_argument("--drop", choices=sorted(PARTS), required=True)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--config", default="configs/rgbd_15min.yaml")
-    parser.add_argument("--val_root", default="data/val100v")
+    parser.add_argument("--val_root", default="data/val_probes")
     parser.add_argument("--val_pairs", type=int, default=100)
     args, fit_args = parser.parse_known_args()  # the rest go to ``fit`` as they are
     leave_out(args.drop)

@@ -6,7 +6,7 @@ one-sample t; and in how many pairs each video shows it at the edge in its last 
 carried by the edge frames follows the object leaving the view, not the concept.
 
     python experiments/frame_edge.py runs/rgbd_15min/version_0/checkpoints/last.ckpt \
-        --root data/val100v --concept continuity
+        --root data/val_probes --concept continuity
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def by_frame(model: ObjectStateModel, video, camera) -> torch.Tensor:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("checkpoint")
-    parser.add_argument("--root", default="data/val100v")
+    parser.add_argument("--root", default="data/val_probes")
     parser.add_argument("--concept", default="continuity")
     args = parser.parse_args()
     model = ObjectStateModel.load_from_checkpoint(args.checkpoint, map_location="cpu").eval()

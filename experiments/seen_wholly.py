@@ -6,7 +6,7 @@ the frames at which the manipulated object is seen at all and those at which it 
 whole over the whole clip. What a learner on masks and depth can know of a size or a speed it
 knows from such frames; an oracle's states give both whenever any of the object shows.
 
-    python experiments/seen_wholly.py --root data/val100v --train_root data/states_10k
+    python experiments/seen_wholly.py --root data/val_probes --train_root data/states_10k
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ def share(counts: Counter[int], least: int) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--root", default="data/val100v")
+    parser.add_argument("--root", default="data/val_probes")
     parser.add_argument("--train_root", default="data/states_10k")
     parser.add_argument("--clips", type=int, default=3000)
     parser.add_argument("--concepts", nargs="+", default=list(specs.QUADRUPLET_CONCEPTS))

@@ -5,9 +5,10 @@ measures of the same pixels (``specs.depth_spec``): their mean depth along the v
 least depth and the share of the id's outline that a nearer surface (or the frame's edge) cuts.
 Each is a function of frame t's image, depth image and mask alone; no shape label, no amodal
 state. Given and not yet measured one by one: the depth span and the cut share (with its 3 cm
-``scenes.depth.CUT_MARGIN``); with them the rung passes 3, 2 and 3 of 5 at three seeds on a
-fresh set, the mask rung without any depth 1 (docs/study/learned_physics.md), so the depth as
-a whole is kept by measurement, each of its parts not yet."""
+``scenes.depth.CUT_MARGIN``; ``experiments/depth_ablation.py`` measures each). With them the
+rung passes 3, 2 and 3 of 5 at three seeds on a fresh set of stimuli version 14, object
+persistence and containment at two, which the mask rung without any depth fails
+(docs/study/learned_physics.md): the depth as a whole is kept by measurement, its parts not yet."""
 
 from __future__ import annotations
 
