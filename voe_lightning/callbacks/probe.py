@@ -56,8 +56,9 @@ class VOEProbeCallback(RunAlpha, L.Callback):
     they are); and each quadruplet the validation probes hold (matched by seed,
     ``verdicts.quadruplets``), ``voe/<concept>/<quadruplet row>/...`` with its halves' means
     (``first_half``, ``second_half``): the quadruplet test the verdict reads, as the report's.
-    At the end of ``fit`` (and of ``validate``) it prints the last table with each concept's verdict at ``alpha``,
-    the run's significance level (the CLI gives the run's ``alpha``, configs/base.yaml).
+    At the end of ``fit`` (and of ``validate``) it prints the last table with each concept's
+    verdict at ``alpha``, the run's significance level (the CLI gives the run's ``alpha``,
+    configs/base.yaml).
     A ``surprise_window`` other than all frames (``surprise_window.surprise_window``; the CLI
     gives the run's) logs the same statistics of each video's surprise summed over that window
     beside them, as ``voe_window/...``. Each validation run also checks causality

@@ -64,8 +64,9 @@ PILLAR_DEPTH = 0.12
 #: A ball counts as seen when at least this share of its largest visible area shows.
 VISIBLE_SHARE = 0.5
 
-#: Parameter ranges (uniform). Probes draw inside the examples' ranges (docs/architecture.md §4).
+#: A (low, high) range of a uniform draw.
 Range = tuple[float, float]
+#: Parameter ranges (uniform). Probes draw inside the examples' ranges (docs/architecture.md §4).
 PILLAR_WIDTH = (0.42, 0.55)
 GAP = (0.45, 0.9)
 THREE_PILLAR_GAP = (0.8, 0.9)  # the outer pair as in training, from the wide end of GAP
