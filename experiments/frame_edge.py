@@ -23,7 +23,7 @@ from voe_lightning.data.store import open_split
 from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.likelihood import rectified_excess
 from voe_lightning.model.object_state.state import SLOT_TERMS
-from voe_lightning.scenes.continuity import at_frame_edge
+from voe_lightning.scenes.ball_sight import at_frame_edge
 
 
 def by_frame(model: ObjectStateModel, video, camera) -> torch.Tensor:

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from voe_lightning.scenes import continuity, generate_clip, generate_probe
+from voe_lightning.scenes.ball_sight import at_frame_edge, ball_pixels, what_hides_ball
 from voe_lightning.scenes.camera import VideoOptions, pixel_of, x_at_column
 from voe_lightning.scenes.recording import record_tracking
 from voe_lightning.scenes.sampling import RejectedSample, rng_for
@@ -112,7 +113,7 @@ def test_neither_future_shows_the_ball_at_the_frame_edge(seed):
     did at its last frame in 93 of 100 validation quadruplets, A's in none)."""
     m, ball, videos = _quadruplet_videos(seed)
     for video in videos:
-        edge = continuity.at_frame_edge(video["mask"].numpy(), ball)
+        edge = at_frame_edge(video["mask"].numpy(), ball)
         assert not edge[m:].any()
 
 
@@ -292,9 +293,9 @@ def test_projection_lands_on_the_rendered_ball():
     layout = continuity.probe_layout(rng, "standard", camera, VIDEO)
     sim = continuity.build(rng, VIDEO, camera, layout)
     (_, masks, _), states, positions = record_tracking(sim, "ball")
-    seen = continuity.what_hides_ball(sim, masks, positions)
+    seen = what_hides_ball(sim, masks, positions)
     ball = sim.mask_id("ball")
-    pixels = continuity.ball_pixels(masks, ball)
+    pixels = ball_pixels(masks, ball)
     visible_in_frame = (pixels >= 0.9 * pixels.max()) & (seen != -1)
     assert visible_in_frame.sum() >= 3
     assert (seen[visible_in_frame] == ball).all(), "the projected centre lies on the ball"

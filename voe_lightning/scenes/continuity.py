@@ -14,9 +14,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import cast
 
 import numpy as np
 from tensordict import TensorDict
@@ -24,14 +22,18 @@ from tensordict import TensorDict
 from voe_lightning import specs
 from voe_lightning.scenes import recording
 from voe_lightning.scenes.appearance import distinct_colors
+from voe_lightning.scenes.ball_sight import (
+    at_frame_edge,
+    ball_pixels,
+    column,
+    full_ball_pixels,
+    what_hides_ball,
+)
 from voe_lightning.scenes.builder import SceneBuilder
 from voe_lightning.scenes.camera import (
     CameraPose,
     CameraRange,
     VideoOptions,
-    camera_axes,
-    focal_length,
-    pixel_of,
     view_edges,
     x_at_column,
 )
@@ -81,13 +83,9 @@ PROBE_SPEED = (0.55, 1.2)
 #: Where a quadruplet's ball starts, as a share of the room before the screen (the probes': all
 #: of it): near the frame edge, so it is seen long enough before the screen for the shift.
 QUADRUPLET_START_SHARE = 0.15
-#: A quadruplet's screen, from the narrow end of the training ranges, and where its ball ends
-#: in A (a share of the room in view past the screen): room enough for B's ball, k frames
-#: further on, to end in view too. Neither future shows the ball at the frame's edge
-#: (``_quadruplet``); at version 13 B's did in its last frame and A's did not in 93 of 100
-#: validation quadruplets, a difference of the two futures that is not the concept's.
-QUADRUPLET_GAP = (0.45, 0.6)
-QUADRUPLET_PILLAR_WIDTH = (0.42, 0.46)
+#: A quadruplet's screen (gap, pillar width) from the narrow end of the training ranges, and where
+#: A's ball ends (a share of the room past it): room for B's ball, k frames on, to end in view.
+QUADRUPLET_SCREEN = ((0.45, 0.6), (0.42, 0.46))
 QUADRUPLET_END_SHARE = 0.1
 #: The least time by which a quadruplet's inconsistent ball comes out too soon or too late.
 QUADRUPLET_MIN_SHIFT = 0.4
@@ -183,35 +181,6 @@ def launch(
     vx, vy = velocity
     sim.move("ball", start)
     sim.set_velocity("ball", (vx, vy, 0.0), (-vy / radius, vx / radius, 0.0))
-
-
-def ball_pixels(masks: np.ndarray, ball_id: int) -> np.ndarray:
-    """Visible ball pixels per frame."""
-    return cast(np.ndarray, (masks == ball_id).sum(axis=(1, 2)))
-
-
-def what_hides_ball(sim: Simulation, masks: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """Per frame, the mask id seen at the ball's centre (the ball's own id when it shows, an
-    occluder's id when hidden, 0 for floor or -1 when its centre is outside the frame)."""
-    video = sim.video
-    seen = np.full(len(masks), -1)
-    for t, position in enumerate(positions):
-        row, column = pixel_of(sim.camera, video, position)
-        if 0 <= row < video.height and 0 <= column < video.width:
-            seen[t] = masks[t, row, column]
-    return seen
-
-
-def column(sim: Simulation, point: Sequence[float] | np.ndarray) -> int:
-    """Image column of the world ``point``."""
-    return pixel_of(sim.camera, sim.video, point)[1]
-
-
-def full_ball_pixels(sim: Simulation, radius: float, y: float) -> float:
-    """Roughly how many pixels a whole ball of ``radius`` at depth ``y`` covers."""
-    position, _, _, forward = camera_axes(sim.camera)
-    depth = (np.array([position[0], y, radius]) - position) @ forward
-    return float(np.pi * (focal_length(sim.video) * radius / depth) ** 2)
 
 
 def _pillars(
@@ -376,19 +345,9 @@ def gap_block_layout(
     """The standard probe's pillars and ball (``probe_layout``; a ``quadruplet``'s narrower, its
     ball from near the frame's edge to near the screen) with a block 0.75 to 1 times their
     height filling the gap: one long screen the ball is hidden behind throughout."""
-    layout = (
-        probe_layout(
-            rng,
-            "standard",
-            camera,
-            video,
-            QUADRUPLET_START_SHARE,
-            QUADRUPLET_END_SHARE,
-            (QUADRUPLET_GAP, QUADRUPLET_PILLAR_WIDTH),
-        )
-        if quadruplet
-        else probe_layout(rng, "standard", camera, video)
-    )
+    shares = (QUADRUPLET_START_SHARE, QUADRUPLET_END_SHARE) if quadruplet else (1.0, 1.0)
+    screen = QUADRUPLET_SCREEN if quadruplet else (GAP, PILLAR_WIDTH)
+    layout = probe_layout(rng, "standard", camera, video, *shares, screen)
     layout.gap_block_height = layout.pillar_height * float(rng.uniform(0.75, 1.0))
     return layout
 
@@ -460,15 +419,6 @@ def _quadruplet(
         raise RejectedSample(f"the ball can come out only {later} frames too soon or too late")
     second = join(tail(first, later), head(beyond, later))
     return sim, recording.quadruplet(first, second, vanish), vanish
-
-
-def at_frame_edge(masks: np.ndarray, object_id: int) -> np.ndarray:
-    """Per frame of ``masks`` [T, H, W], whether ``object_id`` shows in the frame's border
-    pixels: part of it may lie outside the view."""
-    shown = masks == object_id
-    rows, columns = shown[:, [0, -1]].any((1, 2)), shown[:, :, [0, -1]].any((1, 2))
-    edge: np.ndarray = rows | columns
-    return edge
 
 
 #: The fewest frames a quadruplet is drawn in: in fewer, the ball is seen in at most one frame
