@@ -17,6 +17,7 @@ from collections import defaultdict
 import numpy as np
 import torch
 from scipy import stats
+from surprise_terms import rollout_of
 
 from voe_lightning import specs
 from voe_lightning.data.store import open_split
@@ -28,10 +29,7 @@ from voe_lightning.scenes.ball_sight import at_frame_edge
 
 def by_frame(model: ObjectStateModel, video, camera) -> torch.Tensor:
     """One video's surprise per frame [T], every term summed over slots."""
-    read = model.inputs_read()
-    inputs = {name: video[name][None] for name in ("objects", "mask", "depth") if name in read}
-    with torch.no_grad():
-        out = model.rollout(model._inputs(video["frames"][None], camera=camera[None], **inputs))
+    out = rollout_of(model, video, camera)
     per_slot = sum(rectified_excess(out[t], out[f"{t}_entropy"])[0] for t in SLOT_TERMS)
     return per_slot.sum(-1) + rectified_excess(out["appear"], out["appear_entropy"])[0]
 

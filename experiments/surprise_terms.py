@@ -27,13 +27,17 @@ from voe_lightning.model.object_state.state import SLOT_TERMS
 TERMS = (*SLOT_TERMS, "appear")
 
 
-def term_totals(model: ObjectStateModel, video, camera) -> dict[str, float]:
-    """One video's surprise by term, summed over frames and slots."""
+def rollout_of(model: ObjectStateModel, video, camera) -> dict[str, torch.Tensor]:
+    """The learner's rollout of one video (a batch of one), from the inputs it reads."""
     read = model.inputs_read()
     inputs = {name: video[name][None] for name in ("objects", "mask", "depth") if name in read}
     with torch.no_grad():
-        observations = model._inputs(video["frames"][None], camera=camera[None], **inputs)
-        out = model.rollout(observations)
+        return model.rollout(model._inputs(video["frames"][None], camera=camera[None], **inputs))
+
+
+def term_totals(model: ObjectStateModel, video, camera) -> dict[str, float]:
+    """One video's surprise by term, summed over frames and slots."""
+    out = rollout_of(model, video, camera)
     return {
         name: float(rectified_excess(out[name], out[f"{name}_entropy"]).sum()) for name in TERMS
     }
