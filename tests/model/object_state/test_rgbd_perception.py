@@ -15,7 +15,7 @@ from voe_lightning.model import ObjectStateModel
 from voe_lightning.model.base import SurpriseModel, video_inputs
 from voe_lightning.model.object_state.arguments import GEOMETRY_OFF
 from voe_lightning.model.object_state.masks import observe_masks, observe_measured, per_id, seen_box
-from voe_lightning.model.object_state.rgbd import CUT, RGBD, observe_rgbd, observe_rgbd_measured
+from voe_lightning.model.object_state.rgbd import RGBD, observe_rgbd, observe_rgbd_measured
 
 SLOTS = specs.OBJECT_SLOTS
 RGBD_OPTIONS = dict(perception="rgbd", hidden_size=8, message_size=4, **GEOMETRY_OFF)
@@ -47,30 +47,28 @@ def test_each_slot_reads_its_ids_pixels_and_depth_and_nothing_while_hidden():
     observed = observe_rgbd(mask, frames, depth, camera)
     assert observed.ids.tolist() == [[1, 2, 3]]  # in the order first seen
     assert observed.visible[0].tolist() == [[True, True, False], [False, True, True]]
-    # [cx, cy, mean depth | hx, hy, area, depth span | r, g, b | cut]
+    # [cx, cy, mean depth | hx, hy, area | r, g, b]: the least depth and the cut share unread
     expected = torch.tensor(
         [
             [
-                [-0.5, 0.5, 3.0, 0.5, 0.5, 0.25, 0.5, 1, 0, 0, 0.25],
-                [0.25, -0.25, 4.0, 0.25, 0.25, 1 / 16, 0.0, 0, 1, 0, 1.0],
-                [0.0] * 11,
+                [-0.5, 0.5, 3.0, 0.5, 0.5, 0.25, 1, 0, 0],
+                [0.25, -0.25, 4.0, 0.25, 0.25, 1 / 16, 0, 1, 0],
+                [0.0] * 9,
             ],
             [
-                [0.0] * 11,
-                [0.25, -0.25, 4.5, 0.25, 0.25, 1 / 16, 0.25, 0, 1, 0, 0.5],
-                [0.75, -0.75, 2.0, 0.25, 0.25, 1 / 16, 0.5, 0, 0, 1, 0.0],
+                [0.0] * 9,
+                [0.25, -0.25, 4.5, 0.25, 0.25, 1 / 16, 0, 1, 0],
+                [0.75, -0.75, 2.0, 0.25, 0.25, 1 / 16, 0, 0, 1],
             ],
         ]
     )
     torch.testing.assert_close(observed.state[0], expected)
     torch.testing.assert_close(observed.fraction[0], expected[..., 5])
     assert (observed.shape == 0).all()  # no shape label
-    assert RGBD.size == 11 and RGBD.position_size == 3 and CUT == RGBD.size - 1
+    assert RGBD.size == 9 and RGBD.position_size == 3
     # the masks' part of the state is exactly the mask rung's
     masks = observe_masks(mask, frames, camera).state
-    two_d = torch.cat(
-        [observed.state[..., 0:2], observed.state[..., 3:6], observed.state[..., 7:10]], -1
-    )
+    two_d = torch.cat([observed.state[..., 0:2], observed.state[..., 3:9]], -1)
     assert torch.equal(two_d, masks)
     with pytest.raises(ValueError, match=r"depth must be \[B, T, 33, 3\].*got \(1, 2, 5, 3\)"):
         per_id(mask, frames, depth[:, :, :5])

@@ -122,8 +122,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
 
     With ``perception: rgbd`` (the RGB-D rung, ``configs/rgbd_15min.yaml``) it is given what a
     depth camera and a tracker give: per mask id and frame, the mask rung's 2D measures of its
-    visible pixels plus their mean and nearest depth along the view axis and the share of its
-    outline that a nearer surface (or the frame's edge) cuts, from the record's ``mask``,
+    visible pixels plus their mean depth along the view axis, from the record's ``mask``,
     ``frames`` and ``depth`` (``rgbd.observe_rgbd``); no 3D box, no shape label, no oracle, and
     it never reads ``objects``. Its state (``rgbd.RGBD``) holds the mean depth in its position,
     so its velocity holds the change in depth; ``projection`` reads the pixels' boxes.
@@ -136,9 +135,9 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     Args:
         perception: ``"states"`` (perfect 3D perception, ``specs.objects_spec``),
             ``"masks"`` (what the mask and frames show of each id, no 3D state), ``"rgbd"``
-            (the masks' measures of each id plus the mean and nearest depth of its visible
-            pixels and the share of its outline a nearer surface cuts, ``specs.depth_spec``:
-            no 3D box, no shape label, no oracle; never reads ``objects``) or ``"pixels"`` (a
+            (the masks' measures of each id plus the mean depth of its visible pixels,
+            ``specs.depth_spec``: no 3D box, no shape label, no oracle; never reads
+            ``objects``) or ``"pixels"`` (a
             learned code of each id's pixels).
         hidden_size: recurrent state per slot and width of the MLPs.
         message_size: size of the summed pair messages.

@@ -1,16 +1,14 @@
 """The RGB-D rung of the learner's perception: what a depth camera and a tracker give, with no 3D
 box. Per frame and visible mask id, the mask rung's measures of its pixels (``masks.py``: the
-image-plane centroid and half-extents, the area, the mean colour) and the record's ``depth``
-measures of the same pixels (``specs.depth_spec``): their mean depth along the view axis, their
-least depth and the share of the id's outline that a nearer surface (or the frame's edge) cuts.
-Each is a function of frame t's image, depth image and mask alone; no shape label, no amodal
-state. The depth as a whole is kept by measurement: with it the rung passes 3, 2 and 3 of 5 at
-three seeds on a fresh set of stimuli version 14, object persistence and containment at two,
-which the mask rung without any depth fails (docs/study/learned_physics.md). Its parts are not:
-on 100 validation quadruplets of version 13, seed 0 passes 2 of 5 with the depth span and the
-cut share (3 cm ``scenes.depth.CUT_MARGIN``), 3 without the span, 2 without the cut share
-(``experiments/depth_ablation.py``); both are to go when the rung is next trained at three
-seeds."""
+image-plane centroid and half-extents, the area, the mean colour) and the mean depth of the
+same pixels along the view axis (the first of the record's ``depth`` measures,
+``specs.depth_spec``). Each is a function of frame t's image, depth image and mask alone; no
+shape label, no amodal state. The mean depth is kept by measurement: with it the rung passed 3,
+2 and 3 of 5 at three seeds on a fresh set of stimuli version 14, object persistence and
+containment at two, which the mask rung without it fails (docs/study/learned_physics.md). The
+record's other two measures (least depth, the share of the outline a nearer surface cuts) are
+not read: on 100 validation quadruplets of version 13 seed 0 passed 2 of 5 with both, 3 without
+the span, 2 without the cut share (``experiments/depth_ablation.py``), so neither was kept."""
 
 from __future__ import annotations
 
@@ -22,17 +20,10 @@ import torch
 from voe_lightning.model.object_state.masks import MASKS, observe_measured, per_id
 from voe_lightning.model.object_state.state import Observations, StateLayout, by_slot
 
-#: An RGB-D-perceived state [cx, cy, mean depth, hx, hy, area, depth span, r, g, b, cut]:
-#: what moves is the centroid (the mask rung's image plane) and the mean depth (m), so the
-#: velocity holds the change in depth; how big it is, the pixels' half-extents, their area and
-#: the depth span (mean less least depth: how far the seen surface reaches back); its mean
-#: colour; last, the share of its outline a nearer surface or the frame's edge cuts, predicted
-#: as the rest is.
-RGBD = StateLayout(
-    11, position=slice(0, 3), extent=slice(3, 7), color=slice(7, 10), orientation=None
-)
-#: Where the cut share lies in an ``RGBD`` state: the one part no named slice holds.
-CUT = 10
+#: An RGB-D-perceived state [cx, cy, mean depth, hx, hy, area, r, g, b]: what moves is the
+#: centroid (the mask rung's image plane) and the mean depth (m), so the velocity holds the
+#: change in depth; how big it is, the pixels' half-extents and their area; its mean colour.
+RGBD = StateLayout(9, position=slice(0, 3), extent=slice(3, 6), color=slice(6, 9), orientation=None)
 
 #: The missing depth, in one line: what reads it and which records carry it.
 NO_DEPTH = (
@@ -65,17 +56,10 @@ def observe_rgbd_measured(
         raise ValueError(NO_DEPTH.format(where="'depth' among its mask_features"))
     seen = observe_measured({k: v for k, v in measured.items() if k != "depth"}, camera)
     # zero where the id is not seen (``per_id``), as every other measure is
-    mean, near, cut = by_slot(measured["depth"], seen.ids).unbind(-1)
+    mean = by_slot(measured["depth"][..., :1], seen.ids)
     masks = seen.state
     state = torch.cat(
-        [
-            masks[..., MASKS.position],
-            mean[..., None],
-            masks[..., MASKS.extent],
-            (mean - near)[..., None],
-            masks[..., MASKS.color],
-            cut[..., None],
-        ],
+        [masks[..., MASKS.position], mean, masks[..., MASKS.extent], masks[..., MASKS.color]],
         dim=-1,
     )
     return replace(seen, state=state)

@@ -7,9 +7,8 @@ unchangeableness' attribute memory, the concept itself).
 Three inputs: ``states`` (the record's amodal 3D ``objects``, read only while an object is
 seen, as the 3D-state learner reads them), ``masks`` (what a camera and a tracker give: each
 mask id's image centroid, area and mean colour, ``object_state.masks.per_id``) and ``rgbd``
-(the masks' measures and what the depth image shows of each id, the record's ``depth``: its
-position the centroid and mean depth, its attributes the area, colour, depth span and the share
-of its outline a nearer surface cuts)."""
+(the masks' measures and what the RGB-D rung reads of the depth image, the mean depth of each
+id's visible pixels, which joins the centroid in its position)."""
 
 from __future__ import annotations
 
@@ -70,16 +69,13 @@ def mask_features(mask: torch.Tensor, frames: torch.Tensor) -> dict[str, torch.T
 def rgbd_features(
     mask: torch.Tensor, frames: torch.Tensor, depth: torch.Tensor
 ) -> dict[str, torch.Tensor]:
-    """``mask_features`` with what the depth image shows of each id (``depth`` [B, T, K, 3],
-    ``specs.depth_spec``): the mean depth joins the position, the depth span (mean less
-    nearest) and the cut share join the attributes."""
+    """``mask_features`` with what the RGB-D rung reads of the depth image (``depth``
+    [B, T, K, 3], ``specs.depth_spec``): each id's mean depth joins its position."""
     features = mask_features(mask, frames)
-    depth = depth.float()
-    span_and_cut = torch.stack([depth[..., 0] - depth[..., 1], depth[..., 2]], dim=-1)
     return {
         "seen": features["seen"],
-        "position": torch.cat([features["position"], depth[..., :1]], dim=-1),
-        "attributes": torch.cat([features["attributes"], span_and_cut], dim=-1),
+        "position": torch.cat([features["position"], depth.float()[..., :1]], dim=-1),
+        "attributes": features["attributes"],
     }
 
 
