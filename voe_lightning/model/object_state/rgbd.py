@@ -3,9 +3,9 @@ box. Per frame and visible mask id, the mask rung's measures of its pixels (``ma
 image-plane centroid and half-extents, the area, the mean colour) and the mean depth of the
 same pixels along the view axis (the first of the record's ``depth`` measures,
 ``specs.depth_spec``). Each is a function of frame t's image, depth image and mask alone; no
-shape label, no amodal state. The mean depth is kept by measurement: with it the rung passed 3,
-2 and 3 of 5 at three seeds on a fresh set of stimuli version 14, object persistence and
-containment at two, which the mask rung without it fails (docs/study/learned_physics.md). The
+shape label, no amodal state. The mean depth is kept by measurement: with it the rung passes 2,
+4 and 2 of 5 at three seeds on a fresh set of stimuli version 14, containment and object
+persistence at two, which the mask rung without it fails (docs/study/learned_physics.md). The
 record's other two measures (least depth, the share of the outline a nearer surface cuts) are
 not read: on 100 validation quadruplets of version 13 seed 0 passed 2 of 5 with both, 3 without
 the span, 2 without the cut share (``experiments/depth_ablation.py``), so neither was kept."""
