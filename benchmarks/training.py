@@ -3,7 +3,7 @@
 device has it, fused Adam, no host sync a step) with ``compile: off``; ``compiled``
 (``compile: frame``: the recurrent core's one-frame step and the encoder and decoder compiled);
 and on a GPU ``graphed`` (compiled, the loss's forward and backward replayed from CUDA graphs).
-Sizes from ``configs/quickstart.yaml`` and ``configs/paper.yaml``, at the config's batch and
+Sizes from ``configs/vrnn_quickstart.yaml`` and ``configs/paper.yaml``, at the config's batch and
 any ``--batch-size`` more.
 
 Clips are random uint8 held on the device (``voe_lightning.datamodules.resident``), so loading costs nothing.
@@ -70,9 +70,14 @@ PAPER_SEQUENCES = 2_000_000 * 10
 LOG_EVERY, TIMED_LOG_EVERY = 4, 50
 
 
+#: The config each size is read from: the quickstart size is the VRNN-LRU's quickstart.
+CONFIG_OF = {"quickstart": "vrnn_quickstart", "paper": "paper"}
+
+
 def config_sizes(name: str) -> tuple[dict, int]:
-    """Model sizes and batch size of ``configs/<name>.yaml`` (less ``NOT_FROM_CONFIG``)."""
-    config = yaml.safe_load((CONFIGS / f"{name}.yaml").read_text())
+    """Model sizes and batch size of size ``name``'s config (``CONFIG_OF``; less
+    ``NOT_FROM_CONFIG``)."""
+    config = yaml.safe_load((CONFIGS / f"{CONFIG_OF[name]}.yaml").read_text())
     arguments = dict(config["model"].get("init_args") or {})
     for setting in NOT_FROM_CONFIG:
         arguments.pop(setting, None)
@@ -299,9 +304,7 @@ def print_table(rows: list[dict], header_note: str) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
-    parser.add_argument(
-        "--models", nargs="+", choices=("quickstart", "paper"), default=["quickstart", "paper"]
-    )
+    parser.add_argument("--models", nargs="+", choices=tuple(CONFIG_OF), default=list(CONFIG_OF))
     parser.add_argument(
         "--paths",
         nargs="+",

@@ -156,6 +156,19 @@ def test_documented_package_command_parses(command):
     parsed(*command)
 
 
+def test_command_one_trains_a_camera_learner():
+    """README command 1 (``configs/quickstart.yaml``) trains the RGB-D rung, which reads what a
+    depth camera and a tracker give and never the amodal ``objects`` (issue 70); the paper's
+    VRNN-LRU at that size is one config away."""
+    model = compose("quickstart")["model"]
+    assert model["class_path"] == "voe_lightning.model.ObjectStateModel"
+    assert model["init_args"]["perception"] == "rgbd"
+    learner = imported(model["class_path"])(**model["init_args"])
+    assert "objects" not in learner.inputs_read() and "depth" in learner.inputs_read()
+    vrnn = compose("vrnn_quickstart")["model"]["class_path"]
+    assert vrnn == "voe_lightning.model.VRNNLRUModel"
+
+
 def test_later_configs_append_to_or_override_base():
     base = callbacks(compose("joint"))
     cpu = compose("cpu")

@@ -385,7 +385,7 @@ def untrained_null(
     ``out/null.png`` (``null_figure``, its path printed).
 
     Args:
-        configs: the test configs, in order, after base.yaml (e.g. configs/quickstart.yaml),
+        configs: the test configs, in order, after base.yaml (e.g. configs/vrnn_quickstart.yaml),
             with VOEReportCallback in the callbacks.
         seeds: initializations (seed_everything 0 .. seeds - 1).
         out: folder of the runs and the table.

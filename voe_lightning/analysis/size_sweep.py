@@ -150,7 +150,7 @@ def run_size_sweep(
 ) -> list[dict[str, Any]]:
     """Train one model per training-set size with ``cli_main(["fit", ...])``, the entry point of
     ``python -m voe_lightning`` (with each of ``configs`` in order, e.g.
-    ``configs/quickstart.yaml``; base.yaml is read first), and test it
+    ``configs/vrnn_quickstart.yaml``; base.yaml is read first), and test it
     on ``eval_sets`` x ``pairs_per_set`` test pairs, split into disjoint evaluation sets
     (``sweep_rows``). ``extra_args`` go to both commands, ``test_args`` to ``test`` only; in
     both ``{size}`` is replaced by the size (e.g. ``--data.root=data/sweep_{size}`` to keep

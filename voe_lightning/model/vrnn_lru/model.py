@@ -49,7 +49,7 @@ ARCHITECTURE = (
 class VRNNLRUModel(SurpriseModel):
     """VRNN with an LRU external memory (Piloto et al. 2018 §4, Gemici et al. 2017).
 
-    Defaults are the paper's sizes; ``configs/quickstart.yaml`` shrinks them for a CPU.
+    Defaults are the paper's sizes; ``configs/vrnn_quickstart.yaml`` shrinks them for a CPU.
 
     Args:
         image_size: (H, W) of the frames; both divisible by ``2**encoder_blocks``.
