@@ -17,6 +17,7 @@ from dataclasses import replace
 
 import torch
 
+from voe_lightning import specs
 from voe_lightning.model.object_state.masks import MASKS, observe_measured, per_id
 from voe_lightning.model.object_state.state import Observations, StateLayout, by_slot
 
@@ -24,6 +25,14 @@ from voe_lightning.model.object_state.state import Observations, StateLayout, by
 #: centroid (the mask rung's image plane) and the mean depth (m), so the velocity holds the
 #: change in depth; how big it is, the pixels' half-extents and their area; its mean colour.
 RGBD = StateLayout(9, position=slice(0, 3), extent=slice(3, 6), color=slice(6, 9), orientation=None)
+
+
+def mean_depth(depth: torch.Tensor) -> torch.Tensor:
+    """What the rung reads of a record's per-id depth measures [..., 3] (``specs.depth_spec``):
+    the mean depth alone [..., 1], float32; the least depth and the cut share stay unread."""
+    mean = specs.DEPTH_MEASURES.index("mean")
+    return depth[..., mean : mean + 1].float()
+
 
 #: The missing depth, in one line: what reads it and which records carry it.
 NO_DEPTH = (
@@ -56,7 +65,7 @@ def observe_rgbd_measured(
         raise ValueError(NO_DEPTH.format(where="'depth' among its mask_features"))
     seen = observe_measured({k: v for k, v in measured.items() if k != "depth"}, camera)
     # zero where the id is not seen (``per_id``), as every other measure is
-    mean = by_slot(measured["depth"][..., :1], seen.ids)
+    mean = by_slot(mean_depth(measured["depth"]), seen.ids)
     masks = seen.state
     state = torch.cat(
         [masks[..., MASKS.position], mean, masks[..., MASKS.extent], masks[..., MASKS.color]],

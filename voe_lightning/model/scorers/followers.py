@@ -18,6 +18,7 @@ from tensordict import TensorDictBase
 from voe_lightning import specs
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model.object_state.masks import per_id
+from voe_lightning.model.object_state.rgbd import mean_depth
 
 #: The rules, each an expectation with no dynamics, and what it is surprised by at frame t.
 RULES: dict[str, str] = {
@@ -74,7 +75,7 @@ def rgbd_features(
     features = mask_features(mask, frames)
     return {
         "seen": features["seen"],
-        "position": torch.cat([features["position"], depth.float()[..., :1]], dim=-1),
+        "position": torch.cat([features["position"], mean_depth(depth)], dim=-1),
         "attributes": features["attributes"],
     }
 
