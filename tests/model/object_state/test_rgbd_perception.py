@@ -47,28 +47,31 @@ def test_each_slot_reads_its_ids_pixels_and_depth_and_nothing_while_hidden():
     observed = observe_rgbd(mask, frames, depth, camera)
     assert observed.ids.tolist() == [[1, 2, 3]]  # in the order first seen
     assert observed.visible[0].tolist() == [[True, True, False], [False, True, True]]
-    # [cx, cy, mean depth | hx, hy, area | r, g, b]: the least depth and the cut share unread
+    # [cx, cy, mean depth | hx, hy, area, largest hx, hy times the depth | r, g, b]: the least
+    # depth and the cut share unread; id 2's largest grows with its depth, never shrinks
     expected = torch.tensor(
         [
             [
-                [-0.5, 0.5, 3.0, 0.5, 0.5, 0.25, 1, 0, 0],
-                [0.25, -0.25, 4.0, 0.25, 0.25, 1 / 16, 0, 1, 0],
-                [0.0] * 9,
+                [-0.5, 0.5, 3.0, 0.5, 0.5, 0.25, 1.5, 1.5, 1, 0, 0],
+                [0.25, -0.25, 4.0, 0.25, 0.25, 1 / 16, 1.0, 1.0, 0, 1, 0],
+                [0.0] * 11,
             ],
             [
-                [0.0] * 9,
-                [0.25, -0.25, 4.5, 0.25, 0.25, 1 / 16, 0, 1, 0],
-                [0.75, -0.75, 2.0, 0.25, 0.25, 1 / 16, 0, 0, 1],
+                [0.0] * 11,
+                [0.25, -0.25, 4.5, 0.25, 0.25, 1 / 16, 1.125, 1.125, 0, 1, 0],
+                [0.75, -0.75, 2.0, 0.25, 0.25, 1 / 16, 0.5, 0.5, 0, 0, 1],
             ],
         ]
     )
     torch.testing.assert_close(observed.state[0], expected)
     torch.testing.assert_close(observed.fraction[0], expected[..., 5])
     assert (observed.shape == 0).all()  # no shape label
-    assert RGBD.size == 9 and RGBD.position_size == 3
+    assert RGBD.size == 11 and RGBD.position_size == 3
     # the masks' part of the state is exactly the mask rung's
     masks = observe_masks(mask, frames, camera).state
-    two_d = torch.cat([observed.state[..., 0:2], observed.state[..., 3:9]], -1)
+    two_d = torch.cat(
+        [observed.state[..., 0:2], observed.state[..., 3:6], observed.state[..., 8:]], -1
+    )
     assert torch.equal(two_d, masks)
     with pytest.raises(ValueError, match=r"depth must be \[B, T, 33, 3\].*got \(1, 2, 5, 3\)"):
         per_id(mask, frames, depth[:, :, :5])
@@ -115,8 +118,8 @@ def probes() -> TensorDict:
 
 def test_the_rgbd_rungs_surprise_reads_depth_and_never_the_amodal_objects():
     """Issue 70 for the RGB-D rung: removing the probes' ``objects`` leaves every frame's
-    surprise exactly as it was; changing the ids' depth from frame t changes the surprise after
-    frame t (an untrained model's rectified excess may still read 0 at t) and not before; the
+    surprise exactly as it was; changing the ids' depth from frame t changes what the model
+    reads after frame t and not the surprise before; the
     probe step gives it the videos' depth, and a model that does
     not read depth is never given it."""
     from voe_lightning.audit.followers import features_read
@@ -140,7 +143,14 @@ def test_the_rgbd_rungs_surprise_reads_depth_and_never_the_amodal_objects():
     before = model.surprise(video["frames"], video["mask"], batch["camera"], depth=video["depth"])
     after = model.surprise(video["frames"], video["mask"], batch["camera"], depth=changed)
     assert torch.equal(before[:, :t], after[:, :t])
-    assert (before[:, t + 1 :] != after[:, t + 1 :]).all()  # each clip, every frame after t
+    # read after t: each clip's state terms differ at every frame after t (their rectified
+    # excess, the surprise, may read 0 in an untrained model)
+    terms = [
+        model.rollout(model._inputs(video["frames"], None, batch["camera"], video["mask"], depth=d))
+        for d in (video["depth"], changed)
+    ]
+    state_before, state_after = (out["state"].sum(-1) for out in terms)
+    assert (state_before[:, t + 1 :] != state_after[:, t + 1 :]).all()
     # the probe step hands each video's depth to the rgbd model: as scored alone
     scored = model.probe_step(batch)
     torch.testing.assert_close(scored["surprise_inconsistent"], before)

@@ -98,8 +98,10 @@ def test_an_unknown_rule_or_input_and_missing_states_are_refused():
 
 def test_rgbd_rules_read_the_depth_beside_the_masks():
     """The mask video above, its object 2 m away, then 2.5 m at frame 1, its outline cut
-    (a share of 0.5) from frame 2: the mean depth joins the position; the cut share, which the
-    RGB-D rung does not read, changes no attribute."""
+    (a share of 0.5) from frame 2: the mean depth joins the position and, times the pixels'
+    half-extents, the largest size shown (0.5 by 0.25 of the image plane at 2 m, then 2.5 m:
+    (1.0, 0.5), then (1.25, 0.625)) joins the attributes; the cut share, which the RGB-D rung
+    does not read, changes none."""
     mask = torch.zeros(1, 4, 4, 4, dtype=torch.uint8)
     frames = torch.zeros(1, 4, 4, 4, 3, dtype=torch.uint8)
     mask[0, :3, 0, 0:2] = 3
@@ -110,7 +112,7 @@ def test_rgbd_rules_read_the_depth_beside_the_masks():
     moved = follower.surprise(frames, mask, depth=depth)
     assert torch.allclose(moved[0], torch.tensor([0.0, 0.5, 0.0, 0.0]))
     changed = ObjectFollower("attributes", "rgbd").surprise(frames, mask, depth=depth)
-    assert torch.allclose(changed[0], torch.zeros(4))
+    assert torch.allclose(changed[0], torch.tensor([0.0, (0.25**2 + 0.125**2) ** 0.5, 0.0, 0.0]))
     assert ObjectFollower("seen_again", "rgbd").surprise(frames, mask, depth=depth)[0, 3] == 1
 
 

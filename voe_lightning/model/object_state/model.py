@@ -125,7 +125,9 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     visible pixels plus their mean depth along the view axis, from the record's ``mask``,
     ``frames`` and ``depth`` (``rgbd.observe_rgbd``); no 3D box, no shape label, no oracle, and
     it never reads ``objects``. Its state (``rgbd.RGBD``) holds the mean depth in its position,
-    so its velocity holds the change in depth; ``projection`` reads the pixels' boxes.
+    so its velocity holds the change in depth, and the largest size each id has shown so far
+    (``rgbd.largest_shown``), so a block's height outlasts the screen that hides most of it;
+    ``projection`` reads the pixels' boxes.
 
     With ``perception: pixels`` (the pixel rung, ``configs/learned_pixels.yaml``) no feature
     is hand-written either: an object's state is the code a learned encoder gives its pixels
@@ -135,7 +137,8 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     Args:
         perception: ``"states"`` (perfect 3D perception, ``specs.objects_spec``),
             ``"masks"`` (what the mask and frames show of each id, no 3D state), ``"rgbd"``
-            (the masks' measures of each id plus the mean depth of its visible pixels,
+            (the masks' measures of each id plus the mean depth of its visible pixels and the
+            largest size it has shown,
             ``specs.depth_spec``: no 3D box, no shape label, no oracle; never reads
             ``objects``) or ``"pixels"`` (a
             learned code of each id's pixels).

@@ -8,7 +8,8 @@ Three inputs: ``states`` (the record's amodal 3D ``objects``, read only while an
 seen, as the 3D-state learner reads them), ``masks`` (what a camera and a tracker give: each
 mask id's image centroid, area and mean colour, ``object_state.masks.per_id``) and ``rgbd``
 (the masks' measures and what the RGB-D rung reads of the depth image, the mean depth of each
-id's visible pixels, which joins the centroid in its position)."""
+id's visible pixels, which joins the centroid in its position, and the largest size each id
+has shown, which joins its attributes: *attributes* is then "the largest size stays" too)."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from tensordict import TensorDictBase
 from voe_lightning import specs
 from voe_lightning.model.base import SurpriseModel
 from voe_lightning.model.object_state.masks import per_id
-from voe_lightning.model.object_state.rgbd import mean_depth
+from voe_lightning.model.object_state.rgbd import largest_shown, mean_depth
 
 #: The rules, each an expectation with no dynamics, and what it is surprised by at frame t.
 RULES: dict[str, str] = {
@@ -57,7 +58,11 @@ def state_features(objects: TensorDictBase) -> dict[str, torch.Tensor]:
 def mask_features(mask: torch.Tensor, frames: torch.Tensor) -> dict[str, torch.Tensor]:
     """``seen``, ``position`` (image centroid) and ``attributes`` (area, mean colour) of each
     mask id but the background's (0), from what frame t shows alone."""
-    measured = per_id(mask, frames)
+    return _measured_features(per_id(mask, frames))
+
+
+def _measured_features(measured: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """``mask_features`` of ``per_id``'s measures."""
     seen = measured["pixels"] > 0
     seen[..., 0] = False
     return {
@@ -71,12 +76,16 @@ def rgbd_features(
     mask: torch.Tensor, frames: torch.Tensor, depth: torch.Tensor
 ) -> dict[str, torch.Tensor]:
     """``mask_features`` with what the RGB-D rung reads of the depth image (``depth``
-    [B, T, K, 3], ``specs.depth_spec``): each id's mean depth joins its position."""
-    features = mask_features(mask, frames)
+    [B, T, K, 3], ``specs.depth_spec``): each id's mean depth joins its position, and the
+    largest size it has shown (``largest_shown``) its attributes."""
+    measured = per_id(mask, frames)
+    features = _measured_features(measured)
+    mean = mean_depth(depth.to(mask.device))
+    largest = largest_shown(measured["half"], mean, features["seen"])
     return {
         "seen": features["seen"],
-        "position": torch.cat([features["position"], mean_depth(depth)], dim=-1),
-        "attributes": features["attributes"],
+        "position": torch.cat([features["position"], mean], dim=-1),
+        "attributes": torch.cat([features["attributes"], largest], dim=-1),
     }
 
 
