@@ -145,29 +145,24 @@ def test_no_rule_without_dynamics_scores_a_quadruplet(seed):
     """Every physics-blind follower of the states, of the masks and of the masks with depth
     (``RULES``) scores every quadruplet D = (AB - A) + (BA - B) = 0: both videos of a pair lose
     and find the ball at the same places, unseen for as long in sum (docs/study/shortcuts.md);
-    exactly for the states and masks, to float rounding with depth."""
+    exactly for the states and masks, to float rounding with depth. The depth followers'
+    largest size shown is left out here: a memory of the frames before the change, it carries
+    A's history into AB, so its followers score D != 0 (below 0 on the fresh set, the wrong
+    way for VOE; docs/study/shortcuts.md)."""
     from voe_lightning.model.scorers.followers import INPUTS, RULES, follower_inputs, rule_surprise
 
     _, _, videos = _quadruplet_videos(seed)
     for features in INPUTS:
-        for rule in RULES:
-            a, ab, b, ba = (
-                rule_surprise(
-                    rule,
-                    features,
-                    follower_inputs(
-                        features,
-                        v["frames"][None],
-                        v["mask"][None],
-                        v["objects"][None],
-                        v["depth"][None],
-                    ),
-                )
-                .double()
-                .sum()
-                .item()
-                for v in videos
+        inputs = [
+            follower_inputs(
+                features, v["frames"][None], v["mask"][None], v["objects"][None], v["depth"][None]
             )
+            for v in videos
+        ]
+        if features == "rgbd":  # the frame-local attributes: area and colour
+            inputs = [{**i, "attributes": i["attributes"][..., :-2]} for i in inputs]
+        for rule in RULES:
+            a, ab, b, ba = (rule_surprise(rule, features, i).double().sum().item() for i in inputs)
             tolerance = 1e-4 * max(abs(a), abs(b), 1.0) if features == "rgbd" else 0.0
             assert abs((ab - a) + (ba - b)) <= tolerance, (features, rule, (ab - a) + (ba - b))
 
