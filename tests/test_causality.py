@@ -166,7 +166,11 @@ FAMILIES = [
     ),
     pytest.param(  # configs/rgbd_15min.yaml's learner: the masks, frames and depth measures
         lambda: ObjectStateModel(
-            perception="rgbd", hidden_size=16, message_size=8, **NO_PRIORS, **NO_GIVENS
+            perception="rgbd",
+            hidden_size=16,
+            message_size=8,
+            **NO_PRIORS,
+            **{**NO_GIVENS, "inertia": True},
         ),
         id="object_state_rgbd",
     ),

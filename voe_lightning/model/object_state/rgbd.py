@@ -8,12 +8,13 @@ and the largest size the id has shown so far (``largest_shown``). Each is a func
 Kept by measurement (docs/study/learned_physics.md): the mean depth, with which the rung passed
 2, 4 and 2 of 5 at three seeds (offset 17,000,000, version 14), containment and object
 persistence at two, which the mask rung without it fails; the largest size shown, with which it
-passes 3, 3 and 3 (offset 18,000,000), solidity at two seeds, which it failed at every seed
-without: before the change the camera shows the tall block's height, at the change no more than
-the short one's (``experiments/solidity_heights.py``). The record's other two depth measures
-(least depth, the share of the outline a nearer surface cuts) are not read: on 100 validation
-quadruplets of version 13 seed 0 passed 2 of 5 with both, 3 without the span, 2 without the cut
-share (``experiments/depth_ablation.py``), so neither was kept."""
+passes 3, 3 and 3 (offset 18,000,000; 3, 4 and 2 at 19,000,000 since given the inertial
+baseline), solidity at two seeds, which it failed at every seed without: before the change the
+camera shows the tall block's height, at the change no more than the short one's
+(``experiments/solidity_heights.py``). The record's other two depth measures (least depth, the
+share of the outline a nearer surface cuts) are not read: on 100 validation quadruplets of
+version 13 seed 0 passed 2 of 5 with both, 3 without the span, 2 without the cut share
+(``experiments/depth_ablation.py``), so neither was kept."""
 
 from __future__ import annotations
 
