@@ -128,9 +128,7 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
     so its velocity holds the change in depth, and the largest size each id has shown so far
     (``rgbd.largest_shown``), so a block's height outlasts the screen that hides most of it;
     ``projection`` reads the pixels' boxes. ``configs/rgbd_15min.yaml`` gives it the inertial
-    baseline (``inertia``), kept by measurement: on validation at seeds 0 and 1 it passed 3 and 3
-    of 5 with it, 2 and 3 without, object persistence's standard half above 0 at both (+0.6,
-    +1.6; without, -1.7 and -7.7: a plank propped up by a hidden object).
+    baseline, kept by measurement (validation: 3, 3, 3 of 5 with it, 2, 3, 2 without).
 
     With ``perception: pixels`` (the pixel rung, ``configs/learned_pixels.yaml``) no feature
     is hand-written either: an object's state is the code a learned encoder gives its pixels
@@ -141,10 +139,8 @@ class ObjectStateModel(SlotRollout, SurpriseModel):
         perception: ``"states"`` (perfect 3D perception, ``specs.objects_spec``),
             ``"masks"`` (what the mask and frames show of each id, no 3D state), ``"rgbd"``
             (the masks' measures of each id plus the mean depth of its visible pixels and the
-            largest size it has shown,
-            ``specs.depth_spec``: no 3D box, no shape label, no oracle; never reads
-            ``objects``) or ``"pixels"`` (a
-            learned code of each id's pixels).
+            largest size it has shown, ``specs.depth_spec``: no 3D box, no shape label, no
+            oracle; never reads ``objects``) or ``"pixels"`` (a learned code of each id's pixels).
         hidden_size: recurrent state per slot and width of the MLPs.
         message_size: size of the summed pair messages.
         use_camera: the core and visibility read the camera pose (else a fixed default pose).
